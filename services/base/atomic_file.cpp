@@ -1,0 +1,88 @@
+#include "services/base/atomic_file.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+
+#include "absl/strings/str_cat.h"
+
+namespace prism::base {
+namespace {
+
+std::filesystem::path temp_name_for(const std::filesystem::path& path) {
+  static std::atomic<std::uint64_t> counter{0};
+  return path.parent_path() / absl::StrCat(".", path.filename().string(), ".tmp.", ::getpid(), ".",
+                                           counter.fetch_add(1));
+}
+
+absl::Status errno_status(const std::string& what, const std::filesystem::path& path) {
+  return absl::InternalError(absl::StrCat(what, " ", path.string(), ": ", std::strerror(errno)));
+}
+
+absl::Status fsync_path(const std::filesystem::path& path) {
+  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return errno_status("cannot open", path);
+  int rc = ::fsync(fd);
+  ::close(fd);
+  if (rc != 0) return errno_status("cannot fsync", path);
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<std::string> read_file(const std::filesystem::path& path, std::uint64_t max_bytes) {
+  std::error_code ec;
+  auto status = std::filesystem::status(path, ec);
+  if (ec || !std::filesystem::exists(status)) {
+    return absl::NotFoundError(absl::StrCat("file not found: ", path.string()));
+  }
+  if (!std::filesystem::is_regular_file(status)) {
+    return absl::InvalidArgumentError(absl::StrCat("not a regular file: ", path.string()));
+  }
+  auto size = std::filesystem::file_size(path, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot stat ", path.string(), ": ", ec.message()));
+  if (size > max_bytes) {
+    return absl::ResourceExhaustedError(absl::StrCat(path.string(), " is ", size,
+                                                     " bytes, over the limit of ", max_bytes));
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return errno_status("cannot open", path);
+  std::string bytes(size, '\0');
+  in.read(bytes.data(), static_cast<std::streamsize>(size));
+  if (static_cast<std::uint64_t>(in.gcount()) != size) {
+    return absl::InternalError(absl::StrCat("short read of ", path.string()));
+  }
+  return bytes;
+}
+
+absl::Status write_via_temp(const std::filesystem::path& path,
+                            const std::function<absl::Status(const std::filesystem::path&)>& writer) {
+  auto temp = temp_name_for(path);
+  absl::Status status = writer(temp);
+  if (status.ok()) status = fsync_path(temp);
+  if (status.ok() && std::rename(temp.c_str(), path.c_str()) != 0) {
+    status = errno_status("cannot rename into", path);
+  }
+  if (!status.ok()) {
+    std::error_code ignored;
+    std::filesystem::remove(temp, ignored);
+  }
+  return status;
+}
+
+absl::Status write_file_atomic(const std::filesystem::path& path, std::span<const char> bytes) {
+  return write_via_temp(path, [&](const std::filesystem::path& temp) -> absl::Status {
+    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+    if (!out) return errno_status("cannot create", temp);
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+    out.close();
+    if (!out) return errno_status("cannot write", temp);
+    return absl::OkStatus();
+  });
+}
+
+}  // namespace prism::base

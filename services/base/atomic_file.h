@@ -1,0 +1,31 @@
+// Whole-file reads and all-or-nothing writes. An output written with write_file_atomic either
+// appears complete under its final name or not at all: the bytes go to a temporary file in the
+// same directory, are flushed to disk, and are renamed over the target. A failure removes the
+// temporary and leaves any previous file untouched.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <span>
+#include <string>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+
+namespace prism::base {
+
+// Reads a whole file. Refuses files larger than max_bytes with RESOURCE_EXHAUSTED, so untrusted
+// paths cannot exhaust memory.
+absl::StatusOr<std::string> read_file(const std::filesystem::path& path,
+                                      std::uint64_t max_bytes = std::uint64_t{1} << 32);
+
+// Writes bytes to path atomically (see above).
+absl::Status write_file_atomic(const std::filesystem::path& path, std::span<const char> bytes);
+
+// For libraries that can only write to a file name (OpenEXR, libpng): `writer` writes to the
+// temporary path it is given, and the file is renamed into place only if it returns OK.
+absl::Status write_via_temp(const std::filesystem::path& path,
+                            const std::function<absl::Status(const std::filesystem::path&)>& writer);
+
+}  // namespace prism::base
