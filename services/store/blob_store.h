@@ -1,0 +1,48 @@
+// Content-addressed blob store on disk. A blob is named by the lowercase hex SHA-256 of its
+// bytes and lives at <root>/<first two hex digits>/<hash>. Writes are atomic (temporary file +
+// rename), so a reader sees a blob whole or not at all, and a crash never leaves a blob whose
+// bytes do not match its name. Putting the same bytes twice is harmless. Thread-safe: the only
+// shared state is the file system.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <string_view>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+
+namespace prism::store {
+
+class BlobStore {
+ public:
+  // Creates root if needed. Fails if root exists and is not a directory.
+  static absl::StatusOr<BlobStore> open(const std::filesystem::path& root);
+
+  // Stores bytes and returns their hash.
+  absl::StatusOr<std::string> put(std::string_view bytes) const;
+
+  // Stores bytes claimed to hash to `hash` (from a peer); INVALID_ARGUMENT if they do not.
+  absl::Status put_verified(std::string_view hash, std::string_view bytes) const;
+
+  bool contains(std::string_view hash) const;
+
+  // NOT_FOUND for an unknown hash, INVALID_ARGUMENT for a malformed one. The bytes are
+  // re-hashed on read, so on-disk corruption is reported (DATA_LOSS) rather than served.
+  absl::StatusOr<std::string> get(std::string_view hash,
+                                  std::uint64_t max_bytes = std::uint64_t{1} << 32) const;
+
+  // Size in bytes of a stored blob.
+  absl::StatusOr<std::uint64_t> size(std::string_view hash) const;
+
+  const std::filesystem::path& root() const { return root_; }
+
+ private:
+  explicit BlobStore(std::filesystem::path root) : root_(std::move(root)) {}
+  std::filesystem::path path_of(std::string_view hash) const;
+
+  std::filesystem::path root_;
+};
+
+}  // namespace prism::store

@@ -1,0 +1,169 @@
+#include "services/store/database.h"
+
+#include <sqlite3.h>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/check.h"
+
+namespace prism::store {
+
+std::int64_t SqlRow::integer(std::size_t i) const {
+  PRISM_CHECK(i < values.size() && std::holds_alternative<std::int64_t>(values[i]));
+  return std::get<std::int64_t>(values[i]);
+}
+
+double SqlRow::real(std::size_t i) const {
+  PRISM_CHECK(i < values.size());
+  if (auto* v = std::get_if<std::int64_t>(&values[i])) return static_cast<double>(*v);
+  PRISM_CHECK(std::holds_alternative<double>(values[i]));
+  return std::get<double>(values[i]);
+}
+
+const std::string& SqlRow::text(std::size_t i) const {
+  PRISM_CHECK(i < values.size() && std::holds_alternative<std::string>(values[i]));
+  return std::get<std::string>(values[i]);
+}
+
+bool SqlRow::is_null(std::size_t i) const {
+  PRISM_CHECK(i < values.size());
+  return std::holds_alternative<std::monostate>(values[i]);
+}
+
+absl::StatusOr<Database> Database::open(const std::filesystem::path& file) {
+  sqlite3* db = nullptr;
+  int rc = sqlite3_open_v2(file.c_str(), &db,
+                           SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX, nullptr);
+  if (rc != SQLITE_OK) {
+    std::string message = db ? sqlite3_errmsg(db) : sqlite3_errstr(rc);
+    sqlite3_close(db);
+    return absl::FailedPreconditionError(
+        absl::StrCat("cannot open database ", file.string(), ": ", message));
+  }
+  Database database(db);
+  sqlite3_busy_timeout(db, 5000);
+  auto status = database.exec(
+      "PRAGMA journal_mode=WAL; PRAGMA synchronous=FULL; PRAGMA foreign_keys=ON;");
+  if (!status.ok()) return status;
+  return database;
+}
+
+Database::Database(Database&& other) noexcept : db_(other.db_) { other.db_ = nullptr; }
+
+Database& Database::operator=(Database&& other) noexcept {
+  if (this != &other) {
+    sqlite3_close(db_);
+    db_ = other.db_;
+    other.db_ = nullptr;
+  }
+  return *this;
+}
+
+Database::~Database() { sqlite3_close(db_); }
+
+absl::Status Database::error(std::string_view what) const {
+  return absl::InternalError(absl::StrCat("sqlite: ", std::string(what), ": ", sqlite3_errmsg(db_)));
+}
+
+absl::Status Database::exec(std::string_view sql) {
+  std::string text(sql);
+  char* message = nullptr;
+  if (sqlite3_exec(db_, text.c_str(), nullptr, nullptr, &message) != SQLITE_OK) {
+    auto status = absl::InternalError(absl::StrCat("sqlite: ", message ? message : "error"));
+    sqlite3_free(message);
+    return status;
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<sqlite3_stmt*> Database::prepare(std::string_view sql,
+                                                const std::vector<SqlValue>& params) {
+  sqlite3_stmt* stmt = nullptr;
+  if (sqlite3_prepare_v2(db_, sql.data(), static_cast<int>(sql.size()), &stmt, nullptr) !=
+      SQLITE_OK) {
+    return error(absl::StrCat("prepare '", std::string(sql.substr(0, 60)), "'"));
+  }
+  for (std::size_t i = 0; i < params.size(); ++i) {
+    int index = static_cast<int>(i) + 1;
+    int rc = std::visit(
+        [&](const auto& v) -> int {
+          using T = std::decay_t<decltype(v)>;
+          if constexpr (std::is_same_v<T, std::monostate>) {
+            return sqlite3_bind_null(stmt, index);
+          } else if constexpr (std::is_same_v<T, std::int64_t>) {
+            return sqlite3_bind_int64(stmt, index, v);
+          } else if constexpr (std::is_same_v<T, double>) {
+            return sqlite3_bind_double(stmt, index, v);
+          } else {
+            return sqlite3_bind_blob64(stmt, index, v.data(), v.size(), SQLITE_TRANSIENT);
+          }
+        },
+        params[i]);
+    if (rc != SQLITE_OK) {
+      sqlite3_finalize(stmt);
+      return error("bind");
+    }
+  }
+  return stmt;
+}
+
+absl::Status Database::run(std::string_view sql, const std::vector<SqlValue>& params) {
+  auto rows = query(sql, params);
+  return rows.status();
+}
+
+absl::StatusOr<std::vector<SqlRow>> Database::query(std::string_view sql,
+                                                    const std::vector<SqlValue>& params) {
+  auto stmt = prepare(sql, params);
+  if (!stmt.ok()) return stmt.status();
+  std::vector<SqlRow> rows;
+  while (true) {
+    int rc = sqlite3_step(*stmt);
+    if (rc == SQLITE_DONE) break;
+    if (rc != SQLITE_ROW) {
+      auto status = error(absl::StrCat("step '", std::string(sql.substr(0, 60)), "'"));
+      sqlite3_finalize(*stmt);
+      return status;
+    }
+    SqlRow row;
+    int columns = sqlite3_column_count(*stmt);
+    row.values.reserve(columns);
+    for (int c = 0; c < columns; ++c) {
+      switch (sqlite3_column_type(*stmt, c)) {
+        case SQLITE_INTEGER:
+          row.values.emplace_back(static_cast<std::int64_t>(sqlite3_column_int64(*stmt, c)));
+          break;
+        case SQLITE_FLOAT:
+          row.values.emplace_back(sqlite3_column_double(*stmt, c));
+          break;
+        case SQLITE_NULL:
+          row.values.emplace_back(std::monostate{});
+          break;
+        default: {
+          const void* data = sqlite3_column_blob(*stmt, c);
+          int size = sqlite3_column_bytes(*stmt, c);
+          row.values.emplace_back(std::string(static_cast<const char*>(data), size));
+        }
+      }
+    }
+    rows.push_back(std::move(row));
+  }
+  sqlite3_finalize(*stmt);
+  return rows;
+}
+
+absl::Status Database::transaction(const std::function<absl::Status()>& body) {
+  if (auto status = exec("BEGIN IMMEDIATE"); !status.ok()) return status;
+  absl::Status status = body();
+  if (status.ok()) {
+    status = exec("COMMIT");
+    if (status.ok()) return status;
+  }
+  (void)exec("ROLLBACK");
+  return status;
+}
+
+std::int64_t Database::last_insert_rowid() const { return sqlite3_last_insert_rowid(db_); }
+
+std::int64_t Database::changes() const { return sqlite3_changes64(db_); }
+
+}  // namespace prism::store

@@ -1,0 +1,70 @@
+// A SQLite database handle in WAL mode with prepared statements, for the coordinator's job
+// store. Every statement runs through this class so failures come back as absl::Status with
+// SQLite's message; nothing here throws. One Database is used by one thread at a time (the
+// caller serialises access); WAL lets readers in other processes (inspection tools) coexist.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <variant>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+
+struct sqlite3;
+struct sqlite3_stmt;
+
+namespace prism::store {
+
+// A bound parameter or a column value.
+using SqlValue = std::variant<std::monostate, std::int64_t, double, std::string>;
+
+// One result row; blobs come back as std::string.
+struct SqlRow {
+  std::vector<SqlValue> values;
+  std::int64_t integer(std::size_t i) const;
+  double real(std::size_t i) const;
+  const std::string& text(std::size_t i) const;
+  bool is_null(std::size_t i) const;
+};
+
+class Database {
+ public:
+  // Opens or creates the file, switches to WAL with synchronous=FULL (a committed transaction
+  // survives power loss) and enables foreign keys.
+  static absl::StatusOr<Database> open(const std::filesystem::path& file);
+
+  Database(Database&&) noexcept;
+  Database& operator=(Database&&) noexcept;
+  ~Database();
+
+  // Runs one or more statements without parameters (schema, pragmas).
+  absl::Status exec(std::string_view sql);
+
+  // Runs one statement with positional parameters (?1, ?2, … or ?). Text parameters are bound
+  // as TEXT; use `blob` to bind BLOB.
+  absl::Status run(std::string_view sql, const std::vector<SqlValue>& params = {});
+  absl::StatusOr<std::vector<SqlRow>> query(std::string_view sql,
+                                            const std::vector<SqlValue>& params = {});
+
+  // Runs `body` in a transaction: committed if it returns OK, rolled back otherwise.
+  absl::Status transaction(const std::function<absl::Status()>& body);
+
+  std::int64_t last_insert_rowid() const;
+  std::int64_t changes() const;
+
+ private:
+  explicit Database(sqlite3* db) : db_(db) {}
+  absl::StatusOr<sqlite3_stmt*> prepare(std::string_view sql, const std::vector<SqlValue>& params);
+  absl::Status error(std::string_view what) const;
+
+  sqlite3* db_ = nullptr;
+};
+
+}  // namespace prism::store

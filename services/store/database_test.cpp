@@ -1,0 +1,67 @@
+#include "services/store/database.h"
+
+#include <gtest/gtest.h>
+
+namespace prism::store {
+namespace {
+
+namespace fs = std::filesystem;
+
+class DatabaseTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("prism_db_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  fs::path dir_;
+};
+
+TEST_F(DatabaseTest, UsesWalAndRoundTripsValues) {
+  auto db = Database::open(dir_ / "jobs.db");
+  ASSERT_TRUE(db.ok()) << db.status();
+  auto mode = db->query("PRAGMA journal_mode");
+  ASSERT_TRUE(mode.ok());
+  EXPECT_EQ((*mode)[0].text(0), "wal");
+  ASSERT_TRUE(db->exec("CREATE TABLE t (id INTEGER PRIMARY KEY, x REAL, s BLOB, n TEXT)").ok());
+  std::string bytes("a\0b", 3);
+  ASSERT_TRUE(db->run("INSERT INTO t (x, s, n) VALUES (?, ?, ?)",
+                      {2.5, bytes, std::monostate{}}).ok());
+  EXPECT_EQ(db->last_insert_rowid(), 1);
+  auto rows = db->query("SELECT id, x, s, n FROM t WHERE id = ?", {std::int64_t{1}});
+  ASSERT_TRUE(rows.ok());
+  ASSERT_EQ(rows->size(), 1u);
+  EXPECT_EQ((*rows)[0].integer(0), 1);
+  EXPECT_EQ((*rows)[0].real(1), 2.5);
+  EXPECT_EQ((*rows)[0].text(2), bytes);
+  EXPECT_TRUE((*rows)[0].is_null(3));
+}
+
+TEST_F(DatabaseTest, TransactionRollsBackOnError) {
+  auto db = Database::open(dir_ / "jobs.db");
+  ASSERT_TRUE(db.ok());
+  ASSERT_TRUE(db->exec("CREATE TABLE t (id INTEGER PRIMARY KEY)").ok());
+  auto status = db->transaction([&] {
+    EXPECT_TRUE(db->run("INSERT INTO t (id) VALUES (1)").ok());
+    return absl::AbortedError("planner refused");
+  });
+  EXPECT_EQ(status.code(), absl::StatusCode::kAborted);
+  EXPECT_TRUE(db->query("SELECT * FROM t")->empty());
+  ASSERT_TRUE(db->transaction([&] { return db->run("INSERT INTO t (id) VALUES (2)"); }).ok());
+  EXPECT_EQ(db->query("SELECT * FROM t")->size(), 1u);
+}
+
+TEST_F(DatabaseTest, ErrorsCarrySqliteMessage) {
+  auto db = Database::open(dir_ / "jobs.db");
+  ASSERT_TRUE(db.ok());
+  auto rows = db->query("SELECT * FROM missing_table");
+  ASSERT_FALSE(rows.ok());
+  EXPECT_NE(rows.status().message().find("no such table"), std::string::npos);
+  auto bad = Database::open(dir_ / "no" / "such" / "dir" / "x.db");
+  EXPECT_EQ(bad.status().code(), absl::StatusCode::kFailedPrecondition);
+}
+
+}  // namespace
+}  // namespace prism::store
