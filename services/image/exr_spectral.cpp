@@ -1,0 +1,381 @@
+#include "services/image/exr_spectral.h"
+
+#include <ImfChannelList.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfInputFile.h>
+#include <ImfOutputFile.h>
+#include <ImfStringAttribute.h>
+#include <half.h>
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <exception>
+#include <functional>
+#include <set>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/atomic_file.h"
+#include "services/base/check.h"
+#include "services/base/status.h"
+
+namespace prism::image {
+namespace {
+
+bool starts_with(std::string_view s, std::string_view prefix) {
+  return s.starts_with(prefix);
+}
+bool ends_with(std::string_view s, std::string_view suffix) {
+  return s.ends_with(suffix);
+}
+
+constexpr const char* kLayoutVersionAttribute = "spectralLayoutVersion";
+constexpr const char* kEmissiveUnitsAttribute = "emissiveUnits";
+
+absl::Status validate_metadata(const std::filesystem::path& path, const ExrMetadata& metadata) {
+  for (const auto& [key, value] : metadata) {
+    bool clean = std::none_of(key.begin(), key.end(),
+                              [](char c) { return static_cast<unsigned char>(c) < 0x20; });
+    if (key.empty() || !clean) {
+      return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(),
+                                                     ": metadata key \"", key,
+                                                     "\" must be non-empty printable text"));
+    }
+  }
+  return absl::OkStatus();
+}
+
+void insert_metadata(Imf::Header& header, const ExrMetadata& metadata) {
+  for (const auto& [key, value] : metadata) {
+    header.insert(std::string(kMetadataPrefix) + key, Imf::StringAttribute(value));
+  }
+}
+
+ExrMetadata extract_metadata(const Imf::Header& header) {
+  ExrMetadata metadata;
+  for (auto it = header.begin(); it != header.end(); ++it) {
+    std::string_view name = it.name();
+    if (!starts_with(name, kMetadataPrefix)) continue;
+    if (const auto* s = dynamic_cast<const Imf::StringAttribute*>(&it.attribute())) {
+      metadata.emplace(std::string(name.substr(kMetadataPrefix.size())), s->value());
+    }
+  }
+  return metadata;
+}
+
+// One channel to write: `base` points at its first value, pixels are `stride` values of
+// `type` apart and rows `stride * width` values. The file stores the channel in the same type.
+struct Plane {
+  std::string name;
+  const void* base;
+  int stride;
+  Imf::PixelType type;
+};
+
+absl::Status write_exr(const std::filesystem::path& path, int width, int height,
+                       const std::vector<Plane>& planes,
+                       const std::function<void(Imf::Header&)>& decorate) {
+  return base::write_via_temp(path, [&](const std::filesystem::path& temp) -> absl::Status {
+    try {
+      Imf::Header header(width, height);
+      header.compression() = Imf::ZIP_COMPRESSION;
+      decorate(header);
+      Imf::FrameBuffer frame;
+      Imath::Box2i window = header.dataWindow();
+      for (const Plane& plane : planes) {
+        std::size_t size = plane.type == Imf::HALF ? sizeof(Imath::half) : sizeof(float);
+        header.channels().insert(plane.name, Imf::Channel(plane.type));
+        frame.insert(plane.name,
+                     Imf::Slice::Make(plane.type, plane.base, window, size * plane.stride,
+                                      size * std::size_t(plane.stride) * width));
+      }
+      Imf::OutputFile file(temp.c_str(), header);
+      file.setFrameBuffer(frame);
+      file.writePixels(height);
+    } catch (const std::exception& e) {
+      return absl::InternalError(absl::StrCat("cannot write EXR ", path.string(), ": ", e.what()));
+    }
+    return absl::OkStatus();
+  });
+}
+
+template <typename T>
+std::vector<Plane> rgb_planes(const T* data, Imf::PixelType type) {
+  return {{"R", data + 0, 3, type}, {"G", data + 1, 3, type}, {"B", data + 2, 3, type}};
+}
+
+enum class ReadMode {
+  kSpectral,  // spectral channels required, RGB read when present
+  kRgb,       // R, G, B required, spectral channels ignored
+  kAny,       // both read when present, at least one required
+};
+
+absl::Status check_size(const std::filesystem::path& path, std::int64_t width, std::int64_t height,
+                        std::size_t channels) {
+  if (width < 1 || height < 1 || width > kMaxImageSide || height > kMaxImageSide ||
+      std::uint64_t(width) * std::uint64_t(height) * std::max<std::size_t>(channels, 1) >
+          kMaxImageValues) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(path.string(), ": data window of ", width, "x", height, " with ", channels,
+                     " channels is outside the supported size (sides 1..", kMaxImageSide,
+                     ", at most ", kMaxImageValues, " values)"));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<ExrImage> read_exr_channels(const std::filesystem::path& path, ReadMode mode) {
+  bool want_spectral = mode != ReadMode::kRgb;
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) {
+    return absl::NotFoundError(absl::StrCat("EXR file not found: ", path.string()));
+  }
+  try {
+    Imf::InputFile file(path.c_str());
+    const Imf::Header& header = file.header();
+    Imath::Box2i window = header.dataWindow();
+    std::int64_t width = std::int64_t(window.max.x) - window.min.x + 1;
+    std::int64_t height = std::int64_t(window.max.y) - window.min.y + 1;
+
+    std::vector<std::pair<double, std::string>> spectral_channels;
+    std::set<std::string> names;
+    for (auto it = header.channels().begin(); it != header.channels().end(); ++it) {
+      std::string name = it.name();
+      names.insert(name);
+      bool polarised =
+          starts_with(name, "S1.") || starts_with(name, "S2.") || starts_with(name, "S3.");
+      if (want_spectral && polarised) {
+        return absl::InvalidArgumentError(
+            absl::StrCat(path.string(), ": channel ", name,
+                         " belongs to the polarised spectral layout (Stokes S1..S3), which Prism "
+                         "does not read"));
+      }
+      if (want_spectral && starts_with(name, "T.")) {
+        return absl::InvalidArgumentError(absl::StrCat(
+            path.string(), ": channel ", name,
+            " belongs to the reflective spectral layout (T.*), which Prism does not read"));
+      }
+      bool wanted = want_spectral && starts_with(name, "S0.");
+      bool rgb = name == "R" || name == "G" || name == "B";
+      if ((wanted || rgb) && (it.channel().xSampling != 1 || it.channel().ySampling != 1)) {
+        return absl::InvalidArgumentError(absl::StrCat(path.string(), ": channel ", name,
+                                                       " is subsampled, which is not supported"));
+      }
+      if (!wanted) continue;
+      std::optional<double> lambda = parse_spectral_channel_name(name);
+      if (!lambda) {
+        return absl::InvalidArgumentError(absl::StrCat(
+            path.string(), ": spectral channel ", name,
+            " is not of the form S0.<wavelength>nm (e.g. S0.550,5nm); other units are not read"));
+      }
+      spectral_channels.emplace_back(*lambda, name);
+    }
+    bool has_rgb = names.count("R") && names.count("G") && names.count("B");
+
+    ExrImage out;
+    out.metadata = extract_metadata(header);
+    if (spectral_channels.empty() && mode == ReadMode::kAny && !has_rgb) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          path.string(), " has neither spectral channels (S0.<wavelength>nm) nor R, G, B"));
+    }
+    if (want_spectral) {
+      if (spectral_channels.empty() && mode == ReadMode::kSpectral) {
+        return absl::InvalidArgumentError(
+            absl::StrCat(path.string(), " has no spectral channels (S0.<wavelength>nm)",
+                         has_rgb ? "; it is a plain RGB EXR, read it as RGB instead" : ""));
+      }
+      if (const auto* version =
+              header.findTypedAttribute<Imf::StringAttribute>(kLayoutVersionAttribute);
+          version && !starts_with(version->value(), "1.")) {
+        return absl::InvalidArgumentError(absl::StrCat(path.string(),
+                                                       " uses spectral layout version ",
+                                                       version->value(), "; Prism reads 1.x"));
+      }
+      std::sort(spectral_channels.begin(), spectral_channels.end());
+      for (std::size_t i = 1; i < spectral_channels.size(); ++i) {
+        if (spectral_channels[i].first == spectral_channels[i - 1].first) {
+          return absl::InvalidArgumentError(
+              absl::StrCat(path.string(), ": channels ", spectral_channels[i - 1].second, " and ",
+                           spectral_channels[i].second, " name the same wavelength"));
+        }
+      }
+      if (spectral_channels.size() > std::size_t(kMaxBins)) {
+        return absl::InvalidArgumentError(
+            absl::StrCat(path.string(), " has ", spectral_channels.size(),
+                         " spectral channels; at most ", kMaxBins, " are supported"));
+      }
+    } else if (!has_rgb) {
+      return absl::InvalidArgumentError(
+          absl::StrCat(path.string(), " lacks one of the channels R, G, B"));
+    }
+    std::size_t total_channels = spectral_channels.size() + (has_rgb ? 3 : 0);
+    PRISM_RETURN_IF_ERROR(check_size(path, width, height, total_channels));
+
+    Imf::FrameBuffer frame;
+    int bins = static_cast<int>(spectral_channels.size());
+    std::vector<float> spectral_data(std::size_t(width) * height * bins);
+    std::vector<float> rgb_data(has_rgb ? std::size_t(width) * height * 3 : 0);
+    for (int b = 0; b < bins; ++b) {
+      frame.insert(
+          spectral_channels[b].second,
+          Imf::Slice::Make(Imf::FLOAT, spectral_data.data() + b, window, sizeof(float) * bins,
+                           sizeof(float) * std::size_t(bins) * width));
+    }
+    if (has_rgb) {
+      const char* rgb_names[3] = {"R", "G", "B"};
+      for (int c = 0; c < 3; ++c) {
+        frame.insert(rgb_names[c], Imf::Slice::Make(Imf::FLOAT, rgb_data.data() + c, window,
+                                                    sizeof(float) * 3, sizeof(float) * 3 * width));
+      }
+    }
+    file.setFrameBuffer(frame);
+    file.readPixels(window.min.y, window.max.y);
+
+    for (const auto& channel : spectral_channels) out.wavelengths_nm.push_back(channel.first);
+    if (bins > 0) {
+      PRISM_ASSIGN_OR_RETURN(
+          SpectralImage spectral,
+          SpectralImage::from_data(int(width), int(height), bins, std::move(spectral_data)));
+      out.spectral = std::move(spectral);
+    }
+    if (has_rgb) {
+      PRISM_ASSIGN_OR_RETURN(RgbImage rgb,
+                             RgbImage::from_data(int(width), int(height), std::move(rgb_data)));
+      out.rgb = std::move(rgb);
+    }
+    return out;
+  } catch (const std::exception& e) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("cannot read EXR ", path.string(), ": ", e.what()));
+  }
+}
+
+}  // namespace
+
+double bin_centre_nm(int b, int bins) {
+  PRISM_CHECK(bins >= 1 && b >= 0 && b < bins);
+  // One rounding: (360*2B + (2b+1)*470) / (2B) with an exact integer numerator.
+  double numerator = kLambdaMinNm * 2.0 * bins + (2.0 * b + 1.0) * (kLambdaMaxNm - kLambdaMinNm);
+  return numerator / (2.0 * bins);
+}
+
+std::vector<double> bin_centres_nm(int bins) {
+  std::vector<double> centres(bins);
+  for (int b = 0; b < bins; ++b) centres[b] = bin_centre_nm(b, bins);
+  return centres;
+}
+
+std::string spectral_channel_name(double wavelength_nm) {
+  PRISM_CHECK(std::isfinite(wavelength_nm) && wavelength_nm > 0.0);
+  char buffer[512];
+  auto [end, ec] =
+      std::to_chars(buffer, buffer + sizeof(buffer), wavelength_nm, std::chars_format::fixed);
+  PRISM_CHECK(ec == std::errc());
+  std::string number(buffer, end);
+  std::replace(number.begin(), number.end(), '.', ',');
+  return absl::StrCat("S0.", number, "nm");
+}
+
+std::optional<double> parse_spectral_channel_name(std::string_view name) {
+  if (!starts_with(name, "S0.") || !ends_with(name, "nm")) return std::nullopt;
+  std::string number(name.substr(3, name.size() - 5));
+  if (number.empty()) return std::nullopt;
+  int separators = 0;
+  int digits = 0;
+  for (char& c : number) {
+    if (c == ',' || c == '.') {
+      c = '.';
+      ++separators;
+    } else if (c >= '0' && c <= '9') {
+      ++digits;
+    } else {
+      return std::nullopt;
+    }
+  }
+  if (separators > 1 || digits == 0) return std::nullopt;
+  double value = 0.0;
+  auto [ptr, ec] = std::from_chars(number.data(), number.data() + number.size(), value,
+                                   std::chars_format::fixed);
+  if (ec != std::errc() || ptr != number.data() + number.size()) return std::nullopt;
+  if (!std::isfinite(value) || value <= 0.0) return std::nullopt;
+  return value;
+}
+
+absl::Status write_spectral_exr(const std::filesystem::path& path, const SpectralImage& spectral,
+                                const RgbImage& rgb, const ExrMetadata& metadata) {
+  return write_spectral_exr(path, bin_centres_nm(spectral.bins()), spectral, rgb, metadata);
+}
+
+absl::Status write_spectral_exr(const std::filesystem::path& path,
+                                const std::vector<double>& wavelengths_nm,
+                                const SpectralImage& spectral, const RgbImage& rgb,
+                                const ExrMetadata& metadata) {
+  if (rgb.width() != spectral.width() || rgb.height() != spectral.height()) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "cannot write ", path.string(), ": RGB image is ", rgb.width(), "x", rgb.height(),
+        " but the spectral image is ", spectral.width(), "x", spectral.height()));
+  }
+  if (wavelengths_nm.size() != std::size_t(spectral.bins())) {
+    return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(), ": ",
+                                                   wavelengths_nm.size(), " wavelengths for ",
+                                                   spectral.bins(), " bins"));
+  }
+  std::vector<Plane> planes;
+  std::set<std::string> seen;
+  for (std::size_t b = 0; b < wavelengths_nm.size(); ++b) {
+    double lambda = wavelengths_nm[b];
+    if (!std::isfinite(lambda) || lambda <= 0.0 || (b > 0 && lambda <= wavelengths_nm[b - 1])) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("cannot write ", path.string(),
+                       ": wavelengths must be finite, positive and strictly "
+                       "ascending; entry ",
+                       b, " is ", lambda));
+    }
+    std::string name = spectral_channel_name(lambda);
+    if (!seen.insert(name).second) {
+      return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(),
+                                                     ": two wavelengths give the channel ", name));
+    }
+    planes.push_back({std::move(name), spectral.data().data() + b, spectral.bins(), Imf::FLOAT});
+  }
+  for (Plane& plane : rgb_planes(rgb.data().data(), Imf::FLOAT)) planes.push_back(std::move(plane));
+  PRISM_RETURN_IF_ERROR(validate_metadata(path, metadata));
+  return write_exr(path, spectral.width(), spectral.height(), planes, [&](Imf::Header& header) {
+    header.insert(kLayoutVersionAttribute,
+                  Imf::StringAttribute(std::string(kSpectralLayoutVersion)));
+    header.insert(kEmissiveUnitsAttribute, Imf::StringAttribute(std::string(kEmissiveUnits)));
+    insert_metadata(header, metadata);
+  });
+}
+
+absl::StatusOr<SpectralExr> read_spectral_exr(const std::filesystem::path& path) {
+  PRISM_ASSIGN_OR_RETURN(ExrImage contents, read_exr_channels(path, ReadMode::kSpectral));
+  PRISM_CHECK(contents.spectral.has_value());
+  return SpectralExr{std::move(contents.wavelengths_nm), std::move(*contents.spectral),
+                     std::move(contents.rgb), std::move(contents.metadata)};
+}
+
+absl::StatusOr<ExrImage> read_exr(const std::filesystem::path& path) {
+  return read_exr_channels(path, ReadMode::kAny);
+}
+
+absl::Status write_rgb_exr(const std::filesystem::path& path, const RgbImage& rgb,
+                           ExrPixelType pixel_type, const ExrMetadata& metadata) {
+  PRISM_RETURN_IF_ERROR(validate_metadata(path, metadata));
+  auto decorate = [&](Imf::Header& header) { insert_metadata(header, metadata); };
+  if (pixel_type == ExrPixelType::kFloat) {
+    return write_exr(path, rgb.width(), rgb.height(), rgb_planes(rgb.data().data(), Imf::FLOAT),
+                     decorate);
+  }
+  // Imath's float -> half conversion rounds to nearest and overflows to infinity.
+  std::vector<Imath::half> halves(rgb.data().begin(), rgb.data().end());
+  return write_exr(path, rgb.width(), rgb.height(), rgb_planes(halves.data(), Imf::HALF), decorate);
+}
+
+absl::StatusOr<RgbExr> read_rgb_exr(const std::filesystem::path& path) {
+  PRISM_ASSIGN_OR_RETURN(ExrImage contents, read_exr_channels(path, ReadMode::kRgb));
+  PRISM_CHECK(contents.rgb.has_value());
+  return RgbExr{std::move(*contents.rgb), std::move(contents.metadata)};
+}
+
+}  // namespace prism::image

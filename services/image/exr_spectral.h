@@ -1,0 +1,115 @@
+// Spectral and RGB OpenEXR files.
+//
+// Spectral files follow "An OpenEXR Layout for Spectral Images" (Fichet, Pacanowski, Wilkie,
+// JCGT 10(3), 2021), emissive and unpolarised: one FLOAT32 channel per bin named
+// `S0.<λ>nm`, where λ is the bin centre in nanometres written with a comma as the decimal
+// separator and no trailing zeros (the shortest decimal that reads back as the same double:
+// 363.671875 -> `S0.363,671875nm`, 365 -> `S0.365nm`); the header carries the string
+// attributes spectralLayoutVersion = "1.0" and emissiveUnits = "W.m^-2.sr^-1". R, G, B
+// FLOAT32 channels hold the caller's RGB rendering so ordinary viewers show the image. Prism's
+// own metadata (spp, integrator, seed, job id, ...) are string attributes named
+// `prism:<key>`. Pixel data are ZIP-compressed (lossless), so values read back bit-exactly.
+//
+// Prism's grid: B bins over [360, 830] nm, bin b centred at 360 + (b + 0.5)*470/B nm.
+//
+// Readers accept what other renderers write (pbrt-v4's spectral film uses 3 decimals and may
+// use a dot): every `S0.<λ>nm` channel with a comma or a dot (or no) decimal separator, sorted
+// by λ. Any pixel type is converted to float; the data window (not the display window) is the
+// image. Polarised (S1..S3) and reflective (T.*) layouts are refused, not misread.
+// Every write is atomic: the file appears complete under its name or not at all.
+#pragma once
+
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "services/image/tile.h"
+
+namespace prism::image {
+
+inline constexpr double kLambdaMinNm = 360.0;
+inline constexpr double kLambdaMaxNm = 830.0;
+inline constexpr std::string_view kMetadataPrefix = "prism:";
+inline constexpr std::string_view kSpectralLayoutVersion = "1.0";
+inline constexpr std::string_view kEmissiveUnits = "W.m^-2.sr^-1";
+
+// Well-known metadata keys (stored as prism:<key>); any other key is allowed too.
+inline constexpr std::string_view kMetaSpp = "spp";
+inline constexpr std::string_view kMetaIntegrator = "integrator";
+inline constexpr std::string_view kMetaSeed = "seed";
+inline constexpr std::string_view kMetaJobId = "job_id";
+
+// Keys without the prism: prefix -> values.
+using ExrMetadata = std::map<std::string, std::string>;
+
+// Centre of bin b of `bins` on Prism's grid, in nm, correctly rounded. 0 <= b < bins.
+double bin_centre_nm(int b, int bins);
+std::vector<double> bin_centres_nm(int bins);
+
+// `S0.<λ>nm` for a wavelength in nm (finite, > 0), comma separator, no trailing zeros.
+std::string spectral_channel_name(double wavelength_nm);
+// The wavelength of an `S0.<λ>nm` channel name (comma or dot separator); nullopt when the
+// name is not an emissive unpolarised spectral channel in nanometres.
+std::optional<double> parse_spectral_channel_name(std::string_view name);
+
+struct SpectralExr {
+  std::vector<double> wavelengths_nm;  // ascending, one per bin of `spectral`
+  SpectralImage spectral;
+  std::optional<RgbImage> rgb;  // present when the file has R, G and B channels
+  ExrMetadata metadata;
+};
+
+struct RgbExr {
+  RgbImage rgb;
+  ExrMetadata metadata;
+};
+
+// Whatever a file holds of the above: spectral channels and/or R, G, B.
+struct ExrImage {
+  std::vector<double> wavelengths_nm;  // empty when there are no spectral channels
+  std::optional<SpectralImage> spectral;
+  std::optional<RgbImage> rgb;
+  ExrMetadata metadata;
+};
+
+// Writes spectral + RGB on Prism's grid (wavelengths from bin_centres_nm(spectral.bins())).
+// INVALID_ARGUMENT when rgb's size differs or a metadata key is empty or has control
+// characters; INTERNAL (naming the file) when OpenEXR or the file system fails.
+absl::Status write_spectral_exr(const std::filesystem::path& path, const SpectralImage& spectral,
+                                const RgbImage& rgb, const ExrMetadata& metadata = {});
+// Same with explicit wavelengths: strictly ascending, finite, > 0, one per bin, and distinct
+// once formatted as channel names.
+absl::Status write_spectral_exr(const std::filesystem::path& path,
+                                const std::vector<double>& wavelengths_nm,
+                                const SpectralImage& spectral, const RgbImage& rgb,
+                                const ExrMetadata& metadata = {});
+
+// Reads a spectral EXR (see above). NOT_FOUND for a missing file; INVALID_ARGUMENT naming the
+// file when it is not an EXR, has no S0.<λ>nm channels, uses the polarised or reflective
+// layout, repeats a wavelength, has subsampled channels or is larger than kMaxImageValues.
+absl::StatusOr<SpectralExr> read_spectral_exr(const std::filesystem::path& path);
+
+// Reads spectral channels and RGB, whichever are present; same errors as read_spectral_exr
+// except that a file with R, G, B and no spectral channels is accepted. INVALID_ARGUMENT when
+// it has neither.
+absl::StatusOr<ExrImage> read_exr(const std::filesystem::path& path);
+
+enum class ExrPixelType {
+  kHalf,   // 16-bit float: ~3 significant digits, largest finite value 65504 (larger -> inf)
+  kFloat,  // 32-bit float: exact
+};
+
+// Writes R, G, B channels (ZIP-compressed) plus prism:<key> metadata; atomic.
+absl::Status write_rgb_exr(const std::filesystem::path& path, const RgbImage& rgb,
+                           ExrPixelType pixel_type = ExrPixelType::kFloat,
+                           const ExrMetadata& metadata = {});
+
+// Reads the R, G, B channels of any EXR (plain RGB or spectral with RGB), converted to float.
+// INVALID_ARGUMENT naming the file when one of them is missing.
+absl::StatusOr<RgbExr> read_rgb_exr(const std::filesystem::path& path);
+
+}  // namespace prism::image

@@ -1,0 +1,280 @@
+#include "services/image/exr_spectral.h"
+
+#include <ImfChannelList.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfInputFile.h>
+#include <ImfOutputFile.h>
+#include <ImfStringAttribute.h>
+#include <gtest/gtest.h>
+
+#include <bit>
+#include <cmath>
+#include <cstring>
+#include <random>
+
+#include "absl/strings/str_format.h"
+
+namespace prism::image {
+namespace {
+
+namespace fs = std::filesystem;
+
+class ExrTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("prism_exr_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  fs::path dir_;
+};
+
+// Random finite floats over the whole exponent range: denormals, tiny, huge, negative, zero.
+std::vector<float> random_floats(std::size_t n, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::vector<float> v(n);
+  for (float& f : v) {
+    do {
+      f = std::bit_cast<float>(static_cast<std::uint32_t>(rng()));
+    } while (!std::isfinite(f));
+  }
+  if (n >= 4) {
+    v[0] = std::numeric_limits<float>::denorm_min();
+    v[1] = std::numeric_limits<float>::max();
+    v[2] = -0.0f;
+    v[3] = 1e-30f;
+  }
+  return v;
+}
+
+RgbImage random_rgb(int w, int h, std::uint64_t seed) {
+  return RgbImage::from_data(w, h, random_floats(std::size_t(w) * h * 3, seed)).value();
+}
+
+TEST_F(ExrTest, SpectralRoundTripIsBitExact) {
+  for (int bins : {4, 64, 100, 256}) {
+    int w = 7, h = 5;
+    auto spectral =
+        SpectralImage::from_data(w, h, bins, random_floats(std::size_t(w) * h * bins, bins));
+    ASSERT_TRUE(spectral.ok());
+    RgbImage rgb = random_rgb(w, h, 1000 + bins);
+    ExrMetadata metadata{{"spp", "1024"},
+                         {"integrator", "hero"},
+                         {"seed", "42"},
+                         {"job_id", "job-7"},
+                         {"note", "free text, with spaces"}};
+    fs::path path = dir_ / absl::StrFormat("b%d.exr", bins);
+    ASSERT_TRUE(write_spectral_exr(path, *spectral, rgb, metadata).ok());
+    auto read = read_spectral_exr(path);
+    ASSERT_TRUE(read.ok()) << read.status();
+    ASSERT_EQ(read->spectral.bins(), bins);
+    ASSERT_EQ(read->spectral.width(), w);
+    ASSERT_EQ(read->spectral.height(), h);
+    EXPECT_EQ(std::memcmp(read->spectral.data().data(), spectral->data().data(),
+                          spectral->data().size_bytes()),
+              0)
+        << bins << " bins";
+    ASSERT_TRUE(read->rgb.has_value());
+    EXPECT_EQ(std::memcmp(read->rgb->data().data(), rgb.data().data(), rgb.data().size_bytes()), 0);
+    EXPECT_EQ(read->wavelengths_nm, bin_centres_nm(bins));
+    EXPECT_EQ(read->metadata, metadata);
+  }
+}
+
+TEST_F(ExrTest, ChannelNamesAndAttributesFollowTheSpectralLayout) {
+  auto spectral = SpectralImage::create(2, 2, 64);
+  fs::path path = dir_ / "names.exr";
+  ASSERT_TRUE(write_spectral_exr(path, *spectral, *RgbImage::create(2, 2), {{"spp", "16"}}).ok());
+
+  Imf::InputFile file(path.c_str());
+  const Imf::ChannelList& channels = file.header().channels();
+  for (const char* name : {"S0.363,671875nm", "S0.371,015625nm", "S0.598,671875nm",
+                           "S0.826,328125nm", "R", "G", "B"}) {
+    const Imf::Channel* channel = channels.findChannel(name);
+    ASSERT_NE(channel, nullptr) << name;
+    EXPECT_EQ(channel->type, Imf::FLOAT) << name;
+  }
+  int count = 0;
+  for (auto it = channels.begin(); it != channels.end(); ++it) ++count;
+  EXPECT_EQ(count, 64 + 3);
+  const auto* version =
+      file.header().findTypedAttribute<Imf::StringAttribute>("spectralLayoutVersion");
+  ASSERT_NE(version, nullptr);
+  EXPECT_EQ(version->value(), "1.0");
+  const auto* units = file.header().findTypedAttribute<Imf::StringAttribute>("emissiveUnits");
+  ASSERT_NE(units, nullptr);
+  EXPECT_EQ(units->value(), "W.m^-2.sr^-1");
+  const auto* spp = file.header().findTypedAttribute<Imf::StringAttribute>("prism:spp");
+  ASSERT_NE(spp, nullptr);
+  EXPECT_EQ(spp->value(), "16");
+}
+
+TEST(SpectralChannelName, FormatsAndParses) {
+  EXPECT_EQ(bin_centre_nm(0, 64), 363.671875);
+  EXPECT_EQ(spectral_channel_name(bin_centre_nm(0, 64)), "S0.363,671875nm");
+  EXPECT_EQ(spectral_channel_name(bin_centre_nm(63, 64)), "S0.826,328125nm");
+  EXPECT_EQ(spectral_channel_name(bin_centre_nm(0, 100)), "S0.362,35nm");
+  EXPECT_EQ(spectral_channel_name(bin_centre_nm(0, 47)), "S0.365nm");
+  EXPECT_EQ(spectral_channel_name(bin_centre_nm(0, 4)), "S0.418,75nm");
+  EXPECT_EQ(parse_spectral_channel_name("S0.363,671875nm"), 363.671875);
+  EXPECT_EQ(parse_spectral_channel_name("S0.400.000nm"), 400.0);
+  EXPECT_EQ(parse_spectral_channel_name("S0.550nm"), 550.0);
+  EXPECT_FALSE(parse_spectral_channel_name("S0.550Hz").has_value());
+  EXPECT_FALSE(parse_spectral_channel_name("S0.5,5,0nm").has_value());
+  EXPECT_FALSE(parse_spectral_channel_name("S0.nm").has_value());
+  EXPECT_FALSE(parse_spectral_channel_name("S1.550nm").has_value());
+  EXPECT_FALSE(parse_spectral_channel_name("S0.-5nm").has_value());
+  for (int bins : {4, 64, 100, 256}) {
+    for (int b = 0; b < bins; ++b) {
+      double lambda = bin_centre_nm(b, bins);
+      EXPECT_EQ(parse_spectral_channel_name(spectral_channel_name(lambda)), lambda);
+    }
+  }
+}
+
+// Writes a file the way another renderer would: the given channel names, FLOAT, value
+// (channel index + 1) * 0.5 + pixel index, channels in the given order.
+void write_foreign(const fs::path& path, const std::vector<std::string>& names, int w, int h,
+                   bool with_rgb, const std::vector<std::pair<std::string, std::string>>& attrs) {
+  Imf::Header header(w, h);
+  for (const auto& [k, v] : attrs) header.insert(k, Imf::StringAttribute(v));
+  std::vector<std::string> all = names;
+  if (with_rgb) all.insert(all.end(), {"R", "G", "B"});
+  std::vector<std::vector<float>> planes(all.size(), std::vector<float>(std::size_t(w) * h));
+  Imf::FrameBuffer frame;
+  for (std::size_t c = 0; c < all.size(); ++c) {
+    header.channels().insert(all[c], Imf::Channel(Imf::FLOAT));
+    for (int p = 0; p < w * h; ++p) planes[c][p] = float(c + 1) * 0.5f + float(p);
+    frame.insert(all[c], Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(planes[c].data()),
+                                    sizeof(float), sizeof(float) * w));
+  }
+  Imf::OutputFile file(path.c_str(), header);
+  file.setFrameBuffer(frame);
+  file.writePixels(h);
+}
+
+TEST_F(ExrTest, ReadsThreeDecimalChannelsWithDotsOrCommas) {
+  for (char separator : {'.', ','}) {
+    // Deliberately not in wavelength order (names sort as strings in the file anyway).
+    std::vector<std::string> names;
+    for (const char* lambda : {"600.500", "400.000", "1000.250", "450.125"}) {
+      std::string s = lambda;
+      s[s.find('.')] = separator;
+      names.push_back("S0." + s + "nm");
+    }
+    fs::path path = dir_ / (separator == '.' ? "dots.exr" : "commas.exr");
+    write_foreign(path, names, 3, 2, false,
+                  {{"spectralLayoutVersion", "1.0"}, {"emissiveUnits", "W.m^-2.sr^-1"}});
+    auto read = read_spectral_exr(path);
+    ASSERT_TRUE(read.ok()) << read.status();
+    EXPECT_EQ(read->wavelengths_nm, (std::vector<double>{400.0, 450.125, 600.5, 1000.25}));
+    EXPECT_FALSE(read->rgb.has_value());
+    // Bin order follows wavelength: 400 was written as channel 1, 450.125 as 3, 600.5 as 0.
+    EXPECT_EQ(read->spectral.value(0, 0, 0), 1.0f);
+    EXPECT_EQ(read->spectral.value(0, 0, 1), 2.0f);
+    EXPECT_EQ(read->spectral.value(0, 0, 2), 0.5f);
+    EXPECT_EQ(read->spectral.value(2, 1, 3), 1.5f + 5.0f);
+  }
+}
+
+TEST_F(ExrTest, RefusesRgbOnlyPolarisedReflectiveAndDuplicateFiles) {
+  auto expect_refused = [&](const std::string& file, const std::vector<std::string>& names,
+                            bool rgb, const std::string& needle) {
+    fs::path path = dir_ / file;
+    write_foreign(path, names, 2, 2, rgb, {});
+    auto read = read_spectral_exr(path);
+    ASSERT_FALSE(read.ok()) << file;
+    EXPECT_EQ(read.status().code(), absl::StatusCode::kInvalidArgument);
+    EXPECT_NE(read.status().message().find(needle), std::string::npos) << read.status();
+    EXPECT_NE(read.status().message().find(path.string()), std::string::npos) << read.status();
+  };
+  expect_refused("rgb.exr", {}, true, "no spectral channels");
+  expect_refused("polarised.exr", {"S0.500nm", "S1.500nm", "S2.500nm", "S3.500nm"}, false,
+                 "polarised");
+  expect_refused("reflective.exr", {"T.500nm"}, false, "reflective");
+  expect_refused("duplicate.exr", {"S0.500nm", "S0.500,000nm"}, false, "same wavelength");
+  expect_refused("units.exr", {"S0.5,5e14Hz"}, false, "S0.<wavelength>nm");
+
+  fs::path garbage = dir_ / "garbage.exr";
+  std::FILE* f = std::fopen(garbage.c_str(), "wb");
+  std::fputs("not an exr file at all", f);
+  std::fclose(f);
+  EXPECT_EQ(read_spectral_exr(garbage).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(read_spectral_exr(dir_ / "missing.exr").status().code(), absl::StatusCode::kNotFound);
+}
+
+TEST_F(ExrTest, RgbRoundTripFloatExactAndHalfClose) {
+  RgbImage rgb = RgbImage::from_data(4, 3, random_floats(36, 5)).value();
+  fs::path path = dir_ / "rgb.exr";
+  ASSERT_TRUE(write_rgb_exr(path, rgb, ExrPixelType::kFloat, {{"integrator", "path"}}).ok());
+  auto read = read_rgb_exr(path);
+  ASSERT_TRUE(read.ok()) << read.status();
+  EXPECT_EQ(std::memcmp(read->rgb.data().data(), rgb.data().data(), rgb.data().size_bytes()), 0);
+  EXPECT_EQ(read->metadata.at("integrator"), "path");
+
+  std::vector<float> values(36);
+  for (int i = 0; i < 36; ++i) values[i] = 0.01f * float(i) + 0.001f;
+  values[35] = 1e6f;  // beyond half's range
+  RgbImage moderate = RgbImage::from_data(4, 3, values).value();
+  fs::path half_path = dir_ / "half.exr";
+  absl::Status half_status = write_rgb_exr(half_path, moderate, ExrPixelType::kHalf);
+  ASSERT_TRUE(half_status.ok()) << half_status;
+  {
+    Imf::InputFile file(half_path.c_str());
+    EXPECT_EQ(file.header().channels().findChannel("R")->type, Imf::HALF);
+  }
+  auto half = read_rgb_exr(half_path);
+  ASSERT_TRUE(half.ok()) << half.status();
+  for (int i = 0; i < 35; ++i) EXPECT_NEAR(half->rgb.data()[i], values[i], values[i] * 1e-3f);
+  EXPECT_TRUE(std::isinf(half->rgb.data()[35]));
+
+  // A spectral file read as RGB gives its R, G, B; an RGB file read generically has no bins.
+  auto spectral = SpectralImage::create(4, 3, 4);
+  ASSERT_TRUE(write_spectral_exr(dir_ / "s.exr", *spectral, rgb).ok());
+  auto from_spectral = read_rgb_exr(dir_ / "s.exr");
+  ASSERT_TRUE(from_spectral.ok());
+  EXPECT_EQ(
+      std::memcmp(from_spectral->rgb.data().data(), rgb.data().data(), rgb.data().size_bytes()), 0);
+  auto generic = read_exr(path);
+  ASSERT_TRUE(generic.ok());
+  EXPECT_FALSE(generic->spectral.has_value());
+  EXPECT_TRUE(generic->rgb.has_value());
+  write_foreign(dir_ / "y.exr", {"Y"}, 2, 2, false, {});
+  EXPECT_EQ(read_rgb_exr(dir_ / "y.exr").status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+TEST_F(ExrTest, InvalidWritesAndFailedWritesLeaveNoFile) {
+  auto spectral = SpectralImage::create(4, 4, 8);
+  auto rgb_wrong = RgbImage::create(3, 4);
+  fs::path path = dir_ / "out.exr";
+  EXPECT_EQ(write_spectral_exr(path, *spectral, *rgb_wrong).code(),
+            absl::StatusCode::kInvalidArgument);
+  EXPECT_FALSE(fs::exists(path));
+  EXPECT_FALSE(write_spectral_exr(path, {500, 400, 600, 700, 710, 720, 730, 740}, *spectral,
+                                  *RgbImage::create(4, 4))
+                   .ok());
+  EXPECT_FALSE(fs::exists(path));
+
+  // The final rename fails (the target is a non-empty directory): no file, no temporary.
+  fs::create_directories(dir_ / "taken.exr" / "child");
+  absl::Status status = write_spectral_exr(dir_ / "taken.exr", *spectral, *RgbImage::create(4, 4));
+  EXPECT_FALSE(status.ok());
+  EXPECT_TRUE(fs::is_directory(dir_ / "taken.exr"));
+  // A directory that does not exist: OpenEXR cannot create the temporary.
+  status = write_rgb_exr(dir_ / "missing" / "x.exr", *RgbImage::create(2, 2));
+  EXPECT_FALSE(status.ok());
+  EXPECT_NE(status.message().find("x.exr"), std::string::npos) << status;
+  int entries = 0;
+  for (const auto& entry : fs::directory_iterator(dir_)) {
+    (void)entry;
+    ++entries;
+  }
+  EXPECT_EQ(entries, 1);  // only taken.exr
+}
+
+}  // namespace
+}  // namespace prism::image

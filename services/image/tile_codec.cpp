@@ -1,0 +1,218 @@
+#include "services/image/tile_codec.h"
+
+#include <bit>
+#include <cstring>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/check.h"
+
+namespace prism::image {
+namespace {
+
+constexpr std::uint32_t kFlagGradients = 1u << 0;
+constexpr std::uint32_t kFlagGuides = 1u << 1;
+constexpr std::uint32_t kKnownFlags = kFlagGradients | kFlagGuides;
+
+class Writer {
+ public:
+  explicit Writer(std::string& out) : out_(out) {}
+  void u32(std::uint32_t v) { put(v, 4); }
+  void u64(std::uint64_t v) { put(v, 8); }
+  void i32(std::int32_t v) { put(static_cast<std::uint32_t>(v), 4); }
+  void f64(double v) { put(std::bit_cast<std::uint64_t>(v), 8); }
+  void f32(float v) { put(std::bit_cast<std::uint32_t>(v), 4); }
+  void bytes(std::string_view s) { out_.append(s); }
+
+ private:
+  void put(std::uint64_t v, int n) {
+    for (int i = 0; i < n; ++i) out_.push_back(static_cast<char>((v >> (8 * i)) & 0xff));
+  }
+  std::string& out_;
+};
+
+class Reader {
+ public:
+  explicit Reader(std::string_view in) : in_(in) {}
+  std::size_t offset() const { return pos_; }
+  std::size_t remaining() const { return in_.size() - pos_; }
+
+  absl::Status need(std::size_t n, std::string_view field) const {
+    if (remaining() < n) {
+      return absl::InvalidArgumentError(absl::StrCat("tile result truncated: ", std::string(field),
+                                                     " at byte ", pos_, " needs ", n, " bytes, ",
+                                                     remaining(), " left"));
+    }
+    return absl::OkStatus();
+  }
+  absl::StatusOr<std::uint64_t> uint(int n, std::string_view field) {
+    if (auto s = need(n, field); !s.ok()) return s;
+    std::uint64_t v = 0;
+    for (int i = 0; i < n; ++i)
+      v |= std::uint64_t(static_cast<unsigned char>(in_[pos_ + i])) << (8 * i);
+    pos_ += n;
+    return v;
+  }
+  absl::StatusOr<std::string_view> bytes(std::size_t n, std::string_view field) {
+    if (auto s = need(n, field); !s.ok()) return s;
+    std::string_view v = in_.substr(pos_, n);
+    pos_ += n;
+    return v;
+  }
+  // Payload reads: the caller has checked the exact total length beforehand.
+  std::uint64_t raw_u64() { return raw(8); }
+  std::uint32_t raw_u32() { return static_cast<std::uint32_t>(raw(4)); }
+
+ private:
+  std::uint64_t raw(int n) {
+    PRISM_CHECK(remaining() >= std::size_t(n));
+    std::uint64_t v = 0;
+    for (int i = 0; i < n; ++i)
+      v |= std::uint64_t(static_cast<unsigned char>(in_[pos_ + i])) << (8 * i);
+    pos_ += n;
+    return v;
+  }
+  std::string_view in_;
+  std::size_t pos_ = 0;
+};
+
+std::uint64_t payload_bytes(std::uint64_t area, std::uint64_t bins, bool gradients, bool guides,
+                            std::uint64_t counters) {
+  std::uint64_t n = area * bins * 8 * 2 + area * 8;
+  if (gradients) n += area * bins * 8;
+  if (guides) n += area * 4 * 5;
+  n += area * counters * 8;
+  return n;
+}
+
+}  // namespace
+
+std::string serialise_tile(const TileResult& result) {
+  std::string out;
+  const TileRect& rect = result.rect();
+  std::uint64_t area = std::uint64_t(rect.area());
+  std::uint64_t payload = payload_bytes(area, result.bins(), result.has_gradients(),
+                                        result.has_guides(), result.counter_count());
+  out.reserve(64 + payload);
+  Writer w(out);
+  w.bytes(kTileMagic);
+  w.u32(kTileFormatVersion);
+  w.u32((result.has_gradients() ? kFlagGradients : 0) | (result.has_guides() ? kFlagGuides : 0));
+  w.i32(rect.x0);
+  w.i32(rect.y0);
+  w.i32(rect.x1);
+  w.i32(rect.y1);
+  w.u64(result.samples().s0);
+  w.u64(result.samples().s1);
+  w.u32(static_cast<std::uint32_t>(result.bins()));
+  w.u32(static_cast<std::uint32_t>(result.counter_count()));
+  for (const std::string& name : result.buffers().counter_names) {
+    w.u32(static_cast<std::uint32_t>(name.size()));
+    w.bytes(name);
+  }
+  w.u64(payload);
+  for (double v : result.sums()) w.f64(v);
+  for (double v : result.sum_squares()) w.f64(v);
+  for (std::uint64_t v : result.counts()) w.u64(v);
+  for (double v : result.gradients()) w.f64(v);
+  for (float v : result.depth()) w.f32(v);
+  for (float v : result.normals()) w.f32(v);
+  for (float v : result.albedo()) w.f32(v);
+  for (std::uint64_t v : result.counters()) w.u64(v);
+  return out;
+}
+
+absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
+  Reader r(bytes);
+  auto magic = r.bytes(kTileMagic.size(), "magic");
+  if (!magic.ok()) return magic.status();
+  if (*magic != kTileMagic) {
+    return absl::InvalidArgumentError("not a Prism tile result: the magic bytes are wrong");
+  }
+  auto version = r.uint(4, "version");
+  if (!version.ok()) return version.status();
+  if (*version != kTileFormatVersion) {
+    return absl::InvalidArgumentError(absl::StrCat("tile result has format version ", *version,
+                                                   "; this build reads version ",
+                                                   kTileFormatVersion));
+  }
+  auto flags = r.uint(4, "flags");
+  if (!flags.ok()) return flags.status();
+  if ((*flags & ~std::uint64_t{kKnownFlags}) != 0) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("tile result has unknown flags 0x", absl::Hex(*flags)));
+  }
+  std::int32_t coords[4];
+  const char* names[4] = {"x0", "y0", "x1", "y1"};
+  for (int i = 0; i < 4; ++i) {
+    auto v = r.uint(4, names[i]);
+    if (!v.ok()) return v.status();
+    coords[i] = static_cast<std::int32_t>(static_cast<std::uint32_t>(*v));
+  }
+  auto s0 = r.uint(8, "s0");
+  if (!s0.ok()) return s0.status();
+  auto s1 = r.uint(8, "s1");
+  if (!s1.ok()) return s1.status();
+  auto bins = r.uint(4, "bins");
+  if (!bins.ok()) return bins.status();
+  if (*bins < 1 || *bins > std::uint64_t(kMaxBins)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("tile result has ", *bins, " bins; allowed are 1..", kMaxBins));
+  }
+  auto counter_count = r.uint(4, "counter count");
+  if (!counter_count.ok()) return counter_count.status();
+  if (*counter_count > std::uint64_t(kMaxCounters)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("tile result has ", *counter_count, " counters; at most ", kMaxCounters));
+  }
+  TileBuffers buffers;
+  buffers.gradients = (*flags & kFlagGradients) != 0;
+  buffers.guides = (*flags & kFlagGuides) != 0;
+  for (std::uint64_t c = 0; c < *counter_count; ++c) {
+    auto length = r.uint(4, "counter name length");
+    if (!length.ok()) return length.status();
+    if (*length < 1 || *length > std::uint64_t(kMaxCounterNameLength)) {
+      return absl::InvalidArgumentError(absl::StrCat("counter name ", c, " has length ", *length,
+                                                     "; allowed are 1..", kMaxCounterNameLength));
+    }
+    auto name = r.bytes(*length, "counter name");
+    if (!name.ok()) return name.status();
+    buffers.counter_names.emplace_back(*name);
+  }
+  auto declared = r.uint(8, "payload size");
+  if (!declared.ok()) return declared.status();
+
+  TileRect rect{coords[0], coords[1], coords[2], coords[3]};
+  SampleRange samples{*s0, *s1};
+  if (auto status = TileResult::validate(rect, samples, static_cast<int>(*bins), buffers);
+      !status.ok()) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("tile result header is invalid: ", status.message()));
+  }
+  // Checked before anything is allocated, so a lying header cannot make us allocate.
+  std::uint64_t expected = payload_bytes(std::uint64_t(rect.area()), *bins, buffers.gradients,
+                                         buffers.guides, *counter_count);
+  if (*declared != expected) {
+    return absl::InvalidArgumentError(absl::StrCat("tile result declares a payload of ", *declared,
+                                                   " bytes but its header implies ", expected));
+  }
+  if (r.remaining() != expected) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "tile result payload at byte ", r.offset(), " is ", r.remaining(), " bytes, expected ",
+        expected, r.remaining() < expected ? " (truncated)" : " (trailing bytes)"));
+  }
+  auto result = TileResult::create(rect, samples, static_cast<int>(*bins), buffers);
+  PRISM_CHECK(result.ok());
+  TileResult& t = *result;
+  for (double& v : t.mutable_sums()) v = std::bit_cast<double>(r.raw_u64());
+  for (double& v : t.mutable_sum_squares()) v = std::bit_cast<double>(r.raw_u64());
+  for (std::uint64_t& v : t.mutable_counts()) v = r.raw_u64();
+  for (double& v : t.mutable_gradients()) v = std::bit_cast<double>(r.raw_u64());
+  for (float& v : t.mutable_depth()) v = std::bit_cast<float>(r.raw_u32());
+  for (float& v : t.mutable_normals()) v = std::bit_cast<float>(r.raw_u32());
+  for (float& v : t.mutable_albedo()) v = std::bit_cast<float>(r.raw_u32());
+  for (std::uint64_t& v : t.mutable_counters()) v = r.raw_u64();
+  PRISM_CHECK(r.remaining() == 0);
+  return result;
+}
+
+}  // namespace prism::image

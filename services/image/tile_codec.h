@@ -1,0 +1,44 @@
+// The canonical byte form of a TileResult: what workers stream to the coordinator, what the
+// farm hashes to check that a retried task gave the same answer, and what the coordinator
+// keeps on disk. One TileResult has exactly one encoding, so equal results give equal bytes.
+//
+// Version 1, all integers and floats little-endian, floats as their exact IEEE-754 bits:
+//   bytes 0..7   magic "PRSMTILE"
+//   u32          version (1)
+//   u32          flags: bit 0 gradients present, bit 1 guides present; other bits zero
+//   i32 x4       rect x0, y0, x1, y1
+//   u64 x2       sample range s0, s1
+//   u32          bins
+//   u32          n = number of counters, then n times: u32 length, that many name bytes
+//   u64          payload byte count (must equal what the fields above imply)
+//   payload, in this order, each in the TileResult layout documented in tile.h:
+//     f64 sums[area*bins], f64 sum_squares[area*bins], u64 counts[area],
+//     f64 gradients[area*bins]               (if flag bit 0)
+//     f32 depth[area], f32 normals[area*3], f32 albedo[area]   (if flag bit 1)
+//     u64 counters[area*n]
+// The parser treats its input as untrusted: it checks every field against the limits of
+// TileResult::create and requires the input to be exactly as long as the header implies
+// before it allocates or reads any payload, so it never reads out of bounds.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <string_view>
+
+#include "absl/status/statusor.h"
+#include "services/image/tile.h"
+
+namespace prism::image {
+
+inline constexpr std::string_view kTileMagic = "PRSMTILE";
+inline constexpr std::uint32_t kTileFormatVersion = 1;
+
+// The canonical encoding of `result`.
+std::string serialise_tile(const TileResult& result);
+
+// Decodes bytes produced by serialise_tile. INVALID_ARGUMENT (naming the offending field and
+// offset) for a wrong magic, unknown version or flags, out-of-range header values, truncated
+// input or trailing bytes.
+absl::StatusOr<TileResult> parse_tile(std::string_view bytes);
+
+}  // namespace prism::image

@@ -1,0 +1,137 @@
+#include "services/image/tile_codec.h"
+
+#include <gtest/gtest.h>
+
+#include <bit>
+#include <cstring>
+#include <limits>
+#include <random>
+
+#include "services/base/check.h"
+
+namespace prism::image {
+namespace {
+
+TileResult random_result(std::uint64_t seed, const TileBuffers& buffers) {
+  auto result = TileResult::create({16, 32, 21, 35}, {64, 128}, 7, buffers);
+  PRISM_CHECK(result.ok());
+  std::mt19937_64 rng(seed);
+  // Arbitrary bit patterns, including NaN payloads, infinities and denormals.
+  for (double& v : result->mutable_sums()) v = std::bit_cast<double>(rng());
+  for (double& v : result->mutable_sum_squares()) v = std::bit_cast<double>(rng());
+  for (std::uint64_t& v : result->mutable_counts()) v = rng();
+  for (double& v : result->mutable_gradients()) v = std::bit_cast<double>(rng());
+  for (float& v : result->mutable_depth()) v = std::bit_cast<float>(std::uint32_t(rng()));
+  for (float& v : result->mutable_normals()) v = std::bit_cast<float>(std::uint32_t(rng()));
+  for (float& v : result->mutable_albedo()) v = std::bit_cast<float>(std::uint32_t(rng()));
+  for (std::uint64_t& v : result->mutable_counters()) v = rng();
+  result->mutable_sums()[0] = std::numeric_limits<double>::denorm_min();
+  result->mutable_sums()[1] = -0.0;
+  result->mutable_sums()[2] = std::numeric_limits<double>::max();
+  return std::move(result).value();
+}
+
+TEST(TileCodec, RoundTripIsExact) {
+  for (const TileBuffers& buffers :
+       {TileBuffers{}, TileBuffers{true, false, {}}, TileBuffers{true, true, {"rays", "shifts"}}}) {
+    TileResult original = random_result(7, buffers);
+    std::string bytes = serialise_tile(original);
+    auto parsed = parse_tile(bytes);
+    ASSERT_TRUE(parsed.ok()) << parsed.status();
+    EXPECT_EQ(parsed->rect(), original.rect());
+    EXPECT_EQ(parsed->samples(), original.samples());
+    EXPECT_EQ(parsed->buffers(), original.buffers());
+    // Bitwise: NaNs compare unequal as doubles but must survive unchanged.
+    ASSERT_EQ(parsed->sums().size(), original.sums().size());
+    EXPECT_EQ(
+        std::memcmp(parsed->sums().data(), original.sums().data(), original.sums().size_bytes()),
+        0);
+    EXPECT_EQ(std::memcmp(parsed->normals().data(), original.normals().data(),
+                          original.normals().size_bytes()),
+              0);
+    EXPECT_EQ(serialise_tile(*parsed), bytes);
+  }
+}
+
+TEST(TileCodec, HeaderIsLittleEndianAndVersioned) {
+  auto result = TileResult::create({0, 0, 1, 1}, {0, 1}, 1);
+  std::string bytes = serialise_tile(*result);
+  EXPECT_EQ(bytes.substr(0, 8), "PRSMTILE");
+  EXPECT_EQ(bytes[8], 1);
+  EXPECT_EQ(bytes[9], 0);
+  // Header (8+4+4+16+16+4+4+8 = 64 bytes) + sums, squares, counts of one pixel and one bin.
+  EXPECT_EQ(bytes.size(), 64u + 24u);
+}
+
+TEST(TileCodec, EveryTruncationIsRefused) {
+  std::string bytes = serialise_tile(random_result(3, {true, true, {"rays"}}));
+  for (std::size_t n = 0; n < bytes.size(); ++n) {
+    auto parsed = parse_tile(std::string_view(bytes).substr(0, n));
+    EXPECT_EQ(parsed.status().code(), absl::StatusCode::kInvalidArgument) << "length " << n;
+  }
+  EXPECT_FALSE(parse_tile(bytes + "x").ok());
+}
+
+void put_u32(std::string& bytes, std::size_t offset, std::uint32_t v) {
+  for (int i = 0; i < 4; ++i) bytes[offset + i] = char((v >> (8 * i)) & 0xff);
+}
+
+TEST(TileCodec, CorruptedHeadersAreRefusedWithClearErrors) {
+  std::string good = serialise_tile(random_result(5, {true, true, {"rays"}}));
+  auto refused = [](std::string bytes, const std::string& needle) {
+    auto parsed = parse_tile(bytes);
+    ASSERT_FALSE(parsed.ok());
+    EXPECT_NE(parsed.status().message().find(needle), std::string::npos) << parsed.status();
+  };
+  std::string bad = good;
+  bad[0] = 'X';
+  refused(bad, "magic");
+  bad = good;
+  put_u32(bad, 8, 2);
+  refused(bad, "version");
+  bad = good;
+  put_u32(bad, 12, 4);
+  refused(bad, "flags");
+  bad = good;
+  put_u32(bad, 12, 1);  // guides flag cleared: the payload is now too long
+  refused(bad, "payload");
+  bad = good;
+  put_u32(bad, 24, 10);  // x1 < x0
+  refused(bad, "tile rect");
+  bad = good;
+  put_u32(bad, 24, 0x7fffffff);  // a huge tile
+  refused(bad, "tile rect");
+  bad = good;
+  put_u32(bad, 48, 0);  // bins
+  refused(bad, "bins");
+  bad = good;
+  put_u32(bad, 48, 1u << 30);
+  refused(bad, "bins");
+  bad = good;
+  put_u32(bad, 52, 1000);  // counter count
+  refused(bad, "counters");
+  bad = good;
+  put_u32(bad, 56, 0xffffffff);  // counter name length
+  refused(bad, "counter name");
+  bad = good;
+  bad[64] ^= 1;  // declared payload size, after the name "rays" and its length
+  refused(bad, "payload");
+}
+
+TEST(TileCodec, RandomCorruptionNeverCrashes) {
+  std::string good = serialise_tile(random_result(9, {false, true, {"a"}}));
+  std::mt19937_64 rng(11);
+  for (int trial = 0; trial < 2000; ++trial) {
+    std::string bytes = good;
+    int flips = 1 + int(rng() % 4);
+    for (int i = 0; i < flips; ++i) bytes[rng() % 72] = char(rng());
+    if (rng() % 2) bytes.resize(rng() % bytes.size());
+    auto parsed = parse_tile(bytes);
+    if (parsed.ok()) {
+      EXPECT_EQ(serialise_tile(*parsed), bytes);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace prism::image
