@@ -1,0 +1,328 @@
+#include "services/spectral/wavelength_distribution.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/check.h"
+#include "services/spectral/wavelength_grid.h"
+
+namespace prism::spectral {
+namespace {
+
+constexpr double kMin = kLambdaMin;
+constexpr double kRange = kLambdaRange;
+
+double cell_lower(int c, int n) {
+  return kMin + kRange * c / n;
+}
+
+int cell_index(float lambda_nm, int n) {
+  if (!(lambda_nm >= kLambdaMin && lambda_nm <= kLambdaMax)) return -1;
+  const int c = static_cast<int>((static_cast<double>(lambda_nm) - kMin) * n / kRange);
+  return std::min(c, n - 1);
+}
+
+absl::Status check_cells(int cells) {
+  if (cells < 1 || cells > WavelengthDistribution::kMaxCells) {
+    return absl::InvalidArgumentError(absl::StrCat("a wavelength distribution needs 1 to ",
+                                                   WavelengthDistribution::kMaxCells,
+                                                   " cells, got ", cells));
+  }
+  return absl::OkStatus();
+}
+
+struct Inverted {
+  float lambda;
+  int cell;
+};
+
+// Inverts a piecewise-linear CDF given by cdf_at(0..n) (non-decreasing, cdf_at(0) = 0,
+// cdf_at(n) = 1). The chosen cell c satisfies cdf(c) <= u < cdf(c+1), so it has positive mass;
+// the returned float λ is nudged, if rounding moved it, until cell_index(λ) == c, which is what
+// makes sample() and pdf() agree exactly.
+template <typename CdfAt>
+Inverted invert(int n, double u, const CdfAt& cdf_at) {
+  u = std::clamp(u, 0.0, std::nextafter(1.0, 0.0));
+  int lo = 1, hi = n;
+  while (lo < hi) {
+    const int mid = lo + (hi - lo) / 2;
+    if (cdf_at(mid) > u) {
+      hi = mid;
+    } else {
+      lo = mid + 1;
+    }
+  }
+  const int c = lo - 1;
+  const double c0 = cdf_at(c), c1 = cdf_at(c + 1);
+  const double t = std::clamp((u - c0) / (c1 - c0), 0.0, 1.0);
+  float lambda = static_cast<float>(cell_lower(c, n) + t * (kRange / n));
+  lambda = std::clamp(lambda, kLambdaMin, kLambdaMax);
+  while (cell_index(lambda, n) > c) lambda = std::nextafter(lambda, 0.0f);
+  while (cell_index(lambda, n) < c) lambda = std::nextafter(lambda, kLambdaMax);
+  return {lambda, c};
+}
+
+template <typename CdfAt>
+double eval_cdf(int n, float lambda_nm, const CdfAt& cdf_at) {
+  if (!(lambda_nm >= kLambdaMin)) return 0.0;
+  if (lambda_nm >= kLambdaMax) return 1.0;
+  const int c = cell_index(lambda_nm, n);
+  const double w = kRange / n;
+  const double t = std::clamp((lambda_nm - cell_lower(c, n)) / w, 0.0, 1.0);
+  return cdf_at(c) + t * (cdf_at(c + 1) - cdf_at(c));
+}
+
+double cyclic_offset(double u, int lane, int lanes) {
+  double v = u + static_cast<double>(lane) / lanes;
+  return v >= 1.0 ? v - 1.0 : v;
+}
+
+}  // namespace
+
+WavelengthDistribution::WavelengthDistribution(std::vector<double> weights) {
+  const int n = static_cast<int>(weights.size());
+  cdf_.resize(weights.size() + 1);
+  cdf_[0] = 0.0;
+  for (int i = 0; i < n; ++i) cdf_[i + 1] = cdf_[i] + weights[i];
+  const double total = cdf_[n];
+  PRISM_CHECK(total > 0.0 && std::isfinite(total));
+  for (double& c : cdf_) c /= total;
+  cdf_[n] = 1.0;
+  // Masses are taken from the stored CDF, not from the weights, so that a weight too small to
+  // move the running sum counts as zero for pdf() exactly as it does for sample().
+  mass_.resize(weights.size());
+  pdf_.resize(weights.size());
+  const double w = kRange / n;
+  for (int i = 0; i < n; ++i) {
+    mass_[i] = cdf_[i + 1] - cdf_[i];
+    pdf_[i] = static_cast<float>(mass_[i] / w);
+  }
+}
+
+absl::StatusOr<WavelengthDistribution> WavelengthDistribution::flat(int cells) {
+  if (auto s = check_cells(cells); !s.ok()) return s;
+  return WavelengthDistribution(std::vector<double>(static_cast<size_t>(cells), 1.0));
+}
+
+absl::StatusOr<WavelengthDistribution> WavelengthDistribution::visible(int cells) {
+  if (auto s = check_cells(cells); !s.ok()) return s;
+  constexpr double kA = 0.0072, kCentre = 538.0;
+  std::vector<double> w(static_cast<size_t>(cells));
+  for (int i = 0; i < cells; ++i) {
+    const double lo = cell_lower(i, cells), hi = cell_lower(i + 1, cells);
+    w[i] = (std::tanh(kA * (hi - kCentre)) - std::tanh(kA * (lo - kCentre))) / kA;
+  }
+  return WavelengthDistribution(std::move(w));
+}
+
+absl::StatusOr<WavelengthDistribution> WavelengthDistribution::emitters(
+    std::span<const Spectrum> spectra, int cells) {
+  if (auto s = check_cells(cells); !s.ok()) return s;
+  if (spectra.empty()) {
+    return absl::InvalidArgumentError(
+        "an emitter wavelength distribution needs at least one emitter spectrum");
+  }
+  std::vector<double> sum(static_cast<size_t>(cells), 0.0), one(static_cast<size_t>(cells));
+  for (size_t j = 0; j < spectra.size(); ++j) {
+    double total = 0.0;
+    for (int i = 0; i < cells; ++i) {
+      one[i] = integrate(spectra[j], cell_lower(i, cells), cell_lower(i + 1, cells));
+      if (!(one[i] >= 0.0) || !std::isfinite(one[i])) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("emitter spectrum ", j, " is negative or not finite near ",
+                         cell_lower(i, cells), " nm; emission must be >= 0"));
+      }
+      total += one[i];
+    }
+    if (!(total > 0.0)) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "emitter spectrum ", j, " emits nothing in 360–830 nm; remove it or fix its spectrum"));
+    }
+    for (int i = 0; i < cells; ++i) sum[i] += one[i] / total;
+  }
+  return WavelengthDistribution(std::move(sum));
+}
+
+absl::StatusOr<WavelengthDistribution> WavelengthDistribution::from_table(
+    std::span<const double> weights) {
+  if (auto s = check_cells(static_cast<int>(weights.size())); !s.ok()) return s;
+  double total = 0.0;
+  for (size_t i = 0; i < weights.size(); ++i) {
+    if (!std::isfinite(weights[i]) || weights[i] < 0.0) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "wavelength table weight ", i, " is ", weights[i], "; weights must be finite and >= 0"));
+    }
+    total += weights[i];
+  }
+  if (!(total > 0.0) || !std::isfinite(total)) {
+    return absl::InvalidArgumentError(
+        "wavelength table weights are all zero (or overflow): no wavelength could be sampled");
+  }
+  return WavelengthDistribution(std::vector<double>(weights.begin(), weights.end()));
+}
+
+absl::StatusOr<WavelengthDistribution> WavelengthDistribution::product(
+    const WavelengthDistribution& a, const WavelengthDistribution& b) {
+  if (a.cells() != b.cells()) {
+    return absl::InvalidArgumentError(absl::StrCat("cannot multiply wavelength distributions with ",
+                                                   a.cells(), " and ", b.cells(), " cells"));
+  }
+  std::vector<double> w(static_cast<size_t>(a.cells()));
+  for (int i = 0; i < a.cells(); ++i) w[i] = a.mass_[i] * b.mass_[i];
+  if (std::accumulate(w.begin(), w.end(), 0.0) <= 0.0) {
+    return absl::InvalidArgumentError(
+        "the sensor and emitter wavelength distributions do not overlap: their product is zero");
+  }
+  return WavelengthDistribution(std::move(w));
+}
+
+absl::StatusOr<WavelengthDistribution> WavelengthDistribution::mix_defensive(
+    double epsilon, const WavelengthDistribution& support) const {
+  if (!(epsilon >= 0.0 && epsilon <= 1.0)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("defensive mixture weight must be in [0, 1], got ", epsilon));
+  }
+  if (support.cells() != cells()) {
+    return absl::InvalidArgumentError(absl::StrCat("defensive support has ", support.cells(),
+                                                   " cells, the distribution ", cells()));
+  }
+  int count = 0;
+  for (double m : support.mass_) count += m > 0.0 ? 1 : 0;
+  if (count == 0) return absl::InvalidArgumentError("defensive support is empty");
+  std::vector<double> w(mass_.size());
+  for (size_t i = 0; i < w.size(); ++i) {
+    w[i] = (1.0 - epsilon) * mass_[i] + (support.mass_[i] > 0.0 ? epsilon / count : 0.0);
+  }
+  return WavelengthDistribution(std::move(w));
+}
+
+double WavelengthDistribution::cell_width() const {
+  return kRange / cells();
+}
+
+int WavelengthDistribution::cell_of(float lambda_nm) const {
+  return cell_index(lambda_nm, cells());
+}
+
+WavelengthSample WavelengthDistribution::sample(double u) const {
+  const Inverted r = invert(cells(), u, [this](int i) { return cdf_[i]; });
+  return {r.lambda, pdf_[r.cell]};
+}
+
+float WavelengthDistribution::pdf(float lambda_nm) const {
+  const int c = cell_index(lambda_nm, cells());
+  return c < 0 ? 0.0f : pdf_[c];
+}
+
+double WavelengthDistribution::cdf(float lambda_nm) const {
+  return eval_cdf(cells(), lambda_nm, [this](int i) { return cdf_[i]; });
+}
+
+SampledWavelengths WavelengthDistribution::sample_lanes(double u, int lanes) const {
+  SampledWavelengths w(lanes);
+  for (int s = 0; s < lanes; ++s) {
+    const WavelengthSample x = sample(cyclic_offset(u, s, lanes));
+    w.set(s, x.lambda, x.pdf);
+  }
+  return w;
+}
+
+std::vector<std::uint16_t> WavelengthDistribution::quantise() const {
+  constexpr double kTotal = QuantisedWavelengthCdf::kTotal;
+  const int n = cells();
+  std::vector<std::int64_t> q(static_cast<size_t>(n));
+  std::vector<double> remainder(static_cast<size_t>(n), 0.0);
+  std::int64_t sum = 0;
+  for (int i = 0; i < n; ++i) {
+    if (mass_[i] <= 0.0) {
+      q[i] = 0;
+      continue;
+    }
+    const double m = mass_[i] * kTotal;
+    q[i] = std::max<std::int64_t>(1, static_cast<std::int64_t>(std::floor(m)));
+    remainder[i] = m - static_cast<double>(q[i]);
+    sum += q[i];
+  }
+  // Largest remainders first gets each cell within one unit of its exact share; cells raised
+  // to the minimum of 1 are paid for by the largest cells.
+  std::vector<int> order(static_cast<size_t>(n));
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int a, int b) { return remainder[a] > remainder[b]; });
+  for (size_t k = 0; sum < static_cast<std::int64_t>(kTotal); k = (k + 1) % order.size()) {
+    if (mass_[order[k]] > 0.0) {
+      ++q[order[k]];
+      ++sum;
+    }
+  }
+  while (sum > static_cast<std::int64_t>(kTotal)) {
+    const int big = static_cast<int>(std::max_element(q.begin(), q.end()) - q.begin());
+    PRISM_CHECK(q[big] > 1);
+    --q[big];
+    --sum;
+  }
+  std::vector<std::uint16_t> cdf(static_cast<size_t>(n) + 1);
+  std::int64_t running = 0;
+  cdf[0] = 0;
+  for (int i = 0; i < n; ++i) {
+    running += q[i];
+    cdf[i + 1] = static_cast<std::uint16_t>(running);
+  }
+  PRISM_CHECK(running == static_cast<std::int64_t>(kTotal));
+  return cdf;
+}
+
+absl::StatusOr<QuantisedWavelengthCdf> QuantisedWavelengthCdf::create(
+    std::span<const std::uint16_t> cdf) {
+  if (cdf.size() < 2 || cdf.size() > static_cast<size_t>(WavelengthDistribution::kMaxCells) + 1) {
+    return absl::InvalidArgumentError(absl::StrCat("a quantised wavelength CDF needs 2 to ",
+                                                   WavelengthDistribution::kMaxCells + 1,
+                                                   " values, got ", cdf.size()));
+  }
+  if (cdf.front() != 0 || cdf.back() != kTotal) {
+    return absl::InvalidArgumentError(absl::StrCat("a quantised wavelength CDF must run from 0 to ",
+                                                   kTotal, ", got ", cdf.front(), " to ",
+                                                   cdf.back()));
+  }
+  for (size_t i = 1; i < cdf.size(); ++i) {
+    if (cdf[i] < cdf[i - 1]) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("quantised wavelength CDF decreases at entry ", i));
+    }
+  }
+  return QuantisedWavelengthCdf(cdf);
+}
+
+float QuantisedWavelengthCdf::cell_pdf(int i) const {
+  const int n = cells();
+  return static_cast<float>(static_cast<double>(cdf_[i + 1] - cdf_[i]) / kTotal / (kRange / n));
+}
+
+WavelengthSample QuantisedWavelengthCdf::sample(double u) const {
+  const Inverted r =
+      invert(cells(), u, [this](int i) { return static_cast<double>(cdf_[i]) / kTotal; });
+  return {r.lambda, cell_pdf(r.cell)};
+}
+
+float QuantisedWavelengthCdf::pdf(float lambda_nm) const {
+  const int c = cell_index(lambda_nm, cells());
+  return c < 0 ? 0.0f : cell_pdf(c);
+}
+
+double QuantisedWavelengthCdf::cdf(float lambda_nm) const {
+  return eval_cdf(cells(), lambda_nm,
+                  [this](int i) { return static_cast<double>(cdf_[i]) / kTotal; });
+}
+
+SampledWavelengths QuantisedWavelengthCdf::sample_lanes(double u, int lanes) const {
+  SampledWavelengths w(lanes);
+  for (int s = 0; s < lanes; ++s) {
+    const WavelengthSample x = sample(cyclic_offset(u, s, lanes));
+    w.set(s, x.lambda, x.pdf);
+  }
+  return w;
+}
+
+}  // namespace prism::spectral

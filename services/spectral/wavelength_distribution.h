@@ -1,0 +1,109 @@
+// The wavelength density p(λ) used to draw path wavelengths (algorithms.md §1–2, §4): piecewise
+// constant on N uniform cells over Λ = [360, 830] nm. Cell i covers [360 + i·w, 360 + (i+1)·w),
+// w = 470/N nm (λ = 830 belongs to the last cell), and has probability mass m_i (Σ m_i = 1) and
+// density m_i / w per nm.
+//
+// Invariants: sample() returns exactly pdf(λ) for the λ it returns (same stored table, same cell
+// lookup), never returns a λ in a zero-mass cell, and inverts the cdf continuously inside a cell.
+// Construction allocates; sampling and evaluation do not.
+//
+// QuantisedWavelengthCdf is the compact form shipped per pixel to workers: N + 1 16-bit CDF
+// values with q_0 = 0, q_N = 65535, cell mass (q_{i+1} − q_i)/65535. It samples and evaluates
+// from those integers alone, so a coordinator and a worker holding the same bytes agree exactly.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "services/spectral/sampled.h"
+#include "services/spectral/spectrum.h"
+
+namespace prism::spectral {
+
+struct WavelengthSample {
+  float lambda = 0.0f;  // nm
+  float pdf = 0.0f;     // per nm
+};
+
+class WavelengthDistribution {
+ public:
+  static constexpr int kMaxCells = 16384;
+  static constexpr int kDefaultCells = 470;  // 1 nm cells
+  static constexpr double kDefaultDefensiveEpsilon = 0.05;
+
+  // Uniform over Λ.
+  static absl::StatusOr<WavelengthDistribution> flat(int cells = kDefaultCells);
+  // pbrt-v4's visible-wavelength density p(λ) ∝ 1/cosh²(0.0072·(λ − 538)), discretised by the
+  // exact integral over each cell (∫ sech²(a(λ−c)) dλ = tanh(a(λ−c))/a).
+  static absl::StatusOr<WavelengthDistribution> visible(int cells = kDefaultCells);
+  // p_e ∝ Σ_j S_j / ∫_Λ S_j (each emitter normalised to unit integral, multi-pass Eq. 7), cell
+  // masses from exact (or quadrature) integrals of each spectrum over the cell. INVALID_ARGUMENT
+  // if the list is empty, or an emitter's integral over some cell is negative or not finite, or
+  // it has no power in Λ.
+  static absl::StatusOr<WavelengthDistribution> emitters(std::span<const Spectrum> spectra,
+                                                         int cells = kDefaultCells);
+  // Cell masses proportional to `weights` (one per cell). INVALID_ARGUMENT for a cell count
+  // outside 1..kMaxCells, a negative or non-finite weight, or all weights zero.
+  static absl::StatusOr<WavelengthDistribution> from_table(std::span<const double> weights);
+  // p ∝ a·b (sensor × emitter term, §1). INVALID_ARGUMENT if the cell counts differ or the
+  // product is zero everywhere.
+  static absl::StatusOr<WavelengthDistribution> product(const WavelengthDistribution& a,
+                                                        const WavelengthDistribution& b);
+
+  // ε·p_ε + (1 − ε)·p, p_ε uniform over the cells where support has positive mass (pass the
+  // emitter distribution: its support is where any emitter emits). INVALID_ARGUMENT unless
+  // 0 <= ε <= 1, the cell counts match and the support is not empty.
+  absl::StatusOr<WavelengthDistribution> mix_defensive(double epsilon,
+                                                       const WavelengthDistribution& support) const;
+
+  // Inverse-cdf sample for u in [0, 1) (values outside are clamped into it).
+  WavelengthSample sample(double u) const;
+  // Density per nm at lambda_nm; 0 outside Λ.
+  float pdf(float lambda_nm) const;
+  // P(Λ' <= λ), continuous and piecewise linear, 0 below Λ and 1 above.
+  double cdf(float lambda_nm) const;
+  // CMIS lane rotation (algorithms.md §2): lane s gets λ_s = P⁻¹((u + s/C) mod 1) and
+  // pdf p(λ_s); lane 0 is the hero. lanes in 1..kMaxLanes.
+  SampledWavelengths sample_lanes(double u, int lanes) const;
+
+  int cells() const { return static_cast<int>(mass_.size()); }
+  double cell_width() const;  // nm
+  double cell_mass(int i) const { return mass_[i]; }
+  float cell_pdf(int i) const { return pdf_[i]; }
+  // The cell holding lambda_nm, or -1 outside Λ.
+  int cell_of(float lambda_nm) const;
+
+  // The quantised CDF (cells() + 1 values) whose every positive-mass cell keeps a mass of at
+  // least 1/65535, so quantisation never removes support; cells() must be <= kMaxCells.
+  std::vector<std::uint16_t> quantise() const;
+
+ private:
+  explicit WavelengthDistribution(std::vector<double> masses);
+  std::vector<double> mass_;
+  std::vector<double> cdf_;  // cells() + 1 values, cdf_[0] = 0, cdf_.back() = 1 exactly
+  std::vector<float> pdf_;   // mass_ / w
+};
+
+// A non-owning view of a quantised CDF (see the header comment). Cheap to copy; the bytes must
+// outlive it.
+class QuantisedWavelengthCdf {
+ public:
+  static constexpr std::uint16_t kTotal = 65535;
+  // INVALID_ARGUMENT unless there are 2..kMaxCells+1 values, non-decreasing, from 0 to 65535.
+  static absl::StatusOr<QuantisedWavelengthCdf> create(std::span<const std::uint16_t> cdf);
+
+  WavelengthSample sample(double u) const;
+  float pdf(float lambda_nm) const;
+  double cdf(float lambda_nm) const;
+  SampledWavelengths sample_lanes(double u, int lanes) const;
+  int cells() const { return static_cast<int>(cdf_.size()) - 1; }
+  float cell_pdf(int i) const;
+
+ private:
+  explicit QuantisedWavelengthCdf(std::span<const std::uint16_t> cdf) : cdf_(cdf) {}
+  std::span<const std::uint16_t> cdf_;
+};
+
+}  // namespace prism::spectral
