@@ -1,0 +1,573 @@
+#include "services/scene/parser.h"
+
+#include <map>
+#include <optional>
+#include <set>
+#include <utility>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
+#include "services/base/status.h"
+#include "services/scene/mesh_obj.h"
+#include "services/scene/mesh_ply.h"
+#include "services/scene/parameters.h"
+#include "services/scene/path_guard.h"
+#include "services/scene/scene_entities.h"
+#include "services/scene/tokenizer.h"
+
+namespace prism::scene {
+namespace {
+
+struct GraphicsState {
+  Transform ctm;
+  bool reverse_orientation = false;
+  int material = -1;  // -1: pbrt-v4's default material (diffuse, reflectance 0.5)
+  std::optional<AreaLight> area_light;
+  int inside_medium = -1;
+  int outside_medium = -1;
+};
+
+enum class ScopeKind { kAttribute, kTransform, kObject };
+
+struct Scope {
+  ScopeKind kind;
+  GraphicsState saved;
+  SourceLocation where;
+};
+
+struct ObjectDefinition {
+  std::vector<Shape> shapes;
+  SourceLocation where;
+};
+
+const char* scope_begin_name(ScopeKind kind) {
+  switch (kind) {
+    case ScopeKind::kAttribute: return "AttributeBegin";
+    case ScopeKind::kTransform: return "TransformBegin";
+    case ScopeKind::kObject: return "ObjectBegin";
+  }
+  return "";
+}
+
+class SceneParser {
+ public:
+  SceneParser(const LoadOptions& options, const SceneFiles& files) : options_(options), files_(files) {
+    ctx_.spectra.is_known_spectrum = options.is_known_spectrum;
+    ctx_.spectra.is_known_ior = options.is_known_ior;
+    ctx_.spectra.load_table = [this](const std::string& ref, const SourceLocation& where) {
+      return load_table(ref, where);
+    };
+    ctx_.mesh_limits = options.mesh_limits;
+    ctx_.warnings = &scene_.warnings;
+    ctx_.load_mesh = [this](const std::string& ref, MeshFormat format, const SourceLocation& where) {
+      return load_mesh(ref, format, where);
+    };
+  }
+
+  absl::StatusOr<SceneDescription> run(std::string_view text, const std::string& relpath) {
+    record_file(relpath);
+    PRISM_RETURN_IF_ERROR(parse_file(text, relpath, 0));
+    SourceLocation end{relpath, end_line_, end_column_};
+    if (!in_world_) return location_error(end, "end of file before WorldBegin");
+    if (current_object_)
+      return location_error(objects_[*current_object_].where,
+                            absl::StrCat("ObjectBegin \"", *current_object_, "\" is never closed by ObjectEnd"));
+    for (const Scope& s : scopes_)
+      scene_.warnings.push_back(absl::StrCat(s.where.to_string(), ": warning: ", scope_begin_name(s.kind),
+                                             " is never closed"));
+    return std::move(scene_);
+  }
+
+ private:
+  absl::Status parse_file(std::string_view text, const std::string& relpath, int depth);
+  absl::Status directive(Tokenizer& tokens, const Token& name, int depth);
+
+  // Arguments of directives.
+  absl::StatusOr<std::vector<double>> numbers(Tokenizer& tokens, size_t count, const Token& directive,
+                                              bool allow_brackets);
+  absl::StatusOr<Token> string_arg(Tokenizer& tokens, const Token& directive, const char* what);
+
+  absl::Status require_world(const Token& directive, const SourceLocation& where) const {
+    if (!in_world_)
+      return location_error(where, absl::StrCat("'", directive.text, "' is only allowed after WorldBegin"));
+    return absl::OkStatus();
+  }
+  absl::Status require_options(const Token& directive, const SourceLocation& where) const {
+    if (in_world_)
+      return location_error(where, absl::StrCat("'", directive.text, "' is not allowed after WorldBegin"));
+    return absl::OkStatus();
+  }
+  absl::Status once(std::optional<SourceLocation>& seen, const Token& directive, const SourceLocation& where) {
+    if (seen)
+      return location_error(where, absl::StrCat("'", directive.text, "' given twice (first at ", seen->to_string(), ")"));
+    seen = where;
+    return absl::OkStatus();
+  }
+
+  void record_file(const std::string& relpath) {
+    if (recorded_.insert(relpath).second) scene_.files.push_back(relpath);
+  }
+
+  absl::StatusOr<std::string> resolve(const std::string& reference, const SourceLocation& where) const;
+  absl::StatusOr<std::string> read(const std::string& relpath, std::uint64_t max_bytes,
+                                   const SourceLocation& where) const;
+  absl::StatusOr<SpectrumTabulated> load_table(const std::string& reference, const SourceLocation& where);
+  absl::StatusOr<TriangleMeshShape> load_mesh(const std::string& reference, MeshFormat format,
+                                              const SourceLocation& where);
+  absl::Status count_triangles(const ShapeGeometry& g, const SourceLocation& where);
+  int material_index(const SourceLocation& where);
+  absl::StatusOr<int> medium_index(const Token& name, const SourceLocation& where) const;
+  absl::Status add_shape(Shape shape);
+
+  const LoadOptions& options_;
+  const SceneFiles& files_;
+  EntityContext ctx_;
+  SceneDescription scene_;
+  GraphicsState state_;
+  std::vector<Scope> scopes_;
+  std::map<std::string, Transform> named_coordinate_systems_;
+  std::map<std::string, int> named_materials_;
+  std::map<std::string, int> named_media_;
+  std::map<std::string, ObjectDefinition> objects_;
+  std::optional<std::string> current_object_;
+  bool in_world_ = false;
+  std::optional<SourceLocation> camera_at_, film_at_, sampler_at_, integrator_at_, filter_at_, world_at_;
+  int default_material_ = -1;
+  std::map<std::string, std::shared_ptr<const TriangleMeshData>> meshes_;
+  std::map<std::string, SpectrumTabulated> tables_;
+  std::set<std::string> recorded_;
+  std::uint64_t total_triangles_ = 0;
+  int end_line_ = 1;
+  int end_column_ = 1;
+};
+
+absl::StatusOr<std::string> SceneParser::resolve(const std::string& reference, const SourceLocation& where) const {
+  if (reference.empty()) return location_error(where, "empty file name");
+  if (reference.front() == '/' || reference.front() == '\\' ||
+      (reference.size() > 1 && reference[1] == ':'))
+    return location_error(where, absl::StrCat("absolute path \"", reference,
+                                              "\" refused: files must be named relative to the scene file"));
+  // Relative to the directory of the file that mentions it.
+  std::string joined = reference;
+  if (size_t slash = where.file.rfind('/'); slash != std::string::npos)
+    joined = absl::StrCat(where.file.substr(0, slash + 1), reference);
+  int level = 0;
+  for (absl::string_view part : absl::StrSplit(joined, '/')) {
+    if (part == "..") {
+      if (--level < 0)
+        return location_error(where, absl::StrCat("path \"", reference, "\" escapes the scene directory"));
+    } else if (!part.empty() && part != ".") {
+      ++level;
+    }
+  }
+  absl::StatusOr<std::string> normal = normalize_reference(joined);
+  if (!normal.ok()) return located(where, normal.status());
+  return *normal;
+}
+
+absl::StatusOr<std::string> SceneParser::read(const std::string& relpath, std::uint64_t max_bytes,
+                                              const SourceLocation& where) const {
+  absl::StatusOr<std::string> text = files_.read(relpath, max_bytes);
+  if (!text.ok()) return located(where, text.status());
+  return text;
+}
+
+absl::StatusOr<SpectrumTabulated> SceneParser::load_table(const std::string& reference,
+                                                          const SourceLocation& where) {
+  PRISM_ASSIGN_OR_RETURN(std::string relpath, resolve(reference, where));
+  if (auto it = tables_.find(relpath); it != tables_.end()) return it->second;
+  PRISM_ASSIGN_OR_RETURN(std::string text, read(relpath, options_.max_spectrum_file_bytes, where));
+  record_file(relpath);
+  PRISM_ASSIGN_OR_RETURN(SpectrumTabulated table, parse_spectrum_table(text, relpath));
+  tables_.emplace(relpath, table);
+  return table;
+}
+
+absl::StatusOr<TriangleMeshShape> SceneParser::load_mesh(const std::string& reference, MeshFormat format,
+                                                         const SourceLocation& where) {
+  PRISM_ASSIGN_OR_RETURN(std::string relpath, resolve(reference, where));
+  auto it = meshes_.find(relpath);
+  if (it == meshes_.end()) {
+    absl::StatusOr<TriangleMeshData> mesh = files_.load_mesh(relpath, format, options_.mesh_limits);
+    if (!mesh.ok()) return located(where, mesh.status());
+    record_file(relpath);
+    it = meshes_.emplace(relpath, std::make_shared<const TriangleMeshData>(std::move(*mesh))).first;
+  }
+  return TriangleMeshShape{it->second, relpath};
+}
+
+absl::Status SceneParser::count_triangles(const ShapeGeometry& g, const SourceLocation& where) {
+  if (const auto* mesh = std::get_if<TriangleMeshShape>(&g)) {
+    total_triangles_ += mesh->mesh->triangles.size();
+    if (total_triangles_ > options_.max_total_triangles)
+      return absl::ResourceExhaustedError(absl::StrCat(where.to_string(), ": the scene has more than ",
+                                                       options_.max_total_triangles, " triangles"));
+  }
+  return absl::OkStatus();
+}
+
+int SceneParser::material_index(const SourceLocation& where) {
+  if (state_.material >= 0) return state_.material;
+  if (default_material_ < 0) {
+    default_material_ = static_cast<int>(scene_.materials.size());
+    scene_.materials.push_back(Material{"", DiffuseMaterial{}, where});
+  }
+  return default_material_;
+}
+
+absl::StatusOr<int> SceneParser::medium_index(const Token& name, const SourceLocation& where) const {
+  if (name.text.empty()) return -1;
+  auto it = named_media_.find(name.text);
+  if (it == named_media_.end())
+    return location_error(where, absl::StrCat("medium \"", name.text, "\" is not defined"));
+  return it->second;
+}
+
+absl::Status SceneParser::add_shape(Shape shape) {
+  if (current_object_) {
+    if (shape.area_light)
+      return location_error(shape.where, "area lights inside ObjectBegin/ObjectEnd are not supported");
+    objects_[*current_object_].shapes.push_back(std::move(shape));
+    return absl::OkStatus();
+  }
+  PRISM_RETURN_IF_ERROR(count_triangles(shape.geometry, shape.where));
+  scene_.shapes.push_back(std::move(shape));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::vector<double>> SceneParser::numbers(Tokenizer& tokens, size_t count, const Token& directive,
+                                                         bool allow_brackets) {
+  std::vector<double> out;
+  PRISM_ASSIGN_OR_RETURN(Token first, tokens.peek());
+  bool bracketed = allow_brackets && first.kind == Token::Kind::kOpenBracket;
+  if (bracketed) PRISM_RETURN_IF_ERROR(tokens.next().status());
+  for (size_t i = 0; i < count; ++i) {
+    PRISM_ASSIGN_OR_RETURN(Token t, tokens.next());
+    SourceLocation at = tokens.location(t);
+    if (t.kind != Token::Kind::kWord)
+      return location_error(at, absl::StrCat("'", directive.text, "' needs ", count, " numbers, found ",
+                                             t.kind == Token::Kind::kString ? absl::StrCat("string \"", t.text, "\"")
+                                                                            : std::string(token_kind_name(t.kind))));
+    PRISM_ASSIGN_OR_RETURN(double v, parse_finite_number(t.text, at, directive.text));
+    out.push_back(v);
+  }
+  if (bracketed) {
+    PRISM_ASSIGN_OR_RETURN(Token close, tokens.next());
+    if (close.kind != Token::Kind::kCloseBracket)
+      return location_error(tokens.location(close),
+                            absl::StrCat("'", directive.text, "' needs exactly ", count, " numbers in [ ]"));
+  }
+  return out;
+}
+
+absl::StatusOr<Token> SceneParser::string_arg(Tokenizer& tokens, const Token& directive, const char* what) {
+  PRISM_ASSIGN_OR_RETURN(Token t, tokens.next());
+  if (t.kind != Token::Kind::kString)
+    return location_error(tokens.location(t), absl::StrCat("'", directive.text, "' needs a quoted ", what, ", found ",
+                                                           t.kind == Token::Kind::kWord
+                                                               ? absl::StrCat("'", t.text, "'")
+                                                               : std::string(token_kind_name(t.kind))));
+  return t;
+}
+
+absl::Status SceneParser::parse_file(std::string_view text, const std::string& relpath, int depth) {
+  Tokenizer tokens(text, relpath);
+  while (true) {
+    PRISM_ASSIGN_OR_RETURN(Token t, tokens.next());
+    if (t.kind == Token::Kind::kEnd) {
+      if (depth == 0) {
+        end_line_ = t.line;
+        end_column_ = t.column;
+      }
+      return absl::OkStatus();
+    }
+    if (t.kind != Token::Kind::kWord)
+      return location_error(tokens.location(t),
+                            absl::StrCat("expected a directive, found ",
+                                         t.kind == Token::Kind::kString ? absl::StrCat("string \"", t.text, "\"")
+                                                                        : std::string(token_kind_name(t.kind))));
+    PRISM_RETURN_IF_ERROR(directive(tokens, t, depth));
+  }
+}
+
+absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth) {
+  const std::string& name = d.text;
+  SourceLocation where = tokens.location(d);
+
+  auto apply = [&](const Transform& t) { state_.ctm = state_.ctm * t; };
+  auto typed_directive = [&]() -> absl::StatusOr<std::pair<TypeName, ParameterList>> {
+    PRISM_ASSIGN_OR_RETURN(Token type, string_arg(tokens, d, "type name"));
+    PRISM_ASSIGN_OR_RETURN(ParameterList params, ParameterList::parse(tokens));
+    return std::make_pair(TypeName{type.text, tokens.location(type)}, std::move(params));
+  };
+
+  if (name == "Translate") {
+    PRISM_ASSIGN_OR_RETURN(std::vector<double> v, numbers(tokens, 3, d, false));
+    apply(Transform::translate({v[0], v[1], v[2]}));
+  } else if (name == "Scale") {
+    PRISM_ASSIGN_OR_RETURN(std::vector<double> v, numbers(tokens, 3, d, false));
+    std::optional<Transform> t = Transform::scale({v[0], v[1], v[2]});
+    if (!t) return location_error(where, "'Scale' with a zero factor makes the transform singular");
+    apply(*t);
+  } else if (name == "Rotate") {
+    PRISM_ASSIGN_OR_RETURN(std::vector<double> v, numbers(tokens, 4, d, false));
+    std::optional<Transform> t = Transform::rotate(v[0], {v[1], v[2], v[3]});
+    if (!t) return location_error(where, "'Rotate' needs a non-zero axis");
+    apply(*t);
+  } else if (name == "LookAt") {
+    PRISM_ASSIGN_OR_RETURN(std::vector<double> v, numbers(tokens, 9, d, false));
+    std::optional<Transform> t = Transform::look_at({v[0], v[1], v[2]}, {v[3], v[4], v[5]}, {v[6], v[7], v[8]});
+    if (!t)
+      return location_error(where, "'LookAt' needs distinct eye and look points and an up vector "
+                                   "not parallel to the view direction");
+    apply(*t);
+  } else if (name == "Transform" || name == "ConcatTransform") {
+    PRISM_ASSIGN_OR_RETURN(std::vector<double> v, numbers(tokens, 16, d, true));
+    // The 16 numbers are the matrix column by column (pbrt transposes them).
+    Matrix4 m{};
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) m[j][i] = v[static_cast<size_t>(i * 4 + j)];
+    std::optional<Transform> t = Transform::from_matrix(m);
+    if (!t) return location_error(where, absl::StrCat("'", name, "' matrix is singular"));
+    if (name == "Transform") state_.ctm = *t;
+    else apply(*t);
+  } else if (name == "Identity") {
+    state_.ctm = Transform();
+  } else if (name == "CoordinateSystem") {
+    PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "name"));
+    named_coordinate_systems_[n.text] = state_.ctm;
+  } else if (name == "CoordSysTransform") {
+    PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "name"));
+    auto it = named_coordinate_systems_.find(n.text);
+    if (it == named_coordinate_systems_.end())
+      return location_error(tokens.location(n), absl::StrCat("coordinate system \"", n.text, "\" is not defined"));
+    state_.ctm = it->second;
+  } else if (name == "ActiveTransform") {
+    PRISM_ASSIGN_OR_RETURN(Token which, tokens.next());
+    if (which.kind != Token::Kind::kWord || which.text != "All")
+      return location_error(tokens.location(which), "only 'ActiveTransform All' is supported (no motion blur)");
+  } else if (name == "ReverseOrientation") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    state_.reverse_orientation = !state_.reverse_orientation;
+  } else if (name == "Camera") {
+    PRISM_RETURN_IF_ERROR(require_options(d, where));
+    PRISM_RETURN_IF_ERROR(once(camera_at_, d, where));
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    PRISM_ASSIGN_OR_RETURN(Camera camera, make_camera(td.first, td.second));
+    camera.world_from_camera = state_.ctm.inverse();
+    camera.medium = state_.outside_medium;
+    named_coordinate_systems_["camera"] = camera.world_from_camera;
+    scene_.camera = std::move(camera);
+  } else if (name == "Film") {
+    PRISM_RETURN_IF_ERROR(require_options(d, where));
+    PRISM_RETURN_IF_ERROR(once(film_at_, d, where));
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    PRISM_ASSIGN_OR_RETURN(scene_.film, make_film(td.first, td.second));
+  } else if (name == "Sampler") {
+    PRISM_RETURN_IF_ERROR(require_options(d, where));
+    PRISM_RETURN_IF_ERROR(once(sampler_at_, d, where));
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    PRISM_ASSIGN_OR_RETURN(scene_.sampler, make_sampler(td.first, td.second, ctx_));
+  } else if (name == "Integrator") {
+    PRISM_RETURN_IF_ERROR(require_options(d, where));
+    PRISM_RETURN_IF_ERROR(once(integrator_at_, d, where));
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    PRISM_ASSIGN_OR_RETURN(scene_.integrator, make_integrator(td.first, td.second, ctx_));
+  } else if (name == "PixelFilter") {
+    PRISM_RETURN_IF_ERROR(require_options(d, where));
+    PRISM_RETURN_IF_ERROR(once(filter_at_, d, where));
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    PRISM_RETURN_IF_ERROR(accept_pixel_filter(td.first, td.second, ctx_));
+  } else if (name == "ColorSpace") {
+    PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "colour space name"));
+    if (n.text != "srgb")
+      return location_error(tokens.location(n), absl::StrCat("unsupported colour space \"", n.text, "\" (supported: srgb)"));
+  } else if (name == "Option") {
+    PRISM_ASSIGN_OR_RETURN(ParameterList params, ParameterList::parse(tokens));
+    for (const Parameter& p : params.parameters())
+      scene_.warnings.push_back(absl::StrCat(p.where.to_string(), ": warning: Option '", p.name, "' ignored"));
+  } else if (name == "WorldBegin") {
+    if (in_world_) return location_error(where, absl::StrCat("'WorldBegin' given twice (first at ", world_at_->to_string(), ")"));
+    in_world_ = true;
+    world_at_ = where;
+    state_.ctm = Transform();
+    named_coordinate_systems_["world"] = state_.ctm;
+  } else if (name == "AttributeBegin" || name == "TransformBegin") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    bool transform_only = name == "TransformBegin";
+    if (transform_only)
+      scene_.warnings.push_back(absl::StrCat(where.to_string(), ": warning: TransformBegin is deprecated in pbrt-v4"));
+    scopes_.push_back(Scope{transform_only ? ScopeKind::kTransform : ScopeKind::kAttribute, state_, where});
+  } else if (name == "AttributeEnd" || name == "TransformEnd") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    ScopeKind kind = name == "TransformEnd" ? ScopeKind::kTransform : ScopeKind::kAttribute;
+    if (scopes_.empty())
+      return location_error(where, absl::StrCat("unmatched '", name, "' (no ", scope_begin_name(kind), " is open)"));
+    if (scopes_.back().kind != kind)
+      return location_error(where, absl::StrCat("'", name, "' closes the ", scope_begin_name(scopes_.back().kind),
+                                                " at ", scopes_.back().where.to_string()));
+    if (kind == ScopeKind::kTransform) state_.ctm = scopes_.back().saved.ctm;
+    else state_ = scopes_.back().saved;
+    scopes_.pop_back();
+  } else if (name == "Shape") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    PRISM_ASSIGN_OR_RETURN(ShapeGeometry geometry, make_shape_geometry(td.first, td.second, ctx_));
+    Shape shape;
+    shape.geometry = std::move(geometry);
+    shape.object_to_world = state_.ctm;
+    shape.transform_swaps_handedness = state_.ctm.swaps_handedness();
+    shape.reverse_orientation = state_.reverse_orientation;
+    shape.material = material_index(where);
+    shape.area_light = state_.area_light;
+    shape.media = {state_.inside_medium, state_.outside_medium};
+    shape.where = where;
+    PRISM_RETURN_IF_ERROR(add_shape(std::move(shape)));
+  } else if (name == "Material") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    PRISM_ASSIGN_OR_RETURN(MaterialKind kind, make_material(td.first, td.second, ctx_));
+    state_.material = static_cast<int>(scene_.materials.size());
+    scene_.materials.push_back(Material{"", std::move(kind), where});
+  } else if (name == "MakeNamedMaterial" || name == "MakeNamedMedium") {
+    bool is_material = name == "MakeNamedMaterial";
+    if (is_material) PRISM_RETURN_IF_ERROR(require_world(d, where));
+    PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "name"));
+    PRISM_ASSIGN_OR_RETURN(ParameterList params, ParameterList::parse(tokens));
+    PRISM_ASSIGN_OR_RETURN(std::optional<std::string> type, params.find_string("type"));
+    if (!type) return location_error(where, absl::StrCat("'", name, "' needs a 'string type' parameter"));
+    TypeName type_name{*type, params.find("type")->where};
+    auto& names = is_material ? named_materials_ : named_media_;
+    if (auto it = names.find(n.text); it != names.end()) {
+      const SourceLocation& first = is_material ? scene_.materials[static_cast<size_t>(it->second)].where
+                                                : scene_.media[static_cast<size_t>(it->second)].where;
+      return location_error(tokens.location(n), absl::StrCat(is_material ? "named material \"" : "medium \"",
+                                                             n.text, "\" redefined (first at ", first.to_string(), ")"));
+    }
+    if (is_material) {
+      PRISM_ASSIGN_OR_RETURN(MaterialKind kind, make_material(type_name, params, ctx_));
+      names[n.text] = static_cast<int>(scene_.materials.size());
+      scene_.materials.push_back(Material{n.text, std::move(kind), where});
+    } else {
+      PRISM_ASSIGN_OR_RETURN(Medium medium, make_medium(type_name, params, ctx_));
+      medium.name = n.text;
+      medium.where = where;
+      names[n.text] = static_cast<int>(scene_.media.size());
+      scene_.media.push_back(std::move(medium));
+    }
+  } else if (name == "NamedMaterial") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "material name"));
+    auto it = named_materials_.find(n.text);
+    if (it == named_materials_.end())
+      return location_error(tokens.location(n), absl::StrCat("named material \"", n.text, "\" is not defined"));
+    state_.material = it->second;
+  } else if (name == "MediumInterface") {
+    PRISM_ASSIGN_OR_RETURN(Token inside, string_arg(tokens, d, "medium name"));
+    Token outside = inside;
+    PRISM_ASSIGN_OR_RETURN(Token next, tokens.peek());
+    if (next.kind == Token::Kind::kString) {
+      PRISM_ASSIGN_OR_RETURN(outside, tokens.next());
+    }
+    PRISM_ASSIGN_OR_RETURN(state_.inside_medium, medium_index(inside, tokens.location(inside)));
+    PRISM_ASSIGN_OR_RETURN(state_.outside_medium, medium_index(outside, tokens.location(outside)));
+  } else if (name == "LightSource") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    if (current_object_) return location_error(where, "light sources inside ObjectBegin/ObjectEnd are not supported");
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    PRISM_ASSIGN_OR_RETURN(Light light, make_light(td.first, td.second, state_.ctm, ctx_));
+    light.medium = state_.outside_medium;
+    light.where = where;
+    scene_.lights.push_back(std::move(light));
+  } else if (name == "AreaLightSource") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    PRISM_ASSIGN_OR_RETURN(AreaLight area, make_area_light(td.first, td.second, ctx_));
+    area.where = where;
+    state_.area_light = std::move(area);
+  } else if (name == "Include" || name == "Import") {
+    PRISM_ASSIGN_OR_RETURN(Token f, string_arg(tokens, d, "file name"));
+    SourceLocation at = tokens.location(f);
+    PRISM_ASSIGN_OR_RETURN(std::string relpath, resolve(f.text, at));
+    if (depth + 1 > kMaxIncludeDepth)
+      return location_error(where, absl::StrCat("'", name, "' nesting is deeper than ", kMaxIncludeDepth, " levels"));
+    PRISM_ASSIGN_OR_RETURN(std::string text, read(relpath, options_.max_scene_file_bytes, at));
+    record_file(relpath);
+    PRISM_RETURN_IF_ERROR(parse_file(text, relpath, depth + 1));
+  } else if (name == "ObjectBegin") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "object name"));
+    if (current_object_)
+      return location_error(where, absl::StrCat("'ObjectBegin' inside the definition of \"", *current_object_, "\""));
+    if (auto it = objects_.find(n.text); it != objects_.end())
+      return location_error(tokens.location(n), absl::StrCat("object \"", n.text, "\" redefined (first at ",
+                                                             it->second.where.to_string(), ")"));
+    scopes_.push_back(Scope{ScopeKind::kObject, state_, where});
+    objects_[n.text].where = where;
+    current_object_ = n.text;
+  } else if (name == "ObjectEnd") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    if (!current_object_ || scopes_.empty() || scopes_.back().kind != ScopeKind::kObject)
+      return location_error(where, "unmatched 'ObjectEnd'");
+    state_ = scopes_.back().saved;
+    scopes_.pop_back();
+    current_object_.reset();
+  } else if (name == "ObjectInstance") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "object name"));
+    if (current_object_) return location_error(where, "'ObjectInstance' inside ObjectBegin/ObjectEnd");
+    auto it = objects_.find(n.text);
+    if (it == objects_.end())
+      return location_error(tokens.location(n), absl::StrCat("object \"", n.text, "\" is not defined"));
+    for (const Shape& s : it->second.shapes) {
+      Shape copy = s;
+      copy.object_to_world = state_.ctm * s.object_to_world;
+      copy.transform_swaps_handedness = copy.object_to_world.swaps_handedness();
+      copy.where = where;
+      PRISM_RETURN_IF_ERROR(add_shape(std::move(copy)));
+    }
+  } else if (name == "Texture" || name == "Attribute" || name == "TransformTimes" || name == "MakeNamedCamera" ||
+             name == "Accelerator" || name == "WorldEnd") {
+    return location_error(where, absl::StrCat("directive '", name, "' is not supported by Prism"));
+  } else {
+    return location_error(where, absl::StrCat("unknown directive '", name, "'"));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<SceneDescription> parse_scene(std::string_view text, const std::string& file_relpath,
+                                             const LoadOptions& options, const SceneFiles& files) {
+  SceneParser parser(options, files);
+  return parser.run(text, file_relpath);
+}
+
+absl::StatusOr<SceneDescription> parse_scene_string(std::string_view text, const std::string& name,
+                                                    const LoadOptions& options,
+                                                    const std::map<std::string, std::string>& files) {
+  SceneFiles access;
+  auto lookup = [&files](const std::string& relpath) -> absl::StatusOr<const std::string*> {
+    auto it = files.find(relpath);
+    if (it == files.end()) return absl::NotFoundError(absl::StrCat("file \"", relpath, "\" does not exist"));
+    return &it->second;
+  };
+  access.read = [lookup](const std::string& relpath, std::uint64_t max_bytes) -> absl::StatusOr<std::string> {
+    PRISM_ASSIGN_OR_RETURN(const std::string* text, lookup(relpath));
+    if (text->size() > max_bytes)
+      return absl::ResourceExhaustedError(absl::StrCat("file \"", relpath, "\" is larger than ", max_bytes, " bytes"));
+    return *text;
+  };
+  access.load_mesh = [lookup](const std::string& relpath, MeshFormat format,
+                              const MeshLimits& limits) -> absl::StatusOr<TriangleMeshData> {
+    PRISM_ASSIGN_OR_RETURN(const std::string* bytes, lookup(relpath));
+    if (bytes->size() > limits.max_file_bytes)
+      return absl::ResourceExhaustedError(absl::StrCat("file \"", relpath, "\" is larger than ",
+                                                       limits.max_file_bytes, " bytes"));
+    return format == MeshFormat::kPly ? parse_ply(*bytes, relpath, limits) : parse_obj(*bytes, relpath, limits);
+  };
+  return parse_scene(text, name, options, access);
+}
+
+}  // namespace prism::scene

@@ -1,0 +1,77 @@
+// The pbrt-v4 scene parser (Prism's subset): runs the directives of a scene file, keeping
+// pbrt-v4's graphics state (current transform, attribute stack, material, area light, media,
+// ReverseOrientation, named coordinate systems, object instances), and builds a
+// SceneDescription. Files it mentions (Include/Import, meshes, spectrum tables) are named
+// relative to the file that mentions them, normalised, and must stay inside the scene root;
+// the parser reaches them only through SceneFiles, so the same code parses from disk
+// (scene_loader.h) and from memory (tests, fuzzing).
+//
+// Every error is a Status whose message starts with `file:line:column: `; nothing is
+// silently dropped: unsupported input is an error naming it, input that is accepted but
+// changed (sampler, filter, integrator tuning, Option) is a warning in the result.
+//
+// Deliberate differences from pbrt-v4:
+// - Include/Import and other file names are relative to the file that mentions them (pbrt-v4:
+//   to the main scene file's directory); both agree for scenes kept in one directory.
+//   Nesting deeper than kMaxIncludeDepth (16) is an error.
+// - Names are resolved when their directive is read: NamedMaterial, MediumInterface,
+//   CoordSysTransform and ObjectInstance must follow the definition they name.
+// - Extensions: `objmesh` shapes (Wavefront OBJ); `float cauchy` / `float sellmeier` IORs on
+//   dielectrics; a `float` where a spectrum is expected (a constant spectrum).
+// - A spectrum given as a string is a file if it contains '/' or '.', else a named spectrum.
+// - Refused (each by name): textures, partial spheres, image lights, motion blur, crop
+//   windows, non-default sensors, lambdamin/lambdamax other than 360/830 nm, emissive media.
+// - The homogeneous medium's `g` is kept (Henyey-Greenstein, as pbrt-v4); `preset` and `Le`
+//   are refused.
+// - Integrator names other than path/volpath are accepted with a warning and rendered by
+//   Prism's spectral path tracer; their tuning parameters are ignored with a warning.
+// - Unclosed AttributeBegin at the end is a warning (as pbrt-v4); unmatched AttributeEnd is
+//   an error.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <string>
+#include <string_view>
+
+#include "absl/status/statusor.h"
+#include "services/scene/mesh.h"
+#include "services/scene/scene_description.h"
+
+namespace prism::scene {
+
+struct LoadOptions {
+  // Named spectra ("stdillum-F11") and named IORs ("glass-BK7", "metal-Cu-eta", also used for
+  // conductor eta/k) are checked with these; unset accepts every name.
+  std::function<bool(std::string_view)> is_known_spectrum;
+  std::function<bool(std::string_view)> is_known_ior;
+  // Limits for each mesh file and inline mesh.
+  MeshLimits mesh_limits;
+  std::uint64_t max_scene_file_bytes = std::uint64_t{256} << 20;  // each scene/include file
+  std::uint64_t max_spectrum_file_bytes = std::uint64_t{16} << 20;
+  std::uint64_t max_total_triangles = 200'000'000;
+};
+
+enum class MeshFormat { kPly, kObj };
+
+// How the parser reads referenced files. Paths are normalised and relative to the scene root.
+struct SceneFiles {
+  std::function<absl::StatusOr<std::string>(const std::string& relpath, std::uint64_t max_bytes)> read;
+  std::function<absl::StatusOr<TriangleMeshData>(const std::string& relpath, MeshFormat format,
+                                                 const MeshLimits& limits)>
+      load_mesh;
+};
+
+// Parses `text`, the contents of the scene file `file_relpath` (relative to the root).
+absl::StatusOr<SceneDescription> parse_scene(std::string_view text, const std::string& file_relpath,
+                                             const LoadOptions& options, const SceneFiles& files);
+
+// Parses from memory. `files` maps normalised relative paths to contents (Include targets,
+// meshes, spectrum tables); a reference to anything else is NOT_FOUND. `name` is the scene's
+// file name in messages.
+absl::StatusOr<SceneDescription> parse_scene_string(std::string_view text, const std::string& name,
+                                                    const LoadOptions& options = {},
+                                                    const std::map<std::string, std::string>& files = {});
+
+}  // namespace prism::scene

@@ -1,0 +1,199 @@
+// Malformed scenes under testdata/parser/bad/: each must fail with exactly this message,
+// including its file:line:column.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <map>
+#include <set>
+#include <string>
+
+#include "services/scene/scene_loader.h"
+
+namespace prism::scene {
+namespace {
+
+struct BadCase {
+  const char* file;
+  absl::StatusCode code;
+  const char* message;
+};
+
+const BadCase kBadCases[] = {
+    {"unknown_directive.pbrt", absl::StatusCode::kInvalidArgument,
+     "unknown_directive.pbrt:3:3: unknown directive 'Frobnicate'"},
+    {"unknown_shape.pbrt", absl::StatusCode::kInvalidArgument,
+     "unknown_shape.pbrt:2:7: unsupported shape type \"cone\" (supported: bilinearmesh, objmesh, plymesh, sphere, "
+     "trianglemesh)"},
+    {"unused_parameter.pbrt", absl::StatusCode::kInvalidArgument,
+     "unused_parameter.pbrt:3:3: unused parameter 'float radiu'"},
+    {"wrong_type_value.pbrt", absl::StatusCode::kInvalidArgument,
+     "wrong_type_value.pbrt:1:34: expected a number for 'float fov', found string \"abc\""},
+    {"wrong_count.pbrt", absl::StatusCode::kInvalidArgument,
+     "wrong_count.pbrt:2:35: 'rgb L' needs 3 values, got 2 values"},
+    {"wrong_declared_type.pbrt", absl::StatusCode::kInvalidArgument,
+     "wrong_declared_type.pbrt:1:22: parameter 'fov' has type 'string', expected 'float'"},
+    {"non_finite.pbrt", absl::StatusCode::kInvalidArgument,
+     "non_finite.pbrt:2:31: value '1e999' of 'float radius' is not a finite number"},
+    {"non_finite_nan.pbrt", absl::StatusCode::kInvalidArgument,
+     "non_finite_nan.pbrt:2:13: value 'nan' of 'Translate' is not a finite number"},
+    {"missing_mesh.pbrt", absl::StatusCode::kNotFound,
+     "missing_mesh.pbrt:2:17: file \"missing.ply\" does not exist"},
+    {"include_depth.pbrt", absl::StatusCode::kInvalidArgument,
+     "include_depth.pbrt:1:1: 'Include' nesting is deeper than 16 levels"},
+    {"include_escape.pbrt", absl::StatusCode::kInvalidArgument,
+     "include_escape.pbrt:2:9: path \"../outside.pbrt\" escapes the scene directory"},
+    {"absolute_path.pbrt", absl::StatusCode::kInvalidArgument,
+     "absolute_path.pbrt:2:17: absolute path \"/etc/passwd\" refused: files must be named relative to the scene "
+     "file"},
+    {"unterminated_string.pbrt", absl::StatusCode::kInvalidArgument,
+     "unterminated_string.pbrt:2:35: unterminated string"},
+    {"unbalanced_attribute_end.pbrt", absl::StatusCode::kInvalidArgument,
+     "unbalanced_attribute_end.pbrt:4:1: unmatched 'AttributeEnd' (no AttributeBegin is open)"},
+    {"undefined_named_material.pbrt", absl::StatusCode::kInvalidArgument,
+     "undefined_named_material.pbrt:2:15: named material \"nope\" is not defined"},
+    {"lambdamin.pbrt", absl::StatusCode::kInvalidArgument,
+     "lambdamin.pbrt:1:17: 'float lambdamin' must be 360 (Prism's spectral range is 360-830 nm), got 380"},
+    {"resolution_too_large.pbrt", absl::StatusCode::kInvalidArgument,
+     "resolution_too_large.pbrt:1:12: 'integer xresolution' must be between 1 and 16384, got 20000"},
+    {"unknown_named_spectrum.pbrt", absl::StatusCode::kInvalidArgument,
+     "unknown_named_spectrum.pbrt:2:34: unknown named spectrum \"stdillum-F99\""},
+    {"unknown_named_ior.pbrt", absl::StatusCode::kInvalidArgument,
+     "unknown_named_ior.pbrt:2:38: unknown named spectrum \"glass-XYZ\""},
+    {"unknown_material.pbrt", absl::StatusCode::kInvalidArgument,
+     "unknown_material.pbrt:2:10: unsupported material type \"plastic\" (supported: conductor, dielectric, diffuse, "
+     "interface)"},
+    {"unknown_light.pbrt", absl::StatusCode::kInvalidArgument,
+     "unknown_light.pbrt:2:13: unsupported light type \"goniometric\" (supported: infinite, point, spot)"},
+    {"unknown_camera.pbrt", absl::StatusCode::kInvalidArgument,
+     "unknown_camera.pbrt:1:8: unsupported camera type \"orthographic\" (supported: perspective)"},
+    {"unknown_medium.pbrt", absl::StatusCode::kInvalidArgument,
+     "unknown_medium.pbrt:1:25: unsupported medium type \"grid\" (supported: homogeneous)"},
+    {"undefined_medium.pbrt", absl::StatusCode::kInvalidArgument,
+     "undefined_medium.pbrt:2:17: medium \"smoke\" is not defined"},
+    {"partial_sphere.pbrt", absl::StatusCode::kInvalidArgument,
+     "partial_sphere.pbrt:2:16: 'float zmin' is not supported (only full spheres: zmin <= -radius)"},
+    {"infinite_image.pbrt", absl::StatusCode::kInvalidArgument,
+     "infinite_image.pbrt:2:24: 'string filename': image-based infinite lights are not supported"},
+    {"shape_before_world.pbrt", absl::StatusCode::kInvalidArgument,
+     "shape_before_world.pbrt:1:1: 'Shape' is only allowed after WorldBegin"},
+    {"camera_after_world.pbrt", absl::StatusCode::kInvalidArgument,
+     "camera_after_world.pbrt:2:1: 'Camera' is not allowed after WorldBegin"},
+    {"missing_world.pbrt", absl::StatusCode::kInvalidArgument,
+     "missing_world.pbrt:2:1: end of file before WorldBegin"},
+    {"missing_spectrum_file.pbrt", absl::StatusCode::kNotFound,
+     "missing_spectrum_file.pbrt:2:43: file \"spectra/missing.csv\" does not exist"},
+    {"bad_spectrum_table.pbrt", absl::StatusCode::kInvalidArgument,
+     "bad_table.csv:3:1: wavelengths must be positive and strictly increasing"},
+    {"too_few_bins.pbrt", absl::StatusCode::kInvalidArgument,
+     "too_few_bins.pbrt:1:17: 'integer nbuckets' must be between 4 and 256, got 2"},
+    {"bad_index.pbrt", absl::StatusCode::kInvalidArgument,
+     "bad_index.pbrt:2:53: 'integer indices' refers to vertex 3 but 'P' has 3 vertices"},
+    {"film_sensor.pbrt", absl::StatusCode::kInvalidArgument,
+     "film_sensor.pbrt:1:12: 'string sensor' \"canon_eos_5d\" is not supported (supported: cie1931)"},
+    {"two_iors.pbrt", absl::StatusCode::kInvalidArgument,
+     "two_iors.pbrt:2:39: 'float sellmeier' conflicts with another index of refraction (give one of eta, cauchy, "
+     "sellmeier)"},
+    {"texture.pbrt", absl::StatusCode::kInvalidArgument,
+     "texture.pbrt:3:1: directive 'Texture' is not supported by Prism"},
+    {"unterminated_bracket.pbrt", absl::StatusCode::kInvalidArgument,
+     "unterminated_bracket.pbrt:2:38: unterminated '[' in the values of 'rgb reflectance'"},
+    {"unknown_param_type.pbrt", absl::StatusCode::kInvalidArgument,
+     "unknown_param_type.pbrt:2:16: unknown parameter type 'flaot' in \"flaot radius\""},
+};
+
+class BadSceneTest : public ::testing::TestWithParam<BadCase> {};
+
+TEST_P(BadSceneTest, FailsWithExactMessage) {
+  const BadCase& c = GetParam();
+  std::filesystem::path dir = std::filesystem::path(PRISM_SOURCE_DIR) / "services/scene/testdata/parser/bad";
+  LoadOptions options;
+  std::set<std::string, std::less<>> spectra = {"stdillum-A", "stdillum-D65", "stdillum-F11"};
+  std::set<std::string, std::less<>> iors = {"glass-BK7", "glass-SF11", "metal-Cu-eta", "metal-Cu-k"};
+  options.is_known_spectrum = [&](std::string_view n) { return spectra.contains(n); };
+  options.is_known_ior = [&](std::string_view n) { return iors.contains(n); };
+  absl::StatusOr<LoadedScene> scene = load_scene(dir / c.file, options);
+  ASSERT_FALSE(scene.ok()) << c.file;
+  EXPECT_EQ(scene.status().code(), c.code) << scene.status();
+  EXPECT_EQ(std::string(scene.status().message()), c.message);
+}
+
+INSTANTIATE_TEST_SUITE_P(Corpus, BadSceneTest, ::testing::ValuesIn(kBadCases),
+                         [](const ::testing::TestParamInfo<BadCase>& info) {
+                           std::string name = info.param.file;
+                           name = name.substr(0, name.find('.'));
+                           return name;
+                         });
+
+TEST(BadSceneCorpus, EveryFileHasACase) {
+  std::filesystem::path dir = std::filesystem::path(PRISM_SOURCE_DIR) / "services/scene/testdata/parser/bad";
+  std::set<std::string> listed;
+  for (const BadCase& c : kBadCases) listed.insert(c.file);
+  for (const auto& e : std::filesystem::directory_iterator(dir))
+    if (e.path().extension() == ".pbrt") {
+      EXPECT_TRUE(listed.contains(e.path().filename().string())) << e.path();
+    }
+}
+
+struct MemoryCase {
+  const char* scene;
+  const char* message;
+};
+
+// Directive-level errors, parsed from memory ("m.pbrt"; "a.pbrt" includes itself).
+const MemoryCase kMemoryCases[] = {
+    {"WorldBegin\nInclude \"a.pbrt\"\n", "a.pbrt:1:1: 'Include' nesting is deeper than 16 levels"},
+    {"Camera \"perspective\"\nCamera \"perspective\"\nWorldBegin\n",
+     "m.pbrt:2:1: 'Camera' given twice (first at m.pbrt:1:1)"},
+    {"WorldBegin\nWorldBegin\n", "m.pbrt:2:1: 'WorldBegin' given twice (first at m.pbrt:1:1)"},
+    {"WorldBegin\nMakeNamedMaterial \"m\" \"string type\" \"diffuse\"\nMakeNamedMaterial \"m\" \"string type\" "
+     "\"diffuse\"\n",
+     "m.pbrt:3:19: named material \"m\" redefined (first at m.pbrt:2:1)"},
+    {"WorldBegin\nMakeNamedMaterial \"m\" \"rgb reflectance\" [1 1 1]\n",
+     "m.pbrt:2:1: 'MakeNamedMaterial' needs a 'string type' parameter"},
+    {"WorldBegin\nObjectBegin \"o\"\nAreaLightSource \"diffuse\"\nShape \"sphere\"\n",
+     "m.pbrt:4:1: area lights inside ObjectBegin/ObjectEnd are not supported"},
+    {"WorldBegin\nObjectBegin \"o\"\nShape \"sphere\"\n", "m.pbrt:2:1: ObjectBegin \"o\" is never closed by ObjectEnd"},
+    {"WorldBegin\nObjectEnd\n", "m.pbrt:2:1: unmatched 'ObjectEnd'"},
+    {"WorldBegin\nObjectInstance \"o\"\n", "m.pbrt:2:16: object \"o\" is not defined"},
+    {"WorldBegin\nTransformBegin\nAttributeEnd\n", "m.pbrt:3:1: 'AttributeEnd' closes the TransformBegin at m.pbrt:2:1"},
+    {"WorldBegin\nMaterial \"diffuse\" \"rgb reflectance\" [0.5 1.5 0]\n",
+     "m.pbrt:2:38: 'rgb reflectance' is a reflectance and has a component > 1"},
+    {"WorldBegin\nMaterial \"conductor\" \"rgb reflectance\" [0.5 0.5 0] \"spectrum eta\" \"metal-Ag-eta\"\n",
+     "m.pbrt:2:22: 'rgb reflectance' cannot be combined with eta or k"},
+    {"WorldBegin\nShape \"trianglemesh\" \"integer indices\" [0 1 2]\n", "m.pbrt:2:7: \"trianglemesh\" needs 'point3 P'"},
+    {"WorldBegin\nShape \"trianglemesh\" \"point3 P\" [0 0 0 1 0 0 0 1 0 1 1 1]\n",
+     "m.pbrt:2:7: \"trianglemesh\" needs 'integer indices' (only a single triangle of 3 vertices may omit them)"},
+    {"WorldBegin\nRotate 30 0 0 0\n", "m.pbrt:2:1: 'Rotate' needs a non-zero axis"},
+    {"Transform [1 0 0 0 0 1 0 0 0 0 0 0 0 0 0 1]\nWorldBegin\n", "m.pbrt:1:1: 'Transform' matrix is singular"},
+    {"WorldBegin\n\"oops\"\n", "m.pbrt:2:1: expected a directive, found string \"oops\""},
+    {"LookAt 0 0 0 0 0 1 0 1\nWorldBegin\n", "m.pbrt:2:1: expected a number for 'LookAt', found 'WorldBegin'"},
+    {"WorldBegin\nShape \"sphere\" \"float phimax\" 180\n",
+     "m.pbrt:2:16: 'float phimax' is not supported (only full spheres: phimax >= 360)"},
+    {"WorldBegin\nCoordSysTransform \"lamp\"\n", "m.pbrt:2:19: coordinate system \"lamp\" is not defined"},
+    {"WorldBegin\nMaterial \"dielectric\" \"rgb eta\" [1.5 1.5 1.5]\n",
+     "m.pbrt:2:23: 'rgb eta' cannot be an rgb value; use a float or a spectrum"},
+    {"WorldBegin\nMaterial \"dielectric\" \"float sellmeier\" [1 2 3]\n",
+     "m.pbrt:2:23: 'float sellmeier' needs 6 coefficients [B1 B2 B3 C1 C2 C3] (C in um^2), got 3"},
+    {"WorldBegin\nMaterial \"diffuse\" \"texture reflectance\" \"checks\"\n",
+     "m.pbrt:2:20: parameter 'reflectance' has type 'texture', expected 'spectrum' or 'rgb' or 'blackbody' or 'float'"},
+    {"Camera \"perspective\" \"float shutteropen\" 0\nWorldBegin\n",
+     "m.pbrt:1:22: 'float shutteropen': motion blur is not supported"},
+    {"WorldBegin\nLightSource \"spot\" \"float coneangle\" 10 \"float conedeltaangle\" 20\n",
+     "m.pbrt:2:41: 'float conedeltaangle' must be between 0 and coneangle, got 20"},
+    {"MakeNamedMedium \"m\" \"string type\" \"homogeneous\" \"float g\" 1\nWorldBegin\n",
+     "m.pbrt:1:49: 'float g' must be in (-1, 1), got 1"},
+    {"WorldBegin\nAttributeBegin\n  ReverseOrientation\nAttributeEnd\nShape \"sphere\" \"float radius\" -1\n",
+     "m.pbrt:5:16: 'float radius' must be > 0, got -1"},
+};
+
+TEST(MemoryErrors, ExactMessages) {
+  std::map<std::string, std::string> files = {{"a.pbrt", "Include \"a.pbrt\"\n"}};
+  for (const MemoryCase& c : kMemoryCases) {
+    absl::StatusOr<SceneDescription> s = parse_scene_string(c.scene, "m.pbrt", {}, files);
+    ASSERT_FALSE(s.ok()) << c.scene;
+    EXPECT_EQ(std::string(s.status().message()), c.message) << c.scene;
+  }
+}
+
+}  // namespace
+}  // namespace prism::scene

@@ -1,0 +1,277 @@
+// The good-scene corpus under testdata/parser/good/: each scene's parsed values.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <string>
+
+#include "services/scene/scene_loader.h"
+
+namespace prism::scene {
+namespace {
+
+namespace fs = std::filesystem;
+
+SceneDescription load_good(const std::string& name) {
+  fs::path path = fs::path(PRISM_SOURCE_DIR) / "services/scene/testdata/parser/good" / name;
+  absl::StatusOr<LoadedScene> scene = load_scene(path, LoadOptions{});
+  EXPECT_TRUE(scene.ok()) << scene.status();
+  if (!scene.ok()) return {};
+  return std::move(scene->description);
+}
+
+void expect_near(const Vec3& a, const Vec3& b, double tol = 1e-9) {
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(a[i], b[i], tol) << "component " << i;
+}
+
+TEST(GoodScenes, CameraLookingDownPlusZIsTheWorldFrame) {
+  SceneDescription s = load_good("camera.pbrt");
+  const Camera& c = s.camera;
+  EXPECT_EQ(c.type, "perspective");
+  EXPECT_DOUBLE_EQ(c.fov_deg, 45.0);
+  EXPECT_DOUBLE_EQ(c.lens_radius, 0.25);
+  EXPECT_DOUBLE_EQ(c.focal_distance, 3.0);
+  EXPECT_EQ(c.frame_aspect_ratio, 1.5);
+  ASSERT_TRUE(c.screen_window.has_value());
+  EXPECT_EQ(*c.screen_window, (std::array<double, 4>{-1.5, 1.5, -1, 1}));
+  // pbrt-v4 LookAt (0,0,0)->(0,0,1), up +y: camera space == world space, so raster x (camera
+  // +x) is world +x: the image's right side shows world +x (left-handed convention).
+  EXPECT_TRUE(c.world_from_camera.is_identity());
+  expect_near(c.world_from_camera.apply_vector({1, 0, 0}), {1, 0, 0});
+  expect_near(c.world_from_camera.apply_vector({0, 1, 0}), {0, 1, 0});
+  expect_near(c.world_from_camera.apply_vector({0, 0, 1}), {0, 0, 1});
+  EXPECT_FALSE(c.world_from_camera.swaps_handedness());
+  EXPECT_EQ(c.medium, -1);
+  EXPECT_EQ(s.film.type, FilmType::kSpectral);
+  EXPECT_EQ(s.film.x_resolution, 320);
+  EXPECT_EQ(s.film.y_resolution, 240);
+  EXPECT_EQ(s.film.filename, "out.exr");
+  EXPECT_EQ(s.film.bins, 32);
+  EXPECT_EQ(s.sampler.name, "halton");
+  EXPECT_EQ(s.sampler.samples_per_pixel, 64);
+  EXPECT_EQ(s.integrator.name, "volpath");
+  EXPECT_EQ(s.integrator.max_depth, 12);
+  EXPECT_TRUE(s.integrator.name_recognised);
+  ASSERT_EQ(s.shapes.size(), 1u);
+  EXPECT_EQ(std::get<SphereShape>(s.shapes[0].geometry).radius, 1.0);
+  ASSERT_EQ(s.warnings.size(), 1u);
+  EXPECT_EQ(s.warnings[0],
+            "camera.pbrt:8:9: warning: sampler \"halton\": Prism uses its own sample sequence; 64 samples per "
+            "pixel become the default spp");
+  EXPECT_EQ(s.files, (std::vector<std::string>{"camera.pbrt"}));
+}
+
+TEST(GoodScenes, MirroredLookAtCameraAndCameraCoordinateSystem) {
+  SceneDescription s = load_good("camera_moved.pbrt");
+  const Transform& w = s.camera.world_from_camera;
+  expect_near(w.apply_point({0, 0, 0}), {1, 2, 3});
+  double l14 = std::sqrt(14.0);
+  expect_near(w.apply_vector({0, 0, 1}), {-1 / l14, -2 / l14, -3 / l14});
+  // right = normalize(cross(up, dir)) = (-3, 0, 1)/sqrt(10); `Scale -1 1 1` before LookAt
+  // mirrors camera x, so raster x runs along world (3, 0, -1)/sqrt(10).
+  double l10 = std::sqrt(10.0);
+  expect_near(w.apply_vector({1, 0, 0}), {3 / l10, 0, -1 / l10});
+  EXPECT_TRUE(w.swaps_handedness());
+  ASSERT_EQ(s.shapes.size(), 1u);
+  // CoordSysTransform "camera": the shape sits in camera space.
+  expect_near(s.shapes[0].object_to_world.apply_point({0, 0, 0}), {1, 2, 3});
+  EXPECT_TRUE(s.shapes[0].transform_swaps_handedness);
+}
+
+TEST(GoodScenes, TransformsComposeLikePbrt) {
+  SceneDescription s = load_good("transforms.pbrt");
+  ASSERT_EQ(s.shapes.size(), 8u);
+  // Translate * Rotate * Scale: the scale applies first.
+  expect_near(s.shapes[0].object_to_world.apply_point({1, 0, 0}), {1, 4, 3});
+  EXPECT_TRUE(s.shapes[1].object_to_world.is_identity());
+  expect_near(s.shapes[2].object_to_world.apply_point({1, 1, 1}), {7, 8, 9});
+  EXPECT_FALSE(s.shapes[2].transform_swaps_handedness);
+  EXPECT_TRUE(s.shapes[3].transform_swaps_handedness);
+  EXPECT_TRUE(s.shapes[3].reverse_orientation);
+  EXPECT_FALSE(s.shapes[4].reverse_orientation);
+  EXPECT_EQ(s.shapes[4].object_to_world, s.shapes[2].object_to_world);
+  EXPECT_TRUE(s.shapes[5].object_to_world.is_identity());
+  expect_near(s.shapes[6].object_to_world.apply_point({0, 0, 0}), {0, 0, -1});
+  EXPECT_TRUE(s.shapes[7].object_to_world.is_identity());
+  // Normals use the inverse transpose.
+  expect_near(s.shapes[2].object_to_world.apply_normal({0, 0, 1}), {0, 0, 0.5});
+}
+
+TEST(GoodScenes, Materials) {
+  SceneDescription s = load_good("materials.pbrt");
+  ASSERT_EQ(s.shapes.size(), 7u);
+  ASSERT_EQ(s.materials.size(), 11u);
+  auto material_of = [&](size_t shape) -> const Material& {
+    return s.materials[static_cast<size_t>(s.shapes[shape].material)];
+  };
+  EXPECT_EQ(std::get<DiffuseMaterial>(material_of(0).kind).reflectance, SpectrumParam(SpectrumConstant{0.5}));
+  EXPECT_EQ(std::get<DiffuseMaterial>(material_of(1).kind).reflectance, SpectrumParam(SpectrumRgb{0.1, 0.2, 0.3}));
+  const auto& inline_table = std::get<SpectrumTabulated>(std::get<DiffuseMaterial>(material_of(2).kind).reflectance);
+  EXPECT_EQ(inline_table.wavelengths_nm, (std::vector<double>{400, 500, 700}));
+  EXPECT_EQ(inline_table.values, (std::vector<double>{0.1, 0.5, 0.9}));
+  EXPECT_EQ(inline_table.source, "inline");
+  const auto& file_table = std::get<SpectrumTabulated>(std::get<DiffuseMaterial>(material_of(3).kind).reflectance);
+  EXPECT_EQ(file_table.source, "spectra/white.csv");
+  EXPECT_EQ(file_table.wavelengths_nm, (std::vector<double>{400, 550, 700}));
+  EXPECT_EQ(file_table.values, (std::vector<double>{0.5, 0.6, 0.7}));
+
+  EXPECT_EQ(material_of(4).name, "glass");
+  EXPECT_EQ(std::get<DielectricMaterial>(material_of(4).kind).eta, IorParam(IorNamed{"glass-BK7"}));
+  EXPECT_EQ(material_of(5).name, "flint");
+  const auto& flint = std::get<IorSellmeier>(std::get<DielectricMaterial>(material_of(5).kind).eta);
+  EXPECT_EQ(flint.b, (std::array<double, 3>{1.73759695, 0.313747346, 1.89878101}));
+  EXPECT_EQ(flint.c, (std::array<double, 3>{0.013188707, 0.0623068142, 155.23629}));
+  const auto& copper = std::get<ConductorMaterial>(material_of(6).kind);
+  EXPECT_EQ(copper.eta, SpectrumParam(SpectrumNamed{"metal-Cu-eta"}));
+  EXPECT_EQ(copper.k, SpectrumParam(SpectrumNamed{"metal-Cu-k"}));
+  EXPECT_FALSE(copper.reflectance.has_value());
+  EXPECT_DOUBLE_EQ(copper.roughness.u, 0.05);
+
+  auto named = [&](const std::string& name) -> const Material& {
+    for (const Material& m : s.materials)
+      if (m.name == name) return m;
+    ADD_FAILURE() << name;
+    return s.materials[0];
+  };
+  const auto& cauchy = std::get<DielectricMaterial>(named("cauchy").kind);
+  EXPECT_EQ(cauchy.eta, IorParam(IorCauchy{{1.5046, 0.0042}}));
+  EXPECT_DOUBLE_EQ(cauchy.roughness.u, 0.1);
+  EXPECT_DOUBLE_EQ(cauchy.roughness.v, 0.1);
+  EXPECT_FALSE(cauchy.roughness.remap);
+  const auto& water = std::get<DielectricMaterial>(named("water").kind);
+  EXPECT_EQ(water.eta, IorParam(IorConstant{1.33}));
+  EXPECT_FALSE(is_dispersive(water.eta));
+  EXPECT_TRUE(is_dispersive(cauchy.eta));
+  EXPECT_DOUBLE_EQ(water.roughness.u, 0.2);
+  EXPECT_DOUBLE_EQ(water.roughness.v, 0.3);
+  EXPECT_TRUE(water.roughness.remap);
+  EXPECT_EQ(std::get<ConductorMaterial>(named("gold-ish").kind).reflectance,
+            std::optional<SpectrumParam>(SpectrumRgb{0.9, 0.7, 0.3}));
+  EXPECT_TRUE(std::holds_alternative<InterfaceMaterial>(named("boundary").kind));
+  EXPECT_EQ(s.files, (std::vector<std::string>{"materials.pbrt", "spectra/white.csv"}));
+}
+
+TEST(GoodScenes, LightsAreaLightsAndMedia) {
+  SceneDescription s = load_good("lights.pbrt");
+  ASSERT_EQ(s.lights.size(), 4u);
+  const auto& point = std::get<PointLight>(s.lights[0].kind);
+  EXPECT_EQ(point.intensity, SpectrumParam(SpectrumBlackbody{2700}));
+  EXPECT_DOUBLE_EQ(point.scale, 2.0);
+  expect_near(point.position_world, {1, 2, 3});
+  const auto& spot = std::get<SpotLight>(s.lights[1].kind);
+  EXPECT_EQ(spot.intensity, SpectrumParam(SpectrumNamed{"stdillum-F11"}));
+  expect_near(spot.position_world, {10, 5, 0});
+  expect_near(spot.direction_world, {0, -1, 0});
+  EXPECT_DOUBLE_EQ(spot.cone_angle_deg, 20.0);
+  EXPECT_DOUBLE_EQ(spot.cone_delta_angle_deg, 4.0);
+  EXPECT_EQ(spot.power, 100.0);
+  const auto& env = std::get<InfiniteLight>(s.lights[2].kind);
+  EXPECT_EQ(env.radiance, SpectrumParam(SpectrumRgb{0.1, 0.2, 0.3}));
+  EXPECT_DOUBLE_EQ(env.scale, 0.5);
+  const auto& last = std::get<PointLight>(s.lights[3].kind);
+  EXPECT_EQ(last.intensity, SpectrumParam(SpectrumNamed{"stdillum-D65"}));
+  EXPECT_EQ(s.lights[3].medium, 0);
+  EXPECT_EQ(s.lights[0].medium, -1);
+
+  ASSERT_EQ(s.media.size(), 1u);
+  EXPECT_EQ(s.media[0].name, "fog");
+  const auto& fog = std::get<HomogeneousMedium>(s.media[0].kind);
+  EXPECT_EQ(fog.sigma_a, SpectrumParam(SpectrumRgb{0.01, 0.02, 0.03}));
+  EXPECT_EQ(std::get<SpectrumTabulated>(fog.sigma_s).values, (std::vector<double>{0.1, 0.2}));
+  EXPECT_DOUBLE_EQ(fog.scale, 2.0);
+  EXPECT_DOUBLE_EQ(fog.g, 0.3);
+
+  ASSERT_EQ(s.shapes.size(), 2u);
+  ASSERT_TRUE(s.shapes[0].area_light.has_value());
+  const AreaLight& area = *s.shapes[0].area_light;
+  EXPECT_EQ(area.radiance, SpectrumParam(SpectrumNamed{"stdillum-A"}));
+  EXPECT_DOUBLE_EQ(area.scale, 4.0);
+  EXPECT_TRUE(area.two_sided);
+  EXPECT_EQ(area.power, 50.0);
+  EXPECT_EQ(s.shapes[0].media.inside, 0);
+  EXPECT_EQ(s.shapes[0].media.outside, -1);
+  EXPECT_TRUE(s.shapes[0].media.is_transition());
+  // AttributeEnd ended the area light and the medium interface.
+  EXPECT_FALSE(s.shapes[1].area_light.has_value());
+  EXPECT_EQ(s.shapes[1].media.inside, -1);
+  EXPECT_EQ(s.shapes[1].media.outside, -1);
+}
+
+// pbrt-v4's geometric normal of triangle (p0, p1, p2): cross(p0 - p2, p1 - p2).
+Vec3 triangle_normal(const TriangleMeshData& m, size_t t) {
+  auto p = [&](size_t k) {
+    const Float3& v = m.positions[m.triangles[t][k]];
+    return Vec3{v.x, v.y, v.z};
+  };
+  Vec3 a = p(0), b = p(1), c = p(2);
+  Vec3 e0{a[0] - c[0], a[1] - c[1], a[2] - c[2]};
+  Vec3 e1{b[0] - c[0], b[1] - c[1], b[2] - c[2]};
+  return {e0[1] * e1[2] - e0[2] * e1[1], e0[2] * e1[0] - e0[0] * e1[2], e0[0] * e1[1] - e0[1] * e1[0]};
+}
+
+TEST(GoodScenes, MeshesIncludesAndFiles) {
+  SceneDescription s = load_good("meshes.pbrt");
+  ASSERT_EQ(s.shapes.size(), 8u);
+  auto mesh = [&](size_t i) -> const TriangleMeshShape& { return std::get<TriangleMeshShape>(s.shapes[i].geometry); };
+  EXPECT_EQ(mesh(0).source, "trianglemesh");
+  EXPECT_EQ(mesh(0).mesh->positions.size(), 4u);
+  EXPECT_EQ(mesh(0).mesh->triangles.size(), 2u);
+  EXPECT_EQ(mesh(0).mesh->normals.size(), 4u);
+  EXPECT_EQ(mesh(0).mesh->uvs.size(), 4u);
+  EXPECT_EQ(mesh(0).mesh->uvs[2], (Float2{1, 1}));
+  EXPECT_EQ(mesh(1).mesh->triangles, (std::vector<Triangle>{{0, 1, 2}}));
+  // Bilinear patch (p00, p10, p01, p11): two triangles facing like the patch normal (+z).
+  EXPECT_EQ(mesh(2).source, "bilinearmesh");
+  EXPECT_EQ(mesh(2).mesh->triangles, (std::vector<Triangle>{{0, 1, 3}, {0, 3, 2}}));
+  expect_near(triangle_normal(*mesh(2).mesh, 0), {0, 0, 1});
+  expect_near(triangle_normal(*mesh(2).mesh, 1), {0, 0, 1});
+  EXPECT_EQ(mesh(3).source, "meshes/tri.obj");
+  EXPECT_EQ(mesh(4).source, "meshes/quad.ply");
+  EXPECT_EQ(mesh(4).mesh->triangles.size(), 2u);
+  // From sub/part.pbrt: "../meshes/tri.obj" is the same file, loaded once.
+  EXPECT_EQ(mesh(5).source, "meshes/tri.obj");
+  EXPECT_EQ(mesh(5).mesh, mesh(3).mesh);
+  expect_near(s.shapes[5].object_to_world.apply_point({0, 0, 0}), {0, 0, 5});
+  EXPECT_EQ(mesh(6).source, "sub/local.obj");
+  EXPECT_EQ(s.shapes[6].where.file, "sub/part.pbrt");
+  EXPECT_EQ(s.shapes[6].where.line, 5);
+  EXPECT_TRUE(s.shapes[7].object_to_world.is_identity());
+  EXPECT_EQ(s.triangle_count(), 11u);
+  EXPECT_EQ(s.files, (std::vector<std::string>{"meshes.pbrt", "meshes/tri.obj", "meshes/quad.ply", "sub/part.pbrt",
+                                               "sub/local.obj"}));
+}
+
+TEST(GoodScenes, ObjectInstancesAreFlattenedWithComposedTransforms) {
+  SceneDescription s = load_good("instances.pbrt");
+  ASSERT_EQ(s.shapes.size(), 4u);
+  expect_near(s.shapes[0].object_to_world.apply_point({0, 0, 0}), {0, 10, 0});
+  expect_near(s.shapes[1].object_to_world.apply_point({0, 0, 0}), {3, 10, 0});
+  expect_near(s.shapes[3].object_to_world.apply_point({0, 0, 0}), {-3, 0, 0});
+  EXPECT_FALSE(s.shapes[1].transform_swaps_handedness);
+  EXPECT_TRUE(s.shapes[3].transform_swaps_handedness);
+  EXPECT_EQ(std::get<TriangleMeshShape>(s.shapes[1].geometry).mesh,
+            std::get<TriangleMeshShape>(s.shapes[3].geometry).mesh);
+}
+
+TEST(GoodScenes, AcceptedButChangedInputIsReportedAsWarnings) {
+  SceneDescription s = load_good("warnings.pbrt");
+  EXPECT_EQ(s.sampler.name, "stratified");
+  EXPECT_EQ(s.sampler.samples_per_pixel, 15);
+  EXPECT_EQ(s.integrator.name, "mystery");
+  EXPECT_FALSE(s.integrator.name_recognised);
+  EXPECT_EQ(s.integrator.max_depth, 7);
+  EXPECT_EQ(s.warnings,
+            (std::vector<std::string>{
+                "warnings.pbrt:1:9: warning: sampler \"stratified\": Prism uses its own sample sequence; 15 samples "
+                "per pixel become the default spp",
+                "warnings.pbrt:2:12: warning: unknown integrator \"mystery\"; Prism renders with its spectral path "
+                "tracer",
+                "warnings.pbrt:2:43: warning: integrator parameter 'bool regularize' ignored",
+                "warnings.pbrt:3:13: warning: pixel filter \"gaussian\" ignored; Prism uses its own",
+                "warnings.pbrt:4:8: warning: Option 'disablepixeljitter' ignored",
+                "warnings.pbrt:6:1: warning: AttributeBegin is never closed",
+            }));
+}
+
+}  // namespace
+}  // namespace prism::scene

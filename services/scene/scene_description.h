@@ -1,0 +1,240 @@
+// The parsed scene: plain values describing a pbrt-v4 scene (the subset Prism renders), ready
+// for a spectral path tracer and for the "what depends on wavelength" analysis. Nothing here
+// is evaluated: spectra stay as written (spectrum_param.h), meshes stay in object space.
+//
+// Coordinate conventions (pbrt-v4; see docs/algorithms.md §9):
+// - The world is left-handed. Camera space: +z is the viewing direction, +y up, +x to the
+//   right of the image. Raster x grows with camera +x, raster y grows with camera −y (down).
+//   LookAt eye=(0,0,0) look=(0,0,1) up=(0,1,0) makes camera space equal world space, so world
+//   +x appears on the RIGHT of the image (a right-handed renderer would show it on the left).
+// - `fov` is the full angle spanned by the shorter image axis (pbrt-v4 perspective camera);
+//   the default screen window is [-a,a]x[-1,1] (a = aspect >= 1) or [-1,1]x[-1/a,1/a].
+// - Transforms: world_from_X matrices act on column vectors; shapes keep object-space data
+//   plus object_to_world, which the tracer applies (to positions: apply_point; to vertex
+//   normals: apply_normal). Spheres are centred at the object-space origin.
+// - Triangle orientation: the geometric normal of triangle (p0, p1, p2), computed from the
+//   WORLD-space positions, is n = normalize(cross(p0 − p2, p1 − p2)); it is negated when
+//   reverse_orientation XOR transform_swaps_handedness. When the mesh has vertex normals, the
+//   geometric normal is instead flipped to the side of the interpolated shading normal
+//   (pbrt-v4 Triangle::InteractionFromIntersection). Sphere normals point outward in object
+//   space and are flipped under the same XOR rule.
+// - Area lights emit on the side the (final) geometric normal points to, unless two_sided.
+// - Light spectra are normalised by pbrt-v4's rule before `scale` (algorithms.md §9); `power`
+//   (or `illuminance`) then rescales to that target. The parser stores the inputs only.
+// - Media: MediumInterface names are resolved when the directive is read; index -1 is vacuum.
+//   A shape whose inside and outside media are equal is not a medium boundary (the ray keeps
+//   its medium, as in pbrt-v4); an `interface` material marks a pure medium boundary.
+//
+// Invariants: every index (material, medium) is valid for its table or -1 where allowed;
+// every number is finite; resolution is within [1, kMaxResolution]; meshes passed
+// TriangleMeshData::validate().
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <memory>
+#include <optional>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "services/scene/mesh.h"
+#include "services/scene/source_location.h"
+#include "services/scene/spectrum_param.h"
+#include "services/scene/transform.h"
+
+namespace prism::scene {
+
+inline constexpr int kMaxResolution = 16384;
+inline constexpr int kMinSpectralBins = 4;
+inline constexpr int kMaxSpectralBins = 256;
+inline constexpr double kLambdaMinNm = 360.0;
+inline constexpr double kLambdaMaxNm = 830.0;
+inline constexpr int kMaxIncludeDepth = 16;
+// pbrt-v4's default illuminant for lights without a spectrum (the sRGB colour space's).
+inline constexpr const char* kDefaultIlluminant = "stdillum-D65";
+
+struct Camera {
+  std::string type = "perspective";
+  Transform world_from_camera;  // inverse of the CTM at the Camera directive
+  double fov_deg = 90.0;
+  double lens_radius = 0.0;
+  double focal_distance = 1e6;
+  std::optional<double> frame_aspect_ratio;
+  std::optional<std::array<double, 4>> screen_window;  // xmin, xmax, ymin, ymax
+  int medium = -1;  // the outside medium current at the Camera directive
+  SourceLocation where;
+};
+
+enum class FilmType { kRgb, kSpectral };
+
+struct Film {
+  FilmType type = FilmType::kRgb;
+  int x_resolution = 1280;
+  int y_resolution = 720;
+  std::string filename = "pbrt.exr";
+  // pbrt-v4's `nbuckets` of the spectral film: the number of wavelength bins over
+  // [kLambdaMinNm, kLambdaMaxNm]; unset means the job's default.
+  std::optional<int> bins;
+  SourceLocation where;
+};
+
+struct SamplerSpec {
+  std::string name = "zsobol";  // as written; Prism always uses its own sequence
+  int samples_per_pixel = 16;
+};
+
+struct IntegratorSpec {
+  std::string name = "volpath";  // as written
+  int max_depth = 5;
+  bool name_recognised = true;  // false: an unknown name, mapped to Prism's path tracer
+};
+
+struct DiffuseMaterial {
+  SpectrumParam reflectance = SpectrumConstant{0.5};
+};
+
+// Roughness as written; with remap_roughness the tracer maps it to the microfacet alpha
+// with pbrt-v4's TrowbridgeReitzDistribution::RoughnessToAlpha (sqrt). Zero is smooth.
+struct Roughness {
+  double u = 0.0;
+  double v = 0.0;
+  bool remap = true;
+};
+
+struct DielectricMaterial {
+  IorParam eta = IorConstant{1.5};
+  Roughness roughness;
+};
+
+// Either eta + k (complex IOR, default pbrt-v4's copper) or an artist reflectance (then eta
+// and k are unused and pbrt-v4's reflectance-to-IOR mapping applies).
+struct ConductorMaterial {
+  SpectrumParam eta = SpectrumNamed{"metal-Cu-eta"};
+  SpectrumParam k = SpectrumNamed{"metal-Cu-k"};
+  std::optional<SpectrumParam> reflectance;
+  Roughness roughness;
+};
+
+// No surface scattering: marks a boundary between media.
+struct InterfaceMaterial {};
+
+using MaterialKind = std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial, InterfaceMaterial>;
+
+struct Material {
+  std::string name;  // empty for anonymous `Material` directives and the default material
+  MaterialKind kind;
+  SourceLocation where;
+};
+
+struct TriangleMeshShape {
+  std::shared_ptr<const TriangleMeshData> mesh;  // object space; shared between instances
+  // "trianglemesh", "bilinearmesh" (split into two triangles per patch, (p00,p10,p11) and
+  // (p00,p11,p01), which keeps pbrt-v4's patch normal cross(p10−p00, p01−p00)), or the mesh
+  // file's path relative to the scene root.
+  std::string source;
+};
+
+struct SphereShape {
+  double radius = 1.0;  // full sphere; partial spheres are refused
+};
+
+using ShapeGeometry = std::variant<TriangleMeshShape, SphereShape>;
+
+struct AreaLight {
+  SpectrumParam radiance = SpectrumNamed{kDefaultIlluminant};  // pbrt `L`
+  double scale = 1.0;
+  bool two_sided = false;
+  std::optional<double> power;  // watts; rescales the emission to this total power
+  SourceLocation where;
+};
+
+struct MediumInterface {
+  int inside = -1;
+  int outside = -1;
+  bool is_transition() const { return inside != outside; }
+};
+
+struct Shape {
+  ShapeGeometry geometry;
+  Transform object_to_world;
+  bool transform_swaps_handedness = false;
+  bool reverse_orientation = false;
+  int material = 0;  // index into SceneDescription::materials
+  std::optional<AreaLight> area_light;
+  MediumInterface media;
+  SourceLocation where;
+};
+
+struct PointLight {
+  SpectrumParam intensity = SpectrumNamed{kDefaultIlluminant};  // pbrt `I`
+  double scale = 1.0;
+  std::optional<double> power;
+  Vec3 position_world{};  // light_to_world applied to the origin
+};
+
+struct SpotLight {
+  SpectrumParam intensity = SpectrumNamed{kDefaultIlluminant};
+  double scale = 1.0;
+  std::optional<double> power;
+  double cone_angle_deg = 30.0;
+  double cone_delta_angle_deg = 5.0;
+  Vec3 position_world{};
+  Vec3 direction_world{0, 0, 1};  // unit vector, light space +z in world
+};
+
+// A constant environment (no image maps).
+struct InfiniteLight {
+  SpectrumParam radiance = SpectrumNamed{kDefaultIlluminant};  // pbrt `L`
+  double scale = 1.0;
+  std::optional<double> illuminance;
+};
+
+using LightKind = std::variant<PointLight, SpotLight, InfiniteLight>;
+
+struct Light {
+  LightKind kind;
+  // pbrt-v4's renderFromLight: CTM * Translate(from) (* the spot's frame, light +z = to−from).
+  Transform light_to_world;
+  int medium = -1;  // the outside medium current at the directive
+  SourceLocation where;
+};
+
+// Henyey-Greenstein phase function with asymmetry g (pbrt-v4's homogeneous medium); g = 0 is
+// isotropic. Coefficients are per scene unit after multiplying by `scale`.
+struct HomogeneousMedium {
+  SpectrumParam sigma_a = SpectrumConstant{1.0};
+  SpectrumParam sigma_s = SpectrumConstant{1.0};
+  double scale = 1.0;
+  double g = 0.0;  // in (-1, 1)
+};
+
+using MediumKind = std::variant<HomogeneousMedium>;
+
+struct Medium {
+  std::string name;
+  MediumKind kind;
+  SourceLocation where;
+};
+
+struct SceneDescription {
+  Camera camera;
+  Film film;
+  SamplerSpec sampler;
+  IntegratorSpec integrator;
+  std::vector<Shape> shapes;
+  std::vector<Material> materials;
+  std::vector<Light> lights;
+  std::vector<Medium> media;
+  // "file:line:column: message" for accepted-but-changed input (unknown integrator, ignored
+  // sampler or filter settings, unbalanced AttributeBegin at the end, ...).
+  std::vector<std::string> warnings;
+  // Every file the parse opened, relative to the scene root, in first-open order, scene file
+  // first; what a bundle must contain.
+  std::vector<std::string> files;
+
+  std::size_t triangle_count() const;
+  std::size_t area_light_count() const;
+};
+
+}  // namespace prism::scene

@@ -1,0 +1,487 @@
+#include "services/scene/scene_entities.h"
+
+#include <cmath>
+#include <string_view>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
+#include "services/base/status.h"
+
+namespace prism::scene {
+namespace {
+
+absl::Status unsupported_type(const TypeName& type, const char* what,
+                              std::initializer_list<const char*> supported) {
+  return location_error(type.where, absl::StrCat("unsupported ", what, " type \"", type.name,
+                                                 "\" (supported: ", absl::StrJoin(supported, ", "), ")"));
+}
+
+// An error at the parameter's declaration.
+absl::Status param_error(const ParameterList& params, const std::string& name, const std::string& message) {
+  const Parameter* p = params.find(name);
+  return location_error(p->where, absl::StrCat("'", param_type_name(p->type), " ", name, "' ", message));
+}
+
+absl::Status check_range(const ParameterList& params, const std::string& name, double value, double lo,
+                         double hi, const std::string& range_text) {
+  if (params.has(name) && !(value >= lo && value <= hi))
+    return param_error(params, name, absl::StrCat("must be ", range_text, ", got ", value));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<Roughness> read_roughness(const ParameterList& params) {
+  Roughness r;
+  PRISM_ASSIGN_OR_RETURN(double rough, params.get_float("roughness", 0.0));
+  PRISM_ASSIGN_OR_RETURN(r.u, params.get_float("uroughness", rough));
+  PRISM_ASSIGN_OR_RETURN(r.v, params.get_float("vroughness", rough));
+  PRISM_ASSIGN_OR_RETURN(r.remap, params.get_bool("remaproughness", true));
+  for (const char* name : {"roughness", "uroughness", "vroughness"}) {
+    PRISM_ASSIGN_OR_RETURN(double v, params.get_float(name, 0.0));
+    PRISM_RETURN_IF_ERROR(check_range(params, name, v, 0.0, 1e30, ">= 0"));
+  }
+  return r;
+}
+
+absl::Status refuse_common_material_params(const ParameterList& params) {
+  PRISM_RETURN_IF_ERROR(params.refuse("displacement", "displacement is not supported"));
+  PRISM_RETURN_IF_ERROR(params.refuse("normalmap", "normal maps are not supported"));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<IorParam> read_dielectric_eta(const ParameterList& params, const EntityContext& ctx) {
+  int given = params.has("eta") + params.has("cauchy") + params.has("sellmeier");
+  if (given > 1) {
+    const char* second = params.has("sellmeier") ? "sellmeier" : "cauchy";
+    return param_error(params, second, "conflicts with another index of refraction (give one of eta, cauchy, sellmeier)");
+  }
+  if (params.has("cauchy")) {
+    PRISM_ASSIGN_OR_RETURN(std::vector<double> c, params.get_floats("cauchy"));
+    if (c.size() < 2 || c.size() > 4)
+      return param_error(params, "cauchy", absl::StrCat("needs 2 to 4 coefficients [A B C D], got ", c.size()));
+    if (!(c[0] > 0)) return param_error(params, "cauchy", "needs A > 0");
+    return IorCauchy{c};
+  }
+  if (params.has("sellmeier")) {
+    PRISM_ASSIGN_OR_RETURN(std::vector<double> c, params.get_floats("sellmeier"));
+    if (c.size() != 6)
+      return param_error(params, "sellmeier",
+                         absl::StrCat("needs 6 coefficients [B1 B2 B3 C1 C2 C3] (C in um^2), got ", c.size()));
+    IorSellmeier s;
+    for (int i = 0; i < 3; ++i) {
+      s.b[i] = c[i];
+      s.c[i] = c[3 + i];
+      if (s.c[i] < 0) return param_error(params, "sellmeier", "needs C1..C3 >= 0");
+    }
+    return s;
+  }
+  const Parameter* p = params.find("eta");
+  if (p == nullptr) return IorConstant{1.5};
+  if (p->type == ParamType::kRgb) return param_error(params, "eta", "cannot be an rgb value; use a float or a spectrum");
+  PRISM_ASSIGN_OR_RETURN(std::optional<SpectrumParam> found,
+                         params.find_spectrum("eta", SpectrumRole::kIor, ctx.spectra));
+  SpectrumParam s = found.value_or(SpectrumConstant{1.5});
+  if (const auto* c = std::get_if<SpectrumConstant>(&s)) {
+    if (!(c->value > 0)) return param_error(params, "eta", "must be > 0");
+    return IorConstant{c->value};
+  }
+  if (const auto* n = std::get_if<SpectrumNamed>(&s)) return IorNamed{n->name};
+  if (auto* t = std::get_if<SpectrumTabulated>(&s)) {
+    for (double v : t->values)
+      if (!(v > 0)) return param_error(params, "eta", "needs values > 0");
+    return IorTabulated{std::move(*t)};
+  }
+  return param_error(params, "eta", "must be a float or a spectrum (named, table or file)");
+}
+
+absl::StatusOr<SpectrumParam> spectrum_or(const ParameterList& params, const std::string& name,
+                                          SpectrumRole role, const EntityContext& ctx, SpectrumParam fallback) {
+  PRISM_ASSIGN_OR_RETURN(std::optional<SpectrumParam> s, params.find_spectrum(name, role, ctx.spectra));
+  if (s) return std::move(*s);
+  return fallback;
+}
+
+absl::StatusOr<std::optional<double>> positive_optional(const ParameterList& params, const std::string& name) {
+  PRISM_ASSIGN_OR_RETURN(std::optional<double> v, params.find_float(name));
+  if (v && !(*v > 0)) return param_error(params, name, "must be > 0");
+  return v;
+}
+
+Vec3 normalize(const Vec3& v) {
+  double l = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  return {v[0] / l, v[1] / l, v[2] / l};
+}
+
+Vec3 cross(const Vec3& a, const Vec3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+
+// A rotation taking light space +z to `dir` (any completion of the frame: the spot is symmetric).
+Transform frame_from_z(const Vec3& dir) {
+  Vec3 z = normalize(dir);
+  Vec3 helper = std::abs(z[0]) > 0.9 ? Vec3{0, 1, 0} : Vec3{1, 0, 0};
+  Vec3 x = normalize(cross(helper, z));
+  Vec3 y = cross(z, x);
+  Matrix4 m{};
+  for (int i = 0; i < 3; ++i) {
+    m[i][0] = x[i];
+    m[i][1] = y[i];
+    m[i][2] = z[i];
+  }
+  m[3][3] = 1.0;
+  return *Transform::from_matrix(m);
+}
+
+absl::StatusOr<std::shared_ptr<TriangleMeshData>> inline_mesh(const ParameterList& params, bool bilinear,
+                                                              const TypeName& type, const EntityContext& ctx) {
+  const size_t corners = bilinear ? 4 : 3;
+  PRISM_ASSIGN_OR_RETURN(std::vector<Vec3> p, params.get_triples("P", ParamType::kPoint3));
+  PRISM_ASSIGN_OR_RETURN(std::vector<std::int64_t> indices, params.get_ints("indices"));
+  PRISM_ASSIGN_OR_RETURN(std::vector<Vec3> n, params.get_triples("N", ParamType::kNormal3));
+  PRISM_ASSIGN_OR_RETURN(auto uv, params.get_point2s("uv"));
+  if (p.empty()) return location_error(type.where, absl::StrCat("\"", type.name, "\" needs 'point3 P'"));
+  if (indices.empty()) {
+    if (p.size() != corners)
+      return location_error(type.where, absl::StrCat("\"", type.name, "\" needs 'integer indices' (only a single ",
+                                                     bilinear ? "patch of 4" : "triangle of 3",
+                                                     " vertices may omit them)"));
+    for (size_t i = 0; i < corners; ++i) indices.push_back(static_cast<std::int64_t>(i));
+  }
+  if (indices.size() % corners != 0)
+    return param_error(params, "indices", absl::StrCat("needs a multiple of ", corners, " values, got ", indices.size()));
+  for (std::int64_t i : indices)
+    if (i < 0 || static_cast<size_t>(i) >= p.size())
+      return param_error(params, "indices", absl::StrCat("refers to vertex ", i, " but 'P' has ", p.size(), " vertices"));
+  if (!n.empty() && n.size() != p.size())
+    return param_error(params, "N", absl::StrCat("has ", n.size(), " normals for ", p.size(), " vertices"));
+  if (!uv.empty() && uv.size() != p.size())
+    return param_error(params, "uv", absl::StrCat("has ", uv.size(), " uvs for ", p.size(), " vertices"));
+  size_t triangles = indices.size() / corners * (bilinear ? 2 : 1);
+  if (triangles > ctx.mesh_limits.max_triangles)
+    return absl::ResourceExhaustedError(absl::StrCat(type.where.to_string(), ": \"", type.name, "\" has ", triangles,
+                                                     " triangles, more than the limit of ", ctx.mesh_limits.max_triangles));
+  auto mesh = std::make_shared<TriangleMeshData>();
+  mesh->positions.reserve(p.size() + 1);
+  for (const Vec3& v : p)
+    mesh->positions.push_back({static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])});
+  for (const Vec3& v : n)
+    mesh->normals.push_back({static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])});
+  for (const auto& t : uv) mesh->uvs.push_back({static_cast<float>(t[0]), static_cast<float>(t[1])});
+  auto idx = [&](size_t i) { return static_cast<std::uint32_t>(indices[i]); };
+  for (size_t i = 0; i < indices.size(); i += corners) {
+    if (bilinear) {
+      // Patch (p00, p10, p01, p11) -> (p00, p10, p11), (p00, p11, p01): same facing as the patch.
+      mesh->triangles.push_back({idx(i), idx(i + 1), idx(i + 3)});
+      mesh->triangles.push_back({idx(i), idx(i + 3), idx(i + 2)});
+    } else {
+      mesh->triangles.push_back({idx(i), idx(i + 1), idx(i + 2)});
+    }
+  }
+  if (absl::Status s = mesh->validate(); !s.ok()) return located(type.where, s);
+  return mesh;
+}
+
+}  // namespace
+
+void add_warning(const EntityContext& ctx, const SourceLocation& where, std::string_view message) {
+  if (ctx.warnings != nullptr) ctx.warnings->push_back(absl::StrCat(where.to_string(), ": warning: ", absl_view(message)));
+}
+
+absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& params) {
+  if (type.name != "perspective") return unsupported_type(type, "camera", {"perspective"});
+  Camera c;
+  c.where = type.where;
+  PRISM_ASSIGN_OR_RETURN(c.fov_deg, params.get_float("fov", 90.0));
+  PRISM_RETURN_IF_ERROR(check_range(params, "fov", c.fov_deg, 1e-6, 179.999, "in (0, 180) degrees"));
+  PRISM_ASSIGN_OR_RETURN(c.lens_radius, params.get_float("lensradius", 0.0));
+  PRISM_RETURN_IF_ERROR(check_range(params, "lensradius", c.lens_radius, 0.0, 1e30, ">= 0"));
+  PRISM_ASSIGN_OR_RETURN(c.focal_distance, params.get_float("focaldistance", 1e6));
+  PRISM_RETURN_IF_ERROR(check_range(params, "focaldistance", c.focal_distance, 1e-30, 1e30, "> 0"));
+  PRISM_ASSIGN_OR_RETURN(c.frame_aspect_ratio, positive_optional(params, "frameaspectratio"));
+  if (params.has("screenwindow")) {
+    PRISM_ASSIGN_OR_RETURN(std::vector<double> w, params.get_floats("screenwindow"));
+    if (w.size() != 4 || !(w[0] < w[1]) || !(w[2] < w[3]))
+      return param_error(params, "screenwindow", "needs 4 values xmin xmax ymin ymax with min < max");
+    c.screen_window = std::array<double, 4>{w[0], w[1], w[2], w[3]};
+  }
+  PRISM_RETURN_IF_ERROR(params.refuse("shutteropen", "motion blur is not supported"));
+  PRISM_RETURN_IF_ERROR(params.refuse("shutterclose", "motion blur is not supported"));
+  PRISM_RETURN_IF_ERROR(params.check_all_used());
+  return c;
+}
+
+absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params) {
+  Film f;
+  f.where = type.where;
+  if (type.name == "rgb") {
+    f.type = FilmType::kRgb;
+  } else if (type.name == "spectral") {
+    f.type = FilmType::kSpectral;
+  } else {
+    return unsupported_type(type, "film", {"rgb", "spectral"});
+  }
+  PRISM_ASSIGN_OR_RETURN(f.x_resolution, params.get_int("xresolution", 1280));
+  PRISM_ASSIGN_OR_RETURN(f.y_resolution, params.get_int("yresolution", 720));
+  std::string range = absl::StrCat("between 1 and ", kMaxResolution);
+  PRISM_RETURN_IF_ERROR(check_range(params, "xresolution", f.x_resolution, 1, kMaxResolution, range));
+  PRISM_RETURN_IF_ERROR(check_range(params, "yresolution", f.y_resolution, 1, kMaxResolution, range));
+  PRISM_ASSIGN_OR_RETURN(f.filename, params.get_string("filename", "pbrt.exr"));
+  if (f.type == FilmType::kSpectral) {
+    if (params.has("nbuckets")) {
+      PRISM_ASSIGN_OR_RETURN(int bins, params.get_int("nbuckets", 16));
+      PRISM_RETURN_IF_ERROR(check_range(params, "nbuckets", bins, kMinSpectralBins, kMaxSpectralBins,
+                                        absl::StrCat("between ", kMinSpectralBins, " and ", kMaxSpectralBins)));
+      f.bins = bins;
+    }
+    PRISM_ASSIGN_OR_RETURN(double lmin, params.get_float("lambdamin", kLambdaMinNm));
+    PRISM_ASSIGN_OR_RETURN(double lmax, params.get_float("lambdamax", kLambdaMaxNm));
+    if (lmin != kLambdaMinNm)
+      return param_error(params, "lambdamin", absl::StrCat("must be ", kLambdaMinNm, " (Prism's spectral range is ",
+                                                           kLambdaMinNm, "-", kLambdaMaxNm, " nm), got ", lmin));
+    if (lmax != kLambdaMaxNm)
+      return param_error(params, "lambdamax", absl::StrCat("must be ", kLambdaMaxNm, " (Prism's spectral range is ",
+                                                           kLambdaMinNm, "-", kLambdaMaxNm, " nm), got ", lmax));
+  }
+  // The sensor settings that would change pixel values are accepted only at their defaults.
+  PRISM_ASSIGN_OR_RETURN(std::string sensor, params.get_string("sensor", "cie1931"));
+  if (sensor != "cie1931")
+    return param_error(params, "sensor", absl::StrCat("\"", sensor, "\" is not supported (supported: cie1931)"));
+  PRISM_ASSIGN_OR_RETURN(double iso, params.get_float("iso", 100.0));
+  if (iso != 100.0) return param_error(params, "iso", "is only supported at its default, 100");
+  PRISM_ASSIGN_OR_RETURN(double white_balance, params.get_float("whitebalance", 0.0));
+  if (white_balance != 0.0) return param_error(params, "whitebalance", "is not supported (only 0, none)");
+  // The film diagonal matters only for the realistic camera.
+  PRISM_ASSIGN_OR_RETURN(double diagonal, params.get_float("diagonal", 35.0));
+  PRISM_RETURN_IF_ERROR(check_range(params, "diagonal", diagonal, 1e-9, 1e30, "> 0"));
+  for (const char* refused : {"cropwindow", "pixelbounds", "maxcomponentvalue", "savefp16"})
+    PRISM_RETURN_IF_ERROR(params.refuse(refused, "is not supported by Prism"));
+  PRISM_RETURN_IF_ERROR(params.check_all_used());
+  return f;
+}
+
+absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterList& params,
+                                         const EntityContext& ctx) {
+  static constexpr std::string_view kKnown[] = {"halton", "independent", "paddedsobol", "pmj02bn",
+                                                "sobol",  "stratified",  "zsobol"};
+  bool known = false;
+  for (std::string_view k : kKnown) known |= k == type.name;
+  if (!known)
+    return unsupported_type(type, "sampler",
+                            {"halton", "independent", "paddedsobol", "pmj02bn", "sobol", "stratified", "zsobol"});
+  SamplerSpec s;
+  s.name = type.name;
+  if (type.name == "stratified") {
+    PRISM_ASSIGN_OR_RETURN(int x, params.get_int("xsamples", 4));
+    PRISM_ASSIGN_OR_RETURN(int y, params.get_int("ysamples", 4));
+    PRISM_RETURN_IF_ERROR(check_range(params, "xsamples", x, 1, 4096, "between 1 and 4096"));
+    PRISM_RETURN_IF_ERROR(check_range(params, "ysamples", y, 1, 4096, "between 1 and 4096"));
+    PRISM_ASSIGN_OR_RETURN(bool jitter, params.get_bool("jitter", true));
+    (void)jitter;
+    s.samples_per_pixel = x * y;
+  } else {
+    PRISM_ASSIGN_OR_RETURN(s.samples_per_pixel, params.get_int("pixelsamples", 16));
+    PRISM_RETURN_IF_ERROR(check_range(params, "pixelsamples", s.samples_per_pixel, 1, 1 << 24, "between 1 and 16777216"));
+  }
+  PRISM_ASSIGN_OR_RETURN(int seed, params.get_int("seed", 0));
+  PRISM_ASSIGN_OR_RETURN(std::string randomization, params.get_string("randomization", ""));
+  (void)seed;
+  (void)randomization;
+  PRISM_RETURN_IF_ERROR(params.check_all_used());
+  add_warning(ctx, type.where,
+              absl::StrCat("sampler \"", type.name, "\": Prism uses its own sample sequence; ",
+                           s.samples_per_pixel, " samples per pixel become the default spp"));
+  return s;
+}
+
+absl::StatusOr<IntegratorSpec> make_integrator(const TypeName& type, const ParameterList& params,
+                                               const EntityContext& ctx) {
+  static constexpr std::string_view kPbrt[] = {"ambientocclusion", "aov", "bdpt", "function", "lightpath",
+                                               "mlt", "path", "randomwalk", "simplepath", "simplevolpath",
+                                               "sppm", "volpath"};
+  IntegratorSpec s;
+  s.name = type.name;
+  bool pbrt_name = false;
+  for (std::string_view k : kPbrt) pbrt_name |= k == type.name;
+  s.name_recognised = pbrt_name;
+  PRISM_ASSIGN_OR_RETURN(s.max_depth, params.get_int("maxdepth", 5));
+  PRISM_RETURN_IF_ERROR(check_range(params, "maxdepth", s.max_depth, 0, 1024, "between 0 and 1024"));
+  if (!pbrt_name) {
+    add_warning(ctx, type.where, absl::StrCat("unknown integrator \"", type.name,
+                                              "\"; Prism renders with its spectral path tracer"));
+  } else if (type.name != "path" && type.name != "volpath") {
+    add_warning(ctx, type.where, absl::StrCat("integrator \"", type.name,
+                                              "\" is rendered with Prism's spectral path tracer"));
+  }
+  // The integrator itself is replaced, so its remaining tuning parameters cannot apply.
+  std::vector<const Parameter*> rest = params.unused();
+  for (const Parameter* p : rest) {
+    p->used = true;
+    add_warning(ctx, p->where, absl::StrCat("integrator parameter '", param_type_name(p->type), " ", p->name,
+                                            "' ignored"));
+  }
+  return s;
+}
+
+absl::Status accept_pixel_filter(const TypeName& type, const ParameterList& params, const EntityContext& ctx) {
+  for (const Parameter& p : params.parameters()) p.used = true;
+  add_warning(ctx, type.where, absl::StrCat("pixel filter \"", type.name, "\" ignored; Prism uses its own"));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<MaterialKind> make_material(const TypeName& type, const ParameterList& params,
+                                           const EntityContext& ctx) {
+  MaterialKind kind;
+  if (type.name == "diffuse") {
+    DiffuseMaterial m;
+    PRISM_ASSIGN_OR_RETURN(m.reflectance, spectrum_or(params, "reflectance", SpectrumRole::kReflectance, ctx,
+                                                      SpectrumConstant{0.5}));
+    kind = std::move(m);
+  } else if (type.name == "dielectric") {
+    DielectricMaterial m;
+    PRISM_ASSIGN_OR_RETURN(m.eta, read_dielectric_eta(params, ctx));
+    PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params));
+    kind = std::move(m);
+  } else if (type.name == "conductor") {
+    ConductorMaterial m;
+    PRISM_ASSIGN_OR_RETURN(m.reflectance, params.find_spectrum("reflectance", SpectrumRole::kReflectance, ctx.spectra));
+    if (m.reflectance && (params.has("eta") || params.has("k")))
+      return param_error(params, "reflectance", "cannot be combined with eta or k");
+    PRISM_ASSIGN_OR_RETURN(m.eta, spectrum_or(params, "eta", SpectrumRole::kIor, ctx, SpectrumNamed{"metal-Cu-eta"}));
+    PRISM_ASSIGN_OR_RETURN(m.k, spectrum_or(params, "k", SpectrumRole::kIor, ctx, SpectrumNamed{"metal-Cu-k"}));
+    PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params));
+    kind = std::move(m);
+  } else if (type.name == "interface") {
+    kind = InterfaceMaterial{};
+  } else {
+    return unsupported_type(type, "material", {"conductor", "dielectric", "diffuse", "interface"});
+  }
+  PRISM_RETURN_IF_ERROR(refuse_common_material_params(params));
+  PRISM_RETURN_IF_ERROR(params.check_all_used());
+  return kind;
+}
+
+absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& params, const Transform& ctm,
+                                 const EntityContext& ctx) {
+  Light light;
+  light.where = type.where;
+  if (type.name == "point") {
+    PointLight p;
+    PRISM_ASSIGN_OR_RETURN(p.intensity, spectrum_or(params, "I", SpectrumRole::kIlluminant, ctx,
+                                                    SpectrumNamed{kDefaultIlluminant}));
+    PRISM_ASSIGN_OR_RETURN(p.scale, params.get_float("scale", 1.0));
+    PRISM_ASSIGN_OR_RETURN(p.power, positive_optional(params, "power"));
+    PRISM_ASSIGN_OR_RETURN(Vec3 from, params.get_point3("from", {0, 0, 0}));
+    light.light_to_world = ctm * Transform::translate(from);
+    p.position_world = light.light_to_world.apply_point({0, 0, 0});
+    light.kind = std::move(p);
+  } else if (type.name == "spot") {
+    SpotLight s;
+    PRISM_ASSIGN_OR_RETURN(s.intensity, spectrum_or(params, "I", SpectrumRole::kIlluminant, ctx,
+                                                    SpectrumNamed{kDefaultIlluminant}));
+    PRISM_ASSIGN_OR_RETURN(s.scale, params.get_float("scale", 1.0));
+    PRISM_ASSIGN_OR_RETURN(s.power, positive_optional(params, "power"));
+    PRISM_ASSIGN_OR_RETURN(Vec3 from, params.get_point3("from", {0, 0, 0}));
+    PRISM_ASSIGN_OR_RETURN(Vec3 to, params.get_point3("to", {0, 0, 1}));
+    PRISM_ASSIGN_OR_RETURN(s.cone_angle_deg, params.get_float("coneangle", 30.0));
+    PRISM_ASSIGN_OR_RETURN(s.cone_delta_angle_deg, params.get_float("conedeltaangle", 5.0));
+    PRISM_RETURN_IF_ERROR(check_range(params, "coneangle", s.cone_angle_deg, 1e-9, 180.0, "in (0, 180] degrees"));
+    PRISM_RETURN_IF_ERROR(check_range(params, "conedeltaangle", s.cone_delta_angle_deg, 0.0, s.cone_angle_deg,
+                                      "between 0 and coneangle"));
+    Vec3 dir{to[0] - from[0], to[1] - from[1], to[2] - from[2]};
+    if (dir[0] == 0 && dir[1] == 0 && dir[2] == 0)
+      return location_error(type.where, "spot light needs 'from' and 'to' to differ");
+    light.light_to_world = ctm * Transform::translate(from) * frame_from_z(dir);
+    s.position_world = light.light_to_world.apply_point({0, 0, 0});
+    s.direction_world = normalize(light.light_to_world.apply_vector({0, 0, 1}));
+    light.kind = std::move(s);
+  } else if (type.name == "infinite") {
+    PRISM_RETURN_IF_ERROR(params.refuse("filename", "image-based infinite lights are not supported"));
+    PRISM_RETURN_IF_ERROR(params.refuse("portal", "portals are not supported"));
+    InfiniteLight i;
+    PRISM_ASSIGN_OR_RETURN(i.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
+                                                   SpectrumNamed{kDefaultIlluminant}));
+    PRISM_ASSIGN_OR_RETURN(i.scale, params.get_float("scale", 1.0));
+    PRISM_ASSIGN_OR_RETURN(i.illuminance, positive_optional(params, "illuminance"));
+    light.light_to_world = ctm;
+    light.kind = std::move(i);
+  } else {
+    return unsupported_type(type, "light", {"infinite", "point", "spot"});
+  }
+  PRISM_RETURN_IF_ERROR(params.check_all_used());
+  return light;
+}
+
+absl::StatusOr<AreaLight> make_area_light(const TypeName& type, const ParameterList& params,
+                                          const EntityContext& ctx) {
+  if (type.name != "diffuse") return unsupported_type(type, "area light", {"diffuse"});
+  PRISM_RETURN_IF_ERROR(params.refuse("filename", "image area lights are not supported"));
+  AreaLight a;
+  a.where = type.where;
+  PRISM_ASSIGN_OR_RETURN(a.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
+                                                 SpectrumNamed{kDefaultIlluminant}));
+  PRISM_ASSIGN_OR_RETURN(a.scale, params.get_float("scale", 1.0));
+  PRISM_ASSIGN_OR_RETURN(a.two_sided, params.get_bool("twosided", false));
+  PRISM_ASSIGN_OR_RETURN(a.power, positive_optional(params, "power"));
+  PRISM_RETURN_IF_ERROR(params.check_all_used());
+  return a;
+}
+
+absl::StatusOr<Medium> make_medium(const TypeName& type, const ParameterList& params, const EntityContext& ctx) {
+  if (type.name != "homogeneous") return unsupported_type(type, "medium", {"homogeneous"});
+  PRISM_RETURN_IF_ERROR(params.refuse("preset", "named scattering presets are not supported; give sigma_a and sigma_s"));
+  PRISM_RETURN_IF_ERROR(params.refuse("Le", "emissive media are not supported"));
+  PRISM_RETURN_IF_ERROR(params.refuse("Lescale", "emissive media are not supported"));
+  HomogeneousMedium h;
+  PRISM_ASSIGN_OR_RETURN(h.sigma_a, spectrum_or(params, "sigma_a", SpectrumRole::kUnbounded, ctx, SpectrumConstant{1.0}));
+  PRISM_ASSIGN_OR_RETURN(h.sigma_s, spectrum_or(params, "sigma_s", SpectrumRole::kUnbounded, ctx, SpectrumConstant{1.0}));
+  PRISM_ASSIGN_OR_RETURN(h.scale, params.get_float("scale", 1.0));
+  PRISM_RETURN_IF_ERROR(check_range(params, "scale", h.scale, 0.0, 1e30, ">= 0"));
+  PRISM_ASSIGN_OR_RETURN(h.g, params.get_float("g", 0.0));
+  PRISM_RETURN_IF_ERROR(check_range(params, "g", h.g, -0.999999, 0.999999, "in (-1, 1)"));
+  PRISM_RETURN_IF_ERROR(params.check_all_used());
+  Medium m;
+  m.kind = std::move(h);
+  m.where = type.where;
+  return m;
+}
+
+absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const ParameterList& params,
+                                                  const EntityContext& ctx) {
+  ShapeGeometry geometry;
+  PRISM_RETURN_IF_ERROR(params.refuse("alpha", "alpha masks are not supported"));
+  PRISM_RETURN_IF_ERROR(params.refuse("emissionfilename", "image area lights are not supported"));
+  if (type.name == "trianglemesh" || type.name == "bilinearmesh") {
+    PRISM_RETURN_IF_ERROR(params.refuse("S", "per-vertex tangents are not supported"));
+    PRISM_RETURN_IF_ERROR(params.refuse("faceIndices", "face indices are not supported"));
+    bool bilinear = type.name == "bilinearmesh";
+    PRISM_ASSIGN_OR_RETURN(std::shared_ptr<TriangleMeshData> mesh, inline_mesh(params, bilinear, type, ctx));
+    geometry = TriangleMeshShape{std::move(mesh), type.name};
+  } else if (type.name == "plymesh" || type.name == "objmesh") {
+    PRISM_RETURN_IF_ERROR(params.refuse("displacement", "displacement is not supported"));
+    PRISM_RETURN_IF_ERROR(params.refuse("edgelength", "displacement is not supported"));
+    PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
+    if (!filename) return location_error(type.where, absl::StrCat("\"", type.name, "\" needs 'string filename'"));
+    if (!ctx.load_mesh) return param_error(params, "filename", "cannot be read here");
+    const Parameter* p = params.find("filename");
+    PRISM_ASSIGN_OR_RETURN(TriangleMeshShape shape,
+                           ctx.load_mesh(*filename, type.name == "plymesh" ? MeshFormat::kPly : MeshFormat::kObj,
+                                         p->where));
+    geometry = std::move(shape);
+  } else if (type.name == "sphere") {
+    SphereShape s;
+    PRISM_ASSIGN_OR_RETURN(s.radius, params.get_float("radius", 1.0));
+    PRISM_RETURN_IF_ERROR(check_range(params, "radius", s.radius, 1e-30, 1e30, "> 0"));
+    PRISM_ASSIGN_OR_RETURN(double zmin, params.get_float("zmin", -s.radius));
+    PRISM_ASSIGN_OR_RETURN(double zmax, params.get_float("zmax", s.radius));
+    PRISM_ASSIGN_OR_RETURN(double phimax, params.get_float("phimax", 360.0));
+    if (zmin > -s.radius) return param_error(params, "zmin", "is not supported (only full spheres: zmin <= -radius)");
+    if (zmax < s.radius) return param_error(params, "zmax", "is not supported (only full spheres: zmax >= radius)");
+    if (phimax < 360.0) return param_error(params, "phimax", "is not supported (only full spheres: phimax >= 360)");
+    geometry = s;
+  } else {
+    return unsupported_type(type, "shape", {"bilinearmesh", "objmesh", "plymesh", "sphere", "trianglemesh"});
+  }
+  PRISM_RETURN_IF_ERROR(params.check_all_used());
+  return geometry;
+}
+
+}  // namespace prism::scene

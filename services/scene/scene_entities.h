@@ -1,0 +1,61 @@
+// Scene objects built from a directive's type name and parameter list, each reading its own
+// parameters (pbrt-v4's per-type Create()): cameras, films, samplers, integrators, materials,
+// lights, area lights, media and shape geometry. Each maker reads what it knows, refuses
+// unsupported parameters by name, checks ranges, and finally calls check_all_used(), so a
+// misspelt parameter is an error at its position. Unknown types are refused by name with the
+// list of supported ones.
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "services/scene/parameters.h"
+#include "services/scene/parser.h"
+#include "services/scene/scene_description.h"
+
+namespace prism::scene {
+
+// A directive's type string ("perspective", "diffuse", ...) and where it was written.
+struct TypeName {
+  std::string name;
+  SourceLocation where;
+};
+
+struct EntityContext {
+  SpectrumSources spectra;
+  MeshLimits mesh_limits;
+  std::vector<std::string>* warnings = nullptr;
+  // Loads the mesh file `reference` (as written, at `where`) and returns it with its
+  // root-relative path.
+  std::function<absl::StatusOr<TriangleMeshShape>(const std::string& reference, MeshFormat format,
+                                                  const SourceLocation& where)>
+      load_mesh;
+};
+
+void add_warning(const EntityContext& ctx, const SourceLocation& where, std::string_view message);
+
+absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& params);
+absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params);
+absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterList& params,
+                                         const EntityContext& ctx);
+absl::StatusOr<IntegratorSpec> make_integrator(const TypeName& type, const ParameterList& params,
+                                               const EntityContext& ctx);
+// A pixel filter is accepted and ignored with a warning (Prism reconstructs with its own).
+absl::Status accept_pixel_filter(const TypeName& type, const ParameterList& params,
+                                 const EntityContext& ctx);
+absl::StatusOr<MaterialKind> make_material(const TypeName& type, const ParameterList& params,
+                                           const EntityContext& ctx);
+// `ctm` is the current transform at the directive (pbrt-v4 renderFromLight starts from it).
+absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& params,
+                                 const Transform& ctm, const EntityContext& ctx);
+absl::StatusOr<AreaLight> make_area_light(const TypeName& type, const ParameterList& params,
+                                          const EntityContext& ctx);
+absl::StatusOr<Medium> make_medium(const TypeName& type, const ParameterList& params,
+                                   const EntityContext& ctx);
+absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const ParameterList& params,
+                                                  const EntityContext& ctx);
+
+}  // namespace prism::scene
