@@ -1,0 +1,65 @@
+#include "client/check_command.h"
+
+#include <nlohmann/json.hpp>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/status.h"
+#include "services/scene/bundle.h"
+#include "services/scene/scene_loader.h"
+#include "services/scene/scene_summary.h"
+#include "services/scene/wavelength_dependence.h"
+#include "services/spectral/named_spectra.h"
+
+namespace prism::client {
+namespace {
+
+std::string name_of(const scene::Material& m) { return m.name.empty() ? "(anonymous)" : m.name; }
+
+nlohmann::json to_json(const scene::LoadedScene& loaded, const scene::Bundle& bundle) {
+  const scene::SceneDescription& s = loaded.description;
+  auto dependence = scene::analyze_wavelength_dependence(s);
+  nlohmann::json j;
+  j["scene"] = loaded.scene_relpath;
+  j["width"] = s.film.x_resolution;
+  j["height"] = s.film.y_resolution;
+  j["spp"] = s.sampler.samples_per_pixel;
+  j["bins"] = s.film.bins ? nlohmann::json(*s.film.bins) : nlohmann::json(nullptr);
+  j["film"] = s.film.type == scene::FilmType::kSpectral ? "spectral" : "rgb";
+  j["max_depth"] = s.integrator.max_depth;
+  j["shapes"] = s.shapes.size();
+  j["triangles"] = s.triangle_count();
+  j["area_lights"] = s.area_light_count();
+  j["lights"] = s.lights.size();
+  nlohmann::json emitters = nlohmann::json::array();
+  for (const auto& spectrum : dependence.emitter_spectra) emitters.push_back(scene::describe(spectrum));
+  j["emitter_spectra"] = emitters;
+  nlohmann::json dispersive = nlohmann::json::array();
+  for (int m : dependence.dispersive_materials) dispersive.push_back(name_of(s.materials[m]));
+  j["dispersive_materials"] = dispersive;
+  nlohmann::json media = nlohmann::json::array();
+  for (int m : dependence.media) media.push_back(s.media[m].name);
+  j["media"] = media;
+  j["needs_spectral_transport"] = dependence.needs_spectral_transport();
+  j["warnings"] = s.warnings;
+  j["bundle_hash"] = bundle.content_hash;
+  j["bundle_files"] = bundle.entries.size();
+  return j;
+}
+
+}  // namespace
+
+absl::StatusOr<std::string> run_check(const CheckOptions& options) {
+  PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library, spectral::SpectrumLibrary::load_builtin());
+  scene::LoadOptions load;
+  load.is_known_spectrum = [&](std::string_view name) { return library.contains(name); };
+  load.is_known_ior = [&](std::string_view name) { return library.find_ior(name) != nullptr; };
+  PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.scene, load));
+  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
+                         scene::make_bundle(loaded.root, loaded.scene_relpath,
+                                            loaded.description.files));
+  if (options.json) return to_json(loaded, bundle).dump(2) + "\n";
+  return absl::StrCat(scene::format_scene_summary(loaded.description), "bundle: ",
+                      bundle.entries.size(), " files, hash ", bundle.content_hash, "\n");
+}
+
+}  // namespace prism::client

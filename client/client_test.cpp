@@ -1,0 +1,96 @@
+#include <fstream>
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <nlohmann/json.hpp>
+
+#include "client/check_command.h"
+#include "client/compare_command.h"
+#include "services/image/exr_spectral.h"
+
+namespace prism::client {
+namespace {
+
+namespace fs = std::filesystem;
+const fs::path kScenes = fs::path(PRISM_SOURCE_DIR) / "scenes";
+
+TEST(CheckCommandTest, ReportsTheDispersivePrismScene) {
+  auto text = run_check({kScenes / "prism.pbrt", false});
+  ASSERT_TRUE(text.ok()) << text.status();
+  EXPECT_NE(text->find("resolution: 320x240"), std::string::npos) << *text;
+  EXPECT_NE(text->find("stdillum-F11"), std::string::npos);
+  EXPECT_NE(text->find("dispersive materials: 1"), std::string::npos);
+  EXPECT_NE(text->find("bundle: 2 files, hash "), std::string::npos);
+
+  auto json = run_check({kScenes / "prism.pbrt", true});
+  ASSERT_TRUE(json.ok());
+  auto j = nlohmann::json::parse(*json);
+  EXPECT_EQ(j["width"], 320);
+  EXPECT_EQ(j["dispersive_materials"].size(), 1u);
+  EXPECT_EQ(j["bundle_hash"].get<std::string>().size(), 64u);
+  EXPECT_TRUE(j["needs_spectral_transport"]);
+}
+
+TEST(CheckCommandTest, ReportsTwoEmitterSpectraInTheCornellBox) {
+  auto json = run_check({kScenes / "cornell-two-lights.pbrt", true});
+  ASSERT_TRUE(json.ok()) << json.status();
+  auto j = nlohmann::json::parse(*json);
+  EXPECT_EQ(j["emitter_spectra"].size(), 2u);
+  EXPECT_EQ(j["area_lights"], 2);
+  EXPECT_TRUE(j["media"].empty());
+  // The same scene gives the same bundle hash every time.
+  auto again = nlohmann::json::parse(*run_check({kScenes / "cornell-two-lights.pbrt", true}));
+  EXPECT_EQ(j["bundle_hash"], again["bundle_hash"]);
+}
+
+TEST(CheckCommandTest, UnknownNamedSpectrumIsAnErrorAtItsPosition) {
+  fs::path dir = fs::temp_directory_path() / ("prism_check_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  {
+    std::ofstream out(dir / "s.pbrt");
+    out << "WorldBegin\nAttributeBegin\n  AreaLightSource \"diffuse\" \"spectrum L\" "
+           "\"stdillum-F99\"\n  Shape \"sphere\"\nAttributeEnd\n";
+  }
+  auto result = run_check({dir / "s.pbrt", false});
+  ASSERT_FALSE(result.ok());
+  EXPECT_EQ(result.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_TRUE(std::string(result.status().message()).starts_with("s.pbrt:3:")) << result.status();
+  EXPECT_NE(result.status().message().find("stdillum-F99"), std::string::npos);
+  fs::remove_all(dir);
+}
+
+TEST(CompareCommandTest, PrintsMetricsOfTwoImages) {
+  fs::path dir = fs::temp_directory_path() / ("prism_compare_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  auto ref = *image::SpectralImage::from_data(2, 1, 4, {1, 1, 1, 1, 2, 2, 2, 2});
+  auto test = *image::SpectralImage::from_data(2, 1, 4, {1, 1, 1, 1, 2, 2, 2, 4});
+  auto rgb = *image::RgbImage::from_data(2, 1, {0, 0, 0, 0, 0, 0});
+  ASSERT_TRUE(image::write_spectral_exr(dir / "ref.exr", ref, rgb).ok());
+  ASSERT_TRUE(image::write_spectral_exr(dir / "test.exr", test, rgb).ok());
+  auto json = run_compare({dir / "test.exr", dir / "ref.exr", std::nullopt, true});
+  ASSERT_TRUE(json.ok()) << json.status();
+  auto j = nlohmann::json::parse(*json);
+  // One of eight values is off by 2: MSE = 4 / 8; relMSE = (4 / (4 + 0.01)) / 8.
+  EXPECT_DOUBLE_EQ(j["spectral"]["mse"].get<double>(), 0.5);
+  EXPECT_NEAR(j["spectral"]["rel_mse"].get<double>(), 4.0 / 4.01 / 8, 1e-12);
+  // The crop that excludes the differing pixel has no error.
+  auto cropped = nlohmann::json::parse(*run_compare({dir / "test.exr", dir / "ref.exr",
+                                                     image::Crop{0, 0, 1, 1}, true}));
+  EXPECT_EQ(cropped["spectral"]["mse"].get<double>(), 0.0);
+  auto outside = run_compare({dir / "test.exr", dir / "ref.exr", image::Crop{1, 0, 2, 1}, false});
+  EXPECT_EQ(outside.status().code(), absl::StatusCode::kInvalidArgument);
+  fs::remove_all(dir);
+}
+
+TEST(CompareCommandTest, CropSyntax) {
+  auto crop = parse_crop("3,4,10,20");
+  ASSERT_TRUE(crop.ok());
+  EXPECT_EQ(crop->x, 3);
+  EXPECT_EQ(crop->h, 20);
+  for (const char* bad : {"", "1,2,3", "1,2,3,4,5", "a,b,c,d", "-1,0,1,1", "1,2,3,4x"}) {
+    EXPECT_EQ(parse_crop(bad).status().code(), absl::StatusCode::kInvalidArgument) << bad;
+  }
+}
+
+}  // namespace
+}  // namespace prism::client
