@@ -1,0 +1,332 @@
+#include "worker/geometry.h"
+
+#include <cmath>
+#include <map>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/check.h"
+
+namespace prism::worker {
+namespace {
+
+using scene::Float3;
+
+Vec3f to_vec(const scene::Vec3& v) { return {float(v[0]), float(v[1]), float(v[2])}; }
+scene::Vec3 to_double(const Vec3f& v) { return {v.x, v.y, v.z}; }
+Vec3f to_vec(const Float3& f) { return {f.x, f.y, f.z}; }
+
+// Embree wants a row-major 3x4 matrix (RTC_FORMAT_FLOAT3X4_ROW_MAJOR).
+void instance_matrix(const scene::Transform& t, float out[12]) {
+  const auto& m = t.matrix();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 4; ++c) out[r * 4 + c] = float(m[r][c]);
+  }
+}
+
+}  // namespace
+
+void Bounds3f::extend(const Vec3f& p) {
+  lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)};
+  hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
+}
+
+struct Geometry::MeshShape {
+  // World-space positions for a flattened mesh; object-space for an instanced one. Padded by
+  // one element for Embree's 16-byte loads.
+  std::vector<Float3> positions;
+  std::vector<Float3> normals;
+  std::vector<scene::Float2> uvs;
+  std::shared_ptr<const scene::TriangleMeshData> source;  // triangles (and instanced data)
+  bool instanced = false;
+  scene::Transform object_to_world;
+  bool flip = false;
+  std::uint32_t vertex_count = 0;
+};
+
+struct Geometry::SphereShape {
+  double radius = 1;
+  scene::Transform object_to_world;
+  scene::Transform world_to_object;
+  bool flip = false;
+};
+
+Geometry::~Geometry() {
+  if (scene_ != nullptr) rtcReleaseScene(scene_);
+  for (RTCScene s : sub_scenes_) rtcReleaseScene(s);
+}
+
+absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
+                                                          const scene::SceneDescription& desc) {
+  if (!device.valid()) return device.take_error();
+  std::unique_ptr<Geometry> g(new Geometry());
+  g->device_ = &device;
+  RTCDevice dev = device.get();
+  g->scene_ = rtcNewScene(dev);
+  rtcSetSceneBuildQuality(g->scene_, RTC_BUILD_QUALITY_HIGH);
+  g->meshes_.resize(desc.shapes.size());
+  g->spheres_.resize(desc.shapes.size());
+
+  // A mesh object shared by several shapes is instanced; count the sharing first.
+  std::map<const scene::TriangleMeshData*, int> uses;
+  for (const auto& shape : desc.shapes) {
+    if (auto* m = std::get_if<scene::TriangleMeshShape>(&shape.geometry)) ++uses[m->mesh.get()];
+  }
+  std::map<const scene::TriangleMeshData*, RTCScene> instanced_scenes;
+
+  auto attach_triangles = [&](RTCScene target, MeshShape& mesh, unsigned id) {
+    RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+    rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                               mesh.positions.data(), 0, sizeof(Float3), mesh.vertex_count);
+    rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                               mesh.source->triangles.data(), 0, sizeof(scene::Triangle),
+                               mesh.source->triangles.size());
+    rtcCommitGeometry(geom);
+    rtcAttachGeometryByID(target, geom, id);
+    rtcReleaseGeometry(geom);
+  };
+  auto attach_instance = [&](RTCScene child, const scene::Transform& t, unsigned id) {
+    RTCGeometry inst = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_INSTANCE);
+    rtcSetGeometryInstancedScene(inst, child);
+    float m[12];
+    instance_matrix(t, m);
+    rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, m);
+    rtcCommitGeometry(inst);
+    rtcAttachGeometryByID(g->scene_, inst, id);
+    rtcReleaseGeometry(inst);
+  };
+
+  for (std::size_t i = 0; i < desc.shapes.size(); ++i) {
+    const scene::Shape& shape = desc.shapes[i];
+    bool flip = shape.reverse_orientation != shape.transform_swaps_handedness;
+    unsigned id = static_cast<unsigned>(i);
+    if (auto* m = std::get_if<scene::TriangleMeshShape>(&shape.geometry)) {
+      auto mesh = std::make_unique<MeshShape>();
+      mesh->source = m->mesh;
+      mesh->flip = flip;
+      mesh->object_to_world = shape.object_to_world;
+      mesh->vertex_count = static_cast<std::uint32_t>(m->mesh->positions.size());
+      mesh->instanced = uses[m->mesh.get()] > 1;
+      const auto& src = *m->mesh;
+      for (const Float3& p : src.positions) {
+        g->bounds_.extend(to_vec(shape.object_to_world.apply_point({p.x, p.y, p.z})));
+      }
+      if (mesh->instanced) {
+        RTCScene& child = instanced_scenes[m->mesh.get()];
+        if (child == nullptr) {
+          mesh->positions.reserve(src.positions.size() + 1);
+          mesh->positions = src.positions;
+          mesh->positions.push_back({});
+          child = rtcNewScene(dev);
+          attach_triangles(child, *mesh, 0);
+          rtcCommitScene(child);
+          g->sub_scenes_.push_back(child);
+        } else {
+          // Another shape owns the padded copy Embree reads; keep a reference copy for shading.
+          mesh->positions = src.positions;
+        }
+        mesh->normals = src.normals;
+        mesh->uvs = src.uvs;
+        attach_instance(child, shape.object_to_world, id);
+      } else {
+        mesh->positions.reserve(src.positions.size() + 1);
+        for (const Float3& p : src.positions) {
+          auto w = shape.object_to_world.apply_point({p.x, p.y, p.z});
+          mesh->positions.push_back({float(w[0]), float(w[1]), float(w[2])});
+        }
+        mesh->positions.push_back({});
+        mesh->normals.reserve(src.normals.size());
+        for (const Float3& n : src.normals) {
+          auto w = shape.object_to_world.apply_normal({n.x, n.y, n.z});
+          mesh->normals.push_back({float(w[0]), float(w[1]), float(w[2])});
+        }
+        mesh->uvs = src.uvs;
+        attach_triangles(g->scene_, *mesh, id);
+      }
+      g->meshes_[i] = std::move(mesh);
+    } else if (auto* s = std::get_if<scene::SphereShape>(&shape.geometry)) {
+      auto sphere = std::make_unique<SphereShape>();
+      sphere->radius = s->radius;
+      sphere->object_to_world = shape.object_to_world;
+      sphere->world_to_object = shape.object_to_world.inverse();
+      sphere->flip = flip;
+      RTCScene child = rtcNewScene(dev);
+      RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_SPHERE_POINT);
+      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0,
+                                                            RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1));
+      if (v != nullptr) {
+        v[0] = v[1] = v[2] = 0.0f;
+        v[3] = float(s->radius);
+      }
+      rtcCommitGeometry(geom);
+      rtcAttachGeometryByID(child, geom, 0);
+      rtcReleaseGeometry(geom);
+      rtcCommitScene(child);
+      g->sub_scenes_.push_back(child);
+      attach_instance(child, shape.object_to_world, id);
+      for (int corner = 0; corner < 8; ++corner) {
+        scene::Vec3 c{corner & 1 ? s->radius : -s->radius, corner & 2 ? s->radius : -s->radius,
+                      corner & 4 ? s->radius : -s->radius};
+        g->bounds_.extend(to_vec(shape.object_to_world.apply_point(c)));
+      }
+      g->spheres_[i] = std::move(sphere);
+    }
+  }
+  rtcCommitScene(g->scene_);
+  if (auto status = device.take_error(); !status.ok()) return status;
+  if (desc.shapes.empty()) g->bounds_.extend({0, 0, 0});
+  float extent = std::max({std::abs(g->bounds_.lo.x), std::abs(g->bounds_.lo.y),
+                           std::abs(g->bounds_.lo.z), std::abs(g->bounds_.hi.x),
+                           std::abs(g->bounds_.hi.y), std::abs(g->bounds_.hi.z), 1.0f});
+  // Float positions carry ~1e-7 relative error; 1e-5 of the extent clears it with margin.
+  g->epsilon_ = extent * 1e-5f;
+  return g;
+}
+
+Vec3f Geometry::offset_origin(const Vec3f& p, const Vec3f& ng, const Vec3f& direction) const {
+  Vec3f offset = ng * epsilon_;
+  if (dot(direction, ng) < 0) offset = -offset;
+  return p + offset;
+}
+
+Geometry::WorldTriangle Geometry::triangle(int shape, std::uint32_t primitive) const {
+  const MeshShape& m = *meshes_[shape];
+  const auto& tri = m.source->triangles[primitive];
+  WorldTriangle w;
+  w.flip = m.flip;
+  auto pos = [&](std::uint32_t i) {
+    if (!m.instanced) return to_vec(m.positions[i]);
+    const Float3& p = m.positions[i];
+    return to_vec(m.object_to_world.apply_point({p.x, p.y, p.z}));
+  };
+  auto nor = [&](std::uint32_t i) {
+    if (!m.instanced) return to_vec(m.normals[i]);
+    const Float3& n = m.normals[i];
+    return to_vec(m.object_to_world.apply_normal({n.x, n.y, n.z}));
+  };
+  w.p0 = pos(tri[0]);
+  w.p1 = pos(tri[1]);
+  w.p2 = pos(tri[2]);
+  if (!m.normals.empty()) {
+    w.has_normals = true;
+    w.n0 = nor(tri[0]);
+    w.n1 = nor(tri[1]);
+    w.n2 = nor(tri[2]);
+  }
+  return w;
+}
+
+std::uint32_t Geometry::triangle_count(int shape) const {
+  return meshes_[shape] ? static_cast<std::uint32_t>(meshes_[shape]->source->triangles.size()) : 0;
+}
+
+SurfaceHit Geometry::finish_triangle_hit(int shape, std::uint32_t prim, float u, float v,
+                                         float t) const {
+  const MeshShape& m = *meshes_[shape];
+  WorldTriangle w = triangle(shape, prim);
+  float b0 = 1.0f - u - v;
+  SurfaceHit hit;
+  hit.t = t;
+  hit.shape = shape;
+  hit.primitive = prim;
+  hit.p = w.p0 * b0 + w.p1 * u + w.p2 * v;
+  Vec3f n = cross(w.p0 - w.p2, w.p1 - w.p2);
+  float len = length(n);
+  n = len > 0 ? n / len : Vec3f(0, 0, 1);
+  if (m.flip) n = -n;
+  hit.ng = n;
+  hit.ns = n;
+  if (w.has_normals) {
+    Vec3f ns = w.n0 * b0 + w.n1 * u + w.n2 * v;
+    float ls = length(ns);
+    if (ls > 0) {
+      hit.ns = ns / ls;
+      hit.ng = face_forward(n, hit.ns);
+    }
+  }
+  const auto& tri = m.source->triangles[prim];
+  Point2f uv0{0, 0}, uv1{1, 0}, uv2{1, 1};
+  if (!m.uvs.empty()) {
+    uv0 = {m.uvs[tri[0]].u, m.uvs[tri[0]].v};
+    uv1 = {m.uvs[tri[1]].u, m.uvs[tri[1]].v};
+    uv2 = {m.uvs[tri[2]].u, m.uvs[tri[2]].v};
+  }
+  hit.uv = {uv0.x * b0 + uv1.x * u + uv2.x * v, uv0.y * b0 + uv1.y * u + uv2.y * v};
+  // dp/du from the uv parameterisation (pbrt-v4 Triangle), falling back to an edge.
+  float du02 = uv0.x - uv2.x, du12 = uv1.x - uv2.x, dv02 = uv0.y - uv2.y, dv12 = uv1.y - uv2.y;
+  float det = du02 * dv12 - dv02 * du12;
+  Vec3f dp02 = w.p0 - w.p2, dp12 = w.p1 - w.p2;
+  hit.dpdu = std::abs(det) > 1e-9f ? (dp02 * dv12 - dp12 * dv02) / det : normalize(dp02);
+  return hit;
+}
+
+SurfaceHit Geometry::finish_sphere_hit(int shape, const Ray& ray, float t) const {
+  const SphereShape& s = *spheres_[shape];
+  Vec3f pw = ray.origin + ray.direction * t;
+  scene::Vec3 po = s.world_to_object.apply_point(to_double(pw));
+  double r = std::sqrt(po[0] * po[0] + po[1] * po[1] + po[2] * po[2]);
+  // Re-project onto the surface: the float hit point drifts off it.
+  if (r > 0) {
+    for (double& c : po) c *= s.radius / r;
+  }
+  SurfaceHit hit;
+  hit.t = t;
+  hit.shape = shape;
+  hit.p = to_vec(s.object_to_world.apply_point(po));
+  Vec3f n = normalize(to_vec(s.object_to_world.apply_normal(po)));
+  if (s.flip) n = -n;
+  hit.ng = hit.ns = n;
+  double phi = std::atan2(po[1], po[0]);
+  if (phi < 0) phi += 2 * M_PI;
+  double cos_theta = std::clamp(po[2] / s.radius, -1.0, 1.0);
+  hit.uv = {float(phi / (2 * M_PI)), float(1 - std::acos(cos_theta) / M_PI)};
+  hit.dpdu = to_vec(s.object_to_world.apply_vector({-2 * M_PI * po[1], 2 * M_PI * po[0], 0}));
+  return hit;
+}
+
+std::optional<SurfaceHit> Geometry::intersect(const Ray& ray, float t_max) const {
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  RTCRayHit rh;
+  rh.ray.org_x = ray.origin.x;
+  rh.ray.org_y = ray.origin.y;
+  rh.ray.org_z = ray.origin.z;
+  rh.ray.dir_x = ray.direction.x;
+  rh.ray.dir_y = ray.direction.y;
+  rh.ray.dir_z = ray.direction.z;
+  rh.ray.tnear = 0.0f;
+  rh.ray.tfar = t_max;
+  rh.ray.time = 0.0f;
+  rh.ray.mask = 0xffffffffu;
+  rh.ray.id = 0;
+  rh.ray.flags = 0;
+  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+  rtcIntersect1(scene_, &context, &rh);
+  if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return std::nullopt;
+  int shape = rh.hit.instID[0] != RTC_INVALID_GEOMETRY_ID ? int(rh.hit.instID[0])
+                                                           : int(rh.hit.geomID);
+  if (spheres_[shape]) return finish_sphere_hit(shape, ray, rh.ray.tfar);
+  return finish_triangle_hit(shape, rh.hit.primID, rh.hit.u, rh.hit.v, rh.ray.tfar);
+}
+
+bool Geometry::occluded(const Ray& ray, float t_max) const {
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  RTCRay r;
+  r.org_x = ray.origin.x;
+  r.org_y = ray.origin.y;
+  r.org_z = ray.origin.z;
+  r.dir_x = ray.direction.x;
+  r.dir_y = ray.direction.y;
+  r.dir_z = ray.direction.z;
+  r.tnear = 0.0f;
+  r.tfar = t_max;
+  r.time = 0.0f;
+  r.mask = 0xffffffffu;
+  r.id = 0;
+  r.flags = 0;
+  rtcOccluded1(scene_, &context, &r);
+  return r.tfar < 0.0f;
+}
+
+}  // namespace prism::worker

@@ -1,0 +1,101 @@
+// World geometry on Embree 3: every shape of a SceneDescription as Embree geometry in one
+// committed scene, plus what shading needs at a hit. Triangle meshes are moved to world space at
+// build time and shared with Embree without a copy; a mesh object used by several shapes (pbrt
+// object instancing) is built once in its own scene and instanced. Spheres are exact: an
+// Embree sphere primitive in object space inside an instance carrying the shape's transform, so
+// any affine transform (an ellipsoid) is still intersected exactly.
+//
+// Normals follow pbrt-v4 (scene_description.h): a triangle's geometric normal is
+// cross(p0 − p2, p1 − p2) from world positions, negated under reverse orientation XOR a
+// handedness-swapping transform, or turned to the side of the interpolated vertex normal when
+// the mesh has one. Area lights emit on the geometric normal's side.
+//
+// Thread-safety: after build(), intersect() and occluded() are const and safe from any thread.
+#pragma once
+
+#include <embree3/rtcore.h>
+
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "services/scene/scene_description.h"
+#include "worker/embree_device.h"
+#include "worker/vecmath.h"
+
+namespace prism::worker {
+
+struct Ray {
+  Vec3f origin;
+  Vec3f direction;  // not necessarily unit length; t is in units of |direction|
+};
+
+struct SurfaceHit {
+  float t = 0;
+  Vec3f p;      // world position
+  Vec3f ng;     // unit geometric normal (pbrt-v4 orientation, see above)
+  Vec3f ns;     // unit shading normal, on the same side as ng
+  Vec3f dpdu;   // surface tangent for anisotropic frames (may be zero)
+  Point2f uv;
+  int shape = -1;            // index into SceneDescription::shapes
+  std::uint32_t primitive = 0;  // triangle index within the shape's mesh (0 for spheres)
+};
+
+struct Bounds3f {
+  Vec3f lo{1e30f, 1e30f, 1e30f};
+  Vec3f hi{-1e30f, -1e30f, -1e30f};
+  void extend(const Vec3f& p);
+  Vec3f centre() const { return (lo + hi) * 0.5f; }
+  float radius() const { return length(hi - lo) * 0.5f; }
+};
+
+class Geometry {
+ public:
+  // Builds and commits the scene. Errors: Embree failures (with Embree's message) or shapes
+  // Prism cannot intersect.
+  static absl::StatusOr<std::unique_ptr<Geometry>> build(EmbreeDevice& device,
+                                                         const scene::SceneDescription& scene);
+  ~Geometry();
+  Geometry(const Geometry&) = delete;
+  Geometry& operator=(const Geometry&) = delete;
+
+  // Closest hit with t in (0, t_max).
+  std::optional<SurfaceHit> intersect(const Ray& ray, float t_max) const;
+  // True when anything blocks the segment origin + t·direction, t in (0, t_max).
+  bool occluded(const Ray& ray, float t_max) const;
+
+  const Bounds3f& bounds() const { return bounds_; }
+  // World-space triangle of a mesh shape (for area light sampling).
+  struct WorldTriangle {
+    Vec3f p0, p1, p2;
+    Vec3f n0, n1, n2;  // vertex normals, or all zero
+    bool has_normals = false;
+    bool flip = false;  // reverse orientation XOR handedness swap
+  };
+  WorldTriangle triangle(int shape, std::uint32_t primitive) const;
+  std::uint32_t triangle_count(int shape) const;
+
+  // A small offset along the normal for rays leaving a surface at p, scaled with the scene's
+  // extent so millimetre and kilometre scenes both avoid self-intersection.
+  Vec3f offset_origin(const Vec3f& p, const Vec3f& ng, const Vec3f& direction) const;
+
+ private:
+  Geometry() = default;
+  struct MeshShape;
+  struct SphereShape;
+  SurfaceHit finish_triangle_hit(int shape, std::uint32_t prim, float u, float v, float t) const;
+  SurfaceHit finish_sphere_hit(int shape, const Ray& ray, float t) const;
+
+  EmbreeDevice* device_ = nullptr;
+  RTCScene scene_ = nullptr;
+  std::vector<RTCScene> sub_scenes_;
+  // Per shape: either mesh data (world space, or object space for instanced meshes) or sphere
+  // data. Indexed by shape; geometry IDs equal shape indices.
+  std::vector<std::unique_ptr<MeshShape>> meshes_;
+  std::vector<std::unique_ptr<SphereShape>> spheres_;
+  Bounds3f bounds_;
+  float epsilon_ = 1e-4f;
+};
+
+}  // namespace prism::worker

@@ -1,0 +1,114 @@
+#include "worker/geometry.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+namespace prism::worker {
+namespace {
+
+scene::Shape quad_shape(double z, bool reverse = false) {
+  auto mesh = std::make_shared<scene::TriangleMeshData>();
+  mesh->positions = {{-1, -1, float(z)}, {1, -1, float(z)}, {1, 1, float(z)}, {-1, 1, float(z)}};
+  mesh->triangles = {{0, 1, 2}, {0, 2, 3}};
+  scene::Shape shape;
+  shape.geometry = scene::TriangleMeshShape{mesh, "test"};
+  shape.reverse_orientation = reverse;
+  return shape;
+}
+
+scene::Shape sphere_shape(double radius, const scene::Transform& t) {
+  scene::Shape shape;
+  shape.geometry = scene::SphereShape{radius};
+  shape.object_to_world = t;
+  shape.transform_swaps_handedness = t.swaps_handedness();
+  return shape;
+}
+
+TEST(GeometryTest, TriangleHitFollowsPbrtNormalConvention) {
+  EmbreeDevice device;
+  scene::SceneDescription desc;
+  desc.shapes.push_back(quad_shape(5));
+  desc.shapes.push_back(quad_shape(7, /*reverse=*/true));
+  auto geometry = Geometry::build(device, desc);
+  ASSERT_TRUE(geometry.ok()) << geometry.status();
+  auto hit = (*geometry)->intersect({{0.2f, 0.3f, 0}, {0, 0, 1}}, 1e30f);
+  ASSERT_TRUE(hit);
+  EXPECT_EQ(hit->shape, 0);
+  EXPECT_NEAR(hit->t, 5.0f, 1e-5f);
+  EXPECT_NEAR(hit->p.x, 0.2f, 1e-5f);
+  // cross(p0 − p2, p1 − p2) for vertices counter-clockwise seen from +z points to +z.
+  EXPECT_NEAR(hit->ng.z, 1.0f, 1e-6f);
+  // Behind it, the reversed quad's normal points to −z.
+  auto far = (*geometry)->intersect({{0.2f, 0.3f, 6}, {0, 0, 1}}, 1e30f);
+  ASSERT_TRUE(far);
+  EXPECT_EQ(far->shape, 1);
+  EXPECT_NEAR(far->ng.z, -1.0f, 1e-6f);
+  EXPECT_TRUE((*geometry)->occluded({{0, 0, 0}, {0, 0, 1}}, 6.0f));
+  EXPECT_FALSE((*geometry)->occluded({{0, 0, 0}, {0, 0, 1}}, 4.0f));
+  EXPECT_FALSE((*geometry)->intersect({{3, 3, 0}, {0, 0, 1}}, 1e30f));
+}
+
+TEST(GeometryTest, EllipsoidIsIntersectedExactly) {
+  EmbreeDevice device;
+  scene::SceneDescription desc;
+  auto scale = *scene::Transform::scale({2, 1, 1});
+  desc.shapes.push_back(sphere_shape(1.5, scene::Transform::translate({0, 0, 10}) * scale));
+  auto geometry = Geometry::build(device, desc);
+  ASSERT_TRUE(geometry.ok()) << geometry.status();
+  // Along x the semi-axis is 3: a ray from the left hits at x = −3.
+  auto hit = (*geometry)->intersect({{-10, 0, 10}, {1, 0, 0}}, 1e30f);
+  ASSERT_TRUE(hit);
+  EXPECT_NEAR(hit->t, 7.0f, 1e-4f);
+  EXPECT_NEAR(hit->ng.x, -1.0f, 1e-5f);
+  // Along z the semi-axis is 1.5; from inside, the far side is hit with the outward normal.
+  auto inside = (*geometry)->intersect({{0, 0, 10}, {0, 0, 1}}, 1e30f);
+  ASSERT_TRUE(inside);
+  EXPECT_NEAR(inside->t, 1.5f, 1e-4f);
+  EXPECT_NEAR(inside->ng.z, 1.0f, 1e-5f);
+  // An oblique hit: the normal of x²/9 + y²/2.25 + z²/2.25 = 1 is ∝ (x/9, y/2.25, z/2.25).
+  auto oblique = (*geometry)->intersect({{1, 5, 10.5f}, {0, -1, 0}}, 1e30f);
+  ASSERT_TRUE(oblique);
+  Vec3f p = oblique->p - Vec3f(0, 0, 10);
+  EXPECT_NEAR(p.x * p.x / 9 + p.y * p.y / 2.25f + p.z * p.z / 2.25f, 1.0f, 1e-5f);
+  Vec3f expected = normalize(Vec3f(p.x / 9, p.y / 2.25f, p.z / 2.25f));
+  EXPECT_NEAR(dot(oblique->ng, expected), 1.0f, 1e-5f);
+}
+
+TEST(GeometryTest, SharedMeshIsInstanced) {
+  EmbreeDevice device;
+  scene::SceneDescription desc;
+  scene::Shape a = quad_shape(0);
+  scene::Shape b = a;  // same mesh object, another transform: an instance
+  a.object_to_world = scene::Transform::translate({0, 0, 3});
+  b.object_to_world = scene::Transform::translate({5, 0, 3});
+  desc.shapes = {a, b};
+  auto geometry = Geometry::build(device, desc);
+  ASSERT_TRUE(geometry.ok()) << geometry.status();
+  auto ha = (*geometry)->intersect({{0, 0, 0}, {0, 0, 1}}, 1e30f);
+  auto hb = (*geometry)->intersect({{5.5f, 0.5f, 0}, {0, 0, 1}}, 1e30f);
+  ASSERT_TRUE(ha && hb);
+  EXPECT_EQ(ha->shape, 0);
+  EXPECT_EQ(hb->shape, 1);
+  EXPECT_NEAR(hb->p.x, 5.5f, 1e-5f);
+  EXPECT_NEAR(hb->t, 3.0f, 1e-5f);
+  EXPECT_NEAR(hb->ng.z, 1.0f, 1e-6f);
+  EXPECT_NEAR((*geometry)->triangle(1, 0).p1.x, 6.0f, 1e-6f);
+}
+
+TEST(GeometryTest, DeviceErrorsAreRecordedNotThrown) {
+  EmbreeDevice device;
+  ASSERT_TRUE(device.valid());
+  EXPECT_TRUE(device.take_error().ok());
+  // An invalid geometry type: Embree reports through the callback, nothing unwinds.
+  RTCGeometry g = rtcNewGeometry(device.get(), static_cast<RTCGeometryType>(9999));
+  EXPECT_EQ(g, nullptr);
+  auto status = device.take_error();
+  EXPECT_EQ(status.code(), absl::StatusCode::kInternal);
+  EXPECT_NE(status.message().find("invalid geometry type"), std::string::npos) << status;
+  // Taking the error clears it.
+  EXPECT_TRUE(device.take_error().ok());
+}
+
+}  // namespace
+}  // namespace prism::worker
