@@ -1,0 +1,105 @@
+#include "worker/camera.h"
+
+#include <cmath>
+#include <numbers>
+#include <string>
+
+#include "absl/strings/str_cat.h"
+#include "services/scene/source_location.h"
+
+namespace prism::worker {
+
+absl::StatusOr<Camera> Camera::create(const scene::Camera& camera, int width, int height) {
+  if (camera.type != "perspective") {
+    return scene::location_error(
+        camera.where, absl::StrCat("camera \"", camera.type,
+                                   "\" is not supported; Prism renders \"perspective\" only"));
+  }
+  if (width < 1 || height < 1 || width > scene::kMaxResolution || height > scene::kMaxResolution) {
+    return scene::location_error(
+        camera.where, absl::StrCat("film resolution ", width, "x", height, " is outside 1..",
+                                   scene::kMaxResolution, " per axis"));
+  }
+  if (!(camera.fov_deg > 0.0 && camera.fov_deg < 180.0)) {
+    return scene::location_error(
+        camera.where, absl::StrCat("fov ", camera.fov_deg, " must be in (0, 180) degrees"));
+  }
+  if (!(camera.lens_radius >= 0.0) || !std::isfinite(camera.lens_radius)) {
+    return scene::location_error(camera.where,
+                                 absl::StrCat("lensradius ", camera.lens_radius, " must be >= 0"));
+  }
+  if (camera.lens_radius > 0.0 &&
+      !(camera.focal_distance > 0.0 && std::isfinite(camera.focal_distance))) {
+    return scene::location_error(camera.where,
+                                 absl::StrCat("focaldistance ", camera.focal_distance,
+                                              " must be > 0 for a thin lens (lensradius > 0)"));
+  }
+
+  // pbrt-v4 CameraBase: the screen window spans [-1, 1] on the shorter axis, so `fov` does too.
+  double xmin, xmax, ymin, ymax;
+  if (camera.screen_window) {
+    xmin = (*camera.screen_window)[0];
+    xmax = (*camera.screen_window)[1];
+    ymin = (*camera.screen_window)[2];
+    ymax = (*camera.screen_window)[3];
+  } else {
+    const double frame = camera.frame_aspect_ratio.value_or(double(width) / double(height));
+    if (!(frame > 0.0) || !std::isfinite(frame)) {
+      return scene::location_error(camera.where,
+                                   absl::StrCat("frameaspectratio ", frame, " must be > 0"));
+    }
+    if (frame > 1.0) {
+      xmin = -frame, xmax = frame, ymin = -1.0, ymax = 1.0;
+    } else {
+      xmin = -1.0, xmax = 1.0, ymin = -1.0 / frame, ymax = 1.0 / frame;
+    }
+  }
+  if (!(xmax > xmin) || !(ymax > ymin)) {
+    return scene::location_error(
+        camera.where, absl::StrCat("screenwindow [", xmin, " ", xmax, " ", ymin, " ", ymax,
+                                   "] is empty; it needs xmin < xmax and ymin < ymax"));
+  }
+
+  // Screen space maps to the z = 1 plane scaled by tan(fov/2) (pbrt-v4's Perspective()).
+  // Raster (0, 0) is the window's top-left corner, (xmin, ymax): raster y runs down, screen y up.
+  const double tan_half = std::tan(camera.fov_deg * 0.5 * std::numbers::pi / 180.0);
+  Camera c;
+  c.width_ = width;
+  c.height_ = height;
+  c.screen_x0_ = xmin * tan_half;
+  c.screen_dx_ = (xmax - xmin) * tan_half / width;
+  c.screen_y0_ = ymax * tan_half;
+  c.screen_dy_ = -(ymax - ymin) * tan_half / height;
+  c.lens_radius_ = camera.lens_radius;
+  c.focal_distance_ = camera.focal_distance;
+  c.world_from_camera_ = camera.world_from_camera;
+  return c;
+}
+
+Ray Camera::generate_ray(Point2f film, Point2f lens) const {
+  // Everything in double: the camera transform may carry large translations (scenes in mm).
+  const double px = screen_x0_ + double(film.x) * screen_dx_;
+  const double py = screen_y0_ + double(film.y) * screen_dy_;
+  scene::Vec3 origin{0.0, 0.0, 0.0};
+  scene::Vec3 direction{px, py, 1.0};
+  if (lens_radius_ > 0.0) {
+    // The pinhole ray through this film point meets z = f at f·(px, py, 1); every lens point
+    // aims there, which is what puts that plane in focus.
+    const Point2f d = sample_uniform_disk_concentric(lens);
+    origin = {lens_radius_ * d.x, lens_radius_ * d.y, 0.0};
+    direction = {px * focal_distance_ - origin[0], py * focal_distance_ - origin[1],
+                 focal_distance_};
+  }
+  const scene::Vec3 o = world_from_camera_.apply_point(origin);
+  const scene::Vec3 w = world_from_camera_.apply_vector(direction);
+  const double len = std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+  return Ray{{float(o[0]), float(o[1]), float(o[2])},
+             {float(w[0] / len), float(w[1] / len), float(w[2] / len)}};
+}
+
+Vec3f Camera::position() const {
+  const scene::Vec3 o = world_from_camera_.apply_point({0.0, 0.0, 0.0});
+  return {float(o[0]), float(o[1]), float(o[2])};
+}
+
+}  // namespace prism::worker

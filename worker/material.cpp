@@ -1,0 +1,275 @@
+#include "worker/material.h"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/status.h"
+#include "services/scene/source_location.h"
+#include "services/spectral/wavelength_grid.h"
+
+namespace prism::worker {
+namespace {
+
+absl::Status invalid(const std::string& message) {
+  return absl::InvalidArgumentError(message);
+}
+
+// The parameter's problem, prefixed with the scene object's position and the parameter name.
+absl::Status at(const scene::SourceLocation& where, const std::string& parameter,
+                const absl::Status& status) {
+  return scene::location_error(where, absl::StrCat(parameter, ": ", status.message()));
+}
+
+absl::Status check_range(const spectral::Spectrum& s, SpectrumRole role, float min_value) {
+  if (min_value < 0.0f) {
+    return invalid(absl::StrCat("negative value ", min_value,
+                                "; spectra of reflectance, emission and media are >= 0"));
+  }
+  const float max = spectral::max_value(s);
+  if (role == SpectrumRole::kReflectance && max > 1.0f) {
+    return invalid(absl::StrCat("reflectance reaches ", max,
+                                " but must stay within [0, 1] (a value above 1 creates energy)"));
+  }
+  return absl::OkStatus();
+}
+
+float remap(double roughness, bool remap_roughness) {
+  const float r = float(roughness);
+  return remap_roughness ? TrowbridgeReitz::roughness_to_alpha(r) : r;
+}
+
+absl::Status check_roughness(const scene::Roughness& r) {
+  if (!(r.u >= 0.0) || !(r.v >= 0.0)) {
+    return invalid(absl::StrCat("roughness (", r.u, ", ", r.v, ") must be >= 0"));
+  }
+  return absl::OkStatus();
+}
+
+// pbrt-v4 ConductorMaterial's artist mapping from a reflectance to an absorption coefficient
+// (with η = 1, normal-incidence Fresnel reflectance then equals r).
+float reflectance_to_k(float r) {
+  r = std::clamp(r, 0.0f, 0.9999f);
+  return 2.0f * std::sqrt(r) / std::sqrt(1.0f - r);
+}
+
+absl::StatusOr<Material> resolve_diffuse(const scene::DiffuseMaterial& m,
+                                         const spectral::SpectrumLibrary& library,
+                                         const spectral::RgbUplift& uplift) {
+  PRISM_ASSIGN_OR_RETURN(
+      spectral::Spectrum r,
+      resolve_spectrum(m.reflectance, SpectrumRole::kReflectance, library, uplift));
+  return DiffuseMaterial{std::move(r)};
+}
+
+absl::StatusOr<Material> resolve_dielectric(const scene::DielectricMaterial& m,
+                                            const spectral::SpectrumLibrary& library) {
+  PRISM_RETURN_IF_ERROR(check_roughness(m.roughness));
+  PRISM_ASSIGN_OR_RETURN(spectral::Ior eta, resolve_ior(m.eta, library));
+  DielectricMaterial out{std::move(eta), false, remap(m.roughness.u, m.roughness.remap),
+                         remap(m.roughness.v, m.roughness.remap)};
+  out.dispersive = spectral::is_dispersive(out.eta);
+  return out;
+}
+
+absl::StatusOr<Material> resolve_conductor(const scene::ConductorMaterial& m,
+                                           const spectral::SpectrumLibrary& library,
+                                           const spectral::RgbUplift& uplift) {
+  PRISM_RETURN_IF_ERROR(check_roughness(m.roughness));
+  const float ax = remap(m.roughness.u, m.roughness.remap);
+  const float ay = remap(m.roughness.v, m.roughness.remap);
+  if (m.reflectance) {
+    auto resolved = resolve_spectrum(*m.reflectance, SpectrumRole::kReflectance, library, uplift);
+    if (!resolved.ok()) {
+      return invalid(absl::StrCat("reflectance: ", resolved.status().message()));
+    }
+    spectral::Spectrum r = std::move(*resolved);
+    std::vector<double> lambda, k;
+    for (int i = 0; i <= int(spectral::kLambdaRange); ++i) {
+      const float l = spectral::kLambdaMin + float(i);
+      lambda.push_back(l);
+      k.push_back(reflectance_to_k(spectral::eval(r, l)));
+    }
+    PRISM_ASSIGN_OR_RETURN(auto k_table, spectral::PiecewiseLinearSpectrum::create(
+                                             lambda, k, "conductor reflectance"));
+    ConductorMaterial out{spectral::ConstantSpectrum{1.0f}, std::move(k_table), ax, ay,
+                          std::move(r)};
+    return out;
+  }
+  auto eta = resolve_spectrum(m.eta, SpectrumRole::kUnbounded, library, uplift);
+  if (!eta.ok()) return invalid(absl::StrCat("eta: ", eta.status().message()));
+  auto k = resolve_spectrum(m.k, SpectrumRole::kUnbounded, library, uplift);
+  if (!k.ok()) return invalid(absl::StrCat("k: ", k.status().message()));
+  return ConductorMaterial{std::move(*eta), std::move(*k), ax, ay, std::nullopt};
+}
+
+}  // namespace
+
+absl::StatusOr<spectral::Spectrum> resolve_spectrum(const scene::SpectrumParam& param,
+                                                    SpectrumRole role,
+                                                    const spectral::SpectrumLibrary& library,
+                                                    const spectral::RgbUplift& uplift) {
+  if (const auto* c = std::get_if<scene::SpectrumConstant>(&param)) {
+    spectral::Spectrum s = spectral::ConstantSpectrum{float(c->value)};
+    PRISM_RETURN_IF_ERROR(check_range(s, role, float(c->value)));
+    return s;
+  }
+  if (const auto* rgb = std::get_if<scene::SpectrumRgb>(&param)) {
+    const spectral::Rgb v{rgb->r, rgb->g, rgb->b};
+    if (role == SpectrumRole::kReflectance) {
+      if (std::max({v.r, v.g, v.b}) > 1.0) {
+        return invalid(absl::StrCat("rgb reflectance (", v.r, ", ", v.g, ", ", v.b,
+                                    ") must stay within [0, 1] (a value above 1 creates "
+                                    "energy)"));
+      }
+      PRISM_ASSIGN_OR_RETURN(auto s, uplift.albedo(v));
+      return spectral::Spectrum(s);
+    }
+    if (role == SpectrumRole::kUnbounded) {
+      PRISM_ASSIGN_OR_RETURN(auto s, uplift.unbounded(v));
+      return spectral::Spectrum(s);
+    }
+    PRISM_ASSIGN_OR_RETURN(auto s, uplift.illuminant(v));
+    return spectral::Spectrum(s);
+  }
+  if (const auto* t = std::get_if<scene::SpectrumTabulated>(&param)) {
+    PRISM_ASSIGN_OR_RETURN(auto table, spectral::PiecewiseLinearSpectrum::create(
+                                           t->wavelengths_nm, t->values, t->source));
+    const float min = table.min_value();
+    spectral::Spectrum s = std::move(table);
+    PRISM_RETURN_IF_ERROR(check_range(s, role, min));
+    return s;
+  }
+  if (const auto* n = std::get_if<scene::SpectrumNamed>(&param)) {
+    const spectral::Spectrum* s = library.find_spectrum(n->name);
+    if (s == nullptr) return invalid(absl::StrCat("unknown named spectrum \"", n->name, "\""));
+    const auto* table = std::get_if<spectral::PiecewiseLinearSpectrum>(s);
+    PRISM_RETURN_IF_ERROR(check_range(*s, role, table ? table->min_value() : 0.0f));
+    return *s;
+  }
+  const auto& b = std::get<scene::SpectrumBlackbody>(param);
+  PRISM_ASSIGN_OR_RETURN(auto bb, spectral::BlackbodySpectrum::create(b.kelvin));
+  return spectral::Spectrum(bb);
+}
+
+absl::StatusOr<spectral::Ior> resolve_ior(const scene::IorParam& param,
+                                          const spectral::SpectrumLibrary& library) {
+  if (const auto* c = std::get_if<scene::IorConstant>(&param)) {
+    if (!(c->eta > 0.0) || !std::isfinite(c->eta)) {
+      return invalid(absl::StrCat("index of refraction ", c->eta, " must be > 0"));
+    }
+    return spectral::ConstantIor{c->eta};
+  }
+  if (const auto* n = std::get_if<scene::IorNamed>(&param)) {
+    const spectral::Ior* ior = library.find_ior(n->name);
+    if (ior == nullptr) {
+      return invalid(absl::StrCat("unknown index of refraction \"", n->name,
+                                  "\" (glass-*, water, diamond and tabulated *-eta names are "
+                                  "known)"));
+    }
+    return *ior;
+  }
+  if (const auto* t = std::get_if<scene::IorTabulated>(&param)) {
+    PRISM_ASSIGN_OR_RETURN(
+        auto table, spectral::PiecewiseLinearSpectrum::create(t->table.wavelengths_nm,
+                                                              t->table.values, t->table.source));
+    PRISM_ASSIGN_OR_RETURN(auto ior, spectral::TabulatedIor::create(std::move(table)));
+    return spectral::Ior(std::move(ior));
+  }
+  if (const auto* c = std::get_if<scene::IorCauchy>(&param)) {
+    PRISM_ASSIGN_OR_RETURN(auto ior, spectral::CauchyIor::create(c->coefficients));
+    return spectral::Ior(std::move(ior));
+  }
+  const auto& s = std::get<scene::IorSellmeier>(param);
+  PRISM_ASSIGN_OR_RETURN(auto ior, spectral::SellmeierIor::create(0.0, s.b, s.c));
+  return spectral::Ior(std::move(ior));
+}
+
+absl::StatusOr<Material> resolve_material(const scene::Material& material,
+                                          const spectral::SpectrumLibrary& library,
+                                          const spectral::RgbUplift& uplift) {
+  const std::string label = material.name.empty()
+                                ? std::string("material")
+                                : absl::StrCat("material \"", material.name, "\"");
+  struct Visitor {
+    const spectral::SpectrumLibrary& library;
+    const spectral::RgbUplift& uplift;
+    absl::StatusOr<Material> operator()(const scene::DiffuseMaterial& m) const {
+      auto r = resolve_diffuse(m, library, uplift);
+      if (!r.ok()) return invalid(absl::StrCat("diffuse reflectance: ", r.status().message()));
+      return r;
+    }
+    absl::StatusOr<Material> operator()(const scene::DielectricMaterial& m) const {
+      auto r = resolve_dielectric(m, library);
+      if (!r.ok()) return invalid(absl::StrCat("dielectric: ", r.status().message()));
+      return r;
+    }
+    absl::StatusOr<Material> operator()(const scene::ConductorMaterial& m) const {
+      auto r = resolve_conductor(m, library, uplift);
+      if (!r.ok()) return invalid(absl::StrCat("conductor ", r.status().message()));
+      return r;
+    }
+    absl::StatusOr<Material> operator()(const scene::InterfaceMaterial&) const {
+      return Material(InterfaceMaterial{});
+    }
+  };
+  auto resolved = std::visit(Visitor{library, uplift}, material.kind);
+  if (!resolved.ok()) return at(material.where, label, resolved.status());
+  return resolved;
+}
+
+std::optional<Bsdf> make_bsdf(const Material& material,
+                              const spectral::SampledWavelengths& lambda) {
+  const int lanes = lambda.count();
+  struct Visitor {
+    const spectral::SampledWavelengths& lambda;
+    int lanes;
+    std::optional<Bsdf> operator()(const DiffuseMaterial& m) const {
+      return Bsdf(DiffuseBsdf(spectral::sample(m.reflectance, lambda), lanes));
+    }
+    std::optional<Bsdf> operator()(const DielectricMaterial& m) const {
+      SampledSpectrum eta;
+      for (int i = 0; i < lanes; ++i) eta[i] = float(spectral::eta(m.eta, lambda.lambda(i)));
+      return Bsdf(DielectricBsdf(eta, lanes, m.dispersive, TrowbridgeReitz(m.alpha_x, m.alpha_y)));
+    }
+    std::optional<Bsdf> operator()(const ConductorMaterial& m) const {
+      SampledSpectrum eta, k;
+      if (m.reflectance) {
+        for (int i = 0; i < lanes; ++i) {
+          eta[i] = 1.0f;
+          k[i] = reflectance_to_k(spectral::eval(*m.reflectance, lambda.lambda(i)));
+        }
+      } else {
+        eta = spectral::sample(m.eta, lambda);
+        k = spectral::sample(m.k, lambda);
+      }
+      return Bsdf(ConductorBsdf(eta, k, lanes, TrowbridgeReitz(m.alpha_x, m.alpha_y)));
+    }
+    std::optional<Bsdf> operator()(const InterfaceMaterial&) const { return std::nullopt; }
+  };
+  return std::visit(Visitor{lambda, lanes}, material);
+}
+
+bool is_dispersive(const Material& material) {
+  const auto* d = std::get_if<DielectricMaterial>(&material);
+  return d != nullptr && d->dispersive;
+}
+
+bool depends_on_wavelength(const Material& material) {
+  struct Visitor {
+    bool operator()(const DiffuseMaterial& m) const {
+      return !spectral::is_constant(m.reflectance);
+    }
+    bool operator()(const DielectricMaterial& m) const { return m.dispersive; }
+    bool operator()(const ConductorMaterial& m) const {
+      if (m.reflectance) return !spectral::is_constant(*m.reflectance);
+      return !spectral::is_constant(m.eta) || !spectral::is_constant(m.k);
+    }
+    bool operator()(const InterfaceMaterial&) const { return false; }
+  };
+  return std::visit(Visitor{}, material);
+}
+
+}  // namespace prism::worker
