@@ -1,0 +1,420 @@
+#include "worker/light.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/check.h"
+
+namespace prism::worker {
+namespace {
+
+Vec3f to_vec(const scene::Vec3& v) {
+  return {float(v[0]), float(v[1]), float(v[2])};
+}
+
+// 1 − cos θ_max of the cone a sphere of squared radius r2 subtends from squared distance d2 > r2,
+// as sin²θ_max / (1 + cos θ_max): the direct difference cancels catastrophically for small or
+// distant spheres. sample_sphere and pdf both use it, so they agree bit for bit.
+float cone_one_minus_cos(float r2, float d2) {
+  float sin2_max = std::min(1.0f, r2 / d2);
+  return sin2_max / (1.0f + safe_sqrt(1.0f - sin2_max));
+}
+
+// pbrt-v4's SmoothStep: 0 below a, 1 above b, Hermite in between.
+float smooth_step(float x, float a, float b) {
+  if (a == b) return x < a ? 0.0f : 1.0f;
+  float t = std::clamp((x - a) / (b - a), 0.0f, 1.0f);
+  return t * t * (3.0f - 2.0f * t);
+}
+
+SampledSpectrum scaled(const spectral::Spectrum& s, double scale,
+                       const SampledWavelengths& lambda) {
+  return spectral::sample(s, lambda) * float(scale);
+}
+
+absl::Status check_scale(double scale, const scene::SourceLocation& where) {
+  if (!std::isfinite(scale) || scale < 0) {
+    return scene::location_error(
+        where, absl::StrCat("light scale ", scale, " must be finite and non-negative"));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape_index,
+                                            const Geometry& geometry, spectral::Spectrum spectrum,
+                                            double scale) {
+  AreaLight light;
+  light.shape_ = shape_index;
+  light.geometry_ = &geometry;
+  light.spectrum_ = std::move(spectrum);
+  light.scale_ = scale;
+  light.where_ = shape.area_light ? shape.area_light->where : shape.where;
+  light.two_sided_ = shape.area_light && shape.area_light->two_sided;
+  if (auto status = check_scale(scale, light.where_); !status.ok()) return status;
+
+  if (const auto* sphere = std::get_if<scene::SphereShape>(&shape.geometry)) {
+    // A sphere light is sampled by the cone it subtends, which is only a sphere's cone under a
+    // similarity: the linear part's columns must be orthogonal with one common length.
+    const scene::Matrix4& m = shape.object_to_world.matrix();
+    double gram[3][3];
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) {
+        gram[i][j] = m[0][i] * m[0][j] + m[1][i] * m[1][j] + m[2][i] * m[2][j];
+      }
+    }
+    double s2 = (gram[0][0] + gram[1][1] + gram[2][2]) / 3.0;
+    bool similarity = s2 > 0;
+    for (int i = 0; i < 3 && similarity; ++i) {
+      for (int j = 0; j < 3; ++j) {
+        double expected = i == j ? s2 : 0.0;
+        if (std::abs(gram[i][j] - expected) > 1e-5 * s2) similarity = false;
+      }
+    }
+    if (!similarity) {
+      return scene::location_error(
+          shape.where,
+          "a sphere used as an area light must have a similarity transform (uniform scale, "
+          "rotation, translation); model an ellipsoidal emitter as a triangle mesh");
+    }
+    double radius = sphere->radius * std::sqrt(s2);
+    if (!(radius > 0) || !std::isfinite(radius)) {
+      return scene::location_error(shape.where, "sphere area light has zero radius");
+    }
+    light.is_sphere_ = true;
+    light.sphere_centre_ = to_vec(shape.object_to_world.apply_point({0, 0, 0}));
+    light.sphere_radius_ = float(radius);
+    light.sphere_flip_ = shape.reverse_orientation != shape.transform_swaps_handedness;
+    light.area_ = 4.0 * M_PI * radius * radius;
+    return light;
+  }
+
+  std::uint32_t count = geometry.triangle_count(shape_index);
+  if (count == 0) {
+    return scene::location_error(shape.where, "area light shape has no triangles");
+  }
+  std::vector<double> areas(count);
+  double total = 0;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    Geometry::WorldTriangle t = geometry.triangle(shape_index, i);
+    Vec3f e1 = t.p1 - t.p0, e2 = t.p2 - t.p0;
+    double cx = double(e1.y) * e2.z - double(e1.z) * e2.y;
+    double cy = double(e1.z) * e2.x - double(e1.x) * e2.z;
+    double cz = double(e1.x) * e2.y - double(e1.y) * e2.x;
+    areas[i] = 0.5 * std::sqrt(cx * cx + cy * cy + cz * cz);
+    total += areas[i];
+  }
+  if (!(total > 0) || !std::isfinite(total)) {
+    return scene::location_error(shape.where, "area light shape has zero (or non-finite) area");
+  }
+  light.area_ = total;
+  light.triangle_cdf_.resize(count);
+  double running = 0;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    running += areas[i];
+    light.triangle_cdf_[i] = float(running / total);
+  }
+  light.triangle_cdf_.back() = 1.0f;
+  return light;
+}
+
+std::optional<LightSample> AreaLight::sample(const LightContext& ctx, Point2f u, float u_tri,
+                                             const SampledWavelengths& lambda) const {
+  return is_sphere_ ? sample_sphere(ctx, u, lambda) : sample_triangles(ctx, u, u_tri, lambda);
+}
+
+std::optional<LightSample> AreaLight::sample_triangles(const LightContext& ctx, Point2f u,
+                                                       float u_tri,
+                                                       const SampledWavelengths& lambda) const {
+  // The first triangle whose cumulative area exceeds u_tri: zero-area triangles are never chosen.
+  auto it = std::upper_bound(triangle_cdf_.begin(), triangle_cdf_.end(), u_tri);
+  auto index = std::uint32_t(std::min<std::ptrdiff_t>(it - triangle_cdf_.begin(),
+                                                      std::ptrdiff_t(triangle_cdf_.size()) - 1));
+  Geometry::WorldTriangle t = geometry_->triangle(shape_, index);
+  // Uniform barycentrics by Heitz's area-preserving square-to-triangle map (as pbrt-v4).
+  float b0, b1;
+  if (u.x < u.y) {
+    b0 = u.x / 2;
+    b1 = u.y - b0;
+  } else {
+    b1 = u.y / 2;
+    b0 = u.x - b1;
+  }
+  float b2 = 1.0f - b0 - b1;
+  Vec3f p = t.p0 * b0 + t.p1 * b1 + t.p2 * b2;
+  // The geometric normal exactly as Geometry::finish_triangle_hit builds it (b1, b2 are its u, v).
+  Vec3f n = cross(t.p0 - t.p2, t.p1 - t.p2);
+  float len = length(n);
+  n = len > 0 ? n / len : Vec3f(0, 0, 1);
+  if (t.flip) n = -n;
+  if (t.has_normals) {
+    Vec3f ns = t.n0 * b0 + t.n1 * b1 + t.n2 * b2;
+    float ls = length(ns);
+    if (ls > 0) n = face_forward(n, ns / ls);
+  }
+  Vec3f d = p - ctx.p;
+  float dist2 = length_squared(d);
+  if (!(dist2 > 0)) return std::nullopt;
+  float dist = std::sqrt(dist2);
+  Vec3f wi = d / dist;
+  float cos_light = dot(n, -wi);
+  if (!two_sided_ && cos_light <= 0) return std::nullopt;
+  float pdf = dist2 / (std::abs(cos_light) * float(area_));
+  if (!std::isfinite(pdf) || !(pdf > 0)) return std::nullopt;
+  LightSample s;
+  s.radiance = scaled(spectrum_, scale_, lambda);
+  s.wi = wi;
+  s.distance = dist;
+  s.p_light = p;
+  s.pdf = pdf;
+  return s;
+}
+
+std::optional<LightSample> AreaLight::sample_sphere(const LightContext& ctx, Point2f u,
+                                                    const SampledWavelengths& lambda) const {
+  const float r2 = sphere_radius_ * sphere_radius_;
+  Vec3f to_centre = sphere_centre_ - ctx.p;
+  float d2 = length_squared(to_centre);
+  Vec3f p, n;  // n: outward unit normal at p
+  float pdf;
+  if (d2 <= r2) {
+    // Inside: uniform by area, converted to solid angle.
+    n = sample_uniform_sphere(u);
+    p = sphere_centre_ + n * sphere_radius_;
+    Vec3f d = p - ctx.p;
+    float dist2 = length_squared(d);
+    if (!(dist2 > 0)) return std::nullopt;
+    float cos_light = std::abs(dot(n, d)) / std::sqrt(dist2);
+    pdf = dist2 / (cos_light * float(area_));
+  } else {
+    // Outside: uniform in the cone of directions that hit the sphere (pbrt-v4 Sphere::Sample),
+    // then the nearer intersection found through the angle α at the centre.
+    float omc = cone_one_minus_cos(r2, d2);
+    float sin2_max = std::min(1.0f, r2 / d2);
+    float one_minus_cos = u.x * omc;
+    float cos_theta = 1.0f - one_minus_cos;
+    float sin2_theta = one_minus_cos * (2.0f - one_minus_cos);
+    float sin_max = std::sqrt(sin2_max);
+    float cos_alpha = sin2_theta / sin_max + cos_theta * safe_sqrt(1.0f - sin2_theta / sin2_max);
+    cos_alpha = std::clamp(cos_alpha, -1.0f, 1.0f);
+    float sin_alpha = safe_sqrt(1.0f - cos_alpha * cos_alpha);
+    float phi = 2.0f * kPi * u.y;
+    Frame frame = Frame::from_z(to_centre / std::sqrt(d2));
+    n = frame.from_local({-sin_alpha * std::cos(phi), -sin_alpha * std::sin(phi), -cos_alpha});
+    p = sphere_centre_ + n * sphere_radius_;
+    pdf = 1.0f / (2.0f * kPi * omc);
+  }
+  Vec3f ng = sphere_flip_ ? -n : n;
+  Vec3f d = p - ctx.p;
+  float dist = length(d);
+  if (!(dist > 0)) return std::nullopt;
+  Vec3f wi = d / dist;
+  if (!two_sided_ && dot(ng, -wi) <= 0) return std::nullopt;
+  if (!std::isfinite(pdf) || !(pdf > 0)) return std::nullopt;
+  LightSample s;
+  s.radiance = scaled(spectrum_, scale_, lambda);
+  s.wi = wi;
+  s.distance = dist;
+  s.p_light = p;
+  s.pdf = pdf;
+  return s;
+}
+
+float AreaLight::pdf(const LightContext& ctx, const Vec3f& wi, const SurfaceHit& hit) const {
+  // sample() never returns a point that does not emit towards ctx; its density there is 0.
+  if (!two_sided_ && dot(hit.ng, -wi) <= 0) return 0;
+  if (is_sphere_) {
+    const float r2 = sphere_radius_ * sphere_radius_;
+    float d2 = length_squared(sphere_centre_ - ctx.p);
+    if (d2 > r2) return 1.0f / (2.0f * kPi * cone_one_minus_cos(r2, d2));
+  }
+  float dist2 = length_squared(hit.p - ctx.p);
+  float cos_light = abs_dot(hit.ng, wi);
+  if (!(cos_light > 0)) return 0;
+  float pdf = dist2 / (cos_light * float(area_));
+  return std::isfinite(pdf) ? pdf : 0.0f;
+}
+
+SampledSpectrum AreaLight::radiance(const Vec3f& n, const Vec3f& w,
+                                    const SampledWavelengths& lambda) const {
+  if (!two_sided_ && !(dot(n, w) > 0)) return SampledSpectrum(0.0f);
+  return scaled(spectrum_, scale_, lambda);
+}
+
+absl::StatusOr<PointLight> PointLight::create(const scene::Light& light,
+                                              spectral::Spectrum spectrum, double scale) {
+  const auto* point = std::get_if<scene::PointLight>(&light.kind);
+  PRISM_CHECK(point != nullptr);
+  if (auto status = check_scale(scale, light.where); !status.ok()) return status;
+  PointLight l;
+  l.position_ = to_vec(point->position_world);
+  l.spectrum_ = std::move(spectrum);
+  l.scale_ = scale;
+  l.where_ = light.where;
+  return l;
+}
+
+std::optional<LightSample> PointLight::sample(const LightContext& ctx,
+                                              const SampledWavelengths& lambda) const {
+  Vec3f d = position_ - ctx.p;
+  float dist2 = length_squared(d);
+  if (!(dist2 > 0)) return std::nullopt;
+  float dist = std::sqrt(dist2);
+  LightSample s;
+  s.radiance = scaled(spectrum_, scale_, lambda) / dist2;
+  s.wi = d / dist;
+  s.distance = dist;
+  s.p_light = position_;
+  s.pdf = 1;
+  s.delta = true;
+  return s;
+}
+
+absl::StatusOr<SpotLight> SpotLight::create(const scene::Light& light, spectral::Spectrum spectrum,
+                                            double scale) {
+  const auto* spot = std::get_if<scene::SpotLight>(&light.kind);
+  PRISM_CHECK(spot != nullptr);
+  if (auto status = check_scale(scale, light.where); !status.ok()) return status;
+  double cone = spot->cone_angle_deg, delta = spot->cone_delta_angle_deg;
+  if (!(cone >= 0 && cone <= 180) || !(delta >= 0 && delta <= cone)) {
+    return scene::location_error(
+        light.where, absl::StrCat("spot light needs 0 <= conedelta (", delta, ") <= coneangle (",
+                                  cone, ") <= 180 degrees"));
+  }
+  Vec3f dir = to_vec(spot->direction_world);
+  if (!(length(dir) > 0)) return scene::location_error(light.where, "spot light has no direction");
+  SpotLight l;
+  l.position_ = to_vec(spot->position_world);
+  l.direction_ = normalize(dir);
+  l.cos_falloff_end_ = float(std::cos(cone * M_PI / 180));
+  l.cos_falloff_start_ = float(std::cos((cone - delta) * M_PI / 180));
+  l.spectrum_ = std::move(spectrum);
+  l.scale_ = scale;
+  l.where_ = light.where;
+  return l;
+}
+
+float SpotLight::falloff(const Vec3f& w) const {
+  return smooth_step(dot(direction_, w), cos_falloff_end_, cos_falloff_start_);
+}
+
+double SpotLight::power_factor() const {
+  // ∫ falloff dω = 2π[(1 − cos_start) + (cos_start − cos_end)/2]: the Hermite step integrates to
+  // exactly half its interval in cos θ (pbrt-v4 SpotLight::Phi uses the same closed form).
+  double start = cos_falloff_start_, end = cos_falloff_end_;
+  return 2 * M_PI * ((1 - start) + (start - end) / 2) / (4 * M_PI);
+}
+
+std::optional<LightSample> SpotLight::sample(const LightContext& ctx,
+                                             const SampledWavelengths& lambda) const {
+  Vec3f d = position_ - ctx.p;
+  float dist2 = length_squared(d);
+  if (!(dist2 > 0)) return std::nullopt;
+  float dist = std::sqrt(dist2);
+  Vec3f wi = d / dist;
+  float f = falloff(-wi);
+  if (!(f > 0)) return std::nullopt;
+  LightSample s;
+  s.radiance = scaled(spectrum_, scale_, lambda) * (f / dist2);
+  s.wi = wi;
+  s.distance = dist;
+  s.p_light = position_;
+  s.pdf = 1;
+  s.delta = true;
+  return s;
+}
+
+absl::StatusOr<InfiniteLight> InfiniteLight::create(const scene::Light& light,
+                                                    spectral::Spectrum spectrum, double scale,
+                                                    const Bounds3f& scene_bounds) {
+  if (auto status = check_scale(scale, light.where); !status.ok()) return status;
+  InfiniteLight l;
+  l.spectrum_ = std::move(spectrum);
+  l.scale_ = scale;
+  l.where_ = light.where;
+  bool empty = scene_bounds.lo.x > scene_bounds.hi.x;
+  l.scene_centre_ = empty ? Vec3f() : scene_bounds.centre();
+  l.scene_radius_ = empty ? 0.0 : double(scene_bounds.radius());
+  // A point-sized scene still needs a finite positive radius for the power estimate.
+  if (!(l.scene_radius_ > 0)) l.scene_radius_ = 1;
+  return l;
+}
+
+std::optional<LightSample> InfiniteLight::sample(const LightContext& ctx, Point2f u,
+                                                 const SampledWavelengths& lambda) const {
+  LightSample s;
+  s.wi = sample_uniform_sphere(u);
+  s.radiance = radiance(lambda);
+  s.distance = std::numeric_limits<float>::infinity();
+  // Beyond the scene's bounding sphere in direction wi, for shadow rays that need an endpoint.
+  float reach = length(ctx.p - scene_centre_) + 2.0f * float(scene_radius_);
+  s.p_light = ctx.p + s.wi * reach;
+  s.pdf = 1.0f / (4.0f * kPi);
+  return s;
+}
+
+float InfiniteLight::pdf(const Vec3f&) const {
+  return 1.0f / (4.0f * kPi);
+}
+
+SampledSpectrum InfiniteLight::radiance(const SampledWavelengths& lambda) const {
+  return scaled(spectrum_, scale_, lambda);
+}
+
+std::optional<LightSample> sample_light(const Light& light, const LightContext& ctx, Point2f u,
+                                        float u_extra, const SampledWavelengths& lambda) {
+  return std::visit(
+      [&](const auto& l) -> std::optional<LightSample> {
+        using T = std::decay_t<decltype(l)>;
+        if constexpr (std::is_same_v<T, AreaLight>) {
+          return l.sample(ctx, u, u_extra, lambda);
+        } else if constexpr (std::is_same_v<T, InfiniteLight>) {
+          return l.sample(ctx, u, lambda);
+        } else {
+          return l.sample(ctx, lambda);
+        }
+      },
+      light);
+}
+
+bool is_delta(const Light& light) {
+  return std::holds_alternative<PointLight>(light) || std::holds_alternative<SpotLight>(light);
+}
+
+const spectral::Spectrum& light_spectrum(const Light& light) {
+  return std::visit([](const auto& l) -> const spectral::Spectrum& { return l.spectrum(); }, light);
+}
+
+double light_scale(const Light& light) {
+  return std::visit([](const auto& l) { return l.scale(); }, light);
+}
+
+const scene::SourceLocation& light_location(const Light& light) {
+  return std::visit([](const auto& l) -> const scene::SourceLocation& { return l.where(); }, light);
+}
+
+double light_power(const Light& light) {
+  double emitted =
+      light_scale(light) *
+      spectral::integrate(light_spectrum(light), spectral::kLambdaMin, spectral::kLambdaMax);
+  return std::visit(
+      [&](const auto& l) {
+        using T = std::decay_t<decltype(l)>;
+        if constexpr (std::is_same_v<T, AreaLight>) {
+          return emitted * M_PI * l.area() * (l.two_sided() ? 2.0 : 1.0);
+        } else if constexpr (std::is_same_v<T, PointLight>) {
+          return emitted * 4 * M_PI;
+        } else if constexpr (std::is_same_v<T, SpotLight>) {
+          return emitted * 4 * M_PI * l.power_factor();
+        } else {
+          double r = l.scene_radius();
+          return emitted * M_PI * r * r * 4 * M_PI;
+        }
+      },
+      light);
+}
+
+}  // namespace prism::worker

@@ -1,0 +1,171 @@
+// Emitters, resolved: spectra evaluated through services/spectral. The `scale` a light is
+// created with is final: RenderScene applies pbrt-v4's rule before (algorithms.md §9: the
+// spectrum is divided by ColorMatching::photometric_sum before the scene's `scale`, and
+// `power` then rescales to a total power).
+// Closed set as a std::variant:
+//   AreaLight      a diffuse emitter over one shape (all its triangles, or a sphere), one- or
+//                  two-sided; positions are sampled uniformly by area (triangles chosen by area)
+//                  or, for a sphere seen from outside, uniformly in the cone it subtends.
+//   PointLight     radiant intensity I(λ) at a point.
+//   SpotLight      pbrt-v4's spot: intensity times smoothstep falloff between the cone angles.
+//   InfiniteLight  constant radiance from every direction (sampled uniformly over the sphere).
+// All radiometric values are per lane (SampledSpectrum) for the path's wavelengths.
+#pragma once
+
+#include <optional>
+#include <variant>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "services/scene/scene_description.h"
+#include "services/spectral/named_spectra.h"
+#include "services/spectral/rgb_uplift.h"
+#include "services/spectral/sampled.h"
+#include "services/spectral/spectrum.h"
+#include "services/spectral/wavelength_grid.h"
+#include "worker/geometry.h"
+#include "worker/vecmath.h"
+
+namespace prism::worker {
+
+using spectral::SampledSpectrum;
+using spectral::SampledWavelengths;
+
+// A point from which a light is sampled: position and (for surfaces) the normal used to skip
+// lights behind the surface; n = 0 for points in media.
+struct LightContext {
+  Vec3f p;
+  Vec3f n;
+};
+
+struct LightSample {
+  SampledSpectrum radiance;  // L(λ_s) arriving at the context point along -wi, before visibility
+  Vec3f wi;                  // unit direction from the context point towards the light
+  float distance = 0;        // to the sampled point (infinity for the infinite light)
+  Vec3f p_light;             // the sampled point (for shadow rays and gradient reconnection)
+  float pdf = 0;             // solid-angle density of wi given this light; 1 for delta lights
+  bool delta = false;        // point and spot lights: not reachable by BSDF sampling
+};
+
+class AreaLight {
+ public:
+  // `shape` indexes the scene's shapes and the Geometry built from it.
+  static absl::StatusOr<AreaLight> create(const scene::Shape& shape, int shape_index,
+                                          const Geometry& geometry, spectral::Spectrum spectrum,
+                                          double scale);
+  std::optional<LightSample> sample(const LightContext& ctx, Point2f u, float u_tri,
+                                    const SampledWavelengths& lambda) const;
+  // Solid-angle pdf of reaching `hit` (a point on this light) from ctx along wi.
+  float pdf(const LightContext& ctx, const Vec3f& wi, const SurfaceHit& hit) const;
+  // Emitted radiance leaving the light at a point with geometric normal n towards w.
+  SampledSpectrum radiance(const Vec3f& n, const Vec3f& w, const SampledWavelengths& lambda) const;
+  // Total world-space area of the emitting surface (all triangles, or 4πr² for a sphere).
+  double area() const { return area_; }
+  const spectral::Spectrum& spectrum() const { return spectrum_; }
+  double scale() const { return scale_; }
+  bool two_sided() const { return two_sided_; }
+  int shape() const { return shape_; }
+  // The AreaLightSource directive (or the shape) in the scene file, for messages.
+  const scene::SourceLocation& where() const { return where_; }
+
+ private:
+  std::optional<LightSample> sample_triangles(const LightContext& ctx, Point2f u, float u_tri,
+                                              const SampledWavelengths& lambda) const;
+  std::optional<LightSample> sample_sphere(const LightContext& ctx, Point2f u,
+                                           const SampledWavelengths& lambda) const;
+
+  int shape_ = -1;
+  scene::SourceLocation where_;
+  const Geometry* geometry_ = nullptr;
+  spectral::Spectrum spectrum_;
+  double scale_ = 1;
+  bool two_sided_ = false;
+  double area_ = 0;
+  bool is_sphere_ = false;
+  Vec3f sphere_centre_;      // world space; spheres as lights need a similarity transform
+  float sphere_radius_ = 0;
+  bool sphere_flip_ = false;  // reverse orientation XOR handedness swap: emits inwards
+  std::vector<float> triangle_cdf_;  // by area, triangles of the shape
+};
+
+class PointLight {
+ public:
+  static absl::StatusOr<PointLight> create(const scene::Light& light, spectral::Spectrum spectrum,
+                                           double scale);
+  std::optional<LightSample> sample(const LightContext& ctx, const SampledWavelengths& lambda) const;
+  const spectral::Spectrum& spectrum() const { return spectrum_; }
+  double scale() const { return scale_; }
+  Vec3f position() const { return position_; }
+  const scene::SourceLocation& where() const { return where_; }
+
+ private:
+  Vec3f position_;
+  spectral::Spectrum spectrum_;
+  double scale_ = 1;
+  scene::SourceLocation where_;
+};
+
+class SpotLight {
+ public:
+  static absl::StatusOr<SpotLight> create(const scene::Light& light, spectral::Spectrum spectrum,
+                                          double scale);
+  std::optional<LightSample> sample(const LightContext& ctx, const SampledWavelengths& lambda) const;
+  const spectral::Spectrum& spectrum() const { return spectrum_; }
+  double scale() const { return scale_; }
+  Vec3f position() const { return position_; }
+  // Solid angle-weighted mean falloff over the sphere, for power estimates.
+  double power_factor() const;
+  // The falloff in [0, 1] towards world direction w (unit, pointing away from the light).
+  float falloff(const Vec3f& w) const;
+  const scene::SourceLocation& where() const { return where_; }
+
+ private:
+  Vec3f position_;
+  Vec3f direction_;
+  float cos_falloff_start_ = 1, cos_falloff_end_ = 1;
+  spectral::Spectrum spectrum_;
+  double scale_ = 1;
+  scene::SourceLocation where_;
+};
+
+class InfiniteLight {
+ public:
+  static absl::StatusOr<InfiniteLight> create(const scene::Light& light,
+                                              spectral::Spectrum spectrum, double scale,
+                                              const Bounds3f& scene_bounds);
+  std::optional<LightSample> sample(const LightContext& ctx, Point2f u,
+                                    const SampledWavelengths& lambda) const;
+  float pdf(const Vec3f& wi) const;
+  // Radiance seen along a ray that escapes the scene.
+  SampledSpectrum radiance(const SampledWavelengths& lambda) const;
+  const spectral::Spectrum& spectrum() const { return spectrum_; }
+  double scale() const { return scale_; }
+  double scene_radius() const { return scene_radius_; }
+  const scene::SourceLocation& where() const { return where_; }
+
+ private:
+  spectral::Spectrum spectrum_;
+  double scale_ = 1;
+  double scene_radius_ = 1;
+  Vec3f scene_centre_;  // p_light of a sample lies beyond the scene bounds from here
+  scene::SourceLocation where_;
+};
+
+using Light = std::variant<AreaLight, PointLight, SpotLight, InfiniteLight>;
+
+// Samples a light (dispatching on its kind); `u` and `u_extra` are the sample numbers a light
+// may consume (u_extra picks a triangle of an area light).
+std::optional<LightSample> sample_light(const Light& light, const LightContext& ctx, Point2f u,
+                                        float u_extra, const SampledWavelengths& lambda);
+bool is_delta(const Light& light);
+// The light's emission spectrum (unscaled) and its scale after pbrt's normalisation.
+const spectral::Spectrum& light_spectrum(const Light& light);
+double light_scale(const Light& light);
+// Where the light was declared in the scene file, for messages naming it.
+const scene::SourceLocation& light_location(const Light& light);
+// Total emitted power (W, up to the common spectral normalisation), for the `power` pmf:
+// scale · ∫ S(λ) dλ · geometric factor (π·area·(two-sided? 2 : 1) for area lights, 4π for
+// points, the spot's cone factor, π·r²·4π for the infinite light with scene radius r).
+double light_power(const Light& light);
+
+}  // namespace prism::worker
