@@ -1,0 +1,363 @@
+#include "worker/integrator.h"
+
+#include <cmath>
+#include <limits>
+
+#include "worker/bsdf.h"
+#include "worker/light.h"
+#include "worker/material.h"
+#include "worker/medium.h"
+
+namespace prism::worker {
+namespace {
+
+constexpr float kInfinity = std::numeric_limits<float>::infinity();
+
+// Sample dimensions: a fixed layout so each decision of each bounce always reads the same
+// dimensions (pairs start on even dimensions, where the padded Sobol sampler is a 2D net).
+constexpr std::uint32_t kDimFilm = 0;       // 2D
+constexpr std::uint32_t kDimLens = 2;       // 2D
+constexpr std::uint32_t kDimWavelength = 4;
+constexpr std::uint32_t kDimBounce = 6;     // first dimension of bounce 0
+constexpr std::uint32_t kDimsPerBounce = 12;
+constexpr std::uint32_t kLightPosition = 0;  // 2D
+constexpr std::uint32_t kLightChoice = 2;
+constexpr std::uint32_t kLightExtra = 3;
+constexpr std::uint32_t kScatterDirection = 4;  // 2D
+constexpr std::uint32_t kScatterLobe = 6;
+constexpr std::uint32_t kRoulette = 7;
+constexpr std::uint32_t kFreeFlight = 8;
+// Free flights after crossing medium boundaries within one bounce each need fresh numbers.
+constexpr std::uint32_t kDimCrossings = 1u << 16;
+constexpr std::uint32_t kCrossingsPerBounce = 64;
+
+float lane_sum(const SampledSpectrum& s, int lanes) {
+  float sum = 0;
+  for (int i = 0; i < lanes; ++i) sum += s[i];
+  return sum;
+}
+
+SampledSpectrum ones(int lanes) {
+  SampledSpectrum s;
+  for (int i = 0; i < lanes; ++i) s[i] = 1.0f;
+  return s;
+}
+
+// Per-lane division by the hero's value, so ratios stay O(1) along the path.
+SampledSpectrum over_hero(const SampledSpectrum& s) {
+  return s[0] != 0.0f ? s / s[0] : SampledSpectrum();
+}
+
+// The path's running state (see integrator.h for the estimator).
+struct PathState {
+  SampledWavelengths lambda;
+  SampledSpectrum beta;       // f_s / p_0 of the path so far
+  SampledSpectrum r;          // p_k / p_0 of the path so far (unidirectional technique)
+  SampledSpectrum radiance;   // Σ over events of beta·Le / denominator, per lane
+  // At the last scattering vertex, for MIS when the next emitter is found by the sampled
+  // direction: the ratios before scattering, the hero's density of everything sampled since
+  // (direction times free-flight passes), the lanes and the shading point.
+  SampledSpectrum r_prev;
+  float pdf_since_prev = 1;
+  SampledWavelengths lambda_prev;
+  LightContext prev_ctx;
+  bool prev_specular = true;
+  float eta_scale = 1;
+  int medium = -1;
+
+  explicit PathState(const SampledWavelengths& l) : lambda(l), lambda_prev(l) {}
+};
+
+}  // namespace
+
+SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
+                                         std::uint32_t sample_index,
+                                         const spectral::WavelengthDistribution& lambda_pdf,
+                                         TraceCounters& counters, GuideValues* guides) const {
+  const RenderOptions& options = scene_.options();
+  const Geometry& geometry = scene_.geometry();
+  const int lanes = options.lanes();
+  Sampler sampler(options.sampler, SampleKey{options.seed, pass, std::uint32_t(px),
+                                             std::uint32_t(py), sample_index});
+
+  PathState path(lambda_pdf.sample_lanes(sampler.at(kDimWavelength), lanes));
+  path.beta = ones(lanes);
+  path.r = ones(lanes);
+  path.r_prev = path.r;
+  path.medium = scene_.camera_medium();
+
+  Ray ray = scene_.camera().generate_ray(
+      {float(px) + sampler.at(kDimFilm), float(py) + sampler.at(kDimFilm + 1)},
+      {sampler.at(kDimLens), sampler.at(kDimLens + 1)});
+  ++counters.camera_rays;
+  if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
+
+  // Adds an emitter's radiance found by the unidirectional technique (camera or sampled
+  // direction), weighted against NEE having produced the same vertex.
+  auto add_emission = [&](const SampledSpectrum& le, int light, const SurfaceHit* hit,
+                          const Vec3f& direction) {
+    if (le.is_zero()) return;
+    float denominator = lane_sum(path.r, lanes);
+    if (!path.prev_specular) {
+      float p_light = scene_.light_sampler().pmf(path.prev_ctx.p, path.lambda_prev, light);
+      const Light& l = scene_.lights()[light];
+      if (const auto* area = std::get_if<AreaLight>(&l)) {
+        p_light *= area->pdf(path.prev_ctx, direction, *hit);
+      } else if (const auto* inf = std::get_if<InfiniteLight>(&l)) {
+        p_light *= inf->pdf(direction);
+      }
+      for (int k = 0; k < lanes; ++k) {
+        denominator += path.r_prev[k] * p_light / path.pdf_since_prev;
+      }
+    }
+    if (denominator > 0) path.radiance += path.beta * le / denominator;
+  };
+
+  // Along a shadow ray to a point (or to infinity for the environment), crossing `interface`
+  // boundaries and media: the transmittance per lane, and the probability that the
+  // unidirectional technique's free flights would have passed the same segments (equal to the
+  // transmittance in scattering media, 1 in purely absorbing ones, which are not sampled).
+  // Both are 0 when anything else blocks the ray.
+  struct Shadow {
+    SampledSpectrum transmittance;
+    SampledSpectrum pass;
+  };
+  auto shadow_ray = [&](Vec3f origin, const Vec3f& direction, const Vec3f& target,
+                        bool to_infinity, int medium) -> Shadow {
+    Shadow shadow{ones(lanes), ones(lanes)};
+    for (int crossings = 0; crossings < 64; ++crossings) {
+      float distance = to_infinity ? kInfinity : length(target - origin) * (1.0f - 1e-4f);
+      ++counters.rays;
+      auto hit = geometry.intersect({origin, direction}, distance);
+      float segment = hit ? hit->t : distance;
+      if (medium >= 0) {
+        const HomogeneousMedium& m = scene_.media()[medium];
+        SampledSpectrum sigma_t = m.sigma_a(path.lambda) + m.sigma_s(path.lambda);
+        SampledSpectrum t;
+        for (int i = 0; i < lanes; ++i) {
+          t[i] = std::isinf(segment) ? (sigma_t[i] > 0 ? 0.0f : 1.0f)
+                                     : std::exp(-sigma_t[i] * segment);
+        }
+        shadow.transmittance *= t;
+        if (m.scattering()) shadow.pass *= t;
+      }
+      if (!hit) return shadow;
+      const ShapeInfo& info = scene_.shape(hit->shape);
+      if (!std::holds_alternative<InterfaceMaterial>(scene_.materials()[info.material])) {
+        return Shadow{};
+      }
+      if (info.medium_transition) {
+        medium = dot(direction, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
+      }
+      origin = geometry.offset_origin(hit->p, hit->ng, direction);
+    }
+    return Shadow{};
+  };
+
+  // Next-event estimation from a scattering vertex: `f` gives the per-lane scattering value
+  // (BSDF·|cos| or phase) and `pdf` its per-lane density for a direction.
+  auto sample_direct = [&](const LightContext& ctx, const Vec3f& origin_normal,
+                           std::uint32_t dim, auto&& f_and_pdf) {
+    auto choice = scene_.light_sampler().sample(ctx.p, path.lambda,
+                                                sampler.at(dim + kLightChoice));
+    if (!choice) return;
+    const Light& light = scene_.lights()[choice->light];
+    auto ls = sample_light(light, ctx,
+                           {sampler.at(dim + kLightPosition), sampler.at(dim + kLightPosition + 1)},
+                           sampler.at(dim + kLightExtra), path.lambda);
+    if (!ls || !(ls->pdf > 0) || ls->radiance.is_zero()) return;
+    SampledSpectrum f, scatter_pdf;
+    f_and_pdf(ls->wi, &f, &scatter_pdf);
+    if (f.is_zero()) return;
+    Vec3f origin = origin_normal == Vec3f()
+                       ? ctx.p
+                       : geometry.offset_origin(ctx.p, origin_normal, ls->wi);
+    Shadow shadow = shadow_ray(origin, ls->wi, ls->p_light, std::isinf(ls->distance),
+                               path.medium);
+    if (shadow.transmittance.is_zero()) return;
+    float p_light = choice->pmf * ls->pdf;
+    float denominator = 0;
+    for (int k = 0; k < lanes; ++k) {
+      float p_unidirectional = ls->delta ? 0.0f : scatter_pdf[k] * shadow.pass[k];
+      denominator += path.r[k] * (p_light + p_unidirectional);
+    }
+    if (denominator > 0) {
+      path.radiance += path.beta * f * ls->radiance * shadow.transmittance / denominator;
+    }
+  };
+
+  auto live_lanes = [&] { return path.lambda.live_count(); };
+
+  std::uint32_t crossings = 0;  // medium boundaries crossed since the last scattering vertex
+  for (int depth = 0;;) {
+    const std::uint32_t dim = kDimBounce + kDimsPerBounce * std::uint32_t(depth);
+    const std::uint32_t flight_dim =
+        crossings == 0 ? dim + kFreeFlight
+                       : kDimCrossings + kCrossingsPerBounce * std::uint32_t(depth) + crossings;
+    ++counters.rays;
+    auto hit = geometry.intersect(ray, kInfinity);
+
+    if (path.medium >= 0 && !scene_.media()[path.medium].scattering()) {
+      // A purely absorbing medium: nothing to sample, the segment's transmittance is the
+      // weight (the same density, 1, for every lane).
+      SampledSpectrum sigma_a = scene_.media()[path.medium].sigma_a(path.lambda);
+      if (hit) {
+        path.beta *= spectral::exp(-sigma_a * hit->t);
+      } else {
+        for (int i = 0; i < lanes; ++i) {
+          if (sigma_a[i] > 0) path.beta[i] = 0;
+        }
+      }
+      if (path.beta.is_zero()) break;
+    } else if (path.medium >= 0) {
+      const HomogeneousMedium& m = scene_.media()[path.medium];
+      SampledSpectrum sigma_s = m.sigma_s(path.lambda);
+      SampledSpectrum sigma_t = m.sigma_a(path.lambda) + sigma_s;
+      FreeFlight flight = sample_free_flight(sigma_t, hit ? hit->t : kInfinity,
+                                             sampler.at(flight_dim), lanes);
+      if (!(flight.pdf[0] > 0)) break;
+      if (flight.scattered) {
+        path.beta *= flight.transmittance * sigma_s / flight.pdf[0];
+        path.r *= over_hero(flight.pdf);
+        if (path.beta.is_zero() || depth == options.max_depth) break;
+        // A real scattering event inside the medium.
+        Vec3f p = ray.origin + ray.direction * flight.t;
+        Vec3f wo = -ray.direction;
+        const HenyeyGreenstein& phase = m.phase();
+        LightContext ctx{p, Vec3f()};
+        sample_direct(ctx, Vec3f(), dim, [&](const Vec3f& wi, SampledSpectrum* f,
+                                             SampledSpectrum* pdf) {
+          float value = phase.p(wo, wi);
+          *f = ones(lanes) * value * path.lambda.live_mask();
+          *pdf = *f;
+        });
+        float phase_pdf = 0;
+        Vec3f wi = phase.sample(wo, {sampler.at(dim + kScatterDirection),
+                                     sampler.at(dim + kScatterDirection + 1)},
+                                &phase_pdf);
+        if (!(phase_pdf > 0)) break;
+        path.r_prev = path.r;
+        path.lambda_prev = path.lambda;
+        path.prev_ctx = ctx;
+        path.prev_specular = false;
+        path.pdf_since_prev = phase_pdf;
+        ray = {p, wi};
+        ++depth;
+        crossings = 0;
+        continue;
+      }
+      path.beta *= flight.transmittance / flight.pdf[0];
+      path.r *= over_hero(flight.pdf);
+      path.pdf_since_prev *= flight.pdf[0];
+      if (path.beta.is_zero()) break;
+    }
+
+    if (!hit) {
+      int infinite = scene_.infinite_light();
+      if (infinite >= 0) {
+        const auto& inf = std::get<InfiniteLight>(scene_.lights()[infinite]);
+        add_emission(inf.radiance(path.lambda), infinite, nullptr, ray.direction);
+      }
+      break;
+    }
+
+    const ShapeInfo& info = scene_.shape(hit->shape);
+    const Material& material = scene_.materials()[info.material];
+    if (depth == 0 && guides && !std::holds_alternative<InterfaceMaterial>(material)) {
+      guides->depth = hit->t / std::max(1e-6f, 2.0f * geometry.bounds().radius());
+      guides->normal = hit->ns;
+      if (const auto* diffuse = std::get_if<DiffuseMaterial>(&material)) {
+        guides->albedo = spectral::sample(diffuse->reflectance, path.lambda).average(lanes);
+      } else {
+        guides->albedo = 1.0f;
+      }
+    }
+    if (info.area_light >= 0) {
+      const auto& area = std::get<AreaLight>(scene_.lights()[info.area_light]);
+      add_emission(area.radiance(hit->ng, -ray.direction, path.lambda), info.area_light,
+                   &*hit, ray.direction);
+    }
+
+    auto bsdf = make_bsdf(material, path.lambda);
+    if (!bsdf) {
+      // A pure medium boundary: continue in the medium on the other side, same path vertex.
+      if (info.medium_transition) {
+        path.medium = dot(ray.direction, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
+      }
+      ray.origin = geometry.offset_origin(hit->p, hit->ng, ray.direction);
+      if (++crossings == kCrossingsPerBounce) break;
+      continue;
+    }
+    if (depth == options.max_depth) break;
+
+    Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
+    Vec3f wo = frame.to_local(-ray.direction);
+    LightContext ctx{hit->p, hit->ns};
+    if (!is_specular(*bsdf)) {
+      sample_direct(ctx, hit->ng, dim, [&](const Vec3f& wi, SampledSpectrum* f,
+                                            SampledSpectrum* pdf) {
+        Vec3f wi_local = frame.to_local(wi);
+        *f = eval(*bsdf, wo, wi_local) * abs_cos_theta(wi_local);
+        *pdf = worker::pdf(*bsdf, wo, wi_local);
+      });
+    }
+
+    auto bs = sample(*bsdf, wo, sampler.at(dim + kScatterLobe),
+                     {sampler.at(dim + kScatterDirection), sampler.at(dim + kScatterDirection + 1)});
+    if (!bs || !(bs->pdf[0] > 0)) break;
+    path.r_prev = path.r;
+    path.lambda_prev = path.lambda;
+    path.prev_ctx = ctx;
+    path.prev_specular = bs->specular;
+    path.pdf_since_prev = bs->pdf[0];
+    path.beta *= bs->f * (abs_cos_theta(bs->wi) / bs->pdf[0]);
+    path.r *= over_hero(bs->pdf);
+    if (bs->hero_only && live_lanes() > 1) {
+      path.lambda.terminate_secondary();
+      for (int k = 1; k < spectral::kMaxLanes; ++k) path.beta[k] = path.r[k] = 0;
+      ++counters.lane_splits;
+    }
+    if (path.beta.is_zero()) break;
+    Vec3f wi = frame.from_local(bs->wi);
+    if (bs->transmission) {
+      path.eta_scale *= bs->etap * bs->etap;
+      if (info.medium_transition) {
+        path.medium = dot(wi, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
+      }
+    }
+    ray = {geometry.offset_origin(hit->p, hit->ng, wi), wi};
+    ++depth;
+    crossings = 0;
+
+    if (depth >= options.rr_min_depth) {
+      // The roulette weight f_s / Σ_k p_k is the same whichever lane is the hero, so the
+      // survival probability is too, and the lane MIS stays consistent.
+      float r_sum = lane_sum(path.r, lanes);
+      float weight = r_sum > 0 ? path.beta.max_value(lanes) * float(live_lanes()) / r_sum : 0;
+      weight *= path.eta_scale;
+      if (weight < 1.0f) {
+        float q = std::max(0.0f, 1.0f - weight);
+        if (sampler.at(dim + kRoulette) < q) break;
+        path.beta /= 1.0f - q;
+      }
+    }
+  }
+
+  SampleContribution out;
+  out.lanes = lanes;
+  const spectral::WavelengthGrid& grid = scene_.grid();
+  const float inverse_width = 1.0f / float(grid.bin_width());
+  bool finite = !path.radiance.has_non_finite();
+  for (int s = 0; s < lanes; ++s) {
+    float pdf = path.lambda.pdf(s);
+    out.bin[s] = grid.bin_of(path.lambda.lambda(s));
+    out.value[s] = (finite && pdf > 0 && out.bin[s] >= 0)
+                       ? path.radiance[s] / pdf * inverse_width
+                       : 0.0f;
+    if (out.bin[s] < 0) out.bin[s] = 0;
+  }
+  if (!finite) ++counters.non_finite;
+  return out;
+}
+
+}  // namespace prism::worker

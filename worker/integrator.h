@@ -1,0 +1,70 @@
+// The spectral path tracers: `uniform` (one wavelength per path, C = 1, the unbiased baseline)
+// and `hero` (C = 4 lanes with CMIS rotation), both with next-event estimation, multiple
+// importance sampling over (technique, lane), Russian roulette and homogeneous media
+// (algorithms.md §2–§3).
+//
+// Estimator. A pixel sample draws u and lanes λ_s = P⁻¹((u + s/C) mod 1) from the wavelength
+// distribution; the path is sampled with the hero λ_0. Lane s adds to bin(λ_s)
+//     f(x̄, λ_s) / ( p(λ_s) · Σ_k p(x̄ | λ_k) ),
+// where p(x̄|λ_k) is the density of sampling x̄ with λ_k as hero, including which of NEE or BSDF
+// sampling produced the last vertex (balance heuristic over lanes and techniques). The tracer
+// carries, per lane, β_s = f_s / p_0 and r_k = p_k / p_0 (ratios to the hero's density), which
+// stay finite over long paths. Contributions are per-bin radiance averages (W·m⁻²·sr⁻¹·nm⁻¹).
+#pragma once
+
+#include <cstdint>
+
+#include "services/spectral/sampled.h"
+#include "services/spectral/wavelength_distribution.h"
+#include "worker/render_scene.h"
+#include "worker/sampler.h"
+
+namespace prism::worker {
+
+// What one camera sample contributes: per lane, the wavelength bin and the value to add to it.
+struct SampleContribution {
+  int lanes = 0;
+  int bin[spectral::kMaxLanes] = {};
+  float value[spectral::kMaxLanes] = {};
+};
+
+// Event counts for reports (rays traced, paths terminated by Russian roulette, ...); summed
+// per thread and merged, never atomics in the hot path.
+struct TraceCounters {
+  std::uint64_t camera_rays = 0;
+  std::uint64_t rays = 0;         // every intersect or occlusion query
+  std::uint64_t lane_splits = 0;  // paths whose secondary lanes were terminated
+  std::uint64_t non_finite = 0;   // contributions dropped because they were NaN or infinite
+
+  TraceCounters& operator+=(const TraceCounters& o) {
+    camera_rays += o.camera_rays;
+    rays += o.rays;
+    lane_splits += o.lane_splits;
+    non_finite += o.non_finite;
+    return *this;
+  }
+};
+
+// Optional first-hit guide values (prepass guide buffers): depth along the camera ray
+// normalised by the scene's bounding radius, shading normal, albedo luminance.
+struct GuideValues {
+  float depth = 0;
+  Vec3f normal;
+  float albedo = 0;
+};
+
+class PathIntegrator {
+ public:
+  explicit PathIntegrator(const RenderScene& scene) : scene_(scene) {}
+
+  // Traces pixel (px, py)'s sample `sample_index` of pass `pass` with the given wavelength
+  // distribution (the scene's, or a per-pixel table). Pure function of its arguments.
+  SampleContribution trace(int px, int py, std::uint32_t pass, std::uint32_t sample_index,
+                           const spectral::WavelengthDistribution& lambda_pdf,
+                           TraceCounters& counters, GuideValues* guides = nullptr) const;
+
+ private:
+  const RenderScene& scene_;
+};
+
+}  // namespace prism::worker

@@ -1,0 +1,243 @@
+#include "worker/integrator.h"
+
+#include <gtest/gtest.h>
+#include <tbb/task_arena.h>
+
+#include <cmath>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "services/scene/scene_loader.h"
+#include "services/spectral/named_spectra.h"
+#include "services/spectral/testing/chi_square.h"
+#include "worker/tile_renderer.h"
+
+namespace prism::worker {
+namespace {
+
+namespace fs = std::filesystem;
+
+const fs::path kTestData = fs::path(PRISM_SOURCE_DIR) / "worker" / "testdata";
+
+class IntegratorTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    library_ = new spectral::SpectrumLibrary(*spectral::SpectrumLibrary::load_builtin());
+    device_ = new EmbreeDevice();
+  }
+  static void TearDownTestSuite() {
+    delete device_;
+    delete library_;
+  }
+
+  static scene::SceneDescription load(const std::string& name) {
+    scene::LoadOptions options;
+    auto loaded = scene::load_scene(kTestData / name, options);
+    EXPECT_TRUE(loaded.ok()) << loaded.status();
+    return loaded->description;
+  }
+
+  static std::unique_ptr<RenderScene> build(const scene::SceneDescription& desc,
+                                            const RenderOptions& options) {
+    auto built = RenderScene::build(*device_, desc, *library_, options, desc.film.x_resolution,
+                                    desc.film.y_resolution);
+    EXPECT_TRUE(built.ok()) << built.status();
+    return std::move(*built);
+  }
+
+  static image::TileResult render(const RenderScene& scene, std::uint64_t spp,
+                                  std::uint32_t pass = 0) {
+    TileRenderer renderer(scene);
+    RenderTask task{{0, 0, scene.camera().width(), scene.camera().height()}, {0, spp}, pass};
+    auto result = renderer.render(task, nullptr);
+    EXPECT_TRUE(result.ok()) << result.status();
+    return std::move(*result);
+  }
+
+  static spectral::SpectrumLibrary* library_;
+  static EmbreeDevice* device_;
+};
+
+spectral::SpectrumLibrary* IntegratorTest::library_ = nullptr;
+EmbreeDevice* IntegratorTest::device_ = nullptr;
+
+// Image mean per bin and its standard error, from per-pixel sums and sums of squares (pixels
+// are independent estimators).
+struct BinStats {
+  std::vector<double> mean;
+  std::vector<double> standard_error;
+};
+
+BinStats bin_stats(const image::TileResult& r) {
+  const int bins = r.bins();
+  const auto& rect = r.rect();
+  const double pixels = double(rect.area());
+  BinStats stats{std::vector<double>(bins, 0.0), std::vector<double>(bins, 0.0)};
+  for (int y = rect.y0; y < rect.y1; ++y) {
+    for (int x = rect.x0; x < rect.x1; ++x) {
+      const double n = double(r.count(x, y));
+      for (int b = 0; b < bins; ++b) {
+        double m = r.sum(x, y, b) / n;
+        double variance = std::max(0.0, r.sum_squares(x, y, b) / n - m * m) * n / (n - 1);
+        stats.mean[b] += m / pixels;
+        stats.standard_error[b] += variance / n / (pixels * pixels);
+      }
+    }
+  }
+  for (double& se : stats.standard_error) se = std::sqrt(se);
+  return stats;
+}
+
+// Two-sample z statistics per bin between independent renders.
+struct Agreement {
+  double max_z = 0;        // largest |a − b| / combined standard error
+  double chi2_p_value = 1; // Σ z² against chi-square with one degree of freedom per bin
+};
+
+Agreement agreement(const BinStats& a, const BinStats& b) {
+  Agreement result;
+  double chi2 = 0;
+  for (std::size_t i = 0; i < a.mean.size(); ++i) {
+    double se = std::hypot(a.standard_error[i], b.standard_error[i]);
+    double z = (a.mean[i] - b.mean[i]) / se;
+    result.max_z = std::max(result.max_z, std::abs(z));
+    chi2 += z * z;
+  }
+  result.chi2_p_value = spectral::testing::chi_square_survival(chi2, int(a.mean.size()));
+  return result;
+}
+
+// Five standard errors per bin, and the joint chi-square of all bins at p > 1e-4: false
+// failures are rarer than 1e-4 per comparison, while a bias of a few percent in one bin, or a
+// smaller one spread over many, is caught (the reference's relative errors are 1-2 %).
+constexpr double kZ = 5.0;
+constexpr double kMinPValue = 1e-4;
+
+void expect_agreement(const BinStats& a, const BinStats& b, const std::string& what) {
+  Agreement r = agreement(a, b);
+  EXPECT_LT(r.max_z, kZ) << what;
+  EXPECT_GT(r.chi2_p_value, kMinPValue) << what;
+}
+
+TEST_F(IntegratorTest, WhiteFurnaceReturnsTheEnvironment) {
+  auto desc = load("furnace.pbrt");
+  for (IntegratorKind kind : {IntegratorKind::kUniform, IntegratorKind::kHero}) {
+    RenderOptions options;
+    options.integrator = kind;
+    options.bins = 8;
+    options.max_depth = 100;
+    options.seed = 11;
+    auto scene = build(desc, options);
+    ASSERT_TRUE(scene);
+    auto stats = bin_stats(render(*scene, kind == IntegratorKind::kUniform ? 1024 : 256));
+    for (int b = 0; b < 8; ++b) {
+      EXPECT_LT(std::abs(stats.mean[b] - 1.0), kZ * stats.standard_error[b] + 1e-3)
+          << "bin " << b << " mean " << stats.mean[b] << " se " << stats.standard_error[b];
+      EXPECT_LT(stats.standard_error[b], 0.01) << "bin " << b;
+    }
+  }
+}
+
+class AgreementTest : public IntegratorTest {
+ protected:
+  static const BinStats& reference() {
+    static const BinStats stats = [] {
+      RenderOptions options;
+      options.integrator = IntegratorKind::kUniform;
+      options.bins = 16;
+      options.max_depth = 8;
+      options.seed = 1;
+      auto scene = build(load("unbiased.pbrt"), options);
+      return bin_stats(render(*scene, 4096));
+    }();
+    return stats;
+  }
+  static BinStats run(const RenderOptions& overrides) {
+    RenderOptions options = overrides;
+    options.bins = 16;
+    options.max_depth = 8;
+    auto scene = build(load("unbiased.pbrt"), options);
+    return bin_stats(render(*scene, 1024));
+  }
+};
+
+// `hero` with every wavelength pdf option agrees with the single-wavelength tracer per bin.
+TEST_F(AgreementTest, HeroAgreesWithUniformForEveryWavelengthPdf) {
+  const BinStats& ref = reference();
+  std::uint64_t seed = 100;
+  for (SpectralPdfKind sensor : {SpectralPdfKind::kFlat, SpectralPdfKind::kVisible}) {
+    for (EmitterPdfKind emitter : {EmitterPdfKind::kUniform, EmitterPdfKind::kEmitters}) {
+      RenderOptions options;
+      options.integrator = IntegratorKind::kHero;
+      options.spectral_pdf = sensor;
+      options.emitter_pdf = emitter;
+      options.seed = seed++;
+      expect_agreement(run(options), ref,
+                       "sensor " + std::to_string(int(sensor)) + " emitter " +
+                           std::to_string(int(emitter)));
+    }
+  }
+  for (double se : ref.standard_error) EXPECT_GT(se, 0.0);
+}
+
+// Emitter selection with and without the spectral unit-emission factor, for every base pmf,
+// stays unbiased.
+TEST_F(AgreementTest, EmitterSelectionVariantsAgreeWithUniform) {
+  const BinStats& ref = reference();
+  std::uint64_t seed = 200;
+  for (LightSelectionKind base :
+       {LightSelectionKind::kUniform, LightSelectionKind::kPower, LightSelectionKind::kSpatial}) {
+    for (bool spectral_factor : {true, false}) {
+      RenderOptions options;
+      options.integrator = IntegratorKind::kHero;
+      options.light_selection = base;
+      options.spectral_light_selection = spectral_factor;
+      options.seed = seed++;
+      expect_agreement(run(options), ref,
+                       "base " + std::to_string(int(base)) + " spectral factor " +
+                           std::to_string(spectral_factor));
+    }
+  }
+}
+
+// The uniform tracer with a non-uniform wavelength pdf and independent samples also agrees
+// (checks the 1/p(λ) weighting and the sampler choice).
+TEST_F(AgreementTest, UniformWithVisiblePdfAndIndependentSamplerAgrees) {
+  RenderOptions options;
+  options.integrator = IntegratorKind::kUniform;
+  options.spectral_pdf = SpectralPdfKind::kVisible;
+  options.sampler = SamplerKind::kIndependent;
+  options.seed = 300;
+  expect_agreement(run(options), reference(), "uniform, visible pdf, independent sampler");
+}
+
+TEST_F(IntegratorTest, OutputDoesNotDependOnThreadsOrTiles) {
+  auto desc = load("unbiased.pbrt");
+  RenderOptions options;
+  options.bins = 16;
+  auto scene = build(desc, options);
+  TileRenderer renderer(*scene);
+  RenderTask whole{{0, 0, 24, 24}, {0, 8}, 0};
+  auto one_thread = tbb::task_arena(1).execute([&] { return *renderer.render(whole, nullptr); });
+  auto two_threads = tbb::task_arena(2).execute([&] { return *renderer.render(whole, nullptr); });
+  EXPECT_TRUE(one_thread == two_threads);
+  // Four quarter tiles give the same numbers as the whole image (a pixel's samples do not
+  // depend on which tile it is in).
+  for (auto [x0, y0] : {std::pair{0, 0}, {12, 0}, {0, 12}, {12, 12}}) {
+    RenderTask quarter{{x0, y0, x0 + 12, y0 + 12}, {0, 8}, 0};
+    auto part = *renderer.render(quarter, nullptr);
+    for (int y = y0; y < y0 + 12; ++y) {
+      for (int x = x0; x < x0 + 12; ++x) {
+        for (int b = 0; b < 16; ++b) {
+          ASSERT_EQ(part.sum(x, y, b), one_thread.sum(x, y, b));
+          ASSERT_EQ(part.sum_squares(x, y, b), one_thread.sum_squares(x, y, b));
+        }
+      }
+    }
+  }
+}
+
+}  // namespace
+}  // namespace prism::worker

@@ -1,0 +1,233 @@
+#include "worker/render_scene.h"
+
+#include <cmath>
+#include <numbers>
+#include <string>
+#include <utility>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/status.h"
+#include "services/scene/source_location.h"
+#include "services/scene/wavelength_dependence.h"
+
+namespace prism::worker {
+namespace {
+
+constexpr double kPiD = std::numbers::pi;
+
+// pbrt-v4's SpectrumToPhotometric: Σ ȳ·S over 360..830 nm at 1 nm. For an RGB illuminant only
+// the colour space's illuminant counts (the RGB factor is deliberately left in the emission).
+double photometric_sum(const spectral::Spectrum& s, const spectral::ColorMatching& cmf) {
+  if (const auto* rgb = std::get_if<spectral::RgbIlluminantSpectrum>(&s)) {
+    return cmf.photometric_sum(spectral::Spectrum(*rgb->illuminant));
+  }
+  return cmf.photometric_sum(s);
+}
+
+// The emission spectrum in its illuminant role and pbrt-v4's scale for it: the scene's `scale`
+// divided by the spectrum's photometric sum, so that `scale` is in units of nits (algorithms.md
+// §9). `what` names the light for messages.
+struct Emission {
+  spectral::Spectrum spectrum;
+  double scale = 1;
+};
+absl::StatusOr<Emission> emission(const scene::SpectrumParam& param, double scene_scale,
+                                  const scene::SourceLocation& where, const std::string& what,
+                                  const spectral::SpectrumLibrary& library,
+                                  const spectral::RgbUplift& uplift,
+                                  const spectral::ColorMatching& cmf) {
+  auto spectrum = resolve_spectrum(param, SpectrumRole::kIlluminant, library, uplift);
+  if (!spectrum.ok()) {
+    return scene::location_error(where, absl::StrCat(what, ": ", spectrum.status().message()));
+  }
+  const double sum = photometric_sum(*spectrum, cmf);
+  if (!(sum > 0.0) || !std::isfinite(sum)) {
+    return scene::location_error(
+        where, absl::StrCat(what, ": the emission spectrum ", scene::describe(param),
+                            " has no visible power (its photometric integral is ", sum,
+                            "); pbrt-v4 scales every light by 1 / that integral"));
+  }
+  return Emission{std::move(*spectrum), scene_scale / sum};
+}
+
+// pbrt-v4's `power` / `illuminance`: with the photometrically normalised spectrum, the light's
+// emission per unit scale is k_e (the geometric factor: π·area·sides, 4π, the spot's cone
+// integral, or π for a uniform sky's illuminance), so the scale is multiplied by target / k_e.
+absl::Status check_target(const std::optional<double>& target, const char* name,
+                          const scene::SourceLocation& where) {
+  if (target && !(*target > 0.0)) {
+    return scene::location_error(
+        where, absl::StrCat("\"", name, "\" = ", *target,
+                            " must be > 0 (leave it out to keep the emission as given)"));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<Light> make_light(const scene::Light& light, const Geometry& geometry,
+                                 const spectral::SpectrumLibrary& library,
+                                 const spectral::RgbUplift& uplift,
+                                 const spectral::ColorMatching& cmf) {
+  const scene::SpectrumParam& param = scene::emission_spectrum(light);
+  if (const auto* p = std::get_if<scene::PointLight>(&light.kind)) {
+    PRISM_RETURN_IF_ERROR(check_target(p->power, "power", light.where));
+    PRISM_ASSIGN_OR_RETURN(
+        Emission e, emission(param, p->scale, light.where, "point light I", library, uplift, cmf));
+    if (p->power) e.scale *= *p->power / (4.0 * kPiD);
+    PRISM_ASSIGN_OR_RETURN(PointLight l, PointLight::create(light, std::move(e.spectrum), e.scale));
+    return Light(std::move(l));
+  }
+  if (const auto* s = std::get_if<scene::SpotLight>(&light.kind)) {
+    PRISM_RETURN_IF_ERROR(check_target(s->power, "power", light.where));
+    PRISM_ASSIGN_OR_RETURN(
+        Emission e, emission(param, s->scale, light.where, "spot light I", library, uplift, cmf));
+    if (s->power) {
+      const double cos_end = std::cos(s->cone_angle_deg * kPiD / 180.0);
+      const double cos_start =
+          std::cos((s->cone_angle_deg - s->cone_delta_angle_deg) * kPiD / 180.0);
+      const double k_e = 2.0 * kPiD * ((1.0 - cos_start) + (cos_start - cos_end) / 2.0);
+      if (!(k_e > 0.0)) {
+        return scene::location_error(light.where,
+                                     "spot light with a zero cone angle cannot reach a \"power\"");
+      }
+      e.scale *= *s->power / k_e;
+    }
+    PRISM_ASSIGN_OR_RETURN(SpotLight l, SpotLight::create(light, std::move(e.spectrum), e.scale));
+    return Light(std::move(l));
+  }
+  const auto& inf = std::get<scene::InfiniteLight>(light.kind);
+  PRISM_RETURN_IF_ERROR(check_target(inf.illuminance, "illuminance", light.where));
+  PRISM_ASSIGN_OR_RETURN(Emission e, emission(param, inf.scale, light.where, "infinite light L",
+                                              library, uplift, cmf));
+  // pbrt-v4: the illuminance of a uniform unit-nit sky on an upward-facing patch is π.
+  if (inf.illuminance) e.scale *= *inf.illuminance / kPiD;
+  PRISM_ASSIGN_OR_RETURN(InfiniteLight l, InfiniteLight::create(light, std::move(e.spectrum),
+                                                                e.scale, geometry.bounds()));
+  return Light(std::move(l));
+}
+
+absl::StatusOr<AreaLight> make_area_light(const scene::Shape& shape, int index,
+                                          const Geometry& geometry,
+                                          const spectral::SpectrumLibrary& library,
+                                          const spectral::RgbUplift& uplift,
+                                          const spectral::ColorMatching& cmf) {
+  const scene::AreaLight& a = *shape.area_light;
+  PRISM_RETURN_IF_ERROR(check_target(a.power, "power", a.where));
+  PRISM_ASSIGN_OR_RETURN(
+      Emission e, emission(a.radiance, a.scale, a.where, "area light L", library, uplift, cmf));
+  PRISM_ASSIGN_OR_RETURN(AreaLight light,
+                         AreaLight::create(shape, index, geometry, e.spectrum, e.scale));
+  if (!a.power) return light;
+  // pbrt-v4 applies `power` per triangle (each triangle is its own light there); Prism's area
+  // light is the whole shape, so the shape as a whole emits the requested power.
+  const double k_e = kPiD * light.area() * (light.two_sided() ? 2.0 : 1.0);
+  return AreaLight::create(shape, index, geometry, std::move(e.spectrum), e.scale * *a.power / k_e);
+}
+
+// p_s · p_e mixed defensively with the emitters' support (algorithms.md §1).
+absl::StatusOr<spectral::WavelengthDistribution> default_wavelength_pdf(
+    const scene::SceneDescription& scene, bool has_lights, const RenderOptions& options,
+    const spectral::SpectrumLibrary& library, const spectral::RgbUplift& uplift) {
+  using spectral::WavelengthDistribution;
+  constexpr int kCells = WavelengthDistribution::kDefaultCells;
+  if (!has_lights) return WavelengthDistribution::flat(kCells);
+  std::vector<spectral::Spectrum> spectra;
+  // Distinct as written, the same notion of "distinct emitter spectra" as the job analysis.
+  for (const scene::SpectrumParam& p :
+       scene::analyze_wavelength_dependence(scene).emitter_spectra) {
+    PRISM_ASSIGN_OR_RETURN(spectral::Spectrum s,
+                           resolve_spectrum(p, SpectrumRole::kIlluminant, library, uplift));
+    spectra.push_back(std::move(s));
+  }
+  PRISM_ASSIGN_OR_RETURN(WavelengthDistribution emitters,
+                         WavelengthDistribution::emitters(spectra, kCells));
+  PRISM_ASSIGN_OR_RETURN(WavelengthDistribution sensor,
+                         options.spectral_pdf == SpectralPdfKind::kVisible
+                             ? WavelengthDistribution::visible(kCells)
+                             : WavelengthDistribution::flat(kCells));
+  if (options.emitter_pdf == EmitterPdfKind::kUniform) {
+    return sensor.mix_defensive(options.defensive_epsilon, emitters);
+  }
+  PRISM_ASSIGN_OR_RETURN(WavelengthDistribution product,
+                         WavelengthDistribution::product(sensor, emitters));
+  return product.mix_defensive(options.defensive_epsilon, emitters);
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
+    EmbreeDevice& device, const scene::SceneDescription& scene,
+    const spectral::SpectrumLibrary& library, const RenderOptions& options, int width, int height) {
+  std::unique_ptr<RenderScene> rs(new RenderScene());
+  rs->options_ = options;
+  auto grid = spectral::WavelengthGrid::create(options.bins);
+  if (!grid.ok()) {
+    return absl::InvalidArgumentError(absl::StrCat("render options: ", grid.status().message()));
+  }
+  rs->grid_ = *grid;
+  rs->cmf_ = std::make_unique<spectral::ColorMatching>(spectral::ColorMatching::cie1931());
+  const spectral::RgbUplift uplift(*rs->cmf_);
+
+  PRISM_ASSIGN_OR_RETURN(rs->geometry_, Geometry::build(device, scene));
+  PRISM_ASSIGN_OR_RETURN(rs->camera_, Camera::create(scene.camera, width, height));
+
+  rs->materials_.reserve(scene.materials.size());
+  for (const scene::Material& m : scene.materials) {
+    PRISM_ASSIGN_OR_RETURN(Material material, resolve_material(m, library, uplift));
+    rs->materials_.push_back(std::move(material));
+  }
+  rs->media_.reserve(scene.media.size());
+  for (const scene::Medium& m : scene.media) {
+    PRISM_ASSIGN_OR_RETURN(HomogeneousMedium medium, HomogeneousMedium::create(m, library, uplift));
+    rs->media_.push_back(std::move(medium));
+  }
+
+  // Area lights first, in shape order, then the scene's other lights in file order.
+  rs->shapes_.reserve(scene.shapes.size());
+  for (size_t i = 0; i < scene.shapes.size(); ++i) {
+    const scene::Shape& shape = scene.shapes[i];
+    PRISM_CHECK(shape.material >= 0 && size_t(shape.material) < scene.materials.size());
+    ShapeInfo info;
+    info.material = shape.material;
+    info.medium_inside = shape.media.inside;
+    info.medium_outside = shape.media.outside;
+    info.medium_transition = shape.media.is_transition();
+    if (shape.area_light) {
+      PRISM_ASSIGN_OR_RETURN(AreaLight light, make_area_light(shape, int(i), *rs->geometry_,
+                                                              library, uplift, *rs->cmf_));
+      info.area_light = int(rs->lights_.size());
+      rs->lights_.push_back(std::move(light));
+    }
+    rs->shapes_.push_back(info);
+  }
+  for (const scene::Light& l : scene.lights) {
+    if (std::holds_alternative<scene::InfiniteLight>(l.kind)) {
+      if (rs->infinite_light_ >= 0) {
+        return scene::location_error(
+            l.where,
+            "a second infinite light: Prism supports one constant environment per "
+            "scene; merge them into one (their radiances add)");
+      }
+      rs->infinite_light_ = int(rs->lights_.size());
+    }
+    PRISM_ASSIGN_OR_RETURN(Light light, make_light(l, *rs->geometry_, library, uplift, *rs->cmf_));
+    rs->lights_.push_back(std::move(light));
+  }
+  rs->camera_medium_ = scene.camera.medium;
+
+  // The sampler keeps a pointer to lights_, which no longer changes.
+  PRISM_ASSIGN_OR_RETURN(
+      LightSampler sampler,
+      LightSampler::create(rs->lights_, *rs->geometry_, rs->grid_, options.light_selection,
+                           options.spectral_light_selection));
+  rs->light_sampler_ = std::make_unique<LightSampler>(std::move(sampler));
+
+  auto pdf = default_wavelength_pdf(scene, !rs->lights_.empty(), options, library, uplift);
+  if (!pdf.ok()) {
+    return absl::Status(pdf.status().code(),
+                        absl::StrCat("wavelength pdf: ", pdf.status().message()));
+  }
+  rs->wavelength_pdf_ = std::make_unique<spectral::WavelengthDistribution>(std::move(*pdf));
+  return rs;
+}
+
+}  // namespace prism::worker

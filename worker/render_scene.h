@@ -1,0 +1,86 @@
+// Everything a worker needs to trace a job's scene, built once per (bundle, options) from the
+// parsed SceneDescription: Embree geometry, the camera at the job's resolution, resolved
+// materials, lights and media, the light sampler and the default wavelength distribution. The
+// per-pixel prepass tables of later passes are supplied per task, not stored here.
+// Immutable after build(); shared by all render threads.
+//
+// Lights: one AreaLight per shape with an area light (in shape order), then the scene's point,
+// spot and infinite lights (in file order). Emission follows pbrt-v4 (algorithms.md §9): the
+// scale is the scene's `scale` divided by the spectrum's photometric sum (the colour space's
+// illuminant alone for RGB emission); `power` / `illuminance` then multiply it by target / k_e
+// with pbrt-v4's geometric factors (π·area·sides, 4π, the spot's cone integral, π), so that
+// scale · photometric_sum · k_e = `scale` · target. Unlike pbrt-v4, which makes every triangle
+// of an emissive mesh its own light, `power` applies to the shape as a whole. At most one
+// infinite light (a second one is refused with its location).
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "services/scene/scene_description.h"
+#include "services/spectral/color.h"
+#include "services/spectral/named_spectra.h"
+#include "services/spectral/rgb_uplift.h"
+#include "services/spectral/wavelength_distribution.h"
+#include "services/spectral/wavelength_grid.h"
+#include "worker/camera.h"
+#include "worker/embree_device.h"
+#include "worker/geometry.h"
+#include "worker/light.h"
+#include "worker/light_sampler.h"
+#include "worker/material.h"
+#include "worker/medium.h"
+#include "worker/render_options.h"
+
+namespace prism::worker {
+
+struct ShapeInfo {
+  int material = 0;     // index into materials()
+  int area_light = -1;  // index into lights(), or -1
+  int medium_inside = -1, medium_outside = -1;  // indices into media(), -1 vacuum
+  bool medium_transition = false;
+};
+
+class RenderScene {
+ public:
+  // Resolves every spectrum with `library` (which must outlive nothing: values are copied).
+  // width/height: the job's film resolution. Errors carry the scene position where one exists.
+  static absl::StatusOr<std::unique_ptr<RenderScene>> build(
+      EmbreeDevice& device, const scene::SceneDescription& scene,
+      const spectral::SpectrumLibrary& library, const RenderOptions& options, int width,
+      int height);
+
+  const Geometry& geometry() const { return *geometry_; }
+  const Camera& camera() const { return camera_; }
+  const std::vector<Material>& materials() const { return materials_; }
+  const std::vector<Light>& lights() const { return lights_; }
+  const std::vector<HomogeneousMedium>& media() const { return media_; }
+  const ShapeInfo& shape(int index) const { return shapes_[index]; }
+  int camera_medium() const { return camera_medium_; }
+  int infinite_light() const { return infinite_light_; }  // index into lights(), or -1
+  const LightSampler& light_sampler() const { return *light_sampler_; }
+  const spectral::WavelengthGrid& grid() const { return grid_; }
+  // p(λ) ∝ p_s · p_e mixed defensively (algorithms.md §1), per the options.
+  const spectral::WavelengthDistribution& wavelength_pdf() const { return *wavelength_pdf_; }
+  const spectral::ColorMatching& cmf() const { return *cmf_; }
+  const RenderOptions& options() const { return options_; }
+
+ private:
+  RenderScene() = default;
+  RenderOptions options_;
+  std::unique_ptr<Geometry> geometry_;
+  Camera camera_;
+  std::vector<Material> materials_;
+  std::vector<Light> lights_;
+  std::vector<HomogeneousMedium> media_;
+  std::vector<ShapeInfo> shapes_;
+  int camera_medium_ = -1;
+  int infinite_light_ = -1;
+  std::unique_ptr<LightSampler> light_sampler_;
+  spectral::WavelengthGrid grid_ = *spectral::WavelengthGrid::create(64);
+  std::unique_ptr<spectral::WavelengthDistribution> wavelength_pdf_;
+  std::unique_ptr<spectral::ColorMatching> cmf_;
+};
+
+}  // namespace prism::worker

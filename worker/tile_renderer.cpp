@@ -1,0 +1,97 @@
+#include "worker/tile_renderer.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/combinable.h>
+#include <tbb/parallel_for.h>
+
+#include <chrono>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+
+namespace prism::worker {
+
+absl::StatusOr<image::TileResult> TileRenderer::render(
+    const RenderTask& task, TileStats* stats, const std::atomic<bool>* cancel,
+    std::atomic<std::uint64_t>* progress) const {
+  const int bins = scene_.grid().bins();
+  image::TileBuffers buffers;
+  buffers.guides = task.want_guides;
+  auto created = image::TileResult::create(task.tile, task.samples, bins, buffers);
+  if (!created.ok()) return created.status();
+  image::TileResult result = std::move(*created);
+  if (task.samples.s1 > std::uint64_t{1} << 32) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("sample range ends at ", task.samples.s1, ", beyond 2^32 samples per pixel"));
+  }
+  const auto start = std::chrono::steady_clock::now();
+  const image::TileRect& rect = task.tile;
+  const int width = rect.width();
+  const spectral::WavelengthDistribution& lambda_pdf = scene_.wavelength_pdf();
+
+  tbb::combinable<TraceCounters> counters;
+  std::atomic<bool> cancelled{false};
+  auto sums = result.mutable_sums();
+  auto squares = result.mutable_sum_squares();
+  auto counts = result.mutable_counts();
+
+  // Each pixel is owned by one thread and its samples are added in index order, so every
+  // double in the result is the same whatever the scheduling.
+  tbb::parallel_for(
+      tbb::blocked_range<std::int64_t>(0, rect.area(), 1),
+      [&](const tbb::blocked_range<std::int64_t>& range) {
+        TraceCounters& local = counters.local();
+        std::vector<double> sample_values(bins, 0.0);
+        for (std::int64_t index = range.begin(); index != range.end(); ++index) {
+          if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) {
+            cancelled.store(true, std::memory_order_relaxed);
+            return;
+          }
+          const int x = rect.x0 + int(index % width);
+          const int y = rect.y0 + int(index / width);
+          double* pixel_sums = &sums[std::size_t(index) * bins];
+          double* pixel_squares = &squares[std::size_t(index) * bins];
+          std::uint64_t guide_count = 0;
+          float depth_sum = 0, albedo_sum = 0;
+          Vec3f normal_sum;
+          for (std::uint64_t s = task.samples.s0; s < task.samples.s1; ++s) {
+            GuideValues guide;
+            SampleContribution c = integrator_.trace(x, y, task.pass, std::uint32_t(s), lambda_pdf,
+                                                     local, task.want_guides ? &guide : nullptr);
+            // Lanes that land in the same bin form one value of this sample for that bin, so
+            // the sum of squares is that of per-sample bin values.
+            for (int lane = 0; lane < c.lanes; ++lane) sample_values[c.bin[lane]] += c.value[lane];
+            for (int lane = 0; lane < c.lanes; ++lane) {
+              double& v = sample_values[c.bin[lane]];
+              if (v != 0.0) {
+                pixel_sums[c.bin[lane]] += v;
+                pixel_squares[c.bin[lane]] += v * v;
+                v = 0.0;
+              }
+            }
+            if (task.want_guides) {
+              depth_sum += guide.depth;
+              normal_sum += guide.normal;
+              albedo_sum += guide.albedo;
+              ++guide_count;
+            }
+          }
+          counts[std::size_t(index)] = task.samples.count();
+          if (task.want_guides && guide_count > 0) {
+            result.add_guides(x, y, depth_sum, normal_sum.x, normal_sum.y, normal_sum.z,
+                              albedo_sum);
+          }
+          if (progress != nullptr) progress->fetch_add(task.samples.count(), std::memory_order_relaxed);
+        }
+      },
+      tbb::simple_partitioner());
+  if (cancelled.load()) return absl::CancelledError("task cancelled");
+  if (stats != nullptr) {
+    stats->counters = TraceCounters();
+    counters.combine_each([&](const TraceCounters& c) { stats->counters += c; });
+    stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+  return result;
+}
+
+}  // namespace prism::worker

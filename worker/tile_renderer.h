@@ -1,0 +1,45 @@
+// Renders one task (tile rect x sample range) into a TileResult, on a TBB thread pool. Pixels
+// are independent and every random number is a pure function of (seed, pass, pixel, sample,
+// dimension), and each pixel's samples are accumulated in index order into doubles, so the
+// result's bytes are identical for any thread count, tile size or task split.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+
+#include "absl/status/statusor.h"
+#include "services/image/tile.h"
+#include "worker/integrator.h"
+#include "worker/render_scene.h"
+
+namespace prism::worker {
+
+struct RenderTask {
+  image::TileRect tile;
+  image::SampleRange samples;
+  std::uint32_t pass = 0;
+  bool want_guides = false;
+};
+
+struct TileStats {
+  TraceCounters counters;
+  double seconds = 0;
+};
+
+class TileRenderer {
+ public:
+  explicit TileRenderer(const RenderScene& scene) : scene_(scene), integrator_(scene) {}
+
+  // Renders the task with the scene's wavelength distribution. `cancel`, when set, is polled
+  // between pixels; a cancelled render returns CANCELLED and no result. `progress` (may be
+  // null) is incremented by the samples finished, for progress bars.
+  absl::StatusOr<image::TileResult> render(const RenderTask& task, TileStats* stats,
+                                           const std::atomic<bool>* cancel = nullptr,
+                                           std::atomic<std::uint64_t>* progress = nullptr) const;
+
+ private:
+  const RenderScene& scene_;
+  PathIntegrator integrator_;
+};
+
+}  // namespace prism::worker
