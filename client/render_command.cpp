@@ -1,0 +1,261 @@
+#include "client/render_command.h"
+
+#include <charconv>
+#include <chrono>
+#include <cmath>
+#include <iomanip>
+#include <sstream>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "coordinator/local_render.h"
+#include "coordinator/outputs.h"
+#include "services/base/status.h"
+#include "services/scene/scene_loader.h"
+#include "services/spectral/named_spectra.h"
+#include "services/spectral/wavelength_grid.h"
+
+namespace prism::client {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+absl::Status out_of_range(const char* flag, std::int64_t value, std::int64_t lo, std::int64_t hi) {
+  return absl::InvalidArgumentError(
+      absl::StrCat(flag, " ", value, " is out of range: want ", lo, "..", hi));
+}
+
+absl::Status check_range(const char* flag, const std::optional<std::int64_t>& value,
+                         std::int64_t lo, std::int64_t hi) {
+  if (value.has_value() && (*value < lo || *value > hi)) return out_of_range(flag, *value, lo, hi);
+  return absl::OkStatus();
+}
+
+const char* name_of(worker::IntegratorKind k) {
+  return k == worker::IntegratorKind::kUniform ? "uniform" : "hero";
+}
+const char* name_of(worker::SpectralPdfKind k) {
+  return k == worker::SpectralPdfKind::kFlat ? "flat" : "visible";
+}
+const char* name_of(worker::EmitterPdfKind k) {
+  return k == worker::EmitterPdfKind::kUniform ? "uniform" : "emitters";
+}
+const char* name_of(worker::LightSelectionKind k) {
+  switch (k) {
+    case worker::LightSelectionKind::kUniform:
+      return "uniform";
+    case worker::LightSelectionKind::kPower:
+      return "power";
+    case worker::LightSelectionKind::kSpatial:
+      return "spatial";
+  }
+  return "?";
+}
+
+// 1234567 -> "1.23 M".
+std::string human(double value) {
+  if (!std::isfinite(value)) return "-";
+  const char* units[] = {"", " k", " M", " G", " T"};
+  int u = 0;
+  while (std::fabs(value) >= 1000.0 && u < 4) {
+    value /= 1000.0;
+    ++u;
+  }
+  return absl::StrFormat("%.3g%s", value, units[u]);
+}
+
+std::string clock_time(double seconds) {
+  if (!std::isfinite(seconds) || seconds < 0) return "--:--";
+  const auto s = static_cast<std::int64_t>(seconds + 0.5);
+  if (s >= 3600) return absl::StrFormat("%d:%02d:%02d", s / 3600, (s / 60) % 60, s % 60);
+  return absl::StrFormat("%d:%02d", s / 60, s % 60);
+}
+
+// One line, redrawn in place with '\r'.
+void draw_progress(std::ostream& out, const coordinator::RenderProgress& p) {
+  constexpr int kWidth = 30;
+  const double fraction =
+      p.samples_total > 0 ? double(p.samples_done) / double(p.samples_total) : 1.0;
+  const int filled = std::min(kWidth, static_cast<int>(fraction * kWidth));
+  const double rate = p.seconds > 0 ? double(p.samples_done) / p.seconds : 0.0;
+  const double eta = rate > 0 ? double(p.samples_total - p.samples_done) / rate : NAN;
+  out << "\r[" << std::string(filled, '#') << std::string(kWidth - filled, '.') << "] "
+      << absl::StrFormat("%5.1f%%", 100.0 * fraction) << "  " << human(rate)
+      << " samples/s  elapsed " << clock_time(p.seconds) << "  ETA " << clock_time(eta) << "   "
+      << std::flush;
+}
+
+}  // namespace
+
+absl::StatusOr<std::pair<int, int>> parse_resolution(const std::string& text) {
+  const std::size_t x = text.find('x');
+  int w = 0, h = 0;
+  bool ok = x != std::string::npos && x > 0 && x + 1 < text.size();
+  if (ok) {
+    auto [end_w, ec_w] = std::from_chars(text.data(), text.data() + x, w);
+    auto [end_h, ec_h] = std::from_chars(text.data() + x + 1, text.data() + text.size(), h);
+    ok = ec_w == std::errc() && end_w == text.data() + x && ec_h == std::errc() &&
+         end_h == text.data() + text.size();
+  }
+  if (!ok || w < 1 || h < 1 || w > scene::kMaxResolution || h > scene::kMaxResolution) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--resolution '", text,
+                     "': want WxH with 1 <= W, H <= ", scene::kMaxResolution, ", e.g. 640x480"));
+  }
+  return std::pair<int, int>{w, h};
+}
+
+absl::StatusOr<std::uint64_t> parse_seed(const std::string& text) {
+  std::uint64_t seed = 0;
+  auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), seed);
+  if (text.empty() || ec != std::errc() || end != text.data() + text.size()) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--seed '", text, "': want an integer in 0..18446744073709551615"));
+  }
+  return seed;
+}
+
+absl::StatusOr<worker::IntegratorKind> parse_integrator(const std::string& name) {
+  if (name == "uniform") return worker::IntegratorKind::kUniform;
+  if (name == "hero") return worker::IntegratorKind::kHero;
+  return absl::InvalidArgumentError(
+      absl::StrCat("--integrator '", name, "': want uniform or hero"));
+}
+
+absl::StatusOr<worker::SpectralPdfKind> parse_spectral_pdf(const std::string& name) {
+  if (name == "flat") return worker::SpectralPdfKind::kFlat;
+  if (name == "visible") return worker::SpectralPdfKind::kVisible;
+  return absl::InvalidArgumentError(
+      absl::StrCat("--spectral-pdf '", name, "': want flat or visible"));
+}
+
+absl::StatusOr<worker::EmitterPdfKind> parse_emitter_pdf(const std::string& name) {
+  if (name == "uniform") return worker::EmitterPdfKind::kUniform;
+  if (name == "emitters") return worker::EmitterPdfKind::kEmitters;
+  return absl::InvalidArgumentError(
+      absl::StrCat("--emitter-pdf '", name, "': want uniform or emitters"));
+}
+
+absl::StatusOr<worker::LightSelectionKind> parse_light_selection(const std::string& name) {
+  if (name == "uniform") return worker::LightSelectionKind::kUniform;
+  if (name == "power") return worker::LightSelectionKind::kPower;
+  if (name == "spatial") return worker::LightSelectionKind::kSpatial;
+  return absl::InvalidArgumentError(
+      absl::StrCat("--light-selection '", name, "': want uniform, power or spatial"));
+}
+
+absl::Status validate_render_flags(const RenderCommandOptions& o) {
+  PRISM_RETURN_IF_ERROR(check_range("--spp", o.spp, 1, kMaxSpp));
+  PRISM_RETURN_IF_ERROR(check_range("--bins", o.bins, spectral::WavelengthGrid::kMinBins,
+                                    spectral::WavelengthGrid::kMaxBins));
+  PRISM_RETURN_IF_ERROR(check_range("--threads", o.threads, 1, kMaxThreads));
+  PRISM_RETURN_IF_ERROR(check_range("--tile", o.tile, 4, 1024));
+  PRISM_RETURN_IF_ERROR(check_range("--max-depth", o.max_depth, 0, kMaxDepth));
+  if (o.resolution.has_value()) PRISM_RETURN_IF_ERROR(parse_resolution(*o.resolution).status());
+  PRISM_RETURN_IF_ERROR(parse_integrator(o.integrator).status());
+  PRISM_RETURN_IF_ERROR(parse_spectral_pdf(o.spectral_pdf).status());
+  PRISM_RETURN_IF_ERROR(parse_emitter_pdf(o.emitter_pdf).status());
+  PRISM_RETURN_IF_ERROR(parse_light_selection(o.light_selection).status());
+  if (!std::isfinite(o.exposure) || std::fabs(o.exposure) > kMaxExposureStops) {
+    return absl::InvalidArgumentError(absl::StrCat("--exposure ", o.exposure,
+                                                   " is out of range: want stops in -",
+                                                   kMaxExposureStops, "..", kMaxExposureStops));
+  }
+  // The names alone (the film's filename is not needed to check -o and --json).
+  return coordinator::output_paths(o.output, o.json, "render.exr").status();
+}
+
+absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
+                                       worker::EmbreeDevice& device) {
+  const Clock::time_point start = Clock::now();
+  PRISM_RETURN_IF_ERROR(validate_render_flags(options));
+  if (!device.valid()) {
+    return absl::InternalError(
+        absl::StrCat("could not create the Embree device: ", device.take_error().message()));
+  }
+
+  PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library,
+                         spectral::SpectrumLibrary::load_builtin());
+  scene::LoadOptions load;
+  load.is_known_spectrum = [&](std::string_view name) { return library.contains(name); };
+  load.is_known_ior = [&](std::string_view name) { return library.find_ior(name) != nullptr; };
+  PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.scene, load));
+  const scene::SceneDescription& description = loaded.description;
+
+  PRISM_ASSIGN_OR_RETURN(
+      coordinator::OutputPaths paths,
+      coordinator::output_paths(options.output, options.json, description.film.filename));
+  PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
+
+  coordinator::LocalRenderOptions local;
+  worker::RenderOptions& render = local.render;
+  render.integrator = *parse_integrator(options.integrator);
+  render.spectral_pdf = *parse_spectral_pdf(options.spectral_pdf);
+  render.emitter_pdf = *parse_emitter_pdf(options.emitter_pdf);
+  render.light_selection = *parse_light_selection(options.light_selection);
+  render.spectral_light_selection = options.spectral_light_selection;
+  render.bins = options.bins.has_value()
+                    ? static_cast<int>(*options.bins)
+                    : description.film.bins.value_or(spectral::WavelengthGrid::kDefaultBins);
+  render.max_depth = options.max_depth.has_value() ? static_cast<int>(*options.max_depth)
+                                                   : description.integrator.max_depth;
+  render.seed = options.seed;
+  if (options.resolution.has_value()) {
+    std::tie(local.width, local.height) = *parse_resolution(*options.resolution);
+  } else {
+    local.width = description.film.x_resolution;
+    local.height = description.film.y_resolution;
+  }
+  local.spp = options.spp.has_value()
+                  ? static_cast<std::uint64_t>(*options.spp)
+                  : static_cast<std::uint64_t>(description.sampler.samples_per_pixel);
+  local.tile_size = static_cast<int>(options.tile);
+  local.threads = options.threads.has_value() ? static_cast<int>(*options.threads) : 0;
+  if (options.progress != nullptr) {
+    std::ostream* out = options.progress;
+    local.progress = [out](const coordinator::RenderProgress& p) { draw_progress(*out, p); };
+  }
+
+  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<coordinator::LocalRender> renderer,
+                         coordinator::LocalRender::create(device, description, library, local));
+  absl::StatusOr<coordinator::LocalRenderResult> result = renderer->render();
+  if (options.progress != nullptr) *options.progress << "\n" << std::flush;
+  if (!result.ok()) return result.status();
+  const double wall_seconds = std::chrono::duration<double>(Clock::now() - start).count();
+
+  coordinator::RenderReport report;
+  report.scene = options.scene.string();
+  report.width = local.width;
+  report.height = local.height;
+  report.spp = local.spp;
+  report.bins = render.bins;
+  report.integrator = name_of(render.integrator);
+  report.spectral_pdf = name_of(render.spectral_pdf);
+  report.emitter_pdf = name_of(render.emitter_pdf);
+  report.light_selection = name_of(render.light_selection);
+  report.spectral_light_selection = render.spectral_light_selection;
+  report.max_depth = render.max_depth;
+  report.threads = result->stats.threads;
+  report.tile_size = local.tile_size;
+  report.seed = render.seed;
+  report.wall_seconds = wall_seconds;
+  report.render_seconds = result->stats.render_seconds;
+  report.samples = result->stats.samples;
+  report.rays = result->stats.counters.rays;
+  report.counters = coordinator::counter_list(result->stats.counters);
+  report.peak_memory_bytes = coordinator::peak_memory_bytes();
+  report.statistics = std::move(result->statistics);
+
+  PRISM_RETURN_IF_ERROR(coordinator::write_outputs(result->image, renderer->scene().cmf(), report,
+                                                   paths, {static_cast<float>(options.exposure)}));
+  const double seconds = report.render_seconds;
+  return absl::StrCat(
+      "rendered ", report.scene, ": ", report.width, "x", report.height, ", ", report.spp, " spp, ",
+      report.bins, " bins, ", report.integrator, ", ", report.threads, " threads in ",
+      absl::StrFormat("%.2f", seconds), " s (", human(seconds > 0 ? report.samples / seconds : NAN),
+      " samples/s, ", human(seconds > 0 ? report.rays / seconds : NAN), " rays/s, peak ",
+      report.peak_memory_bytes >> 20, " MiB); wrote ", paths.spectral_exr.string(), ", ",
+      paths.rgb_exr.string(), ", ", paths.png.string(), ", ", paths.json.string(), "\n");
+}
+
+}  // namespace prism::client

@@ -1,0 +1,74 @@
+// `prism render scene.pbrt`: the embedded render. Loads the scene exactly as `prism check` does
+// (named spectra checked against the built-in library, files confined to the scene's
+// directory), renders it with the coordinator's LocalRender (the farm's tile/task/merge code
+// driving the worker's tile renderer in this process) and writes the spectral EXR, RGB EXR,
+// PNG preview and JSON report (coordinator/outputs.h).
+//
+// Every flag is validated before the scene is loaded, and the output locations before the
+// render starts; outputs are written only when the whole render has finished, so any failure
+// leaves no file behind. Defaults come from the scene: spp from its Sampler, resolution from
+// its Film, bins from the Film's nbuckets (else 64), max depth from its Integrator.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <ostream>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "worker/embree_device.h"
+#include "worker/render_options.h"
+
+namespace prism::client {
+
+// The flags as given; unset optionals take the scene's values.
+struct RenderCommandOptions {
+  std::filesystem::path scene;
+  std::optional<std::filesystem::path> output;  // -o
+  std::optional<std::filesystem::path> json;    // --json
+  std::optional<std::int64_t> spp;
+  std::string integrator = "hero";
+  std::optional<std::int64_t> bins;
+  std::optional<std::string> resolution;  // "WxH"
+  std::optional<std::int64_t> threads;    // unset: every hardware thread
+  std::uint64_t seed = 0;
+  std::int64_t tile = 32;
+  std::string spectral_pdf = "flat";
+  std::string emitter_pdf = "emitters";
+  std::string light_selection = "power";
+  bool spectral_light_selection = true;
+  std::optional<std::int64_t> max_depth;
+  double exposure = 0.0;  // PNG preview, in stops
+  // Where to draw a progress bar (a terminal); null: none.
+  std::ostream* progress = nullptr;
+};
+
+inline constexpr std::int64_t kMaxSpp = std::int64_t{1} << 24;
+inline constexpr std::int64_t kMaxDepth = 1000;
+inline constexpr std::int64_t kMaxThreads = 4096;
+inline constexpr double kMaxExposureStops = 64.0;
+
+// "WxH" with 1 <= W, H <= 16384; INVALID_ARGUMENT quoting the text otherwise.
+absl::StatusOr<std::pair<int, int>> parse_resolution(const std::string& text);
+
+// A decimal integer in 0..2^64-1 (a negative number is refused, not wrapped around).
+absl::StatusOr<std::uint64_t> parse_seed(const std::string& text);
+
+// The typed enum values of the string flags; INVALID_ARGUMENT listing the choices.
+absl::StatusOr<worker::IntegratorKind> parse_integrator(const std::string& name);
+absl::StatusOr<worker::SpectralPdfKind> parse_spectral_pdf(const std::string& name);
+absl::StatusOr<worker::EmitterPdfKind> parse_emitter_pdf(const std::string& name);
+absl::StatusOr<worker::LightSelectionKind> parse_light_selection(const std::string& name);
+
+// Every check that does not need the scene: ranges of the numbers, the choices of the string
+// flags and the output names. INVALID_ARGUMENT naming the flag and the accepted values.
+absl::Status validate_render_flags(const RenderCommandOptions& options);
+
+// Renders and writes the outputs; returns the one-line summary. Errors: the flags' (above),
+// the scene's (file:line:column), NOT_FOUND for a missing output directory, the render's, or
+// the names of the outputs that could not be written.
+absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
+                                       worker::EmbreeDevice& device);
+
+}  // namespace prism::client

@@ -1,0 +1,101 @@
+// The embedded render: the farm's pipeline in one process, with no network. It builds the
+// worker's RenderScene, plans tasks with plan_tiles (tile x sample range), renders the tasks
+// with worker::TileRenderer in parallel inside a tbb::task_arena of the requested size, and
+// assembles finished tiles with the TileAssembler, exactly as the coordinator will for remote
+// workers.
+//
+// Determinism: samples are pure functions of (seed, pass, pixel, sample index), each task sums a
+// pixel's samples in index order, and the assembler adds a tile's ranges in range order. The
+// output bytes therefore depend on the job (scene, options, resolution, spp, samples per task)
+// but not on the thread count, the tile size or the order tasks finish in.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <memory>
+
+#include "absl/status/statusor.h"
+#include "coordinator/outputs.h"
+#include "coordinator/tile_plan.h"
+#include "services/image/tile.h"
+#include "services/scene/scene_description.h"
+#include "services/spectral/named_spectra.h"
+#include "worker/embree_device.h"
+#include "worker/integrator.h"
+#include "worker/render_options.h"
+#include "worker/render_scene.h"
+
+namespace prism::coordinator {
+
+struct RenderProgress {
+  std::uint64_t samples_done = 0;
+  std::uint64_t samples_total = 0;
+  double seconds = 0;  // since rendering started
+};
+
+struct LocalRenderOptions {
+  worker::RenderOptions render;  // validated by the caller (bins, depth, seed, ...)
+  int width = 0;                 // the film resolution; must be >= 1
+  int height = 0;
+  std::uint64_t spp = 1;
+  int tile_size = 32;  // 4..1024; does not change the output bytes
+  int threads = 0;     // 0: all hardware threads; does not change the output bytes
+  // Samples per task (0: all of a pixel's samples in one task). Part of the job: it decides
+  // the order in which doubles are added, so it does change the output's last bits.
+  std::uint64_t samples_per_task = 0;
+  // Called from one reporting thread about every progress_interval_seconds while rendering,
+  // and once more when all samples are done.
+  std::function<void(const RenderProgress&)> progress;
+  double progress_interval_seconds = 0.25;
+};
+
+struct LocalRenderStats {
+  double build_seconds = 0;   // RenderScene::build (geometry, lights, light sampler)
+  double render_seconds = 0;  // all tasks, wall clock
+  std::uint64_t samples = 0;  // pixel samples taken
+  worker::TraceCounters counters;
+  int threads = 0;  // the arena's concurrency
+  std::size_t tasks = 0;
+  int tiles = 0;
+  int peak_tiles_in_flight = 0;
+};
+
+struct LocalRenderResult {
+  image::SpectralImage image;  // bin averages, width x height x bins
+  BinStatistics statistics;
+  LocalRenderStats stats;
+};
+
+class LocalRender {
+ public:
+  // Builds the render scene and the plan. INVALID_ARGUMENT for sizes out of range; the
+  // scene's own errors (file:line:column) from RenderScene::build. `device` must outlive
+  // the LocalRender.
+  static absl::StatusOr<std::unique_ptr<LocalRender>> create(
+      worker::EmbreeDevice& device, const scene::SceneDescription& scene,
+      const spectral::SpectrumLibrary& library, const LocalRenderOptions& options);
+
+  // Renders every task. `cancel`, when set, stops the render (CANCELLED). The first task error
+  // cancels the others and is returned; no partial image is returned.
+  absl::StatusOr<LocalRenderResult> render(const std::atomic<bool>* cancel = nullptr) const;
+
+  const worker::RenderScene& scene() const { return *scene_; }
+  const TilePlan& plan() const { return plan_; }
+  const LocalRenderOptions& options() const { return options_; }
+  int threads() const { return threads_; }
+  double build_seconds() const { return build_seconds_; }
+
+ private:
+  LocalRender() = default;
+  LocalRenderOptions options_;
+  std::unique_ptr<worker::RenderScene> scene_;
+  TilePlan plan_;
+  int threads_ = 1;
+  double build_seconds_ = 0;
+};
+
+// Counter names and values for reports, in a fixed order.
+std::vector<std::pair<std::string, std::uint64_t>> counter_list(const worker::TraceCounters& c);
+
+}  // namespace prism::coordinator

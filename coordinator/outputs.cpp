@@ -1,0 +1,294 @@
+#include "coordinator/outputs.h"
+
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <nlohmann/json.hpp>
+#include <system_error>
+
+#include "absl/strings/ascii.h"
+#include "absl/strings/str_cat.h"
+#include "services/base/atomic_file.h"
+#include "services/base/check.h"
+#include "services/base/status.h"
+#include "services/image/exr_spectral.h"
+#include "services/image/png.h"
+#include "services/spectral/wavelength_grid.h"
+
+#ifndef PRISM_VERSION
+#error "PRISM_VERSION must be defined by the build"
+#endif
+
+namespace prism::coordinator {
+namespace fs = std::filesystem;
+namespace {
+
+fs::path with_suffix(const fs::path& stem, const char* suffix) {
+  return fs::path(stem.string() + suffix);
+}
+
+double per_second(double amount, double seconds) {
+  return seconds > 0 ? amount / seconds : std::nan("");
+}
+
+}  // namespace
+
+const char* prism_version() {
+  return PRISM_VERSION;
+}
+
+absl::StatusOr<OutputPaths> output_paths(const std::optional<fs::path>& output,
+                                         const std::optional<fs::path>& json,
+                                         const std::string& film_filename) {
+  fs::path spectral;
+  if (output.has_value()) {
+    if (output->empty() || !output->has_filename() || output->filename() == "." ||
+        output->filename() == "..") {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--output '", output->string(), "': want a file name such as out.exr"));
+    }
+    const std::string extension = absl::AsciiStrToLower(output->extension().string());
+    if (extension.empty()) {
+      spectral = with_suffix(*output, ".exr");
+    } else if (extension == ".exr") {
+      spectral = *output;
+    } else {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--output '", output->string(),
+                       "': the spectral output is an OpenEXR file; give a name ending in .exr"));
+    }
+  } else {
+    std::string stem = fs::path(film_filename).filename().stem().string();
+    if (stem.empty() || stem == "." || stem == "..") stem = "render";
+    spectral = fs::path(stem + ".exr");
+  }
+  fs::path stem = spectral.parent_path() / spectral.stem();
+  OutputPaths paths;
+  paths.spectral_exr = spectral;
+  paths.rgb_exr = with_suffix(stem, ".rgb.exr");
+  paths.png = with_suffix(stem, ".png");
+  if (json.has_value()) {
+    if (json->empty() || !json->has_filename() || json->filename() == "." ||
+        json->filename() == "..") {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--json '", json->string(), "': want a file name such as report.json"));
+    }
+    paths.json = *json;
+  } else {
+    paths.json = with_suffix(stem, ".json");
+  }
+  const fs::path* all[] = {&paths.spectral_exr, &paths.rgb_exr, &paths.png, &paths.json};
+  for (int i = 0; i < 4; ++i) {
+    for (int j = i + 1; j < 4; ++j) {
+      if (fs::absolute(*all[i]).lexically_normal() == fs::absolute(*all[j]).lexically_normal()) {
+        return absl::InvalidArgumentError(absl::StrCat("two outputs would both be written to '",
+                                                       all[i]->string(),
+                                                       "': choose a different --json or -o name"));
+      }
+    }
+  }
+  return paths;
+}
+
+absl::Status check_output_locations(const OutputPaths& paths) {
+  for (const fs::path* path : {&paths.spectral_exr, &paths.rgb_exr, &paths.png, &paths.json}) {
+    fs::path dir = path->parent_path();
+    if (dir.empty()) dir = ".";
+    std::error_code ec;
+    if (!fs::exists(dir, ec)) {
+      return absl::NotFoundError(absl::StrCat("cannot write '", path->string(), "': directory '",
+                                              dir.string(), "' does not exist"));
+    }
+    if (!fs::is_directory(dir, ec)) {
+      return absl::InvalidArgumentError(absl::StrCat("cannot write '", path->string(), "': '",
+                                                     dir.string(), "' is not a directory"));
+    }
+    if (::access(dir.c_str(), W_OK) != 0) {
+      return absl::PermissionDeniedError(absl::StrCat(
+          "cannot write '", path->string(), "': directory '", dir.string(), "' is not writable"));
+    }
+    if (fs::is_directory(*path, ec)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("cannot write '", path->string(), "': it is a directory"));
+    }
+  }
+  return absl::OkStatus();
+}
+
+BinStatisticsAccumulator::BinStatisticsAccumulator(std::size_t tiles, int bins)
+    : bins_(bins), tiles_(tiles) {
+  PRISM_CHECK(bins >= 1);
+}
+
+void BinStatisticsAccumulator::add_tile(std::size_t tile_index, const image::TileResult& merged) {
+  PRISM_CHECK(tile_index < tiles_.size());
+  PRISM_CHECK(merged.bins() == bins_);
+  TileSums& t = tiles_[tile_index];
+  PRISM_CHECK(!t.present);
+  t.present = true;
+  t.mean_sum.assign(bins_, 0.0);
+  t.error_sum.assign(bins_, 0.0);
+  t.variance_sum.assign(bins_, 0.0);
+  std::span<const double> sums = merged.sums();
+  std::span<const double> squares = merged.sum_squares();
+  std::span<const std::uint64_t> counts = merged.counts();
+  t.pixels = counts.size();
+  for (std::size_t p = 0; p < counts.size(); ++p) {
+    const std::uint64_t n = counts[p];
+    if (n == 0) continue;
+    const double nd = static_cast<double>(n);
+    for (int b = 0; b < bins_; ++b) {
+      const double mean = sums[p * bins_ + b] / nd;
+      t.mean_sum[b] += mean;
+      if (n >= 2) {
+        // Cancellation can make the difference slightly negative for constant samples.
+        const double variance =
+            std::max(0.0, (squares[p * bins_ + b] - nd * mean * mean) / (nd - 1.0));
+        t.error_sum[b] += std::sqrt(variance / nd);
+        t.variance_sum[b] += variance / nd;
+      }
+    }
+    if (n >= 2) ++t.pixels_with_error;
+  }
+}
+
+BinStatistics BinStatisticsAccumulator::finish() const {
+  BinStatistics out;
+  out.mean.assign(bins_, 0.0);
+  out.standard_error.assign(bins_, 0.0);
+  out.variance_of_mean.assign(bins_, 0.0);
+  std::uint64_t pixels = 0;
+  for (const TileSums& t : tiles_) {
+    PRISM_CHECK_MSG(t.present, "every tile must be added before finish()");
+    for (int b = 0; b < bins_; ++b) {
+      out.mean[b] += t.mean_sum[b];
+      out.standard_error[b] += t.error_sum[b];
+      out.variance_of_mean[b] += t.variance_sum[b];
+    }
+    pixels += t.pixels;
+    out.pixels_with_error += t.pixels_with_error;
+  }
+  for (int b = 0; b < bins_; ++b) {
+    out.mean[b] = pixels > 0 ? out.mean[b] / static_cast<double>(pixels) : 0.0;
+    const double with_error = static_cast<double>(out.pixels_with_error);
+    out.standard_error[b] = with_error > 0 ? out.standard_error[b] / with_error : std::nan("");
+    out.variance_of_mean[b] = with_error > 0 ? out.variance_of_mean[b] / with_error : std::nan("");
+  }
+  return out;
+}
+
+absl::StatusOr<image::RgbImage> to_linear_srgb(const image::SpectralImage& spectral,
+                                               const spectral::ColorMatching& cmf) {
+  PRISM_ASSIGN_OR_RETURN(spectral::WavelengthGrid grid,
+                         spectral::WavelengthGrid::create(spectral.bins()));
+  const spectral::XyzBinWeights weights = cmf.bin_weights(grid);
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb,
+                         image::RgbImage::create(spectral.width(), spectral.height()));
+  // pbrt-v4's default `cie1931` sensor (imaging ratio 1) records XYZ = ∫ CMF(λ)·L(λ) dλ, with no
+  // division by the CIE Y integral; lights are normalised by their photometric sum, so a light of
+  // `scale` s seen directly has Y = s there. XyzBinWeights divides by kCieYIntegral, which this
+  // undoes, so Prism's RGB output has pbrt-v4's brightness.
+  constexpr double kSensor = spectral::kCieYIntegral;
+  for (int y = 0; y < spectral.height(); ++y) {
+    for (int x = 0; x < spectral.width(); ++x) {
+      spectral::Xyz xyz = weights.to_xyz(spectral.pixel(x, y));
+      xyz.x *= kSensor;
+      xyz.y *= kSensor;
+      xyz.z *= kSensor;
+      const spectral::Rgb c = spectral::xyz_to_linear_srgb(xyz);
+      rgb.value(x, y, 0) = static_cast<float>(c.r);
+      rgb.value(x, y, 1) = static_cast<float>(c.g);
+      rgb.value(x, y, 2) = static_cast<float>(c.b);
+    }
+  }
+  return rgb;
+}
+
+std::string format_report_json(const RenderReport& r, const OutputPaths& paths) {
+  nlohmann::ordered_json j;
+  j["prism_version"] = prism_version();
+  j["scene"] = r.scene;
+  j["width"] = r.width;
+  j["height"] = r.height;
+  j["spp"] = r.spp;
+  j["bins"] = r.bins;
+  j["integrator"] = r.integrator;
+  j["spectral_pdf"] = r.spectral_pdf;
+  j["emitter_pdf"] = r.emitter_pdf;
+  j["light_selection"] = r.light_selection;
+  j["spectral_light_selection"] = r.spectral_light_selection;
+  j["max_depth"] = r.max_depth;
+  j["threads"] = r.threads;
+  j["tile_size"] = r.tile_size;
+  j["seed"] = r.seed;
+  j["wall_seconds"] = r.wall_seconds;
+  j["render_seconds"] = r.render_seconds;
+  j["samples"] = r.samples;
+  j["samples_per_second"] = per_second(static_cast<double>(r.samples), r.render_seconds);
+  j["samples_per_second_per_core"] =
+      r.threads > 0 ? per_second(static_cast<double>(r.samples), r.render_seconds) / r.threads
+                    : std::nan("");
+  j["rays"] = r.rays;
+  j["rays_per_second"] = per_second(static_cast<double>(r.rays), r.render_seconds);
+  j["peak_memory_bytes"] = r.peak_memory_bytes;
+  nlohmann::ordered_json counters = nlohmann::ordered_json::object();
+  for (const auto& [name, value] : r.counters) counters[name] = value;
+  j["counters"] = counters;
+  nlohmann::ordered_json centres = nlohmann::ordered_json::array();
+  for (double c : image::bin_centres_nm(r.bins)) centres.push_back(c);
+  j["bin_centres_nm"] = centres;
+  j["bin_mean"] = r.statistics.mean;
+  j["bin_standard_error"] = r.statistics.standard_error;
+  j["bin_variance_of_mean"] = r.statistics.variance_of_mean;
+  j["pixels_with_error_estimate"] = r.statistics.pixels_with_error;
+  j["outputs"] = {{"spectral_exr", paths.spectral_exr.string()},
+                  {"rgb_exr", paths.rgb_exr.string()},
+                  {"png", paths.png.string()},
+                  {"json", paths.json.string()}};
+  return j.dump(2) + "\n";
+}
+
+absl::Status write_outputs(const image::SpectralImage& spectral, const spectral::ColorMatching& cmf,
+                           const RenderReport& report, const OutputPaths& paths,
+                           const OutputOptions& options) {
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, to_linear_srgb(spectral, cmf));
+  image::ExrMetadata metadata;
+  metadata[std::string(image::kMetaSpp)] = absl::StrCat(report.spp);
+  metadata[std::string(image::kMetaIntegrator)] = report.integrator;
+  metadata[std::string(image::kMetaSeed)] = absl::StrCat(report.seed);
+  metadata["bins"] = absl::StrCat(report.bins);
+  metadata["scene"] = report.scene;
+  metadata["version"] = prism_version();
+  metadata["spectral_pdf"] = report.spectral_pdf;
+  metadata["emitter_pdf"] = report.emitter_pdf;
+  metadata["light_selection"] = report.light_selection;
+  metadata["spectral_light_selection"] = report.spectral_light_selection ? "on" : "off";
+  metadata["max_depth"] = absl::StrCat(report.max_depth);
+
+  absl::Status first;
+  std::string failures;
+  auto record = [&](const fs::path& path, const absl::Status& status) {
+    if (status.ok()) return;
+    if (first.ok()) first = status;
+    absl::StrAppend(&failures, failures.empty() ? "" : "; ", "could not write '", path.string(),
+                    "': ", status.message());
+  };
+  record(paths.spectral_exr,
+         image::write_spectral_exr(paths.spectral_exr, spectral, rgb, metadata));
+  record(paths.rgb_exr,
+         image::write_rgb_exr(paths.rgb_exr, rgb, image::ExrPixelType::kFloat, metadata));
+  record(paths.png, image::write_png_preview(paths.png, rgb, options.exposure_stops));
+  const std::string json = format_report_json(report, paths);
+  record(paths.json, base::write_file_atomic(paths.json, std::span<const char>(json)));
+  if (first.ok()) return first;
+  return absl::Status(first.code(), failures);
+}
+
+std::uint64_t peak_memory_bytes() {
+  rusage usage{};
+  if (getrusage(RUSAGE_SELF, &usage) != 0) return 0;
+  return static_cast<std::uint64_t>(usage.ru_maxrss) * 1024;  // Linux reports kilobytes
+}
+
+}  // namespace prism::coordinator

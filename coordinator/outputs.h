@@ -1,0 +1,135 @@
+// A finished render's outputs: the spectral EXR (OpenEXR spectral layout plus R, G, B), an RGB
+// EXR (float32), an 8-bit PNG preview and a JSON report. Colour follows algorithms.md §9: XYZ
+// from the bin averages with the CIE 1931 bin weights (divided by the CIE Y integral), then
+// linear sRGB (D65, no white balance).
+//
+// Naming: the spectral EXR is PATH (`-o`, else the scene Film's filename stem in the current
+// directory, with `.exr`); the others sit beside it as <stem>.rgb.exr, <stem>.png and
+// <stem>.json (or the --json path). Every file is written atomically, so an output is complete
+// under its name or absent; callers write only after the render has finished, so a failed or
+// cancelled render leaves nothing behind.
+//
+// Error estimates come from the per-pixel sums of squares: for a pixel with n >= 2 samples of
+// bin values I, the standard error of its mean is sqrt((Σ I² − n·m²) / ((n − 1)·n)); the report
+// averages it (and its square) over the pixels per bin. Statistics are reduced in tile order, so
+// the report's numbers are as reproducible as the image.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "services/image/tile.h"
+#include "services/spectral/color.h"
+
+namespace prism::coordinator {
+
+// Where a render's outputs go.
+struct OutputPaths {
+  std::filesystem::path spectral_exr;
+  std::filesystem::path rgb_exr;
+  std::filesystem::path png;
+  std::filesystem::path json;
+};
+
+// `output`: the -o path (an extension other than .exr is refused; none gets .exr). Without it,
+// the stem of `film_filename` (the scene Film's "filename", any directories dropped) in the
+// current directory. `json`: the --json path, else <stem>.json. INVALID_ARGUMENT with the
+// offending name when a path is empty or names a directory, or two outputs coincide.
+absl::StatusOr<OutputPaths> output_paths(const std::optional<std::filesystem::path>& output,
+                                         const std::optional<std::filesystem::path>& json,
+                                         const std::string& film_filename);
+
+// Checked before rendering so a long render does not fail at the end: every output's directory
+// exists (NOT_FOUND otherwise) and no output names an existing directory (INVALID_ARGUMENT).
+absl::Status check_output_locations(const OutputPaths& paths);
+
+// Per-bin image statistics for the report.
+struct BinStatistics {
+  std::vector<double> mean;            // average over all pixels of the pixel means
+  std::vector<double> standard_error;  // average over pixels with >= 2 samples
+  // Average over the same pixels of the squared standard error s²/n: the expected squared
+  // error of a pixel's mean, e.g. the noise floor a reference image adds to an MSE.
+  std::vector<double> variance_of_mean;
+  std::uint64_t pixels_with_error = 0;
+};
+
+// Collects per-tile statistics from merged tile results (any order, any thread: each tile has
+// its own slot) and reduces them in tile order.
+class BinStatisticsAccumulator {
+ public:
+  BinStatisticsAccumulator(std::size_t tiles, int bins);
+  // Called once per tile (PRISM_CHECK on a repeat or a bin mismatch).
+  void add_tile(std::size_t tile_index, const image::TileResult& merged);
+  // Requires every tile to have been added (PRISM_CHECK).
+  BinStatistics finish() const;
+
+ private:
+  struct TileSums {
+    bool present = false;
+    std::vector<double> mean_sum;
+    std::vector<double> error_sum;
+    std::vector<double> variance_sum;
+    std::uint64_t pixels = 0;
+    std::uint64_t pixels_with_error = 0;
+  };
+  int bins_;
+  std::vector<TileSums> tiles_;
+};
+
+// Linear sRGB of every pixel as pbrt-v4's default `cie1931` sensor records it: XYZ = ∫ CMF·L dλ
+// (no division by the CIE Y integral), so pbrt-v4 scenes keep their brightness. INVALID_ARGUMENT
+// when the image's bins are outside the spectral grid's range (4..256).
+absl::StatusOr<image::RgbImage> to_linear_srgb(const image::SpectralImage& spectral,
+                                               const spectral::ColorMatching& cmf);
+
+// What the JSON report records besides the image.
+struct RenderReport {
+  std::string scene;
+  int width = 0;
+  int height = 0;
+  std::uint64_t spp = 0;
+  int bins = 0;
+  std::string integrator;
+  std::string spectral_pdf;
+  std::string emitter_pdf;
+  std::string light_selection;
+  bool spectral_light_selection = true;
+  int max_depth = 0;
+  int threads = 0;
+  int tile_size = 0;
+  std::uint64_t seed = 0;
+  double wall_seconds = 0;    // loading the scene to the end of the render
+  double render_seconds = 0;  // tracing only
+  std::uint64_t samples = 0;  // pixel samples taken
+  std::uint64_t rays = 0;
+  std::vector<std::pair<std::string, std::uint64_t>> counters;
+  std::uint64_t peak_memory_bytes = 0;
+  BinStatistics statistics;
+};
+
+struct OutputOptions {
+  float exposure_stops = 0.0f;  // PNG preview only
+};
+
+// The report as a JSON document (non-finite numbers as null).
+std::string format_report_json(const RenderReport& report, const OutputPaths& paths);
+
+// Writes the four outputs. Each write is attempted; the error names every file that could not
+// be written and why (INTERNAL or the underlying code of the first failure).
+absl::Status write_outputs(const image::SpectralImage& spectral, const spectral::ColorMatching& cmf,
+                           const RenderReport& report, const OutputPaths& paths,
+                           const OutputOptions& options);
+
+// The process's peak resident set size (getrusage ru_maxrss), in bytes.
+std::uint64_t peak_memory_bytes();
+
+// Prism's version string, as written into outputs.
+const char* prism_version();
+
+}  // namespace prism::coordinator

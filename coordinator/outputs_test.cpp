@@ -1,0 +1,267 @@
+#include "coordinator/outputs.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "services/base/atomic_file.h"
+#include "services/image/exr_spectral.h"
+#include "services/image/png.h"
+#include "services/spectral/wavelength_grid.h"
+
+namespace prism::coordinator {
+namespace {
+namespace fs = std::filesystem;
+
+fs::path fresh_dir(const std::string& name) {
+  fs::path dir = fs::path(testing::TempDir()) / ("prism_outputs_test_" + name);
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::vector<fs::path> listing(const fs::path& dir) {
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(dir)) files.push_back(entry.path().filename());
+  std::sort(files.begin(), files.end());
+  return files;
+}
+
+TEST(OutputPathsTest, NamesFollowTheSpectralOutput) {
+  auto paths = output_paths(fs::path("renders/out.exr"), std::nullopt, "ignored.exr");
+  ASSERT_TRUE(paths.ok()) << paths.status();
+  EXPECT_EQ(paths->spectral_exr, fs::path("renders/out.exr"));
+  EXPECT_EQ(paths->rgb_exr, fs::path("renders/out.rgb.exr"));
+  EXPECT_EQ(paths->png, fs::path("renders/out.png"));
+  EXPECT_EQ(paths->json, fs::path("renders/out.json"));
+
+  auto no_extension = output_paths(fs::path("out"), fs::path("r/report.json"), "x.exr");
+  ASSERT_TRUE(no_extension.ok()) << no_extension.status();
+  EXPECT_EQ(no_extension->spectral_exr, fs::path("out.exr"));
+  EXPECT_EQ(no_extension->json, fs::path("r/report.json"));
+}
+
+TEST(OutputPathsTest, DefaultIsTheFilmFilenameStemInTheCurrentDirectory) {
+  auto paths = output_paths(std::nullopt, std::nullopt, "images/cornell-two-lights.exr");
+  ASSERT_TRUE(paths.ok()) << paths.status();
+  EXPECT_EQ(paths->spectral_exr, fs::path("cornell-two-lights.exr"));
+  EXPECT_EQ(paths->rgb_exr, fs::path("cornell-two-lights.rgb.exr"));
+  EXPECT_EQ(paths->png, fs::path("cornell-two-lights.png"));
+  EXPECT_EQ(paths->json, fs::path("cornell-two-lights.json"));
+  auto png_film = output_paths(std::nullopt, std::nullopt, "killeroo.png");
+  ASSERT_TRUE(png_film.ok());
+  EXPECT_EQ(png_film->spectral_exr, fs::path("killeroo.exr"));
+}
+
+TEST(OutputPathsTest, RefusesBadNames) {
+  auto png = output_paths(fs::path("out.png"), std::nullopt, "x.exr");
+  EXPECT_EQ(png.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(png.status().message().find("out.png"), std::string::npos);
+  EXPECT_FALSE(output_paths(fs::path("dir/"), std::nullopt, "x.exr").ok());
+  EXPECT_FALSE(output_paths(fs::path(""), std::nullopt, "x.exr").ok());
+  auto clash = output_paths(fs::path("out.exr"), fs::path("./out.png"), "x.exr");
+  EXPECT_EQ(clash.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(clash.status().message().find("out.png"), std::string::npos) << clash.status();
+  EXPECT_FALSE(output_paths(fs::path("out.exr"), fs::path("out.exr"), "x.exr").ok());
+}
+
+TEST(OutputPathsTest, LocationsAreCheckedBeforeRendering) {
+  const fs::path dir = fresh_dir("locations");
+  auto ok = output_paths(dir / "a.exr", std::nullopt, "x.exr");
+  ASSERT_TRUE(ok.ok());
+  EXPECT_TRUE(check_output_locations(*ok).ok());
+  auto missing = output_paths(dir / "no" / "a.exr", std::nullopt, "x.exr");
+  ASSERT_TRUE(missing.ok());
+  absl::Status status = check_output_locations(*missing);
+  EXPECT_EQ(status.code(), absl::StatusCode::kNotFound);
+  EXPECT_NE(status.message().find("does not exist"), std::string::npos) << status;
+  fs::create_directories(dir / "a.png");
+  absl::Status is_dir = check_output_locations(*ok);
+  EXPECT_EQ(is_dir.code(), absl::StatusCode::kInvalidArgument) << is_dir;
+  EXPECT_TRUE(listing(dir) == std::vector<fs::path>{"a.png"});
+}
+
+image::TileResult result_with(const image::TileRect& rect, int bins,
+                              const std::vector<std::vector<double>>& samples_per_pixel_bin0) {
+  auto r = image::TileResult::create(rect, {0, 3}, bins);
+  EXPECT_TRUE(r.ok());
+  int p = 0;
+  for (int y = rect.y0; y < rect.y1; ++y) {
+    for (int x = rect.x0; x < rect.x1; ++x, ++p) {
+      for (double v : samples_per_pixel_bin0[p]) {
+        std::vector<double> spectrum(bins, 0.0);
+        spectrum[0] = v;
+        spectrum[1] = 2 * v;
+        r->add_sample(x, y, spectrum);
+      }
+    }
+  }
+  return *std::move(r);
+}
+
+TEST(BinStatisticsTest, MeansAndStandardErrorsMatchTheFormulas) {
+  // Two tiles of two pixels. Pixel samples (bin 0; bin 1 is twice as much):
+  //  {1,2,3}: mean 2, s^2 = 1, se = sqrt(1/3);  {5}: one sample, no error estimate;
+  //  {4,4}:   mean 4, se 0;                      {0,10}: mean 5, s^2 = 50, se = 5.
+  BinStatisticsAccumulator acc(2, 4);
+  acc.add_tile(1, result_with({2, 0, 4, 1}, 4, {{4, 4}, {0, 10}}));
+  acc.add_tile(0, result_with({0, 0, 2, 1}, 4, {{1, 2, 3}, {5}}));
+  BinStatistics s = acc.finish();
+  ASSERT_EQ(s.mean.size(), 4u);
+  EXPECT_DOUBLE_EQ(s.mean[0], (2.0 + 5.0 + 4.0 + 5.0) / 4);
+  EXPECT_DOUBLE_EQ(s.mean[1], 2 * (2.0 + 5.0 + 4.0 + 5.0) / 4);
+  EXPECT_EQ(s.mean[2], 0.0);
+  EXPECT_EQ(s.pixels_with_error, 3u);
+  EXPECT_NEAR(s.standard_error[0], (std::sqrt(1.0 / 3) + 0.0 + 5.0) / 3, 1e-12);
+  EXPECT_NEAR(s.standard_error[1], 2 * (std::sqrt(1.0 / 3) + 0.0 + 5.0) / 3, 1e-12);
+  EXPECT_EQ(s.standard_error[3], 0.0);
+  EXPECT_NEAR(s.variance_of_mean[0], (1.0 / 3 + 0.0 + 25.0) / 3, 1e-12);
+  EXPECT_NEAR(s.variance_of_mean[1], 4 * (1.0 / 3 + 0.0 + 25.0) / 3, 1e-12);
+}
+
+// pbrt-v4's sensor: a D65 spectrum with ∫ ȳ·S dλ = 1 is linear sRGB (1, 1, 1).
+TEST(ColourTest, BinnedD65AtUnitLuminanceIsSrgbWhite) {
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  const spectral::PiecewiseLinearSpectrum d65 = spectral::cie_d65();
+  // Bins of 15 nm and finer: coarser bins blur the CMFs by more than 1 %.
+  for (int bins : {32, 64, 256}) {
+    auto grid = spectral::WavelengthGrid::create(bins);
+    ASSERT_TRUE(grid.ok());
+    std::vector<float> spectrum(bins);
+    for (int b = 0; b < bins; ++b)
+      spectrum[b] = static_cast<float>(d65.bin_average(grid->lower(b), grid->upper(b)));
+    const double y = cmf.bin_weights(*grid).to_xyz(spectrum).y;
+    for (float& v : spectrum) v = static_cast<float>(v / (y * spectral::kCieYIntegral));
+    auto image = image::SpectralImage::create(3, 2, bins);
+    ASSERT_TRUE(image.ok());
+    for (int py = 0; py < 2; ++py)
+      for (int px = 0; px < 3; ++px)
+        for (int b = 0; b < bins; ++b) image->value(px, py, b) = spectrum[b] * (1 + px + 3 * py);
+    auto rgb = to_linear_srgb(*image, cmf);
+    ASSERT_TRUE(rgb.ok()) << rgb.status();
+    for (int py = 0; py < 2; ++py)
+      for (int px = 0; px < 3; ++px)
+        for (int c = 0; c < 3; ++c)
+          EXPECT_NEAR(rgb->value(px, py, c), 1 + px + 3 * py, 0.01 * (1 + px + 3 * py))
+              << bins << " bins, channel " << c;
+  }
+  auto too_few = image::SpectralImage::create(1, 1, 3);
+  ASSERT_TRUE(too_few.ok());
+  EXPECT_EQ(to_linear_srgb(*too_few, cmf).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+RenderReport sample_report() {
+  RenderReport r;
+  r.scene = "scenes/box.pbrt";
+  r.width = 4;
+  r.height = 3;
+  r.spp = 8;
+  r.bins = 8;
+  r.integrator = "hero";
+  r.spectral_pdf = "flat";
+  r.emitter_pdf = "emitters";
+  r.light_selection = "power";
+  r.max_depth = 5;
+  r.threads = 2;
+  r.tile_size = 32;
+  r.seed = 7;
+  r.wall_seconds = 2.0;
+  r.render_seconds = 1.0;
+  r.samples = 96;
+  r.rays = 1000;
+  r.counters = {{"rays", 1000}, {"non_finite", 0}};
+  r.peak_memory_bytes = 1 << 20;
+  r.statistics.mean.assign(8, 0.5);
+  r.statistics.standard_error.assign(8, std::nan(""));
+  return r;
+}
+
+TEST(WriteOutputsTest, WritesFourFilesThatReadBack) {
+  const fs::path dir = fresh_dir("write");
+  auto image = image::SpectralImage::create(4, 3, 8);
+  ASSERT_TRUE(image.ok());
+  for (std::size_t i = 0; i < image->data().size(); ++i)
+    image->data()[i] = 0.001f * float(i) + 1e-7f;
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  auto paths = output_paths(dir / "render.exr", std::nullopt, "x.exr");
+  ASSERT_TRUE(paths.ok());
+  const RenderReport report = sample_report();
+  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {1.0f}).ok());
+  EXPECT_TRUE((listing(dir) ==
+               std::vector<fs::path>{"render.exr", "render.json", "render.png", "render.rgb.exr"}));
+
+  auto spectral = image::read_spectral_exr(paths->spectral_exr);
+  ASSERT_TRUE(spectral.ok()) << spectral.status();
+  ASSERT_EQ(spectral->spectral.data().size(), image->data().size());
+  EXPECT_EQ(std::memcmp(spectral->spectral.data().data(), image->data().data(),
+                        image->data().size() * sizeof(float)),
+            0);
+  EXPECT_EQ(spectral->metadata.at("spp"), "8");
+  EXPECT_EQ(spectral->metadata.at("integrator"), "hero");
+  EXPECT_EQ(spectral->metadata.at("seed"), "7");
+  EXPECT_EQ(spectral->metadata.at("bins"), "8");
+  EXPECT_EQ(spectral->metadata.at("scene"), "scenes/box.pbrt");
+  EXPECT_EQ(spectral->metadata.at("version"), prism_version());
+
+  auto expected_rgb = to_linear_srgb(*image, cmf);
+  ASSERT_TRUE(expected_rgb.ok());
+  auto rgb = image::read_rgb_exr(paths->rgb_exr);
+  ASSERT_TRUE(rgb.ok()) << rgb.status();
+  ASSERT_TRUE(spectral->rgb.has_value());
+  for (std::size_t i = 0; i < expected_rgb->data().size(); ++i) {
+    EXPECT_EQ(rgb->rgb.data()[i], expected_rgb->data()[i]);
+    EXPECT_EQ(spectral->rgb->data()[i], expected_rgb->data()[i]);
+  }
+  auto png = image::read_png(paths->png);
+  ASSERT_TRUE(png.ok()) << png.status();
+  EXPECT_EQ(png->width, 4);
+  EXPECT_EQ(png->height, 3);
+  EXPECT_EQ(png->bytes[5 * 3 + 1], image::preview_byte(expected_rgb->value(1, 1, 1), 1.0f));
+
+  auto text = base::read_file(paths->json);
+  ASSERT_TRUE(text.ok());
+  nlohmann::json j = nlohmann::json::parse(*text);
+  EXPECT_EQ(j["scene"], "scenes/box.pbrt");
+  EXPECT_EQ(j["spp"], 8);
+  EXPECT_DOUBLE_EQ(j["samples_per_second"].get<double>(), 96.0);
+  EXPECT_DOUBLE_EQ(j["samples_per_second_per_core"].get<double>(), 48.0);
+  EXPECT_DOUBLE_EQ(j["rays_per_second"].get<double>(), 1000.0);
+  EXPECT_EQ(j["counters"]["rays"], 1000);
+  EXPECT_EQ(j["bin_centres_nm"].size(), 8u);
+  EXPECT_TRUE(j["bin_standard_error"][0].is_null());
+  EXPECT_EQ(j["outputs"]["png"], paths->png.string());
+  EXPECT_EQ(j["peak_memory_bytes"], 1 << 20);
+}
+
+TEST(WriteOutputsTest, AFailedWriteNamesTheFileAndLeavesNothingPartial) {
+  const fs::path dir = fresh_dir("fail");
+  auto image = image::SpectralImage::create(2, 2, 8);
+  ASSERT_TRUE(image.ok());
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  // The PNG's name is taken by a directory: that one write fails, the others succeed.
+  auto paths = output_paths(dir / "r.exr", std::nullopt, "x.exr");
+  ASSERT_TRUE(paths.ok());
+  fs::create_directories(paths->png);
+  absl::Status status = write_outputs(*image, cmf, sample_report(), *paths, {});
+  EXPECT_FALSE(status.ok());
+  EXPECT_NE(status.message().find("could not write '" + paths->png.string() + "'"),
+            std::string::npos)
+      << status;
+  EXPECT_EQ(status.message().find("r.json'"), std::string::npos) << status;
+  EXPECT_TRUE(fs::is_directory(paths->png));
+  // No temporary files are left behind.
+  EXPECT_TRUE((listing(dir) == std::vector<fs::path>{"r.exr", "r.json", "r.png", "r.rgb.exr"}));
+}
+
+TEST(PeakMemoryTest, IsAtLeastWhatWeTouch) {
+  std::vector<char> block(64 << 20);
+  for (std::size_t i = 0; i < block.size(); i += 4096) block[i] = char(i);
+  EXPECT_GE(peak_memory_bytes(), std::uint64_t{64} << 20);
+  EXPECT_GT(block[4096], -200);
+}
+
+}  // namespace
+}  // namespace prism::coordinator

@@ -1,0 +1,93 @@
+// Merging task results into finished tiles. A job's plan (tile_plan.h) splits every tile into
+// the same sample ranges; results arrive in any order, from any thread or worker, possibly
+// more than once (retries, duplicated leases). The TileAssembler keeps a tile's partial results
+// until every range of that tile is in, then adds them in range order: the merged doubles are
+// therefore bit-identical whatever the arrival order (algorithms.md §7). The finished tile goes
+// to a callback and its partial results are freed, so memory is bounded by the tiles in flight,
+// not by the image.
+//
+// Duplicates are checked by content: every accepted (tile, range) keeps a SHA-256 of its
+// result, also after the tile is finished, so a repeat with identical bytes is accepted and
+// ignored, and a repeat with different bytes (a non-deterministic or faulty worker) is refused
+// with DATA_LOSS and changes nothing.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "coordinator/tile_plan.h"
+#include "services/image/tile.h"
+
+namespace prism::coordinator {
+
+// Receives one finished tile: `merged` is the sum over all its ranges (samples() = [0, spp)),
+// `finalised` its per-pixel means (image::finalise). Called exactly once per tile, outside the
+// assembler's lock, possibly concurrently for different tiles. An error is returned by the
+// add() that completed the tile.
+using TileCallback = std::function<absl::Status(int tile_index, const image::TileResult& merged,
+                                                const image::SpectralImage& finalised)>;
+
+class TileAssembler {
+ public:
+  // INVALID_ARGUMENT when the plan has no tiles or ranges, or bins is outside [1, kMaxBins].
+  static absl::StatusOr<std::unique_ptr<TileAssembler>> create(TilePlan plan, int bins,
+                                                               TileCallback on_tile);
+
+  // Accepts the result of task (tile_index, result.samples()). Thread-safe.
+  //  - INVALID_ARGUMENT (nothing kept) when the tile index is out of range, the rect is not the
+  //    plan's rect for that tile, the bins differ, the sample range is not one of the plan's,
+  //    or the optional buffers differ from the tile's other ranges.
+  //  - OK and ignored when the same bytes were already accepted for that (tile, range);
+  //    DATA_LOSS when different bytes were.
+  //  - Otherwise OK; when this completes the tile, the callback's status.
+  absl::Status add(int tile_index, image::TileResult result);
+
+  // OK when every tile is finished; FAILED_PRECONDITION listing (up to 8) missing
+  // (tile, range) pairs otherwise.
+  absl::Status check_complete() const;
+
+  const TilePlan& plan() const { return plan_; }
+  int tiles_finished() const;
+  // Tiles holding partial results now, and the most there ever were.
+  int tiles_in_flight() const;
+  int peak_tiles_in_flight() const;
+  // Results whose bytes repeated an accepted one.
+  std::uint64_t duplicates_ignored() const;
+
+ private:
+  using Digest = std::array<std::uint8_t, 32>;
+  struct TileState {
+    std::vector<std::optional<image::TileResult>> parts;  // per range, until finished
+    std::vector<std::optional<Digest>> digests;           // per range, kept for good
+    int received = 0;
+    bool finished = false;
+  };
+
+  TileAssembler(TilePlan plan, int bins, TileCallback on_tile);
+  // Index of `range` in the plan, or -1.
+  int range_index(const image::SampleRange& range) const;
+
+  const TilePlan plan_;
+  const int bins_;
+  const TileCallback on_tile_;
+  mutable std::mutex mutex_;
+  std::vector<TileState> tiles_;
+  int finished_ = 0;
+  int in_flight_ = 0;
+  int peak_in_flight_ = 0;
+  std::uint64_t duplicates_ = 0;
+};
+
+// SHA-256 over everything that identifies a result: rect, samples, bins, buffer flags, counter
+// names and every buffer's bytes.
+std::array<std::uint8_t, 32> tile_result_digest(const image::TileResult& result);
+
+}  // namespace prism::coordinator

@@ -1,0 +1,86 @@
+#include "tests/bench/bench_common.h"
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/status.h"
+#include "services/scene/scene_loader.h"
+
+namespace prism::bench {
+
+absl::StatusOr<LoadedBenchScene> load_bench_scene(const std::filesystem::path& path) {
+  LoadedBenchScene out;
+  PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library,
+                         spectral::SpectrumLibrary::load_builtin());
+  out.library = std::make_unique<spectral::SpectrumLibrary>(std::move(library));
+  const spectral::SpectrumLibrary* lib = out.library.get();
+  scene::LoadOptions load;
+  load.is_known_spectrum = [lib](std::string_view name) { return lib->contains(name); };
+  load.is_known_ior = [lib](std::string_view name) { return lib->find_ior(name) != nullptr; };
+  PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(path, load));
+  out.description = std::move(loaded.description);
+  out.name = path.filename().string();
+  return out;
+}
+
+std::filesystem::path source_path(const std::string& relative) {
+  return std::filesystem::path(PRISM_SOURCE_DIR) / relative;
+}
+
+std::string Flags::get(const std::string& name, const std::string& fallback) const {
+  auto it = values.find(name);
+  return it == values.end() ? fallback : it->second;
+}
+
+absl::StatusOr<double> Flags::number(const std::string& name, double fallback, double lo,
+                                     double hi) const {
+  auto it = values.find(name);
+  if (it == values.end()) return fallback;
+  const std::string& text = it->second;
+  double value = 0;
+  auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (ec != std::errc() || end != text.data() + text.size() || !std::isfinite(value) ||
+      value < lo || value > hi) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(name, " '", text, "': want a number in ", lo, "..", hi));
+  }
+  return value;
+}
+
+absl::StatusOr<Flags> parse_flags(int argc, char** argv, const std::vector<std::string>& known) {
+  Flags flags;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg.rfind("--", 0) != 0) {
+      flags.positional.push_back(arg);
+      continue;
+    }
+    if (std::find(known.begin(), known.end(), arg) == known.end()) {
+      std::string list;
+      for (const std::string& k : known) absl::StrAppend(&list, " ", k);
+      return absl::InvalidArgumentError(absl::StrCat("unknown flag ", arg, "; known:", list));
+    }
+    if (i + 1 >= argc) return absl::InvalidArgumentError(absl::StrCat(arg, " needs a value"));
+    flags.values[arg] = argv[++i];
+  }
+  return flags;
+}
+
+absl::StatusOr<std::pair<int, int>> parse_size(const std::string& text) {
+  const std::size_t x = text.find('x');
+  int w = 0, h = 0;
+  if (x != std::string::npos) {
+    auto a = std::from_chars(text.data(), text.data() + x, w);
+    auto b = std::from_chars(text.data() + x + 1, text.data() + text.size(), h);
+    if (a.ec == std::errc() && a.ptr == text.data() + x && b.ec == std::errc() &&
+        b.ptr == text.data() + text.size() && w >= 1 && h >= 1 && w <= scene::kMaxResolution &&
+        h <= scene::kMaxResolution) {
+      return std::pair<int, int>{w, h};
+    }
+  }
+  return absl::InvalidArgumentError(absl::StrCat("size '", text, "': want WxH, e.g. 160x120"));
+}
+
+}  // namespace prism::bench

@@ -1,0 +1,250 @@
+// End-to-end tests of `prism render`, running the real binary (PRISM_BINARY) in a fresh
+// directory: output bytes do not depend on thread count or tile size, and bad scenes or flags
+// fail with a clear message, a non-zero exit and no file written.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "services/base/atomic_file.h"
+#include "services/image/exr_spectral.h"
+#include "services/image/png.h"
+
+namespace {
+namespace fs = std::filesystem;
+
+struct CommandRun {
+  int exit_code = -1;
+  std::string output;  // stdout and stderr
+};
+
+std::string quote(const std::string& s) {
+  std::string q = "'";
+  for (char c : s) {
+    if (c == '\'') {
+      q.append("'\\''");
+    } else {
+      q.push_back(c);
+    }
+  }
+  q.push_back('\'');
+  return q;
+}
+
+// Runs `prism <args>` with `dir` as the working directory.
+CommandRun run_prism(const fs::path& dir, const std::vector<std::string>& args) {
+  std::string command = "cd ";
+  command.append(quote(dir.string())).append(" && ").append(quote(PRISM_BINARY));
+  for (const std::string& a : args) command.append(" ").append(quote(a));
+  command.append(" 2>&1");
+  CommandRun run;
+  FILE* pipe = popen(command.c_str(), "r");
+  EXPECT_NE(pipe, nullptr);
+  if (pipe == nullptr) return run;
+  std::array<char, 4096> buffer;
+  std::size_t n;
+  while ((n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0)
+    run.output.append(buffer.data(), n);
+  const int status = pclose(pipe);
+  run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return run;
+}
+
+fs::path fresh_dir(const std::string& name) {
+  fs::path dir = fs::path(testing::TempDir()) / ("prism_render_cli_test_" + name);
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+std::vector<std::string> listing(const fs::path& dir) {
+  std::vector<std::string> names;
+  for (const auto& entry : fs::recursive_directory_iterator(dir))
+    names.push_back(fs::relative(entry.path(), dir).string());
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+std::string source(const std::string& relative) {
+  return (fs::path(PRISM_SOURCE_DIR) / relative).string();
+}
+
+const std::string kCornell = "scenes/cornell-two-lights.pbrt";
+
+std::vector<std::string> cornell_args(const std::string& out, const std::string& threads,
+                                      const std::string& tile) {
+  return {"render",    source(kCornell), "-o",     out,  "--resolution", "64x64", "--spp",  "4",
+          "--threads", threads,          "--tile", tile, "--max-depth",  "5",     "--seed", "3"};
+}
+
+std::vector<float> spectral_pixels(const fs::path& path, std::vector<double>* wavelengths) {
+  auto exr = prism::image::read_spectral_exr(path);
+  EXPECT_TRUE(exr.ok()) << exr.status();
+  if (!exr.ok()) return {};
+  if (wavelengths != nullptr) *wavelengths = exr->wavelengths_nm;
+  return {exr->spectral.data().begin(), exr->spectral.data().end()};
+}
+
+bool same_bits(const std::vector<float>& a, const std::vector<float>& b) {
+  return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0;
+}
+
+TEST(RenderCliTest, BytesDoNotDependOnThreadsOrTileSize) {
+  const fs::path dir = fresh_dir("determinism");
+  CommandRun a = run_prism(dir, cornell_args("t1_tile16.exr", "1", "16"));
+  ASSERT_EQ(a.exit_code, 0) << a.output;
+  CommandRun b = run_prism(dir, cornell_args("t2_tile16.exr", "2", "16"));
+  ASSERT_EQ(b.exit_code, 0) << b.output;
+  CommandRun c = run_prism(dir, cornell_args("t2_tile64.exr", "2", "64"));
+  ASSERT_EQ(c.exit_code, 0) << c.output;
+  EXPECT_NE(a.output.find("wrote t1_tile16.exr, t1_tile16.rgb.exr, t1_tile16.png, t1_tile16.json"),
+            std::string::npos)
+      << a.output;
+
+  std::vector<double> wavelengths;
+  const std::vector<float> reference = spectral_pixels(dir / "t1_tile16.exr", &wavelengths);
+  ASSERT_EQ(reference.size(), 64u * 64u * 32u);  // the Film's nbuckets
+  ASSERT_EQ(wavelengths.size(), 32u);
+  EXPECT_TRUE(same_bits(reference, spectral_pixels(dir / "t2_tile16.exr", nullptr)));
+  EXPECT_TRUE(same_bits(reference, spectral_pixels(dir / "t2_tile64.exr", nullptr)));
+  // The whole files too: nothing in them records threads or tiles.
+  EXPECT_EQ(*prism::base::read_file(dir / "t1_tile16.exr"),
+            *prism::base::read_file(dir / "t2_tile64.exr"));
+  EXPECT_EQ(*prism::base::read_file(dir / "t1_tile16.png"),
+            *prism::base::read_file(dir / "t2_tile64.png"));
+
+  // The render is a real image: finite, non-negative, lit.
+  double total = 0;
+  for (float v : reference) {
+    ASSERT_TRUE(std::isfinite(v));
+    ASSERT_GE(v, 0.0f);
+    total += v;
+  }
+  EXPECT_GT(total, 0.0);
+
+  // A different seed changes the noise, so the equalities above are not vacuous.
+  CommandRun d = run_prism(dir, {"render", source(kCornell), "-o", "seed4.exr", "--resolution",
+                                 "64x64", "--spp", "4", "--max-depth", "5", "--seed", "4"});
+  ASSERT_EQ(d.exit_code, 0) << d.output;
+  EXPECT_FALSE(same_bits(reference, spectral_pixels(dir / "seed4.exr", nullptr)));
+
+  auto text = prism::base::read_file(dir / "t2_tile64.json");
+  ASSERT_TRUE(text.ok());
+  nlohmann::json j = nlohmann::json::parse(*text);
+  EXPECT_EQ(j["width"], 64);
+  EXPECT_EQ(j["spp"], 4);
+  EXPECT_EQ(j["bins"], 32);
+  EXPECT_EQ(j["threads"], 2);
+  EXPECT_EQ(j["tile_size"], 64);
+  EXPECT_EQ(j["integrator"], "hero");
+  EXPECT_EQ(j["max_depth"], 5);
+  EXPECT_EQ(j["samples"], 64 * 64 * 4);
+  EXPECT_GE(j["rays"].get<std::uint64_t>(), 64u * 64u * 4u);
+  EXPECT_EQ(j["counters"]["camera_rays"], 64 * 64 * 4);
+  EXPECT_GT(j["peak_memory_bytes"].get<std::uint64_t>(), 0u);
+  EXPECT_EQ(j["bin_mean"].size(), 32u);
+  EXPECT_EQ(j["outputs"]["spectral_exr"], "t2_tile64.exr");
+  auto png = prism::image::read_png(dir / "t2_tile64.png");
+  ASSERT_TRUE(png.ok()) << png.status();
+  EXPECT_EQ(png->width, 64);
+  EXPECT_EQ(png->height, 64);
+  auto rgb = prism::image::read_rgb_exr(dir / "t2_tile64.rgb.exr");
+  ASSERT_TRUE(rgb.ok()) << rgb.status();
+  EXPECT_EQ(rgb->metadata.at("seed"), "3");
+}
+
+TEST(RenderCliTest, DefaultsComeFromTheScene) {
+  // No -o: the Film's filename stem in the working directory; bins from nbuckets, resolution
+  // from the Film (overridden here to stay small), spp from the Sampler.
+  const fs::path dir = fresh_dir("defaults");
+  const fs::path scene = dir / "scene";
+  fs::create_directories(scene);
+  auto text = prism::base::read_file(source("tests/testdata/render/non_finite.pbrt"));
+  ASSERT_TRUE(text.ok());
+  std::string fixed = *text;
+  const std::string bad = "[ 1e999 ]";
+  fixed.replace(fixed.find(bad), bad.size(), "[ 4 ]");
+  fixed.replace(fixed.find("non_finite.exr"), std::strlen("non_finite.exr"), "sub/lamp.exr");
+  ASSERT_TRUE(prism::base::write_file_atomic(scene / "lamp.pbrt", fixed).ok());
+  CommandRun run = run_prism(dir, {"render", "scene/lamp.pbrt", "--threads", "2"});
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_EQ(listing(dir), (std::vector<std::string>{"lamp.exr", "lamp.json", "lamp.png",
+                                                    "lamp.rgb.exr", "scene", "scene/lamp.pbrt"}));
+  auto exr = prism::image::read_spectral_exr(dir / "lamp.exr");
+  ASSERT_TRUE(exr.ok()) << exr.status();
+  EXPECT_EQ(exr->spectral.width(), 16);
+  EXPECT_EQ(exr->spectral.bins(), 16);
+  EXPECT_EQ(exr->metadata.at("spp"), "4");
+  EXPECT_EQ(exr->metadata.at("max_depth"), "5");
+}
+
+struct BadCase {
+  std::vector<std::string> args;
+  std::string message;  // must appear in the output
+};
+
+void expect_failure_writes_nothing(const std::string& name, const BadCase& c) {
+  const fs::path dir = fresh_dir(name);
+  CommandRun run = run_prism(dir, c.args);
+  EXPECT_NE(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find(c.message), std::string::npos) << "expected '" << c.message << "' in:\n"
+                                                           << run.output;
+  EXPECT_TRUE(listing(dir).empty()) << name << " left files behind";
+}
+
+TEST(RenderCliTest, BadScenesFailClearlyAndWriteNothing) {
+  const std::string bad = "tests/testdata/render/";
+  expect_failure_writes_nothing(
+      "missing_mesh",
+      {{"render", source(bad + "missing_mesh.pbrt")},
+       "prism: missing_mesh.pbrt:14:17: file \"meshes/missing.ply\" does not exist"});
+  expect_failure_writes_nothing(
+      "non_finite", {{"render", source(bad + "non_finite.pbrt")},
+                     "prism: non_finite.pbrt:10:68: value '1e999' of 'float scale' is not a "
+                     "finite number"});
+  expect_failure_writes_nothing(
+      "unsupported", {{"render", source(bad + "unsupported.pbrt")},
+                      "prism: unsupported.pbrt:3:8: unsupported camera type \"orthographic\""});
+  expect_failure_writes_nothing("no_scene", {{"render", "no/such/scene.pbrt"}, "does not exist"});
+}
+
+TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
+  const std::string scene = source(kCornell);
+  const std::vector<BadCase> cases = {
+      {{"render", scene, "--bins", "3"}, "prism: --bins 3 is out of range: want 4..256"},
+      {{"render", scene, "--bins", "257"}, "--bins 257 is out of range"},
+      {{"render", scene, "--resolution", "0x5"}, "prism: --resolution '0x5': want WxH"},
+      {{"render", scene, "--resolution", "64"}, "--resolution '64': want WxH"},
+      {{"render", scene, "--integrator", "foo"}, "prism: --integrator 'foo': want uniform or hero"},
+      {{"render", scene, "--spp", "0"}, "--spp 0 is out of range"},
+      {{"render", scene, "--spp", "-3"}, "--spp -3 is out of range"},
+      {{"render", scene, "--threads", "0"}, "--threads 0 is out of range"},
+      {{"render", scene, "--tile", "2"}, "--tile 2 is out of range: want 4..1024"},
+      {{"render", scene, "--max-depth", "-1"}, "--max-depth -1 is out of range"},
+      {{"render", scene, "--spectral-pdf", "peaky"},
+       "--spectral-pdf 'peaky': want flat or visible"},
+      {{"render", scene, "--emitter-pdf", "x"}, "--emitter-pdf 'x': want uniform or emitters"},
+      {{"render", scene, "--light-selection", "best"},
+       "--light-selection 'best': want uniform, power or spatial"},
+      {{"render", scene, "--exposure", "1e9"}, "--exposure 1e+09 is out of range"},
+      {{"render", scene, "-o", "out.png"}, "give a name ending in .exr"},
+      {{"render", scene, "-o", "missing/out.exr", "--resolution", "8x8"},
+       "cannot write 'missing/out.exr': directory 'missing' does not exist"},
+      {{"render", scene, "-o", "a.exr", "--json", "a.png"}, "both be written to 'a.png'"},
+      {{"render", scene, "--spp", "many"}, "--spp"},
+      {{"render", scene, "--seed", "-1"}, "prism: --seed '-1': want an integer in 0.."},
+  };
+  for (std::size_t i = 0; i < cases.size(); ++i) {
+    SCOPED_TRACE(i);
+    expect_failure_writes_nothing("flag" + std::to_string(i), cases[i]);
+  }
+}
+
+}  // namespace
