@@ -101,7 +101,7 @@ TEST_F(RenderSceneTest, PrismScene) {
   EXPECT_EQ(s.camera().width(), 32);
   EXPECT_EQ(s.camera().height(), 24);
   ASSERT_EQ(s.materials().size(), desc.materials.size());
-  ASSERT_EQ(s.lights().size(), 2u);  // the slit lamp and the dim sky
+  ASSERT_EQ(s.lights().size(), 2u);  // the lamp and the dim sky
   EXPECT_TRUE(std::holds_alternative<AreaLight>(s.lights()[0]));
   ASSERT_EQ(s.infinite_light(), 1);
   EXPECT_TRUE(std::holds_alternative<InfiniteLight>(s.lights()[1]));
@@ -121,7 +121,7 @@ TEST_F(RenderSceneTest, PrismScene) {
   EXPECT_EQ(dispersive, 1);  // the SF11 prism
   EXPECT_EQ(s.camera_medium(), -1);
   EXPECT_TRUE(s.media().empty());
-  EXPECT_NEAR(photometric_scale(s.lights()[0]), 2000, 2000 * 1e-6);
+  EXPECT_NEAR(photometric_scale(s.lights()[0]), 20, 20 * 1e-6);
   EXPECT_NEAR(photometric_scale(s.lights()[1]), 0.05, 0.05 * 1e-6);
   EXPECT_EQ(s.grid().bins(), 64);
 
