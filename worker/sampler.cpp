@@ -58,9 +58,12 @@ std::uint32_t reverse_bits(std::uint32_t x) {
 
 std::uint32_t sobol_dimension0(std::uint32_t index) { return reverse_bits(index); }
 
-std::uint32_t sobol_dimension1(std::uint32_t index) {
-  // Generator matrix of Sobol's second dimension (primitive polynomial x + 1): its columns are
-  // v_{k+1} = v_k ^ (v_k >> 1) starting from the top bit.
+namespace {
+
+// Generator matrix of Sobol's second dimension (primitive polynomial x + 1): its columns are
+// v_{k+1} = v_k ^ (v_k >> 1) starting from the top bit. Multiplying by it is linear over GF(2),
+// so the product splits into four byte tables.
+constexpr std::uint32_t sobol_dimension1_slow(std::uint32_t index) {
   std::uint32_t result = 0;
   for (std::uint32_t v = 1u << 31; index != 0; index >>= 1, v ^= v >> 1) {
     if (index & 1u) result ^= v;
@@ -68,20 +71,61 @@ std::uint32_t sobol_dimension1(std::uint32_t index) {
   return result;
 }
 
+struct Sobol1Tables {
+  std::uint32_t byte[4][256];
+};
+
+constexpr Sobol1Tables make_sobol1_tables() {
+  Sobol1Tables t{};
+  for (int k = 0; k < 4; ++k) {
+    for (std::uint32_t b = 0; b < 256; ++b) t.byte[k][b] = sobol_dimension1_slow(b << (8 * k));
+  }
+  return t;
+}
+
+constexpr Sobol1Tables kSobol1 = make_sobol1_tables();
+
+}  // namespace
+
+std::uint32_t sobol_dimension1(std::uint32_t index) {
+  return kSobol1.byte[0][index & 255u] ^ kSobol1.byte[1][(index >> 8) & 255u] ^
+         kSobol1.byte[2][(index >> 16) & 255u] ^ kSobol1.byte[3][index >> 24];
+}
+
 std::uint32_t nested_uniform_scramble(std::uint32_t x, std::uint32_t seed) {
   return reverse_bits(laine_karras_permutation(reverse_bits(x), seed));
 }
 
-float SobolSampler::sample(std::uint32_t dimension) const {
-  std::uint32_t pair = dimension >> 1;
-  std::uint64_t pair_hash = mix64(base_ ^ mix64(static_cast<std::uint64_t>(pair) + kGolden));
+namespace {
+
+struct PairSeeds {
+  std::uint32_t shuffled_index;
+  std::uint64_t pair_hash;
+};
+
+PairSeeds pair_seeds(std::uint64_t base, std::uint32_t index, std::uint32_t pair) {
+  std::uint64_t pair_hash = mix64(base ^ mix64(static_cast<std::uint64_t>(pair) + kGolden));
   // Shuffling the index by an Owen scramble keeps every power-of-two prefix a net while
   // decorrelating pairs; the two halves of the hash seed shuffle and scramble independently.
-  auto shuffle_seed = static_cast<std::uint32_t>(pair_hash);
-  auto scramble_seed = static_cast<std::uint32_t>(mix64(pair_hash ^ (dimension & 1u)) >> 32);
-  std::uint32_t index = nested_uniform_scramble(index_, shuffle_seed);
-  std::uint32_t point = (dimension & 1u) ? sobol_dimension1(index) : sobol_dimension0(index);
+  return {nested_uniform_scramble(index, static_cast<std::uint32_t>(pair_hash)), pair_hash};
+}
+
+float scrambled(const PairSeeds& seeds, std::uint32_t within) {
+  auto scramble_seed = static_cast<std::uint32_t>(mix64(seeds.pair_hash ^ within) >> 32);
+  std::uint32_t point =
+      within ? sobol_dimension1(seeds.shuffled_index) : sobol_dimension0(seeds.shuffled_index);
   return bits_to_unit_float(nested_uniform_scramble(point, scramble_seed));
+}
+
+}  // namespace
+
+float SobolSampler::sample(std::uint32_t dimension) const {
+  return scrambled(pair_seeds(base_, index_, dimension >> 1), dimension & 1u);
+}
+
+Point2 SobolSampler::sample_pair(std::uint32_t pair) const {
+  PairSeeds seeds = pair_seeds(base_, index_, pair);
+  return {scrambled(seeds, 0), scrambled(seeds, 1)};
 }
 
 Sampler::Sampler(SamplerKind kind, const SampleKey& key)

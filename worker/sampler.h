@@ -17,6 +17,10 @@
 
 namespace prism::worker {
 
+struct Point2 {
+  float u0 = 0, u1 = 0;
+};
+
 // Identifies one pixel sample of one pass of one job.
 struct SampleKey {
   std::uint64_t seed = 0;
@@ -39,6 +43,9 @@ class IndependentSampler {
  public:
   explicit IndependentSampler(const SampleKey& key) : base_(hash_key(key)) {}
   float sample(std::uint32_t dimension) const;
+  Point2 sample_pair(std::uint32_t pair) const {
+    return {sample(2 * pair), sample(2 * pair + 1)};
+  }
 
  private:
   std::uint64_t base_;
@@ -49,6 +56,9 @@ class SobolSampler {
   explicit SobolSampler(const SampleKey& key)
       : base_(hash_key({key.seed, key.pass, key.px, key.py, 0})), index_(key.sample) {}
   float sample(std::uint32_t dimension) const;
+  // Dimensions 2·pair and 2·pair + 1 together (the index shuffle is shared, so this is cheaper
+  // than two sample() calls and returns the same numbers).
+  Point2 sample_pair(std::uint32_t pair) const;
 
  private:
   std::uint64_t base_;  // per pixel: the sample index is scrambled, not hashed
@@ -74,6 +84,11 @@ class Sampler {
 
   float at(std::uint32_t dimension) const {
     return std::visit([dimension](const auto& s) { return s.sample(dimension); }, generator_);
+  }
+  // Dimensions d and d + 1 for an even d: equal to {at(d), at(d + 1)}.
+  Point2 at2(std::uint32_t dimension) const {
+    return std::visit([dimension](const auto& s) { return s.sample_pair(dimension >> 1); },
+                      generator_);
   }
 
  private:

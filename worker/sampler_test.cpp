@@ -151,3 +151,45 @@ TEST(SamplerTest, SobolConvergesFasterThanIndependent) {
 
 }  // namespace
 }  // namespace prism::worker
+
+namespace prism::worker {
+namespace {
+
+// The table-driven second Sobol dimension equals the direct product with its generator matrix.
+TEST(SamplerTest, SobolDimensionOneTablesMatchTheGeneratorMatrix) {
+  auto direct = [](std::uint32_t index) {
+    std::uint32_t result = 0;
+    for (std::uint32_t v = 1u << 31; index != 0; index >>= 1, v ^= v >> 1) {
+      if (index & 1u) result ^= v;
+    }
+    return result;
+  };
+  std::uint32_t x = 12345;
+  for (int i = 0; i < 100000; ++i) {
+    x = x * 1664525u + 1013904223u;
+    ASSERT_EQ(sobol_dimension1(x), direct(x)) << x;
+    ASSERT_EQ(sobol_dimension1(std::uint32_t(i)), direct(std::uint32_t(i)));
+  }
+}
+
+}  // namespace
+}  // namespace prism::worker
+
+namespace prism::worker {
+namespace {
+
+TEST(SamplerTest, PairsEqualTwoSingleDimensions) {
+  for (SamplerKind kind : {SamplerKind::kIndependent, SamplerKind::kSobol}) {
+    for (std::uint32_t s = 0; s < 64; ++s) {
+      Sampler sampler(kind, key(s));
+      for (std::uint32_t d = 0; d < 40; d += 2) {
+        Point2 p = sampler.at2(d);
+        ASSERT_EQ(p.u0, sampler.at(d));
+        ASSERT_EQ(p.u1, sampler.at(d + 1));
+      }
+    }
+  }
+}
+
+}  // namespace
+}  // namespace prism::worker

@@ -66,8 +66,11 @@ class PiecewiseLinearSpectrum {
 
  private:
   PiecewiseLinearSpectrum() = default;
+  // Index of the first sample strictly greater than lambda_nm (lambda_nm inside the table).
+  size_t upper_index(float lambda_nm) const;
   std::vector<float> lambda_;
   std::vector<float> value_;
+  float inverse_step_ = 0.0f;  // 1 / spacing when the samples are uniformly spaced, else 0
   float max_ = 0.0f;
   float min_ = 0.0f;
 };

@@ -1,5 +1,6 @@
 #include "services/spectral/spectrum.h"
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -151,6 +152,37 @@ TEST(SigmoidPolynomialTest, ValuesBoundedAndNmCoefficientsAgree) {
   }
   EXPECT_EQ(SigmoidPolynomial::sigmoid(INFINITY), 1.0f);
   EXPECT_EQ(SigmoidPolynomial::sigmoid(-INFINITY), 0.0f);
+}
+
+}  // namespace
+}  // namespace prism::spectral
+
+namespace prism::spectral {
+namespace {
+
+// Uniformly spaced tables take a direct index; the result must equal interpolation found by a
+// plain search, exactly, including at and next to every sample.
+TEST(PiecewiseLinearSpectrumTest, UniformTablesEvaluateExactlyLikeTheSearch) {
+  std::vector<double> l, v;
+  for (int i = 0; i <= 80; ++i) {
+    l.push_back(380.0 + 5.0 * i);
+    v.push_back(std::sin(0.37 * i) + 1.5);
+  }
+  const PiecewiseLinearSpectrum s = *PiecewiseLinearSpectrum::create(l, v, "uniform");
+  auto reference = [&](float x) -> float {
+    std::vector<float> lf(l.begin(), l.end());
+    if (!(x >= lf.front() && x <= lf.back())) return 0.0f;
+    size_t i = size_t(std::upper_bound(lf.begin(), lf.end(), x) - lf.begin());
+    if (i == lf.size()) return float(v.back());
+    float t = (x - lf[i - 1]) / (lf[i] - lf[i - 1]);
+    return float(v[i - 1]) + t * (float(v[i]) - float(v[i - 1]));
+  };
+  for (int k = 0; k <= 40000; ++k) {
+    float x = 380.0f + 400.0f * float(k) / 40000.0f;
+    ASSERT_EQ(s(x), reference(x)) << x;
+    ASSERT_EQ(s(std::nextafter(x, 0.0f)), reference(std::nextafter(x, 0.0f))) << x;
+    ASSERT_EQ(s(std::nextafter(x, 1e9f)), reference(std::nextafter(x, 1e9f))) << x;
+  }
 }
 
 }  // namespace
