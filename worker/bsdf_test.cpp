@@ -10,6 +10,7 @@
 #include "services/spectral/testing/chi_square.h"
 #include "worker/fresnel.h"
 #include "worker/sampler.h"
+#include "worker/testing/sphere_histogram.h"
 
 namespace prism::worker {
 namespace {
@@ -34,70 +35,11 @@ Vec3f direction(float theta_deg, float phi_deg) {
   return {std::sin(t) * std::cos(p), std::sin(t) * std::sin(p), std::cos(t)};
 }
 
-// Chi-square test of sampled directions against a density over the sphere, binned in (θ, φ)
-// with θ uniform so cells near the poles stay small. Expected counts integrate the density over
-// each cell (dω = sin θ dθ dφ) with a midpoint rule refined per cell until two successive
-// refinements agree to 1e-4 of the sample count, so narrow lobes (low roughness, η near 1) are
-// resolved where they are and smooth cells stay cheap. A failed sample (nullopt) leaves the
-// sphere: the density then integrates to less than 1 and the test compares against that mass.
-constexpr int kThetaCells = 24;
-constexpr int kPhiCells = 48;
+using testing::cell_of;
+using testing::expected_counts;
+using testing::kCells;
+
 constexpr int kSamplesPerTest = 250000;
-
-int cell_of(const Vec3f& w) {
-  float theta = std::acos(std::clamp(w.z, -1.0f, 1.0f));
-  float phi = std::atan2(w.y, w.x);
-  if (phi < 0) phi += 2 * kPi;
-  int ti = std::min(kThetaCells - 1, int(theta / kPi * kThetaCells));
-  int pi = std::min(kPhiCells - 1, int(phi / (2 * kPi) * kPhiCells));
-  return ti * kPhiCells + pi;
-}
-
-// ∫ pdf dω over one cell for every lane, with an n x n midpoint rule.
-SampledSpectrum integrate_cell(const std::function<SampledSpectrum(const Vec3f&)>& pdf, int ti,
-                               int pi, int n) {
-  const double theta0 = ti * kPi / kThetaCells, phi0 = pi * 2 * kPi / kPhiCells;
-  const double dtheta = kPi / kThetaCells / n, dphi = 2 * kPi / kPhiCells / n;
-  double sum[kLanes] = {};
-  for (int a = 0; a < n; ++a) {
-    double theta = theta0 + (a + 0.5) * dtheta;
-    double weight = std::sin(theta) * dtheta * dphi;
-    for (int b = 0; b < n; ++b) {
-      double phi = phi0 + (b + 0.5) * dphi;
-      Vec3f w(float(std::sin(theta) * std::cos(phi)), float(std::sin(theta) * std::sin(phi)),
-              float(std::cos(theta)));
-      SampledSpectrum p = pdf(w);
-      for (int l = 0; l < kLanes; ++l) sum[l] += p[l] * weight;
-    }
-  }
-  SampledSpectrum r;
-  for (int l = 0; l < kLanes; ++l) r[l] = float(sum[l]);
-  return r;
-}
-
-// Expected counts of every lane at once (one density evaluation gives all lanes).
-std::vector<std::vector<double>> expected_counts(
-    const std::function<SampledSpectrum(const Vec3f&)>& pdf, int samples) {
-  std::vector<std::vector<double>> expected(kLanes,
-                                            std::vector<double>(kThetaCells * kPhiCells, 0.0));
-  for (int ti = 0; ti < kThetaCells; ++ti) {
-    for (int pi = 0; pi < kPhiCells; ++pi) {
-      int n = 8;
-      SampledSpectrum coarse = integrate_cell(pdf, ti, pi, n);
-      SampledSpectrum fine = integrate_cell(pdf, ti, pi, 2 * n);
-      while (n < 512) {
-        float change = 0;
-        for (int l = 0; l < kLanes; ++l) change = std::max(change, std::abs(fine[l] - coarse[l]));
-        if (change * samples < 1e-4f * samples + 0.05f) break;
-        n *= 2;
-        coarse = fine;
-        fine = integrate_cell(pdf, ti, pi, 2 * n);
-      }
-      for (int l = 0; l < kLanes; ++l) expected[l][ti * kPhiCells + pi] = double(fine[l]) * samples;
-    }
-  }
-  return expected;
-}
 
 struct Case {
   std::string name;
@@ -144,10 +86,10 @@ TEST_P(BsdfSamplingTest, MatchesPdfPerLane) {
   for (float theta : {0.0f, 45.0f, 85.0f, 135.0f, 179.0f}) {
     Vec3f wo = direction(theta, 30);
     auto expected = expected_counts(
-        [&](const Vec3f& wi) { return worker::pdf(c.bsdf, wo, wi); }, kSamplesPerTest);
+        [&](const Vec3f& wi) { return worker::pdf(c.bsdf, wo, wi); }, kLanes, kSamplesPerTest);
     for (int lane = 0; lane < kLanes; ++lane) {
       Bsdf hero = c.with_lane_as_hero(lane);
-      std::vector<double> observed(kThetaCells * kPhiCells, 0.0);
+      std::vector<double> observed(kCells, 0.0);
       for (std::uint32_t i = 0; i < kSamplesPerTest; ++i) {
         Sampler s(SamplerKind::kIndependent, SampleKey{99, 0, std::uint32_t(lane), 0, i});
         float uc = s.get1d();

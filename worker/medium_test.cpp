@@ -10,60 +10,15 @@
 #include "absl/strings/match.h"
 #include "services/spectral/testing/chi_square.h"
 #include "worker/sampler.h"
+#include "worker/testing/sphere_histogram.h"
 
 namespace prism::worker {
 namespace {
 
-// Chi-square test of sampled directions against a density over the sphere, binned in (θ, φ)
-// with θ uniform; expected counts integrate the density over each cell with a midpoint rule
-// refined until two successive refinements agree (the helper of bsdf_test.cpp, one lane).
-constexpr int kThetaCells = 24;
-constexpr int kPhiCells = 48;
+using testing::cell_of;
+using testing::expected_counts;
+
 constexpr int kSamplesPerTest = 200000;
-
-int cell_of(const Vec3f& w) {
-  float theta = std::acos(std::clamp(w.z, -1.0f, 1.0f));
-  float phi = std::atan2(w.y, w.x);
-  if (phi < 0) phi += 2 * kPi;
-  int ti = std::min(kThetaCells - 1, int(theta / kPi * kThetaCells));
-  int pi = std::min(kPhiCells - 1, int(phi / (2 * kPi) * kPhiCells));
-  return ti * kPhiCells + pi;
-}
-
-double integrate_cell(const std::function<double(const Vec3f&)>& pdf, int ti, int pi, int n) {
-  const double theta0 = ti * kPi / kThetaCells, phi0 = pi * 2 * kPi / kPhiCells;
-  const double dtheta = kPi / kThetaCells / n, dphi = 2 * kPi / kPhiCells / n;
-  double sum = 0;
-  for (int a = 0; a < n; ++a) {
-    double theta = theta0 + (a + 0.5) * dtheta;
-    double weight = std::sin(theta) * dtheta * dphi;
-    for (int b = 0; b < n; ++b) {
-      double phi = phi0 + (b + 0.5) * dphi;
-      Vec3f w(float(std::sin(theta) * std::cos(phi)), float(std::sin(theta) * std::sin(phi)),
-              float(std::cos(theta)));
-      sum += pdf(w) * weight;
-    }
-  }
-  return sum;
-}
-
-std::vector<double> expected_counts(const std::function<double(const Vec3f&)>& pdf, int samples) {
-  std::vector<double> expected(kThetaCells * kPhiCells, 0.0);
-  for (int ti = 0; ti < kThetaCells; ++ti) {
-    for (int pi = 0; pi < kPhiCells; ++pi) {
-      int n = 8;
-      double coarse = integrate_cell(pdf, ti, pi, n);
-      double fine = integrate_cell(pdf, ti, pi, 2 * n);
-      while (n < 512 && std::abs(fine - coarse) * samples > 1e-4 * samples + 0.05) {
-        n *= 2;
-        coarse = fine;
-        fine = integrate_cell(pdf, ti, pi, 2 * n);
-      }
-      expected[ti * kPhiCells + pi] = fine * samples;
-    }
-  }
-  return expected;
-}
 
 class PhaseFunctionTest : public ::testing::TestWithParam<float> {};
 
