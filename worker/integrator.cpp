@@ -118,15 +118,27 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
   // unidirectional technique's free flights would have passed the same segments (equal to the
   // transmittance in scattering media, 1 in purely absorbing ones, which are not sampled).
   // Both are 0 when anything else blocks the ray.
+  // A finite target is joined by the segment from each (offset) origin to it, not by the
+  // sampled direction: that direction was computed from the un-offset point, and its parallel
+  // line, shifted by the offset, can enter the light's own surface before the target (the
+  // floor-facing half of a sphere resting on the floor occluded itself for most samples).
   struct Shadow {
     SampledSpectrum transmittance;
     SampledSpectrum pass;
   };
-  auto shadow_ray = [&](Vec3f origin, const Vec3f& direction, const Vec3f& target,
-                        bool to_infinity, int medium) -> Shadow {
+  auto shadow_ray = [&](Vec3f origin, Vec3f direction, const Vec3f& target, bool to_infinity,
+                        int medium) -> Shadow {
     Shadow shadow{ones(lanes), ones(lanes)};
     for (int crossings = 0; crossings < 64; ++crossings) {
-      float distance = to_infinity ? kInfinity : length(target - origin) * (1.0f - 1e-4f);
+      float distance = kInfinity;
+      if (!to_infinity) {
+        Vec3f to_target = target - origin;
+        float length_to_target = length(to_target);
+        // An interface crossed within the offset of the target: nothing is left to test.
+        if (!(length_to_target > 0) || dot(to_target, direction) <= 0) return shadow;
+        direction = to_target / length_to_target;
+        distance = length_to_target * (1.0f - 1e-4f);
+      }
       ++counters.rays;
       auto hit = geometry.intersect({origin, direction}, distance);
       float segment = hit ? hit->t : distance;
@@ -172,8 +184,12 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     Vec3f origin = origin_normal == Vec3f()
                        ? ctx.p
                        : geometry.offset_origin(ctx.p, origin_normal, ls->wi);
-    Shadow shadow = shadow_ray(origin, ls->wi, ls->p_light, std::isinf(ls->distance),
-                               path.medium);
+    // Both ends leave their surfaces (pbrt-v4's SpawnRayTo): the segment stops just in front of
+    // an area light, on the side facing the shading point, so the light cannot occlude itself.
+    Vec3f target = ls->n_light == Vec3f()
+                       ? ls->p_light
+                       : geometry.offset_origin(ls->p_light, ls->n_light, -ls->wi);
+    Shadow shadow = shadow_ray(origin, ls->wi, target, std::isinf(ls->distance), path.medium);
     if (shadow.transmittance.is_zero()) return;
     float p_light = choice->pmf * ls->pdf;
     float denominator = 0;

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <string>
 #include <vector>
@@ -237,6 +238,108 @@ TEST_F(IntegratorTest, OutputDoesNotDependOnThreadsOrTiles) {
       }
     }
   }
+}
+
+// A sphere light of radius 1 resting on a floor 200 wide (so the ray offset, scaled by the scene,
+// is large next to the sphere), seen from straight above a patch of floor beside it, the sphere
+// itself out of view. Next to the contact most of the visible sphere faces the floor: a shadow
+// ray that left the floor by the offset but kept the direction sampled from the floor point ran
+// parallel to the true segment, entered the sphere before the sampled point and occluded it.
+// NEE lost that light while MIS still counted on it (the floor was ~30 % too dark, and the
+// image depended on the light-selection pmf).
+constexpr char kSphereOnFloor[] = R"(LookAt 1.5 3 0  1.5 0 0  0 0 1
+Camera "perspective" "float fov" 20
+Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 4
+WorldBegin
+Material "diffuse" "float reflectance" 0.5
+Shape "trianglemesh" "point3 P" [-100 0 -100  100 0 -100  100 0 100  -100 0 100]
+  "integer indices" [0 1 2 0 2 3]
+AttributeBegin
+  AreaLightSource "diffuse" "spectrum L" [360 1 830 1]
+  Translate 0 1 0
+  Shape "sphere" "float radius" 1
+AttributeEnd
+)";
+
+scene::SceneDescription load_text(const std::string& name, const std::string& text) {
+  const fs::path file = fs::path(::testing::TempDir()) / name;
+  std::ofstream(file) << text;
+  scene::LoadOptions options;
+  auto loaded = scene::load_scene(file, options);
+  EXPECT_TRUE(loaded.ok()) << loaded.status();
+  return loaded.ok() ? loaded->description : scene::SceneDescription();
+}
+
+RenderOptions direct_light_options(std::uint64_t seed) {
+  RenderOptions options;
+  options.integrator = IntegratorKind::kUniform;
+  options.sampler = SamplerKind::kIndependent;
+  options.spectral_light_selection = false;
+  options.bins = 4;
+  options.max_depth = 1;  // direct light on the floor: NEE and BSDF sampling, nothing else
+  options.seed = seed;
+  return options;
+}
+
+// The floor's radiance is exact: a Lambertian sphere of radiance L entirely above the plane
+// gives irradiance πL(R/d)²cos θ = πL·R³/d³ at distance d from its centre, so the floor
+// (reflectance ρ) shows ρ·L·R³/d³. The oracle averages it over each pixel's footprint.
+TEST_F(IntegratorTest, SphereLightOnFloorMatchesAnalyticRadiance) {
+  auto desc = load_text("sphere_on_floor.pbrt", kSphereOnFloor);
+  auto scene = build(desc, direct_light_options(500));
+  ASSERT_TRUE(scene);
+  ASSERT_EQ(scene->lights().size(), 1u);
+  SampledWavelengths lambda(1);
+  lambda.set(0, 550.0f, 1.0f);
+  const Vec3f up(0, 1, 0);
+  const double radiance = std::get<AreaLight>(scene->lights()[0]).radiance(up, up, lambda)[0];
+  const Vec3f centre(0, 1, 0);
+  const int width = scene->camera().width(), height = scene->camera().height();
+  constexpr int kStrata = 32;
+  double expected = 0;
+  for (int py = 0; py < height; ++py) {
+    for (int px = 0; px < width; ++px) {
+      for (int j = 0; j < kStrata; ++j) {
+        for (int i = 0; i < kStrata; ++i) {
+          Ray ray = scene->camera().generate_ray(
+              {px + (i + 0.5f) / kStrata, py + (j + 0.5f) / kStrata}, {0.5f, 0.5f});
+          ASSERT_LT(ray.direction.y, 0.0f);
+          Vec3f x = ray.origin + ray.direction * (-ray.origin.y / ray.direction.y);
+          double d = length(x - centre);
+          expected += 0.5 * radiance / (d * d * d);
+        }
+      }
+    }
+  }
+  expected /= double(width) * height * kStrata * kStrata;
+  BinStats stats = bin_stats(render(*scene, 1024));
+  for (int b = 0; b < 4; ++b) {
+    EXPECT_LT(std::abs(stats.mean[b] - expected), kZ * stats.standard_error[b])
+        << "bin " << b << " mean " << stats.mean[b] << " expected " << expected << " se "
+        << stats.standard_error[b];
+  }
+}
+
+// The reported symptom: with a dim second light the sphere's selection pmf is 1/2 under
+// `uniform` and nearly 1 under `power`; any pmf must give the same expectation.
+TEST_F(IntegratorTest, LightSelectionPmfDoesNotBiasSphereLightOnFloor) {
+  auto desc = load_text("sphere_on_floor_two_lights.pbrt", std::string(kSphereOnFloor) + R"(
+AttributeBegin
+  AreaLightSource "diffuse" "spectrum L" [360 1 830 1] "float scale" 0.01
+  Shape "trianglemesh" "point3 P" [-1 20 -1  1 20 -1  1 20 1  -1 20 1]
+    "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+)");
+  auto run = [&](LightSelectionKind base, std::uint64_t seed) {
+    RenderOptions options = direct_light_options(seed);
+    options.light_selection = base;
+    auto scene = build(desc, options);
+    return bin_stats(render(*scene, 1024));
+  };
+  BinStats uniform = run(LightSelectionKind::kUniform, 400);
+  BinStats power = run(LightSelectionKind::kPower, 401);
+  expect_agreement(uniform, power, "sphere light on a floor, uniform vs power selection");
+  for (double m : uniform.mean) EXPECT_GT(m, 0.0);
 }
 
 }  // namespace

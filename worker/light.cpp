@@ -169,6 +169,7 @@ std::optional<LightSample> AreaLight::sample_triangles(const LightContext& ctx, 
   s.wi = wi;
   s.distance = dist;
   s.p_light = p;
+  s.n_light = n;
   s.pdf = pdf;
   return s;
 }
@@ -219,6 +220,7 @@ std::optional<LightSample> AreaLight::sample_sphere(const LightContext& ctx, Poi
   s.wi = wi;
   s.distance = dist;
   s.p_light = p;
+  s.n_light = ng;
   s.pdf = pdf;
   return s;
 }

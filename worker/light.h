@@ -43,6 +43,8 @@ struct LightSample {
   Vec3f wi;                  // unit direction from the context point towards the light
   float distance = 0;        // to the sampled point (infinity for the infinite light)
   Vec3f p_light;             // the sampled point (for shadow rays and gradient reconnection)
+  Vec3f n_light;             // geometric normal at p_light (area lights; 0 for the others), so
+                             // shadow rays can stop just off the emitting surface
   float pdf = 0;             // solid-angle density of wi given this light; 1 for delta lights
   bool delta = false;        // point and spot lights: not reachable by BSDF sampling
 };

@@ -287,6 +287,8 @@ void check_area_light(const World& w, const AreaLight& light, const AreaCase& c)
     EXPECT_NEAR(hit->t, s->distance, 1e-3f * s->distance) << c.name;
     EXPECT_NEAR(light.pdf(c.ctx, s->wi, *hit), s->pdf, 2e-3f * s->pdf) << c.name;
     EXPECT_NEAR(length(hit->p - s->p_light), 0.0f, 1e-3f * s->distance) << c.name;
+    // n_light is the geometric normal intersections report there (shadow rays offset by it).
+    EXPECT_NEAR(dot(hit->ng, s->n_light), 1.0f, 1e-3f) << c.name;
     EXPECT_FALSE(s->delta);
   }
   EXPECT_LE(misses, checked / 500 + 1) << c.name;
