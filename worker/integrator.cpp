@@ -22,14 +22,16 @@ constexpr std::uint32_t kDimBounce = 6;     // first dimension of bounce 0
 constexpr std::uint32_t kDimsPerBounce = 12;
 constexpr std::uint32_t kLightPosition = 0;  // 2D
 constexpr std::uint32_t kLightChoice = 2;
-constexpr std::uint32_t kLightExtra = 3;
+constexpr std::uint32_t kLightExtra = 3;     // read with kLightChoice as one pair
 constexpr std::uint32_t kScatterDirection = 4;  // 2D
 constexpr std::uint32_t kScatterLobe = 6;
-constexpr std::uint32_t kRoulette = 7;
+constexpr std::uint32_t kRoulette = 7;        // read with kScatterLobe as one pair
 constexpr std::uint32_t kFreeFlight = 8;
 // Free flights after crossing medium boundaries within one bounce each need fresh numbers.
 constexpr std::uint32_t kDimCrossings = 1u << 16;
 constexpr std::uint32_t kCrossingsPerBounce = 64;
+
+Point2f to_point(const Point2& p) { return {p.u0, p.u1}; }
 
 float lane_sum(const SampledSpectrum& s, int lanes) {
   float sum = 0;
@@ -86,9 +88,9 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
   path.r_prev = path.r;
   path.medium = scene_.camera_medium();
 
-  Ray ray = scene_.camera().generate_ray(
-      {float(px) + sampler.at(kDimFilm), float(py) + sampler.at(kDimFilm + 1)},
-      {sampler.at(kDimLens), sampler.at(kDimLens + 1)});
+  const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
+  Ray ray = scene_.camera().generate_ray({float(px) + film.u0, float(py) + film.u1},
+                                         {lens.u0, lens.u1});
   ++counters.camera_rays;
   if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
 
@@ -170,13 +172,13 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
   // (BSDF·|cos| or phase) and `pdf` its per-lane density for a direction.
   auto sample_direct = [&](const LightContext& ctx, const Vec3f& origin_normal,
                            std::uint32_t dim, auto&& f_and_pdf) {
-    auto choice = scene_.light_sampler().sample(ctx.p, path.lambda,
-                                                sampler.at(dim + kLightChoice));
+    const Point2 choice_u = sampler.at2(dim + kLightChoice);  // choice and extra: one pair
+    auto choice = scene_.light_sampler().sample(ctx.p, path.lambda, choice_u.u0);
     if (!choice) return;
     const Light& light = scene_.lights()[choice->light];
     auto ls = sample_light(light, ctx,
-                           {sampler.at(dim + kLightPosition), sampler.at(dim + kLightPosition + 1)},
-                           sampler.at(dim + kLightExtra), path.lambda);
+                           to_point(sampler.at2(dim + kLightPosition)), choice_u.u1,
+                           path.lambda);
     if (!ls || !(ls->pdf > 0) || ls->radiance.is_zero()) return;
     SampledSpectrum f, scatter_pdf;
     f_and_pdf(ls->wi, &f, &scatter_pdf);
@@ -248,9 +250,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
           *pdf = *f;
         });
         float phase_pdf = 0;
-        Vec3f wi = phase.sample(wo, {sampler.at(dim + kScatterDirection),
-                                     sampler.at(dim + kScatterDirection + 1)},
-                                &phase_pdf);
+        Vec3f wi = phase.sample(wo, to_point(sampler.at2(dim + kScatterDirection)), &phase_pdf);
         if (!(phase_pdf > 0)) break;
         path.r_prev = path.r;
         path.lambda_prev = path.lambda;
@@ -280,7 +280,11 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     const ShapeInfo& info = scene_.shape(hit->shape);
     const Material& material = scene_.materials()[info.material];
     if (depth == 0 && guides && !std::holds_alternative<InterfaceMaterial>(material)) {
-      guides->depth = hit->t / std::max(1e-6f, 2.0f * geometry.bounds().radius());
+      // Normalised so that every point of the scene's bounding sphere lies in [0, 1] and a miss
+      // (1) is never nearer than a hit.
+      const Bounds3f& b = geometry.bounds();
+      float far = length(scene_.camera().position() - b.centre()) + b.radius();
+      guides->depth = std::min(1.0f, hit->t / std::max(1e-6f, far));
       guides->normal = hit->ns;
       if (const auto* diffuse = std::get_if<DiffuseMaterial>(&material)) {
         guides->albedo = spectral::sample(diffuse->reflectance, path.lambda).average(lanes);
@@ -318,8 +322,9 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       });
     }
 
-    auto bs = sample(*bsdf, wo, sampler.at(dim + kScatterLobe),
-                     {sampler.at(dim + kScatterDirection), sampler.at(dim + kScatterDirection + 1)});
+    const Point2 lobe_and_roulette = sampler.at2(dim + kScatterLobe);
+    auto bs = sample(*bsdf, wo, lobe_and_roulette.u0,
+                     to_point(sampler.at2(dim + kScatterDirection)));
     if (!bs || !(bs->pdf[0] > 0)) break;
     path.r_prev = path.r;
     path.lambda_prev = path.lambda;
@@ -353,7 +358,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       weight *= path.eta_scale;
       if (weight < 1.0f) {
         float q = std::max(0.0f, 1.0f - weight);
-        if (sampler.at(dim + kRoulette) < q) break;
+        if (lobe_and_roulette.u1 < q) break;
         path.beta /= 1.0f - q;
       }
     }

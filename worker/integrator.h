@@ -45,8 +45,10 @@ struct TraceCounters {
   }
 };
 
-// Optional first-hit guide values (prepass guide buffers): depth along the camera ray
-// normalised by the scene's bounding radius, shading normal, albedo luminance.
+// Optional first-hit guide values (prepass guide buffers): distance along the camera ray
+// divided by the distance from the camera to the far side of the scene's bounding sphere (so in
+// [0, 1], 1 for a miss), shading normal, albedo (mean over the lanes of a diffuse reflectance,
+// 1 for specular materials).
 struct GuideValues {
   float depth = 0;
   Vec3f normal;
