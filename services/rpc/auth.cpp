@@ -1,0 +1,42 @@
+#include "services/rpc/auth.h"
+
+#include <openssl/crypto.h>
+
+#include <string>
+
+namespace prism::rpc {
+namespace {
+
+constexpr std::string_view kScheme = "Bearer ";
+
+bool equal_constant_time(std::string_view a, std::string_view b) {
+  if (a.size() != b.size()) return false;
+  return CRYPTO_memcmp(a.data(), b.data(), a.size()) == 0;
+}
+
+}  // namespace
+
+absl::Status check_bearer(const grpc::ServerContext& context, std::string_view expected) {
+  if (expected.empty()) return absl::OkStatus();
+  const auto& metadata = context.client_metadata();
+  auto range = metadata.equal_range(grpc::string_ref(kAuthorizationHeader.data(),
+                                                     kAuthorizationHeader.size()));
+  if (range.first == range.second) {
+    return absl::UnauthenticatedError("missing authorization metadata (want 'Bearer <token>')");
+  }
+  std::string_view value(range.first->second.data(), range.first->second.size());
+  if (value.substr(0, kScheme.size()) != kScheme) {
+    return absl::UnauthenticatedError("authorization metadata is not a 'Bearer <token>'");
+  }
+  if (!equal_constant_time(value.substr(kScheme.size()), expected)) {
+    return absl::UnauthenticatedError("invalid token");
+  }
+  return absl::OkStatus();
+}
+
+void add_bearer(grpc::ClientContext& context, std::string_view token) {
+  if (token.empty()) return;
+  context.AddMetadata(std::string(kAuthorizationHeader), std::string(kScheme) + std::string(token));
+}
+
+}  // namespace prism::rpc
