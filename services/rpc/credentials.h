@@ -1,0 +1,29 @@
+// Transport security for Prism's gRPC servers and channels. Without certificate paths both sides
+// use plaintext (loopback, a trusted cluster network); with them the server presents its
+// certificate chain and private key (PEM files) and clients verify it against a CA bundle.
+// Bad or missing files are reported before anything listens or connects.
+#pragma once
+
+#include <grpcpp/security/credentials.h>
+#include <grpcpp/security/server_credentials.h>
+
+#include <filesystem>
+#include <memory>
+
+#include "absl/status/statusor.h"
+
+namespace prism::rpc {
+
+struct ServerTls {
+  std::filesystem::path cert_chain;  // PEM; empty: plaintext
+  std::filesystem::path private_key;  // PEM; required with cert_chain
+};
+
+struct ClientTls {
+  std::filesystem::path ca_bundle;  // PEM roots to verify the server; empty: plaintext
+};
+
+absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> server_credentials(const ServerTls& tls);
+absl::StatusOr<std::shared_ptr<grpc::ChannelCredentials>> channel_credentials(const ClientTls& tls);
+
+}  // namespace prism::rpc
