@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <map>
+#include <ostream>
 #include <set>
 #include <string>
 
@@ -17,6 +18,9 @@ struct BadCase {
   absl::StatusCode code;
   const char* message;
 };
+
+// gtest prints the parameter of a failing or listed test; name the file instead of dumping bytes.
+void PrintTo(const BadCase& c, std::ostream* os) { *os << c.file; }
 
 const BadCase kBadCases[] = {
     {"unknown_directive.pbrt", absl::StatusCode::kInvalidArgument,
