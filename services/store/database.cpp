@@ -93,8 +93,12 @@ absl::StatusOr<sqlite3_stmt*> Database::prepare(std::string_view sql,
             return sqlite3_bind_int64(stmt, index, v);
           } else if constexpr (std::is_same_v<T, double>) {
             return sqlite3_bind_double(stmt, index, v);
+          } else if constexpr (std::is_same_v<T, std::string>) {
+            return sqlite3_bind_text64(stmt, index, v.data(), v.size(), SQLITE_TRANSIENT,
+                                       SQLITE_UTF8);
           } else {
-            return sqlite3_bind_blob64(stmt, index, v.data(), v.size(), SQLITE_TRANSIENT);
+            return sqlite3_bind_blob64(stmt, index, v.bytes.data(), v.bytes.size(),
+                                       SQLITE_TRANSIENT);
           }
         },
         params[i]);

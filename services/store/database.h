@@ -22,8 +22,14 @@ struct sqlite3_stmt;
 
 namespace prism::store {
 
-// A bound parameter or a column value.
-using SqlValue = std::variant<std::monostate, std::int64_t, double, std::string>;
+// Bytes to bind as a BLOB (a plain std::string binds as TEXT).
+struct SqlBlob {
+  std::string bytes;
+};
+
+// A bound parameter or a column value. Column values never hold SqlBlob: TEXT and BLOB columns
+// both come back as std::string.
+using SqlValue = std::variant<std::monostate, std::int64_t, double, std::string, SqlBlob>;
 
 // One result row; blobs come back as std::string.
 struct SqlRow {
@@ -47,8 +53,8 @@ class Database {
   // Runs one or more statements without parameters (schema, pragmas).
   absl::Status exec(std::string_view sql);
 
-  // Runs one statement with positional parameters (?1, ?2, … or ?). Text parameters are bound
-  // as TEXT; use `blob` to bind BLOB.
+  // Runs one statement with positional parameters (?1, ?2, … or ?). std::string parameters are
+  // bound as TEXT, SqlBlob as BLOB.
   absl::Status run(std::string_view sql, const std::vector<SqlValue>& params = {});
   absl::StatusOr<std::vector<SqlRow>> query(std::string_view sql,
                                             const std::vector<SqlValue>& params = {});

@@ -28,7 +28,7 @@ TEST_F(DatabaseTest, UsesWalAndRoundTripsValues) {
   ASSERT_TRUE(db->exec("CREATE TABLE t (id INTEGER PRIMARY KEY, x REAL, s BLOB, n TEXT)").ok());
   std::string bytes("a\0b", 3);
   ASSERT_TRUE(db->run("INSERT INTO t (x, s, n) VALUES (?, ?, ?)",
-                      {2.5, bytes, std::monostate{}}).ok());
+                      {2.5, SqlBlob{bytes}, std::monostate{}}).ok());
   EXPECT_EQ(db->last_insert_rowid(), 1);
   auto rows = db->query("SELECT id, x, s, n FROM t WHERE id = ?", {std::int64_t{1}});
   ASSERT_TRUE(rows.ok());
@@ -37,6 +37,13 @@ TEST_F(DatabaseTest, UsesWalAndRoundTripsValues) {
   EXPECT_EQ((*rows)[0].real(1), 2.5);
   EXPECT_EQ((*rows)[0].text(2), bytes);
   EXPECT_TRUE((*rows)[0].is_null(3));
+  // Strings bind as TEXT, blobs as BLOB.
+  auto types = db->query("SELECT typeof(s), typeof(?), typeof(?) FROM t",
+                         {std::string("x"), SqlBlob{"y"}});
+  ASSERT_TRUE(types.ok());
+  EXPECT_EQ((*types)[0].text(0), "blob");
+  EXPECT_EQ((*types)[0].text(1), "text");
+  EXPECT_EQ((*types)[0].text(2), "blob");
 }
 
 TEST_F(DatabaseTest, TransactionRollsBackOnError) {

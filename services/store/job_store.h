@@ -1,0 +1,204 @@
+// The coordinator's persistent job store: jobs, their planned tasks, per-worker failure counts
+// and registered workers, in one SQLite file (WAL) under the data directory. After a crash or a
+// restart the coordinator reopens the file and resumes every job that is not in a terminal
+// state; a task recorded as done is never rendered again.
+//
+// Invariants kept by the store (each change runs in one transaction, so they hold after a crash
+// at any point):
+//  - job ids are "j-" + a zero-padded decimal that only grows, also across restarts; a failed
+//    create does not consume an id;
+//  - a client token names at most one job, forever: submitting again with the same token
+//    returns the job created the first time;
+//  - a job's tasks are numbered 0..n-1 in plan order; tasks_done/samples_done equal the counts
+//    and samples of its done tasks;
+//  - a done task keeps the hash of its first accepted result; a different hash for it later is
+//    refused (renders are deterministic, so it means corruption or a bug, not a retry);
+//  - job states only move along the transition table in `is_valid_transition`.
+// The job spec is stored as opaque bytes (the serialized proto); the store never parses it.
+// One JobStore is used by one thread at a time (the caller serialises access, as for Database).
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "services/image/tile.h"
+#include "services/store/database.h"
+
+namespace prism::store {
+
+// The numeric values equal prism.v1.JobState, so the rpc layer converts with a checked cast.
+enum class JobState : int {
+  kQueued = 1,
+  kPrepass = 2,
+  kRendering = 3,
+  kFinalising = 4,
+  kDone = 5,
+  kFailed = 6,
+  kCancelled = 7,
+};
+
+// "QUEUED", "PREPASS", ... ("UNKNOWN(n)" for a value outside the enum).
+std::string to_string(JobState state);
+bool is_terminal(JobState state);
+// QUEUED → PREPASS | RENDERING; PREPASS → RENDERING; RENDERING → FINALISING;
+// FINALISING → DONE; any non-terminal state → FAILED | CANCELLED. Nothing leaves a terminal
+// state. Staying in the same state is not a transition (see set_job_state).
+bool is_valid_transition(JobState from, JobState to);
+
+// The numeric values equal prism.v1.Pass.
+enum class TaskPass : int { kPrepass = 1, kFinal = 2 };
+
+// Leases live in the coordinator's memory and die with it, so a task is either still to be
+// rendered (pending, whether or not some worker holds a lease on it) or done.
+enum class TaskState : int { kPending = 0, kDone = 1 };
+
+struct JobProgress {
+  std::uint64_t tasks_total = 0;
+  std::uint64_t tasks_done = 0;
+  std::uint64_t samples_total = 0;  // pixel samples: sum over tasks of rect area × range count
+  std::uint64_t samples_done = 0;
+  friend bool operator==(const JobProgress&, const JobProgress&) = default;
+};
+
+struct JobRecord {
+  std::string id;            // assigned by create_job
+  std::string client_token;  // empty: no idempotency key
+  std::string spec;          // serialized prism.v1.JobSpec, opaque to the store
+  std::string bundle_hash;
+  JobState state = JobState::kQueued;
+  std::string error;              // why the job FAILED (or was CANCELLED), verbatim
+  std::int64_t submitted_ms = 0;  // Unix milliseconds; 0 = not yet
+  std::int64_t started_ms = 0;    // first left QUEUED
+  std::int64_t finished_ms = 0;   // entered a terminal state
+  std::string report_json;        // empty until set_report
+  JobProgress progress;
+};
+
+struct TaskRecord {
+  int index = 0;  // 0..n-1 within the job, plan order
+  TaskPass pass = TaskPass::kFinal;
+  int pass_index = 0;  // k for prepass k, 0 for the final pass
+  int tile_index = 0;  // raster order of the tile plan
+  image::TileRect rect;
+  image::SampleRange samples;
+  TaskState state = TaskState::kPending;
+  int attempts = 0;         // leases handed out for this task so far
+  std::string result_hash;  // hex hash of the accepted result; empty while pending
+  friend bool operator==(const TaskRecord&, const TaskRecord&) = default;
+};
+
+struct WorkerRecord {
+  std::string id;  // "w-000001"; assigned by register_worker when empty
+  std::string host;
+  std::string version;
+  int threads = 0;
+  std::vector<std::string> capabilities;  // each non-empty, printable, without newlines
+  std::int64_t last_seen_ms = 0;
+  friend bool operator==(const WorkerRecord&, const WorkerRecord&) = default;
+};
+
+struct CreateJobResult {
+  JobRecord job;
+  bool existed = false;  // true: the client token was known and nothing was inserted
+};
+
+class JobStore {
+ public:
+  // The schema version this build writes; open() migrates older files up to it.
+  static constexpr int kSchemaVersion = 1;
+
+  // Opens or creates the store file and applies pending migrations, each in its own
+  // transaction with its user_version bump. FAILED_PRECONDITION when the file has a newer
+  // schema than this build understands (it is left untouched) or cannot be opened.
+  static absl::StatusOr<JobStore> open(const std::filesystem::path& file);
+
+  // Stores a new job in QUEUED with its planned tasks (indices 0..n-1 in order, valid rects and
+  // ranges, state pending: INVALID_ARGUMENT otherwise) and returns it with its new id; the id
+  // and state in `job` are ignored and the progress totals are computed from `tasks`. When
+  // job.client_token is already known, returns that job with existed = true and changes
+  // nothing: the spec and tasks of the repeated request are ignored.
+  absl::StatusOr<CreateJobResult> create_job(JobRecord job, std::span<const TaskRecord> tasks);
+
+  // Appends tasks (a later pass planned once the earlier one is known) to a non-terminal job;
+  // their indices must continue the job's numbering. Updates the totals.
+  absl::Status add_tasks(std::string_view job_id, std::span<const TaskRecord> tasks);
+
+  // NOT_FOUND naming the id when there is no such job.
+  absl::StatusOr<JobRecord> get_job(std::string_view job_id);
+  absl::StatusOr<JobRecord> find_by_client_token(std::string_view client_token);
+
+  // Newest first; `limit` 0 means all; an empty `states` means every state.
+  absl::StatusOr<std::vector<JobRecord>> list_jobs(std::size_t limit,
+                                                   std::span<const JobState> states = {});
+
+  // Moves a job to `to` at time now_ms and returns the updated record. Sets started_ms when it
+  // first leaves QUEUED and finished_ms when it enters a terminal state; stores `error` when it
+  // is not empty. Setting the state the job is already in changes nothing and succeeds (a
+  // restarted coordinator repeats its last step). FAILED_PRECONDITION for a transition outside
+  // the table, or for DONE while tasks are pending.
+  absl::StatusOr<JobRecord> set_job_state(std::string_view job_id, JobState to, std::int64_t now_ms,
+                                          std::string_view error = "");
+
+  // Stores the job's JSON report (written before the job becomes DONE).
+  absl::Status set_report(std::string_view job_id, std::string_view report_json);
+
+  // Every task of the job in index order; NOT_FOUND for an unknown job.
+  absl::StatusOr<std::vector<TaskRecord>> tasks_of(std::string_view job_id);
+  // The tasks not yet done, in index order.
+  absl::StatusOr<std::vector<TaskRecord>> pending_tasks(std::string_view job_id);
+
+  // Records a task's accepted result. Returns true when the task became done now, false for a
+  // duplicate with the same hash (harmless: nothing changes). DATA_LOSS when the task is
+  // already done with a different hash; FAILED_PRECONDITION when the job is FAILED or
+  // CANCELLED; NOT_FOUND for an unknown job or task; INVALID_ARGUMENT for an empty hash.
+  absl::StatusOr<bool> mark_task_done(std::string_view job_id, int task_index,
+                                      std::string_view result_hash);
+
+  // Counts one more lease handed out for the task and returns the new attempt number (1 for
+  // the first lease).
+  absl::StatusOr<int> record_attempt(std::string_view job_id, int task_index);
+
+  // Counts one more failure of `worker_id` on the job and returns the new count.
+  absl::StatusOr<int> record_worker_failure(std::string_view job_id, std::string_view worker_id);
+  // Failure counts of every worker that failed the job.
+  absl::StatusOr<std::map<std::string, int>> worker_failures(std::string_view job_id);
+
+  absl::StatusOr<JobProgress> progress(std::string_view job_id);
+
+  // Every job not in a terminal state, oldest first: what a restarted coordinator resumes.
+  absl::StatusOr<std::vector<JobRecord>> jobs_to_resume();
+
+  // Registers a worker (assigning a new id when record.id is empty) or updates a known one
+  // (a worker reattaching after a restart keeps its id). Returns the stored record.
+  absl::StatusOr<WorkerRecord> register_worker(WorkerRecord record);
+  // NOT_FOUND for an unknown worker.
+  absl::Status touch_worker(std::string_view worker_id, std::int64_t now_ms);
+  absl::StatusOr<WorkerRecord> get_worker(std::string_view worker_id);
+  // In registration order.
+  absl::StatusOr<std::vector<WorkerRecord>> list_workers();
+
+  // The underlying connection, for inspection and tests.
+  Database& database() { return db_; }
+
+ private:
+  explicit JobStore(Database db) : db_(std::move(db)) {}
+  absl::Status migrate(const std::filesystem::path& file);
+  absl::StatusOr<std::string> allocate_id(std::string_view counter, std::string_view prefix);
+  absl::StatusOr<std::vector<JobRecord>> query_jobs(std::string_view where_and_order,
+                                                    const std::vector<SqlValue>& params);
+  absl::StatusOr<JobRecord> get_job_row(std::string_view job_id);
+  absl::Status insert_tasks(std::string_view job_id, std::span<const TaskRecord> tasks,
+                            int first_index);
+  absl::StatusOr<std::vector<TaskRecord>> query_tasks(std::string_view job_id, bool pending_only);
+
+  Database db_;
+};
+
+}  // namespace prism::store
