@@ -1,0 +1,113 @@
+// prism-coordinator: the farm's coordinator daemon. Parses and validates its configuration,
+// opens the data directory (resuming unfinished jobs), serves FarmService, WorkerService and
+// the gRPC health service, and on SIGINT/SIGTERM stops serving, then stops the coordinator.
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include <CLI/CLI.hpp>
+#include <csignal>
+#include <cstdint>
+#include <iostream>
+#include <string>
+
+#include "coordinator/farm_coordinator.h"
+#include "coordinator/rpc/coordinator_server.h"
+
+namespace {
+
+struct Config {
+  std::string listen;
+  std::string data_dir;
+  std::string worker_secret;
+  std::string api_token;
+  std::string tls_cert;
+  std::string tls_key;
+  std::uint64_t max_bundle_bytes = std::uint64_t{1} << 30;
+  std::uint64_t max_queued_jobs = 1000;
+  std::int64_t heartbeat_ms = 1000;
+  std::int64_t lease_ms = 30000;
+  std::string log_level = "info";
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using prism::coordinator::Millis;
+  Config config;
+  CLI::App app{"prism-coordinator: the Prism render farm's coordinator"};
+  app.add_option("--listen", config.listen, "address to serve on, e.g. 0.0.0.0:7070")->required();
+  app.add_option("--data-dir", config.data_dir, "job store, bundles, results and outputs")
+      ->required();
+  app.add_option("--worker-secret", config.worker_secret, "bearer token workers must send")
+      ->envname("PRISM_WORKER_SECRET");
+  app.add_option("--api-token", config.api_token, "bearer token clients must send")
+      ->envname("PRISM_API_TOKEN");
+  app.add_option("--tls-cert", config.tls_cert, "PEM certificate chain (enables TLS)");
+  app.add_option("--tls-key", config.tls_key, "PEM private key for --tls-cert");
+  app.add_option("--max-bundle-bytes", config.max_bundle_bytes, "largest scene bundle accepted")
+      ->check(CLI::Range(std::uint64_t{1}, std::uint64_t{1} << 40));
+  app.add_option("--max-queued-jobs", config.max_queued_jobs, "unfinished jobs accepted at once")
+      ->check(CLI::Range(std::uint64_t{1}, std::uint64_t{1} << 20));
+  app.add_option("--heartbeat-ms", config.heartbeat_ms, "worker heartbeat interval")
+      ->check(CLI::Range(std::int64_t{10}, std::int64_t{600000}));
+  app.add_option("--lease-ms", config.lease_ms, "lease duration, extended by heartbeats")
+      ->check(CLI::Range(std::int64_t{10}, std::int64_t{86400000}));
+  app.add_option("--log-level", config.log_level, "trace, debug, info, warn, error, off");
+  CLI11_PARSE(app, argc, argv);
+  if (config.tls_cert.empty() != config.tls_key.empty()) {
+    std::cerr << "prism-coordinator: --tls-cert and --tls-key go together\n";
+    return 2;
+  }
+  if (config.lease_ms <= config.heartbeat_ms) {
+    std::cerr << "prism-coordinator: --lease-ms " << config.lease_ms
+              << " must be longer than --heartbeat-ms " << config.heartbeat_ms << "\n";
+    return 2;
+  }
+
+  auto logger = spdlog::stderr_color_mt("coordinator");
+  logger->set_level(spdlog::level::from_str(config.log_level));
+
+  // Signals are taken synchronously by sigwait below; block them before any thread starts.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  prism::coordinator::FarmOptions options;
+  options.data_dir = config.data_dir;
+  options.max_bundle_bytes = config.max_bundle_bytes;
+  options.max_queued_jobs = config.max_queued_jobs;
+  options.scheduler.heartbeat_interval = Millis(config.heartbeat_ms);
+  options.scheduler.lease_duration = Millis(config.lease_ms);
+  options.tick_interval = Millis(std::max<std::int64_t>(10, config.heartbeat_ms / 2));
+  options.logger = logger;
+  auto farm = prism::coordinator::FarmCoordinator::open(std::move(options));
+  if (!farm.ok()) {
+    std::cerr << "prism-coordinator: " << farm.status().message() << "\n";
+    return 1;
+  }
+  prism::coordinator::rpc::ServerConfig server_config;
+  server_config.listen = config.listen;
+  server_config.worker_secret = config.worker_secret;
+  server_config.api_token = config.api_token;
+  server_config.tls.cert_chain = config.tls_cert;
+  server_config.tls.private_key = config.tls_key;
+  auto server = prism::coordinator::rpc::CoordinatorServer::start(**farm, server_config, logger);
+  if (!server.ok()) {
+    std::cerr << "prism-coordinator: " << server.status().message() << "\n";
+    return 1;
+  }
+  // The port line is what scripts and tests read when --listen asks for port 0.
+  std::cout << "listening on port " << (*server)->port() << std::endl;
+  logger->info("serving on {} (port {}), data in {}", config.listen, (*server)->port(),
+               config.data_dir);
+
+  int signal = 0;
+  sigwait(&signals, &signal);
+  logger->info("signal {}: shutting down", signal);
+  (*server)->shutdown();
+  (*server)->wait();
+  (*farm)->shutdown();
+  return 0;
+}

@@ -1,0 +1,797 @@
+#include "coordinator/farm_coordinator.h"
+
+#include <spdlog/sinks/null_sink.h>
+
+#include <algorithm>
+#include <cmath>
+#include <system_error>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/atomic_file.h"
+#include "services/base/sha256.h"
+#include "services/base/status.h"
+#include "services/image/exr_spectral.h"
+#include "services/image/png.h"
+#include "services/image/tile_codec.h"
+#include "services/scene/bundle.h"
+#include "services/scene/scene_loader.h"
+
+namespace prism::coordinator {
+namespace {
+
+namespace fs = std::filesystem;
+using SteadyClock = std::chrono::steady_clock;
+
+Millis unix_now() {
+  return std::chrono::duration_cast<Millis>(std::chrono::system_clock::now().time_since_epoch());
+}
+
+store::TaskPass store_pass(Pass pass) {
+  return pass == Pass::kPrepass ? store::TaskPass::kPrepass : store::TaskPass::kFinal;
+}
+
+absl::Status io_error(const std::string& what, const fs::path& path, const std::error_code& ec) {
+  return absl::InternalError(absl::StrCat(what, " ", path.string(), ": ", ec.message()));
+}
+
+absl::Status make_dirs(const fs::path& dir) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return io_error("cannot create directory", dir, ec);
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+FarmCoordinator::FarmCoordinator(FarmOptions options)
+    : options_(std::move(options)),
+      cmf_(spectral::ColorMatching::cie1931()),
+      scheduler_(options_.scheduler) {}
+
+absl::StatusOr<std::unique_ptr<FarmCoordinator>> FarmCoordinator::open(FarmOptions options) {
+  if (options.data_dir.empty()) return absl::InvalidArgumentError("--data-dir is empty");
+  if (!options.clock) options.clock = unix_now;
+  if (options.logger == nullptr) {
+    options.logger = std::make_shared<spdlog::logger>(
+        "coordinator", std::make_shared<spdlog::sinks::null_sink_mt>());
+  }
+  if (options.tick_interval.count() <= 0) {
+    return absl::InvalidArgumentError("the tick interval must be positive");
+  }
+  // A fresh lease prefix per incarnation: a worker reattaching with an old lease id can never
+  // match a lease of this process.
+  options.scheduler.lease_prefix = absl::StrCat("l", options.clock().count(), "-");
+  std::unique_ptr<FarmCoordinator> farm(new FarmCoordinator(std::move(options)));
+  PRISM_RETURN_IF_ERROR(farm->start());
+  return farm;
+}
+
+absl::Status FarmCoordinator::start() {
+  const fs::path& dir = options_.data_dir;
+  for (const char* sub : {"blobs", "bundles", "scenes", "outputs", "tmp"}) {
+    PRISM_RETURN_IF_ERROR(make_dirs(dir / sub));
+  }
+  // Leftovers of an interrupted upload are never referenced.
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(dir / "tmp", ec))
+    fs::remove_all(entry.path(), ec);
+
+  PRISM_ASSIGN_OR_RETURN(library_, spectral::SpectrumLibrary::load_builtin());
+  PRISM_ASSIGN_OR_RETURN(store::JobStore job_store, store::JobStore::open(dir / "jobs.sqlite"));
+  store_.emplace(std::move(job_store));
+  PRISM_ASSIGN_OR_RETURN(store::BlobStore blob_store, store::BlobStore::open(dir / "blobs"));
+  blobs_.emplace(std::move(blob_store));
+
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    PRISM_ASSIGN_OR_RETURN(std::vector<store::JobRecord> resume, store_->jobs_to_resume());
+    for (const store::JobRecord& record : resume) {
+      absl::Status resumed = resume_locked(record);
+      if (!resumed.ok()) {
+        options_.logger->error("[job {}] cannot resume: {}", record.id, resumed.ToString());
+        fail_job_locked(record.id,
+                        absl::StrCat("cannot resume after a restart: ", resumed.message()));
+      }
+    }
+    if (!resume.empty()) options_.logger->info("resumed {} unfinished jobs", resume.size());
+    process_events_locked();
+  }
+  ticker_ = std::thread([this] { tick_loop(); });
+  return absl::OkStatus();
+}
+
+FarmCoordinator::~FarmCoordinator() {
+  shutdown();
+}
+
+void FarmCoordinator::shutdown() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stopping_ = true;
+    changed_locked();
+  }
+  if (ticker_.joinable()) ticker_.join();
+}
+
+void FarmCoordinator::tick_loop() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (!stopping_) {
+    changed_.wait_for(lock, options_.tick_interval);
+    if (stopping_) break;
+    scheduler_.tick(now());
+    process_events_locked();
+  }
+}
+
+void FarmCoordinator::changed_locked() {
+  ++change_counter_;
+  changed_.notify_all();
+}
+
+std::uint64_t FarmCoordinator::change_counter() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return change_counter_;
+}
+
+std::uint64_t FarmCoordinator::wait_for_change(std::uint64_t seen, Millis timeout) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  changed_.wait_for(lock, timeout, [&] { return stopping_ || change_counter_ != seen; });
+  return change_counter_;
+}
+
+fs::path FarmCoordinator::bundle_path(const std::string& hash) const {
+  return options_.data_dir / "bundles" / hash;
+}
+fs::path FarmCoordinator::scene_dir(const std::string& hash) const {
+  return options_.data_dir / "scenes" / hash;
+}
+fs::path FarmCoordinator::output_dir(const std::string& job_id) const {
+  return options_.data_dir / "outputs" / job_id;
+}
+
+OutputPaths FarmCoordinator::output_paths_of(const std::string& job_id) const {
+  const fs::path dir = output_dir(job_id);
+  return OutputPaths{dir / (job_id + ".exr"), dir / (job_id + ".rgb.exr"), dir / (job_id + ".png"),
+                     dir / (job_id + ".json")};
+}
+
+// ---- bundles ----
+
+absl::StatusOr<std::string> FarmCoordinator::upload_bundle(const std::string& claimed_hash,
+                                                           std::string_view bytes) {
+  if (bytes.size() > options_.max_bundle_bytes) {
+    return absl::ResourceExhaustedError(absl::StrCat("bundle of ", bytes.size(),
+                                                     " bytes is over the limit of ",
+                                                     options_.max_bundle_bytes, " bytes"));
+  }
+  scene::BundleLimits limits;
+  limits.max_total_bytes = std::min(limits.max_total_bytes, options_.max_bundle_bytes);
+  limits.max_file_bytes = std::min(limits.max_file_bytes, options_.max_bundle_bytes);
+  PRISM_ASSIGN_OR_RETURN(scene::UnpackedBundle bundle, scene::unpack(bytes, limits));
+  const std::string hash = bundle.content_hash;
+  if (!claimed_hash.empty() && claimed_hash != hash) {
+    return absl::InvalidArgumentError(absl::StrCat("bundle hash mismatch: the upload claims ",
+                                                   claimed_hash, " but its content hash is ",
+                                                   hash));
+  }
+  if (has_bundle(hash)) return hash;
+
+  std::uint64_t serial = 0;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    serial = ++temp_counter_;
+  }
+  const fs::path tmp = options_.data_dir / "tmp" / absl::StrCat("bundle-", serial, "-", hash);
+  std::error_code ec;
+  fs::remove_all(tmp, ec);
+  absl::Status extracted = scene::extract_to(bundle, tmp);
+  if (!extracted.ok()) {
+    fs::remove_all(tmp, ec);
+    return extracted;
+  }
+  scene::LoadOptions load;
+  load.is_known_spectrum = [&](std::string_view name) { return library_.contains(name); };
+  load.is_known_ior = [&](std::string_view name) { return library_.find_ior(name) != nullptr; };
+  absl::StatusOr<scene::LoadedScene> loaded = scene::load_scene(tmp / bundle.scene_path, load);
+  if (!loaded.ok()) {
+    fs::remove_all(tmp, ec);
+    options_.logger->info("refused bundle {}: {}", hash, loaded.status().ToString());
+    if (loaded.status().code() == absl::StatusCode::kResourceExhausted) return loaded.status();
+    return absl::InvalidArgumentError(
+        absl::StrCat("the bundle's scene does not load: ", loaded.status().message()));
+  }
+  // Publish: the extracted scene, its scene path, then the packed bundle (has_bundle's marker).
+  const fs::path dest = scene_dir(hash);
+  if (!fs::exists(dest)) {
+    fs::rename(tmp, dest, ec);
+    if (ec && !fs::exists(dest)) return io_error("cannot move the extracted bundle to", dest, ec);
+  }
+  fs::remove_all(tmp, ec);
+  const std::string scene_path = bundle.scene_path;
+  PRISM_RETURN_IF_ERROR(
+      base::write_file_atomic(bundle_path(hash) += ".scene", std::span<const char>(scene_path)));
+  PRISM_RETURN_IF_ERROR(base::write_file_atomic(bundle_path(hash),
+                                                std::span<const char>(bytes.data(), bytes.size())));
+  options_.logger->info("stored bundle {} ({} bytes, scene {})", hash, bytes.size(), scene_path);
+  return hash;
+}
+
+bool FarmCoordinator::has_bundle(const std::string& hash) const {
+  if (!base::is_sha256_hex(hash)) return false;
+  std::error_code ec;
+  return fs::is_regular_file(bundle_path(hash), ec);
+}
+
+absl::StatusOr<std::string> FarmCoordinator::bundle_bytes(const std::string& hash) const {
+  if (!has_bundle(hash)) {
+    return absl::NotFoundError(absl::StrCat("no bundle ", hash, " on the coordinator"));
+  }
+  return base::read_file(bundle_path(hash));
+}
+
+// ---- jobs ----
+
+std::vector<TaskSpec> FarmCoordinator::task_specs(const TilePlan& plan) const {
+  std::vector<TaskSpec> tasks;
+  tasks.reserve(plan.task_count());
+  for (const image::TileRect& tile : plan.tiles) {
+    for (const image::SampleRange& range : plan.ranges) {
+      tasks.push_back(TaskSpec{Pass::kFinal, 0, tile, range});
+    }
+  }
+  return tasks;
+}
+
+absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::make_active(
+    const JobParameters& params, const prism::v1::JobSpec& spec) {
+  auto job = std::make_unique<ActiveJob>();
+  job->params = params;
+  job->spec = spec;
+  PRISM_ASSIGN_OR_RETURN(job->plan, plan_tiles({params.width, params.height, params.tile_size,
+                                                params.spp, params.samples_per_task}));
+  PRISM_ASSIGN_OR_RETURN(
+      image::SpectralImage image,
+      image::SpectralImage::create(params.width, params.height, params.render.bins));
+  job->image = std::make_unique<image::SpectralImage>(std::move(image));
+  job->statistics =
+      std::make_unique<BinStatisticsAccumulator>(job->plan.tiles.size(), params.render.bins);
+  job->started = SteadyClock::now();
+  ActiveJob* raw = job.get();
+  // Called from assembler->add, which runs under mutex_.
+  auto on_tile = [raw](int tile, const image::TileResult& merged,
+                       const image::SpectralImage& finalised) -> absl::Status {
+    raw->statistics->add_tile(static_cast<std::size_t>(tile), merged);
+    PRISM_RETURN_IF_ERROR(image::paste_tile(finalised, merged.rect(), *raw->image));
+    ++raw->tiles_finalised;
+    return absl::OkStatus();
+  };
+  PRISM_ASSIGN_OR_RETURN(job->assembler,
+                         TileAssembler::create(job->plan, params.render.bins, on_tile));
+  return job;
+}
+
+absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec,
+                                                  const std::string& client_token) {
+  std::unique_lock<std::mutex> lock(mutex_);
+  if (!client_token.empty()) {
+    absl::StatusOr<store::JobRecord> known = store_->find_by_client_token(client_token);
+    if (known.ok()) return status_locked(*known);
+    if (known.status().code() != absl::StatusCode::kNotFound) return known.status();
+  }
+  // Checked again after planning, which runs unlocked.
+  auto check_queue = [this]() -> absl::Status {
+    if (active_.size() < options_.max_queued_jobs) return absl::OkStatus();
+    return absl::ResourceExhaustedError(absl::StrCat(
+        "the coordinator already has ", active_.size(), " unfinished jobs (--max-queued-jobs ",
+        options_.max_queued_jobs, "): try again later"));
+  };
+  PRISM_RETURN_IF_ERROR(check_queue());
+  // Loading the scene and planning touch no shared state (the library is read-only once
+  // started): other calls go on meanwhile.
+  lock.unlock();
+  if (!base::is_sha256_hex(spec.bundle_hash())) {
+    return absl::InvalidArgumentError(absl::StrCat("bundle_hash '", spec.bundle_hash(),
+                                                   "': want 64 lower case hex digits (SHA-256)"));
+  }
+  if (!has_bundle(spec.bundle_hash())) {
+    return absl::FailedPreconditionError(
+        absl::StrCat("bundle ", spec.bundle_hash(), " is not on the coordinator: upload it first"));
+  }
+  PRISM_ASSIGN_OR_RETURN(std::string bundle_scene,
+                         base::read_file(bundle_path(spec.bundle_hash()) += ".scene", 1 << 16));
+  if (spec.scene_path() != bundle_scene) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "scene_path '", spec.scene_path(), "' is not the bundle's scene '", bundle_scene, "'"));
+  }
+  scene::LoadOptions load;
+  load.is_known_spectrum = [&](std::string_view name) { return library_.contains(name); };
+  load.is_known_ior = [&](std::string_view name) { return library_.find_ior(name) != nullptr; };
+  PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded,
+                         scene::load_scene(scene_dir(spec.bundle_hash()) / bundle_scene, load));
+  PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, loaded.description));
+  const prism::v1::JobSpec explicit_spec = to_proto(params);
+  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active, make_active(params, explicit_spec));
+
+  store::JobRecord record;
+  record.client_token = client_token;
+  record.spec = explicit_spec.SerializeAsString();
+  record.bundle_hash = params.bundle_hash;
+  record.submitted_ms = now().count();
+  const std::vector<TaskSpec> specs = task_specs(active->plan);
+  std::vector<store::TaskRecord> tasks(specs.size());
+  for (std::size_t i = 0; i < specs.size(); ++i) {
+    tasks[i].index = static_cast<int>(i);
+    tasks[i].pass = store_pass(specs[i].pass);
+    tasks[i].pass_index = specs[i].pass_index;
+    tasks[i].tile_index = static_cast<int>(i / active->plan.ranges.size());
+    tasks[i].rect = specs[i].tile;
+    tasks[i].samples = specs[i].samples;
+  }
+  lock.lock();
+  PRISM_RETURN_IF_ERROR(check_queue());
+  PRISM_ASSIGN_OR_RETURN(store::CreateJobResult created, store_->create_job(record, tasks));
+  if (created.existed) return status_locked(created.job);
+  const std::string id = created.job.id;
+  PRISM_RETURN_IF_ERROR(scheduler_.add_job(id, specs));
+  PRISM_ASSIGN_OR_RETURN(store::JobRecord rendering,
+                         store_->set_job_state(id, store::JobState::kRendering, now().count()));
+  active_[id] = std::move(active);
+  options_.logger->info("[job {}] submitted: {}x{}, {} spp, {} bins, {} tasks, bundle {}", id,
+                        params.width, params.height, params.spp, params.render.bins, specs.size(),
+                        params.bundle_hash);
+  process_events_locked();
+  changed_locked();
+  PRISM_ASSIGN_OR_RETURN(store::JobRecord now_record, store_->get_job(id));
+  return status_locked(now_record);
+}
+
+absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
+  prism::v1::JobSpec spec;
+  if (!spec.ParseFromString(record.spec)) {
+    return absl::DataLossError("the stored job spec does not parse");
+  }
+  // The stored spec is explicit, so the scene's defaults are not needed to decode it.
+  PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, scene::SceneDescription{}));
+  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active, make_active(params, spec));
+  PRISM_ASSIGN_OR_RETURN(std::vector<store::TaskRecord> tasks, store_->tasks_of(record.id));
+  const std::vector<TaskSpec> specs = task_specs(active->plan);
+  if (tasks.size() != specs.size()) {
+    return absl::DataLossError(
+        absl::StrCat("the store has ", tasks.size(), " tasks but the plan has ", specs.size()));
+  }
+  std::vector<int> done;
+  for (const store::TaskRecord& task : tasks) {
+    const TaskSpec& planned = specs[static_cast<std::size_t>(task.index)];
+    if (!(task.rect == planned.tile) || !(task.samples == planned.samples)) {
+      return absl::DataLossError(
+          absl::StrCat("stored task ", task.index, " differs from the plan"));
+    }
+    if (task.state != store::TaskState::kDone) continue;
+    PRISM_ASSIGN_OR_RETURN(std::string bytes, blobs_->get(task.result_hash));
+    PRISM_ASSIGN_OR_RETURN(image::TileResult result, image::parse_tile(bytes));
+    PRISM_RETURN_IF_ERROR(active->assembler->add(task.tile_index, std::move(result)));
+    done.push_back(task.index);
+  }
+  active->samples_at_start = record.progress.samples_done;
+  PRISM_RETURN_IF_ERROR(scheduler_.add_job(record.id, specs, done));
+  if (record.state == store::JobState::kQueued) {
+    PRISM_RETURN_IF_ERROR(
+        store_->set_job_state(record.id, store::JobState::kRendering, now().count()).status());
+  }
+  active_[record.id] = std::move(active);
+  options_.logger->info("[job {}] resumed: {} of {} tasks already done", record.id, done.size(),
+                        specs.size());
+  return absl::OkStatus();
+}
+
+JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) const {
+  JobStatus status;
+  status.record = record;
+  auto it = active_.find(record.id);
+  if (it != active_.end()) {
+    const ActiveJob& job = *it->second;
+    status.tiles_finalised = job.tiles_finalised;
+    status.tiles_total = static_cast<int>(job.plan.tiles.size());
+    const double seconds = std::chrono::duration<double>(SteadyClock::now() - job.started).count();
+    const std::uint64_t fresh = record.progress.samples_done >= job.samples_at_start
+                                    ? record.progress.samples_done - job.samples_at_start
+                                    : 0;
+    if (seconds > 0 && fresh > 0) {
+      status.samples_per_second = double(fresh) / seconds;
+      status.eta_seconds = double(record.progress.samples_total - record.progress.samples_done) /
+                           status.samples_per_second;
+    }
+  } else if (record.state == store::JobState::kDone) {
+    prism::v1::JobSpec spec;
+    if (spec.ParseFromString(record.spec)) {
+      absl::StatusOr<JobParameters> params = job_parameters(spec, scene::SceneDescription{});
+      if (params.ok()) {
+        const int tile = params->tile_size;
+        status.tiles_total =
+            ((params->width + tile - 1) / tile) * ((params->height + tile - 1) / tile);
+        status.tiles_finalised = status.tiles_total;
+      }
+    }
+    status.eta_seconds = 0;
+  }
+  return status;
+}
+
+absl::StatusOr<JobStatus> FarmCoordinator::job(const std::string& job_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_ASSIGN_OR_RETURN(store::JobRecord record, store_->get_job(job_id));
+  return status_locked(record);
+}
+
+absl::StatusOr<prism::v1::JobSpec> FarmCoordinator::job_spec(const std::string& job_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_ASSIGN_OR_RETURN(store::JobRecord record, store_->get_job(job_id));
+  prism::v1::JobSpec spec;
+  if (!spec.ParseFromString(record.spec)) {
+    return absl::DataLossError(absl::StrCat("job ", job_id, ": the stored spec does not parse"));
+  }
+  return spec;
+}
+
+absl::StatusOr<std::vector<JobStatus>> FarmCoordinator::jobs(
+    std::size_t limit, const std::vector<store::JobState>& states) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_ASSIGN_OR_RETURN(std::vector<store::JobRecord> records, store_->list_jobs(limit, states));
+  std::vector<JobStatus> out;
+  out.reserve(records.size());
+  for (const store::JobRecord& record : records) out.push_back(status_locked(record));
+  return out;
+}
+
+absl::StatusOr<JobStatus> FarmCoordinator::cancel(const std::string& job_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_ASSIGN_OR_RETURN(store::JobRecord record, store_->get_job(job_id));
+  if (record.state == store::JobState::kCancelled) return status_locked(record);
+  if (store::is_terminal(record.state)) {
+    return absl::FailedPreconditionError(
+        absl::StrCat("job ", job_id, " is already ", store::to_string(record.state)));
+  }
+  absl::Status cancelled = scheduler_.cancel_job(job_id);
+  if (!cancelled.ok() && cancelled.code() != absl::StatusCode::kNotFound) return cancelled;
+  PRISM_ASSIGN_OR_RETURN(record, store_->set_job_state(job_id, store::JobState::kCancelled,
+                                                       now().count(), "cancelled by a client"));
+  // The Scheduler keeps the cancelled job so that heartbeats listing its leases get CANCEL_TASK.
+  active_.erase(job_id);
+  options_.logger->info("[job {}] cancelled", job_id);
+  changed_locked();
+  return status_locked(record);
+}
+
+absl::StatusOr<std::vector<OutputFile>> FarmCoordinator::result_files(
+    const std::string& job_id, const std::vector<OutputKind>& kinds) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_ASSIGN_OR_RETURN(store::JobRecord record, store_->get_job(job_id));
+  if (record.state != store::JobState::kDone) {
+    return absl::FailedPreconditionError(absl::StrCat("job ", job_id, " is ",
+                                                      store::to_string(record.state),
+                                                      ": its outputs exist once it is DONE"));
+  }
+  prism::v1::JobSpec spec;
+  if (!spec.ParseFromString(record.spec)) {
+    return absl::DataLossError(absl::StrCat("job ", job_id, ": the stored spec does not parse"));
+  }
+  PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, scene::SceneDescription{}));
+  const OutputPaths paths = output_paths_of(job_id);
+  std::vector<OutputFile> all;
+  if (params.outputs.spectral_exr)
+    all.push_back({OutputKind::kSpectralExr, paths.spectral_exr, ""});
+  if (params.outputs.rgb_exr) all.push_back({OutputKind::kRgbExr, paths.rgb_exr, ""});
+  if (params.outputs.png) all.push_back({OutputKind::kPng, paths.png, ""});
+  all.push_back({OutputKind::kReportJson, paths.json, ""});
+  std::vector<OutputFile> out;
+  for (OutputFile& file : all) {
+    file.file_name = file.path.filename().string();
+    if (kinds.empty() || std::find(kinds.begin(), kinds.end(), file.kind) != kinds.end()) {
+      out.push_back(file);
+    }
+  }
+  if (out.empty()) {
+    return absl::NotFoundError(absl::StrCat("job ", job_id, " has none of the requested outputs"));
+  }
+  return out;
+}
+
+absl::StatusOr<std::string> FarmCoordinator::preview_png(const std::string& job_id,
+                                                         float exposure_stops) {
+  if (!std::isfinite(exposure_stops) || std::fabs(exposure_stops) > kMaxJobExposureStops) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("exposure ", exposure_stops, " is out of range: want stops in -",
+                     kMaxJobExposureStops, "..", kMaxJobExposureStops));
+  }
+  std::optional<image::RgbImage> rgb;
+  std::uint64_t serial = 0;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    PRISM_ASSIGN_OR_RETURN(store::JobRecord record, store_->get_job(job_id));
+    auto it = active_.find(job_id);
+    if (it != active_.end()) {
+      if (it->second->tiles_finalised == 0) {
+        return absl::FailedPreconditionError(
+            absl::StrCat("job ", job_id, " has no finished tile yet"));
+      }
+      PRISM_ASSIGN_OR_RETURN(rgb, to_linear_srgb(*it->second->image, cmf_));
+    } else if (record.state != store::JobState::kDone) {
+      return absl::FailedPreconditionError(absl::StrCat(
+          "job ", job_id, " is ", store::to_string(record.state), ": it has no image"));
+    }
+    serial = ++temp_counter_;
+  }
+  if (!rgb.has_value()) {
+    PRISM_ASSIGN_OR_RETURN(image::RgbExr exr, image::read_rgb_exr(output_paths_of(job_id).rgb_exr));
+    rgb = std::move(exr.rgb);
+  }
+  const fs::path tmp = options_.data_dir / "tmp" / absl::StrCat("preview-", serial, ".png");
+  PRISM_RETURN_IF_ERROR(image::write_png_preview(tmp, *rgb, exposure_stops));
+  absl::StatusOr<std::string> bytes = base::read_file(tmp);
+  std::error_code ec;
+  fs::remove(tmp, ec);
+  return bytes;
+}
+
+// ---- events and outputs ----
+
+void FarmCoordinator::process_events_locked() {
+  for (const SchedulerEvent& event : scheduler_.take_events()) {
+    switch (event.kind) {
+      case SchedulerEvent::Kind::kJobDone: {
+        absl::Status finalised = finalise_locked(event.job_id);
+        if (!finalised.ok()) {
+          options_.logger->error("[job {}] cannot write the outputs: {}", event.job_id,
+                                 finalised.ToString());
+          fail_job_locked(event.job_id,
+                          absl::StrCat("cannot write the outputs: ", finalised.message()));
+        }
+        break;
+      }
+      case SchedulerEvent::Kind::kJobFailed:
+        options_.logger->warn("[job {}] failed: {}", event.job_id, event.message);
+        fail_job_locked(event.job_id, event.message);
+        break;
+      case SchedulerEvent::Kind::kWorkerLost:
+        options_.logger->warn("[worker {}] lost: {}", event.worker_id, event.message);
+        break;
+    }
+    changed_locked();
+  }
+}
+
+void FarmCoordinator::fail_job_locked(const std::string& job_id, const std::string& message) {
+  absl::StatusOr<store::JobRecord> failed =
+      store_->set_job_state(job_id, store::JobState::kFailed, now().count(), message);
+  if (!failed.ok()) {
+    options_.logger->error("[job {}] cannot record the failure: {}", job_id,
+                           failed.status().ToString());
+  }
+  active_.erase(job_id);
+  (void)scheduler_.cancel_job(job_id);
+  changed_locked();
+}
+
+absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
+  auto it = active_.find(job_id);
+  if (it == active_.end()) {
+    return absl::InternalError(absl::StrCat("job ", job_id, " finished but is not active"));
+  }
+  ActiveJob& job = *it->second;
+  PRISM_RETURN_IF_ERROR(job.assembler->check_complete());
+  PRISM_ASSIGN_OR_RETURN(
+      store::JobRecord record,
+      store_->set_job_state(job_id, store::JobState::kFinalising, now().count()));
+  const JobParameters& p = job.params;
+  RenderReport report;
+  report.scene = p.scene_path;
+  report.width = p.width;
+  report.height = p.height;
+  report.spp = p.spp;
+  report.bins = p.render.bins;
+  report.integrator = integrator_name(p.render.integrator);
+  report.spectral_pdf = spectral_pdf_name(p.render.spectral_pdf);
+  report.emitter_pdf = emitter_pdf_name(p.render.emitter_pdf);
+  report.light_selection = light_selection_name(p.render.light_selection);
+  report.spectral_light_selection = p.render.spectral_light_selection;
+  report.max_depth = p.render.max_depth;
+  report.threads = 0;  // spread over the farm's workers
+  report.tile_size = p.tile_size;
+  report.seed = p.render.seed;
+  report.wall_seconds = double(now().count() - record.submitted_ms) / 1000.0;
+  report.render_seconds = job.render_seconds;
+  report.samples =
+      p.spp * static_cast<std::uint64_t>(p.width) * static_cast<std::uint64_t>(p.height);
+  report.rays = job.rays;
+  report.peak_memory_bytes = peak_memory_bytes();
+  report.statistics = job.statistics->finish();
+
+  const OutputPaths paths = output_paths_of(job_id);
+  PRISM_RETURN_IF_ERROR(make_dirs(output_dir(job_id)));
+  PRISM_RETURN_IF_ERROR(write_outputs(*job.image, cmf_, report, paths, {p.outputs.png_exposure}));
+  // write_outputs writes every kind; keep what the job asked for, the report, and the RGB EXR
+  // (previews of a finished job are made from it; GetResult serves it only when asked for).
+  std::error_code ec;
+  if (!p.outputs.spectral_exr) fs::remove(paths.spectral_exr, ec);
+  if (!p.outputs.png) fs::remove(paths.png, ec);
+  PRISM_RETURN_IF_ERROR(store_->set_report(job_id, format_report_json(report, paths)));
+  PRISM_RETURN_IF_ERROR(
+      store_->set_job_state(job_id, store::JobState::kDone, now().count()).status());
+  active_.erase(it);
+  (void)scheduler_.remove_job(job_id);
+  options_.logger->info("[job {}] done: wrote {}", job_id, paths.spectral_exr.string());
+  return absl::OkStatus();
+}
+
+// ---- workers ----
+
+absl::StatusOr<store::WorkerRecord> FarmCoordinator::register_worker(
+    store::WorkerRecord record, const std::string& previous_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  record.id.clear();
+  if (!previous_id.empty() && store_->get_worker(previous_id).ok()) record.id = previous_id;
+  record.last_seen_ms = now().count();
+  PRISM_ASSIGN_OR_RETURN(store::WorkerRecord stored, store_->register_worker(std::move(record)));
+  scheduler_.register_worker(stored.id, stored.threads, now());
+  options_.logger->info("[worker {}] registered: host {}, version {}, {} threads", stored.id,
+                        stored.host, stored.version, stored.threads);
+  changed_locked();
+  return stored;
+}
+
+absl::StatusOr<std::optional<LeaseGrant>> FarmCoordinator::acquire(const std::string& worker_id,
+                                                                   Millis wait) {
+  const SteadyClock::time_point deadline = SteadyClock::now() + wait;
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (!stopping_ && scheduler_.knows_worker(worker_id)) {
+    std::optional<Lease> lease = scheduler_.acquire(worker_id, now());
+    if (lease.has_value()) {
+      auto it = active_.find(lease->task.job_id);
+      if (it == active_.end()) {
+        // Cannot happen: the Scheduler only serves running jobs, which are all active.
+        (void)scheduler_.fail(worker_id, lease->id, FailureClass::kInfrastructure,
+                              "the job is not active on the coordinator", now());
+        continue;
+      }
+      absl::StatusOr<int> attempt = store_->record_attempt(lease->task.job_id, lease->task.index);
+      if (!attempt.ok()) {
+        options_.logger->warn("[job {}] cannot record an attempt: {}", lease->task.job_id,
+                              attempt.status().ToString());
+      }
+      options_.logger->debug("[job {} task {}] leased to {} as {}", lease->task.job_id,
+                             lease->task.index, worker_id, lease->id);
+      LeaseGrant grant{*lease, it->second->spec, it->second->params.bundle_hash};
+      changed_locked();
+      return std::optional<LeaseGrant>(std::move(grant));
+    }
+    const SteadyClock::time_point current = SteadyClock::now();
+    if (current >= deadline) break;
+    // Woken by any change; the short cap also covers leases requeued by tick().
+    changed_.wait_until(lock, std::min(deadline, current + Millis(100)));
+  }
+  return std::optional<LeaseGrant>();
+}
+
+HeartbeatReply FarmCoordinator::heartbeat(const std::string& worker_id,
+                                          const std::vector<std::string>& lease_ids) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  HeartbeatReply reply = scheduler_.heartbeat(worker_id, lease_ids, now());
+  if (scheduler_.knows_worker(worker_id)) (void)store_->touch_worker(worker_id, now().count());
+  process_events_locked();
+  return reply;
+}
+
+absl::StatusOr<CompleteResult> FarmCoordinator::complete(
+    const std::string& worker_id, const std::string& lease_id, std::string bytes,
+    const std::string& sha256, double render_seconds, std::uint64_t rays) {
+  // Parsing is the expensive part and needs no state.
+  absl::StatusOr<image::TileResult> parsed = image::parse_tile(bytes);
+  std::unique_lock<std::mutex> lock(mutex_);
+  const std::optional<Lease> lease = scheduler_.lease(lease_id);
+  if (lease.has_value() && lease->worker_id == worker_id) {
+    auto it = active_.find(lease->task.job_id);
+    std::string problem;
+    if (!parsed.ok()) {
+      problem = std::string(parsed.status().message());
+    } else if (!(parsed->rect() == lease->task.spec.tile) ||
+               !(parsed->samples() == lease->task.spec.samples)) {
+      problem = "the result's tile or sample range is not the task's";
+    } else if (it != active_.end() && parsed->bins() != it->second->params.render.bins) {
+      problem = absl::StrCat("the result has ", parsed->bins(), " bins, the job ",
+                             it->second->params.render.bins);
+    }
+    if (!problem.empty()) {
+      const std::string message = absl::StrCat("result for lease ", lease_id, ": ", problem);
+      PRISM_RETURN_IF_ERROR(
+          scheduler_.fail(worker_id, lease_id, FailureClass::kWorker, message, now()));
+      process_events_locked();
+      return absl::InvalidArgumentError(message);
+    }
+  }
+  // Stale leases are refused by the Scheduler before anything is stored.
+  std::optional<CompleteReply> reply;
+  if (!lease.has_value() || lease->worker_id != worker_id) {
+    reply = scheduler_.complete(worker_id, lease_id, sha256, now());
+  } else {
+    // Store the bytes first: a task is only marked done once its result is durable. The blob
+    // store is thread-safe, so the (synced) write does not hold up other calls; a lease that
+    // goes stale meanwhile leaves only an unreferenced blob.
+    lock.unlock();
+    absl::Status stored = blobs_->put_verified(sha256, bytes);
+    lock.lock();
+    PRISM_RETURN_IF_ERROR(stored);
+    reply = scheduler_.complete(worker_id, lease_id, sha256, now());
+  }
+  switch (reply->outcome) {
+    case CompleteOutcome::kStale:
+      return absl::FailedPreconditionError(reply->reason);
+    case CompleteOutcome::kDuplicate:
+      return CompleteResult::kDuplicate;
+    case CompleteOutcome::kAccepted:
+      break;
+  }
+  PRISM_CHECK(reply->task.has_value());
+  const Task& task = *reply->task;
+  ++tasks_completed_[worker_id];
+  absl::StatusOr<bool> marked = store_->mark_task_done(task.job_id, task.index, sha256);
+  if (!marked.ok()) {
+    fail_job_locked(task.job_id, absl::StrCat("cannot record task ", task.index, ": ",
+                                              marked.status().message()));
+    return marked.status();
+  }
+  auto it = active_.find(task.job_id);
+  if (it != active_.end()) {
+    ActiveJob& job = *it->second;
+    job.render_seconds += render_seconds;
+    job.rays += rays;
+    const int tile = task.index / static_cast<int>(job.plan.ranges.size());
+    absl::Status added = job.assembler->add(tile, *std::move(parsed));
+    if (!added.ok()) {
+      fail_job_locked(task.job_id,
+                      absl::StrCat("merging task ", task.index, ": ", added.message()));
+      return added;
+    }
+    options_.logger->debug("[job {} task {}] accepted from {}", task.job_id, task.index, worker_id);
+  }
+  process_events_locked();
+  changed_locked();
+  return CompleteResult::kAccepted;
+}
+
+absl::Status FarmCoordinator::fail(const std::string& worker_id, const std::string& lease_id,
+                                   FailureClass failure_class, const std::string& message) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_RETURN_IF_ERROR(scheduler_.fail(worker_id, lease_id, failure_class, message, now()));
+  options_.logger->info("[worker {}] lease {} failed ({}): {}", worker_id, lease_id,
+                        to_string(failure_class), message);
+  process_events_locked();
+  changed_locked();
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::vector<WorkerStatus>> FarmCoordinator::workers() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_ASSIGN_OR_RETURN(std::vector<store::WorkerRecord> records, store_->list_workers());
+  std::map<std::string, WorkerInfo> live;
+  for (const WorkerInfo& info : scheduler_.workers()) live[info.id] = info;
+  std::vector<WorkerStatus> out;
+  for (const store::WorkerRecord& record : records) {
+    WorkerStatus status;
+    status.record = record;
+    status.last_seen_ms = record.last_seen_ms;
+    auto it = live.find(record.id);
+    if (it == live.end()) {
+      status.state = "lost";
+    } else {
+      status.leases = it->second.leases;
+      status.state = it->second.leases > 0 ? "busy" : "idle";
+      status.last_seen_ms = it->second.last_seen.count();
+    }
+    auto done = tasks_completed_.find(record.id);
+    if (done != tasks_completed_.end()) status.tasks_completed = done->second;
+    out.push_back(std::move(status));
+  }
+  return out;
+}
+
+}  // namespace prism::coordinator

@@ -1,0 +1,213 @@
+// The coordinator daemon's domain: jobs, bundles, tasks, results and outputs, with no RPC in it.
+// The gRPC adapters (coordinator/rpc/) convert messages, call these methods and map the
+// absl::Status they return.
+//
+// State and persistence (everything under the data directory):
+//   jobs.sqlite          the JobStore: jobs, planned tasks, done tasks with their result hash
+//   blobs/               task results (the tile codec's bytes), content-addressed
+//   bundles/<hash>       packed scene bundles, named by their content hash
+//   scenes/<hash>/       the extracted bundle the scene loader checked
+//   outputs/<job id>/    the finished job's spectral EXR, RGB EXR, PNG and JSON report
+// A task is marked done in the store only after its result blob is on disk, so a restarted
+// coordinator resumes every unfinished job from the store alone: it re-plans (plans are pure
+// functions of the job), gives the Scheduler the done indices (never leased again) and feeds
+// their stored results into a fresh TileAssembler. Outputs are written atomically before the
+// job becomes DONE.
+//
+// Bundles are checked before anything else uses them: unpack() validates the packed form, then
+// the files are extracted to a fresh directory under the data directory and the scene loader
+// (whose PathGuard refuses anything that escapes the scene's directory) loads it; only a bundle
+// that loads is kept.
+//
+// Threading: one mutex guards all state; a background thread calls Scheduler::tick(). Long
+// polls (acquire) and watches wait on a condition variable signalled on every change.
+#pragma once
+
+#include <spdlog/spdlog.h>
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "coordinator/job_spec.h"
+#include "coordinator/outputs.h"
+#include "coordinator/scheduler.h"
+#include "coordinator/tile_merge.h"
+#include "coordinator/tile_plan.h"
+#include "prism/v1/types.pb.h"
+#include "services/image/tile.h"
+#include "services/spectral/color.h"
+#include "services/spectral/named_spectra.h"
+#include "services/store/blob_store.h"
+#include "services/store/job_store.h"
+
+namespace prism::coordinator {
+
+struct FarmOptions {
+  std::filesystem::path data_dir;
+  std::uint64_t max_bundle_bytes = std::uint64_t{1} << 30;
+  std::uint64_t max_result_bytes = std::uint64_t{1} << 32;
+  std::size_t max_queued_jobs = 1000;  // jobs not yet in a terminal state
+  SchedulerOptions scheduler;
+  Millis tick_interval{200};
+  // Milliseconds since the Unix epoch; injectable for tests.
+  std::function<Millis()> clock;
+  // The "coordinator" logger (main creates it); null: a logger that drops everything.
+  std::shared_ptr<spdlog::logger> logger;
+};
+
+// A job as the clients see it.
+struct JobStatus {
+  store::JobRecord record;
+  int tiles_finalised = 0;
+  int tiles_total = 0;
+  double samples_per_second = 0;
+  double eta_seconds = -1;
+};
+
+struct WorkerStatus {
+  store::WorkerRecord record;
+  std::string state;  // idle, busy, lost
+  int leases = 0;
+  std::uint64_t tasks_completed = 0;
+  std::int64_t last_seen_ms = 0;
+};
+
+// A lease as handed to a worker, with what it needs to render the task.
+struct LeaseGrant {
+  Lease lease;
+  prism::v1::JobSpec spec;  // explicit (to_proto of the job's parameters)
+  std::string bundle_hash;
+};
+
+enum class CompleteResult { kAccepted, kDuplicate };
+
+enum class OutputKind { kSpectralExr = 1, kRgbExr = 2, kPng = 3, kReportJson = 4 };
+
+struct OutputFile {
+  OutputKind kind;
+  std::filesystem::path path;
+  std::string file_name;
+};
+
+class FarmCoordinator {
+ public:
+  // Opens (or creates) the data directory, resumes unfinished jobs and starts the tick thread.
+  static absl::StatusOr<std::unique_ptr<FarmCoordinator>> open(FarmOptions options);
+  ~FarmCoordinator();
+  FarmCoordinator(const FarmCoordinator&) = delete;
+  FarmCoordinator& operator=(const FarmCoordinator&) = delete;
+
+  const FarmOptions& options() const { return options_; }
+
+  // Bundles. `bytes` is a packed bundle whose content hash must equal `claimed_hash` (when not
+  // empty). RESOURCE_EXHAUSTED over max_bundle_bytes; INVALID_ARGUMENT for a malformed bundle or
+  // a scene that does not load (the loader's message). Returns the content hash.
+  absl::StatusOr<std::string> upload_bundle(const std::string& claimed_hash,
+                                            std::string_view bytes);
+  bool has_bundle(const std::string& hash) const;
+  // The packed bundle; NOT_FOUND for an unknown hash.
+  absl::StatusOr<std::string> bundle_bytes(const std::string& hash) const;
+
+  // Jobs. Submitting again with a known client token returns the first job unchanged.
+  absl::StatusOr<JobStatus> submit(const prism::v1::JobSpec& spec, const std::string& client_token);
+  absl::StatusOr<JobStatus> job(const std::string& job_id);
+  absl::StatusOr<std::vector<JobStatus>> jobs(std::size_t limit,
+                                              const std::vector<store::JobState>& states);
+  absl::StatusOr<JobStatus> cancel(const std::string& job_id);
+  // The job's explicit spec (as stored).
+  absl::StatusOr<prism::v1::JobSpec> job_spec(const std::string& job_id);
+  // The output files of a DONE job (all kinds when `kinds` is empty). FAILED_PRECONDITION
+  // naming the state otherwise.
+  absl::StatusOr<std::vector<OutputFile>> result_files(const std::string& job_id,
+                                                       const std::vector<OutputKind>& kinds);
+  // An 8-bit PNG of the image as far as it is finalised. FAILED_PRECONDITION before any tile.
+  absl::StatusOr<std::string> preview_png(const std::string& job_id, float exposure_stops);
+
+  // A counter that moves on every change of any job's state or progress, and a wait for it to
+  // move past `seen` (returns the new value; `seen` on timeout).
+  std::uint64_t change_counter() const;
+  std::uint64_t wait_for_change(std::uint64_t seen, Millis timeout);
+
+  // Workers.
+  absl::StatusOr<store::WorkerRecord> register_worker(store::WorkerRecord record,
+                                                      const std::string& previous_id);
+  // A lease for the worker, waiting up to `wait` for one. Nothing for an unknown worker.
+  absl::StatusOr<std::optional<LeaseGrant>> acquire(const std::string& worker_id, Millis wait);
+  HeartbeatReply heartbeat(const std::string& worker_id, const std::vector<std::string>& lease_ids);
+  // A task result (the tile codec's bytes, already checked against `sha256`). FAILED_PRECONDITION
+  // with the Scheduler's reason for a stale lease; INVALID_ARGUMENT (and the lease fails as a
+  // worker fault) for bytes that do not parse or do not match the task.
+  absl::StatusOr<CompleteResult> complete(const std::string& worker_id, const std::string& lease_id,
+                                          std::string bytes, const std::string& sha256,
+                                          double render_seconds, std::uint64_t rays);
+  absl::Status fail(const std::string& worker_id, const std::string& lease_id,
+                    FailureClass failure_class, const std::string& message);
+  absl::StatusOr<std::vector<WorkerStatus>> workers();
+
+  // Stops the tick thread and wakes every waiter (the server is shutting down).
+  void shutdown();
+
+ private:
+  struct ActiveJob {
+    JobParameters params;
+    prism::v1::JobSpec spec;
+    TilePlan plan;
+    std::unique_ptr<TileAssembler> assembler;
+    std::unique_ptr<image::SpectralImage> image;
+    std::unique_ptr<BinStatisticsAccumulator> statistics;
+    int tiles_finalised = 0;
+    double render_seconds = 0;  // summed over workers
+    std::uint64_t rays = 0;
+    std::chrono::steady_clock::time_point started;
+    std::uint64_t samples_at_start = 0;  // done before this incarnation (resumed)
+  };
+
+  explicit FarmCoordinator(FarmOptions options);
+  Millis now() const { return options_.clock(); }
+  absl::Status start();
+  absl::Status resume_locked(const store::JobRecord& record);
+  // Builds the in-memory job (plan, assembler, image) from explicit parameters.
+  absl::StatusOr<std::unique_ptr<ActiveJob>> make_active(const JobParameters& params,
+                                                         const prism::v1::JobSpec& spec);
+  std::vector<TaskSpec> task_specs(const TilePlan& plan) const;
+  void process_events_locked();
+  absl::Status finalise_locked(const std::string& job_id);
+  void fail_job_locked(const std::string& job_id, const std::string& message);
+  JobStatus status_locked(const store::JobRecord& record) const;
+  std::filesystem::path output_dir(const std::string& job_id) const;
+  OutputPaths output_paths_of(const std::string& job_id) const;
+  std::filesystem::path bundle_path(const std::string& hash) const;
+  std::filesystem::path scene_dir(const std::string& hash) const;
+  void changed_locked();
+  void tick_loop();
+
+  FarmOptions options_;
+  spectral::SpectrumLibrary library_;
+  spectral::ColorMatching cmf_;
+  mutable std::mutex mutex_;
+  std::condition_variable changed_;
+  std::uint64_t change_counter_ = 0;
+  std::optional<store::JobStore> store_;
+  std::optional<store::BlobStore> blobs_;
+  Scheduler scheduler_;
+  std::map<std::string, std::unique_ptr<ActiveJob>> active_;
+  std::map<std::string, std::uint64_t> tasks_completed_;  // by worker
+  std::uint64_t temp_counter_ = 0;
+  bool stopping_ = false;
+  std::thread ticker_;
+};
+
+}  // namespace prism::coordinator

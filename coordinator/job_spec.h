@@ -1,0 +1,71 @@
+// A job's parameters: the wire JobSpec (proto/prism/v1/types.proto) turned into the typed values
+// the worker and the coordinator use, and back. The rules are those of `prism render`'s flags
+// (client/render_command.cpp): the same ranges and the same defaults taken from the scene (spp
+// from its Sampler, resolution from its Film, bins from the Film's nbuckets else 64, max depth
+// from its Integrator), so a job submitted to the farm renders exactly what the embedded render
+// would with the same options.
+//
+// Invariant: a JobParameters returned by job_parameters() is fully validated, and
+// job_parameters(to_proto(p), any scene) == p: to_proto() writes every value explicitly, so
+// the result no longer depends on the scene's defaults. Features the farm does not run yet
+// (the gradient integrator, prepasses) are refused rather than silently ignored.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "prism/v1/types.pb.h"
+#include "services/scene/scene_description.h"
+#include "worker/render_options.h"
+
+namespace prism::coordinator {
+
+// The limits `prism render` applies to its flags (client/render_command.h).
+inline constexpr std::uint64_t kMaxJobSpp = std::uint64_t{1} << 24;
+inline constexpr int kMaxJobDepth = 1000;
+inline constexpr double kMaxJobExposureStops = 64.0;
+inline constexpr int kMinTileSize = 4;
+inline constexpr int kMaxTileSize = 1024;
+inline constexpr int kDefaultTileSize = 32;
+inline constexpr std::size_t kMaxJobNameBytes = 256;
+inline constexpr std::size_t kMaxScenePathBytes = 1024;
+
+// Which output files a job writes; the spec's all-false OutputOptions means all of them.
+struct JobOutputs {
+  bool spectral_exr = true;
+  bool rgb_exr = true;
+  bool png = true;
+  float png_exposure = 0.0f;  // stops
+
+  bool operator==(const JobOutputs&) const = default;
+};
+
+struct JobParameters {
+  worker::RenderOptions render;
+  int width = 0;
+  int height = 0;
+  std::uint64_t spp = 0;
+  int tile_size = kDefaultTileSize;
+  std::uint64_t samples_per_task = 0;  // 0: all of a pixel's samples in one task
+  std::string scene_path;              // the scene file inside the bundle
+  std::string bundle_hash;             // SHA-256 hex of the bundle, lower case
+  std::string name;
+  JobOutputs outputs;
+};
+
+// Validates every field of `spec` and fills the unset ones from `scene`. INVALID_ARGUMENT naming
+// the field and the accepted values, e.g. "spp 0 is out of range: want 1..16777216".
+absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
+                                             const scene::SceneDescription& scene);
+
+// Every value explicit (see the invariant above).
+prism::v1::JobSpec to_proto(const JobParameters& parameters);
+
+// Short names for reports and listings ("hero", "flat", ...).
+const char* integrator_name(worker::IntegratorKind kind);
+const char* spectral_pdf_name(worker::SpectralPdfKind kind);
+const char* emitter_pdf_name(worker::EmitterPdfKind kind);
+const char* light_selection_name(worker::LightSelectionKind kind);
+
+}  // namespace prism::coordinator

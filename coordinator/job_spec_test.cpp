@@ -1,0 +1,171 @@
+#include "coordinator/job_spec.h"
+
+#include <gtest/gtest.h>
+
+#include <string>
+
+#include "google/protobuf/util/message_differencer.h"
+
+namespace prism::coordinator {
+namespace {
+
+const std::string kHash(64, 'a');
+
+scene::SceneDescription test_scene() {
+  scene::SceneDescription scene;
+  scene.film.x_resolution = 320;
+  scene.film.y_resolution = 200;
+  scene.film.bins = 32;
+  scene.sampler.samples_per_pixel = 48;
+  scene.integrator.max_depth = 7;
+  return scene;
+}
+
+prism::v1::JobSpec minimal_spec() {
+  prism::v1::JobSpec spec;
+  spec.set_bundle_hash(kHash);
+  spec.set_scene_path("scene.pbrt");
+  return spec;
+}
+
+TEST(JobSpecTest, DefaultsComeFromTheSceneAsPrismRenderTakesThem) {
+  auto p = job_parameters(minimal_spec(), test_scene());
+  ASSERT_TRUE(p.ok()) << p.status();
+  EXPECT_EQ(p->width, 320);
+  EXPECT_EQ(p->height, 200);
+  EXPECT_EQ(p->spp, 48u);
+  EXPECT_EQ(p->render.bins, 32);
+  EXPECT_EQ(p->render.max_depth, 7);
+  EXPECT_EQ(p->tile_size, kDefaultTileSize);
+  EXPECT_EQ(p->samples_per_task, 0u);
+  EXPECT_EQ(p->render.integrator, worker::IntegratorKind::kHero);
+  EXPECT_EQ(p->render.spectral_pdf, worker::SpectralPdfKind::kFlat);
+  EXPECT_EQ(p->render.emitter_pdf, worker::EmitterPdfKind::kEmitters);
+  EXPECT_EQ(p->render.light_selection, worker::LightSelectionKind::kPower);
+  EXPECT_TRUE(p->render.spectral_light_selection);
+  EXPECT_TRUE(p->outputs.spectral_exr && p->outputs.rgb_exr && p->outputs.png);
+
+  scene::SceneDescription no_buckets = test_scene();
+  no_buckets.film.bins.reset();
+  auto q = job_parameters(minimal_spec(), no_buckets);
+  ASSERT_TRUE(q.ok()) << q.status();
+  EXPECT_EQ(q->render.bins, 64);
+}
+
+TEST(JobSpecTest, ExplicitValuesRoundTripIndependentlyOfTheScene) {
+  prism::v1::JobSpec spec = minimal_spec();
+  spec.set_name("cornell");
+  spec.set_integrator(prism::v1::INTEGRATOR_UNIFORM);
+  spec.set_spectral_pdf(prism::v1::SPECTRAL_PDF_VISIBLE);
+  spec.set_emitter_pdf(prism::v1::EMITTER_PDF_UNIFORM);
+  spec.set_light_selection(prism::v1::LIGHT_SELECTION_SPATIAL);
+  spec.set_spectral_light_selection(false);
+  spec.set_spp(9);
+  spec.set_width(17);
+  spec.set_height(5);
+  spec.set_bins(4);
+  spec.set_tile_size(8);
+  spec.set_seed(0xfeedfacecafebeefULL);
+  spec.set_max_depth(0);  // a depth, not "the scene's"
+  spec.set_samples_per_task(3);
+  spec.mutable_outputs()->set_png(true);
+  spec.mutable_outputs()->set_png_exposure(-1.5f);
+
+  auto p = job_parameters(spec, test_scene());
+  ASSERT_TRUE(p.ok()) << p.status();
+  EXPECT_EQ(p->render.max_depth, 0);
+  EXPECT_FALSE(p->render.spectral_light_selection);
+  EXPECT_FALSE(p->outputs.spectral_exr);
+  EXPECT_TRUE(p->outputs.png);
+  EXPECT_EQ(p->render.seed, 0xfeedfacecafebeefULL);
+
+  const prism::v1::JobSpec wire = to_proto(*p);
+  // Decoding the explicit spec against a different scene gives the same parameters.
+  auto again = job_parameters(wire, scene::SceneDescription{});
+  ASSERT_TRUE(again.ok()) << again.status();
+  const prism::v1::JobSpec wire2 = to_proto(*again);
+  EXPECT_TRUE(google::protobuf::util::MessageDifferencer::Equals(wire, wire2))
+      << wire.DebugString() << "\nvs\n"
+      << wire2.DebugString();
+  EXPECT_EQ(again->width, 17);
+  EXPECT_EQ(again->height, 5);
+  EXPECT_EQ(again->spp, 9u);
+  EXPECT_EQ(again->render.bins, 4);
+  EXPECT_EQ(again->render.max_depth, 0);
+  EXPECT_EQ(again->tile_size, 8);
+  EXPECT_EQ(again->samples_per_task, 3u);
+  EXPECT_EQ(again->render.integrator, worker::IntegratorKind::kUniform);
+  EXPECT_EQ(again->render.spectral_pdf, worker::SpectralPdfKind::kVisible);
+  EXPECT_EQ(again->render.emitter_pdf, worker::EmitterPdfKind::kUniform);
+  EXPECT_EQ(again->render.light_selection, worker::LightSelectionKind::kSpatial);
+  EXPECT_FALSE(again->render.spectral_light_selection);
+  EXPECT_EQ(again->outputs, p->outputs);
+  EXPECT_EQ(again->name, "cornell");
+
+  // And through the bytes.
+  prism::v1::JobSpec parsed;
+  ASSERT_TRUE(parsed.ParseFromString(wire.SerializeAsString()));
+  EXPECT_TRUE(google::protobuf::util::MessageDifferencer::Equals(wire, parsed));
+}
+
+struct BadCase {
+  const char* name;
+  void (*mutate)(prism::v1::JobSpec&);
+  const char* message;
+};
+
+TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
+  const BadCase cases[] = {
+      {"hash", [](prism::v1::JobSpec& s) { s.set_bundle_hash("ABC"); }, "bundle_hash 'ABC'"},
+      {"scene", [](prism::v1::JobSpec& s) { s.clear_scene_path(); }, "scene_path"},
+      {"spp", [](prism::v1::JobSpec& s) { s.set_spp(20'000'000); },
+       "spp 20000000 is out of range: want 1..16777216"},
+      {"bins_low", [](prism::v1::JobSpec& s) { s.set_bins(3); },
+       "bins 3 is out of range: want 4..256"},
+      {"bins_high", [](prism::v1::JobSpec& s) { s.set_bins(257); },
+       "bins 257 is out of range: want 4..256"},
+      {"tile", [](prism::v1::JobSpec& s) { s.set_tile_size(2); },
+       "tile_size 2 is out of range: want 4..1024"},
+      {"depth", [](prism::v1::JobSpec& s) { s.set_max_depth(1001); },
+       "max_depth 1001 is out of range: want 0..1000"},
+      {"width_only", [](prism::v1::JobSpec& s) { s.set_width(10); }, "resolution 10x0"},
+      {"huge",
+       [](prism::v1::JobSpec& s) {
+         s.set_width(16385);
+         s.set_height(2);
+       },
+       "resolution 16385x2: want WxH with 1 <= W, H <= 16384"},
+      {"gradient", [](prism::v1::JobSpec& s) { s.set_integrator(prism::v1::INTEGRATOR_GRADIENT); },
+       "integrator gradient"},
+      {"integrator_enum",
+       [](prism::v1::JobSpec& s) { s.set_integrator(static_cast<prism::v1::Integrator>(42)); },
+       "integrator 42: want uniform or hero"},
+      {"spectral_pdf",
+       [](prism::v1::JobSpec& s) { s.set_spectral_pdf(static_cast<prism::v1::SpectralPdf>(9)); },
+       "spectral_pdf 9: want flat or visible"},
+      {"emitter_pdf",
+       [](prism::v1::JobSpec& s) { s.set_emitter_pdf(static_cast<prism::v1::EmitterPdf>(9)); },
+       "emitter_pdf 9: want uniform or emitters"},
+      {"light_selection",
+       [](prism::v1::JobSpec& s) {
+         s.set_light_selection(static_cast<prism::v1::LightSelection>(9));
+       },
+       "light_selection 9: want uniform, power or spatial"},
+      {"prepass", [](prism::v1::JobSpec& s) { s.mutable_prepass()->set_enabled(true); }, "prepass"},
+      {"exposure", [](prism::v1::JobSpec& s) { s.mutable_outputs()->set_png_exposure(65.0f); },
+       "outputs.png_exposure 65 is out of range"},
+      {"name", [](prism::v1::JobSpec& s) { s.set_name(std::string(300, 'n')); }, "name is 300"},
+  };
+  for (const BadCase& c : cases) {
+    prism::v1::JobSpec spec = minimal_spec();
+    c.mutate(spec);
+    auto p = job_parameters(spec, test_scene());
+    ASSERT_FALSE(p.ok()) << c.name;
+    EXPECT_EQ(p.status().code(), absl::StatusCode::kInvalidArgument) << c.name;
+    EXPECT_NE(std::string(p.status().message()).find(c.message), std::string::npos)
+        << c.name << ": " << p.status().message();
+  }
+}
+
+}  // namespace
+}  // namespace prism::coordinator

@@ -1,0 +1,420 @@
+#include "worker/daemon/worker_daemon.h"
+
+#include <algorithm>
+#include <utility>
+
+#include "absl/strings/str_cat.h"
+#include "coordinator/job_spec.h"
+#include "services/base/status.h"
+#include "services/image/tile_codec.h"
+#include "services/scene/path_guard.h"
+#include "worker/tile_renderer.h"
+
+namespace prism::worker {
+namespace {
+
+namespace fs = std::filesystem;
+
+// "[lease L job J tile x0,y0-x1,y1 samples s0-s1]": the prefix of every log line about a task.
+std::string lease_context(const v1::Lease& lease) {
+  const v1::Task& t = lease.task();
+  return absl::StrCat("[lease ", lease.lease_id(), " job ", t.job_id(), " tile ", t.tile().x0(),
+                      ",", t.tile().y0(), "-", t.tile().x1(), ",", t.tile().y1(), " samples ",
+                      t.samples().begin(), "-", t.samples().end(), "]");
+}
+
+// Everything that changes a RenderScene, as one comparable string.
+std::string scene_key(const std::string& hash, const coordinator::JobParameters& p) {
+  const RenderOptions& o = p.render;
+  return absl::StrCat(hash, "|", p.scene_path, "|", p.width, "x", p.height, "|",
+                      static_cast<int>(o.integrator), ",", static_cast<int>(o.spectral_pdf), ",",
+                      static_cast<int>(o.emitter_pdf), ",", o.defensive_epsilon, ",",
+                      static_cast<int>(o.light_selection), ",", o.spectral_light_selection, ",",
+                      static_cast<int>(o.sampler), ",", o.bins, ",", o.max_depth, ",",
+                      o.rr_min_depth, ",", o.seed);
+}
+
+}  // namespace
+
+struct WorkerDaemon::CachedScene {
+  std::string description_key;  // bundle hash | scene path
+  scene::LoadedScene loaded;
+  std::string render_key;  // scene_key() of `render`
+  std::unique_ptr<RenderScene> render;
+};
+
+WorkerDaemon::WorkerDaemon(const WorkerConfig& config, WorkerClient& client, EmbreeDevice& device,
+                           const spectral::SpectrumLibrary& library, tbb::task_arena& arena,
+                           std::shared_ptr<spdlog::logger> logger)
+    : config_(config),
+      client_(client),
+      device_(device),
+      library_(library),
+      arena_(arena),
+      logger_(std::move(logger)),
+      cache_(config.cache_dir, scene::BundleLimits{}),
+      scene_cache_(std::make_unique<CachedScene>()) {}
+
+WorkerDaemon::~WorkerDaemon() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stop_heartbeats_ = true;
+  }
+  wake_.notify_all();
+  if (heartbeat_thread_.joinable()) heartbeat_thread_.join();
+}
+
+std::string WorkerDaemon::worker_id() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return worker_id_;
+}
+
+bool WorkerDaemon::draining() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return draining_;
+}
+
+void WorkerDaemon::drain() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (draining_) return;
+    draining_ = true;
+    // A lease without a deadline (0) is simply finished.
+    if (held_ != nullptr && held_->deadline_unix_ms > 0) {
+      drain_deadline_unix_ms_ = held_->deadline_unix_ms;
+    }
+  }
+  logger_->info("draining: no new tasks; finishing or returning the held lease");
+  client_.cancel_acquire();
+  wake_.notify_all();
+}
+
+absl::Status WorkerDaemon::register_worker() {
+  v1::RegisterRequest request;
+  request.set_host(config_.host);
+  request.set_version(config_.version);
+  request.set_threads(static_cast<std::uint32_t>(config_.threads));
+  request.add_capabilities("integrator:uniform");
+  request.add_capabilities("integrator:hero");
+  request.set_previous_worker_id(worker_id());
+  PRISM_ASSIGN_OR_RETURN(v1::RegisterResponse response, client_.register_worker(request));
+  std::lock_guard<std::mutex> lock(mutex_);
+  worker_id_ = response.worker_id();
+  // 0 means the coordinator has no preference; below 10 ms heartbeats would be all we do.
+  const std::uint32_t interval_ms = response.heartbeat_interval_ms();
+  heartbeat_interval_ = std::chrono::milliseconds(
+      interval_ms == 0 ? 1'000 : std::max<std::uint32_t>(interval_ms, 10));
+  logger_->info("registered as worker {} ({} threads, heartbeat every {} ms)", worker_id_,
+                config_.threads, heartbeat_interval_.count());
+  return absl::OkStatus();
+}
+
+absl::Status WorkerDaemon::run() {
+  // A worker may start before its coordinator (or while it restarts): keep trying while the
+  // coordinator is unreachable, give up on anything else (a refused secret above all).
+  for (;;) {
+    absl::Status registered = register_worker();
+    if (registered.ok()) break;
+    const absl::StatusCode code = registered.code();
+    if (code != absl::StatusCode::kUnavailable && code != absl::StatusCode::kDeadlineExceeded) {
+      return registered;
+    }
+    logger_->warn("{}; trying again", std::string(registered.message()));
+    std::unique_lock<std::mutex> lock(mutex_);
+    if (wake_.wait_for(lock, config_.acquire_error_pause, [&] { return draining_; })) {
+      logger_->info("drained before registering");
+      return absl::OkStatus();
+    }
+  }
+  heartbeat_thread_ = std::thread([this] { heartbeat_loop(); });
+
+  absl::Status result;
+  while (!draining()) {
+    v1::AcquireTaskRequest request;
+    request.set_worker_id(worker_id());
+    request.set_wait_ms(config_.acquire_wait_ms);
+    absl::StatusOr<v1::AcquireTaskResponse> response = client_.acquire(request);
+    if (!response.ok()) {
+      if (draining()) break;
+      const absl::StatusCode code = response.status().code();
+      if (code == absl::StatusCode::kUnauthenticated ||
+          code == absl::StatusCode::kPermissionDenied) {
+        result = response.status();
+        break;
+      }
+      logger_->warn("{}", std::string(response.status().message()));
+      if (code == absl::StatusCode::kNotFound) {
+        // The coordinator does not know this worker (it restarted): attach again.
+        absl::Status registered = register_worker();
+        if (!registered.ok()) logger_->warn("{}", std::string(registered.message()));
+      }
+      std::unique_lock<std::mutex> lock(mutex_);
+      wake_.wait_for(lock, config_.acquire_error_pause, [&] { return draining_; });
+      continue;
+    }
+    if (!response->has_lease()) continue;
+    process(response->lease());
+  }
+
+  // Reverse order of startup: heartbeats stop after the last lease is settled.
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stop_heartbeats_ = true;
+  }
+  wake_.notify_all();
+  if (heartbeat_thread_.joinable()) heartbeat_thread_.join();
+  if (result.ok()) logger_->info("drained; worker {} stops", worker_id());
+  return result;
+}
+
+void WorkerDaemon::heartbeat_loop() {
+  using Clock = std::chrono::system_clock;
+  std::unique_lock<std::mutex> lock(mutex_);
+  Clock::time_point next_beat = Clock::now() + heartbeat_interval_;
+  while (!stop_heartbeats_) {
+    Clock::time_point wake_at = next_beat;
+    if (draining_ && held_ != nullptr && drain_deadline_unix_ms_.has_value()) {
+      const Clock::time_point give_up =
+          Clock::time_point(std::chrono::milliseconds(*drain_deadline_unix_ms_)) -
+          config_.return_margin;
+      if (Clock::now() >= give_up) {
+        if (held_->reason == CancelReason::kNone) {
+          held_->reason = CancelReason::kReturn;
+          held_->cancel.store(true);
+          logger_->info("[lease {}] will not finish within its lease: returning it",
+                        held_->lease_id);
+        }
+      } else {
+        wake_at = std::min(wake_at, give_up);
+      }
+    }
+    wake_.wait_until(lock, wake_at);
+    if (stop_heartbeats_) break;
+    if (Clock::now() < next_beat) continue;
+    lock.unlock();
+    send_heartbeat();
+    lock.lock();
+    next_beat = Clock::now() + heartbeat_interval_;
+  }
+}
+
+void WorkerDaemon::send_heartbeat() {
+  v1::HeartbeatRequest request;
+  std::chrono::milliseconds interval;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    request.set_worker_id(worker_id_);
+    if (held_ != nullptr) {
+      request.add_lease_ids(held_->lease_id);
+      request.set_samples_done(held_->progress.load());
+    }
+    interval = heartbeat_interval_;
+  }
+  absl::StatusOr<v1::HeartbeatResponse> response =
+      client_.heartbeat(request, std::max(interval, std::chrono::milliseconds(1'000)));
+  if (!response.ok()) {
+    logger_->warn("{}", std::string(response.status().message()));
+    return;
+  }
+  bool reregister = false;
+  bool drain_now = false;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (held_ != nullptr && response->lease_deadline_unix_ms() > 0) {
+      held_->deadline_unix_ms = response->lease_deadline_unix_ms();
+    }
+    for (const v1::Directive& directive : response->directives()) {
+      switch (directive.kind()) {
+        case v1::Directive::KIND_CANCEL_TASK:
+          if (held_ != nullptr && held_->lease_id == directive.lease_id()) {
+            if (held_->reason == CancelReason::kNone) held_->reason = CancelReason::kDirective;
+            held_->cancel.store(true);
+            logger_->info("[lease {}] cancelled by the coordinator", directive.lease_id());
+          }
+          break;
+        case v1::Directive::KIND_DRAIN:
+          drain_now = true;
+          break;
+        case v1::Directive::KIND_REREGISTER:
+          reregister = true;
+          break;
+        default:
+          logger_->warn("ignoring unknown heartbeat directive {}",
+                        static_cast<int>(directive.kind()));
+      }
+    }
+  }
+  if (drain_now) drain();
+  if (reregister) {
+    logger_->info("the coordinator asks this worker to register again");
+    absl::Status status = register_worker();
+    if (!status.ok()) logger_->warn("{}", std::string(status.message()));
+  }
+}
+
+void WorkerDaemon::fail(const std::string& lease_id, v1::FailureClass failure_class,
+                        const std::string& message, const std::string& context) {
+  v1::FailTaskRequest request;
+  request.set_worker_id(worker_id());
+  request.set_lease_id(lease_id);
+  request.set_failure_class(failure_class);
+  request.set_message(message);
+  logger_->info("{} failed ({}): {}", context, v1::FailureClass_Name(failure_class), message);
+  absl::Status status = client_.fail_task(request);
+  if (!status.ok()) logger_->warn("{} {}", context, std::string(status.message()));
+}
+
+void WorkerDaemon::process(const v1::Lease& lease) {
+  const std::string context = lease_context(lease);
+  HeldLease held;
+  held.lease_id = lease.lease_id();
+  held.deadline_unix_ms = lease.deadline_unix_ms();
+  bool returned = false;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    held_ = &held;
+    // A lease that arrived as the drain began goes straight back.
+    returned = draining_;
+  }
+  logger_->debug("{} acquired (attempt {})", context, lease.attempt());
+
+  std::string bytes;
+  double seconds = 0;
+  std::uint64_t rays = 0;
+  v1::FailureClass failure_class = v1::FAILURE_CLASS_WORKER;
+  absl::Status status =
+      returned ? absl::CancelledError("draining")
+               : execute(lease, held, context, &bytes, &seconds, &rays, &failure_class);
+  CancelReason reason;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    held_ = nullptr;
+    reason = returned ? CancelReason::kReturn : held.reason;
+    drain_deadline_unix_ms_.reset();
+  }
+  wake_.notify_all();
+
+  if (status.ok()) {
+    absl::StatusOr<v1::CompleteTaskResponse> response =
+        client_.complete_task(worker_id(), lease.lease_id(), bytes, seconds, rays);
+    if (!response.ok()) {
+      logger_->warn("{} {}", context, std::string(response.status().message()));
+    } else {
+      logger_->debug("{} completed: {} bytes in {:.3f} s{}", context, bytes.size(), seconds,
+                     response->accepted() ? "" : " (a duplicate)");
+    }
+    return;
+  }
+  if (status.code() == absl::StatusCode::kCancelled && reason != CancelReason::kNone) {
+    if (reason == CancelReason::kReturn) {
+      fail(lease.lease_id(), v1::FAILURE_CLASS_RETURNED, "the worker is draining", context);
+    } else {
+      logger_->info("{} dropped after a cancel directive", context);
+    }
+    return;
+  }
+  fail(lease.lease_id(), failure_class, std::string(status.message()), context);
+}
+
+absl::StatusOr<fs::path> WorkerDaemon::ensure_bundle(const std::string& hash,
+                                                     const std::string& context) {
+  PRISM_ASSIGN_OR_RETURN(std::optional<fs::path> cached, cache_.find(hash));
+  if (cached.has_value()) return *cached;
+  logger_->info("{} fetching bundle {}", context, hash);
+  PRISM_ASSIGN_OR_RETURN(std::string blob, client_.fetch_bundle(hash, config_.max_bundle_bytes));
+  return cache_.install(hash, blob);
+}
+
+absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
+                                   const std::string& context, std::string* bytes, double* seconds,
+                                   std::uint64_t* rays, v1::FailureClass* failure_class) {
+  const v1::Task& task = lease.task();
+  const std::string hash =
+      lease.bundle_hash().empty() ? task.spec().bundle_hash() : lease.bundle_hash();
+  if (!task.spec().bundle_hash().empty() && task.spec().bundle_hash() != hash) {
+    *failure_class = v1::FAILURE_CLASS_WORKER;
+    return absl::InvalidArgumentError(absl::StrCat(
+        "the lease names bundle ", hash, " but its job spec names ", task.spec().bundle_hash()));
+  }
+
+  absl::StatusOr<fs::path> dir = ensure_bundle(hash, context);
+  if (!dir.ok()) {
+    const absl::StatusCode code = dir.status().code();
+    *failure_class =
+        code == absl::StatusCode::kUnavailable || code == absl::StatusCode::kDeadlineExceeded
+            ? v1::FAILURE_CLASS_INFRASTRUCTURE
+            : v1::FAILURE_CLASS_WORKER;
+    return dir.status();
+  }
+
+  // Everything from here to a built RenderScene is the scene's (or the spec's) fault.
+  *failure_class = v1::FAILURE_CLASS_SCENE;
+  CachedScene& cached = *scene_cache_;
+  const std::string description_key = absl::StrCat(hash, "|", task.spec().scene_path());
+  if (cached.description_key != description_key) {
+    cached = CachedScene{};
+    PRISM_ASSIGN_OR_RETURN(scene::PathGuard guard, scene::PathGuard::create(*dir));
+    PRISM_ASSIGN_OR_RETURN(fs::path scene_file, guard.resolve(task.spec().scene_path()));
+    scene::LoadOptions load;
+    load.is_known_spectrum = [this](std::string_view name) { return library_.contains(name); };
+    load.is_known_ior = [this](std::string_view name) {
+      return library_.find_ior(name) != nullptr;
+    };
+    PRISM_ASSIGN_OR_RETURN(cached.loaded, scene::load_scene(scene_file, load));
+    cached.description_key = description_key;
+  }
+  PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters params,
+                         coordinator::job_parameters(task.spec(), cached.loaded.description));
+  const std::string render_key = scene_key(hash, params);
+  if (cached.render_key != render_key || cached.render == nullptr) {
+    cached.render.reset();
+    cached.render_key.clear();
+    PRISM_ASSIGN_OR_RETURN(cached.render,
+                           RenderScene::build(device_, cached.loaded.description, library_,
+                                              params.render, params.width, params.height));
+    cached.render_key = render_key;
+    logger_->debug("{} built the render scene ({}x{}, {} bins)", context, params.width,
+                   params.height, params.render.bins);
+  }
+
+  // The task itself comes from the coordinator: a task this worker cannot run is its own
+  // failure, not the scene's.
+  *failure_class = v1::FAILURE_CLASS_WORKER;
+  if (task.pass() != v1::PASS_FINAL) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "this worker renders final-pass tasks only, not ", v1::Pass_Name(task.pass())));
+  }
+  if (task.has_pdf_table()) {
+    return absl::InvalidArgumentError("this worker does not take per-pixel pdf tables");
+  }
+  const v1::TileRect& r = task.tile();
+  if (r.x0() < 0 || r.y0() < 0 || r.x0() >= r.x1() || r.y0() >= r.y1() || r.x1() > params.width ||
+      r.y1() > params.height) {
+    return absl::InvalidArgumentError(absl::StrCat("tile ", r.x0(), ",", r.y0(), "-", r.x1(), ",",
+                                                   r.y1(), " is empty or outside the ",
+                                                   params.width, "x", params.height, " film"));
+  }
+  if (task.samples().begin() >= task.samples().end() || task.samples().end() > params.spp) {
+    return absl::InvalidArgumentError(absl::StrCat("sample range ", task.samples().begin(), "-",
+                                                   task.samples().end(), " is empty or beyond ",
+                                                   params.spp, " spp"));
+  }
+  RenderTask render_task;
+  render_task.tile = {r.x0(), r.y0(), r.x1(), r.y1()};
+  render_task.samples = {task.samples().begin(), task.samples().end()};
+  render_task.pass = task.pass_index();
+  render_task.want_guides = task.want_guides();
+
+  const TileRenderer renderer(*cached.render);
+  TileStats stats;
+  absl::StatusOr<image::TileResult> result = absl::UnknownError("not rendered");
+  arena_.execute(
+      [&] { result = renderer.render(render_task, &stats, &held.cancel, &held.progress); });
+  PRISM_RETURN_IF_ERROR(result.status());
+  *bytes = image::serialise_tile(*result);
+  *seconds = stats.seconds;
+  *rays = stats.counters.rays;
+  return absl::OkStatus();
+}
+
+}  // namespace prism::worker

@@ -1,0 +1,621 @@
+// The worker daemon against a fake coordinator: a WorkerService written here (not the real
+// coordinator) on 127.0.0.1 with port 0, handing out one lease for the furnace scene.
+#include "worker/daemon/worker_daemon.h"
+
+#include <grpcpp/server.h>
+#include <grpcpp/server_builder.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <spawn.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+#include <sys/wait.h>
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <filesystem>
+#include <iostream>
+#include <mutex>
+#include <thread>
+
+#include "coordinator/job_spec.h"
+#include "services/base/sha256.h"
+#include "services/image/tile_codec.h"
+#include "services/rpc/auth.h"
+#include "services/rpc/status_mapping.h"
+#include "services/scene/bundle.h"
+#include "services/scene/scene_loader.h"
+#include "worker/tile_renderer.h"
+
+namespace prism::worker {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+using namespace std::chrono_literals;
+
+std::int64_t unix_ms_from_now(std::chrono::milliseconds delta) {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(
+             (std::chrono::system_clock::now() + delta).time_since_epoch())
+      .count();
+}
+
+struct Upload {
+  std::vector<std::size_t> chunk_sizes;
+  std::string bytes;
+  std::string sha256;
+  std::uint64_t total_bytes = 0;
+  std::string worker_id, lease_id;
+};
+
+class FakeCoordinator final : public v1::WorkerService::Service {
+ public:
+  // Configuration, set before the worker starts.
+  std::string blob;  // what FetchBundle streams
+  v1::Lease lease;   // handed out by the first AcquireTask
+  std::uint32_t heartbeat_interval_ms = 100;
+  bool cancel_when_rendering = false;  // CANCEL_TASK once a heartbeat reports progress
+  bool drain_when_holding = false;     // DRAIN once a heartbeat carries the lease
+  bool reregister_once = false;        // REREGISTER on the first heartbeat
+  int unavailable_registers = 0;       // answer this many Register calls with UNAVAILABLE
+  std::string secret;                  // the worker secret every call must carry
+
+  grpc::Status Register(grpc::ServerContext* context, const v1::RegisterRequest* request,
+                        v1::RegisterResponse* response) override {
+    std::lock_guard<std::mutex> lock(mutex);
+    const absl::Status auth = rpc::check_bearer(*context, secret);
+    if (!auth.ok()) {
+      refused_secrets++;
+      return rpc::to_grpc(auth);
+    }
+    if (unavailable_registers > 0) {
+      --unavailable_registers;
+      return grpc::Status(grpc::StatusCode::UNAVAILABLE, "the coordinator is starting");
+    }
+    registrations.push_back(*request);
+    response->set_worker_id("w-1");
+    response->set_heartbeat_interval_ms(heartbeat_interval_ms);
+    return grpc::Status::OK;
+  }
+
+  grpc::Status AcquireTask(grpc::ServerContext* context, const v1::AcquireTaskRequest* request,
+                           v1::AcquireTaskResponse* response) override {
+    std::unique_lock<std::mutex> lock(mutex);
+    if (!handed_out) {
+      handed_out = true;
+      *response->mutable_lease() = lease;
+      return grpc::Status::OK;
+    }
+    acquires_after_lease.push_back(Clock::now());
+    changed.notify_all();
+    // A long poll with nothing to hand out; gives up early when the worker cancels.
+    const auto until = Clock::now() + std::chrono::milliseconds(request->wait_ms());
+    while (Clock::now() < until && !context->IsCancelled()) changed.wait_for(lock, 20ms);
+    return grpc::Status::OK;
+  }
+
+  grpc::Status Heartbeat(grpc::ServerContext*, const v1::HeartbeatRequest* request,
+                         v1::HeartbeatResponse* response) override {
+    std::lock_guard<std::mutex> lock(mutex);
+    heartbeats.push_back(*request);
+    const bool holding =
+        request->lease_ids_size() == 1 && request->lease_ids(0) == lease.lease_id();
+    if (reregister_once && heartbeats.size() == 1) {
+      response->add_directives()->set_kind(v1::Directive::KIND_REREGISTER);
+    }
+    if (cancel_when_rendering && holding && request->samples_done() > 0 && !cancel_sent) {
+      cancel_sent = Clock::now();
+      samples_at_cancel = request->samples_done();
+      v1::Directive* directive = response->add_directives();
+      directive->set_kind(v1::Directive::KIND_CANCEL_TASK);
+      directive->set_lease_id(lease.lease_id());
+    }
+    if (drain_when_holding && holding && !drain_sent) {
+      drain_sent = true;
+      response->add_directives()->set_kind(v1::Directive::KIND_DRAIN);
+    }
+    changed.notify_all();
+    return grpc::Status::OK;
+  }
+
+  grpc::Status CompleteTask(grpc::ServerContext*, grpc::ServerReader<v1::ResultUpload>* reader,
+                            v1::CompleteTaskResponse* response) override {
+    Upload upload;
+    v1::ResultUpload chunk;
+    bool first = true;
+    while (reader->Read(&chunk)) {
+      if (first) {
+        upload.worker_id = chunk.worker_id();
+        upload.lease_id = chunk.lease_id();
+        first = false;
+      }
+      if (chunk.offset() != upload.bytes.size()) {
+        return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "chunk out of order");
+      }
+      upload.chunk_sizes.push_back(chunk.data().size());
+      upload.bytes += chunk.data();
+      upload.total_bytes = chunk.total_bytes();
+      if (chunk.last()) upload.sha256 = chunk.sha256();
+    }
+    std::lock_guard<std::mutex> lock(mutex);
+    uploads.push_back(std::move(upload));
+    response->set_accepted(true);
+    changed.notify_all();
+    return grpc::Status::OK;
+  }
+
+  grpc::Status FailTask(grpc::ServerContext*, const v1::FailTaskRequest* request,
+                        v1::FailTaskResponse*) override {
+    std::lock_guard<std::mutex> lock(mutex);
+    failures.push_back(*request);
+    changed.notify_all();
+    return grpc::Status::OK;
+  }
+
+  grpc::Status FetchBundle(grpc::ServerContext*, const v1::FetchBundleRequest* request,
+                           grpc::ServerWriter<v1::BundleData>* writer) override {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      fetched.push_back(request->bundle_hash());
+    }
+    // Small chunks, so the worker's assembly of several messages is exercised.
+    constexpr std::size_t kChunk = 512;
+    for (std::size_t offset = 0; offset < blob.size(); offset += kChunk) {
+      v1::BundleData data;
+      data.set_offset(offset);
+      data.set_data(blob.substr(offset, kChunk));
+      data.set_total_bytes(blob.size());
+      if (!writer->Write(data)) break;
+    }
+    return grpc::Status::OK;
+  }
+
+  // Waits until `done()` holds (under the mutex) or the timeout passes.
+  template <typename Pred>
+  bool wait(Pred done, std::chrono::milliseconds timeout = 20s) {
+    std::unique_lock<std::mutex> lock(mutex);
+    return changed.wait_for(lock, timeout, done);
+  }
+
+  std::mutex mutex;
+  std::condition_variable changed;
+  bool handed_out = false;
+  std::vector<v1::RegisterRequest> registrations;
+  int refused_secrets = 0;
+  std::vector<v1::HeartbeatRequest> heartbeats;
+  std::vector<Clock::time_point> acquires_after_lease;
+  std::optional<Clock::time_point> cancel_sent;
+  std::uint64_t samples_at_cancel = 0;
+  bool drain_sent = false;
+  std::vector<Upload> uploads;
+  std::vector<v1::FailTaskRequest> failures;
+  std::vector<std::string> fetched;
+};
+
+class WorkerDaemonTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    library_ =
+        std::make_unique<spectral::SpectrumLibrary>(*spectral::SpectrumLibrary::load_builtin());
+    auto bundle =
+        scene::make_bundle(fs::path(PRISM_SOURCE_DIR) / "worker/testdata", "furnace.pbrt", {});
+    ASSERT_TRUE(bundle.ok()) << bundle.status();
+    bundle_ = *bundle;
+    fake_.blob = scene::pack(bundle_);
+    cache_dir_ = fs::path(::testing::TempDir()) /
+                 ("worker_daemon_" +
+                  std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()));
+    fs::remove_all(cache_dir_);
+    logger_ = spdlog::get("worker");
+    if (!logger_) logger_ = spdlog::stderr_color_mt("worker");
+    logger_->set_level(spdlog::level::debug);
+  }
+
+  void TearDown() override {
+    if (worker_thread_.joinable()) {
+      daemon_->drain();
+      worker_thread_.join();
+    }
+    daemon_.reset();
+    client_.reset();
+    if (server_) server_->Shutdown(std::chrono::system_clock::now() + 1s);
+  }
+
+  // A lease for `tile` x `samples` of the furnace at 16x16, 8 bins.
+  v1::Lease make_lease(v1::TileRect tile, std::uint32_t s0, std::uint32_t s1,
+                       std::uint32_t max_depth, std::chrono::milliseconds lease_time = 60s) {
+    v1::Lease lease;
+    lease.set_lease_id("lease-1");
+    lease.set_attempt(1);
+    lease.set_deadline_unix_ms(unix_ms_from_now(lease_time));
+    lease.set_bundle_hash(bundle_.content_hash);
+    v1::Task& task = *lease.mutable_task();
+    task.set_job_id("job-1");
+    task.set_pass(v1::PASS_FINAL);
+    *task.mutable_tile() = tile;
+    task.mutable_samples()->set_begin(s0);
+    task.mutable_samples()->set_end(s1);
+    v1::JobSpec& spec = *task.mutable_spec();
+    spec.set_bundle_hash(bundle_.content_hash);
+    spec.set_scene_path("furnace.pbrt");
+    spec.set_integrator(v1::INTEGRATOR_HERO);
+    spec.set_spp(s1);
+    spec.set_width(16);
+    spec.set_height(16);
+    spec.set_bins(8);
+    spec.set_tile_size(8);
+    spec.set_seed(7);
+    spec.set_max_depth(max_depth);
+    return lease;
+  }
+
+  static v1::TileRect rect(int x0, int y0, int x1, int y1) {
+    v1::TileRect r;
+    r.set_x0(x0);
+    r.set_y0(y0);
+    r.set_x1(x1);
+    r.set_y1(y1);
+    return r;
+  }
+
+  // The fake on 127.0.0.1 with a port the kernel picks; its address.
+  std::string start_server() {
+    grpc::ServerBuilder builder;
+    int port = 0;
+    builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
+    builder.RegisterService(&fake_);
+    server_ = builder.BuildAndStart();
+    EXPECT_NE(server_, nullptr);
+    EXPECT_GT(port, 0);
+    return "127.0.0.1:" + std::to_string(port);
+  }
+
+  void start_worker(std::chrono::milliseconds return_margin = 100ms,
+                    const std::string& secret = "") {
+    ClientConfig client_config;
+    client_config.address = start_server();
+    client_config.secret = secret;
+    client_config.call_timeout = 5s;
+    client_ = std::make_unique<WorkerClient>(client_config, logger_);
+    WorkerConfig config;
+    config.host = "test-host";
+    config.version = "test";
+    config.threads = 2;
+    config.cache_dir = cache_dir_;
+    config.acquire_wait_ms = 200;
+    config.return_margin = return_margin;
+    config.acquire_error_pause = 100ms;
+    daemon_ = std::make_unique<WorkerDaemon>(config, *client_, device_, *library_, arena_, logger_);
+    worker_thread_ = std::thread([this] {
+      run_status_ = daemon_->run();
+      run_returned_.store(true);
+    });
+  }
+
+  // Drains and waits for run() to return; false if it did not within the timeout.
+  bool stop_worker(std::chrono::milliseconds timeout = 10s) {
+    daemon_->drain();
+    return join_worker(timeout);
+  }
+
+  bool join_worker(std::chrono::milliseconds timeout = 10s) {
+    const auto until = Clock::now() + timeout;
+    while (!run_returned_.load() && Clock::now() < until) std::this_thread::sleep_for(10ms);
+    if (!run_returned_.load()) return false;
+    worker_thread_.join();
+    return true;
+  }
+
+  // The same task rendered here with TileRenderer: the bytes the worker must upload.
+  std::string render_in_process(const v1::Lease& lease) {
+    scene::LoadOptions load;
+    load.is_known_spectrum = [&](std::string_view n) { return library_->contains(n); };
+    load.is_known_ior = [&](std::string_view n) { return library_->find_ior(n) != nullptr; };
+    auto loaded =
+        scene::load_scene(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/furnace.pbrt", load);
+    EXPECT_TRUE(loaded.ok()) << loaded.status();
+    auto params = coordinator::job_parameters(lease.task().spec(), loaded->description);
+    EXPECT_TRUE(params.ok()) << params.status();
+    auto scene = RenderScene::build(device_, loaded->description, *library_, params->render,
+                                    params->width, params->height);
+    EXPECT_TRUE(scene.ok()) << scene.status();
+    const v1::Task& t = lease.task();
+    RenderTask task;
+    task.tile = {t.tile().x0(), t.tile().y0(), t.tile().x1(), t.tile().y1()};
+    task.samples = {t.samples().begin(), t.samples().end()};
+    auto result = TileRenderer(**scene).render(task, nullptr);
+    EXPECT_TRUE(result.ok()) << result.status();
+    return image::serialise_tile(*result);
+  }
+
+  FakeCoordinator fake_;
+  scene::Bundle bundle_;
+  fs::path cache_dir_;
+  EmbreeDevice device_;
+  std::unique_ptr<spectral::SpectrumLibrary> library_;
+  tbb::task_arena arena_{2};
+  std::shared_ptr<spdlog::logger> logger_;
+  std::unique_ptr<grpc::Server> server_;
+  std::unique_ptr<WorkerClient> client_;
+  std::unique_ptr<WorkerDaemon> daemon_;
+  std::thread worker_thread_;
+  std::atomic<bool> run_returned_{false};
+  absl::Status run_status_ = absl::UnknownError("run() has not returned");
+};
+
+TEST_F(WorkerDaemonTest, FetchesRendersAndUploadsTheSameBytesAsAnInProcessRender) {
+  fake_.lease = make_lease(rect(4, 2, 12, 10), 3, 19, 5);
+  fake_.reregister_once = true;
+  start_worker();
+  ASSERT_TRUE(fake_.wait([&] { return !fake_.uploads.empty() || !fake_.failures.empty(); }));
+  // The REREGISTER directive of the first heartbeat has been acted on by now or soon.
+  ASSERT_TRUE(fake_.wait([&] { return fake_.registrations.size() >= 2; }));
+  ASSERT_TRUE(stop_worker());
+  EXPECT_TRUE(run_status_.ok()) << run_status_;
+
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  ASSERT_TRUE(fake_.failures.empty()) << fake_.failures[0].message();
+  ASSERT_EQ(fake_.uploads.size(), 1u);
+  ASSERT_EQ(fake_.fetched, std::vector<std::string>{bundle_.content_hash});
+  EXPECT_EQ(fake_.registrations[0].host(), "test-host");
+  EXPECT_EQ(fake_.registrations[0].threads(), 2u);
+  EXPECT_EQ(fake_.registrations[1].previous_worker_id(), "w-1");
+
+  const Upload& upload = fake_.uploads[0];
+  EXPECT_EQ(upload.worker_id, "w-1");
+  EXPECT_EQ(upload.lease_id, "lease-1");
+  EXPECT_EQ(upload.total_bytes, upload.bytes.size());
+  EXPECT_EQ(upload.sha256, base::sha256_hex(upload.bytes));
+  auto tile = image::parse_tile(upload.bytes);
+  ASSERT_TRUE(tile.ok()) << tile.status();
+  EXPECT_EQ(tile->rect().x0, 4);
+  EXPECT_EQ(tile->rect().y0, 2);
+  EXPECT_EQ(tile->rect().x1, 12);
+  EXPECT_EQ(tile->rect().y1, 10);
+  EXPECT_EQ(tile->samples(), (image::SampleRange{3, 19}));
+  EXPECT_EQ(tile->bins(), 8);
+  for (int y = 2; y < 10; ++y)
+    for (int x = 4; x < 12; ++x) ASSERT_EQ(tile->count(x, y), 16u);
+
+  // Determinism: byte for byte what TileRenderer gives in this process.
+  EXPECT_TRUE(upload.bytes == render_in_process(fake_.lease));
+  // The bundle stays cached under its hash.
+  EXPECT_TRUE(fs::is_regular_file(cache_dir_ / bundle_.content_hash / "furnace.pbrt"));
+}
+
+TEST_F(WorkerDaemonTest, ACancelDirectiveStopsALongTaskWithinOneHeartbeat) {
+  // Full 16x16 tile, paths up to depth 100 in a lossless furnace, 32768 samples per pixel:
+  // seconds of work (each pixel ~15 ms), so the directive arrives mid-task.
+  constexpr std::uint32_t kSpp = 1 << 15;
+  fake_.lease = make_lease(rect(0, 0, 16, 16), 0, kSpp, 100);
+  fake_.heartbeat_interval_ms = 200;
+  fake_.cancel_when_rendering = true;
+  start_worker();
+  ASSERT_TRUE(fake_.wait([&] { return fake_.cancel_sent.has_value(); }));
+  // Dropping the task sends the worker back to AcquireTask.
+  ASSERT_TRUE(fake_.wait([&] { return !fake_.acquires_after_lease.empty(); }, 10s));
+  Clock::time_point cancelled, back;
+  {
+    std::lock_guard<std::mutex> lock(fake_.mutex);
+    cancelled = *fake_.cancel_sent;
+    back = fake_.acquires_after_lease.front();
+  }
+  const auto stop_ms = std::chrono::duration_cast<std::chrono::milliseconds>(back - cancelled);
+  EXPECT_LT(stop_ms.count(), fake_.heartbeat_interval_ms)
+      << "the task stopped after " << stop_ms.count() << " ms";
+  // The next heartbeat no longer carries the lease.
+  ASSERT_TRUE(fake_.wait(
+      [&] {
+        return Clock::now() > cancelled && !fake_.heartbeats.empty() &&
+               fake_.heartbeats.back().lease_ids_size() == 0;
+      },
+      5s));
+  ASSERT_TRUE(stop_worker());
+  EXPECT_TRUE(run_status_.ok()) << run_status_;
+
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  EXPECT_TRUE(fake_.uploads.empty());
+  EXPECT_TRUE(fake_.failures.empty());
+  std::cout << "samples done before the cancel directive: " << fake_.samples_at_cancel << "\n";
+  EXPECT_LT(fake_.samples_at_cancel, std::uint64_t{256} * kSpp);
+}
+
+TEST_F(WorkerDaemonTest, RefusesABundleWhoseHashDoesNotMatchAndCachesNothing) {
+  fake_.lease = make_lease(rect(0, 0, 8, 8), 0, 4, 5);
+  // The coordinator sends another bundle's bytes (a valid bundle, another hash).
+  auto other =
+      scene::make_bundle(fs::path(PRISM_SOURCE_DIR) / "worker/testdata", "unbiased.pbrt", {});
+  ASSERT_TRUE(other.ok()) << other.status();
+  ASSERT_NE(other->content_hash, bundle_.content_hash);
+  fake_.blob = scene::pack(*other);
+  start_worker();
+  ASSERT_TRUE(fake_.wait([&] { return !fake_.failures.empty() || !fake_.uploads.empty(); }));
+  ASSERT_TRUE(stop_worker());
+
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  EXPECT_TRUE(fake_.uploads.empty());
+  ASSERT_EQ(fake_.failures.size(), 1u);
+  EXPECT_EQ(fake_.failures[0].lease_id(), "lease-1");
+  EXPECT_EQ(fake_.failures[0].failure_class(), v1::FAILURE_CLASS_WORKER);
+  EXPECT_NE(fake_.failures[0].message().find(other->content_hash), std::string::npos)
+      << fake_.failures[0].message();
+  EXPECT_FALSE(fs::exists(cache_dir_ / bundle_.content_hash));
+  EXPECT_FALSE(fs::exists(cache_dir_ / other->content_hash));
+  const int left = fs::exists(cache_dir_)
+                       ? static_cast<int>(std::distance(fs::directory_iterator(cache_dir_),
+                                                        fs::directory_iterator()))
+                       : 0;
+  EXPECT_EQ(left, 0);
+}
+
+TEST_F(WorkerDaemonTest, DrainReturnsALeaseThatWouldNotFinishInTime) {
+  // Minutes of work and a lease that ends in 1.5 s (heartbeats do not extend it here).
+  fake_.lease = make_lease(rect(0, 0, 16, 16), 0, 1 << 16, 100, 1500ms);
+  fake_.heartbeat_interval_ms = 100;
+  start_worker(/*return_margin=*/300ms);
+  ASSERT_TRUE(fake_.wait(
+      [&] { return !fake_.heartbeats.empty() && fake_.heartbeats.back().samples_done() > 0; }));
+  const Clock::time_point drained = Clock::now();
+  daemon_->drain();
+  ASSERT_TRUE(join_worker(10s));
+  const auto took = Clock::now() - drained;
+  EXPECT_TRUE(run_status_.ok()) << run_status_;
+  EXPECT_LT(took, 3s);
+
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  EXPECT_TRUE(fake_.uploads.empty());
+  ASSERT_EQ(fake_.failures.size(), 1u);
+  EXPECT_EQ(fake_.failures[0].lease_id(), "lease-1");
+  EXPECT_EQ(fake_.failures[0].failure_class(), v1::FAILURE_CLASS_RETURNED);
+  // It stopped acquiring: no AcquireTask after the lease.
+  EXPECT_TRUE(fake_.acquires_after_lease.empty());
+}
+
+TEST_F(WorkerDaemonTest, ADrainDirectiveLetsATaskThatFitsItsLeaseComplete) {
+  // A few hundred milliseconds of work, heartbeats every 20 ms: the directive comes mid-task.
+  fake_.lease = make_lease(rect(0, 0, 16, 16), 0, 4096, 100);
+  fake_.heartbeat_interval_ms = 20;
+  fake_.drain_when_holding = true;
+  start_worker();
+  // The worker drains by itself after the DRAIN directive: run() returns without drain().
+  ASSERT_TRUE(join_worker(20s));
+  EXPECT_TRUE(run_status_.ok()) << run_status_;
+
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  EXPECT_TRUE(fake_.drain_sent);
+  EXPECT_TRUE(fake_.failures.empty());
+  ASSERT_EQ(fake_.uploads.size(), 1u);
+  EXPECT_TRUE(image::parse_tile(fake_.uploads[0].bytes).ok());
+  EXPECT_TRUE(fake_.acquires_after_lease.empty());
+}
+
+TEST_F(WorkerDaemonTest, RetriesRegisterWhileTheCoordinatorIsUnavailableAndSendsItsSecret) {
+  fake_.lease = make_lease(rect(0, 0, 4, 4), 0, 2, 5);
+  // More refusals than the client's 5 attempts: the daemon keeps trying.
+  fake_.unavailable_registers = 7;
+  fake_.secret = "worker-secret";
+  start_worker(100ms, "worker-secret");
+  ASSERT_TRUE(fake_.wait([&] { return !fake_.uploads.empty(); }));
+  ASSERT_TRUE(stop_worker());
+  EXPECT_TRUE(run_status_.ok()) << run_status_;
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  EXPECT_EQ(fake_.unavailable_registers, 0);
+  EXPECT_TRUE(fake_.failures.empty());
+  EXPECT_EQ(fake_.refused_secrets, 0);
+  EXPECT_EQ(fake_.registrations.size(), 1u);
+}
+
+TEST_F(WorkerDaemonTest, AWrongSecretEndsRunWithUnauthenticated) {
+  fake_.secret = "worker-secret";
+  start_worker(100ms, "not-the-secret");
+  ASSERT_TRUE(join_worker(10s));
+  EXPECT_EQ(run_status_.code(), absl::StatusCode::kUnauthenticated) << run_status_;
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  // Not retried: UNAUTHENTICATED is not transient.
+  EXPECT_EQ(fake_.refused_secrets, 1);
+}
+
+TEST_F(WorkerDaemonTest, ASceneThatDoesNotLoadFailsTheTaskAsASceneFault) {
+  auto bad = scene::make_bundle(fs::path(PRISM_SOURCE_DIR) / "services/scene/testdata/parser/bad",
+                                "unknown_shape.pbrt", {});
+  ASSERT_TRUE(bad.ok()) << bad.status();
+  bundle_ = *bad;
+  fake_.blob = scene::pack(bundle_);
+  fake_.lease = make_lease(rect(0, 0, 4, 4), 0, 2, 5);
+  fake_.lease.mutable_task()->mutable_spec()->set_scene_path("unknown_shape.pbrt");
+  start_worker();
+  ASSERT_TRUE(fake_.wait([&] { return !fake_.failures.empty() || !fake_.uploads.empty(); }));
+  ASSERT_TRUE(stop_worker());
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  EXPECT_TRUE(fake_.uploads.empty());
+  ASSERT_EQ(fake_.failures.size(), 1u);
+  EXPECT_EQ(fake_.failures[0].failure_class(), v1::FAILURE_CLASS_SCENE);
+  // The loader's message, with the position in the scene file.
+  EXPECT_NE(fake_.failures[0].message().find("unknown_shape.pbrt:2:"), std::string::npos)
+      << fake_.failures[0].message();
+}
+
+TEST_F(WorkerDaemonTest, AResultLargerThanAChunkIsStreamedInMebibyteChunks) {
+  // 64x64 pixels x 64 bins: sums and squared sums alone are 4 MiB.
+  fake_.lease = make_lease(rect(0, 0, 64, 64), 0, 1, 1);
+  v1::JobSpec& spec = *fake_.lease.mutable_task()->mutable_spec();
+  spec.set_width(64);
+  spec.set_height(64);
+  spec.set_bins(64);
+  start_worker();
+  ASSERT_TRUE(fake_.wait([&] { return !fake_.uploads.empty() || !fake_.failures.empty(); }));
+  ASSERT_TRUE(stop_worker());
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  ASSERT_TRUE(fake_.failures.empty()) << fake_.failures[0].message();
+  ASSERT_EQ(fake_.uploads.size(), 1u);
+  const Upload& upload = fake_.uploads[0];
+  EXPECT_GT(upload.bytes.size(), std::size_t{4} << 20);
+  EXPECT_EQ(upload.chunk_sizes.size(), (upload.bytes.size() + (1u << 20) - 1) >> 20);
+  for (std::size_t size : upload.chunk_sizes) EXPECT_LE(size, std::size_t{1} << 20);
+  EXPECT_EQ(upload.total_bytes, upload.bytes.size());
+  EXPECT_EQ(upload.sha256, base::sha256_hex(upload.bytes));
+  EXPECT_TRUE(image::parse_tile(upload.bytes).ok());
+  EXPECT_TRUE(upload.bytes == render_in_process(fake_.lease));
+}
+
+#ifdef PRISM_WORKER_BINARY
+// The prism-worker process itself: flags, the secret from the environment, SIGTERM.
+class WorkerProcessTest : public WorkerDaemonTest {
+ protected:
+  pid_t spawn(const std::string& address, const std::string& secret) {
+    std::vector<std::string> args = {
+        PRISM_WORKER_BINARY, "--coordinator",     address,  "--threads", "1",
+        "--cache-dir",       cache_dir_.string(), "--host", "proc-host"};
+    std::vector<char*> argv;
+    for (std::string& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    std::string env_secret = "PRISM_WORKER_SECRET=" + secret;
+    std::vector<char*> envp = {env_secret.data(), nullptr};
+    pid_t pid = 0;
+    EXPECT_EQ(posix_spawn(&pid, PRISM_WORKER_BINARY, nullptr, nullptr, argv.data(), envp.data()),
+              0);
+    return pid;
+  }
+
+  // The exit status, or -1 if the process did not end within the timeout (it is killed then).
+  static int wait_exit(pid_t pid, std::chrono::milliseconds timeout) {
+    const auto until = Clock::now() + timeout;
+    int status = 0;
+    while (Clock::now() < until) {
+      if (waitpid(pid, &status, WNOHANG) == pid)
+        return WIFEXITED(status) ? WEXITSTATUS(status) : 128;
+      std::this_thread::sleep_for(10ms);
+    }
+    kill(pid, SIGKILL);
+    waitpid(pid, &status, 0);
+    return -1;
+  }
+};
+
+TEST_F(WorkerProcessTest, RendersTheLeaseAndExitsZeroOnSigterm) {
+  fake_.lease = make_lease(rect(8, 8, 16, 16), 0, 8, 5);
+  fake_.secret = "from-the-environment";
+  const pid_t pid = spawn(start_server(), "from-the-environment");
+  ASSERT_GT(pid, 0);
+  const bool uploaded = fake_.wait([&] { return !fake_.uploads.empty(); }, 30s);
+  kill(pid, SIGTERM);
+  EXPECT_EQ(wait_exit(pid, 10s), 0);
+  ASSERT_TRUE(uploaded);
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  EXPECT_EQ(fake_.registrations.at(0).host(), "proc-host");
+  EXPECT_EQ(fake_.registrations.at(0).threads(), 1u);
+  EXPECT_TRUE(fake_.failures.empty());
+  EXPECT_TRUE(fake_.uploads[0].bytes == render_in_process(fake_.lease));
+}
+
+TEST_F(WorkerProcessTest, ExitsNonZeroWhenTheCoordinatorRefusesItsSecret) {
+  fake_.secret = "from-the-environment";
+  const pid_t pid = spawn(start_server(), "wrong");
+  ASSERT_GT(pid, 0);
+  EXPECT_EQ(wait_exit(pid, 20s), 1);
+}
+#endif
+
+}  // namespace
+}  // namespace prism::worker
