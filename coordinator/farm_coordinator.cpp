@@ -589,10 +589,10 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   report.height = p.height;
   report.spp = p.spp;
   report.bins = p.render.bins;
-  report.integrator = integrator_name(p.render.integrator);
-  report.spectral_pdf = spectral_pdf_name(p.render.spectral_pdf);
-  report.emitter_pdf = emitter_pdf_name(p.render.emitter_pdf);
-  report.light_selection = light_selection_name(p.render.light_selection);
+  report.integrator = worker::name(p.render.integrator);
+  report.spectral_pdf = worker::name(p.render.spectral_pdf);
+  report.emitter_pdf = worker::name(p.render.emitter_pdf);
+  report.light_selection = worker::name(p.render.light_selection);
   report.spectral_light_selection = p.render.spectral_light_selection;
   report.max_depth = p.render.max_depth;
   report.threads = 0;  // spread over the farm's workers

@@ -78,26 +78,6 @@ absl::StatusOr<worker::LightSelectionKind> light_selection_of(prism::v1::LightSe
 
 }  // namespace
 
-const char* integrator_name(worker::IntegratorKind kind) {
-  return kind == worker::IntegratorKind::kUniform ? "uniform" : "hero";
-}
-const char* spectral_pdf_name(worker::SpectralPdfKind kind) {
-  return kind == worker::SpectralPdfKind::kFlat ? "flat" : "visible";
-}
-const char* emitter_pdf_name(worker::EmitterPdfKind kind) {
-  return kind == worker::EmitterPdfKind::kUniform ? "uniform" : "emitters";
-}
-const char* light_selection_name(worker::LightSelectionKind kind) {
-  switch (kind) {
-    case worker::LightSelectionKind::kUniform:
-      return "uniform";
-    case worker::LightSelectionKind::kPower:
-      return "power";
-    case worker::LightSelectionKind::kSpatial:
-      return "spatial";
-  }
-  return "?";
-}
 
 absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
                                              const scene::SceneDescription& scene) {

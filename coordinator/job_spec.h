@@ -62,10 +62,6 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
 // Every value explicit (see the invariant above).
 prism::v1::JobSpec to_proto(const JobParameters& parameters);
 
-// Short names for reports and listings ("hero", "flat", ...).
-const char* integrator_name(worker::IntegratorKind kind);
-const char* spectral_pdf_name(worker::SpectralPdfKind kind);
-const char* emitter_pdf_name(worker::EmitterPdfKind kind);
-const char* light_selection_name(worker::LightSelectionKind kind);
+// Short names of the option values: worker::name() in worker/render_options.h.
 
 }  // namespace prism::coordinator

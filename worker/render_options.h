@@ -18,6 +18,28 @@ enum class SpectralPdfKind { kFlat, kVisible };      // sensor term p_s (§1)
 enum class EmitterPdfKind { kUniform, kEmitters };   // emitter term p_e (§1)
 enum class LightSelectionKind { kUniform, kPower, kSpatial };  // base pmf q_base (§3)
 
+// The names the CLI flags, job specs and reports use for the option values.
+inline const char* name(IntegratorKind kind) {
+  return kind == IntegratorKind::kUniform ? "uniform" : "hero";
+}
+inline const char* name(SpectralPdfKind kind) {
+  return kind == SpectralPdfKind::kFlat ? "flat" : "visible";
+}
+inline const char* name(EmitterPdfKind kind) {
+  return kind == EmitterPdfKind::kUniform ? "uniform" : "emitters";
+}
+inline const char* name(LightSelectionKind kind) {
+  switch (kind) {
+    case LightSelectionKind::kUniform:
+      return "uniform";
+    case LightSelectionKind::kPower:
+      return "power";
+    case LightSelectionKind::kSpatial:
+      return "spatial";
+  }
+  return "?";
+}
+
 struct RenderOptions {
   IntegratorKind integrator = IntegratorKind::kHero;
   SpectralPdfKind spectral_pdf = SpectralPdfKind::kFlat;

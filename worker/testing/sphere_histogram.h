@@ -8,6 +8,7 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <functional>
 #include <vector>
@@ -33,12 +34,13 @@ inline int cell_of(const Vec3f& w) {
 // A density per lane (lanes 0..lanes-1 of the returned spectrum).
 using LaneDensity = std::function<spectral::SampledSpectrum(const Vec3f&)>;
 
+using LaneSums = std::array<double, spectral::kMaxLanes>;
+
 // ∫ pdf dω over cell (ti, pi) for every lane with an n x n midpoint rule.
-inline std::vector<double> integrate_cell(const LaneDensity& pdf, int lanes, int ti, int pi,
-                                          int n) {
+inline LaneSums integrate_cell(const LaneDensity& pdf, int lanes, int ti, int pi, int n) {
   const double theta0 = ti * kPi / kThetaCells, phi0 = pi * 2 * kPi / kPhiCells;
   const double dtheta = kPi / kThetaCells / n, dphi = 2 * kPi / kPhiCells / n;
-  std::vector<double> sum(lanes, 0.0);
+  LaneSums sum{};
   for (int a = 0; a < n; ++a) {
     double theta = theta0 + (a + 0.5) * dtheta;
     double weight = std::sin(theta) * dtheta * dphi;
@@ -60,8 +62,8 @@ inline std::vector<std::vector<double>> expected_counts(const LaneDensity& pdf, 
   for (int ti = 0; ti < kThetaCells; ++ti) {
     for (int pi = 0; pi < kPhiCells; ++pi) {
       int n = 8;
-      std::vector<double> coarse = integrate_cell(pdf, lanes, ti, pi, n);
-      std::vector<double> fine = integrate_cell(pdf, lanes, ti, pi, 2 * n);
+      LaneSums coarse = integrate_cell(pdf, lanes, ti, pi, n);
+      LaneSums fine = integrate_cell(pdf, lanes, ti, pi, 2 * n);
       while (n < 512) {
         double change = 0;
         for (int l = 0; l < lanes; ++l) change = std::max(change, std::abs(fine[l] - coarse[l]));
