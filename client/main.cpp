@@ -10,6 +10,7 @@
 
 #include "client/check_command.h"
 #include "client/compare_command.h"
+#include "client/farm_commands.h"
 #include "client/render_command.h"
 #include "worker/embree_device.h"
 
@@ -80,7 +81,98 @@ int main(int argc, char** argv) {
   render_cmd->add_option("--exposure", render.exposure,
                          "PNG preview exposure in stops (default 0)");
 
+  // The farm subcommands share the connection flags.
+  prism::client::FarmConnection farm;
+  auto add_connection = [&](CLI::App* cmd) {
+    cmd->add_option("--coordinator", farm.address,
+                    "Coordinator HOST:PORT (default: $PRISM_COORDINATOR)");
+    cmd->add_option("--token", farm.token, "API token (default: $PRISM_API_TOKEN)");
+    cmd->add_option("--tls-ca", farm.tls_ca, "PEM roots to verify the coordinator (TLS)");
+  };
+
+  prism::client::SubmitOptions submit;
+  std::string submit_output, submit_resolution, submit_seed;
+  std::int64_t submit_spp = 0, submit_bins = 0, submit_depth = 0;
+  bool submit_no_sls = false;
+  auto* submit_cmd = app.add_subcommand("submit", "Submit a scene to the farm");
+  submit_cmd->add_option("scene", submit.render.scene, "pbrt-v4 scene file")->required();
+  add_connection(submit_cmd);
+  auto* s_output = submit_cmd->add_option("-o,--output", submit_output,
+                                          "Spectral EXR to write with --wait (default render.exr)");
+  auto* s_spp = submit_cmd->add_option("--spp", submit_spp, "Samples per pixel");
+  submit_cmd->add_option("--integrator", submit.render.integrator, "uniform or hero");
+  auto* s_bins = submit_cmd->add_option("--bins", submit_bins, "Spectral bins, 4..256");
+  auto* s_res = submit_cmd->add_option("--resolution", submit_resolution, "WxH");
+  auto* s_seed = submit_cmd->add_option("--seed", submit_seed, "Sampler seed");
+  submit_cmd->add_option("--tile", submit.render.tile, "Tile size in pixels, 4..1024");
+  submit_cmd->add_option("--spectral-pdf", submit.render.spectral_pdf, "flat or visible");
+  submit_cmd->add_option("--emitter-pdf", submit.render.emitter_pdf, "uniform or emitters");
+  submit_cmd->add_option("--light-selection", submit.render.light_selection,
+                         "uniform, power or spatial");
+  submit_cmd->add_flag("--no-spectral-light-selection", submit_no_sls,
+                       "Do not weight emitter selection by the wavelengths' unit emission");
+  auto* s_depth = submit_cmd->add_option("--max-depth", submit_depth, "Path vertices");
+  submit_cmd->add_flag("--wait", submit.wait, "Watch the job, then fetch its outputs");
+  submit_cmd->add_option("--client-token", submit.client_token,
+                         "Idempotency key (default: hash of bundle and spec)");
+
+  std::string job_id, fetch_output;
+  auto* status_cmd = app.add_subcommand("status", "Show a farm job");
+  status_cmd->add_option("job", job_id, "Job id")->required();
+  add_connection(status_cmd);
+  auto* jobs_cmd = app.add_subcommand("jobs", "List the farm's jobs");
+  add_connection(jobs_cmd);
+  auto* watch_cmd = app.add_subcommand("watch", "Follow a farm job until it finishes");
+  watch_cmd->add_option("job", job_id, "Job id")->required();
+  add_connection(watch_cmd);
+  auto* cancel_cmd = app.add_subcommand("cancel", "Cancel a farm job");
+  cancel_cmd->add_option("job", job_id, "Job id")->required();
+  add_connection(cancel_cmd);
+  auto* fetch_cmd = app.add_subcommand("fetch", "Download a finished job's outputs");
+  fetch_cmd->add_option("job", job_id, "Job id")->required();
+  auto* f_output = fetch_cmd->add_option("-o,--output", fetch_output, "Spectral EXR to write");
+  add_connection(fetch_cmd);
+  auto* workers_cmd = app.add_subcommand("workers", "List the farm's workers");
+  add_connection(workers_cmd);
+
   CLI11_PARSE(app, argc, argv);
+
+  for (CLI::App* cmd : {submit_cmd, status_cmd, jobs_cmd, watch_cmd, cancel_cmd, fetch_cmd,
+                        workers_cmd}) {
+    if (!cmd->parsed()) continue;
+    if (absl::Status resolved = prism::client::resolve_connection(farm); !resolved.ok()) {
+      return report(resolved);
+    }
+  }
+  if (submit_cmd->parsed()) {
+    prism::client::RenderCommandOptions& r = submit.render;
+    if (s_output->count() > 0) r.output = submit_output;
+    if (s_res->count() > 0) r.resolution = submit_resolution;
+    if (s_spp->count() > 0) r.spp = submit_spp;
+    if (s_bins->count() > 0) r.bins = submit_bins;
+    if (s_depth->count() > 0) r.max_depth = submit_depth;
+    if (s_seed->count() > 0) {
+      auto parsed = prism::client::parse_seed(submit_seed);
+      if (!parsed.ok()) return report(parsed.status());
+      r.seed = *parsed;
+    }
+    r.spectral_light_selection = !submit_no_sls;
+    submit.progress = &std::cerr;
+    submit.progress_is_terminal = isatty(STDERR_FILENO) != 0;
+    return report(prism::client::run_submit(farm, submit));
+  }
+  if (status_cmd->parsed()) return report(prism::client::run_status(farm, job_id));
+  if (jobs_cmd->parsed()) return report(prism::client::run_jobs(farm));
+  if (watch_cmd->parsed()) {
+    return report(prism::client::run_watch(farm, job_id, std::cerr, isatty(STDERR_FILENO) != 0));
+  }
+  if (cancel_cmd->parsed()) return report(prism::client::run_cancel(farm, job_id));
+  if (fetch_cmd->parsed()) {
+    std::optional<std::filesystem::path> out;
+    if (f_output->count() > 0) out = fetch_output;
+    return report(prism::client::run_fetch(farm, job_id, out));
+  }
+  if (workers_cmd->parsed()) return report(prism::client::run_workers(farm));
 
   if (check_cmd->parsed()) return report(prism::client::run_check(check));
   if (compare_cmd->parsed()) {

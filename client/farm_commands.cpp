@@ -1,0 +1,493 @@
+#include "client/farm_commands.h"
+
+#include <grpcpp/create_channel.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <fstream>
+#include <condition_variable>
+#include <map>
+#include <mutex>
+#include <thread>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "coordinator/job_spec.h"
+#include "coordinator/outputs.h"
+#include "prism/v1/farm.grpc.pb.h"
+#include "services/base/sha256.h"
+#include "services/base/status.h"
+#include "services/rpc/auth.h"
+#include "services/rpc/chunks.h"
+#include "services/rpc/credentials.h"
+#include "services/rpc/status_mapping.h"
+#include "services/scene/bundle.h"
+#include "services/scene/scene_loader.h"
+#include "services/spectral/named_spectra.h"
+
+namespace prism::client {
+namespace {
+
+namespace v1 = prism::v1;
+namespace fs = std::filesystem;
+
+class Farm {
+ public:
+  static absl::StatusOr<Farm> connect(const FarmConnection& c) {
+    if (c.address.empty()) {
+      return absl::InvalidArgumentError(
+          "no coordinator address: pass --coordinator HOST:PORT or set PRISM_COORDINATOR");
+    }
+    rpc::ClientTls tls;
+    tls.ca_bundle = c.tls_ca;
+    PRISM_ASSIGN_OR_RETURN(auto credentials, rpc::channel_credentials(tls));
+    return Farm(c, v1::FarmService::NewStub(grpc::CreateChannel(c.address, credentials)));
+  }
+
+  std::unique_ptr<grpc::ClientContext> call() const {
+    auto context = std::make_unique<grpc::ClientContext>();
+    if (!c_.token.empty()) rpc::add_bearer(*context, c_.token);
+    context->set_deadline(std::chrono::system_clock::now() + c_.deadline);
+    return context;
+  }
+  v1::FarmService::Stub& stub() { return *stub_; }
+  const FarmConnection& connection() const { return c_; }
+
+ private:
+  Farm(const FarmConnection& c, std::unique_ptr<v1::FarmService::Stub> stub)
+      : c_(c), stub_(std::move(stub)) {}
+  FarmConnection c_;
+  std::unique_ptr<v1::FarmService::Stub> stub_;
+};
+
+// The server's message verbatim (the caller prints "prism: <message>").
+absl::Status rpc_error(const grpc::Status& status) { return rpc::from_grpc(status); }
+
+std::string state_name(v1::JobState state) {
+  std::string name = v1::JobState_Name(state);
+  constexpr std::string_view kPrefix = "JOB_STATE_";
+  if (name.rfind(kPrefix, 0) == 0) name = name.substr(kPrefix.size());
+  for (char& ch : name) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+  return name;
+}
+
+std::string human(double v) {
+  if (!(v >= 0)) return "?";
+  if (v >= 1e9) return absl::StrFormat("%.2fG", v / 1e9);
+  if (v >= 1e6) return absl::StrFormat("%.2fM", v / 1e6);
+  if (v >= 1e3) return absl::StrFormat("%.2fk", v / 1e3);
+  return absl::StrFormat("%.0f", v);
+}
+
+std::string eta(double seconds) {
+  if (!(seconds >= 0)) return "?";
+  const long s = static_cast<long>(seconds + 0.5);
+  return absl::StrFormat("%ld:%02ld", s / 60, s % 60);
+}
+
+std::string job_line(const v1::JobInfo& job) {
+  const v1::JobProgress& p = job.progress();
+  const double percent =
+      p.samples_total() > 0 ? 100.0 * static_cast<double>(p.samples_done()) / p.samples_total() : 0;
+  std::string line = absl::StrFormat("%s  %-11s %5.1f%%  %llu/%llu tasks  %s", job.job_id(),
+                                     state_name(job.state()), percent,
+                                     static_cast<unsigned long long>(p.tasks_done()),
+                                     static_cast<unsigned long long>(p.tasks_total()),
+                                     job.spec().name().empty() ? job.spec().scene_path()
+                                                               : job.spec().name());
+  if (!job.error().empty()) absl::StrAppend(&line, "  error: ", job.error());
+  return line;
+}
+
+bool finished(v1::JobState s) {
+  return s == v1::JOB_STATE_DONE || s == v1::JOB_STATE_FAILED || s == v1::JOB_STATE_CANCELLED;
+}
+
+absl::Status job_outcome(const v1::JobInfo& job) {
+  if (job.state() == v1::JOB_STATE_FAILED) {
+    return absl::AbortedError(absl::StrCat("job ", job.job_id(), " failed: ", job.error()));
+  }
+  if (job.state() == v1::JOB_STATE_CANCELLED) {
+    return absl::CancelledError(absl::StrCat("job ", job.job_id(), " was cancelled"));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<v1::JobSpec> build_spec(const RenderCommandOptions& o,
+                                       const scene::SceneDescription& description,
+                                       const std::string& bundle_hash,
+                                       const std::string& scene_path) {
+  PRISM_RETURN_IF_ERROR(validate_render_flags(o));
+  v1::JobSpec spec;
+  spec.set_bundle_hash(bundle_hash);
+  spec.set_scene_path(scene_path);
+  spec.set_integrator(*parse_integrator(o.integrator) == worker::IntegratorKind::kUniform
+                          ? v1::INTEGRATOR_UNIFORM
+                          : v1::INTEGRATOR_HERO);
+  if (o.spp) spec.set_spp(static_cast<std::uint32_t>(*o.spp));
+  if (o.resolution) {
+    auto [w, h] = *parse_resolution(*o.resolution);
+    spec.set_width(static_cast<std::uint32_t>(w));
+    spec.set_height(static_cast<std::uint32_t>(h));
+  }
+  if (o.bins) spec.set_bins(static_cast<std::uint32_t>(*o.bins));
+  spec.set_tile_size(static_cast<std::uint32_t>(o.tile));
+  spec.set_seed(o.seed);
+  if (o.max_depth) spec.set_max_depth(static_cast<std::uint32_t>(*o.max_depth));
+  spec.set_spectral_pdf(*parse_spectral_pdf(o.spectral_pdf) == worker::SpectralPdfKind::kVisible
+                            ? v1::SPECTRAL_PDF_VISIBLE
+                            : v1::SPECTRAL_PDF_FLAT);
+  spec.set_emitter_pdf(*parse_emitter_pdf(o.emitter_pdf) == worker::EmitterPdfKind::kUniform
+                           ? v1::EMITTER_PDF_UNIFORM
+                           : v1::EMITTER_PDF_EMITTERS);
+  switch (*parse_light_selection(o.light_selection)) {
+    case worker::LightSelectionKind::kUniform:
+      spec.set_light_selection(v1::LIGHT_SELECTION_UNIFORM);
+      break;
+    case worker::LightSelectionKind::kSpatial:
+      spec.set_light_selection(v1::LIGHT_SELECTION_SPATIAL);
+      break;
+    default:
+      spec.set_light_selection(v1::LIGHT_SELECTION_POWER);
+  }
+  spec.set_spectral_light_selection(o.spectral_light_selection);
+  spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
+  spec.set_name(o.scene.filename().string());
+  // The coordinator applies the same rules; checking here fails before any upload, and
+  // to_proto makes every value explicit so the token does not depend on scene defaults.
+  PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters parameters,
+                         coordinator::job_parameters(spec, description));
+  return coordinator::to_proto(parameters);
+}
+
+absl::Status upload_if_missing(Farm& farm, const std::string& hash, const std::string& blob,
+                               std::ostream* log) {
+  v1::HasBundleRequest has;
+  has.set_bundle_hash(hash);
+  v1::HasBundleResponse present;
+  if (grpc::Status s = farm.stub().HasBundle(farm.call().get(), has, &present); !s.ok()) {
+    return rpc_error(s);
+  }
+  if (present.present()) return absl::OkStatus();
+  if (log != nullptr) *log << "uploading bundle " << hash << " (" << blob.size() << " bytes)\n";
+  auto context = farm.call();
+  context->set_deadline(std::chrono::system_clock::now() + farm.connection().deadline +
+                        std::chrono::seconds(blob.size() >> 20));
+  v1::UploadBundleResponse response;
+  auto writer = farm.stub().UploadBundle(context.get(), &response);
+  for (std::string_view chunk : rpc::split_chunks(blob)) {
+    v1::BundleChunk message;
+    message.set_bundle_hash(hash);
+    message.set_total_bytes(blob.size());
+    message.set_data(std::string(chunk));
+    if (!writer->Write(message)) break;  // the server's status follows from Finish()
+  }
+  writer->WritesDone();
+  if (grpc::Status s = writer->Finish(); !s.ok()) return rpc_error(s);
+  if (response.bundle_hash() != hash) {
+    return absl::DataLossError(absl::StrCat("the coordinator stored bundle ",
+                                            response.bundle_hash(), ", not ", hash));
+  }
+  return absl::OkStatus();
+}
+
+// Writes `bytes` to a temporary beside `path` and renames it over `path`.
+absl::Status write_atomically(const fs::path& path, const std::string& bytes) {
+  const fs::path temp = path.string() + ".part." + std::to_string(::getpid());
+  {
+    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+    out.flush();
+    if (!out) {
+      std::error_code ignored;
+      fs::remove(temp, ignored);
+      return absl::UnavailableError(absl::StrCat("could not write ", path.string()));
+    }
+  }
+  std::error_code error;
+  fs::rename(temp, path, error);
+  if (error) {
+    fs::remove(temp, error);
+    return absl::UnavailableError(absl::StrCat("could not write ", path.string()));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<v1::JobInfo> get_job(Farm& farm, const std::string& id) {
+  v1::GetJobRequest request;
+  request.set_job_id(id);
+  v1::JobInfo job;
+  if (grpc::Status s = farm.stub().GetJob(farm.call().get(), request, &job); !s.ok()) {
+    return rpc_error(s);
+  }
+  return job;
+}
+
+absl::StatusOr<v1::JobInfo> watch(Farm& farm, const std::string& id, std::ostream& out,
+                                  bool terminal) {
+  auto context = std::make_unique<grpc::ClientContext>();
+  if (!farm.connection().token.empty()) rpc::add_bearer(*context, farm.connection().token);
+  v1::WatchJobRequest request;
+  request.set_job_id(id);
+  // A per-message deadline: the server writes only when the job changes, so when no event
+  // arrives in time a watchdog asks GetJob (itself under a deadline) whether the coordinator is
+  // still there; if it is not, the watch is cancelled with that error.
+  auto reader = farm.stub().WatchJob(context.get(), request);
+  v1::JobInfo job, last;
+  bool any = false;
+  std::mutex mu;
+  std::condition_variable cv;
+  auto last_message = std::chrono::steady_clock::now();
+  bool done = false;
+  absl::Status lost;
+  std::thread watchdog([&] {
+    std::unique_lock lock(mu);
+    while (!done) {
+      const auto due = last_message + farm.connection().deadline;
+      if (cv.wait_until(lock, due, [&] { return done; })) return;
+      if (std::chrono::steady_clock::now() < last_message + farm.connection().deadline) continue;
+      lock.unlock();
+      absl::StatusOr<v1::JobInfo> probe = get_job(farm, id);
+      lock.lock();
+      if (probe.ok()) {
+        last_message = std::chrono::steady_clock::now();
+        continue;
+      }
+      lost = probe.status();
+      context->TryCancel();
+      return;
+    }
+  });
+  while (reader->Read(&job)) {
+    {
+      std::lock_guard lock(mu);
+      last_message = std::chrono::steady_clock::now();
+    }
+    any = true;
+    last = job;
+    const v1::JobProgress& p = job.progress();
+    const double fraction =
+        p.samples_total() > 0 ? static_cast<double>(p.samples_done()) / p.samples_total() : 0.0;
+    if (terminal) {
+      constexpr int kWidth = 30;
+      const int filled = static_cast<int>(fraction * kWidth);
+      out << "\r[" << std::string(filled, '#') << std::string(kWidth - filled, ' ') << "] "
+          << absl::StrFormat("%5.1f%%", 100 * fraction) << " " << state_name(job.state()) << " "
+          << human(p.samples_per_second()) << " samples/s ETA " << eta(p.eta_seconds()) << "   "
+          << std::flush;
+    } else {
+      out << job.job_id() << " " << state_name(job.state())
+          << absl::StrFormat(" %.1f%% ", 100 * fraction) << human(p.samples_per_second())
+          << " samples/s eta " << eta(p.eta_seconds()) << "\n" << std::flush;
+    }
+    if (finished(job.state())) break;
+  }
+  if (terminal) out << "\n";
+  {
+    std::lock_guard lock(mu);
+    done = true;
+  }
+  cv.notify_all();
+  watchdog.join();
+  if (any && finished(last.state())) {
+    context->TryCancel();
+    reader->Finish();
+    return last;
+  }
+  grpc::Status status = reader->Finish();
+  if (!lost.ok()) return lost;
+  if (!status.ok()) return rpc_error(status);
+  // The stream ended before a final state: ask once.
+  return get_job(farm, id);
+}
+
+// `film_filename`: the default name's source, as in `prism render` (the scene's Film filename
+// when the scene is at hand, else render.exr).
+absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
+                                  const std::optional<fs::path>& output,
+                                  const std::string& film_filename = "render.exr") {
+  PRISM_ASSIGN_OR_RETURN(coordinator::OutputPaths paths,
+                         coordinator::output_paths(output, std::nullopt, film_filename));
+  PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
+  auto context = farm.call();
+  context->set_deadline(std::chrono::system_clock::now() + farm.connection().deadline * 4);
+  v1::GetResultRequest request;
+  request.set_job_id(id);
+  auto reader = farm.stub().GetResult(context.get(), request);
+  std::map<v1::OutputKind, std::string> files;
+  std::map<v1::OutputKind, std::string> verified;
+  v1::ResultChunk chunk;
+  absl::Status failure;
+  while (failure.ok() && reader->Read(&chunk)) {
+    std::string& bytes = files[chunk.kind()];
+    if (chunk.offset() != bytes.size()) {
+      failure = absl::DataLossError(absl::StrCat("result ", chunk.file_name(), ": chunk at ",
+                                                 chunk.offset(), ", expected ", bytes.size()));
+      break;
+    }
+    bytes += chunk.data();
+    if (chunk.last()) {
+      if (base::sha256_hex(bytes) != chunk.sha256()) {
+        failure = absl::DataLossError(
+            absl::StrCat("result ", chunk.file_name(), " does not match its SHA-256"));
+        break;
+      }
+      verified[chunk.kind()] = std::move(bytes);
+      files.erase(chunk.kind());
+    }
+  }
+  if (!failure.ok()) {
+    context->TryCancel();
+    reader->Finish();
+    return failure;
+  }
+  if (grpc::Status s = reader->Finish(); !s.ok()) return rpc_error(s);
+  if (!files.empty()) return absl::DataLossError("the result stream ended inside a file");
+  std::string written;
+  for (auto& [kind, bytes] : verified) {
+    fs::path path;
+    switch (kind) {
+      case v1::OUTPUT_KIND_SPECTRAL_EXR: path = paths.spectral_exr; break;
+      case v1::OUTPUT_KIND_RGB_EXR: path = paths.rgb_exr; break;
+      case v1::OUTPUT_KIND_PNG: path = paths.png; break;
+      case v1::OUTPUT_KIND_REPORT_JSON: path = paths.json; break;
+      default: continue;  // outputs this client does not name yet
+    }
+    PRISM_RETURN_IF_ERROR(write_atomically(path, bytes));
+    absl::StrAppend(&written, written.empty() ? "" : ", ", path.string());
+  }
+  if (written.empty()) return absl::NotFoundError(absl::StrCat("job ", id, " has no outputs"));
+  return absl::StrCat("wrote ", written, "\n");
+}
+
+}  // namespace
+
+absl::Status resolve_connection(FarmConnection& c) {
+  if (c.address.empty()) {
+    if (const char* env = std::getenv("PRISM_COORDINATOR")) c.address = env;
+  }
+  if (c.token.empty()) {
+    if (const char* env = std::getenv("PRISM_API_TOKEN")) c.token = env;
+  }
+  if (c.address.empty()) {
+    return absl::InvalidArgumentError(
+        "no coordinator address: pass --coordinator HOST:PORT or set PRISM_COORDINATOR");
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOptions& options) {
+  PRISM_RETURN_IF_ERROR(validate_render_flags(options.render));
+  PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
+  PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library,
+                         spectral::SpectrumLibrary::load_builtin());
+  scene::LoadOptions load;
+  load.is_known_spectrum = [&](std::string_view name) { return library.contains(name); };
+  load.is_known_ior = [&](std::string_view name) { return library.find_ior(name) != nullptr; };
+  PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.render.scene, load));
+  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
+                         scene::make_bundle(loaded.root, loaded.scene_relpath,
+                                            loaded.description.files));
+  if (options.wait) {
+    // Checked before anything is submitted, so a bad -o does not leave a job behind.
+    PRISM_ASSIGN_OR_RETURN(coordinator::OutputPaths paths,
+                           coordinator::output_paths(options.render.output, std::nullopt,
+                                                     loaded.description.film.filename));
+    PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
+  }
+  PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec, build_spec(options.render, loaded.description,
+                                                      bundle.content_hash, loaded.scene_relpath));
+  PRISM_RETURN_IF_ERROR(upload_if_missing(farm, bundle.content_hash, scene::pack(bundle),
+                                           options.progress));
+
+  v1::SubmitJobRequest request;
+  *request.mutable_spec() = spec;
+  if (options.client_token.empty()) {
+    std::string spec_bytes;
+    spec.SerializeToString(&spec_bytes);
+    request.set_client_token(base::sha256_hex(absl::StrCat(bundle.content_hash, "\n", spec_bytes)));
+  } else {
+    request.set_client_token(options.client_token);
+  }
+  v1::SubmitJobResponse response;
+  if (grpc::Status s = farm.stub().SubmitJob(farm.call().get(), request, &response); !s.ok()) {
+    return rpc_error(s);
+  }
+  const std::string id = response.job().job_id();
+  if (!options.wait) return id + "\n";
+  std::ostream null_stream(nullptr);
+  std::ostream& out = options.progress != nullptr ? *options.progress : null_stream;
+  out << id << "\n";
+  PRISM_ASSIGN_OR_RETURN(v1::JobInfo job, watch(farm, id, out, options.progress_is_terminal));
+  PRISM_RETURN_IF_ERROR(job_outcome(job));
+  PRISM_ASSIGN_OR_RETURN(std::string written, fetch(farm, id, options.render.output,
+                                                     loaded.description.film.filename));
+  return absl::StrCat(id, "\n", written);
+}
+
+absl::StatusOr<std::string> run_status(const FarmConnection& c, const std::string& job_id) {
+  PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
+  PRISM_ASSIGN_OR_RETURN(v1::JobInfo job, get_job(farm, job_id));
+  const v1::JobProgress& p = job.progress();
+  std::string text = absl::StrCat(job_line(job), "\n");
+  absl::StrAppend(&text, "samples ", p.samples_done(), "/", p.samples_total(), ", tiles ",
+                  p.tiles_finalised(), "/", p.tiles_total(), ", ",
+                  human(p.samples_per_second()), " samples/s, eta ", eta(p.eta_seconds()), "\n");
+  return text;
+}
+
+absl::StatusOr<std::string> run_jobs(const FarmConnection& c) {
+  PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
+  v1::ListJobsRequest request;
+  v1::ListJobsResponse response;
+  if (grpc::Status s = farm.stub().ListJobs(farm.call().get(), request, &response); !s.ok()) {
+    return rpc_error(s);
+  }
+  std::string text;
+  for (const v1::JobInfo& job : response.jobs()) absl::StrAppend(&text, job_line(job), "\n");
+  if (text.empty()) text = "no jobs\n";
+  return text;
+}
+
+absl::StatusOr<std::string> run_watch(const FarmConnection& c, const std::string& job_id,
+                                      std::ostream& out, bool terminal) {
+  PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
+  PRISM_ASSIGN_OR_RETURN(v1::JobInfo job, watch(farm, job_id, out, terminal));
+  PRISM_RETURN_IF_ERROR(job_outcome(job));
+  return absl::StrCat(job_line(job), "\n");
+}
+
+absl::StatusOr<std::string> run_cancel(const FarmConnection& c, const std::string& job_id) {
+  PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
+  v1::CancelJobRequest request;
+  request.set_job_id(job_id);
+  v1::JobInfo job;
+  if (grpc::Status s = farm.stub().CancelJob(farm.call().get(), request, &job); !s.ok()) {
+    return rpc_error(s);
+  }
+  return absl::StrCat(job_line(job), "\n");
+}
+
+absl::StatusOr<std::string> run_fetch(const FarmConnection& c, const std::string& job_id,
+                                      const std::optional<fs::path>& output) {
+  PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
+  return fetch(farm, job_id, output);
+}
+
+absl::StatusOr<std::string> run_workers(const FarmConnection& c) {
+  PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
+  v1::ListWorkersRequest request;
+  v1::ListWorkersResponse response;
+  if (grpc::Status s = farm.stub().ListWorkers(farm.call().get(), request, &response); !s.ok()) {
+    return rpc_error(s);
+  }
+  std::string text;
+  for (const v1::WorkerInfo& w : response.workers()) {
+    absl::StrAppend(&text, w.worker_id(), "  ", w.host(), "  ", w.state(), "  ", w.threads(),
+                    " threads  ", w.tasks_completed(), " tasks  ", w.version(), "\n");
+  }
+  if (text.empty()) text = "no workers\n";
+  return text;
+}
+
+}  // namespace prism::client

@@ -1,0 +1,195 @@
+// The farm subcommands against the coordinator's gRPC server in process on 127.0.0.1 port 0,
+// with no worker: jobs stay queued, which is all submit, status, jobs and cancel need.
+#include "client/farm_commands.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <future>
+#include <thread>
+#include <sstream>
+
+#include "coordinator/farm_coordinator.h"
+#include "coordinator/rpc/coordinator_server.h"
+
+namespace prism::client {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr char kToken[] = "client-token";
+
+const char kScene[] = R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 30
+Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
+Sampler "zsobol" "integer pixelsamples" 4
+Integrator "volpath" "integer maxdepth" 5
+WorldBegin
+LightSource "infinite" "spectrum L" [360 1 830 1] "float scale" 1
+AttributeBegin
+  Material "diffuse" "float reflectance" 0.5
+  Shape "sphere" "float radius" 0.8
+AttributeEnd
+)";
+
+int count(const std::string& text, const std::string& needle) {
+  int n = 0;
+  for (auto at = text.find(needle); at != std::string::npos; at = text.find(needle, at + 1)) ++n;
+  return n;
+}
+
+class FarmCommandsTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    root_ = fs::path(::testing::TempDir()) /
+            ("farm_cli_" + std::string(::testing::UnitTest::GetInstance()
+                                           ->current_test_info()
+                                           ->name()) +
+             "_" + std::to_string(::getpid()));
+    fs::remove_all(root_);
+    fs::create_directories(root_ / "scene");
+    std::ofstream(root_ / "scene" / "scene.pbrt") << kScene;
+    coordinator::FarmOptions options;
+    options.data_dir = root_ / "data";
+    options.scheduler.heartbeat_interval = coordinator::Millis(200);
+    options.tick_interval = coordinator::Millis(20);
+    auto farm = coordinator::FarmCoordinator::open(std::move(options));
+    ASSERT_TRUE(farm.ok()) << farm.status();
+    farm_ = *std::move(farm);
+    coordinator::rpc::ServerConfig config;
+    config.api_token = kToken;
+    config.worker_secret = "worker-secret";
+    auto server = coordinator::rpc::CoordinatorServer::start(*farm_, config,
+                                                             spdlog::default_logger());
+    ASSERT_TRUE(server.ok()) << server.status();
+    server_ = *std::move(server);
+    connection_.address = "127.0.0.1:" + std::to_string(server_->port());
+    connection_.token = kToken;
+    connection_.deadline = std::chrono::milliseconds(5000);
+  }
+  void TearDown() override {
+    if (server_) server_->shutdown(coordinator::Millis(100));
+    server_.reset();
+    farm_.reset();
+  }
+
+  SubmitOptions submit_options(std::ostream* log) {
+    SubmitOptions options;
+    options.render.scene = root_ / "scene" / "scene.pbrt";
+    options.render.spp = 2;
+    options.render.tile = 8;
+    options.progress = log;
+    return options;
+  }
+
+  fs::path root_;
+  std::unique_ptr<coordinator::FarmCoordinator> farm_;
+  std::unique_ptr<coordinator::rpc::CoordinatorServer> server_;
+  FarmConnection connection_;
+};
+
+TEST_F(FarmCommandsTest, SubmitUploadsOnceAndIsIdempotent) {
+  std::ostringstream log;
+  auto first = run_submit(connection_, submit_options(&log));
+  ASSERT_TRUE(first.ok()) << first.status();
+  EXPECT_EQ(count(log.str(), "uploading bundle"), 1) << log.str();
+  auto second = run_submit(connection_, submit_options(&log));
+  ASSERT_TRUE(second.ok()) << second.status();
+  EXPECT_EQ(count(log.str(), "uploading bundle"), 1) << log.str();  // not uploaded again
+  EXPECT_EQ(*first, *second);
+  ASSERT_FALSE(first->empty());
+  const std::string id = first->substr(0, first->size() - 1);
+
+  // Different options are a different job, sharing the bundle.
+  SubmitOptions other = submit_options(&log);
+  other.render.seed = 5;
+  auto third = run_submit(connection_, other);
+  ASSERT_TRUE(third.ok()) << third.status();
+  EXPECT_NE(*third, *first);
+  EXPECT_EQ(count(log.str(), "uploading bundle"), 1);
+
+  auto status = run_status(connection_, id);
+  ASSERT_TRUE(status.ok()) << status.status();
+  EXPECT_NE(status->find(id), std::string::npos) << *status;
+  EXPECT_NE(status->find("scene.pbrt"), std::string::npos) << *status;
+  EXPECT_NE(status->find("samples 0/512"), std::string::npos) << *status;  // 16x16, 2 spp
+
+  auto jobs = run_jobs(connection_);
+  ASSERT_TRUE(jobs.ok()) << jobs.status();
+  EXPECT_EQ(count(*jobs, "\n"), 2) << *jobs;
+  EXPECT_NE(jobs->find(id), std::string::npos) << *jobs;
+
+  auto cancelled = run_cancel(connection_, id);
+  ASSERT_TRUE(cancelled.ok()) << cancelled.status();
+  auto after = run_status(connection_, id);
+  ASSERT_TRUE(after.ok()) << after.status();
+  EXPECT_NE(after->find("cancelled"), std::string::npos) << *after;
+
+  // Watching a cancelled job fails, saying so.
+  std::ostringstream progress;
+  auto watched = run_watch(connection_, id, progress, false);
+  ASSERT_FALSE(watched.ok());
+  EXPECT_NE(watched.status().message().find("cancelled"), std::string::npos) << watched.status();
+
+  auto workers = run_workers(connection_);
+  ASSERT_TRUE(workers.ok()) << workers.status();
+  EXPECT_EQ(*workers, "no workers\n");
+}
+
+// No worker, so nothing changes for longer than the per-message deadline: the watch probes the
+// coordinator instead of failing, and ends with the cancellation's error.
+TEST_F(FarmCommandsTest, WatchOutlivesQuietPeriodsAndFailsOnCancel) {
+  auto submitted = run_submit(connection_, submit_options(nullptr));
+  ASSERT_TRUE(submitted.ok()) << submitted.status();
+  const std::string id = submitted->substr(0, submitted->size() - 1);
+  connection_.deadline = std::chrono::milliseconds(150);
+  std::ostringstream progress;
+  auto watching = std::async(std::launch::async,
+                             [&] { return run_watch(connection_, id, progress, false); });
+  std::this_thread::sleep_for(std::chrono::milliseconds(600));
+  ASSERT_EQ(watching.wait_for(std::chrono::seconds(0)), std::future_status::timeout);
+  ASSERT_TRUE(run_cancel(connection_, id).ok());
+  auto watched = watching.get();
+  ASSERT_FALSE(watched.ok());
+  EXPECT_EQ(watched.status().code(), absl::StatusCode::kCancelled) << watched.status();
+  EXPECT_NE(progress.str().find(id + " cancelled"), std::string::npos) << progress.str();
+}
+
+TEST_F(FarmCommandsTest, WrongTokenGetsTheServersMessage) {
+  connection_.token = "not-the-token";
+  auto jobs = run_jobs(connection_);
+  ASSERT_FALSE(jobs.ok());
+  EXPECT_EQ(jobs.status().code(), absl::StatusCode::kUnauthenticated);
+  EXPECT_EQ(jobs.status().message(), "invalid token");
+  std::ostringstream log;
+  auto submitted = run_submit(connection_, submit_options(&log));
+  ASSERT_FALSE(submitted.ok());
+  EXPECT_EQ(submitted.status().code(), absl::StatusCode::kUnauthenticated);
+  EXPECT_EQ(log.str(), "");  // refused before any upload
+}
+
+TEST_F(FarmCommandsTest, UnknownJobIsNotFound) {
+  for (auto result : {run_status(connection_, "no-such-job"), run_cancel(connection_, "no-such-job"),
+                      run_fetch(connection_, "no-such-job", root_ / "out.exr")}) {
+    ASSERT_FALSE(result.ok());
+    EXPECT_EQ(result.status().code(), absl::StatusCode::kNotFound) << result.status();
+    EXPECT_NE(result.status().message().find("no-such-job"), std::string::npos)
+        << result.status();
+  }
+  EXPECT_FALSE(fs::exists(root_ / "out.exr"));
+}
+
+TEST_F(FarmCommandsTest, MissingAddressIsRefused) {
+  FarmConnection none;
+  ::unsetenv("PRISM_COORDINATOR");
+  EXPECT_EQ(resolve_connection(none).code(), absl::StatusCode::kInvalidArgument);
+  ::setenv("PRISM_COORDINATOR", "127.0.0.1:1", 1);
+  EXPECT_TRUE(resolve_connection(none).ok());
+  EXPECT_EQ(none.address, "127.0.0.1:1");
+  ::unsetenv("PRISM_COORDINATOR");
+}
+
+}  // namespace
+}  // namespace prism::client
