@@ -1,0 +1,407 @@
+// The farm as separate processes on loopback: a `prism-coordinator` and `prism-worker`s, driven
+// over gRPC by this test, compared byte for byte with `prism render` (the real CLI). Each test
+// has its own data directory and kills every child it started in TearDown.
+#include <arpa/inet.h>
+#include <fcntl.h>
+#include <grpcpp/create_channel.h>
+#include <grpcpp/security/credentials.h>
+#include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <signal.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <thread>
+
+#include "prism/v1/farm.grpc.pb.h"
+#include "services/base/sha256.h"
+#include "services/image/exr_spectral.h"
+#include "services/rpc/auth.h"
+#include "services/rpc/chunks.h"
+#include "services/scene/bundle.h"
+#include "services/store/job_store.h"
+
+namespace prism {
+namespace {
+
+namespace fs = std::filesystem;
+namespace v1 = prism::v1;
+using Clock = std::chrono::steady_clock;
+
+constexpr char kToken[] = "client-token";
+constexpr char kSecret[] = "worker-secret";
+constexpr int kHeartbeatMs = 200;
+
+fs::path source_scene() { return fs::path(PRISM_SOURCE_DIR) / "worker/testdata/unbiased.pbrt"; }
+
+// A port that was free a moment ago (for a coordinator restarted on the same address).
+int free_port() {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  addr.sin_port = 0;
+  EXPECT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)), 0);
+  socklen_t len = sizeof(addr);
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
+  ::close(fd);
+  return ntohs(addr.sin_port);
+}
+
+class FarmProcessTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    root_ = fs::path(::testing::TempDir()) /
+            ("farm_process_" +
+             std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) + "_" +
+             std::to_string(::getpid()));
+    fs::remove_all(root_);
+    fs::create_directories(root_ / "scene");
+    fs::copy_file(source_scene(), root_ / "scene" / "scene.pbrt");
+  }
+  void TearDown() override {
+    for (pid_t pid : children_) {
+      ::kill(pid, SIGKILL);
+      int status = 0;
+      ::waitpid(pid, &status, 0);
+    }
+    children_.clear();
+    fs::remove_all(root_);
+  }
+
+  // Starts `argv`; with `out` set, the child's stdout is a pipe returned there.
+  pid_t spawn(std::vector<std::string> argv, FILE** out = nullptr) {
+    int fds[2] = {-1, -1};
+    if (out != nullptr) {
+      EXPECT_EQ(::pipe2(fds, O_CLOEXEC), 0);  // later children must not hold it open
+    }
+    const pid_t pid = ::fork();
+    if (pid == 0) {
+      if (out != nullptr) {
+        ::dup2(fds[1], STDOUT_FILENO);
+        ::close(fds[0]);
+        ::close(fds[1]);
+      }
+      std::vector<char*> args;
+      for (std::string& a : argv) args.push_back(a.data());
+      args.push_back(nullptr);
+      ::execv(args[0], args.data());
+      ::_exit(127);
+    }
+    EXPECT_GT(pid, 0);
+    children_.push_back(pid);
+    if (out != nullptr) {
+      ::close(fds[1]);
+      *out = ::fdopen(fds[0], "r");
+    }
+    return pid;
+  }
+
+  void kill9(pid_t pid) {
+    ::kill(pid, SIGKILL);
+    int status = 0;
+    ::waitpid(pid, &status, 0);
+    std::erase(children_, pid);
+  }
+
+  // Starts the coordinator on `port` (0: any) and connects the stubs to it.
+  void start_coordinator(int port = 0) {
+    FILE* out = nullptr;
+    coordinator_ = spawn({PRISM_COORDINATOR_BINARY, "--listen", "127.0.0.1:" + std::to_string(port),
+                          "--data-dir", (root_ / "data").string(), "--worker-secret", kSecret,
+                          "--api-token", kToken, "--heartbeat-ms", std::to_string(kHeartbeatMs),
+                          "--lease-ms", "1000", "--log-level", "warn"},
+                         &out);
+    ASSERT_NE(out, nullptr);
+    char line[512];
+    port_ = 0;
+    while (std::fgets(line, sizeof(line), out) != nullptr) {
+      if (std::sscanf(line, "listening on port %d", &port_) == 1) break;
+    }
+    // Keep draining so the coordinator never blocks on a full pipe.
+    std::thread([out] {
+      char sink[512];
+      while (std::fgets(sink, sizeof(sink), out) != nullptr) {
+      }
+      std::fclose(out);
+    }).detach();
+    ASSERT_GT(port_, 0) << "the coordinator did not print its port";
+    auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(port_),
+                                       grpc::InsecureChannelCredentials());
+    stub_ = v1::FarmService::NewStub(channel);
+  }
+
+  pid_t start_worker(int i) {
+    std::string host = "w";
+    host += std::to_string(i);
+    return spawn({PRISM_WORKER_BINARY, "--coordinator", "127.0.0.1:" + std::to_string(port_),
+                  "--threads", "1", "--secret", kSecret, "--host", host, "--cache-dir",
+                  (root_ / ("cache" + std::to_string(i))).string(), "--log-level", "error"});
+  }
+
+  // Whether the worker started as start_worker(i) with host `host` holds a lease within `seconds`.
+  bool wait_busy(const std::string& host, double seconds) {
+    const auto end = Clock::now() + std::chrono::duration<double>(seconds);
+    while (Clock::now() < end) {
+      v1::ListWorkersRequest request;
+      v1::ListWorkersResponse response;
+      auto context = client();
+      if (stub_->ListWorkers(context.get(), request, &response).ok()) {
+        for (const auto& w : response.workers()) {
+          if (w.host() == host && w.state() == "busy") return true;
+        }
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    return false;
+  }
+
+  std::unique_ptr<grpc::ClientContext> client() {
+    auto context = std::make_unique<grpc::ClientContext>();
+    prism::rpc::add_bearer(*context, kToken);
+    context->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(20));
+    return context;
+  }
+
+  std::string upload() {
+    auto bundle = scene::make_bundle(root_ / "scene", "scene.pbrt", {});
+    EXPECT_TRUE(bundle.ok()) << bundle.status();
+    const std::string bytes = scene::pack(*bundle);
+    auto context = client();
+    v1::UploadBundleResponse response;
+    auto writer = stub_->UploadBundle(context.get(), &response);
+    for (std::string_view piece : prism::rpc::split_chunks(bytes, 16 << 10)) {
+      v1::BundleChunk chunk;
+      chunk.set_total_bytes(bytes.size());
+      chunk.set_data(std::string(piece));
+      if (!writer->Write(chunk)) break;
+    }
+    writer->WritesDone();
+    const grpc::Status status = writer->Finish();
+    EXPECT_TRUE(status.ok()) << status.error_message();
+    return response.bundle_hash();
+  }
+
+  // 24x24 in 8-pixel tiles: 9 tasks, each one tile's whole sample range (as `prism render`).
+  v1::JobSpec spec(const std::string& hash, int spp) {
+    v1::JobSpec s;
+    s.set_bundle_hash(hash);
+    s.set_scene_path("scene.pbrt");
+    s.set_spp(spp);
+    s.set_tile_size(8);
+    s.set_seed(11);
+    return s;
+  }
+
+  std::string submit(const v1::JobSpec& s) {
+    v1::SubmitJobRequest request;
+    *request.mutable_spec() = s;
+    v1::SubmitJobResponse response;
+    auto context = client();
+    const grpc::Status status = stub_->SubmitJob(context.get(), request, &response);
+    EXPECT_TRUE(status.ok()) << status.error_message();
+    return response.job().job_id();
+  }
+
+  v1::JobInfo get_job(const std::string& job_id) {
+    v1::GetJobRequest request;
+    request.set_job_id(job_id);
+    v1::JobInfo info;
+    auto context = client();
+    stub_->GetJob(context.get(), request, &info);
+    return info;
+  }
+
+  // Polls until `done(info)` or the timeout.
+  template <typename Pred>
+  v1::JobInfo wait_for(const std::string& job_id, Pred done, double seconds) {
+    const auto end = Clock::now() + std::chrono::duration<double>(seconds);
+    v1::JobInfo info;
+    while (Clock::now() < end) {
+      info = get_job(job_id);
+      if (done(info)) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    return info;
+  }
+  static bool terminal(const v1::JobInfo& info) {
+    return info.state() == v1::JOB_STATE_DONE || info.state() == v1::JOB_STATE_FAILED ||
+           info.state() == v1::JOB_STATE_CANCELLED;
+  }
+
+  std::vector<float> fetch_spectral(const std::string& job_id) {
+    v1::GetResultRequest request;
+    request.set_job_id(job_id);
+    request.add_kinds(v1::OUTPUT_KIND_SPECTRAL_EXR);
+    auto context = client();
+    auto reader = stub_->GetResult(context.get(), request);
+    std::string bytes, sha;
+    v1::ResultChunk chunk;
+    while (reader->Read(&chunk)) {
+      bytes += chunk.data();
+      if (chunk.last()) sha = chunk.sha256();
+    }
+    EXPECT_TRUE(reader->Finish().ok());
+    EXPECT_EQ(sha, base::sha256_hex(bytes));
+    const fs::path file = root_ / "farm.exr";
+    std::ofstream(file, std::ios::binary) << bytes;
+    return read_pixels(file);
+  }
+
+  static std::vector<float> read_pixels(const fs::path& file) {
+    auto exr = image::read_spectral_exr(file);
+    EXPECT_TRUE(exr.ok()) << exr.status();
+    if (!exr.ok()) return {};
+    const auto data = exr->spectral.data();
+    return {data.begin(), data.end()};
+  }
+
+  // `prism render` of the same job.
+  std::vector<float> cli_render(int spp) {
+    const fs::path out = root_ / "cli" / "cli.exr";
+    fs::create_directories(out.parent_path());
+    const pid_t pid = spawn({PRISM_BINARY, "render", (root_ / "scene" / "scene.pbrt").string(),
+                             "-o", out.string(), "--spp", std::to_string(spp), "--seed", "11",
+                             "--tile", "8", "--threads", "2"});
+    int status = 0;
+    ::waitpid(pid, &status, 0);
+    std::erase(children_, pid);
+    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    return read_pixels(out);
+  }
+
+  void expect_identical(const std::vector<float>& farm, const std::vector<float>& cli) {
+    ASSERT_EQ(farm.size(), cli.size());
+    ASSERT_GT(farm.size(), 0u);
+    EXPECT_EQ(std::memcmp(farm.data(), cli.data(), farm.size() * sizeof(float)), 0);
+    double sum = 0;
+    for (float v : farm) sum += v;
+    EXPECT_GT(sum, 0.0);
+  }
+
+  fs::path root_;
+  std::vector<pid_t> children_;
+  pid_t coordinator_ = -1;
+  int port_ = 0;
+  std::unique_ptr<v1::FarmService::Stub> stub_;
+};
+
+constexpr int kSpp = 16;
+// About 0.1-0.2 s per 8x8 task on one thread: the kills land in the middle of the job.
+constexpr int kSlowSpp = 1024;
+
+TEST_F(FarmProcessTest, TwoWorkerProcessesMatchPrismRenderByteForByte) {
+  start_coordinator();
+  const std::string job_id = submit(spec(upload(), kSpp));
+  ASSERT_FALSE(job_id.empty());
+  start_worker(0);
+  start_worker(1);
+  const v1::JobInfo done = wait_for(job_id, terminal, 20);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  EXPECT_EQ(done.progress().tasks_done(), 9u);
+  expect_identical(fetch_spectral(job_id), cli_render(kSpp));
+}
+
+TEST_F(FarmProcessTest, AWorkerKilledMidJobLeavesTheBytesUnchanged) {
+  start_coordinator();
+  const std::string job_id = submit(spec(upload(), kSlowSpp));
+  const pid_t doomed = start_worker(0);
+  start_worker(1);
+  // Kill worker 0 while it holds a lease, after at least one task is done.
+  wait_for(job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 1; }, 20);
+  ASSERT_TRUE(wait_busy("w0", 10));
+  ASSERT_LT(get_job(job_id).progress().tasks_done(), 9u) << "the job finished before the kill";
+  kill9(doomed);
+  const v1::JobInfo done = wait_for(job_id, terminal, 30);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral(job_id), cli_render(kSlowSpp));
+}
+
+TEST_F(FarmProcessTest, ACoordinatorKilledMidJobResumesWithoutRerenderingFinishedTasks) {
+  const int port = free_port();
+  start_coordinator(port);
+  const std::string job_id = submit(spec(upload(), kSlowSpp));
+  start_worker(0);
+  start_worker(1);
+  const v1::JobInfo mid =
+      wait_for(job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 3; }, 20);
+  ASSERT_LT(mid.progress().tasks_done(), 9u) << "the job finished before the kill";
+  kill9(coordinator_);
+  std::map<int, store::TaskRecord> before;
+  {
+    auto store = store::JobStore::open(root_ / "data" / "jobs.sqlite");
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto tasks = store->tasks_of(job_id);
+    ASSERT_TRUE(tasks.ok()) << tasks.status();
+    for (const store::TaskRecord& t : *tasks) {
+      if (t.state == store::TaskState::kDone) before[t.index] = t;
+    }
+  }
+  ASSERT_GE(before.size(), 3u);
+  ASSERT_LT(before.size(), 9u);
+  start_coordinator(port);
+  const v1::JobInfo done = wait_for(job_id, terminal, 30);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  const std::vector<float> farm = fetch_spectral(job_id);
+  kill9(coordinator_);
+  {
+    auto store = store::JobStore::open(root_ / "data" / "jobs.sqlite");
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto tasks = store->tasks_of(job_id);
+    ASSERT_TRUE(tasks.ok()) << tasks.status();
+    ASSERT_EQ(tasks->size(), 9u);
+    for (const store::TaskRecord& t : *tasks) {
+      EXPECT_EQ(t.state, store::TaskState::kDone);
+      auto it = before.find(t.index);
+      if (it == before.end()) continue;
+      EXPECT_EQ(t.attempts, 1) << "task " << t.index << " was leased again after the restart";
+      EXPECT_EQ(t.result_hash, it->second.result_hash) << "task " << t.index;
+    }
+  }
+  expect_identical(farm, cli_render(kSlowSpp));
+}
+
+TEST_F(FarmProcessTest, ACancelledJobFreesItsWorkerWithinAHeartbeat) {
+  start_coordinator();
+  const std::string hash = upload();
+  // One 24x24 tile at a sample count that takes far longer than the test waits.
+  v1::JobSpec long_spec = spec(hash, 1 << 16);
+  long_spec.set_tile_size(32);
+  const std::string long_job = submit(long_spec);
+  start_worker(0);
+  // Wait until the worker holds the long task's lease.
+  ASSERT_TRUE(wait_busy("w0", 10));
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));  // well into the render
+  {
+    v1::CancelJobRequest request;
+    request.set_job_id(long_job);
+    v1::JobInfo info;
+    auto context = client();
+    ASSERT_TRUE(stub_->CancelJob(context.get(), request, &info).ok());
+  }
+  const auto cancelled_at = Clock::now();
+  const v1::JobInfo cancelled = wait_for(
+      long_job, [](const v1::JobInfo& i) { return i.state() == v1::JOB_STATE_CANCELLED; }, 5);
+  EXPECT_EQ(cancelled.state(), v1::JOB_STATE_CANCELLED);
+  // A tiny job: one 4x4 tile at 1 spp, rendered as soon as the worker drops the cancelled task.
+  v1::JobSpec tiny = spec(hash, 1);
+  tiny.set_width(4);
+  tiny.set_height(4);
+  tiny.set_tile_size(4);
+  const std::string tiny_job = submit(tiny);
+  const v1::JobInfo done = wait_for(tiny_job, terminal, 10);
+  const double seconds = std::chrono::duration<double>(Clock::now() - cancelled_at).count();
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  // Two heartbeats for the directive to reach the worker, plus the tiny render and finalise.
+  EXPECT_LT(seconds, 2 * kHeartbeatMs / 1000.0 + 0.8);
+}
+
+}  // namespace
+}  // namespace prism
