@@ -31,26 +31,6 @@ absl::Status check_range(const char* flag, const std::optional<std::int64_t>& va
   return absl::OkStatus();
 }
 
-const char* name_of(worker::IntegratorKind k) {
-  return k == worker::IntegratorKind::kUniform ? "uniform" : "hero";
-}
-const char* name_of(worker::SpectralPdfKind k) {
-  return k == worker::SpectralPdfKind::kFlat ? "flat" : "visible";
-}
-const char* name_of(worker::EmitterPdfKind k) {
-  return k == worker::EmitterPdfKind::kUniform ? "uniform" : "emitters";
-}
-const char* name_of(worker::LightSelectionKind k) {
-  switch (k) {
-    case worker::LightSelectionKind::kUniform:
-      return "uniform";
-    case worker::LightSelectionKind::kPower:
-      return "power";
-    case worker::LightSelectionKind::kSpatial:
-      return "spatial";
-  }
-  return "?";
-}
 
 // 1234567 -> "1.23 M".
 std::string human(double value) {
@@ -229,10 +209,10 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   report.height = local.height;
   report.spp = local.spp;
   report.bins = render.bins;
-  report.integrator = name_of(render.integrator);
-  report.spectral_pdf = name_of(render.spectral_pdf);
-  report.emitter_pdf = name_of(render.emitter_pdf);
-  report.light_selection = name_of(render.light_selection);
+  report.integrator = worker::name(render.integrator);
+  report.spectral_pdf = worker::name(render.spectral_pdf);
+  report.emitter_pdf = worker::name(render.emitter_pdf);
+  report.light_selection = worker::name(render.light_selection);
   report.spectral_light_selection = render.spectral_light_selection;
   report.max_depth = render.max_depth;
   report.threads = result->stats.threads;

@@ -126,6 +126,18 @@ std::optional<LightSample> AreaLight::sample(const LightContext& ctx, Point2f u,
   return is_sphere_ ? sample_sphere(ctx, u, lambda) : sample_triangles(ctx, u, u_tri, lambda);
 }
 
+LightSample AreaLight::area_sample(const Vec3f& wi, float dist, const Vec3f& p, const Vec3f& n,
+                                   float pdf, const SampledWavelengths& lambda) const {
+  LightSample s;
+  s.radiance = scaled(spectrum_, scale_, lambda);
+  s.wi = wi;
+  s.distance = dist;
+  s.p_light = p;
+  s.n_light = n;
+  s.pdf = pdf;
+  return s;
+}
+
 std::optional<LightSample> AreaLight::sample_triangles(const LightContext& ctx, Point2f u,
                                                        float u_tri,
                                                        const SampledWavelengths& lambda) const {
@@ -164,14 +176,7 @@ std::optional<LightSample> AreaLight::sample_triangles(const LightContext& ctx, 
   if (!two_sided_ && cos_light <= 0) return std::nullopt;
   float pdf = dist2 / (std::abs(cos_light) * float(area_));
   if (!std::isfinite(pdf) || !(pdf > 0)) return std::nullopt;
-  LightSample s;
-  s.radiance = scaled(spectrum_, scale_, lambda);
-  s.wi = wi;
-  s.distance = dist;
-  s.p_light = p;
-  s.n_light = n;
-  s.pdf = pdf;
-  return s;
+  return area_sample(wi, dist, p, n, pdf, lambda);
 }
 
 std::optional<LightSample> AreaLight::sample_sphere(const LightContext& ctx, Point2f u,
@@ -215,14 +220,7 @@ std::optional<LightSample> AreaLight::sample_sphere(const LightContext& ctx, Poi
   Vec3f wi = d / dist;
   if (!two_sided_ && dot(ng, -wi) <= 0) return std::nullopt;
   if (!std::isfinite(pdf) || !(pdf > 0)) return std::nullopt;
-  LightSample s;
-  s.radiance = scaled(spectrum_, scale_, lambda);
-  s.wi = wi;
-  s.distance = dist;
-  s.p_light = p;
-  s.n_light = ng;
-  s.pdf = pdf;
-  return s;
+  return area_sample(wi, dist, p, ng, pdf, lambda);
 }
 
 float AreaLight::pdf(const LightContext& ctx, const Vec3f& wi, const SurfaceHit& hit) const {

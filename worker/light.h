@@ -73,6 +73,9 @@ class AreaLight {
  private:
   std::optional<LightSample> sample_triangles(const LightContext& ctx, Point2f u, float u_tri,
                                               const SampledWavelengths& lambda) const;
+  // The sample for a chosen point p with normal n seen along wi at distance dist.
+  LightSample area_sample(const Vec3f& wi, float dist, const Vec3f& p, const Vec3f& n, float pdf,
+                          const SampledWavelengths& lambda) const;
   std::optional<LightSample> sample_sphere(const LightContext& ctx, Point2f u,
                                            const SampledWavelengths& lambda) const;
 
