@@ -113,53 +113,6 @@ absl::Status job_outcome(const v1::JobInfo& job) {
   return absl::OkStatus();
 }
 
-absl::StatusOr<v1::JobSpec> build_spec(const RenderCommandOptions& o,
-                                       const scene::SceneDescription& description,
-                                       const std::string& bundle_hash,
-                                       const std::string& scene_path) {
-  PRISM_RETURN_IF_ERROR(validate_render_flags(o));
-  v1::JobSpec spec;
-  spec.set_bundle_hash(bundle_hash);
-  spec.set_scene_path(scene_path);
-  spec.set_integrator(*parse_integrator(o.integrator) == worker::IntegratorKind::kUniform
-                          ? v1::INTEGRATOR_UNIFORM
-                          : v1::INTEGRATOR_HERO);
-  if (o.spp) spec.set_spp(static_cast<std::uint32_t>(*o.spp));
-  if (o.resolution) {
-    auto [w, h] = *parse_resolution(*o.resolution);
-    spec.set_width(static_cast<std::uint32_t>(w));
-    spec.set_height(static_cast<std::uint32_t>(h));
-  }
-  if (o.bins) spec.set_bins(static_cast<std::uint32_t>(*o.bins));
-  spec.set_tile_size(static_cast<std::uint32_t>(o.tile));
-  spec.set_seed(o.seed);
-  if (o.max_depth) spec.set_max_depth(static_cast<std::uint32_t>(*o.max_depth));
-  spec.set_spectral_pdf(*parse_spectral_pdf(o.spectral_pdf) == worker::SpectralPdfKind::kVisible
-                            ? v1::SPECTRAL_PDF_VISIBLE
-                            : v1::SPECTRAL_PDF_FLAT);
-  spec.set_emitter_pdf(*parse_emitter_pdf(o.emitter_pdf) == worker::EmitterPdfKind::kUniform
-                           ? v1::EMITTER_PDF_UNIFORM
-                           : v1::EMITTER_PDF_EMITTERS);
-  switch (*parse_light_selection(o.light_selection)) {
-    case worker::LightSelectionKind::kUniform:
-      spec.set_light_selection(v1::LIGHT_SELECTION_UNIFORM);
-      break;
-    case worker::LightSelectionKind::kSpatial:
-      spec.set_light_selection(v1::LIGHT_SELECTION_SPATIAL);
-      break;
-    default:
-      spec.set_light_selection(v1::LIGHT_SELECTION_POWER);
-  }
-  spec.set_spectral_light_selection(o.spectral_light_selection);
-  spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
-  spec.set_name(o.scene.filename().string());
-  // The coordinator applies the same rules; checking here fails before any upload, and
-  // to_proto makes every value explicit so the token does not depend on scene defaults.
-  PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters parameters,
-                         coordinator::job_parameters(spec, description));
-  return coordinator::to_proto(parameters);
-}
-
 absl::Status upload_if_missing(Farm& farm, const std::string& hash, const std::string& blob,
                                std::ostream* log) {
   v1::HasBundleRequest has;
@@ -395,8 +348,8 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
                                                      loaded.description.film.filename));
     PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
   }
-  PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec, build_spec(options.render, loaded.description,
-                                                      bundle.content_hash, loaded.scene_relpath));
+  PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec, job_spec_of(options.render, loaded.description,
+                                                       bundle.content_hash, loaded.scene_relpath));
   PRISM_RETURN_IF_ERROR(upload_if_missing(farm, bundle.content_hash, scene::pack(bundle),
                                            options.progress));
 

@@ -12,6 +12,7 @@
 #include "client/compare_command.h"
 #include "client/farm_commands.h"
 #include "client/render_command.h"
+#include "client/render_flags.h"
 #include "worker/embree_device.h"
 
 namespace {
@@ -47,39 +48,17 @@ int main(int argc, char** argv) {
   compare_cmd->add_flag("--json", compare.json, "Print the metrics as JSON");
 
   prism::client::RenderCommandOptions render;
-  std::string output, json_path, resolution, seed;
-  std::int64_t spp = 0, bins = 0, threads = 0, max_depth = 0;
-  bool no_spectral_light_selection = false;
+  prism::client::RenderFlags render_flags;
+  std::string json_path;
+  std::int64_t threads = 0;
   auto* render_cmd = app.add_subcommand(
       "render",
       "Render a scene on this machine (the farm's coordinator and worker code, in process)");
-  render_cmd->add_option("scene", render.scene, "pbrt-v4 scene file")->required();
-  auto* output_opt = render_cmd->add_option(
-      "-o,--output", output, "Spectral EXR to write (default: the Film filename's stem, here)");
-  auto* spp_opt = render_cmd->add_option("--spp", spp, "Samples per pixel (default: the scene's)");
-  render_cmd->add_option("--integrator", render.integrator, "uniform or hero (default hero)");
-  auto* bins_opt =
-      render_cmd->add_option("--bins", bins, "Spectral bins, 4..256 (default: nbuckets, else 64)");
-  auto* resolution_opt =
-      render_cmd->add_option("--resolution", resolution, "WxH (default: the scene's Film)");
+  prism::client::add_render_flags(*render_cmd, render_flags, render);
   auto* threads_opt = render_cmd->add_option("--threads", threads,
                                              "Render threads (default: all hardware threads)");
-  auto* seed_opt = render_cmd->add_option("--seed", seed, "Sampler seed, 0..2^64-1 (default 0)");
-  render_cmd->add_option("--tile", render.tile, "Tile size in pixels, 4..1024 (default 32)");
   auto* json_opt =
       render_cmd->add_option("--json", json_path, "JSON report path (default: <output stem>.json)");
-  render_cmd->add_option("--spectral-pdf", render.spectral_pdf,
-                         "Sensor wavelength pdf: flat or visible (default flat)");
-  render_cmd->add_option("--emitter-pdf", render.emitter_pdf,
-                         "Emitter wavelength pdf: uniform or emitters (default emitters)");
-  render_cmd->add_option("--light-selection", render.light_selection,
-                         "Base emitter pmf: uniform, power or spatial (default power)");
-  render_cmd->add_flag("--no-spectral-light-selection", no_spectral_light_selection,
-                       "Do not weight emitter selection by the wavelengths' unit emission");
-  auto* depth_opt = render_cmd->add_option("--max-depth", max_depth,
-                                           "Path vertices after the camera (default: the scene's)");
-  render_cmd->add_option("--exposure", render.exposure,
-                         "PNG preview exposure in stops (default 0)");
 
   // The farm subcommands share the connection flags.
   prism::client::FarmConnection farm;
@@ -91,27 +70,10 @@ int main(int argc, char** argv) {
   };
 
   prism::client::SubmitOptions submit;
-  std::string submit_output, submit_resolution, submit_seed;
-  std::int64_t submit_spp = 0, submit_bins = 0, submit_depth = 0;
-  bool submit_no_sls = false;
+  prism::client::RenderFlags submit_flags;
   auto* submit_cmd = app.add_subcommand("submit", "Submit a scene to the farm");
-  submit_cmd->add_option("scene", submit.render.scene, "pbrt-v4 scene file")->required();
+  prism::client::add_render_flags(*submit_cmd, submit_flags, submit.render);
   add_connection(submit_cmd);
-  auto* s_output = submit_cmd->add_option("-o,--output", submit_output,
-                                          "Spectral EXR to write with --wait (default render.exr)");
-  auto* s_spp = submit_cmd->add_option("--spp", submit_spp, "Samples per pixel");
-  submit_cmd->add_option("--integrator", submit.render.integrator, "uniform or hero");
-  auto* s_bins = submit_cmd->add_option("--bins", submit_bins, "Spectral bins, 4..256");
-  auto* s_res = submit_cmd->add_option("--resolution", submit_resolution, "WxH");
-  auto* s_seed = submit_cmd->add_option("--seed", submit_seed, "Sampler seed");
-  submit_cmd->add_option("--tile", submit.render.tile, "Tile size in pixels, 4..1024");
-  submit_cmd->add_option("--spectral-pdf", submit.render.spectral_pdf, "flat or visible");
-  submit_cmd->add_option("--emitter-pdf", submit.render.emitter_pdf, "uniform or emitters");
-  submit_cmd->add_option("--light-selection", submit.render.light_selection,
-                         "uniform, power or spatial");
-  submit_cmd->add_flag("--no-spectral-light-selection", submit_no_sls,
-                       "Do not weight emitter selection by the wavelengths' unit emission");
-  auto* s_depth = submit_cmd->add_option("--max-depth", submit_depth, "Path vertices");
   submit_cmd->add_flag("--wait", submit.wait, "Watch the job, then fetch its outputs");
   submit_cmd->add_option("--client-token", submit.client_token,
                          "Idempotency key (default: hash of bundle and spec)");
@@ -145,18 +107,10 @@ int main(int argc, char** argv) {
     }
   }
   if (submit_cmd->parsed()) {
-    prism::client::RenderCommandOptions& r = submit.render;
-    if (s_output->count() > 0) r.output = submit_output;
-    if (s_res->count() > 0) r.resolution = submit_resolution;
-    if (s_spp->count() > 0) r.spp = submit_spp;
-    if (s_bins->count() > 0) r.bins = submit_bins;
-    if (s_depth->count() > 0) r.max_depth = submit_depth;
-    if (s_seed->count() > 0) {
-      auto parsed = prism::client::parse_seed(submit_seed);
-      if (!parsed.ok()) return report(parsed.status());
-      r.seed = *parsed;
+    if (absl::Status applied = prism::client::apply_render_flags(submit_flags, submit.render);
+        !applied.ok()) {
+      return report(applied);
     }
-    r.spectral_light_selection = !submit_no_sls;
     submit.progress = &std::cerr;
     submit.progress_is_terminal = isatty(STDERR_FILENO) != 0;
     return report(prism::client::run_submit(farm, submit));
@@ -184,19 +138,12 @@ int main(int argc, char** argv) {
     return report(prism::client::run_compare(compare));
   }
   if (render_cmd->parsed()) {
-    if (output_opt->count() > 0) render.output = output;
-    if (json_opt->count() > 0) render.json = json_path;
-    if (resolution_opt->count() > 0) render.resolution = resolution;
-    if (spp_opt->count() > 0) render.spp = spp;
-    if (bins_opt->count() > 0) render.bins = bins;
-    if (threads_opt->count() > 0) render.threads = threads;
-    if (depth_opt->count() > 0) render.max_depth = max_depth;
-    if (seed_opt->count() > 0) {
-      auto parsed = prism::client::parse_seed(seed);
-      if (!parsed.ok()) return report(parsed.status());
-      render.seed = *parsed;
+    if (absl::Status applied = prism::client::apply_render_flags(render_flags, render);
+        !applied.ok()) {
+      return report(applied);
     }
-    render.spectral_light_selection = !no_spectral_light_selection;
+    if (json_opt->count() > 0) render.json = json_path;
+    if (threads_opt->count() > 0) render.threads = threads;
     if (isatty(STDERR_FILENO)) render.progress = &std::cerr;
     // The flags are checked before Embree starts, so a typo costs nothing.
     if (absl::Status flags = prism::client::validate_render_flags(render); !flags.ok()) {

@@ -8,9 +8,11 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "coordinator/job_spec.h"
 #include "coordinator/local_render.h"
 #include "coordinator/outputs.h"
 #include "services/base/status.h"
+#include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/wavelength_grid.h"
@@ -131,6 +133,7 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   PRISM_RETURN_IF_ERROR(check_range("--threads", o.threads, 1, kMaxThreads));
   PRISM_RETURN_IF_ERROR(check_range("--tile", o.tile, 4, 1024));
   PRISM_RETURN_IF_ERROR(check_range("--max-depth", o.max_depth, 0, kMaxDepth));
+  PRISM_RETURN_IF_ERROR(check_range("--samples-per-task", o.samples_per_task, 1, kMaxSpp));
   if (o.resolution.has_value()) PRISM_RETURN_IF_ERROR(parse_resolution(*o.resolution).status());
   PRISM_RETURN_IF_ERROR(parse_integrator(o.integrator).status());
   PRISM_RETURN_IF_ERROR(parse_spectral_pdf(o.spectral_pdf).status());
@@ -143,6 +146,54 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   }
   // The names alone (the film's filename is not needed to check -o and --json).
   return coordinator::output_paths(o.output, o.json, "render.exr").status();
+}
+
+absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
+                                        const scene::SceneDescription& description,
+                                        const std::string& bundle_hash,
+                                        const std::string& scene_path) {
+  PRISM_RETURN_IF_ERROR(validate_render_flags(o));
+  v1::JobSpec spec;
+  spec.set_bundle_hash(bundle_hash);
+  spec.set_scene_path(scene_path);
+  spec.set_integrator(*parse_integrator(o.integrator) == worker::IntegratorKind::kUniform
+                          ? v1::INTEGRATOR_UNIFORM
+                          : v1::INTEGRATOR_HERO);
+  if (o.spp) spec.set_spp(static_cast<std::uint32_t>(*o.spp));
+  if (o.resolution) {
+    auto [w, h] = *parse_resolution(*o.resolution);
+    spec.set_width(static_cast<std::uint32_t>(w));
+    spec.set_height(static_cast<std::uint32_t>(h));
+  }
+  if (o.bins) spec.set_bins(static_cast<std::uint32_t>(*o.bins));
+  spec.set_tile_size(static_cast<std::uint32_t>(o.tile));
+  spec.set_seed(o.seed);
+  if (o.max_depth) spec.set_max_depth(static_cast<std::uint32_t>(*o.max_depth));
+  if (o.samples_per_task) spec.set_samples_per_task(static_cast<std::uint32_t>(*o.samples_per_task));
+  spec.set_spectral_pdf(*parse_spectral_pdf(o.spectral_pdf) == worker::SpectralPdfKind::kVisible
+                            ? v1::SPECTRAL_PDF_VISIBLE
+                            : v1::SPECTRAL_PDF_FLAT);
+  spec.set_emitter_pdf(*parse_emitter_pdf(o.emitter_pdf) == worker::EmitterPdfKind::kUniform
+                           ? v1::EMITTER_PDF_UNIFORM
+                           : v1::EMITTER_PDF_EMITTERS);
+  switch (*parse_light_selection(o.light_selection)) {
+    case worker::LightSelectionKind::kUniform:
+      spec.set_light_selection(v1::LIGHT_SELECTION_UNIFORM);
+      break;
+    case worker::LightSelectionKind::kSpatial:
+      spec.set_light_selection(v1::LIGHT_SELECTION_SPATIAL);
+      break;
+    default:
+      spec.set_light_selection(v1::LIGHT_SELECTION_POWER);
+  }
+  spec.set_spectral_light_selection(o.spectral_light_selection);
+  spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
+  spec.set_name(o.scene.filename().string());
+  // The coordinator applies the same rules; checking here fails before any upload, and
+  // to_proto makes every value explicit so the token does not depend on scene defaults.
+  PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters parameters,
+                         coordinator::job_parameters(spec, description));
+  return coordinator::to_proto(parameters);
 }
 
 absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
@@ -167,29 +218,22 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
       coordinator::output_paths(options.output, options.json, description.film.filename));
   PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
 
+  // The same job the farm would run: one set of rules for defaults and ranges.
+  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
+                         scene::make_bundle(loaded.root, loaded.scene_relpath, description.files));
+  PRISM_ASSIGN_OR_RETURN(prism::v1::JobSpec spec, job_spec_of(options, description,
+                                                              bundle.content_hash,
+                                                              loaded.scene_relpath));
+  PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters job,
+                         coordinator::job_parameters(spec, description));
   coordinator::LocalRenderOptions local;
-  worker::RenderOptions& render = local.render;
-  render.integrator = *parse_integrator(options.integrator);
-  render.spectral_pdf = *parse_spectral_pdf(options.spectral_pdf);
-  render.emitter_pdf = *parse_emitter_pdf(options.emitter_pdf);
-  render.light_selection = *parse_light_selection(options.light_selection);
-  render.spectral_light_selection = options.spectral_light_selection;
-  render.bins = options.bins.has_value()
-                    ? static_cast<int>(*options.bins)
-                    : description.film.bins.value_or(spectral::WavelengthGrid::kDefaultBins);
-  render.max_depth = options.max_depth.has_value() ? static_cast<int>(*options.max_depth)
-                                                   : description.integrator.max_depth;
-  render.seed = options.seed;
-  if (options.resolution.has_value()) {
-    std::tie(local.width, local.height) = *parse_resolution(*options.resolution);
-  } else {
-    local.width = description.film.x_resolution;
-    local.height = description.film.y_resolution;
-  }
-  local.spp = options.spp.has_value()
-                  ? static_cast<std::uint64_t>(*options.spp)
-                  : static_cast<std::uint64_t>(description.sampler.samples_per_pixel);
-  local.tile_size = static_cast<int>(options.tile);
+  local.render = job.render;
+  const worker::RenderOptions& render = local.render;
+  local.width = job.width;
+  local.height = job.height;
+  local.spp = job.spp;
+  local.samples_per_task = job.samples_per_task;
+  local.tile_size = job.tile_size;
   local.threads = options.threads.has_value() ? static_cast<int>(*options.threads) : 0;
   if (options.progress != nullptr) {
     std::ostream* out = options.progress;

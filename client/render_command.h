@@ -17,6 +17,8 @@
 #include <string>
 
 #include "absl/status/statusor.h"
+#include "prism/v1/types.pb.h"
+#include "services/scene/scene_description.h"
 #include "worker/embree_device.h"
 #include "worker/render_options.h"
 
@@ -39,6 +41,7 @@ struct RenderCommandOptions {
   std::string light_selection = "power";
   bool spectral_light_selection = true;
   std::optional<std::int64_t> max_depth;
+  std::optional<std::int64_t> samples_per_task;  // unset: one task per tile
   double exposure = 0.0;  // PNG preview, in stops
   // Where to draw a progress bar (a terminal); null: none.
   std::ostream* progress = nullptr;
@@ -64,6 +67,15 @@ absl::StatusOr<worker::LightSelectionKind> parse_light_selection(const std::stri
 // Every check that does not need the scene: ranges of the numbers, the choices of the string
 // flags and the output names. INVALID_ARGUMENT naming the flag and the accepted values.
 absl::Status validate_render_flags(const RenderCommandOptions& options);
+
+// The job these flags describe, for the scene `description` whose bundle has `bundle_hash` and
+// whose file is `scene_path` inside it: validated by coordinator::job_parameters (the farm's own
+// rules, which fill the scene's defaults) and returned with every value explicit, so the farm and
+// the embedded render run exactly the same job. INVALID_ARGUMENT naming the flag or field.
+absl::StatusOr<prism::v1::JobSpec> job_spec_of(const RenderCommandOptions& options,
+                                               const scene::SceneDescription& description,
+                                               const std::string& bundle_hash,
+                                               const std::string& scene_path);
 
 // Renders and writes the outputs; returns the one-line summary. Errors: the flags' (above),
 // the scene's (file:line:column), NOT_FOUND for a missing output directory, the render's, or

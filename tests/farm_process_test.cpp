@@ -190,8 +190,9 @@ class FarmProcessTest : public ::testing::Test {
   }
 
   // 24x24 in 8-pixel tiles: 9 tasks, each one tile's whole sample range (as `prism render`).
-  v1::JobSpec spec(const std::string& hash, int spp) {
+  v1::JobSpec spec(const std::string& hash, int spp, int samples_per_task = 0) {
     v1::JobSpec s;
+    s.set_samples_per_task(samples_per_task);
     s.set_bundle_hash(hash);
     s.set_scene_path("scene.pbrt");
     s.set_spp(spp);
@@ -264,12 +265,18 @@ class FarmProcessTest : public ::testing::Test {
   }
 
   // `prism render` of the same job.
-  std::vector<float> cli_render(int spp) {
+  std::vector<float> cli_render(int spp, int samples_per_task = 0) {
     const fs::path out = root_ / "cli" / "cli.exr";
     fs::create_directories(out.parent_path());
-    const pid_t pid = spawn({PRISM_BINARY, "render", (root_ / "scene" / "scene.pbrt").string(),
-                             "-o", out.string(), "--spp", std::to_string(spp), "--seed", "11",
-                             "--tile", "8", "--threads", "2"});
+    std::vector<std::string> args = {PRISM_BINARY, "render",
+                                     (root_ / "scene" / "scene.pbrt").string(),
+                                     "-o", out.string(), "--spp", std::to_string(spp), "--seed",
+                                     "11", "--tile", "8", "--threads", "2"};
+    if (samples_per_task > 0) {
+      args.push_back("--samples-per-task");
+      args.push_back(std::to_string(samples_per_task));
+    }
+    const pid_t pid = spawn(args);
     int status = 0;
     ::waitpid(pid, &status, 0);
     std::erase(children_, pid);
@@ -307,6 +314,20 @@ TEST_F(FarmProcessTest, TwoWorkerProcessesMatchPrismRenderByteForByte) {
   ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
   EXPECT_EQ(done.progress().tasks_done(), 9u);
   expect_identical(fetch_spectral(job_id), cli_render(kSpp));
+}
+
+// Tasks of tile x sample range: each tile's four ranges ([0,5), [5,10), [10,15), [15,16)) come
+// back from either worker in any order and are added in range order.
+TEST_F(FarmProcessTest, SampleRangeTasksMatchPrismRenderByteForByte) {
+  start_coordinator();
+  const std::string job_id = submit(spec(upload(), kSpp, 5));
+  ASSERT_FALSE(job_id.empty());
+  start_worker(0);
+  start_worker(1);
+  const v1::JobInfo done = wait_for(job_id, terminal, 20);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  EXPECT_EQ(done.progress().tasks_done(), 9u * 4u);
+  expect_identical(fetch_spectral(job_id), cli_render(kSpp, 5));
 }
 
 TEST_F(FarmProcessTest, AWorkerKilledMidJobLeavesTheBytesUnchanged) {

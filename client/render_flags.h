@@ -1,0 +1,41 @@
+// The render flags `prism render` and `prism submit` share. They are registered once here, so
+// both commands accept the same names, help texts and value types; their ranges, defaults from
+// the scene and translation into a job spec are in render_command.h, so both commands also
+// render the same thing for the same flags (the farm's output is byte-identical to the embedded
+// render's).
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <cstdint>
+#include <string>
+
+#include "absl/status/status.h"
+#include "client/render_command.h"
+
+namespace prism::client {
+
+// The raw values CLI11 fills, and which optional flags were given.
+struct RenderFlags {
+  std::string output, resolution, seed;
+  std::int64_t spp = 0, bins = 0, max_depth = 0, samples_per_task = 0;
+  bool no_spectral_light_selection = false;
+  CLI::Option* output_opt = nullptr;
+  CLI::Option* resolution_opt = nullptr;
+  CLI::Option* seed_opt = nullptr;
+  CLI::Option* spp_opt = nullptr;
+  CLI::Option* bins_opt = nullptr;
+  CLI::Option* max_depth_opt = nullptr;
+  CLI::Option* samples_per_task_opt = nullptr;
+};
+
+// Adds the scene argument and the shared render flags to `command`. String-valued options
+// (integrator, pdfs, tile, exposure, ...) are bound straight to `options`; `flags` and
+// `options` must outlive parsing.
+void add_render_flags(CLI::App& command, RenderFlags& flags, RenderCommandOptions& options);
+
+// After parsing: copies the given optional flags into `options` (INVALID_ARGUMENT for a seed
+// that is not a decimal 64-bit integer). Ranges are checked later by validate_render_flags().
+absl::Status apply_render_flags(const RenderFlags& flags, RenderCommandOptions& options);
+
+}  // namespace prism::client
