@@ -437,7 +437,12 @@ absl::StatusOr<std::string> run_workers(const FarmConnection& c) {
   std::string text;
   for (const v1::WorkerInfo& w : response.workers()) {
     absl::StrAppend(&text, w.worker_id(), "  ", w.host(), "  ", w.state(), "  ", w.threads(),
-                    " threads  ", w.tasks_completed(), " tasks  ", w.version(), "\n");
+                    " threads  ", w.tasks_completed(), " tasks  ", w.version());
+    if (!w.current_task().empty()) {
+      absl::StrAppend(&text, "  lease ", w.current_lease(), ": ", w.current_task());
+      if (w.leases() > 1) absl::StrAppend(&text, " (+", w.leases() - 1, " more)");
+    }
+    absl::StrAppend(&text, "\n");
   }
   if (text.empty()) text = "no workers\n";
   return text;

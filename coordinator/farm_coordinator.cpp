@@ -784,6 +784,7 @@ absl::StatusOr<std::vector<WorkerStatus>> FarmCoordinator::workers() {
       status.state = "lost";
     } else {
       status.leases = it->second.leases;
+      status.current = it->second.current;
       status.state = it->second.leases > 0 ? "busy" : "idle";
       status.last_seen_ms = it->second.last_seen.count();
     }

@@ -81,6 +81,7 @@ struct WorkerStatus {
   store::WorkerRecord record;
   std::string state;  // idle, busy, lost
   int leases = 0;
+  std::vector<Lease> current;  // the leases it holds now, oldest first
   std::uint64_t tasks_completed = 0;
   std::int64_t last_seen_ms = 0;
 };

@@ -13,6 +13,7 @@
 #include <future>
 #include <set>
 
+#include "absl/strings/str_cat.h"
 #include "coordinator/farm_coordinator.h"
 #include "coordinator/job_spec.h"
 #include "coordinator/local_render.h"
@@ -465,6 +466,30 @@ TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {
   grpc::Status duplicate = complete(worker_id, again->lease_id(), bytes, &accepted);
   EXPECT_TRUE(duplicate.ok()) << duplicate.error_message();
   EXPECT_FALSE(accepted);
+}
+
+TEST_F(FarmServerTest, ListWorkersShowsWhatABusyWorkerRenders) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string job_id = submit(small_spec(hash)).job_id();
+  const std::string worker_id = register_worker();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  v1::ListWorkersRequest request;
+  v1::ListWorkersResponse response;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->ListWorkers(context.get(), request, &response).ok());
+  ASSERT_EQ(response.workers_size(), 1);
+  const v1::WorkerInfo& info = response.workers(0);
+  EXPECT_EQ(info.state(), "busy");
+  EXPECT_EQ(info.leases(), 1u);
+  EXPECT_EQ(info.current_lease(), lease->lease_id());
+  const auto& t = lease->task();
+  EXPECT_EQ(info.current_task(),
+            absl::StrCat("job ", job_id, " final tile (", t.tile().x0(), ",", t.tile().y0(), ")-(",
+                         t.tile().x1(), ",", t.tile().y1(), ") samples [", t.samples().begin(),
+                         ",", t.samples().end(), ")"));
 }
 
 TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {

@@ -383,11 +383,16 @@ std::optional<Lease> Scheduler::lease(const std::string& lease_id) const {
 std::vector<WorkerInfo> Scheduler::workers() const {
   std::vector<WorkerInfo> out;
   out.reserve(workers_.size());
-  for (const auto& [id, worker] : workers_)
-    out.push_back({.id = id,
-                   .threads = worker.threads,
-                   .last_seen = worker.last_seen,
-                   .leases = static_cast<int>(worker.leases.size())});
+  for (const auto& [id, worker] : workers_) {
+    WorkerInfo info{.id = id,
+                    .threads = worker.threads,
+                    .last_seen = worker.last_seen,
+                    .leases = static_cast<int>(worker.leases.size())};
+    for (std::uint64_t seq : worker.leases) {
+      info.current.push_back(leases_.at(current_leases_.at(seq)).lease);
+    }
+    out.push_back(std::move(info));
+  }
   return out;
 }
 

@@ -159,6 +159,7 @@ struct WorkerInfo {
   int threads = 0;
   Millis last_seen{0};
   int leases = 0;  // current leases held
+  std::vector<Lease> current;  // those leases, oldest first
 };
 
 const char* to_string(DirectiveKind kind);

@@ -492,6 +492,20 @@ TEST(SchedulerTest, UnknownWorkersAreToldToReregister) {
   EXPECT_EQ(s.workers()[0].last_seen, at(20));
 }
 
+TEST(SchedulerTest, WorkersListTheLeasesTheyHoldOldestFirst) {
+  Scheduler s(test_options());
+  ASSERT_TRUE(s.add_job("j", specs(3)).ok());
+  s.register_worker("w", 2, at(0));
+  auto first = s.acquire("w", at(1));
+  auto second = s.acquire("w", at(2));
+  ASSERT_TRUE(first.has_value() && second.has_value());
+  ASSERT_EQ(s.workers().size(), 1u);
+  EXPECT_EQ(s.workers()[0].leases, 2);
+  EXPECT_EQ(s.workers()[0].current, (std::vector<Lease>{*first, *second}));
+  ASSERT_EQ(s.complete("w", first->id, "h0", at(3)).outcome, CompleteOutcome::kAccepted);
+  EXPECT_EQ(s.workers()[0].current, (std::vector<Lease>{*second}));
+}
+
 TEST(SchedulerTest, ResumedJobNeverLeasesItsDoneTasks) {
   Scheduler s(test_options());
   ASSERT_TRUE(s.add_job("j", specs(5), {0, 2, 4, 2}).ok());

@@ -205,6 +205,18 @@ grpc::Status FarmServiceImpl::ListWorkers(grpc::ServerContext* context,
     info->set_state(w.state);
     info->set_last_heartbeat_unix_ms(w.last_seen_ms);
     info->set_tasks_completed(w.tasks_completed);
+    info->set_leases(static_cast<std::uint32_t>(w.leases));
+    if (!w.current.empty()) {
+      const Lease& lease = w.current.front();
+      const TaskSpec& t = lease.task.spec;
+      info->set_current_lease(lease.id);
+      const std::string pass =
+          t.pass == Pass::kFinal ? "final" : absl::StrCat("prepass ", t.pass_index);
+      info->set_current_task(absl::StrCat("job ", lease.task.job_id, " ", pass, " tile (",
+                                          t.tile.x0, ",", t.tile.y0, ")-(", t.tile.x1, ",",
+                                          t.tile.y1, ") samples [", t.samples.s0, ",",
+                                          t.samples.s1, ")"));
+    }
   }
   return grpc::Status::OK;
 }
