@@ -68,7 +68,7 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator>> FarmCoordinator::open(FarmOptio
 
 absl::Status FarmCoordinator::start() {
   const fs::path& dir = options_.data_dir;
-  for (const char* sub : {"blobs", "bundles", "scenes", "outputs", "tmp"}) {
+  for (const char* sub : {"blobs", "bundles", "jobs", "scenes", "outputs", "tmp"}) {
     PRISM_RETURN_IF_ERROR(make_dirs(dir / sub));
   }
   // Leftovers of an interrupted upload are never referenced.
@@ -94,6 +94,13 @@ absl::Status FarmCoordinator::start() {
       }
     }
     if (!resume.empty()) options_.logger->info("resumed {} unfinished jobs", resume.size());
+    // A job that ended just before a crash may have left its tiles and results behind.
+    std::error_code ec;
+    for (const auto& entry : fs::directory_iterator(dir / "jobs", ec)) {
+      const std::string id = entry.path().filename().string();
+      absl::StatusOr<store::JobRecord> record = store_->get_job(id);
+      if (record.ok() && store::is_terminal(record->state)) clean_up_locked(id);
+    }
     process_events_locked();
   }
   ticker_ = std::thread([this] { tick_loop(); });
@@ -144,6 +151,9 @@ fs::path FarmCoordinator::bundle_path(const std::string& hash) const {
 }
 fs::path FarmCoordinator::scene_dir(const std::string& hash) const {
   return options_.data_dir / "scenes" / hash;
+}
+fs::path FarmCoordinator::tiles_dir(const std::string& job_id) const {
+  return options_.data_dir / "jobs" / job_id / "tiles";
 }
 fs::path FarmCoordinator::output_dir(const std::string& job_id) const {
   return options_.data_dir / "outputs" / job_id;
@@ -249,25 +259,61 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
   job->spec = spec;
   PRISM_ASSIGN_OR_RETURN(job->plan, plan_tiles({params.width, params.height, params.tile_size,
                                                 params.spp, params.samples_per_task}));
-  PRISM_ASSIGN_OR_RETURN(
-      image::SpectralImage image,
-      image::SpectralImage::create(params.width, params.height, params.render.bins));
-  job->image = std::make_unique<image::SpectralImage>(std::move(image));
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb,
+                         image::RgbImage::create(params.width, params.height));
+  job->rgb = std::make_unique<image::RgbImage>(std::move(rgb));
   job->statistics =
       std::make_unique<BinStatisticsAccumulator>(job->plan.tiles.size(), params.render.bins);
   job->started = SteadyClock::now();
   ActiveJob* raw = job.get();
   // Called from assembler->add, which runs under mutex_.
-  auto on_tile = [raw](int tile, const image::TileResult& merged,
-                       const image::SpectralImage& finalised) -> absl::Status {
-    raw->statistics->add_tile(static_cast<std::size_t>(tile), merged);
-    PRISM_RETURN_IF_ERROR(image::paste_tile(finalised, merged.rect(), *raw->image));
-    ++raw->tiles_finalised;
-    return absl::OkStatus();
+  auto on_tile = [this, raw](int tile, const image::TileResult& merged,
+                             const image::SpectralImage& finalised) -> absl::Status {
+    PRISM_CHECK(raw->tiles != nullptr);
+    PRISM_RETURN_IF_ERROR(raw->tiles->put(tile, merged));
+    return absorb_tile(*raw, tile, merged, finalised);
   };
   PRISM_ASSIGN_OR_RETURN(job->assembler,
                          TileAssembler::create(job->plan, params.render.bins, on_tile));
   return job;
+}
+
+absl::Status FarmCoordinator::attach_tiles(ActiveJob& job, const std::string& job_id) const {
+  PRISM_ASSIGN_OR_RETURN(FinishedTiles tiles, FinishedTiles::open(tiles_dir(job_id), job.plan,
+                                                                  job.params.width,
+                                                                  job.params.render.bins));
+  job.tiles = std::make_unique<FinishedTiles>(std::move(tiles));
+  return absl::OkStatus();
+}
+
+absl::Status FarmCoordinator::absorb_tile(ActiveJob& job, int tile,
+                                          const image::TileResult& merged,
+                                          const image::SpectralImage& finalised) const {
+  job.statistics->add_tile(static_cast<std::size_t>(tile), merged);
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, to_linear_srgb(finalised, cmf_));
+  PRISM_RETURN_IF_ERROR(job.rgb->paste(rgb, merged.rect().x0, merged.rect().y0));
+  ++job.tiles_finalised;
+  return absl::OkStatus();
+}
+
+void FarmCoordinator::clean_up_locked(const std::string& job_id) {
+  std::error_code ec;
+  fs::remove_all(options_.data_dir / "jobs" / job_id, ec);
+  if (ec) {
+    options_.logger->warn("[job {}] cannot remove its tiles: {}", job_id, ec.message());
+  }
+  absl::StatusOr<std::vector<std::string>> unshared = store_->unshared_results(job_id);
+  if (!unshared.ok()) {
+    options_.logger->warn("[job {}] cannot list its results: {}", job_id,
+                          unshared.status().ToString());
+    return;
+  }
+  for (const std::string& hash : *unshared) {
+    if (absl::Status removed = blobs_->remove(hash); !removed.ok()) {
+      options_.logger->warn("[job {}] cannot delete result {}: {}", job_id, hash,
+                            removed.ToString());
+    }
+  }
 }
 
 absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec,
@@ -332,6 +378,11 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
   PRISM_ASSIGN_OR_RETURN(store::CreateJobResult created, store_->create_job(record, tasks));
   if (created.existed) return status_locked(created.job);
   const std::string id = created.job.id;
+  if (absl::Status attached = attach_tiles(*active, id); !attached.ok()) {
+    (void)store_->set_job_state(id, store::JobState::kFailed, now().count(),
+                                absl::StrCat("cannot store its tiles: ", attached.message()));
+    return attached;
+  }
   PRISM_RETURN_IF_ERROR(scheduler_.add_job(id, specs));
   PRISM_ASSIGN_OR_RETURN(store::JobRecord rendering,
                          store_->set_job_state(id, store::JobState::kRendering, now().count()));
@@ -359,6 +410,24 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
     return absl::DataLossError(
         absl::StrCat("the store has ", tasks.size(), " tasks but the plan has ", specs.size()));
   }
+  PRISM_RETURN_IF_ERROR(attach_tiles(*active, record.id));
+  // Tiles finished before the restart come back from their files (their range results are not
+  // merged again); a damaged file falls back to the range results, which are kept until the
+  // job is over.
+  std::vector<bool> restored(active->plan.tiles.size(), false);
+  for (std::size_t t = 0; t < restored.size(); ++t) {
+    const int tile = static_cast<int>(t);
+    if (!active->tiles->has(tile)) continue;
+    absl::StatusOr<image::TileResult> merged = active->tiles->get(tile);
+    if (!merged.ok()) {
+      options_.logger->warn("[job {}] {}; merging its results again", record.id,
+                            merged.status().ToString());
+      continue;
+    }
+    PRISM_RETURN_IF_ERROR(active->assembler->mark_finished(tile));
+    PRISM_RETURN_IF_ERROR(absorb_tile(*active, tile, *merged, image::finalise(*merged)));
+    restored[t] = true;
+  }
   std::vector<int> done;
   for (const store::TaskRecord& task : tasks) {
     const TaskSpec& planned = specs[static_cast<std::size_t>(task.index)];
@@ -367,6 +436,10 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
           absl::StrCat("stored task ", task.index, " differs from the plan"));
     }
     if (task.state != store::TaskState::kDone) continue;
+    if (restored[static_cast<std::size_t>(task.tile_index)]) {
+      done.push_back(task.index);
+      continue;
+    }
     PRISM_ASSIGN_OR_RETURN(std::string bytes, blobs_->get(task.result_hash));
     PRISM_ASSIGN_OR_RETURN(image::TileResult result, image::parse_tile(bytes));
     PRISM_RETURN_IF_ERROR(active->assembler->add(task.tile_index, std::move(result)));
@@ -457,6 +530,7 @@ absl::StatusOr<JobStatus> FarmCoordinator::cancel(const std::string& job_id) {
                                                        now().count(), "cancelled by a client"));
   // The Scheduler keeps the cancelled job so that heartbeats listing its leases get CANCEL_TASK.
   active_.erase(job_id);
+  clean_up_locked(job_id);
   options_.logger->info("[job {}] cancelled", job_id);
   changed_locked();
   return status_locked(record);
@@ -514,7 +588,7 @@ absl::StatusOr<std::string> FarmCoordinator::preview_png(const std::string& job_
         return absl::FailedPreconditionError(
             absl::StrCat("job ", job_id, " has no finished tile yet"));
       }
-      PRISM_ASSIGN_OR_RETURN(rgb, to_linear_srgb(*it->second->image, cmf_));
+      rgb = *it->second->rgb;
     } else if (record.state != store::JobState::kDone) {
       return absl::FailedPreconditionError(absl::StrCat(
           "job ", job_id, " is ", store::to_string(record.state), ": it has no image"));
@@ -569,6 +643,7 @@ void FarmCoordinator::fail_job_locked(const std::string& job_id, const std::stri
   }
   active_.erase(job_id);
   (void)scheduler_.cancel_job(job_id);
+  clean_up_locked(job_id);
   changed_locked();
 }
 
@@ -608,7 +683,15 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
 
   const OutputPaths paths = output_paths_of(job_id);
   PRISM_RETURN_IF_ERROR(make_dirs(output_dir(job_id)));
-  PRISM_RETURN_IF_ERROR(write_outputs(*job.image, cmf_, report, paths, {p.outputs.png_exposure}));
+  std::vector<float> band;
+  PRISM_RETURN_IF_ERROR(write_outputs(
+      p.render.bins, job.tiles->band_rows(),
+      job.tiles->rows(
+          [](const image::TileResult& merged) -> absl::StatusOr<image::SpectralImage> {
+            return image::finalise(merged);
+          },
+          &band),
+      *job.rgb, report, paths, {p.outputs.png_exposure}));
   // write_outputs writes every kind; keep what the job asked for, the report, and the RGB EXR
   // (previews of a finished job are made from it; GetResult serves it only when asked for).
   std::error_code ec;
@@ -619,6 +702,7 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
       store_->set_job_state(job_id, store::JobState::kDone, now().count()).status());
   active_.erase(it);
   (void)scheduler_.remove_job(job_id);
+  clean_up_locked(job_id);
   options_.logger->info("[job {}] done: wrote {}", job_id, paths.spectral_exr.string());
   return absl::OkStatus();
 }

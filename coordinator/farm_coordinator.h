@@ -7,12 +7,19 @@
 //   blobs/               task results (the tile codec's bytes), content-addressed
 //   bundles/<hash>       packed scene bundles, named by their content hash
 //   scenes/<hash>/       the extracted bundle the scene loader checked
+//   jobs/<job id>/tiles/ a running job's finished tiles (finished_tiles.h)
 //   outputs/<job id>/    the finished job's spectral EXR, RGB EXR, PNG and JSON report
 // A task is marked done in the store only after its result blob is on disk, so a restarted
 // coordinator resumes every unfinished job from the store alone: it re-plans (plans are pure
 // functions of the job), gives the Scheduler the done indices (never leased again) and feeds
 // their stored results into a fresh TileAssembler. Outputs are written atomically before the
 // job becomes DONE.
+//
+// Memory is bounded by the tiles in flight: a running job holds the partial results of its
+// unfinished tiles (TileAssembler) and its linear sRGB image (3 floats per pixel, for previews
+// and the RGB outputs); finished tiles go to disk and the spectral EXR is streamed from them.
+// When a job is over (done, failed or cancelled) its tile files and the result blobs no other
+// unfinished job shares are deleted, so the data directory keeps only bundles and outputs.
 //
 // Bundles are checked before anything else uses them: unpack() validates the packed form, then
 // the files are extracted to a fresh directory under the data directory and the scene loader
@@ -41,6 +48,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "coordinator/finished_tiles.h"
 #include "coordinator/job_spec.h"
 #include "coordinator/outputs.h"
 #include "coordinator/scheduler.h"
@@ -167,7 +175,8 @@ class FarmCoordinator {
     prism::v1::JobSpec spec;
     TilePlan plan;
     std::unique_ptr<TileAssembler> assembler;
-    std::unique_ptr<image::SpectralImage> image;
+    std::unique_ptr<FinishedTiles> tiles;  // set by attach_tiles before any result is added
+    std::unique_ptr<image::RgbImage> rgb;  // finished tiles' linear sRGB
     std::unique_ptr<BinStatisticsAccumulator> statistics;
     int tiles_finalised = 0;
     double render_seconds = 0;  // summed over workers
@@ -183,6 +192,14 @@ class FarmCoordinator {
   // Builds the in-memory job (plan, assembler, image) from explicit parameters.
   absl::StatusOr<std::unique_ptr<ActiveJob>> make_active(const JobParameters& params,
                                                          const prism::v1::JobSpec& spec);
+  // Opens the job's finished-tile directory.
+  absl::Status attach_tiles(ActiveJob& job, const std::string& job_id) const;
+  // A finished tile's contribution to the job's statistics, RGB image and progress.
+  absl::Status absorb_tile(ActiveJob& job, int tile, const image::TileResult& merged,
+                           const image::SpectralImage& finalised) const;
+  // Deletes what a job that is over no longer needs: its tile files and unshared result blobs.
+  void clean_up_locked(const std::string& job_id);
+  std::filesystem::path tiles_dir(const std::string& job_id) const;
   std::vector<TaskSpec> task_specs(const TilePlan& plan) const;
   void process_events_locked();
   absl::Status finalise_locked(const std::string& job_id);

@@ -27,6 +27,7 @@
 #include "services/rpc/chunks.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
+#include "services/store/blob_store.h"
 #include "services/store/job_store.h"
 #include "worker/render_scene.h"
 #include "worker/tile_renderer.h"
@@ -36,6 +37,16 @@ namespace {
 
 namespace fs = std::filesystem;
 namespace v1 = prism::v1;
+
+// Regular files anywhere under `dir` (0 when it does not exist).
+std::size_t count_files(const fs::path& dir) {
+  std::size_t n = 0;
+  std::error_code ec;
+  for (const auto& entry : fs::recursive_directory_iterator(dir, ec)) {
+    if (entry.is_regular_file()) ++n;
+  }
+  return n;
+}
 
 constexpr char kToken[] = "client-token";
 constexpr char kSecret[] = "worker-secret";
@@ -383,6 +394,9 @@ TEST_F(FarmServerTest, AFakeWorkerRendersAJobBitIdenticalToTheEmbeddedRender) {
   auto context = client();
   ASSERT_TRUE(farm_stub_->GetPreview(context.get(), preview_request, &preview).ok());
   EXPECT_EQ(preview.png().substr(0, 4), "\x89PNG");
+  // Tiles and range results are deleted once the job is done.
+  EXPECT_EQ(count_files(root_ / "data" / "blobs"), 0u);
+  EXPECT_EQ(count_files(root_ / "data" / "jobs"), 0u);
 }
 
 TEST_F(FarmServerTest, WrongTokensAreUnauthenticated) {
@@ -518,6 +532,24 @@ TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
   ASSERT_EQ(first.size(), 7u);
   stop();
 
+  // Tiles 0-2 (tasks 0-5) finished and went to disk; tile 3 has one of its two ranges. Their
+  // range results are deleted here, so the restart can only take tiles 0-2 from their files.
+  const fs::path data = root_ / "data";
+  EXPECT_EQ(count_files(data / "jobs" / job_id / "tiles"), 3u);
+  {
+    auto store = store::JobStore::open(data / "jobs.sqlite");
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto blobs = store::BlobStore::open(data / "blobs");
+    ASSERT_TRUE(blobs.ok());
+    auto tasks = store->tasks_of(job_id);
+    ASSERT_TRUE(tasks.ok()) << tasks.status();
+    for (const store::TaskRecord& task : *tasks) {
+      if (task.tile_index >= 3) continue;
+      ASSERT_EQ(task.state, store::TaskState::kDone) << "task " << task.index;
+      ASSERT_TRUE(blobs->remove(task.result_hash).ok()) << task.result_hash;
+    }
+  }
+
   start();
   const auto second = run_worker(register_worker());
   EXPECT_EQ(second.size(), 11u);
@@ -539,6 +571,10 @@ TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
     EXPECT_EQ(task.attempts, 1) << "task " << task.index;
     EXPECT_EQ(task.state, store::TaskState::kDone);
   }
+  // The finished job keeps its outputs and nothing else.
+  EXPECT_EQ(count_files(data / "blobs"), 0u);
+  EXPECT_FALSE(fs::exists(data / "jobs" / job_id));
+  EXPECT_EQ(count_files(data / "outputs" / job_id), 4u);
 }
 
 TEST_F(FarmServerTest, CancelReachesTheWorkerAtItsNextHeartbeat) {

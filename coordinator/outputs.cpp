@@ -253,6 +253,17 @@ absl::Status write_outputs(const image::SpectralImage& spectral, const spectral:
                            const RenderReport& report, const OutputPaths& paths,
                            const OutputOptions& options) {
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, to_linear_srgb(spectral, cmf));
+  const float* data = spectral.data().data();
+  const std::size_t row_values = std::size_t(spectral.width()) * std::size_t(spectral.bins());
+  return write_outputs(
+      spectral.bins(), spectral.height(),
+      [&](int y0, int) -> absl::StatusOr<const float*> { return data + y0 * row_values; }, rgb,
+      report, paths, options);
+}
+
+absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& rows,
+                           const image::RgbImage& rgb, const RenderReport& report,
+                           const OutputPaths& paths, const OutputOptions& options) {
   image::ExrMetadata metadata;
   metadata[std::string(image::kMetaSpp)] = absl::StrCat(report.spp);
   metadata[std::string(image::kMetaIntegrator)] = report.integrator;
@@ -275,7 +286,9 @@ absl::Status write_outputs(const image::SpectralImage& spectral, const spectral:
                     "': ", status.message());
   };
   record(paths.spectral_exr,
-         image::write_spectral_exr(paths.spectral_exr, spectral, rgb, metadata));
+         image::write_spectral_exr_rows(paths.spectral_exr, image::bin_centres_nm(bins),
+                                        rgb.width(), rgb.height(), band_rows, rows, rgb,
+                                        metadata));
   record(paths.rgb_exr,
          image::write_rgb_exr(paths.rgb_exr, rgb, image::ExrPixelType::kFloat, metadata));
   record(paths.png, image::write_png_preview(paths.png, rgb, options.exposure_stops));

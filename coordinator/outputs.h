@@ -24,6 +24,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "services/image/exr_spectral.h"
 #include "services/image/tile.h"
 #include "services/spectral/color.h"
 
@@ -125,6 +126,11 @@ std::string format_report_json(const RenderReport& report, const OutputPaths& pa
 absl::Status write_outputs(const image::SpectralImage& spectral, const spectral::ColorMatching& cmf,
                            const RenderReport& report, const OutputPaths& paths,
                            const OutputOptions& options);
+// The same from an image that is never whole in memory: its spectral rows come in bands of
+// `band_rows` (image::write_spectral_exr_rows) and `rgb` is its linear sRGB (to_linear_srgb).
+absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& rows,
+                           const image::RgbImage& rgb, const RenderReport& report,
+                           const OutputPaths& paths, const OutputOptions& options);
 
 // The process's peak resident set size (getrusage ru_maxrss), in bytes.
 std::uint64_t peak_memory_bytes();

@@ -125,6 +125,11 @@ absl::Status TileAssembler::add(int tile_index, image::TileResult result) {
       ++duplicates_;
       return absl::OkStatus();
     }
+    if (tile.finished) {
+      return absl::FailedPreconditionError(absl::StrCat(
+          name, ": the tile was finished before the coordinator restarted; results for it are "
+                "no longer taken"));
+    }
     for (const auto& other : tile.parts) {
       if (other.has_value() && other->buffers() != result.buffers()) {
         return absl::InvalidArgumentError(absl::StrCat(
@@ -161,6 +166,22 @@ absl::Status TileAssembler::add(int tile_index, image::TileResult result) {
   ++finished_;
   --in_flight_;
   return status;
+}
+
+absl::Status TileAssembler::mark_finished(int tile_index) {
+  if (tile_index < 0 || static_cast<std::size_t>(tile_index) >= plan_.tiles.size()) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "tile index ", tile_index, " is outside the plan's ", plan_.tiles.size(), " tiles"));
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  TileState& tile = tiles_[tile_index];
+  if (tile.finished || tile.received > 0) {
+    return absl::FailedPreconditionError(absl::StrCat(
+        "tile ", tile_index, tile.finished ? " is already finished" : " already has results"));
+  }
+  tile.finished = true;
+  ++finished_;
+  return absl::OkStatus();
 }
 
 absl::Status TileAssembler::check_complete() const {

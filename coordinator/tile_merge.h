@@ -50,6 +50,13 @@ class TileAssembler {
   //  - Otherwise OK; when this completes the tile, the callback's status.
   absl::Status add(int tile_index, image::TileResult result);
 
+  // Records tile `tile_index` as finished without its ranges: a restarted coordinator's tile
+  // that was finished (and stored, see finished_tiles.h) before the restart. The callback is not
+  // called. Later results for its ranges are refused with FAILED_PRECONDITION (the scheduler
+  // never leases a done task again, so only a stale worker can send one). INVALID_ARGUMENT for
+  // an index outside the plan; FAILED_PRECONDITION when the tile has results or is finished.
+  absl::Status mark_finished(int tile_index);
+
   // OK when every tile is finished; FAILED_PRECONDITION listing (up to 8) missing
   // (tile, range) pairs otherwise.
   absl::Status check_complete() const;

@@ -232,6 +232,27 @@ TEST(TileAssemblerTest, DuplicatesWithDifferentBytesAreRefused) {
   EXPECT_TRUE(same_bits(before, a.image->data()));
 }
 
+TEST(TileAssemblerTest, TilesFinishedBeforeARestartTakeNoMoreResults) {
+  const TilePlan plan = make_plan();
+  Assembly a = make_assembly(plan);
+  ASSERT_TRUE(a.assembler->mark_finished(0).ok());
+  EXPECT_EQ(a.assembler->tiles_finished(), 1);
+  EXPECT_EQ(a.assembler->mark_finished(0).code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(a.assembler->mark_finished(int(plan.tiles.size())).code(),
+            absl::StatusCode::kInvalidArgument);
+  absl::Status late = a.assembler->add(0, make_result(plan, 0, 0));
+  EXPECT_EQ(late.code(), absl::StatusCode::kFailedPrecondition) << late;
+  EXPECT_NE(late.message().find("restarted"), std::string::npos) << late;
+  ASSERT_TRUE(a.assembler->add(1, make_result(plan, 1, 0)).ok());
+  EXPECT_EQ(a.assembler->mark_finished(1).code(), absl::StatusCode::kFailedPrecondition);
+  for (auto [t, r] : all_tasks(plan)) {
+    if (t == 0 || (t == 1 && r == 0)) continue;
+    ASSERT_TRUE(a.assembler->add(t, make_result(plan, t, r)).ok());
+  }
+  EXPECT_TRUE(a.assembler->check_complete().ok());
+  EXPECT_EQ(a.collected->calls, int(plan.tiles.size()) - 1);
+}
+
 TEST(TileAssemblerTest, MissingRangesAreListed) {
   const TilePlan plan = make_plan();
   Assembly a = make_assembly(plan);

@@ -13,6 +13,7 @@
 #include <cmath>
 #include <exception>
 #include <functional>
+#include <optional>
 #include <set>
 
 #include "absl/strings/str_cat.h"
@@ -64,8 +65,9 @@ ExrMetadata extract_metadata(const Imf::Header& header) {
   return metadata;
 }
 
-// One channel to write: `base` points at its first value, pixels are `stride` values of
-// `type` apart and rows `stride * width` values. The file stores the channel in the same type.
+// One channel of a band of rows to write: `base` points at the band's first value (pixel (0, y0)),
+// pixels are `stride` values of `type` apart and rows `stride * width` values. The file stores
+// the channel in the same type.
 struct Plane {
   std::string name;
   const void* base;
@@ -73,31 +75,53 @@ struct Plane {
   Imf::PixelType type;
 };
 
-absl::Status write_exr(const std::filesystem::path& path, int width, int height,
-                       const std::vector<Plane>& planes,
+// The planes of rows [y0, y0 + rows); the same channels, in the same order, for every band.
+using PlaneSource = std::function<absl::StatusOr<std::vector<Plane>>(int y0, int rows)>;
+
+// Writes the image in bands of `band_rows` rows (the last may be shorter), asking `source` for
+// each band in turn, so a caller can stream an image that is never whole in memory.
+absl::Status write_exr(const std::filesystem::path& path, int width, int height, int band_rows,
+                       const PlaneSource& source,
                        const std::function<void(Imf::Header&)>& decorate) {
+  PRISM_CHECK(band_rows >= 1);
   return base::write_via_temp(path, [&](const std::filesystem::path& temp) -> absl::Status {
     try {
       Imf::Header header(width, height);
       header.compression() = Imf::ZIP_COMPRESSION;
       decorate(header);
-      Imf::FrameBuffer frame;
-      Imath::Box2i window = header.dataWindow();
-      for (const Plane& plane : planes) {
-        std::size_t size = plane.type == Imf::HALF ? sizeof(Imath::half) : sizeof(float);
-        header.channels().insert(plane.name, Imf::Channel(plane.type));
-        frame.insert(plane.name,
-                     Imf::Slice::Make(plane.type, plane.base, window, size * plane.stride,
-                                      size * std::size_t(plane.stride) * width));
+      std::optional<Imf::OutputFile> file;
+      for (int y0 = 0; y0 < height; y0 += band_rows) {
+        const int rows = std::min(band_rows, height - y0);
+        PRISM_ASSIGN_OR_RETURN(std::vector<Plane> planes, source(y0, rows));
+        if (!file.has_value()) {
+          for (const Plane& plane : planes) {
+            header.channels().insert(plane.name, Imf::Channel(plane.type));
+          }
+          file.emplace(temp.c_str(), header);
+        }
+        const Imath::Box2i band({0, y0}, {width - 1, y0 + rows - 1});
+        Imf::FrameBuffer frame;
+        for (const Plane& plane : planes) {
+          std::size_t size = plane.type == Imf::HALF ? sizeof(Imath::half) : sizeof(float);
+          frame.insert(plane.name,
+                       Imf::Slice::Make(plane.type, plane.base, band, size * plane.stride,
+                                        size * std::size_t(plane.stride) * width));
+        }
+        file->setFrameBuffer(frame);
+        file->writePixels(rows);
       }
-      Imf::OutputFile file(temp.c_str(), header);
-      file.setFrameBuffer(frame);
-      file.writePixels(height);
     } catch (const std::exception& e) {
       return absl::InternalError(absl::StrCat("cannot write EXR ", path.string(), ": ", e.what()));
     }
     return absl::OkStatus();
   });
+}
+
+// Planes over a whole image held in memory: one band.
+PlaneSource whole(std::vector<Plane> planes) {
+  return [planes = std::move(planes)](int, int) -> absl::StatusOr<std::vector<Plane>> {
+    return planes;
+  };
 }
 
 template <typename T>
@@ -310,17 +334,35 @@ absl::Status write_spectral_exr(const std::filesystem::path& path,
                                 const std::vector<double>& wavelengths_nm,
                                 const SpectralImage& spectral, const RgbImage& rgb,
                                 const ExrMetadata& metadata) {
-  if (rgb.width() != spectral.width() || rgb.height() != spectral.height()) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "cannot write ", path.string(), ": RGB image is ", rgb.width(), "x", rgb.height(),
-        " but the spectral image is ", spectral.width(), "x", spectral.height()));
-  }
   if (wavelengths_nm.size() != std::size_t(spectral.bins())) {
     return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(), ": ",
                                                    wavelengths_nm.size(), " wavelengths for ",
                                                    spectral.bins(), " bins"));
   }
-  std::vector<Plane> planes;
+  const float* data = spectral.data().data();
+  const std::size_t row_values = std::size_t(spectral.width()) * std::size_t(spectral.bins());
+  return write_spectral_exr_rows(
+      path, wavelengths_nm, spectral.width(), spectral.height(), spectral.height(),
+      [&](int y0, int) -> absl::StatusOr<const float*> { return data + y0 * row_values; }, rgb,
+      metadata);
+}
+
+absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
+                                     const std::vector<double>& wavelengths_nm, int width,
+                                     int height, int band_rows, const SpectralRows& rows,
+                                     const RgbImage& rgb, const ExrMetadata& metadata) {
+  if (rgb.width() != width || rgb.height() != height) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("cannot write ", path.string(), ": RGB image is ", rgb.width(), "x",
+                     rgb.height(), " but the spectral image is ", width, "x", height));
+  }
+  if (wavelengths_nm.empty() || wavelengths_nm.size() > std::size_t(kMaxBins) || band_rows < 1) {
+    return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(), ": ",
+                                                   wavelengths_nm.size(), " wavelengths and ",
+                                                   band_rows, " rows per band"));
+  }
+  const int bins = static_cast<int>(wavelengths_nm.size());
+  std::vector<std::string> names;
   std::set<std::string> seen;
   for (std::size_t b = 0; b < wavelengths_nm.size(); ++b) {
     double lambda = wavelengths_nm[b];
@@ -336,11 +378,20 @@ absl::Status write_spectral_exr(const std::filesystem::path& path,
       return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(),
                                                      ": two wavelengths give the channel ", name));
     }
-    planes.push_back({std::move(name), spectral.data().data() + b, spectral.bins(), Imf::FLOAT});
+    names.push_back(std::move(name));
   }
-  for (Plane& plane : rgb_planes(rgb.data().data(), Imf::FLOAT)) planes.push_back(std::move(plane));
   PRISM_RETURN_IF_ERROR(validate_metadata(path, metadata));
-  return write_exr(path, spectral.width(), spectral.height(), planes, [&](Imf::Header& header) {
+  auto source = [&](int y0, int n) -> absl::StatusOr<std::vector<Plane>> {
+    PRISM_ASSIGN_OR_RETURN(const float* band, rows(y0, n));
+    std::vector<Plane> planes;
+    planes.reserve(names.size() + 3);
+    for (int b = 0; b < bins; ++b) planes.push_back({names[b], band + b, bins, Imf::FLOAT});
+    for (Plane& plane : rgb_planes(rgb.data().data() + std::size_t(y0) * width * 3, Imf::FLOAT)) {
+      planes.push_back(std::move(plane));
+    }
+    return planes;
+  };
+  return write_exr(path, width, height, band_rows, source, [&](Imf::Header& header) {
     header.insert(kLayoutVersionAttribute,
                   Imf::StringAttribute(std::string(kSpectralLayoutVersion)));
     header.insert(kEmissiveUnitsAttribute, Imf::StringAttribute(std::string(kEmissiveUnits)));
@@ -364,12 +415,13 @@ absl::Status write_rgb_exr(const std::filesystem::path& path, const RgbImage& rg
   PRISM_RETURN_IF_ERROR(validate_metadata(path, metadata));
   auto decorate = [&](Imf::Header& header) { insert_metadata(header, metadata); };
   if (pixel_type == ExrPixelType::kFloat) {
-    return write_exr(path, rgb.width(), rgb.height(), rgb_planes(rgb.data().data(), Imf::FLOAT),
-                     decorate);
+    return write_exr(path, rgb.width(), rgb.height(), rgb.height(),
+                     whole(rgb_planes(rgb.data().data(), Imf::FLOAT)), decorate);
   }
   // Imath's float -> half conversion rounds to nearest and overflows to infinity.
   std::vector<Imath::half> halves(rgb.data().begin(), rgb.data().end());
-  return write_exr(path, rgb.width(), rgb.height(), rgb_planes(halves.data(), Imf::HALF), decorate);
+  return write_exr(path, rgb.width(), rgb.height(), rgb.height(),
+                   whole(rgb_planes(halves.data(), Imf::HALF)), decorate);
 }
 
 absl::StatusOr<RgbExr> read_rgb_exr(const std::filesystem::path& path) {

@@ -20,6 +20,7 @@
 #pragma once
 
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <optional>
 #include <string>
@@ -87,6 +88,19 @@ absl::Status write_spectral_exr(const std::filesystem::path& path,
                                 const std::vector<double>& wavelengths_nm,
                                 const SpectralImage& spectral, const RgbImage& rgb,
                                 const ExrMetadata& metadata = {});
+
+// Rows [y0, y0 + rows) of a spectral image, row-major and pixel-interleaved (width*rows*bins
+// floats, as SpectralImage lays them out), valid until the next call.
+using SpectralRows = std::function<absl::StatusOr<const float*>(int y0, int rows)>;
+
+// The same file as write_spectral_exr, streamed: `rows` is asked for bands of `band_rows` rows
+// from the top (the last band may be shorter), so the spectral image need never be whole in
+// memory (the coordinator writes a job's output from its finished tiles this way). `rgb` is
+// the whole image. An error from `rows` abandons the file (nothing appears under `path`).
+absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
+                                     const std::vector<double>& wavelengths_nm, int width,
+                                     int height, int band_rows, const SpectralRows& rows,
+                                     const RgbImage& rgb, const ExrMetadata& metadata = {});
 
 // Reads a spectral EXR (see above). NOT_FOUND for a missing file; INVALID_ARGUMENT naming the
 // file when it is not an EXR, has no S0.<λ>nm channels, uses the polarised or reflective

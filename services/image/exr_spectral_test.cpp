@@ -85,6 +85,48 @@ TEST_F(ExrTest, SpectralRoundTripIsBitExact) {
   }
 }
 
+TEST_F(ExrTest, StreamedBandsWriteTheSameFileAsTheWholeImage) {
+  const int w = 13, h = 11, bins = 16;
+  auto spectral =
+      SpectralImage::from_data(w, h, bins, random_floats(std::size_t(w) * h * bins, 77)).value();
+  RgbImage rgb = random_rgb(w, h, 78);
+  ExrMetadata metadata{{"spp", "8"}};
+  ASSERT_TRUE(write_spectral_exr(dir_ / "whole.exr", spectral, rgb, metadata).ok());
+  for (int band_rows : {1, 4, 11, 64}) {
+    // Each band is served from a fresh buffer, as the coordinator's tile reader does.
+    std::vector<float> buffer;
+    std::vector<int> asked;
+    auto rows = [&](int y0, int n) -> absl::StatusOr<const float*> {
+      asked.push_back(y0);
+      EXPECT_EQ(n, std::min(band_rows, h - y0));
+      auto band = spectral.crop({0, y0, w, y0 + n}).value();
+      buffer.assign(band.data().begin(), band.data().end());
+      return buffer.data();
+    };
+    const fs::path path = dir_ / absl::StrFormat("bands%d.exr", band_rows);
+    ASSERT_TRUE(
+        write_spectral_exr_rows(path, bin_centres_nm(bins), w, h, band_rows, rows, rgb, metadata)
+            .ok());
+    EXPECT_EQ(asked.size(), std::size_t((h + band_rows - 1) / band_rows));
+    auto read = read_spectral_exr(path);
+    ASSERT_TRUE(read.ok()) << read.status();
+    EXPECT_EQ(std::memcmp(read->spectral.data().data(), spectral.data().data(),
+                          spectral.data().size_bytes()),
+              0)
+        << band_rows << " rows per band";
+    EXPECT_EQ(std::memcmp(read->rgb->data().data(), rgb.data().data(), rgb.data().size_bytes()), 0);
+  }
+  // A failing source abandons the file.
+  auto failing = [&](int y0, int) -> absl::StatusOr<const float*> {
+    if (y0 > 0) return absl::DataLossError("tile 3 is unreadable");
+    return spectral.data().data();
+  };
+  absl::Status status = write_spectral_exr_rows(dir_ / "failed.exr", bin_centres_nm(bins), w, h,
+                                                4, failing, rgb, metadata);
+  EXPECT_EQ(status.code(), absl::StatusCode::kDataLoss) << status;
+  EXPECT_FALSE(fs::exists(dir_ / "failed.exr"));
+}
+
 TEST_F(ExrTest, ChannelNamesAndAttributesFollowTheSpectralLayout) {
   auto spectral = SpectralImage::create(2, 2, 64);
   fs::path path = dir_ / "names.exr";

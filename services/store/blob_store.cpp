@@ -62,6 +62,17 @@ bool BlobStore::contains(std::string_view hash) const {
   return std::filesystem::is_regular_file(path_of(hash), ec);
 }
 
+absl::Status BlobStore::remove(std::string_view hash) const {
+  PRISM_RETURN_IF_ERROR(check_hash(hash));
+  std::error_code ec;
+  std::filesystem::remove(path_of(hash), ec);
+  if (ec) {
+    return absl::InternalError(
+        absl::StrCat("cannot delete blob ", std::string(hash), ": ", ec.message()));
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::string> BlobStore::get(std::string_view hash, std::uint64_t max_bytes) const {
   PRISM_RETURN_IF_ERROR(check_hash(hash));
   auto bytes = base::read_file(path_of(hash), max_bytes);

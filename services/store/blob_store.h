@@ -33,6 +33,10 @@ class BlobStore {
   absl::StatusOr<std::string> get(std::string_view hash,
                                   std::uint64_t max_bytes = std::uint64_t{1} << 32) const;
 
+  // Deletes a blob; OK when it is not there (deleting twice is harmless). INVALID_ARGUMENT for
+  // a malformed hash, INTERNAL on a file system error.
+  absl::Status remove(std::string_view hash) const;
+
   // Size in bytes of a stored blob.
   absl::StatusOr<std::uint64_t> size(std::string_view hash) const;
 

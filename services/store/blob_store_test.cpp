@@ -29,6 +29,12 @@ TEST(BlobStoreTest, PutGetByHash) {
   EXPECT_EQ(*store->size(*hash), 11u);
   // Same bytes again: same name, still one file.
   EXPECT_EQ(*store->put("scene bytes"), *hash);
+  // Deleting is idempotent.
+  ASSERT_TRUE(store->remove(*hash).ok());
+  EXPECT_FALSE(store->contains(*hash));
+  EXPECT_EQ(store->get(*hash).status().code(), absl::StatusCode::kNotFound);
+  EXPECT_TRUE(store->remove(*hash).ok());
+  EXPECT_EQ(store->remove("../x").code(), absl::StatusCode::kInvalidArgument);
   fs::remove_all(dir);
 }
 

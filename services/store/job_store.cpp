@@ -70,6 +70,10 @@ CREATE TABLE workers (
   last_seen_ms INTEGER NOT NULL
 );
 )sql",
+    // Finding the other jobs that share a result blob before deleting it.
+    R"sql(
+CREATE INDEX tasks_by_result ON tasks (result_hash) WHERE result_hash != '';
+)sql",
 };
 static_assert(std::size(kMigrations) == JobStore::kSchemaVersion);
 
@@ -498,6 +502,24 @@ absl::StatusOr<std::vector<TaskRecord>> JobStore::query_tasks(std::string_view j
 
 absl::StatusOr<std::vector<TaskRecord>> JobStore::tasks_of(std::string_view job_id) {
   return query_tasks(job_id, false);
+}
+
+absl::StatusOr<std::vector<std::string>> JobStore::unshared_results(std::string_view job_id) {
+  PRISM_RETURN_IF_ERROR(get_job_row(job_id).status());
+  PRISM_ASSIGN_OR_RETURN(
+      auto rows,
+      db_.query(absl::StrCat(
+                    "SELECT DISTINCT t.result_hash FROM tasks t WHERE t.job_id = ?1 AND "
+                    "t.result_hash != '' AND NOT EXISTS (SELECT 1 FROM tasks u JOIN jobs j ON "
+                    "j.id = u.job_id WHERE u.result_hash = t.result_hash AND u.job_id != ?1 AND "
+                    "j.state NOT IN (",
+                    static_cast<int>(JobState::kDone), ", ", static_cast<int>(JobState::kFailed),
+                    ", ", static_cast<int>(JobState::kCancelled), ")) ORDER BY t.result_hash"),
+                {text(job_id)}));
+  std::vector<std::string> hashes;
+  hashes.reserve(rows.size());
+  for (const auto& row : rows) hashes.push_back(row.text(0));
+  return hashes;
 }
 
 absl::StatusOr<std::vector<TaskRecord>> JobStore::pending_tasks(std::string_view job_id) {

@@ -112,7 +112,7 @@ struct CreateJobResult {
 class JobStore {
  public:
   // The schema version this build writes; open() migrates older files up to it.
-  static constexpr int kSchemaVersion = 1;
+  static constexpr int kSchemaVersion = 2;
 
   // Opens or creates the store file and applies pending migrations, each in its own
   // transaction with its user_version bump. FAILED_PRECONDITION when the file has a newer
@@ -151,6 +151,11 @@ class JobStore {
 
   // Every task of the job in index order; NOT_FOUND for an unknown job.
   absl::StatusOr<std::vector<TaskRecord>> tasks_of(std::string_view job_id);
+  // The distinct result hashes of the job's done tasks that no task of another unfinished job
+  // (not DONE, FAILED or CANCELLED) also has: blobs the coordinator may delete once this job is
+  // over (identical jobs submitted twice share their content-addressed results). NOT_FOUND for
+  // an unknown job.
+  absl::StatusOr<std::vector<std::string>> unshared_results(std::string_view job_id);
   // The tasks not yet done, in index order.
   absl::StatusOr<std::vector<TaskRecord>> pending_tasks(std::string_view job_id);
 

@@ -146,7 +146,7 @@ TEST_F(JobStoreTest, MigratesEmptyFileAndRefusesNewerSchema) {
   auto refused = JobStore::open(file_);
   ASSERT_FALSE(refused.ok());
   EXPECT_EQ(refused.status().code(), absl::StatusCode::kFailedPrecondition);
-  EXPECT_NE(refused.status().message().find("schema version 2"), std::string::npos)
+  EXPECT_NE(refused.status().message().find("schema version " + std::to_string(JobStore::kSchemaVersion + 1)), std::string::npos)
       << refused.status();
   auto db = Database::open(file_);
   ASSERT_TRUE(db.ok());
@@ -280,6 +280,22 @@ TEST_F(JobStoreTest, TaskDoneIsIdempotentAndConflictingHashRefused) {
             absl::StatusCode::kFailedPrecondition);
   EXPECT_FALSE(*store.mark_task_done(id, 1, "aaaa"));
   EXPECT_EQ(store.add_tasks(id, make_tasks(1)).code(), absl::StatusCode::kFailedPrecondition);
+}
+
+TEST_F(JobStoreTest, UnsharedResultsLeaveOutThoseAnotherUnfinishedJobHolds) {
+  JobStore store = open_store();
+  const std::string a = create(store, 3);
+  const std::string b = create(store, 2);
+  ASSERT_TRUE(store.mark_task_done(a, 0, "1111").ok());
+  ASSERT_TRUE(store.mark_task_done(a, 1, "2222").ok());
+  ASSERT_TRUE(store.mark_task_done(a, 2, "2222").ok());  // identical results share one blob
+  ASSERT_TRUE(store.mark_task_done(b, 0, "1111").ok());  // the same job submitted twice
+  EXPECT_EQ(*store.unshared_results(a), (std::vector<std::string>{"2222"}));
+  EXPECT_EQ(*store.unshared_results(b), (std::vector<std::string>{}));
+  // Once b is over, its results hold nothing back.
+  ASSERT_TRUE(store.set_job_state(b, JobState::kCancelled, 5).ok());
+  EXPECT_EQ(*store.unshared_results(a), (std::vector<std::string>{"1111", "2222"}));
+  EXPECT_EQ(store.unshared_results("j-000777").status().code(), absl::StatusCode::kNotFound);
 }
 
 TEST_F(JobStoreTest, RejectsMalformedTasks) {

@@ -1,0 +1,105 @@
+#include "coordinator/finished_tiles.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstring>
+#include <fstream>
+#include <random>
+
+#include "services/image/tile_codec.h"
+
+namespace prism::coordinator {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr int kWidth = 23, kHeight = 17, kBins = 8, kTile = 8;
+
+class FinishedTilesTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("prism_finished_tiles_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    plan_ = *plan_tiles({kWidth, kHeight, kTile, 4, 0});
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  image::TileResult merged(int tile) const {
+    const image::TileRect& rect = plan_.tiles[tile];
+    auto result = image::TileResult::create(rect, {0, 4}, kBins).value();
+    std::mt19937_64 rng(tile);
+    std::uniform_real_distribution<double> u(0.0, 10.0);
+    std::vector<double> spectrum(kBins);
+    for (int y = rect.y0; y < rect.y1; ++y) {
+      for (int x = rect.x0; x < rect.x1; ++x) {
+        for (int s = 0; s < 4; ++s) {
+          for (double& v : spectrum) v = u(rng);
+          result.add_sample(x, y, spectrum);
+        }
+      }
+    }
+    return result;
+  }
+
+  fs::path dir_;
+  TilePlan plan_;
+};
+
+TEST_F(FinishedTilesTest, StreamedRowsEqualTheImageAssembledInMemory) {
+  auto tiles = FinishedTiles::open(dir_ / "job" / "tiles", plan_, kWidth, kBins);
+  ASSERT_TRUE(tiles.ok()) << tiles.status();
+  auto whole = image::SpectralImage::create(kWidth, kHeight, kBins).value();
+  for (std::size_t t = 0; t < plan_.tiles.size(); ++t) {
+    EXPECT_FALSE(tiles->has(int(t)));
+    const image::TileResult m = merged(int(t));
+    ASSERT_TRUE(tiles->put(int(t), m).ok());
+    EXPECT_TRUE(tiles->has(int(t)));
+    ASSERT_TRUE(image::paste_tile(image::finalise(m), m.rect(), whole).ok());
+    // What comes back is the same result, byte for byte.
+    EXPECT_EQ(image::serialise_tile(*tiles->get(int(t))), image::serialise_tile(m));
+  }
+  std::vector<float> buffer;
+  image::SpectralRows rows = tiles->rows(
+      [](const image::TileResult& r) -> absl::StatusOr<image::SpectralImage> {
+        return image::finalise(r);
+      },
+      &buffer);
+  EXPECT_EQ(tiles->band_rows(), kTile);
+  for (int y0 = 0; y0 < kHeight; y0 += kTile) {
+    const int n = std::min(kTile, kHeight - y0);
+    auto band = rows(y0, n);
+    ASSERT_TRUE(band.ok()) << band.status();
+    const auto expected = whole.crop({0, y0, kWidth, y0 + n}).value();
+    EXPECT_EQ(std::memcmp(*band, expected.data().data(), expected.data().size_bytes()), 0) << y0;
+  }
+  EXPECT_EQ(rows(3, 8).status().code(), absl::StatusCode::kInternal);
+  ASSERT_TRUE(tiles->remove().ok());
+  EXPECT_FALSE(fs::exists(dir_ / "job" / "tiles"));
+}
+
+TEST_F(FinishedTilesTest, RefusesForeignTilesAndReportsDamagedFiles) {
+  auto tiles = FinishedTiles::open(dir_, plan_, kWidth, kBins);
+  ASSERT_TRUE(tiles.ok());
+  EXPECT_EQ(tiles->put(1, merged(0)).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(tiles->put(-1, merged(0)).code(), absl::StatusCode::kInvalidArgument);
+  absl::Status missing = tiles->get(2).status();
+  EXPECT_EQ(missing.code(), absl::StatusCode::kDataLoss);
+  EXPECT_NE(missing.message().find("2.tile"), std::string::npos) << missing;
+  // A file holding another tile, and a truncated file.
+  ASSERT_TRUE(tiles->put(0, merged(0)).ok());
+  fs::copy_file(dir_ / "0.tile", dir_ / "3.tile");
+  EXPECT_EQ(tiles->get(3).status().code(), absl::StatusCode::kDataLoss);
+  fs::resize_file(dir_ / "0.tile", 40);
+  EXPECT_EQ(tiles->get(0).status().code(), absl::StatusCode::kDataLoss);
+  std::vector<float> buffer;
+  auto rows = tiles->rows([](const image::TileResult& r)
+                              -> absl::StatusOr<image::SpectralImage> { return image::finalise(r); },
+                          &buffer);
+  EXPECT_EQ(rows(0, kTile).status().code(), absl::StatusCode::kDataLoss);
+}
+
+}  // namespace
+}  // namespace prism::coordinator
