@@ -11,28 +11,15 @@
 #include <thread>
 #include <sstream>
 
-#include "coordinator/farm_coordinator.h"
-#include "coordinator/rpc/coordinator_server.h"
+#include "coordinator/testing/in_process_farm.h"
 
 namespace prism::client {
 namespace {
 
 namespace fs = std::filesystem;
 
-constexpr char kToken[] = "client-token";
-
-const char kScene[] = R"(LookAt 0 0 -5  0 0 0  0 1 0
-Camera "perspective" "float fov" 30
-Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
-Sampler "zsobol" "integer pixelsamples" 4
-Integrator "volpath" "integer maxdepth" 5
-WorldBegin
-LightSource "infinite" "spectrum L" [360 1 830 1] "float scale" 1
-AttributeBegin
-  Material "diffuse" "float reflectance" 0.5
-  Shape "sphere" "float radius" 0.8
-AttributeEnd
-)";
+using coordinator::testing::kApiToken;
+using coordinator::testing::kSmallScene;
 
 int count(const std::string& text, const std::string& needle) {
   int n = 0;
@@ -50,30 +37,14 @@ class FarmCommandsTest : public ::testing::Test {
              "_" + std::to_string(::getpid()));
     fs::remove_all(root_);
     fs::create_directories(root_ / "scene");
-    std::ofstream(root_ / "scene" / "scene.pbrt") << kScene;
-    coordinator::FarmOptions options;
-    options.data_dir = root_ / "data";
-    options.scheduler.heartbeat_interval = coordinator::Millis(200);
-    options.tick_interval = coordinator::Millis(20);
-    auto farm = coordinator::FarmCoordinator::open(std::move(options));
-    ASSERT_TRUE(farm.ok()) << farm.status();
-    farm_ = *std::move(farm);
-    coordinator::rpc::ServerConfig config;
-    config.api_token = kToken;
-    config.worker_secret = "worker-secret";
-    auto server = coordinator::rpc::CoordinatorServer::start(*farm_, config,
-                                                             spdlog::default_logger());
-    ASSERT_TRUE(server.ok()) << server.status();
-    server_ = *std::move(server);
-    connection_.address = "127.0.0.1:" + std::to_string(server_->port());
-    connection_.token = kToken;
+    std::ofstream(root_ / "scene" / "scene.pbrt") << kSmallScene;
+    farm_ = coordinator::testing::InProcessFarm::start(root_ / "data");
+    ASSERT_NE(farm_, nullptr);
+    connection_.address = farm_->address();
+    connection_.token = kApiToken;
     connection_.deadline = std::chrono::milliseconds(5000);
   }
-  void TearDown() override {
-    if (server_) server_->shutdown(coordinator::Millis(100));
-    server_.reset();
-    farm_.reset();
-  }
+  void TearDown() override { farm_.reset(); }
 
   SubmitOptions submit_options(std::ostream* log) {
     SubmitOptions options;
@@ -85,8 +56,7 @@ class FarmCommandsTest : public ::testing::Test {
   }
 
   fs::path root_;
-  std::unique_ptr<coordinator::FarmCoordinator> farm_;
-  std::unique_ptr<coordinator::rpc::CoordinatorServer> server_;
+  std::unique_ptr<coordinator::testing::InProcessFarm> farm_;
   FarmConnection connection_;
 };
 

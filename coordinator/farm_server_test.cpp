@@ -18,6 +18,7 @@
 #include "coordinator/job_spec.h"
 #include "coordinator/local_render.h"
 #include "coordinator/rpc/coordinator_server.h"
+#include "coordinator/testing/in_process_farm.h"
 #include "prism/v1/farm.grpc.pb.h"
 #include "prism/v1/worker.grpc.pb.h"
 #include "services/base/sha256.h"
@@ -48,41 +49,17 @@ std::size_t count_files(const fs::path& dir) {
   return n;
 }
 
-constexpr char kToken[] = "client-token";
-constexpr char kSecret[] = "worker-secret";
-
-const char kScene[] = R"(LookAt 0 0 -5  0 0 0  0 1 0
-Camera "perspective" "float fov" 30
-Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
-Sampler "zsobol" "integer pixelsamples" 4
-Integrator "volpath" "integer maxdepth" 5
-WorldBegin
-LightSource "infinite" "spectrum L" [360 1 830 1] "float scale" 1
-AttributeBegin
-  Material "diffuse" "float reflectance" 0.5
-  Shape "sphere" "float radius" 0.8
-AttributeEnd
-)";
-
-fs::path fresh_dir(const std::string& name) {
-  const fs::path dir =
-      fs::path(::testing::TempDir()) / ("farm_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+using testing::fresh_dir;
 
 void write(const fs::path& path, const std::string& text) {
   fs::create_directories(path.parent_path());
   std::ofstream(path, std::ios::binary) << text;
 }
 
-std::string packed_bundle(const fs::path& root, const std::string& scene_text) {
-  write(root / "scene.pbrt", scene_text);
-  auto bundle = scene::make_bundle(root, "scene.pbrt", {});
-  EXPECT_TRUE(bundle.ok()) << bundle.status();
-  return scene::pack(*bundle);
-}
+using testing::packed_bundle;
+constexpr const char* kToken = testing::kApiToken;
+constexpr const char* kSecret = testing::kWorkerSecret;
+constexpr const char* kScene = testing::kSmallScene;
 
 class FarmServerTest : public ::testing::Test {
  protected:
@@ -94,32 +71,17 @@ class FarmServerTest : public ::testing::Test {
   void TearDown() override { stop(); }
 
   void start() {
-    FarmOptions options;
-    options.data_dir = root_ / "data";
-    options.max_bundle_bytes = 64 << 10;
-    options.max_queued_jobs = max_queued_jobs_;
-    options.scheduler.heartbeat_interval = Millis(200);
-    options.scheduler.lease_duration = Millis(5000);
-    options.tick_interval = Millis(20);
-    auto farm = FarmCoordinator::open(std::move(options));
-    ASSERT_TRUE(farm.ok()) << farm.status();
-    farm_ = *std::move(farm);
-    rpc::ServerConfig config;
-    config.api_token = kToken;
-    config.worker_secret = kSecret;
-    auto server = rpc::CoordinatorServer::start(*farm_, config, spdlog::default_logger());
-    ASSERT_TRUE(server.ok()) << server.status();
-    server_ = *std::move(server);
-    auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(server_->port()),
-                                       grpc::InsecureChannelCredentials());
+    farm_ = testing::InProcessFarm::start(root_ / "data", [this](FarmOptions& options) {
+      options.max_bundle_bytes = 64 << 10;
+      options.max_queued_jobs = max_queued_jobs_;
+      options.scheduler.lease_duration = Millis(5000);
+    });
+    ASSERT_NE(farm_, nullptr);
+    auto channel = grpc::CreateChannel(farm_->address(), grpc::InsecureChannelCredentials());
     farm_stub_ = v1::FarmService::NewStub(channel);
     worker_stub_ = v1::WorkerService::NewStub(channel);
   }
-  void stop() {
-    if (server_) server_->shutdown(Millis(100));
-    server_.reset();
-    farm_.reset();
-  }
+  void stop() { farm_.reset(); }
 
   std::unique_ptr<grpc::ClientContext> client(const std::string& token = kToken) {
     auto context = std::make_unique<grpc::ClientContext>();
@@ -339,8 +301,7 @@ class FarmServerTest : public ::testing::Test {
   fs::path scene_root_;
   spectral::SpectrumLibrary library_;
   worker::EmbreeDevice device_;
-  std::unique_ptr<FarmCoordinator> farm_;
-  std::unique_ptr<rpc::CoordinatorServer> server_;
+  std::unique_ptr<testing::InProcessFarm> farm_;
   std::unique_ptr<v1::FarmService::Stub> farm_stub_;
   std::unique_ptr<v1::WorkerService::Stub> worker_stub_;
 };
@@ -734,7 +695,7 @@ TEST_F(FarmServerTest, RealWorkerProcessesRenderTheSameBytes) {
   const std::string job_id = submit(spec).job_id();
   std::vector<pid_t> workers;
   for (int i = 0; i < 2; ++i) {
-    const std::string address = "127.0.0.1:" + std::to_string(server_->port());
+    const std::string address = farm_->address();
     const std::string cache = (root_ / ("cache" + std::to_string(i))).string();
     const pid_t pid = fork();
     ASSERT_GE(pid, 0);
@@ -761,7 +722,7 @@ TEST_F(FarmServerTest, RealWorkerProcessesRenderTheSameBytes) {
 }
 
 TEST_F(FarmServerTest, TheStandardHealthServiceReportsServing) {
-  auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(server_->port()),
+  auto channel = grpc::CreateChannel(farm_->address(),
                                      grpc::InsecureChannelCredentials());
   grpc::GenericStub stub(channel);
   grpc::ClientContext context;
