@@ -148,6 +148,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
   const float lambda_density = base_lambda.pdf(0);
   const int bin = grid.bin_of(lambda);
   if (bin < 0 || !(lambda_density > 0)) return out;
+  out.lambda = lambda;
   out.bin = bin;
   out.bin_below = grid.wrap(bin - offset_bins_);
 

@@ -61,6 +61,7 @@ namespace prism::worker {
 // contributions to G[i] and G[(i − k) mod B]. Per-bin averages (W·m⁻²·sr⁻¹·nm⁻¹), as
 // SampleContribution values; all finite (a non-finite sample contributes zeros and is counted).
 struct GradientSample {
+  float lambda = 0;  // the base wavelength (nm); 0 when the sample drew none
   int bin = 0;
   int bin_below = 0;  // (bin − k) mod B
   float primal = 0;

@@ -13,6 +13,7 @@
 
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
+#include "services/spectral/testing/chi_square.h"
 #include "worker/fresnel.h"
 #include "worker/gradient_shift.h"
 #include "worker/tile_renderer.h"
@@ -374,6 +375,333 @@ TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes)
       }
     }
   }
+}
+
+// Image mean per bin and its standard error from a tile's sums (pixels are independent).
+struct BinStats {
+  std::vector<double> mean, standard_error;
+};
+
+BinStats bin_stats(const image::TileResult& r) {
+  const int bins = r.bins();
+  const auto& rect = r.rect();
+  const double pixels = double(rect.area());
+  BinStats stats{std::vector<double>(bins, 0.0), std::vector<double>(bins, 0.0)};
+  for (int y = rect.y0; y < rect.y1; ++y) {
+    for (int x = rect.x0; x < rect.x1; ++x) {
+      const double n = double(r.count(x, y));
+      for (int b = 0; b < bins; ++b) {
+        double m = r.sum(x, y, b) / n;
+        double variance = std::max(0.0, r.sum_squares(x, y, b) / n - m * m) * n / (n - 1);
+        stats.mean[b] += m / pixels;
+        stats.standard_error[b] += variance / n / (pixels * pixels);
+      }
+    }
+  }
+  for (double& se : stats.standard_error) se = std::sqrt(se);
+  return stats;
+}
+
+image::TileResult render(const RenderScene& scene, std::uint64_t spp) {
+  TileRenderer renderer(scene);
+  RenderTask task{{0, 0, scene.camera().width(), scene.camera().height()}, {0, spp}, 0};
+  auto result = renderer.render(task, nullptr);
+  EXPECT_TRUE(result.ok()) << result.status();
+  return std::move(*result);
+}
+
+// The primal I of `gradient` is the single-wavelength tracer: per bin it agrees with `uniform`
+// (independent seeds, five standard errors per bin and the joint chi-square at p > 1e-4), for
+// τ = 0 and τ > 0; and with the same seed τ changes G only, never I.
+TEST_F(GradientIntegratorTest, PrimalAgreesWithUniformPerBin) {
+  std::uint64_t seed = 40;
+  for (const char* name :
+       {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt", "gradient_rough_glass.pbrt"}) {
+    auto desc = load(name);
+    RenderOptions uniform = gradient_options(seed++);
+    uniform.integrator = IntegratorKind::kUniform;
+    BinStats reference = bin_stats(render(*build(desc, uniform), 1024));
+    image::TileResult tau_zero = render(*build(desc, gradient_options(seed, 0.0f)), 512);
+    image::TileResult tau_positive = render(*build(desc, gradient_options(seed++, 0.5f)), 512);
+    EXPECT_EQ(tau_zero.sums().size(), tau_positive.sums().size());
+    EXPECT_TRUE(std::equal(tau_zero.sums().begin(), tau_zero.sums().end(),
+                           tau_positive.sums().begin()))
+        << name << ": τ changed I";
+    EXPECT_FALSE(std::equal(tau_zero.gradients().begin(), tau_zero.gradients().end(),
+                            tau_positive.gradients().begin()))
+        << name << ": τ = 0.5 shifted exactly what τ = 0 shifted";
+    BinStats gradient = bin_stats(tau_zero);
+    double chi2 = 0;
+    for (std::size_t b = 0; b < reference.mean.size(); ++b) {
+      double se = std::hypot(reference.standard_error[b], gradient.standard_error[b]);
+      double z = (gradient.mean[b] - reference.mean[b]) / se;
+      EXPECT_LT(std::abs(z), kZ) << name << " bin " << b;
+      EXPECT_GT(reference.mean[b], 0.0) << name << " bin " << b;
+      chi2 += z * z;
+    }
+    EXPECT_GT(spectral::testing::chi_square_survival(chi2, int(reference.mean.size())), 1e-4)
+        << name;
+  }
+}
+
+// With the same seed the base path is the `uniform` path sample for sample (same dimension
+// layout), so per pixel and bin the sums agree up to float rounding of the event weights.
+TEST_F(GradientIntegratorTest, PrimalIsTheUniformEstimatorSampleForSample) {
+  auto desc = load("unbiased.pbrt");
+  RenderOptions options = gradient_options(77);
+  options.max_depth = 8;
+  auto gradient = build(desc, options);
+  options.integrator = IntegratorKind::kUniform;
+  auto uniform = build(desc, options);
+  image::TileResult a = render(*gradient, 16), b = render(*uniform, 16);
+  double total = 0;
+  for (std::size_t i = 0; i < a.sums().size(); ++i) {
+    EXPECT_NEAR(a.sums()[i], b.sums()[i], 1e-4 * std::abs(b.sums()[i]) + 1e-9) << "value " << i;
+    total += b.sums()[i];
+  }
+  EXPECT_GT(total, 0.0);
+}
+
+// An emitter seen directly (max_depth 0) with a flat wavelength pdf: the offsets are the same
+// path at λ ± δ with equal densities, so per sample w = 1/2 and, exactly,
+//   G[i] = (c(λ+δ) − c(λ)) / 2,   G[i−k] = (c(λ) − c(λ−δ)) / 2,   c(λ) ∝ Le(λ).
+// With τ beyond every contribution nothing is shifted and G is the finite difference of the
+// sample's I bit for bit.
+constexpr char kEmitterInView[] = R"(LookAt 0 0 -3  0 0 0  0 1 0
+Camera "perspective" "float fov" 20
+Film "spectral" "integer xresolution" 4 "integer yresolution" 4 "integer nbuckets" 16
+WorldBegin
+AttributeBegin
+  AreaLightSource "diffuse" "spectrum L" [360 0.5 450 2 520 1 600 3 700 0.7 830 1.5]
+  Shape "trianglemesh" "point3 P" [-5 -5 0  5 -5 0  5 5 0  -5 5 0] "integer indices" [0 2 1 0 3 2]
+AttributeEnd
+)";
+
+TEST_F(GradientIntegratorTest, DirectlySeenEmitterGivesExactGradients) {
+  auto desc = load_text("emitter_in_view.pbrt", kEmitterInView);
+  RenderOptions options = gradient_options(5);
+  options.max_depth = 0;
+  options.emitter_pdf = EmitterPdfKind::kUniform;
+  auto scene = build(desc, options);
+  ASSERT_TRUE(scene);
+  ASSERT_EQ(scene->lights().size(), 1u);
+  const auto& light = std::get<AreaLight>(scene->lights()[0]);
+  const auto& grid = scene->grid();
+  const int k = options.gradient_offset_bins;
+  auto radiance = [&](float l) {
+    SampledWavelengths w(1);
+    w.set(0, l, 1.0f);
+    return double(light.radiance(Vec3f(0, 0, -1), Vec3f(0, 0, -1), w)[0]);
+  };
+  GradientIntegrator integrator(*scene);
+  TraceCounters counters;
+  int checked = 0;
+  for (int s = 0; s < 400; ++s) {
+    GradientSample g = integrator.trace(1, 2, 0, std::uint32_t(s), scene->wavelength_pdf(),
+                                        counters);
+    ASSERT_GT(g.primal, 0.0f);
+    const int i = grid.bin_of(g.lambda);
+    ASSERT_EQ(g.bin, i);
+    ASSERT_EQ(g.bin_below, grid.wrap(i - k));
+    const float up = grid.lower(grid.wrap(i + k)) + (g.lambda - grid.lower(i));
+    const float down = grid.lower(grid.wrap(i - k)) + (g.lambda - grid.lower(i));
+    const double c = g.primal, le = radiance(g.lambda);
+    const double c_up = c * radiance(up) / le, c_down = c * radiance(down) / le;
+    EXPECT_NEAR(g.gradient, 0.5 * (c_up - c), 1e-5 * c) << "λ " << g.lambda;
+    EXPECT_NEAR(g.gradient_below, 0.5 * (c - c_down), 1e-5 * c) << "λ " << g.lambda;
+    ++checked;
+  }
+  EXPECT_EQ(counters.gradient_shifts_failed, 0u);
+  EXPECT_EQ(counters.gradient_events, 400u);
+
+  options.gradient_tau = 1e30f;
+  auto unshifted = build(desc, options);
+  GradientIntegrator none(*unshifted);
+  TraceCounters none_counters;
+  for (int s = 0; s < 100; ++s) {
+    GradientSample g = none.trace(2, 1, 0, std::uint32_t(s), unshifted->wavelength_pdf(),
+                                  none_counters);
+    EXPECT_EQ(g.gradient, -g.primal);
+    EXPECT_EQ(g.gradient_below, g.primal);
+  }
+  EXPECT_EQ(none_counters.gradient_events, 0u);
+  EXPECT_EQ(none_counters.gradient_shifted_paths, 0u);
+}
+
+// Nothing wavelength-dependent in the geometry (non-dispersive smooth and rough glass, coloured
+// diffuse and conductor, an absorbing and a scattering medium, constant spectra): every offset
+// is the base path at λ', no shift fails, and with constant spectra and a flat pdf every
+// offset's value equals the base's, so G = 0 per sample (up to rounding).
+constexpr char kNoDispersion[] = R"(LookAt 0 2 -4  0 0.5 0  0 1 0
+Camera "perspective" "float fov" 45
+Film "spectral" "integer xresolution" 8 "integer yresolution" 8 "integer nbuckets" 16
+WorldBegin
+MakeNamedMedium "fog" "string type" "homogeneous"
+  "spectrum sigma_a" [360 0.1 830 0.1] "spectrum sigma_s" [360 0.5 830 0.5]
+AttributeBegin
+  Material "diffuse" "float reflectance" 0.5
+  Shape "trianglemesh" "point3 P" [-4 0 -4  4 0 -4  4 0 4  -4 0 4] "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+AttributeBegin
+  Material "dielectric" "float eta" 1.5
+  Translate -0.8 0.5 0
+  Shape "sphere" "float radius" 0.5
+AttributeEnd
+AttributeBegin
+  Material "dielectric" "float eta" 1.33 "float roughness" 0.2
+  Translate 0.8 0.5 0
+  Shape "sphere" "float radius" 0.5
+AttributeEnd
+AttributeBegin
+  Material "interface"
+  MediumInterface "fog" ""
+  Translate 0 0.4 -1.2
+  Shape "sphere" "float radius" 0.4
+AttributeEnd
+AttributeBegin
+  AreaLightSource "diffuse" "spectrum L" [360 1 830 1] "float scale" 2000
+  Shape "trianglemesh" "point3 P" [-1 3 -1  1 3 -1  1 3 1  -1 3 1] "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+)";
+
+TEST_F(GradientIntegratorTest, WithoutWavelengthDependentGeometryOffsetsAreTheBasePath) {
+  auto desc = load_text("no_dispersion.pbrt", kNoDispersion);
+  RenderOptions options = gradient_options(9);
+  options.emitter_pdf = EmitterPdfKind::kUniform;
+  auto scene = build(desc, options);
+  ASSERT_TRUE(scene);
+  GradientIntegrator integrator(*scene);
+  TraceCounters counters;
+  double total = 0;
+  for (int py = 0; py < 8; ++py) {
+    for (int px = 0; px < 8; ++px) {
+      for (int s = 0; s < 64; ++s) {
+        GradientSample g = integrator.trace(px, py, 0, std::uint32_t(s),
+                                            scene->wavelength_pdf(), counters);
+        EXPECT_LE(std::abs(g.gradient), 1e-5f * g.primal) << px << "," << py << " sample " << s;
+        EXPECT_LE(std::abs(g.gradient_below), 1e-5f * g.primal);
+        total += g.primal;
+      }
+    }
+  }
+  EXPECT_GT(total, 0.0);
+  EXPECT_GT(counters.gradient_events, 1000u);
+  EXPECT_EQ(counters.gradient_shifts_failed, 0u);
+  EXPECT_EQ(counters.gradient_shifts_wasted, 0u);
+  EXPECT_EQ(counters.non_finite, 0u);
+}
+
+// Numerical corners: grazing refraction into dispersive glass, η(λ') totally reflected where
+// η(λ) refracts, η → 1, a line-spectrum emitter and a very bright one. No NaN or Inf may reach
+// I or G, and none may be dropped either (non_finite counts drops).
+std::string stability_scene(const std::string& glass, const std::string& emission) {
+  return R"(LookAt 0 0.05 -4  0 0 0  0 1 0
+Camera "perspective" "float fov" 50
+Film "spectral" "integer xresolution" 8 "integer yresolution" 8 "integer nbuckets" 16
+WorldBegin
+AttributeBegin
+  Material "diffuse" "float reflectance" 0.5
+  Shape "trianglemesh" "point3 P" [-9 -1 -9  9 -1 -9  9 -1 9  -9 -1 9] "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+AttributeBegin
+  Material "dielectric" )" + glass + R"(
+  Shape "trianglemesh" "point3 P" [-3 0 -3  3 0 -3  3 0 3  -3 0 3  -3 -0.3 -3  3 -0.3 -3  3 -0.3 3  -3 -0.3 3]
+    "integer indices" [0 2 1  0 3 2  4 5 6  4 6 7  0 1 5  0 5 4  1 2 6  1 6 5  2 3 7  2 7 6  3 0 4  3 4 7]
+AttributeEnd
+AttributeBegin
+  Material "dielectric" )" + glass + R"(
+  Translate 0.8 0.6 0.5
+  Shape "sphere" "float radius" 0.6
+AttributeEnd
+AttributeBegin
+  AreaLightSource "diffuse" )" + emission + R"(
+  Shape "trianglemesh" "point3 P" [-1 3 -1  1 3 -1  1 3 1  -1 3 1] "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+)";
+}
+
+TEST_F(GradientIntegratorTest, NumericalCornersStayFinite) {
+  const std::string smooth_dense = R"("float cauchy" [1.6 0.05])";
+  const std::string plain = R"("spectrum L" [360 1 830 1] "float scale" 1000)";
+  struct Case {
+    std::string name, glass, emission;
+  } cases[] = {
+      {"grazing, strong dispersion", smooth_dense, plain},
+      {"rough, strong dispersion", R"("float cauchy" [1.6 0.05] "float roughness" 0.05)", plain},
+      {"eta near 1", R"("float cauchy" [1.0 0.0003])", plain},
+      {"rough, eta near 1", R"("float cauchy" [1.0 0.0003] "float roughness" 0.3)", plain},
+      {"index matched", R"("float eta" 1)", plain},
+      {"line spectrum", smooth_dense,
+       R"("spectrum L" [360 0 545 0 546 5000 547 0 610 0 611 3000 612 0 830 0])"},
+      {"fluorescent", smooth_dense, R"("spectrum L" "stdillum-F11" "float scale" 1000)"},
+      {"very bright", smooth_dense, R"("spectrum L" [360 1 830 1] "float scale" 1e20)"},
+  };
+  std::uint64_t seed = 60;
+  for (const Case& c : cases) {
+    auto desc = load_text("stability.pbrt", stability_scene(c.glass, c.emission));
+    for (float tau : {0.0f, 1.0f}) {
+      auto scene = build(desc, gradient_options(seed++, tau));
+      ASSERT_TRUE(scene) << c.name;
+      TileRenderer renderer(*scene);
+      TileStats stats;
+      auto result = renderer.render({{0, 0, 8, 8}, {0, 64}, 0}, &stats);
+      ASSERT_TRUE(result.ok()) << c.name;
+      double total = 0;
+      for (double v : result->sums()) {
+        EXPECT_TRUE(std::isfinite(v)) << c.name;
+        total += v;
+      }
+      for (double v : result->sum_squares()) EXPECT_TRUE(std::isfinite(v)) << c.name;
+      for (double v : result->gradients()) EXPECT_TRUE(std::isfinite(v)) << c.name;
+      EXPECT_GT(total, 0.0) << c.name;
+      EXPECT_EQ(stats.counters.non_finite, 0u) << c.name;
+      if (tau == 0.0f) {
+        EXPECT_GT(stats.counters.gradient_events, 0u) << c.name;
+      }
+    }
+  }
+}
+
+// A gradient tile's bytes do not depend on the thread count or the tile split; the result
+// carries the gradients buffer, other integrators' results do not.
+TEST_F(GradientIntegratorTest, TileBytesDoNotDependOnThreadsOrTiles) {
+  auto desc = load("gradient_glass_diffuse.pbrt");
+  auto scene = build(desc, gradient_options(1));
+  TileRenderer renderer(*scene);
+  RenderTask whole{{0, 0, 12, 12}, {0, 8}, 0};
+  auto one = tbb::task_arena(1).execute([&] { return *renderer.render(whole, nullptr); });
+  auto two = tbb::task_arena(2).execute([&] { return *renderer.render(whole, nullptr); });
+  ASSERT_TRUE(one.has_gradients());
+  EXPECT_TRUE(one == two);
+  double gradient_total = 0;
+  for (double g : one.gradients()) gradient_total += std::abs(g);
+  EXPECT_GT(gradient_total, 0.0);
+  for (auto [x0, y0] : {std::pair{0, 0}, {6, 0}, {0, 6}, {6, 6}}) {
+    auto part = *renderer.render({{x0, y0, x0 + 6, y0 + 6}, {0, 8}, 0}, nullptr);
+    for (int y = y0; y < y0 + 6; ++y) {
+      for (int x = x0; x < x0 + 6; ++x) {
+        for (int b = 0; b < 16; ++b) {
+          ASSERT_EQ(part.sum(x, y, b), one.sum(x, y, b));
+          ASSERT_EQ(part.gradient(x, y, b), one.gradient(x, y, b));
+        }
+      }
+    }
+  }
+  RenderOptions uniform = gradient_options(1);
+  uniform.integrator = IntegratorKind::kUniform;
+  auto uniform_scene = build(desc, uniform);
+  EXPECT_FALSE(TileRenderer(*uniform_scene).render(whole, nullptr)->has_gradients());
+}
+
+TEST(GradientOffsetBinsTest, SnapsAndValidates) {
+  EXPECT_EQ(*gradient_offset_bins(0.15, 64), 10);
+  EXPECT_EQ(*gradient_offset_bins(0.15, 16), 2);
+  EXPECT_EQ(*gradient_offset_bins(0.5, 4), 2);
+  EXPECT_EQ(gradient_offset_bins(0.1, 4).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_FALSE(gradient_offset_bins(0.0, 64).ok());
+  EXPECT_FALSE(gradient_offset_bins(-0.1, 64).ok());
+  EXPECT_FALSE(gradient_offset_bins(0.6, 64).ok());
+  EXPECT_FALSE(gradient_offset_bins(std::nan(""), 64).ok());
 }
 
 }  // namespace
