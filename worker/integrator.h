@@ -35,12 +35,26 @@ struct TraceCounters {
   std::uint64_t rays = 0;         // every intersect or occlusion query
   std::uint64_t lane_splits = 0;  // paths whose secondary lanes were terminated
   std::uint64_t non_finite = 0;   // contributions dropped because they were NaN or infinite
+  // Gradient sampling (gradient_integrator.h; the paper's Table 1): base events whose
+  // contribution passed c > τ, base paths with at least one shifted event, offsets evaluated
+  // (one per side of such an event), and of those the shifts that failed (no valid offset path)
+  // and the ones wasted because the offset's own contribution was <= τ.
+  std::uint64_t gradient_events = 0;
+  std::uint64_t gradient_shifted_paths = 0;
+  std::uint64_t gradient_shifts = 0;
+  std::uint64_t gradient_shifts_failed = 0;
+  std::uint64_t gradient_shifts_wasted = 0;
 
   TraceCounters& operator+=(const TraceCounters& o) {
     camera_rays += o.camera_rays;
     rays += o.rays;
     lane_splits += o.lane_splits;
     non_finite += o.non_finite;
+    gradient_events += o.gradient_events;
+    gradient_shifted_paths += o.gradient_shifted_paths;
+    gradient_shifts += o.gradient_shifts;
+    gradient_shifts_failed += o.gradient_shifts_failed;
+    gradient_shifts_wasted += o.gradient_shifts_wasted;
     return *this;
   }
 };

@@ -3,8 +3,12 @@
 // field that changes output bytes is part of the job spec (proto/prism/v1/types.proto).
 #pragma once
 
+#include <cmath>
 #include <cstdint>
+#include <string>
 
+#include "absl/status/statusor.h"
+#include "absl/strings/str_cat.h"
 #include "worker/sampler.h"
 
 namespace prism::worker {
@@ -12,6 +16,7 @@ namespace prism::worker {
 enum class IntegratorKind {
   kUniform,  // one wavelength per path (C = 1): the unbiased baseline
   kHero,     // C = 4 lanes with CMIS rotation (algorithms.md §2)
+  kGradient, // spectral gradient sampling (§5): C = 1 base paths with offsets at λ ± δ
 };
 
 enum class SpectralPdfKind { kFlat, kVisible };      // sensor term p_s (§1)
@@ -20,7 +25,15 @@ enum class LightSelectionKind { kUniform, kPower, kSpatial };  // base pmf q_bas
 
 // The names the CLI flags, job specs and reports use for the option values.
 inline const char* name(IntegratorKind kind) {
-  return kind == IntegratorKind::kUniform ? "uniform" : "hero";
+  switch (kind) {
+    case IntegratorKind::kUniform:
+      return "uniform";
+    case IntegratorKind::kHero:
+      return "hero";
+    case IntegratorKind::kGradient:
+      return "gradient";
+  }
+  return "?";
 }
 inline const char* name(SpectralPdfKind kind) {
   return kind == SpectralPdfKind::kFlat ? "flat" : "visible";
@@ -53,8 +66,29 @@ struct RenderOptions {
   int max_depth = 5;        // path vertices after the camera; 0 renders only direct emission
   int rr_min_depth = 3;     // Russian roulette from this depth on
   std::uint64_t seed = 0;
+  // Gradient sampling (§5): the spectral offset k in bins (1 <= k < bins; see
+  // gradient_offset_bins below) and the shift threshold τ >= 0 (paper Eq. 16, made symmetric).
+  int gradient_offset_bins = 10;
+  float gradient_tau = 0;
 
-  int lanes() const { return integrator == IntegratorKind::kUniform ? 1 : 4; }
+  int lanes() const { return integrator == IntegratorKind::kHero ? 4 : 1; }
 };
+
+// k = round(δ_frac · bins): the offset δ = k·w snapped to whole bins so that λ ± δ falls in bin
+// b ± k exactly. INVALID_ARGUMENT when δ_frac is not in (0, 0.5] (beyond half the range the
+// cyclic offset −δ is the shorter one) or when it snaps to 0 bins (or to all of them).
+inline absl::StatusOr<int> gradient_offset_bins(double delta_frac, int bins) {
+  if (!(delta_frac > 0.0 && delta_frac <= 0.5)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("gradient offset ", delta_frac, " is not in (0, 0.5] of the spectral range"));
+  }
+  const int k = int(std::lround(delta_frac * bins));
+  if (k < 1 || k >= bins) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("gradient offset ", delta_frac, " of ", bins, " bins rounds to ", k,
+                     " bins; use a larger offset (at least ", 0.5 / bins, ") or more bins"));
+  }
+  return k;
+}
 
 }  // namespace prism::worker

@@ -11,12 +11,17 @@
 
 namespace prism::worker {
 
+TileRenderer::TileRenderer(const RenderScene& scene) : scene_(scene), integrator_(scene) {
+  if (scene.options().integrator == IntegratorKind::kGradient) gradient_.emplace(scene);
+}
+
 absl::StatusOr<image::TileResult> TileRenderer::render(
     const RenderTask& task, TileStats* stats, const std::atomic<bool>* cancel,
     std::atomic<std::uint64_t>* progress) const {
   const int bins = scene_.grid().bins();
   image::TileBuffers buffers;
   buffers.guides = task.want_guides;
+  buffers.gradients = gradient_.has_value();
   auto created = image::TileResult::create(task.tile, task.samples, bins, buffers);
   if (!created.ok()) return created.status();
   image::TileResult result = std::move(*created);
@@ -34,6 +39,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
   auto sums = result.mutable_sums();
   auto squares = result.mutable_sum_squares();
   auto counts = result.mutable_counts();
+  auto gradients = result.mutable_gradients();
 
   // Each pixel is owned by one thread and its samples are added in index order, so every
   // double in the result is the same whatever the scheduling.
@@ -56,6 +62,25 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
           Vec3f normal_sum;
           for (std::uint64_t s = task.samples.s0; s < task.samples.s1; ++s) {
             GuideValues guide;
+            if (gradient_) {
+              GradientSample g = gradient_->trace(x, y, task.pass, std::uint32_t(s), lambda_pdf,
+                                                  local, task.want_guides ? &guide : nullptr);
+              if (g.primal != 0.0f) {
+                const double v = g.primal;
+                pixel_sums[g.bin] += v;
+                pixel_squares[g.bin] += v * v;
+              }
+              double* pixel_gradients = &gradients[std::size_t(index) * bins];
+              pixel_gradients[g.bin] += g.gradient;
+              pixel_gradients[g.bin_below] += g.gradient_below;
+              if (task.want_guides) {
+                depth_sum += guide.depth;
+                normal_sum += guide.normal;
+                albedo_sum += guide.albedo;
+                ++guide_count;
+              }
+              continue;
+            }
             SampleContribution c = integrator_.trace(x, y, task.pass, std::uint32_t(s), lambda_pdf,
                                                      local, task.want_guides ? &guide : nullptr);
             // Lanes that land in the same bin form one value of this sample for that bin, so

@@ -1,14 +1,18 @@
 // Renders one task (tile rect x sample range) into a TileResult, on a TBB thread pool. Pixels
 // are independent and every random number is a pure function of (seed, pass, pixel, sample,
 // dimension), and each pixel's samples are accumulated in index order into doubles, so the
-// result's bytes are identical for any thread count, tile size or task split.
+// result's bytes are identical for any thread count, tile size or task split. With the
+// `gradient` integrator the result also carries the gradients buffer (per pixel, the sums of the
+// G[b] estimates, added in sample order like the primal sums).
 #pragma once
 
 #include <atomic>
 #include <cstdint>
+#include <optional>
 
 #include "absl/status/statusor.h"
 #include "services/image/tile.h"
+#include "worker/gradient_integrator.h"
 #include "worker/integrator.h"
 #include "worker/render_scene.h"
 
@@ -28,7 +32,7 @@ struct TileStats {
 
 class TileRenderer {
  public:
-  explicit TileRenderer(const RenderScene& scene) : scene_(scene), integrator_(scene) {}
+  explicit TileRenderer(const RenderScene& scene);
 
   // Renders the task with the scene's wavelength distribution. `cancel`, when set, is polled
   // between pixels; a cancelled render returns CANCELLED and no result. `progress` (may be
@@ -40,6 +44,7 @@ class TileRenderer {
  private:
   const RenderScene& scene_;
   PathIntegrator integrator_;
+  std::optional<GradientIntegrator> gradient_;  // set for IntegratorKind::kGradient
 };
 
 }  // namespace prism::worker

@@ -1,0 +1,90 @@
+// Spectral gradient sampling on the worker (algorithms.md §5, spectral gradient paper §3): a
+// single-wavelength (C = 1) path tracer whose every base path x̄ at λ (bin i) is shifted to
+// offset paths y₊ at λ + δ and y₋ at λ − δ (δ = k bin widths, cyclic), returning the primal
+// contribution to I[i] and the gradient contributions to G[i] and G[i − k], with
+// E[G[b]] = I[b + k] − I[b].
+//
+// Contributions. Every event that adds light (an emitter found by the sampled direction, or
+// next-event estimation) ends its own path prefix x̄, weighted against the other technique by
+// the balance heuristic as in PathIntegrator, so its primal value is c = f(x̄)/Σ_t p_t(x̄): the
+// sum runs over the techniques (NEE, BSDF sampling) that could have produced the last vertex.
+// The pair (x̄, y) can be produced by either technique from either wavelength, so the symmetric
+// weight is one balance heuristic over all four (as Mitsuba's gradient-domain path tracer does):
+//     w₊ = Σ_t p_t(x̄,λ) / (Σ_t p_t(x̄,λ) + Σ_t p_t(y₊,λ+δ)·|J₊|),   c₊ = f(y₊,λ+δ)·|J₊| / Σ_t p_t(x̄,λ),
+// p(·,λ) including the wavelength density p(λ) of `lambda_pdf` at the base's and at the offset's
+// wavelength. Accumulation per event (§5): shifted, G[i] += w₊(c₊ − c), G[i−k] += w₋(c − c₋);
+// unshifted, G[i] −= c, G[i−k] += c. An event is shifted on one side when the mapping succeeds
+// and min(c, f(y)/Σ_t p_t(y)) > τ (paper Eq. 16 made symmetric; c is tested first and nothing of
+// the offset is computed when it fails). With τ = 0 an event with c = 0 is unshifted, so only
+// events that carry base light need offsets; the pairs whose base carries none are estimated by
+// standard sampling from the other wavelength, whose unshifted rule adds exactly that term.
+//
+// Roulette. Contributions divide by the base's survival probabilities (they are part of the
+// base's true density, so c₊ = f(y)|J|/p(x̄) divides by them too), but the MIS weights and the
+// threshold use roulette-free densities: any pair of positive functions that both sides of a
+// pair compute identically gives weights that sum to 1, and the offset's own roulette would
+// depend on a throughput the base cannot know.
+//
+// The shift (gradient_shift.h for the local mappings), per offset state:
+//  - same: the offset is at the base's vertex with the base's incoming direction. It copies the
+//    sampled direction (J = 1) at every vertex whose sampling does not depend on λ (diffuse,
+//    conductors, non-dispersive dielectrics, medium scattering, and reflection off a dispersive
+//    dielectric, whose half-vector copy with the same ω_o is the same direction); only its
+//    values change (reflectance, Fresnel, η'², emission, σ(λ'), free-flight densities). At a
+//    refraction through a dispersive dielectric it copies the half-vector (smooth: the same event
+//    with its own η; TIR fails the shift) and becomes diverged.
+//  - diverged: the offset has its own vertex, reached by its own ray. Its vertex must be of the
+//    same kind as the base's (BSDF type, smooth or rough, dispersive or not), else the shift
+//    fails. When its vertex and the base's next vertex are both connectable (rough and not
+//    dispersive), it reconnects to that vertex (visibility, arrival on the same side, Jacobian
+//    cosθ'·d²/(cosθ·d'²)) and becomes reconnected; otherwise it copies the half-vector and traces
+//    its own ray. NEE from a diverged vertex connects to the base's light sample point (for the
+//    environment: the base's direction, J = 1; for point and spot lights: the light's position).
+//  - reconnected: at the base's vertex with its own incoming direction: NEE and the next
+//    direction are the base's (J = 1), evaluated with its own ω_o; then same again.
+//  - failed: every later event is unshifted.
+// Media: an offset at the base's position keeps the base's distances and directions and
+// evaluates σ, transmittance and free-flight densities at λ' (Henyey–Greenstein does not depend
+// on λ). A diverged offset crosses absorbing media on its own; meeting a scattering medium while
+// diverged fails the shift (its free flight has no base distance to copy).
+#pragma once
+
+#include <cstdint>
+
+#include "services/spectral/wavelength_distribution.h"
+#include "worker/integrator.h"
+#include "worker/render_scene.h"
+
+namespace prism::worker {
+
+// One camera sample's output: the base bin i, its primal value for I[i] and the gradient
+// contributions to G[i] and G[(i − k) mod B]. Per-bin averages (W·m⁻²·sr⁻¹·nm⁻¹), as
+// SampleContribution values; all finite (a non-finite sample contributes zeros and is counted).
+struct GradientSample {
+  float lambda = 0;  // the base wavelength (nm); 0 when the sample drew none
+  int bin = 0;
+  int bin_below = 0;  // (bin − k) mod B
+  float primal = 0;
+  float gradient = 0;        // to G[bin]
+  float gradient_below = 0;  // to G[bin_below]
+};
+
+class GradientIntegrator {
+ public:
+  // The scene's options give k (gradient_offset_bins, 1 <= k < bins), τ, depth and roulette.
+  explicit GradientIntegrator(const RenderScene& scene);
+
+  // Traces pixel (px, py)'s sample `sample_index` of pass `pass`: the base wavelength is drawn
+  // from `lambda_pdf` (lane 0 of sample_lanes(u, 1)) and the offsets' densities are that same
+  // distribution's pdf at λ ± δ. Pure function of its arguments; never allocates.
+  GradientSample trace(int px, int py, std::uint32_t pass, std::uint32_t sample_index,
+                       const spectral::WavelengthDistribution& lambda_pdf,
+                       TraceCounters& counters, GuideValues* guides = nullptr) const;
+
+ private:
+  const RenderScene& scene_;
+  int offset_bins_;
+  float tau_;
+};
+
+}  // namespace prism::worker
