@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <numeric>
 
 #include "absl/strings/str_cat.h"
@@ -15,13 +16,103 @@
 namespace prism::coordinator {
 namespace {
 
-// Pixels solved together by the L2 fast path: their recurrences are independent, so the
-// inner loops over them run in SIMD lanes instead of waiting on one recurrence's latency.
+// Pixels solved together by the L2 fast path (solve_l2_batch8): their recurrences are
+// independent, so they run in SIMD lanes instead of waiting on one recurrence's latency.
 constexpr int kBatch = 8;
 
 // IRLS weight floor: a residual below kIrlsFloor·σ weighs as one of size kIrlsFloor·σ, so the
 // weights stay within [0, 1/kIrlsFloor] and every reweighted system stays well conditioned.
 constexpr double kIrlsFloor = 1e-3;
+
+// Eight pixels' worth of lanes, as compiler vector types (GCC/Clang): the compiler maps them
+// onto whatever SIMD the target has, and every lane is plain IEEE arithmetic, so the results
+// are the same bits as the scalar path's.
+template <typename V, typename T>
+V load(const T* p) {
+  V v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+template <typename T, typename V>
+void store(T* p, const V& v) {
+  std::memcpy(p, &v, sizeof v);
+}
+
+using F2 = float __attribute__((vector_size(8)));
+using F4 = float __attribute__((vector_size(16)));
+using D2 = double __attribute__((vector_size(16)));
+
+// Eight floats at p widened to four pairs of doubles.
+void widen8(const float* p, D2 (&d)[4]) {
+  for (int h = 0; h < 2; ++h) {
+    const F4 f = load<F4>(p + 4 * h);
+    d[2 * h] = __builtin_convertvector(__builtin_shufflevector(f, f, 0, 1), D2);
+    d[2 * h + 1] = __builtin_convertvector(__builtin_shufflevector(f, f, 2, 3), D2);
+  }
+}
+
+// Four pairs of doubles rounded to eight floats at p; adds f − f to `check` (see below).
+void narrow8(const D2 (&d)[4], float* p, F4 (&check)[2]) {
+  for (int h = 0; h < 2; ++h) {
+    const F4 f = __builtin_shufflevector(__builtin_convertvector(d[2 * h], F2),
+                                         __builtin_convertvector(d[2 * h + 1], F2), 0, 1, 2, 3);
+    check[h] += f - f;
+    store(p + 4 * h, f);
+  }
+}
+
+void transpose4(F4& r0, F4& r1, F4& r2, F4& r3) {
+  const F4 t0 = __builtin_shufflevector(r0, r1, 0, 4, 1, 5);
+  const F4 t1 = __builtin_shufflevector(r0, r1, 2, 6, 3, 7);
+  const F4 t2 = __builtin_shufflevector(r2, r3, 0, 4, 1, 5);
+  const F4 t3 = __builtin_shufflevector(r2, r3, 2, 6, 3, 7);
+  r0 = __builtin_shufflevector(t0, t2, 0, 1, 4, 5);
+  r1 = __builtin_shufflevector(t0, t2, 2, 3, 6, 7);
+  r2 = __builtin_shufflevector(t1, t3, 0, 1, 4, 5);
+  r3 = __builtin_shufflevector(t1, t3, 2, 3, 6, 7);
+}
+
+// 8 pixels of B values, pixel-major (in[p·B + b]), to bin-major t[b·8 + p], by 4x4 blocks.
+void to_bin_major(const float* in, int B, float* t) {
+  int b = 0;
+  for (; b + 4 <= B; b += 4) {
+    for (int g = 0; g < 8; g += 4) {
+      F4 r0 = load<F4>(in + (g + 0) * B + b);
+      F4 r1 = load<F4>(in + (g + 1) * B + b);
+      F4 r2 = load<F4>(in + (g + 2) * B + b);
+      F4 r3 = load<F4>(in + (g + 3) * B + b);
+      transpose4(r0, r1, r2, r3);
+      store(t + (b + 0) * 8 + g, r0);
+      store(t + (b + 1) * 8 + g, r1);
+      store(t + (b + 2) * 8 + g, r2);
+      store(t + (b + 3) * 8 + g, r3);
+    }
+  }
+  for (; b < B; ++b) {
+    for (int p = 0; p < 8; ++p) t[b * 8 + p] = in[p * B + b];
+  }
+}
+
+// The inverse of to_bin_major.
+void to_pixel_major(const float* t, int B, float* out) {
+  int b = 0;
+  for (; b + 4 <= B; b += 4) {
+    for (int g = 0; g < 8; g += 4) {
+      F4 r0 = load<F4>(t + (b + 0) * 8 + g);
+      F4 r1 = load<F4>(t + (b + 1) * 8 + g);
+      F4 r2 = load<F4>(t + (b + 2) * 8 + g);
+      F4 r3 = load<F4>(t + (b + 3) * 8 + g);
+      transpose4(r0, r1, r2, r3);
+      store(out + (g + 0) * B + b, r0);
+      store(out + (g + 1) * B + b, r1);
+      store(out + (g + 2) * B + b, r2);
+      store(out + (g + 3) * B + b, r3);
+    }
+  }
+  for (; b < B; ++b) {
+    for (int p = 0; p < 8; ++p) out[p * B + b] = t[b * 8 + p];
+  }
+}
 
 bool finite(float v) { return std::isfinite(v); }
 
@@ -179,12 +270,10 @@ absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, d
   s.length_ = bins / s.chains_;
   const int L = s.length_;
   s.order_.resize(bins);
-  s.prev_.resize(bins);
   for (int c = 0; c < s.chains_; ++c) {
     for (int j = 0; j < L; ++j) {
       const int b = static_cast<int>((c + std::int64_t{j} * offset_bins) % bins);
       s.order_[c * L + j] = b;
-      s.prev_[c * L + j] = (b - offset_bins + bins) % bins;
     }
   }
   const double root = std::sqrt(alpha * (alpha + 4.0));
@@ -202,62 +291,110 @@ absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, d
   return s;
 }
 
-// Solves P pixels (P·B consecutive values of each array). `z` holds P·L doubles, laid out
-// z[j·P + p] so the per-pixel recurrences advance side by side. Returns false when an input or
-// a result is not finite (the caller locates it): x − x is 0 for finite x and NaN otherwise,
-// and summing those per lane costs one add, with no branch in the loop.
-template <int P>
-bool PoissonSolver::solve_l2_batch(const float* primal, const float* gradient, float* out,
-                                   double* z) const {
+// The L2 solve of one pixel, the reference path; solve_l2_batch8 does the same arithmetic in
+// the same order on eight pixels at once, so both give the same bits.
+//  1. r[b] = α·I[b] + G[b − k] − G[b], the right-hand side, in bin order (b − k wraps only
+//     for b < k); `scratch` holds B + L doubles: r, then z.
+//  2. Per chain, the two recurrences of the factorisation above, writing rounded results.
+// Returns false when a result is not finite, which includes every non-finite input: a NaN or
+// infinity in I or G enters some r_j, makes every later z of its chain and hence
+// U = z_{L−1}/(1 − ρ^L) non-finite, and every x_j of the chain adds ρ^(j+1)·U (0·inf is NaN
+// too). The caller then locates the value. The test is f − f summed: 0 for finite f, NaN
+// otherwise, and branch-free.
+bool PoissonSolver::solve_l2_one(const float* primal, const float* gradient, float* out,
+                                 double* scratch) const {
+  const int B = bins_;
+  const int L = length_;
+  const int k = k_;
+  const double a = alpha_;
+  const double rho = rho_;
+  const double inv = inv_one_minus_rho_l_;
+  const double* pw = rho_pow_.data();
+  double* r = scratch;
+  double* z = scratch + B;
+  for (int b = 0; b < k; ++b) r[b] = a * primal[b] + gradient[b - k + B] - gradient[b];
+  for (int b = k; b < B; ++b) r[b] = a * primal[b] + gradient[b - k] - gradient[b];
+  float check = 0;
+  for (int c = 0; c < chains_; ++c) {
+    const int* order = order_.data() + c * L;
+    double zl = 0;
+    double sz = 0;
+    for (int j = 0; j < L; ++j) {
+      zl = rho * (r[order[j]] + zl);
+      z[j] = zl;
+      sz += pw[j] * zl;
+    }
+    const double u_last = zl * inv;
+    double x = (sz + u_last * q_) * inv;
+    float f = static_cast<float>(x);
+    check += f - f;
+    out[order[0]] = f;
+    for (int j = L - 1; j >= 1; --j) {
+      x = z[j] + pw[j + 1] * u_last + rho * x;
+      f = static_cast<float>(x);
+      check += f - f;
+      out[order[j]] = f;
+    }
+  }
+  return check == 0;
+}
+
+// Eight pixels (8·B consecutive values of each array) side by side in SIMD lanes. The lanes
+// need the pixels bin-major, so I and G are transposed into t[b·8 + p] (4x4 blocks), the
+// recurrences run one bin row of 8 lanes at a time (r is formed on the way: G[b − k] is the
+// previous chain element's G), and the bin-major result is transposed back. `z` holds 8·L
+// doubles, `t` 24·B floats.
+bool PoissonSolver::solve_l2_batch8(const float* primal, const float* gradient, float* out,
+                                    double* z, float* t) const {
   const int B = bins_;
   const int L = length_;
   const double a = alpha_;
   const double rho = rho_;
   const double inv = inv_one_minus_rho_l_;
   const double* pw = rho_pow_.data();
-  double check[P] = {};
+  float* ti = t;
+  float* tg = t + 8 * B;
+  float* to = t + 16 * B;
+  to_bin_major(primal, B, ti);
+  to_bin_major(gradient, B, tg);
+  F4 check[2] = {};
   for (int c = 0; c < chains_; ++c) {
     const int* order = order_.data() + c * L;
-    const int* prev = prev_.data() + c * L;
-    double zl[P] = {};
-    double sz[P] = {};
+    D2 zl[4] = {};
+    D2 sz[4] = {};
+    D2 g_prev[4];
+    widen8(tg + order[L - 1] * 8, g_prev);
     for (int j = 0; j < L; ++j) {
       const int b = order[j];
-      const int bp = prev[j];
-      double* zj = z + j * P;
-      for (int p = 0; p < P; ++p) {
-        const double iv = primal[p * B + b];
-        const double gv = gradient[p * B + b];
-        const double gpv = gradient[p * B + bp];
-        check[p] += (iv - iv) + (gv - gv);
-        zl[p] = rho * (a * iv + gpv - gv + zl[p]);
-        zj[p] = zl[p];
-        sz[p] += pw[j] * zl[p];
+      D2 iv[4], gv[4];
+      widen8(ti + b * 8, iv);
+      widen8(tg + b * 8, gv);
+      const double wj = pw[j];
+      for (int q = 0; q < 4; ++q) {
+        const D2 r = a * iv[q] + g_prev[q] - gv[q];
+        g_prev[q] = gv[q];
+        zl[q] = rho * (r + zl[q]);
+        store(z + j * 8 + 2 * q, zl[q]);
+        sz[q] += wj * zl[q];
       }
     }
-    double u_last[P];
-    double xn[P];
-    for (int p = 0; p < P; ++p) {
-      u_last[p] = zl[p] * inv;
-      xn[p] = (sz[p] + u_last[p] * q_) * inv;
-      const float f = static_cast<float>(xn[p]);
-      check[p] += f - f;
-      out[p * B + order[0]] = f;
+    D2 u_last[4], x[4];
+    for (int q = 0; q < 4; ++q) {
+      u_last[q] = zl[q] * inv;
+      x[q] = (sz[q] + u_last[q] * q_) * inv;
     }
+    narrow8(x, to + order[0] * 8, check);
     for (int j = L - 1; j >= 1; --j) {
-      const int b = order[j];
-      const double* zj = z + j * P;
       const double corr = pw[j + 1];
-      for (int p = 0; p < P; ++p) {
-        xn[p] = zj[p] + corr * u_last[p] + rho * xn[p];
-        const float f = static_cast<float>(xn[p]);
-        check[p] += f - f;
-        out[p * B + b] = f;
+      for (int q = 0; q < 4; ++q) {
+        x[q] = load<D2>(z + j * 8 + 2 * q) + corr * u_last[q] + rho * x[q];
       }
+      narrow8(x, to + order[j] * 8, check);
     }
   }
-  double all = 0;
-  for (int p = 0; p < P; ++p) all += check[p];
+  to_pixel_major(to, B, out);
+  float all = 0;
+  for (int p = 0; p < 4; ++p) all += check[0][p] + check[1][p];
   return all == 0;
 }
 
@@ -325,8 +462,11 @@ absl::Status PoissonSolver::solve_l2(std::span<const float> primal,
                                      std::span<const float> gradient,
                                      std::span<float> out) const {
   PRISM_RETURN_IF_ERROR(check_one_pixel(bins_, primal, gradient, out));
-  double z[image::kMaxBins];
-  if (solve_l2_batch<1>(primal.data(), gradient.data(), out.data(), z)) return absl::OkStatus();
+  // 2·kMaxBins doubles at most (64 KiB); this path allocates nothing.
+  double scratch[2 * image::kMaxBins];
+  if (solve_l2_one(primal.data(), gradient.data(), out.data(), scratch)) {
+    return absl::OkStatus();
+  }
   return fault_status(locate_fault(primal, gradient, out, bins_, 0, 1), "0");
 }
 
@@ -348,7 +488,9 @@ absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float
         " (the bins)"));
   }
   const std::int64_t pixels = static_cast<std::int64_t>(primal.size() / B);
-  std::vector<double> scratch(norm == PoissonNorm::kL2 ? std::size_t(kBatch) * length_ : 8 * B);
+  std::vector<double> scratch(norm == PoissonNorm::kL2 ? std::size_t(kBatch) * length_ + B
+                                                      : 8 * B);
+  std::vector<float> t_buffer(norm == PoissonNorm::kL2 ? 3 * std::size_t(kBatch) * B : 0);
   std::int64_t p = 0;
   auto fail = [&](std::int64_t count) {
     const Fault fault = locate_fault(primal, gradient, out, bins_, p, count);
@@ -359,15 +501,15 @@ absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float
   if (norm == PoissonNorm::kL2) {
     for (; p + kBatch <= pixels; p += kBatch) {
       const std::size_t o = static_cast<std::size_t>(p) * B;
-      if (!solve_l2_batch<kBatch>(primal.data() + o, gradient.data() + o, out.data() + o,
-                                  scratch.data())) {
+      if (!solve_l2_batch8(primal.data() + o, gradient.data() + o, out.data() + o,
+                           scratch.data(), t_buffer.data())) {
         return fail(kBatch);
       }
     }
     for (; p < pixels; ++p) {
       const std::size_t o = static_cast<std::size_t>(p) * B;
-      if (!solve_l2_batch<1>(primal.data() + o, gradient.data() + o, out.data() + o,
-                             scratch.data())) {
+      if (!solve_l2_one(primal.data() + o, gradient.data() + o, out.data() + o,
+                        scratch.data())) {
         return fail(1);
       }
     }

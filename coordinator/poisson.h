@@ -86,9 +86,10 @@ class PoissonSolver {
  private:
   PoissonSolver() = default;
 
-  template <int P>
-  bool solve_l2_batch(const float* primal, const float* gradient, float* out,
-                      double* scratch) const;
+  bool solve_l2_one(const float* primal, const float* gradient, float* out,
+                    double* scratch) const;
+  bool solve_l2_batch8(const float* primal, const float* gradient, float* out, double* z,
+                       float* t) const;
   void solve_l1_pixel(const float* primal, const float* gradient, float* out,
                       double* scratch) const;
 
@@ -97,10 +98,8 @@ class PoissonSolver {
   double alpha_ = 0;
   int chains_ = 0;
   int length_ = 0;
-  // Chain order: chain c's j-th bin is order_[c·L + j] = (c + j·k) mod B; prev_ holds the
-  // bin before it on the chain, (order − k) mod B.
+  // Chain order: chain c's j-th bin is order_[c·L + j] = (c + j·k) mod B.
   std::vector<int> order_;
-  std::vector<int> prev_;
   // The factorisation's constants (poisson.cpp): ρ, ρ^(j+1) for j < L, 1/(1 − ρ^L) and
   // Q = Σ_{m<L} ρ^(2m+1).
   double rho_ = 0;
