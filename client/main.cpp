@@ -11,6 +11,7 @@
 #include "client/check_command.h"
 #include "client/compare_command.h"
 #include "client/farm_commands.h"
+#include "client/reconstruct_command.h"
 #include "client/render_command.h"
 #include "client/render_flags.h"
 #include "worker/embree_device.h"
@@ -46,6 +47,24 @@ int main(int argc, char** argv) {
   compare_cmd->add_option("reference", compare.reference, "Reference image (EXR)")->required();
   compare_cmd->add_option("--crop", crop, "Region x,y,w,h in pixels");
   compare_cmd->add_flag("--json", compare.json, "Print the metrics as JSON");
+
+  prism::client::ReconstructOptions reconstruct;
+  int offset_bins = 0;
+  auto* reconstruct_cmd = app.add_subcommand(
+      "reconstruct", "Screened Poisson reconstruction of a saved primal and gradient EXR pair");
+  reconstruct_cmd->add_option("primal", reconstruct.primal, "Primal spectral EXR (I)")
+      ->required();
+  reconstruct_cmd->add_option("gradient", reconstruct.gradient,
+                              "Gradient spectral EXR (G[b] ~ I[b+k] - I[b])")
+      ->required();
+  reconstruct_cmd->add_option("-o,--output", reconstruct.output, "Spectral EXR to write")
+      ->required();
+  reconstruct_cmd->add_option("--alpha", reconstruct.alpha,
+                              "Screening weight alpha > 0 (default 0.2)");
+  reconstruct_cmd->add_option("--poisson", reconstruct.poisson, "Norm: l2 or l1 (default l2)");
+  auto* offset_opt = reconstruct_cmd->add_option(
+      "--offset-bins", offset_bins,
+      "Gradient offset k in bins (default: the gradient file's prism:gradient_offset_bins)");
 
   prism::client::RenderCommandOptions render;
   prism::client::RenderFlags render_flags;
@@ -136,6 +155,10 @@ int main(int argc, char** argv) {
       compare.crop = *parsed;
     }
     return report(prism::client::run_compare(compare));
+  }
+  if (reconstruct_cmd->parsed()) {
+    if (offset_opt->count() > 0) reconstruct.offset_bins = offset_bins;
+    return report(prism::client::run_reconstruct(reconstruct));
   }
   if (render_cmd->parsed()) {
     if (absl::Status applied = prism::client::apply_render_flags(render_flags, render);

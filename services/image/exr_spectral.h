@@ -44,6 +44,20 @@ inline constexpr std::string_view kMetaIntegrator = "integrator";
 inline constexpr std::string_view kMetaSeed = "seed";
 inline constexpr std::string_view kMetaJobId = "job_id";
 
+// Spectral gradient sampling (algorithms.md §5). A gradient file is a spectral EXR on Prism's
+// grid whose `S0.<λ>nm` channel for bin b holds G[b], the estimate of I[b+k] − I[b] (bin indices
+// cyclic mod B) for the primal I of the same render, with these keys:
+//   gradient_offset_bins  k, the offset in bins, a decimal integer with 1 <= k < B;
+//   gradient_delta        δ as a fraction of the range [360, 830] nm (informative: k decides).
+// A reconstructed image (coordinator/poisson.h) records how it was made:
+//   poisson_alpha         the screening weight α (shortest decimal that reads back exactly);
+//   poisson_norm          "l2" or "l1";
+//   gradient_offset_bins  the k used.
+inline constexpr std::string_view kMetaGradientOffsetBins = "gradient_offset_bins";
+inline constexpr std::string_view kMetaGradientDelta = "gradient_delta";
+inline constexpr std::string_view kMetaPoissonAlpha = "poisson_alpha";
+inline constexpr std::string_view kMetaPoissonNorm = "poisson_norm";
+
 // Keys without the prism: prefix -> values.
 using ExrMetadata = std::map<std::string, std::string>;
 

@@ -1,0 +1,152 @@
+#include "client/reconstruct_command.h"
+
+#include <charconv>
+#include <cmath>
+#include <system_error>
+
+#include "absl/strings/str_cat.h"
+#include "coordinator/outputs.h"
+#include "coordinator/poisson.h"
+#include "services/base/status.h"
+#include "services/image/exr_spectral.h"
+#include "services/spectral/color.h"
+
+namespace prism::client {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string quoted(const fs::path& path) { return absl::StrCat("'", path.string(), "'"); }
+
+// Shortest decimal that reads back as the same double.
+std::string exact_decimal(double value) {
+  char buffer[64];
+  const auto [end, ec] = std::to_chars(buffer, buffer + sizeof buffer, value);
+  return ec == std::errc() ? std::string(buffer, end) : absl::StrCat(value);
+}
+
+absl::Status with_context(const absl::Status& status, const std::string& context) {
+  return absl::Status(status.code(), absl::StrCat(context, ": ", status.message()));
+}
+
+// The file's wavelengths must be Prism's grid for its bin count, or "bin b + k" would not mean
+// "δ further along the spectrum".
+absl::Status check_prism_grid(const image::SpectralExr& exr, const std::string& role,
+                              const fs::path& path) {
+  const std::vector<double> grid = image::bin_centres_nm(exr.spectral.bins());
+  for (std::size_t b = 0; b < grid.size(); ++b) {
+    if (std::abs(exr.wavelengths_nm[b] - grid[b]) > 1e-9 * grid[b]) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          role, " file ", quoted(path), ": channel ", b, " is at ", exr.wavelengths_nm[b],
+          " nm, not on Prism's grid of ", grid.size(), " bins over [360, 830] nm (", grid[b],
+          " nm)"));
+    }
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<int> offset_from_metadata(const image::SpectralExr& gradient,
+                                         const fs::path& path) {
+  const auto it = gradient.metadata.find(std::string(image::kMetaGradientOffsetBins));
+  if (it == gradient.metadata.end()) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "gradient file ", quoted(path), " has no prism:", std::string(image::kMetaGradientOffsetBins),
+        " metadata; pass --offset-bins K (the gradient offset in bins)"));
+  }
+  const std::string& text = it->second;
+  int k = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), k);
+  if (text.empty() || ec != std::errc() || end != text.data() + text.size()) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "gradient file ", quoted(path), ": prism:", std::string(image::kMetaGradientOffsetBins),
+        " = '", text, "' is not an integer; pass --offset-bins K to override it"));
+  }
+  return k;
+}
+
+}  // namespace
+
+absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
+  // Flags first: a typo should not cost reading two large files.
+  PRISM_ASSIGN_OR_RETURN(const coordinator::PoissonNorm norm,
+                         coordinator::parse_poisson_norm(options.poisson));
+  if (!std::isfinite(options.alpha) || options.alpha < coordinator::kMinPoissonAlpha ||
+      options.alpha > coordinator::kMaxPoissonAlpha) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "--alpha ", options.alpha, ": want a finite value in [", coordinator::kMinPoissonAlpha,
+        ", ", coordinator::kMaxPoissonAlpha, "] (alpha must be > 0)"));
+  }
+  if (options.output.empty() || options.output.extension() != ".exr") {
+    return absl::InvalidArgumentError(
+        absl::StrCat("-o ", quoted(options.output), ": want an output path ending in .exr"));
+  }
+  const fs::path out_dir = options.output.parent_path().empty() ? fs::path(".")
+                                                                : options.output.parent_path();
+  if (!fs::is_directory(out_dir)) {
+    return absl::NotFoundError(absl::StrCat("-o ", quoted(options.output), ": directory ",
+                                            quoted(out_dir), " does not exist"));
+  }
+  if (fs::is_directory(options.output)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("-o ", quoted(options.output), " is a directory"));
+  }
+  std::error_code ec;
+  for (const fs::path& input : {options.primal, options.gradient}) {
+    if (fs::exists(options.output) && fs::equivalent(options.output, input, ec)) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "-o ", quoted(options.output), " is an input file; write the reconstruction elsewhere"));
+    }
+  }
+
+  auto primal = image::read_spectral_exr(options.primal);
+  if (!primal.ok()) return with_context(primal.status(), "primal file");
+  auto gradient = image::read_spectral_exr(options.gradient);
+  if (!gradient.ok()) return with_context(gradient.status(), "gradient file");
+  const image::SpectralImage& pi = primal->spectral;
+  const image::SpectralImage& gi = gradient->spectral;
+  if (pi.width() != gi.width() || pi.height() != gi.height() || pi.bins() != gi.bins()) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "primal file ", quoted(options.primal), " is ", pi.width(), "x", pi.height(), " with ",
+        pi.bins(), " bins but gradient file ", quoted(options.gradient), " is ", gi.width(), "x",
+        gi.height(), " with ", gi.bins(), " bins; they must match"));
+  }
+  PRISM_RETURN_IF_ERROR(check_prism_grid(*primal, "primal", options.primal));
+  PRISM_RETURN_IF_ERROR(check_prism_grid(*gradient, "gradient", options.gradient));
+
+  int k = 0;
+  if (options.offset_bins) {
+    k = *options.offset_bins;
+  } else {
+    PRISM_ASSIGN_OR_RETURN(k, offset_from_metadata(*gradient, options.gradient));
+  }
+  auto solver = coordinator::PoissonSolver::create(pi.bins(), k, options.alpha);
+  if (!solver.ok()) {
+    return with_context(solver.status(),
+                        options.offset_bins
+                            ? std::string("--offset-bins")
+                            : absl::StrCat("gradient file ", quoted(options.gradient)));
+  }
+  auto result = coordinator::reconstruct_image(*solver, norm, pi, gi);
+  if (!result.ok()) {
+    return with_context(result.status(), absl::StrCat(quoted(options.primal), " and ",
+                                                      quoted(options.gradient)));
+  }
+  auto rgb = coordinator::to_linear_srgb(*result, spectral::ColorMatching::cie1931());
+  if (!rgb.ok()) return with_context(rgb.status(), "colour conversion of the reconstruction");
+
+  image::ExrMetadata metadata = primal->metadata;
+  metadata[std::string(image::kMetaPoissonAlpha)] = exact_decimal(options.alpha);
+  metadata[std::string(image::kMetaPoissonNorm)] = std::string(coordinator::to_string(norm));
+  metadata[std::string(image::kMetaGradientOffsetBins)] = absl::StrCat(k);
+  const auto delta = gradient->metadata.find(std::string(image::kMetaGradientDelta));
+  if (delta != gradient->metadata.end()) {
+    metadata[std::string(image::kMetaGradientDelta)] = delta->second;
+  }
+  metadata["version"] = coordinator::prism_version();
+  PRISM_RETURN_IF_ERROR(image::write_spectral_exr(options.output, *result, *rgb, metadata));
+  return absl::StrCat("wrote ", options.output.string(), ": ", pi.width(), "x", pi.height(), ", ",
+                      pi.bins(), " bins, k ", k, ", alpha ", exact_decimal(options.alpha), ", ",
+                      std::string(coordinator::to_string(norm)), "\n");
+}
+
+}  // namespace prism::client
