@@ -263,7 +263,7 @@ class GradientIntegratorTest : public ::testing::Test {
     options.integrator = IntegratorKind::kGradient;
     options.sampler = SamplerKind::kIndependent;
     options.bins = 16;
-    options.gradient_offset_bins = 3;
+    options.gradient_offset_bins = 4;
     options.gradient_tau = tau;
     options.max_depth = 6;
     options.seed = seed;
@@ -363,7 +363,7 @@ void expect_consistent(const Consistency& c, const std::string& what) {
 TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes) {
   std::uint64_t seed = 10;
   for (const char* name : {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt",
-                           "gradient_rough_glass.pbrt", "unbiased.pbrt"}) {
+                           "gradient_rough_glass.pbrt", "gradient_slab.pbrt", "unbiased.pbrt"}) {
     auto desc = load(name);
     for (float tau : {0.0f, 0.5f}) {
       auto scene = build(desc, gradient_options(seed++, tau));
