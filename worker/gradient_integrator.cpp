@@ -702,6 +702,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
               light_point.ng = ls->n_light;
               solid_angle_pdf_y = area.pdf(ctx_y, wi_y, light_point);
               jacobian = reconnection_jacobian(ctx.p, o.hit.p, ls->p_light, ls->n_light);
+              if (!(jacobian > 0)) return {};
               target_y = geometry.offset_origin(ls->p_light, ls->n_light, -wi_y);
             }
             const Vec3f wi_y_local = frame_y[side].to_local(wi_y);

@@ -43,6 +43,14 @@
 //  - reconnected: at the base's vertex with its own incoming direction: NEE and the next
 //    direction are the base's (J = 1), evaluated with its own ω_o; then same again.
 //  - failed: every later event is unshifted.
+// The shift fails (offset contribution 0, base weight 1, i.e. the unshifted rule) on: total
+// internal reflection of the offset where the base refracted; a copied half-vector the offset
+// sees from the wrong side, or a direction on the wrong side of the surface for the event; an
+// offset vertex of another kind than the base's, or an offset ray that escapes while the base
+// scatters again; a blocked reconnection, or one arriving on the other side of the target; a
+// diverged offset meeting a scattering medium or an emitting interface; an event value of 0
+// probability at λ'. Each of these decisions depends only on the pair (x̄, y), so the reverse
+// shift from y fails exactly when the forward one does, which the symmetric weights need.
 // Media: an offset at the base's position keeps the base's distances and directions and
 // evaluates σ, transmittance and free-flight densities at λ' (Henyey–Greenstein does not depend
 // on λ). A diverged offset crosses absorbing media on its own; meeting a scattering medium while
