@@ -174,6 +174,99 @@ TEST(GradientShiftTest, ShiftIsInvertible) {
   EXPECT_GT(checked, 1000);
 }
 
+// Path level: a camera ray through a slab (top y = 1.4, bottom y = 0.4, η(λ) inside) onto a
+// floor (y = 0), with a rough or smooth refraction at each face. Shifting the whole path to λ'
+// (half-vector copies, vertex by vertex, each offset vertex where its own ray meets the face)
+// and shifting the offset path back to λ returns every base vertex, and the product of the
+// forward and backward Jacobians along the path is 1.
+struct SlabPath {
+  Vec3f vertices[3];  // top, bottom, floor
+  Vec3f directions[3];
+  float jacobian = 1;
+};
+
+// Local frame of a horizontal face: z = +y (outside, up for the top face, down for the bottom
+// face so that the normal points out of the glass).
+Vec3f to_face(const Vec3f& w, bool top) { return top ? Vec3f(w.x, w.z, w.y) : Vec3f(w.x, -w.z, -w.y); }
+Vec3f from_face(const Vec3f& v, bool top) {
+  return top ? Vec3f(v.x, v.z, v.y) : Vec3f(v.x, -v.z, -v.y);
+}
+
+std::optional<SlabPath> shift_slab_path(const SlabPath& base, float eta, float eta_offset,
+                                        bool smooth, const Vec3f& camera) {
+  SlabPath out;
+  Vec3f origin = camera, direction = base.directions[0];
+  out.directions[0] = direction;
+  const float heights[3] = {1.4f, 0.4f, 0.0f};
+  Vec3f base_in = base.directions[0];
+  for (int v = 0; v < 3; ++v) {
+    float t = (heights[v] - origin.y) / direction.y;
+    if (!(t > 0)) return std::nullopt;
+    origin = origin + direction * t;
+    out.vertices[v] = origin;
+    if (v == 2) break;
+    const bool top = v == 0;
+    BaseScatter b{to_face(-base_in, top), to_face(base.directions[v + 1], top), true, smooth, eta};
+    auto shift = shift_direction(b, to_face(-direction, top), eta_offset);
+    if (!shift) return std::nullopt;
+    direction = from_face(shift->wi, top);
+    out.directions[v + 1] = direction;
+    out.jacobian *= shift->jacobian;
+    base_in = base.directions[v + 1];
+  }
+  return out;
+}
+
+TEST(GradientShiftTest, PathShiftThroughASlabIsInvertible) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(0, 1);
+  const Vec3f camera(0, 3, -2);
+  int checked = 0;
+  for (bool smooth : {true, false}) {
+    for (int i = 0; i < 300; ++i) {
+      const float eta = 1.5f + 0.2f * u(rng);
+      // The base path: a camera direction and half-vectors drawn near the face normals.
+      SlabPath base;
+      Vec3f d = normalize(Vec3f(u(rng) - 0.5f, -1.5f, 0.5f + u(rng)));
+      base.directions[0] = d;
+      Vec3f origin = camera;
+      bool ok = true;
+      const float heights[3] = {1.4f, 0.4f, 0.0f};
+      for (int v = 0; v < 3 && ok; ++v) {
+        float t = (heights[v] - origin.y) / d.y;
+        origin = origin + d * t;
+        base.vertices[v] = origin;
+        if (v == 2) break;
+        const bool top = v == 0;
+        Vec3f h = smooth ? Vec3f(0, 0, 1)
+                         : normalize(Vec3f(0.3f * (u(rng) - 0.5f), 0.3f * (u(rng) - 0.5f), 1));
+        auto r = refract(to_face(-d, top), h, eta);
+        if (!r) {
+          ok = false;
+          break;
+        }
+        d = from_face(normalize(r->wt), top);
+        if (!(d.y < 0)) ok = false;
+        base.directions[v + 1] = d;
+      }
+      if (!ok) continue;
+      const float eta_offset = eta * (u(rng) < 0.5f ? 0.97f : 1.03f);
+      auto forward = shift_slab_path(base, eta, eta_offset, smooth, camera);
+      if (!forward) continue;
+      auto back = shift_slab_path(*forward, eta_offset, eta, smooth, camera);
+      ASSERT_TRUE(back.has_value());
+      for (int v = 0; v < 3; ++v) {
+        EXPECT_LT(length(back->vertices[v] - base.vertices[v]), 1e-4f) << "vertex " << v;
+      }
+      EXPECT_NEAR(forward->jacobian * back->jacobian, 1.0, 1e-3);
+      // The offset really moved (dispersion), so the check is not vacuous.
+      EXPECT_GT(length(forward->vertices[2] - base.vertices[2]), 1e-3f);
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 400);
+}
+
 TEST(GradientShiftTest, FailsCleanlyAtTotalInternalReflectionAndGrazingAngles) {
   // From inside glass (wo.z < 0) at 40° the base (η = 1.5, critical angle 41.8°) refracts;
   // a denser offset (η' = 1.6, critical 38.7°) is totally reflected: the shift fails.
