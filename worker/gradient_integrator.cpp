@@ -109,6 +109,7 @@ struct Offset {
   bool has_hit = false;
   int medium = -1;
   bool pending = false;
+  bool reconnected_before = false;
 
   bool live() const { return state != OffsetState::kFailed; }
 };
@@ -372,6 +373,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       v.f_cos *= s.transmittance[0];
       take_step(o, v, jacobian, base_event.pdf, ctx_y);
       o.state = OffsetState::kReconnected;
+      o.reconnected_before = true;
+      ++counters.gradient_reconnections;
       o.direction = dir;
       return;
     }
@@ -757,6 +760,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         take_step(o, v, shift->jacobian, p_x, ctx);
         const Vec3f dir = frame.from_local(shift->wi);
         o.state = OffsetState::kDiverged;
+        ++counters.gradient_divergences;
+        if (o.reconnected_before) ++counters.gradient_repeated_divergences;
         o.direction = dir;
         o.medium = medium_before;
         if (info->medium_transition) {
