@@ -479,7 +479,7 @@ TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes)
   std::uint64_t seed = 10;
   for (const char* name : {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt",
                            "gradient_rough_glass.pbrt", "gradient_slab.pbrt",
-                           "gradient_mixed.pbrt", "unbiased.pbrt"}) {
+                           "gradient_mixed.pbrt", "gradient_media.pbrt", "unbiased.pbrt"}) {
     auto desc = load(name);
     for (float tau : {0.0f, 0.5f}) {
       auto scene = build(desc, gradient_options(seed++, tau));
@@ -489,7 +489,7 @@ TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes)
       if (tau > 0) {
         EXPECT_GT(c.counters.gradient_shifts_wasted, 0u) << name;
       }
-      if (std::string(name) != "unbiased.pbrt") {
+      if (std::string(name) != "unbiased.pbrt" && std::string(name) != "gradient_media.pbrt") {
         // Every scene diverges and reconnects offsets; the ones with glass before and after a
         // diffuse vertex diverge again after reconnecting.
         EXPECT_GT(c.counters.gradient_divergences, 1000u) << name;
