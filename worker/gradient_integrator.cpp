@@ -35,7 +35,9 @@ constexpr std::uint32_t kCrossingsPerBounce = 64;
 constexpr int kBase = 0;
 constexpr int kLanes = 3;
 
-Point2f to_point(const Point2& p) { return {p.u0, p.u1}; }
+Point2f to_point(const Point2& p) {
+  return {p.u0, p.u1};
+}
 
 SampledWavelengths single(float lambda, float pdf) {
   SampledWavelengths w(1);
@@ -173,8 +175,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
   // Contributions are per-bin averages: f / (p(λ) p(x̄|λ)) / w.
   const float scale = 1.0f / (lambda_density * grid.bin_width());
 
-  float beta = 1;        // f / p(x̄|λ) of the base prefix, with roulette
-  float survival = 1;    // product of the roulette survival probabilities
+  float beta = 1;      // f / p(x̄|λ) of the base prefix, with roulette
+  float survival = 1;  // product of the roulette survival probabilities
   float pdf_since_prev = 1;
   LightContext prev_ctx;
   bool prev_specular = true;
@@ -184,8 +186,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
   for (Offset& o : offsets) o.medium = medium;
 
   const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
-  Ray ray = scene_.camera().generate_ray({float(px) + film.u0, float(py) + film.u1},
-                                         {lens.u0, lens.u1});
+  Ray ray =
+      scene_.camera().generate_ray({float(px) + film.u0, float(py) + film.u1}, {lens.u0, lens.u1});
   ++counters.camera_rays;
   if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
 
@@ -235,8 +237,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
   };
 
   auto shadow_ray = [&](Vec3f origin, Vec3f direction, const Vec3f& target, bool to_infinity,
-                        int medium_index, const SampledWavelengths& lambdas,
-                        int lanes) -> Shadow {
+                        int medium_index, const SampledWavelengths& lambdas, int lanes) -> Shadow {
     Shadow shadow;
     for (int i = 0; i < lanes; ++i) shadow.transmittance[i] = shadow.pass[i] = 1.0f;
     for (int crossings = 0; crossings < 64; ++crossings) {
@@ -404,8 +405,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       std::optional<std::pair<float, float>> e = offset_emission(o);
       if (!e) return {};
       auto [le_y, p_light_y] = *e;
-      const float denominator_y =
-          prev_specular ? o.pdf_since_prev : o.pdf_since_prev + p_light_y;
+      const float denominator_y = prev_specular ? o.pdf_since_prev : o.pdf_since_prev + p_light_y;
       return {true, scale * o.beta * le_y * pdf_since_prev / denominator_x,
               o.rho_prev * o.jacobian_last * denominator_y / denominator_x};
     });
@@ -425,7 +425,9 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       const HomogeneousMedium& m = scene_.media()[medium];
       if (!m.scattering()) {
         SampledSpectrum sigma_a = m.sigma_a(shared);
-        auto absorb = [&](float sa) { return hit ? std::exp(-sa * hit->t) : (sa > 0 ? 0.0f : 1.0f); };
+        auto absorb = [&](float sa) {
+          return hit ? std::exp(-sa * hit->t) : (sa > 0 ? 0.0f : 1.0f);
+        };
         beta *= absorb(sigma_a[kBase]);
         for (Offset& o : offsets) {
           if (o.state == OffsetState::kSame) o.beta *= absorb(sigma_a[o.lane]);
@@ -438,8 +440,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         }
         SampledSpectrum sigma_s = m.sigma_s(shared);
         SampledSpectrum sigma_t = m.sigma_a(shared) + sigma_s;
-        FreeFlight flight = sample_free_flight(sigma_t, hit ? hit->t : kInfinity,
-                                               sampler.at(flight_dim), kLanes);
+        FreeFlight flight =
+            sample_free_flight(sigma_t, hit ? hit->t : kInfinity, sampler.at(flight_dim), kLanes);
         const float p_x = flight.pdf[kBase];
         if (!(p_x > 0)) break;
         for (Offset& o : offsets) {
@@ -471,8 +473,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                                     shared, kLanes);
               const float p_light_x = choice->pmf * ls->pdf;
               const float denominator_x = p_light_x + (ls->delta ? 0.0f : f * s.pass[kBase]);
-              const float c = scale * beta * f * ls->radiance[0] * s.transmittance[kBase] /
-                              denominator_x;
+              const float c =
+                  scale * beta * f * ls->radiance[0] * s.transmittance[kBase] / denominator_x;
               accumulate(c, [&](Offset& o) -> OffsetEvent {
                 if (o.state != OffsetState::kSame) return {};
                 auto ls_y = sample_light(light, ctx, to_point(light_u), choice_u.u1, o.lambda);
@@ -492,7 +494,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
               phase.sample(wo, to_point(sampler.at2(dim + kScatterDirection)), &phase_pdf);
           if (!(phase_pdf > 0)) break;
           for (Offset& o : offsets) {
-            if (o.state == OffsetState::kSame) take_step(o, {phase_pdf, phase_pdf}, 1.0f, phase_pdf, ctx);
+            if (o.state == OffsetState::kSame)
+              take_step(o, {phase_pdf, phase_pdf}, 1.0f, phase_pdf, ctx);
           }
           prev_ctx = ctx;
           prev_specular = false;
@@ -528,7 +531,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                                  const Vec3f& dir) {
           return scene_.light_sampler().pmf(ctx.p, l, infinite) * inf.pdf(dir);
         };
-        const float p_light_x = prev_specular ? 0.0f : light_density(prev_ctx, base_lambda, ray.direction);
+        const float p_light_x =
+            prev_specular ? 0.0f : light_density(prev_ctx, base_lambda, ray.direction);
         emission_event(inf.radiance(base_lambda)[0], p_light_x,
                        [&](Offset& o) -> std::optional<std::pair<float, float>> {
                          Vec3f dir = ray.direction;
@@ -536,9 +540,9 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                            if (o.has_hit) return std::pair{0.0f, 0.0f};
                            dir = o.direction;
                          }
-                         return std::pair{inf.radiance(o.lambda)[0],
-                                          prev_specular ? 0.0f
-                                                        : light_density(o.prev_ctx, o.lambda, dir)};
+                         return std::pair{
+                             inf.radiance(o.lambda)[0],
+                             prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, dir)};
                        });
       }
       break;
@@ -562,10 +566,9 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                                const AreaLight& a, const Vec3f& dir, const SurfaceHit& h) {
         return scene_.light_sampler().pmf(ctx.p, l, light) * a.pdf(ctx, dir, h);
       };
-      const float p_light_x =
-          prev_specular ? 0.0f
-                        : light_density(prev_ctx, base_lambda, info->area_light, area,
-                                        ray.direction, *hit);
+      const float p_light_x = prev_specular ? 0.0f
+                                            : light_density(prev_ctx, base_lambda, info->area_light,
+                                                            area, ray.direction, *hit);
       emission_event(
           area.radiance(hit->ng, -ray.direction, base_lambda)[0], p_light_x,
           [&](Offset& o) -> std::optional<std::pair<float, float>> {
@@ -581,10 +584,9 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
             const int light = scene_.shape(h->shape).area_light;
             if (light < 0) return std::pair{0.0f, 0.0f};
             const auto& a = std::get<AreaLight>(scene_.lights()[light]);
-            return std::pair{a.radiance(h->ng, -dir, o.lambda)[0],
-                             prev_specular
-                                 ? 0.0f
-                                 : light_density(o.prev_ctx, o.lambda, light, a, dir, *h)};
+            return std::pair{
+                a.radiance(h->ng, -dir, o.lambda)[0],
+                prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, light, a, dir, *h)};
           });
     }
 
@@ -656,8 +658,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
           Shadow s = shadow_ray(geometry.offset_origin(ctx.p, hit->ng, ls->wi), ls->wi, target,
                                 std::isinf(ls->distance), medium, shared, kLanes);
           const float p_light_x = choice->pmf * ls->pdf;
-          const float denominator_x =
-              p_light_x + (ls->delta ? 0.0f : bsdf_pdf_x * s.pass[kBase]);
+          const float denominator_x = p_light_x + (ls->delta ? 0.0f : bsdf_pdf_x * s.pass[kBase]);
           const float c =
               scale * beta * f_x * ls->radiance[0] * s.transmittance[kBase] / denominator_x;
           accumulate(c, [&](Offset& o) -> OffsetEvent {
@@ -712,14 +713,13 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
             const float f_y = eval(b, wo_y[side], wi_y_local)[0] * abs_cos_theta(wi_y_local);
             if (!(f_y > 0) || !(le_y > 0)) return {true, 0.0f, 0.0f};
             const float p_y = pdf(b, wo_y[side], wi_y_local)[0];
-            Shadow s_y = shadow_ray(geometry.offset_origin(o.hit.p, o.hit.ng, wi_y), wi_y,
-                                    target_y, to_infinity, o.medium, o.lambda, 1);
+            Shadow s_y = shadow_ray(geometry.offset_origin(o.hit.p, o.hit.ng, wi_y), wi_y, target_y,
+                                    to_infinity, o.medium, o.lambda, 1);
             const float p_light_y =
                 scene_.light_sampler().pmf(o.hit.p, o.lambda, choice->light) * solid_angle_pdf_y;
             const float denominator_y = p_light_y + (ls->delta ? 0.0f : p_y * s_y.pass[0]);
             return {true,
-                    scale * o.beta * f_y * le_y * s_y.transmittance[0] * jacobian /
-                        denominator_x,
+                    scale * o.beta * f_y * le_y * s_y.transmittance[0] * jacobian / denominator_x,
                     o.rho * denominator_y * jacobian / denominator_x};
           });
         }
@@ -727,7 +727,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     }
 
     const Point2 lobe_and_roulette = sampler.at2(dim + kScatterLobe);
-    auto bs = sample(*bsdf, wo, lobe_and_roulette.u0, to_point(sampler.at2(dim + kScatterDirection)));
+    auto bs =
+        sample(*bsdf, wo, lobe_and_roulette.u0, to_point(sampler.at2(dim + kScatterDirection)));
     if (!bs || !(bs->pdf[0] > 0)) break;
     const float p_x = bs->pdf[0];
     const Vec3f wi = frame.from_local(bs->wi);

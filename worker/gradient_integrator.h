@@ -10,7 +10,8 @@
 // sum runs over the techniques (NEE, BSDF sampling) that could have produced the last vertex.
 // The pair (x̄, y) can be produced by either technique from either wavelength, so the symmetric
 // weight is one balance heuristic over all four (as Mitsuba's gradient-domain path tracer does):
-//     w₊ = Σ_t p_t(x̄,λ) / (Σ_t p_t(x̄,λ) + Σ_t p_t(y₊,λ+δ)·|J₊|),   c₊ = f(y₊,λ+δ)·|J₊| / Σ_t p_t(x̄,λ),
+//     w₊ = Σ_t p_t(x̄,λ) / (Σ_t p_t(x̄,λ) + Σ_t p_t(y₊,λ+δ)·|J₊|),
+//     c₊ = f(y₊,λ+δ)·|J₊| / Σ_t p_t(x̄,λ),
 // p(·,λ) including the wavelength density p(λ) of `lambda_pdf` at the base's and at the offset's
 // wavelength. Accumulation per event (§5): shifted, G[i] += w₊(c₊ − c), G[i−k] += w₋(c − c₋);
 // unshifted, G[i] −= c, G[i−k] += c. An event is shifted on one side when the mapping succeeds
@@ -86,8 +87,8 @@ class GradientIntegrator {
   // from `lambda_pdf` (lane 0 of sample_lanes(u, 1)) and the offsets' densities are that same
   // distribution's pdf at λ ± δ. Pure function of its arguments; never allocates.
   GradientSample trace(int px, int py, std::uint32_t pass, std::uint32_t sample_index,
-                       const spectral::WavelengthDistribution& lambda_pdf,
-                       TraceCounters& counters, GuideValues* guides = nullptr) const;
+                       const spectral::WavelengthDistribution& lambda_pdf, TraceCounters& counters,
+                       GuideValues* guides = nullptr) const;
 
  private:
   const RenderScene& scene_;

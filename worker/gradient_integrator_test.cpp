@@ -102,8 +102,8 @@ TEST(GradientShiftTest, HalfVectorJacobiansMatchFiniteDifferences) {
       double fd = finite_difference_jacobian(base.wi, map);
       if (fd < 0) continue;
       EXPECT_NEAR(shift->jacobian / fd, 1.0, 0.02)
-          << (transmission ? "refraction" : "reflection") << " wo " << base.wo.x << ","
-          << base.wo.y << "," << base.wo.z << " analytic " << shift->jacobian << " fd " << fd;
+          << (transmission ? "refraction" : "reflection") << " wo " << base.wo.x << "," << base.wo.y
+          << "," << base.wo.z << " analytic " << shift->jacobian << " fd " << fd;
       ++checked;
     }
     EXPECT_GT(checked, 100) << (transmission ? "refraction" : "reflection");
@@ -186,7 +186,9 @@ struct SlabPath {
 
 // Local frame of a horizontal face: z = +y (outside, up for the top face, down for the bottom
 // face so that the normal points out of the glass).
-Vec3f to_face(const Vec3f& w, bool top) { return top ? Vec3f(w.x, w.z, w.y) : Vec3f(w.x, -w.z, -w.y); }
+Vec3f to_face(const Vec3f& w, bool top) {
+  return top ? Vec3f(w.x, w.z, w.y) : Vec3f(w.x, -w.z, -w.y);
+}
 Vec3f from_face(const Vec3f& v, bool top) {
   return top ? Vec3f(v.x, v.z, v.y) : Vec3f(v.x, -v.z, -v.y);
 }
@@ -462,14 +464,16 @@ void expect_consistent(const Consistency& c, const std::string& what) {
                 (unsigned long)c.counters.gradient_divergences,
                 (unsigned long)c.counters.gradient_reconnections,
                 (unsigned long)c.counters.gradient_repeated_divergences);
-    std::printf("%s: max z %.2f significant %d paths %lu shifted %lu events %lu shifts %lu failed %lu wasted %lu\n",
-                what.c_str(), max_z, significant, (unsigned long)c.counters.camera_rays,
-                (unsigned long)c.counters.gradient_shifted_paths,
-                (unsigned long)c.counters.gradient_events, (unsigned long)c.counters.gradient_shifts,
-                (unsigned long)c.counters.gradient_shifts_failed,
-                (unsigned long)c.counters.gradient_shifts_wasted);
+    std::printf(
+        "%s: max z %.2f significant %d paths %lu shifted %lu events %lu shifts %lu failed %lu "
+        "wasted %lu\n",
+        what.c_str(), max_z, significant, (unsigned long)c.counters.camera_rays,
+        (unsigned long)c.counters.gradient_shifted_paths, (unsigned long)c.counters.gradient_events,
+        (unsigned long)c.counters.gradient_shifts, (unsigned long)c.counters.gradient_shifts_failed,
+        (unsigned long)c.counters.gradient_shifts_wasted);
     for (std::size_t b = 0; b < c.mean_d.size(); ++b) {
-      std::printf("  bin %zu G %.4g ± %.2g  d %.3g ± %.2g\n", b, c.mean_g[b], c.se_g[b], c.mean_d[b], c.se_d[b]);
+      std::printf("  bin %zu G %.4g ± %.2g  d %.3g ± %.2g\n", b, c.mean_g[b], c.se_g[b],
+                  c.mean_d[b], c.se_d[b]);
     }
   }
 }
@@ -477,9 +481,9 @@ void expect_consistent(const Consistency& c, const std::string& what) {
 // E[G[b]] = E[I[b+k]] − E[I[b]] for every bin on the dispersive scenes, with τ = 0 and τ > 0.
 TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes) {
   std::uint64_t seed = 10;
-  for (const char* name : {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt",
-                           "gradient_rough_glass.pbrt", "gradient_slab.pbrt",
-                           "gradient_mixed.pbrt", "gradient_media.pbrt", "unbiased.pbrt"}) {
+  for (const char* name :
+       {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt", "gradient_rough_glass.pbrt",
+        "gradient_slab.pbrt", "gradient_mixed.pbrt", "gradient_media.pbrt", "unbiased.pbrt"}) {
     auto desc = load(name);
     for (float tau : {0.0f, 0.5f}) {
       auto scene = build(desc, gradient_options(seed++, tau));
@@ -550,8 +554,8 @@ TEST_F(GradientIntegratorTest, PrimalAgreesWithUniformPerBin) {
     image::TileResult tau_zero = render(*build(desc, gradient_options(seed, 0.0f)), 512);
     image::TileResult tau_positive = render(*build(desc, gradient_options(seed++, 0.5f)), 512);
     EXPECT_EQ(tau_zero.sums().size(), tau_positive.sums().size());
-    EXPECT_TRUE(std::equal(tau_zero.sums().begin(), tau_zero.sums().end(),
-                           tau_positive.sums().begin()))
+    EXPECT_TRUE(
+        std::equal(tau_zero.sums().begin(), tau_zero.sums().end(), tau_positive.sums().begin()))
         << name << ": τ changed I";
     EXPECT_FALSE(std::equal(tau_zero.gradients().begin(), tau_zero.gradients().end(),
                             tau_positive.gradients().begin()))
@@ -623,8 +627,8 @@ TEST_F(GradientIntegratorTest, DirectlySeenEmitterGivesExactGradients) {
   TraceCounters counters;
   int checked = 0;
   for (int s = 0; s < 400; ++s) {
-    GradientSample g = integrator.trace(1, 2, 0, std::uint32_t(s), scene->wavelength_pdf(),
-                                        counters);
+    GradientSample g =
+        integrator.trace(1, 2, 0, std::uint32_t(s), scene->wavelength_pdf(), counters);
     ASSERT_GT(g.primal, 0.0f);
     const int i = grid.bin_of(g.lambda);
     ASSERT_EQ(g.bin, i);
@@ -645,8 +649,8 @@ TEST_F(GradientIntegratorTest, DirectlySeenEmitterGivesExactGradients) {
   GradientIntegrator none(*unshifted);
   TraceCounters none_counters;
   for (int s = 0; s < 100; ++s) {
-    GradientSample g = none.trace(2, 1, 0, std::uint32_t(s), unshifted->wavelength_pdf(),
-                                  none_counters);
+    GradientSample g =
+        none.trace(2, 1, 0, std::uint32_t(s), unshifted->wavelength_pdf(), none_counters);
     EXPECT_EQ(g.gradient, -g.primal);
     EXPECT_EQ(g.gradient_below, g.primal);
   }
@@ -702,8 +706,8 @@ TEST_F(GradientIntegratorTest, WithoutWavelengthDependentGeometryOffsetsAreTheBa
   for (int py = 0; py < 8; ++py) {
     for (int px = 0; px < 8; ++px) {
       for (int s = 0; s < 64; ++s) {
-        GradientSample g = integrator.trace(px, py, 0, std::uint32_t(s),
-                                            scene->wavelength_pdf(), counters);
+        GradientSample g =
+            integrator.trace(px, py, 0, std::uint32_t(s), scene->wavelength_pdf(), counters);
         EXPECT_LE(std::abs(g.gradient), 1e-5f * g.primal) << px << "," << py << " sample " << s;
         EXPECT_LE(std::abs(g.gradient_below), 1e-5f * g.primal);
         total += g.primal;
@@ -730,17 +734,20 @@ AttributeBegin
   Shape "trianglemesh" "point3 P" [-9 -1 -9  9 -1 -9  9 -1 9  -9 -1 9] "integer indices" [0 1 2 0 2 3]
 AttributeEnd
 AttributeBegin
-  Material "dielectric" )" + glass + R"(
+  Material "dielectric" )" +
+         glass + R"(
   Shape "trianglemesh" "point3 P" [-3 0 -3  3 0 -3  3 0 3  -3 0 3  -3 -0.3 -3  3 -0.3 -3  3 -0.3 3  -3 -0.3 3]
     "integer indices" [0 2 1  0 3 2  4 5 6  4 6 7  0 1 5  0 5 4  1 2 6  1 6 5  2 3 7  2 7 6  3 0 4  3 4 7]
 AttributeEnd
 AttributeBegin
-  Material "dielectric" )" + glass + R"(
+  Material "dielectric" )" +
+         glass + R"(
   Translate 0.8 0.6 0.5
   Shape "sphere" "float radius" 0.6
 AttributeEnd
 AttributeBegin
-  AreaLightSource "diffuse" )" + emission + R"(
+  AreaLightSource "diffuse" )" +
+         emission + R"(
   Shape "trianglemesh" "point3 P" [-1 3 -1  1 3 -1  1 3 1  -1 3 1] "integer indices" [0 1 2 0 2 3]
 AttributeEnd
 )";

@@ -32,8 +32,8 @@ struct Timed {
 absl::StatusOr<Timed> render(worker::EmbreeDevice& device, const LoadedBenchScene& scene,
                              const worker::RenderOptions& options, int width, int height,
                              std::uint64_t spp, int threads) {
-  auto built = worker::RenderScene::build(device, scene.description, *scene.library, options,
-                                          width, height);
+  auto built =
+      worker::RenderScene::build(device, scene.description, *scene.library, options, width, height);
   if (!built.ok()) return built.status();
   worker::TileRenderer renderer(**built);
   worker::TileStats stats;
@@ -48,8 +48,8 @@ absl::StatusOr<Timed> render(worker::EmbreeDevice& device, const LoadedBenchScen
 }
 
 int run(int argc, char** argv) {
-  auto flags = parse_flags(argc, argv,
-                           {"--resolution", "--spp", "--threads", "--bins", "--delta", "--tau"});
+  auto flags =
+      parse_flags(argc, argv, {"--resolution", "--spp", "--threads", "--bins", "--delta", "--tau"});
   if (!flags.ok()) {
     std::cerr << "prism-bench-gradient-cost: " << flags.status().message() << "\n";
     return 2;
@@ -97,11 +97,11 @@ int run(int argc, char** argv) {
     options.gradient_offset_bins = *k;
     options.gradient_tau = float(*tau);
     options.integrator = worker::IntegratorKind::kUniform;
-    auto uniform = render(device, *scene, options, size->first, size->second,
-                          std::uint64_t(*spp), int(*threads));
+    auto uniform = render(device, *scene, options, size->first, size->second, std::uint64_t(*spp),
+                          int(*threads));
     options.integrator = worker::IntegratorKind::kGradient;
-    auto gradient = render(device, *scene, options, size->first, size->second,
-                           std::uint64_t(*spp), int(*threads));
+    auto gradient = render(device, *scene, options, size->first, size->second, std::uint64_t(*spp),
+                           int(*threads));
     for (const auto* r : {&uniform, &gradient}) {
       if (!r->ok()) {
         std::cerr << "prism-bench-gradient-cost: " << r->status().message() << "\n";
@@ -113,10 +113,10 @@ int run(int argc, char** argv) {
     std::printf(
         "| %s | %dx%d | %.0f | %.0f | %.3g | %.3g | %.2f | %.2f | %.2f | %.1f %% | %.1f %% | "
         "%.1f %% |\n",
-        scene->name.c_str(), size->first, size->second, *spp, *threads,
-        samples / uniform->seconds, samples / gradient->seconds,
-        gradient->seconds / uniform->seconds, double(uniform->counters.rays) / samples,
-        double(g.rays) / samples, 100.0 * double(g.gradient_shifted_paths) / samples,
+        scene->name.c_str(), size->first, size->second, *spp, *threads, samples / uniform->seconds,
+        samples / gradient->seconds, gradient->seconds / uniform->seconds,
+        double(uniform->counters.rays) / samples, double(g.rays) / samples,
+        100.0 * double(g.gradient_shifted_paths) / samples,
         g.gradient_shifts > 0 ? 100.0 * double(g.gradient_shifts_wasted) / g.gradient_shifts : 0.0,
         g.gradient_shifts > 0 ? 100.0 * double(g.gradient_shifts_failed) / g.gradient_shifts : 0.0);
     std::fflush(stdout);
