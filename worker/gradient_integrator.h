@@ -26,7 +26,8 @@
 // pair compute identically gives weights that sum to 1, and the offset's own roulette would
 // depend on a throughput the base cannot know.
 //
-// The shift (gradient_shift.h for the local mappings), per offset state:
+// The shift (gradient_shift.h: the local mappings; gradient_offset.h: the offsets' own
+// steps), per offset state:
 //  - same: the offset is at the base's vertex with the base's incoming direction. It copies the
 //    sampled direction (J = 1) at every vertex whose sampling does not depend on λ (diffuse,
 //    conductors, non-dispersive dielectrics, medium scattering, and reflection off a dispersive
