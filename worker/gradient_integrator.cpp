@@ -120,8 +120,26 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
   if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
 
   const gradient::OffsetTracer tracer(scene_, counters);
-  auto fail = [](Offset& o) { o.fail(); };
   BaseEvent base_event;
+  // The base's steps the offsets have not followed yet; they catch up when an event needs them
+  // (or when the log is full), so τ > 0 saves the offsets' rays as well as their events.
+  constexpr int kMaxSteps = 24;
+  gradient::OffsetStep steps[kMaxSteps];
+  int step_count = 0;
+  auto catch_up = [&] {
+    for (int i = 0; i < step_count; ++i) {
+      for (Offset& o : offsets) {
+        if (o.live()) tracer.apply(o, steps[i]);
+      }
+    }
+    step_count = 0;
+  };
+  auto record = [&]() -> gradient::OffsetStep& {
+    if (step_count == kMaxSteps) catch_up();
+    steps[step_count] = gradient::OffsetStep();
+    return steps[step_count++];
+  };
+  using StepKind = gradient::OffsetStep::Kind;
 
   // Accumulates one base event of value c (output units) whose offsets `offset_event(o)`
   // evaluates on demand as {valid, c_y = f(y)|J|/Σp(x̄), ratio = Σp(y)|J| / Σp(x̄)}.
@@ -137,6 +155,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     const float c_free = c * survival;
     float up = -c, down = c;  // unshifted
     if (c_free > tau_) {
+      catch_up();
       ++counters.gradient_events;
       for (int side = 0; side < 2; ++side) {
         ++counters.gradient_shifts;
@@ -186,7 +205,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
   };
 
   std::uint32_t crossings = 0;
-  bool event_pending = false;  // a diverged offset waits for the base's next vertex
+  bool resolve_due = false;  // the base scattered at a surface and has not reached its next vertex
   for (int depth = 0;;) {
     const std::uint32_t dim = kDimBounce + kDimsPerBounce * std::uint32_t(depth);
     const std::uint32_t flight_dim =
@@ -203,28 +222,27 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
           return hit ? std::exp(-sa * hit->t) : (sa > 0 ? 0.0f : 1.0f);
         };
         beta *= absorb(sigma_a[kBase]);
-        for (Offset& o : offsets) {
-          if (o.state == OffsetState::kSame) o.beta *= absorb(sigma_a[o.lane]);
-        }
+        gradient::OffsetStep& step = record();
+        step.kind = StepKind::kSegment;
+        for (const Offset& o : offsets) step.factor[o.lane - 1] = absorb(sigma_a[o.lane]);
         if (beta == 0.0f) break;
       } else {
-        // A diverged offset has no base distance to copy (see the header).
-        for (Offset& o : offsets) {
-          if (o.state == OffsetState::kDiverged) fail(o);
-        }
         SampledSpectrum sigma_s = m.sigma_s(shared);
         SampledSpectrum sigma_t = m.sigma_a(shared) + sigma_s;
         FreeFlight flight =
             sample_free_flight(sigma_t, hit ? hit->t : kInfinity, sampler.at(flight_dim), kLanes);
         const float p_x = flight.pdf[kBase];
         if (!(p_x > 0)) break;
-        for (Offset& o : offsets) {
-          if (o.state != OffsetState::kSame) continue;
-          const float f_y =
-              flight.transmittance[o.lane] * (flight.scattered ? sigma_s[o.lane] : 1.0f);
-          o.beta *= f_y / p_x;
-          o.rho *= flight.pdf[o.lane] / p_x;
-          o.pdf_since_prev *= flight.pdf[o.lane];
+        {
+          gradient::OffsetStep& step = record();
+          step.kind = StepKind::kSegment;
+          step.scattering = true;
+          step.p_x = p_x;
+          for (const Offset& o : offsets) {
+            step.factor[o.lane - 1] =
+                flight.transmittance[o.lane] * (flight.scattered ? sigma_s[o.lane] : 1.0f);
+            step.pdf[o.lane - 1] = flight.pdf[o.lane];
+          }
         }
         if (flight.scattered) {
           beta *= flight.transmittance[kBase] * sigma_s[kBase] / p_x;
@@ -267,10 +285,10 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
           const Vec3f wi =
               phase.sample(wo, to_point(sampler.at2(dim + kScatterDirection)), &phase_pdf);
           if (!(phase_pdf > 0)) break;
-          for (Offset& o : offsets) {
-            if (o.state == OffsetState::kSame)
-              gradient::take_step(o, {phase_pdf, phase_pdf}, 1.0f, phase_pdf, ctx);
-          }
+          gradient::OffsetStep& step = record();
+          step.kind = StepKind::kMediumVertex;
+          step.phase_pdf = phase_pdf;
+          step.ctx = ctx;
           prev_ctx = ctx;
           prev_specular = false;
           pdf_since_prev = phase_pdf;
@@ -288,13 +306,14 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     const ShapeInfo* info = hit ? &scene_.shape(hit->shape) : nullptr;
     const Material* material = hit ? &scene_.materials()[info->material] : nullptr;
     const bool at_vertex = !hit || !std::holds_alternative<InterfaceMaterial>(*material);
-    if (event_pending && at_vertex) {
-      for (Offset& o : offsets) {
-        if (o.state == OffsetState::kDiverged && o.pending) {
-          tracer.resolve_pending(o, base_event, hit ? &*hit : nullptr, ray.direction);
-        }
-      }
-      event_pending = false;
+    if (resolve_due && at_vertex) {
+      gradient::OffsetStep& step = record();
+      step.kind = StepKind::kResolve;
+      step.has_next = hit.has_value();
+      if (hit) step.hit = *hit;
+      step.direction = ray.direction;
+      step.base = base_event;
+      resolve_due = false;
     }
 
     if (!hit) {
@@ -367,9 +386,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     if (!at_vertex) {
       // A pure medium boundary: the base continues on the other side, same path vertex; a
       // diverged offset met an emitter the base counted without a vertex of its own.
-      for (Offset& o : offsets) {
-        if (o.state != OffsetState::kSame && info->area_light >= 0) fail(o);
-      }
+      if (info->area_light >= 0) record().kind = StepKind::kInterfaceEmitter;
       if (info->medium_transition) {
         medium = dot(ray.direction, hit->ng) < 0 ? info->medium_inside : info->medium_outside;
       }
@@ -385,31 +402,32 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     const Vec3f wo = frame.to_local(-ray.direction);
     const LightContext ctx{hit->p, hit->ns};
 
-    // The offsets' BSDFs at this vertex (their own vertex when diverged), of the same kind.
-    std::optional<Bsdf> bsdf_y[2];
-    Frame frame_y[2];
-    Vec3f wo_y[2];
-    for (int side = 0; side < 2; ++side) {
-      Offset& o = offsets[side];
-      if (!o.live()) continue;
-      if (o.state == OffsetState::kDiverged) {
-        if (!o.has_hit) {
-          fail(o);
-          continue;
-        }
-        bsdf_y[side] = make_bsdf(scene_.materials()[scene_.shape(o.hit.shape).material], o.lambda);
-        if (!bsdf_y[side] || !(gradient::kind_of(*bsdf_y[side]) == kind)) {
-          fail(o);
-          continue;
-        }
-        frame_y[side] = Frame::from_xz(o.hit.dpdu, o.hit.ns);
-        wo_y[side] = frame_y[side].to_local(-o.direction);
-      } else {
-        bsdf_y[side] = make_bsdf(*material, o.lambda);
-        frame_y[side] = frame;
-        wo_y[side] = o.state == OffsetState::kReconnected ? frame.to_local(-o.direction) : wo;
-      }
+    {
+      // Diverged offsets must have reached a vertex of the same kind.
+      gradient::OffsetStep& step = record();
+      step.kind = StepKind::kArrive;
+      step.vertex_kind = kind;
     }
+    // An offset's BSDF, frame and incoming direction at this vertex (its own vertex when
+    // diverged), once it has caught up.
+    struct OffsetVertex {
+      std::optional<Bsdf> bsdf;
+      Frame frame;
+      Vec3f wo;
+    };
+    auto offset_vertex = [&](const Offset& o) {
+      OffsetVertex v;
+      if (o.state == OffsetState::kDiverged) {
+        v.bsdf = make_bsdf(scene_.materials()[scene_.shape(o.hit.shape).material], o.lambda);
+        v.frame = Frame::from_xz(o.hit.dpdu, o.hit.ns);
+        v.wo = v.frame.to_local(-o.direction);
+      } else {
+        v.bsdf = make_bsdf(*material, o.lambda);
+        v.frame = frame;
+        v.wo = o.state == OffsetState::kReconnected ? frame.to_local(-o.direction) : wo;
+      }
+      return v;
+    };
 
     if (!kind.specular) {
       const Point2 choice_u = sampler.at2(dim + kLightChoice);
@@ -436,14 +454,14 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
           const float c =
               scale * beta * f_x * ls->radiance[0] * s.transmittance[kBase] / denominator_x;
           accumulate(c, [&](Offset& o) -> OffsetEvent {
-            const int side = o.lane - 1;
-            const Bsdf& b = *bsdf_y[side];
+            const OffsetVertex y = offset_vertex(o);
+            const Bsdf& b = *y.bsdf;
             if (o.state != OffsetState::kDiverged) {
               // At the base's vertex: the same light point along the same direction (J = 1).
               auto ls_y = sample_light(light, ctx, to_point(light_u), choice_u.u1, o.lambda);
               if (!ls_y) return {};
-              const float f_y = eval(b, wo_y[side], wi_local)[0] * abs_cos_theta(wi_local);
-              const float p_y = pdf(b, wo_y[side], wi_local)[0];
+              const float f_y = eval(b, y.wo, wi_local)[0] * abs_cos_theta(wi_local);
+              const float p_y = pdf(b, y.wo, wi_local)[0];
               const float p_light_y =
                   scene_.light_sampler().pmf(ctx.p, o.lambda, choice->light) * ls->pdf;
               const float denominator_y = p_light_y + (ls->delta ? 0.0f : p_y * s.pass[o.lane]);
@@ -453,8 +471,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                       o.rho * denominator_y / denominator_x};
             }
             // From the offset's own vertex to the base's light point.
-            DivergedNee n = tracer.diverged_nee(o, b, frame_y[side], wo_y[side], choice->light, *ls,
-                                                ctx.p, to_point(light_u), choice_u.u1);
+            DivergedNee n = tracer.diverged_nee(o, b, y.frame, y.wo, choice->light, *ls, ctx.p,
+                                                to_point(light_u), choice_u.u1);
             if (!n.valid) return {};
             if (!(n.f > 0) || !(n.le > 0)) return {true, 0.0f, 0.0f};
             const float denominator_y = n.p_light + (ls->delta ? 0.0f : n.p_bsdf * n.pass);
@@ -477,46 +495,23 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                           gradient::relative_eta(*bsdf)};
     base_event.position = hit->p;
     base_event.pdf = p_x;
-    for (int side = 0; side < 2; ++side) {
-      Offset& o = offsets[side];
-      if (!o.live()) continue;
-      if (o.state == OffsetState::kDiverged) {
-        o.pending = true;
-        event_pending = true;
-        continue;
-      }
-      const Bsdf& b = *bsdf_y[side];
-      if (o.state == OffsetState::kSame && kind.dispersive && bs->transmission) {
-        // The first wavelength-dependent vertex: copy the half-vector (the event for a smooth
-        // one) with the offset's own η, and leave the base.
-        auto shift = shift_direction(base_event.scatter, wo, gradient::relative_eta(b));
-        if (!shift) {
-          fail(o);
-          continue;
-        }
-        EventValue v = gradient::event_value(b, wo, shift->wi, true);
-        if (!(v.pdf > 0)) {
-          fail(o);
-          continue;
-        }
-        gradient::take_step(o, v, shift->jacobian, p_x, ctx);
-        const Vec3f dir = frame.from_local(shift->wi);
-        o.state = OffsetState::kDiverged;
-        ++counters.gradient_divergences;
-        if (o.reconnected_before) ++counters.gradient_repeated_divergences;
-        o.direction = dir;
-        o.medium = medium_before;
-        if (info->medium_transition) {
-          o.medium = dot(dir, hit->ng) < 0 ? info->medium_inside : info->medium_outside;
-        }
-        tracer.trace_own(o, {geometry.offset_origin(hit->p, hit->ng, dir), dir});
-        continue;
-      }
-      // The base's direction (J = 1): nothing about it depends on λ here, or the offset has
-      // just reconnected to this (connectable) vertex.
-      EventValue v = gradient::event_value(b, wo_y[side], bs->wi, bs->transmission);
-      gradient::take_step(o, v, 1.0f, p_x, ctx);
-      o.state = OffsetState::kSame;
+    {
+      gradient::OffsetStep& step = record();
+      step.kind = StepKind::kScatter;
+      step.p_x = p_x;
+      step.ctx = ctx;
+      step.hit = *hit;
+      step.base = base_event;
+      step.vertex_kind = kind;
+      step.material = material;
+      step.info = info;
+      step.frame = frame;
+      step.wo = wo;
+      step.medium_before = medium_before;
+      step.medium_after = bs->transmission && info->medium_transition
+                              ? (dot(wi, hit->ng) < 0 ? info->medium_inside : info->medium_outside)
+                              : medium;
+      resolve_due = true;
     }
     prev_ctx = ctx;
     prev_specular = bs->specular;
@@ -529,9 +524,6 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         medium = dot(wi, hit->ng) < 0 ? info->medium_inside : info->medium_outside;
       }
     }
-    for (Offset& o : offsets) {
-      if (o.state == OffsetState::kSame) o.medium = medium;
-    }
     ray = {geometry.offset_origin(hit->p, hit->ng, wi), wi};
     ++depth;
     crossings = 0;
@@ -543,7 +535,9 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         if (lobe_and_roulette.u1 < q) break;
         beta /= 1.0f - q;
         survival *= 1.0f - q;
-        for (Offset& o : offsets) o.beta /= 1.0f - q;
+        gradient::OffsetStep& step = record();
+        step.kind = StepKind::kRoulette;
+        step.survival = 1.0f - q;
       }
     }
   }

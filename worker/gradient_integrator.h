@@ -20,6 +20,12 @@
 // events that carry base light need offsets; the pairs whose base carries none are estimated by
 // standard sampling from the other wavelength, whose unshifted rule adds exactly that term.
 //
+// Laziness. The offsets follow the base through a log of the base's steps and catch up only
+// when an event passes c > τ (or the log fills), so with τ > 0 an event below the threshold
+// costs no offset rays at all, and steps after a path's last such event are never followed.
+// Catching up applies exactly the steps eager following would, so the output does not depend on
+// it.
+//
 // Roulette. Contributions divide by the base's survival probabilities (they are part of the
 // base's true density, so c₊ = f(y)|J|/p(x̄) divides by them too), but the MIS weights and the
 // threshold use roulette-free densities: any pair of positive functions that both sides of a

@@ -483,25 +483,28 @@ TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes)
   std::uint64_t seed = 10;
   for (const char* name :
        {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt", "gradient_rough_glass.pbrt",
-        "gradient_slab.pbrt", "gradient_mixed.pbrt", "gradient_media.pbrt", "unbiased.pbrt"}) {
+        "gradient_slab.pbrt", "gradient_mixed.pbrt", "gradient_media.pbrt", "gradient_room.pbrt",
+        "unbiased.pbrt"}) {
     auto desc = load(name);
     for (float tau : {0.0f, 0.5f}) {
-      auto scene = build(desc, gradient_options(seed++, tau));
+      RenderOptions options = gradient_options(seed++, tau);
+      options.max_depth = desc.integrator.max_depth;
+      auto scene = build(desc, options);
       ASSERT_TRUE(scene);
       Consistency c = consistency(*scene, 1536);
       expect_consistent(c, std::string(name) + " tau " + std::to_string(tau));
       if (tau > 0) {
         EXPECT_GT(c.counters.gradient_shifts_wasted, 0u) << name;
       }
-      if (std::string(name) != "unbiased.pbrt" && std::string(name) != "gradient_media.pbrt") {
-        // Every scene diverges and reconnects offsets; the ones with glass before and after a
-        // diffuse vertex diverge again after reconnecting.
+      if (tau == 0.0f && std::string(name) != "unbiased.pbrt" &&
+          std::string(name) != "gradient_media.pbrt") {
+        // Every dispersive scene diverges offsets and reconnects them, on steps that events
+        // used (offsets follow lazily, so steps no event needed are not counted).
         EXPECT_GT(c.counters.gradient_divergences, 1000u) << name;
         EXPECT_GT(c.counters.gradient_reconnections, 100u) << name;
       }
-      if (std::string(name) == "gradient_glass_diffuse.pbrt" ||
-          std::string(name) == "gradient_slab.pbrt") {
-        EXPECT_GT(c.counters.gradient_repeated_divergences, 10u) << name;
+      if (std::string(name) == "gradient_room.pbrt") {
+        EXPECT_GT(c.counters.gradient_repeated_divergences, 100u) << name;
       }
     }
   }

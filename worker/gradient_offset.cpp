@@ -187,6 +187,90 @@ void OffsetTracer::resolve_pending(Offset& o, const BaseEvent& base, const Surfa
   trace_own(o, {geometry.offset_origin(o.hit.p, o.hit.ng, dir), dir});
 }
 
+void OffsetTracer::apply(Offset& o, const OffsetStep& step) const {
+  using Kind = OffsetStep::Kind;
+  const int side = o.lane - 1;
+  switch (step.kind) {
+    case Kind::kSegment:
+      if (!step.scattering) {
+        if (o.state == OffsetState::kSame) o.beta *= step.factor[side];
+      } else if (o.state == OffsetState::kDiverged) {
+        o.fail();  // no base distance to copy (gradient_integrator.h)
+      } else if (o.state == OffsetState::kSame) {
+        o.beta *= step.factor[side] / step.p_x;
+        o.rho *= step.pdf[side] / step.p_x;
+        o.pdf_since_prev *= step.pdf[side];
+      }
+      return;
+    case Kind::kMediumVertex:
+      if (o.state == OffsetState::kSame) {
+        take_step(o, {step.phase_pdf, step.phase_pdf}, 1.0f, step.phase_pdf, step.ctx);
+      }
+      return;
+    case Kind::kResolve:
+      if (o.state == OffsetState::kDiverged && o.pending) {
+        resolve_pending(o, step.base, step.has_next ? &step.hit : nullptr, step.direction);
+      }
+      return;
+    case Kind::kInterfaceEmitter:
+      if (o.state != OffsetState::kSame) o.fail();
+      return;
+    case Kind::kArrive:
+      if (o.state == OffsetState::kDiverged) {
+        if (!o.has_hit) return o.fail();
+        auto bsdf_y = make_bsdf(scene_.materials()[scene_.shape(o.hit.shape).material], o.lambda);
+        if (!bsdf_y || !(kind_of(*bsdf_y) == step.vertex_kind)) o.fail();
+      }
+      return;
+    case Kind::kScatter:
+      scatter(o, step);
+      return;
+    case Kind::kRoulette:
+      o.beta /= step.survival;
+      return;
+  }
+}
+
+void OffsetTracer::scatter(Offset& o, const OffsetStep& step) const {
+  if (o.state == OffsetState::kDiverged) {
+    o.pending = true;
+    return;
+  }
+  const Geometry& geometry = scene_.geometry();
+  const SurfaceHit& hit = step.hit;
+  auto b = make_bsdf(*step.material, o.lambda);
+  PRISM_CHECK(b.has_value());
+  if (o.state == OffsetState::kSame && step.vertex_kind.dispersive &&
+      step.base.scatter.transmission) {
+    // The first wavelength-dependent vertex: copy the half-vector (the event for a smooth one)
+    // with the offset's own η, and leave the base.
+    auto shift = shift_direction(step.base.scatter, step.wo, relative_eta(*b));
+    if (!shift) return o.fail();
+    EventValue v = event_value(*b, step.wo, shift->wi, true);
+    if (!(v.pdf > 0)) return o.fail();
+    take_step(o, v, shift->jacobian, step.p_x, step.ctx);
+    const Vec3f dir = step.frame.from_local(shift->wi);
+    o.state = OffsetState::kDiverged;
+    ++counters_.gradient_divergences;
+    if (o.reconnected_before) ++counters_.gradient_repeated_divergences;
+    o.direction = dir;
+    o.medium = step.medium_before;
+    if (step.info->medium_transition) {
+      o.medium = dot(dir, hit.ng) < 0 ? step.info->medium_inside : step.info->medium_outside;
+    }
+    trace_own(o, {geometry.offset_origin(hit.p, hit.ng, dir), dir});
+    return;
+  }
+  // The base's direction (J = 1): nothing about it depends on λ here, or the offset has just
+  // reconnected to this (connectable) vertex.
+  const Vec3f wo_y =
+      o.state == OffsetState::kReconnected ? step.frame.to_local(-o.direction) : step.wo;
+  EventValue v = event_value(*b, wo_y, step.base.scatter.wi, step.base.scatter.transmission);
+  take_step(o, v, 1.0f, step.p_x, step.ctx);
+  o.state = OffsetState::kSame;
+  o.medium = step.medium_after;
+}
+
 DivergedNee OffsetTracer::diverged_nee(const Offset& o, const Bsdf& b, const Frame& frame,
                                        const Vec3f& wo, int light_index, const LightSample& ls,
                                        const Vec3f& base_p, Point2f light_u, float u_extra) const {

@@ -12,6 +12,7 @@
 #include "worker/gradient_shift.h"
 #include "worker/integrator.h"
 #include "worker/light.h"
+#include "worker/material.h"
 #include "worker/render_scene.h"
 
 namespace prism::worker::gradient {
@@ -99,6 +100,50 @@ struct DivergedNee {
   float p_light = 0, p_bsdf = 0, pass = 0;
 };
 
+// One step of the base path that moves the offsets, recorded so that they can follow lazily:
+// they are brought up to date only when an event passes the threshold τ (the paper's §3.3:
+// shifts should cost time only where a contribution uses them). Applied in order, the steps
+// give exactly the offsets that following the base eagerly would.
+struct OffsetStep {
+  enum class Kind {
+    kSegment,           // the base's segment through a medium
+    kMediumVertex,      // the base scattered in a medium
+    kResolve,           // the base reached its next vertex: pending diverged offsets decide
+    kInterfaceEmitter,  // the base counted an emitter on an interface (no vertex)
+    kArrive,            // the base reached a scattering surface: kinds must match
+    kScatter,           // the base sampled its next direction at a surface
+    kRoulette,          // the base survived Russian roulette
+  };
+  Kind kind = Kind::kSegment;
+  // kSegment. Absorbing: factor[s] is the transmittance at offset s's wavelength. Scattering:
+  // factor[s] its free-flight value (T·σ_s, or T when passed), pdf[s] its free-flight density,
+  // p_x the base's. kScatter: p_x is the base's BSDF density.
+  bool scattering = false;
+  float factor[2] = {};
+  float pdf[2] = {};
+  float p_x = 1;
+  // kMediumVertex, kScatter: the base's vertex; kMediumVertex: the phase function's density.
+  LightContext ctx;
+  float phase_pdf = 0;
+  // kResolve: the base's next vertex (has_next false when it escaped), its direction of
+  // arrival and the base's event before it. kScatter: the base's hit and event.
+  SurfaceHit hit;
+  bool has_next = false;
+  Vec3f direction;
+  BaseEvent base;
+  // kArrive, kScatter: the base vertex's kind; kScatter: its material, shape, frame, incoming
+  // direction (local), and the base's medium before and after the event.
+  VertexKind vertex_kind;
+  const Material* material = nullptr;
+  const ShapeInfo* info = nullptr;
+  Frame frame;
+  Vec3f wo;
+  int medium_before = -1;
+  int medium_after = -1;
+  // kRoulette: the survival probability the base's weights were divided by.
+  float survival = 1;
+};
+
 class OffsetTracer {
  public:
   // Rays are counted in `counters`.
@@ -119,6 +164,9 @@ class OffsetTracer {
   void resolve_pending(Offset& o, const BaseEvent& base, const SurfaceHit* next,
                        const Vec3f& base_direction) const;
 
+  // Moves a live offset through one recorded step of the base.
+  void apply(Offset& o, const OffsetStep& step) const;
+
   // NEE from a diverged offset's vertex (BSDF b, frame, incoming wo in that frame) to the light
   // point the base sampled from base_p (the environment: the base's direction; a delta light:
   // its position, sampled again from the offset's vertex with the same numbers).
@@ -127,6 +175,8 @@ class OffsetTracer {
                            Point2f light_u, float u_extra) const;
 
  private:
+  void scatter(Offset& o, const OffsetStep& step) const;
+
   const RenderScene& scene_;
   TraceCounters& counters_;
 };
