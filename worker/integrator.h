@@ -44,8 +44,8 @@ struct TraceCounters {
   std::uint64_t gradient_shifts = 0;
   std::uint64_t gradient_shifts_failed = 0;
   std::uint64_t gradient_shifts_wasted = 0;
-  // How the offsets moved: left the base at a dispersive vertex, reconnected to it, and left it
-  // again after a reconnection (repeated divergence along one path).
+  // How the offsets moved on the steps that events used (offsets follow lazily): left the base
+  // at a dispersive vertex, reconnected to it, and left it again after a reconnection.
   std::uint64_t gradient_divergences = 0;
   std::uint64_t gradient_reconnections = 0;
   std::uint64_t gradient_repeated_divergences = 0;
