@@ -5,7 +5,7 @@
 
 #include "services/base/check.h"
 #include "worker/bsdf.h"
-#include "worker/fresnel.h"
+#include "worker/gradient_offset.h"
 #include "worker/gradient_shift.h"
 #include "worker/light.h"
 #include "worker/material.h"
@@ -31,96 +31,27 @@ constexpr std::uint32_t kFreeFlight = 8;
 constexpr std::uint32_t kDimCrossings = 1u << 16;
 constexpr std::uint32_t kCrossingsPerBounce = 64;
 
+using gradient::BaseEvent;
+using gradient::DivergedNee;
+using gradient::EventValue;
+using gradient::Offset;
+using gradient::OffsetState;
+using gradient::Shadow;
+using gradient::VertexKind;
+
 // Lanes of the shared evaluations: the base and the two offsets.
 constexpr int kBase = 0;
 constexpr int kLanes = 3;
 
-Point2f to_point(const Point2& p) { return {p.u0, p.u1}; }
+Point2f to_point(const Point2& p) {
+  return {p.u0, p.u1};
+}
 
 SampledWavelengths single(float lambda, float pdf) {
   SampledWavelengths w(1);
   w.set(0, lambda, pdf);
   return w;
 }
-
-// A vertex's kind for the shift: vertices must match in all three to be shifted onto each
-// other, and "connectable" means rough and not dispersive.
-struct VertexKind {
-  std::size_t bsdf = 0;
-  bool specular = false;
-  bool dispersive = false;
-  bool connectable() const { return !specular && !dispersive; }
-  friend bool operator==(const VertexKind&, const VertexKind&) = default;
-};
-
-VertexKind kind_of(const Bsdf& bsdf) {
-  return {bsdf.index(), is_specular(bsdf), is_dispersive(bsdf)};
-}
-
-float relative_eta(const Bsdf& bsdf) {
-  const auto* d = std::get_if<DielectricBsdf>(&bsdf);
-  return d != nullptr ? d->eta(0) : 1.0f;
-}
-
-// f·|cos θ_i| and the density of a given event at lane 0: for a smooth vertex the discrete
-// probability of the same event (reflect / refract) and its value; for a rough one eval and pdf.
-struct EventValue {
-  float f_cos = 0;
-  float pdf = 0;
-};
-
-EventValue event_value(const Bsdf& bsdf, const Vec3f& wo, const Vec3f& wi, bool transmission) {
-  if (!is_specular(bsdf)) {
-    return {eval(bsdf, wo, wi)[0] * abs_cos_theta(wi), pdf(bsdf, wo, wi)[0]};
-  }
-  if (const auto* d = std::get_if<DielectricBsdf>(&bsdf)) {
-    const float f = fresnel_dielectric(cos_theta(wo), d->eta(0));
-    if (!transmission) return {f, f};
-    const float etap = cos_theta(wo) > 0 ? d->eta(0) : 1.0f / d->eta(0);
-    return {(1.0f - f) / (etap * etap), 1.0f - f};
-  }
-  // A smooth conductor reflects with probability 1; its sample() ignores the numbers.
-  auto s = sample(bsdf, wo, 0.0f, {0.5f, 0.5f});
-  if (!s || transmission) return {};
-  return {s->f[0] * abs_cos_theta(s->wi), s->pdf[0]};
-}
-
-enum class OffsetState { kSame, kReconnected, kDiverged, kFailed };
-
-// One offset path, stored relative to the base (see gradient_integrator.h).
-struct Offset {
-  OffsetState state = OffsetState::kSame;
-  int lane = 1;  // its lane in the shared evaluations
-  SampledWavelengths lambda{1};
-  float beta = 1;  // f(y)|J| / p(x̄|λ) of the prefix, with the base's roulette
-  float rho = 1;   // p̃(y,λ')|J| / p̃(x̄,λ) of the prefix, roulette-free
-  // For MIS at an emitter found by the sampled direction: ρ before the last direction, the
-  // offset's own density of everything sampled since (direction times free-flight passes), the
-  // last step's Jacobian and its own previous scattering vertex.
-  float rho_prev = 1;
-  float pdf_since_prev = 1;
-  float jacobian_last = 1;
-  LightContext prev_ctx;
-  // kReconnected / kDiverged: the own direction of arrival (unit, pointing along the ray).
-  Vec3f direction;
-  // kDiverged: the own vertex (if the own ray hit something), its medium, and whether its next
-  // direction waits for the base's next vertex.
-  SurfaceHit hit;
-  bool has_hit = false;
-  int medium = -1;
-  bool pending = false;
-
-  bool live() const { return state != OffsetState::kFailed; }
-};
-
-// Transmittance along a shadow segment for up to kLanes lanes (as PathIntegrator's shadow_ray):
-// the transmittance, the probability that free flights would pass, and whether any part ran
-// through a scattering medium. Both spectra are 0 when something opaque blocks the segment.
-struct Shadow {
-  SampledSpectrum transmittance;
-  SampledSpectrum pass;
-  bool scattering = false;
-};
 
 }  // namespace
 
@@ -172,8 +103,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
   // Contributions are per-bin averages: f / (p(λ) p(x̄|λ)) / w.
   const float scale = 1.0f / (lambda_density * grid.bin_width());
 
-  float beta = 1;        // f / p(x̄|λ) of the base prefix, with roulette
-  float survival = 1;    // product of the roulette survival probabilities
+  float beta = 1;      // f / p(x̄|λ) of the base prefix, with roulette
+  float survival = 1;  // product of the roulette survival probabilities
   float pdf_since_prev = 1;
   LightContext prev_ctx;
   bool prev_specular = true;
@@ -183,12 +114,32 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
   for (Offset& o : offsets) o.medium = medium;
 
   const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
-  Ray ray = scene_.camera().generate_ray({float(px) + film.u0, float(py) + film.u1},
-                                         {lens.u0, lens.u1});
+  Ray ray =
+      scene_.camera().generate_ray({float(px) + film.u0, float(py) + film.u1}, {lens.u0, lens.u1});
   ++counters.camera_rays;
   if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
 
-  auto fail = [&](Offset& o) { o.state = OffsetState::kFailed; };
+  const gradient::OffsetTracer tracer(scene_, counters);
+  BaseEvent base_event;
+  // The base's steps the offsets have not followed yet; they catch up when an event needs them
+  // (or when the log is full), so τ > 0 saves the offsets' rays as well as their events.
+  constexpr int kMaxSteps = 24;
+  gradient::OffsetStep steps[kMaxSteps];
+  int step_count = 0;
+  auto catch_up = [&] {
+    for (int i = 0; i < step_count; ++i) {
+      for (Offset& o : offsets) {
+        if (o.live()) tracer.apply(o, steps[i]);
+      }
+    }
+    step_count = 0;
+  };
+  auto record = [&]() -> gradient::OffsetStep& {
+    if (step_count == kMaxSteps) catch_up();
+    steps[step_count] = gradient::OffsetStep();
+    return steps[step_count++];
+  };
+  using StepKind = gradient::OffsetStep::Kind;
 
   // Accumulates one base event of value c (output units) whose offsets `offset_event(o)`
   // evaluates on demand as {valid, c_y = f(y)|J|/Σp(x̄), ratio = Σp(y)|J| / Σp(x̄)}.
@@ -204,6 +155,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     const float c_free = c * survival;
     float up = -c, down = c;  // unshifted
     if (c_free > tau_) {
+      catch_up();
       ++counters.gradient_events;
       for (int side = 0; side < 2; ++side) {
         ++counters.gradient_shifts;
@@ -233,161 +185,6 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     out.gradient_below += down;
   };
 
-  auto shadow_ray = [&](Vec3f origin, Vec3f direction, const Vec3f& target, bool to_infinity,
-                        int medium_index, const SampledWavelengths& lambdas,
-                        int lanes) -> Shadow {
-    Shadow shadow;
-    for (int i = 0; i < lanes; ++i) shadow.transmittance[i] = shadow.pass[i] = 1.0f;
-    for (int crossings = 0; crossings < 64; ++crossings) {
-      float distance = kInfinity;
-      if (!to_infinity) {
-        Vec3f to_target = target - origin;
-        float length_to_target = length(to_target);
-        if (!(length_to_target > 0) || dot(to_target, direction) <= 0) return shadow;
-        direction = to_target / length_to_target;
-        distance = length_to_target * (1.0f - 1e-4f);
-      }
-      ++counters.rays;
-      auto hit = geometry.intersect({origin, direction}, distance);
-      float segment = hit ? hit->t : distance;
-      if (medium_index >= 0) {
-        const HomogeneousMedium& m = scene_.media()[medium_index];
-        SampledSpectrum sigma_t = m.sigma_a(lambdas) + m.sigma_s(lambdas);
-        SampledSpectrum t;
-        for (int i = 0; i < lanes; ++i) {
-          t[i] = std::isinf(segment) ? (sigma_t[i] > 0 ? 0.0f : 1.0f)
-                                     : std::exp(-sigma_t[i] * segment);
-        }
-        shadow.transmittance *= t;
-        if (m.scattering()) {
-          shadow.pass *= t;
-          shadow.scattering = true;
-        }
-      }
-      if (!hit) return shadow;
-      const ShapeInfo& info = scene_.shape(hit->shape);
-      if (!std::holds_alternative<InterfaceMaterial>(scene_.materials()[info.material])) {
-        return Shadow{};
-      }
-      if (info.medium_transition) {
-        medium_index = dot(direction, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
-      }
-      origin = geometry.offset_origin(hit->p, hit->ng, direction);
-    }
-    return Shadow{};
-  };
-
-  // A diverged offset's own ray from its vertex: crosses interfaces (absorbing media on the
-  // way), stops at its next scattering surface or escapes. A scattering medium, or an emitter
-  // on an interface (which the base would count as an event without a vertex), fails it.
-  auto trace_own = [&](Offset& o, Ray own) {
-    o.has_hit = false;
-    o.pending = false;
-    for (int crossings = 0; crossings < 64; ++crossings) {
-      ++counters.rays;
-      auto hit = geometry.intersect(own, kInfinity);
-      if (o.medium >= 0) {
-        const HomogeneousMedium& m = scene_.media()[o.medium];
-        if (m.scattering()) return fail(o);
-        const float sigma_a = m.sigma_a(o.lambda)[0];
-        if (hit) {
-          o.beta *= std::exp(-sigma_a * hit->t);
-        } else if (sigma_a > 0) {
-          o.beta = 0;
-        }
-      }
-      if (!hit) return;
-      const ShapeInfo& info = scene_.shape(hit->shape);
-      if (std::holds_alternative<InterfaceMaterial>(scene_.materials()[info.material])) {
-        if (info.area_light >= 0) return fail(o);
-        if (info.medium_transition) {
-          o.medium = dot(own.direction, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
-        }
-        own.origin = geometry.offset_origin(hit->p, hit->ng, own.direction);
-        continue;
-      }
-      o.hit = *hit;
-      o.has_hit = true;
-      return;
-    }
-    fail(o);
-  };
-
-  // The offset's step through a scattering vertex: its event value and Jacobian against the
-  // base's density p_x of the same step.
-  auto take_step = [&](Offset& o, const EventValue& v, float jacobian, float p_x,
-                       const LightContext& ctx) {
-    o.rho_prev = o.rho;
-    o.beta *= v.f_cos * jacobian / p_x;
-    o.rho *= v.pdf * jacobian / p_x;
-    o.pdf_since_prev = v.pdf;
-    o.jacobian_last = jacobian;
-    o.prev_ctx = ctx;
-  };
-
-  // What the base did at its last scattering vertex, for the diverged offsets' next step.
-  struct BaseEvent {
-    BaseScatter scatter;
-    Vec3f position;
-    float pdf = 0;
-  } base_event;
-
-  // A diverged offset's next step, once the base's next vertex is known (`next`: its surface
-  // hit, or null when the base escaped or met no surface vertex).
-  auto resolve_pending = [&](Offset& o, const SurfaceHit* next, const Vec3f& base_direction) {
-    const ShapeInfo& info_y = scene_.shape(o.hit.shape);
-    auto bsdf_y = make_bsdf(scene_.materials()[info_y.material], o.lambda);
-    PRISM_CHECK(bsdf_y.has_value());
-    const Frame frame_y = Frame::from_xz(o.hit.dpdu, o.hit.ns);
-    const Vec3f wo_y = frame_y.to_local(-o.direction);
-    const LightContext ctx_y{o.hit.p, o.hit.ns};
-    o.pending = false;
-    bool target_connectable = false;
-    if (next != nullptr) {
-      const Material& m = scene_.materials()[scene_.shape(next->shape).material];
-      auto bsdf_next = make_bsdf(m, base_lambda);
-      target_connectable = bsdf_next && kind_of(*bsdf_next).connectable();
-    }
-    if (kind_of(*bsdf_y).connectable() && target_connectable) {
-      Vec3f to = next->p - o.hit.p;
-      const float distance = length(to);
-      if (!(distance > 0)) return fail(o);
-      const Vec3f dir = to / distance;
-      // Arrive on the side the base arrived on, so the vertex, its BSDF side and the media
-      // after it are the base's.
-      if ((dot(dir, next->ng) < 0) != (dot(base_direction, next->ng) < 0)) return fail(o);
-      const Vec3f wi_y = frame_y.to_local(dir);
-      EventValue v{eval(*bsdf_y, wo_y, wi_y)[0] * abs_cos_theta(wi_y), pdf(*bsdf_y, wo_y, wi_y)[0]};
-      if (!(v.f_cos > 0) || !(v.pdf > 0)) return fail(o);
-      int own_medium = o.medium;
-      if (info_y.medium_transition && cos_theta(wi_y) * cos_theta(wo_y) < 0) {
-        own_medium = dot(dir, o.hit.ng) < 0 ? info_y.medium_inside : info_y.medium_outside;
-      }
-      Shadow s = shadow_ray(geometry.offset_origin(o.hit.p, o.hit.ng, dir), dir,
-                            geometry.offset_origin(next->p, next->ng, -dir), false, own_medium,
-                            o.lambda, 1);
-      if (s.scattering || !(s.transmittance[0] > 0)) return fail(o);
-      const float jacobian = reconnection_jacobian(base_event.position, o.hit.p, next->p, next->ng);
-      if (!(jacobian > 0)) return fail(o);
-      v.f_cos *= s.transmittance[0];
-      take_step(o, v, jacobian, base_event.pdf, ctx_y);
-      o.state = OffsetState::kReconnected;
-      o.direction = dir;
-      return;
-    }
-    auto shift = shift_direction(base_event.scatter, wo_y, relative_eta(*bsdf_y));
-    if (!shift) return fail(o);
-    EventValue v = event_value(*bsdf_y, wo_y, shift->wi, base_event.scatter.transmission);
-    if (!(v.pdf > 0)) return fail(o);
-    take_step(o, v, shift->jacobian, base_event.pdf, ctx_y);
-    const Vec3f dir = frame_y.from_local(shift->wi);
-    if (info_y.medium_transition && base_event.scatter.transmission) {
-      o.medium = dot(dir, o.hit.ng) < 0 ? info_y.medium_inside : info_y.medium_outside;
-    }
-    o.direction = dir;
-    trace_own(o, {geometry.offset_origin(o.hit.p, o.hit.ng, dir), dir});
-  };
-
   // An emitter found by the sampled direction: the base's event, with the offsets' emitters
   // found by their own rays (or the same one). `offset_emission` gives an offset's emitted
   // radiance and its light-sampling density from its previous vertex, or nullopt when the
@@ -401,15 +198,14 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       std::optional<std::pair<float, float>> e = offset_emission(o);
       if (!e) return {};
       auto [le_y, p_light_y] = *e;
-      const float denominator_y =
-          prev_specular ? o.pdf_since_prev : o.pdf_since_prev + p_light_y;
+      const float denominator_y = prev_specular ? o.pdf_since_prev : o.pdf_since_prev + p_light_y;
       return {true, scale * o.beta * le_y * pdf_since_prev / denominator_x,
               o.rho_prev * o.jacobian_last * denominator_y / denominator_x};
     });
   };
 
   std::uint32_t crossings = 0;
-  bool event_pending = false;  // a diverged offset waits for the base's next vertex
+  bool resolve_due = false;  // the base scattered at a surface and has not reached its next vertex
   for (int depth = 0;;) {
     const std::uint32_t dim = kDimBounce + kDimsPerBounce * std::uint32_t(depth);
     const std::uint32_t flight_dim =
@@ -422,30 +218,31 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       const HomogeneousMedium& m = scene_.media()[medium];
       if (!m.scattering()) {
         SampledSpectrum sigma_a = m.sigma_a(shared);
-        auto absorb = [&](float sa) { return hit ? std::exp(-sa * hit->t) : (sa > 0 ? 0.0f : 1.0f); };
+        auto absorb = [&](float sa) {
+          return hit ? std::exp(-sa * hit->t) : (sa > 0 ? 0.0f : 1.0f);
+        };
         beta *= absorb(sigma_a[kBase]);
-        for (Offset& o : offsets) {
-          if (o.state == OffsetState::kSame) o.beta *= absorb(sigma_a[o.lane]);
-        }
+        gradient::OffsetStep& step = record();
+        step.kind = StepKind::kSegment;
+        for (const Offset& o : offsets) step.factor[o.lane - 1] = absorb(sigma_a[o.lane]);
         if (beta == 0.0f) break;
       } else {
-        // A diverged offset has no base distance to copy (see the header).
-        for (Offset& o : offsets) {
-          if (o.state == OffsetState::kDiverged) fail(o);
-        }
         SampledSpectrum sigma_s = m.sigma_s(shared);
         SampledSpectrum sigma_t = m.sigma_a(shared) + sigma_s;
-        FreeFlight flight = sample_free_flight(sigma_t, hit ? hit->t : kInfinity,
-                                               sampler.at(flight_dim), kLanes);
+        FreeFlight flight =
+            sample_free_flight(sigma_t, hit ? hit->t : kInfinity, sampler.at(flight_dim), kLanes);
         const float p_x = flight.pdf[kBase];
         if (!(p_x > 0)) break;
-        for (Offset& o : offsets) {
-          if (o.state != OffsetState::kSame) continue;
-          const float f_y =
-              flight.transmittance[o.lane] * (flight.scattered ? sigma_s[o.lane] : 1.0f);
-          o.beta *= f_y / p_x;
-          o.rho *= flight.pdf[o.lane] / p_x;
-          o.pdf_since_prev *= flight.pdf[o.lane];
+        {
+          gradient::OffsetStep& step = record();
+          step.kind = StepKind::kSegment;
+          step.scattering = true;
+          step.p_x = p_x;
+          for (const Offset& o : offsets) {
+            step.factor[o.lane - 1] =
+                flight.transmittance[o.lane] * (flight.scattered ? sigma_s[o.lane] : 1.0f);
+            step.pdf[o.lane - 1] = flight.pdf[o.lane];
+          }
         }
         if (flight.scattered) {
           beta *= flight.transmittance[kBase] * sigma_s[kBase] / p_x;
@@ -464,12 +261,12 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
             auto ls = sample_light(light, ctx, to_point(light_u), choice_u.u1, base_lambda);
             if (ls && ls->pdf > 0 && ls->radiance[0] > 0) {
               const float f = phase.p(wo, ls->wi);
-              Shadow s = shadow_ray(p, ls->wi, ls->p_light, std::isinf(ls->distance), medium,
-                                    shared, kLanes);
+              Shadow s = tracer.shadow_ray(p, ls->wi, ls->p_light, std::isinf(ls->distance), medium,
+                                           shared, kLanes);
               const float p_light_x = choice->pmf * ls->pdf;
               const float denominator_x = p_light_x + (ls->delta ? 0.0f : f * s.pass[kBase]);
-              const float c = scale * beta * f * ls->radiance[0] * s.transmittance[kBase] /
-                              denominator_x;
+              const float c =
+                  scale * beta * f * ls->radiance[0] * s.transmittance[kBase] / denominator_x;
               accumulate(c, [&](Offset& o) -> OffsetEvent {
                 if (o.state != OffsetState::kSame) return {};
                 auto ls_y = sample_light(light, ctx, to_point(light_u), choice_u.u1, o.lambda);
@@ -488,9 +285,10 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
           const Vec3f wi =
               phase.sample(wo, to_point(sampler.at2(dim + kScatterDirection)), &phase_pdf);
           if (!(phase_pdf > 0)) break;
-          for (Offset& o : offsets) {
-            if (o.state == OffsetState::kSame) take_step(o, {phase_pdf, phase_pdf}, 1.0f, phase_pdf, ctx);
-          }
+          gradient::OffsetStep& step = record();
+          step.kind = StepKind::kMediumVertex;
+          step.phase_pdf = phase_pdf;
+          step.ctx = ctx;
           prev_ctx = ctx;
           prev_specular = false;
           pdf_since_prev = phase_pdf;
@@ -508,13 +306,14 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     const ShapeInfo* info = hit ? &scene_.shape(hit->shape) : nullptr;
     const Material* material = hit ? &scene_.materials()[info->material] : nullptr;
     const bool at_vertex = !hit || !std::holds_alternative<InterfaceMaterial>(*material);
-    if (event_pending && at_vertex) {
-      for (Offset& o : offsets) {
-        if (o.state == OffsetState::kDiverged && o.pending) {
-          resolve_pending(o, hit ? &*hit : nullptr, ray.direction);
-        }
-      }
-      event_pending = false;
+    if (resolve_due && at_vertex) {
+      gradient::OffsetStep& step = record();
+      step.kind = StepKind::kResolve;
+      step.has_next = hit.has_value();
+      if (hit) step.hit = *hit;
+      step.direction = ray.direction;
+      step.base = base_event;
+      resolve_due = false;
     }
 
     if (!hit) {
@@ -525,7 +324,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                                  const Vec3f& dir) {
           return scene_.light_sampler().pmf(ctx.p, l, infinite) * inf.pdf(dir);
         };
-        const float p_light_x = prev_specular ? 0.0f : light_density(prev_ctx, base_lambda, ray.direction);
+        const float p_light_x =
+            prev_specular ? 0.0f : light_density(prev_ctx, base_lambda, ray.direction);
         emission_event(inf.radiance(base_lambda)[0], p_light_x,
                        [&](Offset& o) -> std::optional<std::pair<float, float>> {
                          Vec3f dir = ray.direction;
@@ -533,9 +333,9 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                            if (o.has_hit) return std::pair{0.0f, 0.0f};
                            dir = o.direction;
                          }
-                         return std::pair{inf.radiance(o.lambda)[0],
-                                          prev_specular ? 0.0f
-                                                        : light_density(o.prev_ctx, o.lambda, dir)};
+                         return std::pair{
+                             inf.radiance(o.lambda)[0],
+                             prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, dir)};
                        });
       }
       break;
@@ -559,10 +359,9 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                                const AreaLight& a, const Vec3f& dir, const SurfaceHit& h) {
         return scene_.light_sampler().pmf(ctx.p, l, light) * a.pdf(ctx, dir, h);
       };
-      const float p_light_x =
-          prev_specular ? 0.0f
-                        : light_density(prev_ctx, base_lambda, info->area_light, area,
-                                        ray.direction, *hit);
+      const float p_light_x = prev_specular ? 0.0f
+                                            : light_density(prev_ctx, base_lambda, info->area_light,
+                                                            area, ray.direction, *hit);
       emission_event(
           area.radiance(hit->ng, -ray.direction, base_lambda)[0], p_light_x,
           [&](Offset& o) -> std::optional<std::pair<float, float>> {
@@ -578,19 +377,16 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
             const int light = scene_.shape(h->shape).area_light;
             if (light < 0) return std::pair{0.0f, 0.0f};
             const auto& a = std::get<AreaLight>(scene_.lights()[light]);
-            return std::pair{a.radiance(h->ng, -dir, o.lambda)[0],
-                             prev_specular
-                                 ? 0.0f
-                                 : light_density(o.prev_ctx, o.lambda, light, a, dir, *h)};
+            return std::pair{
+                a.radiance(h->ng, -dir, o.lambda)[0],
+                prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, light, a, dir, *h)};
           });
     }
 
     if (!at_vertex) {
       // A pure medium boundary: the base continues on the other side, same path vertex; a
       // diverged offset met an emitter the base counted without a vertex of its own.
-      for (Offset& o : offsets) {
-        if (o.state != OffsetState::kSame && info->area_light >= 0) fail(o);
-      }
+      if (info->area_light >= 0) record().kind = StepKind::kInterfaceEmitter;
       if (info->medium_transition) {
         medium = dot(ray.direction, hit->ng) < 0 ? info->medium_inside : info->medium_outside;
       }
@@ -601,36 +397,37 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     if (depth == options.max_depth) break;
 
     auto bsdf = make_bsdf(*material, base_lambda);
-    const VertexKind kind = kind_of(*bsdf);
+    const VertexKind kind = gradient::kind_of(*bsdf);
     const Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
     const Vec3f wo = frame.to_local(-ray.direction);
     const LightContext ctx{hit->p, hit->ns};
 
-    // The offsets' BSDFs at this vertex (their own vertex when diverged), of the same kind.
-    std::optional<Bsdf> bsdf_y[2];
-    Frame frame_y[2];
-    Vec3f wo_y[2];
-    for (int side = 0; side < 2; ++side) {
-      Offset& o = offsets[side];
-      if (!o.live()) continue;
-      if (o.state == OffsetState::kDiverged) {
-        if (!o.has_hit) {
-          fail(o);
-          continue;
-        }
-        bsdf_y[side] = make_bsdf(scene_.materials()[scene_.shape(o.hit.shape).material], o.lambda);
-        if (!bsdf_y[side] || !(kind_of(*bsdf_y[side]) == kind)) {
-          fail(o);
-          continue;
-        }
-        frame_y[side] = Frame::from_xz(o.hit.dpdu, o.hit.ns);
-        wo_y[side] = frame_y[side].to_local(-o.direction);
-      } else {
-        bsdf_y[side] = make_bsdf(*material, o.lambda);
-        frame_y[side] = frame;
-        wo_y[side] = o.state == OffsetState::kReconnected ? frame.to_local(-o.direction) : wo;
-      }
+    {
+      // Diverged offsets must have reached a vertex of the same kind.
+      gradient::OffsetStep& step = record();
+      step.kind = StepKind::kArrive;
+      step.vertex_kind = kind;
     }
+    // An offset's BSDF, frame and incoming direction at this vertex (its own vertex when
+    // diverged), once it has caught up.
+    struct OffsetVertex {
+      std::optional<Bsdf> bsdf;
+      Frame frame;
+      Vec3f wo;
+    };
+    auto offset_vertex = [&](const Offset& o) {
+      OffsetVertex v;
+      if (o.state == OffsetState::kDiverged) {
+        v.bsdf = make_bsdf(scene_.materials()[scene_.shape(o.hit.shape).material], o.lambda);
+        v.frame = Frame::from_xz(o.hit.dpdu, o.hit.ns);
+        v.wo = v.frame.to_local(-o.direction);
+      } else {
+        v.bsdf = make_bsdf(*material, o.lambda);
+        v.frame = frame;
+        v.wo = o.state == OffsetState::kReconnected ? frame.to_local(-o.direction) : wo;
+      }
+      return v;
+    };
 
     if (!kind.specular) {
       const Point2 choice_u = sampler.at2(dim + kLightChoice);
@@ -650,22 +447,21 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
           const Vec3f target = ls->n_light == Vec3f()
                                    ? ls->p_light
                                    : geometry.offset_origin(ls->p_light, ls->n_light, -ls->wi);
-          Shadow s = shadow_ray(geometry.offset_origin(ctx.p, hit->ng, ls->wi), ls->wi, target,
-                                std::isinf(ls->distance), medium, shared, kLanes);
+          Shadow s = tracer.shadow_ray(geometry.offset_origin(ctx.p, hit->ng, ls->wi), ls->wi,
+                                       target, std::isinf(ls->distance), medium, shared, kLanes);
           const float p_light_x = choice->pmf * ls->pdf;
-          const float denominator_x =
-              p_light_x + (ls->delta ? 0.0f : bsdf_pdf_x * s.pass[kBase]);
+          const float denominator_x = p_light_x + (ls->delta ? 0.0f : bsdf_pdf_x * s.pass[kBase]);
           const float c =
               scale * beta * f_x * ls->radiance[0] * s.transmittance[kBase] / denominator_x;
           accumulate(c, [&](Offset& o) -> OffsetEvent {
-            const int side = o.lane - 1;
-            const Bsdf& b = *bsdf_y[side];
+            const OffsetVertex y = offset_vertex(o);
+            const Bsdf& b = *y.bsdf;
             if (o.state != OffsetState::kDiverged) {
               // At the base's vertex: the same light point along the same direction (J = 1).
               auto ls_y = sample_light(light, ctx, to_point(light_u), choice_u.u1, o.lambda);
               if (!ls_y) return {};
-              const float f_y = eval(b, wo_y[side], wi_local)[0] * abs_cos_theta(wi_local);
-              const float p_y = pdf(b, wo_y[side], wi_local)[0];
+              const float f_y = eval(b, y.wo, wi_local)[0] * abs_cos_theta(wi_local);
+              const float p_y = pdf(b, y.wo, wi_local)[0];
               const float p_light_y =
                   scene_.light_sampler().pmf(ctx.p, o.lambda, choice->light) * ls->pdf;
               const float denominator_y = p_light_y + (ls->delta ? 0.0f : p_y * s.pass[o.lane]);
@@ -675,100 +471,47 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                       o.rho * denominator_y / denominator_x};
             }
             // From the offset's own vertex to the base's light point.
-            const LightContext ctx_y{o.hit.p, o.hit.ns};
-            Vec3f wi_y;
-            float le_y = 0, solid_angle_pdf_y = 0, jacobian = 1;
-            bool to_infinity = std::isinf(ls->distance);
-            Vec3f target_y = ls->p_light;
-            if (std::holds_alternative<InfiniteLight>(light)) {
-              wi_y = ls->wi;  // the environment's point is a direction: J = 1
-              le_y = std::get<InfiniteLight>(light).radiance(o.lambda)[0];
-              solid_angle_pdf_y = ls->pdf;
-            } else if (ls->delta) {
-              auto ls_y = sample_light(light, ctx_y, to_point(light_u), choice_u.u1, o.lambda);
-              if (!ls_y) return {};
-              wi_y = ls_y->wi;
-              le_y = ls_y->radiance[0];
-              solid_angle_pdf_y = ls_y->pdf;
-            } else {
-              const auto& area = std::get<AreaLight>(light);
-              Vec3f to = ls->p_light - o.hit.p;
-              const float d = length(to);
-              if (!(d > 0)) return {};
-              wi_y = to / d;
-              le_y = area.radiance(ls->n_light, -wi_y, o.lambda)[0];
-              SurfaceHit light_point;
-              light_point.p = ls->p_light;
-              light_point.ng = ls->n_light;
-              solid_angle_pdf_y = area.pdf(ctx_y, wi_y, light_point);
-              jacobian = reconnection_jacobian(ctx.p, o.hit.p, ls->p_light, ls->n_light);
-              target_y = geometry.offset_origin(ls->p_light, ls->n_light, -wi_y);
-            }
-            const Vec3f wi_y_local = frame_y[side].to_local(wi_y);
-            const float f_y = eval(b, wo_y[side], wi_y_local)[0] * abs_cos_theta(wi_y_local);
-            if (!(f_y > 0) || !(le_y > 0)) return {true, 0.0f, 0.0f};
-            const float p_y = pdf(b, wo_y[side], wi_y_local)[0];
-            Shadow s_y = shadow_ray(geometry.offset_origin(o.hit.p, o.hit.ng, wi_y), wi_y,
-                                    target_y, to_infinity, o.medium, o.lambda, 1);
-            const float p_light_y =
-                scene_.light_sampler().pmf(o.hit.p, o.lambda, choice->light) * solid_angle_pdf_y;
-            const float denominator_y = p_light_y + (ls->delta ? 0.0f : p_y * s_y.pass[0]);
+            DivergedNee n = tracer.diverged_nee(o, b, y.frame, y.wo, choice->light, *ls, ctx.p,
+                                                to_point(light_u), choice_u.u1);
+            if (!n.valid) return {};
+            if (!(n.f > 0) || !(n.le > 0)) return {true, 0.0f, 0.0f};
+            const float denominator_y = n.p_light + (ls->delta ? 0.0f : n.p_bsdf * n.pass);
             return {true,
-                    scale * o.beta * f_y * le_y * s_y.transmittance[0] * jacobian /
-                        denominator_x,
-                    o.rho * denominator_y * jacobian / denominator_x};
+                    scale * o.beta * n.f * n.le * n.transmittance * n.jacobian / denominator_x,
+                    o.rho * denominator_y * n.jacobian / denominator_x};
           });
         }
       }
     }
 
     const Point2 lobe_and_roulette = sampler.at2(dim + kScatterLobe);
-    auto bs = sample(*bsdf, wo, lobe_and_roulette.u0, to_point(sampler.at2(dim + kScatterDirection)));
+    auto bs =
+        sample(*bsdf, wo, lobe_and_roulette.u0, to_point(sampler.at2(dim + kScatterDirection)));
     if (!bs || !(bs->pdf[0] > 0)) break;
     const float p_x = bs->pdf[0];
     const Vec3f wi = frame.from_local(bs->wi);
     const int medium_before = medium;
-    base_event.scatter = {wo, bs->wi, bs->transmission, bs->specular, relative_eta(*bsdf)};
+    base_event.scatter = {wo, bs->wi, bs->transmission, bs->specular,
+                          gradient::relative_eta(*bsdf)};
     base_event.position = hit->p;
     base_event.pdf = p_x;
-    for (int side = 0; side < 2; ++side) {
-      Offset& o = offsets[side];
-      if (!o.live()) continue;
-      if (o.state == OffsetState::kDiverged) {
-        o.pending = true;
-        event_pending = true;
-        continue;
-      }
-      const Bsdf& b = *bsdf_y[side];
-      if (o.state == OffsetState::kSame && kind.dispersive && bs->transmission) {
-        // The first wavelength-dependent vertex: copy the half-vector (the event for a smooth
-        // one) with the offset's own η, and leave the base.
-        auto shift = shift_direction(base_event.scatter, wo, relative_eta(b));
-        if (!shift) {
-          fail(o);
-          continue;
-        }
-        EventValue v = event_value(b, wo, shift->wi, true);
-        if (!(v.pdf > 0)) {
-          fail(o);
-          continue;
-        }
-        take_step(o, v, shift->jacobian, p_x, ctx);
-        const Vec3f dir = frame.from_local(shift->wi);
-        o.state = OffsetState::kDiverged;
-        o.direction = dir;
-        o.medium = medium_before;
-        if (info->medium_transition) {
-          o.medium = dot(dir, hit->ng) < 0 ? info->medium_inside : info->medium_outside;
-        }
-        trace_own(o, {geometry.offset_origin(hit->p, hit->ng, dir), dir});
-        continue;
-      }
-      // The base's direction (J = 1): nothing about it depends on λ here, or the offset has
-      // just reconnected to this (connectable) vertex.
-      EventValue v = event_value(b, wo_y[side], bs->wi, bs->transmission);
-      take_step(o, v, 1.0f, p_x, ctx);
-      o.state = OffsetState::kSame;
+    {
+      gradient::OffsetStep& step = record();
+      step.kind = StepKind::kScatter;
+      step.p_x = p_x;
+      step.ctx = ctx;
+      step.hit = *hit;
+      step.base = base_event;
+      step.vertex_kind = kind;
+      step.material = material;
+      step.info = info;
+      step.frame = frame;
+      step.wo = wo;
+      step.medium_before = medium_before;
+      step.medium_after = bs->transmission && info->medium_transition
+                              ? (dot(wi, hit->ng) < 0 ? info->medium_inside : info->medium_outside)
+                              : medium;
+      resolve_due = true;
     }
     prev_ctx = ctx;
     prev_specular = bs->specular;
@@ -781,9 +524,6 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         medium = dot(wi, hit->ng) < 0 ? info->medium_inside : info->medium_outside;
       }
     }
-    for (Offset& o : offsets) {
-      if (o.state == OffsetState::kSame) o.medium = medium;
-    }
     ray = {geometry.offset_origin(hit->p, hit->ng, wi), wi};
     ++depth;
     crossings = 0;
@@ -795,7 +535,9 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         if (lobe_and_roulette.u1 < q) break;
         beta /= 1.0f - q;
         survival *= 1.0f - q;
-        for (Offset& o : offsets) o.beta /= 1.0f - q;
+        gradient::OffsetStep& step = record();
+        step.kind = StepKind::kRoulette;
+        step.survival = 1.0f - q;
       }
     }
   }

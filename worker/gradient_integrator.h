@@ -10,7 +10,8 @@
 // sum runs over the techniques (NEE, BSDF sampling) that could have produced the last vertex.
 // The pair (x̄, y) can be produced by either technique from either wavelength, so the symmetric
 // weight is one balance heuristic over all four (as Mitsuba's gradient-domain path tracer does):
-//     w₊ = Σ_t p_t(x̄,λ) / (Σ_t p_t(x̄,λ) + Σ_t p_t(y₊,λ+δ)·|J₊|),   c₊ = f(y₊,λ+δ)·|J₊| / Σ_t p_t(x̄,λ),
+//     w₊ = Σ_t p_t(x̄,λ) / (Σ_t p_t(x̄,λ) + Σ_t p_t(y₊,λ+δ)·|J₊|),
+//     c₊ = f(y₊,λ+δ)·|J₊| / Σ_t p_t(x̄,λ),
 // p(·,λ) including the wavelength density p(λ) of `lambda_pdf` at the base's and at the offset's
 // wavelength. Accumulation per event (§5): shifted, G[i] += w₊(c₊ − c), G[i−k] += w₋(c − c₋);
 // unshifted, G[i] −= c, G[i−k] += c. An event is shifted on one side when the mapping succeeds
@@ -19,13 +20,20 @@
 // events that carry base light need offsets; the pairs whose base carries none are estimated by
 // standard sampling from the other wavelength, whose unshifted rule adds exactly that term.
 //
+// Laziness. The offsets follow the base through a log of the base's steps and catch up only
+// when an event passes c > τ (or the log fills), so with τ > 0 an event below the threshold
+// costs no offset rays at all, and steps after a path's last such event are never followed.
+// Catching up applies exactly the steps eager following would, so the output does not depend on
+// it.
+//
 // Roulette. Contributions divide by the base's survival probabilities (they are part of the
 // base's true density, so c₊ = f(y)|J|/p(x̄) divides by them too), but the MIS weights and the
 // threshold use roulette-free densities: any pair of positive functions that both sides of a
 // pair compute identically gives weights that sum to 1, and the offset's own roulette would
 // depend on a throughput the base cannot know.
 //
-// The shift (gradient_shift.h for the local mappings), per offset state:
+// The shift (gradient_shift.h: the local mappings; gradient_offset.h: the offsets' own
+// steps), per offset state:
 //  - same: the offset is at the base's vertex with the base's incoming direction. It copies the
 //    sampled direction (J = 1) at every vertex whose sampling does not depend on λ (diffuse,
 //    conductors, non-dispersive dielectrics, medium scattering, and reflection off a dispersive
@@ -43,6 +51,14 @@
 //  - reconnected: at the base's vertex with its own incoming direction: NEE and the next
 //    direction are the base's (J = 1), evaluated with its own ω_o; then same again.
 //  - failed: every later event is unshifted.
+// The shift fails (offset contribution 0, base weight 1, i.e. the unshifted rule) on: total
+// internal reflection of the offset where the base refracted; a copied half-vector the offset
+// sees from the wrong side, or a direction on the wrong side of the surface for the event; an
+// offset vertex of another kind than the base's, or an offset ray that escapes while the base
+// scatters again; a blocked reconnection, or one arriving on the other side of the target; a
+// diverged offset meeting a scattering medium or an emitting interface; an event value of 0
+// probability at λ'. Each of these decisions depends only on the pair (x̄, y), so the reverse
+// shift from y fails exactly when the forward one does, which the symmetric weights need.
 // Media: an offset at the base's position keeps the base's distances and directions and
 // evaluates σ, transmittance and free-flight densities at λ' (Henyey–Greenstein does not depend
 // on λ). A diverged offset crosses absorbing media on its own; meeting a scattering medium while
@@ -78,8 +94,8 @@ class GradientIntegrator {
   // from `lambda_pdf` (lane 0 of sample_lanes(u, 1)) and the offsets' densities are that same
   // distribution's pdf at λ ± δ. Pure function of its arguments; never allocates.
   GradientSample trace(int px, int py, std::uint32_t pass, std::uint32_t sample_index,
-                       const spectral::WavelengthDistribution& lambda_pdf,
-                       TraceCounters& counters, GuideValues* guides = nullptr) const;
+                       const spectral::WavelengthDistribution& lambda_pdf, TraceCounters& counters,
+                       GuideValues* guides = nullptr) const;
 
  private:
   const RenderScene& scene_;

@@ -9,7 +9,9 @@ namespace {
 
 // The relative index crossed by a refraction leaving from wo's side (the BSDFs' convention:
 // eta is inside over outside, the normal points outside).
-float crossed_eta(const Vec3f& wo, float eta) { return wo.z > 0 ? eta : 1.0f / eta; }
+float crossed_eta(const Vec3f& wo, float eta) {
+  return wo.z > 0 ? eta : 1.0f / eta;
+}
 
 // The solid-angle density ratio dω_i/dω_h of a refraction about h (Walter et al. 2007 Eq. 16
 // inverted), in the relative index etap of wi's side over wo's side.
@@ -22,8 +24,8 @@ float refraction_dwi_dwh(const Vec3f& wo, const Vec3f& wi, const Vec3f& h, float
 
 std::optional<Vec3f> generalized_half_vector(const BaseScatter& base) {
   if (base.smooth) return Vec3f(0, 0, 1);
-  Vec3f h = base.transmission ? base.wo + base.wi * crossed_eta(base.wo, base.eta)
-                              : base.wo + base.wi;
+  Vec3f h =
+      base.transmission ? base.wo + base.wi * crossed_eta(base.wo, base.eta) : base.wo + base.wi;
   float len2 = length_squared(h);
   if (!(len2 > 0) || !std::isfinite(len2)) return std::nullopt;
   h = face_forward(h / std::sqrt(len2), Vec3f(0, 0, 1));

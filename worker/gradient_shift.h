@@ -15,7 +15,8 @@
 // over ω_o's side) h = normalize(ω_o + η·ω_i), oriented to +z. The offset keeps h and
 // reflects or refracts its own ω_o' with its own η'. Jacobians:
 //   reflection  dω_i'/dω_i = |ω_o'·h| / |ω_o·h|                    (dω_i/dω_h = 4|ω_o·h|)
-//   refraction  dω_i'/dω_i = (η/η')² · |ω_i·h| / |ω_i'·h| · ((ω_o'·h + η'ω_i'·h) / (ω_o·h + η ω_i·h))²
+//   refraction  dω_i'/dω_i = (η/η')² · |ω_i·h| / |ω_i'·h|
+//                             · ((ω_o'·h + η'·ω_i'·h) / (ω_o·h + η·ω_i·h))²
 // the second being paper Eq. 13 (dω_i/dω_h = (ω_o·h + η ω_i·h)² / (η²|ω_i·h|), Walter et al.
 // 2007 Eq. 16). Both are exact inverses of the same shift run backwards (λ' → λ), which the tests
 // check together with finite differences of the mapping itself.
@@ -32,8 +33,8 @@
 namespace prism::worker {
 
 struct DirectionShift {
-  Vec3f wi;              // the offset's new direction, local frame, unit length
-  float jacobian = 1.0f; // dω_i'/dω_i (1 for smooth vertices)
+  Vec3f wi;               // the offset's new direction, local frame, unit length
+  float jacobian = 1.0f;  // dω_i'/dω_i (1 for smooth vertices)
 };
 
 // What the base did at a vertex, in its local frame: its incoming direction wo (pointing away

@@ -44,6 +44,11 @@ struct TraceCounters {
   std::uint64_t gradient_shifts = 0;
   std::uint64_t gradient_shifts_failed = 0;
   std::uint64_t gradient_shifts_wasted = 0;
+  // How the offsets moved on the steps that events used (offsets follow lazily): left the base
+  // at a dispersive vertex, reconnected to it, and left it again after a reconnection.
+  std::uint64_t gradient_divergences = 0;
+  std::uint64_t gradient_reconnections = 0;
+  std::uint64_t gradient_repeated_divergences = 0;
 
   TraceCounters& operator+=(const TraceCounters& o) {
     camera_rays += o.camera_rays;
@@ -55,6 +60,9 @@ struct TraceCounters {
     gradient_shifts += o.gradient_shifts;
     gradient_shifts_failed += o.gradient_shifts_failed;
     gradient_shifts_wasted += o.gradient_shifts_wasted;
+    gradient_divergences += o.gradient_divergences;
+    gradient_reconnections += o.gradient_reconnections;
+    gradient_repeated_divergences += o.gradient_repeated_divergences;
     return *this;
   }
 };

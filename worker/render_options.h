@@ -66,8 +66,9 @@ struct RenderOptions {
   int max_depth = 5;        // path vertices after the camera; 0 renders only direct emission
   int rr_min_depth = 3;     // Russian roulette from this depth on
   std::uint64_t seed = 0;
-  // Gradient sampling (§5): the spectral offset k in bins (1 <= k < bins; see
-  // gradient_offset_bins below) and the shift threshold τ >= 0 (paper Eq. 16, made symmetric).
+  // Gradient sampling (§5): the spectral offset k in bins and the shift threshold τ >= 0 (paper
+  // Eq. 16, made symmetric). Whoever builds the options snaps k with gradient_offset_bins below;
+  // the gradient integrator checks 1 <= k < bins as an invariant.
   int gradient_offset_bins = 10;
   float gradient_tau = 0;
 
