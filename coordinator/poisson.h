@@ -88,7 +88,7 @@ class PoissonSolver {
 
   bool solve_l2_one(const float* primal, const float* gradient, float* out,
                     double* scratch) const;
-  bool solve_l2_batch8(const float* primal, const float* gradient, float* out, double* z,
+  bool solve_l2_batch(const float* primal, const float* gradient, float* out, double* z,
                        float* t) const;
   void solve_l1_pixel(const float* primal, const float* gradient, float* out,
                       double* scratch) const;
@@ -106,6 +106,8 @@ class PoissonSolver {
   std::vector<double> rho_pow_;
   double inv_one_minus_rho_l_ = 0;
   double q_ = 0;
+  // Whether the batched path may use AVX2 (same results, wider registers).
+  bool use_avx2_ = false;
 };
 
 // Reconstructs a whole image: `primal` and `gradient` must have the same width, height and

@@ -125,14 +125,14 @@ TEST(PoissonSolver, MatchesDftOracle) {
   EXPECT_GT(cases, 300);
 }
 
-// The batched path (8 pixels at a time, then single pixels) gives the same bits as one pixel
+// The batched path (16 pixels at a time, then single pixels) gives the same bits as one pixel
 // at a time, so tiles and rows can be solved independently.
 TEST(PoissonSolver, BatchedEqualsPerPixel) {
   std::mt19937_64 rng(7);
   for (int bins : {15, 64}) {
     auto solver = PoissonSolver::create(bins, static_cast<int>(std::lround(0.15 * bins)), 0.2);
     ASSERT_TRUE(solver.ok());
-    const int pixels = 19;  // two batches and a tail of three
+    const int pixels = 35;  // two batches and a tail of three
     const std::vector<float> primal = random_values(rng, pixels * bins, 0.0f, 4.0f);
     const std::vector<float> gradient = random_values(rng, pixels * bins, -2.0f, 2.0f);
     for (PoissonNorm norm : {PoissonNorm::kL2, PoissonNorm::kL1}) {
@@ -321,11 +321,11 @@ TEST(PoissonSolver, RefusesBadInput) {
     EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
     EXPECT_NE(s.message().find("gradient[3] = -inf"), std::string::npos) << s;
 
-    // Pixel 9 of 12: inside the second batch of the L2 path.
-    std::vector<float> many(12 * 16, 1.0f), many_g(12 * 16, 0.0f), many_out(12 * 16);
-    many_g[9 * 16 + 7] = std::numeric_limits<float>::infinity();
+    // Pixel 21 of 40: inside the second batch of the L2 path.
+    std::vector<float> many(40 * 16, 1.0f), many_g(40 * 16, 0.0f), many_out(40 * 16);
+    many_g[21 * 16 + 7] = std::numeric_limits<float>::infinity();
     s = solver->solve_pixels(norm, many, many_g, many_out);
-    EXPECT_NE(s.message().find("pixel 9 gradient[7] = inf"), std::string::npos) << s;
+    EXPECT_NE(s.message().find("pixel 21 gradient[7] = inf"), std::string::npos) << s;
 
     // Finite input whose reconstruction exceeds the float range: the mean stays at the
     // primal's 3.4e38 (sum preservation) while the gradients along the chain (b = 3j mod 16)
