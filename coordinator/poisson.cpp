@@ -140,7 +140,9 @@ void to_pixel_major(const float* t, int B, float* out) {
   }
 }
 
-bool finite(float v) { return std::isfinite(v); }
+bool finite(float v) {
+  return std::isfinite(v);
+}
 
 // Defined with the batch kernels below.
 bool cpu_has_avx2();
@@ -181,10 +183,9 @@ absl::Status fault_status(const Fault& fault, const std::string& pixel) {
     return absl::OutOfRangeError(absl::StrCat("Poisson reconstruction of pixel ", pixel,
                                               " overflows float in bin ", fault.bin));
   }
-  return absl::InvalidArgumentError(absl::StrCat("Poisson reconstruction: pixel ", pixel, " ",
-                                                 fault.what, "[", fault.bin,
-                                                 "] = ", describe(fault.value),
-                                                 "; non-finite input is refused"));
+  return absl::InvalidArgumentError(
+      absl::StrCat("Poisson reconstruction: pixel ", pixel, " ", fault.what, "[", fault.bin,
+                   "] = ", describe(fault.value), "; non-finite input is refused"));
 }
 
 // Solves the symmetric cyclic tridiagonal system of one IRLS chain in place of `x`:
@@ -250,13 +251,14 @@ absl::Status check_one_pixel(int bins, std::span<const float> primal,
 
 }  // namespace
 
-std::string_view to_string(PoissonNorm norm) { return norm == PoissonNorm::kL1 ? "l1" : "l2"; }
+std::string_view to_string(PoissonNorm norm) {
+  return norm == PoissonNorm::kL1 ? "l1" : "l2";
+}
 
 absl::StatusOr<PoissonNorm> parse_poisson_norm(const std::string& text) {
   if (text == "l2") return PoissonNorm::kL2;
   if (text == "l1") return PoissonNorm::kL1;
-  return absl::InvalidArgumentError(
-      absl::StrCat("Poisson norm '", text, "': want l2 or l1"));
+  return absl::InvalidArgumentError(absl::StrCat("Poisson norm '", text, "': want l2 or l1"));
 }
 
 // The L2 factorisation. Along a chain (x_j = Î[b_j], b_j = c + j·k mod B) the system is
@@ -278,8 +280,8 @@ absl::StatusOr<PoissonNorm> parse_poisson_norm(const std::string& text) {
 // both tiny and large α.
 absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, double alpha) {
   if (bins < 4 || bins > image::kMaxBins) {
-    return absl::InvalidArgumentError(absl::StrCat("Poisson reconstruction: bins = ", bins,
-                                                   "; want 4..", image::kMaxBins));
+    return absl::InvalidArgumentError(
+        absl::StrCat("Poisson reconstruction: bins = ", bins, "; want 4..", image::kMaxBins));
   }
   if (offset_bins < 1 || offset_bins >= bins) {
     return absl::InvalidArgumentError(
@@ -287,9 +289,9 @@ absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, d
                      " bins; want 1 <= k < ", bins, " (the number of bins)"));
   }
   if (!std::isfinite(alpha) || alpha < kMinPoissonAlpha || alpha > kMaxPoissonAlpha) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "Poisson reconstruction: alpha = ", alpha, "; want a finite value in [",
-        kMinPoissonAlpha, ", ", kMaxPoissonAlpha, "] (alpha must be > 0)"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("Poisson reconstruction: alpha = ", alpha, "; want a finite value in [",
+                     kMinPoissonAlpha, ", ", kMaxPoissonAlpha, "] (alpha must be > 0)"));
   }
   PoissonSolver s;
   s.bins_ = bins;
@@ -380,9 +382,10 @@ namespace {
 // caller, so the AVX2 caller compiles it with 256-bit registers.
 template <int W>
 [[gnu::always_inline]] inline bool batch_kernel(const int* order_all, const double* pw, int chains,
-                                          int B, int L, double a, double rho, double inv,
-                                          double q, const float* primal, const float* gradient,
-                                          float* out, double* z, float* t) {
+                                                int B, int L, double a, double rho, double inv,
+                                                double q, const float* primal,
+                                                const float* gradient, float* out, double* z,
+                                                float* t) {
   using V = Lanes<W>;
   using D = typename V::D;
   using F = typename V::F;
@@ -437,9 +440,9 @@ template <int W>
   return all == 0;
 }
 
-bool batch_sse2(const int* order, const double* pw, int chains, int B, int L, double a,
-                 double rho, double inv, double q, const float* primal, const float* gradient,
-                 float* out, double* z, float* t) {
+bool batch_sse2(const int* order, const double* pw, int chains, int B, int L, double a, double rho,
+                double inv, double q, const float* primal, const float* gradient, float* out,
+                double* z, float* t) {
   return batch_kernel<2>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
 }
 
@@ -447,25 +450,29 @@ bool batch_sse2(const int* order, const double* pw, int chains, int B, int L, do
 // AVX2 without FMA: the same IEEE operations in the same order, four lanes per register, so
 // the bits do not depend on which version runs (no fused multiply-add is available to it).
 [[gnu::target("avx2")]] bool batch_avx2(const int* order, const double* pw, int chains, int B,
-                                         int L, double a, double rho, double inv, double q,
-                                         const float* primal, const float* gradient, float* out,
-                                         double* z, float* t) {
+                                        int L, double a, double rho, double inv, double q,
+                                        const float* primal, const float* gradient, float* out,
+                                        double* z, float* t) {
   return batch_kernel<4>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
 }
-bool cpu_has_avx2() { return __builtin_cpu_supports("avx2"); }
+bool cpu_has_avx2() {
+  return __builtin_cpu_supports("avx2");
+}
 #else
-bool batch_avx2(const int* order, const double* pw, int chains, int B, int L, double a,
-                 double rho, double inv, double q, const float* primal, const float* gradient,
-                 float* out, double* z, float* t) {
+bool batch_avx2(const int* order, const double* pw, int chains, int B, int L, double a, double rho,
+                double inv, double q, const float* primal, const float* gradient, float* out,
+                double* z, float* t) {
   return batch_kernel<2>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
 }
-bool cpu_has_avx2() { return false; }
+bool cpu_has_avx2() {
+  return false;
+}
 #endif
 
 }  // namespace
 
 bool PoissonSolver::solve_l2_batch(const float* primal, const float* gradient, float* out,
-                                    double* z, float* t) const {
+                                   double* z, float* t) const {
   auto* run = use_avx2_ ? batch_avx2 : batch_sse2;
   return run(order_.data(), rho_pow_.data(), chains_, bins_, length_, alpha_, rho_,
              inv_one_minus_rho_l_, q_, primal, gradient, out, z, t);
@@ -476,8 +483,8 @@ void PoissonSolver::solve_l1_pixel(const float* primal, const float* gradient, f
                                    double* scratch) const {
   const int B = bins_;
   const int L = length_;
-  double* x_all = scratch;         // B: every chain's solution, chain order
-  double* iv = scratch + B;        // L each below
+  double* x_all = scratch;   // B: every chain's solution, chain order
+  double* iv = scratch + B;  // L each below
   double* gv = iv + L;
   double* w = gv + L;
   double* rhs = w + L;
@@ -496,9 +503,7 @@ void PoissonSolver::solve_l1_pixel(const float* primal, const float* gradient, f
       rhs[j] = alpha_ * iv[j] + w[jp] * gv[jp] - w[j] * gv[j];
     }
   };
-  auto residual = [&](const double* x, int j) {
-    return x[j == L - 1 ? 0 : j + 1] - x[j] - gv[j];
-  };
+  auto residual = [&](const double* x, int j) { return x[j == L - 1 ? 0 : j + 1] - x[j] - gv[j]; };
   // The L2 start (all weights 1) and σ, the mean absolute gradient residual of the pixel.
   double sigma = 0;
   for (int c = 0; c < chains_; ++c) {
@@ -531,8 +536,7 @@ void PoissonSolver::solve_l1_pixel(const float* primal, const float* gradient, f
   }
 }
 
-absl::Status PoissonSolver::solve_l2(std::span<const float> primal,
-                                     std::span<const float> gradient,
+absl::Status PoissonSolver::solve_l2(std::span<const float> primal, std::span<const float> gradient,
                                      std::span<float> out) const {
   PRISM_RETURN_IF_ERROR(check_one_pixel(bins_, primal, gradient, out));
   // 2·kMaxBins doubles at most (64 KiB); this path allocates nothing.
@@ -543,26 +547,24 @@ absl::Status PoissonSolver::solve_l2(std::span<const float> primal,
   return fault_status(locate_fault(primal, gradient, out, bins_, 0, 1), "0");
 }
 
-absl::Status PoissonSolver::solve_l1(std::span<const float> primal,
-                                     std::span<const float> gradient,
+absl::Status PoissonSolver::solve_l1(std::span<const float> primal, std::span<const float> gradient,
                                      std::span<float> out) const {
   PRISM_RETURN_IF_ERROR(check_one_pixel(bins_, primal, gradient, out));
   return solve_pixels(PoissonNorm::kL1, primal, gradient, out);
 }
 
 absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float> primal,
-                                         std::span<const float> gradient,
-                                         std::span<float> out, int image_row) const {
+                                         std::span<const float> gradient, std::span<float> out,
+                                         int image_row) const {
   const std::size_t B = static_cast<std::size_t>(bins_);
   if (primal.size() != gradient.size() || primal.size() != out.size() || primal.size() % B != 0) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "Poisson reconstruction: primal, gradient and output have ", primal.size(), ", ",
-        gradient.size(), " and ", out.size(), " values; want the same multiple of ", bins_,
-        " (the bins)"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("Poisson reconstruction: primal, gradient and output have ", primal.size(),
+                     ", ", gradient.size(), " and ", out.size(),
+                     " values; want the same multiple of ", bins_, " (the bins)"));
   }
   const std::int64_t pixels = static_cast<std::int64_t>(primal.size() / B);
-  std::vector<double> scratch(norm == PoissonNorm::kL2 ? std::size_t(kBatch) * length_ + B
-                                                      : 8 * B);
+  std::vector<double> scratch(norm == PoissonNorm::kL2 ? std::size_t(kBatch) * length_ + B : 8 * B);
   std::vector<float> t_buffer(norm == PoissonNorm::kL2 ? 3 * std::size_t(kBatch) * B : 0);
   std::int64_t p = 0;
   auto fail = [&](std::int64_t count) {
@@ -574,15 +576,14 @@ absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float
   if (norm == PoissonNorm::kL2) {
     for (; p + kBatch <= pixels; p += kBatch) {
       const std::size_t o = static_cast<std::size_t>(p) * B;
-      if (!solve_l2_batch(primal.data() + o, gradient.data() + o, out.data() + o,
-                           scratch.data(), t_buffer.data())) {
+      if (!solve_l2_batch(primal.data() + o, gradient.data() + o, out.data() + o, scratch.data(),
+                          t_buffer.data())) {
         return fail(kBatch);
       }
     }
     for (; p < pixels; ++p) {
       const std::size_t o = static_cast<std::size_t>(p) * B;
-      if (!solve_l2_one(primal.data() + o, gradient.data() + o, out.data() + o,
-                        scratch.data())) {
+      if (!solve_l2_one(primal.data() + o, gradient.data() + o, out.data() + o, scratch.data())) {
         return fail(1);
       }
     }
@@ -608,30 +609,30 @@ absl::StatusOr<image::SpectralImage> reconstruct_image(const PoissonSolver& solv
                                                        const image::SpectralImage& gradient) {
   if (primal.width() != gradient.width() || primal.height() != gradient.height() ||
       primal.bins() != gradient.bins()) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "Poisson reconstruction: primal is ", primal.width(), "x", primal.height(), " with ",
-        primal.bins(), " bins but gradient is ", gradient.width(), "x", gradient.height(),
-        " with ", gradient.bins(), " bins"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("Poisson reconstruction: primal is ", primal.width(), "x", primal.height(),
+                     " with ", primal.bins(), " bins but gradient is ", gradient.width(), "x",
+                     gradient.height(), " with ", gradient.bins(), " bins"));
   }
   if (primal.bins() != solver.bins()) {
     return absl::InvalidArgumentError(
         absl::StrCat("Poisson reconstruction: the images have ", primal.bins(),
                      " bins but the solver was built for ", solver.bins()));
   }
-  PRISM_ASSIGN_OR_RETURN(image::SpectralImage out,
-                         image::SpectralImage::create(primal.width(), primal.height(),
-                                                      primal.bins()));
+  PRISM_ASSIGN_OR_RETURN(
+      image::SpectralImage out,
+      image::SpectralImage::create(primal.width(), primal.height(), primal.bins()));
   const std::size_t row = static_cast<std::size_t>(primal.width()) * primal.bins();
   std::vector<absl::Status> row_status(primal.height());
-  tbb::parallel_for(tbb::blocked_range<int>(0, primal.height()),
-                    [&](const tbb::blocked_range<int>& rows) {
-                      for (int y = rows.begin(); y < rows.end(); ++y) {
-                        const std::size_t o = static_cast<std::size_t>(y) * row;
-                        row_status[y] = solver.solve_pixels(norm, primal.data().subspan(o, row),
-                                                            gradient.data().subspan(o, row),
-                                                            out.data().subspan(o, row), y);
-                      }
-                    });
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, primal.height()), [&](const tbb::blocked_range<int>& rows) {
+        for (int y = rows.begin(); y < rows.end(); ++y) {
+          const std::size_t o = static_cast<std::size_t>(y) * row;
+          row_status[y] =
+              solver.solve_pixels(norm, primal.data().subspan(o, row),
+                                  gradient.data().subspan(o, row), out.data().subspan(o, row), y);
+        }
+      });
   // The first failing row in raster order, so the message does not depend on scheduling.
   for (const absl::Status& status : row_status) {
     if (!status.ok()) return status;

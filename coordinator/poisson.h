@@ -86,10 +86,9 @@ class PoissonSolver {
  private:
   PoissonSolver() = default;
 
-  bool solve_l2_one(const float* primal, const float* gradient, float* out,
-                    double* scratch) const;
+  bool solve_l2_one(const float* primal, const float* gradient, float* out, double* scratch) const;
   bool solve_l2_batch(const float* primal, const float* gradient, float* out, double* z,
-                       float* t) const;
+                      float* t) const;
   void solve_l1_pixel(const float* primal, const float* gradient, float* out,
                       double* scratch) const;
 

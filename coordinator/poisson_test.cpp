@@ -22,8 +22,8 @@ using Complex = std::complex<long double>;
 //   Î^[j] = (α·I^[j] + conj(d_j)·G^[j]) / (α + |d_j|²).
 // Evaluated by a direct O(B²) DFT in long double with exactly reduced twiddle angles
 // (j·b mod B), so its own error (~B·2^-64·κ) is far below the solver's.
-std::vector<long double> oracle(const std::vector<float>& primal, const std::vector<float>& gradient,
-                                int k, double alpha) {
+std::vector<long double> oracle(const std::vector<float>& primal,
+                                const std::vector<float>& gradient, int k, double alpha) {
   const int B = static_cast<int>(primal.size());
   auto twiddle = [B](long long m, int sign) {
     const long double angle = sign * 2.0L * std::numbers::pi_v<long double> * (m % B) / B;
@@ -142,9 +142,8 @@ TEST(PoissonSolver, BatchedEqualsPerPixel) {
         std::vector<float> single(bins);
         const auto in = std::span(primal).subspan(p * bins, bins);
         const auto grad = std::span(gradient).subspan(p * bins, bins);
-        const absl::Status status = norm == PoissonNorm::kL2
-                                        ? solver->solve_l2(in, grad, single)
-                                        : solver->solve_l1(in, grad, single);
+        const absl::Status status = norm == PoissonNorm::kL2 ? solver->solve_l2(in, grad, single)
+                                                             : solver->solve_l1(in, grad, single);
         ASSERT_TRUE(status.ok());
         for (int b = 0; b < bins; ++b) {
           EXPECT_EQ(batched[p * bins + b], single[b]) << "pixel " << p << " bin " << b;
@@ -353,8 +352,8 @@ TEST(PoissonImage, MatchesPerPixelAndNamesBadPixels) {
     for (int y = 0; y < h; ++y) {
       for (int x = 0; x < w; ++x) {
         std::vector<float> single(bins);
-        ASSERT_TRUE(solver->solve_pixels(norm, primal->pixel(x, y), gradient->pixel(x, y), single)
-                        .ok());
+        ASSERT_TRUE(
+            solver->solve_pixels(norm, primal->pixel(x, y), gradient->pixel(x, y), single).ok());
         for (int b = 0; b < bins; ++b) ASSERT_EQ(out->value(x, y, b), single[b]);
       }
     }
