@@ -53,18 +53,28 @@ inline constexpr double kDefaultPoissonAlpha = 0.2;
 // Fixed IRLS iteration count of the L1 solve (after the L2 start).
 inline constexpr int kIrlsIterations = 12;
 
+// Which SIMD code the batched L2 path runs. Every kernel performs the same IEEE operations in the
+// same order (poisson.cpp is compiled without FMA contraction), so they give identical bits;
+// the choice only changes speed. kAuto takes the widest the CPU supports; asking for one the
+// CPU lacks falls back to the next narrower (kSse2 is plain vector code and runs everywhere).
+enum class PoissonKernel { kAuto, kSse2, kAvx2, kAvx512 };
+std::string_view to_string(PoissonKernel kernel);
+
 // The solver for one (B, k, α): immutable once built, shared freely between threads.
 class PoissonSolver {
  public:
   // INVALID_ARGUMENT naming the value unless 4 <= bins <= image::kMaxBins,
   // 1 <= offset_bins < bins and α is finite and in [kMinPoissonAlpha, kMaxPoissonAlpha].
-  static absl::StatusOr<PoissonSolver> create(int bins, int offset_bins, double alpha);
+  static absl::StatusOr<PoissonSolver> create(int bins, int offset_bins, double alpha,
+                                              PoissonKernel kernel = PoissonKernel::kAuto);
 
   int bins() const { return bins_; }
   int offset_bins() const { return k_; }
   double alpha() const { return alpha_; }
   int chains() const { return chains_; }
   int chain_length() const { return length_; }
+  // The kernel in use (never kAuto).
+  PoissonKernel kernel() const { return kernel_; }
 
   // One pixel: `primal`, `gradient` and `out` each hold bins() values; `out` must not overlap
   // the inputs. INVALID_ARGUMENT on a size mismatch or non-finite input. No allocation.
@@ -105,8 +115,7 @@ class PoissonSolver {
   std::vector<double> rho_pow_;
   double inv_one_minus_rho_l_ = 0;
   double q_ = 0;
-  // Whether the batched path may use AVX2 (same results, wider registers).
-  bool use_avx2_ = false;
+  PoissonKernel kernel_ = PoissonKernel::kSse2;
 };
 
 // Reconstructs a whole image: `primal` and `gradient` must have the same width, height and

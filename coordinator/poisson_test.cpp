@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <complex>
+#include <iostream>
 #include <limits>
 #include <numbers>
 #include <numeric>
@@ -126,12 +127,24 @@ TEST(PoissonSolver, MatchesDftOracle) {
 }
 
 // The batched path (16 pixels at a time, then single pixels) gives the same bits as one pixel
-// at a time, so tiles and rows can be solved independently.
+// at a time, so tiles and rows can be solved independently, and so does every SIMD kernel the
+// CPU has (on a CPU without one, the fallback is tested twice).
 TEST(PoissonSolver, BatchedEqualsPerPixel) {
   std::mt19937_64 rng(7);
-  for (int bins : {15, 64}) {
-    auto solver = PoissonSolver::create(bins, static_cast<int>(std::lround(0.15 * bins)), 0.2);
+  for (auto [bins, kernel] : {std::pair{15, PoissonKernel::kAuto},
+                              {64, PoissonKernel::kAuto},
+                              {64, PoissonKernel::kSse2},
+                              {64, PoissonKernel::kAvx2},
+                              {100, PoissonKernel::kAvx512},
+                              {100, PoissonKernel::kSse2}}) {
+    auto solver =
+        PoissonSolver::create(bins, static_cast<int>(std::lround(0.15 * bins)), 0.2, kernel);
     ASSERT_TRUE(solver.ok());
+    EXPECT_NE(solver->kernel(), PoissonKernel::kAuto);
+    if (kernel != PoissonKernel::kAuto && solver->kernel() != kernel) {
+      std::cout << "kernel " << to_string(kernel) << " unavailable, tested "
+                << to_string(solver->kernel()) << "\n";
+    }
     const int pixels = 35;  // two batches and a tail of three
     const std::vector<float> primal = random_values(rng, pixels * bins, 0.0f, 4.0f);
     const std::vector<float> gradient = random_values(rng, pixels * bins, -2.0f, 2.0f);

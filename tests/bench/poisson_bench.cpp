@@ -12,6 +12,7 @@
 //
 // Usage: prism-bench-poisson [--resolution 1024x1024] [--bins 64,15] [--repeats 5]
 //          [--alpha 0.2] [--threads N (default: all hardware threads)] [--l1 on|off]
+//          [--kernel auto|sse2|avx2|avx512]
 #include <tbb/blocked_range.h>
 #include <tbb/info.h>
 #include <tbb/parallel_for.h>
@@ -62,8 +63,9 @@ struct Figures {
 };
 
 int run(int argc, char** argv) {
-  auto flags = parse_flags(argc, argv,
-                           {"--resolution", "--bins", "--repeats", "--alpha", "--threads", "--l1"});
+  auto flags = parse_flags(
+      argc, argv,
+      {"--resolution", "--bins", "--repeats", "--alpha", "--threads", "--l1", "--kernel"});
   if (!flags.ok()) {
     std::cerr << "prism-bench-poisson: " << flags.status().message() << "\n";
     return 1;
@@ -74,6 +76,12 @@ int run(int argc, char** argv) {
       flags->number("--alpha", 0.2, coordinator::kMinPoissonAlpha, coordinator::kMaxPoissonAlpha);
   auto threads = flags->number("--threads", tbb::info::default_concurrency(), 1, 1024);
   const bool time_l1 = flags->get("--l1", "on") != "off";
+  const std::string kernel_name = flags->get("--kernel", "auto");
+  coordinator::PoissonKernel kernel = coordinator::PoissonKernel::kAuto;
+  for (auto k : {coordinator::PoissonKernel::kSse2, coordinator::PoissonKernel::kAvx2,
+                 coordinator::PoissonKernel::kAvx512}) {
+    if (kernel_name == coordinator::to_string(k)) kernel = k;
+  }
   if (!size.ok() || !repeats.ok() || !alpha.ok() || !threads.ok()) {
     for (const absl::Status& s :
          {size.status(), repeats.status(), alpha.status(), threads.status()}) {
@@ -96,10 +104,13 @@ int run(int argc, char** argv) {
               "solve MB/s", "copy ms", "copy MB/s", "ratio", "L1 ms");
   for (int bins : bin_counts) {
     const int k = static_cast<int>(std::lround(0.15 * bins));
-    auto solver = coordinator::PoissonSolver::create(bins, k, *alpha);
+    auto solver = coordinator::PoissonSolver::create(bins, k, *alpha, kernel);
     if (!solver.ok()) {
       std::cerr << "prism-bench-poisson: " << solver.status().message() << "\n";
       return 1;
+    }
+    if (bins == bin_counts.front()) {
+      std::printf("(kernel %s)\n", std::string(coordinator::to_string(solver->kernel())).c_str());
     }
     const std::size_t n = static_cast<std::size_t>(pixels) * bins;
     const std::size_t row = static_cast<std::size_t>(width) * bins;
