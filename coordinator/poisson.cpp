@@ -30,9 +30,6 @@ constexpr int kPad = 24;
 // weights stay within [0, 1/kIrlsFloor] and every reweighted system stays well conditioned.
 constexpr double kIrlsFloor = 1e-3;
 
-// A batch's lanes, as compiler vector types (GCC/Clang): the compiler maps them
-// onto whatever SIMD the target has, and every lane is plain IEEE arithmetic, so the results
-// are the same bits as the scalar path's.
 template <typename V, typename T>
 V load(const T* p) {
   V v;
@@ -44,10 +41,13 @@ void store(T* p, const V& v) {
   std::memcpy(p, &v, sizeof v);
 }
 
+// A batch's lanes, as compiler vector types (GCC/Clang): the compiler maps them onto
+// whatever SIMD the target has, and every lane is plain IEEE arithmetic, so the results
+// are the same bits as the scalar path's.
 using F4 = float __attribute__((vector_size(16)));
 
-// W doubles per SIMD register: 2 for SSE2 (every x86-64), 4 for AVX2. The eight lanes of a
-// batch are N = kBatch/W registers. (GCC ignores vector_size on a dependent type, hence the
+// W doubles per SIMD register: 2 for SSE2 (every x86-64), 4 for AVX2, 8 for AVX-512. The
+// kBatch lanes of a batch are N = kBatch/W registers. (GCC ignores vector_size on a dependent type, hence the
 // explicit types.)
 using F2 = float __attribute__((vector_size(8)));
 using D2 = double __attribute__((vector_size(16)));

@@ -44,9 +44,10 @@ std::string_view to_string(PoissonNorm norm);
 // INVALID_ARGUMENT naming the text unless it is "l2" or "l1".
 absl::StatusOr<PoissonNorm> parse_poisson_norm(const std::string& text);
 
-// The screening weight α's accepted range. Below 1e-6 the system's condition number
-// (α + 4)/α exceeds 4e6 and double rounding would start to show in float results; above 1e6
-// Î equals I to within |G|/α anyway.
+// The screening weight α's accepted range. It bounds the condition number (α + 4)/α of the
+// system by 4e6, so the double solve's error (about κ·B·2⁻⁵³ relative) stays far below float
+// rounding and its intermediates (up to |r|/α) far from overflow. Beyond 1e6 the result is I to
+// within |G|/α; below 1e-6 only α holds the chain means and the system is nearly singular.
 inline constexpr double kMinPoissonAlpha = 1e-6;
 inline constexpr double kMaxPoissonAlpha = 1e6;
 inline constexpr double kDefaultPoissonAlpha = 0.2;
@@ -56,7 +57,7 @@ inline constexpr int kIrlsIterations = 12;
 // Which SIMD code the batched L2 path runs. Every kernel performs the same IEEE operations in the
 // same order (poisson.cpp is compiled without FMA contraction), so they give identical bits;
 // the choice only changes speed. kAuto takes the widest the CPU supports; asking for one the
-// CPU lacks falls back to the next narrower (kSse2 is plain vector code and runs everywhere).
+// CPU lacks gives kSse2 (generic two-lane vector code, which runs on any target).
 enum class PoissonKernel { kAuto, kSse2, kAvx2, kAvx512 };
 std::string_view to_string(PoissonKernel kernel);
 
