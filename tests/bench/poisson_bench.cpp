@@ -100,17 +100,14 @@ int run(int argc, char** argv) {
       "Poisson reconstruction (L2) vs memcpy, %dx%d, alpha %g, best of %d, threads 1 and "
       "%d\n",
       width, height, *alpha, static_cast<int>(*repeats), all_threads);
-  std::printf("%5s %3s %7s %10s %10s %10s %10s %7s %10s\n", "bins", "k", "threads", "solve ms",
-              "solve MB/s", "copy ms", "copy MB/s", "ratio", "L1 ms");
+  std::printf("%5s %3s %7s %7s %10s %10s %10s %10s %7s %10s\n", "bins", "k", "kernel", "threads",
+              "solve ms", "solve MB/s", "copy ms", "copy MB/s", "ratio", "L1 ms");
   for (int bins : bin_counts) {
     const int k = static_cast<int>(std::lround(0.15 * bins));
     auto solver = coordinator::PoissonSolver::create(bins, k, *alpha, kernel);
     if (!solver.ok()) {
       std::cerr << "prism-bench-poisson: " << solver.status().message() << "\n";
       return 1;
-    }
-    if (bins == bin_counts.front()) {
-      std::printf("(kernel %s)\n", std::string(coordinator::to_string(solver->kernel())).c_str());
     }
     const std::size_t n = static_cast<std::size_t>(pixels) * bins;
     const std::size_t row = static_cast<std::size_t>(width) * bins;
@@ -168,9 +165,10 @@ int run(int argc, char** argv) {
                   });
         });
       }
-      std::printf("%5d %3d %7d %10.1f %10.0f %10.1f %10.0f %7.2f %10s\n", bins, k, t, 1e3 * f.solve,
+      std::printf("%5d %3d %7s %7d %10.1f %10.0f %10.1f %10.0f %7.2f %10s\n", bins, k,
+                  std::string(coordinator::to_string(solver->kernel())).c_str(), t, 1e3 * f.solve,
                   input_mb / f.solve, 1e3 * f.copy, input_mb / f.copy, f.copy / f.solve,
-                  t == all_threads ? absl::StrFormat("%.0f", l1_ms).c_str() : "");
+                  t == all_threads && time_l1 ? absl::StrFormat("%.0f", l1_ms).c_str() : "");
       if (all_threads == 1) break;
     }
   }
