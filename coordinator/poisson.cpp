@@ -97,7 +97,7 @@ struct Lanes {
   }
 };
 
-void transpose4(F4& r0, F4& r1, F4& r2, F4& r3) {
+[[gnu::always_inline]] inline void transpose4(F4& r0, F4& r1, F4& r2, F4& r3) {
   const F4 t0 = __builtin_shufflevector(r0, r1, 0, 4, 1, 5);
   const F4 t1 = __builtin_shufflevector(r0, r1, 2, 6, 3, 7);
   const F4 t2 = __builtin_shufflevector(r2, r3, 0, 4, 1, 5);
@@ -110,7 +110,7 @@ void transpose4(F4& r0, F4& r1, F4& r2, F4& r3) {
 
 // kBatch pixels of B values, pixel-major (in[p·B + b]), to bin-major t[b·kBatch + p], by
 // 4x4 blocks.
-void to_bin_major(const float* in, int B, float* t) {
+[[gnu::always_inline]] inline void to_bin_major(const float* in, int B, float* t) {
   const int B4 = B & ~3;
   // One group of four pixels at a time, so the loads walk four contiguous rows (prefetch
   // friendly) rather than all kBatch rows at once.
@@ -133,7 +133,7 @@ void to_bin_major(const float* in, int B, float* t) {
 }
 
 // The inverse of to_bin_major.
-void to_pixel_major(const float* t, int B, float* out) {
+[[gnu::always_inline]] inline void to_pixel_major(const float* t, int B, float* out) {
   const int B4 = B & ~3;
   for (int g = 0; g < kBatch; g += 4) {
     for (int b = 0; b < B4; b += 4) {
