@@ -16,7 +16,9 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string quoted(const fs::path& path) { return absl::StrCat("'", path.string(), "'"); }
+std::string quoted(const fs::path& path) {
+  return absl::StrCat("'", path.string(), "'");
+}
 
 // Shortest decimal that reads back as the same double.
 std::string exact_decimal(double value) {
@@ -36,22 +38,22 @@ absl::Status check_prism_grid(const image::SpectralExr& exr, const std::string& 
   const std::vector<double> grid = image::bin_centres_nm(exr.spectral.bins());
   for (std::size_t b = 0; b < grid.size(); ++b) {
     if (std::abs(exr.wavelengths_nm[b] - grid[b]) > 1e-9 * grid[b]) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          role, " file ", quoted(path), ": channel ", b, " is at ", exr.wavelengths_nm[b],
-          " nm, not on Prism's grid of ", grid.size(), " bins over [360, 830] nm (", grid[b],
-          " nm)"));
+      return absl::InvalidArgumentError(
+          absl::StrCat(role, " file ", quoted(path), ": channel ", b, " is at ",
+                       exr.wavelengths_nm[b], " nm, not on Prism's grid of ", grid.size(),
+                       " bins over [360, 830] nm (", grid[b], " nm)"));
     }
   }
   return absl::OkStatus();
 }
 
-absl::StatusOr<int> offset_from_metadata(const image::SpectralExr& gradient,
-                                         const fs::path& path) {
+absl::StatusOr<int> offset_from_metadata(const image::SpectralExr& gradient, const fs::path& path) {
   const auto it = gradient.metadata.find(std::string(image::kMetaGradientOffsetBins));
   if (it == gradient.metadata.end()) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "gradient file ", quoted(path), " has no prism:", std::string(image::kMetaGradientOffsetBins),
-        " metadata; pass --offset-bins K (the gradient offset in bins)"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("gradient file ", quoted(path),
+                     " has no prism:", std::string(image::kMetaGradientOffsetBins),
+                     " metadata; pass --offset-bins K (the gradient offset in bins)"));
   }
   const std::string& text = it->second;
   int k = 0;
@@ -80,8 +82,8 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
     return absl::InvalidArgumentError(
         absl::StrCat("-o ", quoted(options.output), ": want an output path ending in .exr"));
   }
-  const fs::path out_dir = options.output.parent_path().empty() ? fs::path(".")
-                                                                : options.output.parent_path();
+  const fs::path out_dir =
+      options.output.parent_path().empty() ? fs::path(".") : options.output.parent_path();
   if (!fs::is_directory(out_dir)) {
     return absl::NotFoundError(absl::StrCat("-o ", quoted(options.output), ": directory ",
                                             quoted(out_dir), " does not exist"));
@@ -128,8 +130,8 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   }
   auto result = coordinator::reconstruct_image(*solver, norm, pi, gi);
   if (!result.ok()) {
-    return with_context(result.status(), absl::StrCat(quoted(options.primal), " and ",
-                                                      quoted(options.gradient)));
+    return with_context(result.status(),
+                        absl::StrCat(quoted(options.primal), " and ", quoted(options.gradient)));
   }
   auto rgb = coordinator::to_linear_srgb(*result, spectral::ColorMatching::cie1931());
   if (!rgb.ok()) return with_context(rgb.status(), "colour conversion of the reconstruction");

@@ -120,7 +120,8 @@ TEST_F(ReconstructCommandTest, OffsetFlagSuppliesAndOverridesK) {
   ASSERT_TRUE(run_reconstruct(o).ok());
   auto out = image::read_spectral_exr(o.output);
   ASSERT_TRUE(out.ok());
-  for (std::size_t i = 0; i < in.data().size(); ++i) ASSERT_EQ(out->spectral.data()[i], in.data()[i]);
+  for (std::size_t i = 0; i < in.data().size(); ++i)
+    ASSERT_EQ(out->spectral.data()[i], in.data()[i]);
 
   // A wrong k in the file is overridden by the flag; a wrong k alone gives a different image.
   write(dir_ / "gradient.exr", exact_gradient(in, 3),
@@ -132,7 +133,8 @@ TEST_F(ReconstructCommandTest, OffsetFlagSuppliesAndOverridesK) {
   ASSERT_TRUE(run_reconstruct(o).ok());
   out = image::read_spectral_exr(o.output);
   bool differs = false;
-  for (std::size_t i = 0; i < in.data().size(); ++i) differs |= out->spectral.data()[i] != in.data()[i];
+  for (std::size_t i = 0; i < in.data().size(); ++i)
+    differs |= out->spectral.data()[i] != in.data()[i];
   EXPECT_TRUE(differs);
 }
 
@@ -162,22 +164,37 @@ TEST_F(ReconstructCommandTest, RefusesBadInputWithoutWriting) {
     edit(o);
     cases.push_back({std::move(name), o, std::move(message)});
   };
-  add("missing primal", [&](auto& o) { o.primal = dir_ / "none.exr"; }, "primal file: .*none.exr");
-  add("missing gradient", [&](auto& o) { o.gradient = dir_ / "none.exr"; },
+  add(
+      "missing primal", [&](auto& o) { o.primal = dir_ / "none.exr"; }, "primal file: .*none.exr");
+  add(
+      "missing gradient", [&](auto& o) { o.gradient = dir_ / "none.exr"; },
       "gradient file: .*none.exr");
-  add("size", [&](auto& o) { o.gradient = dir_ / "small.exr"; },
+  add(
+      "size", [&](auto& o) { o.gradient = dir_ / "small.exr"; },
       "primal.exr' is 4x3 with 16 bins but gradient file '.*small.exr' is 4x2");
-  add("bins", [&](auto& o) { o.gradient = dir_ / "bins.exr"; }, "with 15 bins; they must match");
-  add("nan", [&](auto& o) { o.gradient = dir_ / "nan.exr"; }, "pixel \\(1, 2\\) gradient\\[9\\] = nan");
-  add("k text", [&](auto& o) { o.gradient = dir_ / "bad_k.exr"; }, "'two' is not an integer");
-  add("k range", [&](auto& o) { o.gradient = dir_ / "big_k.exr"; }, "big_k.exr.*k = 16");
-  add("k flag", [&](auto& o) { o.offset_bins = 0; }, "--offset-bins: .*k = 0");
-  add("alpha 0", [&](auto& o) { o.alpha = 0; }, "--alpha 0: ");
-  add("alpha nan", [&](auto& o) { o.alpha = std::nan(""); }, "--alpha nan: ");
-  add("alpha negative", [&](auto& o) { o.alpha = -1; }, "--alpha -1: ");
-  add("norm", [&](auto& o) { o.poisson = "l3"; }, "'l3': want l2 or l1");
-  add("output extension", [&](auto& o) { o.output = dir_ / "out.png"; }, "ending in .exr");
-  add("output directory", [&](auto& o) { o.output = dir_ / "no" / "out.exr"; }, "does not exist");
+  add(
+      "bins", [&](auto& o) { o.gradient = dir_ / "bins.exr"; }, "with 15 bins; they must match");
+  add(
+      "nan", [&](auto& o) { o.gradient = dir_ / "nan.exr"; },
+      "pixel \\(1, 2\\) gradient\\[9\\] = nan");
+  add(
+      "k text", [&](auto& o) { o.gradient = dir_ / "bad_k.exr"; }, "'two' is not an integer");
+  add(
+      "k range", [&](auto& o) { o.gradient = dir_ / "big_k.exr"; }, "big_k.exr.*k = 16");
+  add(
+      "k flag", [&](auto& o) { o.offset_bins = 0; }, "--offset-bins: .*k = 0");
+  add(
+      "alpha 0", [&](auto& o) { o.alpha = 0; }, "--alpha 0: ");
+  add(
+      "alpha nan", [&](auto& o) { o.alpha = std::nan(""); }, "--alpha nan: ");
+  add(
+      "alpha negative", [&](auto& o) { o.alpha = -1; }, "--alpha -1: ");
+  add(
+      "norm", [&](auto& o) { o.poisson = "l3"; }, "'l3': want l2 or l1");
+  add(
+      "output extension", [&](auto& o) { o.output = dir_ / "out.png"; }, "ending in .exr");
+  add(
+      "output directory", [&](auto& o) { o.output = dir_ / "no" / "out.exr"; }, "does not exist");
   for (const Case& c : cases) {
     auto result = run_reconstruct(c.options);
     ASSERT_FALSE(result.ok()) << c.name;

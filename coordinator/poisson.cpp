@@ -16,17 +16,20 @@
 namespace prism::coordinator {
 namespace {
 
-// Pixels solved together by the L2 fast path (solve_l2_batch8): their recurrences are
-// independent, so they run in SIMD lanes instead of waiting on one recurrence's latency.
-constexpr int kBatch = 8;
+// Pixels solved together by the L2 fast path (solve_l2_batch): their recurrences are
+// independent, so they run in SIMD lanes, and enough of them (4 AVX2 registers) are in flight
+// that the lanes do not wait on one recurrence's add-multiply latency.
+constexpr int kBatch = 16;
+
+// Floats between the batch's three bin-major buffers. Without it, for B = 64 they sit exactly
+// 4 KiB apart, and the loads of one row alias the stores of another in the CPU's 4K-address
+// disambiguation, stalling on false dependencies; 24 floats shift them by 96 bytes.
+constexpr int kPad = 24;
 
 // IRLS weight floor: a residual below kIrlsFloor·σ weighs as one of size kIrlsFloor·σ, so the
 // weights stay within [0, 1/kIrlsFloor] and every reweighted system stays well conditioned.
 constexpr double kIrlsFloor = 1e-3;
 
-// Eight pixels' worth of lanes, as compiler vector types (GCC/Clang): the compiler maps them
-// onto whatever SIMD the target has, and every lane is plain IEEE arithmetic, so the results
-// are the same bits as the scalar path's.
 template <typename V, typename T>
 V load(const T* p) {
   V v;
@@ -38,30 +41,63 @@ void store(T* p, const V& v) {
   std::memcpy(p, &v, sizeof v);
 }
 
-using F2 = float __attribute__((vector_size(8)));
+// A batch's lanes, as compiler vector types (GCC/Clang): the compiler maps them onto
+// whatever SIMD the target has, and every lane is plain IEEE arithmetic, so the results
+// are the same bits as the scalar path's.
 using F4 = float __attribute__((vector_size(16)));
+
+// W doubles per SIMD register: 2 for SSE2 (every x86-64), 4 for AVX2, 8 for AVX-512. The
+// kBatch lanes of a batch are N = kBatch/W registers. (GCC ignores vector_size on a dependent type, hence the
+// explicit types.)
+using F2 = float __attribute__((vector_size(8)));
 using D2 = double __attribute__((vector_size(16)));
+using D4 = double __attribute__((vector_size(32)));
+template <int W>
+struct LaneTypes;
+template <>
+struct LaneTypes<2> {
+  using D = D2;
+  using F = F2;
+};
+template <>
+struct LaneTypes<4> {
+  using D = D4;
+  using F = F4;
+};
 
-// Eight floats at p widened to four pairs of doubles.
-void widen8(const float* p, D2 (&d)[4]) {
-  for (int h = 0; h < 2; ++h) {
-    const F4 f = load<F4>(p + 4 * h);
-    d[2 * h] = __builtin_convertvector(__builtin_shufflevector(f, f, 0, 1), D2);
-    d[2 * h + 1] = __builtin_convertvector(__builtin_shufflevector(f, f, 2, 3), D2);
+using F8 = float __attribute__((vector_size(32)));
+using D8 = double __attribute__((vector_size(64)));
+template <>
+struct LaneTypes<8> {
+  using D = D8;
+  using F = F8;
+};
+
+template <int W>
+struct Lanes {
+  using D = typename LaneTypes<W>::D;
+  using F = typename LaneTypes<W>::F;
+  static constexpr int N = kBatch / W;
+
+  // kBatch floats at p, widened.
+  [[gnu::always_inline]] static void widen(const float* p, D (&d)[N]) {
+    for (int q = 0; q < N; ++q) {
+      F f;
+      std::memcpy(&f, p + W * q, sizeof f);
+      d[q] = __builtin_convertvector(f, D);
+    }
   }
-}
-
-// Four pairs of doubles rounded to eight floats at p; adds f − f to `check` (see below).
-void narrow8(const D2 (&d)[4], float* p, F4 (&check)[2]) {
-  for (int h = 0; h < 2; ++h) {
-    const F4 f = __builtin_shufflevector(__builtin_convertvector(d[2 * h], F2),
-                                         __builtin_convertvector(d[2 * h + 1], F2), 0, 1, 2, 3);
-    check[h] += f - f;
-    store(p + 4 * h, f);
+  // kBatch doubles rounded to floats at p; adds f − f to `check` (0 for finite f, NaN else).
+  [[gnu::always_inline]] static void narrow(const D (&d)[N], float* p, F (&check)[N]) {
+    for (int q = 0; q < N; ++q) {
+      const F f = __builtin_convertvector(d[q], F);
+      check[q] += f - f;
+      std::memcpy(p + W * q, &f, sizeof f);
+    }
   }
-}
+};
 
-void transpose4(F4& r0, F4& r1, F4& r2, F4& r3) {
+[[gnu::always_inline]] inline void transpose4(F4& r0, F4& r1, F4& r2, F4& r3) {
   const F4 t0 = __builtin_shufflevector(r0, r1, 0, 4, 1, 5);
   const F4 t1 = __builtin_shufflevector(r0, r1, 2, 6, 3, 7);
   const F4 t2 = __builtin_shufflevector(r2, r3, 0, 4, 1, 5);
@@ -72,36 +108,39 @@ void transpose4(F4& r0, F4& r1, F4& r2, F4& r3) {
   r3 = __builtin_shufflevector(t1, t3, 2, 3, 6, 7);
 }
 
-// 8 pixels of B values, pixel-major (in[p·B + b]), to bin-major t[b·8 + p], by 4x4 blocks.
-void to_bin_major(const float* in, int B, float* t) {
-  int b = 0;
-  for (; b + 4 <= B; b += 4) {
-    for (int g = 0; g < 8; g += 4) {
+// kBatch pixels of B values, pixel-major (in[p·B + b]), to bin-major t[b·kBatch + p], by
+// 4x4 blocks.
+[[gnu::always_inline]] inline void to_bin_major(const float* in, int B, float* t) {
+  const int B4 = B & ~3;
+  // One group of four pixels at a time, so the loads walk four contiguous rows (prefetch
+  // friendly) rather than all kBatch rows at once.
+  for (int g = 0; g < kBatch; g += 4) {
+    for (int b = 0; b < B4; b += 4) {
       F4 r0 = load<F4>(in + (g + 0) * B + b);
       F4 r1 = load<F4>(in + (g + 1) * B + b);
       F4 r2 = load<F4>(in + (g + 2) * B + b);
       F4 r3 = load<F4>(in + (g + 3) * B + b);
       transpose4(r0, r1, r2, r3);
-      store(t + (b + 0) * 8 + g, r0);
-      store(t + (b + 1) * 8 + g, r1);
-      store(t + (b + 2) * 8 + g, r2);
-      store(t + (b + 3) * 8 + g, r3);
+      store(t + (b + 0) * kBatch + g, r0);
+      store(t + (b + 1) * kBatch + g, r1);
+      store(t + (b + 2) * kBatch + g, r2);
+      store(t + (b + 3) * kBatch + g, r3);
     }
   }
-  for (; b < B; ++b) {
-    for (int p = 0; p < 8; ++p) t[b * 8 + p] = in[p * B + b];
+  for (int b = B4; b < B; ++b) {
+    for (int p = 0; p < kBatch; ++p) t[b * kBatch + p] = in[p * B + b];
   }
 }
 
 // The inverse of to_bin_major.
-void to_pixel_major(const float* t, int B, float* out) {
-  int b = 0;
-  for (; b + 4 <= B; b += 4) {
-    for (int g = 0; g < 8; g += 4) {
-      F4 r0 = load<F4>(t + (b + 0) * 8 + g);
-      F4 r1 = load<F4>(t + (b + 1) * 8 + g);
-      F4 r2 = load<F4>(t + (b + 2) * 8 + g);
-      F4 r3 = load<F4>(t + (b + 3) * 8 + g);
+[[gnu::always_inline]] inline void to_pixel_major(const float* t, int B, float* out) {
+  const int B4 = B & ~3;
+  for (int g = 0; g < kBatch; g += 4) {
+    for (int b = 0; b < B4; b += 4) {
+      F4 r0 = load<F4>(t + (b + 0) * kBatch + g);
+      F4 r1 = load<F4>(t + (b + 1) * kBatch + g);
+      F4 r2 = load<F4>(t + (b + 2) * kBatch + g);
+      F4 r3 = load<F4>(t + (b + 3) * kBatch + g);
       transpose4(r0, r1, r2, r3);
       store(out + (g + 0) * B + b, r0);
       store(out + (g + 1) * B + b, r1);
@@ -109,12 +148,17 @@ void to_pixel_major(const float* t, int B, float* out) {
       store(out + (g + 3) * B + b, r3);
     }
   }
-  for (; b < B; ++b) {
-    for (int p = 0; p < 8; ++p) out[p * B + b] = t[b * 8 + p];
+  for (int b = B4; b < B; ++b) {
+    for (int p = 0; p < kBatch; ++p) out[p * B + b] = t[b * kBatch + p];
   }
 }
 
-bool finite(float v) { return std::isfinite(v); }
+bool finite(float v) {
+  return std::isfinite(v);
+}
+
+// Defined with the batch kernels below.
+bool cpu_supports(PoissonKernel kernel);
 
 std::string describe(float v) {
   if (std::isnan(v)) return "nan";
@@ -152,10 +196,9 @@ absl::Status fault_status(const Fault& fault, const std::string& pixel) {
     return absl::OutOfRangeError(absl::StrCat("Poisson reconstruction of pixel ", pixel,
                                               " overflows float in bin ", fault.bin));
   }
-  return absl::InvalidArgumentError(absl::StrCat("Poisson reconstruction: pixel ", pixel, " ",
-                                                 fault.what, "[", fault.bin,
-                                                 "] = ", describe(fault.value),
-                                                 "; non-finite input is refused"));
+  return absl::InvalidArgumentError(
+      absl::StrCat("Poisson reconstruction: pixel ", pixel, " ", fault.what, "[", fault.bin,
+                   "] = ", describe(fault.value), "; non-finite input is refused"));
 }
 
 // Solves the symmetric cyclic tridiagonal system of one IRLS chain in place of `x`:
@@ -221,13 +264,28 @@ absl::Status check_one_pixel(int bins, std::span<const float> primal,
 
 }  // namespace
 
-std::string_view to_string(PoissonNorm norm) { return norm == PoissonNorm::kL1 ? "l1" : "l2"; }
+std::string_view to_string(PoissonKernel kernel) {
+  switch (kernel) {
+    case PoissonKernel::kAuto:
+      return "auto";
+    case PoissonKernel::kSse2:
+      return "sse2";
+    case PoissonKernel::kAvx2:
+      return "avx2";
+    case PoissonKernel::kAvx512:
+      return "avx512";
+  }
+  return "?";
+}
+
+std::string_view to_string(PoissonNorm norm) {
+  return norm == PoissonNorm::kL1 ? "l1" : "l2";
+}
 
 absl::StatusOr<PoissonNorm> parse_poisson_norm(const std::string& text) {
   if (text == "l2") return PoissonNorm::kL2;
   if (text == "l1") return PoissonNorm::kL1;
-  return absl::InvalidArgumentError(
-      absl::StrCat("Poisson norm '", text, "': want l2 or l1"));
+  return absl::InvalidArgumentError(absl::StrCat("Poisson norm '", text, "': want l2 or l1"));
 }
 
 // The L2 factorisation. Along a chain (x_j = Î[b_j], b_j = c + j·k mod B) the system is
@@ -247,10 +305,11 @@ absl::StatusOr<PoissonNorm> parse_poisson_norm(const std::string& text) {
 // intermediates are bounded by |r|/(1 − ρ)², the same order as the solution's bound |r|/α.
 // ρ = 2/(α + 2 + √(α(α + 4))) and 1 − ρ^L = −expm1(L·log1p(−(1 − ρ))) avoid cancellation for
 // both tiny and large α.
-absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, double alpha) {
+absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, double alpha,
+                                                    PoissonKernel kernel) {
   if (bins < 4 || bins > image::kMaxBins) {
-    return absl::InvalidArgumentError(absl::StrCat("Poisson reconstruction: bins = ", bins,
-                                                   "; want 4..", image::kMaxBins));
+    return absl::InvalidArgumentError(
+        absl::StrCat("Poisson reconstruction: bins = ", bins, "; want 4..", image::kMaxBins));
   }
   if (offset_bins < 1 || offset_bins >= bins) {
     return absl::InvalidArgumentError(
@@ -258,9 +317,9 @@ absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, d
                      " bins; want 1 <= k < ", bins, " (the number of bins)"));
   }
   if (!std::isfinite(alpha) || alpha < kMinPoissonAlpha || alpha > kMaxPoissonAlpha) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "Poisson reconstruction: alpha = ", alpha, "; want a finite value in [",
-        kMinPoissonAlpha, ", ", kMaxPoissonAlpha, "] (alpha must be > 0)"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("Poisson reconstruction: alpha = ", alpha, "; want a finite value in [",
+                     kMinPoissonAlpha, ", ", kMaxPoissonAlpha, "] (alpha must be > 0)"));
   }
   PoissonSolver s;
   s.bins_ = bins;
@@ -288,11 +347,18 @@ absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, d
     if (j < L) q += std::exp((2.0 * j + 1.0) * log_rho);
   }
   s.q_ = q;
+  s.kernel_ = PoissonKernel::kSse2;
+  for (PoissonKernel k : {PoissonKernel::kAvx512, PoissonKernel::kAvx2}) {
+    if ((kernel == PoissonKernel::kAuto || kernel == k) && cpu_supports(k)) {
+      s.kernel_ = k;
+      break;
+    }
+  }
   return s;
 }
 
-// The L2 solve of one pixel, the reference path; solve_l2_batch8 does the same arithmetic in
-// the same order on eight pixels at once, so both give the same bits.
+// The L2 solve of one pixel, the reference path; solve_l2_batch does the same arithmetic in
+// the same order on kBatch pixels at once, so both give the same bits.
 //  1. r[b] = α·I[b] + G[b − k] − G[b], the right-hand side, in bin order (b − k wraps only
 //     for b < k); `scratch` holds B + L doubles: r, then z.
 //  2. Per chain, the two recurrences of the factorisation above, writing rounded results.
@@ -339,63 +405,133 @@ bool PoissonSolver::solve_l2_one(const float* primal, const float* gradient, flo
   return check == 0;
 }
 
-// Eight pixels (8·B consecutive values of each array) side by side in SIMD lanes. The lanes
-// need the pixels bin-major, so I and G are transposed into t[b·8 + p] (4x4 blocks), the
-// recurrences run one bin row of 8 lanes at a time (r is formed on the way: G[b − k] is the
-// previous chain element's G), and the bin-major result is transposed back. `z` holds 8·L
-// doubles, `t` 24·B floats.
-bool PoissonSolver::solve_l2_batch8(const float* primal, const float* gradient, float* out,
-                                    double* z, float* t) const {
-  const int B = bins_;
-  const int L = length_;
-  const double a = alpha_;
-  const double rho = rho_;
-  const double inv = inv_one_minus_rho_l_;
-  const double* pw = rho_pow_.data();
+// kBatch pixels (kBatch·B consecutive values of each array) side by side in SIMD lanes. The
+// lanes need the pixels bin-major, so I and G are transposed into t[b·kBatch + p] (4x4 blocks),
+// the recurrences run one bin row of kBatch lanes at a time (r is formed on the way: G[b − k]
+// is the previous chain element's G), and the bin-major result is transposed back. `z` holds
+// kBatch·L doubles, `t` 3·(kBatch·B + kPad) floats.
+namespace {
+
+// The body of solve_l2_batch for W doubles per register (see there). Inlined into each
+// caller, so the AVX2 caller compiles it with 256-bit registers.
+template <int W>
+[[gnu::always_inline]] inline bool batch_kernel(const int* order_all, const double* pw, int chains,
+                                                int B, int L, double a, double rho, double inv,
+                                                double q, const float* primal,
+                                                const float* gradient, float* out, double* z,
+                                                float* t) {
+  using V = Lanes<W>;
+  using D = typename V::D;
+  using F = typename V::F;
+  constexpr int N = V::N;
   float* ti = t;
-  float* tg = t + 8 * B;
-  float* to = t + 16 * B;
+  float* tg = t + kBatch * B + kPad;
+  float* to = tg + kBatch * B + kPad;
   to_bin_major(primal, B, ti);
   to_bin_major(gradient, B, tg);
-  F4 check[2] = {};
-  for (int c = 0; c < chains_; ++c) {
-    const int* order = order_.data() + c * L;
-    D2 zl[4] = {};
-    D2 sz[4] = {};
-    D2 g_prev[4];
-    widen8(tg + order[L - 1] * 8, g_prev);
+  F check[N] = {};
+  for (int c = 0; c < chains; ++c) {
+    const int* order = order_all + c * L;
+    D zl[N] = {};
+    D sz[N] = {};
+    D g_prev[N];
+    V::widen(tg + order[L - 1] * kBatch, g_prev);
     for (int j = 0; j < L; ++j) {
       const int b = order[j];
-      D2 iv[4], gv[4];
-      widen8(ti + b * 8, iv);
-      widen8(tg + b * 8, gv);
+      D iv[N], gv[N];
+      V::widen(ti + b * kBatch, iv);
+      V::widen(tg + b * kBatch, gv);
       const double wj = pw[j];
-      for (int q = 0; q < 4; ++q) {
-        const D2 r = a * iv[q] + g_prev[q] - gv[q];
-        g_prev[q] = gv[q];
-        zl[q] = rho * (r + zl[q]);
-        store(z + j * 8 + 2 * q, zl[q]);
-        sz[q] += wj * zl[q];
+      for (int k = 0; k < N; ++k) {
+        const D r = a * iv[k] + g_prev[k] - gv[k];
+        g_prev[k] = gv[k];
+        zl[k] = rho * (r + zl[k]);
+        std::memcpy(z + j * kBatch + W * k, &zl[k], sizeof(D));
+        sz[k] += wj * zl[k];
       }
     }
-    D2 u_last[4], x[4];
-    for (int q = 0; q < 4; ++q) {
-      u_last[q] = zl[q] * inv;
-      x[q] = (sz[q] + u_last[q] * q_) * inv;
+    D u_last[N], x[N];
+    for (int k = 0; k < N; ++k) {
+      u_last[k] = zl[k] * inv;
+      x[k] = (sz[k] + u_last[k] * q) * inv;
     }
-    narrow8(x, to + order[0] * 8, check);
+    V::narrow(x, to + order[0] * kBatch, check);
     for (int j = L - 1; j >= 1; --j) {
       const double corr = pw[j + 1];
-      for (int q = 0; q < 4; ++q) {
-        x[q] = load<D2>(z + j * 8 + 2 * q) + corr * u_last[q] + rho * x[q];
+      for (int k = 0; k < N; ++k) {
+        D zj;
+        std::memcpy(&zj, z + j * kBatch + W * k, sizeof(D));
+        x[k] = zj + corr * u_last[k] + rho * x[k];
       }
-      narrow8(x, to + order[j] * 8, check);
+      V::narrow(x, to + order[j] * kBatch, check);
     }
   }
   to_pixel_major(to, B, out);
   float all = 0;
-  for (int p = 0; p < 4; ++p) all += check[0][p] + check[1][p];
+  for (int k = 0; k < N; ++k) {
+    for (int p = 0; p < W; ++p) all += check[k][p];
+  }
   return all == 0;
+}
+
+bool batch_sse2(const int* order, const double* pw, int chains, int B, int L, double a, double rho,
+                double inv, double q, const float* primal, const float* gradient, float* out,
+                double* z, float* t) {
+  return batch_kernel<2>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
+}
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+// AVX2 without FMA: the same IEEE operations in the same order, four lanes per register, so
+// the bits do not depend on which version runs (no fused multiply-add is available to it).
+[[gnu::target("avx2")]] bool batch_avx2(const int* order, const double* pw, int chains, int B,
+                                        int L, double a, double rho, double inv, double q,
+                                        const float* primal, const float* gradient, float* out,
+                                        double* z, float* t) {
+  return batch_kernel<4>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
+}
+bool cpu_supports(PoissonKernel kernel) {
+  switch (kernel) {
+    case PoissonKernel::kAvx512:
+      return __builtin_cpu_supports("avx512f");
+    case PoissonKernel::kAvx2:
+      return __builtin_cpu_supports("avx2");
+    default:
+      return kernel == PoissonKernel::kSse2;
+  }
+}
+// AVX-512F, eight lanes per register; as for AVX2, poisson.cpp is compiled with
+// -ffp-contract=off, so the FMA instructions AVX-512F brings are never used.
+[[gnu::target("avx512f")]] bool batch_avx512(const int* order, const double* pw, int chains, int B,
+                                             int L, double a, double rho, double inv, double q,
+                                             const float* primal, const float* gradient, float* out,
+                                             double* z, float* t) {
+  return batch_kernel<8>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
+}
+#else
+bool batch_avx2(const int* order, const double* pw, int chains, int B, int L, double a, double rho,
+                double inv, double q, const float* primal, const float* gradient, float* out,
+                double* z, float* t) {
+  return batch_kernel<2>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
+}
+bool batch_avx512(const int* order, const double* pw, int chains, int B, int L, double a,
+                  double rho, double inv, double q, const float* primal, const float* gradient,
+                  float* out, double* z, float* t) {
+  return batch_kernel<2>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
+}
+bool cpu_supports(PoissonKernel kernel) {
+  return kernel == PoissonKernel::kSse2;
+}
+#endif
+
+}  // namespace
+
+bool PoissonSolver::solve_l2_batch(const float* primal, const float* gradient, float* out,
+                                   double* z, float* t) const {
+  auto* run = kernel_ == PoissonKernel::kAvx512 ? batch_avx512
+              : kernel_ == PoissonKernel::kAvx2 ? batch_avx2
+                                                : batch_sse2;
+  return run(order_.data(), rho_pow_.data(), chains_, bins_, length_, alpha_, rho_,
+             inv_one_minus_rho_l_, q_, primal, gradient, out, z, t);
 }
 
 // One pixel's L1 reconstruction: scratch holds 8·B doubles.
@@ -403,8 +539,8 @@ void PoissonSolver::solve_l1_pixel(const float* primal, const float* gradient, f
                                    double* scratch) const {
   const int B = bins_;
   const int L = length_;
-  double* x_all = scratch;         // B: every chain's solution, chain order
-  double* iv = scratch + B;        // L each below
+  double* x_all = scratch;   // B: every chain's solution, chain order
+  double* iv = scratch + B;  // L each below
   double* gv = iv + L;
   double* w = gv + L;
   double* rhs = w + L;
@@ -423,9 +559,7 @@ void PoissonSolver::solve_l1_pixel(const float* primal, const float* gradient, f
       rhs[j] = alpha_ * iv[j] + w[jp] * gv[jp] - w[j] * gv[j];
     }
   };
-  auto residual = [&](const double* x, int j) {
-    return x[j == L - 1 ? 0 : j + 1] - x[j] - gv[j];
-  };
+  auto residual = [&](const double* x, int j) { return x[j == L - 1 ? 0 : j + 1] - x[j] - gv[j]; };
   // The L2 start (all weights 1) and σ, the mean absolute gradient residual of the pixel.
   double sigma = 0;
   for (int c = 0; c < chains_; ++c) {
@@ -458,8 +592,7 @@ void PoissonSolver::solve_l1_pixel(const float* primal, const float* gradient, f
   }
 }
 
-absl::Status PoissonSolver::solve_l2(std::span<const float> primal,
-                                     std::span<const float> gradient,
+absl::Status PoissonSolver::solve_l2(std::span<const float> primal, std::span<const float> gradient,
                                      std::span<float> out) const {
   PRISM_RETURN_IF_ERROR(check_one_pixel(bins_, primal, gradient, out));
   // 2·kMaxBins doubles at most (64 KiB); this path allocates nothing.
@@ -470,27 +603,25 @@ absl::Status PoissonSolver::solve_l2(std::span<const float> primal,
   return fault_status(locate_fault(primal, gradient, out, bins_, 0, 1), "0");
 }
 
-absl::Status PoissonSolver::solve_l1(std::span<const float> primal,
-                                     std::span<const float> gradient,
+absl::Status PoissonSolver::solve_l1(std::span<const float> primal, std::span<const float> gradient,
                                      std::span<float> out) const {
   PRISM_RETURN_IF_ERROR(check_one_pixel(bins_, primal, gradient, out));
   return solve_pixels(PoissonNorm::kL1, primal, gradient, out);
 }
 
 absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float> primal,
-                                         std::span<const float> gradient,
-                                         std::span<float> out, int image_row) const {
+                                         std::span<const float> gradient, std::span<float> out,
+                                         int image_row) const {
   const std::size_t B = static_cast<std::size_t>(bins_);
   if (primal.size() != gradient.size() || primal.size() != out.size() || primal.size() % B != 0) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "Poisson reconstruction: primal, gradient and output have ", primal.size(), ", ",
-        gradient.size(), " and ", out.size(), " values; want the same multiple of ", bins_,
-        " (the bins)"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("Poisson reconstruction: primal, gradient and output have ", primal.size(),
+                     ", ", gradient.size(), " and ", out.size(),
+                     " values; want the same multiple of ", bins_, " (the bins)"));
   }
   const std::int64_t pixels = static_cast<std::int64_t>(primal.size() / B);
-  std::vector<double> scratch(norm == PoissonNorm::kL2 ? std::size_t(kBatch) * length_ + B
-                                                      : 8 * B);
-  std::vector<float> t_buffer(norm == PoissonNorm::kL2 ? 3 * std::size_t(kBatch) * B : 0);
+  std::vector<double> scratch(norm == PoissonNorm::kL2 ? std::size_t(kBatch) * length_ + B : 8 * B);
+  std::vector<float> t_buffer(norm == PoissonNorm::kL2 ? 3 * (std::size_t(kBatch) * B + kPad) : 0);
   std::int64_t p = 0;
   auto fail = [&](std::int64_t count) {
     const Fault fault = locate_fault(primal, gradient, out, bins_, p, count);
@@ -501,15 +632,14 @@ absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float
   if (norm == PoissonNorm::kL2) {
     for (; p + kBatch <= pixels; p += kBatch) {
       const std::size_t o = static_cast<std::size_t>(p) * B;
-      if (!solve_l2_batch8(primal.data() + o, gradient.data() + o, out.data() + o,
-                           scratch.data(), t_buffer.data())) {
+      if (!solve_l2_batch(primal.data() + o, gradient.data() + o, out.data() + o, scratch.data(),
+                          t_buffer.data())) {
         return fail(kBatch);
       }
     }
     for (; p < pixels; ++p) {
       const std::size_t o = static_cast<std::size_t>(p) * B;
-      if (!solve_l2_one(primal.data() + o, gradient.data() + o, out.data() + o,
-                        scratch.data())) {
+      if (!solve_l2_one(primal.data() + o, gradient.data() + o, out.data() + o, scratch.data())) {
         return fail(1);
       }
     }
@@ -535,30 +665,30 @@ absl::StatusOr<image::SpectralImage> reconstruct_image(const PoissonSolver& solv
                                                        const image::SpectralImage& gradient) {
   if (primal.width() != gradient.width() || primal.height() != gradient.height() ||
       primal.bins() != gradient.bins()) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "Poisson reconstruction: primal is ", primal.width(), "x", primal.height(), " with ",
-        primal.bins(), " bins but gradient is ", gradient.width(), "x", gradient.height(),
-        " with ", gradient.bins(), " bins"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("Poisson reconstruction: primal is ", primal.width(), "x", primal.height(),
+                     " with ", primal.bins(), " bins but gradient is ", gradient.width(), "x",
+                     gradient.height(), " with ", gradient.bins(), " bins"));
   }
   if (primal.bins() != solver.bins()) {
     return absl::InvalidArgumentError(
         absl::StrCat("Poisson reconstruction: the images have ", primal.bins(),
                      " bins but the solver was built for ", solver.bins()));
   }
-  PRISM_ASSIGN_OR_RETURN(image::SpectralImage out,
-                         image::SpectralImage::create(primal.width(), primal.height(),
-                                                      primal.bins()));
+  PRISM_ASSIGN_OR_RETURN(
+      image::SpectralImage out,
+      image::SpectralImage::create(primal.width(), primal.height(), primal.bins()));
   const std::size_t row = static_cast<std::size_t>(primal.width()) * primal.bins();
   std::vector<absl::Status> row_status(primal.height());
-  tbb::parallel_for(tbb::blocked_range<int>(0, primal.height()),
-                    [&](const tbb::blocked_range<int>& rows) {
-                      for (int y = rows.begin(); y < rows.end(); ++y) {
-                        const std::size_t o = static_cast<std::size_t>(y) * row;
-                        row_status[y] = solver.solve_pixels(norm, primal.data().subspan(o, row),
-                                                            gradient.data().subspan(o, row),
-                                                            out.data().subspan(o, row), y);
-                      }
-                    });
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, primal.height()), [&](const tbb::blocked_range<int>& rows) {
+        for (int y = rows.begin(); y < rows.end(); ++y) {
+          const std::size_t o = static_cast<std::size_t>(y) * row;
+          row_status[y] =
+              solver.solve_pixels(norm, primal.data().subspan(o, row),
+                                  gradient.data().subspan(o, row), out.data().subspan(o, row), y);
+        }
+      });
   // The first failing row in raster order, so the message does not depend on scheduling.
   for (const absl::Status& status : row_status) {
     if (!status.ok()) return status;

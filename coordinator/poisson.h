@@ -44,27 +44,38 @@ std::string_view to_string(PoissonNorm norm);
 // INVALID_ARGUMENT naming the text unless it is "l2" or "l1".
 absl::StatusOr<PoissonNorm> parse_poisson_norm(const std::string& text);
 
-// The screening weight α's accepted range. Below 1e-6 the system's condition number
-// (α + 4)/α exceeds 4e6 and double rounding would start to show in float results; above 1e6
-// Î equals I to within |G|/α anyway.
+// The screening weight α's accepted range. It bounds the condition number (α + 4)/α of the
+// system by 4e6, so the double solve's error (about κ·B·2⁻⁵³ relative) stays far below float
+// rounding and its intermediates (up to |r|/α) far from overflow. Beyond 1e6 the result is I to
+// within |G|/α; below 1e-6 only α holds the chain means and the system is nearly singular.
 inline constexpr double kMinPoissonAlpha = 1e-6;
 inline constexpr double kMaxPoissonAlpha = 1e6;
 inline constexpr double kDefaultPoissonAlpha = 0.2;
 // Fixed IRLS iteration count of the L1 solve (after the L2 start).
 inline constexpr int kIrlsIterations = 12;
 
+// Which SIMD code the batched L2 path runs. Every kernel performs the same IEEE operations in the
+// same order (poisson.cpp is compiled without FMA contraction), so they give identical bits;
+// the choice only changes speed. kAuto takes the widest the CPU supports; asking for one the
+// CPU lacks gives kSse2 (generic two-lane vector code, which runs on any target).
+enum class PoissonKernel { kAuto, kSse2, kAvx2, kAvx512 };
+std::string_view to_string(PoissonKernel kernel);
+
 // The solver for one (B, k, α): immutable once built, shared freely between threads.
 class PoissonSolver {
  public:
   // INVALID_ARGUMENT naming the value unless 4 <= bins <= image::kMaxBins,
   // 1 <= offset_bins < bins and α is finite and in [kMinPoissonAlpha, kMaxPoissonAlpha].
-  static absl::StatusOr<PoissonSolver> create(int bins, int offset_bins, double alpha);
+  static absl::StatusOr<PoissonSolver> create(int bins, int offset_bins, double alpha,
+                                              PoissonKernel kernel = PoissonKernel::kAuto);
 
   int bins() const { return bins_; }
   int offset_bins() const { return k_; }
   double alpha() const { return alpha_; }
   int chains() const { return chains_; }
   int chain_length() const { return length_; }
+  // The kernel in use (never kAuto).
+  PoissonKernel kernel() const { return kernel_; }
 
   // One pixel: `primal`, `gradient` and `out` each hold bins() values; `out` must not overlap
   // the inputs. INVALID_ARGUMENT on a size mismatch or non-finite input. No allocation.
@@ -86,10 +97,9 @@ class PoissonSolver {
  private:
   PoissonSolver() = default;
 
-  bool solve_l2_one(const float* primal, const float* gradient, float* out,
-                    double* scratch) const;
-  bool solve_l2_batch8(const float* primal, const float* gradient, float* out, double* z,
-                       float* t) const;
+  bool solve_l2_one(const float* primal, const float* gradient, float* out, double* scratch) const;
+  bool solve_l2_batch(const float* primal, const float* gradient, float* out, double* z,
+                      float* t) const;
   void solve_l1_pixel(const float* primal, const float* gradient, float* out,
                       double* scratch) const;
 
@@ -106,6 +116,7 @@ class PoissonSolver {
   std::vector<double> rho_pow_;
   double inv_one_minus_rho_l_ = 0;
   double q_ = 0;
+  PoissonKernel kernel_ = PoissonKernel::kSse2;
 };
 
 // Reconstructs a whole image: `primal` and `gradient` must have the same width, height and

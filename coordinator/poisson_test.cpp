@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <complex>
+#include <iostream>
 #include <limits>
 #include <numbers>
 #include <numeric>
@@ -22,8 +23,8 @@ using Complex = std::complex<long double>;
 //   Î^[j] = (α·I^[j] + conj(d_j)·G^[j]) / (α + |d_j|²).
 // Evaluated by a direct O(B²) DFT in long double with exactly reduced twiddle angles
 // (j·b mod B), so its own error (~B·2^-64·κ) is far below the solver's.
-std::vector<long double> oracle(const std::vector<float>& primal, const std::vector<float>& gradient,
-                                int k, double alpha) {
+std::vector<long double> oracle(const std::vector<float>& primal,
+                                const std::vector<float>& gradient, int k, double alpha) {
   const int B = static_cast<int>(primal.size());
   auto twiddle = [B](long long m, int sign) {
     const long double angle = sign * 2.0L * std::numbers::pi_v<long double> * (m % B) / B;
@@ -125,14 +126,26 @@ TEST(PoissonSolver, MatchesDftOracle) {
   EXPECT_GT(cases, 300);
 }
 
-// The batched path (8 pixels at a time, then single pixels) gives the same bits as one pixel
-// at a time, so tiles and rows can be solved independently.
+// The batched path (16 pixels at a time, then single pixels) gives the same bits as one pixel
+// at a time, so tiles and rows can be solved independently, and so does every SIMD kernel the
+// CPU has (on a CPU without one, the fallback is tested twice).
 TEST(PoissonSolver, BatchedEqualsPerPixel) {
   std::mt19937_64 rng(7);
-  for (int bins : {15, 64}) {
-    auto solver = PoissonSolver::create(bins, static_cast<int>(std::lround(0.15 * bins)), 0.2);
+  for (auto [bins, kernel] : {std::pair{15, PoissonKernel::kAuto},
+                              {64, PoissonKernel::kAuto},
+                              {64, PoissonKernel::kSse2},
+                              {64, PoissonKernel::kAvx2},
+                              {100, PoissonKernel::kAvx512},
+                              {100, PoissonKernel::kSse2}}) {
+    auto solver =
+        PoissonSolver::create(bins, static_cast<int>(std::lround(0.15 * bins)), 0.2, kernel);
     ASSERT_TRUE(solver.ok());
-    const int pixels = 19;  // two batches and a tail of three
+    EXPECT_NE(solver->kernel(), PoissonKernel::kAuto);
+    if (kernel != PoissonKernel::kAuto && solver->kernel() != kernel) {
+      std::cout << "kernel " << to_string(kernel) << " unavailable, tested "
+                << to_string(solver->kernel()) << "\n";
+    }
+    const int pixels = 35;  // two batches and a tail of three
     const std::vector<float> primal = random_values(rng, pixels * bins, 0.0f, 4.0f);
     const std::vector<float> gradient = random_values(rng, pixels * bins, -2.0f, 2.0f);
     for (PoissonNorm norm : {PoissonNorm::kL2, PoissonNorm::kL1}) {
@@ -142,9 +155,8 @@ TEST(PoissonSolver, BatchedEqualsPerPixel) {
         std::vector<float> single(bins);
         const auto in = std::span(primal).subspan(p * bins, bins);
         const auto grad = std::span(gradient).subspan(p * bins, bins);
-        const absl::Status status = norm == PoissonNorm::kL2
-                                        ? solver->solve_l2(in, grad, single)
-                                        : solver->solve_l1(in, grad, single);
+        const absl::Status status = norm == PoissonNorm::kL2 ? solver->solve_l2(in, grad, single)
+                                                             : solver->solve_l1(in, grad, single);
         ASSERT_TRUE(status.ok());
         for (int b = 0; b < bins; ++b) {
           EXPECT_EQ(batched[p * bins + b], single[b]) << "pixel " << p << " bin " << b;
@@ -321,11 +333,11 @@ TEST(PoissonSolver, RefusesBadInput) {
     EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
     EXPECT_NE(s.message().find("gradient[3] = -inf"), std::string::npos) << s;
 
-    // Pixel 9 of 12: inside the second batch of the L2 path.
-    std::vector<float> many(12 * 16, 1.0f), many_g(12 * 16, 0.0f), many_out(12 * 16);
-    many_g[9 * 16 + 7] = std::numeric_limits<float>::infinity();
+    // Pixel 21 of 40: inside the second batch of the L2 path.
+    std::vector<float> many(40 * 16, 1.0f), many_g(40 * 16, 0.0f), many_out(40 * 16);
+    many_g[21 * 16 + 7] = std::numeric_limits<float>::infinity();
     s = solver->solve_pixels(norm, many, many_g, many_out);
-    EXPECT_NE(s.message().find("pixel 9 gradient[7] = inf"), std::string::npos) << s;
+    EXPECT_NE(s.message().find("pixel 21 gradient[7] = inf"), std::string::npos) << s;
 
     // Finite input whose reconstruction exceeds the float range: the mean stays at the
     // primal's 3.4e38 (sum preservation) while the gradients along the chain (b = 3j mod 16)
@@ -353,8 +365,8 @@ TEST(PoissonImage, MatchesPerPixelAndNamesBadPixels) {
     for (int y = 0; y < h; ++y) {
       for (int x = 0; x < w; ++x) {
         std::vector<float> single(bins);
-        ASSERT_TRUE(solver->solve_pixels(norm, primal->pixel(x, y), gradient->pixel(x, y), single)
-                        .ok());
+        ASSERT_TRUE(
+            solver->solve_pixels(norm, primal->pixel(x, y), gradient->pixel(x, y), single).ok());
         for (int b = 0; b < bins; ++b) ASSERT_EQ(out->value(x, y, b), single[b]);
       }
     }

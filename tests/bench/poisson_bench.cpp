@@ -12,6 +12,7 @@
 //
 // Usage: prism-bench-poisson [--resolution 1024x1024] [--bins 64,15] [--repeats 5]
 //          [--alpha 0.2] [--threads N (default: all hardware threads)] [--l1 on|off]
+//          [--kernel auto|sse2|avx2|avx512]
 #include <tbb/blocked_range.h>
 #include <tbb/info.h>
 #include <tbb/parallel_for.h>
@@ -62,21 +63,28 @@ struct Figures {
 };
 
 int run(int argc, char** argv) {
-  auto flags =
-      parse_flags(argc, argv, {"--resolution", "--bins", "--repeats", "--alpha", "--threads", "--l1"});
+  auto flags = parse_flags(
+      argc, argv,
+      {"--resolution", "--bins", "--repeats", "--alpha", "--threads", "--l1", "--kernel"});
   if (!flags.ok()) {
     std::cerr << "prism-bench-poisson: " << flags.status().message() << "\n";
     return 1;
   }
   auto size = parse_size(flags->get("--resolution", "1024x1024"));
   auto repeats = flags->number("--repeats", 5, 1, 100);
-  auto alpha = flags->number("--alpha", 0.2, coordinator::kMinPoissonAlpha,
-                             coordinator::kMaxPoissonAlpha);
+  auto alpha =
+      flags->number("--alpha", 0.2, coordinator::kMinPoissonAlpha, coordinator::kMaxPoissonAlpha);
   auto threads = flags->number("--threads", tbb::info::default_concurrency(), 1, 1024);
   const bool time_l1 = flags->get("--l1", "on") != "off";
+  const std::string kernel_name = flags->get("--kernel", "auto");
+  coordinator::PoissonKernel kernel = coordinator::PoissonKernel::kAuto;
+  for (auto k : {coordinator::PoissonKernel::kSse2, coordinator::PoissonKernel::kAvx2,
+                 coordinator::PoissonKernel::kAvx512}) {
+    if (kernel_name == coordinator::to_string(k)) kernel = k;
+  }
   if (!size.ok() || !repeats.ok() || !alpha.ok() || !threads.ok()) {
-    for (const absl::Status& s : {size.status(), repeats.status(), alpha.status(),
-                                  threads.status()}) {
+    for (const absl::Status& s :
+         {size.status(), repeats.status(), alpha.status(), threads.status()}) {
       if (!s.ok()) std::cerr << "prism-bench-poisson: " << s.message() << "\n";
     }
     return 1;
@@ -88,14 +96,15 @@ int run(int argc, char** argv) {
   const std::int64_t pixels = std::int64_t{width} * height;
   const int all_threads = static_cast<int>(*threads);
 
-  std::printf("Poisson reconstruction (L2) vs memcpy, %dx%d, alpha %g, best of %d, threads 1 and "
-              "%d\n",
-              width, height, *alpha, static_cast<int>(*repeats), all_threads);
-  std::printf("%5s %3s %7s %10s %10s %10s %10s %7s %10s\n", "bins", "k", "threads", "solve ms",
-              "solve MB/s", "copy ms", "copy MB/s", "ratio", "L1 ms");
+  std::printf(
+      "Poisson reconstruction (L2) vs memcpy, %dx%d, alpha %g, best of %d, threads 1 and "
+      "%d\n",
+      width, height, *alpha, static_cast<int>(*repeats), all_threads);
+  std::printf("%5s %3s %7s %7s %10s %10s %10s %10s %7s %10s\n", "bins", "k", "kernel", "threads",
+              "solve ms", "solve MB/s", "copy ms", "copy MB/s", "ratio", "L1 ms");
   for (int bins : bin_counts) {
     const int k = static_cast<int>(std::lround(0.15 * bins));
-    auto solver = coordinator::PoissonSolver::create(bins, k, *alpha);
+    auto solver = coordinator::PoissonSolver::create(bins, k, *alpha, kernel);
     if (!solver.ok()) {
       std::cerr << "prism-bench-poisson: " << solver.status().message() << "\n";
       return 1;
@@ -142,23 +151,24 @@ int run(int argc, char** argv) {
       if (t == all_threads && time_l1) {
         arena.execute([&] {
           l1_ms = 1e3 * best_seconds(1, [&] {
-            tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const auto& r) {
-              for (int y = r.begin(); y < r.end(); ++y) {
-                const std::size_t o = static_cast<std::size_t>(y) * row;
-                PRISM_CHECK(solver
-                                ->solve_pixels(coordinator::PoissonNorm::kL1,
-                                               std::span(primal).subspan(o, row),
-                                               std::span(gradient).subspan(o, row),
-                                               std::span(out).subspan(o, row))
-                                .ok());
-              }
-            });
-          });
+                    tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const auto& r) {
+                      for (int y = r.begin(); y < r.end(); ++y) {
+                        const std::size_t o = static_cast<std::size_t>(y) * row;
+                        PRISM_CHECK(solver
+                                        ->solve_pixels(coordinator::PoissonNorm::kL1,
+                                                       std::span(primal).subspan(o, row),
+                                                       std::span(gradient).subspan(o, row),
+                                                       std::span(out).subspan(o, row))
+                                        .ok());
+                      }
+                    });
+                  });
         });
       }
-      std::printf("%5d %3d %7d %10.1f %10.0f %10.1f %10.0f %7.2f %10s\n", bins, k, t,
-                  1e3 * f.solve, input_mb / f.solve, 1e3 * f.copy, input_mb / f.copy,
-                  f.copy / f.solve, t == all_threads ? absl::StrFormat("%.0f", l1_ms).c_str() : "");
+      std::printf("%5d %3d %7s %7d %10.1f %10.0f %10.1f %10.0f %7.2f %10s\n", bins, k,
+                  std::string(coordinator::to_string(solver->kernel())).c_str(), t, 1e3 * f.solve,
+                  input_mb / f.solve, 1e3 * f.copy, input_mb / f.copy, f.copy / f.solve,
+                  t == all_threads && time_l1 ? absl::StrFormat("%.0f", l1_ms).c_str() : "");
       if (all_threads == 1) break;
     }
   }
@@ -168,4 +178,6 @@ int run(int argc, char** argv) {
 }  // namespace
 }  // namespace prism::bench
 
-int main(int argc, char** argv) { return prism::bench::run(argc, argv); }
+int main(int argc, char** argv) {
+  return prism::bench::run(argc, argv);
+}
