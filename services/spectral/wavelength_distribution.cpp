@@ -278,16 +278,25 @@ void WavelengthDistribution::quantise_masses(std::span<const double> mass,
     sum += q[i];
   }
   // Largest remainders first gets each cell within one unit of its exact share; cells raised
-  // to the minimum of 1 are paid for by the largest cells. Ties go to the lower index (the
-  // order of a stable sort), with std::sort because it does not allocate.
+  // to the minimum of 1 are paid for by the largest cells. Ties go to the lower index. The
+  // deficit is normally below the number of positive cells, so each of the `deficit` largest
+  // gets one unit and a selection (linear, no allocation) replaces sorting.
   std::vector<int>& order = scratch.order;
-  order.resize(mass.size());
-  std::iota(order.begin(), order.end(), 0);
-  std::sort(order.begin(), order.end(), [&](int a, int b) {
+  order.clear();
+  for (int i = 0; i < n; ++i) {
+    if (mass[i] > 0.0) order.push_back(i);
+  }
+  const auto before = [&](int a, int b) {
     return remainder[a] > remainder[b] || (remainder[a] == remainder[b] && a < b);
-  });
-  for (size_t k = 0; sum < static_cast<std::int64_t>(kTotal); k = (k + 1) % order.size()) {
-    if (mass[order[k]] > 0.0) {
+  };
+  const std::int64_t deficit = static_cast<std::int64_t>(kTotal) - sum;
+  if (deficit > 0 && deficit <= static_cast<std::int64_t>(order.size())) {
+    std::nth_element(order.begin(), order.begin() + (deficit - 1), order.end(), before);
+    for (std::int64_t k = 0; k < deficit; ++k) ++q[order[k]];
+    sum += deficit;
+  } else if (deficit > 0) {
+    std::sort(order.begin(), order.end(), before);
+    for (size_t k = 0; sum < static_cast<std::int64_t>(kTotal); k = (k + 1) % order.size()) {
       ++q[order[k]];
       ++sum;
     }
