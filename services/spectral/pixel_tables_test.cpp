@@ -147,6 +147,43 @@ TEST(PixelTablesTest, RoundTripSamplesExactlyLikeTheCoordinatorsTables) {
   }
 }
 
+TEST(PixelTablesTest, ViewsSampleExactlyLikeWhatTheyView) {
+  const WavelengthDistribution job_default = *WavelengthDistribution::visible(470);
+  std::mt19937_64 rng(9);
+  const std::vector<std::uint16_t> cdf =
+      WavelengthDistribution::from_table(random_weights(64, rng))->quantise();
+  std::string bytes;
+  append_pixel_table(cdf, bytes);
+  append_default_pixel(64, bytes);
+  const PixelTables t = *PixelTables::decode(2, 1, 64, bytes);
+  const WavelengthPdfView table_view = t.view(0, 0, job_default);
+  const WavelengthPdfView default_view = t.view(1, 0, job_default);
+  EXPECT_TRUE(table_view.is_pixel_table());
+  EXPECT_FALSE(default_view.is_pixel_table());
+  const QuantisedWavelengthCdf& q = *t.table(0, 0);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (int i = 0; i < 200; ++i) {
+    const double v = u(rng);
+    const SampledWavelengths a = table_view.sample_lanes(v, 4), b = q.sample_lanes(v, 4);
+    const SampledWavelengths c = default_view.sample_lanes(v, 4),
+                             d = job_default.sample_lanes(v, 4);
+    for (int s = 0; s < 4; ++s) {
+      ASSERT_EQ(a.lambda(s), b.lambda(s));
+      ASSERT_EQ(a.pdf(s), b.pdf(s));
+      ASSERT_EQ(c.lambda(s), d.lambda(s));
+      ASSERT_EQ(c.pdf(s), d.pdf(s));
+    }
+    const float l = static_cast<float>(kLambdaMin + v * kLambdaRange);
+    ASSERT_EQ(table_view.pdf(l), q.pdf(l));
+    ASSERT_EQ(default_view.pdf(l), job_default.pdf(l));
+    ASSERT_EQ(table_view.cdf(l), q.cdf(l));
+    ASSERT_EQ(default_view.sample(v).lambda, job_default.sample(v).lambda);
+  }
+  // The implicit conversion lets existing callers pass the job's distribution unchanged.
+  const auto takes_view = [](WavelengthPdfView view) { return view.pdf(550.0f); };
+  EXPECT_EQ(takes_view(job_default), job_default.pdf(550.0f));
+}
+
 TEST(PixelTablesTest, DecodeRefusesMalformedTables) {
   const std::vector<std::uint16_t> good = {0, 100, 65535};
   std::string bytes;
