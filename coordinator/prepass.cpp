@@ -243,6 +243,7 @@ absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage&
   absl::StatusOr<image::SpectralImage> out = image::SpectralImage::create(w, h, bins);
   if (!out.ok()) return out.status();
   image::SpectralImage& filtered = *out;
+  const float* values = estimate.data().data();  // layout: image/tile.h
   for_each_row(h, [&](int y0, int y1) {
     std::vector<double> acc(static_cast<std::size_t>(bins));
     for (int y = y0; y < y1; ++y) {
@@ -258,7 +259,7 @@ absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage&
             const double t = squared_distance(centre, guides.at(nx, ny)) * range_scale;
             if (t > kMaxExponent) continue;
             const double weight = spatial_row[nx - x] * std::exp(-t);
-            const float* v = estimate.pixel(nx, ny).data();
+            const float* v = values + (std::size_t(ny) * w + nx) * std::size_t(bins);
             for (int b = 0; b < bins; ++b) acc[b] += weight * double(v[b]);
             weight_sum += weight;
           }
