@@ -171,7 +171,8 @@ absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage&
 //  - otherwise kLearned. The table of a kLearned or kNoEstimate pixel is
 //    r_def = ε·p_ε + (1 − ε)·(s·x)/Σ(s·x), p_ε uniform over the bins where E > 0, s the sensor
 //    term (1 when `sensor` is null), quantised as WavelengthDistribution::quantise does: every
-//    bin with E > 0 keeps a positive quantised mass of at least ⌊65535·ε/|supp E|⌋ units.
+//    bin with E > 0 keeps a quantised mass of at least ⌊65535·ε/|supp E|⌋ − 1 units (> 0), and
+//    every bin with positive mass in r_def at least 1 unit.
 // The test uses the filtered estimate, not the raw one: it decides between the table we would
 // ship and the default, and the raw estimate's per-bin sampling noise alone (relative variance
 // ≈ bins/(lanes·spp), 0.5 for 64 bins at 32 spp × 4 lanes) is thousands of times h, so it
