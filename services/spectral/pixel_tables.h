@@ -1,7 +1,7 @@
 // Per-pixel wavelength tables of one tile (algorithms.md §4): what a prepass or final-pass task
 // carries in PdfTable.quantised_cdf, and the worker's decoded, read-only form of it.
 //
-// Wire layout (the one place it is specified; types.proto points here): pixels in row-major
+// Wire layout (specified here; types.proto's PdfTable points here): pixels in row-major
 // order over the tile, tile-local index p = y·width + x. Pixel p occupies the bytes
 // [2·cells·p, 2·cells·(p + 1)): `cells` unsigned 16-bit little-endian integers q_1 … q_N, the
 // quantised CDF of a QuantisedWavelengthCdf over N = cells uniform cells of [360, 830] nm with
