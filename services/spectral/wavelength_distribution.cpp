@@ -230,29 +230,73 @@ SampledWavelengths WavelengthDistribution::sample_lanes(double u, int lanes) con
 }
 
 std::vector<std::uint16_t> WavelengthDistribution::quantise() const {
+  QuantiseScratch scratch;
+  std::vector<std::uint16_t> cdf(mass_.size() + 1);
+  quantise_masses(mass_, cdf, scratch);
+  return cdf;
+}
+
+void WavelengthDistribution::quantise_weights(std::span<const double> weights,
+                                              std::span<std::uint16_t> cdf_out,
+                                              QuantiseScratch& scratch) {
+  const int n = static_cast<int>(weights.size());
+  PRISM_CHECK(n >= 1 && n <= kMaxCells);
+  PRISM_CHECK(cdf_out.size() == weights.size() + 1);
+  // The same arithmetic as the constructor, so the masses (and hence the bytes) are those of
+  // from_table(weights).
+  scratch.cdf.resize(weights.size() + 1);
+  scratch.mass.resize(weights.size());
+  std::vector<double>& cdf = scratch.cdf;
+  cdf[0] = 0.0;
+  for (int i = 0; i < n; ++i) {
+    PRISM_CHECK(weights[i] >= 0.0 && std::isfinite(weights[i]));
+    cdf[i + 1] = cdf[i] + weights[i];
+  }
+  const double total = cdf[n];
+  PRISM_CHECK(total > 0.0 && std::isfinite(total));
+  for (double& c : cdf) c /= total;
+  cdf[n] = 1.0;
+  for (int i = 0; i < n; ++i) scratch.mass[i] = cdf[i + 1] - cdf[i];
+  quantise_masses(scratch.mass, cdf_out, scratch);
+}
+
+void WavelengthDistribution::quantise_masses(std::span<const double> mass,
+                                             std::span<std::uint16_t> cdf,
+                                             QuantiseScratch& scratch) {
   constexpr double kTotal = QuantisedWavelengthCdf::kTotal;
-  const int n = cells();
-  std::vector<std::int64_t> q(static_cast<size_t>(n));
-  std::vector<double> remainder(static_cast<size_t>(n), 0.0);
+  const int n = static_cast<int>(mass.size());
+  scratch.units.assign(mass.size(), 0);
+  scratch.remainder.assign(mass.size(), 0.0);
+  std::vector<std::int64_t>& q = scratch.units;
+  std::vector<double>& remainder = scratch.remainder;
   std::int64_t sum = 0;
   for (int i = 0; i < n; ++i) {
-    if (mass_[i] <= 0.0) {
-      q[i] = 0;
-      continue;
-    }
-    const double m = mass_[i] * kTotal;
+    if (mass[i] <= 0.0) continue;
+    const double m = mass[i] * kTotal;
     q[i] = std::max<std::int64_t>(1, static_cast<std::int64_t>(std::floor(m)));
     remainder[i] = m - static_cast<double>(q[i]);
     sum += q[i];
   }
   // Largest remainders first gets each cell within one unit of its exact share; cells raised
-  // to the minimum of 1 are paid for by the largest cells.
-  std::vector<int> order(static_cast<size_t>(n));
-  std::iota(order.begin(), order.end(), 0);
-  std::stable_sort(order.begin(), order.end(),
-                   [&](int a, int b) { return remainder[a] > remainder[b]; });
-  for (size_t k = 0; sum < static_cast<std::int64_t>(kTotal); k = (k + 1) % order.size()) {
-    if (mass_[order[k]] > 0.0) {
+  // to the minimum of 1 are paid for by the largest cells. Ties go to the lower index. The
+  // deficit is normally below the number of positive cells, so each of the `deficit` largest
+  // gets one unit and a selection (linear, no allocation) replaces sorting.
+  std::vector<int>& order = scratch.order;
+  order.clear();
+  for (int i = 0; i < n; ++i) {
+    if (mass[i] > 0.0) order.push_back(i);
+  }
+  const auto before = [&](int a, int b) {
+    return remainder[a] > remainder[b] || (remainder[a] == remainder[b] && a < b);
+  };
+  const std::int64_t deficit = static_cast<std::int64_t>(kTotal) - sum;
+  if (deficit > 0 && deficit <= static_cast<std::int64_t>(order.size())) {
+    std::nth_element(order.begin(), order.begin() + (deficit - 1), order.end(), before);
+    for (std::int64_t k = 0; k < deficit; ++k) ++q[order[k]];
+    sum += deficit;
+  } else if (deficit > 0) {
+    std::sort(order.begin(), order.end(), before);
+    for (size_t k = 0; sum < static_cast<std::int64_t>(kTotal); k = (k + 1) % order.size()) {
       ++q[order[k]];
       ++sum;
     }
@@ -263,7 +307,6 @@ std::vector<std::uint16_t> WavelengthDistribution::quantise() const {
     --q[big];
     --sum;
   }
-  std::vector<std::uint16_t> cdf(static_cast<size_t>(n) + 1);
   std::int64_t running = 0;
   cdf[0] = 0;
   for (int i = 0; i < n; ++i) {
@@ -271,7 +314,6 @@ std::vector<std::uint16_t> WavelengthDistribution::quantise() const {
     cdf[i + 1] = static_cast<std::uint16_t>(running);
   }
   PRISM_CHECK(running == static_cast<std::int64_t>(kTotal));
-  return cdf;
 }
 
 absl::StatusOr<QuantisedWavelengthCdf> QuantisedWavelengthCdf::create(

@@ -79,8 +79,25 @@ class WavelengthDistribution {
   // least 1/65535, so quantisation never removes support; cells() must be <= kMaxCells.
   std::vector<std::uint16_t> quantise() const;
 
+  // Reusable buffers for quantise_weights; they grow to the largest cell count seen, so a
+  // caller quantising many tables of one size allocates only on the first.
+  struct QuantiseScratch {
+    std::vector<double> cdf, mass, remainder;
+    std::vector<std::int64_t> units;
+    std::vector<int> order;
+  };
+  // Writes from_table(weights)->quantise() into cdf_out (weights.size() + 1 values) with the
+  // same bytes, without building the distribution: for per-pixel tables in bulk. The caller
+  // guarantees what from_table checks (1..kMaxCells finite weights >= 0 with a positive finite
+  // sum; PRISM_CHECK) and cdf_out.size() == weights.size() + 1.
+  static void quantise_weights(std::span<const double> weights, std::span<std::uint16_t> cdf_out,
+                               QuantiseScratch& scratch);
+
  private:
   explicit WavelengthDistribution(std::vector<double> masses);
+  // Largest-remainder quantisation of masses summing to 1 into cdf (masses.size() + 1 values).
+  static void quantise_masses(std::span<const double> mass, std::span<std::uint16_t> cdf,
+                              QuantiseScratch& scratch);
   std::vector<double> mass_;
   std::vector<double> cdf_;  // cells() + 1 values, cdf_[0] = 0, cdf_.back() = 1 exactly
   std::vector<float> pdf_;   // mass_ / w
