@@ -1,0 +1,921 @@
+// prism-bench-farm: what the farm costs. Three measurements, each printed as a table (figures,
+// no assertions):
+//
+//  overhead  The same job (scenes/cornell-two-lights.pbrt, fixed seed) by `prism render
+//            --threads 2` and by a real prism-coordinator + 2 x `prism-worker --threads 1` +
+//            `prism submit --wait` (wall time from starting the submit to its outputs written,
+//            the bundle upload included), alternating in one run, best of --repeats. ratio =
+//            render time / farm time (goal >= 0.9). The two spectral EXRs' pixel bytes are
+//            compared. The coordinator's and workers' CPU seconds per farm run are printed too.
+//  capacity  A real prism-coordinator and --workers synthetic workers (threads here, one gRPC
+//            channel each unless --channels) that Register, heartbeat at the interval the
+//            coordinator asks for, AcquireTask and at once CompleteTask with a valid result of
+//            the task's shape (a constant TileResult encoded by the tile codec once per tile
+//            shape; only its rect and sample range are patched per task, and the SHA-256 of
+//            every task's bytes is computed before the clock starts). One job of many small
+//            tiles. Completions per second and coordinator CPU per 1000 completions are taken
+//            between 10 % and 90 % of the tasks (steady state) and over the whole job (submit
+//            planning and the output files included); peak RSS is VmHWM.
+//  wire      Bytes per pixel per bin of one task's result: the tile codec's bytes, and the gRPC
+//            payload of the CompleteTask stream as the worker sends it (ResultUpload messages
+//            of at most 1 MiB plus gRPC's 5-byte message prefix), for 16/64/256 bins with and
+//            without gradients and guides; the HTTP/2 column adds the 9-byte header of every
+//            16 KiB DATA frame (the default frame size) and leaves out HEADERS frames. A real
+//            rendered task is encoded too, to show that the size depends only on the shape
+//            (the codec does not compress).
+//
+// Usage: prism-bench-farm [overhead] [capacity] [wire]      (none: all three)
+//          [--resolution 320x240] [--spp 256] [--tile 32] [--repeats 2]          (overhead)
+//          [--workers 100] [--channels 100] [--capacity-resolution 1024x1024]
+//          [--capacity-tile 16] [--capacity-bins 16]                             (capacity)
+//          [--wire-tile 32]                                                      (wire)
+#include <fcntl.h>
+#include <grpcpp/create_channel.h>
+#include <grpcpp/security/credentials.h>
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "prism/v1/farm.grpc.pb.h"
+#include "prism/v1/worker.grpc.pb.h"
+#include "services/base/sha256.h"
+#include "services/base/status.h"
+#include "services/image/exr_spectral.h"
+#include "services/image/tile.h"
+#include "services/image/tile_codec.h"
+#include "services/rpc/auth.h"
+#include "services/rpc/chunks.h"
+#include "services/scene/bundle.h"
+#include "tests/bench/bench_common.h"
+#include "worker/embree_device.h"
+#include "worker/render_scene.h"
+#include "worker/tile_renderer.h"
+
+namespace prism::bench {
+namespace {
+
+namespace fs = std::filesystem;
+namespace v1 = prism::v1;
+using Clock = std::chrono::steady_clock;
+
+constexpr char kToken[] = "bench-token";
+constexpr char kSecret[] = "bench-secret";
+constexpr char kProgram[] = "prism-bench-farm";
+
+double seconds_since(Clock::time_point start) {
+  return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Child processes and /proc.
+
+// Every child started here; killed (SIGKILL) and reaped on destruction, so an early return
+// leaves nothing running.
+class Children {
+ public:
+  Children() = default;
+  Children(const Children&) = delete;
+  Children& operator=(const Children&) = delete;
+  ~Children() {
+    for (pid_t pid : pids_) {
+      ::kill(pid, SIGKILL);
+      int status = 0;
+      ::waitpid(pid, &status, 0);
+    }
+  }
+
+  // Starts argv with stdout and stderr appended to `log`; with `out`, stdout is a pipe instead.
+  pid_t spawn(std::vector<std::string> argv, const fs::path& log, FILE** out = nullptr) {
+    int fds[2] = {-1, -1};
+    if (out != nullptr && ::pipe2(fds, O_CLOEXEC) != 0) return -1;
+    const pid_t pid = ::fork();
+    if (pid == 0) {
+      const int log_fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
+      if (log_fd >= 0) {
+        ::dup2(log_fd, STDERR_FILENO);
+        ::dup2(log_fd, STDOUT_FILENO);
+      }
+      if (out != nullptr) ::dup2(fds[1], STDOUT_FILENO);
+      std::vector<char*> args;
+      for (std::string& a : argv) args.push_back(a.data());
+      args.push_back(nullptr);
+      ::execv(args[0], args.data());
+      ::_exit(127);
+    }
+    if (pid < 0) return -1;
+    pids_.push_back(pid);
+    if (out != nullptr) {
+      ::close(fds[1]);
+      *out = ::fdopen(fds[0], "r");
+    }
+    return pid;
+  }
+
+  // Waits for the child; true when it exited with status 0.
+  bool wait_ok(pid_t pid) {
+    int status = 0;
+    ::waitpid(pid, &status, 0);
+    std::erase(pids_, pid);
+    return WIFEXITED(status) && WEXITSTATUS(status) == 0;
+  }
+
+  // SIGTERM, then waits.
+  void stop(pid_t pid) {
+    ::kill(pid, SIGTERM);
+    wait_ok(pid);
+  }
+
+ private:
+  std::vector<pid_t> pids_;
+};
+
+// utime + stime of a process, in seconds (fields 14 and 15 of /proc/<pid>/stat).
+double cpu_seconds(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::size_t paren = text.rfind(')');
+  if (paren == std::string::npos) return 0;
+  std::istringstream fields(text.substr(paren + 2));
+  std::string field;
+  unsigned long long utime = 0, stime = 0;
+  // After "pid (comm) ", field 3 (state) comes first: utime is the 12th token, stime the 13th.
+  for (int i = 3; i <= 15 && fields >> field; ++i) {
+    if (i == 14) utime = std::stoull(field);
+    if (i == 15) stime = std::stoull(field);
+  }
+  return double(utime + stime) / double(::sysconf(_SC_CLK_TCK));
+}
+
+// A "Key:   N kB" line of /proc/<pid>/status, in MiB (0 when absent).
+double status_mib(pid_t pid, const std::string& key) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind(key, 0) == 0) return std::stod(line.substr(key.size())) / 1024.0;
+  }
+  return 0;
+}
+
+double self_cpu_seconds() {
+  rusage usage{};
+  ::getrusage(RUSAGE_SELF, &usage);
+  return double(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
+         1e-6 * double(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The coordinator and its clients.
+
+std::unique_ptr<grpc::ClientContext> call(const std::string& token, double seconds = 60) {
+  auto context = std::make_unique<grpc::ClientContext>();
+  prism::rpc::add_bearer(*context, token);
+  context->set_deadline(std::chrono::system_clock::now() +
+                        std::chrono::milliseconds(static_cast<long>(seconds * 1000)));
+  return context;
+}
+
+absl::Status grpc_error(const std::string& what, const grpc::Status& status) {
+  return absl::UnknownError(absl::StrCat(what, ": ", status.error_message(), " (code ",
+                                         static_cast<int>(status.error_code()), ")"));
+}
+
+struct Coordinator {
+  pid_t pid = -1;
+  int port = 0;
+  std::string address;
+  std::unique_ptr<v1::FarmService::Stub> farm;
+};
+
+absl::StatusOr<Coordinator> start_coordinator(Children& children, const fs::path& root,
+                                              std::vector<std::string> extra = {}) {
+  std::vector<std::string> argv = {PRISM_COORDINATOR_BINARY, "--listen",      "127.0.0.1:0",
+                                   "--data-dir",             (root / "data").string(),
+                                   "--worker-secret",        kSecret,
+                                   "--api-token",            kToken,
+                                   "--log-level",            "warn"};
+  argv.insert(argv.end(), extra.begin(), extra.end());
+  FILE* out = nullptr;
+  Coordinator c;
+  c.pid = children.spawn(argv, root / "coordinator.log", &out);
+  if (c.pid < 0 || out == nullptr) return absl::InternalError("cannot start prism-coordinator");
+  char line[512];
+  while (std::fgets(line, sizeof(line), out) != nullptr) {
+    if (std::sscanf(line, "listening on port %d", &c.port) == 1) break;
+  }
+  // Keep draining so the coordinator never blocks on a full pipe.
+  std::thread([out] {
+    char sink[512];
+    while (std::fgets(sink, sizeof(sink), out) != nullptr) {
+    }
+    std::fclose(out);
+  }).detach();
+  if (c.port <= 0) {
+    return absl::InternalError(absl::StrCat("prism-coordinator did not print its port; see ",
+                                            (root / "coordinator.log").string()));
+  }
+  c.address = "127.0.0.1:" + std::to_string(c.port);
+  c.farm = v1::FarmService::NewStub(
+      grpc::CreateChannel(c.address, grpc::InsecureChannelCredentials()));
+  return c;
+}
+
+absl::StatusOr<v1::JobInfo> get_job(Coordinator& c, const std::string& job_id) {
+  v1::GetJobRequest request;
+  request.set_job_id(job_id);
+  v1::JobInfo info;
+  auto context = call(kToken);
+  const grpc::Status status = c.farm->GetJob(context.get(), request, &info);
+  if (!status.ok()) return grpc_error("GetJob", status);
+  return info;
+}
+
+absl::StatusOr<int> worker_count(Coordinator& c) {
+  v1::ListWorkersRequest request;
+  v1::ListWorkersResponse response;
+  auto context = call(kToken);
+  const grpc::Status status = c.farm->ListWorkers(context.get(), request, &response);
+  if (!status.ok()) return grpc_error("ListWorkers", status);
+  int live = 0;
+  for (const v1::WorkerInfo& w : response.workers()) live += w.state() != "lost" ? 1 : 0;
+  return live;
+}
+
+absl::StatusOr<std::vector<float>> spectral_pixels(const fs::path& file) {
+  PRISM_ASSIGN_OR_RETURN(image::SpectralExr exr, image::read_spectral_exr(file));
+  const auto data = exr.spectral.data();
+  return std::vector<float>(data.begin(), data.end());
+}
+
+// ---------------------------------------------------------------------------------------------
+// overhead
+
+absl::Status run_overhead(const Flags& flags, const fs::path& root) {
+  PRISM_ASSIGN_OR_RETURN(auto size, parse_size(flags.get("--resolution", "320x240")));
+  PRISM_ASSIGN_OR_RETURN(const double spp, flags.number("--spp", 256, 1, 1 << 20));
+  PRISM_ASSIGN_OR_RETURN(const double tile, flags.number("--tile", 32, 4, 1024));
+  PRISM_ASSIGN_OR_RETURN(const double repeats, flags.number("--repeats", 2, 1, 100));
+  const std::string scene = source_path("scenes/cornell-two-lights.pbrt").string();
+  const std::string resolution = absl::StrCat(size.first, "x", size.second);
+  const std::vector<std::string> render_flags = {
+      "--spp",  std::to_string(int(spp)), "--resolution", resolution, "--seed", "7",
+      "--tile", std::to_string(int(tile))};
+  fs::create_directories(root);
+
+  Children children;
+  PRISM_ASSIGN_OR_RETURN(Coordinator coordinator, start_coordinator(children, root));
+  std::vector<pid_t> workers;
+  for (int i = 0; i < 2; ++i) {
+    workers.push_back(children.spawn(
+        {PRISM_WORKER_BINARY, "--coordinator", coordinator.address, "--threads", "1", "--secret",
+         kSecret, "--host", absl::StrCat("bench-", i), "--cache-dir",
+         (root / absl::StrCat("cache-", i)).string(), "--log-level", "warn"},
+        root / absl::StrCat("worker-", i, ".log")));
+  }
+  const Clock::time_point registering = Clock::now();
+  while (true) {
+    PRISM_ASSIGN_OR_RETURN(const int live, worker_count(coordinator));
+    if (live == 2) break;
+    if (seconds_since(registering) > 30) {
+      return absl::DeadlineExceededError("the two workers did not register within 30 s");
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+
+  struct Run {
+    double render_s = 0, farm_s = 0, coordinator_cpu = 0, worker_cpu = 0;
+    bool identical = false;
+  };
+  std::vector<Run> runs;
+  for (int r = 0; r < int(repeats); ++r) {
+    Run run;
+    const fs::path render_out = root / absl::StrCat("render-", r, ".exr");
+    const fs::path farm_out = root / absl::StrCat("farm-", r, ".exr");
+    auto render = [&]() -> absl::Status {
+      std::vector<std::string> argv = {PRISM_BINARY, "render", scene, "-o", render_out.string(),
+                                       "--threads", "2"};
+      argv.insert(argv.end(), render_flags.begin(), render_flags.end());
+      const Clock::time_point start = Clock::now();
+      const pid_t pid = children.spawn(argv, root / "render.log");
+      if (!children.wait_ok(pid)) {
+        return absl::InternalError(
+            absl::StrCat("prism render failed; see ", (root / "render.log").string()));
+      }
+      run.render_s = seconds_since(start);
+      return absl::OkStatus();
+    };
+    auto farm = [&]() -> absl::Status {
+      // A fresh client token per run: the same token would return the finished job at once.
+      std::vector<std::string> argv = {PRISM_BINARY,  "submit",
+                                       scene,         "--coordinator",
+                                       coordinator.address, "--token",
+                                       kToken,        "--wait",
+                                       "-o",          farm_out.string(),
+                                       "--client-token", absl::StrCat("bench-", ::getpid(), "-", r)};
+      argv.insert(argv.end(), render_flags.begin(), render_flags.end());
+      const double coordinator_cpu = cpu_seconds(coordinator.pid);
+      double worker_cpu = 0;
+      for (pid_t w : workers) worker_cpu += cpu_seconds(w);
+      const Clock::time_point start = Clock::now();
+      const pid_t pid = children.spawn(argv, root / "submit.log");
+      if (!children.wait_ok(pid)) {
+        return absl::InternalError(
+            absl::StrCat("prism submit failed; see ", (root / "submit.log").string()));
+      }
+      run.farm_s = seconds_since(start);
+      run.coordinator_cpu = cpu_seconds(coordinator.pid) - coordinator_cpu;
+      for (pid_t w : workers) run.worker_cpu += cpu_seconds(w);
+      run.worker_cpu -= worker_cpu;
+      return absl::OkStatus();
+    };
+    // Alternate the order so that drifting load on the machine favours neither.
+    if (r % 2 == 0) {
+      PRISM_RETURN_IF_ERROR(render());
+      PRISM_RETURN_IF_ERROR(farm());
+    } else {
+      PRISM_RETURN_IF_ERROR(farm());
+      PRISM_RETURN_IF_ERROR(render());
+    }
+    PRISM_ASSIGN_OR_RETURN(const std::vector<float> a, spectral_pixels(render_out));
+    PRISM_ASSIGN_OR_RETURN(const std::vector<float> b, spectral_pixels(farm_out));
+    run.identical = a.size() == b.size() && !a.empty() &&
+                    std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0;
+    std::fprintf(stderr, "%s: overhead run %d: render %.2f s, farm %.2f s\n", kProgram, r + 1,
+                 run.render_s, run.farm_s);
+    runs.push_back(run);
+  }
+
+  const auto best_render = std::min_element(
+      runs.begin(), runs.end(), [](const Run& a, const Run& b) { return a.render_s < b.render_s; });
+  const auto best_farm = std::min_element(
+      runs.begin(), runs.end(), [](const Run& a, const Run& b) { return a.farm_s < b.farm_s; });
+  const bool identical =
+      std::all_of(runs.begin(), runs.end(), [](const Run& r) { return r.identical; });
+  const int tiles_x = (size.first + int(tile) - 1) / int(tile);
+  const int tiles_y = (size.second + int(tile) - 1) / int(tile);
+  std::printf("\n### Farm overhead\n\n");
+  std::printf(
+      "| scene | resolution | spp | tile | tasks | runs | render s (best) | farm s (best) | "
+      "ratio render/farm | pixels identical | coordinator CPU s | worker CPU s |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  std::printf("| cornell-two-lights.pbrt | %s | %d | %d | %d | %d | %.2f | %.2f | %.3f | %s | %.2f "
+              "| %.2f |\n",
+              resolution.c_str(), int(spp), int(tile), tiles_x * tiles_y, int(repeats),
+              best_render->render_s, best_farm->farm_s, best_render->render_s / best_farm->farm_s,
+              identical ? "yes" : "NO", best_farm->coordinator_cpu, best_farm->worker_cpu);
+  std::printf("\nrender: `prism render --threads 2`; farm: prism-coordinator + 2 x prism-worker "
+              "--threads 1 + `prism submit --wait` (bundle upload to outputs written). CPU "
+              "columns: the best farm run.\n");
+  std::fflush(stdout);
+  for (pid_t w : workers) children.stop(w);
+  children.stop(coordinator.pid);
+  return absl::OkStatus();
+}
+
+// ---------------------------------------------------------------------------------------------
+// capacity
+
+const char kCapacityScene[] = R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 30
+Film "spectral" "integer xresolution" 64 "integer yresolution" 64 "integer nbuckets" 16
+Sampler "zsobol" "integer pixelsamples" 1
+Integrator "volpath" "integer maxdepth" 5
+WorldBegin
+LightSource "infinite" "spectrum L" [360 1 830 1] "float scale" 1
+AttributeBegin
+  Material "diffuse" "float reflectance" 0.5
+  Shape "sphere" "float radius" 0.8
+AttributeEnd
+)";
+
+// Offsets of the rect and sample range in the tile codec's header (tile_codec.h).
+constexpr std::size_t kRectOffset = 16;
+constexpr std::size_t kSamplesOffset = 32;
+
+void put_le(std::string& bytes, std::size_t offset, std::uint64_t value, int width) {
+  for (int i = 0; i < width; ++i) bytes[offset + i] = static_cast<char>((value >> (8 * i)) & 0xff);
+}
+
+// Task results of one tile shape: a constant TileResult, encoded once; per task only the rect
+// and sample range are rewritten.
+class ResultFactory {
+ public:
+  explicit ResultFactory(int bins) : bins_(bins) {}
+
+  // The bytes for `rect` x `samples` (the template of the rect's shape, patched).
+  absl::StatusOr<std::string> bytes(const image::TileRect& rect, const image::SampleRange& samples) {
+    const std::pair<int, int> shape{rect.width(), rect.height()};
+    auto it = templates_.find(shape);
+    if (it == templates_.end()) {
+      PRISM_ASSIGN_OR_RETURN(image::TileResult result,
+                             image::TileResult::create({0, 0, shape.first, shape.second},
+                                                       {0, samples.count()}, bins_));
+      for (double& v : result.mutable_sums()) v = 0.5 * double(samples.count());
+      for (double& v : result.mutable_sum_squares()) v = 0.25 * double(samples.count());
+      for (std::uint64_t& n : result.mutable_counts()) n = samples.count();
+      it = templates_.emplace(shape, image::serialise_tile(result)).first;
+    }
+    std::string out = it->second;
+    put_le(out, kRectOffset + 0, static_cast<std::uint32_t>(rect.x0), 4);
+    put_le(out, kRectOffset + 4, static_cast<std::uint32_t>(rect.y0), 4);
+    put_le(out, kRectOffset + 8, static_cast<std::uint32_t>(rect.x1), 4);
+    put_le(out, kRectOffset + 12, static_cast<std::uint32_t>(rect.y1), 4);
+    put_le(out, kSamplesOffset + 0, samples.s0, 8);
+    put_le(out, kSamplesOffset + 8, samples.s1, 8);
+    return out;
+  }
+
+ private:
+  int bins_;
+  std::map<std::pair<int, int>, std::string> templates_;
+};
+
+using TaskKey = std::array<std::int64_t, 6>;
+TaskKey key_of(const image::TileRect& r, const image::SampleRange& s) {
+  return {r.x0, r.y0, r.x1, r.y1, static_cast<std::int64_t>(s.s0), static_cast<std::int64_t>(s.s1)};
+}
+
+struct CapacityShared {
+  int total_tasks = 0;
+  int bins = 0;
+  std::map<std::pair<int, int>, std::string> templates;  // read-only once the clock starts
+  std::map<TaskKey, std::string> sha;                    // read-only once the clock starts
+  pid_t coordinator_pid = -1;
+  std::atomic<bool> stop{false};
+  std::atomic<int> registered{0};
+  std::atomic<int> completed{0};
+  std::atomic<std::uint64_t> heartbeats{0};
+  std::atomic<std::uint64_t> acquires{0};
+  std::atomic<std::uint64_t> hash_misses{0};
+  std::atomic<std::uint64_t> errors{0};
+  std::mutex mutex;  // guards the marks below and first_error
+  std::optional<Clock::time_point> first_lease;
+  Clock::time_point at10, at90, last;
+  double cpu10 = 0, cpu90 = 0, cpu_last = 0;
+  std::string first_error;
+};
+
+void note_error(CapacityShared& shared, const std::string& what) {
+  ++shared.errors;
+  std::lock_guard<std::mutex> lock(shared.mutex);
+  if (shared.first_error.empty()) shared.first_error = what;
+}
+
+void synthetic_worker(int index, std::shared_ptr<grpc::Channel> channel, CapacityShared& shared) {
+  auto stub = v1::WorkerService::NewStub(channel);
+  std::string worker_id;
+  std::uint32_t heartbeat_ms = 1000;
+  {
+    v1::RegisterRequest request;
+    request.set_host(absl::StrCat("synthetic-", index));
+    request.set_threads(1);
+    v1::RegisterResponse response;
+    auto context = call(kSecret);
+    const grpc::Status status = stub->Register(context.get(), request, &response);
+    ++shared.registered;
+    if (!status.ok()) {
+      note_error(shared, absl::StrCat("Register: ", status.error_message()));
+      return;
+    }
+    worker_id = response.worker_id();
+    heartbeat_ms = std::max<std::uint32_t>(response.heartbeat_interval_ms(), 10);
+  }
+  Clock::time_point last_beat = Clock::now();
+  std::string bytes;
+  while (!shared.stop.load()) {
+    if (Clock::now() - last_beat >= std::chrono::milliseconds(heartbeat_ms)) {
+      v1::HeartbeatRequest beat;
+      beat.set_worker_id(worker_id);
+      v1::HeartbeatResponse reply;
+      auto context = call(kSecret);
+      const grpc::Status status = stub->Heartbeat(context.get(), beat, &reply);
+      if (!status.ok()) note_error(shared, absl::StrCat("Heartbeat: ", status.error_message()));
+      ++shared.heartbeats;
+      last_beat = Clock::now();
+    }
+    v1::AcquireTaskRequest request;
+    request.set_worker_id(worker_id);
+    // Short enough that the heartbeat above is never late.
+    request.set_wait_ms(std::min<std::uint32_t>(500, heartbeat_ms / 2));
+    v1::AcquireTaskResponse response;
+    {
+      auto context = call(kSecret);
+      const grpc::Status status = stub->AcquireTask(context.get(), request, &response);
+      ++shared.acquires;
+      if (!status.ok()) {
+        note_error(shared, absl::StrCat("AcquireTask: ", status.error_message()));
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+        continue;
+      }
+    }
+    if (!response.has_lease()) continue;
+    {
+      std::lock_guard<std::mutex> lock(shared.mutex);
+      if (!shared.first_lease.has_value()) shared.first_lease = Clock::now();
+    }
+    const v1::Lease& lease = response.lease();
+    const v1::TileRect& t = lease.task().tile();
+    const image::TileRect rect{t.x0(), t.y0(), t.x1(), t.y1()};
+    const image::SampleRange samples{lease.task().samples().begin(),
+                                     lease.task().samples().end()};
+    auto it = shared.templates.find({rect.width(), rect.height()});
+    if (it == shared.templates.end()) {
+      note_error(shared, absl::StrCat("no template for a ", rect.width(), "x", rect.height(),
+                                      " tile"));
+      continue;
+    }
+    bytes = it->second;
+    put_le(bytes, kRectOffset + 0, static_cast<std::uint32_t>(rect.x0), 4);
+    put_le(bytes, kRectOffset + 4, static_cast<std::uint32_t>(rect.y0), 4);
+    put_le(bytes, kRectOffset + 8, static_cast<std::uint32_t>(rect.x1), 4);
+    put_le(bytes, kRectOffset + 12, static_cast<std::uint32_t>(rect.y1), 4);
+    put_le(bytes, kSamplesOffset + 0, samples.s0, 8);
+    put_le(bytes, kSamplesOffset + 8, samples.s1, 8);
+    std::string sha;
+    if (auto h = shared.sha.find(key_of(rect, samples)); h != shared.sha.end()) {
+      sha = h->second;
+    } else {
+      ++shared.hash_misses;
+      sha = base::sha256_hex(bytes);
+    }
+    // As the real worker streams it (worker_client.cpp): 1 MiB chunks, ids on the first.
+    auto context = call(kSecret);
+    v1::CompleteTaskResponse done;
+    auto writer = stub->CompleteTask(context.get(), &done);
+    const std::vector<std::string_view> chunks = prism::rpc::split_chunks(bytes);
+    std::uint64_t offset = 0;
+    for (std::size_t i = 0; i < chunks.size(); ++i) {
+      v1::ResultUpload upload;
+      if (i == 0) {
+        upload.set_worker_id(worker_id);
+        upload.set_lease_id(lease.lease_id());
+      }
+      upload.set_offset(offset);
+      upload.set_data(std::string(chunks[i]));
+      upload.set_total_bytes(bytes.size());
+      if (i + 1 == chunks.size()) {
+        upload.set_last(true);
+        upload.set_sha256(sha);
+      }
+      offset += chunks[i].size();
+      if (!writer->Write(upload)) break;
+    }
+    writer->WritesDone();
+    const grpc::Status status = writer->Finish();
+    if (!status.ok() || !done.accepted()) {
+      note_error(shared, absl::StrCat("CompleteTask: ", status.ok() ? "not accepted"
+                                                                     : status.error_message()));
+      continue;
+    }
+    const int n = ++shared.completed;
+    const int at10 = std::max(1, shared.total_tasks / 10);
+    const int at90 = std::max(at10 + 1, shared.total_tasks * 9 / 10);
+    if (n == at10 || n == at90 || n == shared.total_tasks) {
+      const double cpu = cpu_seconds(shared.coordinator_pid);
+      std::lock_guard<std::mutex> lock(shared.mutex);
+      if (n == at10) {
+        shared.at10 = Clock::now();
+        shared.cpu10 = cpu;
+      }
+      if (n == at90) {
+        shared.at90 = Clock::now();
+        shared.cpu90 = cpu;
+      }
+      if (n == shared.total_tasks) {
+        shared.last = Clock::now();
+        shared.cpu_last = cpu;
+      }
+    }
+  }
+}
+
+absl::Status run_capacity(const Flags& flags, const fs::path& root) {
+  PRISM_ASSIGN_OR_RETURN(const double workers, flags.number("--workers", 100, 1, 10000));
+  PRISM_ASSIGN_OR_RETURN(const double channels, flags.number("--channels", workers, 1, 10000));
+  PRISM_ASSIGN_OR_RETURN(auto size, parse_size(flags.get("--capacity-resolution", "1024x1024")));
+  PRISM_ASSIGN_OR_RETURN(const double tile, flags.number("--capacity-tile", 16, 4, 1024));
+  PRISM_ASSIGN_OR_RETURN(const double bins, flags.number("--capacity-bins", 16, 4, 256));
+  fs::create_directories(root / "scene");
+  std::ofstream(root / "scene" / "scene.pbrt", std::ios::binary) << kCapacityScene;
+  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle, scene::make_bundle(root / "scene", "scene.pbrt", {}));
+  const std::string packed = scene::pack(bundle);
+
+  Children children;
+  PRISM_ASSIGN_OR_RETURN(Coordinator coordinator, start_coordinator(children, root));
+  {
+    auto context = call(kToken);
+    v1::UploadBundleResponse response;
+    auto writer = coordinator.farm->UploadBundle(context.get(), &response);
+    v1::BundleChunk chunk;
+    chunk.set_total_bytes(packed.size());
+    chunk.set_data(packed);
+    writer->Write(chunk);
+    writer->WritesDone();
+    const grpc::Status status = writer->Finish();
+    if (!status.ok()) return grpc_error("UploadBundle", status);
+  }
+
+  // Precompute: one template per tile shape, the SHA-256 of every task of the plan (tiles of
+  // `tile` pixels, one sample range [0, 1)).
+  CapacityShared shared;
+  shared.coordinator_pid = coordinator.pid;
+  shared.bins = int(bins);
+  ResultFactory factory{static_cast<int>(bins)};
+  const int t = int(tile);
+  for (int y = 0; y < size.second; y += t) {
+    for (int x = 0; x < size.first; x += t) {
+      const image::TileRect rect{x, y, std::min(x + t, size.first), std::min(y + t, size.second)};
+      const image::SampleRange samples{0, 1};
+      PRISM_ASSIGN_OR_RETURN(std::string bytes, factory.bytes(rect, samples));
+      shared.sha[key_of(rect, samples)] = base::sha256_hex(bytes);
+      std::pair<int, int> shape{rect.width(), rect.height()};
+      if (!shared.templates.contains(shape)) {
+        // The patched bytes parse back to exactly this task: the offsets above are right.
+        PRISM_ASSIGN_OR_RETURN(image::TileResult parsed, image::parse_tile(bytes));
+        if (!(parsed.rect() == rect) || !(parsed.samples() == samples)) {
+          return absl::InternalError("the patched tile header does not round-trip");
+        }
+        shared.templates[shape] = bytes;
+      }
+    }
+  }
+  shared.total_tasks = static_cast<int>(shared.sha.size());
+  const std::size_t result_bytes = shared.templates.begin()->second.size();
+
+  std::vector<std::shared_ptr<grpc::Channel>> pool;
+  for (int i = 0; i < int(channels); ++i) {
+    grpc::ChannelArguments args;
+    args.SetInt("bench.channel", i);  // distinct arguments: a connection per channel
+    pool.push_back(grpc::CreateCustomChannel(coordinator.address,
+                                             grpc::InsecureChannelCredentials(), args));
+  }
+  std::vector<std::thread> threads;
+  for (int i = 0; i < int(workers); ++i) {
+    threads.emplace_back(synthetic_worker, i, pool[i % pool.size()], std::ref(shared));
+  }
+  while (shared.registered.load() < int(workers)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  const double rss_idle = status_mib(coordinator.pid, "VmRSS:");
+  const double self_cpu0 = self_cpu_seconds();
+  const double cpu0 = cpu_seconds(coordinator.pid);
+  const Clock::time_point submitted = Clock::now();
+  std::string job_id;
+  {
+    v1::SubmitJobRequest request;
+    v1::JobSpec& spec = *request.mutable_spec();
+    spec.set_bundle_hash(bundle.content_hash);
+    spec.set_scene_path("scene.pbrt");
+    spec.set_width(size.first);
+    spec.set_height(size.second);
+    spec.set_bins(int(bins));
+    spec.set_tile_size(t);
+    spec.set_spp(1);
+    spec.set_seed(1);
+    v1::SubmitJobResponse response;
+    auto context = call(kToken);
+    const grpc::Status status = coordinator.farm->SubmitJob(context.get(), request, &response);
+    if (!status.ok()) {
+      shared.stop = true;
+      for (std::thread& th : threads) th.join();
+      return grpc_error("SubmitJob", status);
+    }
+    job_id = response.job().job_id();
+    if (response.job().progress().tasks_total() != std::uint64_t(shared.total_tasks)) {
+      shared.stop = true;
+      for (std::thread& th : threads) th.join();
+      return absl::InternalError(absl::StrCat("the job has ", response.job().progress().tasks_total(),
+                                              " tasks, the bench planned ", shared.total_tasks));
+    }
+  }
+  const double submit_s = seconds_since(submitted);
+  v1::JobInfo info;
+  while (true) {
+    PRISM_ASSIGN_OR_RETURN(info, get_job(coordinator, job_id));
+    if (info.state() == v1::JOB_STATE_DONE || info.state() == v1::JOB_STATE_FAILED ||
+        info.state() == v1::JOB_STATE_CANCELLED) {
+      break;
+    }
+    if (seconds_since(submitted) > 600) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  const double done_s = seconds_since(submitted);
+  const double cpu_done = cpu_seconds(coordinator.pid);
+  const double hwm = status_mib(coordinator.pid, "VmHWM:");
+  shared.stop = true;
+  for (std::thread& th : threads) th.join();
+  const double self_cpu = self_cpu_seconds() - self_cpu0;
+  children.stop(coordinator.pid);
+  if (info.state() != v1::JOB_STATE_DONE) {
+    return absl::InternalError(absl::StrCat("the capacity job ended ",
+                                            v1::JobState_Name(info.state()), ": ", info.error(),
+                                            " (first worker error: ", shared.first_error, ")"));
+  }
+
+  const int n = shared.total_tasks;
+  const int n10 = std::max(1, n / 10);
+  const int n90 = std::max(n10 + 1, n * 9 / 10);
+  const double steady_s = std::chrono::duration<double>(shared.at90 - shared.at10).count();
+  const double steady_rate = double(n90 - n10) / steady_s;
+  const double steady_cpu_per_1000 = (shared.cpu90 - shared.cpu10) / double(n90 - n10) * 1000.0;
+  const double whole_s = std::chrono::duration<double>(shared.last - *shared.first_lease).count();
+  std::printf("\n### Coordinator capacity\n\n");
+  std::printf(
+      "| workers | channels | job | tasks | result bytes | completions/s (10-90 %%) | "
+      "coordinator CPU s / 1000 (10-90 %%) | completions/s (first lease to last) | "
+      "coordinator CPU s / 1000 (submit to DONE) | submit s | last completion to DONE s | "
+      "peak RSS MiB (idle RSS) | bench CPU s | heartbeats | errors |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  std::printf(
+      "| %d | %d | %dx%d, %d px tiles, %d bins, 1 spp | %d | %zu | %.0f | %.3f | %.0f | %.3f | "
+      "%.2f | %.2f | %.0f (%.0f) | %.1f | %llu | %llu |\n",
+      int(workers), int(channels), size.first, size.second, t, int(bins), n, result_bytes,
+      steady_rate, steady_cpu_per_1000, double(n) / whole_s, (cpu_done - cpu0) / n * 1000.0,
+      submit_s, done_s - std::chrono::duration<double>(shared.last - submitted).count(), hwm,
+      rss_idle, self_cpu, static_cast<unsigned long long>(shared.heartbeats.load()),
+      static_cast<unsigned long long>(shared.errors.load()));
+  std::printf("\ncoordinator CPU: utime+stime from /proc/<pid>/stat; peak RSS: VmHWM. bench CPU: "
+              "the synthetic workers' own cost, on the same 2 cores. %llu AcquireTask calls, %llu "
+              "hashes computed after the clock started.\n",
+              static_cast<unsigned long long>(shared.acquires.load()),
+              static_cast<unsigned long long>(shared.hash_misses.load()));
+  if (shared.errors.load() > 0) {
+    std::printf("first error: %s\n", shared.first_error.c_str());
+  }
+  std::fflush(stdout);
+  return absl::OkStatus();
+}
+
+// ---------------------------------------------------------------------------------------------
+// wire
+
+struct WireSize {
+  std::uint64_t codec = 0;
+  std::uint64_t grpc = 0;   // serialised ResultUpload messages + 5-byte gRPC prefixes
+  std::uint64_t http2 = 0;  // + 9 bytes per 16 KiB DATA frame
+};
+
+// The CompleteTask stream the worker sends for `bytes` (worker_client.cpp).
+WireSize wire_size(const std::string& bytes) {
+  WireSize size;
+  size.codec = bytes.size();
+  const std::vector<std::string_view> chunks = prism::rpc::split_chunks(bytes);
+  std::uint64_t offset = 0;
+  const std::string sha = base::sha256_hex(bytes);
+  for (std::size_t i = 0; i < chunks.size(); ++i) {
+    v1::ResultUpload upload;
+    if (i == 0) {
+      upload.set_worker_id("w-000001");
+      upload.set_lease_id("l-123456");
+    }
+    upload.set_offset(offset);
+    upload.set_data(std::string(chunks[i]));
+    upload.set_total_bytes(bytes.size());
+    if (i + 1 == chunks.size()) {
+      upload.set_last(true);
+      upload.set_sha256(sha);
+      upload.set_render_seconds(1.25);
+      upload.set_rays(123456789);
+    }
+    offset += chunks[i].size();
+    const std::uint64_t message = upload.ByteSizeLong() + 5;
+    size.grpc += message;
+    size.http2 += message + 9 * ((message + 16383) / 16384);
+  }
+  return size;
+}
+
+absl::Status run_wire(const Flags& flags) {
+  PRISM_ASSIGN_OR_RETURN(const double tile_d, flags.number("--wire-tile", 32, 4, 1024));
+  const int tile = int(tile_d);
+  const image::TileRect rect{0, 0, tile, tile};
+  const image::SampleRange samples{0, 64};
+  const double pixels = double(rect.area());
+  std::printf("\n### Bytes on the wire per pixel per bin (one %dx%d task)\n\n", tile, tile);
+  std::printf("| bins | buffers | codec bytes | codec B/px/bin | gRPC bytes | gRPC B/px/bin | "
+              "HTTP/2 DATA bytes | HTTP/2 B/px/bin |\n");
+  std::printf("|---|---|---|---|---|---|---|---|\n");
+  std::uint64_t synthetic_64 = 0;
+  for (int bins : {16, 64, 256}) {
+    for (int b = 0; b < 4; ++b) {
+      image::TileBuffers buffers;
+      buffers.gradients = (b & 1) != 0;
+      buffers.guides = (b & 2) != 0;
+      PRISM_ASSIGN_OR_RETURN(image::TileResult result,
+                             image::TileResult::create(rect, samples, bins, buffers));
+      const std::string bytes = image::serialise_tile(result);
+      if (bins == 64 && b == 0) synthetic_64 = bytes.size();
+      const WireSize size = wire_size(bytes);
+      const char* names[] = {"sums, squares, counts", "+ gradients", "+ guides",
+                             "+ gradients + guides"};
+      const double per = pixels * bins;
+      std::printf("| %d | %s | %llu | %.2f | %llu | %.2f | %llu | %.2f |\n", bins, names[b],
+                  static_cast<unsigned long long>(size.codec), double(size.codec) / per,
+                  static_cast<unsigned long long>(size.grpc), double(size.grpc) / per,
+                  static_cast<unsigned long long>(size.http2), double(size.http2) / per);
+    }
+  }
+
+  // A real task: the Cornell box's top-left tile at 64 bins, 4 samples, as a worker renders it.
+  PRISM_ASSIGN_OR_RETURN(LoadedBenchScene scene,
+                         load_bench_scene(source_path("scenes/cornell-two-lights.pbrt")));
+  worker::EmbreeDevice device;
+  worker::RenderOptions options;
+  options.bins = 64;
+  options.max_depth = scene.description.integrator.max_depth;
+  options.seed = 7;
+  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<worker::RenderScene> render_scene,
+                         worker::RenderScene::build(device, scene.description, *scene.library,
+                                                    options, 256, 256));
+  worker::TileRenderer renderer(*render_scene);
+  worker::RenderTask task;
+  task.tile = rect;
+  task.samples = {0, 4};
+  worker::TileStats stats;
+  PRISM_ASSIGN_OR_RETURN(image::TileResult real, renderer.render(task, &stats));
+  const std::string real_bytes = image::serialise_tile(real);
+  const WireSize real_size = wire_size(real_bytes);
+  std::printf("\nA real rendered task (cornell-two-lights, %dx%d tile, 64 bins, 4 spp): %llu codec "
+              "bytes (%.2f B/px/bin), %llu gRPC bytes; the synthetic 64-bin row: %llu codec bytes "
+              "(%s: the codec does not compress, so the size is a function of the shape).\n",
+              tile, tile, static_cast<unsigned long long>(real_size.codec),
+              double(real_size.codec) / (pixels * 64),
+              static_cast<unsigned long long>(real_size.grpc),
+              static_cast<unsigned long long>(synthetic_64),
+              real_size.codec == synthetic_64 ? "the same" : "DIFFERENT");
+  std::fflush(stdout);
+  return absl::OkStatus();
+}
+
+int run(int argc, char** argv) {
+  auto flags = parse_flags(argc, argv,
+                           {"--resolution", "--spp", "--tile", "--repeats", "--workers",
+                            "--channels", "--capacity-resolution", "--capacity-tile",
+                            "--capacity-bins", "--wire-tile"});
+  if (!flags.ok()) {
+    std::cerr << kProgram << ": " << flags.status().message() << "\n";
+    return 2;
+  }
+  std::vector<std::string> which = flags->positional;
+  if (which.empty()) which = {"overhead", "capacity", "wire"};
+  for (const std::string& w : which) {
+    if (w != "overhead" && w != "capacity" && w != "wire") {
+      std::cerr << kProgram << ": unknown measurement '" << w
+                << "': want overhead, capacity or wire\n";
+      return 2;
+    }
+  }
+  // Children get SIGKILL from the Children destructor; SIGPIPE must not end the bench.
+  ::signal(SIGPIPE, SIG_IGN);
+  const fs::path root =
+      fs::temp_directory_path() / absl::StrCat("prism-bench-farm-", ::getpid());
+  fs::remove_all(root);
+  int exit_code = 0;
+  for (const std::string& w : which) {
+    const Clock::time_point start = Clock::now();
+    absl::Status status;
+    if (w == "overhead") status = run_overhead(*flags, root / "overhead");
+    if (w == "capacity") status = run_capacity(*flags, root / "capacity");
+    if (w == "wire") status = run_wire(*flags);
+    if (!status.ok()) {
+      std::cerr << kProgram << ": " << w << ": " << status.message() << " (logs under "
+                << (root / w).string() << ")\n";
+      exit_code = 1;
+      continue;
+    }
+    std::fprintf(stderr, "%s: %s took %.1f s\n", kProgram, w.c_str(), seconds_since(start));
+    std::error_code ec;
+    fs::remove_all(root / w, ec);
+  }
+  if (exit_code == 0) {
+    std::error_code ec;
+    fs::remove_all(root, ec);
+  }
+  return exit_code;
+}
+
+}  // namespace
+}  // namespace prism::bench
+
+int main(int argc, char** argv) {
+  return prism::bench::run(argc, argv);
+}
