@@ -41,6 +41,7 @@
 #include <array>
 #include <atomic>
 #include <chrono>
+#include <ctime>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -131,11 +132,17 @@ class Children {
     return pid;
   }
 
-  // Waits for the child; true when it exited with status 0.
-  bool wait_ok(pid_t pid) {
+  // Waits for the child; true when it exited with status 0. `cpu_seconds`: its user + system
+  // time (threads included).
+  bool wait_ok(pid_t pid, double* cpu_seconds = nullptr) {
     int status = 0;
-    ::waitpid(pid, &status, 0);
+    rusage usage{};
+    ::wait4(pid, &status, 0, &usage);
     std::erase(pids_, pid);
+    if (cpu_seconds != nullptr) {
+      *cpu_seconds = double(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
+                     1e-6 * double(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
+    }
     return WIFEXITED(status) && WEXITSTATUS(status) == 0;
   }
 
@@ -174,6 +181,14 @@ double status_mib(pid_t pid, const std::string& key) {
     if (line.rfind(key, 0) == 0) return std::stod(line.substr(key.size())) / 1024.0;
   }
   return 0;
+}
+
+// The 1-minute load average: how busy the shared machine was.
+double load_average() {
+  std::ifstream in("/proc/loadavg");
+  double load = 0;
+  in >> load;
+  return load;
 }
 
 double self_cpu_seconds() {
@@ -269,6 +284,69 @@ absl::StatusOr<std::vector<float>> spectral_pixels(const fs::path& file) {
 // ---------------------------------------------------------------------------------------------
 // overhead
 
+// Where a farm run's wall time went, from the workers' debug logs (one line when a lease is
+// acquired, one when its result was accepted, with the render time).
+struct Breakdown {
+  int tasks = 0;
+  double render = 0;    // in the tile renderer, summed over workers
+  double per_task = 0;  // acquired to accepted minus render: scene fetch/build, encode, upload
+  double between = 0;   // accepted to the next acquired, on the same worker
+  double before = 0;    // submit started to each worker's first lease, summed
+  double after = 0;     // each worker's last accepted result to the submit's end, summed
+};
+
+// Milliseconds since the epoch of the log line's "%Y-%m-%dT%H:%M:%S.%e" local-time prefix.
+std::optional<double> log_time_ms(const std::string& line) {
+  std::tm tm{};
+  int ms = 0;
+  if (std::sscanf(line.c_str(), "%d-%d-%dT%d:%d:%d.%d", &tm.tm_year, &tm.tm_mon, &tm.tm_mday,
+                  &tm.tm_hour, &tm.tm_min, &tm.tm_sec, &ms) != 7) {
+    return std::nullopt;
+  }
+  tm.tm_year -= 1900;
+  tm.tm_mon -= 1;
+  tm.tm_isdst = -1;
+  return double(std::mktime(&tm)) * 1000.0 + ms;
+}
+
+double unix_ms_now() {
+  return double(std::chrono::duration_cast<std::chrono::milliseconds>(
+                    std::chrono::system_clock::now().time_since_epoch())
+                    .count());
+}
+
+// Adds one worker's log lines from `offset` on, for a run from `start_ms` to `end_ms`.
+void add_worker_log(const fs::path& log, std::uintmax_t offset, double start_ms, double end_ms,
+                    Breakdown& b) {
+  std::ifstream in(log);
+  in.seekg(static_cast<std::streamoff>(offset));
+  std::string line;
+  double acquired = -1;  // of the lease in progress; -1: none
+  std::optional<double> last_done;
+  while (std::getline(in, line)) {
+    const std::optional<double> t = log_time_ms(line);
+    if (!t.has_value()) continue;
+    if (line.find("] acquired (attempt ") != std::string::npos) {
+      if (!last_done.has_value()) {
+        b.before += *t - start_ms;
+      } else {
+        b.between += *t - *last_done;
+      }
+      acquired = *t;
+    } else if (const std::size_t at = line.find("] completed: "); at != std::string::npos) {
+      const std::size_t in_at = line.find(" bytes in ", at);
+      if (in_at == std::string::npos || acquired < 0) continue;
+      const double render = 1000.0 * std::atof(line.c_str() + in_at + 10);
+      b.render += render;
+      b.per_task += (*t - acquired) - render;
+      ++b.tasks;
+      last_done = t;
+      acquired = -1;
+    }
+  }
+  if (last_done.has_value()) b.after += end_ms - *last_done;
+}
+
 absl::Status run_overhead(const Flags& flags, const fs::path& root) {
   PRISM_ASSIGN_OR_RETURN(auto size, parse_size(flags.get("--resolution", "320x240")));
   PRISM_ASSIGN_OR_RETURN(const double spp, flags.number("--spp", 256, 1, 1 << 20));
@@ -288,7 +366,7 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
     workers.push_back(children.spawn(
         {PRISM_WORKER_BINARY, "--coordinator", coordinator.address, "--threads", "1", "--secret",
          kSecret, "--host", absl::StrCat("bench-", i), "--cache-dir",
-         (root / absl::StrCat("cache-", i)).string(), "--log-level", "warn"},
+         (root / absl::StrCat("cache-", i)).string(), "--log-level", "debug"},
         root / absl::StrCat("worker-", i, ".log")));
   }
   const Clock::time_point registering = Clock::now();
@@ -302,8 +380,12 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
   }
 
   struct Run {
-    double render_s = 0, farm_s = 0, coordinator_cpu = 0, worker_cpu = 0;
+    double render_s = 0, farm_s = 0;
+    double render_cpu = 0, coordinator_cpu = 0, worker_cpu = 0, client_cpu = 0;
+    double load = 0;  // 1-minute load average after the run
     bool identical = false;
+    Breakdown breakdown;
+    double farm_cpu() const { return coordinator_cpu + worker_cpu + client_cpu; }
   };
   std::vector<Run> runs;
   for (int r = 0; r < int(repeats); ++r) {
@@ -316,7 +398,7 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
       argv.insert(argv.end(), render_flags.begin(), render_flags.end());
       const Clock::time_point start = Clock::now();
       const pid_t pid = children.spawn(argv, root / "render.log");
-      if (!children.wait_ok(pid)) {
+      if (!children.wait_ok(pid, &run.render_cpu)) {
         return absl::InternalError(
             absl::StrCat("prism render failed; see ", (root / "render.log").string()));
       }
@@ -335,13 +417,24 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
       const double coordinator_cpu = cpu_seconds(coordinator.pid);
       double worker_cpu = 0;
       for (pid_t w : workers) worker_cpu += cpu_seconds(w);
+      std::vector<std::uintmax_t> offsets;
+      for (int i = 0; i < 2; ++i) {
+        std::error_code ec;
+        offsets.push_back(fs::file_size(root / absl::StrCat("worker-", i, ".log"), ec));
+      }
+      const double start_ms = unix_ms_now();
       const Clock::time_point start = Clock::now();
       const pid_t pid = children.spawn(argv, root / "submit.log");
-      if (!children.wait_ok(pid)) {
+      if (!children.wait_ok(pid, &run.client_cpu)) {
         return absl::InternalError(
             absl::StrCat("prism submit failed; see ", (root / "submit.log").string()));
       }
       run.farm_s = seconds_since(start);
+      const double end_ms = unix_ms_now();
+      for (int i = 0; i < 2; ++i) {
+        add_worker_log(root / absl::StrCat("worker-", i, ".log"), offsets[i], start_ms, end_ms,
+                       run.breakdown);
+      }
       run.coordinator_cpu = cpu_seconds(coordinator.pid) - coordinator_cpu;
       for (pid_t w : workers) run.worker_cpu += cpu_seconds(w);
       run.worker_cpu -= worker_cpu;
@@ -359,8 +452,9 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
     PRISM_ASSIGN_OR_RETURN(const std::vector<float> b, spectral_pixels(farm_out));
     run.identical = a.size() == b.size() && !a.empty() &&
                     std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0;
-    std::fprintf(stderr, "%s: overhead run %d: render %.2f s, farm %.2f s\n", kProgram, r + 1,
-                 run.render_s, run.farm_s);
+    run.load = load_average();
+    std::fprintf(stderr, "%s: overhead run %d: render %.2f s, farm %.2f s, load %.2f\n", kProgram,
+                 r + 1, run.render_s, run.farm_s, run.load);
     runs.push_back(run);
   }
 
@@ -372,19 +466,39 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
       std::all_of(runs.begin(), runs.end(), [](const Run& r) { return r.identical; });
   const int tiles_x = (size.first + int(tile) - 1) / int(tile);
   const int tiles_y = (size.second + int(tile) - 1) / int(tile);
-  std::printf("\n### Farm overhead\n\n");
-  std::printf(
-      "| scene | resolution | spp | tile | tasks | runs | render s (best) | farm s (best) | "
-      "ratio render/farm | pixels identical | coordinator CPU s | worker CPU s |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-  std::printf("| cornell-two-lights.pbrt | %s | %d | %d | %d | %d | %.2f | %.2f | %.3f | %s | %.2f "
-              "| %.2f |\n",
-              resolution.c_str(), int(spp), int(tile), tiles_x * tiles_y, int(repeats),
-              best_render->render_s, best_farm->farm_s, best_render->render_s / best_farm->farm_s,
-              identical ? "yes" : "NO", best_farm->coordinator_cpu, best_farm->worker_cpu);
+  std::printf("\n### Farm overhead: cornell-two-lights.pbrt, %s, %d spp, %d px tiles (%d tasks), "
+              "seed 7\n\n",
+              resolution.c_str(), int(spp), int(tile), tiles_x * tiles_y);
+  std::printf("| run | render s | farm s | ratio render/farm | render CPU s | farm CPU s "
+              "(coordinator + workers + client) | CPU ratio render/farm | load avg | "
+              "pixels identical |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|\n");
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    const Run& run = runs[r];
+    std::printf("| %zu | %.2f | %.2f | %.3f | %.2f | %.2f (%.2f + %.2f + %.2f) | %.3f | %.2f | %s "
+                "|\n",
+                r + 1, run.render_s, run.farm_s, run.render_s / run.farm_s, run.render_cpu,
+                run.farm_cpu(), run.coordinator_cpu, run.worker_cpu, run.client_cpu,
+                run.render_cpu / run.farm_cpu(), run.load, run.identical ? "yes" : "NO");
+  }
+  std::printf("| best | %.2f | %.2f | **%.3f** | | | | | %s |\n", best_render->render_s,
+              best_farm->farm_s, best_render->render_s / best_farm->farm_s,
+              identical ? "yes" : "NO");
+  std::printf("\nWhere the farm runs' worker time went (seconds summed over the 2 workers; the "
+              "total is 2 x farm s):\n\n");
+  std::printf("| run | tasks | rendering | per task: scene, encode, upload | between tasks | "
+              "submit to first lease | last result to outputs written |\n");
+  std::printf("|---|---|---|---|---|---|---|\n");
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    const Breakdown& b = runs[r].breakdown;
+    std::printf("| %zu | %d | %.2f | %.2f | %.2f | %.2f | %.2f |\n", r + 1, b.tasks,
+                b.render / 1000, b.per_task / 1000, b.between / 1000, b.before / 1000,
+                b.after / 1000);
+  }
   std::printf("\nrender: `prism render --threads 2`; farm: prism-coordinator + 2 x prism-worker "
-              "--threads 1 + `prism submit --wait` (bundle upload to outputs written). CPU "
-              "columns: the best farm run.\n");
+              "--threads 1 + `prism submit --wait` (bundle upload to outputs written). Runs "
+              "alternate which goes first; the load average shows how busy the shared machine "
+              "was.\n");
   std::fflush(stdout);
   for (pid_t w : workers) children.stop(w);
   children.stop(coordinator.pid);
