@@ -95,6 +95,21 @@ double seconds_since(Clock::time_point start) {
 // ---------------------------------------------------------------------------------------------
 // Child processes and /proc.
 
+// Seconds the process's threads have spent runnable but waiting for a CPU (the second field of
+// /proc/<pid>/task/<tid>/schedstat), summed over its live threads. On a machine where our own
+// processes fit the cores, this is the time other processes took from them.
+double runqueue_wait_seconds(pid_t pid) {
+  double total = 0;
+  std::error_code ec;
+  for (const fs::directory_entry& entry :
+       fs::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
+    std::ifstream in(entry.path() / "schedstat");
+    unsigned long long run = 0, wait = 0;
+    if (in >> run >> wait) total += double(wait) * 1e-9;
+  }
+  return total;
+}
+
 // Every child started here; killed (SIGKILL) and reaped on destruction, so an early return
 // leaves nothing running.
 class Children {
@@ -138,11 +153,21 @@ class Children {
   }
 
   // Waits for the child; true when it exited with status 0. `cpu_seconds`: its user + system
-  // time (threads included).
-  bool wait_ok(pid_t pid, double* cpu_seconds = nullptr) {
+  // time (threads included). `runqueue_wait`: its threads' time waiting for a CPU, sampled every
+  // 20 ms while it runs (the last sample before it exits).
+  bool wait_ok(pid_t pid, double* cpu_seconds = nullptr, double* runqueue_wait = nullptr) {
     int status = 0;
     rusage usage{};
-    ::wait4(pid, &status, 0, &usage);
+    if (runqueue_wait == nullptr) {
+      ::wait4(pid, &status, 0, &usage);
+    } else {
+      while (true) {
+        const double sample = runqueue_wait_seconds(pid);
+        if (::wait4(pid, &status, WNOHANG, &usage) == pid) break;
+        *runqueue_wait = sample;
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      }
+    }
     std::erase(pids_, pid);
     if (cpu_seconds != nullptr) {
       *cpu_seconds = double(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
@@ -502,6 +527,7 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
   struct Run {
     double render_s = 0, farm_s = 0;
     double render_cpu = 0, coordinator_cpu = 0, worker_cpu = 0, client_cpu = 0;
+    double render_wait = 0, worker_wait = 0;  // runqueue waits: time others took from us
     double load = 0;  // 1-minute load average after the run
     bool identical = false;
     Breakdown breakdown;
@@ -518,7 +544,7 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
       argv.insert(argv.end(), render_flags.begin(), render_flags.end());
       const Clock::time_point start = Clock::now();
       const pid_t pid = children.spawn(argv, root / "render.log");
-      if (!children.wait_ok(pid, &run.render_cpu)) {
+      if (!children.wait_ok(pid, &run.render_cpu, &run.render_wait)) {
         return absl::InternalError(
             absl::StrCat("prism render failed; see ", (root / "render.log").string()));
       }
@@ -535,8 +561,11 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
                                        "--client-token", absl::StrCat("bench-", ::getpid(), "-", r)};
       argv.insert(argv.end(), render_flags.begin(), render_flags.end());
       const double coordinator_cpu = cpu_seconds(coordinator.pid);
-      double worker_cpu = 0;
-      for (pid_t w : workers) worker_cpu += cpu_seconds(w);
+      double worker_cpu = 0, worker_wait = 0;
+      for (pid_t w : workers) {
+        worker_cpu += cpu_seconds(w);
+        worker_wait += runqueue_wait_seconds(w);
+      }
       std::vector<std::uintmax_t> offsets;
       for (int i = 0; i < 2; ++i) {
         std::error_code ec;
@@ -558,6 +587,8 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
       run.coordinator_cpu = cpu_seconds(coordinator.pid) - coordinator_cpu;
       for (pid_t w : workers) run.worker_cpu += cpu_seconds(w);
       run.worker_cpu -= worker_cpu;
+      for (pid_t w : workers) run.worker_wait += runqueue_wait_seconds(w);
+      run.worker_wait -= worker_wait;
       return absl::OkStatus();
     };
     // Alternate the order so that drifting load on the machine favours neither.
@@ -590,18 +621,19 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
               "seed 7\n\n",
               resolution.c_str(), int(spp), int(tile), tiles_x * tiles_y);
   std::printf("| run | render s | farm s | ratio render/farm | render CPU s | farm CPU s "
-              "(coordinator + workers + client) | CPU ratio render/farm | load avg | "
-              "pixels identical |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|\n");
+              "(coordinator + workers + client) | CPU ratio render/farm | render threads' "
+              "runqueue wait s | workers' runqueue wait s | load avg | pixels identical |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
   for (std::size_t r = 0; r < runs.size(); ++r) {
     const Run& run = runs[r];
-    std::printf("| %zu | %.2f | %.2f | %.3f | %.2f | %.2f (%.2f + %.2f + %.2f) | %.3f | %.2f | %s "
-                "|\n",
+    std::printf("| %zu | %.2f | %.2f | %.3f | %.2f | %.2f (%.2f + %.2f + %.2f) | %.3f | %.2f | "
+                "%.2f | %.2f | %s |\n",
                 r + 1, run.render_s, run.farm_s, run.render_s / run.farm_s, run.render_cpu,
                 run.farm_cpu(), run.coordinator_cpu, run.worker_cpu, run.client_cpu,
-                run.render_cpu / run.farm_cpu(), run.load, run.identical ? "yes" : "NO");
+                run.render_cpu / run.farm_cpu(), run.render_wait, run.worker_wait, run.load,
+                run.identical ? "yes" : "NO");
   }
-  std::printf("| best | %.2f | %.2f | **%.3f** | | | | | %s |\n", best_render->render_s,
+  std::printf("| best | %.2f | %.2f | **%.3f** | | | | | | | %s |\n", best_render->render_s,
               best_farm->farm_s, best_render->render_s / best_farm->farm_s,
               identical ? "yes" : "NO");
   std::printf("\nWhere the farm runs' worker time went (seconds summed over the 2 workers; the "
