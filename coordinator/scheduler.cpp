@@ -7,6 +7,9 @@
 
 namespace prism::coordinator {
 
+// Why a lease stops being current when its result is accepted (compared in complete()).
+constexpr char kAcceptedReason[] = "its result was accepted";
+
 const char* to_string(DirectiveKind kind) {
   switch (kind) {
     case DirectiveKind::kCancelTask:
@@ -261,6 +264,12 @@ CompleteReply Scheduler::complete(const std::string& worker_id, const std::strin
       reply.outcome = CompleteOutcome::kDuplicate;
       return reply;
     }
+    // A different result from a lease that ended before another one's result was accepted is
+    // stale, not evidence of non-determinism: say why the lease stopped counting.
+    if (record.ended != kAcceptedReason) {
+      reply.reason = absl::StrCat("lease ", lease_id, " is no longer current: ", record.ended);
+      return reply;
+    }
     reply.reason = absl::StrCat(describe(job_id, record.lease.task.index, task.spec),
                                 " was already accepted with result hash ", task.result_hash,
                                 ", this result has ", result_hash,
@@ -271,7 +280,7 @@ CompleteReply Scheduler::complete(const std::string& worker_id, const std::strin
     reply.reason = absl::StrCat("lease ", lease_id, " is no longer current: ", record.ended);
     return reply;
   }
-  end_lease(record, "its result was accepted");
+  end_lease(record, kAcceptedReason);
   task.state = TaskState::kDone;
   task.result_hash = result_hash;
   ++job.done;

@@ -168,6 +168,10 @@ TEST(SchedulerTest, ExpiredLeaseIsRequeuedItsLateResultStaleAndTheNewOneAccepted
   // The late result arriving once the task is done with identical bytes is harmless.
   EXPECT_EQ(s.complete("w1", first->id, hash_of(first->task), at(3500)).outcome,
             CompleteOutcome::kDuplicate);
+  // Different bytes from the expired lease are stale for that reason, not "non-deterministic".
+  CompleteReply other = s.complete("w1", first->id, "other-hash", at(3600));
+  EXPECT_EQ(other.outcome, CompleteOutcome::kStale);
+  EXPECT_NE(other.reason.find("expired at 3000 ms"), std::string::npos) << other.reason;
 }
 
 TEST(SchedulerTest, DuplicateCompletionIsHarmlessAndADifferentHashIsRefused) {
