@@ -24,6 +24,7 @@
 #include "services/spectral/testing/chi_square.h"
 #include "worker/fresnel.h"
 #include "worker/gradient_shift.h"
+#include "worker/testing/bin_stats.h"
 #include "worker/tile_renderer.h"
 
 namespace prism::worker {
@@ -510,30 +511,8 @@ TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes)
   }
 }
 
-// Image mean per bin and its standard error from a tile's sums (pixels are independent).
-struct BinStats {
-  std::vector<double> mean, standard_error;
-};
-
-BinStats bin_stats(const image::TileResult& r) {
-  const int bins = r.bins();
-  const auto& rect = r.rect();
-  const double pixels = double(rect.area());
-  BinStats stats{std::vector<double>(bins, 0.0), std::vector<double>(bins, 0.0)};
-  for (int y = rect.y0; y < rect.y1; ++y) {
-    for (int x = rect.x0; x < rect.x1; ++x) {
-      const double n = double(r.count(x, y));
-      for (int b = 0; b < bins; ++b) {
-        double m = r.sum(x, y, b) / n;
-        double variance = std::max(0.0, r.sum_squares(x, y, b) / n - m * m) * n / (n - 1);
-        stats.mean[b] += m / pixels;
-        stats.standard_error[b] += variance / n / (pixels * pixels);
-      }
-    }
-  }
-  for (double& se : stats.standard_error) se = std::sqrt(se);
-  return stats;
-}
+using testing::BinStats;
+using testing::bin_stats;
 
 image::TileResult render(const RenderScene& scene, std::uint64_t spp) {
   TileRenderer renderer(scene);

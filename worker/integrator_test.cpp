@@ -13,6 +13,7 @@
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/testing/chi_square.h"
+#include "worker/testing/bin_stats.h"
 #include "worker/tile_renderer.h"
 
 namespace prism::worker {
@@ -64,32 +65,8 @@ class IntegratorTest : public ::testing::Test {
 spectral::SpectrumLibrary* IntegratorTest::library_ = nullptr;
 EmbreeDevice* IntegratorTest::device_ = nullptr;
 
-// Image mean per bin and its standard error, from per-pixel sums and sums of squares (pixels
-// are independent estimators).
-struct BinStats {
-  std::vector<double> mean;
-  std::vector<double> standard_error;
-};
-
-BinStats bin_stats(const image::TileResult& r) {
-  const int bins = r.bins();
-  const auto& rect = r.rect();
-  const double pixels = double(rect.area());
-  BinStats stats{std::vector<double>(bins, 0.0), std::vector<double>(bins, 0.0)};
-  for (int y = rect.y0; y < rect.y1; ++y) {
-    for (int x = rect.x0; x < rect.x1; ++x) {
-      const double n = double(r.count(x, y));
-      for (int b = 0; b < bins; ++b) {
-        double m = r.sum(x, y, b) / n;
-        double variance = std::max(0.0, r.sum_squares(x, y, b) / n - m * m) * n / (n - 1);
-        stats.mean[b] += m / pixels;
-        stats.standard_error[b] += variance / n / (pixels * pixels);
-      }
-    }
-  }
-  for (double& se : stats.standard_error) se = std::sqrt(se);
-  return stats;
-}
+using testing::BinStats;
+using testing::bin_stats;
 
 // Two-sample z statistics per bin between independent renders.
 struct Agreement {
