@@ -266,7 +266,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   report.render_seconds = result->stats.render_seconds;
   report.samples = result->stats.samples;
   report.rays = result->stats.counters.rays;
-  report.counters = coordinator::counter_list(result->stats.counters);
+  report.counters = worker::counter_list(result->stats.counters);
   report.peak_memory_bytes = coordinator::peak_memory_bytes();
   report.statistics = std::move(result->statistics);
 

@@ -30,13 +30,6 @@ constexpr int kMaxThreads = 4096;
 
 }  // namespace
 
-std::vector<std::pair<std::string, std::uint64_t>> counter_list(const worker::TraceCounters& c) {
-  return {{"camera_rays", c.camera_rays},
-          {"rays", c.rays},
-          {"lane_splits", c.lane_splits},
-          {"non_finite", c.non_finite}};
-}
-
 absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
     worker::EmbreeDevice& device, const scene::SceneDescription& scene,
     const spectral::SpectrumLibrary& library, const LocalRenderOptions& options) {

@@ -95,7 +95,4 @@ class LocalRender {
   double build_seconds_ = 0;
 };
 
-// Counter names and values for reports, in a fixed order.
-std::vector<std::pair<std::string, std::uint64_t>> counter_list(const worker::TraceCounters& c);
-
 }  // namespace prism::coordinator

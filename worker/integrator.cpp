@@ -72,6 +72,21 @@ struct PathState {
 
 }  // namespace
 
+std::vector<std::pair<std::string, std::uint64_t>> counter_list(const TraceCounters& c) {
+  return {{"camera_rays", c.camera_rays},
+          {"rays", c.rays},
+          {"lane_splits", c.lane_splits},
+          {"non_finite", c.non_finite},
+          {"gradient_events", c.gradient_events},
+          {"gradient_shifted_paths", c.gradient_shifted_paths},
+          {"gradient_shifts", c.gradient_shifts},
+          {"gradient_shifts_failed", c.gradient_shifts_failed},
+          {"gradient_shifts_wasted", c.gradient_shifts_wasted},
+          {"gradient_divergences", c.gradient_divergences},
+          {"gradient_reconnections", c.gradient_reconnections},
+          {"gradient_repeated_divergences", c.gradient_repeated_divergences}};
+}
+
 SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
                                          std::uint32_t sample_index,
                                          const spectral::WavelengthDistribution& lambda_pdf,

@@ -13,6 +13,9 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
 
 #include "services/spectral/sampled.h"
 #include "services/spectral/wavelength_distribution.h"
@@ -66,6 +69,10 @@ struct TraceCounters {
     return *this;
   }
 };
+
+// Counter names and values for reports and task results, in a fixed order (the names are the
+// JSON report's and the ResultUpload's).
+std::vector<std::pair<std::string, std::uint64_t>> counter_list(const TraceCounters& c);
 
 // Optional first-hit guide values (prepass guide buffers): distance along the camera ray
 // divided by the distance from the camera to the far side of the scene's bounding sphere (so in

@@ -12,6 +12,7 @@
 
 #include "absl/status/statusor.h"
 #include "services/image/tile.h"
+#include "services/spectral/pixel_tables.h"
 #include "worker/gradient_integrator.h"
 #include "worker/integrator.h"
 #include "worker/render_scene.h"
@@ -21,8 +22,17 @@ namespace prism::worker {
 struct RenderTask {
   image::TileRect tile;
   image::SampleRange samples;
-  std::uint32_t pass = 0;
+  std::uint32_t pass = 0;  // 0: the final pass; k: prepass k (its own sample streams)
   bool want_guides = false;
+  // A prepass task (algorithms.md §4): traced by the hero path tracer (C = 4 lanes) whatever the
+  // job's integrator, and with `early_stop` paths that have met no wavelength-dependent event
+  // after 3 bounces stop (they only shape a pdf).
+  bool prepass = false;
+  bool early_stop = false;
+  // The tile's per-pixel wavelength tables (tile-local pixels, the tile's size), or null: every
+  // pixel samples the scene's default distribution. Pixels without a table use the default too.
+  // Must outlive the render call.
+  const spectral::PixelTables* tables = nullptr;
 };
 
 struct TileStats {
