@@ -14,9 +14,12 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 
 #include "absl/status/statusor.h"
 #include "coordinator/outputs.h"
+#include "coordinator/poisson.h"
+#include "coordinator/prepass.h"
 #include "coordinator/tile_plan.h"
 #include "services/image/tile.h"
 #include "services/scene/scene_description.h"
@@ -48,6 +51,15 @@ struct LocalRenderOptions {
   // and once more when all samples are done.
   std::function<void(const RenderProgress&)> progress;
   double progress_interval_seconds = 0.25;
+  // Gradient jobs (render.integrator == kGradient): every finished tile's pixels are
+  // reconstructed by the screened Poisson solve (poisson.h) with these settings.
+  double poisson_alpha = kDefaultPoissonAlpha;
+  PoissonNorm poisson_norm = PoissonNorm::kL2;
+  // Gradient jobs: also return the raw primal I and gradient G images.
+  bool keep_primal_and_gradients = false;
+  // The multi-pass prepass (algorithms.md §4), when set: its passes run first and the final
+  // pass samples each pixel's learned table.
+  std::optional<PrepassParameters> prepass;
 };
 
 struct LocalRenderStats {
@@ -59,10 +71,22 @@ struct LocalRenderStats {
   std::size_t tasks = 0;
   int tiles = 0;
   int peak_tiles_in_flight = 0;
+  // The prepass (zero without one): its passes' wall time including the coordinator's filter and
+  // tables, the part of that spent reconstructing, and the fraction of pixels that fell back to
+  // the default distribution. render_seconds is the final pass alone.
+  double prepass_seconds = 0;
+  double prepass_reconstruction_seconds = 0;
+  double fallback_fraction = 0;
+  int prepass_passes = 0;
 };
 
 struct LocalRenderResult {
-  image::SpectralImage image;  // bin averages, width x height x bins
+  // Bin averages, width x height x bins; for a gradient job the Poisson reconstruction.
+  image::SpectralImage image;
+  // Gradient jobs with keep_primal_and_gradients: the raw primal I and the gradient G (G[b]
+  // estimates I[b+k] − I[b]), per-pixel means like `image`.
+  std::optional<image::SpectralImage> primal;
+  std::optional<image::SpectralImage> gradient;
   BinStatistics statistics;
   LocalRenderStats stats;
 };
