@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 
+#include "services/base/check.h"
 #include "worker/bsdf.h"
 #include "worker/light.h"
 #include "worker/material.h"
@@ -77,6 +78,7 @@ std::vector<std::pair<std::string, std::uint64_t>> counter_list(const TraceCount
           {"rays", c.rays},
           {"lane_splits", c.lane_splits},
           {"non_finite", c.non_finite},
+          {"early_stops", c.early_stops},
           {"gradient_events", c.gradient_events},
           {"gradient_shifted_paths", c.gradient_shifted_paths},
           {"gradient_shifts", c.gradient_shifts},
@@ -89,11 +91,13 @@ std::vector<std::pair<std::string, std::uint64_t>> counter_list(const TraceCount
 
 SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
                                          std::uint32_t sample_index,
-                                         const spectral::WavelengthDistribution& lambda_pdf,
-                                         TraceCounters& counters, GuideValues* guides) const {
+                                         spectral::WavelengthPdfView lambda_pdf,
+                                         TraceCounters& counters, GuideValues* guides,
+                                         TraceOptions trace) const {
   const RenderOptions& options = scene_.options();
   const Geometry& geometry = scene_.geometry();
-  const int lanes = options.lanes();
+  PRISM_CHECK(trace.lanes >= 0 && trace.lanes <= spectral::kMaxLanes);
+  const int lanes = trace.lanes > 0 ? trace.lanes : options.lanes();
   Sampler sampler(options.sampler, SampleKey{options.seed, pass, std::uint32_t(px),
                                              std::uint32_t(py), sample_index});
 
@@ -221,6 +225,15 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
 
   auto live_lanes = [&] { return path.lambda.live_count(); };
 
+  // Early stop (integrator.h): whether the path has met a wavelength-dependent event, and the
+  // test at each vertex from which it would scatter at `depth`.
+  bool spectral_event = false;
+  auto stops_early = [&](int depth) {
+    if (!trace.early_stop || spectral_event || depth < kEarlyStopBounces) return false;
+    ++counters.early_stops;
+    return true;
+  };
+
   std::uint32_t crossings = 0;  // medium boundaries crossed since the last scattering vertex
   for (int depth = 0;;) {
     const std::uint32_t dim = kDimBounce + kDimsPerBounce * std::uint32_t(depth);
@@ -230,6 +243,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     ++counters.rays;
     auto hit = geometry.intersect(ray, kInfinity);
 
+    if (path.medium >= 0 && scene_.media()[path.medium].chromatic()) spectral_event = true;
     if (path.medium >= 0 && !scene_.media()[path.medium].scattering()) {
       // A purely absorbing medium: nothing to sample, the segment's transmittance is the
       // weight (the same density, 1, for every lane).
@@ -252,7 +266,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       if (flight.scattered) {
         path.beta *= flight.transmittance * sigma_s / flight.pdf[0];
         path.r *= over_hero(flight.pdf);
-        if (path.beta.is_zero() || depth == options.max_depth) break;
+        if (path.beta.is_zero() || depth == options.max_depth || stops_early(depth)) break;
         // A real scattering event inside the medium.
         Vec3f p = ray.origin + ray.direction * flight.t;
         Vec3f wo = -ray.direction;
@@ -294,6 +308,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
 
     const ShapeInfo& info = scene_.shape(hit->shape);
     const Material& material = scene_.materials()[info.material];
+    if (info.wavelength_dependent) spectral_event = true;
     if (depth == 0 && guides && !std::holds_alternative<InterfaceMaterial>(material)) {
       // Normalised so that every point of the scene's bounding sphere lies in [0, 1] and a miss
       // (1) is never nearer than a hit.
@@ -323,7 +338,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       if (++crossings == kCrossingsPerBounce) break;
       continue;
     }
-    if (depth == options.max_depth) break;
+    if (depth == options.max_depth || stops_early(depth)) break;
 
     Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
     Vec3f wo = frame.to_local(-ray.direction);
