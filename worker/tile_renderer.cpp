@@ -71,6 +71,15 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
           }
           const int x = rect.x0 + int(index % width);
           const int y = rect.y0 + int(index / width);
+          // A prepass skips the pixels that fell back to the default distribution in an earlier
+          // pass (algorithms.md §4): their all-zero row says so; they keep no samples.
+          if (task.prepass && task.tables != nullptr &&
+              task.tables->uses_default(x - rect.x0, y - rect.y0)) {
+            if (progress != nullptr) {
+              progress->fetch_add(task.samples.count(), std::memory_order_relaxed);
+            }
+            continue;
+          }
           const spectral::WavelengthPdfView lambda_pdf =
               task.tables != nullptr ? task.tables->view(x - rect.x0, y - rect.y0, job_pdf)
                                      : spectral::WavelengthPdfView(job_pdf);

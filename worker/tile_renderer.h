@@ -34,8 +34,9 @@ struct RenderTask {
   bool prepass = false;
   bool early_stop = false;
   // The tile's per-pixel wavelength tables (tile-local pixels, the tile's size), or null: every
-  // pixel samples the scene's default distribution. Pixels without a table use the default too.
-  // Must outlive the render call.
+  // pixel samples the scene's default distribution. Pixels without a table use the default too,
+  // except in a prepass, which skips them (count 0: they fell back in an earlier pass). Must
+  // outlive the render call.
   const spectral::PixelTables* tables = nullptr;
 };
 

@@ -151,6 +151,31 @@ TEST_F(TileRendererTest, PixelsWithoutATableRenderAsWithoutTables) {
   EXPECT_GT(differing, (120 - defaults) * 9 / 10);
 }
 
+// In a prepass, a pixel without a table fell back in an earlier pass: it is skipped (no samples,
+// no guides), and every other pixel renders as in a final pass with the same tables.
+TEST_F(TileRendererTest, APrepassSkipsThePixelsThatFellBack) {
+  TileRenderer renderer(*scene_);
+  const image::TileRect rect{2, 1, 14, 11};
+  auto uses_default = [](int x, int y) { return (x + 2 * y) % 3 == 0; };
+  const spectral::PixelTables tables = testing::skewed_tables(12, 10, 64, uses_default);
+  RenderTask prepass{rect, {0, 8}, 1, /*want_guides=*/true};
+  prepass.prepass = true;
+  prepass.tables = &tables;
+  auto result = renderer.render(prepass, nullptr);
+  ASSERT_TRUE(result.ok()) << result.status();
+  for (int y = rect.y0; y < rect.y1; ++y) {
+    for (int x = rect.x0; x < rect.x1; ++x) {
+      const bool skipped = uses_default(x - rect.x0, y - rect.y0);
+      EXPECT_EQ(result->count(x, y), skipped ? 0u : 8u) << x << "," << y;
+      const std::size_t p = std::size_t(y - rect.y0) * rect.width() + (x - rect.x0);
+      if (skipped) {
+        EXPECT_EQ(result->depth()[p], 0.0f);
+        for (int b = 0; b < result->bins(); ++b) EXPECT_EQ(result->sum(x, y, b), 0.0);
+      }
+    }
+  }
+}
+
 TEST_F(TileRendererTest, RefusesTablesOfAnotherSizeAndEarlyStopOutsideAPrepass) {
   TileRenderer renderer(*scene_);
   const spectral::PixelTables tables = testing::skewed_tables(4, 4, 8);
