@@ -171,16 +171,31 @@ INSTANTIATE_TEST_SUITE_P(
       return name + (info.param.tau > 0 ? "_tau" : "_tau0");
     });
 
-TEST_F(PipelineStatisticsTest, PrepassFinalPassAgreesWithUniformPerBin) {
+struct PrepassCase {
+  const char* name;
+  worker::IntegratorKind integrator;
+  bool image_scaled;
+};
+
+class PrepassPipelineTest : public PipelineStatisticsTest,
+                            public testing::WithParamInterface<PrepassCase> {};
+
+// The final pass samples every pixel's learned table (hero: its C = 4 CMIS lanes; gradient: the
+// base wavelength, the offsets' MIS weights use the same table); sample-scaled and image-scaled
+// passes.
+TEST_P(PrepassPipelineTest, FinalPassWithLearnedTablesAgreesWithUniformPerBin) {
+  const PrepassCase& c = GetParam();
   auto scene = load("tests/testdata/pipeline/three_emitters.pbrt");
   ASSERT_TRUE(scene.ok()) << scene.status();
   constexpr int kSeeds = 24;
   LocalRenderOptions uniform = base_options(24, 24, 64);
   uniform.render.integrator = worker::IntegratorKind::kUniform;
   LocalRenderOptions prepass = uniform;
-  prepass.render.integrator = worker::IntegratorKind::kHero;
+  prepass.render.integrator = c.integrator;
+  prepass.render.gradient_offset_bins = *worker::gradient_offset_bins(0.15, uniform.render.bins);
   coordinator::PrepassParameters params;
   params.spp = 16;
+  params.image_scaled = c.image_scaled;
   prepass.prepass = params;
   double fallback = 1.0;
   const SeedStats u = over_seeds(*scene, uniform, kSeeds);
@@ -188,8 +203,15 @@ TEST_F(PipelineStatisticsTest, PrepassFinalPassAgreesWithUniformPerBin) {
   // The learned tables are used: not every pixel fell back to the default distribution.
   EXPECT_LT(fallback, 0.9);
   std::string detail;
-  EXPECT_LT(max_z(p, u, &detail), 5.0) << detail;
+  EXPECT_LT(max_z(p, u, &detail), 5.0) << c.name << "\n" << detail;
 }
+
+INSTANTIATE_TEST_SUITE_P(
+    Modes, PrepassPipelineTest,
+    testing::Values(PrepassCase{"hero", worker::IntegratorKind::kHero, false},
+                    PrepassCase{"hero_image_scaled", worker::IntegratorKind::kHero, true},
+                    PrepassCase{"gradient", worker::IntegratorKind::kGradient, false}),
+    [](const testing::TestParamInfo<PrepassCase>& info) { return std::string(info.param.name); });
 
 // Grazing refraction, TIR of offsets, η → 1, a line-spectrum emitter and a very bright one: no
 // NaN or Inf reaches I, G, the reconstruction, or the prepass's final image.
