@@ -85,9 +85,10 @@ absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const coordinator::Jo
   }
   rt.tile = {r.x0(), r.y0(), r.x1(), r.y1()};
 
-  // A prepass has its own sample count (PrepassOptions.spp), which the job's parameters do not
-  // carry: it is held to the job limit only.
-  const std::uint64_t max_spp = rt.prepass ? coordinator::kMaxJobSpp : p.spp;
+  // A prepass has its own sample count: at most Ñ, the last prepass's (a job without prepass
+  // parameters sending one is held to the job limit only).
+  const std::uint64_t max_spp =
+      !rt.prepass ? p.spp : (p.prepass ? p.prepass->spp : coordinator::kMaxJobSpp);
   if (task.samples().begin() >= task.samples().end() || task.samples().end() > max_spp) {
     return absl::InvalidArgumentError(absl::StrCat("sample range ", task.samples().begin(), "-",
                                                    task.samples().end(), " is empty or beyond ",
