@@ -401,11 +401,11 @@ Consistency consistency(const RenderScene& scene, int spp,
     std::vector<double> g(bins), i(bins);
     for (int s = 0; s < spp; ++s) {
       const int x = index % width, y = index / width;
-      GradientSample r = integrator.trace(
-          x, y, 0, std::uint32_t(s),
-          tables != nullptr ? tables->view(x, y, scene.wavelength_pdf())
-                            : spectral::WavelengthPdfView(scene.wavelength_pdf()),
-          p.counters);
+      GradientSample r =
+          integrator.trace(x, y, 0, std::uint32_t(s),
+                           tables != nullptr ? tables->view(x, y, scene.wavelength_pdf())
+                                             : spectral::WavelengthPdfView(scene.wavelength_pdf()),
+                           p.counters);
       p.all_finite = p.all_finite && std::isfinite(r.primal) && std::isfinite(r.gradient) &&
                      std::isfinite(r.gradient_below);
       std::fill(g.begin(), g.end(), 0.0);
@@ -489,10 +489,9 @@ void expect_consistent(const Consistency& c, const std::string& what) {
 // E[G[b]] = E[I[b+k]] − E[I[b]] for every bin on the dispersive scenes, with τ = 0 and τ > 0.
 TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes) {
   std::uint64_t seed = 10;
-  for (const char* name :
-       {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt", "gradient_rough_glass.pbrt",
-        "gradient_slab.pbrt", "gradient_mixed.pbrt", "gradient_media.pbrt", "gradient_room.pbrt",
-        "unbiased.pbrt"}) {
+  for (const char* name : {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt",
+                           "gradient_rough_glass.pbrt", "gradient_slab.pbrt", "gradient_mixed.pbrt",
+                           "gradient_media.pbrt", "gradient_room.pbrt", "unbiased.pbrt"}) {
     auto desc = load(name);
     for (float tau : {0.0f, 0.5f}) {
       RenderOptions options = gradient_options(seed++, tau);
@@ -518,8 +517,8 @@ TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes)
   }
 }
 
-using testing::BinStats;
 using testing::bin_stats;
+using testing::BinStats;
 
 image::TileResult render(const RenderScene& scene, std::uint64_t spp,
                          const spectral::PixelTables* tables = nullptr) {

@@ -67,13 +67,13 @@ class IntegratorTest : public ::testing::Test {
 spectral::SpectrumLibrary* IntegratorTest::library_ = nullptr;
 EmbreeDevice* IntegratorTest::device_ = nullptr;
 
-using testing::BinStats;
 using testing::bin_stats;
+using testing::BinStats;
 
 // Two-sample z statistics per bin between independent renders.
 struct Agreement {
-  double max_z = 0;        // largest |a − b| / combined standard error
-  double chi2_p_value = 1; // Σ z² against chi-square with one degree of freedom per bin
+  double max_z = 0;         // largest |a − b| / combined standard error
+  double chi2_p_value = 1;  // Σ z² against chi-square with one degree of freedom per bin
 };
 
 Agreement agreement(const BinStats& a, const BinStats& b) {
@@ -167,9 +167,9 @@ TEST_F(AgreementTest, HeroAgreesWithUniformForEveryWavelengthPdf) {
       options.spectral_pdf = sensor;
       options.emitter_pdf = emitter;
       options.seed = seed++;
-      expect_agreement(run(options), ref,
-                       "sensor " + std::to_string(int(sensor)) + " emitter " +
-                           std::to_string(int(emitter)));
+      expect_agreement(
+          run(options), ref,
+          "sensor " + std::to_string(int(sensor)) + " emitter " + std::to_string(int(emitter)));
     }
   }
   for (double se : ref.standard_error) EXPECT_GT(se, 0.0);
@@ -206,8 +206,8 @@ TEST_F(AgreementTest, HeroWithPerPixelTablesAgreesWithUniform) {
   RenderOptions options;
   options.integrator = IntegratorKind::kHero;
   options.seed = 150;
-  expect_agreement(run_task(options, [&](RenderTask& task) { task.tables = &tables; }),
-                   reference(), "hero with per-pixel tables");
+  expect_agreement(run_task(options, [&](RenderTask& task) { task.tables = &tables; }), reference(),
+                   "hero with per-pixel tables");
 }
 
 // A prepass task of a `uniform` job traces 4 hero lanes (without early stop it is an unbiased

@@ -15,9 +15,9 @@ TileRenderer::TileRenderer(const RenderScene& scene) : scene_(scene), integrator
   if (scene.options().integrator == IntegratorKind::kGradient) gradient_.emplace(scene);
 }
 
-absl::StatusOr<image::TileResult> TileRenderer::render(
-    const RenderTask& task, TileStats* stats, const std::atomic<bool>* cancel,
-    std::atomic<std::uint64_t>* progress) const {
+absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, TileStats* stats,
+                                                       const std::atomic<bool>* cancel,
+                                                       std::atomic<std::uint64_t>* progress) const {
   const int bins = scene_.grid().bins();
   const image::TileRect& rect = task.tile;
   if (task.early_stop && !task.prepass) {
@@ -26,10 +26,10 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
   }
   if (task.tables != nullptr &&
       (task.tables->width() != rect.width() || task.tables->height() != rect.height())) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "the pdf tables are for ", task.tables->width(), "x", task.tables->height(),
-        " pixels but the tile ", image::to_string(rect), " has ", rect.width(), "x",
-        rect.height()));
+    return absl::InvalidArgumentError(absl::StrCat("the pdf tables are for ", task.tables->width(),
+                                                   "x", task.tables->height(),
+                                                   " pixels but the tile ", image::to_string(rect),
+                                                   " has ", rect.width(), "x", rect.height()));
   }
   // A prepass traces with the hero path tracer whatever the job's integrator, so a gradient
   // job's prepass has no gradients.
@@ -92,7 +92,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
             GuideValues guide;
             if (gradient != nullptr) {
               GradientSample g = gradient->trace(x, y, task.pass, std::uint32_t(s), lambda_pdf,
-                                                  local, task.want_guides ? &guide : nullptr);
+                                                 local, task.want_guides ? &guide : nullptr);
               if (g.primal != 0.0f) {
                 const double v = g.primal;
                 pixel_sums[g.bin] += v;
@@ -135,7 +135,8 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
             result.add_guides(x, y, depth_sum, normal_sum.x, normal_sum.y, normal_sum.z,
                               albedo_sum);
           }
-          if (progress != nullptr) progress->fetch_add(task.samples.count(), std::memory_order_relaxed);
+          if (progress != nullptr)
+            progress->fetch_add(task.samples.count(), std::memory_order_relaxed);
         }
       },
       tbb::simple_partitioner());
@@ -143,7 +144,8 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
   if (stats != nullptr) {
     stats->counters = TraceCounters();
     counters.combine_each([&](const TraceCounters& c) { stats->counters += c; });
-    stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    stats->seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   }
   return result;
 }

@@ -19,7 +19,8 @@ namespace fs = std::filesystem;
 class TileRendererTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    library_ = std::make_unique<spectral::SpectrumLibrary>(*spectral::SpectrumLibrary::load_builtin());
+    library_ =
+        std::make_unique<spectral::SpectrumLibrary>(*spectral::SpectrumLibrary::load_builtin());
     auto loaded = scene::load_scene(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/furnace.pbrt",
                                     scene::LoadOptions{});
     ASSERT_TRUE(loaded.ok()) << loaded.status();

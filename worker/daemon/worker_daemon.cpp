@@ -27,8 +27,8 @@ std::string lease_context(const v1::Lease& lease) {
 
 // Everything that changes a RenderScene, as one comparable string: the film is the task's
 // (an image-scaled prepass renders the job's camera on a smaller one).
-std::string scene_key(const std::string& hash, const coordinator::JobParameters& p,
-                      int film_width, int film_height) {
+std::string scene_key(const std::string& hash, const coordinator::JobParameters& p, int film_width,
+                      int film_height) {
   const RenderOptions& o = p.render;
   return absl::StrCat(hash, "|", p.scene_path, "|", film_width, "x", film_height, "|",
                       static_cast<int>(o.integrator), ",", static_cast<int>(o.spectral_pdf), ",",
@@ -59,9 +59,9 @@ absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const coordinator::Jo
     // Only a prepass may stop paths early (a final pass would be biased).
     rt.early_stop = task.early_stop_prepass();
   } else {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "a ", v1::Pass_Name(task.pass()), " task with pass index ", task.pass_index(),
-        ": want PASS_FINAL with index 0 or PASS_PREPASS with index >= 1"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("a ", v1::Pass_Name(task.pass()), " task with pass index ", task.pass_index(),
+                     ": want PASS_FINAL with index 0 or PASS_PREPASS with index >= 1"));
   }
   rt.want_guides = task.want_guides();
 
@@ -69,8 +69,8 @@ absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const coordinator::Jo
   const std::uint32_t fw = task.film_width(), fh = task.film_height();
   if ((fw == 0) != (fh == 0) || fw > std::uint32_t(image::kMaxImageSide) ||
       fh > std::uint32_t(image::kMaxImageSide)) {
-    return absl::InvalidArgumentError(absl::StrCat("film ", fw, "x", fh,
-                                                   ": want both sides in 1..", image::kMaxImageSide,
+    return absl::InvalidArgumentError(absl::StrCat("film ", fw, "x", fh, ": want both sides in 1..",
+                                                   image::kMaxImageSide,
                                                    ", or both 0 for the job's resolution"));
   }
   setup.film_width = fw == 0 ? p.width : int(fw);
@@ -85,9 +85,10 @@ absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const coordinator::Jo
   }
   rt.tile = {r.x0(), r.y0(), r.x1(), r.y1()};
 
-  // A prepass has its own sample count (PrepassOptions.spp), which the job's parameters do not
-  // carry: it is held to the job limit only.
-  const std::uint64_t max_spp = rt.prepass ? coordinator::kMaxJobSpp : p.spp;
+  // A prepass has its own sample count: at most Ñ, the last prepass's (a job without prepass
+  // parameters sending one is held to the job limit only).
+  const std::uint64_t max_spp =
+      !rt.prepass ? p.spp : (p.prepass ? p.prepass->spp : coordinator::kMaxJobSpp);
   if (task.samples().begin() >= task.samples().end() || task.samples().end() > max_spp) {
     return absl::InvalidArgumentError(absl::StrCat("sample range ", task.samples().begin(), "-",
                                                    task.samples().end(), " is empty or beyond ",
@@ -103,10 +104,9 @@ absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const coordinator::Jo
     absl::StatusOr<spectral::PixelTables> decoded = spectral::PixelTables::decode(
         rt.tile.width(), rt.tile.height(), cells, table.quantised_cdf());
     if (!decoded.ok()) {
-      return absl::InvalidArgumentError(absl::StrCat("the pdf table of tile ", r.x0(), ",", r.y0(),
-                                                     "-", r.x1(), ",", r.y1(), " (",
-                                                     table.cells(), " cells) does not decode: ",
-                                                     decoded.status().message()));
+      return absl::InvalidArgumentError(absl::StrCat(
+          "the pdf table of tile ", r.x0(), ",", r.y0(), "-", r.x1(), ",", r.y1(), " (",
+          table.cells(), " cells) does not decode: ", decoded.status().message()));
     }
     setup.tables.emplace(std::move(*decoded));
   }
@@ -405,8 +405,8 @@ absl::StatusOr<fs::path> WorkerDaemon::ensure_bundle(const std::string& hash,
 }
 
 absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
-                                   const std::string& context, std::string* bytes,
-                                   TileStats* stats, v1::FailureClass* failure_class) {
+                                   const std::string& context, std::string* bytes, TileStats* stats,
+                                   v1::FailureClass* failure_class) {
   const v1::Task& task = lease.task();
   const std::string hash =
       lease.bundle_hash().empty() ? task.spec().bundle_hash() : lease.bundle_hash();

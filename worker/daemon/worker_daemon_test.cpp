@@ -341,9 +341,9 @@ class WorkerDaemonTest : public ::testing::Test {
     task.early_stop = task.prepass && t.early_stop_prepass();
     std::optional<spectral::PixelTables> tables;
     if (t.has_pdf_table()) {
-      auto decoded = spectral::PixelTables::decode(task.tile.width(), task.tile.height(),
-                                                   int(t.pdf_table().cells()),
-                                                   t.pdf_table().quantised_cdf());
+      auto decoded =
+          spectral::PixelTables::decode(task.tile.width(), task.tile.height(),
+                                        int(t.pdf_table().cells()), t.pdf_table().quantised_cdf());
       EXPECT_TRUE(decoded.ok()) << decoded.status();
       tables.emplace(std::move(*decoded));
       task.tables = &*tables;
@@ -366,8 +366,8 @@ class WorkerDaemonTest : public ::testing::Test {
     task.set_early_stop_prepass(true);
     const int width = tile.x1() - tile.x0(), height = tile.y1() - tile.y0();
     task.mutable_pdf_table()->set_cells(24);
-    task.mutable_pdf_table()->set_quantised_cdf(testing::skewed_table_bytes(
-        width, height, 24, [](int x, int y) { return x == y; }));
+    task.mutable_pdf_table()->set_quantised_cdf(
+        testing::skewed_table_bytes(width, height, 24, [](int x, int y) { return x == y; }));
     return lease;
   }
 
@@ -676,8 +676,7 @@ TEST_F(WorkerDaemonTest, ATileOutsideItsPassFilmFailsTheTaskAsAWorkerFault) {
   fake_.lease = make_prepass_lease(rect(4, 4, 12, 8));
   const v1::FailTaskRequest failure = expect_failure();
   EXPECT_EQ(failure.failure_class(), v1::FAILURE_CLASS_WORKER);
-  EXPECT_NE(failure.message().find("outside the 8x8 film"), std::string::npos)
-      << failure.message();
+  EXPECT_NE(failure.message().find("outside the 8x8 film"), std::string::npos) << failure.message();
 }
 
 TEST_F(WorkerDaemonTest, APrepassTaskWithIndexZeroFailsTheTaskAsAWorkerFault) {
