@@ -304,6 +304,8 @@ absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
       case v1::OUTPUT_KIND_RGB_EXR: path = paths.rgb_exr; break;
       case v1::OUTPUT_KIND_PNG: path = paths.png; break;
       case v1::OUTPUT_KIND_REPORT_JSON: path = paths.json; break;
+      case v1::OUTPUT_KIND_PRIMAL_EXR: path = paths.primal_exr; break;
+      case v1::OUTPUT_KIND_GRADIENT_EXR: path = paths.gradient_exr; break;
       default: continue;  // outputs this client does not name yet
     }
     PRISM_RETURN_IF_ERROR(write_atomically(path, bytes));

@@ -11,6 +11,8 @@
 #include "coordinator/job_spec.h"
 #include "coordinator/local_render.h"
 #include "coordinator/outputs.h"
+#include "coordinator/poisson.h"
+#include "coordinator/prepass.h"
 #include "services/base/status.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
@@ -67,6 +69,11 @@ void draw_progress(std::ostream& out, const coordinator::RenderProgress& p) {
       << std::flush;
 }
 
+bool has_prepass_options(const RenderCommandOptions& o) {
+  return o.prepass_passes || o.prepass_spp || o.prepass_mode != "samples" || o.prepass_epsilon ||
+         o.prepass_fallback || o.prepass_sigma_s || o.prepass_sigma_r;
+}
+
 }  // namespace
 
 absl::StatusOr<std::pair<int, int>> parse_resolution(const std::string& text) {
@@ -100,8 +107,9 @@ absl::StatusOr<std::uint64_t> parse_seed(const std::string& text) {
 absl::StatusOr<worker::IntegratorKind> parse_integrator(const std::string& name) {
   if (name == "uniform") return worker::IntegratorKind::kUniform;
   if (name == "hero") return worker::IntegratorKind::kHero;
+  if (name == "gradient") return worker::IntegratorKind::kGradient;
   return absl::InvalidArgumentError(
-      absl::StrCat("--integrator '", name, "': want uniform or hero"));
+      absl::StrCat("--integrator '", name, "': want uniform, hero or gradient"));
 }
 
 absl::StatusOr<worker::SpectralPdfKind> parse_spectral_pdf(const std::string& name) {
@@ -139,6 +147,59 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   PRISM_RETURN_IF_ERROR(parse_spectral_pdf(o.spectral_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_emitter_pdf(o.emitter_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_light_selection(o.light_selection).status());
+  const bool gradient = *parse_integrator(o.integrator) == worker::IntegratorKind::kGradient;
+  if (!gradient && (o.delta || o.tau || o.alpha || o.poisson != "l2" || o.primal_and_gradients)) {
+    return absl::InvalidArgumentError(
+        "--delta, --tau, --alpha, --poisson and --primal-and-gradients need --integrator gradient");
+  }
+  if (o.delta && !(*o.delta > 0.0 && *o.delta <= 0.5)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--delta ", *o.delta, " is out of range: want a fraction in (0, 0.5]"));
+  }
+  if (o.tau && !(std::isfinite(*o.tau) && *o.tau >= 0.0)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--tau ", *o.tau, " is out of range: want a finite value >= 0"));
+  }
+  if (o.alpha && !(std::isfinite(*o.alpha) && *o.alpha >= coordinator::kMinPoissonAlpha &&
+                   *o.alpha <= coordinator::kMaxPoissonAlpha)) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "--alpha ", *o.alpha, " is out of range: want ", coordinator::kMinPoissonAlpha, "..",
+        coordinator::kMaxPoissonAlpha, " (alpha must be > 0)"));
+  }
+  PRISM_RETURN_IF_ERROR(coordinator::parse_poisson_norm(o.poisson).status());
+  if (o.prepass_mode != "samples" && o.prepass_mode != "image") {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--prepass-mode '", o.prepass_mode, "': want samples or image"));
+  }
+  const bool prepass_options = has_prepass_options(o);
+  if (o.prepass == false && prepass_options) {
+    return absl::InvalidArgumentError("--prepass-* options are given with --no-prepass");
+  }
+  PRISM_RETURN_IF_ERROR(check_range("--prepass-passes", o.prepass_passes, 1,
+                                    coordinator::PrepassParameters::kMaxPasses));
+  PRISM_RETURN_IF_ERROR(check_range("--prepass-spp", o.prepass_spp, 1, kMaxSpp));
+  {
+    // The float options through the coordinator's own rules (names mapped back to the flags).
+    coordinator::PrepassParameters p;
+    if (o.prepass_epsilon) p.epsilon = *o.prepass_epsilon;
+    if (o.prepass_fallback) p.fallback = *o.prepass_fallback;
+    if (o.prepass_sigma_s) p.sigma_s = *o.prepass_sigma_s;
+    if (o.prepass_sigma_r) p.sigma_r = *o.prepass_sigma_r;
+    absl::Status valid = p.validate();
+    if (!valid.ok()) {
+      return absl::InvalidArgumentError(absl::StrCat("--prepass-*: ", valid.message()));
+    }
+    // The wire keeps 0 for "default": a value that rounds to 0 in float would be lost.
+    for (const auto& [flag, value] :
+         {std::pair{"--prepass-epsilon", o.prepass_epsilon},
+          std::pair{"--prepass-fallback", o.prepass_fallback},
+          std::pair{"--prepass-sigma-s", o.prepass_sigma_s},
+          std::pair{"--prepass-sigma-r", o.prepass_sigma_r}}) {
+      if (value && static_cast<float>(*value) == 0.0f && *value != 0.0) {
+        return absl::InvalidArgumentError(absl::StrCat(flag, " ", *value, " is too small"));
+      }
+    }
+  }
   if (!std::isfinite(o.exposure) || std::fabs(o.exposure) > kMaxExposureStops) {
     return absl::InvalidArgumentError(absl::StrCat("--exposure ", o.exposure,
                                                    " is out of range: want stops in -",
@@ -156,9 +217,39 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   v1::JobSpec spec;
   spec.set_bundle_hash(bundle_hash);
   spec.set_scene_path(scene_path);
-  spec.set_integrator(*parse_integrator(o.integrator) == worker::IntegratorKind::kUniform
-                          ? v1::INTEGRATOR_UNIFORM
-                          : v1::INTEGRATOR_HERO);
+  switch (*parse_integrator(o.integrator)) {
+    case worker::IntegratorKind::kUniform:
+      spec.set_integrator(v1::INTEGRATOR_UNIFORM);
+      break;
+    case worker::IntegratorKind::kHero:
+      spec.set_integrator(v1::INTEGRATOR_HERO);
+      break;
+    case worker::IntegratorKind::kGradient: {
+      spec.set_integrator(v1::INTEGRATOR_GRADIENT);
+      auto* g = spec.mutable_gradient();
+      if (o.delta) g->set_delta(static_cast<float>(*o.delta));
+      if (o.tau) g->set_tau(static_cast<float>(*o.tau));
+      if (o.alpha) g->set_alpha(static_cast<float>(*o.alpha));
+      g->set_norm(*coordinator::parse_poisson_norm(o.poisson) == coordinator::PoissonNorm::kL1
+                      ? v1::POISSON_NORM_L1
+                      : v1::POISSON_NORM_L2);
+      spec.mutable_outputs()->set_primal_and_gradients(o.primal_and_gradients);
+      break;
+    }
+  }
+  const bool prepass_options = has_prepass_options(o);
+  // Unset, the job's rule decides (job_spec.h); prepass options alone ask for the prepass.
+  if (o.prepass.has_value() || prepass_options) {
+    auto* p = spec.mutable_prepass();
+    p->set_enabled(o.prepass.value_or(true));
+    if (o.prepass_passes) p->set_passes(static_cast<std::uint32_t>(*o.prepass_passes));
+    if (o.prepass_spp) p->set_spp(static_cast<std::uint32_t>(*o.prepass_spp));
+    p->set_image_scaled(o.prepass_mode == "image");
+    if (o.prepass_epsilon) p->set_epsilon(static_cast<float>(*o.prepass_epsilon));
+    if (o.prepass_fallback) p->set_fallback(static_cast<float>(*o.prepass_fallback));
+    if (o.prepass_sigma_s) p->set_sigma_s(static_cast<float>(*o.prepass_sigma_s));
+    if (o.prepass_sigma_r) p->set_sigma_r(static_cast<float>(*o.prepass_sigma_r));
+  }
   if (o.spp) spec.set_spp(static_cast<std::uint32_t>(*o.spp));
   if (o.resolution) {
     auto [w, h] = *parse_resolution(*o.resolution);
@@ -235,6 +326,10 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   local.samples_per_task = job.samples_per_task;
   local.tile_size = job.tile_size;
   local.threads = options.threads.has_value() ? static_cast<int>(*options.threads) : 0;
+  local.poisson_alpha = job.gradient.alpha;
+  local.poisson_norm = job.gradient.norm;
+  local.keep_primal_and_gradients = job.outputs.primal_and_gradients;
+  local.prepass = job.prepass;
   if (options.progress != nullptr) {
     std::ostream* out = options.progress;
     local.progress = [out](const coordinator::RenderProgress& p) { draw_progress(*out, p); };
@@ -269,7 +364,21 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   report.counters = worker::counter_list(result->stats.counters);
   report.peak_memory_bytes = coordinator::peak_memory_bytes();
   report.statistics = std::move(result->statistics);
+  coordinator::add_job_sections(job, report);
+  if (report.gradient.has_value()) {
+    coordinator::fill_gradient_counters(report.counters, *report.gradient);
+  }
+  if (report.prepass.has_value()) {
+    report.prepass->seconds = result->stats.prepass_seconds;
+    report.prepass->reconstruction_seconds = result->stats.prepass_reconstruction_seconds;
+    report.prepass->final_seconds = result->stats.render_seconds;
+    report.prepass->fallback_fraction = result->stats.fallback_fraction;
+  }
 
+  if (result->primal.has_value() && result->gradient.has_value()) {
+    PRISM_RETURN_IF_ERROR(coordinator::write_primal_and_gradient(
+        *result->primal, *result->gradient, renderer->scene().cmf(), report, paths));
+  }
   PRISM_RETURN_IF_ERROR(coordinator::write_outputs(result->image, renderer->scene().cmf(), report,
                                                    paths, {static_cast<float>(options.exposure)}));
   const double seconds = report.render_seconds;

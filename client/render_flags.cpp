@@ -9,7 +9,7 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   f.output_opt = cmd.add_option(
       "-o,--output", f.output, "Spectral EXR to write (default: the Film filename's stem, here)");
   f.spp_opt = cmd.add_option("--spp", f.spp, "Samples per pixel (default: the scene's)");
-  cmd.add_option("--integrator", o.integrator, "uniform or hero (default hero)");
+  cmd.add_option("--integrator", o.integrator, "uniform, hero or gradient (default hero)");
   f.bins_opt =
       cmd.add_option("--bins", f.bins, "Spectral bins, 4..256 (default: nbuckets, else 64)");
   f.resolution_opt =
@@ -31,6 +31,37 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   f.max_depth_opt = cmd.add_option("--max-depth", f.max_depth,
                                    "Path vertices after the camera (default: the scene's)");
   cmd.add_option("--exposure", o.exposure, "PNG preview exposure in stops (default 0)");
+
+  f.delta_opt = cmd.add_option("--delta", f.delta,
+                               "Gradient: spectral offset as a fraction of the range, snapped to "
+                               "whole bins (default 0.15)");
+  f.tau_opt = cmd.add_option("--tau", f.tau, "Gradient: shift threshold (default 0)");
+  f.alpha_opt =
+      cmd.add_option("--alpha", f.alpha, "Gradient: screened Poisson weight, > 0 (default 0.2)");
+  cmd.add_option("--poisson", o.poisson, "Gradient: reconstruction norm l2 or l1 (default l2)");
+  cmd.add_flag("--primal-and-gradients", o.primal_and_gradients,
+               "Gradient: also write the raw primal and gradient EXRs (<stem>.primal.exr, "
+               "<stem>.gradient.exr)");
+  f.prepass_opt = cmd.add_flag("--prepass", f.prepass,
+                               "Learn per-pixel wavelength pdfs in a prepass (default: on for "
+                               "hero when the scene depends on wavelength)");
+  f.no_prepass_opt = cmd.add_flag("--no-prepass", f.no_prepass, "No prepass");
+  f.prepass_opt->excludes(f.no_prepass_opt);
+  f.prepass_passes_opt =
+      cmd.add_option("--prepass-passes", f.prepass_passes, "Prepass passes K (default 2)");
+  f.prepass_spp_opt = cmd.add_option("--prepass-spp", f.prepass_spp,
+                                     "Samples per pixel of the last prepass (default 128)");
+  cmd.add_option("--prepass-mode", o.prepass_mode,
+                 "samples (earlier passes take fewer samples) or image (earlier passes a smaller "
+                 "film); default samples");
+  f.prepass_epsilon_opt = cmd.add_option("--prepass-epsilon", f.prepass_epsilon,
+                                         "Defensive mixture weight (default 0.05)");
+  f.prepass_fallback_opt = cmd.add_option("--prepass-fallback", f.prepass_fallback,
+                                          "Fallback threshold h (default 2e-4)");
+  f.prepass_sigma_s_opt = cmd.add_option("--prepass-sigma-s", f.prepass_sigma_s,
+                                         "Bilateral filter spatial sigma, pixels (default 1.75)");
+  f.prepass_sigma_r_opt = cmd.add_option("--prepass-sigma-r", f.prepass_sigma_r,
+                                         "Bilateral filter range sigma (default 0.015)");
 }
 
 absl::Status apply_render_flags(const RenderFlags& f, RenderCommandOptions& o) {
@@ -44,6 +75,20 @@ absl::Status apply_render_flags(const RenderFlags& f, RenderCommandOptions& o) {
     PRISM_ASSIGN_OR_RETURN(o.seed, parse_seed(f.seed));
   }
   o.spectral_light_selection = !f.no_spectral_light_selection;
+  auto take = [](const CLI::Option* opt, auto value, auto& target) {
+    if (opt->count() > 0) target = value;
+  };
+  take(f.delta_opt, f.delta, o.delta);
+  take(f.tau_opt, f.tau, o.tau);
+  take(f.alpha_opt, f.alpha, o.alpha);
+  take(f.prepass_passes_opt, f.prepass_passes, o.prepass_passes);
+  take(f.prepass_spp_opt, f.prepass_spp, o.prepass_spp);
+  take(f.prepass_epsilon_opt, f.prepass_epsilon, o.prepass_epsilon);
+  take(f.prepass_fallback_opt, f.prepass_fallback, o.prepass_fallback);
+  take(f.prepass_sigma_s_opt, f.prepass_sigma_s, o.prepass_sigma_s);
+  take(f.prepass_sigma_r_opt, f.prepass_sigma_r, o.prepass_sigma_r);
+  if (f.prepass_opt->count() > 0) o.prepass = true;
+  if (f.no_prepass_opt->count() > 0) o.prepass = false;
   return absl::OkStatus();
 }
 

@@ -15,6 +15,7 @@
 #include "services/image/tile_codec.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
+#include "worker/render_scene.h"
 
 namespace prism::coordinator {
 namespace {
@@ -161,8 +162,9 @@ fs::path FarmCoordinator::output_dir(const std::string& job_id) const {
 
 OutputPaths FarmCoordinator::output_paths_of(const std::string& job_id) const {
   const fs::path dir = output_dir(job_id);
-  return OutputPaths{dir / (job_id + ".exr"), dir / (job_id + ".rgb.exr"), dir / (job_id + ".png"),
-                     dir / (job_id + ".json")};
+  return OutputPaths{dir / (job_id + ".exr"),        dir / (job_id + ".rgb.exr"),
+                     dir / (job_id + ".png"),        dir / (job_id + ".json"),
+                     dir / (job_id + ".primal.exr"), dir / (job_id + ".gradient.exr")};
 }
 
 // ---- bundles ----
@@ -241,19 +243,61 @@ absl::StatusOr<std::string> FarmCoordinator::bundle_bytes(const std::string& has
 
 // ---- jobs ----
 
-std::vector<TaskSpec> FarmCoordinator::task_specs(const TilePlan& plan) const {
+int FarmCoordinator::stage_of(const ActiveJob& job, int task_index) {
+  int stage = 0;
+  while (stage + 2 < static_cast<int>(job.stage_first.size()) &&
+         task_index >= job.stage_first[static_cast<std::size_t>(stage + 1)]) {
+    ++stage;
+  }
+  return stage;
+}
+
+int FarmCoordinator::tile_of(const ActiveJob& job, int task_index) {
+  const int stage = stage_of(job, task_index);
+  const int local = task_index - job.stage_first[static_cast<std::size_t>(stage)];
+  const bool final_stage = !job.prepass.has_value() || stage == job.prepass->passes();
+  return final_stage ? local / static_cast<int>(job.plan.ranges.size()) : local;
+}
+
+std::vector<TaskSpec> FarmCoordinator::stage_specs(const ActiveJob& job, int stage) const {
   std::vector<TaskSpec> tasks;
-  tasks.reserve(plan.task_count());
-  for (const image::TileRect& tile : plan.tiles) {
-    for (const image::SampleRange& range : plan.ranges) {
+  if (job.prepass.has_value() && stage < job.prepass->passes()) {
+    const int k = stage + 1;
+    for (const image::TileRect& tile : job.prepass->plan(k).tiles) {
+      tasks.push_back(TaskSpec{Pass::kPrepass, k, tile, {0, job.prepass->pass(k).spp}});
+    }
+    return tasks;
+  }
+  tasks.reserve(job.plan.task_count());
+  for (const image::TileRect& tile : job.plan.tiles) {
+    for (const image::SampleRange& range : job.plan.ranges) {
       tasks.push_back(TaskSpec{Pass::kFinal, 0, tile, range});
     }
   }
   return tasks;
 }
 
+std::vector<TaskSpec> FarmCoordinator::task_specs(const ActiveJob& job) const {
+  std::vector<TaskSpec> tasks;
+  const int stages = static_cast<int>(job.stage_first.size()) - 1;
+  for (int stage = 0; stage < stages; ++stage) {
+    std::vector<TaskSpec> part = stage_specs(job, stage);
+    tasks.insert(tasks.end(), part.begin(), part.end());
+  }
+  return tasks;
+}
+
+absl::StatusOr<scene::LoadedScene> FarmCoordinator::load_bundle_scene(
+    const std::string& hash, const std::string& scene_path) const {
+  scene::LoadOptions load;
+  load.is_known_spectrum = [&](std::string_view name) { return library_.contains(name); };
+  load.is_known_ior = [&](std::string_view name) { return library_.find_ior(name) != nullptr; };
+  return scene::load_scene(scene_dir(hash) / scene_path, load);
+}
+
 absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::make_active(
-    const JobParameters& params, const prism::v1::JobSpec& spec) {
+    const JobParameters& params, const prism::v1::JobSpec& spec,
+    const scene::SceneDescription& scene) {
   auto job = std::make_unique<ActiveJob>();
   job->params = params;
   job->spec = spec;
@@ -265,7 +309,43 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
   job->statistics =
       std::make_unique<BinStatisticsAccumulator>(job->plan.tiles.size(), params.render.bins);
   job->started = SteadyClock::now();
+  if (params.render.integrator == worker::IntegratorKind::kGradient) {
+    PRISM_ASSIGN_OR_RETURN(PoissonSolver solver,
+                           PoissonSolver::create(params.render.bins,
+                                                 params.render.gradient_offset_bins,
+                                                 params.gradient.alpha));
+    job->finalise = reconstructing_finaliser(
+        std::make_shared<const PoissonSolver>(std::move(solver)), params.gradient.norm);
+  } else {
+    job->finalise = mean_finaliser();
+  }
   ActiveJob* raw = job.get();
+  job->stage_first.push_back(0);
+  if (params.prepass.has_value()) {
+    PRISM_ASSIGN_OR_RETURN(
+        worker::PrepassDistributions distributions,
+        worker::prepass_distributions(scene, params.render, library_, params.render.bins));
+    PRISM_ASSIGN_OR_RETURN(
+        PrepassRun run,
+        PrepassRun::create(*params.prepass, params.width, params.height, params.tile_size,
+                           params.render.bins, std::move(distributions.emitters),
+                           std::move(distributions.sensor)));
+    job->prepass = std::move(run);
+    for (int k = 1; k <= job->prepass->passes(); ++k) {
+      // Called from add, which runs under mutex_.
+      auto on_prepass_tile = [raw, k](int, const image::TileResult& merged,
+                                      const image::SpectralImage&) {
+        return raw->prepass->add_tile(k, merged);
+      };
+      PRISM_ASSIGN_OR_RETURN(std::unique_ptr<TileAssembler> assembler,
+                             TileAssembler::create(job->prepass->plan(k), params.render.bins,
+                                                   on_prepass_tile));
+      job->prepass_assemblers.push_back(std::move(assembler));
+      job->stage_first.push_back(job->stage_first.back() +
+                                 static_cast<int>(job->prepass->plan(k).tiles.size()));
+    }
+  }
+  job->stage_first.push_back(job->stage_first.back() + static_cast<int>(job->plan.task_count()));
   // Called from assembler->add, which runs under mutex_.
   auto on_tile = [this, raw](int tile, const image::TileResult& merged,
                              const image::SpectralImage& finalised) -> absl::Status {
@@ -273,9 +353,39 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
     PRISM_RETURN_IF_ERROR(raw->tiles->put(tile, merged));
     return absorb_tile(*raw, tile, merged, finalised);
   };
-  PRISM_ASSIGN_OR_RETURN(job->assembler,
-                         TileAssembler::create(job->plan, params.render.bins, on_tile));
+  PRISM_ASSIGN_OR_RETURN(job->assembler, TileAssembler::create(job->plan, params.render.bins,
+                                                               on_tile, job->finalise));
   return job;
+}
+
+absl::Status FarmCoordinator::advance_locked(const std::string& job_id) {
+  auto it = active_.find(job_id);
+  if (it == active_.end()) {
+    return absl::InternalError(absl::StrCat("job ", job_id, " finished but is not active"));
+  }
+  ActiveJob& job = *it->second;
+  if (!job.prepass.has_value() || job.stage >= job.prepass->passes()) {
+    absl::Status finalised = finalise_locked(job_id);
+    if (finalised.ok()) return finalised;
+    return absl::Status(finalised.code(),
+                        absl::StrCat("cannot write the outputs: ", finalised.message()));
+  }
+  const int k = job.stage + 1;
+  PRISM_RETURN_IF_ERROR(job.prepass_assemblers[static_cast<std::size_t>(k - 1)]->check_complete());
+  PRISM_RETURN_IF_ERROR(job.prepass->finish_pass(k));
+  ++job.stage;
+  if (job.stage == job.prepass->passes()) {
+    job.prepass_seconds = std::chrono::duration<double>(SteadyClock::now() - job.started).count();
+    options_.logger->info("[job {}] prepass done: {:.1f} % of pixels on the default distribution",
+                          job_id, 100.0 * job.prepass->fallback_fraction());
+  }
+  PRISM_ASSIGN_OR_RETURN(int first, scheduler_.add_tasks(job_id, stage_specs(job, job.stage)));
+  if (first != job.stage_first[static_cast<std::size_t>(job.stage)]) {
+    return absl::InternalError(absl::StrCat("job ", job_id, ": stage ", job.stage,
+                                            " starts at task ", first, ", the plan says ",
+                                            job.stage_first[static_cast<std::size_t>(job.stage)]));
+  }
+  return absl::OkStatus();
 }
 
 absl::Status FarmCoordinator::attach_tiles(ActiveJob& job, const std::string& job_id) const {
@@ -356,20 +466,21 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
                          scene::load_scene(scene_dir(spec.bundle_hash()) / bundle_scene, load));
   PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, loaded.description));
   const prism::v1::JobSpec explicit_spec = to_proto(params);
-  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active, make_active(params, explicit_spec));
+  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active,
+                         make_active(params, explicit_spec, loaded.description));
 
   store::JobRecord record;
   record.client_token = client_token;
   record.spec = explicit_spec.SerializeAsString();
   record.bundle_hash = params.bundle_hash;
   record.submitted_ms = now().count();
-  const std::vector<TaskSpec> specs = task_specs(active->plan);
+  const std::vector<TaskSpec> specs = task_specs(*active);
   std::vector<store::TaskRecord> tasks(specs.size());
   for (std::size_t i = 0; i < specs.size(); ++i) {
     tasks[i].index = static_cast<int>(i);
     tasks[i].pass = store_pass(specs[i].pass);
     tasks[i].pass_index = specs[i].pass_index;
-    tasks[i].tile_index = static_cast<int>(i / active->plan.ranges.size());
+    tasks[i].tile_index = tile_of(*active, static_cast<int>(i));
     tasks[i].rect = specs[i].tile;
     tasks[i].samples = specs[i].samples;
   }
@@ -383,12 +494,15 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
                                 absl::StrCat("cannot store its tiles: ", attached.message()));
     return attached;
   }
-  PRISM_RETURN_IF_ERROR(scheduler_.add_job(id, specs));
+  // The first stage only: later stages need the tables their predecessor learns.
+  PRISM_RETURN_IF_ERROR(scheduler_.add_job(id, stage_specs(*active, 0)));
   PRISM_ASSIGN_OR_RETURN(store::JobRecord rendering,
                          store_->set_job_state(id, store::JobState::kRendering, now().count()));
   active_[id] = std::move(active);
-  options_.logger->info("[job {}] submitted: {}x{}, {} spp, {} bins, {} tasks, bundle {}", id,
-                        params.width, params.height, params.spp, params.render.bins, specs.size(),
+  options_.logger->info("[job {}] submitted: {}x{}, {} spp, {} bins, {}, {} tasks{}, bundle {}",
+                        id, params.width, params.height, params.spp, params.render.bins,
+                        worker::name(params.render.integrator), specs.size(),
+                        params.prepass.has_value() ? " (with a prepass)" : "",
                         params.bundle_hash);
   process_events_locked();
   changed_locked();
@@ -401,59 +515,105 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   if (!spec.ParseFromString(record.spec)) {
     return absl::DataLossError("the stored job spec does not parse");
   }
-  // The stored spec is explicit, so the scene's defaults are not needed to decode it.
+  // The stored spec is explicit, so the scene's defaults are not needed to decode it; a prepass
+  // needs the scene's emitter spectra.
   PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, scene::SceneDescription{}));
-  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active, make_active(params, spec));
+  scene::SceneDescription description;
+  if (params.prepass.has_value()) {
+    PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded,
+                           load_bundle_scene(params.bundle_hash, params.scene_path));
+    description = std::move(loaded.description);
+  }
+  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active,
+                         make_active(params, spec, description));
   PRISM_ASSIGN_OR_RETURN(std::vector<store::TaskRecord> tasks, store_->tasks_of(record.id));
-  const std::vector<TaskSpec> specs = task_specs(active->plan);
+  const std::vector<TaskSpec> specs = task_specs(*active);
   if (tasks.size() != specs.size()) {
     return absl::DataLossError(
         absl::StrCat("the store has ", tasks.size(), " tasks but the plan has ", specs.size()));
   }
-  PRISM_RETURN_IF_ERROR(attach_tiles(*active, record.id));
-  // Tiles finished before the restart come back from their files (their range results are not
-  // merged again); a damaged file falls back to the range results, which are kept until the
-  // job is over.
-  std::vector<bool> restored(active->plan.tiles.size(), false);
-  for (std::size_t t = 0; t < restored.size(); ++t) {
-    const int tile = static_cast<int>(t);
-    if (!active->tiles->has(tile)) continue;
-    absl::StatusOr<image::TileResult> merged = active->tiles->get(tile);
-    if (!merged.ok()) {
-      options_.logger->warn("[job {}] {}; merging its results again", record.id,
-                            merged.status().ToString());
-      continue;
-    }
-    PRISM_RETURN_IF_ERROR(active->assembler->mark_finished(tile));
-    PRISM_RETURN_IF_ERROR(absorb_tile(*active, tile, *merged, image::finalise(*merged)));
-    restored[t] = true;
-  }
-  std::vector<int> done;
   for (const store::TaskRecord& task : tasks) {
     const TaskSpec& planned = specs[static_cast<std::size_t>(task.index)];
     if (!(task.rect == planned.tile) || !(task.samples == planned.samples)) {
       return absl::DataLossError(
           absl::StrCat("stored task ", task.index, " differs from the plan"));
     }
-    if (task.state != store::TaskState::kDone) continue;
-    if (restored[static_cast<std::size_t>(task.tile_index)]) {
-      done.push_back(task.index);
-      continue;
+  }
+  PRISM_RETURN_IF_ERROR(attach_tiles(*active, record.id));
+  const int stages = static_cast<int>(active->stage_first.size()) - 1;
+  const int final_stage = stages - 1;
+  auto stage_done = [&](int stage) {
+    for (int i = active->stage_first[stage]; i < active->stage_first[stage + 1]; ++i) {
+      if (tasks[static_cast<std::size_t>(i)].state != store::TaskState::kDone) return false;
     }
-    PRISM_ASSIGN_OR_RETURN(std::string bytes, blobs_->get(task.result_hash));
-    PRISM_ASSIGN_OR_RETURN(image::TileResult result, image::parse_tile(bytes));
-    PRISM_RETURN_IF_ERROR(active->assembler->add(task.tile_index, std::move(result)));
-    done.push_back(task.index);
+    return true;
+  };
+  // Prepasses are replayed in order from their stored results (their reconstruction is a pure
+  // function of them) up to the first that is not complete: that stage runs on.
+  std::vector<int> done;
+  int stage = 0;
+  for (; stage < final_stage; ++stage) {
+    const bool complete = stage_done(stage);
+    TileAssembler& assembler = *active->prepass_assemblers[static_cast<std::size_t>(stage)];
+    for (int i = active->stage_first[stage]; i < active->stage_first[stage + 1]; ++i) {
+      const store::TaskRecord& task = tasks[static_cast<std::size_t>(i)];
+      if (task.state != store::TaskState::kDone) continue;
+      PRISM_ASSIGN_OR_RETURN(std::string bytes, blobs_->get(task.result_hash));
+      PRISM_ASSIGN_OR_RETURN(image::TileResult result, image::parse_tile(bytes));
+      PRISM_RETURN_IF_ERROR(assembler.add(tile_of(*active, i), std::move(result)));
+      done.push_back(i);
+    }
+    if (!complete) break;
+    PRISM_RETURN_IF_ERROR(active->prepass->finish_pass(stage + 1));
+  }
+  active->stage = stage;
+  if (stage == final_stage) {
+    // Tiles finished before the restart come back from their files (their range results are
+    // not merged again); a damaged file falls back to the range results, which are kept until
+    // the job is over.
+    std::vector<bool> restored(active->plan.tiles.size(), false);
+    for (std::size_t t = 0; t < restored.size(); ++t) {
+      const int tile = static_cast<int>(t);
+      if (!active->tiles->has(tile)) continue;
+      absl::StatusOr<image::TileResult> merged = active->tiles->get(tile);
+      if (!merged.ok()) {
+        options_.logger->warn("[job {}] {}; merging its results again", record.id,
+                              merged.status().ToString());
+        continue;
+      }
+      absl::StatusOr<image::SpectralImage> finalised = active->finalise(*merged);
+      if (!finalised.ok()) {
+        options_.logger->warn("[job {}] {}; merging its results again", record.id,
+                              finalised.status().ToString());
+        continue;
+      }
+      PRISM_RETURN_IF_ERROR(active->assembler->mark_finished(tile));
+      PRISM_RETURN_IF_ERROR(absorb_tile(*active, tile, *merged, *finalised));
+      restored[t] = true;
+    }
+    for (int i = active->stage_first[final_stage]; i < active->stage_first[stages]; ++i) {
+      const store::TaskRecord& task = tasks[static_cast<std::size_t>(i)];
+      if (task.state != store::TaskState::kDone) continue;
+      const int tile = tile_of(*active, i);
+      if (!restored[static_cast<std::size_t>(tile)]) {
+        PRISM_ASSIGN_OR_RETURN(std::string bytes, blobs_->get(task.result_hash));
+        PRISM_ASSIGN_OR_RETURN(image::TileResult result, image::parse_tile(bytes));
+        PRISM_RETURN_IF_ERROR(active->assembler->add(tile, std::move(result)));
+      }
+      done.push_back(i);
+    }
   }
   active->samples_at_start = record.progress.samples_done;
-  PRISM_RETURN_IF_ERROR(scheduler_.add_job(record.id, specs, done));
+  const std::vector<TaskSpec> handed(specs.begin(),
+                                     specs.begin() + active->stage_first[stage + 1]);
+  PRISM_RETURN_IF_ERROR(scheduler_.add_job(record.id, handed, done));
   if (record.state == store::JobState::kQueued) {
     PRISM_RETURN_IF_ERROR(
         store_->set_job_state(record.id, store::JobState::kRendering, now().count()).status());
   }
   active_[record.id] = std::move(active);
-  options_.logger->info("[job {}] resumed: {} of {} tasks already done", record.id, done.size(),
-                        specs.size());
+  options_.logger->info("[job {}] resumed at stage {} of {}: {} of {} tasks already done",
+                        record.id, stage + 1, stages, done.size(), specs.size());
   return absl::OkStatus();
 }
 
@@ -557,6 +717,10 @@ absl::StatusOr<std::vector<OutputFile>> FarmCoordinator::result_files(
   if (params.outputs.rgb_exr) all.push_back({OutputKind::kRgbExr, paths.rgb_exr, ""});
   if (params.outputs.png) all.push_back({OutputKind::kPng, paths.png, ""});
   all.push_back({OutputKind::kReportJson, paths.json, ""});
+  if (params.outputs.primal_and_gradients) {
+    all.push_back({OutputKind::kPrimalExr, paths.primal_exr, ""});
+    all.push_back({OutputKind::kGradientExr, paths.gradient_exr, ""});
+  }
   std::vector<OutputFile> out;
   for (OutputFile& file : all) {
     file.file_name = file.path.filename().string();
@@ -613,12 +777,10 @@ void FarmCoordinator::process_events_locked() {
   for (const SchedulerEvent& event : scheduler_.take_events()) {
     switch (event.kind) {
       case SchedulerEvent::Kind::kJobDone: {
-        absl::Status finalised = finalise_locked(event.job_id);
-        if (!finalised.ok()) {
-          options_.logger->error("[job {}] cannot write the outputs: {}", event.job_id,
-                                 finalised.ToString());
-          fail_job_locked(event.job_id,
-                          absl::StrCat("cannot write the outputs: ", finalised.message()));
+        absl::Status advanced = advance_locked(event.job_id);
+        if (!advanced.ok()) {
+          options_.logger->error("[job {}] cannot go on: {}", event.job_id, advanced.ToString());
+          fail_job_locked(event.job_id, std::string(advanced.message()));
         }
         break;
       }
@@ -680,18 +842,47 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   report.rays = job.rays;
   report.peak_memory_bytes = peak_memory_bytes();
   report.statistics = job.statistics->finish();
+  report.counters.assign(job.counters.begin(), job.counters.end());
+  add_job_sections(p, report);
+  if (report.gradient.has_value()) fill_gradient_counters(report.counters, *report.gradient);
+  if (report.prepass.has_value()) {
+    report.prepass->seconds = job.prepass_seconds;
+    report.prepass->reconstruction_seconds = job.prepass->reconstruction_seconds();
+    report.prepass->final_seconds =
+        std::chrono::duration<double>(SteadyClock::now() - job.started).count() -
+        job.prepass_seconds;
+    report.prepass->fallback_fraction = job.prepass->fallback_fraction();
+  }
 
   const OutputPaths paths = output_paths_of(job_id);
   PRISM_RETURN_IF_ERROR(make_dirs(output_dir(job_id)));
   std::vector<float> band;
-  PRISM_RETURN_IF_ERROR(write_outputs(
-      p.render.bins, job.tiles->band_rows(),
-      job.tiles->rows(
-          [](const image::TileResult& merged) -> absl::StatusOr<image::SpectralImage> {
-            return image::finalise(merged);
-          },
-          &band),
-      *job.rgb, report, paths, {p.outputs.png_exposure}));
+  if (p.outputs.primal_and_gradients) {
+    // The raw I and G with the R, G, B of their own values, made tile by tile from the files.
+    PRISM_ASSIGN_OR_RETURN(image::RgbImage primal_rgb, image::RgbImage::create(p.width, p.height));
+    PRISM_ASSIGN_OR_RETURN(image::RgbImage gradient_rgb,
+                           image::RgbImage::create(p.width, p.height));
+    for (std::size_t t = 0; t < job.plan.tiles.size(); ++t) {
+      PRISM_ASSIGN_OR_RETURN(image::TileResult merged, job.tiles->get(static_cast<int>(t)));
+      PRISM_ASSIGN_OR_RETURN(image::RgbImage a, to_linear_srgb(image::finalise(merged), cmf_));
+      PRISM_ASSIGN_OR_RETURN(image::RgbImage b, to_linear_srgb(finalise_gradients(merged), cmf_));
+      PRISM_RETURN_IF_ERROR(primal_rgb.paste(a, merged.rect().x0, merged.rect().y0));
+      PRISM_RETURN_IF_ERROR(gradient_rgb.paste(b, merged.rect().x0, merged.rect().y0));
+    }
+    std::vector<float> gradient_band;
+    PRISM_RETURN_IF_ERROR(write_primal_and_gradient(
+        p.render.bins, job.tiles->band_rows(), job.tiles->rows(mean_finaliser(), &band),
+        primal_rgb,
+        job.tiles->rows(
+            [](const image::TileResult& merged) -> absl::StatusOr<image::SpectralImage> {
+              return finalise_gradients(merged);
+            },
+            &gradient_band),
+        gradient_rgb, report, paths));
+  }
+  PRISM_RETURN_IF_ERROR(write_outputs(p.render.bins, job.tiles->band_rows(),
+                                      job.tiles->rows(job.finalise, &band), *job.rgb, report,
+                                      paths, {p.outputs.png_exposure}));
   // write_outputs writes every kind; keep what the job asked for, the report, and the RGB EXR
   // (previews of a finished job are made from it; GetResult serves it only when asked for).
   std::error_code ec;
@@ -744,7 +935,37 @@ absl::StatusOr<std::optional<LeaseGrant>> FarmCoordinator::acquire(const std::st
       }
       options_.logger->debug("[job {} task {}] leased to {} as {}", lease->task.job_id,
                              lease->task.index, worker_id, lease->id);
-      LeaseGrant grant{*lease, it->second->spec, it->second->params.bundle_hash};
+      ActiveJob& job = *it->second;
+      LeaseGrant grant{*lease, job.spec, job.params.bundle_hash};
+      if (job.prepass.has_value()) {
+        const TaskSpec& spec = lease->task.spec;
+        absl::StatusOr<std::optional<std::string>> tables = std::optional<std::string>();
+        if (spec.pass == Pass::kPrepass) {
+          const PrepassPass& pass = job.prepass->pass(spec.pass_index);
+          tables = job.prepass->tables_for_pass(spec.pass_index, spec.tile);
+          grant.want_guides = true;
+          grant.early_stop = true;
+          if (pass.width != job.params.width || pass.height != job.params.height) {
+            grant.film_width = pass.width;
+            grant.film_height = pass.height;
+          }
+        } else {
+          absl::StatusOr<std::string> final_tables = job.prepass->final_tables(spec.tile);
+          if (final_tables.ok()) {
+            tables = std::optional<std::string>(*std::move(final_tables));
+          } else {
+            tables = final_tables.status();
+          }
+        }
+        if (!tables.ok()) {
+          // Cannot happen: a stage's tasks are handed out only once its tables exist.
+          (void)scheduler_.fail(worker_id, lease->id, FailureClass::kInfrastructure,
+                                std::string(tables.status().message()), now());
+          continue;
+        }
+        grant.pdf_table = *std::move(tables);
+        grant.table_cells = job.prepass->table_cells();
+      }
       changed_locked();
       return std::optional<LeaseGrant>(std::move(grant));
     }
@@ -767,7 +988,8 @@ HeartbeatReply FarmCoordinator::heartbeat(const std::string& worker_id,
 
 absl::StatusOr<CompleteResult> FarmCoordinator::complete(
     const std::string& worker_id, const std::string& lease_id, std::string bytes,
-    const std::string& sha256, double render_seconds, std::uint64_t rays) {
+    const std::string& sha256, double render_seconds, std::uint64_t rays,
+    const std::vector<std::pair<std::string, std::uint64_t>>& counters) {
   // Parsing is the expensive part and needs no state.
   absl::StatusOr<image::TileResult> parsed = image::parse_tile(bytes);
   std::unique_lock<std::mutex> lock(mutex_);
@@ -828,8 +1050,16 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
     ActiveJob& job = *it->second;
     job.render_seconds += render_seconds;
     job.rays += rays;
-    const int tile = task.index / static_cast<int>(job.plan.ranges.size());
-    absl::Status added = job.assembler->add(tile, *std::move(parsed));
+    const int stage = stage_of(job, task.index);
+    const int tile = tile_of(job, task.index);
+    const bool final_stage = static_cast<std::size_t>(stage) + 2 == job.stage_first.size();
+    if (final_stage) {
+      for (const auto& [name, value] : counters) job.counters[name] += value;
+    }
+    absl::Status added =
+        final_stage ? job.assembler->add(tile, *std::move(parsed))
+                    : job.prepass_assemblers[static_cast<std::size_t>(stage)]->add(
+                          tile, *std::move(parsed));
     if (!added.ok()) {
       fail_job_locked(task.job_id,
                       absl::StrCat("merging task ", task.index, ": ", added.message()));

@@ -42,6 +42,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <utility>
 #include <string>
 #include <thread>
 #include <vector>
@@ -51,11 +52,13 @@
 #include "coordinator/finished_tiles.h"
 #include "coordinator/job_spec.h"
 #include "coordinator/outputs.h"
+#include "coordinator/prepass_run.h"
 #include "coordinator/scheduler.h"
 #include "coordinator/tile_merge.h"
 #include "coordinator/tile_plan.h"
 #include "prism/v1/types.pb.h"
 #include "services/image/tile.h"
+#include "services/scene/scene_loader.h"
 #include "services/spectral/color.h"
 #include "services/spectral/named_spectra.h"
 #include "services/store/blob_store.h"
@@ -99,11 +102,26 @@ struct LeaseGrant {
   Lease lease;
   prism::v1::JobSpec spec;  // explicit (to_proto of the job's parameters)
   std::string bundle_hash;
+  // The tile's per-pixel wavelength tables (pixel_tables.h wire layout, `table_cells` cells per
+  // pixel), for prepasses after the first and for the final pass of a job with a prepass.
+  std::optional<std::string> pdf_table;
+  int table_cells = 0;
+  bool want_guides = false;  // prepass tasks
+  bool early_stop = false;   // prepass tasks
+  int film_width = 0;        // the task's film when its pass renders another than the job's
+  int film_height = 0;
 };
 
 enum class CompleteResult { kAccepted, kDuplicate };
 
-enum class OutputKind { kSpectralExr = 1, kRgbExr = 2, kPng = 3, kReportJson = 4 };
+enum class OutputKind {
+  kSpectralExr = 1,
+  kRgbExr = 2,
+  kPng = 3,
+  kReportJson = 4,
+  kPrimalExr = 5,    // gradient jobs with primal_and_gradients
+  kGradientExr = 6,  // likewise
+};
 
 struct OutputFile {
   OutputKind kind;
@@ -159,9 +177,11 @@ class FarmCoordinator {
   // A task result (the tile codec's bytes, already checked against `sha256`). FAILED_PRECONDITION
   // with the Scheduler's reason for a stale lease; INVALID_ARGUMENT (and the lease fails as a
   // worker fault) for bytes that do not parse or do not match the task.
-  absl::StatusOr<CompleteResult> complete(const std::string& worker_id, const std::string& lease_id,
-                                          std::string bytes, const std::string& sha256,
-                                          double render_seconds, std::uint64_t rays);
+  // `counters`: the task's named event counters (worker::counter_list), summed for the report.
+  absl::StatusOr<CompleteResult> complete(
+      const std::string& worker_id, const std::string& lease_id, std::string bytes,
+      const std::string& sha256, double render_seconds, std::uint64_t rays,
+      const std::vector<std::pair<std::string, std::uint64_t>>& counters = {});
   absl::Status fail(const std::string& worker_id, const std::string& lease_id,
                     FailureClass failure_class, const std::string& message);
   absl::StatusOr<std::vector<WorkerStatus>> workers();
@@ -170,11 +190,21 @@ class FarmCoordinator {
   void shutdown();
 
  private:
+  // A job's stages in task order: prepass 1..K (when it has a prepass), then the final pass.
+  // Task indices are global over the stages; the Scheduler is given a stage's tasks once the
+  // stage before it is merged and reconstructed (Scheduler::add_tasks), the store has them all.
   struct ActiveJob {
     JobParameters params;
     prism::v1::JobSpec spec;
-    TilePlan plan;
-    std::unique_ptr<TileAssembler> assembler;
+    TilePlan plan;  // the final pass
+    std::unique_ptr<TileAssembler> assembler;  // the final pass
+    TileFinaliser finalise;
+    std::optional<PrepassRun> prepass;
+    std::vector<std::unique_ptr<TileAssembler>> prepass_assemblers;  // per prepass
+    std::vector<int> stage_first;  // first task index of each stage, then the task count
+    int stage = 0;                 // the last stage handed to the Scheduler
+    std::map<std::string, std::uint64_t> counters;  // the final pass's, summed
+    double prepass_seconds = 0;    // submit (or resume) to the final pass's start, wall clock
     std::unique_ptr<FinishedTiles> tiles;  // set by attach_tiles before any result is added
     std::unique_ptr<image::RgbImage> rgb;  // finished tiles' linear sRGB
     std::unique_ptr<BinStatisticsAccumulator> statistics;
@@ -189,9 +219,22 @@ class FarmCoordinator {
   Millis now() const { return options_.clock(); }
   absl::Status start();
   absl::Status resume_locked(const store::JobRecord& record);
-  // Builds the in-memory job (plan, assembler, image) from explicit parameters.
+  // Builds the in-memory job (plans, assemblers, image) from explicit parameters; `scene` gives
+  // a prepass its emitter spectra.
   absl::StatusOr<std::unique_ptr<ActiveJob>> make_active(const JobParameters& params,
-                                                         const prism::v1::JobSpec& spec);
+                                                         const prism::v1::JobSpec& spec,
+                                                         const scene::SceneDescription& scene);
+  // Loads the checked scene of a stored bundle.
+  absl::StatusOr<scene::LoadedScene> load_bundle_scene(const std::string& hash,
+                                                       const std::string& scene_path) const;
+  // The stage of a task index, and its tile index within the stage's plan.
+  static int stage_of(const ActiveJob& job, int task_index);
+  static int tile_of(const ActiveJob& job, int task_index);
+  // The tasks of one stage (0-based: prepass k is stage k − 1, the final pass is the last).
+  std::vector<TaskSpec> stage_specs(const ActiveJob& job, int stage) const;
+  // A stage's tasks are all done: a prepass is reconstructed and the next stage's tasks go to
+  // the Scheduler; after the final pass the job is finalised.
+  absl::Status advance_locked(const std::string& job_id);
   // Opens the job's finished-tile directory.
   absl::Status attach_tiles(ActiveJob& job, const std::string& job_id) const;
   // A finished tile's contribution to the job's statistics, RGB image and progress.
@@ -200,7 +243,7 @@ class FarmCoordinator {
   // Deletes what a job that is over no longer needs: its tile files and unshared result blobs.
   void clean_up_locked(const std::string& job_id);
   std::filesystem::path tiles_dir(const std::string& job_id) const;
-  std::vector<TaskSpec> task_specs(const TilePlan& plan) const;
+  std::vector<TaskSpec> task_specs(const ActiveJob& job) const;
   void process_events_locked();
   absl::Status finalise_locked(const std::string& job_id);
   void fail_job_locked(const std::string& job_id, const std::string& message);

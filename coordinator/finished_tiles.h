@@ -13,15 +13,12 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "coordinator/tile_finaliser.h"
 #include "coordinator/tile_plan.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/tile.h"
 
 namespace prism::coordinator {
-
-// Turns a tile's merged result into its output values (image::finalise: per-pixel means; a
-// gradient job also reconstructs).
-using TileFinaliser = std::function<absl::StatusOr<image::SpectralImage>(const image::TileResult&)>;
 
 class FinishedTiles {
  public:

@@ -1,10 +1,12 @@
 #include "coordinator/job_spec.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
+#include "services/scene/wavelength_dependence.h"
 #include "services/spectral/wavelength_grid.h"
 
 namespace prism::coordinator {
@@ -23,13 +25,12 @@ absl::StatusOr<worker::IntegratorKind> integrator_of(prism::v1::Integrator value
     case prism::v1::INTEGRATOR_UNIFORM:
       return worker::IntegratorKind::kUniform;
     case prism::v1::INTEGRATOR_GRADIENT:
-      return absl::InvalidArgumentError(
-          "integrator gradient is not supported by this farm yet: want uniform or hero");
+      return worker::IntegratorKind::kGradient;
     default:
       break;
   }
   return absl::InvalidArgumentError(
-      absl::StrCat("integrator ", static_cast<int>(value), ": want uniform or hero"));
+      absl::StrCat("integrator ", static_cast<int>(value), ": want uniform, hero or gradient"));
 }
 
 absl::StatusOr<worker::SpectralPdfKind> spectral_pdf_of(prism::v1::SpectralPdf value) {
@@ -76,7 +77,84 @@ absl::StatusOr<worker::LightSelectionKind> light_selection_of(prism::v1::LightSe
                                                  ": want uniform, power or spatial"));
 }
 
+// The wire keeps these values as float: defaults are rounded the same way, so a spec with the
+// field unset and one with the default written explicitly (to_proto) give the same parameters.
+double as_float(double value) { return static_cast<double>(static_cast<float>(value)); }
+
+// A float field where 0 means "the default": the default, or the value when it is finite and
+// inside [lo, hi] (lo_open: > lo).
+absl::StatusOr<double> float_field(const char* field, float value, double fallback, double lo,
+                                   bool lo_open, double hi) {
+  if (value == 0.0f) return as_float(fallback);
+  const double v = value;
+  if (!std::isfinite(v) || (lo_open ? v <= lo : v < lo) || v > hi) {
+    return absl::InvalidArgumentError(absl::StrCat(field, " ", v, " is out of range: want ",
+                                                   lo_open ? "(" : "[", lo, ", ", hi, "]"));
+  }
+  return v;
+}
+
+absl::Status gradient_of(const prism::v1::GradientOptions& g, int bins, JobParameters& p) {
+  PRISM_ASSIGN_OR_RETURN(p.gradient.delta, float_field("gradient.delta", g.delta(),
+                                                       kDefaultGradientDelta, 0.0, true, 0.5));
+  PRISM_ASSIGN_OR_RETURN(p.render.gradient_offset_bins,
+                         worker::gradient_offset_bins(p.gradient.delta, bins));
+  if (!std::isfinite(g.tau()) || g.tau() < 0.0f) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("gradient.tau ", g.tau(), " is out of range: want a finite value >= 0"));
+  }
+  p.render.gradient_tau = g.tau();
+  PRISM_ASSIGN_OR_RETURN(p.gradient.alpha,
+                         float_field("gradient.alpha", g.alpha(), kDefaultPoissonAlpha,
+                                     kMinPoissonAlpha, false, kMaxPoissonAlpha));
+  switch (g.norm()) {
+    case prism::v1::POISSON_NORM_UNSPECIFIED:
+    case prism::v1::POISSON_NORM_L2:
+      p.gradient.norm = PoissonNorm::kL2;
+      break;
+    case prism::v1::POISSON_NORM_L1:
+      p.gradient.norm = PoissonNorm::kL1;
+      break;
+    default:
+      return absl::InvalidArgumentError(
+          absl::StrCat("gradient.norm ", static_cast<int>(g.norm()), ": want l2 or l1"));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<PrepassParameters> prepass_of(const prism::v1::PrepassOptions& o) {
+  PrepassParameters d;
+  PrepassParameters p;
+  if (o.passes() > static_cast<std::uint32_t>(PrepassParameters::kMaxPasses)) {
+    return absl::InvalidArgumentError(absl::StrCat("prepass.passes ", o.passes(),
+                                                   " is out of range: want 1..",
+                                                   PrepassParameters::kMaxPasses));
+  }
+  p.passes = o.passes() != 0 ? static_cast<int>(o.passes()) : d.passes;
+  p.spp = o.spp() != 0 ? o.spp() : d.spp;
+  p.image_scaled = o.image_scaled();
+  // 0 means the default for every float; a fallback threshold of exactly 0 is asked for with a
+  // tiny positive value (the test is <= h, so h = 1e-30 behaves as 0 for any real estimate).
+  auto value = [](float v, double fallback) { return v != 0.0f ? double(v) : as_float(fallback); };
+  p.epsilon = value(o.epsilon(), d.epsilon);
+  p.fallback = value(o.fallback(), d.fallback);
+  p.sigma_s = value(o.sigma_s(), d.sigma_s);
+  p.sigma_r = value(o.sigma_r(), d.sigma_r);
+  if (p.spp > kMaxJobSpp) {
+    return absl::InvalidArgumentError(absl::StrCat("prepass.spp ", p.spp,
+                                                   " is out of range: want 1..", kMaxJobSpp));
+  }
+  PRISM_RETURN_IF_ERROR(p.validate());
+  return p;
+}
+
 }  // namespace
+
+bool prepass_by_default(worker::IntegratorKind integrator, const scene::SceneDescription& scene) {
+  if (integrator != worker::IntegratorKind::kHero) return false;
+  const scene::WavelengthDependence dependence = scene::analyze_wavelength_dependence(scene);
+  return dependence.needs_spectral_transport() && !dependence.emitter_spectra.empty();
+}
 
 
 absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
@@ -126,19 +204,24 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   PRISM_ASSIGN_OR_RETURN(p.render.spectral_pdf, spectral_pdf_of(spec.spectral_pdf()));
   PRISM_ASSIGN_OR_RETURN(p.render.emitter_pdf, emitter_pdf_of(spec.emitter_pdf()));
   PRISM_ASSIGN_OR_RETURN(p.render.light_selection, light_selection_of(spec.light_selection()));
-  if (spec.has_prepass() && spec.prepass().enabled()) {
-    return absl::InvalidArgumentError("prepass is not supported by this farm yet: leave it off");
-  }
   const float exposure = spec.outputs().png_exposure();
   if (!std::isfinite(exposure) || std::fabs(exposure) > kMaxJobExposureStops) {
     return absl::InvalidArgumentError(
         absl::StrCat("outputs.png_exposure ", exposure, " is out of range: want stops in -",
                      kMaxJobExposureStops, "..", kMaxJobExposureStops));
   }
-  if (spec.outputs().primal_and_gradients()) {
+  const bool gradient = p.render.integrator == worker::IntegratorKind::kGradient;
+  if (spec.outputs().primal_and_gradients() && !gradient) {
     return absl::InvalidArgumentError(
-        "outputs.primal_and_gradients needs the gradient integrator, which this farm does not "
-        "run yet");
+        "outputs.primal_and_gradients needs the gradient integrator");
+  }
+  if (!gradient && spec.has_gradient() &&
+      (spec.gradient().delta() != 0.0f || spec.gradient().tau() != 0.0f ||
+       spec.gradient().alpha() != 0.0f ||
+       spec.gradient().norm() != prism::v1::POISSON_NORM_UNSPECIFIED)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("gradient options (delta, tau, alpha, norm) need the gradient integrator, "
+                     "not ", worker::name(p.render.integrator)));
   }
 
   p.render.spectral_light_selection =
@@ -161,6 +244,20 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   p.tile_size = spec.tile_size() != 0 ? static_cast<int>(spec.tile_size()) : kDefaultTileSize;
   p.samples_per_task = spec.samples_per_task();
 
+  if (gradient) PRISM_RETURN_IF_ERROR(gradient_of(spec.gradient(), p.render.bins, p));
+  const bool prepass = spec.has_prepass() ? spec.prepass().enabled()
+                                          : prepass_by_default(p.render.integrator, scene);
+  if (prepass) {
+    PRISM_ASSIGN_OR_RETURN(p.prepass, prepass_of(spec.prepass()));
+  } else if (spec.has_prepass() && (spec.prepass().passes() != 0 || spec.prepass().spp() != 0 ||
+                                    spec.prepass().image_scaled() ||
+                                    spec.prepass().epsilon() != 0.0f ||
+                                    spec.prepass().fallback() != 0.0f ||
+                                    spec.prepass().sigma_s() != 0.0f ||
+                                    spec.prepass().sigma_r() != 0.0f)) {
+    return absl::InvalidArgumentError("prepass options are set but the prepass is off");
+  }
+
   const auto& out = spec.outputs();
   if (out.spectral_exr() || out.rgb_exr() || out.png()) {
     p.outputs.spectral_exr = out.spectral_exr();
@@ -168,7 +265,39 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
     p.outputs.png = out.png();
   }
   p.outputs.png_exposure = exposure;
+  p.outputs.primal_and_gradients = out.primal_and_gradients();
   return p;
+}
+
+void add_job_sections(const JobParameters& p, RenderReport& report) {
+  if (p.render.integrator == worker::IntegratorKind::kGradient) {
+    GradientReport g;
+    g.offset_bins = p.render.gradient_offset_bins;
+    g.delta = static_cast<float>(p.gradient.delta);
+    g.tau = p.render.gradient_tau;
+    g.alpha = static_cast<float>(p.gradient.alpha);
+    g.norm = std::string(to_string(p.gradient.norm));
+    g.with_primal_and_gradients = p.outputs.primal_and_gradients;
+    report.gradient = g;
+  }
+  if (p.prepass.has_value()) {
+    PrepassReport r;
+    r.passes = p.prepass->passes;
+    absl::StatusOr<std::vector<PrepassPass>> schedule =
+        prepass_schedule(*p.prepass, p.width, p.height);
+    if (schedule.ok()) {
+      for (const PrepassPass& pass : *schedule) {
+        r.pass_spp.push_back(pass.spp);
+        r.pass_resolution.push_back(absl::StrCat(pass.width, "x", pass.height));
+      }
+    }
+    r.image_scaled = p.prepass->image_scaled;
+    r.epsilon = static_cast<float>(p.prepass->epsilon);
+    r.fallback = static_cast<float>(p.prepass->fallback);
+    r.sigma_s = static_cast<float>(p.prepass->sigma_s);
+    r.sigma_r = static_cast<float>(p.prepass->sigma_r);
+    report.prepass = r;
+  }
 }
 
 prism::v1::JobSpec to_proto(const JobParameters& p) {
@@ -176,9 +305,35 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   spec.set_bundle_hash(p.bundle_hash);
   spec.set_scene_path(p.scene_path);
   spec.set_name(p.name);
-  spec.set_integrator(p.render.integrator == worker::IntegratorKind::kUniform
-                          ? prism::v1::INTEGRATOR_UNIFORM
-                          : prism::v1::INTEGRATOR_HERO);
+  switch (p.render.integrator) {
+    case worker::IntegratorKind::kUniform:
+      spec.set_integrator(prism::v1::INTEGRATOR_UNIFORM);
+      break;
+    case worker::IntegratorKind::kHero:
+      spec.set_integrator(prism::v1::INTEGRATOR_HERO);
+      break;
+    case worker::IntegratorKind::kGradient: {
+      spec.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+      auto* g = spec.mutable_gradient();
+      g->set_delta(static_cast<float>(p.gradient.delta));
+      g->set_tau(p.render.gradient_tau);
+      g->set_alpha(static_cast<float>(p.gradient.alpha));
+      g->set_norm(p.gradient.norm == PoissonNorm::kL1 ? prism::v1::POISSON_NORM_L1
+                                                       : prism::v1::POISSON_NORM_L2);
+      break;
+    }
+  }
+  auto* prepass = spec.mutable_prepass();
+  prepass->set_enabled(p.prepass.has_value());
+  if (p.prepass.has_value()) {
+    prepass->set_passes(static_cast<std::uint32_t>(p.prepass->passes));
+    prepass->set_spp(p.prepass->spp);
+    prepass->set_image_scaled(p.prepass->image_scaled);
+    prepass->set_epsilon(static_cast<float>(p.prepass->epsilon));
+    prepass->set_fallback(static_cast<float>(p.prepass->fallback));
+    prepass->set_sigma_s(static_cast<float>(p.prepass->sigma_s));
+    prepass->set_sigma_r(static_cast<float>(p.prepass->sigma_r));
+  }
   spec.set_spectral_pdf(p.render.spectral_pdf == worker::SpectralPdfKind::kFlat
                             ? prism::v1::SPECTRAL_PDF_FLAT
                             : prism::v1::SPECTRAL_PDF_VISIBLE);
@@ -209,6 +364,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   out->set_spectral_exr(p.outputs.spectral_exr);
   out->set_rgb_exr(p.outputs.rgb_exr);
   out->set_png(p.outputs.png);
+  out->set_primal_and_gradients(p.outputs.primal_and_gradients);
   out->set_png_exposure(p.outputs.png_exposure);
   return spec;
 }

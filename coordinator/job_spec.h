@@ -7,14 +7,22 @@
 //
 // Invariant: a JobParameters returned by job_parameters() is fully validated, and
 // job_parameters(to_proto(p), any scene) == p: to_proto() writes every value explicitly, so
-// the result no longer depends on the scene's defaults. Features the farm does not run yet
-// (the gradient integrator, prepasses) are refused rather than silently ignored.
+// the result no longer depends on the scene's defaults.
+//
+// The prepass (algorithms.md §4) is on by default for `hero` when something in the scene depends
+// on wavelength (emitters of different spectra, media, dispersion: scene::WavelengthDependence)
+// and the scene has emitters; off otherwise (a scene where nothing depends on wavelength pays for
+// no spectral machinery). A spec with a PrepassOptions message decides explicitly.
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 
 #include "absl/status/statusor.h"
+#include "coordinator/outputs.h"
+#include "coordinator/poisson.h"
+#include "coordinator/prepass.h"
 #include "prism/v1/types.pb.h"
 #include "services/scene/scene_description.h"
 #include "worker/render_options.h"
@@ -36,9 +44,20 @@ struct JobOutputs {
   bool spectral_exr = true;
   bool rgb_exr = true;
   bool png = true;
-  float png_exposure = 0.0f;  // stops
+  bool primal_and_gradients = false;  // gradient jobs: also the raw I and G spectral EXRs
+  float png_exposure = 0.0f;          // stops
 
   bool operator==(const JobOutputs&) const = default;
+};
+
+// Spectral gradient sampling (§5) besides what the worker needs (RenderOptions has k and τ).
+inline constexpr double kDefaultGradientDelta = 0.15;
+struct GradientParameters {
+  double delta = kDefaultGradientDelta;  // δ as a fraction of the range; k = round(δ·bins)
+  double alpha = kDefaultPoissonAlpha;   // screening weight of the reconstruction
+  PoissonNorm norm = PoissonNorm::kL2;
+
+  bool operator==(const GradientParameters&) const = default;
 };
 
 struct JobParameters {
@@ -52,12 +71,21 @@ struct JobParameters {
   std::string bundle_hash;             // SHA-256 hex of the bundle, lower case
   std::string name;
   JobOutputs outputs;
+  GradientParameters gradient;               // used by gradient jobs only
+  std::optional<PrepassParameters> prepass;  // set when the job runs a prepass
 };
 
 // Validates every field of `spec` and fills the unset ones from `scene`. INVALID_ARGUMENT naming
 // the field and the accepted values, e.g. "spp 0 is out of range: want 1..16777216".
 absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
                                              const scene::SceneDescription& scene);
+
+// Whether a job with this integrator runs a prepass when its spec does not say (the rule above).
+bool prepass_by_default(worker::IntegratorKind integrator, const scene::SceneDescription& scene);
+
+// The report's gradient and prepass sections from the job's settings (their measured figures,
+// counters and times, are the caller's to fill).
+void add_job_sections(const JobParameters& parameters, RenderReport& report);
 
 // Every value explicit (see the invariant above).
 prism::v1::JobSpec to_proto(const JobParameters& parameters);

@@ -135,11 +135,51 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_height(2);
        },
        "resolution 16385x2: want WxH with 1 <= W, H <= 16384"},
-      {"gradient", [](prism::v1::JobSpec& s) { s.set_integrator(prism::v1::INTEGRATOR_GRADIENT); },
-       "integrator gradient"},
+      {"gradient_options_without_gradient",
+       [](prism::v1::JobSpec& s) { s.mutable_gradient()->set_tau(0.5f); },
+       "gradient options (delta, tau, alpha, norm) need the gradient integrator, not hero"},
+      {"delta",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->set_delta(0.7f);
+       },
+       "gradient.delta 0.7"},
+      {"delta_rounds_to_zero_bins",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->set_delta(0.001f);
+       },
+       "rounds to 0 bins"},
+      {"negative_tau",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->set_tau(-1.0f);
+       },
+       "gradient.tau -1 is out of range"},
+      {"negative_alpha",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->set_alpha(-0.2f);
+       },
+       "gradient.alpha -0.2 is out of range"},
+      {"nan_alpha",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->set_alpha(std::nanf(""));
+       },
+       "gradient.alpha nan is out of range"},
+      {"norm",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->set_norm(static_cast<prism::v1::PoissonNorm>(7));
+       },
+       "gradient.norm 7: want l2 or l1"},
+      {"primal_without_gradient",
+       [](prism::v1::JobSpec& s) { s.mutable_outputs()->set_primal_and_gradients(true); },
+       "outputs.primal_and_gradients needs the gradient integrator"},
       {"integrator_enum",
        [](prism::v1::JobSpec& s) { s.set_integrator(static_cast<prism::v1::Integrator>(42)); },
-       "integrator 42: want uniform or hero"},
+       "integrator 42: want uniform, hero or gradient"},
       {"spectral_pdf",
        [](prism::v1::JobSpec& s) { s.set_spectral_pdf(static_cast<prism::v1::SpectralPdf>(9)); },
        "spectral_pdf 9: want flat or visible"},
@@ -151,7 +191,30 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_light_selection(static_cast<prism::v1::LightSelection>(9));
        },
        "light_selection 9: want uniform, power or spatial"},
-      {"prepass", [](prism::v1::JobSpec& s) { s.mutable_prepass()->set_enabled(true); }, "prepass"},
+      {"prepass_passes",
+       [](prism::v1::JobSpec& s) {
+         s.mutable_prepass()->set_enabled(true);
+         s.mutable_prepass()->set_passes(9);
+       },
+       "prepass.passes 9 is out of range: want 1..8"},
+      {"prepass_epsilon",
+       [](prism::v1::JobSpec& s) {
+         s.mutable_prepass()->set_enabled(true);
+         s.mutable_prepass()->set_epsilon(1.5f);
+       },
+       "prepass epsilon is 1.5; it must be in (0, 1)"},
+      {"prepass_sigma",
+       [](prism::v1::JobSpec& s) {
+         s.mutable_prepass()->set_enabled(true);
+         s.mutable_prepass()->set_sigma_s(-1.0f);
+       },
+       "prepass sigma_s is -1"},
+      {"prepass_options_when_off",
+       [](prism::v1::JobSpec& s) {
+         s.mutable_prepass()->set_enabled(false);
+         s.mutable_prepass()->set_spp(64);
+       },
+       "prepass options are set but the prepass is off"},
       {"exposure", [](prism::v1::JobSpec& s) { s.mutable_outputs()->set_png_exposure(65.0f); },
        "outputs.png_exposure 65 is out of range"},
       {"name", [](prism::v1::JobSpec& s) { s.set_name(std::string(300, 'n')); }, "name is 300"},
@@ -165,6 +228,59 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
     EXPECT_NE(std::string(p.status().message()).find(c.message), std::string::npos)
         << c.name << ": " << p.status().message();
   }
+}
+
+// Unset gradient and prepass fields take the defaults rounded as the wire keeps them, so the
+// submitted spec and its explicit form (what workers and a restarted coordinator see) give the
+// same parameters: the farm's reconstruction uses exactly the embedded render's α.
+TEST(JobSpecTest, GradientAndPrepassDefaultsSurviveTheExplicitForm) {
+  prism::v1::JobSpec spec = minimal_spec();
+  spec.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+  spec.mutable_prepass()->set_enabled(true);
+  auto p = job_parameters(spec, test_scene());
+  ASSERT_TRUE(p.ok()) << p.status();
+  EXPECT_EQ(p->render.gradient_offset_bins, 5);  // round(0.15 * 32)
+  EXPECT_EQ(p->gradient.alpha, double(0.2f));
+  EXPECT_EQ(p->gradient.norm, PoissonNorm::kL2);
+  ASSERT_TRUE(p->prepass.has_value());
+  EXPECT_EQ(p->prepass->passes, 2);
+  EXPECT_EQ(p->prepass->spp, 128u);
+  auto again = job_parameters(to_proto(*p), scene::SceneDescription{});
+  ASSERT_TRUE(again.ok()) << again.status();
+  EXPECT_EQ(again->gradient, p->gradient);
+  EXPECT_EQ(again->render.gradient_offset_bins, p->render.gradient_offset_bins);
+  EXPECT_EQ(again->render.gradient_tau, p->render.gradient_tau);
+  ASSERT_TRUE(again->prepass.has_value());
+  EXPECT_EQ(again->prepass->epsilon, p->prepass->epsilon);
+  EXPECT_EQ(again->prepass->fallback, p->prepass->fallback);
+  EXPECT_EQ(again->prepass->sigma_s, p->prepass->sigma_s);
+  EXPECT_EQ(again->prepass->sigma_r, p->prepass->sigma_r);
+}
+
+// The prepass is on by default only for hero on a scene where something depends on wavelength
+// and that has emitters; an explicit PrepassOptions decides otherwise.
+TEST(JobSpecTest, PrepassDefaultFollowsTheScene) {
+  scene::SceneDescription plain = test_scene();
+  scene::Light light;
+  light.kind = scene::PointLight{};
+  plain.lights.push_back(light);
+  auto p = job_parameters(minimal_spec(), plain);
+  ASSERT_TRUE(p.ok()) << p.status();
+  EXPECT_FALSE(p->prepass.has_value()) << "one emitter spectrum, nothing dispersive: no prepass";
+  EXPECT_FALSE(prepass_by_default(worker::IntegratorKind::kHero, plain));
+
+  scene::SceneDescription fog = plain;
+  fog.media.push_back(scene::Medium{"fog", scene::HomogeneousMedium{}, {}});
+  fog.camera.medium = 0;
+  EXPECT_TRUE(prepass_by_default(worker::IntegratorKind::kHero, fog));
+  EXPECT_FALSE(prepass_by_default(worker::IntegratorKind::kUniform, fog));
+  EXPECT_FALSE(prepass_by_default(worker::IntegratorKind::kGradient, fog));
+
+  prism::v1::JobSpec off = minimal_spec();
+  off.mutable_prepass()->set_enabled(false);
+  auto q = job_parameters(off, fog);
+  ASSERT_TRUE(q.ok()) << q.status();
+  EXPECT_FALSE(q->prepass.has_value());
 }
 
 }  // namespace

@@ -9,11 +9,14 @@
 #include <chrono>
 #include <condition_variable>
 #include <limits>
+#include <optional>
+#include <string>
 #include <mutex>
 #include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "coordinator/tile_merge.h"
+#include "services/spectral/pixel_tables.h"
 #include "services/base/status.h"
 #include "worker/tile_renderer.h"
 
@@ -57,39 +60,189 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
   PRISM_ASSIGN_OR_RETURN(render->scene_,
                          worker::RenderScene::build(device, scene, library, options.render,
                                                     options.width, options.height));
+  if (options.render.integrator == worker::IntegratorKind::kGradient) {
+    PRISM_ASSIGN_OR_RETURN(PoissonSolver solver,
+                           PoissonSolver::create(options.render.bins,
+                                                 options.render.gradient_offset_bins,
+                                                 options.poisson_alpha));
+    render->finaliser_ = reconstructing_finaliser(
+        std::make_shared<const PoissonSolver>(std::move(solver)), options.poisson_norm);
+  } else {
+    render->finaliser_ = mean_finaliser();
+  }
+  if (options.prepass.has_value()) {
+    PRISM_ASSIGN_OR_RETURN(worker::PrepassDistributions distributions,
+                           worker::prepass_distributions(scene, options.render, library,
+                                                         options.render.bins));
+    PRISM_ASSIGN_OR_RETURN(
+        PrepassRun run,
+        PrepassRun::create(*options.prepass, options.width, options.height, options.tile_size,
+                           options.render.bins, std::move(distributions.emitters),
+                           std::move(distributions.sensor)));
+    // Image-scaled passes render the same camera on a smaller film.
+    for (int k = 1; k <= run.passes(); ++k) {
+      const PrepassPass& pass = run.pass(k);
+      std::unique_ptr<worker::RenderScene> pass_scene;
+      if (pass.width != options.width || pass.height != options.height) {
+        PRISM_ASSIGN_OR_RETURN(pass_scene,
+                               worker::RenderScene::build(device, scene, library, options.render,
+                                                          pass.width, pass.height));
+      }
+      render->pass_scenes_.push_back(std::move(pass_scene));
+    }
+    render->prepass_template_ = std::make_unique<PrepassRun>(std::move(run));
+  }
   render->build_seconds_ = seconds_since(start);
   return render;
 }
+
+namespace {
+
+// What run_stage needs to know about one stage (a prepass or the final pass).
+struct Stage {
+  const worker::RenderScene* scene = nullptr;
+  const TilePlan* plan = nullptr;
+  std::uint32_t pass = 0;
+  bool prepass = false;
+  // The tables of a tile in the wire layout, or nothing (the default distribution).
+  std::function<absl::StatusOr<std::optional<std::string>>(const image::TileRect&)> tables;
+  TileCallback on_tile;
+  TileFinaliser finalise;
+  // Where the stage's trace counters go (under StageShared::mutex): the report counts the final
+  // pass's alone, like the farm.
+  worker::TraceCounters* counters = nullptr;
+};
+
+struct StageShared {
+  std::atomic<bool> stop{false};
+  std::atomic<std::uint64_t> progress{0};
+  std::mutex mutex;
+  absl::Status first_error;
+  int peak_tiles_in_flight = 0;
+
+  void fail(absl::Status status) {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (first_error.ok()) first_error = std::move(status);
+    stop.store(true);
+  }
+};
+
+// Renders every task of a stage in plan order (tile-major, one task per body: a tile's ranges
+// finish close together, which keeps the tiles in flight near the thread count) and assembles
+// its tiles. Errors go to shared.first_error.
+void run_stage(const Stage& stage, int bins, tbb::task_arena& arena, StageShared& shared,
+               const std::atomic<bool>* cancel) {
+  absl::StatusOr<std::unique_ptr<TileAssembler>> assembler =
+      TileAssembler::create(*stage.plan, bins, stage.on_tile, stage.finalise);
+  if (!assembler.ok()) {
+    shared.fail(assembler.status());
+    return;
+  }
+  const TilePlan& plan = *stage.plan;
+  const worker::TileRenderer renderer(*stage.scene);
+  // Decoded tables per tile, made by the first of its tasks and dropped with the tile.
+  std::vector<std::shared_ptr<const spectral::PixelTables>> tables(plan.tiles.size());
+  std::mutex tables_mutex;
+  auto tables_of = [&](std::size_t tile) -> absl::StatusOr<const spectral::PixelTables*> {
+    if (!stage.tables) return nullptr;
+    std::lock_guard<std::mutex> lock(tables_mutex);
+    if (tables[tile] == nullptr) {
+      const image::TileRect& rect = plan.tiles[tile];
+      PRISM_ASSIGN_OR_RETURN(std::optional<std::string> bytes, stage.tables(rect));
+      if (!bytes.has_value()) return nullptr;
+      PRISM_ASSIGN_OR_RETURN(spectral::PixelTables decoded,
+                             spectral::PixelTables::decode(rect.width(), rect.height(), bins,
+                                                           *bytes));
+      tables[tile] = std::make_shared<const spectral::PixelTables>(std::move(decoded));
+    }
+    return tables[tile].get();
+  };
+  arena.execute([&] {
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, plan.task_count(), 1),
+        [&](const tbb::blocked_range<std::size_t>& tasks) {
+          for (std::size_t t = tasks.begin(); t != tasks.end(); ++t) {
+            if (shared.stop.load() || (cancel != nullptr && cancel->load())) return;
+            const std::size_t tile = t / plan.ranges.size();
+            const std::size_t range = t % plan.ranges.size();
+            worker::RenderTask task;
+            task.tile = plan.tiles[tile];
+            task.samples = plan.ranges[range];
+            task.pass = stage.pass;
+            task.prepass = stage.prepass;
+            task.early_stop = stage.prepass;
+            task.want_guides = stage.prepass;
+            absl::StatusOr<const spectral::PixelTables*> tile_tables = tables_of(tile);
+            if (!tile_tables.ok()) {
+              shared.fail(tile_tables.status());
+              return;
+            }
+            task.tables = *tile_tables;
+            worker::TileStats tile_stats;
+            absl::StatusOr<image::TileResult> result =
+                renderer.render(task, &tile_stats, &shared.stop, &shared.progress);
+            if (!result.ok()) {
+              shared.fail(result.status());
+              return;
+            }
+            {
+              std::lock_guard<std::mutex> lock(shared.mutex);
+              *stage.counters += tile_stats.counters;
+            }
+            absl::Status added = (*assembler)->add(static_cast<int>(tile), *std::move(result));
+            if (!added.ok()) {
+              shared.fail(added);
+              return;
+            }
+            if (range + 1 == plan.ranges.size()) {
+              std::lock_guard<std::mutex> lock(tables_mutex);
+              tables[tile].reset();
+            }
+          }
+        },
+        tbb::simple_partitioner());
+  });
+  if (!shared.stop.load()) {
+    absl::Status complete = (*assembler)->check_complete();
+    if (!complete.ok()) shared.fail(complete);
+  }
+  std::lock_guard<std::mutex> lock(shared.mutex);
+  shared.peak_tiles_in_flight =
+      std::max(shared.peak_tiles_in_flight, (*assembler)->peak_tiles_in_flight());
+}
+
+}  // namespace
 
 absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* cancel) const {
   const int bins = scene_->grid().bins();
   PRISM_ASSIGN_OR_RETURN(image::SpectralImage image,
                          image::SpectralImage::create(options_.width, options_.height, bins));
+  std::optional<image::SpectralImage> primal, gradient;
+  const bool keep_raw = options_.keep_primal_and_gradients &&
+                        options_.render.integrator == worker::IntegratorKind::kGradient;
+  if (keep_raw) {
+    PRISM_ASSIGN_OR_RETURN(primal,
+                           image::SpectralImage::create(options_.width, options_.height, bins));
+    PRISM_ASSIGN_OR_RETURN(gradient,
+                           image::SpectralImage::create(options_.width, options_.height, bins));
+  }
   BinStatisticsAccumulator statistics(plan_.tiles.size(), bins);
-  // Tiles are disjoint and each statistics slot is the tile's own, so concurrent callbacks for
-  // different tiles never touch the same memory.
-  auto on_tile = [&](int tile, const image::TileResult& merged,
-                     const image::SpectralImage& finalised) {
-    statistics.add_tile(static_cast<std::size_t>(tile), merged);
-    return image::paste_tile(finalised, merged.rect(), image);
-  };
-  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<TileAssembler> assembler,
-                         TileAssembler::create(plan_, bins, on_tile));
+  std::optional<PrepassRun> prepass;
+  if (prepass_template_ != nullptr) prepass.emplace(*prepass_template_);
 
-  const worker::TileRenderer renderer(*scene_);
-  const std::uint64_t total = options_.spp * static_cast<std::uint64_t>(options_.width) *
-                              static_cast<std::uint64_t>(options_.height);
-  std::atomic<bool> stop{false};
-  std::atomic<std::uint64_t> progress{0};
-  std::mutex mutex;
-  absl::Status first_error;
-  worker::TraceCounters counters;
-  auto fail = [&](absl::Status status) {
-    std::lock_guard<std::mutex> lock(mutex);
-    if (first_error.ok()) first_error = std::move(status);
-    stop.store(true);
-  };
+  std::uint64_t total = 0;
+  const std::uint64_t final_samples = options_.spp * static_cast<std::uint64_t>(options_.width) *
+                                      static_cast<std::uint64_t>(options_.height);
+  if (prepass.has_value()) {
+    for (int k = 1; k <= prepass->passes(); ++k) {
+      const PrepassPass& pass = prepass->pass(k);
+      total += std::uint64_t{pass.spp} * static_cast<std::uint64_t>(pass.width) *
+               static_cast<std::uint64_t>(pass.height);
+    }
+  }
+  total += final_samples;
 
+  StageShared shared;
   // One monitor thread forwards an outside cancel into `stop` (which the renderer polls between
   // pixels) and reports progress, so the callback is never called from two threads at once.
   const Clock::time_point start = Clock::now();
@@ -101,51 +254,80 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
     std::unique_lock<std::mutex> lock(monitor_mutex);
     while (!finished) {
       monitor_wake.wait_for(lock, std::chrono::milliseconds(50));
-      if (cancel != nullptr && cancel->load()) stop.store(true);
+      if (cancel != nullptr && cancel->load()) shared.stop.store(true);
       if (options_.progress && !finished &&
           std::chrono::duration<double>(Clock::now() - last_report).count() >=
               options_.progress_interval_seconds) {
         last_report = Clock::now();
-        options_.progress({progress.load(), total, seconds_since(start)});
+        options_.progress({shared.progress.load(), total, seconds_since(start)});
       }
     }
   });
 
   tbb::task_arena arena(threads_);
-  arena.execute([&] {
-    // Tasks in plan order (tile-major), one per body: a tile's ranges finish close together,
-    // which keeps the tiles in flight near the thread count.
-    tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, plan_.task_count(), 1),
-        [&](const tbb::blocked_range<std::size_t>& tasks) {
-          for (std::size_t t = tasks.begin(); t != tasks.end(); ++t) {
-            if (stop.load() || (cancel != nullptr && cancel->load())) return;
-            const std::size_t tile = t / plan_.ranges.size();
-            const std::size_t range = t % plan_.ranges.size();
-            worker::RenderTask task;
-            task.tile = plan_.tiles[tile];
-            task.samples = plan_.ranges[range];
-            worker::TileStats tile_stats;
-            absl::StatusOr<image::TileResult> result =
-                renderer.render(task, &tile_stats, &stop, &progress);
-            if (!result.ok()) {
-              fail(result.status());
-              return;
-            }
-            {
-              std::lock_guard<std::mutex> lock(mutex);
-              counters += tile_stats.counters;
-            }
-            absl::Status added = assembler->add(static_cast<int>(tile), *std::move(result));
-            if (!added.ok()) {
-              fail(added);
-              return;
-            }
-          }
-        },
-        tbb::simple_partitioner());
-  });
-  const double render_seconds = seconds_since(start);
+  LocalRenderStats stats;
+  worker::TraceCounters prepass_counters, final_counters;
+  if (prepass.has_value()) {
+    std::mutex prepass_mutex;
+    for (int k = 1; k <= prepass->passes() && !shared.stop.load(); ++k) {
+      Stage stage;
+      stage.scene = pass_scenes_[static_cast<std::size_t>(k - 1)] != nullptr
+                        ? pass_scenes_[static_cast<std::size_t>(k - 1)].get()
+                        : scene_.get();
+      stage.plan = &prepass->plan(k);
+      stage.pass = static_cast<std::uint32_t>(k);
+      stage.prepass = true;
+      stage.tables = [&, k](const image::TileRect& rect) {
+        std::lock_guard<std::mutex> lock(prepass_mutex);
+        return prepass->tables_for_pass(k, rect);
+      };
+      stage.on_tile = [&, k](int, const image::TileResult& merged, const image::SpectralImage&) {
+        std::lock_guard<std::mutex> lock(prepass_mutex);
+        return prepass->add_tile(k, merged);
+      };
+      stage.finalise = mean_finaliser();
+      stage.counters = &prepass_counters;
+      run_stage(stage, bins, arena, shared, cancel);
+      if (shared.stop.load()) break;
+      absl::Status finished_pass = prepass->finish_pass(k);
+      if (!finished_pass.ok()) shared.fail(finished_pass);
+    }
+    stats.prepass_seconds = seconds_since(start);
+    stats.prepass_reconstruction_seconds = prepass->reconstruction_seconds();
+    stats.fallback_fraction = prepass->fallback_fraction();
+    stats.prepass_passes = prepass->passes();
+  }
+
+  const Clock::time_point final_start = Clock::now();
+  if (!shared.stop.load()) {
+    // Tiles are disjoint and each statistics slot is the tile's own, so concurrent callbacks for
+    // different tiles never touch the same memory.
+    Stage stage;
+    stage.scene = scene_.get();
+    stage.plan = &plan_;
+    stage.pass = 0;
+    if (prepass.has_value()) {
+      stage.tables = [&](const image::TileRect& rect)
+          -> absl::StatusOr<std::optional<std::string>> {
+        PRISM_ASSIGN_OR_RETURN(std::string bytes, prepass->final_tables(rect));
+        return std::optional<std::string>(std::move(bytes));
+      };
+    }
+    stage.on_tile = [&](int tile, const image::TileResult& merged,
+                        const image::SpectralImage& finalised) -> absl::Status {
+      statistics.add_tile(static_cast<std::size_t>(tile), merged);
+      if (keep_raw) {
+        PRISM_RETURN_IF_ERROR(image::paste_tile(image::finalise(merged), merged.rect(), *primal));
+        PRISM_RETURN_IF_ERROR(
+            image::paste_tile(finalise_gradients(merged), merged.rect(), *gradient));
+      }
+      return image::paste_tile(finalised, merged.rect(), image);
+    };
+    stage.finalise = finaliser_;
+    stage.counters = &final_counters;
+    run_stage(stage, bins, arena, shared, cancel);
+  }
+  const double render_seconds = seconds_since(final_start);
   {
     std::lock_guard<std::mutex> lock(monitor_mutex);
     finished = true;
@@ -154,20 +336,20 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   monitor.join();
 
   if (cancel != nullptr && cancel->load()) return absl::CancelledError("the render was cancelled");
-  if (!first_error.ok()) return first_error;
-  PRISM_RETURN_IF_ERROR(assembler->check_complete());
-  if (options_.progress) options_.progress({progress.load(), total, render_seconds});
+  if (!shared.first_error.ok()) return shared.first_error;
+  if (options_.progress) options_.progress({shared.progress.load(), total, seconds_since(start)});
 
-  LocalRenderStats stats;
   stats.build_seconds = build_seconds_;
   stats.render_seconds = render_seconds;
-  stats.samples = total;
-  stats.counters = counters;
+  stats.samples = final_samples;
+  stats.counters = final_counters;
   stats.threads = threads_;
   stats.tasks = plan_.task_count();
   stats.tiles = static_cast<int>(plan_.tiles.size());
-  stats.peak_tiles_in_flight = assembler->peak_tiles_in_flight();
-  return LocalRenderResult{std::move(image), statistics.finish(), stats};
+  stats.peak_tiles_in_flight = shared.peak_tiles_in_flight;
+  LocalRenderResult result{std::move(image), std::move(primal), std::move(gradient),
+                           statistics.finish(), stats};
+  return result;
 }
 
 }  // namespace prism::coordinator

@@ -1,8 +1,10 @@
 // The embedded render: the farm's pipeline in one process, with no network. It builds the
 // worker's RenderScene, plans tasks with plan_tiles (tile x sample range), renders the tasks
 // with worker::TileRenderer in parallel inside a tbb::task_arena of the requested size, and
-// assembles finished tiles with the TileAssembler, exactly as the coordinator will for remote
-// workers.
+// assembles finished tiles with the TileAssembler, exactly as the coordinator does for remote
+// workers. A job with a prepass first runs its passes (PrepassRun: the same object the farm
+// drives), then the final pass with each tile's learned tables; a gradient job's tiles are
+// reconstructed by the screened Poisson solve as each one completes (tile_finaliser.h).
 //
 // Determinism: samples are pure functions of (seed, pass, pixel, sample index), each task sums a
 // pixel's samples in index order, and the assembler adds a tile's ranges in range order. The
@@ -20,6 +22,8 @@
 #include "coordinator/outputs.h"
 #include "coordinator/poisson.h"
 #include "coordinator/prepass.h"
+#include "coordinator/prepass_run.h"
+#include "coordinator/tile_finaliser.h"
 #include "coordinator/tile_plan.h"
 #include "services/image/tile.h"
 #include "services/scene/scene_description.h"
@@ -117,6 +121,11 @@ class LocalRender {
   TilePlan plan_;
   int threads_ = 1;
   double build_seconds_ = 0;
+  TileFinaliser finaliser_;
+  // The prepass in its initial state (each render() runs a copy) and, per pass, the scene at
+  // that pass's film when it is not the job's (image-scaled passes), else null.
+  std::unique_ptr<PrepassRun> prepass_template_;
+  std::vector<std::unique_ptr<worker::RenderScene>> pass_scenes_;
 };
 
 }  // namespace prism::coordinator

@@ -68,6 +68,8 @@ absl::StatusOr<OutputPaths> output_paths(const std::optional<fs::path>& output,
   paths.spectral_exr = spectral;
   paths.rgb_exr = with_suffix(stem, ".rgb.exr");
   paths.png = with_suffix(stem, ".png");
+  paths.primal_exr = with_suffix(stem, ".primal.exr");
+  paths.gradient_exr = with_suffix(stem, ".gradient.exr");
   if (json.has_value()) {
     if (json->empty() || !json->has_filename() || json->filename() == "." ||
         json->filename() == "..") {
@@ -78,9 +80,10 @@ absl::StatusOr<OutputPaths> output_paths(const std::optional<fs::path>& output,
   } else {
     paths.json = with_suffix(stem, ".json");
   }
-  const fs::path* all[] = {&paths.spectral_exr, &paths.rgb_exr, &paths.png, &paths.json};
-  for (int i = 0; i < 4; ++i) {
-    for (int j = i + 1; j < 4; ++j) {
+  const fs::path* all[] = {&paths.spectral_exr, &paths.rgb_exr,    &paths.png,
+                           &paths.json,         &paths.primal_exr, &paths.gradient_exr};
+  for (int i = 0; i < 6; ++i) {
+    for (int j = i + 1; j < 6; ++j) {
       if (fs::absolute(*all[i]).lexically_normal() == fs::absolute(*all[j]).lexically_normal()) {
         return absl::InvalidArgumentError(absl::StrCat("two outputs would both be written to '",
                                                        all[i]->string(),
@@ -242,10 +245,52 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
   j["bin_standard_error"] = r.statistics.standard_error;
   j["bin_variance_of_mean"] = r.statistics.variance_of_mean;
   j["pixels_with_error_estimate"] = r.statistics.pixels_with_error;
-  j["outputs"] = {{"spectral_exr", paths.spectral_exr.string()},
-                  {"rgb_exr", paths.rgb_exr.string()},
-                  {"png", paths.png.string()},
-                  {"json", paths.json.string()}};
+  if (r.gradient.has_value()) {
+    const GradientReport& g = *r.gradient;
+    auto fraction = [](std::uint64_t part, std::uint64_t whole) {
+      return whole > 0 ? double(part) / double(whole) : std::nan("");
+    };
+    j["gradient"] = {
+        {"offset_bins", g.offset_bins},
+        {"delta", g.delta},
+        {"tau", g.tau},
+        {"alpha", g.alpha},
+        {"poisson", g.norm},
+        // The spectral gradient paper's Table 1: how many base paths were shifted, and how many
+        // shifts were wasted because the offset did not pass the threshold.
+        {"shifted_path_fraction", fraction(g.shifted_paths, g.base_paths)},
+        {"wasted_shift_fraction", fraction(g.wasted_shifts, g.shifts)},
+        {"failed_shift_fraction", fraction(g.failed_shifts, g.shifts)},
+        {"base_paths", g.base_paths},
+        {"shifted_paths", g.shifted_paths},
+        {"shifts", g.shifts},
+        {"failed_shifts", g.failed_shifts},
+        {"wasted_shifts", g.wasted_shifts}};
+  }
+  if (r.prepass.has_value()) {
+    const PrepassReport& p = *r.prepass;
+    j["prepass"] = {{"passes", p.passes},
+                    {"pass_spp", p.pass_spp},
+                    {"pass_resolution", p.pass_resolution},
+                    {"mode", p.image_scaled ? "image" : "samples"},
+                    {"epsilon", p.epsilon},
+                    {"fallback", p.fallback},
+                    {"sigma_s", p.sigma_s},
+                    {"sigma_r", p.sigma_r},
+                    {"prepass_seconds", p.seconds},
+                    {"reconstruction_seconds", p.reconstruction_seconds},
+                    {"final_pass_seconds", p.final_seconds},
+                    {"fallback_pixel_fraction", p.fallback_fraction}};
+  }
+  nlohmann::ordered_json outputs = {{"spectral_exr", paths.spectral_exr.string()},
+                                    {"rgb_exr", paths.rgb_exr.string()},
+                                    {"png", paths.png.string()},
+                                    {"json", paths.json.string()}};
+  if (r.gradient.has_value() && r.gradient->with_primal_and_gradients) {
+    outputs["primal_exr"] = paths.primal_exr.string();
+    outputs["gradient_exr"] = paths.gradient_exr.string();
+  }
+  j["outputs"] = outputs;
   return j.dump(2) + "\n";
 }
 
@@ -261,9 +306,20 @@ absl::Status write_outputs(const image::SpectralImage& spectral, const spectral:
       report, paths, options);
 }
 
-absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& rows,
-                           const image::RgbImage& rgb, const RenderReport& report,
-                           const OutputPaths& paths, const OutputOptions& options) {
+void fill_gradient_counters(const std::vector<std::pair<std::string, std::uint64_t>>& counters,
+                            GradientReport& report) {
+  for (const auto& [name, value] : counters) {
+    if (name == "camera_rays") report.base_paths = value;
+    if (name == "gradient_shifted_paths") report.shifted_paths = value;
+    if (name == "gradient_shifts") report.shifts = value;
+    if (name == "gradient_shifts_failed") report.failed_shifts = value;
+    if (name == "gradient_shifts_wasted") report.wasted_shifts = value;
+  }
+}
+
+namespace {
+
+image::ExrMetadata output_metadata(const RenderReport& report) {
   image::ExrMetadata metadata;
   metadata[std::string(image::kMetaSpp)] = absl::StrCat(report.spp);
   metadata[std::string(image::kMetaIntegrator)] = report.integrator;
@@ -276,6 +332,29 @@ absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& r
   metadata["light_selection"] = report.light_selection;
   metadata["spectral_light_selection"] = report.spectral_light_selection ? "on" : "off";
   metadata["max_depth"] = absl::StrCat(report.max_depth);
+  if (report.gradient.has_value()) {
+    metadata[std::string(image::kMetaGradientOffsetBins)] =
+        absl::StrCat(report.gradient->offset_bins);
+    metadata[std::string(image::kMetaGradientDelta)] = absl::StrCat(report.gradient->delta);
+    metadata["gradient_tau"] = absl::StrCat(report.gradient->tau);
+  }
+  if (report.prepass.has_value()) {
+    metadata["prepass_passes"] = absl::StrCat(report.prepass->passes);
+  }
+  return metadata;
+}
+
+}  // namespace
+
+absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& rows,
+                           const image::RgbImage& rgb, const RenderReport& report,
+                           const OutputPaths& paths, const OutputOptions& options) {
+  image::ExrMetadata metadata = output_metadata(report);
+  if (report.gradient.has_value()) {
+    // The reconstruction records how it was made (exr_spectral.h).
+    metadata[std::string(image::kMetaPoissonAlpha)] = absl::StrCat(report.gradient->alpha);
+    metadata[std::string(image::kMetaPoissonNorm)] = report.gradient->norm;
+  }
 
   absl::Status first;
   std::string failures;
@@ -296,6 +375,47 @@ absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& r
   record(paths.json, base::write_file_atomic(paths.json, std::span<const char>(json)));
   if (first.ok()) return first;
   return absl::Status(first.code(), failures);
+}
+
+absl::Status write_primal_and_gradient(int bins, int band_rows, const image::SpectralRows& primal,
+                                       const image::RgbImage& primal_rgb,
+                                       const image::SpectralRows& gradient,
+                                       const image::RgbImage& gradient_rgb,
+                                       const RenderReport& report, const OutputPaths& paths) {
+  const image::ExrMetadata metadata = output_metadata(report);
+  const std::vector<double> centres = image::bin_centres_nm(bins);
+  absl::Status status =
+      image::write_spectral_exr_rows(paths.primal_exr, centres, primal_rgb.width(),
+                                     primal_rgb.height(), band_rows, primal, primal_rgb, metadata);
+  if (!status.ok()) {
+    return absl::Status(status.code(), absl::StrCat("could not write '", paths.primal_exr.string(),
+                                                    "': ", status.message()));
+  }
+  status = image::write_spectral_exr_rows(paths.gradient_exr, centres, gradient_rgb.width(),
+                                          gradient_rgb.height(), band_rows, gradient,
+                                          gradient_rgb, metadata);
+  if (!status.ok()) {
+    return absl::Status(status.code(),
+                        absl::StrCat("could not write '", paths.gradient_exr.string(),
+                                     "': ", status.message()));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status write_primal_and_gradient(const image::SpectralImage& primal,
+                                       const image::SpectralImage& gradient,
+                                       const spectral::ColorMatching& cmf,
+                                       const RenderReport& report, const OutputPaths& paths) {
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage primal_rgb, to_linear_srgb(primal, cmf));
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage gradient_rgb, to_linear_srgb(gradient, cmf));
+  auto rows_of = [](const image::SpectralImage& image) -> image::SpectralRows {
+    const std::size_t row_values = std::size_t(image.width()) * std::size_t(image.bins());
+    return [&image, row_values](int y0, int) -> absl::StatusOr<const float*> {
+      return image.data().data() + y0 * row_values;
+    };
+  };
+  return write_primal_and_gradient(primal.bins(), primal.height(), rows_of(primal), primal_rgb,
+                                   rows_of(gradient), gradient_rgb, report, paths);
 }
 
 std::uint64_t peak_memory_bytes() {

@@ -36,6 +36,10 @@ struct OutputPaths {
   std::filesystem::path rgb_exr;
   std::filesystem::path png;
   std::filesystem::path json;
+  // Gradient jobs that ask for them: the raw primal I and gradient G (<stem>.primal.exr and
+  // <stem>.gradient.exr), the pair `prism reconstruct` takes.
+  std::filesystem::path primal_exr;
+  std::filesystem::path gradient_exr;
 };
 
 // `output`: the -o path (an extension other than .exr is refused; none gets .exr). Without it,
@@ -89,6 +93,35 @@ class BinStatisticsAccumulator {
 absl::StatusOr<image::RgbImage> to_linear_srgb(const image::SpectralImage& spectral,
                                                const spectral::ColorMatching& cmf);
 
+// Spectral gradient sampling in the report: the job's settings and the paper's Table 1
+// statistics from the workers' counters (worker::TraceCounters).
+struct GradientReport {
+  int offset_bins = 0;
+  float delta = 0;  // float, as the job spec keeps them
+  float tau = 0;
+  float alpha = 0;
+  std::string norm;
+  std::uint64_t base_paths = 0;      // camera samples
+  std::uint64_t shifted_paths = 0;   // base paths with at least one shifted event
+  std::uint64_t shifts = 0;          // offsets evaluated
+  std::uint64_t failed_shifts = 0;   // of those, no valid offset path
+  std::uint64_t wasted_shifts = 0;   // of those, the offset's own contribution was <= τ
+  bool with_primal_and_gradients = false;
+};
+
+// The multi-pass prepass in the report.
+struct PrepassReport {
+  int passes = 0;
+  std::vector<std::uint64_t> pass_spp;
+  std::vector<std::string> pass_resolution;  // "WxH" per pass
+  bool image_scaled = false;
+  float epsilon = 0, fallback = 0, sigma_s = 0, sigma_r = 0;  // float, as the job spec keeps them
+  double seconds = 0;                 // the passes, wall clock, reconstruction included
+  double reconstruction_seconds = 0;  // the coordinator's filter and tables
+  double final_seconds = 0;           // the final pass
+  double fallback_fraction = 0;       // pixels on the default distribution
+};
+
 // What the JSON report records besides the image.
 struct RenderReport {
   std::string scene;
@@ -112,7 +145,13 @@ struct RenderReport {
   std::vector<std::pair<std::string, std::uint64_t>> counters;
   std::uint64_t peak_memory_bytes = 0;
   BinStatistics statistics;
+  std::optional<GradientReport> gradient;
+  std::optional<PrepassReport> prepass;
 };
+
+// The counters of a gradient job's Table 1, taken from the named counters.
+void fill_gradient_counters(const std::vector<std::pair<std::string, std::uint64_t>>& counters,
+                            GradientReport& report);
 
 struct OutputOptions {
   float exposure_stops = 0.0f;  // PNG preview only
@@ -131,6 +170,20 @@ absl::Status write_outputs(const image::SpectralImage& spectral, const spectral:
 absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& rows,
                            const image::RgbImage& rgb, const RenderReport& report,
                            const OutputPaths& paths, const OutputOptions& options);
+
+// The raw primal and gradient spectral EXRs of a gradient job (paths.primal_exr and
+// paths.gradient_exr), each with the R, G, B of its own values, streamed like the main output.
+// The gradient file follows exr_spectral.h's convention (gradient_offset_bins, gradient_delta).
+absl::Status write_primal_and_gradient(int bins, int band_rows, const image::SpectralRows& primal,
+                                       const image::RgbImage& primal_rgb,
+                                       const image::SpectralRows& gradient,
+                                       const image::RgbImage& gradient_rgb,
+                                       const RenderReport& report, const OutputPaths& paths);
+// The same from whole images.
+absl::Status write_primal_and_gradient(const image::SpectralImage& primal,
+                                       const image::SpectralImage& gradient,
+                                       const spectral::ColorMatching& cmf,
+                                       const RenderReport& report, const OutputPaths& paths);
 
 // The process's peak resident set size (getrusage ru_maxrss), in bytes.
 std::uint64_t peak_memory_bytes();

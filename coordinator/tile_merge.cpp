@@ -58,7 +58,8 @@ std::array<std::uint8_t, 32> tile_result_digest(const image::TileResult& result)
 }
 
 absl::StatusOr<std::unique_ptr<TileAssembler>> TileAssembler::create(TilePlan plan, int bins,
-                                                                     TileCallback on_tile) {
+                                                                     TileCallback on_tile,
+                                                                     TileFinaliser finalise) {
   if (plan.tiles.empty() || plan.ranges.empty()) {
     return absl::InvalidArgumentError("cannot assemble a plan without tiles or sample ranges");
   }
@@ -71,12 +72,16 @@ absl::StatusOr<std::unique_ptr<TileAssembler>> TileAssembler::create(TilePlan pl
     }
   }
   PRISM_CHECK(on_tile != nullptr);
+  if (!finalise) finalise = mean_finaliser();
   return std::unique_ptr<TileAssembler>(
-      new TileAssembler(std::move(plan), bins, std::move(on_tile)));
+      new TileAssembler(std::move(plan), bins, std::move(on_tile), std::move(finalise)));
 }
 
-TileAssembler::TileAssembler(TilePlan plan, int bins, TileCallback on_tile)
-    : plan_(std::move(plan)), bins_(bins), on_tile_(std::move(on_tile)) {
+TileAssembler::TileAssembler(TilePlan plan, int bins, TileCallback on_tile, TileFinaliser finalise)
+    : plan_(std::move(plan)),
+      bins_(bins),
+      on_tile_(std::move(on_tile)),
+      finalise_(std::move(finalise)) {
   tiles_.resize(plan_.tiles.size());
   for (TileState& tile : tiles_) tile.digests.resize(plan_.ranges.size());
 }
@@ -159,8 +164,9 @@ absl::Status TileAssembler::add(int tile_index, image::TileResult result) {
     PRISM_CHECK_MSG(added.ok(), "ranges of one plan always merge");
   }
   parts.clear();
-  const image::SpectralImage finalised = image::finalise(merged);
-  absl::Status status = on_tile_(tile_index, merged, finalised);
+  absl::StatusOr<image::SpectralImage> finalised = finalise_(merged);
+  absl::Status status =
+      finalised.ok() ? on_tile_(tile_index, merged, *finalised) : finalised.status();
   std::lock_guard<std::mutex> lock(mutex_);
   tiles_[tile_index].finished = true;
   ++finished_;

@@ -23,13 +23,15 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "coordinator/tile_finaliser.h"
 #include "coordinator/tile_plan.h"
 #include "services/image/tile.h"
 
 namespace prism::coordinator {
 
 // Receives one finished tile: `merged` is the sum over all its ranges (samples() = [0, spp)),
-// `finalised` its per-pixel means (image::finalise). Called exactly once per tile, outside the
+// `finalised` its output values (the assembler's TileFinaliser: per-pixel means, or for a
+// gradient job the reconstruction). Called exactly once per tile, outside the
 // assembler's lock, possibly concurrently for different tiles. An error is returned by the
 // add() that completed the tile.
 using TileCallback = std::function<absl::Status(int tile_index, const image::TileResult& merged,
@@ -38,8 +40,11 @@ using TileCallback = std::function<absl::Status(int tile_index, const image::Til
 class TileAssembler {
  public:
   // INVALID_ARGUMENT when the plan has no tiles or ranges, or bins is outside [1, kMaxBins].
+  // `finalise` (default: mean_finaliser()) runs on each finished tile before the callback; its
+  // error is returned by the add() that completed the tile, and the tile counts as finished.
   static absl::StatusOr<std::unique_ptr<TileAssembler>> create(TilePlan plan, int bins,
-                                                               TileCallback on_tile);
+                                                               TileCallback on_tile,
+                                                               TileFinaliser finalise = nullptr);
 
   // Accepts the result of task (tile_index, result.samples()). Thread-safe.
   //  - INVALID_ARGUMENT (nothing kept) when the tile index is out of range, the rect is not the
@@ -78,13 +83,14 @@ class TileAssembler {
     bool finished = false;
   };
 
-  TileAssembler(TilePlan plan, int bins, TileCallback on_tile);
+  TileAssembler(TilePlan plan, int bins, TileCallback on_tile, TileFinaliser finalise);
   // Index of `range` in the plan, or -1.
   int range_index(const image::SampleRange& range) const;
 
   const TilePlan plan_;
   const int bins_;
   const TileCallback on_tile_;
+  const TileFinaliser finalise_;
   mutable std::mutex mutex_;
   std::vector<TileState> tiles_;
   int finished_ = 0;

@@ -190,8 +190,10 @@ class FarmProcessTest : public ::testing::Test {
   }
 
   // 24x24 in 8-pixel tiles: 9 tasks, each one tile's whole sample range (as `prism render`).
+  // No prepass unless asked for (the scene would have one by default): these tests count tasks.
   v1::JobSpec spec(const std::string& hash, int spp, int samples_per_task = 0) {
     v1::JobSpec s;
+    s.mutable_prepass()->set_enabled(false);
     s.set_samples_per_task(samples_per_task);
     s.set_bundle_hash(hash);
     s.set_scene_path("scene.pbrt");
@@ -237,10 +239,11 @@ class FarmProcessTest : public ::testing::Test {
            info.state() == v1::JOB_STATE_CANCELLED;
   }
 
-  std::vector<float> fetch_spectral(const std::string& job_id) {
+  std::vector<float> fetch_spectral(const std::string& job_id,
+                                    v1::OutputKind kind = v1::OUTPUT_KIND_SPECTRAL_EXR) {
     v1::GetResultRequest request;
     request.set_job_id(job_id);
-    request.add_kinds(v1::OUTPUT_KIND_SPECTRAL_EXR);
+    request.add_kinds(kind);
     auto context = client();
     auto reader = stub_->GetResult(context.get(), request);
     std::string bytes, sha;
@@ -264,8 +267,10 @@ class FarmProcessTest : public ::testing::Test {
     return {data.begin(), data.end()};
   }
 
-  // `prism render` of the same job.
-  std::vector<float> cli_render(int spp, int samples_per_task = 0) {
+  // `prism render` of the same job; `extra` are more flags (default: no prepass, as spec()).
+  std::vector<float> cli_render(int spp, int samples_per_task = 0,
+                                std::vector<std::string> extra = {"--no-prepass"},
+                                const std::string& read = "cli.exr") {
     const fs::path out = root_ / "cli" / "cli.exr";
     fs::create_directories(out.parent_path());
     std::vector<std::string> args = {PRISM_BINARY, "render",
@@ -276,12 +281,13 @@ class FarmProcessTest : public ::testing::Test {
       args.push_back("--samples-per-task");
       args.push_back(std::to_string(samples_per_task));
     }
+    args.insert(args.end(), extra.begin(), extra.end());
     const pid_t pid = spawn(args);
     int status = 0;
     ::waitpid(pid, &status, 0);
     std::erase(children_, pid);
     EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
-    return read_pixels(out);
+    return read_pixels(out.parent_path() / read);
   }
 
   void expect_identical(const std::vector<float>& farm, const std::vector<float>& cli) {
@@ -314,6 +320,59 @@ TEST_F(FarmProcessTest, TwoWorkerProcessesMatchPrismRenderByteForByte) {
   ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
   EXPECT_EQ(done.progress().tasks_done(), 9u);
   expect_identical(fetch_spectral(job_id), cli_render(kSpp));
+}
+
+// Spectral gradient sampling through the farm: workers return I and G, the coordinator merges
+// them and reconstructs each tile; the reconstruction and the raw I and G are the embedded
+// render's bytes.
+TEST_F(FarmProcessTest, AGradientJobMatchesPrismRenderByteForByte) {
+  start_coordinator();
+  v1::JobSpec s = spec(upload(), kSpp, 6);
+  s.set_integrator(v1::INTEGRATOR_GRADIENT);
+  s.mutable_gradient()->set_tau(0.01f);
+  s.mutable_outputs()->set_primal_and_gradients(true);
+  const std::string job_id = submit(s);
+  ASSERT_FALSE(job_id.empty());
+  start_worker(0);
+  start_worker(1);
+  const v1::JobInfo done = wait_for(job_id, terminal, 30);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  const std::vector<std::string> flags = {"--no-prepass", "--integrator", "gradient", "--tau",
+                                          "0.01", "--primal-and-gradients"};
+  expect_identical(fetch_spectral(job_id), cli_render(kSpp, 6, flags));
+  expect_identical(fetch_spectral(job_id, v1::OUTPUT_KIND_PRIMAL_EXR),
+                   cli_render(kSpp, 6, flags, "cli.primal.exr"));
+  const std::vector<float> farm_gradient = fetch_spectral(job_id, v1::OUTPUT_KIND_GRADIENT_EXR);
+  const std::vector<float> cli_gradient = cli_render(kSpp, 6, flags, "cli.gradient.exr");
+  ASSERT_EQ(farm_gradient.size(), cli_gradient.size());
+  ASSERT_GT(farm_gradient.size(), 0u);
+  EXPECT_EQ(std::memcmp(farm_gradient.data(), cli_gradient.data(), cli_gradient.size() * 4), 0);
+}
+
+// The multi-pass prepass through the farm: two prepasses of 9 tile tasks each, the coordinator's
+// filter and tables between them, then the final pass with each tile's tables; the scene's
+// default (it has two emitter spectra, media and dispersion) in both. Killing the coordinator
+// during the prepass resumes it from the stored prepass results.
+TEST_F(FarmProcessTest, APrepassJobMatchesPrismRenderByteForByteAcrossACoordinatorRestart) {
+  const int port = free_port();
+  start_coordinator(port);
+  v1::JobSpec s = spec(upload(), kSpp);
+  s.clear_prepass();  // the scene's default: on
+  s.mutable_prepass()->set_enabled(true);
+  s.mutable_prepass()->set_spp(64);
+  const std::string job_id = submit(s);
+  ASSERT_FALSE(job_id.empty());
+  start_worker(0);
+  const v1::JobInfo mid =
+      wait_for(job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 10; }, 30);
+  ASSERT_GE(mid.progress().tasks_done(), 10u);
+  kill9(coordinator_);
+  start_coordinator(port);
+  start_worker(1);
+  const v1::JobInfo done = wait_for(job_id, terminal, 60);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  EXPECT_EQ(done.progress().tasks_done(), 27u);
+  expect_identical(fetch_spectral(job_id), cli_render(kSpp, 0, {"--prepass", "--prepass-spp", "64"}));
 }
 
 // Tasks of tile x sample range: each tile's four ranges ([0,5), [5,10), [10,15), [15,16)) come

@@ -222,7 +222,7 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
       {{"render", scene, "--bins", "257"}, "--bins 257 is out of range"},
       {{"render", scene, "--resolution", "0x5"}, "prism: --resolution '0x5': want WxH"},
       {{"render", scene, "--resolution", "64"}, "--resolution '64': want WxH"},
-      {{"render", scene, "--integrator", "foo"}, "prism: --integrator 'foo': want uniform or hero"},
+      {{"render", scene, "--integrator", "foo"}, "prism: --integrator 'foo': want uniform, hero or gradient"},
       {{"render", scene, "--spp", "0"}, "--spp 0 is out of range"},
       {{"render", scene, "--spp", "-3"}, "--spp -3 is out of range"},
       {{"render", scene, "--threads", "0"}, "--threads 0 is out of range"},

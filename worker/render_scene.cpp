@@ -123,13 +123,10 @@ absl::StatusOr<AreaLight> make_area_light(const scene::Shape& shape, int index,
   return AreaLight::create(shape, index, geometry, std::move(e.spectrum), e.scale * *a.power / k_e);
 }
 
-// p_s · p_e mixed defensively with the emitters' support (algorithms.md §1).
-absl::StatusOr<spectral::WavelengthDistribution> default_wavelength_pdf(
-    const scene::SceneDescription& scene, bool has_lights, const RenderOptions& options,
-    const spectral::SpectrumLibrary& library, const spectral::RgbUplift& uplift) {
-  using spectral::WavelengthDistribution;
-  constexpr int kCells = WavelengthDistribution::kDefaultCells;
-  if (!has_lights) return WavelengthDistribution::flat(kCells);
+// The scene's distinct emitter spectra (as written), resolved.
+absl::StatusOr<std::vector<spectral::Spectrum>> emitter_spectra(
+    const scene::SceneDescription& scene, const spectral::SpectrumLibrary& library,
+    const spectral::RgbUplift& uplift) {
   std::vector<spectral::Spectrum> spectra;
   // Distinct as written, the same notion of "distinct emitter spectra" as the job analysis.
   for (const scene::SpectrumParam& p :
@@ -138,6 +135,18 @@ absl::StatusOr<spectral::WavelengthDistribution> default_wavelength_pdf(
                            resolve_spectrum(p, SpectrumRole::kIlluminant, library, uplift));
     spectra.push_back(std::move(s));
   }
+  return spectra;
+}
+
+// p_s · p_e mixed defensively with the emitters' support (algorithms.md §1).
+absl::StatusOr<spectral::WavelengthDistribution> default_wavelength_pdf(
+    const scene::SceneDescription& scene, bool has_lights, const RenderOptions& options,
+    const spectral::SpectrumLibrary& library, const spectral::RgbUplift& uplift) {
+  using spectral::WavelengthDistribution;
+  constexpr int kCells = WavelengthDistribution::kDefaultCells;
+  if (!has_lights) return WavelengthDistribution::flat(kCells);
+  PRISM_ASSIGN_OR_RETURN(std::vector<spectral::Spectrum> spectra,
+                         emitter_spectra(scene, library, uplift));
   PRISM_ASSIGN_OR_RETURN(WavelengthDistribution emitters,
                          WavelengthDistribution::emitters(spectra, kCells));
   PRISM_ASSIGN_OR_RETURN(WavelengthDistribution sensor,
@@ -153,6 +162,28 @@ absl::StatusOr<spectral::WavelengthDistribution> default_wavelength_pdf(
 }
 
 }  // namespace
+
+absl::StatusOr<PrepassDistributions> prepass_distributions(const scene::SceneDescription& scene,
+                                                           const RenderOptions& options,
+                                                           const spectral::SpectrumLibrary& library,
+                                                           int bins) {
+  using spectral::WavelengthDistribution;
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  const spectral::RgbUplift uplift(cmf);
+  PRISM_ASSIGN_OR_RETURN(std::vector<spectral::Spectrum> spectra,
+                         emitter_spectra(scene, library, uplift));
+  if (spectra.empty()) {
+    return absl::FailedPreconditionError(
+        "the prepass learns from the scene's emitters, and this scene has none");
+  }
+  PRISM_ASSIGN_OR_RETURN(WavelengthDistribution emitters,
+                         WavelengthDistribution::emitters(spectra, bins));
+  std::optional<WavelengthDistribution> sensor;
+  if (options.spectral_pdf == SpectralPdfKind::kVisible) {
+    PRISM_ASSIGN_OR_RETURN(sensor, WavelengthDistribution::visible(bins));
+  }
+  return PrepassDistributions{std::move(emitters), std::move(sensor)};
+}
 
 absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
     EmbreeDevice& device, const scene::SceneDescription& scene,

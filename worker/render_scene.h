@@ -15,6 +15,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -41,6 +42,19 @@ struct ShapeInfo {
   int medium_inside = -1, medium_outside = -1;  // indices into media(), -1 vacuum
   bool medium_transition = false;
 };
+
+// The emitter mixture E (each distinct emitter spectrum normalised, as the default distribution
+// uses them) and the sensor term (null for `flat`) over `bins` cells, as the coordinator's
+// prepass tables want them (coordinator/prepass.h build_tables). FAILED_PRECONDITION when the
+// scene has no emitters (there is nothing to learn a wavelength pdf from).
+struct PrepassDistributions {
+  spectral::WavelengthDistribution emitters;
+  std::optional<spectral::WavelengthDistribution> sensor;
+};
+absl::StatusOr<PrepassDistributions> prepass_distributions(const scene::SceneDescription& scene,
+                                                           const RenderOptions& options,
+                                                           const spectral::SpectrumLibrary& library,
+                                                           int bins);
 
 class RenderScene {
  public:

@@ -135,7 +135,7 @@ grpc::Status FarmServiceImpl::GetResult(grpc::ServerContext* context,
   std::vector<OutputKind> kinds;
   for (int k : request->kinds()) {
     if (k < static_cast<int>(OutputKind::kSpectralExr) ||
-        k > static_cast<int>(OutputKind::kReportJson)) {
+        k > static_cast<int>(OutputKind::kGradientExr)) {
       return to_grpc(absl::InvalidArgumentError(
           absl::StrCat("kinds: output kind ", k, " is not produced by this coordinator")));
     }

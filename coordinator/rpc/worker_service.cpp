@@ -57,6 +57,14 @@ prism::v1::Lease to_proto(const LeaseGrant& grant) {
   task->mutable_samples()->set_begin(static_cast<std::uint32_t>(spec.samples.s0));
   task->mutable_samples()->set_end(static_cast<std::uint32_t>(spec.samples.s1));
   *task->mutable_spec() = grant.spec;
+  if (grant.pdf_table.has_value()) {
+    task->mutable_pdf_table()->set_cells(static_cast<std::uint32_t>(grant.table_cells));
+    task->mutable_pdf_table()->set_quantised_cdf(*grant.pdf_table);
+  }
+  task->set_want_guides(grant.want_guides);
+  task->set_early_stop_prepass(grant.early_stop);
+  task->set_film_width(static_cast<std::uint32_t>(grant.film_width));
+  task->set_film_height(static_cast<std::uint32_t>(grant.film_height));
   return lease;
 }
 
@@ -139,6 +147,7 @@ grpc::Status WorkerServiceImpl::CompleteTask(grpc::ServerContext* context,
   std::string worker_id, lease_id, sha256;
   double render_seconds = 0;
   std::uint64_t rays = 0;
+  std::vector<std::pair<std::string, std::uint64_t>> counters;
   bool first = true, last = false;
   while (reader->Read(&chunk)) {
     if (last) return to_grpc(absl::InvalidArgumentError("a result chunk came after the last one"));
@@ -154,6 +163,9 @@ grpc::Status WorkerServiceImpl::CompleteTask(grpc::ServerContext* context,
       sha256 = chunk.sha256();
       render_seconds = chunk.render_seconds();
       rays = chunk.rays();
+      // Sorted by name: a map's wire order is unspecified.
+      counters.assign(chunk.counters().begin(), chunk.counters().end());
+      std::sort(counters.begin(), counters.end());
     }
   }
   if (first) return to_grpc(absl::InvalidArgumentError("the result upload has no chunks"));
@@ -164,7 +176,7 @@ grpc::Status WorkerServiceImpl::CompleteTask(grpc::ServerContext* context,
   absl::StatusOr<std::string> bytes = assembler.finish(sha256);
   if (!bytes.ok()) return to_grpc(bytes.status());
   absl::StatusOr<CompleteResult> result =
-      farm_.complete(worker_id, lease_id, *std::move(bytes), sha256, render_seconds, rays);
+      farm_.complete(worker_id, lease_id, *std::move(bytes), sha256, render_seconds, rays, counters);
   if (!result.ok()) return to_grpc(result.status());
   response->set_accepted(*result == CompleteResult::kAccepted);
   return grpc::Status::OK;

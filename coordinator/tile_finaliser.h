@@ -1,0 +1,34 @@
+// How a finished tile's merged sums become its output values. Every job divides the sums by the
+// sample counts (image::finalise); a gradient job (algorithms.md §5) then reconstructs each pixel
+// from its mean primal I and mean gradient G with the screened Poisson solve (poisson.h). Pixels
+// are independent, so a tile is finalised as soon as its last sample range is merged, in the
+// farm and in `prism render` alike, and the result does not depend on the tiling.
+#pragma once
+
+#include <functional>
+#include <memory>
+
+#include "absl/status/statusor.h"
+#include "coordinator/poisson.h"
+#include "services/image/tile.h"
+
+namespace prism::coordinator {
+
+// A merged tile result (samples [0, spp)) to its rect-sized output image. Errors are the
+// reconstruction's (a non-finite I or G names the pixel in image coordinates and the bin).
+using TileFinaliser = std::function<absl::StatusOr<image::SpectralImage>(const image::TileResult&)>;
+
+// Per-pixel means of the gradient sums, G[b] = gradients / count, computed in double and
+// rounded once like image::finalise; pixels without samples are 0. The result must carry
+// gradients (PRISM_CHECK).
+image::SpectralImage finalise_gradients(const image::TileResult& result);
+
+// image::finalise.
+TileFinaliser mean_finaliser();
+// Means of I and G, then the reconstruction of every pixel with `solver` (whose bins must be
+// the tiles'; INVALID_ARGUMENT otherwise) in `norm`. A tile without gradients is refused with
+// INVALID_ARGUMENT.
+TileFinaliser reconstructing_finaliser(std::shared_ptr<const PoissonSolver> solver,
+                                       PoissonNorm norm);
+
+}  // namespace prism::coordinator
