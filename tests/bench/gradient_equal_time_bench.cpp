@@ -13,12 +13,14 @@
 // every relMSE; the table shows relMSE minus that floor too, and the ratios use it. Equal time:
 // each row's ratio divides its relMSE by the uniform curve's relMSE interpolated (log-log) at the
 // row's time, and a summary per scene compares the three curves at the time of uniform's
-// longest run. Nothing is asserted.
+// longest run. With --inset, the same figures over that rect too (one rect for every scene
+// given, so it is meant for one scene at a time, e.g. the caustic). Nothing is asserted.
 //
 // Usage: prism-bench-gradient-equal-time [scene.pbrt ...] [--resolution 80x60]
 //          [--spp 16,32,64,128,256] [--reference-spp 16384] [--cache-dir DIR] [--threads N]
 //          [--bins B (the scene's)] [--max-depth D (the scene's)] [--delta 0.15] [--tau 0]
-//          [--alpha 0.2] [--clock wall|cpu] [--csv path (scene,method,spp,seconds,relmse)]
+//          [--alpha 0.2] [--clock wall|cpu] [--inset x,y,w,h]
+//          [--csv path (scene,method,spp,seconds,relmse; relMSE of the whole image)]
 #include <tbb/info.h>
 
 #include <cstdio>
@@ -81,8 +83,18 @@ struct Row {
   std::uint64_t spp = 0;
   double wall = 0;
   double cpu = 0;
-  double rel_mse = 0;
+  std::vector<double> rel_mse;  // per region
   double seconds(const Setup& setup) const { return setup.cpu_clock ? cpu : wall; }
+};
+
+// The whole image or an inset, with the reference's floor over it and each method's curve of
+// relMSE − floor.
+struct Region {
+  std::string name;
+  std::optional<image::Crop> crop;
+  double floor = 0;
+  double mse_floor = 0;
+  std::map<std::string, std::vector<ConvergencePoint>> curves;
 };
 
 int fail(const absl::Status& status) {
@@ -99,7 +111,7 @@ int run(int argc, char** argv) {
   auto flags =
       parse_flags(argc, argv,
                   {"--resolution", "--spp", "--reference-spp", "--cache-dir", "--threads", "--bins",
-                   "--max-depth", "--delta", "--tau", "--alpha", "--clock", "--csv"});
+                   "--max-depth", "--delta", "--tau", "--alpha", "--clock", "--csv", "--inset"});
   if (!flags.ok()) return fail(flags.status());
   auto size = parse_size(flags->get("--resolution", "80x60"));
   auto spp_list = parse_spp_list(flags->get("--spp", "16,32,64,128,256"));
@@ -129,6 +141,14 @@ int run(int argc, char** argv) {
   setup.tau = *tau;
   setup.alpha = *alpha;
   setup.cpu_clock = clock == "cpu";
+  std::optional<image::Crop> inset;
+  if (!flags->get("--inset", "").empty()) {
+    auto crop = parse_crop(flags->get("--inset", ""));
+    if (!crop.ok()) return fail(crop.status());
+    auto rect = image::crop_rect(*crop, setup.width, setup.height);
+    if (!rect.ok()) return fail(rect.status());
+    inset = *crop;
+  }
   const std::filesystem::path cache_dir =
       flags->get("--cache-dir", std::filesystem::temp_directory_path().string());
   std::vector<std::string> scenes = flags->positional;
@@ -161,66 +181,95 @@ int run(int argc, char** argv) {
     auto reference = cached_reference(device, *scene, path, *reference_options, cache_dir,
                                       "gradient-equal-time");
     if (!reference.ok()) return fail(reference.status());
-    auto floor = reference->floor();
-    if (!floor.ok()) return fail(floor.status());
+    std::vector<Region> regions(1);
+    regions[0].name = "image";
+    if (inset.has_value()) {
+      regions.emplace_back();
+      regions[1].name = "inset";
+      regions[1].crop = inset;
+    }
+    for (Region& region : regions) {
+      auto floor = reference->floor(region.crop);
+      if (!floor.ok()) return fail(floor.status());
+      region.floor = floor->rel_mse;
+      region.mse_floor = floor->mse;
+    }
 
     std::vector<Row> rows;
-    std::map<std::string, std::vector<ConvergencePoint>> curves;  // relMSE − floor
     for (const Method& method : kMethods) {
       for (std::uint64_t spp : *spp_list) {
         auto options = options_for(setup, *scene, method.integrator, spp, 1);
         if (!options.ok()) return fail(options.status());
         auto timed = timed_render(device, *scene, *options);
         if (!timed.ok()) return fail(timed.status());
-        auto metrics = image::compare_spectral(timed->result.image, reference->image);
-        if (!metrics.ok()) return fail(metrics.status());
-        Row row{method.name, spp, timed->wall_seconds, timed->cpu_seconds, metrics->rel_mse};
+        Row row{method.name, spp, timed->wall_seconds, timed->cpu_seconds, {}};
+        for (Region& region : regions) {
+          auto metrics =
+              image::compare_spectral(timed->result.image, reference->image, region.crop);
+          if (!metrics.ok()) return fail(metrics.status());
+          row.rel_mse.push_back(metrics->rel_mse);
+          region.curves[method.name].push_back(
+              {spp, row.seconds(setup), metrics->rel_mse - region.floor});
+        }
         rows.push_back(row);
-        curves[method.name].push_back({spp, row.seconds(setup), row.rel_mse - floor->rel_mse});
         if (csv.is_open()) {
           csv << scene->name << "," << method.name << "," << spp << ","
               << absl::StrFormat("%.6g", row.seconds(setup)) << ","
-              << absl::StrFormat("%.6g", row.rel_mse) << "\n";
+              << absl::StrFormat("%.6g", row.rel_mse[0]) << "\n";
         }
         std::fprintf(stderr, "%s %s %llu spp: %.2f s, relMSE %.4g\n", scene->name.c_str(),
                      method.name, static_cast<unsigned long long>(spp), row.seconds(setup),
-                     row.rel_mse);
+                     row.rel_mse[0]);
       }
     }
 
     std::printf(
         "\n%s: reference %llu spp (%.0f s), its relMSE floor %.4g (MSE floor %.4g; s^2/n "
-        "estimate %.4g)\n\n",
+        "estimate %.4g)",
         scene->name.c_str(), static_cast<unsigned long long>(reference->spp), reference->seconds,
-        floor->rel_mse, floor->mse, reference->variance_of_mean);
-    std::printf(
-        "| method | spp | %s s | CPU s | relMSE | relMSE - floor | (relMSE - floor) x s | "
-        "ratio vs uniform at equal time |\n",
-        setup.cpu_clock ? "CPU (clock)" : "wall");
-    std::printf("|---|---|---|---|---|---|---|---|\n");
-    for (const Row& r : rows) {
-      const double e = r.rel_mse - floor->rel_mse;
-      bool extrapolated = false;
-      auto uniform = error_at_time(curves["uniform"], r.seconds(setup), &extrapolated);
-      std::optional<double> ratio;
-      if (uniform.has_value() && e > 0) ratio = e / *uniform;
-      std::printf("| %s | %llu | %.2f | %.2f | %.4g | %.4g | %.4g | %s |\n", r.method,
-                  static_cast<unsigned long long>(r.spp), r.wall, r.cpu, r.rel_mse, e,
-                  e * r.seconds(setup), ratio_text(ratio, extrapolated).c_str());
+        regions[0].floor, regions[0].mse_floor, reference->variance_of_mean);
+    if (inset.has_value()) {
+      std::printf("; inset %d,%d %dx%d, its relMSE floor %.4g", inset->x, inset->y, inset->w,
+                  inset->h, regions[1].floor);
+    }
+    std::printf("\n\n| method | spp | %s s | CPU s |", setup.cpu_clock ? "CPU (clock)" : "wall");
+    for (const Region& region : regions) {
+      std::printf(" %s relMSE | - floor | ratio vs uniform at equal time |", region.name.c_str());
+    }
+    std::printf("\n|---|---|---|---|");
+    for (std::size_t r = 0; r < regions.size(); ++r) std::printf("---|---|---|");
+    std::printf("\n");
+    for (const Row& row : rows) {
+      std::printf("| %s | %llu | %.2f | %.2f |", row.method,
+                  static_cast<unsigned long long>(row.spp), row.wall, row.cpu);
+      for (std::size_t r = 0; r < regions.size(); ++r) {
+        const double e = row.rel_mse[r] - regions[r].floor;
+        bool extrapolated = false;
+        auto uniform =
+            error_at_time(regions[r].curves["uniform"], row.seconds(setup), &extrapolated);
+        std::optional<double> ratio;
+        if (uniform.has_value() && e > 0) ratio = e / *uniform;
+        std::printf(" %.4g | %.4g | %s |", row.rel_mse[r], e,
+                    ratio_text(ratio, extrapolated).c_str());
+      }
+      std::printf("\n");
     }
     // The three curves at the time of uniform's longest run.
-    double t = 0;
-    for (const ConvergencePoint& p : curves["uniform"]) t = std::max(t, p.seconds);
-    auto u = error_at_time(curves["uniform"], t);
-    std::printf("\nat %.2f s (uniform's longest run):", t);
-    for (const Method& method : kMethods) {
-      bool extrapolated = false;
-      auto e = error_at_time(curves[method.name], t, &extrapolated);
-      std::optional<double> ratio;
-      if (e.has_value() && u.has_value()) ratio = *e / *u;
-      std::printf(" %s relMSE - floor %s (ratio %s);", method.name,
-                  e.has_value() ? absl::StrFormat("%.4g", *e).c_str() : "n/a",
-                  ratio_text(ratio, extrapolated).c_str());
+    for (Region& region : regions) {
+      double t = 0;
+      for (const ConvergencePoint& p : region.curves["uniform"]) t = std::max(t, p.seconds);
+      auto u = error_at_time(region.curves["uniform"], t);
+      std::printf("\n%s at %.2f s (uniform's longest run), relMSE - floor:", region.name.c_str(),
+                  t);
+      for (const Method& method : kMethods) {
+        bool extrapolated = false;
+        auto e = error_at_time(region.curves[method.name], t, &extrapolated);
+        std::optional<double> ratio;
+        if (e.has_value() && u.has_value()) ratio = *e / *u;
+        std::printf(" %s %s (ratio %s);", method.name,
+                    e.has_value() ? absl::StrFormat("%.4g", *e).c_str() : "n/a",
+                    ratio_text(ratio, extrapolated).c_str());
+      }
     }
     std::printf(
         "\n(* extrapolated from the nearest run with error proportional to 1/time; n/a where "

@@ -9,21 +9,24 @@
 // The multi-pass paper reports 19-23 % lower error than the emitter mixture with absorption,
 // and the prepass's share of the time falling from 18 % to 4 % as the sample count grows.
 //
-// Equal time: for each budget (wall seconds of LocalRender::render()), each method is first
-// calibrated (seconds per final-pass spp; for the prepass also the prepass's own time), then
-// rendered at the spp that fills the budget; each render's own timing refines the calibration
-// for the next budget. The table shows the times actually taken, and MSE × s. The prepass's time
-// (its passes, the coordinator's filter and tables) is INCLUDED in its method's time and is also
-// reported as a fraction of it. Error: spectral MSE against a cached reference (hero, emitter
-// mixture, independent samples, two halves; equal_time.h) over the whole image and two insets, one
-// seen through the dye and one with dispersion (the glass sphere and its caustic); the reference's
-// noise floor for each region is subtracted in the "- floor" columns and in the ratios. Nothing is
-// asserted.
+// Equal time: for each budget (seconds of LocalRender::render(): wall clock, or with --clock cpu
+// the process's CPU time, which other work on a shared machine does not inflate), each method is
+// first calibrated (seconds per final-pass spp; for the prepass also the prepass's own time), then
+// rendered at the spp that fills the budget; each render's own timing refines the calibration for
+// the next budget. The table shows the times actually taken, and MSE × s. The prepass's time (its
+// passes, the coordinator's filter and tables) is INCLUDED in its method's time and also reported
+// as a share of it (of the wall time: LocalRenderStats times the prepass on the wall clock; with
+// --clock cpu that share of the CPU time is counted as the prepass's).
+//
+// Error: spectral MSE against a cached reference (hero, emitter mixture, independent samples, two
+// halves; equal_time.h) over the whole image and two insets, one seen through the dye and one with
+// dispersion (the glass sphere and its caustic); the reference's noise floor for each region is
+// subtracted in the "- floor" columns and in the ratios. Nothing is asserted.
 //
 // Usage: prism-bench-prepass-equal-time [scene.pbrt] [--resolution 160x120 (the scene's)]
 //          [--budgets 10,40] [--reference-spp 4096] [--cache-dir DIR] [--threads N]
 //          [--max-depth D] [--repeats R] [--medium-inset x,y,w,h] [--dispersion-inset x,y,w,h]
-//          [--prepass-spp 128] [--prepass-passes 2] [--csv path]
+//          [--prepass-spp 128] [--prepass-passes 2] [--clock wall|cpu] [--csv path]
 // The insets default to three-emitters.pbrt's at 160x120 (medium 36,58,24,22: the dyed block's
 // front face; dispersion 94,54,44,48: the sphere and its caustic), scaled with --resolution;
 // give "none" to leave one out.
@@ -89,18 +92,31 @@ struct Region {
 };
 
 struct Cost {
-  double per_spp = 0;  // wall seconds per final-pass spp
-  double prepass = 0;  // wall seconds of the prepass (0 without one)
+  double per_spp = 0;  // clock seconds per final-pass spp
+  double prepass = 0;  // clock seconds of the prepass (0 without one)
 };
 
-// Final-pass seconds of a timed render: the whole render minus its prepass.
-double final_seconds(const TimedRender& timed) {
-  return std::max(1e-9, timed.wall_seconds - timed.result.stats.prepass_seconds);
+// The seconds of a timed render on the chosen clock. The prepass's share of a CPU time is taken
+// to be its share of the wall time (LocalRenderStats times the prepass on the wall clock only).
+double clock_seconds(const TimedRender& timed, bool cpu_clock) {
+  return cpu_clock ? timed.cpu_seconds : timed.wall_seconds;
+}
+double prepass_share(const TimedRender& timed) {
+  return timed.wall_seconds > 0
+             ? std::min(1.0, timed.result.stats.prepass_seconds / timed.wall_seconds)
+             : 0.0;
+}
+double final_seconds(const TimedRender& timed, bool cpu_clock) {
+  return std::max(1e-9, clock_seconds(timed, cpu_clock) * (1 - prepass_share(timed)));
+}
+double prepass_seconds(const TimedRender& timed, bool cpu_clock) {
+  return clock_seconds(timed, cpu_clock) * prepass_share(timed);
 }
 
 struct Measurement {
   std::uint64_t spp = 0;
-  double wall = 0;  // averaged over repeats, prepass included
+  double seconds = 0;  // on the chosen clock, averaged over repeats, prepass included
+  double wall = 0;
   double cpu = 0;
   double prepass = 0;
   double fallback = 0;
@@ -143,10 +159,11 @@ absl::StatusOr<std::optional<image::Crop>> inset(const Flags& flags, const std::
 }
 
 int run(int argc, char** argv) {
-  auto flags = parse_flags(argc, argv,
-                           {"--resolution", "--budgets", "--reference-spp", "--cache-dir",
-                            "--threads", "--max-depth", "--repeats", "--medium-inset",
-                            "--dispersion-inset", "--prepass-spp", "--prepass-passes", "--csv"});
+  auto flags =
+      parse_flags(argc, argv,
+                  {"--resolution", "--budgets", "--reference-spp", "--cache-dir", "--threads",
+                   "--max-depth", "--repeats", "--medium-inset", "--dispersion-inset",
+                   "--prepass-spp", "--prepass-passes", "--clock", "--csv"});
   if (!flags.ok()) return fail(flags.status());
   const std::filesystem::path scene_path = flags->positional.empty()
                                                ? source_path("scenes/three-emitters.pbrt")
@@ -184,6 +201,11 @@ int run(int argc, char** argv) {
   if (!dispersion.ok()) return fail(dispersion.status());
   if (medium->has_value()) regions.push_back({"medium inset", *medium});
   if (dispersion->has_value()) regions.push_back({"dispersion inset", *dispersion});
+  const std::string clock = flags->get("--clock", "wall");
+  if (clock != "wall" && clock != "cpu") {
+    return fail(absl::InvalidArgumentError("--clock: want wall or cpu"));
+  }
+  const bool cpu_clock = clock == "cpu";
   const std::filesystem::path cache_dir =
       flags->get("--cache-dir", std::filesystem::temp_directory_path().string());
   std::ofstream csv;
@@ -219,14 +241,15 @@ int run(int argc, char** argv) {
       auto timed =
           timed_render(device, *scene, options_for(setup, method.kind, calibration_spp, 2));
       if (!timed.ok()) return fail(timed.status());
-      cost = {final_seconds(*timed) / double(calibration_spp), timed->result.stats.prepass_seconds};
+      cost = {final_seconds(*timed, cpu_clock) / double(calibration_spp),
+              prepass_seconds(*timed, cpu_clock)};
     } else {
       for (std::uint64_t spp = 4;; spp *= 2) {
         auto timed = timed_render(device, *scene, options_for(setup, method.kind, spp, 2));
         if (!timed.ok()) return fail(timed.status());
-        cost.per_spp = final_seconds(*timed) / double(spp);
+        cost.per_spp = final_seconds(*timed, cpu_clock) / double(spp);
         if (method.kind == MethodKind::kMixture) calibration_spp = spp;
-        if (final_seconds(*timed) >= calibration_seconds || spp >= (1u << 24)) break;
+        if (final_seconds(*timed, cpu_clock) >= calibration_seconds || spp >= (1u << 24)) break;
       }
     }
     std::fprintf(stderr, "%s: %.4g s per spp, prepass %.2f s\n", method.name, cost.per_spp,
@@ -265,13 +288,14 @@ int run(int argc, char** argv) {
         auto timed =
             timed_render(device, *scene, options_for(setup, method.kind, result.spp, seed));
         if (!timed.ok()) return fail(timed.status());
+        result.seconds += clock_seconds(*timed, cpu_clock) / count;
         result.wall += timed->wall_seconds / count;
         result.cpu += timed->cpu_seconds / count;
         result.prepass += timed->result.stats.prepass_seconds / count;
         result.fallback += timed->result.stats.fallback_fraction / count;
         // The longer the render, the better its seconds per spp: the next budget uses it.
-        cost.per_spp = final_seconds(*timed) / double(result.spp);
-        cost.prepass = timed->result.stats.prepass_seconds;
+        cost.per_spp = final_seconds(*timed, cpu_clock) / double(result.spp);
+        cost.prepass = prepass_seconds(*timed, cpu_clock);
         for (std::size_t r = 0; r < regions.size(); ++r) {
           auto metrics =
               image::compare_spectral(timed->result.image, reference->image, regions[r].crop);
@@ -280,11 +304,11 @@ int run(int argc, char** argv) {
         }
       }
       std::fprintf(stderr, "budget %.0f s, %s: %llu spp, %.2f s\n", budget, method.name,
-                   static_cast<unsigned long long>(result.spp), result.wall);
+                   static_cast<unsigned long long>(result.spp), result.seconds);
       if (csv.is_open()) {
         for (std::size_t r = 0; r < regions.size(); ++r) {
           csv << absl::StrFormat("%g,%s,%llu,%.6g,%.6g,%s,%.6g,%.6g\n", budget, method.name,
-                                 static_cast<unsigned long long>(result.spp), result.wall,
+                                 static_cast<unsigned long long>(result.spp), result.seconds,
                                  result.prepass, regions[r].name, result.mse[r],
                                  result.mse[r] - regions[r].floor);
         }
@@ -293,9 +317,9 @@ int run(int argc, char** argv) {
     }
 
     std::printf(
-        "\nbudget %.0f s (wall)\n\n| method | spp | wall s | CPU s | prepass s (share) | "
+        "\nbudget %.0f %s s\n\n| method | spp | wall s | CPU s | prepass wall s (share) | "
         "fallback pixels |",
-        budget);
+        budget, cpu_clock ? "CPU" : "wall");
     for (const Region& region : regions) {
       std::printf(" %s MSE | - floor | ratio |", region.name.c_str());
     }
@@ -320,7 +344,7 @@ int run(int argc, char** argv) {
         std::printf(" %.4g | %.4g | %s |", row.mse[r], e,
                     e > 0 && b > 0 ? absl::StrFormat("%.3f", e / b).c_str() : "n/a");
       }
-      std::printf(" %.4g |\n", row.mse[0] * row.wall);
+      std::printf(" %.4g |\n", row.mse[0] * row.seconds);
     }
     std::fflush(stdout);
   }
