@@ -1005,6 +1005,17 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
     } else if (it != active_.end() && parsed->bins() != it->second->params.render.bins) {
       problem = absl::StrCat("the result has ", parsed->bins(), " bins, the job ",
                              it->second->params.render.bins);
+    } else if (it != active_.end()) {
+      // The buffers the task's stage merges: a prepass needs guides, a gradient job's final
+      // pass its gradients. Refused here as the worker's fault, before they could fail the job.
+      const bool prepass = lease->task.spec.pass == Pass::kPrepass;
+      const bool gradient =
+          it->second->params.render.integrator == worker::IntegratorKind::kGradient;
+      if (prepass && !parsed->has_guides()) {
+        problem = "a prepass result without guide buffers";
+      } else if (!prepass && gradient && !parsed->has_gradients()) {
+        problem = "a gradient job's result without gradients";
+      }
     }
     if (!problem.empty()) {
       const std::string message = absl::StrCat("result for lease ", lease_id, ": ", problem);

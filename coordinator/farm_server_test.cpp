@@ -443,6 +443,42 @@ TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {
   EXPECT_FALSE(accepted);
 }
 
+// A gradient job's result must carry gradients: one without is the worker's fault (refused,
+// the task requeued), not a reason to fail the job.
+TEST_F(FarmServerTest, AGradientResultWithoutGradientsIsTheWorkersFault) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  v1::JobSpec spec = small_spec(hash);
+  spec.set_integrator(v1::INTEGRATOR_GRADIENT);
+  spec.set_bins(16);
+  const v1::JobInfo job = submit(spec);
+  ASSERT_FALSE(job.job_id().empty());
+  const std::string worker_id = register_worker();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  const auto& t = lease->task().tile();
+  auto plain = image::TileResult::create(
+      {t.x0(), t.y0(), t.x1(), t.y1()},
+      {lease->task().samples().begin(), lease->task().samples().end()}, 16);
+  ASSERT_TRUE(plain.ok()) << plain.status();
+  const grpc::Status refused =
+      complete(worker_id, lease->lease_id(), image::serialise_tile(*plain));
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(refused.error_message().find("without gradients"), std::string::npos)
+      << refused.error_message();
+  v1::GetJobRequest request;
+  request.set_job_id(job.job_id());
+  v1::JobInfo info;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->GetJob(context.get(), request, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_RENDERING);
+  // The real render of the same task is accepted.
+  std::optional<v1::Lease> again = acquire(worker_id);
+  ASSERT_TRUE(again.has_value());
+  EXPECT_TRUE(complete(worker_id, again->lease_id(), render(*again)).ok());
+}
+
 TEST_F(FarmServerTest, ListWorkersShowsWhatABusyWorkerRenders) {
   scene_root_ = root_ / "scene";
   std::string hash;

@@ -208,6 +208,15 @@ absl::StatusOr<image::RgbImage> to_linear_srgb(const image::SpectralImage& spect
   return rgb;
 }
 
+namespace {
+
+// A float job setting as the shortest decimal that reads back as it (0.15, not 0.1500000059).
+double shortest(float value) {
+  return std::isfinite(value) ? std::stod(absl::StrCat(value)) : std::nan("");
+}
+
+}  // namespace
+
 std::string format_report_json(const RenderReport& r, const OutputPaths& paths) {
   nlohmann::ordered_json j;
   j["prism_version"] = prism_version();
@@ -252,9 +261,9 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
     };
     j["gradient"] = {
         {"offset_bins", g.offset_bins},
-        {"delta", g.delta},
-        {"tau", g.tau},
-        {"alpha", g.alpha},
+        {"delta", shortest(g.delta)},
+        {"tau", shortest(g.tau)},
+        {"alpha", shortest(g.alpha)},
         {"poisson", g.norm},
         // The spectral gradient paper's Table 1: how many base paths were shifted, and how many
         // shifts were wasted because the offset did not pass the threshold.
@@ -273,10 +282,10 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
                     {"pass_spp", p.pass_spp},
                     {"pass_resolution", p.pass_resolution},
                     {"mode", p.image_scaled ? "image" : "samples"},
-                    {"epsilon", p.epsilon},
-                    {"fallback", p.fallback},
-                    {"sigma_s", p.sigma_s},
-                    {"sigma_r", p.sigma_r},
+                    {"epsilon", shortest(p.epsilon)},
+                    {"fallback", shortest(p.fallback)},
+                    {"sigma_s", shortest(p.sigma_s)},
+                    {"sigma_r", shortest(p.sigma_r)},
                     {"prepass_seconds", p.seconds},
                     {"reconstruction_seconds", p.reconstruction_seconds},
                     {"final_pass_seconds", p.final_seconds},

@@ -90,8 +90,8 @@ absl::Status PrepassRun::add_tile(int k, const image::TileResult& merged) {
   std::size_t index = 0;
   while (index < tiles.tiles.size() && !(tiles.tiles[index] == merged.rect())) ++index;
   if (index == tiles.tiles.size()) {
-    return absl::InvalidArgumentError(absl::StrCat("tile ", image::to_string(merged.rect()),
-                                                   " is not a tile of prepass ", k));
+    return absl::InvalidArgumentError(
+        absl::StrCat("tile ", image::to_string(merged.rect()), " is not a tile of prepass ", k));
   }
   if (merged.bins() != bins_ || !merged.has_guides()) {
     return absl::InvalidArgumentError(absl::StrCat("prepass ", k, " tile ",
@@ -100,8 +100,7 @@ absl::Status PrepassRun::add_tile(int k, const image::TileResult& merged) {
   }
   if (added_[index]) return absl::OkStatus();
   PRISM_RETURN_IF_ERROR(guides_->add_tile(merged));
-  PRISM_RETURN_IF_ERROR(
-      image::paste_tile(image::finalise(merged), merged.rect(), *estimate_));
+  PRISM_RETURN_IF_ERROR(image::paste_tile(image::finalise(merged), merged.rect(), *estimate_));
   added_[index] = true;
   ++added_count_;
   return absl::OkStatus();
@@ -116,9 +115,9 @@ absl::Status PrepassRun::finish_pass(int k) {
   }
   const auto start = std::chrono::steady_clock::now();
   const PixelTableImage* previous = tables_.has_value() ? &*tables_ : nullptr;
-  PRISM_ASSIGN_OR_RETURN(image::SpectralImage filtered,
-                         filter_estimate(*estimate_, *guides_, params_.sigma_s, params_.sigma_r,
-                                         previous));
+  PRISM_ASSIGN_OR_RETURN(
+      image::SpectralImage filtered,
+      filter_estimate(*estimate_, *guides_, params_.sigma_s, params_.sigma_r, previous));
   PRISM_ASSIGN_OR_RETURN(PixelTableImage tables,
                          build_tables(filtered, params_, *emitters_,
                                       sensor_.has_value() ? &*sensor_ : nullptr, previous));

@@ -49,20 +49,20 @@ TileFinaliser reconstructing_finaliser(std::shared_ptr<const PoissonSolver> solv
     }
     const image::SpectralImage primal = image::finalise(merged);
     const image::SpectralImage gradient = finalise_gradients(merged);
-    PRISM_ASSIGN_OR_RETURN(image::SpectralImage out,
-                           image::SpectralImage::create(rect.width(), rect.height(),
-                                                        merged.bins()));
+    PRISM_ASSIGN_OR_RETURN(
+        image::SpectralImage out,
+        image::SpectralImage::create(rect.width(), rect.height(), merged.bins()));
     const std::size_t row = static_cast<std::size_t>(rect.width()) * merged.bins();
     for (int y = 0; y < rect.height(); ++y) {
       const std::size_t o = static_cast<std::size_t>(y) * row;
-      absl::Status solved = solver->solve_pixels(norm, primal.data().subspan(o, row),
-                                                 gradient.data().subspan(o, row),
-                                                 out.data().subspan(o, row), rect.y0 + y);
+      absl::Status solved =
+          solver->solve_pixels(norm, primal.data().subspan(o, row), gradient.data().subspan(o, row),
+                               out.data().subspan(o, row), rect.y0 + y);
       if (!solved.ok()) {
         // solve_pixels names (index in the row, image row); the row starts at the tile's x0.
         return absl::Status(solved.code(),
-                            absl::StrCat("tile ", image::to_string(rect), " (pixel x = ",
-                                         rect.x0, " + index): ", solved.message()));
+                            absl::StrCat("tile ", image::to_string(rect), " (pixel x = ", rect.x0,
+                                         " + index): ", solved.message()));
       }
     }
     return out;

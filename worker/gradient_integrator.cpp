@@ -65,7 +65,7 @@ GradientIntegrator::GradientIntegrator(const RenderScene& scene)
 
 GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                                          std::uint32_t sample_index,
-                                         const spectral::WavelengthDistribution& lambda_pdf,
+                                         spectral::WavelengthPdfView lambda_pdf,
                                          TraceCounters& counters, GuideValues* guides) const {
   const RenderOptions& options = scene_.options();
   const Geometry& geometry = scene_.geometry();

@@ -67,7 +67,7 @@
 
 #include <cstdint>
 
-#include "services/spectral/wavelength_distribution.h"
+#include "services/spectral/pixel_tables.h"
 #include "worker/integrator.h"
 #include "worker/render_scene.h"
 
@@ -91,10 +91,12 @@ class GradientIntegrator {
   explicit GradientIntegrator(const RenderScene& scene);
 
   // Traces pixel (px, py)'s sample `sample_index` of pass `pass`: the base wavelength is drawn
-  // from `lambda_pdf` (lane 0 of sample_lanes(u, 1)) and the offsets' densities are that same
-  // distribution's pdf at λ ± δ. Pure function of its arguments; never allocates.
+  // from `lambda_pdf` (the scene's distribution or the pixel's table; lane 0 of
+  // sample_lanes(u, 1)) and the offsets' MIS densities are that same density's pdf at λ ± δ, so
+  // a pixel's table enters both sides of every pair alike. Pure function of its arguments;
+  // never allocates.
   GradientSample trace(int px, int py, std::uint32_t pass, std::uint32_t sample_index,
-                       const spectral::WavelengthDistribution& lambda_pdf, TraceCounters& counters,
+                       spectral::WavelengthPdfView lambda_pdf, TraceCounters& counters,
                        GuideValues* guides = nullptr) const;
 
  private:

@@ -25,6 +25,7 @@
 #include "worker/fresnel.h"
 #include "worker/gradient_shift.h"
 #include "worker/testing/bin_stats.h"
+#include "worker/testing/skewed_tables.h"
 #include "worker/tile_renderer.h"
 
 namespace prism::worker {
@@ -380,7 +381,9 @@ struct Consistency {
   bool all_finite = true;
 };
 
-Consistency consistency(const RenderScene& scene, int spp) {
+// With `tables` (the whole image's), each pixel samples from its own table.
+Consistency consistency(const RenderScene& scene, int spp,
+                        const spectral::PixelTables* tables = nullptr) {
   GradientIntegrator integrator(scene);
   const int bins = scene.grid().bins();
   const int k = scene.options().gradient_offset_bins;
@@ -397,8 +400,12 @@ Consistency consistency(const RenderScene& scene, int spp) {
     p.values.assign(4 * std::size_t(bins), 0.0);
     std::vector<double> g(bins), i(bins);
     for (int s = 0; s < spp; ++s) {
-      GradientSample r = integrator.trace(index % width, index / width, 0, std::uint32_t(s),
-                                          scene.wavelength_pdf(), p.counters);
+      const int x = index % width, y = index / width;
+      GradientSample r =
+          integrator.trace(x, y, 0, std::uint32_t(s),
+                           tables != nullptr ? tables->view(x, y, scene.wavelength_pdf())
+                                             : spectral::WavelengthPdfView(scene.wavelength_pdf()),
+                           p.counters);
       p.all_finite = p.all_finite && std::isfinite(r.primal) && std::isfinite(r.gradient) &&
                      std::isfinite(r.gradient_below);
       std::fill(g.begin(), g.end(), 0.0);
@@ -482,10 +489,9 @@ void expect_consistent(const Consistency& c, const std::string& what) {
 // E[G[b]] = E[I[b+k]] − E[I[b]] for every bin on the dispersive scenes, with τ = 0 and τ > 0.
 TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes) {
   std::uint64_t seed = 10;
-  for (const char* name :
-       {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt", "gradient_rough_glass.pbrt",
-        "gradient_slab.pbrt", "gradient_mixed.pbrt", "gradient_media.pbrt", "gradient_room.pbrt",
-        "unbiased.pbrt"}) {
+  for (const char* name : {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt",
+                           "gradient_rough_glass.pbrt", "gradient_slab.pbrt", "gradient_mixed.pbrt",
+                           "gradient_media.pbrt", "gradient_room.pbrt", "unbiased.pbrt"}) {
     auto desc = load(name);
     for (float tau : {0.0f, 0.5f}) {
       RenderOptions options = gradient_options(seed++, tau);
@@ -511,12 +517,14 @@ TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes)
   }
 }
 
-using testing::BinStats;
 using testing::bin_stats;
+using testing::BinStats;
 
-image::TileResult render(const RenderScene& scene, std::uint64_t spp) {
+image::TileResult render(const RenderScene& scene, std::uint64_t spp,
+                         const spectral::PixelTables* tables = nullptr) {
   TileRenderer renderer(scene);
   RenderTask task{{0, 0, scene.camera().width(), scene.camera().height()}, {0, spp}, 0};
+  task.tables = tables;
   auto result = renderer.render(task, nullptr);
   EXPECT_TRUE(result.ok()) << result.status();
   return std::move(*result);
@@ -553,6 +561,36 @@ TEST_F(GradientIntegratorTest, PrimalAgreesWithUniformPerBin) {
     }
     EXPECT_GT(spectral::testing::chi_square_survival(chi2, int(reference.mean.size())), 1e-4)
         << name;
+  }
+}
+
+// With per-pixel tables deliberately unlike the default distribution (some pixels left on the
+// default), the base wavelength comes from the pixel's table and the offsets' MIS densities are
+// that table's pdf at λ ± δ: I still agrees with `uniform` per bin, and G with the differences
+// of I.
+TEST_F(GradientIntegratorTest, PerPixelTablesKeepPrimalAndGradientUnbiased) {
+  std::uint64_t seed = 60;
+  for (const char* name : {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt"}) {
+    auto desc = load(name);
+    const int width = desc.film.x_resolution, height = desc.film.y_resolution;
+    const spectral::PixelTables tables = testing::skewed_tables(
+        width, height, 48, [](int x, int y) { return (x + 3 * y) % 5 == 0; });
+    RenderOptions uniform = gradient_options(seed++);
+    uniform.integrator = IntegratorKind::kUniform;
+    BinStats reference = bin_stats(render(*build(desc, uniform), 1024));
+    auto scene = build(desc, gradient_options(seed++));
+    ASSERT_TRUE(scene);
+    BinStats gradient = bin_stats(render(*scene, 1024, &tables));
+    double chi2 = 0;
+    for (std::size_t b = 0; b < reference.mean.size(); ++b) {
+      double se = std::hypot(reference.standard_error[b], gradient.standard_error[b]);
+      double z = (gradient.mean[b] - reference.mean[b]) / se;
+      EXPECT_LT(std::abs(z), kZ) << name << " bin " << b;
+      chi2 += z * z;
+    }
+    EXPECT_GT(spectral::testing::chi_square_survival(chi2, int(reference.mean.size())), 1e-4)
+        << name;
+    expect_consistent(consistency(*scene, 1536, &tables), std::string(name) + " with tables");
   }
 }
 
@@ -638,6 +676,45 @@ TEST_F(GradientIntegratorTest, DirectlySeenEmitterGivesExactGradients) {
   }
   EXPECT_EQ(none_counters.gradient_events, 0u);
   EXPECT_EQ(none_counters.gradient_shifted_paths, 0u);
+}
+
+// The same emitter with a pixel's table: the base wavelength comes from the table (c = Le(λ) /
+// (p_T(λ)·w)) and the offsets' MIS densities are the table's too, so per sample, exactly,
+//   G[i] = (c₊ − c) / (1 + p_T(λ+δ)/p_T(λ)),   G[i−k] = (c − c₋) / (1 + p_T(λ−δ)/p_T(λ)).
+TEST_F(GradientIntegratorTest, DirectlySeenEmitterWeighsOffsetsByThePixelsTable) {
+  auto desc = load_text("emitter_in_view_table.pbrt", kEmitterInView);
+  RenderOptions options = gradient_options(6);
+  options.max_depth = 0;
+  auto scene = build(desc, options);
+  ASSERT_TRUE(scene);
+  const auto& light = std::get<AreaLight>(scene->lights()[0]);
+  const auto& grid = scene->grid();
+  const int k = options.gradient_offset_bins;
+  auto radiance = [&](float l) {
+    SampledWavelengths w(1);
+    w.set(0, l, 1.0f);
+    return double(light.radiance(Vec3f(0, 0, -1), Vec3f(0, 0, -1), w)[0]);
+  };
+  const spectral::PixelTables tables = testing::skewed_tables(4, 4, 48);
+  const spectral::WavelengthPdfView table = tables.view(1, 2, scene->wavelength_pdf());
+  ASSERT_TRUE(table.is_pixel_table());
+  GradientIntegrator integrator(*scene);
+  TraceCounters counters;
+  for (int s = 0; s < 400; ++s) {
+    GradientSample g = integrator.trace(1, 2, 0, std::uint32_t(s), table, counters);
+    ASSERT_GT(g.primal, 0.0f);
+    const int i = grid.bin_of(g.lambda);
+    const float up = grid.lower(grid.wrap(i + k)) + (g.lambda - grid.lower(i));
+    const float down = grid.lower(grid.wrap(i - k)) + (g.lambda - grid.lower(i));
+    const double p = table.pdf(g.lambda), le = radiance(g.lambda);
+    const double c = le / (p * grid.bin_width());
+    EXPECT_NEAR(g.primal, c, 1e-5 * c) << "λ " << g.lambda;
+    const double c_up = c * radiance(up) / le, c_down = c * radiance(down) / le;
+    EXPECT_NEAR(g.gradient, (c_up - c) / (1 + table.pdf(up) / p), 1e-5 * c) << "λ " << g.lambda;
+    EXPECT_NEAR(g.gradient_below, (c - c_down) / (1 + table.pdf(down) / p), 1e-5 * c)
+        << "λ " << g.lambda;
+  }
+  EXPECT_EQ(counters.gradient_shifts_failed, 0u);
 }
 
 // Nothing wavelength-dependent in the geometry (non-dispersive smooth and rough glass, coloured

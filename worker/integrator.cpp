@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 
+#include "services/base/check.h"
 #include "worker/bsdf.h"
 #include "worker/light.h"
 #include "worker/material.h"
@@ -15,23 +16,25 @@ constexpr float kInfinity = std::numeric_limits<float>::infinity();
 
 // Sample dimensions: a fixed layout so each decision of each bounce always reads the same
 // dimensions (pairs start on even dimensions, where the padded Sobol sampler is a 2D net).
-constexpr std::uint32_t kDimFilm = 0;       // 2D
-constexpr std::uint32_t kDimLens = 2;       // 2D
+constexpr std::uint32_t kDimFilm = 0;  // 2D
+constexpr std::uint32_t kDimLens = 2;  // 2D
 constexpr std::uint32_t kDimWavelength = 4;
-constexpr std::uint32_t kDimBounce = 6;     // first dimension of bounce 0
+constexpr std::uint32_t kDimBounce = 6;  // first dimension of bounce 0
 constexpr std::uint32_t kDimsPerBounce = 12;
 constexpr std::uint32_t kLightPosition = 0;  // 2D
 constexpr std::uint32_t kLightChoice = 2;
-constexpr std::uint32_t kLightExtra = 3;     // read with kLightChoice as one pair
+constexpr std::uint32_t kLightExtra = 3;        // read with kLightChoice as one pair
 constexpr std::uint32_t kScatterDirection = 4;  // 2D
 constexpr std::uint32_t kScatterLobe = 6;
-constexpr std::uint32_t kRoulette = 7;        // read with kScatterLobe as one pair
+constexpr std::uint32_t kRoulette = 7;  // read with kScatterLobe as one pair
 constexpr std::uint32_t kFreeFlight = 8;
 // Free flights after crossing medium boundaries within one bounce each need fresh numbers.
 constexpr std::uint32_t kDimCrossings = 1u << 16;
 constexpr std::uint32_t kCrossingsPerBounce = 64;
 
-Point2f to_point(const Point2& p) { return {p.u0, p.u1}; }
+Point2f to_point(const Point2& p) {
+  return {p.u0, p.u1};
+}
 
 float lane_sum(const SampledSpectrum& s, int lanes) {
   float sum = 0;
@@ -53,9 +56,9 @@ SampledSpectrum over_hero(const SampledSpectrum& s) {
 // The path's running state (see integrator.h for the estimator).
 struct PathState {
   SampledWavelengths lambda;
-  SampledSpectrum beta;       // f_s / p_0 of the path so far
-  SampledSpectrum r;          // p_k / p_0 of the path so far (unidirectional technique)
-  SampledSpectrum radiance;   // Σ over events of beta·Le / denominator, per lane
+  SampledSpectrum beta;      // f_s / p_0 of the path so far
+  SampledSpectrum r;         // p_k / p_0 of the path so far (unidirectional technique)
+  SampledSpectrum radiance;  // Σ over events of beta·Le / denominator, per lane
   // At the last scattering vertex, for MIS when the next emitter is found by the sampled
   // direction: the ratios before scattering, the hero's density of everything sampled since
   // (direction times free-flight passes), the lanes and the shading point.
@@ -77,6 +80,7 @@ std::vector<std::pair<std::string, std::uint64_t>> counter_list(const TraceCount
           {"rays", c.rays},
           {"lane_splits", c.lane_splits},
           {"non_finite", c.non_finite},
+          {"early_stops", c.early_stops},
           {"gradient_events", c.gradient_events},
           {"gradient_shifted_paths", c.gradient_shifted_paths},
           {"gradient_shifts", c.gradient_shifts},
@@ -89,11 +93,13 @@ std::vector<std::pair<std::string, std::uint64_t>> counter_list(const TraceCount
 
 SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
                                          std::uint32_t sample_index,
-                                         const spectral::WavelengthDistribution& lambda_pdf,
-                                         TraceCounters& counters, GuideValues* guides) const {
+                                         spectral::WavelengthPdfView lambda_pdf,
+                                         TraceCounters& counters, GuideValues* guides,
+                                         TraceOptions trace) const {
   const RenderOptions& options = scene_.options();
   const Geometry& geometry = scene_.geometry();
-  const int lanes = options.lanes();
+  PRISM_CHECK(trace.lanes >= 0 && trace.lanes <= spectral::kMaxLanes);
+  const int lanes = trace.lanes > 0 ? trace.lanes : options.lanes();
   Sampler sampler(options.sampler, SampleKey{options.seed, pass, std::uint32_t(px),
                                              std::uint32_t(py), sample_index});
 
@@ -104,8 +110,8 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
   path.medium = scene_.camera_medium();
 
   const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
-  Ray ray = scene_.camera().generate_ray({float(px) + film.u0, float(py) + film.u1},
-                                         {lens.u0, lens.u1});
+  Ray ray =
+      scene_.camera().generate_ray({float(px) + film.u0, float(py) + film.u1}, {lens.u0, lens.u1});
   ++counters.camera_rays;
   if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
 
@@ -185,22 +191,20 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
 
   // Next-event estimation from a scattering vertex: `f` gives the per-lane scattering value
   // (BSDF·|cos| or phase) and `pdf` its per-lane density for a direction.
-  auto sample_direct = [&](const LightContext& ctx, const Vec3f& origin_normal,
-                           std::uint32_t dim, auto&& f_and_pdf) {
+  auto sample_direct = [&](const LightContext& ctx, const Vec3f& origin_normal, std::uint32_t dim,
+                           auto&& f_and_pdf) {
     const Point2 choice_u = sampler.at2(dim + kLightChoice);  // choice and extra: one pair
     auto choice = scene_.light_sampler().sample(ctx.p, path.lambda, choice_u.u0);
     if (!choice) return;
     const Light& light = scene_.lights()[choice->light];
-    auto ls = sample_light(light, ctx,
-                           to_point(sampler.at2(dim + kLightPosition)), choice_u.u1,
+    auto ls = sample_light(light, ctx, to_point(sampler.at2(dim + kLightPosition)), choice_u.u1,
                            path.lambda);
     if (!ls || !(ls->pdf > 0) || ls->radiance.is_zero()) return;
     SampledSpectrum f, scatter_pdf;
     f_and_pdf(ls->wi, &f, &scatter_pdf);
     if (f.is_zero()) return;
-    Vec3f origin = origin_normal == Vec3f()
-                       ? ctx.p
-                       : geometry.offset_origin(ctx.p, origin_normal, ls->wi);
+    Vec3f origin =
+        origin_normal == Vec3f() ? ctx.p : geometry.offset_origin(ctx.p, origin_normal, ls->wi);
     // Both ends leave their surfaces (pbrt-v4's SpawnRayTo): the segment stops just in front of
     // an area light, on the side facing the shading point, so the light cannot occlude itself.
     Vec3f target = ls->n_light == Vec3f()
@@ -221,6 +225,15 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
 
   auto live_lanes = [&] { return path.lambda.live_count(); };
 
+  // Early stop (integrator.h): whether the path has met a wavelength-dependent event, and the
+  // test at each vertex from which it would scatter at `depth`.
+  bool spectral_event = false;
+  auto stops_early = [&](int depth) {
+    if (!trace.early_stop || spectral_event || depth < kEarlyStopBounces) return false;
+    ++counters.early_stops;
+    return true;
+  };
+
   std::uint32_t crossings = 0;  // medium boundaries crossed since the last scattering vertex
   for (int depth = 0;;) {
     const std::uint32_t dim = kDimBounce + kDimsPerBounce * std::uint32_t(depth);
@@ -230,6 +243,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     ++counters.rays;
     auto hit = geometry.intersect(ray, kInfinity);
 
+    if (path.medium >= 0 && scene_.media()[path.medium].chromatic()) spectral_event = true;
     if (path.medium >= 0 && !scene_.media()[path.medium].scattering()) {
       // A purely absorbing medium: nothing to sample, the segment's transmittance is the
       // weight (the same density, 1, for every lane).
@@ -246,24 +260,24 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       const HomogeneousMedium& m = scene_.media()[path.medium];
       SampledSpectrum sigma_s = m.sigma_s(path.lambda);
       SampledSpectrum sigma_t = m.sigma_a(path.lambda) + sigma_s;
-      FreeFlight flight = sample_free_flight(sigma_t, hit ? hit->t : kInfinity,
-                                             sampler.at(flight_dim), lanes);
+      FreeFlight flight =
+          sample_free_flight(sigma_t, hit ? hit->t : kInfinity, sampler.at(flight_dim), lanes);
       if (!(flight.pdf[0] > 0)) break;
       if (flight.scattered) {
         path.beta *= flight.transmittance * sigma_s / flight.pdf[0];
         path.r *= over_hero(flight.pdf);
-        if (path.beta.is_zero() || depth == options.max_depth) break;
+        if (path.beta.is_zero() || depth == options.max_depth || stops_early(depth)) break;
         // A real scattering event inside the medium.
         Vec3f p = ray.origin + ray.direction * flight.t;
         Vec3f wo = -ray.direction;
         const HenyeyGreenstein& phase = m.phase();
         LightContext ctx{p, Vec3f()};
-        sample_direct(ctx, Vec3f(), dim, [&](const Vec3f& wi, SampledSpectrum* f,
-                                             SampledSpectrum* pdf) {
-          float value = phase.p(wo, wi);
-          *f = ones(lanes) * value * path.lambda.live_mask();
-          *pdf = *f;
-        });
+        sample_direct(ctx, Vec3f(), dim,
+                      [&](const Vec3f& wi, SampledSpectrum* f, SampledSpectrum* pdf) {
+                        float value = phase.p(wo, wi);
+                        *f = ones(lanes) * value * path.lambda.live_mask();
+                        *pdf = *f;
+                      });
         float phase_pdf = 0;
         Vec3f wi = phase.sample(wo, to_point(sampler.at2(dim + kScatterDirection)), &phase_pdf);
         if (!(phase_pdf > 0)) break;
@@ -294,6 +308,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
 
     const ShapeInfo& info = scene_.shape(hit->shape);
     const Material& material = scene_.materials()[info.material];
+    if (info.wavelength_dependent) spectral_event = true;
     if (depth == 0 && guides && !std::holds_alternative<InterfaceMaterial>(material)) {
       // Normalised so that every point of the scene's bounding sphere lies in [0, 1] and a miss
       // (1) is never nearer than a hit.
@@ -309,8 +324,8 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     }
     if (info.area_light >= 0) {
       const auto& area = std::get<AreaLight>(scene_.lights()[info.area_light]);
-      add_emission(area.radiance(hit->ng, -ray.direction, path.lambda), info.area_light,
-                   &*hit, ray.direction);
+      add_emission(area.radiance(hit->ng, -ray.direction, path.lambda), info.area_light, &*hit,
+                   ray.direction);
     }
 
     auto bsdf = make_bsdf(material, path.lambda);
@@ -323,23 +338,23 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       if (++crossings == kCrossingsPerBounce) break;
       continue;
     }
-    if (depth == options.max_depth) break;
+    if (depth == options.max_depth || stops_early(depth)) break;
 
     Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
     Vec3f wo = frame.to_local(-ray.direction);
     LightContext ctx{hit->p, hit->ns};
     if (!is_specular(*bsdf)) {
-      sample_direct(ctx, hit->ng, dim, [&](const Vec3f& wi, SampledSpectrum* f,
-                                            SampledSpectrum* pdf) {
-        Vec3f wi_local = frame.to_local(wi);
-        *f = eval(*bsdf, wo, wi_local) * abs_cos_theta(wi_local);
-        *pdf = worker::pdf(*bsdf, wo, wi_local);
-      });
+      sample_direct(ctx, hit->ng, dim,
+                    [&](const Vec3f& wi, SampledSpectrum* f, SampledSpectrum* pdf) {
+                      Vec3f wi_local = frame.to_local(wi);
+                      *f = eval(*bsdf, wo, wi_local) * abs_cos_theta(wi_local);
+                      *pdf = worker::pdf(*bsdf, wo, wi_local);
+                    });
     }
 
     const Point2 lobe_and_roulette = sampler.at2(dim + kScatterLobe);
-    auto bs = sample(*bsdf, wo, lobe_and_roulette.u0,
-                     to_point(sampler.at2(dim + kScatterDirection)));
+    auto bs =
+        sample(*bsdf, wo, lobe_and_roulette.u0, to_point(sampler.at2(dim + kScatterDirection)));
     if (!bs || !(bs->pdf[0] > 0)) break;
     path.r_prev = path.r;
     path.lambda_prev = path.lambda;
@@ -387,9 +402,8 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
   for (int s = 0; s < lanes; ++s) {
     float pdf = path.lambda.pdf(s);
     out.bin[s] = grid.bin_of(path.lambda.lambda(s));
-    out.value[s] = (finite && pdf > 0 && out.bin[s] >= 0)
-                       ? path.radiance[s] / pdf * inverse_width
-                       : 0.0f;
+    out.value[s] =
+        (finite && pdf > 0 && out.bin[s] >= 0) ? path.radiance[s] / pdf * inverse_width : 0.0f;
     if (out.bin[s] < 0) out.bin[s] = 0;
   }
   if (!finite) ++counters.non_finite;

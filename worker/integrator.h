@@ -10,6 +10,23 @@
 // sampling produced the last vertex (balance heuristic over lanes and techniques). The tracer
 // carries, per lane, β_s = f_s / p_0 and r_k = p_k / p_0 (ratios to the hero's density), which
 // stay finite over long paths. Contributions are per-bin radiance averages (W·m⁻²·sr⁻¹·nm⁻¹).
+//
+// Prepass tracing (algorithms.md §4): a trace can force the lane count (prepass tasks use C = 4
+// whatever the job's integrator) and stop early. A *wavelength-dependent event* is a point of
+// the path where what is evaluated or sampled differs between wavelengths, decided from flags
+// precomputed when the RenderScene is built (one load per vertex, no spectrum evaluated):
+//  - a surface vertex whose material depends_on_wavelength (material.h): a dispersive
+//    dielectric, a diffuse reflectance or a conductor η/k that is not constant;
+//  - a segment through a chromatic medium (σ_a or σ_s not constant), including scattering in it;
+//  - an emitter found by the sampled direction (or the camera ray) whose emission spectrum is not
+//    constant (ShapeInfo::wavelength_dependent covers both a surface's material and its light).
+// Next-event estimation is not an event: it runs at every non-specular vertex, so counting it
+// would keep every path of a scene with a coloured light. With early stop a path that has met no
+// event when it reaches its vertex after kEarlyStopBounces scattering events ends there, as if
+// max_depth were kEarlyStopBounces: the emission found at that vertex still counts, nothing is
+// sampled from it. Such paths only carry the emitters' spectra through grey scattering, which
+// the default distribution (and the defensive term of the tables built from a prepass) already
+// covers; stopping them biases the prepass estimate, which only shapes a pdf.
 #pragma once
 
 #include <cstdint>
@@ -17,8 +34,8 @@
 #include <utility>
 #include <vector>
 
+#include "services/spectral/pixel_tables.h"
 #include "services/spectral/sampled.h"
-#include "services/spectral/wavelength_distribution.h"
 #include "worker/render_scene.h"
 #include "worker/sampler.h"
 
@@ -38,6 +55,7 @@ struct TraceCounters {
   std::uint64_t rays = 0;         // every intersect or occlusion query
   std::uint64_t lane_splits = 0;  // paths whose secondary lanes were terminated
   std::uint64_t non_finite = 0;   // contributions dropped because they were NaN or infinite
+  std::uint64_t early_stops = 0;  // prepass paths ended by early stop (see the header comment)
   // Gradient sampling (gradient_integrator.h; the paper's Table 1): base events whose
   // contribution passed c > τ, base paths with at least one shifted event, offsets evaluated
   // (one per side of such an event), and of those the shifts that failed (no valid offset path)
@@ -58,6 +76,7 @@ struct TraceCounters {
     rays += o.rays;
     lane_splits += o.lane_splits;
     non_finite += o.non_finite;
+    early_stops += o.early_stops;
     gradient_events += o.gradient_events;
     gradient_shifted_paths += o.gradient_shifted_paths;
     gradient_shifts += o.gradient_shifts;
@@ -84,15 +103,27 @@ struct GuideValues {
   float albedo = 0;
 };
 
+// Scattering events after which a prepass path with no wavelength-dependent event stops (§4).
+inline constexpr int kEarlyStopBounces = 3;
+
+// How one trace differs from the job's options (prepass tasks); the defaults trace exactly as
+// the job says.
+struct TraceOptions {
+  int lanes = 0;            // C in 1..kMaxLanes; 0: the job's (RenderOptions::lanes())
+  bool early_stop = false;  // stop paths without wavelength-dependent events (header comment)
+};
+
 class PathIntegrator {
  public:
   explicit PathIntegrator(const RenderScene& scene) : scene_(scene) {}
 
-  // Traces pixel (px, py)'s sample `sample_index` of pass `pass` with the given wavelength
-  // distribution (the scene's, or a per-pixel table). Pure function of its arguments.
+  // Traces pixel (px, py)'s sample `sample_index` of pass `pass`, drawing the lanes from and
+  // weighting them by `lambda_pdf` (the scene's distribution, or the pixel's table). `trace`
+  // lanes outside 0..kMaxLanes are a bug (PRISM_CHECK). Pure function of its arguments; never
+  // allocates.
   SampleContribution trace(int px, int py, std::uint32_t pass, std::uint32_t sample_index,
-                           const spectral::WavelengthDistribution& lambda_pdf,
-                           TraceCounters& counters, GuideValues* guides = nullptr) const;
+                           spectral::WavelengthPdfView lambda_pdf, TraceCounters& counters,
+                           GuideValues* guides = nullptr, TraceOptions trace = {}) const;
 
  private:
   const RenderScene& scene_;

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <memory>
 #include <string>
 #include <vector>
@@ -14,6 +15,7 @@
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/testing/chi_square.h"
 #include "worker/testing/bin_stats.h"
+#include "worker/testing/skewed_tables.h"
 #include "worker/tile_renderer.h"
 
 namespace prism::worker {
@@ -65,13 +67,13 @@ class IntegratorTest : public ::testing::Test {
 spectral::SpectrumLibrary* IntegratorTest::library_ = nullptr;
 EmbreeDevice* IntegratorTest::device_ = nullptr;
 
-using testing::BinStats;
 using testing::bin_stats;
+using testing::BinStats;
 
 // Two-sample z statistics per bin between independent renders.
 struct Agreement {
-  double max_z = 0;        // largest |a − b| / combined standard error
-  double chi2_p_value = 1; // Σ z² against chi-square with one degree of freedom per bin
+  double max_z = 0;         // largest |a − b| / combined standard error
+  double chi2_p_value = 1;  // Σ z² against chi-square with one degree of freedom per bin
 };
 
 Agreement agreement(const BinStats& a, const BinStats& b) {
@@ -139,6 +141,19 @@ class AgreementTest : public IntegratorTest {
     auto scene = build(load("unbiased.pbrt"), options);
     return bin_stats(render(*scene, 1024));
   }
+  // Like run(), the whole image as one task shaped by `shape` (tables, prepass).
+  template <typename Shape>
+  static BinStats run_task(const RenderOptions& overrides, Shape&& shape) {
+    RenderOptions options = overrides;
+    options.bins = 16;
+    options.max_depth = 8;
+    auto scene = build(load("unbiased.pbrt"), options);
+    RenderTask task{{0, 0, scene->camera().width(), scene->camera().height()}, {0, 1024}, 0};
+    shape(task);
+    auto result = TileRenderer(*scene).render(task, nullptr);
+    EXPECT_TRUE(result.ok()) << result.status();
+    return bin_stats(*result);
+  }
 };
 
 // `hero` with every wavelength pdf option agrees with the single-wavelength tracer per bin.
@@ -152,9 +167,9 @@ TEST_F(AgreementTest, HeroAgreesWithUniformForEveryWavelengthPdf) {
       options.spectral_pdf = sensor;
       options.emitter_pdf = emitter;
       options.seed = seed++;
-      expect_agreement(run(options), ref,
-                       "sensor " + std::to_string(int(sensor)) + " emitter " +
-                           std::to_string(int(emitter)));
+      expect_agreement(
+          run(options), ref,
+          "sensor " + std::to_string(int(sensor)) + " emitter " + std::to_string(int(emitter)));
     }
   }
   for (double se : ref.standard_error) EXPECT_GT(se, 0.0);
@@ -178,6 +193,44 @@ TEST_F(AgreementTest, EmitterSelectionVariantsAgreeWithUniform) {
                            std::to_string(spectral_factor));
     }
   }
+}
+
+// `hero` sampling every pixel from its own table, deliberately unlike the default distribution
+// (spikes and steep ramps that move from pixel to pixel, over 96 cells for 16 bins, some pixels
+// on the default), agrees with the single-wavelength tracer per bin: lanes are drawn and
+// weighted by the pixel's table only.
+TEST_F(AgreementTest, HeroWithPerPixelTablesAgreesWithUniform) {
+  const spectral::PixelTables tables =
+      testing::skewed_tables(24, 24, 96, [](int x, int y) { return (x * 7 + y) % 11 == 0; });
+  ASSERT_GT(tables.default_pixels(), 0);
+  RenderOptions options;
+  options.integrator = IntegratorKind::kHero;
+  options.seed = 150;
+  expect_agreement(run_task(options, [&](RenderTask& task) { task.tables = &tables; }), reference(),
+                   "hero with per-pixel tables");
+}
+
+// A prepass task of a `uniform` job traces 4 hero lanes (without early stop it is an unbiased
+// render), with tables too.
+TEST_F(AgreementTest, PrepassTasksOfAUniformJobAreUnbiasedHeroRenders) {
+  const spectral::PixelTables tables = testing::skewed_tables(24, 24, 16);
+  RenderOptions options;
+  options.integrator = IntegratorKind::kUniform;
+  options.seed = 160;
+  expect_agreement(run_task(options,
+                            [&](RenderTask& task) {
+                              task.pass = 1;
+                              task.prepass = true;
+                            }),
+                   reference(), "prepass of a uniform job");
+  options.seed = 161;
+  expect_agreement(run_task(options,
+                            [&](RenderTask& task) {
+                              task.pass = 2;
+                              task.prepass = true;
+                              task.tables = &tables;
+                            }),
+                   reference(), "prepass of a uniform job with tables");
 }
 
 // The uniform tracer with a non-uniform wavelength pdf and independent samples also agrees
@@ -317,6 +370,137 @@ AttributeEnd
   BinStats power = run(LightSelectionKind::kPower, 401);
   expect_agreement(uniform, power, "sphere light on a floor, uniform vs power selection");
   for (double m : uniform.mean) EXPECT_GT(m, 0.0);
+}
+
+// TraceOptions::lanes overrides the job's C (prepass tasks trace 4 lanes for any job).
+TEST_F(IntegratorTest, TraceOptionsForceTheLaneCount) {
+  RenderOptions options;
+  options.integrator = IntegratorKind::kUniform;
+  options.bins = 16;
+  auto scene = build(load("unbiased.pbrt"), options);
+  ASSERT_TRUE(scene);
+  PathIntegrator integrator(*scene);
+  TraceCounters counters;
+  EXPECT_EQ(integrator.trace(12, 12, 1, 0, scene->wavelength_pdf(), counters).lanes, 1);
+  SampleContribution c =
+      integrator.trace(12, 12, 1, 0, scene->wavelength_pdf(), counters, nullptr, {4, false});
+  ASSERT_EQ(c.lanes, 4);
+  // CMIS rotation: the lanes are spread over the spectrum, not one wavelength four times.
+  EXPECT_FALSE(c.bin[0] == c.bin[1] && c.bin[1] == c.bin[2] && c.bin[2] == c.bin[3]);
+}
+
+// Early stop (integrator.h). A box of constant-reflectance grey walls lit by one emitter of a
+// constant spectrum: nothing on any path depends on wavelength.
+constexpr char kGreyBox[] = R"(LookAt 0 1 -2.5  0 1 0  0 1 0
+Camera "perspective" "float fov" 60
+Film "spectral" "integer xresolution" 12 "integer yresolution" 12 "integer nbuckets" 8
+WorldBegin
+Material "diffuse" "float reflectance" 0.7
+Shape "trianglemesh" "point3 P" [-2 0 -3  2 0 -3  2 0 2  -2 0 2] "integer indices" [0 1 2 0 2 3]
+Shape "trianglemesh" "point3 P" [-2 2 -3  -2 2 2  2 2 2  2 2 -3] "integer indices" [0 1 2 0 2 3]
+Shape "trianglemesh" "point3 P" [-2 0 2  2 0 2  2 2 2  -2 2 2] "integer indices" [0 1 2 0 2 3]
+Shape "trianglemesh" "point3 P" [-2 0 -3  -2 0 2  -2 2 2  -2 2 -3] "integer indices" [0 1 2 0 2 3]
+Shape "trianglemesh" "point3 P" [2 0 -3  2 2 -3  2 2 2  2 0 2] "integer indices" [0 1 2 0 2 3]
+AttributeBegin
+  AreaLightSource "diffuse" "float L" 5
+  Translate 0 1.4 0.5
+  Shape "sphere" "float radius" 0.3
+AttributeEnd
+)";
+
+RenderOptions early_stop_options() {
+  RenderOptions options;
+  options.integrator = IntegratorKind::kHero;
+  options.bins = 8;
+  options.max_depth = 12;
+  options.rr_min_depth = 6;  // roulette would end many paths before the stop otherwise
+  options.seed = 600;
+  return options;
+}
+
+struct PrepassRender {
+  image::TileResult result;
+  TileStats stats;
+};
+
+PrepassRender render_prepass(const RenderScene& scene, bool early_stop) {
+  RenderTask task{{0, 0, scene.camera().width(), scene.camera().height()}, {0, 16}, 1};
+  task.prepass = true;
+  task.early_stop = early_stop;
+  TileStats stats;
+  auto result = TileRenderer(scene).render(task, &stats);
+  EXPECT_TRUE(result.ok()) << result.status();
+  return {std::move(*result), stats};
+}
+
+// With no wavelength-dependent event anywhere, every path that reaches its vertex after 3
+// scattering events stops there: the prepass is exactly one with max_depth 3, sample for
+// sample, and traces far fewer rays than the full-depth prepass.
+TEST_F(IntegratorTest, EarlyStopEndsGreyPathsAfterThreeBounces) {
+  auto desc = load_text("grey_box.pbrt", kGreyBox);
+  RenderOptions options = early_stop_options();
+  auto scene = build(desc, options);
+  ASSERT_TRUE(scene);
+  for (const ShapeInfo* info : {&scene->shape(0), &scene->shape(5)}) {
+    EXPECT_FALSE(info->wavelength_dependent);
+  }
+  PrepassRender stopped = render_prepass(*scene, true);
+  PrepassRender full = render_prepass(*scene, false);
+  options.max_depth = kEarlyStopBounces;
+  PrepassRender shallow = render_prepass(*build(desc, options), false);
+
+  EXPECT_TRUE(stopped.result == shallow.result);
+  EXPECT_FALSE(stopped.result == full.result);
+  EXPECT_GT(stopped.stats.counters.early_stops, 0u);
+  EXPECT_EQ(full.stats.counters.early_stops, 0u);
+  EXPECT_EQ(stopped.stats.counters.rays, shallow.stats.counters.rays);
+  EXPECT_LT(double(stopped.stats.counters.rays), 0.75 * double(full.stats.counters.rays));
+  std::cout << "rays with early stop " << stopped.stats.counters.rays << ", without "
+            << full.stats.counters.rays << "; paths stopped " << stopped.stats.counters.early_stops
+            << "\n";
+}
+
+// The same box seen from inside a dispersive glass sphere around the camera: every path's first
+// vertex is wavelength dependent, so no path stops early and the prepass is the full one.
+TEST_F(IntegratorTest, EarlyStopKeepsPathsThatMetADispersiveVertex) {
+  auto desc = load_text("grey_box_glass.pbrt", std::string(kGreyBox) + R"(
+AttributeBegin
+  Material "dielectric" "float sellmeier" [1.73759695 0.313747346 1.89878101 0.013188707 0.0623068142 155.23629]
+  Translate 0 1 -2.5
+  Shape "sphere" "float radius" 0.2
+AttributeEnd
+)");
+  auto scene = build(desc, early_stop_options());
+  ASSERT_TRUE(scene);
+  EXPECT_TRUE(scene->shape(6).wavelength_dependent);
+  PrepassRender stopped = render_prepass(*scene, true);
+  PrepassRender full = render_prepass(*scene, false);
+  EXPECT_EQ(stopped.stats.counters.early_stops, 0u);
+  EXPECT_TRUE(stopped.result == full.result);
+  EXPECT_GT(full.stats.counters.lane_splits, 0u);
+}
+
+// A coloured emitter or material is an event too (the flag is per shape).
+TEST_F(IntegratorTest, ColouredEmittersAndMaterialsAreWavelengthDependentHits) {
+  auto desc = load_text("coloured_box.pbrt", R"(LookAt 0 1 -2.5  0 1 0  0 1 0
+Camera "perspective" "float fov" 60
+Film "spectral" "integer xresolution" 4 "integer yresolution" 4 "integer nbuckets" 8
+WorldBegin
+Material "diffuse" "float reflectance" 0.7
+Shape "trianglemesh" "point3 P" [-2 0 -3  2 0 -3  2 0 2  -2 0 2] "integer indices" [0 1 2 0 2 3]
+Material "diffuse" "rgb reflectance" [0.7 0.2 0.1]
+Shape "trianglemesh" "point3 P" [-2 2 -3  -2 2 2  2 2 2  2 2 -3] "integer indices" [0 1 2 0 2 3]
+Material "diffuse" "float reflectance" 0.7
+AttributeBegin
+  AreaLightSource "diffuse" "blackbody L" 3000
+  Shape "sphere" "float radius" 0.3
+AttributeEnd
+)");
+  auto scene = build(desc, early_stop_options());
+  ASSERT_TRUE(scene);
+  EXPECT_FALSE(scene->shape(0).wavelength_dependent);
+  EXPECT_TRUE(scene->shape(1).wavelength_dependent);
+  EXPECT_TRUE(scene->shape(2).wavelength_dependent);
 }
 
 }  // namespace

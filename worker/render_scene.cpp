@@ -222,10 +222,12 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
     info.medium_inside = shape.media.inside;
     info.medium_outside = shape.media.outside;
     info.medium_transition = shape.media.is_transition();
+    info.wavelength_dependent = depends_on_wavelength(rs->materials_[size_t(shape.material)]);
     if (shape.area_light) {
       PRISM_ASSIGN_OR_RETURN(AreaLight light, make_area_light(shape, int(i), *rs->geometry_,
                                                               library, uplift, *rs->cmf_));
       info.area_light = int(rs->lights_.size());
+      if (!spectral::is_constant(light.spectrum())) info.wavelength_dependent = true;
       rs->lights_.push_back(std::move(light));
     }
     rs->shapes_.push_back(info);

@@ -37,10 +37,13 @@
 namespace prism::worker {
 
 struct ShapeInfo {
-  int material = 0;     // index into materials()
-  int area_light = -1;  // index into lights(), or -1
+  int material = 0;                             // index into materials()
+  int area_light = -1;                          // index into lights(), or -1
   int medium_inside = -1, medium_outside = -1;  // indices into media(), -1 vacuum
   bool medium_transition = false;
+  // A hit here is a wavelength-dependent event (integrator.h): the material depends on
+  // wavelength, or the shape emits a spectrum that is not constant.
+  bool wavelength_dependent = false;
 };
 
 // The emitter mixture E (each distinct emitter spectrum normalised, as the default distribution

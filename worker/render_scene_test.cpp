@@ -203,6 +203,51 @@ Shape "sphere")");
   }
 }
 
+// The coordinator's prepass inputs: the emitter mixture over the requested bins (the distinct
+// spectra, each normalised, one copy of a spectrum given twice) and the sensor term, null for
+// `flat`; a scene without emitters has no mixture.
+TEST_F(RenderSceneTest, PrepassDistributionsAreTheEmitterMixtureAndSensorTerm) {
+  auto desc = parse(R"(WorldBegin
+LightSource "point" "spectrum I" "stdillum-F11" "point3 from" [0 1 0]
+LightSource "point" "spectrum I" "stdillum-F11" "point3 from" [0 2 0]
+AttributeBegin
+  AreaLightSource "diffuse" "blackbody L" 3000
+  Shape "sphere"
+AttributeEnd)");
+  ASSERT_TRUE(desc.ok()) << desc.status();
+  const std::vector<spectral::Spectrum> spectra = {*spectral::BlackbodySpectrum::create(3000),
+                                                   *library_->find_spectrum("stdillum-F11")};
+  for (int bins : {16, 64}) {
+    const auto expected = *spectral::WavelengthDistribution::emitters(spectra, bins);
+    for (auto sensor : {SpectralPdfKind::kFlat, SpectralPdfKind::kVisible}) {
+      RenderOptions o;
+      o.spectral_pdf = sensor;
+      o.emitter_pdf = EmitterPdfKind::kUniform;  // the prepass replaces p_e
+      auto got = prepass_distributions(*desc, o, *library_, bins);
+      ASSERT_TRUE(got.ok()) << got.status();
+      ASSERT_EQ(got->emitters.cells(), bins);
+      for (int c = 0; c < bins; ++c) {
+        EXPECT_NEAR(got->emitters.cell_mass(c), expected.cell_mass(c), 1e-12) << c;
+      }
+      EXPECT_EQ(got->sensor.has_value(), sensor == SpectralPdfKind::kVisible);
+      if (got->sensor) {
+        const auto visible = *spectral::WavelengthDistribution::visible(bins);
+        ASSERT_EQ(got->sensor->cells(), bins);
+        for (int c = 0; c < bins; ++c) {
+          EXPECT_EQ(got->sensor->cell_mass(c), visible.cell_mass(c)) << c;
+        }
+      }
+    }
+  }
+  auto dark = parse(R"(WorldBegin
+Shape "sphere")");
+  ASSERT_TRUE(dark.ok()) << dark.status();
+  EXPECT_EQ(prepass_distributions(*dark, {}, *library_, 16).status().code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(prepass_distributions(*desc, {}, *library_, 0).status().code(),
+            absl::StatusCode::kInvalidArgument);
+}
+
 // `power` and `illuminance` follow pbrt-v4: with the spectrum normalised to unit photometric
 // sum, scale · k_e equals the scene's scale times the target, where k_e is the light's
 // geometric factor (4π for a point, the cone integral for a spot, π·area·sides for an area

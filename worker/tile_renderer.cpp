@@ -15,13 +15,30 @@ TileRenderer::TileRenderer(const RenderScene& scene) : scene_(scene), integrator
   if (scene.options().integrator == IntegratorKind::kGradient) gradient_.emplace(scene);
 }
 
-absl::StatusOr<image::TileResult> TileRenderer::render(
-    const RenderTask& task, TileStats* stats, const std::atomic<bool>* cancel,
-    std::atomic<std::uint64_t>* progress) const {
+absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, TileStats* stats,
+                                                       const std::atomic<bool>* cancel,
+                                                       std::atomic<std::uint64_t>* progress) const {
   const int bins = scene_.grid().bins();
+  const image::TileRect& rect = task.tile;
+  if (task.early_stop && !task.prepass) {
+    return absl::InvalidArgumentError(
+        "early stop is for prepass tasks only: it truncates paths, which biases a final pass");
+  }
+  if (task.tables != nullptr &&
+      (task.tables->width() != rect.width() || task.tables->height() != rect.height())) {
+    return absl::InvalidArgumentError(absl::StrCat("the pdf tables are for ", task.tables->width(),
+                                                   "x", task.tables->height(),
+                                                   " pixels but the tile ", image::to_string(rect),
+                                                   " has ", rect.width(), "x", rect.height()));
+  }
+  // A prepass traces with the hero path tracer whatever the job's integrator, so a gradient
+  // job's prepass has no gradients.
+  const GradientIntegrator* gradient =
+      gradient_.has_value() && !task.prepass ? &*gradient_ : nullptr;
+  const TraceOptions trace_options{task.prepass ? kPrepassLanes : 0, task.early_stop};
   image::TileBuffers buffers;
   buffers.guides = task.want_guides;
-  buffers.gradients = gradient_.has_value();
+  buffers.gradients = gradient != nullptr;
   auto created = image::TileResult::create(task.tile, task.samples, bins, buffers);
   if (!created.ok()) return created.status();
   image::TileResult result = std::move(*created);
@@ -30,9 +47,8 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
         absl::StrCat("sample range ends at ", task.samples.s1, ", beyond 2^32 samples per pixel"));
   }
   const auto start = std::chrono::steady_clock::now();
-  const image::TileRect& rect = task.tile;
   const int width = rect.width();
-  const spectral::WavelengthDistribution& lambda_pdf = scene_.wavelength_pdf();
+  const spectral::WavelengthDistribution& job_pdf = scene_.wavelength_pdf();
 
   tbb::combinable<TraceCounters> counters;
   std::atomic<bool> cancelled{false};
@@ -55,6 +71,18 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
           }
           const int x = rect.x0 + int(index % width);
           const int y = rect.y0 + int(index / width);
+          // A prepass skips the pixels that fell back to the default distribution in an earlier
+          // pass (algorithms.md §4): their all-zero row says so; they keep no samples.
+          if (task.prepass && task.tables != nullptr &&
+              task.tables->uses_default(x - rect.x0, y - rect.y0)) {
+            if (progress != nullptr) {
+              progress->fetch_add(task.samples.count(), std::memory_order_relaxed);
+            }
+            continue;
+          }
+          const spectral::WavelengthPdfView lambda_pdf =
+              task.tables != nullptr ? task.tables->view(x - rect.x0, y - rect.y0, job_pdf)
+                                     : spectral::WavelengthPdfView(job_pdf);
           double* pixel_sums = &sums[std::size_t(index) * bins];
           double* pixel_squares = &squares[std::size_t(index) * bins];
           std::uint64_t guide_count = 0;
@@ -62,9 +90,9 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
           Vec3f normal_sum;
           for (std::uint64_t s = task.samples.s0; s < task.samples.s1; ++s) {
             GuideValues guide;
-            if (gradient_) {
-              GradientSample g = gradient_->trace(x, y, task.pass, std::uint32_t(s), lambda_pdf,
-                                                  local, task.want_guides ? &guide : nullptr);
+            if (gradient != nullptr) {
+              GradientSample g = gradient->trace(x, y, task.pass, std::uint32_t(s), lambda_pdf,
+                                                 local, task.want_guides ? &guide : nullptr);
               if (g.primal != 0.0f) {
                 const double v = g.primal;
                 pixel_sums[g.bin] += v;
@@ -81,8 +109,9 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
               }
               continue;
             }
-            SampleContribution c = integrator_.trace(x, y, task.pass, std::uint32_t(s), lambda_pdf,
-                                                     local, task.want_guides ? &guide : nullptr);
+            SampleContribution c =
+                integrator_.trace(x, y, task.pass, std::uint32_t(s), lambda_pdf, local,
+                                  task.want_guides ? &guide : nullptr, trace_options);
             // Lanes that land in the same bin form one value of this sample for that bin, so
             // the sum of squares is that of per-sample bin values.
             for (int lane = 0; lane < c.lanes; ++lane) sample_values[c.bin[lane]] += c.value[lane];
@@ -106,7 +135,8 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
             result.add_guides(x, y, depth_sum, normal_sum.x, normal_sum.y, normal_sum.z,
                               albedo_sum);
           }
-          if (progress != nullptr) progress->fetch_add(task.samples.count(), std::memory_order_relaxed);
+          if (progress != nullptr)
+            progress->fetch_add(task.samples.count(), std::memory_order_relaxed);
         }
       },
       tbb::simple_partitioner());
@@ -114,7 +144,8 @@ absl::StatusOr<image::TileResult> TileRenderer::render(
   if (stats != nullptr) {
     stats->counters = TraceCounters();
     counters.combine_each([&](const TraceCounters& c) { stats->counters += c; });
-    stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    stats->seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   }
   return result;
 }

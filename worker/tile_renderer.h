@@ -3,7 +3,8 @@
 // dimension), and each pixel's samples are accumulated in index order into doubles, so the
 // result's bytes are identical for any thread count, tile size or task split. With the
 // `gradient` integrator the result also carries the gradients buffer (per pixel, the sums of the
-// G[b] estimates, added in sample order like the primal sums).
+// G[b] estimates, added in sample order like the primal sums), except for prepass tasks, which
+// the hero path tracer renders whatever the job's integrator.
 #pragma once
 
 #include <atomic>
@@ -19,6 +20,9 @@
 
 namespace prism::worker {
 
+// The lanes C of a prepass task: the hero path tracer with its default C (algorithms.md §2, §4).
+inline constexpr int kPrepassLanes = 4;
+
 struct RenderTask {
   image::TileRect tile;
   image::SampleRange samples;
@@ -30,8 +34,9 @@ struct RenderTask {
   bool prepass = false;
   bool early_stop = false;
   // The tile's per-pixel wavelength tables (tile-local pixels, the tile's size), or null: every
-  // pixel samples the scene's default distribution. Pixels without a table use the default too.
-  // Must outlive the render call.
+  // pixel samples the scene's default distribution. Pixels without a table use the default too,
+  // except in a prepass, which skips them (count 0: they fell back in an earlier pass). Must
+  // outlive the render call.
   const spectral::PixelTables* tables = nullptr;
 };
 
@@ -44,9 +49,11 @@ class TileRenderer {
  public:
   explicit TileRenderer(const RenderScene& scene);
 
-  // Renders the task with the scene's wavelength distribution. `cancel`, when set, is polled
-  // between pixels; a cancelled render returns CANCELLED and no result. `progress` (may be
-  // null) is incremented by the samples finished, for progress bars.
+  // Renders the task, each pixel with its table from task.tables or else the scene's wavelength
+  // distribution. INVALID_ARGUMENT when the tables' size is not the tile's, early_stop is set
+  // without prepass (it would bias a final pass), or the sample range passes 2^32. `cancel`,
+  // when set, is polled between pixels; a cancelled render returns CANCELLED and no result.
+  // `progress` (may be null) is incremented by the samples finished, for progress bars.
   absl::StatusOr<image::TileResult> render(const RenderTask& task, TileStats* stats,
                                            const std::atomic<bool>* cancel = nullptr,
                                            std::atomic<std::uint64_t>* progress = nullptr) const;

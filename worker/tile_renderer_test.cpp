@@ -1,6 +1,7 @@
 #include "worker/tile_renderer.h"
 
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 
 #include <atomic>
 #include <cmath>
@@ -8,6 +9,7 @@
 
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
+#include "worker/testing/skewed_tables.h"
 
 namespace prism::worker {
 namespace {
@@ -17,17 +19,24 @@ namespace fs = std::filesystem;
 class TileRendererTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    library_ = std::make_unique<spectral::SpectrumLibrary>(*spectral::SpectrumLibrary::load_builtin());
+    library_ =
+        std::make_unique<spectral::SpectrumLibrary>(*spectral::SpectrumLibrary::load_builtin());
     auto loaded = scene::load_scene(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/furnace.pbrt",
                                     scene::LoadOptions{});
     ASSERT_TRUE(loaded.ok()) << loaded.status();
+    description_ = loaded->description;
     RenderOptions options;
     options.bins = 8;
-    auto built = RenderScene::build(device_, loaded->description, *library_, options, 16, 16);
-    ASSERT_TRUE(built.ok()) << built.status();
-    scene_ = std::move(*built);
+    scene_ = build(options);
+    ASSERT_TRUE(scene_);
+  }
+  std::unique_ptr<RenderScene> build(const RenderOptions& options) {
+    auto built = RenderScene::build(device_, description_, *library_, options, 16, 16);
+    EXPECT_TRUE(built.ok()) << built.status();
+    return built.ok() ? std::move(*built) : nullptr;
   }
   EmbreeDevice device_;
+  scene::SceneDescription description_;
   std::unique_ptr<spectral::SpectrumLibrary> library_;
   std::unique_ptr<RenderScene> scene_;
 };
@@ -89,6 +98,131 @@ TEST_F(TileRendererTest, RefusesSampleIndicesBeyond32Bits) {
   TileRenderer renderer(*scene_);
   auto result = renderer.render({{0, 0, 4, 4}, {0, (std::uint64_t{1} << 32) + 1}, 0}, nullptr);
   EXPECT_EQ(result.status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+// Per-pixel tables keep the result a pure function of (seed, pass, pixel, sample): the same
+// bytes for one thread or two, for a final-pass task and for a prepass with early stop.
+TEST_F(TileRendererTest, TablesGiveTheSameBytesForAnyThreadCount) {
+  TileRenderer renderer(*scene_);
+  const spectral::PixelTables tables =
+      testing::skewed_tables(10, 7, 32, [](int x, int y) { return (x + y) % 4 == 0; });
+  for (bool prepass : {false, true}) {
+    RenderTask task{{3, 5, 13, 12}, {0, 8}, prepass ? 2u : 0u, /*want_guides=*/prepass};
+    task.prepass = prepass;
+    task.early_stop = prepass;
+    task.tables = &tables;
+    auto one = tbb::task_arena(1).execute([&] { return renderer.render(task, nullptr); });
+    auto two = tbb::task_arena(2).execute([&] { return renderer.render(task, nullptr); });
+    ASSERT_TRUE(one.ok()) << one.status();
+    ASSERT_TRUE(two.ok()) << two.status();
+    EXPECT_TRUE(*one == *two) << "prepass " << prepass;
+  }
+}
+
+// A pixel whose row is all zeros has no table: it samples the job's default distribution, so it
+// renders exactly as without tables; the pixels with tables render differently.
+TEST_F(TileRendererTest, PixelsWithoutATableRenderAsWithoutTables) {
+  TileRenderer renderer(*scene_);
+  const image::TileRect rect{2, 1, 14, 11};
+  auto uses_default = [](int x, int y) { return (x + 2 * y) % 3 == 0; };
+  const spectral::PixelTables tables = testing::skewed_tables(12, 10, 64, uses_default);
+  RenderTask plain{rect, {0, 16}, 0};
+  RenderTask with_tables = plain;
+  with_tables.tables = &tables;
+  auto a = renderer.render(plain, nullptr);
+  auto b = renderer.render(with_tables, nullptr);
+  ASSERT_TRUE(a.ok() && b.ok());
+  int defaults = 0, differing = 0;
+  for (int y = rect.y0; y < rect.y1; ++y) {
+    for (int x = rect.x0; x < rect.x1; ++x) {
+      bool same = true;
+      for (int bin = 0; bin < 8; ++bin) {
+        same = same && a->sum(x, y, bin) == b->sum(x, y, bin) &&
+               a->sum_squares(x, y, bin) == b->sum_squares(x, y, bin);
+      }
+      if (uses_default(x - rect.x0, y - rect.y0)) {
+        EXPECT_TRUE(same) << "pixel " << x << "," << y;
+        ++defaults;
+      } else if (!same) {
+        ++differing;
+      }
+    }
+  }
+  EXPECT_EQ(defaults, tables.default_pixels());
+  EXPECT_GT(differing, (120 - defaults) * 9 / 10);
+}
+
+// In a prepass, a pixel without a table fell back in an earlier pass: it is skipped (no samples,
+// no guides), and every other pixel renders as in a final pass with the same tables.
+TEST_F(TileRendererTest, APrepassSkipsThePixelsThatFellBack) {
+  TileRenderer renderer(*scene_);
+  const image::TileRect rect{2, 1, 14, 11};
+  auto uses_default = [](int x, int y) { return (x + 2 * y) % 3 == 0; };
+  const spectral::PixelTables tables = testing::skewed_tables(12, 10, 64, uses_default);
+  RenderTask prepass{rect, {0, 8}, 1, /*want_guides=*/true};
+  prepass.prepass = true;
+  prepass.tables = &tables;
+  auto result = renderer.render(prepass, nullptr);
+  ASSERT_TRUE(result.ok()) << result.status();
+  for (int y = rect.y0; y < rect.y1; ++y) {
+    for (int x = rect.x0; x < rect.x1; ++x) {
+      const bool skipped = uses_default(x - rect.x0, y - rect.y0);
+      EXPECT_EQ(result->count(x, y), skipped ? 0u : 8u) << x << "," << y;
+      const std::size_t p = std::size_t(y - rect.y0) * rect.width() + (x - rect.x0);
+      if (skipped) {
+        EXPECT_EQ(result->depth()[p], 0.0f);
+        for (int b = 0; b < result->bins(); ++b) EXPECT_EQ(result->sum(x, y, b), 0.0);
+      }
+    }
+  }
+}
+
+TEST_F(TileRendererTest, RefusesTablesOfAnotherSizeAndEarlyStopOutsideAPrepass) {
+  TileRenderer renderer(*scene_);
+  const spectral::PixelTables tables = testing::skewed_tables(4, 4, 8);
+  RenderTask task{{0, 0, 4, 5}, {0, 1}, 0};
+  task.tables = &tables;
+  auto wrong_size = renderer.render(task, nullptr);
+  EXPECT_EQ(wrong_size.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(wrong_size.status().message().find("4x4"), std::string::npos) << wrong_size.status();
+  RenderTask early{{0, 0, 4, 4}, {0, 1}, 0};
+  early.early_stop = true;
+  EXPECT_EQ(renderer.render(early, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+// A prepass task of a `gradient` job is traced by the hero path tracer with 4 lanes: no
+// gradients buffer, and the same bytes as the same pass of a `hero` job. Its final-pass tasks
+// still carry gradients.
+TEST_F(TileRendererTest, APrepassOfAGradientJobIsAFourLaneHeroRenderWithoutGradients) {
+  RenderOptions options;
+  options.bins = 8;
+  options.integrator = IntegratorKind::kGradient;
+  options.gradient_offset_bins = 2;
+  auto gradient = build(options);
+  options.integrator = IntegratorKind::kHero;
+  auto hero = build(options);
+  ASSERT_TRUE(gradient && hero);
+  const spectral::PixelTables tables = testing::skewed_tables(16, 16, 32);
+
+  RenderTask prepass{{0, 0, 16, 16}, {0, 4}, 1, /*want_guides=*/true};
+  prepass.prepass = true;
+  prepass.tables = &tables;
+  auto from_gradient = TileRenderer(*gradient).render(prepass, nullptr);
+  ASSERT_TRUE(from_gradient.ok()) << from_gradient.status();
+  EXPECT_FALSE(from_gradient->has_gradients());
+  EXPECT_TRUE(from_gradient->has_guides());
+  auto from_hero = TileRenderer(*hero).render(prepass, nullptr);
+  ASSERT_TRUE(from_hero.ok()) << from_hero.status();
+  EXPECT_TRUE(*from_gradient == *from_hero);
+  // The hero job's own final-pass render of that pass: a prepass adds nothing but C = 4.
+  RenderTask same_pass = prepass;
+  same_pass.prepass = false;
+  EXPECT_TRUE(*TileRenderer(*hero).render(same_pass, nullptr) == *from_hero);
+
+  RenderTask final_pass{{0, 0, 16, 16}, {0, 4}, 0};
+  auto final_result = TileRenderer(*gradient).render(final_pass, nullptr);
+  ASSERT_TRUE(final_result.ok()) << final_result.status();
+  EXPECT_TRUE(final_result->has_gradients());
 }
 
 }  // namespace

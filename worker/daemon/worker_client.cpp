@@ -163,11 +163,10 @@ absl::StatusOr<std::string> WorkerClient::fetch_bundle(const std::string& hash,
   return blob;
 }
 
-absl::StatusOr<v1::CompleteTaskResponse> WorkerClient::complete_task(const std::string& worker_id,
-                                                                     const std::string& lease_id,
-                                                                     const std::string& bytes,
-                                                                     double render_seconds,
-                                                                     std::uint64_t rays) {
+absl::StatusOr<v1::CompleteTaskResponse> WorkerClient::complete_task(
+    const std::string& worker_id, const std::string& lease_id, const std::string& bytes,
+    double render_seconds, std::uint64_t rays,
+    const std::vector<std::pair<std::string, std::uint64_t>>& counters) {
   grpc::ClientContext context;
   prepare(context, config_.transfer_timeout);
   v1::CompleteTaskResponse response;
@@ -189,6 +188,10 @@ absl::StatusOr<v1::CompleteTaskResponse> WorkerClient::complete_task(const std::
       upload.set_sha256(base::sha256_hex(bytes));
       upload.set_render_seconds(render_seconds);
       upload.set_rays(rays);
+      // Most counters are zero for most integrators; an absent key reads as 0.
+      for (const auto& [name, value] : counters) {
+        if (value != 0) (*upload.mutable_counters())[name] = value;
+      }
     }
     offset += chunks[i].size();
     // A failed write means the stream is broken; Finish() says why.

@@ -18,6 +18,8 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -50,11 +52,12 @@ class WorkerClient {
   // at most `max_bytes`); the caller verifies its content hash.
   absl::StatusOr<std::string> fetch_bundle(const std::string& hash, std::uint64_t max_bytes);
   // Streams `bytes` in 1 MiB chunks: the lease on the first, the total on every one, the
-  // SHA-256 and the statistics on the last.
-  absl::StatusOr<v1::CompleteTaskResponse> complete_task(const std::string& worker_id,
-                                                         const std::string& lease_id,
-                                                         const std::string& bytes,
-                                                         double render_seconds, std::uint64_t rays);
+  // SHA-256 and the statistics on the last: the render time, the rays traced and the task's
+  // event counters by name (counter_list in worker/integrator.h; zero ones are left out).
+  absl::StatusOr<v1::CompleteTaskResponse> complete_task(
+      const std::string& worker_id, const std::string& lease_id, const std::string& bytes,
+      double render_seconds, std::uint64_t rays,
+      const std::vector<std::pair<std::string, std::uint64_t>>& counters);
   absl::Status fail_task(const v1::FailTaskRequest& request);
 
   // Cancels an AcquireTask in flight and refuses further ones (a draining worker never acquires

@@ -1,6 +1,7 @@
 #include "worker/daemon/worker_daemon.h"
 
 #include <algorithm>
+#include <optional>
 #include <utility>
 
 #include "absl/strings/str_cat.h"
@@ -8,6 +9,7 @@
 #include "services/base/status.h"
 #include "services/image/tile_codec.h"
 #include "services/scene/path_guard.h"
+#include "services/spectral/pixel_tables.h"
 #include "worker/tile_renderer.h"
 
 namespace prism::worker {
@@ -23,15 +25,92 @@ std::string lease_context(const v1::Lease& lease) {
                       t.samples().begin(), "-", t.samples().end(), "]");
 }
 
-// Everything that changes a RenderScene, as one comparable string.
-std::string scene_key(const std::string& hash, const coordinator::JobParameters& p) {
+// Everything that changes a RenderScene, as one comparable string: the film is the task's
+// (an image-scaled prepass renders the job's camera on a smaller one).
+std::string scene_key(const std::string& hash, const coordinator::JobParameters& p, int film_width,
+                      int film_height) {
   const RenderOptions& o = p.render;
-  return absl::StrCat(hash, "|", p.scene_path, "|", p.width, "x", p.height, "|",
+  return absl::StrCat(hash, "|", p.scene_path, "|", film_width, "x", film_height, "|",
                       static_cast<int>(o.integrator), ",", static_cast<int>(o.spectral_pdf), ",",
                       static_cast<int>(o.emitter_pdf), ",", o.defensive_epsilon, ",",
                       static_cast<int>(o.light_selection), ",", o.spectral_light_selection, ",",
                       static_cast<int>(o.sampler), ",", o.bins, ",", o.max_depth, ",",
                       o.rr_min_depth, ",", o.seed);
+}
+
+// A task as TileRenderer takes it, validated against its job: the pass, the film the pass
+// renders, the tile and samples inside them, and the tile's decoded pdf tables.
+struct TaskSetup {
+  RenderTask render_task;  // tables unset: point them at `tables` where the setup stays put
+  std::optional<spectral::PixelTables> tables;
+  int film_width = 0;
+  int film_height = 0;
+};
+
+// INVALID_ARGUMENT, saying what is wrong with the task, when it is not one this worker can run.
+absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const coordinator::JobParameters& p) {
+  TaskSetup setup;
+  RenderTask& rt = setup.render_task;
+  if (task.pass() == v1::PASS_FINAL && task.pass_index() == 0) {
+    rt.pass = 0;
+  } else if (task.pass() == v1::PASS_PREPASS && task.pass_index() >= 1) {
+    rt.pass = task.pass_index();
+    rt.prepass = true;
+    // Only a prepass may stop paths early (a final pass would be biased).
+    rt.early_stop = task.early_stop_prepass();
+  } else {
+    return absl::InvalidArgumentError(
+        absl::StrCat("a ", v1::Pass_Name(task.pass()), " task with pass index ", task.pass_index(),
+                     ": want PASS_FINAL with index 0 or PASS_PREPASS with index >= 1"));
+  }
+  rt.want_guides = task.want_guides();
+
+  // 0 x 0: the job's film; an image-scaled prepass names its own.
+  const std::uint32_t fw = task.film_width(), fh = task.film_height();
+  if ((fw == 0) != (fh == 0) || fw > std::uint32_t(image::kMaxImageSide) ||
+      fh > std::uint32_t(image::kMaxImageSide)) {
+    return absl::InvalidArgumentError(absl::StrCat("film ", fw, "x", fh, ": want both sides in 1..",
+                                                   image::kMaxImageSide,
+                                                   ", or both 0 for the job's resolution"));
+  }
+  setup.film_width = fw == 0 ? p.width : int(fw);
+  setup.film_height = fh == 0 ? p.height : int(fh);
+
+  const v1::TileRect& r = task.tile();
+  if (r.x0() < 0 || r.y0() < 0 || r.x0() >= r.x1() || r.y0() >= r.y1() ||
+      r.x1() > setup.film_width || r.y1() > setup.film_height) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "tile ", r.x0(), ",", r.y0(), "-", r.x1(), ",", r.y1(), " is empty or outside the ",
+        setup.film_width, "x", setup.film_height, " film"));
+  }
+  rt.tile = {r.x0(), r.y0(), r.x1(), r.y1()};
+
+  // A prepass has its own sample count: at most Ñ, the last prepass's (a job without prepass
+  // parameters sending one is held to the job limit only).
+  const std::uint64_t max_spp =
+      !rt.prepass ? p.spp : (p.prepass ? p.prepass->spp : coordinator::kMaxJobSpp);
+  if (task.samples().begin() >= task.samples().end() || task.samples().end() > max_spp) {
+    return absl::InvalidArgumentError(absl::StrCat("sample range ", task.samples().begin(), "-",
+                                                   task.samples().end(), " is empty or beyond ",
+                                                   max_spp, " spp"));
+  }
+  rt.samples = {task.samples().begin(), task.samples().end()};
+
+  if (task.has_pdf_table()) {
+    // The table's cells are its own resolution, not necessarily the job's bins.
+    const v1::PdfTable& table = task.pdf_table();
+    const int cells = int(std::min<std::uint32_t>(
+        table.cells(), std::uint32_t(spectral::WavelengthDistribution::kMaxCells) + 1));
+    absl::StatusOr<spectral::PixelTables> decoded = spectral::PixelTables::decode(
+        rt.tile.width(), rt.tile.height(), cells, table.quantised_cdf());
+    if (!decoded.ok()) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "the pdf table of tile ", r.x0(), ",", r.y0(), "-", r.x1(), ",", r.y1(), " (",
+          table.cells(), " cells) does not decode: ", decoded.status().message()));
+    }
+    setup.tables.emplace(std::move(*decoded));
+  }
+  return setup;
 }
 
 }  // namespace
@@ -96,6 +175,7 @@ absl::Status WorkerDaemon::register_worker() {
   request.set_threads(static_cast<std::uint32_t>(config_.threads));
   request.add_capabilities("integrator:uniform");
   request.add_capabilities("integrator:hero");
+  request.add_capabilities("prepass");
   request.set_previous_worker_id(worker_id());
   PRISM_ASSIGN_OR_RETURN(v1::RegisterResponse response, client_.register_worker(request));
   std::lock_guard<std::mutex> lock(mutex_);
@@ -279,12 +359,10 @@ void WorkerDaemon::process(const v1::Lease& lease) {
   logger_->debug("{} acquired (attempt {})", context, lease.attempt());
 
   std::string bytes;
-  double seconds = 0;
-  std::uint64_t rays = 0;
+  TileStats stats;
   v1::FailureClass failure_class = v1::FAILURE_CLASS_WORKER;
-  absl::Status status =
-      returned ? absl::CancelledError("draining")
-               : execute(lease, held, context, &bytes, &seconds, &rays, &failure_class);
+  absl::Status status = returned ? absl::CancelledError("draining")
+                                 : execute(lease, held, context, &bytes, &stats, &failure_class);
   CancelReason reason;
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -296,11 +374,12 @@ void WorkerDaemon::process(const v1::Lease& lease) {
 
   if (status.ok()) {
     absl::StatusOr<v1::CompleteTaskResponse> response =
-        client_.complete_task(worker_id(), lease.lease_id(), bytes, seconds, rays);
+        client_.complete_task(worker_id(), lease.lease_id(), bytes, stats.seconds,
+                              stats.counters.rays, counter_list(stats.counters));
     if (!response.ok()) {
       logger_->warn("{} {}", context, std::string(response.status().message()));
     } else {
-      logger_->debug("{} completed: {} bytes in {:.3f} s{}", context, bytes.size(), seconds,
+      logger_->debug("{} completed: {} bytes in {:.3f} s{}", context, bytes.size(), stats.seconds,
                      response->accepted() ? "" : " (a duplicate)");
     }
     return;
@@ -326,8 +405,8 @@ absl::StatusOr<fs::path> WorkerDaemon::ensure_bundle(const std::string& hash,
 }
 
 absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
-                                   const std::string& context, std::string* bytes, double* seconds,
-                                   std::uint64_t* rays, v1::FailureClass* failure_class) {
+                                   const std::string& context, std::string* bytes, TileStats* stats,
+                                   v1::FailureClass* failure_class) {
   const v1::Task& task = lease.task();
   const std::string hash =
       lease.bundle_hash().empty() ? task.spec().bundle_hash() : lease.bundle_hash();
@@ -365,55 +444,33 @@ absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
   }
   PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters params,
                          coordinator::job_parameters(task.spec(), cached.loaded.description));
-  const std::string render_key = scene_key(hash, params);
+
+  // The task itself comes from the coordinator: a task this worker cannot run is its own
+  // failure, not the scene's.
+  *failure_class = v1::FAILURE_CLASS_WORKER;
+  PRISM_ASSIGN_OR_RETURN(TaskSetup setup, task_setup(task, params));
+
+  *failure_class = v1::FAILURE_CLASS_SCENE;
+  const std::string render_key = scene_key(hash, params, setup.film_width, setup.film_height);
   if (cached.render_key != render_key || cached.render == nullptr) {
     cached.render.reset();
     cached.render_key.clear();
     PRISM_ASSIGN_OR_RETURN(cached.render,
                            RenderScene::build(device_, cached.loaded.description, library_,
-                                              params.render, params.width, params.height));
+                                              params.render, setup.film_width, setup.film_height));
     cached.render_key = render_key;
-    logger_->debug("{} built the render scene ({}x{}, {} bins)", context, params.width,
-                   params.height, params.render.bins);
+    logger_->debug("{} built the render scene ({}x{}, {} bins)", context, setup.film_width,
+                   setup.film_height, params.render.bins);
   }
 
-  // The task itself comes from the coordinator: a task this worker cannot run is its own
-  // failure, not the scene's.
   *failure_class = v1::FAILURE_CLASS_WORKER;
-  if (task.pass() != v1::PASS_FINAL) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "this worker renders final-pass tasks only, not ", v1::Pass_Name(task.pass())));
-  }
-  if (task.has_pdf_table()) {
-    return absl::InvalidArgumentError("this worker does not take per-pixel pdf tables");
-  }
-  const v1::TileRect& r = task.tile();
-  if (r.x0() < 0 || r.y0() < 0 || r.x0() >= r.x1() || r.y0() >= r.y1() || r.x1() > params.width ||
-      r.y1() > params.height) {
-    return absl::InvalidArgumentError(absl::StrCat("tile ", r.x0(), ",", r.y0(), "-", r.x1(), ",",
-                                                   r.y1(), " is empty or outside the ",
-                                                   params.width, "x", params.height, " film"));
-  }
-  if (task.samples().begin() >= task.samples().end() || task.samples().end() > params.spp) {
-    return absl::InvalidArgumentError(absl::StrCat("sample range ", task.samples().begin(), "-",
-                                                   task.samples().end(), " is empty or beyond ",
-                                                   params.spp, " spp"));
-  }
-  RenderTask render_task;
-  render_task.tile = {r.x0(), r.y0(), r.x1(), r.y1()};
-  render_task.samples = {task.samples().begin(), task.samples().end()};
-  render_task.pass = task.pass_index();
-  render_task.want_guides = task.want_guides();
-
+  if (setup.tables) setup.render_task.tables = &*setup.tables;
   const TileRenderer renderer(*cached.render);
-  TileStats stats;
   absl::StatusOr<image::TileResult> result = absl::UnknownError("not rendered");
   arena_.execute(
-      [&] { result = renderer.render(render_task, &stats, &held.cancel, &held.progress); });
+      [&] { result = renderer.render(setup.render_task, stats, &held.cancel, &held.progress); });
   PRISM_RETURN_IF_ERROR(result.status());
   *bytes = image::serialise_tile(*result);
-  *seconds = stats.seconds;
-  *rays = stats.counters.rays;
   return absl::OkStatus();
 }
 

@@ -4,11 +4,16 @@
 //
 // Per task: fetch the bundle by hash unless it is cached on disk, load the scene (named spectra
 // checked against the library), turn the task's JobSpec into RenderOptions (job_spec.h), build
-// the RenderScene (the last one is kept for the next task of the same job), render the tile and
-// sample range inside the arena, serialise it with the tile codec and upload it. A scene that
-// cannot be loaded, a spec that does not validate and a scene that cannot be built fail the task
-// as SCENE (the coordinator fails the job fast); anything else as WORKER, or INFRASTRUCTURE when
-// the coordinator could not be reached for the bundle.
+// the RenderScene at the film the task's pass renders (the job's resolution, or the smaller film
+// of an image-scaled prepass; the last scene is kept for the next task of the same job and
+// film), render the tile and sample range inside the arena, serialise it with the tile codec and
+// upload it with the task's event counters. Final-pass tasks (index 0) and prepass tasks
+// (index k >= 1: the hero tracer with 4 lanes, early stop when the task asks) are taken; a task
+// may carry its tile's per-pixel pdf tables. A scene that cannot be loaded, a spec that does not
+// validate and a scene that cannot be built fail the task as SCENE (the coordinator fails the
+// job fast); anything else as WORKER (a task this worker cannot run, such as a pdf table that
+// does not decode, or a tile outside its film), or INFRASTRUCTURE when the coordinator could not
+// be reached for the bundle.
 //
 // Heartbeats run on their own thread every heartbeat_interval_ms (from Register) and carry the
 // held lease. Directives: CANCEL_TASK sets the render's cancel flag (it stops between pixels and
@@ -42,6 +47,7 @@
 #include "worker/daemon/worker_client.h"
 #include "worker/embree_device.h"
 #include "worker/render_scene.h"
+#include "worker/tile_renderer.h"
 
 namespace prism::worker {
 
@@ -96,10 +102,10 @@ class WorkerDaemon {
   void heartbeat_loop();
   void send_heartbeat();
   void process(const v1::Lease& lease);
-  // Renders the lease's task into its canonical bytes; on failure, says how to classify it.
+  // Renders the lease's task into its canonical bytes and statistics; on failure, says how to
+  // classify it.
   absl::Status execute(const v1::Lease& lease, HeldLease& held, const std::string& context,
-                       std::string* bytes, double* seconds, std::uint64_t* rays,
-                       v1::FailureClass* failure_class);
+                       std::string* bytes, TileStats* stats, v1::FailureClass* failure_class);
   absl::StatusOr<std::filesystem::path> ensure_bundle(const std::string& hash,
                                                       const std::string& context);
   void fail(const std::string& lease_id, v1::FailureClass failure_class, const std::string& message,

@@ -16,7 +16,9 @@
 #include <condition_variable>
 #include <filesystem>
 #include <iostream>
+#include <map>
 #include <mutex>
+#include <optional>
 #include <thread>
 
 #include "coordinator/job_spec.h"
@@ -26,6 +28,7 @@
 #include "services/rpc/status_mapping.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
+#include "worker/testing/skewed_tables.h"
 #include "worker/tile_renderer.h"
 
 namespace prism::worker {
@@ -47,6 +50,8 @@ struct Upload {
   std::string sha256;
   std::uint64_t total_bytes = 0;
   std::string worker_id, lease_id;
+  std::uint64_t rays = 0;
+  std::map<std::string, std::uint64_t> counters;  // of the last chunk
 };
 
 class FakeCoordinator final : public v1::WorkerService::Service {
@@ -136,7 +141,11 @@ class FakeCoordinator final : public v1::WorkerService::Service {
       upload.chunk_sizes.push_back(chunk.data().size());
       upload.bytes += chunk.data();
       upload.total_bytes = chunk.total_bytes();
-      if (chunk.last()) upload.sha256 = chunk.sha256();
+      if (chunk.last()) {
+        upload.sha256 = chunk.sha256();
+        upload.rays = chunk.rays();
+        upload.counters.insert(chunk.counters().begin(), chunk.counters().end());
+      }
     }
     std::lock_guard<std::mutex> lock(mutex);
     uploads.push_back(std::move(upload));
@@ -317,16 +326,60 @@ class WorkerDaemonTest : public ::testing::Test {
     EXPECT_TRUE(loaded.ok()) << loaded.status();
     auto params = coordinator::job_parameters(lease.task().spec(), loaded->description);
     EXPECT_TRUE(params.ok()) << params.status();
-    auto scene = RenderScene::build(device_, loaded->description, *library_, params->render,
-                                    params->width, params->height);
-    EXPECT_TRUE(scene.ok()) << scene.status();
     const v1::Task& t = lease.task();
+    const int film_width = t.film_width() != 0 ? int(t.film_width()) : params->width;
+    const int film_height = t.film_height() != 0 ? int(t.film_height()) : params->height;
+    auto scene = RenderScene::build(device_, loaded->description, *library_, params->render,
+                                    film_width, film_height);
+    EXPECT_TRUE(scene.ok()) << scene.status();
     RenderTask task;
     task.tile = {t.tile().x0(), t.tile().y0(), t.tile().x1(), t.tile().y1()};
     task.samples = {t.samples().begin(), t.samples().end()};
+    task.pass = t.pass_index();
+    task.want_guides = t.want_guides();
+    task.prepass = t.pass() == v1::PASS_PREPASS;
+    task.early_stop = task.prepass && t.early_stop_prepass();
+    std::optional<spectral::PixelTables> tables;
+    if (t.has_pdf_table()) {
+      auto decoded =
+          spectral::PixelTables::decode(task.tile.width(), task.tile.height(),
+                                        int(t.pdf_table().cells()), t.pdf_table().quantised_cdf());
+      EXPECT_TRUE(decoded.ok()) << decoded.status();
+      tables.emplace(std::move(*decoded));
+      task.tables = &*tables;
+    }
     auto result = TileRenderer(**scene).render(task, nullptr);
     EXPECT_TRUE(result.ok()) << result.status();
     return image::serialise_tile(*result);
+  }
+
+  // A prepass-1 lease for `tile` of an 8x8 film (the job's is 16x16) with per-pixel tables over
+  // 24 cells (the job has 8 bins), guides and early stop.
+  v1::Lease make_prepass_lease(v1::TileRect tile) {
+    v1::Lease lease = make_lease(tile, 0, 6, 8);
+    v1::Task& task = *lease.mutable_task();
+    task.set_pass(v1::PASS_PREPASS);
+    task.set_pass_index(1);
+    task.set_film_width(8);
+    task.set_film_height(8);
+    task.set_want_guides(true);
+    task.set_early_stop_prepass(true);
+    const int width = tile.x1() - tile.x0(), height = tile.y1() - tile.y0();
+    task.mutable_pdf_table()->set_cells(24);
+    task.mutable_pdf_table()->set_quantised_cdf(
+        testing::skewed_table_bytes(width, height, 24, [](int x, int y) { return x == y; }));
+    return lease;
+  }
+
+  // Runs the worker on fake_.lease, which must fail; the failure.
+  v1::FailTaskRequest expect_failure() {
+    start_worker();
+    EXPECT_TRUE(fake_.wait([&] { return !fake_.failures.empty() || !fake_.uploads.empty(); }));
+    EXPECT_TRUE(stop_worker());
+    std::lock_guard<std::mutex> lock(fake_.mutex);
+    EXPECT_TRUE(fake_.uploads.empty());
+    EXPECT_EQ(fake_.failures.size(), 1u);
+    return fake_.failures.empty() ? v1::FailTaskRequest() : fake_.failures[0];
   }
 
   FakeCoordinator fake_;
@@ -557,6 +610,81 @@ TEST_F(WorkerDaemonTest, AResultLargerThanAChunkIsStreamedInMebibyteChunks) {
   EXPECT_EQ(upload.sha256, base::sha256_hex(upload.bytes));
   EXPECT_TRUE(image::parse_tile(upload.bytes).ok());
   EXPECT_TRUE(upload.bytes == render_in_process(fake_.lease));
+}
+
+// A prepass task: pass 1 on its own 8x8 film (not the job's 16x16), sampled from the tile's
+// pdf tables (24 cells for 8 bins), with guides and early stop; the upload is byte for byte the
+// in-process render of the same task, and carries the task's counters.
+TEST_F(WorkerDaemonTest, RendersAPrepassTaskWithPdfTablesOnItsFilm) {
+  fake_.lease = make_prepass_lease(rect(2, 1, 8, 8));
+  start_worker();
+  ASSERT_TRUE(fake_.wait([&] { return !fake_.uploads.empty() || !fake_.failures.empty(); }));
+  ASSERT_TRUE(stop_worker());
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  ASSERT_TRUE(fake_.failures.empty()) << fake_.failures[0].message();
+  ASSERT_EQ(fake_.uploads.size(), 1u);
+  const Upload& upload = fake_.uploads[0];
+  auto tile = image::parse_tile(upload.bytes);
+  ASSERT_TRUE(tile.ok()) << tile.status();
+  EXPECT_EQ(tile->rect(), (image::TileRect{2, 1, 8, 8}));
+  EXPECT_TRUE(tile->has_guides());
+  EXPECT_FALSE(tile->has_gradients());
+  EXPECT_TRUE(upload.bytes == render_in_process(fake_.lease));
+
+  // The pixels whose rows are all zero fell back earlier: the prepass skips them.
+  std::uint64_t samples = 0;
+  int skipped = 0;
+  for (std::uint64_t n : tile->counts()) {
+    samples += n;
+    if (n == 0) ++skipped;
+  }
+  EXPECT_GT(skipped, 0);
+  EXPECT_EQ(samples, (6u * 7u - skipped) * 6u);
+  EXPECT_EQ(upload.counters.at("camera_rays"), samples);
+  EXPECT_EQ(upload.counters.at("rays"), upload.rays);
+  EXPECT_GT(upload.rays, samples);
+  for (const auto& [name, value] : upload.counters) EXPECT_GT(value, 0u) << name;
+  EXPECT_EQ(upload.counters.count("gradient_events"), 0u);  // zero counters are left out
+  // The worker says it takes prepass tasks.
+  const auto& capabilities = fake_.registrations.at(0).capabilities();
+  EXPECT_NE(std::find(capabilities.begin(), capabilities.end(), "prepass"), capabilities.end());
+}
+
+TEST_F(WorkerDaemonTest, AMalformedPdfTableFailsTheTaskAsAWorkerFault) {
+  fake_.lease = make_prepass_lease(rect(0, 0, 4, 4));
+  v1::PdfTable& table = *fake_.lease.mutable_task()->mutable_pdf_table();
+  // Pixel (2, 1)'s CDF jumps to 65535 at its 4th value and falls back: not a valid table.
+  std::string bytes = table.quantised_cdf();
+  bytes[2 * 24 * 6 + 6] = char(0xff);
+  bytes[2 * 24 * 6 + 7] = char(0xff);
+  table.set_quantised_cdf(bytes);
+  const v1::FailTaskRequest failure = expect_failure();
+  EXPECT_EQ(failure.failure_class(), v1::FAILURE_CLASS_WORKER);
+  EXPECT_NE(failure.message().find("pdf table"), std::string::npos) << failure.message();
+}
+
+TEST_F(WorkerDaemonTest, APdfTableOfAnotherSizeFailsTheTaskAsAWorkerFault) {
+  fake_.lease = make_prepass_lease(rect(0, 0, 4, 4));
+  fake_.lease.mutable_task()->mutable_pdf_table()->set_cells(12);
+  const v1::FailTaskRequest failure = expect_failure();
+  EXPECT_EQ(failure.failure_class(), v1::FAILURE_CLASS_WORKER);
+  EXPECT_NE(failure.message().find("pdf table"), std::string::npos) << failure.message();
+}
+
+// The tile must lie in the film of its pass: 8x8 for this prepass, although the job's is 16x16.
+TEST_F(WorkerDaemonTest, ATileOutsideItsPassFilmFailsTheTaskAsAWorkerFault) {
+  fake_.lease = make_prepass_lease(rect(4, 4, 12, 8));
+  const v1::FailTaskRequest failure = expect_failure();
+  EXPECT_EQ(failure.failure_class(), v1::FAILURE_CLASS_WORKER);
+  EXPECT_NE(failure.message().find("outside the 8x8 film"), std::string::npos) << failure.message();
+}
+
+TEST_F(WorkerDaemonTest, APrepassTaskWithIndexZeroFailsTheTaskAsAWorkerFault) {
+  fake_.lease = make_prepass_lease(rect(0, 0, 4, 4));
+  fake_.lease.mutable_task()->set_pass_index(0);
+  const v1::FailTaskRequest failure = expect_failure();
+  EXPECT_EQ(failure.failure_class(), v1::FAILURE_CLASS_WORKER);
+  EXPECT_NE(failure.message().find("PASS_PREPASS"), std::string::npos) << failure.message();
 }
 
 #ifdef PRISM_WORKER_BINARY
