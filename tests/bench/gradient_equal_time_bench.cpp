@@ -232,7 +232,7 @@ int run(int argc, char** argv) {
       std::printf("; inset %d,%d %dx%d, its relMSE floor %.4g", inset->x, inset->y, inset->w,
                   inset->h, regions[1].floor);
     }
-    std::printf("\n\n| method | spp | %s s | CPU s |", setup.cpu_clock ? "CPU (clock)" : "wall");
+    std::printf("\n\n| method | spp | wall s | CPU s |");
     for (const Region& region : regions) {
       std::printf(" %s relMSE | - floor | ratio vs uniform at equal time |", region.name.c_str());
     }

@@ -26,10 +26,12 @@
 // Usage: prism-bench-prepass-equal-time [scene.pbrt] [--resolution 160x120 (the scene's)]
 //          [--budgets 10,40] [--reference-spp 4096] [--cache-dir DIR] [--threads N]
 //          [--max-depth D] [--repeats R] [--medium-inset x,y,w,h] [--dispersion-inset x,y,w,h]
-//          [--prepass-spp 128] [--prepass-passes 2] [--clock wall|cpu] [--csv path]
+//          [--prepass-spp 128] [--prepass-passes 2] [--prepass-epsilon 0.05] [--map 8x6|none]
+//          [--clock wall|cpu] [--csv path]
 // The insets default to three-emitters.pbrt's at 160x120 (medium 36,58,24,22: the dyed block's
 // front face; dispersion 94,54,44,48: the sphere and its caustic), scaled with --resolution;
-// give "none" to leave one out.
+// give "none" to leave one out. --map CxR also prints the prepass's error ratio to the mixture on
+// a grid of C x R cells, to show where it wins and where it loses.
 #include <tbb/info.h>
 
 #include <algorithm>
@@ -120,7 +122,8 @@ struct Measurement {
   double cpu = 0;
   double prepass = 0;
   double fallback = 0;
-  std::vector<double> mse;  // per region
+  std::vector<double> mse;       // per region
+  std::vector<double> cell_mse;  // per cell of the ratio map
 };
 
 int fail(const absl::Status& status) {
@@ -159,11 +162,11 @@ absl::StatusOr<std::optional<image::Crop>> inset(const Flags& flags, const std::
 }
 
 int run(int argc, char** argv) {
-  auto flags =
-      parse_flags(argc, argv,
-                  {"--resolution", "--budgets", "--reference-spp", "--cache-dir", "--threads",
-                   "--max-depth", "--repeats", "--medium-inset", "--dispersion-inset",
-                   "--prepass-spp", "--prepass-passes", "--clock", "--csv"});
+  auto flags = parse_flags(
+      argc, argv,
+      {"--resolution", "--budgets", "--reference-spp", "--cache-dir", "--threads", "--max-depth",
+       "--repeats", "--medium-inset", "--dispersion-inset", "--prepass-spp", "--prepass-passes",
+       "--prepass-epsilon", "--map", "--clock", "--csv"});
   if (!flags.ok()) return fail(flags.status());
   const std::filesystem::path scene_path = flags->positional.empty()
                                                ? source_path("scenes/three-emitters.pbrt")
@@ -181,9 +184,11 @@ int run(int argc, char** argv) {
   auto prepass_spp = flags->number("--prepass-spp", 128, 1, 1 << 20);
   auto prepass_passes =
       flags->number("--prepass-passes", 2, 1, coordinator::PrepassParameters::kMaxPasses);
+  auto prepass_epsilon = flags->number("--prepass-epsilon", 0.05, 1e-6, 1 - 1e-6);
   for (const absl::Status& s :
        {size.status(), budgets.status(), reference_spp.status(), threads.status(),
-        max_depth.status(), repeats.status(), prepass_spp.status(), prepass_passes.status()}) {
+        max_depth.status(), repeats.status(), prepass_spp.status(), prepass_passes.status(),
+        prepass_epsilon.status()}) {
     if (!s.ok()) return fail(s);
   }
   Setup setup;
@@ -194,6 +199,7 @@ int run(int argc, char** argv) {
   setup.bins = description.film.bins.value_or(64);
   setup.prepass.spp = std::uint32_t(*prepass_spp);
   setup.prepass.passes = int(*prepass_passes);
+  setup.prepass.epsilon = *prepass_epsilon;
   std::vector<Region> regions{{"whole image", std::nullopt}};
   auto medium = inset(*flags, "--medium-inset", {36, 58, 24, 22}, setup);
   auto dispersion = inset(*flags, "--dispersion-inset", {94, 54, 44, 48}, setup);
@@ -206,6 +212,22 @@ int run(int argc, char** argv) {
     return fail(absl::InvalidArgumentError("--clock: want wall or cpu"));
   }
   const bool cpu_clock = clock == "cpu";
+  // The ratio map: the film cut into columns x rows cells (the last ones take the remainder).
+  std::vector<Region> cells;
+  int map_columns = 0;
+  if (const std::string map = flags->get("--map", "8x6"); map != "none") {
+    auto grid = parse_size(map);
+    if (!grid.ok()) return fail(grid.status());
+    map_columns = std::min(grid->first, setup.width);
+    const int map_rows = std::min(grid->second, setup.height);
+    for (int j = 0; j < map_rows; ++j) {
+      for (int i = 0; i < map_columns; ++i) {
+        const int x0 = i * setup.width / map_columns, x1 = (i + 1) * setup.width / map_columns;
+        const int y0 = j * setup.height / map_rows, y1 = (j + 1) * setup.height / map_rows;
+        cells.push_back({absl::StrCat(i, ",", j), image::Crop{x0, y0, x1 - x0, y1 - y0}});
+      }
+    }
+  }
   const std::filesystem::path cache_dir =
       flags->get("--cache-dir", std::filesystem::temp_directory_path().string());
   std::ofstream csv;
@@ -223,10 +245,12 @@ int run(int argc, char** argv) {
   auto reference = cached_reference(device, *scene, scene_path, reference_options, cache_dir,
                                     "prepass-equal-time");
   if (!reference.ok()) return fail(reference.status());
-  for (Region& region : regions) {
-    auto floor = reference->floor(region.crop);
-    if (!floor.ok()) return fail(floor.status());
-    region.floor = floor->mse;
+  for (std::vector<Region>* list : {&regions, &cells}) {
+    for (Region& region : *list) {
+      auto floor = reference->floor(region.crop);
+      if (!floor.ok()) return fail(floor.status());
+      region.floor = floor->mse;
+    }
   }
 
   // Calibration: time a render long enough (a tenth of the smallest budget) that start-up costs
@@ -283,6 +307,7 @@ int run(int argc, char** argv) {
       result.spp = std::max<std::uint64_t>(
           1, std::uint64_t(std::max(0.0, budget - cost.prepass) / cost.per_spp));
       result.mse.assign(regions.size(), 0.0);
+      result.cell_mse.assign(cells.size(), 0.0);
       const int count = int(*repeats);
       for (int seed = 1; seed <= count; ++seed) {
         auto timed =
@@ -301,6 +326,12 @@ int run(int argc, char** argv) {
               image::compare_spectral(timed->result.image, reference->image, regions[r].crop);
           if (!metrics.ok()) return fail(metrics.status());
           result.mse[r] += metrics->mse / count;
+        }
+        for (std::size_t c = 0; c < cells.size(); ++c) {
+          auto metrics =
+              image::compare_spectral(timed->result.image, reference->image, cells[c].crop);
+          if (!metrics.ok()) return fail(metrics.status());
+          result.cell_mse[c] += metrics->mse / count;
         }
       }
       std::fprintf(stderr, "budget %.0f s, %s: %llu spp, %.2f s\n", budget, method.name,
@@ -345,6 +376,26 @@ int run(int argc, char** argv) {
                     e > 0 && b > 0 ? absl::StrFormat("%.3f", e / b).c_str() : "n/a");
       }
       std::printf(" %.4g |\n", row.mse[0] * row.seconds);
+    }
+    if (!cells.empty()) {
+      // Where the prepass wins and loses: its (MSE − floor) over the mixture's, per cell.
+      std::printf("\nprepass / emitter mixture, (MSE - floor) per cell:\n\n| |");
+      for (int i = 0; i < map_columns; ++i) {
+        const image::Crop& crop = *cells[std::size_t(i)].crop;
+        std::printf(" x %d-%d |", crop.x, crop.x + crop.w - 1);
+      }
+      std::printf("\n|---|");
+      for (int i = 0; i < map_columns; ++i) std::printf("---|");
+      for (std::size_t c = 0; c < cells.size(); ++c) {
+        const image::Crop& crop = *cells[c].crop;
+        if (c % std::size_t(map_columns) == 0) {
+          std::printf("\n| y %d-%d |", crop.y, crop.y + crop.h - 1);
+        }
+        const double e = measurements[1].cell_mse[c] - cells[c].floor;
+        const double b = baseline.cell_mse[c] - cells[c].floor;
+        std::printf(" %s |", e > 0 && b > 0 ? absl::StrFormat("%.2f", e / b).c_str() : "n/a");
+      }
+      std::printf("\n");
     }
     std::fflush(stdout);
   }
