@@ -1,0 +1,194 @@
+#include "tests/bench/equal_time.h"
+
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <charconv>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <numeric>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+#include "coordinator/outputs.h"
+#include "services/base/atomic_file.h"
+#include "services/base/sha256.h"
+#include "services/base/status.h"
+#include "services/image/exr_spectral.h"
+
+namespace prism::bench {
+namespace {
+
+double mean_of(const std::vector<double>& v) {
+  return v.empty() ? 0.0 : std::accumulate(v.begin(), v.end(), 0.0) / double(v.size());
+}
+
+// Everything about the reference render that changes its pixels.
+std::string describe(const coordinator::LocalRenderOptions& o) {
+  const worker::RenderOptions& r = o.render;
+  return absl::StrCat(o.width, "x", o.height, "|spp ", o.spp, "|", worker::name(r.integrator), "|",
+                      worker::name(r.spectral_pdf), "|", worker::name(r.emitter_pdf), "|",
+                      worker::name(r.light_selection), "|", r.spectral_light_selection, "|",
+                      static_cast<int>(r.sampler), "|bins ", r.bins, "|depth ", r.max_depth, "|rr ",
+                      r.rr_min_depth, "|seed ", r.seed, "|eps ", r.defensive_epsilon);
+}
+
+absl::Status write_image(const std::filesystem::path& path, const image::SpectralImage& image,
+                         const image::ExrMetadata& metadata) {
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, coordinator::to_linear_srgb(image, cmf));
+  return image::write_spectral_exr(path, image, rgb, metadata);
+}
+
+}  // namespace
+
+double process_cpu_seconds() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return double(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
+         1e-6 * double(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
+}
+
+absl::StatusOr<TimedRender> timed_render(worker::EmbreeDevice& device,
+                                         const LoadedBenchScene& scene,
+                                         const coordinator::LocalRenderOptions& options) {
+  PRISM_ASSIGN_OR_RETURN(auto renderer, coordinator::LocalRender::create(device, scene.description,
+                                                                         *scene.library, options));
+  const double cpu_start = process_cpu_seconds();
+  const auto wall_start = std::chrono::steady_clock::now();
+  absl::StatusOr<coordinator::LocalRenderResult> result = renderer->render();
+  const double wall =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  const double cpu = process_cpu_seconds() - cpu_start;
+  if (!result.ok()) return result.status();
+  return TimedRender{*std::move(result), wall, cpu};
+}
+
+absl::StatusOr<image::ErrorMetrics> Reference::floor(const std::optional<image::Crop>& crop) const {
+  return image::compare_spectral(half, image, crop);
+}
+
+absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device,
+                                           const LoadedBenchScene& scene,
+                                           const std::filesystem::path& scene_path,
+                                           const coordinator::LocalRenderOptions& options,
+                                           const std::filesystem::path& cache_dir,
+                                           const std::string& tag) {
+  PRISM_ASSIGN_OR_RETURN(std::string scene_text, base::read_file(scene_path));
+  const std::string key =
+      base::sha256_hex(absl::StrCat(scene_text, "|", describe(options))).substr(0, 16);
+  const std::filesystem::path average_path =
+      cache_dir / absl::StrCat("prism-bench-", tag, "-reference-", key, ".exr");
+  const std::filesystem::path half_path =
+      cache_dir / absl::StrCat("prism-bench-", tag, "-reference-", key, ".half.exr");
+  if (std::filesystem::exists(average_path) && std::filesystem::exists(half_path)) {
+    PRISM_ASSIGN_OR_RETURN(image::SpectralExr average, image::read_spectral_exr(average_path));
+    PRISM_ASSIGN_OR_RETURN(image::SpectralExr half, image::read_spectral_exr(half_path));
+    auto seconds = average.metadata.find("reference_seconds");
+    auto variance = average.metadata.find("reference_variance_of_mean");
+    if (seconds != average.metadata.end() && variance != average.metadata.end()) {
+      std::fprintf(stderr, "%s: reference %s cached in %s\n", tag.c_str(), scene.name.c_str(),
+                   average_path.c_str());
+      return Reference{std::move(average.spectral), std::move(half.spectral), options.spp,
+                       std::stod(seconds->second), std::stod(variance->second)};
+    }
+  }
+  if (options.spp < 2) {
+    return absl::InvalidArgumentError("a reference needs at least 2 spp (two halves)");
+  }
+  std::fprintf(stderr, "%s: rendering the reference of %s, %llu spp in two halves (cached in %s)\n",
+               tag.c_str(), scene.name.c_str(), static_cast<unsigned long long>(options.spp),
+               average_path.c_str());
+  coordinator::LocalRenderOptions half_options = options;
+  half_options.spp = options.spp / 2;
+  PRISM_ASSIGN_OR_RETURN(TimedRender a, timed_render(device, scene, half_options));
+  half_options.render.seed = options.render.seed + 1;
+  PRISM_ASSIGN_OR_RETURN(TimedRender b, timed_render(device, scene, half_options));
+
+  image::SpectralImage average = a.result.image;
+  std::span<float> out = average.data();
+  std::span<const float> other = b.result.image.data();
+  for (std::size_t i = 0; i < out.size(); ++i) out[i] = 0.5f * (out[i] + other[i]);
+  const double variance = 0.25 * (mean_of(a.result.statistics.variance_of_mean) +
+                                  mean_of(b.result.statistics.variance_of_mean));
+  const double seconds = a.wall_seconds + b.wall_seconds;
+  Reference reference{std::move(average), std::move(a.result.image), 2 * half_options.spp, seconds,
+                      variance};
+  const image::ExrMetadata metadata{
+      {"spp", absl::StrCat(reference.spp)},
+      {"reference_seconds", absl::StrFormat("%.17g", seconds)},
+      {"reference_variance_of_mean", absl::StrFormat("%.17g", variance)},
+      {"reference_options", describe(options)}};
+  std::error_code ec;
+  std::filesystem::create_directories(cache_dir, ec);
+  if (ec) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("cannot create the cache directory ", cache_dir.string(), ": ", ec.message()));
+  }
+  // The half first: a crash between the two writes leaves no average, so nothing half-made is
+  // ever taken from the cache.
+  PRISM_RETURN_IF_ERROR(write_image(half_path, reference.half, {}));
+  PRISM_RETURN_IF_ERROR(write_image(average_path, reference.image, metadata));
+  std::fprintf(stderr, "%s: reference %s took %.1f s\n", tag.c_str(), scene.name.c_str(), seconds);
+  return reference;
+}
+
+std::optional<double> error_at_time(std::span<const ConvergencePoint> points, double t,
+                                    bool* extrapolated) {
+  std::vector<ConvergencePoint> usable;
+  for (const ConvergencePoint& p : points) {
+    if (p.error > 0 && p.seconds > 0 && std::isfinite(p.error)) usable.push_back(p);
+  }
+  if (usable.empty() || !(t > 0)) return std::nullopt;
+  std::sort(usable.begin(), usable.end(), [](const ConvergencePoint& a, const ConvergencePoint& b) {
+    return a.seconds < b.seconds;
+  });
+  if (extrapolated != nullptr) *extrapolated = false;
+  if (t <= usable.front().seconds || t >= usable.back().seconds) {
+    const ConvergencePoint& p = t <= usable.front().seconds ? usable.front() : usable.back();
+    if (extrapolated != nullptr) *extrapolated = t != p.seconds;
+    return p.error * p.seconds / t;
+  }
+  for (std::size_t i = 1; i < usable.size(); ++i) {
+    const ConvergencePoint& lo = usable[i - 1];
+    const ConvergencePoint& hi = usable[i];
+    if (t > hi.seconds) continue;
+    if (hi.seconds == lo.seconds) return std::sqrt(lo.error * hi.error);
+    const double f = std::log(t / lo.seconds) / std::log(hi.seconds / lo.seconds);
+    return std::exp(std::log(lo.error) + f * std::log(hi.error / lo.error));
+  }
+  return usable.back().error;
+}
+
+absl::StatusOr<image::Crop> parse_crop(const std::string& text) {
+  std::vector<std::string> parts = absl::StrSplit(text, ',');
+  int v[4] = {0, 0, 0, 0};
+  bool ok = parts.size() == 4;
+  for (std::size_t i = 0; ok && i < 4; ++i) {
+    auto [end, ec] = std::from_chars(parts[i].data(), parts[i].data() + parts[i].size(), v[i]);
+    ok = ec == std::errc() && end == parts[i].data() + parts[i].size() && v[i] >= 0;
+  }
+  if (!ok || v[2] < 1 || v[3] < 1) {
+    return absl::InvalidArgumentError(absl::StrCat("crop '", text, "': want x,y,w,h"));
+  }
+  return image::Crop{v[0], v[1], v[2], v[3]};
+}
+
+absl::StatusOr<std::vector<std::uint64_t>> parse_spp_list(const std::string& text) {
+  std::vector<std::uint64_t> out;
+  for (absl::string_view part : absl::StrSplit(text, ',')) {
+    std::uint64_t value = 0;
+    auto [end, ec] = std::from_chars(part.data(), part.data() + part.size(), value);
+    if (ec != std::errc() || end != part.data() + part.size() || value < 1 ||
+        (!out.empty() && value <= out.back())) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("spp list '", text, "': want increasing positive integers, e.g. 8,16,32"));
+    }
+    out.push_back(value);
+  }
+  return out;
+}
+
+}  // namespace prism::bench

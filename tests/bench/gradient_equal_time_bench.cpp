@@ -1,0 +1,287 @@
+// prism-bench-gradient-equal-time: spectral gradient sampling (algorithms.md §5) against the
+// `uniform` and `hero` integrators at equal time, on the three gradient evaluation scenes
+// (scenes/README.md): a smooth dispersive caustic, a diffuse object inside smooth dispersive
+// glass, and rough dispersive glass under coloured lamps. The gradient paper reports clear gains
+// where hero cannot help (smooth dispersive glass, where only the hero wavelength survives) and
+// near parity on rough glass.
+//
+// For each scene: a reference (`uniform`, independent samples, many spp, two halves; cached in
+// --cache-dir, see equal_time.h), then for each method the same increasing sequence of spp, each
+// render timed (LocalRender::render(), which for `gradient` includes the per-tile Poisson
+// reconstruction) and compared with the reference: relMSE over all pixels and bins
+// (image::compare_spectral, as `prism compare`). The reference's own noise adds its floor to
+// every relMSE; the table shows relMSE minus that floor too, and the ratios use it. Equal time:
+// each row's ratio divides its relMSE by the uniform curve's relMSE interpolated (log-log) at the
+// row's time, and a summary per scene compares the three curves at the time of uniform's
+// longest run. With --inset, the same figures over that rect too (one rect for every scene
+// given, so it is meant for one scene at a time, e.g. the caustic). Nothing is asserted.
+//
+// Usage: prism-bench-gradient-equal-time [scene.pbrt ...] [--resolution 80x60]
+//          [--spp 16,32,64,128,256] [--reference-spp 16384] [--cache-dir DIR] [--threads N]
+//          [--bins B (the scene's)] [--max-depth D (the scene's)] [--delta 0.15] [--tau 0]
+//          [--alpha 0.2] [--clock wall|cpu] [--inset x,y,w,h]
+//          [--csv path (scene,method,spp,seconds,relmse; relMSE of the whole image)]
+#include <tbb/info.h>
+
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <map>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "services/base/status.h"
+#include "tests/bench/bench_common.h"
+#include "tests/bench/equal_time.h"
+
+namespace prism::bench {
+namespace {
+
+struct Setup {
+  int width = 80, height = 60;
+  int threads = 1;
+  int bins = -1;       // -1: the scene's
+  int max_depth = -1;  // -1: the scene's
+  double delta = 0.15;
+  double tau = 0;
+  double alpha = coordinator::kDefaultPoissonAlpha;
+  bool cpu_clock = false;
+};
+
+struct Method {
+  const char* name;
+  worker::IntegratorKind integrator;
+};
+constexpr Method kMethods[] = {{"uniform", worker::IntegratorKind::kUniform},
+                               {"hero", worker::IntegratorKind::kHero},
+                               {"gradient", worker::IntegratorKind::kGradient}};
+
+absl::StatusOr<coordinator::LocalRenderOptions> options_for(const Setup& setup,
+                                                            const LoadedBenchScene& scene,
+                                                            worker::IntegratorKind integrator,
+                                                            std::uint64_t spp, std::uint64_t seed) {
+  coordinator::LocalRenderOptions o;
+  o.render.integrator = integrator;
+  o.render.bins = setup.bins > 0 ? setup.bins : scene.description.film.bins.value_or(64);
+  o.render.max_depth =
+      setup.max_depth >= 0 ? setup.max_depth : scene.description.integrator.max_depth;
+  o.render.seed = seed;
+  PRISM_ASSIGN_OR_RETURN(o.render.gradient_offset_bins,
+                         worker::gradient_offset_bins(setup.delta, o.render.bins));
+  o.render.gradient_tau = float(setup.tau);
+  o.poisson_alpha = setup.alpha;
+  o.poisson_norm = coordinator::PoissonNorm::kL2;
+  o.width = setup.width;
+  o.height = setup.height;
+  o.spp = spp;
+  o.threads = setup.threads;
+  return o;
+}
+
+struct Row {
+  const char* method;
+  std::uint64_t spp = 0;
+  double wall = 0;
+  double cpu = 0;
+  std::vector<double> rel_mse;  // per region
+  double seconds(const Setup& setup) const { return setup.cpu_clock ? cpu : wall; }
+};
+
+// The whole image or an inset, with the reference's floor over it and each method's curve of
+// relMSE − floor.
+struct Region {
+  std::string name;
+  std::optional<image::Crop> crop;
+  double floor = 0;
+  double mse_floor = 0;
+  std::map<std::string, std::vector<ConvergencePoint>> curves;
+};
+
+int fail(const absl::Status& status) {
+  std::cerr << "prism-bench-gradient-equal-time: " << status.message() << "\n";
+  return 1;
+}
+
+std::string ratio_text(std::optional<double> value, bool extrapolated) {
+  if (!value.has_value()) return "n/a";
+  return absl::StrFormat("%.3f%s", *value, extrapolated ? "*" : "");
+}
+
+int run(int argc, char** argv) {
+  auto flags =
+      parse_flags(argc, argv,
+                  {"--resolution", "--spp", "--reference-spp", "--cache-dir", "--threads", "--bins",
+                   "--max-depth", "--delta", "--tau", "--alpha", "--clock", "--csv", "--inset"});
+  if (!flags.ok()) return fail(flags.status());
+  auto size = parse_size(flags->get("--resolution", "80x60"));
+  auto spp_list = parse_spp_list(flags->get("--spp", "16,32,64,128,256"));
+  auto reference_spp = flags->number("--reference-spp", 16384, 2, 1 << 26);
+  auto threads = flags->number("--threads", tbb::info::default_concurrency(), 1, 4096);
+  auto bins = flags->number("--bins", -1, -1, 256);
+  auto max_depth = flags->number("--max-depth", -1, -1, 1000);
+  auto delta = flags->number("--delta", 0.15, 0, 0.5);
+  auto tau = flags->number("--tau", 0, 0, 1e30);
+  auto alpha = flags->number("--alpha", coordinator::kDefaultPoissonAlpha, 1e-9, 1e9);
+  for (const absl::Status& s :
+       {size.status(), spp_list.status(), reference_spp.status(), threads.status(), bins.status(),
+        max_depth.status(), delta.status(), tau.status(), alpha.status()}) {
+    if (!s.ok()) return fail(s);
+  }
+  const std::string clock = flags->get("--clock", "wall");
+  if (clock != "wall" && clock != "cpu") {
+    return fail(absl::InvalidArgumentError("--clock: want wall or cpu"));
+  }
+  Setup setup;
+  setup.width = size->first;
+  setup.height = size->second;
+  setup.threads = int(*threads);
+  setup.bins = int(*bins);
+  setup.max_depth = int(*max_depth);
+  setup.delta = *delta;
+  setup.tau = *tau;
+  setup.alpha = *alpha;
+  setup.cpu_clock = clock == "cpu";
+  std::optional<image::Crop> inset;
+  if (!flags->get("--inset", "").empty()) {
+    auto crop = parse_crop(flags->get("--inset", ""));
+    if (!crop.ok()) return fail(crop.status());
+    auto rect = image::crop_rect(*crop, setup.width, setup.height);
+    if (!rect.ok()) return fail(rect.status());
+    inset = *crop;
+  }
+  const std::filesystem::path cache_dir =
+      flags->get("--cache-dir", std::filesystem::temp_directory_path().string());
+  std::vector<std::string> scenes = flags->positional;
+  if (scenes.empty()) {
+    scenes = {source_path("scenes/dispersive-caustic.pbrt").string(),
+              source_path("scenes/glass-enclosed.pbrt").string(),
+              source_path("scenes/rough-glass-caustics.pbrt").string()};
+  }
+  std::ofstream csv;
+  const std::string csv_path = flags->get("--csv", "");
+  if (!csv_path.empty()) {
+    csv.open(csv_path);
+    if (!csv) return fail(absl::InvalidArgumentError(absl::StrCat("cannot write ", csv_path)));
+    csv << "scene,method,spp,seconds,relmse\n";
+  }
+
+  worker::EmbreeDevice device;
+  std::printf(
+      "%dx%d, %d threads, spp %s, reference %.0f spp (uniform, independent samples), "
+      "gradient delta %.3g tau %.3g alpha %.3g L2, %s clock\n",
+      setup.width, setup.height, setup.threads, flags->get("--spp", "16,32,64,128,256").c_str(),
+      *reference_spp, setup.delta, setup.tau, setup.alpha, clock.c_str());
+  for (const std::string& path : scenes) {
+    auto scene = load_bench_scene(path);
+    if (!scene.ok()) return fail(scene.status());
+    auto reference_options = options_for(setup, *scene, worker::IntegratorKind::kUniform,
+                                         std::uint64_t(*reference_spp), 0x5eed);
+    if (!reference_options.ok()) return fail(reference_options.status());
+    reference_options->render.sampler = worker::SamplerKind::kIndependent;
+    auto reference = cached_reference(device, *scene, path, *reference_options, cache_dir,
+                                      "gradient-equal-time");
+    if (!reference.ok()) return fail(reference.status());
+    std::vector<Region> regions(1);
+    regions[0].name = "image";
+    if (inset.has_value()) {
+      regions.emplace_back();
+      regions[1].name = "inset";
+      regions[1].crop = inset;
+    }
+    for (Region& region : regions) {
+      auto floor = reference->floor(region.crop);
+      if (!floor.ok()) return fail(floor.status());
+      region.floor = floor->rel_mse;
+      region.mse_floor = floor->mse;
+    }
+
+    std::vector<Row> rows;
+    for (const Method& method : kMethods) {
+      for (std::uint64_t spp : *spp_list) {
+        auto options = options_for(setup, *scene, method.integrator, spp, 1);
+        if (!options.ok()) return fail(options.status());
+        auto timed = timed_render(device, *scene, *options);
+        if (!timed.ok()) return fail(timed.status());
+        Row row{method.name, spp, timed->wall_seconds, timed->cpu_seconds, {}};
+        for (Region& region : regions) {
+          auto metrics =
+              image::compare_spectral(timed->result.image, reference->image, region.crop);
+          if (!metrics.ok()) return fail(metrics.status());
+          row.rel_mse.push_back(metrics->rel_mse);
+          region.curves[method.name].push_back(
+              {spp, row.seconds(setup), metrics->rel_mse - region.floor});
+        }
+        rows.push_back(row);
+        if (csv.is_open()) {
+          csv << scene->name << "," << method.name << "," << spp << ","
+              << absl::StrFormat("%.6g", row.seconds(setup)) << ","
+              << absl::StrFormat("%.6g", row.rel_mse[0]) << "\n";
+        }
+        std::fprintf(stderr, "%s %s %llu spp: %.2f s, relMSE %.4g\n", scene->name.c_str(),
+                     method.name, static_cast<unsigned long long>(spp), row.seconds(setup),
+                     row.rel_mse[0]);
+      }
+    }
+
+    std::printf(
+        "\n%s: reference %llu spp (%.0f s), its relMSE floor %.4g (MSE floor %.4g; s^2/n "
+        "estimate %.4g)",
+        scene->name.c_str(), static_cast<unsigned long long>(reference->spp), reference->seconds,
+        regions[0].floor, regions[0].mse_floor, reference->variance_of_mean);
+    if (inset.has_value()) {
+      std::printf("; inset %d,%d %dx%d, its relMSE floor %.4g", inset->x, inset->y, inset->w,
+                  inset->h, regions[1].floor);
+    }
+    std::printf("\n\n| method | spp | wall s | CPU s |");
+    for (const Region& region : regions) {
+      std::printf(" %s relMSE | - floor | ratio vs uniform at equal time |", region.name.c_str());
+    }
+    std::printf("\n|---|---|---|---|");
+    for (std::size_t r = 0; r < regions.size(); ++r) std::printf("---|---|---|");
+    std::printf("\n");
+    for (const Row& row : rows) {
+      std::printf("| %s | %llu | %.2f | %.2f |", row.method,
+                  static_cast<unsigned long long>(row.spp), row.wall, row.cpu);
+      for (std::size_t r = 0; r < regions.size(); ++r) {
+        const double e = row.rel_mse[r] - regions[r].floor;
+        bool extrapolated = false;
+        auto uniform =
+            error_at_time(regions[r].curves["uniform"], row.seconds(setup), &extrapolated);
+        std::optional<double> ratio;
+        if (uniform.has_value() && e > 0) ratio = e / *uniform;
+        std::printf(" %.4g | %.4g | %s |", row.rel_mse[r], e,
+                    ratio_text(ratio, extrapolated).c_str());
+      }
+      std::printf("\n");
+    }
+    // The three curves at the time of uniform's longest run.
+    for (Region& region : regions) {
+      double t = 0;
+      for (const ConvergencePoint& p : region.curves["uniform"]) t = std::max(t, p.seconds);
+      auto u = error_at_time(region.curves["uniform"], t);
+      std::printf("\n%s at %.2f s (uniform's longest run), relMSE - floor:", region.name.c_str(),
+                  t);
+      for (const Method& method : kMethods) {
+        bool extrapolated = false;
+        auto e = error_at_time(region.curves[method.name], t, &extrapolated);
+        std::optional<double> ratio;
+        if (e.has_value() && u.has_value()) ratio = *e / *u;
+        std::printf(" %s %s (ratio %s);", method.name,
+                    e.has_value() ? absl::StrFormat("%.4g", *e).c_str() : "n/a",
+                    ratio_text(ratio, extrapolated).c_str());
+      }
+    }
+    std::printf(
+        "\n(* extrapolated from the nearest run with error proportional to 1/time; n/a where "
+        "relMSE is at or below the reference floor)\n");
+    std::fflush(stdout);
+  }
+  return 0;
+}
+
+}  // namespace
+}  // namespace prism::bench
+
+int main(int argc, char** argv) {
+  return prism::bench::run(argc, argv);
+}
