@@ -37,29 +37,41 @@ void append_pixel_table(std::span<const std::uint16_t> cdf, std::string& out);
 // Appends the all-zero row of a pixel that uses the job's default distribution.
 void append_default_pixel(int cells, std::string& out);
 
-// One pixel's wavelength density as an integrator uses it: the job's default distribution or
+// One pixel's wavelength density as an integrator uses it: the job's default distribution, or
 // the pixel's decoded table, behind one trivially copyable value (so a trace function can take
 // it by value whichever it is). Converts implicitly from a WavelengthDistribution, so code that
-// passes the job's distribution keeps compiling. The referenced object must outlive the view.
+// passes the job's distribution keeps compiling. A table alone is uniform inside its cells; a
+// table with `within` (what PixelTables::view gives: the job's default distribution) has the
+// table's cell masses and within's shape inside each cell
+// (QuantisedWavelengthCdf::sample_within), so a table learned per bin keeps the emitters' lines.
+// The referenced objects must outlive the view.
 class WavelengthPdfView {
  public:
   WavelengthPdfView(const WavelengthDistribution& distribution)  // NOLINT: implicit on purpose
       : distribution_(&distribution) {}
   explicit WavelengthPdfView(const QuantisedWavelengthCdf& table) : table_(&table) {}
+  WavelengthPdfView(const QuantisedWavelengthCdf& table, const WavelengthDistribution& within)
+      : distribution_(&within), table_(&table) {}
 
   WavelengthSample sample(double u) const {
-    return table_ != nullptr ? table_->sample(u) : distribution_->sample(u);
+    if (table_ == nullptr) return distribution_->sample(u);
+    return distribution_ != nullptr ? table_->sample_within(u, *distribution_) : table_->sample(u);
   }
   float pdf(float lambda_nm) const {
-    return table_ != nullptr ? table_->pdf(lambda_nm) : distribution_->pdf(lambda_nm);
+    if (table_ == nullptr) return distribution_->pdf(lambda_nm);
+    return distribution_ != nullptr ? table_->pdf_within(lambda_nm, *distribution_)
+                                    : table_->pdf(lambda_nm);
   }
   double cdf(float lambda_nm) const {
-    return table_ != nullptr ? table_->cdf(lambda_nm) : distribution_->cdf(lambda_nm);
+    if (table_ == nullptr) return distribution_->cdf(lambda_nm);
+    return distribution_ != nullptr ? table_->cdf_within(lambda_nm, *distribution_)
+                                    : table_->cdf(lambda_nm);
   }
-  // CMIS lanes (algorithms.md §2), exactly as the underlying distribution's sample_lanes.
+  // CMIS lanes (algorithms.md §2), exactly as the underlying density's sample_lanes.
   SampledWavelengths sample_lanes(double u, int lanes) const {
-    return table_ != nullptr ? table_->sample_lanes(u, lanes)
-                             : distribution_->sample_lanes(u, lanes);
+    if (table_ == nullptr) return distribution_->sample_lanes(u, lanes);
+    return distribution_ != nullptr ? table_->sample_lanes_within(u, lanes, *distribution_)
+                                    : table_->sample_lanes(u, lanes);
   }
   bool is_pixel_table() const { return table_ != nullptr; }
 
@@ -95,11 +107,12 @@ class PixelTables {
     return t ? &*t : nullptr;
   }
   bool uses_default(int x, int y) const { return table(x, y) == nullptr; }
-  // The density tile-local pixel (x, y) samples with: its table, or `job_default` (the
-  // RenderScene's wavelength_pdf()) when it has none.
+  // The density tile-local pixel (x, y) samples with: its table's cell masses with
+  // `job_default`'s shape inside each cell, or `job_default` (the RenderScene's
+  // wavelength_pdf()) when it has none.
   WavelengthPdfView view(int x, int y, const WavelengthDistribution& job_default) const {
     const QuantisedWavelengthCdf* t = table(x, y);
-    return t != nullptr ? WavelengthPdfView(*t) : WavelengthPdfView(job_default);
+    return t != nullptr ? WavelengthPdfView(*t, job_default) : WavelengthPdfView(job_default);
   }
   // Pixels without a table.
   std::int64_t default_pixels() const { return default_pixels_; }

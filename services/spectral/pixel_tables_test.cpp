@@ -164,7 +164,8 @@ TEST(PixelTablesTest, ViewsSampleExactlyLikeWhatTheyView) {
   std::uniform_real_distribution<double> u(0.0, 1.0);
   for (int i = 0; i < 200; ++i) {
     const double v = u(rng);
-    const SampledWavelengths a = table_view.sample_lanes(v, 4), b = q.sample_lanes(v, 4);
+    const SampledWavelengths a = table_view.sample_lanes(v, 4),
+                             b = q.sample_lanes_within(v, 4, job_default);
     const SampledWavelengths c = default_view.sample_lanes(v, 4),
                              d = job_default.sample_lanes(v, 4);
     for (int s = 0; s < 4; ++s) {
@@ -174,9 +175,9 @@ TEST(PixelTablesTest, ViewsSampleExactlyLikeWhatTheyView) {
       ASSERT_EQ(c.pdf(s), d.pdf(s));
     }
     const float l = static_cast<float>(kLambdaMin + v * kLambdaRange);
-    ASSERT_EQ(table_view.pdf(l), q.pdf(l));
+    ASSERT_EQ(table_view.pdf(l), q.pdf_within(l, job_default));
     ASSERT_EQ(default_view.pdf(l), job_default.pdf(l));
-    ASSERT_EQ(table_view.cdf(l), q.cdf(l));
+    ASSERT_EQ(table_view.cdf(l), q.cdf_within(l, job_default));
     ASSERT_EQ(default_view.sample(v).lambda, job_default.sample(v).lambda);
   }
   // The implicit conversion lets existing callers pass the job's distribution unchanged.
@@ -267,6 +268,68 @@ TEST(PixelTablesTest, DecodedTablesSampleTheirQuantisedPdf) {
       const testing::ChiSquareResult r = testing::chi_square(observed, expected);
       EXPECT_GT(r.p_value, threshold) << cells << " cells, lane " << lane << ": " << r.describe();
     }
+  }
+}
+
+// A table learned per bin (32 cells) with the job default's shape inside each cell: lanes follow
+// p(λ) = Q(c)·d(λ)/D(c) on the fine 1 nm grid, where the default d has narrow lines and empty
+// stretches; every sample's pdf is pdf_within at its λ, and the density integrates to 1.
+TEST(PixelTablesTest, TablesWithinTheDefaultSampleTheCompositeDensity) {
+  constexpr int kSamples = 200000;
+  std::mt19937_64 rng(23);
+  std::vector<double> fine(470, 0.0);
+  for (int i = 40; i < 300; ++i) fine[i] = 0.02;  // a broad band with gaps outside
+  fine[76] = 3.0;                                   // lines 1 nm wide
+  fine[186] = 6.0;
+  fine[229] = 4.0;  // 589 nm
+  const WavelengthDistribution within = *WavelengthDistribution::from_table(fine);
+  std::vector<double> coarse = random_weights(32, rng);
+  coarse[20] = 0.0;  // a cell the table leaves out: no sample lands there
+  const std::vector<std::uint16_t> cdf = WavelengthDistribution::from_table(coarse)->quantise();
+  std::string bytes;
+  append_pixel_table(cdf, bytes);
+  const PixelTables t = *PixelTables::decode(1, 1, 32, bytes);
+  const WavelengthPdfView view = t.view(0, 0, within);
+  const QuantisedWavelengthCdf& q = *t.table(0, 0);
+
+  // Expected mass per 1 nm cell: integrate the composite pdf (constant on each 1 nm piece
+  // between table-cell boundaries) at 0.01 nm steps.
+  std::vector<double> expected(470, 0.0);
+  double total = 0;
+  for (int i = 0; i < 47000; ++i) {
+    const float l = float(kLambdaMin + (i + 0.5) * 0.01);
+    const double m = double(view.pdf(l)) * 0.01;
+    expected[size_t(i / 100)] += m;
+    total += m;
+  }
+  EXPECT_NEAR(total, 1.0, 1e-3);
+  for (int lane = 0; lane < 4; ++lane) {
+    std::vector<double> observed(470, 0.0);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    for (int n = 0; n < kSamples; ++n) {
+      const SampledWavelengths s = view.sample_lanes(u(rng), 4);
+      const float l = s.lambda(lane);
+      ASSERT_GT(s.pdf(lane), 0.0f) << l;
+      ASSERT_EQ(s.pdf(lane), q.pdf_within(l, within)) << l;
+      // Inside a cell where the default has mass, samples follow it (never where it is 0); a
+      // cell where it has none is sampled uniformly.
+      const int cell = std::min(31, int((double(l) - kLambdaMin) / (kLambdaRange / 32)));
+      const bool default_has_mass = within.cdf(float(kLambdaMin + (cell + 1) * kLambdaRange / 32)) >
+                                    within.cdf(float(kLambdaMin + cell * kLambdaRange / 32));
+      if (default_has_mass) ASSERT_GT(within.pdf(l), 0.0f) << l;
+      observed[size_t(std::min(469, int(double(l) - kLambdaMin)))] += 1.0;
+    }
+    std::vector<double> scaled(expected);
+    for (double& e : scaled) e *= kSamples / total;
+    const testing::ChiSquareResult r = testing::chi_square(observed, scaled);
+    EXPECT_GT(r.p_value, testing::sidak_threshold(1e-4, 4)) << "lane " << lane << ": "
+                                                            << r.describe();
+  }
+  // The CDF is the integral of the pdf.
+  for (float l : {400.0f, 436.5f, 546.2f, 589.0f, 700.0f}) {
+    double integral = 0;
+    for (double x = kLambdaMin + 0.005; x < l; x += 0.01) integral += view.pdf(float(x)) * 0.01;
+    EXPECT_NEAR(view.cdf(l), integral / total, 2e-3) << l;
   }
 }
 

@@ -367,4 +367,72 @@ SampledWavelengths QuantisedWavelengthCdf::sample_lanes(double u, int lanes) con
   return w;
 }
 
+namespace {
+
+// within's mass over table cell c of n: the exact integral of its piecewise-constant density.
+double mass_over_cell(const WavelengthDistribution& within, int c, int n) {
+  const double lo = cell_lower(c, n), hi = c + 1 == n ? kLambdaMax : cell_lower(c + 1, n);
+  return within.cdf(static_cast<float>(hi)) - within.cdf(static_cast<float>(lo));
+}
+
+}  // namespace
+
+float QuantisedWavelengthCdf::pdf_within(float lambda_nm,
+                                         const WavelengthDistribution& within) const {
+  const int n = cells();
+  const int c = cell_index(lambda_nm, n);
+  if (c < 0) return 0.0f;
+  const double q = static_cast<double>(cdf_[c + 1] - cdf_[c]) / kTotal;
+  const double w = mass_over_cell(within, c, n);
+  if (!(w > 0.0)) return cell_pdf(c);
+  return static_cast<float>(q * static_cast<double>(within.pdf(lambda_nm)) / w);
+}
+
+double QuantisedWavelengthCdf::cdf_within(float lambda_nm,
+                                          const WavelengthDistribution& within) const {
+  if (!(lambda_nm >= kLambdaMin)) return 0.0;
+  if (lambda_nm >= kLambdaMax) return 1.0;
+  const int n = cells();
+  const int c = cell_index(lambda_nm, n);
+  const double q0 = static_cast<double>(cdf_[c]) / kTotal;
+  const double q = static_cast<double>(cdf_[c + 1] - cdf_[c]) / kTotal;
+  const double w = mass_over_cell(within, c, n);
+  if (!(w > 0.0)) return cdf(lambda_nm);
+  const double start = within.cdf(static_cast<float>(cell_lower(c, n)));
+  return q0 + q * std::clamp((within.cdf(lambda_nm) - start) / w, 0.0, 1.0);
+}
+
+WavelengthSample QuantisedWavelengthCdf::sample_within(double u,
+                                                       const WavelengthDistribution& within) const {
+  const int n = cells();
+  const Inverted r = invert(n, u, [this](int i) { return static_cast<double>(cdf_[i]) / kTotal; });
+  const double w = mass_over_cell(within, r.cell, n);
+  float lambda = r.lambda;
+  if (w > 0.0) {
+    // The same fraction of the cell's mass, now under within's CDF.
+    const double q0 = static_cast<double>(cdf_[r.cell]) / kTotal;
+    const double q = static_cast<double>(cdf_[r.cell + 1] - cdf_[r.cell]) / kTotal;
+    const double t = std::clamp((std::clamp(u, 0.0, 1.0) - q0) / q, 0.0, 1.0);
+    const double start = within.cdf(static_cast<float>(cell_lower(r.cell, n)));
+    lambda = within.sample(start + t * w).lambda;
+    // Rounding may leave the cell by a float step: come back to it (and to within's support,
+    // which the sample came from), so pdf_within(λ) is the density that drew it.
+    lambda = std::clamp(lambda, kLambdaMin, kLambdaMax);
+    while (cell_index(lambda, n) > r.cell) lambda = std::nextafter(lambda, 0.0f);
+    while (cell_index(lambda, n) < r.cell) lambda = std::nextafter(lambda, kLambdaMax);
+    if (!(within.pdf(lambda) > 0.0f)) lambda = r.lambda;
+  }
+  return {lambda, pdf_within(lambda, within)};
+}
+
+SampledWavelengths QuantisedWavelengthCdf::sample_lanes_within(
+    double u, int lanes, const WavelengthDistribution& within) const {
+  SampledWavelengths w(lanes);
+  for (int s = 0; s < lanes; ++s) {
+    const WavelengthSample x = sample_within(cyclic_offset(u, s, lanes), within);
+    w.set(s, x.lambda, x.pdf);
+  }
+  return w;
+}
+
 }  // namespace prism::spectral

@@ -118,6 +118,20 @@ class QuantisedWavelengthCdf {
   int cells() const { return static_cast<int>(cdf_.size()) - 1; }
   float cell_pdf(int i) const;
 
+  // The same cell masses with `within`'s shape inside each cell instead of a uniform one:
+  //   p(λ) = Q(c) · within.pdf(λ) / W(c),  c = the cell of λ, Q(c) its quantised mass,
+  //   W(c) = within's mass over the cell (exact, from its piecewise-linear CDF),
+  // and uniform inside a cell where W(c) = 0. A per-pixel table learned at bin resolution thus
+  // keeps the fine structure of the job's default distribution (an emitter's lines are far
+  // narrower than a bin); it is positive wherever both the table and `within` are. sample,
+  // pdf, cdf and sample_lanes agree exactly as the uniform-cell versions do: the sample's pdf is
+  // pdf() at the returned λ, which lies in the cell its CDF value selects.
+  WavelengthSample sample_within(double u, const WavelengthDistribution& within) const;
+  float pdf_within(float lambda_nm, const WavelengthDistribution& within) const;
+  double cdf_within(float lambda_nm, const WavelengthDistribution& within) const;
+  SampledWavelengths sample_lanes_within(double u, int lanes,
+                                         const WavelengthDistribution& within) const;
+
  private:
   explicit QuantisedWavelengthCdf(std::span<const std::uint16_t> cdf) : cdf_(cdf) {}
   std::span<const std::uint16_t> cdf_;
