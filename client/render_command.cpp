@@ -385,6 +385,10 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   return absl::StrCat(
       "rendered ", report.scene, ": ", report.width, "x", report.height, ", ", report.spp, " spp, ",
       report.bins, " bins, ", report.integrator, ", ", report.threads, " threads in ",
+      report.prepass.has_value()
+          ? absl::StrFormat("%.2f s of prepass (%.1f %% fallback pixels) + ",
+                            report.prepass->seconds, 100.0 * report.prepass->fallback_fraction)
+          : std::string(),
       absl::StrFormat("%.2f", seconds), " s (", human(seconds > 0 ? report.samples / seconds : NAN),
       " samples/s, ", human(seconds > 0 ? report.rays / seconds : NAN), " rays/s, peak ",
       report.peak_memory_bytes >> 20, " MiB); wrote ", paths.spectral_exr.string(), ", ",
