@@ -217,25 +217,17 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   v1::JobSpec spec;
   spec.set_bundle_hash(bundle_hash);
   spec.set_scene_path(scene_path);
-  switch (*parse_integrator(o.integrator)) {
-    case worker::IntegratorKind::kUniform:
-      spec.set_integrator(v1::INTEGRATOR_UNIFORM);
-      break;
-    case worker::IntegratorKind::kHero:
-      spec.set_integrator(v1::INTEGRATOR_HERO);
-      break;
-    case worker::IntegratorKind::kGradient: {
-      spec.set_integrator(v1::INTEGRATOR_GRADIENT);
-      auto* g = spec.mutable_gradient();
-      if (o.delta) g->set_delta(static_cast<float>(*o.delta));
-      if (o.tau) g->set_tau(static_cast<float>(*o.tau));
-      if (o.alpha) g->set_alpha(static_cast<float>(*o.alpha));
-      g->set_norm(*coordinator::parse_poisson_norm(o.poisson) == coordinator::PoissonNorm::kL1
-                      ? v1::POISSON_NORM_L1
-                      : v1::POISSON_NORM_L2);
-      spec.mutable_outputs()->set_primal_and_gradients(o.primal_and_gradients);
-      break;
-    }
+  const worker::IntegratorKind integrator = *parse_integrator(o.integrator);
+  spec.set_integrator(coordinator::to_proto(integrator));
+  if (integrator == worker::IntegratorKind::kGradient) {
+    auto* g = spec.mutable_gradient();
+    if (o.delta) g->set_delta(static_cast<float>(*o.delta));
+    if (o.tau) g->set_tau(static_cast<float>(*o.tau));
+    if (o.alpha) g->set_alpha(static_cast<float>(*o.alpha));
+    g->set_norm(*coordinator::parse_poisson_norm(o.poisson) == coordinator::PoissonNorm::kL1
+                    ? v1::POISSON_NORM_L1
+                    : v1::POISSON_NORM_L2);
+    spec.mutable_outputs()->set_primal_and_gradients(o.primal_and_gradients);
   }
   const bool prepass_options = has_prepass_options(o);
   // Unset, the job's rule decides (job_spec.h); prepass options alone ask for the prepass.
@@ -267,16 +259,7 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   spec.set_emitter_pdf(*parse_emitter_pdf(o.emitter_pdf) == worker::EmitterPdfKind::kUniform
                            ? v1::EMITTER_PDF_UNIFORM
                            : v1::EMITTER_PDF_EMITTERS);
-  switch (*parse_light_selection(o.light_selection)) {
-    case worker::LightSelectionKind::kUniform:
-      spec.set_light_selection(v1::LIGHT_SELECTION_UNIFORM);
-      break;
-    case worker::LightSelectionKind::kSpatial:
-      spec.set_light_selection(v1::LIGHT_SELECTION_SPATIAL);
-      break;
-    default:
-      spec.set_light_selection(v1::LIGHT_SELECTION_POWER);
-  }
+  spec.set_light_selection(coordinator::to_proto(*parse_light_selection(o.light_selection)));
   spec.set_spectral_light_selection(o.spectral_light_selection);
   spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
   spec.set_name(o.scene.filename().string());

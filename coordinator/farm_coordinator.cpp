@@ -245,7 +245,7 @@ absl::StatusOr<std::string> FarmCoordinator::bundle_bytes(const std::string& has
 
 int FarmCoordinator::stage_of(const ActiveJob& job, int task_index) {
   int stage = 0;
-  while (stage + 2 < static_cast<int>(job.stage_first.size()) &&
+  while (stage < final_stage_of(job) &&
          task_index >= job.stage_first[static_cast<std::size_t>(stage + 1)]) {
     ++stage;
   }
@@ -255,13 +255,12 @@ int FarmCoordinator::stage_of(const ActiveJob& job, int task_index) {
 int FarmCoordinator::tile_of(const ActiveJob& job, int task_index) {
   const int stage = stage_of(job, task_index);
   const int local = task_index - job.stage_first[static_cast<std::size_t>(stage)];
-  const bool final_stage = !job.prepass.has_value() || stage == job.prepass->passes();
-  return final_stage ? local / static_cast<int>(job.plan.ranges.size()) : local;
+  return stage == final_stage_of(job) ? local / static_cast<int>(job.plan.ranges.size()) : local;
 }
 
 std::vector<TaskSpec> FarmCoordinator::stage_specs(const ActiveJob& job, int stage) const {
   std::vector<TaskSpec> tasks;
-  if (job.prepass.has_value() && stage < job.prepass->passes()) {
+  if (stage < final_stage_of(job)) {
     const int k = stage + 1;
     for (const image::TileRect& tile : job.prepass->plan(k).tiles) {
       tasks.push_back(TaskSpec{Pass::kPrepass, k, tile, {0, job.prepass->pass(k).spp}});
@@ -279,8 +278,7 @@ std::vector<TaskSpec> FarmCoordinator::stage_specs(const ActiveJob& job, int sta
 
 std::vector<TaskSpec> FarmCoordinator::task_specs(const ActiveJob& job) const {
   std::vector<TaskSpec> tasks;
-  const int stages = static_cast<int>(job.stage_first.size()) - 1;
-  for (int stage = 0; stage < stages; ++stage) {
+  for (int stage = 0; stage <= final_stage_of(job); ++stage) {
     std::vector<TaskSpec> part = stage_specs(job, stage);
     tasks.insert(tasks.end(), part.begin(), part.end());
   }
@@ -364,7 +362,7 @@ absl::Status FarmCoordinator::advance_locked(const std::string& job_id) {
     return absl::InternalError(absl::StrCat("job ", job_id, " finished but is not active"));
   }
   ActiveJob& job = *it->second;
-  if (!job.prepass.has_value() || job.stage >= job.prepass->passes()) {
+  if (job.stage == final_stage_of(job)) {
     absl::Status finalised = finalise_locked(job_id);
     if (finalised.ok()) return finalised;
     return absl::Status(finalised.code(),
@@ -540,8 +538,8 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
     }
   }
   PRISM_RETURN_IF_ERROR(attach_tiles(*active, record.id));
-  const int stages = static_cast<int>(active->stage_first.size()) - 1;
-  const int final_stage = stages - 1;
+  const int final_stage = final_stage_of(*active);
+  const int stages = final_stage + 1;
   auto stage_done = [&](int stage) {
     for (int i = active->stage_first[stage]; i < active->stage_first[stage + 1]; ++i) {
       if (tasks[static_cast<std::size_t>(i)].state != store::TaskState::kDone) return false;
@@ -865,7 +863,8 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
     for (std::size_t t = 0; t < job.plan.tiles.size(); ++t) {
       PRISM_ASSIGN_OR_RETURN(image::TileResult merged, job.tiles->get(static_cast<int>(t)));
       PRISM_ASSIGN_OR_RETURN(image::RgbImage a, to_linear_srgb(image::finalise(merged), cmf_));
-      PRISM_ASSIGN_OR_RETURN(image::RgbImage b, to_linear_srgb(finalise_gradients(merged), cmf_));
+      PRISM_ASSIGN_OR_RETURN(image::RgbImage b,
+                             to_linear_srgb(image::finalise_gradients(merged), cmf_));
       PRISM_RETURN_IF_ERROR(primal_rgb.paste(a, merged.rect().x0, merged.rect().y0));
       PRISM_RETURN_IF_ERROR(gradient_rgb.paste(b, merged.rect().x0, merged.rect().y0));
     }
@@ -875,7 +874,7 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
         primal_rgb,
         job.tiles->rows(
             [](const image::TileResult& merged) -> absl::StatusOr<image::SpectralImage> {
-              return finalise_gradients(merged);
+              return image::finalise_gradients(merged);
             },
             &gradient_band),
         gradient_rgb, report, paths));
@@ -1063,7 +1062,7 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
     job.rays += rays;
     const int stage = stage_of(job, task.index);
     const int tile = tile_of(job, task.index);
-    const bool final_stage = static_cast<std::size_t>(stage) + 2 == job.stage_first.size();
+    const bool final_stage = stage == final_stage_of(job);
     if (final_stage) {
       for (const auto& [name, value] : counters) job.counters[name] += value;
     }

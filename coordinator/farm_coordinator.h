@@ -227,6 +227,10 @@ class FarmCoordinator {
   // Loads the checked scene of a stored bundle.
   absl::StatusOr<scene::LoadedScene> load_bundle_scene(const std::string& hash,
                                                        const std::string& scene_path) const;
+  // The final pass's stage index (the number of prepasses).
+  static int final_stage_of(const ActiveJob& job) {
+    return static_cast<int>(job.stage_first.size()) - 2;
+  }
   // The stage of a task index, and its tile index within the stage's plan.
   static int stage_of(const ActiveJob& job, int task_index);
   static int tile_of(const ActiveJob& job, int task_index);

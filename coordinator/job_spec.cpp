@@ -300,28 +300,43 @@ void add_job_sections(const JobParameters& p, RenderReport& report) {
   }
 }
 
+prism::v1::Integrator to_proto(worker::IntegratorKind kind) {
+  switch (kind) {
+    case worker::IntegratorKind::kUniform:
+      return prism::v1::INTEGRATOR_UNIFORM;
+    case worker::IntegratorKind::kHero:
+      return prism::v1::INTEGRATOR_HERO;
+    case worker::IntegratorKind::kGradient:
+      return prism::v1::INTEGRATOR_GRADIENT;
+  }
+  return prism::v1::INTEGRATOR_UNSPECIFIED;
+}
+
+prism::v1::LightSelection to_proto(worker::LightSelectionKind kind) {
+  switch (kind) {
+    case worker::LightSelectionKind::kUniform:
+      return prism::v1::LIGHT_SELECTION_UNIFORM;
+    case worker::LightSelectionKind::kPower:
+      return prism::v1::LIGHT_SELECTION_POWER;
+    case worker::LightSelectionKind::kSpatial:
+      return prism::v1::LIGHT_SELECTION_SPATIAL;
+  }
+  return prism::v1::LIGHT_SELECTION_UNSPECIFIED;
+}
+
 prism::v1::JobSpec to_proto(const JobParameters& p) {
   prism::v1::JobSpec spec;
   spec.set_bundle_hash(p.bundle_hash);
   spec.set_scene_path(p.scene_path);
   spec.set_name(p.name);
-  switch (p.render.integrator) {
-    case worker::IntegratorKind::kUniform:
-      spec.set_integrator(prism::v1::INTEGRATOR_UNIFORM);
-      break;
-    case worker::IntegratorKind::kHero:
-      spec.set_integrator(prism::v1::INTEGRATOR_HERO);
-      break;
-    case worker::IntegratorKind::kGradient: {
-      spec.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
-      auto* g = spec.mutable_gradient();
-      g->set_delta(static_cast<float>(p.gradient.delta));
-      g->set_tau(p.render.gradient_tau);
-      g->set_alpha(static_cast<float>(p.gradient.alpha));
-      g->set_norm(p.gradient.norm == PoissonNorm::kL1 ? prism::v1::POISSON_NORM_L1
-                                                       : prism::v1::POISSON_NORM_L2);
-      break;
-    }
+  spec.set_integrator(to_proto(p.render.integrator));
+  if (p.render.integrator == worker::IntegratorKind::kGradient) {
+    auto* g = spec.mutable_gradient();
+    g->set_delta(static_cast<float>(p.gradient.delta));
+    g->set_tau(p.render.gradient_tau);
+    g->set_alpha(static_cast<float>(p.gradient.alpha));
+    g->set_norm(p.gradient.norm == PoissonNorm::kL1 ? prism::v1::POISSON_NORM_L1
+                                                     : prism::v1::POISSON_NORM_L2);
   }
   auto* prepass = spec.mutable_prepass();
   prepass->set_enabled(p.prepass.has_value());
@@ -340,17 +355,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   spec.set_emitter_pdf(p.render.emitter_pdf == worker::EmitterPdfKind::kUniform
                            ? prism::v1::EMITTER_PDF_UNIFORM
                            : prism::v1::EMITTER_PDF_EMITTERS);
-  switch (p.render.light_selection) {
-    case worker::LightSelectionKind::kUniform:
-      spec.set_light_selection(prism::v1::LIGHT_SELECTION_UNIFORM);
-      break;
-    case worker::LightSelectionKind::kPower:
-      spec.set_light_selection(prism::v1::LIGHT_SELECTION_POWER);
-      break;
-    case worker::LightSelectionKind::kSpatial:
-      spec.set_light_selection(prism::v1::LIGHT_SELECTION_SPATIAL);
-      break;
-  }
+  spec.set_light_selection(to_proto(p.render.light_selection));
   spec.set_spectral_light_selection(p.render.spectral_light_selection);
   spec.set_spp(static_cast<std::uint32_t>(p.spp));
   spec.set_width(static_cast<std::uint32_t>(p.width));

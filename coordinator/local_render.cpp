@@ -319,7 +319,7 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
       if (keep_raw) {
         PRISM_RETURN_IF_ERROR(image::paste_tile(image::finalise(merged), merged.rect(), *primal));
         PRISM_RETURN_IF_ERROR(
-            image::paste_tile(finalise_gradients(merged), merged.rect(), *gradient));
+            image::paste_tile(image::finalise_gradients(merged), merged.rect(), *gradient));
       }
       return image::paste_tile(finalised, merged.rect(), image);
     };

@@ -210,6 +210,14 @@ absl::StatusOr<image::RgbImage> to_linear_srgb(const image::SpectralImage& spect
 
 namespace {
 
+// A whole image as the row bands write_spectral_exr_rows asks for (valid while `image` lives).
+image::SpectralRows rows_of(const image::SpectralImage& image) {
+  const std::size_t row_values = std::size_t(image.width()) * std::size_t(image.bins());
+  return [&image, row_values](int y0, int) -> absl::StatusOr<const float*> {
+    return image.data().data() + y0 * row_values;
+  };
+}
+
 // A float job setting as the shortest decimal that reads back as it (0.15, not 0.1500000059).
 double shortest(float value) {
   return std::isfinite(value) ? std::stod(absl::StrCat(value)) : std::nan("");
@@ -307,12 +315,8 @@ absl::Status write_outputs(const image::SpectralImage& spectral, const spectral:
                            const RenderReport& report, const OutputPaths& paths,
                            const OutputOptions& options) {
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, to_linear_srgb(spectral, cmf));
-  const float* data = spectral.data().data();
-  const std::size_t row_values = std::size_t(spectral.width()) * std::size_t(spectral.bins());
-  return write_outputs(
-      spectral.bins(), spectral.height(),
-      [&](int y0, int) -> absl::StatusOr<const float*> { return data + y0 * row_values; }, rgb,
-      report, paths, options);
+  return write_outputs(spectral.bins(), spectral.height(), rows_of(spectral), rgb, report, paths,
+                       options);
 }
 
 void fill_gradient_counters(const std::vector<std::pair<std::string, std::uint64_t>>& counters,
@@ -417,12 +421,6 @@ absl::Status write_primal_and_gradient(const image::SpectralImage& primal,
                                        const RenderReport& report, const OutputPaths& paths) {
   PRISM_ASSIGN_OR_RETURN(image::RgbImage primal_rgb, to_linear_srgb(primal, cmf));
   PRISM_ASSIGN_OR_RETURN(image::RgbImage gradient_rgb, to_linear_srgb(gradient, cmf));
-  auto rows_of = [](const image::SpectralImage& image) -> image::SpectralRows {
-    const std::size_t row_values = std::size_t(image.width()) * std::size_t(image.bins());
-    return [&image, row_values](int y0, int) -> absl::StatusOr<const float*> {
-      return image.data().data() + y0 * row_values;
-    };
-  };
   return write_primal_and_gradient(primal.bins(), primal.height(), rows_of(primal), primal_rgb,
                                    rows_of(gradient), gradient_rgb, report, paths);
 }

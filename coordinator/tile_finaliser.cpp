@@ -8,24 +8,6 @@
 
 namespace prism::coordinator {
 
-image::SpectralImage finalise_gradients(const image::TileResult& result) {
-  PRISM_CHECK(result.has_gradients());
-  const image::TileRect& rect = result.rect();
-  const int bins = result.bins();
-  image::SpectralImage out = *image::SpectralImage::create(rect.width(), rect.height(), bins);
-  const std::span<const double> sums = result.gradients();
-  const std::span<const std::uint64_t> counts = result.counts();
-  std::span<float> values = out.data();
-  for (std::size_t p = 0; p < counts.size(); ++p) {
-    if (counts[p] == 0) continue;
-    const double n = static_cast<double>(counts[p]);
-    for (std::size_t b = 0; b < static_cast<std::size_t>(bins); ++b) {
-      values[p * bins + b] = static_cast<float>(sums[p * bins + b] / n);
-    }
-  }
-  return out;
-}
-
 TileFinaliser mean_finaliser() {
   return [](const image::TileResult& merged) -> absl::StatusOr<image::SpectralImage> {
     return image::finalise(merged);
@@ -48,7 +30,7 @@ TileFinaliser reconstructing_finaliser(std::shared_ptr<const PoissonSolver> solv
                                                      solver->bins()));
     }
     const image::SpectralImage primal = image::finalise(merged);
-    const image::SpectralImage gradient = finalise_gradients(merged);
+    const image::SpectralImage gradient = image::finalise_gradients(merged);
     PRISM_ASSIGN_OR_RETURN(
         image::SpectralImage out,
         image::SpectralImage::create(rect.width(), rect.height(), merged.bins()));

@@ -18,11 +18,6 @@ namespace prism::coordinator {
 // reconstruction's (a non-finite I or G names the pixel in image coordinates and the bin).
 using TileFinaliser = std::function<absl::StatusOr<image::SpectralImage>(const image::TileResult&)>;
 
-// Per-pixel means of the gradient sums, G[b] = gradients / count, computed in double and
-// rounded once like image::finalise; pixels without samples are 0. The result must carry
-// gradients (PRISM_CHECK).
-image::SpectralImage finalise_gradients(const image::TileResult& result);
-
 // image::finalise.
 TileFinaliser mean_finaliser();
 // Means of I and G, then the reconstruction of every pixel with `solver` (whose bins must be

@@ -296,11 +296,13 @@ absl::Status merge_into(const TileResult& src, TileResult& dst) {
   return dst.add(src);
 }
 
-SpectralImage finalise(const TileResult& result) {
+namespace {
+
+// Per-pixel means sums/count of one area·bins buffer of `result`, rounded once to float.
+SpectralImage means_of(const TileResult& result, std::span<const double> sums) {
   const TileRect& rect = result.rect();
   int bins = result.bins();
   std::vector<float> means(std::size_t(rect.area()) * bins, 0.0f);
-  std::span<const double> sums = result.sums();
   std::span<const std::uint64_t> counts = result.counts();
   for (std::size_t p = 0; p < counts.size(); ++p) {
     if (counts[p] == 0) continue;
@@ -312,6 +314,17 @@ SpectralImage finalise(const TileResult& result) {
   auto image = SpectralImage::from_data(rect.width(), rect.height(), bins, std::move(means));
   PRISM_CHECK_MSG(image.ok(), "a valid TileResult always has a valid image size");
   return std::move(image).value();
+}
+
+}  // namespace
+
+SpectralImage finalise(const TileResult& result) {
+  return means_of(result, result.sums());
+}
+
+SpectralImage finalise_gradients(const TileResult& result) {
+  PRISM_CHECK(result.has_gradients());
+  return means_of(result, result.gradients());
 }
 
 absl::Status paste_tile(const SpectralImage& tile, const TileRect& rect, SpectralImage& image) {

@@ -248,6 +248,9 @@ absl::Status merge_into(const TileResult& src, TileResult& dst);
 // Per-pixel, per-bin means sum/count as a rect-sized SpectralImage; pixels without samples
 // are 0. Means are computed in double and rounded once to float.
 SpectralImage finalise(const TileResult& result);
+// The same for the gradient sums: per-pixel means of G[b]. The result must carry gradients
+// (PRISM_CHECK).
+SpectralImage finalise_gradients(const TileResult& result);
 
 // Copies a finalised tile into the full image at result.rect(); INVALID_ARGUMENT when the
 // rect does not fit or the bins differ.
