@@ -150,10 +150,11 @@ absl::StatusOr<PrepassParameters> prepass_of(const prism::v1::PrepassOptions& o)
 
 }  // namespace
 
-bool prepass_by_default(worker::IntegratorKind integrator, const scene::SceneDescription& scene) {
-  if (integrator != worker::IntegratorKind::kHero) return false;
-  const scene::WavelengthDependence dependence = scene::analyze_wavelength_dependence(scene);
-  return dependence.needs_spectral_transport() && !dependence.emitter_spectra.empty();
+bool prepass_by_default(worker::IntegratorKind, const scene::SceneDescription&) {
+  // Off until it never costs error at equal time: measured on single-lamp scenes the prepass of
+  // algorithms.md §4 (bin-constant, mean-proportional tables) was up to 4.2x worse than the
+  // emitter mixture (issue 11, docs/benchmarks.md).
+  return false;
 }
 
 

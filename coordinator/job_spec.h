@@ -9,10 +9,8 @@
 // job_parameters(to_proto(p), any scene) == p: to_proto() writes every value explicitly, so
 // the result no longer depends on the scene's defaults.
 //
-// The prepass (algorithms.md §4) is on by default for `hero` when something in the scene depends
-// on wavelength (emitters of different spectra, media, dispersion: scene::WavelengthDependence)
-// and the scene has emitters; off otherwise (a scene where nothing depends on wavelength pays for
-// no spectral machinery). A spec with a PrepassOptions message decides explicitly.
+// The prepass (algorithms.md §4) is off unless a spec's PrepassOptions turns it on
+// (prepass_by_default says why).
 #pragma once
 
 #include <cstdint>

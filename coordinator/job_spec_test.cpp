@@ -257,8 +257,8 @@ TEST(JobSpecTest, GradientAndPrepassDefaultsSurviveTheExplicitForm) {
   EXPECT_EQ(again->prepass->sigma_r, p->prepass->sigma_r);
 }
 
-// The prepass is on by default only for hero on a scene where something depends on wavelength
-// and that has emitters; an explicit PrepassOptions decides otherwise.
+// The prepass is off unless the spec asks for it, whatever the scene needs; an explicit
+// PrepassOptions decides.
 TEST(JobSpecTest, PrepassDefaultFollowsTheScene) {
   scene::SceneDescription plain = test_scene();
   scene::Light light;
@@ -267,14 +267,19 @@ TEST(JobSpecTest, PrepassDefaultFollowsTheScene) {
   auto p = job_parameters(minimal_spec(), plain);
   ASSERT_TRUE(p.ok()) << p.status();
   EXPECT_FALSE(p->prepass.has_value()) << "one emitter spectrum, nothing dispersive: no prepass";
-  EXPECT_FALSE(prepass_by_default(worker::IntegratorKind::kHero, plain));
 
   scene::SceneDescription fog = plain;
   fog.media.push_back(scene::Medium{"fog", scene::HomogeneousMedium{}, {}});
   fog.camera.medium = 0;
-  EXPECT_TRUE(prepass_by_default(worker::IntegratorKind::kHero, fog));
-  EXPECT_FALSE(prepass_by_default(worker::IntegratorKind::kUniform, fog));
-  EXPECT_FALSE(prepass_by_default(worker::IntegratorKind::kGradient, fog));
+  EXPECT_FALSE(prepass_by_default(worker::IntegratorKind::kHero, fog));
+  auto f = job_parameters(minimal_spec(), fog);
+  ASSERT_TRUE(f.ok()) << f.status();
+  EXPECT_FALSE(f->prepass.has_value());
+  prism::v1::JobSpec on = minimal_spec();
+  on.mutable_prepass()->set_enabled(true);
+  auto g = job_parameters(on, fog);
+  ASSERT_TRUE(g.ok()) << g.status();
+  EXPECT_TRUE(g->prepass.has_value());
 
   prism::v1::JobSpec off = minimal_spec();
   off.mutable_prepass()->set_enabled(false);
