@@ -26,8 +26,7 @@ std::uint64_t pixel_table_bytes(int width, int height, int cells) {
 }
 
 void append_pixel_table(std::span<const std::uint16_t> cdf, std::string& out) {
-  PRISM_CHECK(cdf.size() >= 2 && cdf.front() == 0 &&
-              cdf.back() == QuantisedWavelengthCdf::kTotal);
+  PRISM_CHECK(cdf.size() >= 2 && cdf.front() == 0 && cdf.back() == QuantisedWavelengthCdf::kTotal);
   for (std::size_t i = 1; i < cdf.size(); ++i) append_u16(cdf[i], out);
 }
 
@@ -49,9 +48,9 @@ absl::StatusOr<PixelTables> PixelTables::decode(int width, int height, int cells
   }
   const std::uint64_t want = pixel_table_bytes(width, height, cells);
   if (bytes.size() != want) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "pixel tables of a ", width, "x", height, " tile with ", cells, " cells need ", want,
-        " bytes (width*height*cells*2), got ", bytes.size()));
+    return absl::InvalidArgumentError(
+        absl::StrCat("pixel tables of a ", width, "x", height, " tile with ", cells, " cells need ",
+                     want, " bytes (width*height*cells*2), got ", bytes.size()));
   }
   PixelTables t;
   t.width_ = width;
@@ -60,6 +59,7 @@ absl::StatusOr<PixelTables> PixelTables::decode(int width, int height, int cells
   const std::size_t area = std::size_t(width) * std::size_t(height);
   const std::size_t stride = std::size_t(cells) + 1;
   t.values_.resize(area * stride);
+  t.guides_.resize(area * stride);
   t.tables_.reserve(area);
   for (std::size_t p = 0; p < area; ++p) {
     const char* row = bytes.data() + p * std::size_t(cells) * 2u;
@@ -83,6 +83,7 @@ absl::StatusOr<PixelTables> PixelTables::decode(int width, int height, int cells
           ") is neither all zero (default distribution) nor a valid CDF: ",
           std::string(cdf.status().message())));
     }
+    BinnedShape::build_guide(*cdf, std::span<std::uint16_t>(t.guides_.data() + p * stride, stride));
     t.tables_.emplace_back(*cdf);
   }
   return t;

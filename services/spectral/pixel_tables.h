@@ -8,6 +8,8 @@
 // q_0 = 0 left out (it is always 0) and q_N = 65535. A pixel whose N values are all 0 (never a
 // valid CDF, whose last value is 65535) carries no table: it uses the job's default wavelength
 // distribution, and prepasses skip it (the fallback of §4). Total size width·height·cells·2.
+// A table gives bin masses only: inside each of its cells (the job's bins) the worker samples
+// with the shape of the job's default distribution (binned_shape.h).
 //
 // Decoding validates every table once and restores q_0, so the worker samples and evaluates
 // each pixel's QuantisedWavelengthCdf from exactly the integers the coordinator quantised:
@@ -24,6 +26,8 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "services/base/check.h"
+#include "services/spectral/binned_shape.h"
 #include "services/spectral/wavelength_distribution.h"
 
 namespace prism::spectral {
@@ -37,28 +41,32 @@ void append_pixel_table(std::span<const std::uint16_t> cdf, std::string& out);
 // Appends the all-zero row of a pixel that uses the job's default distribution.
 void append_default_pixel(int cells, std::string& out);
 
-// One pixel's wavelength density as an integrator uses it: the job's default distribution or
-// the pixel's decoded table, behind one trivially copyable value (so a trace function can take
-// it by value whichever it is). Converts implicitly from a WavelengthDistribution, so code that
-// passes the job's distribution keeps compiling. The referenced object must outlive the view.
+// One pixel's wavelength density as an integrator uses it: the job's default distribution, or
+// the pixel's decoded table of bin masses with the default's shape inside each bin
+// (binned_shape.h), behind one trivially copyable value (so a trace function can take it by
+// value whichever it is). Converts implicitly from a WavelengthDistribution, so code that
+// passes the job's distribution keeps compiling. The referenced objects must outlive the view.
 class WavelengthPdfView {
  public:
   WavelengthPdfView(const WavelengthDistribution& distribution)  // NOLINT: implicit on purpose
       : distribution_(&distribution) {}
-  explicit WavelengthPdfView(const QuantisedWavelengthCdf& table) : table_(&table) {}
+  // `table` must have shape.bins() cells; `guide` is null or its BinnedShape::build_guide.
+  WavelengthPdfView(const QuantisedWavelengthCdf& table, const BinnedShape& shape,
+                    const std::uint16_t* guide = nullptr)
+      : table_(&table), shape_(&shape), guide_(guide) {}
 
   WavelengthSample sample(double u) const {
-    return table_ != nullptr ? table_->sample(u) : distribution_->sample(u);
+    return table_ != nullptr ? shape_->sample(*table_, u, guide_) : distribution_->sample(u);
   }
   float pdf(float lambda_nm) const {
-    return table_ != nullptr ? table_->pdf(lambda_nm) : distribution_->pdf(lambda_nm);
+    return table_ != nullptr ? shape_->pdf(*table_, lambda_nm) : distribution_->pdf(lambda_nm);
   }
   double cdf(float lambda_nm) const {
-    return table_ != nullptr ? table_->cdf(lambda_nm) : distribution_->cdf(lambda_nm);
+    return table_ != nullptr ? shape_->cdf(*table_, lambda_nm) : distribution_->cdf(lambda_nm);
   }
-  // CMIS lanes (algorithms.md §2), exactly as the underlying distribution's sample_lanes.
+  // CMIS lanes (algorithms.md §2), exactly as the underlying density's sample_lanes.
   SampledWavelengths sample_lanes(double u, int lanes) const {
-    return table_ != nullptr ? table_->sample_lanes(u, lanes)
+    return table_ != nullptr ? shape_->sample_lanes(*table_, u, lanes, guide_)
                              : distribution_->sample_lanes(u, lanes);
   }
   bool is_pixel_table() const { return table_ != nullptr; }
@@ -66,6 +74,8 @@ class WavelengthPdfView {
  private:
   const WavelengthDistribution* distribution_ = nullptr;
   const QuantisedWavelengthCdf* table_ = nullptr;
+  const BinnedShape* shape_ = nullptr;
+  const std::uint16_t* guide_ = nullptr;
 };
 static_assert(std::is_trivially_copyable_v<WavelengthPdfView>);
 
@@ -95,11 +105,15 @@ class PixelTables {
     return t ? &*t : nullptr;
   }
   bool uses_default(int x, int y) const { return table(x, y) == nullptr; }
-  // The density tile-local pixel (x, y) samples with: its table, or `job_default` (the
-  // RenderScene's wavelength_pdf()) when it has none.
-  WavelengthPdfView view(int x, int y, const WavelengthDistribution& job_default) const {
+  // The density tile-local pixel (x, y) samples with: its table's bin masses with the default's
+  // shape inside each bin, or `job_default` (the RenderScene's wavelength_pdf()) when it has
+  // none. `shape` is job_default cut at the tables' cells (shape.bins() == cells(), PRISM_CHECK).
+  WavelengthPdfView view(int x, int y, const WavelengthDistribution& job_default,
+                         const BinnedShape& shape) const {
+    PRISM_CHECK(shape.bins() == cells_);
     const QuantisedWavelengthCdf* t = table(x, y);
-    return t != nullptr ? WavelengthPdfView(*t) : WavelengthPdfView(job_default);
+    return t != nullptr ? WavelengthPdfView(*t, shape, guides_.data() + index(x, y) * (cells_ + 1))
+                        : WavelengthPdfView(job_default);
   }
   // Pixels without a table.
   std::int64_t default_pixels() const { return default_pixels_; }
@@ -113,6 +127,7 @@ class PixelTables {
   int cells_ = 0;
   std::int64_t default_pixels_ = 0;
   std::vector<std::uint16_t> values_;  // per pixel cells + 1 values, q_0 restored
+  std::vector<std::uint16_t> guides_;  // per pixel cells + 1 values (BinnedShape::build_guide)
   std::vector<std::optional<QuantisedWavelengthCdf>> tables_;
 };
 

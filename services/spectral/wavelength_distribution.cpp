@@ -9,19 +9,29 @@
 #include "services/spectral/wavelength_grid.h"
 
 namespace prism::spectral {
+
+double uniform_cell_lower(int c, int n) {
+  return double{kLambdaMin} + double{kLambdaRange} * c / n;
+}
+
+int uniform_cell_of(float lambda_nm, int n) {
+  if (!(lambda_nm >= kLambdaMin && lambda_nm <= kLambdaMax)) return -1;
+  const int c = static_cast<int>((static_cast<double>(lambda_nm) - double{kLambdaMin}) * n /
+                                 double{kLambdaRange});
+  return std::min(c, n - 1);
+}
+
 namespace {
 
 constexpr double kMin = kLambdaMin;
 constexpr double kRange = kLambdaRange;
 
 double cell_lower(int c, int n) {
-  return kMin + kRange * c / n;
+  return uniform_cell_lower(c, n);
 }
 
 int cell_index(float lambda_nm, int n) {
-  if (!(lambda_nm >= kLambdaMin && lambda_nm <= kLambdaMax)) return -1;
-  const int c = static_cast<int>((static_cast<double>(lambda_nm) - kMin) * n / kRange);
-  return std::min(c, n - 1);
+  return uniform_cell_of(lambda_nm, n);
 }
 
 absl::Status check_cells(int cells) {
@@ -44,17 +54,16 @@ struct Inverted {
 // makes sample() and pdf() agree exactly.
 template <typename CdfAt>
 Inverted invert(int n, double u, const CdfAt& cdf_at) {
-  u = std::clamp(u, 0.0, std::nextafter(1.0, 0.0));
-  int lo = 1, hi = n;
-  while (lo < hi) {
-    const int mid = lo + (hi - lo) / 2;
-    if (cdf_at(mid) > u) {
-      hi = mid;
-    } else {
-      lo = mid + 1;
-    }
+  u = std::clamp(u, 0.0, 0x1.fffffffffffffp-1);  // the largest double below 1
+  // The last c in [0, n) with cdf(c) <= u, by branch-free halving: which half holds u is a coin
+  // toss that a branch predictor cannot learn, and a conditional move costs less than the
+  // mispredictions.
+  int c = 0, count = n;
+  while (count > 1) {
+    const int half = count / 2;
+    c = cdf_at(c + half) <= u ? c + half : c;
+    count -= half;
   }
-  const int c = lo - 1;
   const double c0 = cdf_at(c), c1 = cdf_at(c + 1);
   const double t = std::clamp((u - c0) / (c1 - c0), 0.0, 1.0);
   float lambda = static_cast<float>(cell_lower(c, n) + t * (kRange / n));

@@ -22,6 +22,13 @@
 
 namespace prism::spectral {
 
+// The uniform cells every distribution here uses: cell c of n covers [360 + c·470/n,
+// 360 + (c+1)·470/n) nm (λ = 830 belongs to the last). cell_lower is that lower edge in double;
+// uniform_cell_of the cell holding lambda_nm, or -1 outside Λ (the one lookup that sampling and
+// evaluation share, so they agree exactly).
+double uniform_cell_lower(int c, int n);
+int uniform_cell_of(float lambda_nm, int n);
+
 struct WavelengthSample {
   float lambda = 0.0f;  // nm
   float pdf = 0.0f;     // per nm
@@ -71,6 +78,8 @@ class WavelengthDistribution {
   int cells() const { return static_cast<int>(mass_.size()); }
   double cell_width() const;  // nm
   double cell_mass(int i) const { return mass_[i]; }
+  // P(Λ' < lower edge of cell i), i in 0..cells(); cell_cdf(cells()) == 1 exactly.
+  double cell_cdf(int i) const { return cdf_[i]; }
   float cell_pdf(int i) const { return pdf_[i]; }
   // The cell holding lambda_nm, or -1 outside Λ.
   int cell_of(float lambda_nm) const;
@@ -117,6 +126,8 @@ class QuantisedWavelengthCdf {
   SampledWavelengths sample_lanes(double u, int lanes) const;
   int cells() const { return static_cast<int>(cdf_.size()) - 1; }
   float cell_pdf(int i) const;
+  // The cells() + 1 quantised CDF values, q_0 = 0 to q_N = kTotal.
+  std::span<const std::uint16_t> values() const { return cdf_; }
 
  private:
   explicit QuantisedWavelengthCdf(std::span<const std::uint16_t> cdf) : cdf_(cdf) {}

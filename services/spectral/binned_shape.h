@@ -1,0 +1,93 @@
+// The job's default wavelength distribution cut at the output bins, so that a per-pixel table of
+// bin masses (the prepass's learned tables, algorithms.md §4) can be sampled with the default's
+// own shape inside each bin:
+//
+//   q(λ) = m_b · d(λ) / D_b   for λ in bin b,
+//
+// m_b the table's mass of bin b, d the default density (1 nm cells, with an emitter's narrow
+// lines), D_b = ∫_b d. A table thus only moves mass between bins and never smears a line over
+// its bin. Where D_b = 0 (no default mass in the bin) q is uniform inside the bin.
+//
+// Bins here are the cells of a QuantisedWavelengthCdf with `bins` cells: bin b covers
+// [360 + b·w, 360 + (b+1)·w), w = 470/bins nm (a float λ within an ulp of an edge may be counted
+// on either side, the same way by sample, pdf and cdf).
+//
+// Invariants: sample() returns exactly pdf(λ) for the λ it returns (the bin and the default
+// cell of λ are looked up by the same arithmetic in both), never returns a λ where the table or
+// d is zero, and inverts the composite CDF continuously inside each (bin, cell) piece. A sample
+// costs one search over the table's bins and one over the few default cells of the chosen bin.
+// Construction allocates; sampling and evaluation do not. Coordinator and worker build it from
+// the same default distribution and get the same D_b bit for bit.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "services/spectral/sampled.h"
+#include "services/spectral/wavelength_distribution.h"
+
+namespace prism::spectral {
+
+class BinnedShape {
+ public:
+  // INVALID_ARGUMENT unless 1 <= bins <= WavelengthDistribution::kMaxCells.
+  static absl::StatusOr<BinnedShape> create(const WavelengthDistribution& shape, int bins);
+
+  int bins() const { return bins_; }
+  // D_b: the default distribution's probability mass over bin b (Σ_b D_b = 1 up to rounding).
+  double bin_mass(int b) const { return bin_mass_[static_cast<std::size_t>(b)]; }
+  const std::vector<double>& bin_masses() const { return bin_mass_; }
+
+  // `table` must have bins() cells (PRISM_CHECK). `guide` (bins() + 1 values, build_guide of the
+  // table) only makes the search shorter: with or without it the sample is the same.
+  WavelengthSample sample(const QuantisedWavelengthCdf& table, double u,
+                          const std::uint16_t* guide = nullptr) const;
+  float pdf(const QuantisedWavelengthCdf& table, float lambda_nm) const;
+  double cdf(const QuantisedWavelengthCdf& table, float lambda_nm) const;
+  // CMIS lanes (algorithms.md §2): lane s at Q⁻¹((u + s/C) mod 1).
+  SampledWavelengths sample_lanes(const QuantisedWavelengthCdf& table, double u, int lanes,
+                                  const std::uint16_t* guide = nullptr) const;
+
+  // A table's search guide (guide.size() == table.cells() + 1, PRISM_CHECK): guide[j] is the bin
+  // holding the quantised CDF value ⌊j·65535/N⌋, N = table.cells(), so a search for any value
+  // starts within a few bins of its answer.
+  static void build_guide(const QuantisedWavelengthCdf& table, std::span<std::uint16_t> guide);
+
+ private:
+  BinnedShape() = default;
+  // Density of the composite at a λ in bin b and default cell c, from the table's integer mass.
+  float density(int table_units, int b, int c) const;
+  // The bin and default cell of a λ in Λ (one multiplication each; sample, pdf and cdf all look
+  // them up here, which is what makes them agree exactly).
+  int bin_of(float lambda_nm) const;
+  int cell_of(float lambda_nm) const;
+  // λ clamped into the floats with bin_of(λ) == b and (c < 0 or) cell_of(λ) == c.
+  float settle(float lambda, int b, int c) const;
+  // For n uniform cells looked up with `scale`: the first and last float of each.
+  static void float_ranges(int n, double scale, std::vector<float>& first,
+                           std::vector<float>& last);
+
+  int bins_ = 0;
+  int cells_ = 0;  // cells of the default distribution
+  double bin_scale_ = 0, cell_scale_ = 0, cell_width_ = 0;
+  std::vector<double> cell_cdf_;               // cells_ + 1 values
+  std::vector<double> cell_lower_;             // lower edge of each default cell, nm
+  std::vector<double> bin_lower_;              // lower edge of each bin, nm
+  std::vector<float> bin_first_, bin_last_;    // the floats bin_of maps to each bin
+  std::vector<float> cell_first_, cell_last_;  // the floats cell_of maps to each cell
+  std::vector<double> cell_density_;           // per nm, mass / cell width
+  std::vector<double> inv_cell_mass_;          // 1 / mass of each default cell, 0 where it is 0
+  std::vector<double> bin_mass_;               // D_b
+  std::vector<double> inv_bin_mass_;           // 1 / D_b, 0 where D_b = 0
+  std::vector<double> bin_cdf_;                // default CDF at the lower edge of bin b
+  std::vector<int> first_cell_;                // default cells overlapping bin b: [first, last]
+  std::vector<int> last_cell_;
+  // Per bin kCellGuide + 1 cells: the cell holding the default's CDF at bin_cdf_ + k/kCellGuide
+  // of the bin's mass.
+  static constexpr int kCellGuide = 8;
+  std::vector<int> cell_guide_;
+};
+
+}  // namespace prism::spectral
