@@ -35,7 +35,6 @@ absl::Status check_range(const char* flag, const std::optional<std::int64_t>& va
   return absl::OkStatus();
 }
 
-
 // 1234567 -> "1.23 M".
 std::string human(double value) {
   if (!std::isfinite(value)) return "-";
@@ -162,9 +161,9 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   }
   if (o.alpha && !(std::isfinite(*o.alpha) && *o.alpha >= coordinator::kMinPoissonAlpha &&
                    *o.alpha <= coordinator::kMaxPoissonAlpha)) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "--alpha ", *o.alpha, " is out of range: want ", coordinator::kMinPoissonAlpha, "..",
-        coordinator::kMaxPoissonAlpha, " (alpha must be > 0)"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("--alpha ", *o.alpha, " is out of range: want ", coordinator::kMinPoissonAlpha,
+                     "..", coordinator::kMaxPoissonAlpha, " (alpha must be > 0)"));
   }
   PRISM_RETURN_IF_ERROR(coordinator::parse_poisson_norm(o.poisson).status());
   if (o.prepass_mode != "samples" && o.prepass_mode != "image") {
@@ -190,11 +189,10 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
       return absl::InvalidArgumentError(absl::StrCat("--prepass-*: ", valid.message()));
     }
     // The wire keeps 0 for "default": a value that rounds to 0 in float would be lost.
-    for (const auto& [flag, value] :
-         {std::pair{"--prepass-epsilon", o.prepass_epsilon},
-          std::pair{"--prepass-fallback", o.prepass_fallback},
-          std::pair{"--prepass-sigma-s", o.prepass_sigma_s},
-          std::pair{"--prepass-sigma-r", o.prepass_sigma_r}}) {
+    for (const auto& [flag, value] : {std::pair{"--prepass-epsilon", o.prepass_epsilon},
+                                      std::pair{"--prepass-fallback", o.prepass_fallback},
+                                      std::pair{"--prepass-sigma-s", o.prepass_sigma_s},
+                                      std::pair{"--prepass-sigma-r", o.prepass_sigma_r}}) {
       if (value && static_cast<float>(*value) == 0.0f && *value != 0.0) {
         return absl::InvalidArgumentError(absl::StrCat(flag, " ", *value, " is too small"));
       }
@@ -252,7 +250,8 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   spec.set_tile_size(static_cast<std::uint32_t>(o.tile));
   spec.set_seed(o.seed);
   if (o.max_depth) spec.set_max_depth(static_cast<std::uint32_t>(*o.max_depth));
-  if (o.samples_per_task) spec.set_samples_per_task(static_cast<std::uint32_t>(*o.samples_per_task));
+  if (o.samples_per_task)
+    spec.set_samples_per_task(static_cast<std::uint32_t>(*o.samples_per_task));
   spec.set_spectral_pdf(*parse_spectral_pdf(o.spectral_pdf) == worker::SpectralPdfKind::kVisible
                             ? v1::SPECTRAL_PDF_VISIBLE
                             : v1::SPECTRAL_PDF_FLAT);
@@ -295,9 +294,9 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   // The same job the farm would run: one set of rules for defaults and ranges.
   PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
                          scene::make_bundle(loaded.root, loaded.scene_relpath, description.files));
-  PRISM_ASSIGN_OR_RETURN(prism::v1::JobSpec spec, job_spec_of(options, description,
-                                                              bundle.content_hash,
-                                                              loaded.scene_relpath));
+  PRISM_ASSIGN_OR_RETURN(
+      prism::v1::JobSpec spec,
+      job_spec_of(options, description, bundle.content_hash, loaded.scene_relpath));
   PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters job,
                          coordinator::job_parameters(spec, description));
   coordinator::LocalRenderOptions local;
@@ -353,9 +352,8 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   }
   if (report.prepass.has_value()) {
     report.prepass->seconds = result->stats.prepass_seconds;
-    report.prepass->reconstruction_seconds = result->stats.prepass_reconstruction_seconds;
     report.prepass->final_seconds = result->stats.render_seconds;
-    report.prepass->fallback_fraction = result->stats.fallback_fraction;
+    if (result->stats.prepass.has_value()) report.prepass->outcome = *result->stats.prepass;
   }
 
   if (result->primal.has_value() && result->gradient.has_value()) {
@@ -368,10 +366,8 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   return absl::StrCat(
       "rendered ", report.scene, ": ", report.width, "x", report.height, ", ", report.spp, " spp, ",
       report.bins, " bins, ", report.integrator, ", ", report.threads, " threads in ",
-      report.prepass.has_value()
-          ? absl::StrFormat("%.2f s of prepass (%.1f %% fallback pixels) + ",
-                            report.prepass->seconds, 100.0 * report.prepass->fallback_fraction)
-          : std::string(),
+      report.prepass.has_value() ? coordinator::prepass_summary(*report.prepass) + " + "
+                                 : std::string(),
       absl::StrFormat("%.2f", seconds), " s (", human(seconds > 0 ? report.samples / seconds : NAN),
       " samples/s, ", human(seconds > 0 ? report.rays / seconds : NAN), " rays/s, peak ",
       report.peak_memory_bytes >> 20, " MiB); wrote ", paths.spectral_exr.string(), ", ",

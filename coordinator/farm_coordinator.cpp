@@ -301,17 +301,16 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
   job->spec = spec;
   PRISM_ASSIGN_OR_RETURN(job->plan, plan_tiles({params.width, params.height, params.tile_size,
                                                 params.spp, params.samples_per_task}));
-  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb,
-                         image::RgbImage::create(params.width, params.height));
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, image::RgbImage::create(params.width, params.height));
   job->rgb = std::make_unique<image::RgbImage>(std::move(rgb));
   job->statistics =
       std::make_unique<BinStatisticsAccumulator>(job->plan.tiles.size(), params.render.bins);
   job->started = SteadyClock::now();
   if (params.render.integrator == worker::IntegratorKind::kGradient) {
-    PRISM_ASSIGN_OR_RETURN(PoissonSolver solver,
-                           PoissonSolver::create(params.render.bins,
-                                                 params.render.gradient_offset_bins,
-                                                 params.gradient.alpha));
+    PRISM_ASSIGN_OR_RETURN(
+        PoissonSolver solver,
+        PoissonSolver::create(params.render.bins, params.render.gradient_offset_bins,
+                              params.gradient.alpha));
     job->finalise = reconstructing_finaliser(
         std::make_shared<const PoissonSolver>(std::move(solver)), params.gradient.norm);
   } else {
@@ -326,8 +325,9 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
     PRISM_ASSIGN_OR_RETURN(
         PrepassRun run,
         PrepassRun::create(*params.prepass, params.width, params.height, params.tile_size,
-                           params.render.bins, std::move(distributions.emitters),
-                           std::move(distributions.sensor)));
+                           params.render.bins, distributions.job_default,
+                           distributions.sensor.has_value() ? &*distributions.sensor : nullptr,
+                           prepass_variance_model(params.render)));
     job->prepass = std::move(run);
     for (int k = 1; k <= job->prepass->passes(); ++k) {
       // Called from add, which runs under mutex_.
@@ -335,9 +335,9 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
                                       const image::SpectralImage&) {
         return raw->prepass->add_tile(k, merged);
       };
-      PRISM_ASSIGN_OR_RETURN(std::unique_ptr<TileAssembler> assembler,
-                             TileAssembler::create(job->prepass->plan(k), params.render.bins,
-                                                   on_prepass_tile));
+      PRISM_ASSIGN_OR_RETURN(
+          std::unique_ptr<TileAssembler> assembler,
+          TileAssembler::create(job->prepass->plan(k), params.render.bins, on_prepass_tile));
       job->prepass_assemblers.push_back(std::move(assembler));
       job->stage_first.push_back(job->stage_first.back() +
                                  static_cast<int>(job->prepass->plan(k).tiles.size()));
@@ -351,8 +351,8 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
     PRISM_RETURN_IF_ERROR(raw->tiles->put(tile, merged));
     return absorb_tile(*raw, tile, merged, finalised);
   };
-  PRISM_ASSIGN_OR_RETURN(job->assembler, TileAssembler::create(job->plan, params.render.bins,
-                                                               on_tile, job->finalise));
+  PRISM_ASSIGN_OR_RETURN(
+      job->assembler, TileAssembler::create(job->plan, params.render.bins, on_tile, job->finalise));
   return job;
 }
 
@@ -372,10 +372,28 @@ absl::Status FarmCoordinator::advance_locked(const std::string& job_id) {
   PRISM_RETURN_IF_ERROR(job.prepass_assemblers[static_cast<std::size_t>(k - 1)]->check_complete());
   PRISM_RETURN_IF_ERROR(job.prepass->finish_pass(k));
   ++job.stage;
-  if (job.stage == job.prepass->passes()) {
+  // A prepass that stopped early leaves its later passes unrendered: they keep their task
+  // numbers, skipped, so the final pass's tasks are numbered as planned.
+  for (; job.prepass->finished() && job.stage < final_stage_of(job); ++job.stage) {
+    const std::size_t s = static_cast<std::size_t>(job.stage);
+    PRISM_ASSIGN_OR_RETURN(int first,
+                           scheduler_.add_tasks(job_id, stage_specs(job, job.stage), true));
+    if (first != job.stage_first[s]) {
+      return absl::InternalError(absl::StrCat("job ", job_id, ": skipped stage ", job.stage,
+                                              " starts at task ", first, ", the plan says ",
+                                              job.stage_first[s]));
+    }
+    PRISM_RETURN_IF_ERROR(store_->skip_tasks(job_id, job.stage_first[s], job.stage_first[s + 1]));
+  }
+  if (job.stage == final_stage_of(job)) {
     job.prepass_seconds = std::chrono::duration<double>(SteadyClock::now() - job.started).count();
-    options_.logger->info("[job {}] prepass done: {:.1f} % of pixels on the default distribution",
-                          job_id, 100.0 * job.prepass->fallback_fraction());
+    const PrepassOutcome o = job.prepass->outcome();
+    options_.logger->info(
+        "[job {}] prepass done after {} of {} passes{}: predicted gain {:.1f} %, {:.1f} % of "
+        "pixels on the default distribution",
+        job_id, o.passes_run, job.prepass->passes(), o.stopped_early ? " (stopped early)" : "",
+        100.0 * (o.stopped_early ? o.first_pass_gain : o.predicted_gain),
+        100.0 * o.fallback_fraction);
   }
   PRISM_ASSIGN_OR_RETURN(int first, scheduler_.add_tasks(job_id, stage_specs(job, job.stage)));
   if (first != job.stage_first[static_cast<std::size_t>(job.stage)]) {
@@ -387,15 +405,14 @@ absl::Status FarmCoordinator::advance_locked(const std::string& job_id) {
 }
 
 absl::Status FarmCoordinator::attach_tiles(ActiveJob& job, const std::string& job_id) const {
-  PRISM_ASSIGN_OR_RETURN(FinishedTiles tiles, FinishedTiles::open(tiles_dir(job_id), job.plan,
-                                                                  job.params.width,
-                                                                  job.params.render.bins));
+  PRISM_ASSIGN_OR_RETURN(
+      FinishedTiles tiles,
+      FinishedTiles::open(tiles_dir(job_id), job.plan, job.params.width, job.params.render.bins));
   job.tiles = std::make_unique<FinishedTiles>(std::move(tiles));
   return absl::OkStatus();
 }
 
-absl::Status FarmCoordinator::absorb_tile(ActiveJob& job, int tile,
-                                          const image::TileResult& merged,
+absl::Status FarmCoordinator::absorb_tile(ActiveJob& job, int tile, const image::TileResult& merged,
                                           const image::SpectralImage& finalised) const {
   job.statistics->add_tile(static_cast<std::size_t>(tile), merged);
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, to_linear_srgb(finalised, cmf_));
@@ -497,11 +514,10 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
   PRISM_ASSIGN_OR_RETURN(store::JobRecord rendering,
                          store_->set_job_state(id, store::JobState::kRendering, now().count()));
   active_[id] = std::move(active);
-  options_.logger->info("[job {}] submitted: {}x{}, {} spp, {} bins, {}, {} tasks{}, bundle {}",
-                        id, params.width, params.height, params.spp, params.render.bins,
+  options_.logger->info("[job {}] submitted: {}x{}, {} spp, {} bins, {}, {} tasks{}, bundle {}", id,
+                        params.width, params.height, params.spp, params.render.bins,
                         worker::name(params.render.integrator), specs.size(),
-                        params.prepass.has_value() ? " (with a prepass)" : "",
-                        params.bundle_hash);
+                        params.prepass.has_value() ? " (with a prepass)" : "", params.bundle_hash);
   process_events_locked();
   changed_locked();
   PRISM_ASSIGN_OR_RETURN(store::JobRecord now_record, store_->get_job(id));
@@ -522,8 +538,7 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
                            load_bundle_scene(params.bundle_hash, params.scene_path));
     description = std::move(loaded.description);
   }
-  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active,
-                         make_active(params, spec, description));
+  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active, make_active(params, spec, description));
   PRISM_ASSIGN_OR_RETURN(std::vector<store::TaskRecord> tasks, store_->tasks_of(record.id));
   const std::vector<TaskSpec> specs = task_specs(*active);
   if (tasks.size() != specs.size()) {
@@ -563,6 +578,19 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
     }
     if (!complete) break;
     PRISM_RETURN_IF_ERROR(active->prepass->finish_pass(stage + 1));
+    if (active->prepass->finished() && stage + 1 < final_stage) {
+      // It stopped early (a pure function of the results, so as before the restart): the later
+      // passes are skipped.
+      for (int skipped = stage + 1; skipped < final_stage; ++skipped) {
+        for (int i = active->stage_first[skipped]; i < active->stage_first[skipped + 1]; ++i) {
+          done.push_back(i);
+        }
+        PRISM_RETURN_IF_ERROR(store_->skip_tasks(record.id, active->stage_first[skipped],
+                                                 active->stage_first[skipped + 1]));
+      }
+      stage = final_stage;
+      break;
+    }
   }
   active->stage = stage;
   if (stage == final_stage) {
@@ -602,8 +630,7 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
     }
   }
   active->samples_at_start = record.progress.samples_done;
-  const std::vector<TaskSpec> handed(specs.begin(),
-                                     specs.begin() + active->stage_first[stage + 1]);
+  const std::vector<TaskSpec> handed(specs.begin(), specs.begin() + active->stage_first[stage + 1]);
   PRISM_RETURN_IF_ERROR(scheduler_.add_job(record.id, handed, done));
   if (record.state == store::JobState::kQueued) {
     PRISM_RETURN_IF_ERROR(
@@ -845,11 +872,10 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   if (report.gradient.has_value()) fill_gradient_counters(report.counters, *report.gradient);
   if (report.prepass.has_value()) {
     report.prepass->seconds = job.prepass_seconds;
-    report.prepass->reconstruction_seconds = job.prepass->reconstruction_seconds();
     report.prepass->final_seconds =
         std::chrono::duration<double>(SteadyClock::now() - job.started).count() -
         job.prepass_seconds;
-    report.prepass->fallback_fraction = job.prepass->fallback_fraction();
+    report.prepass->outcome = job.prepass->outcome();
   }
 
   const OutputPaths paths = output_paths_of(job_id);
@@ -870,8 +896,7 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
     }
     std::vector<float> gradient_band;
     PRISM_RETURN_IF_ERROR(write_primal_and_gradient(
-        p.render.bins, job.tiles->band_rows(), job.tiles->rows(mean_finaliser(), &band),
-        primal_rgb,
+        p.render.bins, job.tiles->band_rows(), job.tiles->rows(mean_finaliser(), &band), primal_rgb,
         job.tiles->rows(
             [](const image::TileResult& merged) -> absl::StatusOr<image::SpectralImage> {
               return image::finalise_gradients(merged);
@@ -880,8 +905,8 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
         gradient_rgb, report, paths));
   }
   PRISM_RETURN_IF_ERROR(write_outputs(p.render.bins, job.tiles->band_rows(),
-                                      job.tiles->rows(job.finalise, &band), *job.rgb, report,
-                                      paths, {p.outputs.png_exposure}));
+                                      job.tiles->rows(job.finalise, &band), *job.rgb, report, paths,
+                                      {p.outputs.png_exposure}));
   // write_outputs writes every kind; keep what the job asked for, the report, and the RGB EXR
   // (previews of a finished job are made from it; GetResult serves it only when asked for).
   std::error_code ec;
@@ -948,7 +973,7 @@ absl::StatusOr<std::optional<LeaseGrant>> FarmCoordinator::acquire(const std::st
             grant.film_width = pass.width;
             grant.film_height = pass.height;
           }
-        } else {
+        } else if (job.prepass->final_pass_has_tables()) {
           absl::StatusOr<std::string> final_tables = job.prepass->final_tables(spec.tile);
           if (final_tables.ok()) {
             tables = std::optional<std::string>(*std::move(final_tables));
@@ -1066,10 +1091,9 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
     if (final_stage) {
       for (const auto& [name, value] : counters) job.counters[name] += value;
     }
-    absl::Status added =
-        final_stage ? job.assembler->add(tile, *std::move(parsed))
-                    : job.prepass_assemblers[static_cast<std::size_t>(stage)]->add(
-                          tile, *std::move(parsed));
+    absl::Status added = final_stage ? job.assembler->add(tile, *std::move(parsed))
+                                     : job.prepass_assemblers[static_cast<std::size_t>(stage)]->add(
+                                           tile, *std::move(parsed));
     if (!added.ok()) {
       fail_job_locked(task.job_id,
                       absl::StrCat("merging task ", task.index, ": ", added.message()));

@@ -79,7 +79,9 @@ absl::StatusOr<worker::LightSelectionKind> light_selection_of(prism::v1::LightSe
 
 // The wire keeps these values as float: defaults are rounded the same way, so a spec with the
 // field unset and one with the default written explicitly (to_proto) give the same parameters.
-double as_float(double value) { return static_cast<double>(static_cast<float>(value)); }
+double as_float(double value) {
+  return static_cast<double>(static_cast<float>(value));
+}
 
 // A float field where 0 means "the default": the default, or the value when it is finite and
 // inside [lo, hi] (lo_open: > lo).
@@ -122,7 +124,10 @@ absl::Status gradient_of(const prism::v1::GradientOptions& g, int bins, JobParam
   return absl::OkStatus();
 }
 
-absl::StatusOr<PrepassParameters> prepass_of(const prism::v1::PrepassOptions& o) {
+// The prepass of a job with `spp` final samples per pixel, or nothing when its Ñ is left to the
+// budget and the budget is too small to learn from (budgeted_prepass_spp).
+absl::StatusOr<std::optional<PrepassParameters>> prepass_of(const prism::v1::PrepassOptions& o,
+                                                            std::uint64_t spp) {
   PrepassParameters d;
   PrepassParameters p;
   if (o.passes() > static_cast<std::uint32_t>(PrepassParameters::kMaxPasses)) {
@@ -131,21 +136,25 @@ absl::StatusOr<PrepassParameters> prepass_of(const prism::v1::PrepassOptions& o)
                                                    PrepassParameters::kMaxPasses));
   }
   p.passes = o.passes() != 0 ? static_cast<int>(o.passes()) : d.passes;
-  p.spp = o.spp() != 0 ? o.spp() : d.spp;
   p.image_scaled = o.image_scaled();
+  const std::uint32_t budgeted =
+      o.spp() != 0 ? o.spp() : budgeted_prepass_spp(spp, p.passes, p.image_scaled);
+  p.spp = budgeted != 0 ? budgeted : kMinBudgetedSpp;  // validated like any, then dropped
   // 0 means the default for every float; a fallback threshold of exactly 0 is asked for with a
-  // tiny positive value (the test is <= h, so h = 1e-30 behaves as 0 for any real estimate).
+  // tiny positive value (a pixel keeps a table when V(α) <= (1 − f)·V(0), so f = 1e-30 behaves as
+  // 0 for any real estimate).
   auto value = [](float v, double fallback) { return v != 0.0f ? double(v) : as_float(fallback); };
   p.epsilon = value(o.epsilon(), d.epsilon);
   p.fallback = value(o.fallback(), d.fallback);
   p.sigma_s = value(o.sigma_s(), d.sigma_s);
   p.sigma_r = value(o.sigma_r(), d.sigma_r);
   if (p.spp > kMaxJobSpp) {
-    return absl::InvalidArgumentError(absl::StrCat("prepass.spp ", p.spp,
-                                                   " is out of range: want 1..", kMaxJobSpp));
+    return absl::InvalidArgumentError(
+        absl::StrCat("prepass.spp ", p.spp, " is out of range: want 1..", kMaxJobSpp));
   }
   PRISM_RETURN_IF_ERROR(p.validate());
-  return p;
+  if (budgeted == 0) return std::optional<PrepassParameters>();
+  return std::optional<PrepassParameters>(p);
 }
 
 }  // namespace
@@ -156,7 +165,6 @@ bool prepass_by_default(worker::IntegratorKind, const scene::SceneDescription&) 
   // emitter mixture (issue 11, docs/benchmarks.md).
   return false;
 }
-
 
 absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
                                              const scene::SceneDescription& scene) {
@@ -213,8 +221,7 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   }
   const bool gradient = p.render.integrator == worker::IntegratorKind::kGradient;
   if (spec.outputs().primal_and_gradients() && !gradient) {
-    return absl::InvalidArgumentError(
-        "outputs.primal_and_gradients needs the gradient integrator");
+    return absl::InvalidArgumentError("outputs.primal_and_gradients needs the gradient integrator");
   }
   if (!gradient && spec.has_gradient() &&
       (spec.gradient().delta() != 0.0f || spec.gradient().tau() != 0.0f ||
@@ -222,7 +229,8 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
        spec.gradient().norm() != prism::v1::POISSON_NORM_UNSPECIFIED)) {
     return absl::InvalidArgumentError(
         absl::StrCat("gradient options (delta, tau, alpha, norm) need the gradient integrator, "
-                     "not ", worker::name(p.render.integrator)));
+                     "not ",
+                     worker::name(p.render.integrator)));
   }
 
   p.render.spectral_light_selection =
@@ -249,13 +257,12 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   const bool prepass = spec.has_prepass() ? spec.prepass().enabled()
                                           : prepass_by_default(p.render.integrator, scene);
   if (prepass) {
-    PRISM_ASSIGN_OR_RETURN(p.prepass, prepass_of(spec.prepass()));
-  } else if (spec.has_prepass() && (spec.prepass().passes() != 0 || spec.prepass().spp() != 0 ||
-                                    spec.prepass().image_scaled() ||
-                                    spec.prepass().epsilon() != 0.0f ||
-                                    spec.prepass().fallback() != 0.0f ||
-                                    spec.prepass().sigma_s() != 0.0f ||
-                                    spec.prepass().sigma_r() != 0.0f)) {
+    PRISM_ASSIGN_OR_RETURN(p.prepass, prepass_of(spec.prepass(), p.spp));
+  } else if (spec.has_prepass() &&
+             (spec.prepass().passes() != 0 || spec.prepass().spp() != 0 ||
+              spec.prepass().image_scaled() || spec.prepass().epsilon() != 0.0f ||
+              spec.prepass().fallback() != 0.0f || spec.prepass().sigma_s() != 0.0f ||
+              spec.prepass().sigma_r() != 0.0f)) {
     return absl::InvalidArgumentError("prepass options are set but the prepass is off");
   }
 
@@ -337,7 +344,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
     g->set_tau(p.render.gradient_tau);
     g->set_alpha(static_cast<float>(p.gradient.alpha));
     g->set_norm(p.gradient.norm == PoissonNorm::kL1 ? prism::v1::POISSON_NORM_L1
-                                                     : prism::v1::POISSON_NORM_L2);
+                                                    : prism::v1::POISSON_NORM_L2);
   }
   auto* prepass = spec.mutable_prepass();
   prepass->set_enabled(p.prepass.has_value());

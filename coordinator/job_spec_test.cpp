@@ -236,6 +236,7 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
 TEST(JobSpecTest, GradientAndPrepassDefaultsSurviveTheExplicitForm) {
   prism::v1::JobSpec spec = minimal_spec();
   spec.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+  spec.set_spp(4096);
   spec.mutable_prepass()->set_enabled(true);
   auto p = job_parameters(spec, test_scene());
   ASSERT_TRUE(p.ok()) << p.status();
@@ -244,7 +245,7 @@ TEST(JobSpecTest, GradientAndPrepassDefaultsSurviveTheExplicitForm) {
   EXPECT_EQ(p->gradient.norm, PoissonNorm::kL2);
   ASSERT_TRUE(p->prepass.has_value());
   EXPECT_EQ(p->prepass->passes, 2);
-  EXPECT_EQ(p->prepass->spp, 128u);
+  EXPECT_EQ(p->prepass->spp, 128u);  // the budget's cap
   auto again = job_parameters(to_proto(*p), scene::SceneDescription{});
   ASSERT_TRUE(again.ok()) << again.status();
   EXPECT_EQ(again->gradient, p->gradient);
@@ -276,6 +277,7 @@ TEST(JobSpecTest, PrepassDefaultFollowsTheScene) {
   ASSERT_TRUE(f.ok()) << f.status();
   EXPECT_FALSE(f->prepass.has_value());
   prism::v1::JobSpec on = minimal_spec();
+  on.set_spp(1024);
   on.mutable_prepass()->set_enabled(true);
   auto g = job_parameters(on, fog);
   ASSERT_TRUE(g.ok()) << g.status();
@@ -286,6 +288,43 @@ TEST(JobSpecTest, PrepassDefaultFollowsTheScene) {
   auto q = job_parameters(off, fog);
   ASSERT_TRUE(q.ok()) << q.status();
   EXPECT_FALSE(q->prepass.has_value());
+}
+
+// Left open, Ñ follows the job's spp so the passes' samples stay under kBudgetShare of the final
+// pass's (K = 2: Ñ·(1 + 1/8), image-scaled Ñ·(1 + 1/4)); a job too small to learn from runs
+// without a prepass; an explicit Ñ is kept whatever the spp.
+TEST(JobSpecTest, PrepassSamplesFollowTheBudget) {
+  EXPECT_EQ(budgeted_prepass_spp(1024, 2), 72u);        // ⌊0.08·1024/1.125⌋
+  EXPECT_EQ(budgeted_prepass_spp(1024, 2, true), 65u);  // ⌊0.08·1024/1.25⌋
+  EXPECT_EQ(budgeted_prepass_spp(4096, 1), 128u);       // the cap
+  EXPECT_EQ(budgeted_prepass_spp(225, 2), 16u);
+  EXPECT_EQ(budgeted_prepass_spp(224, 2), 0u);
+  EXPECT_EQ(budgeted_prepass_spp(1024, 3), 71u);  // ⌊0.08·1024/1.140625⌋
+  for (std::uint64_t spp : {64u, 1024u, 100000u}) {
+    const std::uint32_t n = budgeted_prepass_spp(spp, 2);
+    if (n != 0) {
+      EXPECT_LE(double(n) * 1.125, kBudgetShare * double(spp)) << spp;
+    }
+  }
+  prism::v1::JobSpec spec = minimal_spec();
+  spec.mutable_prepass()->set_enabled(true);
+  spec.set_spp(1024);
+  auto p = job_parameters(spec, test_scene());
+  ASSERT_TRUE(p.ok()) << p.status();
+  ASSERT_TRUE(p->prepass.has_value());
+  EXPECT_EQ(p->prepass->spp, 72u);
+  spec.set_spp(128);
+  p = job_parameters(spec, test_scene());
+  ASSERT_TRUE(p.ok()) << p.status();
+  EXPECT_FALSE(p->prepass.has_value());
+  auto again = job_parameters(to_proto(*p), scene::SceneDescription{});
+  ASSERT_TRUE(again.ok()) << again.status();
+  EXPECT_FALSE(again->prepass.has_value());
+  spec.mutable_prepass()->set_spp(32);
+  p = job_parameters(spec, test_scene());
+  ASSERT_TRUE(p.ok()) << p.status();
+  ASSERT_TRUE(p->prepass.has_value());
+  EXPECT_EQ(p->prepass->spp, 32u);
 }
 
 }  // namespace

@@ -9,15 +9,15 @@
 #include <chrono>
 #include <condition_variable>
 #include <limits>
+#include <mutex>
 #include <optional>
 #include <string>
-#include <mutex>
 #include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "coordinator/tile_merge.h"
-#include "services/spectral/pixel_tables.h"
 #include "services/base/status.h"
+#include "services/spectral/pixel_tables.h"
 #include "worker/tile_renderer.h"
 
 namespace prism::coordinator {
@@ -61,24 +61,25 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
                          worker::RenderScene::build(device, scene, library, options.render,
                                                     options.width, options.height));
   if (options.render.integrator == worker::IntegratorKind::kGradient) {
-    PRISM_ASSIGN_OR_RETURN(PoissonSolver solver,
-                           PoissonSolver::create(options.render.bins,
-                                                 options.render.gradient_offset_bins,
-                                                 options.poisson_alpha));
+    PRISM_ASSIGN_OR_RETURN(
+        PoissonSolver solver,
+        PoissonSolver::create(options.render.bins, options.render.gradient_offset_bins,
+                              options.poisson_alpha));
     render->finaliser_ = reconstructing_finaliser(
         std::make_shared<const PoissonSolver>(std::move(solver)), options.poisson_norm);
   } else {
     render->finaliser_ = mean_finaliser();
   }
   if (options.prepass.has_value()) {
-    PRISM_ASSIGN_OR_RETURN(worker::PrepassDistributions distributions,
-                           worker::prepass_distributions(scene, options.render, library,
-                                                         options.render.bins));
+    PRISM_ASSIGN_OR_RETURN(
+        worker::PrepassDistributions distributions,
+        worker::prepass_distributions(scene, options.render, library, options.render.bins));
     PRISM_ASSIGN_OR_RETURN(
         PrepassRun run,
         PrepassRun::create(*options.prepass, options.width, options.height, options.tile_size,
-                           options.render.bins, std::move(distributions.emitters),
-                           std::move(distributions.sensor)));
+                           options.render.bins, distributions.job_default,
+                           distributions.sensor.has_value() ? &*distributions.sensor : nullptr,
+                           prepass_variance_model(options.render)));
     // Image-scaled passes render the same camera on a smaller film.
     for (int k = 1; k <= run.passes(); ++k) {
       const PrepassPass& pass = run.pass(k);
@@ -150,9 +151,9 @@ void run_stage(const Stage& stage, int bins, tbb::task_arena& arena, StageShared
       const image::TileRect& rect = plan.tiles[tile];
       PRISM_ASSIGN_OR_RETURN(std::optional<std::string> bytes, stage.tables(rect));
       if (!bytes.has_value()) return nullptr;
-      PRISM_ASSIGN_OR_RETURN(spectral::PixelTables decoded,
-                             spectral::PixelTables::decode(rect.width(), rect.height(), bins,
-                                                           *bytes));
+      PRISM_ASSIGN_OR_RETURN(
+          spectral::PixelTables decoded,
+          spectral::PixelTables::decode(rect.width(), rect.height(), bins, *bytes));
       tables[tile] = std::make_shared<const spectral::PixelTables>(std::move(decoded));
     }
     return tables[tile].get();
@@ -229,8 +230,9 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   BinStatisticsAccumulator statistics(plan_.tiles.size(), bins);
   std::optional<PrepassRun> prepass;
   if (prepass_template_ != nullptr) prepass.emplace(*prepass_template_);
+  std::optional<PixelTableImage> prepass_tables;
 
-  std::uint64_t total = 0;
+  std::atomic<std::uint64_t> total = 0;
   const std::uint64_t final_samples = options_.spp * static_cast<std::uint64_t>(options_.width) *
                                       static_cast<std::uint64_t>(options_.height);
   if (prepass.has_value()) {
@@ -259,7 +261,7 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
           std::chrono::duration<double>(Clock::now() - last_report).count() >=
               options_.progress_interval_seconds) {
         last_report = Clock::now();
-        options_.progress({shared.progress.load(), total, seconds_since(start)});
+        options_.progress({shared.progress.load(), total.load(), seconds_since(start)});
       }
     }
   });
@@ -291,11 +293,19 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
       if (shared.stop.load()) break;
       absl::Status finished_pass = prepass->finish_pass(k);
       if (!finished_pass.ok()) shared.fail(finished_pass);
+      if (prepass->finished()) break;
+    }
+    // Passes the prepass stopped before are never rendered: progress ends at what is.
+    for (int k = prepass->passes_run() + 1; k <= prepass->passes(); ++k) {
+      const PrepassPass& pass = prepass->pass(k);
+      total.fetch_sub(std::uint64_t{pass.spp} * static_cast<std::uint64_t>(pass.width) *
+                      static_cast<std::uint64_t>(pass.height));
     }
     stats.prepass_seconds = seconds_since(start);
-    stats.prepass_reconstruction_seconds = prepass->reconstruction_seconds();
-    stats.fallback_fraction = prepass->fallback_fraction();
-    stats.prepass_passes = prepass->passes();
+    if (prepass->finished()) {
+      stats.prepass = prepass->outcome();
+      if (options_.keep_prepass_tables) prepass_tables = *prepass->tables();
+    }
   }
 
   const Clock::time_point final_start = Clock::now();
@@ -306,9 +316,9 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
     stage.scene = scene_.get();
     stage.plan = &plan_;
     stage.pass = 0;
-    if (prepass.has_value()) {
-      stage.tables = [&](const image::TileRect& rect)
-          -> absl::StatusOr<std::optional<std::string>> {
+    if (prepass.has_value() && prepass->final_pass_has_tables()) {
+      stage.tables =
+          [&](const image::TileRect& rect) -> absl::StatusOr<std::optional<std::string>> {
         PRISM_ASSIGN_OR_RETURN(std::string bytes, prepass->final_tables(rect));
         return std::optional<std::string>(std::move(bytes));
       };
@@ -337,7 +347,8 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
 
   if (cancel != nullptr && cancel->load()) return absl::CancelledError("the render was cancelled");
   if (!shared.first_error.ok()) return shared.first_error;
-  if (options_.progress) options_.progress({shared.progress.load(), total, seconds_since(start)});
+  if (options_.progress)
+    options_.progress({shared.progress.load(), total.load(), seconds_since(start)});
 
   stats.build_seconds = build_seconds_;
   stats.render_seconds = render_seconds;
@@ -349,6 +360,7 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   stats.peak_tiles_in_flight = shared.peak_tiles_in_flight;
   LocalRenderResult result{std::move(image), std::move(primal), std::move(gradient),
                            statistics.finish(), stats};
+  result.prepass_tables = std::move(prepass_tables);
   return result;
 }
 

@@ -61,6 +61,8 @@ struct LocalRenderOptions {
   PoissonNorm poisson_norm = PoissonNorm::kL2;
   // Gradient jobs: also return the raw primal I and gradient G images.
   bool keep_primal_and_gradients = false;
+  // With a prepass: keep the final pass's per-pixel tables in the result (reports, dumps).
+  bool keep_prepass_tables = false;
   // The multi-pass prepass (algorithms.md §4), when set: its passes run first and the final
   // pass samples each pixel's learned table.
   std::optional<PrepassParameters> prepass;
@@ -75,13 +77,10 @@ struct LocalRenderStats {
   std::size_t tasks = 0;
   int tiles = 0;
   int peak_tiles_in_flight = 0;
-  // The prepass (zero without one): its passes' wall time including the coordinator's filter and
-  // tables, the part of that spent reconstructing, and the fraction of pixels that fell back to
-  // the default distribution. render_seconds is the final pass alone.
+  // The prepass (zero and unset without one): its passes' wall time including the coordinator's
+  // filters and tables, and what it did. render_seconds is the final pass alone.
   double prepass_seconds = 0;
-  double prepass_reconstruction_seconds = 0;
-  double fallback_fraction = 0;
-  int prepass_passes = 0;
+  std::optional<PrepassOutcome> prepass;
 };
 
 struct LocalRenderResult {
@@ -93,6 +92,9 @@ struct LocalRenderResult {
   std::optional<image::SpectralImage> gradient;
   BinStatistics statistics;
   LocalRenderStats stats;
+  // keep_prepass_tables with a prepass: the tables the final pass sampled (their mixture weights
+  // and predicted variances per pixel).
+  std::optional<PixelTableImage> prepass_tables;
 };
 
 class LocalRender {

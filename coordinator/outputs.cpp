@@ -9,6 +9,7 @@
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "services/base/atomic_file.h"
 #include "services/base/check.h"
 #include "services/base/status.h"
@@ -225,6 +226,25 @@ double shortest(float value) {
 
 }  // namespace
 
+std::string prepass_summary(const PrepassReport& p) {
+  const double total = p.seconds + p.final_seconds;
+  const PrepassOutcome& o = p.outcome;
+  std::string what;
+  if (o.stopped_early) {
+    what = absl::StrFormat("stopped after pass 1: predicted gain %.1f %%, default everywhere",
+                           100.0 * o.first_pass_gain);
+  } else if (o.dropped) {
+    what = absl::StrFormat("%d passes, predicted gain %.1f %%: tables dropped, default everywhere",
+                           o.passes_run, 100.0 * o.predicted_gain);
+  } else {
+    what = absl::StrFormat("%d passes, predicted gain %.1f %%, %.1f %% of pixels learned",
+                           o.passes_run, 100.0 * o.predicted_gain,
+                           100.0 * (1.0 - o.fallback_fraction));
+  }
+  return absl::StrFormat("%.2f s of prepass (%.1f %% of the time; %s)", p.seconds,
+                         total > 0 ? 100.0 * p.seconds / total : 0.0, what);
+}
+
 std::string format_report_json(const RenderReport& r, const OutputPaths& paths) {
   nlohmann::ordered_json j;
   j["prism_version"] = prism_version();
@@ -267,37 +287,52 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
     auto fraction = [](std::uint64_t part, std::uint64_t whole) {
       return whole > 0 ? double(part) / double(whole) : std::nan("");
     };
-    j["gradient"] = {
-        {"offset_bins", g.offset_bins},
-        {"delta", shortest(g.delta)},
-        {"tau", shortest(g.tau)},
-        {"alpha", shortest(g.alpha)},
-        {"poisson", g.norm},
-        // The spectral gradient paper's Table 1: how many base paths were shifted, and how many
-        // shifts were wasted because the offset did not pass the threshold.
-        {"shifted_path_fraction", fraction(g.shifted_paths, g.base_paths)},
-        {"wasted_shift_fraction", fraction(g.wasted_shifts, g.shifts)},
-        {"failed_shift_fraction", fraction(g.failed_shifts, g.shifts)},
-        {"base_paths", g.base_paths},
-        {"shifted_paths", g.shifted_paths},
-        {"shifts", g.shifts},
-        {"failed_shifts", g.failed_shifts},
-        {"wasted_shifts", g.wasted_shifts}};
+    j["gradient"] = {{"offset_bins", g.offset_bins},
+                     {"delta", shortest(g.delta)},
+                     {"tau", shortest(g.tau)},
+                     {"alpha", shortest(g.alpha)},
+                     {"poisson", g.norm},
+                     // The spectral gradient paper's Table 1: how many base paths were shifted, and
+                     // how many shifts were wasted because the offset did not pass the threshold.
+                     {"shifted_path_fraction", fraction(g.shifted_paths, g.base_paths)},
+                     {"wasted_shift_fraction", fraction(g.wasted_shifts, g.shifts)},
+                     {"failed_shift_fraction", fraction(g.failed_shifts, g.shifts)},
+                     {"base_paths", g.base_paths},
+                     {"shifted_paths", g.shifted_paths},
+                     {"shifts", g.shifts},
+                     {"failed_shifts", g.failed_shifts},
+                     {"wasted_shifts", g.wasted_shifts}};
   }
   if (r.prepass.has_value()) {
     const PrepassReport& p = *r.prepass;
-    j["prepass"] = {{"passes", p.passes},
-                    {"pass_spp", p.pass_spp},
-                    {"pass_resolution", p.pass_resolution},
-                    {"mode", p.image_scaled ? "image" : "samples"},
-                    {"epsilon", shortest(p.epsilon)},
-                    {"fallback", shortest(p.fallback)},
-                    {"sigma_s", shortest(p.sigma_s)},
-                    {"sigma_r", shortest(p.sigma_r)},
-                    {"prepass_seconds", p.seconds},
-                    {"reconstruction_seconds", p.reconstruction_seconds},
-                    {"final_pass_seconds", p.final_seconds},
-                    {"fallback_pixel_fraction", p.fallback_fraction}};
+    j["prepass"] = {
+        {"passes", p.passes},
+        {"pass_spp", p.pass_spp},
+        {"pass_resolution", p.pass_resolution},
+        {"mode", p.image_scaled ? "image" : "samples"},
+        {"epsilon", shortest(p.epsilon)},
+        {"fallback", shortest(p.fallback)},
+        {"sigma_s", shortest(p.sigma_s)},
+        {"sigma_r", shortest(p.sigma_r)},
+        {"passes_run", p.outcome.passes_run},
+        {"stopped_early", p.outcome.stopped_early},
+        {"tables_dropped", p.outcome.dropped},
+        {"prepass_seconds", p.seconds},
+        {"reconstruction_seconds", p.outcome.reconstruction_seconds},
+        {"final_pass_seconds", p.final_seconds},
+        {"time_share",
+         p.seconds + p.final_seconds > 0 ? p.seconds / (p.seconds + p.final_seconds) : 0.0},
+        {"first_pass_predicted_gain", p.outcome.first_pass_gain},
+        {"predicted_gain", p.outcome.predicted_gain},
+        {"fallback_pixel_fraction", p.outcome.fallback_fraction}};
+    nlohmann::ordered_json alphas = nlohmann::ordered_json::array();
+    for (int a = 0; a < kAlphaChoices; ++a) {
+      alphas.push_back({{"alpha", shortest(float(p.outcome.alpha_values[a]))},
+                        {"pixels", p.outcome.alpha_histogram[a]}});
+    }
+    j["prepass"]["alpha_histogram"] = alphas;
+    j["prepass"]["learned_shapes"] = {{"second_moment", p.outcome.shape_histogram[0]},
+                                      {"within_lane", p.outcome.shape_histogram[1]}};
   }
   nlohmann::ordered_json outputs = {{"spectral_exr", paths.spectral_exr.string()},
                                     {"rgb_exr", paths.rgb_exr.string()},
@@ -379,8 +414,7 @@ absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& r
   };
   record(paths.spectral_exr,
          image::write_spectral_exr_rows(paths.spectral_exr, image::bin_centres_nm(bins),
-                                        rgb.width(), rgb.height(), band_rows, rows, rgb,
-                                        metadata));
+                                        rgb.width(), rgb.height(), band_rows, rows, rgb, metadata));
   record(paths.rgb_exr,
          image::write_rgb_exr(paths.rgb_exr, rgb, image::ExrPixelType::kFloat, metadata));
   record(paths.png, image::write_png_preview(paths.png, rgb, options.exposure_stops));
@@ -405,12 +439,12 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
                                                     "': ", status.message()));
   }
   status = image::write_spectral_exr_rows(paths.gradient_exr, centres, gradient_rgb.width(),
-                                          gradient_rgb.height(), band_rows, gradient,
-                                          gradient_rgb, metadata);
+                                          gradient_rgb.height(), band_rows, gradient, gradient_rgb,
+                                          metadata);
   if (!status.ok()) {
-    return absl::Status(status.code(),
-                        absl::StrCat("could not write '", paths.gradient_exr.string(),
-                                     "': ", status.message()));
+    return absl::Status(
+        status.code(),
+        absl::StrCat("could not write '", paths.gradient_exr.string(), "': ", status.message()));
   }
   return absl::OkStatus();
 }

@@ -5,11 +5,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/check.h"
+#include "services/base/status.h"
 #include "services/spectral/pixel_tables.h"
 
 namespace prism::coordinator {
@@ -41,9 +43,8 @@ void for_each_row(int height, const RowFn& row_fn) {
 }
 
 double squared_distance(const GuideFeatures& a, const GuideFeatures& b) {
-  const double d0 = double(a.depth) - b.depth, d1 = double(a.nx) - b.nx,
-               d2 = double(a.ny) - b.ny, d3 = double(a.nz) - b.nz,
-               d4 = double(a.albedo) - b.albedo;
+  const double d0 = double(a.depth) - b.depth, d1 = double(a.nx) - b.nx, d2 = double(a.ny) - b.ny,
+               d3 = double(a.nz) - b.nz, d4 = double(a.albedo) - b.albedo;
   return d0 * d0 + d1 * d1 + d2 * d2 + d3 * d3 + d4 * d4;
 }
 
@@ -57,8 +58,8 @@ absl::Status PrepassParameters::validate() const {
   if (!(std::isfinite(epsilon) && epsilon > 0.0 && epsilon < 1.0)) {
     return bad_field("epsilon", epsilon, "in (0, 1)");
   }
-  if (!(std::isfinite(fallback) && fallback >= 0.0)) {
-    return bad_field("fallback", fallback, "finite and >= 0");
+  if (!(std::isfinite(fallback) && fallback >= 0.0 && fallback < 1.0)) {
+    return bad_field("fallback", fallback, "in [0, 1)");
   }
   if (!(std::isfinite(sigma_s) && sigma_s > 0.0 && sigma_s <= kMaxSigmaS)) {
     return bad_field("sigma_s", sigma_s, absl::StrCat("in (0, ", kMaxSigmaS, "] pixels"));
@@ -69,13 +70,22 @@ absl::Status PrepassParameters::validate() const {
   return absl::OkStatus();
 }
 
+std::uint32_t budgeted_prepass_spp(std::uint64_t spp, int passes, bool image_scaled) {
+  const int shift = image_scaled ? 2 : 3;  // a pass costs 4^−(K−k) or 8^−(K−k) of the last
+  double share = 0.0;
+  for (int k = 1; k <= std::max(1, passes); ++k) share += std::ldexp(1.0, -shift * (passes - k));
+  const double n = std::floor(kBudgetShare * double(spp) / share);
+  if (n < kMinBudgetedSpp) return 0;
+  return std::uint32_t(std::min<double>(n, kMaxBudgetedSpp));
+}
+
 absl::StatusOr<std::vector<PrepassPass>> prepass_schedule(const PrepassParameters& params,
                                                           int width, int height) {
   if (absl::Status s = params.validate(); !s.ok()) return s;
   if (absl::Status s = check_size(width, height, "the prepass film"); !s.ok()) return s;
   std::vector<PrepassPass> passes;
   for (int k = 1; k <= params.passes; ++k) {
-    const int steps = params.passes - k;  // how many times this pass is quartered
+    const int steps = params.passes - k;  // how many times this pass is scaled down
     PrepassPass p;
     p.index = k;
     if (params.image_scaled) {
@@ -85,7 +95,7 @@ absl::StatusOr<std::vector<PrepassPass>> prepass_schedule(const PrepassParameter
       p.width = int((std::int64_t{width} + (std::int64_t{1} << steps) - 1) >> steps);
       p.height = int((std::int64_t{height} + (std::int64_t{1} << steps) - 1) >> steps);
     } else {
-      p.spp = std::max<std::uint32_t>(1, params.spp >> (2 * steps));
+      p.spp = std::max<std::uint32_t>(1, params.spp >> (3 * steps));
       p.width = width;
       p.height = height;
     }
@@ -134,10 +144,7 @@ absl::Status GuideImage::add_tile(const image::TileResult& merged) {
       const std::size_t p = std::size_t(y - r.y0) * std::size_t(r.width()) + std::size_t(x - r.x0);
       const std::uint64_t n = merged.count(x, y);
       const std::size_t i = index(x, y);
-      if (n == 0) {
-        valid_[i] = 0;
-        continue;
-      }
+      if (n == 0) continue;
       const double inv = 1.0 / double(n);
       features_[i] = {float(depth[p] * inv), float(normals[3 * p] * inv),
                       float(normals[3 * p + 1] * inv), float(normals[3 * p + 2] * inv),
@@ -148,12 +155,27 @@ absl::Status GuideImage::add_tile(const image::TileResult& merged) {
   return absl::OkStatus();
 }
 
+double pairs_of_lanes(int lanes, double mass) {
+  const double x = double(lanes) * mass;
+  const double whole = std::floor(x), frac = x - whole;
+  return whole * (whole - 1.0 + 2.0 * frac);
+}
+
+double alpha_choice(int index, double epsilon) {
+  PRISM_CHECK(index >= 0 && index < kAlphaChoices);
+  return index == kAlphaChoices - 1 ? 1.0 - epsilon : 0.25 * index;
+}
+
 PixelTableImage::PixelTableImage(int width, int height, int cells)
     : width_(width),
       height_(height),
       cells_(cells),
       cdf_(std::size_t(width) * std::size_t(height) * (std::size_t(cells) + 1), 0),
-      sources_(std::size_t(width) * std::size_t(height), PixelSource::kLearned) {}
+      sources_(std::size_t(width) * std::size_t(height), PixelSource::kNoEstimate),
+      alpha_(std::size_t(width) * std::size_t(height), 0),
+      shape_(std::size_t(width) * std::size_t(height), TableShape::kSecondMoment),
+      variance_default_(std::size_t(width) * std::size_t(height), 0.0f),
+      variance_chosen_(std::size_t(width) * std::size_t(height), 0.0f) {}
 
 std::size_t PixelTableImage::index(int x, int y) const {
   PRISM_CHECK(x >= 0 && x < width_ && y >= 0 && y < height_);
@@ -170,21 +192,55 @@ std::int64_t PixelTableImage::count(PixelSource source) const {
 }
 
 double PixelTableImage::fallback_fraction() const {
-  return double(count(PixelSource::kMatchesDefault)) / double(sources_.size());
+  return double(std::int64_t(sources_.size()) - count(PixelSource::kLearned)) /
+         double(sources_.size());
+}
+
+std::array<std::int64_t, kAlphaChoices> PixelTableImage::alpha_histogram() const {
+  std::array<std::int64_t, kAlphaChoices> h{};
+  for (std::uint8_t a : alpha_) ++h[a];
+  return h;
+}
+
+std::array<std::int64_t, kTableShapes> PixelTableImage::shape_histogram() const {
+  std::array<std::int64_t, kTableShapes> h{};
+  for (std::size_t i = 0; i < sources_.size(); ++i) {
+    if (has_table(i)) ++h[std::size_t(shape_[i])];
+  }
+  return h;
+}
+
+double PixelTableImage::predicted_gain() const {
+  double chosen = 0.0, by_default = 0.0;
+  for (std::size_t i = 0; i < sources_.size(); ++i) {
+    chosen += variance_chosen_[i];
+    by_default += variance_default_[i];
+  }
+  return by_default > 0.0 ? 1.0 - chosen / by_default : 0.0;
+}
+
+void PixelTableImage::reset_to_default() {
+  for (std::size_t i = 0; i < sources_.size(); ++i) {
+    if (sources_[i] == PixelSource::kLearned) sources_[i] = PixelSource::kMatchesDefault;
+    alpha_[i] = 0;
+    variance_chosen_[i] = variance_default_[i];
+  }
+  std::fill(cdf_.begin(), cdf_.end(), std::uint16_t{0});
 }
 
 absl::StatusOr<std::string> PixelTableImage::encode_tile(const image::TileRect& rect) const {
   if (rect.empty() || !rect.valid() || !image::TileRect{0, 0, width_, height_}.contains(rect)) {
     return absl::InvalidArgumentError(absl::StrCat("cannot encode the tables of tile ",
-                                                   image::to_string(rect), ": not a non-empty "
-                                                   "rect inside the ", width_, "x", height_,
-                                                   " image"));
+                                                   image::to_string(rect),
+                                                   ": not a non-empty "
+                                                   "rect inside the ",
+                                                   width_, "x", height_, " image"));
   }
   std::string out;
   out.reserve(spectral::pixel_table_bytes(rect.width(), rect.height(), cells_));
   for (int y = rect.y0; y < rect.y1; ++y) {
     for (int x = rect.x0; x < rect.x1; ++x) {
-      if (source(x, y) == PixelSource::kMatchesDefault) {
+      if (!has_table(index(x, y))) {
         spectral::append_default_pixel(cells_, out);
       } else {
         spectral::append_pixel_table(cdf(x, y), out);
@@ -197,7 +253,8 @@ absl::StatusOr<std::string> PixelTableImage::encode_tile(const image::TileRect& 
 absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage& estimate,
                                                      const GuideImage& guides, double sigma_s,
                                                      double sigma_r,
-                                                     const PixelTableImage* previous) {
+                                                     const PixelTableImage* previous,
+                                                     image::SpectralImage* leave_one_out) {
   const int w = estimate.width(), h = estimate.height(), bins = estimate.bins();
   if (guides.width() != w || guides.height() != h) {
     return absl::InvalidArgumentError(absl::StrCat("the prepass estimate is ", w, "x", h,
@@ -243,6 +300,9 @@ absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage&
   absl::StatusOr<image::SpectralImage> out = image::SpectralImage::create(w, h, bins);
   if (!out.ok()) return out.status();
   image::SpectralImage& filtered = *out;
+  if (leave_one_out != nullptr) {
+    PRISM_ASSIGN_OR_RETURN(*leave_one_out, image::SpectralImage::create(w, h, bins));
+  }
   const float* values = estimate.data().data();  // layout: image/tile.h
   for_each_row(h, [&](int y0, int y1) {
     std::vector<double> acc(static_cast<std::size_t>(bins));
@@ -250,12 +310,14 @@ absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage&
       for (int x = 0; x < w; ++x) {
         if (!usable[std::size_t(y) * w + x]) continue;
         const GuideFeatures& centre = guides.at(x, y);
+        // The neighbours first, the centre (weight exactly 1) last, so that the filter without
+        // the centre is available exactly.
         std::fill(acc.begin(), acc.end(), 0.0);
         double weight_sum = 0.0;
         for (int ny = std::max(0, y - radius); ny <= std::min(h - 1, y + radius); ++ny) {
           const double* spatial_row = &spatial[std::size_t(ny - y + radius) * side + radius];
           for (int nx = std::max(0, x - radius); nx <= std::min(w - 1, x + radius); ++nx) {
-            if (!usable[std::size_t(ny) * w + nx]) continue;
+            if ((nx == x && ny == y) || !usable[std::size_t(ny) * w + nx]) continue;
             const double t = squared_distance(centre, guides.at(nx, ny)) * range_scale;
             if (t > kMaxExponent) continue;
             const double weight = spatial_row[nx - x] * std::exp(-t);
@@ -264,109 +326,302 @@ absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage&
             weight_sum += weight;
           }
         }
-        // The centre itself weighs 1, so weight_sum >= 1.
-        const double inv = 1.0 / weight_sum;
+        const float* v = values + (std::size_t(y) * w + x) * std::size_t(bins);
+        if (leave_one_out != nullptr && weight_sum > 1e-9) {
+          const double inv_rest = 1.0 / weight_sum;
+          float* l = leave_one_out->pixel(x, y).data();
+          for (int b = 0; b < bins; ++b) l[b] = float(acc[b] * inv_rest);
+        }
+        const double inv = 1.0 / (weight_sum + 1.0);
         float* o = filtered.pixel(x, y).data();
-        for (int b = 0; b < bins; ++b) o[b] = float(acc[b] * inv);
+        for (int b = 0; b < bins; ++b) o[b] = float((acc[b] + double(v[b])) * inv);
       }
     }
   });
   return out;
 }
 
-absl::StatusOr<PixelTableImage> build_tables(const image::SpectralImage& filtered,
-                                             const PrepassParameters& params,
-                                             const spectral::WavelengthDistribution& emitters,
-                                             const spectral::WavelengthDistribution* sensor,
-                                             const PixelTableImage* previous) {
+MomentImage::MomentImage(image::SpectralImage moments)
+    : moments_(std::move(moments)),
+      samples_(std::size_t(moments_.width()) * std::size_t(moments_.height()), 0.0) {}
+
+absl::StatusOr<MomentImage> MomentImage::create(int width, int height, int bins) {
+  if (bins < 1 || 2 * bins > image::kMaxBins) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("prepass moments need 1 to ", image::kMaxBins / 2, " bins, got ", bins));
+  }
+  PRISM_ASSIGN_OR_RETURN(image::SpectralImage moments,
+                         image::SpectralImage::create(width, height, 2 * bins));
+  return MomentImage(std::move(moments));
+}
+
+absl::Status MomentImage::add_tile(const image::TileResult& merged,
+                                   const PixelTableImage* sampled_with,
+                                   std::span<const double> default_masses, int lanes) {
+  const image::TileRect& r = merged.rect();
+  const int nb = bins();
+  if (r.empty() || !image::TileRect{0, 0, width(), height()}.contains(r)) {
+    return absl::InvalidArgumentError(absl::StrCat("prepass tile ", image::to_string(r),
+                                                   " is not inside the ", width(), "x", height(),
+                                                   " moment image"));
+  }
+  if (merged.bins() != nb || default_masses.size() != std::size_t(nb)) {
+    return absl::InvalidArgumentError(absl::StrCat("prepass moments of ", nb,
+                                                   " bins: the tile has ", merged.bins(),
+                                                   ", the default masses ", default_masses.size()));
+  }
+  if (sampled_with != nullptr &&
+      (sampled_with->width() != width() || sampled_with->height() != height() ||
+       sampled_with->cells() != nb)) {
+    return absl::InvalidArgumentError("the tables a prepass sampled with do not match its film");
+  }
+  for (int y = r.y0; y < r.y1; ++y) {
+    for (int x = r.x0; x < r.x1; ++x) {
+      const std::uint64_t n = merged.count(x, y);
+      if (n == 0) continue;
+      std::span<const std::uint16_t> table;
+      if (sampled_with != nullptr && sampled_with->source(x, y) == PixelSource::kLearned) {
+        table = sampled_with->cdf(x, y);
+      }
+      const double inv_n = 1.0 / double(n);
+      float* out = moments_.pixel(x, y).data();
+      double& samples = samples_[std::size_t(y) * std::size_t(width()) + std::size_t(x)];
+      const double keep = samples / (samples + double(n)), take = 1.0 - keep;
+      for (int b = 0; b < nb; ++b) {
+        const double mass = table.empty() ? default_masses[b]
+                                          : (table[b + 1] - table[b]) /
+                                                double(spectral::QuantisedWavelengthCdf::kTotal);
+        const double mean = merged.sum(x, y, b) * inv_n;
+        const double second = merged.sum_squares(x, y, b) * inv_n;
+        const double square = n >= 2 ? mean * mean - (second - mean * mean) / double(n - 1) : 0.0;
+        // Two lanes of a sample in one bin add the product of their values to its square:
+        // E[X²] = E[L]·E[Y²] + E[L(L−1)]·E[Y]², E[Y] = μ/(C·m); take that part out, so that K is
+        // C·m²·E[Y²] whatever the mass (VarianceModel).
+        const double k = mass > 0.0 ? mass * second - pairs_of_lanes(lanes, mass) * square /
+                                                          (double(lanes) * lanes * mass)
+                                    : 0.0;
+        out[b] = float(keep * out[b] + take * k);
+        out[nb + b] = float(keep * out[nb + b] + take * square);
+      }
+      samples += double(n);
+    }
+  }
+  return absl::OkStatus();
+}
+
+double VarianceModel::divided(double k, double u) const {
+  return double(prepass_lanes) / double(final_lanes) * k - u / double(final_lanes);
+}
+
+double VarianceModel::bin_variance(double k, double u, double m) const {
+  double v = divided(k, u) / m;
+  if (!stratified) {
+    const double lanes = double(final_lanes) * m;
+    const double frac = lanes - std::floor(lanes);
+    v += frac * (1.0 - frac) * u / (lanes * lanes);
+  }
+  return v;
+}
+
+namespace {
+
+// The candidates build_tables chooses from: the default, then each shape with each α > 0.
+constexpr int kCandidates = 1 + kTableShapes * (kAlphaChoices - 1);
+constexpr TableShape candidate_shape(int c) {
+  return TableShape((c - 1) / (kAlphaChoices - 1));
+}
+constexpr int candidate_alpha(int c) {
+  return c == 0 ? 0 : 1 + (c - 1) % (kAlphaChoices - 1);
+}
+
+// One pixel's moments (2·bins values) as the tables use them: sensor-weighted K and U, zero where
+// D_b = 0. False when a value is not finite.
+bool pixel_moments(const float* m, std::span<const double> d, std::span<const double> sensor,
+                   std::vector<double>& k, std::vector<double>& u) {
+  const std::size_t nb = k.size();
+  for (std::size_t b = 0; b < nb; ++b) {
+    if (!std::isfinite(m[b]) || !std::isfinite(m[nb + b])) return false;
+    const double s2 = sensor.empty() ? 1.0 : sensor[b] * sensor[b];
+    k[b] = d[b] > 0.0 ? s2 * double(m[b]) : 0.0;
+    u[b] = d[b] > 0.0 ? s2 * double(m[nb + b]) : 0.0;
+  }
+  return true;
+}
+
+// The learned shapes (TableShape) of one pixel's moments: masses ∝ sqrt of r·K_b or of
+// max(0, r·K_b − U_b/C); has[s] false when shape s is zero everywhere.
+void learned_shapes(const std::vector<double>& k, const std::vector<double>& u,
+                    const VarianceModel& model, std::vector<double> (&shapes)[kTableShapes],
+                    bool (&has)[kTableShapes]) {
+  for (int s = 0; s < kTableShapes; ++s) {
+    double sum = 0.0;
+    for (std::size_t b = 0; b < k.size(); ++b) {
+      const double g = TableShape(s) == TableShape::kSecondMoment
+                           ? double(model.prepass_lanes) / model.final_lanes * k[b]
+                           : model.divided(k[b], u[b]);
+      shapes[s][b] = g > 0.0 ? std::sqrt(g) : 0.0;
+      sum += shapes[s][b];
+    }
+    has[s] = sum > 0.0 && std::isfinite(sum);
+    if (has[s]) {
+      for (double& v : shapes[s]) v /= sum;
+    }
+  }
+}
+
+// Σ_b V_b(m) of one pixel for the masses m = α·shape + (1 − α)·d.
+double pixel_variance(const std::vector<double>& k, const std::vector<double>& u,
+                      const std::vector<double>& d, const std::vector<double>* shape, double alpha,
+                      const VarianceModel& model) {
+  double v = 0.0;
+  for (std::size_t b = 0; b < k.size(); ++b) {
+    if (!(d[b] > 0.0)) continue;
+    const double m = shape != nullptr ? alpha * (*shape)[b] + (1.0 - alpha) * d[b] : d[b];
+    v += model.bin_variance(k[b], u[b], m);
+  }
+  return v;
+}
+
+}  // namespace
+
+absl::StatusOr<PixelTableImage> build_tables(
+    const image::SpectralImage& moments, const GuideImage& guides, const PrepassParameters& params,
+    std::span<const double> default_masses, std::span<const double> sensor_weights,
+    const VarianceModel& model, const PixelTableImage* previous) {
   if (absl::Status s = params.validate(); !s.ok()) return s;
-  const int w = filtered.width(), h = filtered.height(), bins = filtered.bins();
-  if (bins > spectral::WavelengthDistribution::kMaxCells) {
-    return absl::InvalidArgumentError(absl::StrCat("prepass tables support at most ",
+  const int w = moments.width(), h = moments.height(), bins = moments.bins() / 2;
+  if (moments.bins() % 2 != 0) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("prepass moments have 2 channels per bin, got ", moments.bins(), " channels"));
+  }
+  if (bins < 1 || bins > spectral::WavelengthDistribution::kMaxCells) {
+    return absl::InvalidArgumentError(absl::StrCat("prepass tables support 1 to ",
                                                    spectral::WavelengthDistribution::kMaxCells,
-                                                   " bins, the estimate has ", bins));
+                                                   " bins, the moments have ", bins));
   }
-  if (emitters.cells() != bins) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "the emitter mixture has ", emitters.cells(), " cells but the prepass estimate ", bins,
-        " bins; build it with WavelengthDistribution::emitters(spectra, bins)"));
+  const std::size_t nb = std::size_t(bins);
+  if (default_masses.size() != nb || (!sensor_weights.empty() && sensor_weights.size() != nb)) {
+    return absl::InvalidArgumentError(absl::StrCat("prepass tables of ", bins, " bins: got ",
+                                                   default_masses.size(), " default masses and ",
+                                                   sensor_weights.size(), " sensor weights"));
   }
-  if (sensor != nullptr && sensor->cells() != bins) {
-    return absl::InvalidArgumentError(absl::StrCat("the sensor distribution has ",
-                                                   sensor->cells(), " cells but the prepass "
-                                                   "estimate ", bins, " bins"));
+  double default_total = 0.0;
+  for (std::size_t b = 0; b < nb; ++b) {
+    const double s = sensor_weights.empty() ? 1.0 : sensor_weights[b];
+    if (!(default_masses[b] >= 0.0) || !std::isfinite(default_masses[b]) || !(s >= 0.0) ||
+        !std::isfinite(s)) {
+      return absl::InvalidArgumentError(absl::StrCat("prepass tables: default mass ",
+                                                     default_masses[b], " or sensor weight ", s,
+                                                     " of bin ", b, " is negative or not finite"));
+    }
+    default_total += default_masses[b];
+  }
+  if (!(default_total > 0.0)) {
+    return absl::InvalidArgumentError("the job's default distribution has no mass in any bin");
   }
   if (previous != nullptr &&
       (previous->width() != w || previous->height() != h || previous->cells() != bins)) {
     return absl::InvalidArgumentError(absl::StrCat(
         "the previous pass's tables are ", previous->width(), "x", previous->height(), " with ",
-        previous->cells(), " cells, the estimate ", w, "x", h, " with ", bins, " bins"));
+        previous->cells(), " cells, the moments ", w, "x", h, " with ", bins, " bins"));
   }
+  std::vector<double> d(nb);
+  for (std::size_t b = 0; b < nb; ++b) d[b] = default_masses[b] / default_total;
+  std::array<double, kAlphaChoices> alphas;
+  for (int a = 0; a < kAlphaChoices; ++a) alphas[a] = alpha_choice(a, params.epsilon);
 
-  const std::size_t nb = std::size_t(bins);
-  std::vector<double> mixture(nb), mixture_unit_mean(nb), uniform_support(nb), sensor_term(nb);
-  int support = 0;
-  double mixture_sum = 0.0;
-  for (int b = 0; b < bins; ++b) {
-    mixture[b] = emitters.cell_mass(b);
-    mixture_sum += mixture[b];
-    support += mixture[b] > 0.0 ? 1 : 0;
-    sensor_term[b] = sensor != nullptr ? sensor->cell_mass(b) : 1.0;
-  }
-  if (support == 0) {
-    return absl::InvalidArgumentError("the emitter mixture is zero in every bin: no p_ε support");
-  }
-  for (int b = 0; b < bins; ++b) {
-    mixture_unit_mean[b] = mixture[b] * bins / mixture_sum;
-    uniform_support[b] = mixture[b] > 0.0 ? 1.0 / support : 0.0;
-  }
-  const double eps = params.epsilon, h_threshold = params.fallback;
+  // The learned shape of every pixel from its filtered neighbourhood, and the same without the
+  // pixel itself for the validation below.
+  PRISM_ASSIGN_OR_RETURN(image::SpectralImage leave_one_out,
+                         image::SpectralImage::create(w, h, 2 * bins));
+  PRISM_ASSIGN_OR_RETURN(
+      image::SpectralImage filtered,
+      filter_estimate(moments, guides, params.sigma_s, params.sigma_r, nullptr, &leave_one_out));
+
+  // Validation: each pixel's own (raw) moments judge the candidates its neighbours' moments would
+  // give it (build_tables in prepass.h). Non-finite where the pixel has no usable moments, so the
+  // smoothing skips it.
+  PRISM_ASSIGN_OR_RETURN(image::SpectralImage validation,
+                         image::SpectralImage::create(w, h, kCandidates));
+  for_each_row(h, [&](int y0, int y1) {
+    std::vector<double> k(nb), u(nb), k_loo(nb), u_loo(nb);
+    std::vector<double> shapes[kTableShapes] = {std::vector<double>(nb), std::vector<double>(nb)};
+    bool has[kTableShapes] = {false, false};
+    for (int y = y0; y < y1; ++y) {
+      for (int x = 0; x < w; ++x) {
+        float* v = validation.pixel(x, y).data();
+        if (!guides.valid(x, y) ||
+            !pixel_moments(moments.pixel(x, y).data(), d, sensor_weights, k, u)) {
+          std::fill(v, v + kCandidates, std::numeric_limits<float>::quiet_NaN());
+          continue;
+        }
+        if (pixel_moments(leave_one_out.pixel(x, y).data(), d, sensor_weights, k_loo, u_loo)) {
+          learned_shapes(k_loo, u_loo, model, shapes, has);
+        } else {
+          has[0] = has[1] = false;
+        }
+        v[0] = float(pixel_variance(k, u, d, nullptr, 0.0, model));
+        for (int c = 1; c < kCandidates; ++c) {
+          const int s = int(candidate_shape(c));
+          v[c] = has[s]
+                     ? float(pixel_variance(k, u, d, &shapes[s], alphas[candidate_alpha(c)], model))
+                     : v[0];
+        }
+      }
+    }
+  });
+  // Each pixel's choice rests on its similar neighbours' validations, not on its own alone.
+  PRISM_ASSIGN_OR_RETURN(image::SpectralImage judged,
+                         filter_estimate(validation, guides, params.sigma_s, params.sigma_r));
 
   PixelTableImage tables(w, h, bins);
   for_each_row(h, [&](int y0, int y1) {
-    std::vector<double> x_buf(nb), r(nb);
+    std::vector<double> k(nb), u(nb), r(nb);
+    std::vector<double> shapes[kTableShapes] = {std::vector<double>(nb), std::vector<double>(nb)};
+    bool has[kTableShapes] = {false, false};
     spectral::WavelengthDistribution::QuantiseScratch scratch;
     for (int y = y0; y < y1; ++y) {
       for (int x = 0; x < w; ++x) {
         const std::size_t i = tables.index(x, y);
-        if (previous != nullptr && previous->source(x, y) == PixelSource::kMatchesDefault) {
-          tables.sources_[i] = PixelSource::kMatchesDefault;
+        if (previous != nullptr && previous->source(x, y) != PixelSource::kLearned) {
+          tables.sources_[i] = previous->source(x, y);
+          tables.variance_default_[i] = previous->variance_default_[i];
+          tables.variance_chosen_[i] = previous->variance_chosen_[i];
           continue;
         }
-        const float* f = filtered.pixel(x, y).data();
-        bool finite = true;
-        double total = 0.0;
-        for (int b = 0; b < bins; ++b) {
-          finite = finite && std::isfinite(f[b]);
-          x_buf[b] = f[b] > 0.0f ? double(f[b]) : 0.0;
-          total += x_buf[b];
+        const float* v = judged.pixel(x, y).data();
+        bool finite = std::isfinite(validation.value(x, y, 0));
+        for (int c = 0; c < kCandidates; ++c) finite = finite && std::isfinite(v[c]);
+        if (!finite || !pixel_moments(filtered.pixel(x, y).data(), d, sensor_weights, k, u)) {
+          tables.sources_[i] = PixelSource::kNoEstimate;
+          continue;
         }
-        const double* spectrum = x_buf.data();
-        PixelSource src = PixelSource::kLearned;
-        if (!finite || !(total > 0.0) || !std::isfinite(total)) {
-          src = PixelSource::kNoEstimate;
-          spectrum = mixture.data();
-        } else {
-          const double inv_mean = bins / total;
-          double msd = 0.0;
-          for (int b = 0; b < bins; ++b) {
-            const double d = x_buf[b] * inv_mean - mixture_unit_mean[b];
-            msd += d * d;
-          }
-          if (msd / bins <= h_threshold) {
-            tables.sources_[i] = PixelSource::kMatchesDefault;
-            continue;
-          }
+        learned_shapes(k, u, model, shapes, has);
+        if (!has[0] && !has[1]) {
+          tables.sources_[i] = PixelSource::kNoEstimate;
+          continue;
         }
-        double weighted = 0.0;
-        for (int b = 0; b < bins; ++b) weighted += sensor_term[b] * spectrum[b];
-        // A sensor term that is zero wherever the spectrum lives leaves only the defensive part.
-        const double scale = weighted > 0.0 && std::isfinite(weighted) ? (1.0 - eps) / weighted
-                                                                        : 0.0;
-        for (int b = 0; b < bins; ++b) {
-          r[b] = eps * uniform_support[b] + scale * sensor_term[b] * spectrum[b];
+        int best = 0;
+        for (int c = 1; c < kCandidates; ++c) {
+          if (has[int(candidate_shape(c))] && v[c] < v[best]) best = c;
         }
-        tables.sources_[i] = src;
+        const double v0 = std::max(0.0, double(v[0]));
+        tables.variance_default_[i] = float(v0);
+        if (!(v[0] > 0.0f) || best == 0 ||
+            !(double(v[best]) <= (1.0 - params.fallback) * double(v[0]))) {
+          tables.sources_[i] = PixelSource::kMatchesDefault;
+          tables.variance_chosen_[i] = float(v0);
+          continue;
+        }
+        const int a = candidate_alpha(best);
+        const TableShape shape = candidate_shape(best);
+        tables.sources_[i] = PixelSource::kLearned;
+        tables.alpha_[i] = std::uint8_t(a);
+        tables.shape_[i] = shape;
+        tables.variance_chosen_[i] = std::max(0.0f, v[best]);
+        for (std::size_t b = 0; b < nb; ++b) {
+          r[b] = alphas[a] * shapes[int(shape)][b] + (1.0 - alphas[a]) * d[b];
+        }
         spectral::WavelengthDistribution::quantise_weights(
             r, std::span<std::uint16_t>(tables.cdf_.data() + i * (nb + 1), nb + 1), scratch);
       }
@@ -387,6 +642,10 @@ absl::StatusOr<PixelTableImage> upsample_tables(const PixelTableImage& tables, i
       const int sx = int((2 * std::int64_t{x} + 1) * tables.width() / (2 * std::int64_t{width}));
       const std::size_t from = tables.index(sx, sy), to = out.index(x, y);
       out.sources_[to] = tables.sources_[from];
+      out.alpha_[to] = tables.alpha_[from];
+      out.shape_[to] = tables.shape_[from];
+      out.variance_default_[to] = tables.variance_default_[from];
+      out.variance_chosen_[to] = tables.variance_chosen_[from];
       std::copy_n(tables.cdf_.begin() + std::ptrdiff_t(from * stride), stride,
                   out.cdf_.begin() + std::ptrdiff_t(to * stride));
     }

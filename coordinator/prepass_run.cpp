@@ -6,6 +6,8 @@
 #include "absl/strings/str_cat.h"
 #include "services/base/check.h"
 #include "services/base/status.h"
+#include "services/spectral/binned_shape.h"
+#include "services/spectral/pixel_tables.h"
 
 namespace prism::coordinator {
 namespace {
@@ -16,15 +18,20 @@ double seconds_since(std::chrono::steady_clock::time_point start) {
 
 }  // namespace
 
-absl::StatusOr<PrepassRun> PrepassRun::create(
-    const PrepassParameters& params, int width, int height, int tile_size, int bins,
-    spectral::WavelengthDistribution emitters,
-    std::optional<spectral::WavelengthDistribution> sensor) {
+VarianceModel prepass_variance_model(const worker::RenderOptions& render) {
+  return VarianceModel{worker::kPrepassLanes, render.lanes(),
+                       render.sampler == worker::SamplerKind::kSobol};
+}
+
+absl::StatusOr<PrepassRun> PrepassRun::create(const PrepassParameters& params, int width,
+                                              int height, int tile_size, int bins,
+                                              const spectral::WavelengthDistribution& job_default,
+                                              const spectral::WavelengthDistribution* sensor,
+                                              const VarianceModel& model) {
   PRISM_RETURN_IF_ERROR(params.validate());
-  if (emitters.cells() != bins || (sensor.has_value() && sensor->cells() != bins)) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "prepass: the emitter mixture has ", emitters.cells(), " cells and the sensor term ",
-        sensor.has_value() ? sensor->cells() : bins, "; want the job's ", bins, " bins"));
+  if (sensor != nullptr && sensor->cells() != bins) {
+    return absl::InvalidArgumentError(absl::StrCat("prepass: the sensor term has ", sensor->cells(),
+                                                   " cells; want the job's ", bins, " bins"));
   }
   PrepassRun run;
   run.params_ = params;
@@ -37,8 +44,14 @@ absl::StatusOr<PrepassRun> PrepassRun::create(
                            plan_tiles({pass.width, pass.height, tile_size, pass.spp, 0}));
     run.plans_.push_back(std::move(plan));
   }
-  run.emitters_ = std::move(emitters);
-  run.sensor_ = std::move(sensor);
+  PRISM_ASSIGN_OR_RETURN(spectral::BinnedShape shape,
+                         spectral::BinnedShape::create(job_default, bins));
+  run.default_masses_ = shape.bin_masses();
+  run.model_ = model;
+  if (sensor != nullptr) {
+    run.sensor_weights_.resize(std::size_t(bins));
+    for (int b = 0; b < bins; ++b) run.sensor_weights_[b] = sensor->cell_mass(b) * bins;
+  }
   return run;
 }
 
@@ -58,6 +71,10 @@ absl::StatusOr<std::optional<std::string>> PrepassRun::tables_for_pass(
     return absl::InvalidArgumentError(absl::StrCat("prepass ", k, " of ", passes()));
   }
   if (k == 1) return std::optional<std::string>();
+  if (stopped_early_) {
+    return absl::FailedPreconditionError(
+        absl::StrCat("prepass ", k, " is not rendered: the prepass stopped after pass 1"));
+  }
   if (finished_ < k - 1 || !tables_.has_value()) {
     return absl::FailedPreconditionError(
         absl::StrCat("prepass ", k, " needs the tables of prepass ", k - 1));
@@ -72,18 +89,20 @@ absl::StatusOr<std::optional<std::string>> PrepassRun::tables_for_pass(
 }
 
 absl::Status PrepassRun::add_tile(int k, const image::TileResult& merged) {
-  if (k != finished_ + 1 || k > passes()) {
+  if (k != finished_ + 1 || k > passes() || stopped_early_) {
     return absl::FailedPreconditionError(
         absl::StrCat("a tile of prepass ", k, " while prepass ", finished_ + 1, " is assembled"));
   }
   const PrepassPass& p = pass(k);
   const TilePlan& tiles = plan(k);
-  if (!estimate_.has_value()) {
-    PRISM_ASSIGN_OR_RETURN(image::SpectralImage estimate,
-                           image::SpectralImage::create(p.width, p.height, bins_));
-    PRISM_ASSIGN_OR_RETURN(GuideImage guides, GuideImage::create(p.width, p.height));
-    estimate_ = std::move(estimate);
-    guides_ = std::move(guides);
+  if (added_.empty()) {
+    // A new pass: the moments and guides carry over unless the film grew.
+    if (!moments_.has_value() || moments_->width() != p.width || moments_->height() != p.height) {
+      PRISM_ASSIGN_OR_RETURN(MomentImage moments, MomentImage::create(p.width, p.height, bins_));
+      PRISM_ASSIGN_OR_RETURN(GuideImage guides, GuideImage::create(p.width, p.height));
+      moments_ = std::move(moments);
+      guides_ = std::move(guides);
+    }
     added_.assign(tiles.tiles.size(), false);
     added_count_ = 0;
   }
@@ -99,15 +118,18 @@ absl::Status PrepassRun::add_tile(int k, const image::TileResult& merged) {
                                                    ": want guides and ", bins_, " bins"));
   }
   if (added_[index]) return absl::OkStatus();
+  // Pass k sampled with pass k − 1's tables (carried to this film), pass 1 with the default.
+  const PixelTableImage* sampled_with = k > 1 && tables_.has_value() ? &*tables_ : nullptr;
   PRISM_RETURN_IF_ERROR(guides_->add_tile(merged));
-  PRISM_RETURN_IF_ERROR(image::paste_tile(image::finalise(merged), merged.rect(), *estimate_));
+  PRISM_RETURN_IF_ERROR(
+      moments_->add_tile(merged, sampled_with, default_masses_, model_.prepass_lanes));
   added_[index] = true;
   ++added_count_;
   return absl::OkStatus();
 }
 
 absl::Status PrepassRun::finish_pass(int k) {
-  if (k != finished_ + 1 || k > passes() || !estimate_.has_value() ||
+  if (k != finished_ + 1 || k > passes() || stopped_early_ || !moments_.has_value() ||
       added_count_ != static_cast<int>(plan(k).tiles.size())) {
     return absl::FailedPreconditionError(
         absl::StrCat("prepass ", k, " cannot be finished: ", added_count_, " of its ",
@@ -115,24 +137,34 @@ absl::Status PrepassRun::finish_pass(int k) {
   }
   const auto start = std::chrono::steady_clock::now();
   const PixelTableImage* previous = tables_.has_value() ? &*tables_ : nullptr;
-  PRISM_ASSIGN_OR_RETURN(
-      image::SpectralImage filtered,
-      filter_estimate(*estimate_, *guides_, params_.sigma_s, params_.sigma_r, previous));
   PRISM_ASSIGN_OR_RETURN(PixelTableImage tables,
-                         build_tables(filtered, params_, *emitters_,
-                                      sensor_.has_value() ? &*sensor_ : nullptr, previous));
+                         build_tables(moments_->moments(), *guides_, params_, default_masses_,
+                                      sensor_weights_, model_, previous));
+  const double gain = tables.predicted_gain();
+  if (k == 1) first_pass_gain_ = gain;
+  if (k == 1 && passes() > 1 && gain < params_.min_image_gain) {
+    tables.reset_to_default();
+    stopped_early_ = true;
+  } else if (k == passes() && gain < params_.min_final_gain) {
+    final_gain_ = gain;
+    tables.reset_to_default();
+    dropped_ = true;
+  }
   // Carry the tables to the film that samples them next: the next prepass's, else the job's.
-  const int next_width = k < passes() ? pass(k + 1).width : width_;
-  const int next_height = k < passes() ? pass(k + 1).height : height_;
+  const bool last = k == passes() || stopped_early_;
+  const int next_width = last ? width_ : pass(k + 1).width;
+  const int next_height = last ? height_ : pass(k + 1).height;
   if (tables.width() != next_width || tables.height() != next_height) {
     PRISM_ASSIGN_OR_RETURN(tables, upsample_tables(tables, next_width, next_height));
   }
   tables_ = std::move(tables);
-  estimate_.reset();
-  guides_.reset();
   added_.clear();
   added_count_ = 0;
   finished_ = k;
+  if (last) {
+    moments_.reset();
+    guides_.reset();
+  }
   reconstruction_seconds_ += seconds_since(start);
   return absl::OkStatus();
 }
@@ -147,6 +179,34 @@ absl::StatusOr<std::string> PrepassRun::final_tables(const image::TileRect& rect
 
 double PrepassRun::fallback_fraction() const {
   return tables_.has_value() && finished() ? tables_->fallback_fraction() : 0.0;
+}
+
+std::array<std::int64_t, kAlphaChoices> PrepassRun::alpha_histogram() const {
+  return tables_.has_value() && finished() ? tables_->alpha_histogram()
+                                           : std::array<std::int64_t, kAlphaChoices>{};
+}
+
+PrepassOutcome PrepassRun::outcome() const {
+  PrepassOutcome o;
+  o.passes_run = finished_;
+  o.stopped_early = stopped_early_;
+  o.first_pass_gain = first_pass_gain_;
+  o.dropped = dropped_;
+  o.predicted_gain = dropped_ ? final_gain_ : predicted_gain();
+  o.fallback_fraction = fallback_fraction();
+  for (int a = 0; a < kAlphaChoices; ++a) o.alpha_values[a] = alpha_choice(a, params_.epsilon);
+  o.alpha_histogram = alpha_histogram();
+  if (tables_.has_value() && finished()) o.shape_histogram = tables_->shape_histogram();
+  o.reconstruction_seconds = reconstruction_seconds_;
+  return o;
+}
+
+bool PrepassRun::final_pass_has_tables() const {
+  return finished() && tables_.has_value() && tables_->count(PixelSource::kLearned) > 0;
+}
+
+double PrepassRun::predicted_gain() const {
+  return tables_.has_value() && finished() ? tables_->predicted_gain() : 0.0;
 }
 
 }  // namespace prism::coordinator

@@ -124,7 +124,7 @@ absl::Status Scheduler::add_job(const std::string& job_id, const std::vector<Tas
 }
 
 absl::StatusOr<int> Scheduler::add_tasks(const std::string& job_id,
-                                         const std::vector<TaskSpec>& tasks) {
+                                         const std::vector<TaskSpec>& tasks, bool skipped) {
   auto it = jobs_.find(job_id);
   if (it == jobs_.end()) return absl::NotFoundError(absl::StrCat("no job ", job_id));
   JobRecord& job = it->second;
@@ -134,11 +134,16 @@ absl::StatusOr<int> Scheduler::add_tasks(const std::string& job_id,
   const int first = static_cast<int>(job.tasks.size());
   if (auto status = validate(job_id, tasks, first); !status.ok()) return status;
   for (const TaskSpec& spec : tasks) {
-    job.pending.insert(static_cast<int>(job.tasks.size()));
+    if (skipped) {
+      ++job.done;
+    } else {
+      job.pending.insert(static_cast<int>(job.tasks.size()));
+    }
     job.tasks.emplace_back();
     job.tasks.back().spec = spec;
+    if (skipped) job.tasks.back().state = TaskState::kDone;
   }
-  if (job.state == JobState::kDone && !tasks.empty()) {
+  if (job.state == JobState::kDone && !tasks.empty() && !skipped) {
     job.state = JobState::kRunning;
     job_order_[job.order] = job_id;
   }

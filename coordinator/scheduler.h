@@ -158,7 +158,7 @@ struct WorkerInfo {
   std::string id;
   int threads = 0;
   Millis last_seen{0};
-  int leases = 0;  // current leases held
+  int leases = 0;              // current leases held
   std::vector<Lease> current;  // those leases, oldest first
 };
 
@@ -183,8 +183,11 @@ class Scheduler {
   // Appends tasks to a running or done job (a later pass once the previous one is merged); a
   // done job runs again, in its original place in the FIFO order. Returns the index of the first
   // new task. NOT_FOUND, FAILED_PRECONDITION
-  // for a failed or cancelled job, INVALID_ARGUMENT as for add_job.
-  absl::StatusOr<int> add_tasks(const std::string& job_id, const std::vector<TaskSpec>& tasks);
+  // for a failed or cancelled job, INVALID_ARGUMENT as for add_job. With `skipped` the tasks are
+  // added as done and are never leased (a later prepass the coordinator decided not to render);
+  // they keep the job's task numbering.
+  absl::StatusOr<int> add_tasks(const std::string& job_id, const std::vector<TaskSpec>& tasks,
+                                bool skipped = false);
   // Cancels a job: pending tasks are dropped, its leases end (CANCEL_TASK at their next
   // heartbeat). Idempotent for a cancelled job; NOT_FOUND; FAILED_PRECONDITION for a job that is
   // already done or failed.

@@ -59,7 +59,7 @@ class PipelineStatisticsTest : public testing::Test {
 
   // The image's mean spectrum for each of `seeds` renders, reduced to a mean and its variance.
   SeedStats over_seeds(const scene::SceneDescription& scene, LocalRenderOptions o, int seeds,
-                       double* fallback_fraction = nullptr) {
+                       coordinator::PrepassOutcome* prepass = nullptr) {
     SeedStats stats;
     std::vector<std::vector<double>> runs;
     for (int s = 0; s < seeds; ++s) {
@@ -70,7 +70,10 @@ class PipelineStatisticsTest : public testing::Test {
       absl::StatusOr<LocalRenderResult> result = (*render)->render();
       EXPECT_TRUE(result.ok()) << result.status();
       if (!result.ok()) return stats;
-      if (fallback_fraction != nullptr) *fallback_fraction = result->stats.fallback_fraction;
+      if (prepass != nullptr) {
+        EXPECT_TRUE(result->stats.prepass.has_value());
+        if (result->stats.prepass.has_value()) *prepass = *result->stats.prepass;
+      }
       const image::SpectralImage& image = result->image;
       std::vector<double> mean(image.bins(), 0.0);
       for (int y = 0; y < image.height(); ++y) {
@@ -181,8 +184,9 @@ class PrepassPipelineTest : public PipelineStatisticsTest,
                             public testing::WithParamInterface<PrepassCase> {};
 
 // The final pass samples every pixel's learned table (hero: its C = 4 CMIS lanes; gradient: the
-// base wavelength, the offsets' MIS weights use the same table); sample-scaled and image-scaled
-// passes.
+// base wavelength, the offsets' MIS weights use the same table): second-moment bin masses with the
+// default's shape inside each bin, mixed with the default by a per-pixel α; sample-scaled and
+// image-scaled passes.
 TEST_P(PrepassPipelineTest, FinalPassWithLearnedTablesAgreesWithUniformPerBin) {
   const PrepassCase& c = GetParam();
   auto scene = load("tests/testdata/pipeline/three_emitters.pbrt");
@@ -196,12 +200,23 @@ TEST_P(PrepassPipelineTest, FinalPassWithLearnedTablesAgreesWithUniformPerBin) {
   coordinator::PrepassParameters params;
   params.spp = 16;
   params.image_scaled = c.image_scaled;
+  // Whatever gain they predict, the tables are used: they are what is tested.
+  params.fallback = 0.0;
+  params.min_image_gain = params.min_final_gain = -1.0;
   prepass.prepass = params;
-  double fallback = 1.0;
+  coordinator::PrepassOutcome outcome;
   const SeedStats u = over_seeds(*scene, uniform, kSeeds);
-  const SeedStats p = over_seeds(*scene, prepass, kSeeds, &fallback);
-  // The learned tables are used: not every pixel fell back to the default distribution.
-  EXPECT_LT(fallback, 0.9);
+  const SeedStats p = over_seeds(*scene, prepass, kSeeds, &outcome);
+  // The learned tables are used (the last seed's): not every pixel fell back to the default
+  // distribution, and pixels took several mixture weights.
+  EXPECT_FALSE(outcome.stopped_early);
+  EXPECT_LT(outcome.fallback_fraction, 0.9);
+  int weights = 0;
+  for (int a = 1; a < coordinator::kAlphaChoices; ++a) weights += outcome.alpha_histogram[a] > 0;
+  EXPECT_GT(outcome.shape_histogram[0] + outcome.shape_histogram[1], 0);
+  EXPECT_GE(weights, 2) << outcome.alpha_histogram[0] << " " << outcome.alpha_histogram[1] << " "
+                        << outcome.alpha_histogram[2] << " " << outcome.alpha_histogram[3] << " "
+                        << outcome.alpha_histogram[4];
   std::string detail;
   EXPECT_LT(max_z(p, u, &detail), 5.0) << c.name << "\n" << detail;
 }

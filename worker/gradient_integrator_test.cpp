@@ -401,11 +401,11 @@ Consistency consistency(const RenderScene& scene, int spp,
     std::vector<double> g(bins), i(bins);
     for (int s = 0; s < spp; ++s) {
       const int x = index % width, y = index / width;
-      GradientSample r =
-          integrator.trace(x, y, 0, std::uint32_t(s),
-                           tables != nullptr ? tables->view(x, y, scene.wavelength_pdf())
-                                             : spectral::WavelengthPdfView(scene.wavelength_pdf()),
-                           p.counters);
+      GradientSample r = integrator.trace(
+          x, y, 0, std::uint32_t(s),
+          tables != nullptr ? tables->view(x, y, scene.wavelength_pdf(), scene.binned_shape())
+                            : spectral::WavelengthPdfView(scene.wavelength_pdf()),
+          p.counters);
       p.all_finite = p.all_finite && std::isfinite(r.primal) && std::isfinite(r.gradient) &&
                      std::isfinite(r.gradient_below);
       std::fill(g.begin(), g.end(), 0.0);
@@ -574,7 +574,7 @@ TEST_F(GradientIntegratorTest, PerPixelTablesKeepPrimalAndGradientUnbiased) {
     auto desc = load(name);
     const int width = desc.film.x_resolution, height = desc.film.y_resolution;
     const spectral::PixelTables tables = testing::skewed_tables(
-        width, height, 48, [](int x, int y) { return (x + 3 * y) % 5 == 0; });
+        width, height, 16, [](int x, int y) { return (x + 3 * y) % 5 == 0; });
     RenderOptions uniform = gradient_options(seed++);
     uniform.integrator = IntegratorKind::kUniform;
     BinStats reference = bin_stats(render(*build(desc, uniform), 1024));
@@ -695,8 +695,9 @@ TEST_F(GradientIntegratorTest, DirectlySeenEmitterWeighsOffsetsByThePixelsTable)
     w.set(0, l, 1.0f);
     return double(light.radiance(Vec3f(0, 0, -1), Vec3f(0, 0, -1), w)[0]);
   };
-  const spectral::PixelTables tables = testing::skewed_tables(4, 4, 48);
-  const spectral::WavelengthPdfView table = tables.view(1, 2, scene->wavelength_pdf());
+  const spectral::PixelTables tables = testing::skewed_tables(4, 4, 16);
+  const spectral::WavelengthPdfView table =
+      tables.view(1, 2, scene->wavelength_pdf(), scene->binned_shape());
   ASSERT_TRUE(table.is_pixel_table());
   GradientIntegrator integrator(*scene);
   TraceCounters counters;

@@ -14,13 +14,13 @@
 namespace prism::worker {
 
 enum class IntegratorKind {
-  kUniform,  // one wavelength per path (C = 1): the unbiased baseline
-  kHero,     // C = 4 lanes with CMIS rotation (algorithms.md §2)
-  kGradient, // spectral gradient sampling (§5): C = 1 base paths with offsets at λ ± δ
+  kUniform,   // one wavelength per path (C = 1): the unbiased baseline
+  kHero,      // C = 4 lanes with CMIS rotation (algorithms.md §2)
+  kGradient,  // spectral gradient sampling (§5): C = 1 base paths with offsets at λ ± δ
 };
 
-enum class SpectralPdfKind { kFlat, kVisible };      // sensor term p_s (§1)
-enum class EmitterPdfKind { kUniform, kEmitters };   // emitter term p_e (§1)
+enum class SpectralPdfKind { kFlat, kVisible };                // sensor term p_s (§1)
+enum class EmitterPdfKind { kUniform, kEmitters };             // emitter term p_e (§1)
 enum class LightSelectionKind { kUniform, kPower, kSpatial };  // base pmf q_base (§3)
 
 // The names the CLI flags, job specs and reports use for the option values.
@@ -62,9 +62,9 @@ struct RenderOptions {
   // Multiply the base pmf by the lanes' unit-emission factor Σ_s Ê[e][bin(λ_s)] (§3).
   bool spectral_light_selection = true;
   SamplerKind sampler = SamplerKind::kSobol;
-  int bins = 64;            // 4..256
-  int max_depth = 5;        // path vertices after the camera; 0 renders only direct emission
-  int rr_min_depth = 3;     // Russian roulette from this depth on
+  int bins = 64;         // 4..256
+  int max_depth = 5;     // path vertices after the camera; 0 renders only direct emission
+  int rr_min_depth = 3;  // Russian roulette from this depth on
   std::uint64_t seed = 0;
   // Gradient sampling (§5): the spectral offset k in bins and the shift threshold τ >= 0 (paper
   // Eq. 16, made symmetric). Whoever builds the options snaps k with gradient_offset_bins below;
@@ -74,6 +74,10 @@ struct RenderOptions {
 
   int lanes() const { return integrator == IntegratorKind::kHero ? 4 : 1; }
 };
+
+// The lanes C of a prepass task: the hero path tracer with its default C (algorithms.md §2, §4),
+// whatever the job's integrator.
+inline constexpr int kPrepassLanes = 4;
 
 // k = round(δ_frac · bins): the offset δ = k·w snapped to whole bins so that λ ± δ falls in bin
 // b ± k exactly. INVALID_ARGUMENT when δ_frac is not in (0, 0.5] (beyond half the range the

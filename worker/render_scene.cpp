@@ -168,6 +168,10 @@ absl::StatusOr<PrepassDistributions> prepass_distributions(const scene::SceneDes
                                                            const spectral::SpectrumLibrary& library,
                                                            int bins) {
   using spectral::WavelengthDistribution;
+  if (absl::StatusOr<spectral::WavelengthGrid> grid = spectral::WavelengthGrid::create(bins);
+      !grid.ok()) {
+    return grid.status();
+  }
   const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
   const spectral::RgbUplift uplift(cmf);
   PRISM_ASSIGN_OR_RETURN(std::vector<spectral::Spectrum> spectra,
@@ -176,13 +180,13 @@ absl::StatusOr<PrepassDistributions> prepass_distributions(const scene::SceneDes
     return absl::FailedPreconditionError(
         "the prepass learns from the scene's emitters, and this scene has none");
   }
-  PRISM_ASSIGN_OR_RETURN(WavelengthDistribution emitters,
-                         WavelengthDistribution::emitters(spectra, bins));
+  PRISM_ASSIGN_OR_RETURN(WavelengthDistribution job_default,
+                         default_wavelength_pdf(scene, true, options, library, uplift));
   std::optional<WavelengthDistribution> sensor;
   if (options.spectral_pdf == SpectralPdfKind::kVisible) {
     PRISM_ASSIGN_OR_RETURN(sensor, WavelengthDistribution::visible(bins));
   }
-  return PrepassDistributions{std::move(emitters), std::move(sensor)};
+  return PrepassDistributions{std::move(job_default), std::move(sensor)};
 }
 
 absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
@@ -260,6 +264,9 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
                         absl::StrCat("wavelength pdf: ", pdf.status().message()));
   }
   rs->wavelength_pdf_ = std::make_unique<spectral::WavelengthDistribution>(std::move(*pdf));
+  PRISM_ASSIGN_OR_RETURN(spectral::BinnedShape shape,
+                         spectral::BinnedShape::create(*rs->wavelength_pdf_, options.bins));
+  rs->binned_shape_ = std::make_unique<spectral::BinnedShape>(std::move(shape));
   return rs;
 }
 

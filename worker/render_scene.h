@@ -20,6 +20,7 @@
 
 #include "absl/status/statusor.h"
 #include "services/scene/scene_description.h"
+#include "services/spectral/binned_shape.h"
 #include "services/spectral/color.h"
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/rgb_uplift.h"
@@ -46,12 +47,13 @@ struct ShapeInfo {
   bool wavelength_dependent = false;
 };
 
-// The emitter mixture E (each distinct emitter spectrum normalised, as the default distribution
-// uses them) and the sensor term (null for `flat`) over `bins` cells, as the coordinator's
-// prepass tables want them (coordinator/prepass.h build_tables). FAILED_PRECONDITION when the
-// scene has no emitters (there is nothing to learn a wavelength pdf from).
+// What the coordinator's prepass needs of the job's wavelength sampling (coordinator/prepass.h):
+// the job's default distribution exactly as RenderScene::wavelength_pdf builds it (its bin masses
+// weigh the learned tables, and workers sample inside each bin with its shape), and the sensor
+// term over `bins` cells when it is not flat. FAILED_PRECONDITION when the scene has no emitters
+// (there is nothing to learn a wavelength pdf from).
 struct PrepassDistributions {
-  spectral::WavelengthDistribution emitters;
+  spectral::WavelengthDistribution job_default;
   std::optional<spectral::WavelengthDistribution> sensor;
 };
 absl::StatusOr<PrepassDistributions> prepass_distributions(const scene::SceneDescription& scene,
@@ -80,6 +82,8 @@ class RenderScene {
   const spectral::WavelengthGrid& grid() const { return grid_; }
   // p(λ) ∝ p_s · p_e mixed defensively (algorithms.md §1), per the options.
   const spectral::WavelengthDistribution& wavelength_pdf() const { return *wavelength_pdf_; }
+  // wavelength_pdf() cut at the job's bins: how a pixel table's bin masses are sampled.
+  const spectral::BinnedShape& binned_shape() const { return *binned_shape_; }
   const spectral::ColorMatching& cmf() const { return *cmf_; }
   const RenderOptions& options() const { return options_; }
 
@@ -97,6 +101,7 @@ class RenderScene {
   std::unique_ptr<LightSampler> light_sampler_;
   spectral::WavelengthGrid grid_ = *spectral::WavelengthGrid::create(64);
   std::unique_ptr<spectral::WavelengthDistribution> wavelength_pdf_;
+  std::unique_ptr<spectral::BinnedShape> binned_shape_;
   std::unique_ptr<spectral::ColorMatching> cmf_;
 };
 

@@ -203,10 +203,10 @@ Shape "sphere")");
   }
 }
 
-// The coordinator's prepass inputs: the emitter mixture over the requested bins (the distinct
-// spectra, each normalised, one copy of a spectrum given twice) and the sensor term, null for
-// `flat`; a scene without emitters has no mixture.
-TEST_F(RenderSceneTest, PrepassDistributionsAreTheEmitterMixtureAndSensorTerm) {
+// The coordinator's prepass inputs: the job's default distribution, bit for bit the one the
+// workers' RenderScene samples, and the sensor term over the bins, null for `flat`; a scene
+// without emitters has nothing to learn from.
+TEST_F(RenderSceneTest, PrepassDistributionsAreTheJobDefaultAndSensorTerm) {
   auto desc = parse(R"(WorldBegin
 LightSource "point" "spectrum I" "stdillum-F11" "point3 from" [0 1 0]
 LightSource "point" "spectrum I" "stdillum-F11" "point3 from" [0 2 0]
@@ -215,19 +215,20 @@ AttributeBegin
   Shape "sphere"
 AttributeEnd)");
   ASSERT_TRUE(desc.ok()) << desc.status();
-  const std::vector<spectral::Spectrum> spectra = {*spectral::BlackbodySpectrum::create(3000),
-                                                   *library_->find_spectrum("stdillum-F11")};
   for (int bins : {16, 64}) {
-    const auto expected = *spectral::WavelengthDistribution::emitters(spectra, bins);
     for (auto sensor : {SpectralPdfKind::kFlat, SpectralPdfKind::kVisible}) {
       RenderOptions o;
+      o.bins = bins;
       o.spectral_pdf = sensor;
-      o.emitter_pdf = EmitterPdfKind::kUniform;  // the prepass replaces p_e
       auto got = prepass_distributions(*desc, o, *library_, bins);
       ASSERT_TRUE(got.ok()) << got.status();
-      ASSERT_EQ(got->emitters.cells(), bins);
-      for (int c = 0; c < bins; ++c) {
-        EXPECT_NEAR(got->emitters.cell_mass(c), expected.cell_mass(c), 1e-12) << c;
+      // The job's default distribution, exactly as the scene the workers build has it.
+      auto scene = RenderScene::build(*device_, *desc, *library_, o, 8, 8);
+      ASSERT_TRUE(scene.ok()) << scene.status();
+      const spectral::WavelengthDistribution& want = (*scene)->wavelength_pdf();
+      ASSERT_EQ(got->job_default.cells(), want.cells());
+      for (int c = 0; c < want.cells(); ++c) {
+        ASSERT_EQ(got->job_default.cell_mass(c), want.cell_mass(c)) << c;
       }
       EXPECT_EQ(got->sensor.has_value(), sensor == SpectralPdfKind::kVisible);
       if (got->sensor) {

@@ -31,6 +31,11 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
                                                    " pixels but the tile ", image::to_string(rect),
                                                    " has ", rect.width(), "x", rect.height()));
   }
+  if (task.tables != nullptr && task.tables->cells() != bins) {
+    return absl::InvalidArgumentError(absl::StrCat("the pdf tables have ", task.tables->cells(),
+                                                   " cells per pixel but the job has ", bins,
+                                                   " bins; a table holds one mass per bin"));
+  }
   // A prepass traces with the hero path tracer whatever the job's integrator, so a gradient
   // job's prepass has no gradients.
   const GradientIntegrator* gradient =
@@ -81,8 +86,9 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
             continue;
           }
           const spectral::WavelengthPdfView lambda_pdf =
-              task.tables != nullptr ? task.tables->view(x - rect.x0, y - rect.y0, job_pdf)
-                                     : spectral::WavelengthPdfView(job_pdf);
+              task.tables != nullptr
+                  ? task.tables->view(x - rect.x0, y - rect.y0, job_pdf, scene_.binned_shape())
+                  : spectral::WavelengthPdfView(job_pdf);
           double* pixel_sums = &sums[std::size_t(index) * bins];
           double* pixel_squares = &squares[std::size_t(index) * bins];
           std::uint64_t guide_count = 0;

@@ -20,9 +20,6 @@
 
 namespace prism::worker {
 
-// The lanes C of a prepass task: the hero path tracer with its default C (algorithms.md §2, §4).
-inline constexpr int kPrepassLanes = 4;
-
 struct RenderTask {
   image::TileRect tile;
   image::SampleRange samples;

@@ -105,7 +105,7 @@ TEST_F(TileRendererTest, RefusesSampleIndicesBeyond32Bits) {
 TEST_F(TileRendererTest, TablesGiveTheSameBytesForAnyThreadCount) {
   TileRenderer renderer(*scene_);
   const spectral::PixelTables tables =
-      testing::skewed_tables(10, 7, 32, [](int x, int y) { return (x + y) % 4 == 0; });
+      testing::skewed_tables(10, 7, 8, [](int x, int y) { return (x + y) % 4 == 0; });
   for (bool prepass : {false, true}) {
     RenderTask task{{3, 5, 13, 12}, {0, 8}, prepass ? 2u : 0u, /*want_guides=*/prepass};
     task.prepass = prepass;
@@ -125,7 +125,7 @@ TEST_F(TileRendererTest, PixelsWithoutATableRenderAsWithoutTables) {
   TileRenderer renderer(*scene_);
   const image::TileRect rect{2, 1, 14, 11};
   auto uses_default = [](int x, int y) { return (x + 2 * y) % 3 == 0; };
-  const spectral::PixelTables tables = testing::skewed_tables(12, 10, 64, uses_default);
+  const spectral::PixelTables tables = testing::skewed_tables(12, 10, 8, uses_default);
   RenderTask plain{rect, {0, 16}, 0};
   RenderTask with_tables = plain;
   with_tables.tables = &tables;
@@ -158,7 +158,7 @@ TEST_F(TileRendererTest, APrepassSkipsThePixelsThatFellBack) {
   TileRenderer renderer(*scene_);
   const image::TileRect rect{2, 1, 14, 11};
   auto uses_default = [](int x, int y) { return (x + 2 * y) % 3 == 0; };
-  const spectral::PixelTables tables = testing::skewed_tables(12, 10, 64, uses_default);
+  const spectral::PixelTables tables = testing::skewed_tables(12, 10, 8, uses_default);
   RenderTask prepass{rect, {0, 8}, 1, /*want_guides=*/true};
   prepass.prepass = true;
   prepass.tables = &tables;
@@ -185,6 +185,14 @@ TEST_F(TileRendererTest, RefusesTablesOfAnotherSizeAndEarlyStopOutsideAPrepass) 
   auto wrong_size = renderer.render(task, nullptr);
   EXPECT_EQ(wrong_size.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_NE(wrong_size.status().message().find("4x4"), std::string::npos) << wrong_size.status();
+  // A table holds one mass per bin of the job (8 here).
+  const spectral::PixelTables other_cells = testing::skewed_tables(4, 4, 16);
+  RenderTask cells{{0, 0, 4, 4}, {0, 1}, 0};
+  cells.tables = &other_cells;
+  auto wrong_cells = renderer.render(cells, nullptr);
+  EXPECT_EQ(wrong_cells.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(wrong_cells.status().message().find("16 cells"), std::string::npos)
+      << wrong_cells.status();
   RenderTask early{{0, 0, 4, 4}, {0, 1}, 0};
   early.early_stop = true;
   EXPECT_EQ(renderer.render(early, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
@@ -202,7 +210,7 @@ TEST_F(TileRendererTest, APrepassOfAGradientJobIsAFourLaneHeroRenderWithoutGradi
   options.integrator = IntegratorKind::kHero;
   auto hero = build(options);
   ASSERT_TRUE(gradient && hero);
-  const spectral::PixelTables tables = testing::skewed_tables(16, 16, 32);
+  const spectral::PixelTables tables = testing::skewed_tables(16, 16, 8);
 
   RenderTask prepass{{0, 0, 16, 16}, {0, 4}, 1, /*want_guides=*/true};
   prepass.prepass = true;

@@ -306,10 +306,8 @@ absl::Status JobStore::migrate(const std::filesystem::path& file) {
 absl::StatusOr<std::string> JobStore::allocate_id(std::string_view counter,
                                                   std::string_view prefix) {
   PRISM_ASSIGN_OR_RETURN(
-      auto rows,
-      db_.query(
-          "UPDATE counters SET value = value + 1 WHERE name = ? RETURNING value",
-          {text(counter)}));
+      auto rows, db_.query("UPDATE counters SET value = value + 1 WHERE name = ? RETURNING value",
+                           {text(counter)}));
   PRISM_CHECK(rows.size() == 1);
   std::string digits = std::to_string(rows[0].integer(0));
   if (digits.size() < 6) digits.insert(0, 6 - digits.size(), '0');
@@ -337,9 +335,8 @@ absl::StatusOr<JobRecord> JobStore::get_job_row(std::string_view job_id) {
 absl::Status JobStore::insert_tasks(std::string_view job_id, std::span<const TaskRecord> tasks,
                                     int first_index) {
   PRISM_RETURN_IF_ERROR(validate_tasks(tasks, first_index));
-  const std::string sql =
-      absl::StrCat("INSERT INTO tasks (job_id, ", std::string(kTaskColumns),
-                   ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, '')");
+  const std::string sql = absl::StrCat("INSERT INTO tasks (job_id, ", std::string(kTaskColumns),
+                                       ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, '')");
   std::uint64_t samples = 0;
   for (const TaskRecord& t : tasks) {
     PRISM_RETURN_IF_ERROR(db_.run(
@@ -365,8 +362,8 @@ absl::StatusOr<CreateJobResult> JobStore::create_job(JobRecord job,
   CreateJobResult result;
   auto status = db_.transaction([&]() -> absl::Status {
     if (!job.client_token.empty()) {
-      PRISM_ASSIGN_OR_RETURN(auto existing, query_jobs("WHERE client_token = ?",
-                                                       {text(job.client_token)}));
+      PRISM_ASSIGN_OR_RETURN(auto existing,
+                             query_jobs("WHERE client_token = ?", {text(job.client_token)}));
       if (!existing.empty()) {
         result.job = std::move(existing[0]);
         result.existed = true;
@@ -379,12 +376,11 @@ absl::StatusOr<CreateJobResult> JobStore::create_job(JobRecord job,
     job.started_ms = 0;
     job.finished_ms = 0;
     job.report_json.clear();
-    PRISM_RETURN_IF_ERROR(
-        db_.run("INSERT INTO jobs (id, client_token, spec, bundle_hash, state, submitted_ms) "
-                "VALUES (?, ?, ?, ?, ?, ?)",
-                {text(job.id), optional_text(job.client_token), SqlBlob{job.spec},
-                 text(job.bundle_hash), integer(static_cast<int>(job.state)),
-                 integer(job.submitted_ms)}));
+    PRISM_RETURN_IF_ERROR(db_.run(
+        "INSERT INTO jobs (id, client_token, spec, bundle_hash, state, submitted_ms) "
+        "VALUES (?, ?, ?, ?, ?, ?)",
+        {text(job.id), optional_text(job.client_token), SqlBlob{job.spec}, text(job.bundle_hash),
+         integer(static_cast<int>(job.state)), integer(job.submitted_ms)}));
     PRISM_RETURN_IF_ERROR(insert_tasks(job.id, tasks, 0));
     PRISM_ASSIGN_OR_RETURN(result.job, get_job_row(job.id));
     return absl::OkStatus();
@@ -410,8 +406,7 @@ absl::StatusOr<JobRecord> JobStore::get_job(std::string_view job_id) {
 
 absl::StatusOr<JobRecord> JobStore::find_by_client_token(std::string_view client_token) {
   if (client_token.empty()) return absl::InvalidArgumentError("empty client token");
-  PRISM_ASSIGN_OR_RETURN(auto jobs,
-                         query_jobs("WHERE client_token = ?", {text(client_token)}));
+  PRISM_ASSIGN_OR_RETURN(auto jobs, query_jobs("WHERE client_token = ?", {text(client_token)}));
   if (jobs.empty()) {
     return absl::NotFoundError(absl::StrCat("no job with client token ", in_quotes(client_token)));
   }
@@ -461,11 +456,11 @@ absl::StatusOr<JobRecord> JobStore::set_job_state(std::string_view job_id, JobSt
     if (is_terminal(to)) job.finished_ms = now_ms;
     if (!error.empty()) job.error = std::string(error);
     job.state = to;
-    PRISM_RETURN_IF_ERROR(db_.run(
-        "UPDATE jobs SET state = ?, error = ?, started_ms = ?, finished_ms = ? "
-        "WHERE id = ?",
-        {integer(static_cast<int>(job.state)), text(job.error), integer(job.started_ms),
-         integer(job.finished_ms), text(job_id)}));
+    PRISM_RETURN_IF_ERROR(
+        db_.run("UPDATE jobs SET state = ?, error = ?, started_ms = ?, finished_ms = ? "
+                "WHERE id = ?",
+                {integer(static_cast<int>(job.state)), text(job.error), integer(job.started_ms),
+                 integer(job.finished_ms), text(job_id)}));
     result = std::move(job);
     return absl::OkStatus();
   });
@@ -475,16 +470,15 @@ absl::StatusOr<JobRecord> JobStore::set_job_state(std::string_view job_id, JobSt
 
 absl::Status JobStore::set_report(std::string_view job_id, std::string_view report_json) {
   PRISM_RETURN_IF_ERROR(
-      db_.run("UPDATE jobs SET report_json = ? WHERE id = ?",
-              {text(report_json), text(job_id)}));
+      db_.run("UPDATE jobs SET report_json = ? WHERE id = ?", {text(report_json), text(job_id)}));
   if (db_.changes() == 0) return job_not_found(job_id);
   return absl::OkStatus();
 }
 
 absl::StatusOr<std::vector<TaskRecord>> JobStore::query_tasks(std::string_view job_id,
                                                               bool pending_only) {
-  std::string sql = absl::StrCat("SELECT ", std::string(kTaskColumns),
-                                 " FROM tasks WHERE job_id = ?");
+  std::string sql =
+      absl::StrCat("SELECT ", std::string(kTaskColumns), " FROM tasks WHERE job_id = ?");
   std::vector<SqlValue> params = {text(job_id)};
   if (pending_only) {
     sql += " AND state = ?";
@@ -508,14 +502,14 @@ absl::StatusOr<std::vector<std::string>> JobStore::unshared_results(std::string_
   PRISM_RETURN_IF_ERROR(get_job_row(job_id).status());
   PRISM_ASSIGN_OR_RETURN(
       auto rows,
-      db_.query(absl::StrCat(
-                    "SELECT DISTINCT t.result_hash FROM tasks t WHERE t.job_id = ?1 AND "
-                    "t.result_hash != '' AND NOT EXISTS (SELECT 1 FROM tasks u JOIN jobs j ON "
-                    "j.id = u.job_id WHERE u.result_hash = t.result_hash AND u.job_id != ?1 AND "
-                    "j.state NOT IN (",
-                    static_cast<int>(JobState::kDone), ", ", static_cast<int>(JobState::kFailed),
-                    ", ", static_cast<int>(JobState::kCancelled), ")) ORDER BY t.result_hash"),
-                {text(job_id)}));
+      db_.query(
+          absl::StrCat("SELECT DISTINCT t.result_hash FROM tasks t WHERE t.job_id = ?1 AND "
+                       "t.result_hash != '' AND NOT EXISTS (SELECT 1 FROM tasks u JOIN jobs j ON "
+                       "j.id = u.job_id WHERE u.result_hash = t.result_hash AND u.job_id != ?1 AND "
+                       "j.state NOT IN (",
+                       static_cast<int>(JobState::kDone), ", ", static_cast<int>(JobState::kFailed),
+                       ", ", static_cast<int>(JobState::kCancelled), ")) ORDER BY t.result_hash"),
+          {text(job_id)}));
   std::vector<std::string> hashes;
   hashes.reserve(rows.size());
   for (const auto& row : rows) hashes.push_back(row.text(0));
@@ -524,6 +518,48 @@ absl::StatusOr<std::vector<std::string>> JobStore::unshared_results(std::string_
 
 absl::StatusOr<std::vector<TaskRecord>> JobStore::pending_tasks(std::string_view job_id) {
   return query_tasks(job_id, true);
+}
+
+absl::Status JobStore::skip_tasks(std::string_view job_id, int first, int last) {
+  return db_.transaction([&]() -> absl::Status {
+    PRISM_ASSIGN_OR_RETURN(JobRecord job, get_job_row(job_id));
+    if (first < 0 || last < first || std::uint64_t(last) > job.progress.tasks_total) {
+      return absl::InvalidArgumentError(absl::StrCat("job ", in_quotes(job_id), " has tasks 0..",
+                                                     job.progress.tasks_total, "; cannot skip ",
+                                                     first, "..", last));
+    }
+    if (job.state == JobState::kFailed || job.state == JobState::kCancelled) {
+      return absl::FailedPreconditionError(absl::StrCat(
+          "job ", in_quotes(job_id), " is ", to_string(job.state), ": no tasks are skipped"));
+    }
+    PRISM_ASSIGN_OR_RETURN(
+        auto rows, db_.query(absl::StrCat("SELECT ", std::string(kTaskColumns),
+                                          " FROM tasks WHERE job_id = ? AND task_index >= ? AND "
+                                          "task_index < ? ORDER BY task_index"),
+                             {text(job_id), integer(first), integer(last)}));
+    std::uint64_t tasks = 0, samples = 0;
+    for (const auto& row : rows) {
+      const TaskRecord task = task_from_row(row);
+      if (task.state == TaskState::kDone) {
+        return absl::FailedPreconditionError(absl::StrCat(
+            "job ", in_quotes(job_id), " task ", task.index, " is done: it cannot be skipped"));
+      }
+      if (task.state == TaskState::kSkipped) continue;
+      ++tasks;
+      samples += task_samples(task);
+    }
+    if (tasks == 0) return absl::OkStatus();
+    PRISM_RETURN_IF_ERROR(
+        db_.run("UPDATE tasks SET state = ? WHERE job_id = ? AND task_index >= ? AND "
+                "task_index < ? AND state = ?",
+                {integer(static_cast<int>(TaskState::kSkipped)), text(job_id), integer(first),
+                 integer(last), integer(static_cast<int>(TaskState::kPending))}));
+    return db_.run(
+        "UPDATE jobs SET tasks_done = tasks_done + ?, samples_done = samples_done + ? "
+        "WHERE id = ?",
+        {integer(static_cast<std::int64_t>(tasks)), integer(static_cast<std::int64_t>(samples)),
+         text(job_id)});
+  });
 }
 
 absl::StatusOr<bool> JobStore::mark_task_done(std::string_view job_id, int task_index,
@@ -536,10 +572,9 @@ absl::StatusOr<bool> JobStore::mark_task_done(std::string_view job_id, int task_
   auto status = db_.transaction([&]() -> absl::Status {
     PRISM_ASSIGN_OR_RETURN(JobRecord job, get_job_row(job_id));
     PRISM_ASSIGN_OR_RETURN(
-        auto rows,
-        db_.query(absl::StrCat("SELECT ", std::string(kTaskColumns),
-                               " FROM tasks WHERE job_id = ? AND task_index = ?"),
-                  {text(job_id), integer(task_index)}));
+        auto rows, db_.query(absl::StrCat("SELECT ", std::string(kTaskColumns),
+                                          " FROM tasks WHERE job_id = ? AND task_index = ?"),
+                             {text(job_id), integer(task_index)}));
     if (rows.empty()) {
       return absl::NotFoundError(absl::StrCat("job ", in_quotes(job_id), " has no task ",
                                               task_index, " (it has ", job.progress.tasks_total,
@@ -578,10 +613,10 @@ absl::StatusOr<int> JobStore::record_attempt(std::string_view job_id, int task_i
   int attempts = 0;
   auto status = db_.transaction([&]() -> absl::Status {
     PRISM_RETURN_IF_ERROR(get_job_row(job_id).status());
-    PRISM_ASSIGN_OR_RETURN(
-        auto rows, db_.query("UPDATE tasks SET attempts = attempts + 1 "
-                             "WHERE job_id = ? AND task_index = ? RETURNING attempts",
-                             {text(job_id), integer(task_index)}));
+    PRISM_ASSIGN_OR_RETURN(auto rows,
+                           db_.query("UPDATE tasks SET attempts = attempts + 1 "
+                                     "WHERE job_id = ? AND task_index = ? RETURNING attempts",
+                                     {text(job_id), integer(task_index)}));
     if (rows.empty()) {
       return absl::NotFoundError(
           absl::StrCat("job ", in_quotes(job_id), " has no task ", task_index));
@@ -678,10 +713,9 @@ absl::Status JobStore::touch_worker(std::string_view worker_id, std::int64_t now
 }
 
 absl::StatusOr<WorkerRecord> JobStore::get_worker(std::string_view worker_id) {
-  PRISM_ASSIGN_OR_RETURN(auto rows,
-                         db_.query(absl::StrCat("SELECT ", std::string(kWorkerColumns),
-                                                " FROM workers WHERE id = ?"),
-                                   {text(worker_id)}));
+  PRISM_ASSIGN_OR_RETURN(auto rows, db_.query(absl::StrCat("SELECT ", std::string(kWorkerColumns),
+                                                           " FROM workers WHERE id = ?"),
+                                              {text(worker_id)}));
   if (rows.empty()) return absl::NotFoundError(absl::StrCat("no worker ", in_quotes(worker_id)));
   return worker_from_row(rows[0]);
 }

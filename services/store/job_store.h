@@ -57,7 +57,9 @@ enum class TaskPass : int { kPrepass = 1, kFinal = 2 };
 
 // Leases live in the coordinator's memory and die with it, so a task is either still to be
 // rendered (pending, whether or not some worker holds a lease on it) or done.
-enum class TaskState : int { kPending = 0, kDone = 1 };
+// kSkipped: a later prepass the coordinator decided not to render (the prepass stopped early);
+// it counts as finished in the progress and has no result.
+enum class TaskState : int { kPending = 0, kDone = 1, kSkipped = 2 };
 
 struct JobProgress {
   std::uint64_t tasks_total = 0;
@@ -165,6 +167,12 @@ class JobStore {
   // CANCELLED; NOT_FOUND for an unknown job or task; INVALID_ARGUMENT for an empty hash.
   absl::StatusOr<bool> mark_task_done(std::string_view job_id, int task_index,
                                       std::string_view result_hash);
+
+  // Marks the tasks [first, last) SKIPPED (TaskState) and counts them, and their samples, as
+  // finished in the progress. Tasks already SKIPPED stay so (a restarted coordinator repeats the
+  // step). INVALID_ARGUMENT for a range outside the job's tasks; FAILED_PRECONDITION when one of
+  // them is DONE or the job is FAILED or CANCELLED; NOT_FOUND for an unknown job.
+  absl::Status skip_tasks(std::string_view job_id, int first, int last);
 
   // Counts one more lease handed out for the task and returns the new attempt number (1 for
   // the first lease).

@@ -317,7 +317,9 @@ int run(int argc, char** argv) {
         result.wall += timed->wall_seconds / count;
         result.cpu += timed->cpu_seconds / count;
         result.prepass += timed->result.stats.prepass_seconds / count;
-        result.fallback += timed->result.stats.fallback_fraction / count;
+        result.fallback +=
+            (timed->result.stats.prepass ? timed->result.stats.prepass->fallback_fraction : 0.0) /
+            count;
         // The longer the render, the better its seconds per spp: the next budget uses it.
         cost.per_spp = final_seconds(*timed, cpu_clock) / double(result.spp);
         cost.prepass = prepass_seconds(*timed, cpu_clock);

@@ -97,8 +97,13 @@ absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const coordinator::Jo
   rt.samples = {task.samples().begin(), task.samples().end()};
 
   if (task.has_pdf_table()) {
-    // The table's cells are its own resolution, not necessarily the job's bins.
+    // One mass per bin of the job (pixel_tables.h).
     const v1::PdfTable& table = task.pdf_table();
+    if (table.cells() != std::uint32_t(p.render.bins)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("the pdf table of tile ", r.x0(), ",", r.y0(), "-", r.x1(), ",", r.y1(),
+                       " has ", table.cells(), " cells but the job has ", p.render.bins, " bins"));
+    }
     const int cells = int(std::min<std::uint32_t>(
         table.cells(), std::uint32_t(spectral::WavelengthDistribution::kMaxCells) + 1));
     absl::StatusOr<spectral::PixelTables> decoded = spectral::PixelTables::decode(

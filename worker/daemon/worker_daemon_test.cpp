@@ -354,7 +354,7 @@ class WorkerDaemonTest : public ::testing::Test {
   }
 
   // A prepass-1 lease for `tile` of an 8x8 film (the job's is 16x16) with per-pixel tables over
-  // 24 cells (the job has 8 bins), guides and early stop.
+  // One mass per bin (the job has 8), guides and early stop.
   v1::Lease make_prepass_lease(v1::TileRect tile) {
     v1::Lease lease = make_lease(tile, 0, 6, 8);
     v1::Task& task = *lease.mutable_task();
@@ -365,9 +365,9 @@ class WorkerDaemonTest : public ::testing::Test {
     task.set_want_guides(true);
     task.set_early_stop_prepass(true);
     const int width = tile.x1() - tile.x0(), height = tile.y1() - tile.y0();
-    task.mutable_pdf_table()->set_cells(24);
+    task.mutable_pdf_table()->set_cells(8);
     task.mutable_pdf_table()->set_quantised_cdf(
-        testing::skewed_table_bytes(width, height, 24, [](int x, int y) { return x == y; }));
+        testing::skewed_table_bytes(width, height, 8, [](int x, int y) { return x == y; }));
     return lease;
   }
 
@@ -613,7 +613,7 @@ TEST_F(WorkerDaemonTest, AResultLargerThanAChunkIsStreamedInMebibyteChunks) {
 }
 
 // A prepass task: pass 1 on its own 8x8 film (not the job's 16x16), sampled from the tile's
-// pdf tables (24 cells for 8 bins), with guides and early stop; the upload is byte for byte the
+// pdf tables (8 bins), with guides and early stop; the upload is byte for byte the
 // in-process render of the same task, and carries the task's counters.
 TEST_F(WorkerDaemonTest, RendersAPrepassTaskWithPdfTablesOnItsFilm) {
   fake_.lease = make_prepass_lease(rect(2, 1, 8, 8));
@@ -655,8 +655,8 @@ TEST_F(WorkerDaemonTest, AMalformedPdfTableFailsTheTaskAsAWorkerFault) {
   v1::PdfTable& table = *fake_.lease.mutable_task()->mutable_pdf_table();
   // Pixel (2, 1)'s CDF jumps to 65535 at its 4th value and falls back: not a valid table.
   std::string bytes = table.quantised_cdf();
-  bytes[2 * 24 * 6 + 6] = char(0xff);
-  bytes[2 * 24 * 6 + 7] = char(0xff);
+  bytes[2 * 8 * 6 + 6] = char(0xff);
+  bytes[2 * 8 * 6 + 7] = char(0xff);
   table.set_quantised_cdf(bytes);
   const v1::FailTaskRequest failure = expect_failure();
   EXPECT_EQ(failure.failure_class(), v1::FAILURE_CLASS_WORKER);
