@@ -202,8 +202,9 @@ class PixelTableImage {
   int alpha_index(int x, int y) const { return alpha_[index(x, y)]; }
   TableShape shape(int x, int y) const { return shape_[index(x, y)]; }
   // The predicted variance per sample of the pixel's spectrum (Σ over bins, sensor-weighted)
-  // under the job's default distribution and under its table (equal when it has none); 0 where
-  // nothing was estimated.
+  // under the job's default distribution and under its table (equal when it has none): the
+  // pixel's own unbiased estimates, so they are noisy and may be negative; 0 where nothing was
+  // estimated.
   float predicted_default_variance(int x, int y) const { return variance_default_[index(x, y)]; }
   float predicted_variance(int x, int y) const { return variance_chosen_[index(x, y)]; }
 
@@ -220,6 +221,9 @@ class PixelTableImage {
   double predicted_gain() const;
   // Every pixel back on the default distribution (the prepass predicted too little to go on).
   void reset_to_default();
+  // A copy in which every pixel with a table has `cdf` (cells + 1 values) instead: later prepasses
+  // sample the default's own bin masses where a table was learned (see PrepassRun).
+  PixelTableImage with_tables(std::span<const std::uint16_t> cdf) const;
 
   // The tables of `rect` in the PdfTable wire layout (pixel_tables.h): pixels without a table
   // as all-zero rows. INVALID_ARGUMENT when the rect is empty or not inside the image.
@@ -293,7 +297,8 @@ class MomentImage {
 // inside the image that are valid count (the guide is valid, every bin is finite, and the pixel
 // is not kMatchesDefault in `previous`, whose pixels later prepasses skip): borders and holes are
 // handled by normalising over the neighbours that count. An invalid pixel's output is all zero.
-// Sums are in double in a fixed neighbour order; rows run in parallel. Values are not clamped
+// Sums are of the neighbours' differences from the centre, in float in a fixed neighbour order
+// (a constant image stays exactly constant); rows run in parallel. Values are not clamped
 // here (build_tables clamps). With `leave_one_out`, it is also given the same filter without the
 // centre pixel (Σ over the neighbours k ≠ j), all zero where no neighbour counts: an estimate
 // independent of the pixel's own samples. INVALID_ARGUMENT when the sizes of estimate, guides and
@@ -314,15 +319,16 @@ absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage&
 //    (filter_estimate's leave_one_out) is judged by V(m) = Σ_b s_b²·V_b(m) (VarianceModel) from
 //    the pixel's own moments: an unbiased estimate of that table's variance per sample (the
 //    pixel's samples did not shape it; a table fitted to the same samples would always look best,
-//    it chases their noise); the V of every candidate is then filtered like the moments, so each
-//    pixel's choice rests on its similar neighbours' validations;
+//    it chases their noise); the V of every candidate is then filtered like the moments but
+//    without the pixel itself, so each pixel's choice rests on its similar neighbours'
+//    validations and its own V stays an unbiased judge of that choice;
 //  - the pixel takes the candidate with the smallest filtered V and keeps the default
 //    (kMatchesDefault, α = 0) unless V <= (1 − params.fallback)·V(D) and V(D) > 0; without usable
-//    moments it is kNoEstimate;
+//    moments, or without neighbours, it is kNoEstimate or kMatchesDefault;
 //  - a learned pixel's table is that candidate with the shape learned from every sample,
 //    quantised as WavelengthDistribution::quantise does (every bin with D_b > 0 keeps at least
 //    (1 − α)·D_b >= ε·D_b of mass before quantisation, and any positive mass at least one unit).
-// predicted_default_variance and predicted_variance are the filtered V(D) and V of the choice.
+// predicted_default_variance and predicted_variance are the pixel's own V(D) and V of the choice.
 // `default_masses` are D_b (BinnedShape::bin_masses of the job's default distribution),
 // `sensor_weights` s_b (bins values, mean 1) or empty for a flat sensor. INVALID_ARGUMENT when
 // params are invalid, the spans, guides or previous do not match the moments' size, or the

@@ -47,6 +47,7 @@ absl::StatusOr<PrepassRun> PrepassRun::create(const PrepassParameters& params, i
   PRISM_ASSIGN_OR_RETURN(spectral::BinnedShape shape,
                          spectral::BinnedShape::create(job_default, bins));
   run.default_masses_ = shape.bin_masses();
+  run.default_cdf_ = spectral::WavelengthDistribution::from_table(run.default_masses_)->quantise();
   run.model_ = model;
   if (sensor != nullptr) {
     run.sensor_weights_.resize(std::size_t(bins));
@@ -75,16 +76,16 @@ absl::StatusOr<std::optional<std::string>> PrepassRun::tables_for_pass(
     return absl::FailedPreconditionError(
         absl::StrCat("prepass ", k, " is not rendered: the prepass stopped after pass 1"));
   }
-  if (finished_ < k - 1 || !tables_.has_value()) {
+  if (finished_ < k - 1 || !sampling_tables_.has_value()) {
     return absl::FailedPreconditionError(
         absl::StrCat("prepass ", k, " needs the tables of prepass ", k - 1));
   }
   const PrepassPass& p = pass(k);
-  if (tables_->width() != p.width || tables_->height() != p.height) {
+  if (sampling_tables_->width() != p.width || sampling_tables_->height() != p.height) {
     return absl::FailedPreconditionError(
         absl::StrCat("prepass ", k, " is rendered after the tables moved on"));
   }
-  PRISM_ASSIGN_OR_RETURN(std::string bytes, tables_->encode_tile(rect));
+  PRISM_ASSIGN_OR_RETURN(std::string bytes, sampling_tables_->encode_tile(rect));
   return std::optional<std::string>(std::move(bytes));
 }
 
@@ -118,8 +119,9 @@ absl::Status PrepassRun::add_tile(int k, const image::TileResult& merged) {
                                                    ": want guides and ", bins_, " bins"));
   }
   if (added_[index]) return absl::OkStatus();
-  // Pass k sampled with pass k − 1's tables (carried to this film), pass 1 with the default.
-  const PixelTableImage* sampled_with = k > 1 && tables_.has_value() ? &*tables_ : nullptr;
+  // Pass k > 1 sampled with the default's quantised masses where pass k − 1 left a table.
+  const PixelTableImage* sampled_with =
+      k > 1 && sampling_tables_.has_value() ? &*sampling_tables_ : nullptr;
   PRISM_RETURN_IF_ERROR(guides_->add_tile(merged));
   PRISM_RETURN_IF_ERROR(
       moments_->add_tile(merged, sampled_with, default_masses_, model_.prepass_lanes));
@@ -158,6 +160,11 @@ absl::Status PrepassRun::finish_pass(int k) {
     PRISM_ASSIGN_OR_RETURN(tables, upsample_tables(tables, next_width, next_height));
   }
   tables_ = std::move(tables);
+  if (last) {
+    sampling_tables_.reset();
+  } else {
+    sampling_tables_ = tables_->with_tables(default_cdf_);
+  }
   added_.clear();
   added_count_ = 0;
   finished_ = k;

@@ -9,12 +9,19 @@
 // Sequence: for k = 1..passes(): render every tile of plan(k) (one task per tile, samples
 // [0, pass(k).spp), guides on, early stop on) with tables_for_pass(k, rect); add_tile(k, merged)
 // for each; finish_pass(k); stop as soon as finished() (after pass 1 of several, a prepass whose
-// tables are predicted to remove less than PrepassParameters::kMinImageGain of the image's
+// tables are predicted to remove less than PrepassParameters::min_image_gain of the image's
 // variance stops there: every pixel goes back to the default and the later passes are not
-// rendered). Then the final pass's tiles take final_tables(rect). Pass k's tables come from
-// pass k − 1's result carried to pass k's film (upsample_tables when image-scaled); a pixel
-// without a table carries an all-zero row, so workers skip it in later prepasses and sample the
-// job's default distribution in the final pass.
+// rendered; after the last, tables predicted under min_final_gain are dropped). Then the final
+// pass's tiles take final_tables(rect).
+//
+// Every prepass samples the job's default distribution: pass k > 1 renders only the pixels that
+// still have a table after pass k − 1 (the others carry an all-zero row and are skipped), with
+// the default's own bin masses as their table. The paper samples later passes with the tables
+// learned so far; but where a table starves a bin, the few samples that land there carry values
+// 1/q times larger, and the moments they give (unbiased, heavy-tailed) make the next tables and
+// their validation noisy. The passes add up to one default-sampled estimate, with a decision
+// point after pass 1. Tables are carried to the next film with upsample_tables when
+// image-scaled.
 //
 // Not thread-safe: the caller serialises calls (LocalRender adds tiles under its own lock, the
 // farm under its mutex). Every result is a pure function of the merged tiles.
@@ -135,8 +142,11 @@ class PrepassRun {
   std::optional<GuideImage> guides_;
   std::vector<bool> added_;
   int added_count_ = 0;
-  // The tables of pass finished_, carried to the film of the next pass (or the final film).
+  // The tables of pass finished_, carried to the film of the next pass (or the final film), and
+  // what the next prepass samples with (the same pixels, the default's masses).
   std::optional<PixelTableImage> tables_;
+  std::optional<PixelTableImage> sampling_tables_;
+  std::vector<std::uint16_t> default_cdf_;  // the default's bin masses, quantised
   double reconstruction_seconds_ = 0;
 };
 

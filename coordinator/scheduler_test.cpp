@@ -542,6 +542,26 @@ TEST(SchedulerTest, ResumedJobNeverLeasesItsDoneTasks) {
   ASSERT_TRUE(lease.has_value());
   EXPECT_EQ(lease->task.index, 3);
   EXPECT_EQ(lease->task.spec, spec(9));
+  ASSERT_EQ(s.complete("w", lease->id, hash_of(lease->task), at(20)).outcome,
+            CompleteOutcome::kAccepted);
+  (void)s.take_events();
+
+  // Skipped tasks (a prepass that stopped early) keep the numbering, are never leased, count as
+  // done, and the tasks after them are leased as usual.
+  auto skipped = s.add_tasks("all", specs(2), true);
+  ASSERT_TRUE(skipped.ok());
+  EXPECT_EQ(*skipped, 4);
+  auto next = s.add_tasks("all", {spec(7)});
+  ASSERT_TRUE(next.ok());
+  EXPECT_EQ(*next, 6);
+  lease = s.acquire("w", at(30));
+  ASSERT_TRUE(lease.has_value());
+  EXPECT_EQ(lease->task.index, 6);
+  EXPECT_FALSE(s.acquire("w", at(30)).has_value());
+  EXPECT_EQ(s.progress("all")->done, 6);
+  ASSERT_EQ(s.complete("w", lease->id, hash_of(lease->task), at(31)).outcome,
+            CompleteOutcome::kAccepted);
+  EXPECT_EQ(s.progress("all")->state, JobState::kDone);
 }
 
 TEST(SchedulerTest, RefusesBadJobs) {

@@ -39,7 +39,9 @@ constexpr char kToken[] = "client-token";
 constexpr char kSecret[] = "worker-secret";
 constexpr int kHeartbeatMs = 200;
 
-fs::path source_scene() { return fs::path(PRISM_SOURCE_DIR) / "worker/testdata/unbiased.pbrt"; }
+fs::path source_scene() {
+  return fs::path(PRISM_SOURCE_DIR) / "worker/testdata/unbiased.pbrt";
+}
 
 // A port that was free a moment ago (for a coordinator restarted on the same address).
 int free_port() {
@@ -273,10 +275,19 @@ class FarmProcessTest : public ::testing::Test {
                                 const std::string& read = "cli.exr") {
     const fs::path out = root_ / "cli" / "cli.exr";
     fs::create_directories(out.parent_path());
-    std::vector<std::string> args = {PRISM_BINARY, "render",
+    std::vector<std::string> args = {PRISM_BINARY,
+                                     "render",
                                      (root_ / "scene" / "scene.pbrt").string(),
-                                     "-o", out.string(), "--spp", std::to_string(spp), "--seed",
-                                     "11", "--tile", "8", "--threads", "2"};
+                                     "-o",
+                                     out.string(),
+                                     "--spp",
+                                     std::to_string(spp),
+                                     "--seed",
+                                     "11",
+                                     "--tile",
+                                     "8",
+                                     "--threads",
+                                     "2"};
     if (samples_per_task > 0) {
       args.push_back("--samples-per-task");
       args.push_back(std::to_string(samples_per_task));
@@ -337,8 +348,8 @@ TEST_F(FarmProcessTest, AGradientJobMatchesPrismRenderByteForByte) {
   start_worker(1);
   const v1::JobInfo done = wait_for(job_id, terminal, 30);
   ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
-  const std::vector<std::string> flags = {"--no-prepass", "--integrator", "gradient", "--tau",
-                                          "0.01", "--primal-and-gradients"};
+  const std::vector<std::string> flags = {"--no-prepass", "--integrator", "gradient",
+                                          "--tau",        "0.01",         "--primal-and-gradients"};
   expect_identical(fetch_spectral(job_id), cli_render(kSpp, 6, flags));
   expect_identical(fetch_spectral(job_id, v1::OUTPUT_KIND_PRIMAL_EXR),
                    cli_render(kSpp, 6, flags, "cli.primal.exr"));
@@ -350,21 +361,22 @@ TEST_F(FarmProcessTest, AGradientJobMatchesPrismRenderByteForByte) {
 }
 
 // The multi-pass prepass through the farm: two prepasses of 9 tile tasks each, the coordinator's
-// filter and tables between them, then the final pass with each tile's tables; the scene's
-// default (it has two emitter spectra, media and dispersion) in both. Killing the coordinator
-// during the prepass resumes it from the stored prepass results.
+// filters and tables between them, then the final pass with each tile's tables. Killing the
+// coordinator during the prepass resumes it from the stored prepass results.
 TEST_F(FarmProcessTest, APrepassJobMatchesPrismRenderByteForByteAcrossACoordinatorRestart) {
+  // Two rooms under a red and a blue LED: the tables pay, so the prepass runs both passes.
+  fs::copy_file(fs::path(PRISM_SOURCE_DIR) / "tests/testdata/pipeline/two_leds.pbrt",
+                root_ / "scene" / "scene.pbrt", fs::copy_options::overwrite_existing);
   const int port = free_port();
   start_coordinator(port);
   v1::JobSpec s = spec(upload(), kSpp);
-  s.clear_prepass();  // the scene's default: on
   s.mutable_prepass()->set_enabled(true);
   s.mutable_prepass()->set_spp(64);
   const std::string job_id = submit(s);
   ASSERT_FALSE(job_id.empty());
   start_worker(0);
-  const v1::JobInfo mid =
-      wait_for(job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 10; }, 30);
+  const v1::JobInfo mid = wait_for(
+      job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 10; }, 30);
   ASSERT_GE(mid.progress().tasks_done(), 10u);
   kill9(coordinator_);
   start_coordinator(port);
@@ -372,7 +384,67 @@ TEST_F(FarmProcessTest, APrepassJobMatchesPrismRenderByteForByteAcrossACoordinat
   const v1::JobInfo done = wait_for(job_id, terminal, 60);
   ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
   EXPECT_EQ(done.progress().tasks_done(), 27u);
-  expect_identical(fetch_spectral(job_id), cli_render(kSpp, 0, {"--prepass", "--prepass-spp", "64"}));
+  expect_identical(fetch_spectral(job_id),
+                   cli_render(kSpp, 0, {"--prepass", "--prepass-spp", "64"}));
+  // This one goes on after pass 1 (the next test covers the early stop).
+  std::ifstream json(root_ / "cli" / "cli.json");
+  const std::string report((std::istreambuf_iterator<char>(json)),
+                           std::istreambuf_iterator<char>());
+  EXPECT_NE(report.find("\"stopped_early\": false"), std::string::npos) << report;
+}
+
+// A prepass that stops after its first pass (its tables predict too little: prepass.h
+// kMinImageGain): the second pass's 9 tasks are skipped, not rendered, and count as done; the
+// final pass samples the default distribution. Killing the coordinator during the final pass
+// resumes it with the same decision, taken again from the stored first pass.
+TEST_F(FarmProcessTest, APrepassThatStopsAfterItsFirstPassSkipsTheRestAndMatchesPrismRender) {
+  // One F11 lamp over grey surfaces: the emitter mixture is already the best distribution.
+  {
+    std::ofstream scene(root_ / "scene" / "scene.pbrt");
+    scene << R"(LookAt 0 3 -6  0 0.6 0  0 1 0
+Camera "perspective" "float fov" 40
+Film "spectral" "integer xresolution" 24 "integer yresolution" 24 "integer nbuckets" 16
+Sampler "independent" "integer pixelsamples" 16
+WorldBegin
+AttributeBegin
+  Material "diffuse" "rgb reflectance" [0.5 0.5 0.5]
+  Shape "trianglemesh" "point3 P" [-4 0 -4  4 0 -4  4 0 4  -4 0 4] "integer indices" [0 1 2 0 2 3]
+  Translate 0 0.7 0
+  Shape "sphere" "float radius" 0.7
+AttributeEnd
+AttributeBegin
+  AreaLightSource "diffuse" "spectrum L" "stdillum-F11" "float scale" 4
+  Translate 0 3 0
+  Rotate 90 1 0 0
+  Shape "bilinearmesh" "point3 P" [-1 -1 0  1 -1 0  -1 1 0  1 1 0]
+AttributeEnd
+)";
+  }
+  const int port = free_port();
+  start_coordinator(port);
+  v1::JobSpec s = spec(upload(), kSpp);
+  s.mutable_prepass()->set_enabled(true);
+  s.mutable_prepass()->set_spp(128);
+  const std::string job_id = submit(s);
+  ASSERT_FALSE(job_id.empty());
+  start_worker(0);
+  const v1::JobInfo mid = wait_for(
+      job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 20; }, 30);
+  ASSERT_GE(mid.progress().tasks_done(), 20u);
+  kill9(coordinator_);
+  start_coordinator(port);
+  start_worker(1);
+  const v1::JobInfo done = wait_for(job_id, terminal, 60);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  EXPECT_EQ(done.progress().tasks_done(), 27u);
+  EXPECT_EQ(done.progress().tasks_total(), 27u);
+  const std::vector<float> cli = cli_render(kSpp, 0, {"--prepass", "--prepass-spp", "128"});
+  expect_identical(fetch_spectral(job_id), cli);
+  // The local render made the same decision: its report says it stopped after pass 1.
+  std::ifstream json(root_ / "cli" / "cli.json");
+  const std::string report((std::istreambuf_iterator<char>(json)),
+                           std::istreambuf_iterator<char>());
+  EXPECT_NE(report.find("\"stopped_early\": true"), std::string::npos) << report;
 }
 
 // Tasks of tile x sample range: each tile's four ranges ([0,5), [5,10), [10,15), [15,16)) come
@@ -395,7 +467,8 @@ TEST_F(FarmProcessTest, AWorkerKilledMidJobLeavesTheBytesUnchanged) {
   const pid_t doomed = start_worker(0);
   start_worker(1);
   // Kill worker 0 while it holds a lease, after at least one task is done.
-  wait_for(job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 1; }, 20);
+  wait_for(
+      job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 1; }, 20);
   ASSERT_TRUE(wait_busy("w0", 10));
   ASSERT_LT(get_job(job_id).progress().tasks_done(), 9u) << "the job finished before the kill";
   kill9(doomed);
@@ -410,8 +483,8 @@ TEST_F(FarmProcessTest, ACoordinatorKilledMidJobResumesWithoutRerenderingFinishe
   const std::string job_id = submit(spec(upload(), kSlowSpp));
   start_worker(0);
   start_worker(1);
-  const v1::JobInfo mid =
-      wait_for(job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 3; }, 20);
+  const v1::JobInfo mid = wait_for(
+      job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 3; }, 20);
   ASSERT_LT(mid.progress().tasks_done(), 9u) << "the job finished before the kill";
   kill9(coordinator_);
   std::map<int, store::TaskRecord> before;

@@ -156,15 +156,16 @@ TEST(PixelTablesTest, ViewsSampleExactlyLikeWhatTheyView) {
   append_pixel_table(cdf, bytes);
   append_default_pixel(64, bytes);
   const PixelTables t = *PixelTables::decode(2, 1, 64, bytes);
-  const WavelengthPdfView table_view = t.view(0, 0, job_default);
-  const WavelengthPdfView default_view = t.view(1, 0, job_default);
+  const BinnedShape shape = *BinnedShape::create(job_default, 64);
+  const WavelengthPdfView table_view = t.view(0, 0, job_default, shape);
+  const WavelengthPdfView default_view = t.view(1, 0, job_default, shape);
   EXPECT_TRUE(table_view.is_pixel_table());
   EXPECT_FALSE(default_view.is_pixel_table());
   const QuantisedWavelengthCdf& q = *t.table(0, 0);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   for (int i = 0; i < 200; ++i) {
     const double v = u(rng);
-    const SampledWavelengths a = table_view.sample_lanes(v, 4), b = q.sample_lanes(v, 4);
+    const SampledWavelengths a = table_view.sample_lanes(v, 4), b = shape.sample_lanes(q, v, 4);
     const SampledWavelengths c = default_view.sample_lanes(v, 4),
                              d = job_default.sample_lanes(v, 4);
     for (int s = 0; s < 4; ++s) {
@@ -174,9 +175,9 @@ TEST(PixelTablesTest, ViewsSampleExactlyLikeWhatTheyView) {
       ASSERT_EQ(c.pdf(s), d.pdf(s));
     }
     const float l = static_cast<float>(kLambdaMin + v * kLambdaRange);
-    ASSERT_EQ(table_view.pdf(l), q.pdf(l));
+    ASSERT_EQ(table_view.pdf(l), shape.pdf(q, l));
     ASSERT_EQ(default_view.pdf(l), job_default.pdf(l));
-    ASSERT_EQ(table_view.cdf(l), q.cdf(l));
+    ASSERT_EQ(table_view.cdf(l), shape.cdf(q, l));
     ASSERT_EQ(default_view.sample(v).lambda, job_default.sample(v).lambda);
   }
   // The implicit conversion lets existing callers pass the job's distribution unchanged.
@@ -262,7 +263,8 @@ TEST(PixelTablesTest, DecodedTablesSampleTheirQuantisedPdf) {
       }
       for (int c = 0; c < cells; ++c) {
         const double mass = double(q.cell_pdf(c)) * width;
-        for (int sub = 0; sub < kSub; ++sub) expected[size_t(c) * kSub + sub] = kSamples * mass / kSub;
+        for (int sub = 0; sub < kSub; ++sub)
+          expected[size_t(c) * kSub + sub] = kSamples * mass / kSub;
       }
       const testing::ChiSquareResult r = testing::chi_square(observed, expected);
       EXPECT_GT(r.p_value, threshold) << cells << " cells, lane " << lane << ": " << r.describe();

@@ -146,7 +146,9 @@ TEST_F(JobStoreTest, MigratesEmptyFileAndRefusesNewerSchema) {
   auto refused = JobStore::open(file_);
   ASSERT_FALSE(refused.ok());
   EXPECT_EQ(refused.status().code(), absl::StatusCode::kFailedPrecondition);
-  EXPECT_NE(refused.status().message().find("schema version " + std::to_string(JobStore::kSchemaVersion + 1)), std::string::npos)
+  EXPECT_NE(refused.status().message().find("schema version " +
+                                            std::to_string(JobStore::kSchemaVersion + 1)),
+            std::string::npos)
       << refused.status();
   auto db = Database::open(file_);
   ASSERT_TRUE(db.ok());
@@ -280,6 +282,43 @@ TEST_F(JobStoreTest, TaskDoneIsIdempotentAndConflictingHashRefused) {
             absl::StatusCode::kFailedPrecondition);
   EXPECT_FALSE(*store.mark_task_done(id, 1, "aaaa"));
   EXPECT_EQ(store.add_tasks(id, make_tasks(1)).code(), absl::StatusCode::kFailedPrecondition);
+}
+
+// Tasks of a prepass the coordinator decided not to render are skipped: they count as finished,
+// leave the pending list, carry no result, and the job can be DONE; skipping again changes
+// nothing, a done task cannot be skipped, and the range must lie inside the job.
+TEST_F(JobStoreTest, SkippedTasksCountAsFinishedWithoutAResult) {
+  JobStore store = open_store();
+  std::string id = create(store, 5);
+  ASSERT_TRUE(store.set_job_state(id, JobState::kRendering, 2).ok());
+  ASSERT_TRUE(store.mark_task_done(id, 0, "aaaa").ok());
+  ASSERT_TRUE(store.skip_tasks(id, 1, 3).ok());
+  EXPECT_EQ(*store.progress(id), (JobProgress{5, 3, 5 * 512, 3 * 512}));
+  ASSERT_TRUE(store.skip_tasks(id, 1, 3).ok());  // a restarted coordinator repeats it
+  EXPECT_EQ(*store.progress(id), (JobProgress{5, 3, 5 * 512, 3 * 512}));
+  auto tasks = store.tasks_of(id);
+  ASSERT_TRUE(tasks.ok());
+  EXPECT_EQ((*tasks)[1].state, TaskState::kSkipped);
+  EXPECT_EQ((*tasks)[2].state, TaskState::kSkipped);
+  EXPECT_TRUE((*tasks)[1].result_hash.empty());
+  auto pending = store.pending_tasks(id);
+  ASSERT_TRUE(pending.ok());
+  ASSERT_EQ(pending->size(), 2u);
+  EXPECT_EQ((*pending)[0].index, 3);
+  EXPECT_EQ(*store.unshared_results(id), std::vector<std::string>{"aaaa"});
+  EXPECT_EQ(store.skip_tasks(id, 0, 2).code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(store.skip_tasks(id, 4, 6).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(store.skip_tasks(id, 3, 2).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(store.skip_tasks("j-000777", 0, 1).code(), absl::StatusCode::kNotFound);
+  ASSERT_TRUE(store.mark_task_done(id, 3, "bbbb").ok());
+  ASSERT_TRUE(store.set_job_state(id, JobState::kFinalising, 3).ok());
+  EXPECT_FALSE(store.set_job_state(id, JobState::kDone, 3).ok());  // task 4 is pending
+  ASSERT_TRUE(store.skip_tasks(id, 4, 5).ok());
+  auto done = store.set_job_state(id, JobState::kDone, 4);
+  EXPECT_TRUE(done.ok()) << done.status();
+  // The state survives a reopen.
+  JobStore again = open_store();
+  EXPECT_EQ((*again.tasks_of(id))[2].state, TaskState::kSkipped);
 }
 
 TEST_F(JobStoreTest, UnsharedResultsLeaveOutThoseAnotherUnfinishedJobHolds) {
