@@ -42,9 +42,9 @@
 #include <memory>
 #include <mutex>
 #include <optional>
-#include <utility>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -196,7 +196,7 @@ class FarmCoordinator {
   struct ActiveJob {
     JobParameters params;
     prism::v1::JobSpec spec;
-    TilePlan plan;  // the final pass
+    TilePlan plan;                             // the final pass
     std::unique_ptr<TileAssembler> assembler;  // the final pass
     TileFinaliser finalise;
     std::optional<PrepassRun> prepass;
@@ -204,7 +204,7 @@ class FarmCoordinator {
     std::vector<int> stage_first;  // first task index of each stage, then the task count
     int stage = 0;                 // the last stage handed to the Scheduler
     std::map<std::string, std::uint64_t> counters;  // the final pass's, summed
-    double prepass_seconds = 0;    // submit (or resume) to the final pass's start, wall clock
+    double prepass_seconds = 0;  // submit (or resume) to the final pass's start, wall clock
     std::unique_ptr<FinishedTiles> tiles;  // set by attach_tiles before any result is added
     std::unique_ptr<image::RgbImage> rgb;  // finished tiles' linear sRGB
     std::unique_ptr<BinStatisticsAccumulator> statistics;

@@ -499,8 +499,8 @@ TEST_F(FarmServerTest, ListWorkersShowsWhatABusyWorkerRenders) {
   const auto& t = lease->task();
   EXPECT_EQ(info.current_task(),
             absl::StrCat("job ", job_id, " final tile (", t.tile().x0(), ",", t.tile().y0(), ")-(",
-                         t.tile().x1(), ",", t.tile().y1(), ") samples [", t.samples().begin(),
-                         ",", t.samples().end(), ")"));
+                         t.tile().x1(), ",", t.tile().y1(), ") samples [", t.samples().begin(), ",",
+                         t.samples().end(), ")"));
 }
 
 TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {
@@ -758,8 +758,7 @@ TEST_F(FarmServerTest, RealWorkerProcessesRenderTheSameBytes) {
 }
 
 TEST_F(FarmServerTest, TheStandardHealthServiceReportsServing) {
-  auto channel = grpc::CreateChannel(farm_->address(),
-                                     grpc::InsecureChannelCredentials());
+  auto channel = grpc::CreateChannel(farm_->address(), grpc::InsecureChannelCredentials());
   grpc::GenericStub stub(channel);
   grpc::ClientContext context;
   context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));

@@ -95,9 +95,11 @@ TEST_F(FinishedTilesTest, RefusesForeignTilesAndReportsDamagedFiles) {
   fs::resize_file(dir_ / "0.tile", 40);
   EXPECT_EQ(tiles->get(0).status().code(), absl::StatusCode::kDataLoss);
   std::vector<float> buffer;
-  auto rows = tiles->rows([](const image::TileResult& r)
-                              -> absl::StatusOr<image::SpectralImage> { return image::finalise(r); },
-                          &buffer);
+  auto rows = tiles->rows(
+      [](const image::TileResult& r) -> absl::StatusOr<image::SpectralImage> {
+        return image::finalise(r);
+      },
+      &buffer);
   EXPECT_EQ(rows(0, kTile).status().code(), absl::StatusCode::kDataLoss);
 }
 

@@ -47,8 +47,8 @@ void store(T* p, const V& v) {
 using F4 = float __attribute__((vector_size(16)));
 
 // W doubles per SIMD register: 2 for SSE2 (every x86-64), 4 for AVX2, 8 for AVX-512. The
-// kBatch lanes of a batch are N = kBatch/W registers. (GCC ignores vector_size on a dependent type, hence the
-// explicit types.)
+// kBatch lanes of a batch are N = kBatch/W registers. (GCC ignores vector_size on a dependent type,
+// hence the explicit types.)
 using F2 = float __attribute__((vector_size(8)));
 using D2 = double __attribute__((vector_size(16)));
 using D4 = double __attribute__((vector_size(32)));

@@ -175,7 +175,9 @@ PixelTableImage::PixelTableImage(int width, int height, int cells)
       alpha_(std::size_t(width) * std::size_t(height), 0),
       shape_(std::size_t(width) * std::size_t(height), TableShape::kSecondMoment),
       variance_default_(std::size_t(width) * std::size_t(height), 0.0f),
-      variance_chosen_(std::size_t(width) * std::size_t(height), 0.0f) {}
+      variance_chosen_(std::size_t(width) * std::size_t(height), 0.0f),
+      judged_default_(std::size_t(width) * std::size_t(height), 0.0f),
+      judged_chosen_(std::size_t(width) * std::size_t(height), 0.0f) {}
 
 std::size_t PixelTableImage::index(int x, int y) const {
   PRISM_CHECK(x >= 0 && x < width_ && y >= 0 && y < height_);
@@ -219,11 +221,21 @@ double PixelTableImage::predicted_gain() const {
   return by_default > 0.0 ? 1.0 - chosen / by_default : 0.0;
 }
 
+double PixelTableImage::decision_gain() const {
+  double chosen = 0.0, by_default = 0.0;
+  for (std::size_t i = 0; i < sources_.size(); ++i) {
+    chosen += judged_chosen_[i];
+    by_default += judged_default_[i];
+  }
+  return by_default > 0.0 ? 1.0 - chosen / by_default : 0.0;
+}
+
 void PixelTableImage::reset_to_default() {
   for (std::size_t i = 0; i < sources_.size(); ++i) {
     if (sources_[i] == PixelSource::kLearned) sources_[i] = PixelSource::kMatchesDefault;
     alpha_[i] = 0;
     variance_chosen_[i] = variance_default_[i];
+    judged_chosen_[i] = judged_default_[i];
   }
   std::fill(cdf_.begin(), cdf_.end(), std::uint16_t{0});
 }
@@ -605,6 +617,8 @@ absl::StatusOr<PixelTableImage> build_tables(
           tables.sources_[i] = previous->source(x, y);
           tables.variance_default_[i] = previous->variance_default_[i];
           tables.variance_chosen_[i] = previous->variance_chosen_[i];
+          tables.judged_default_[i] = previous->judged_default_[i];
+          tables.judged_chosen_[i] = previous->judged_chosen_[i];
           continue;
         }
         const float* v = judged.pixel(x, y).data();
@@ -627,10 +641,12 @@ absl::StatusOr<PixelTableImage> build_tables(
           if (has[int(candidate_shape(c))] && v[c] < v[best]) best = c;
         }
         tables.variance_default_[i] = own[0];
+        tables.judged_default_[i] = v[0];
         if (!(v[0] > 0.0f) || best == 0 ||
             !(double(v[best]) <= (1.0 - params.fallback) * double(v[0]))) {
           tables.sources_[i] = PixelSource::kMatchesDefault;
           tables.variance_chosen_[i] = own[0];
+          tables.judged_chosen_[i] = v[0];
           continue;
         }
         const int a = candidate_alpha(best);
@@ -639,6 +655,7 @@ absl::StatusOr<PixelTableImage> build_tables(
         tables.alpha_[i] = std::uint8_t(a);
         tables.shape_[i] = shape;
         tables.variance_chosen_[i] = own[best];
+        tables.judged_chosen_[i] = v[best];
         for (std::size_t b = 0; b < nb; ++b) {
           r[b] = alphas[a] * shapes[int(shape)][b] + (1.0 - alphas[a]) * d[b];
         }
@@ -666,6 +683,8 @@ absl::StatusOr<PixelTableImage> upsample_tables(const PixelTableImage& tables, i
       out.shape_[to] = tables.shape_[from];
       out.variance_default_[to] = tables.variance_default_[from];
       out.variance_chosen_[to] = tables.variance_chosen_[from];
+      out.judged_default_[to] = tables.judged_default_[from];
+      out.judged_chosen_[to] = tables.judged_chosen_[from];
       std::copy_n(tables.cdf_.begin() + std::ptrdiff_t(from * stride), stride,
                   out.cdf_.begin() + std::ptrdiff_t(to * stride));
     }

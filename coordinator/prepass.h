@@ -48,10 +48,11 @@ struct PrepassParameters {
   double sigma_r = 0.015;  // range σ on guide feature distances, > 0
 
   static constexpr int kMaxPasses = 8;
-  // After pass 1 of several, a job whose tables are predicted to remove less than kMinImageGain
-  // of the image's variance per sample stops the prepass and renders with the default; after the
-  // last pass, tables predicted to remove less than kMinFinalGain are dropped (every pixel on the
-  // default, so the final pass pays nothing for them). The margins are measured
+  // After pass 1 of several, a job whose tables are predicted (PixelTableImage::decision_gain)
+  // to remove less than kMinImageGain of the image's variance per sample stops the prepass and
+  // renders with the default; after the last pass, tables predicted to remove less than
+  // kMinFinalGain are dropped (every pixel on the default, so the final pass pays nothing for
+  // them). The margins are measured
   // (docs/benchmarks.md): going on costs about 9 % of the job (the rest of the prepass and a
   // table lane's extra cost), the tables alone about 3 %, and under the Sobol sampler the realised
   // gain is about half the predicted one.
@@ -219,6 +220,11 @@ class PixelTableImage {
   // fraction of the image's variance per sample that the tables remove (0 when nothing was
   // estimated).
   double predicted_gain() const;
+  // The same from the smoothed validations the choices were made with (each pixel's from its
+  // neighbours'): a little optimistic (each pixel took its best), but far less noisy than the
+  // pixels' own estimates, whose few large values dominate a small prepass. The prepass's
+  // decisions to go on or keep its tables use this one.
+  double decision_gain() const;
   // Every pixel back on the default distribution (the prepass predicted too little to go on).
   void reset_to_default();
   // A copy in which every pixel with a table has `cdf` (cells + 1 values) instead: later prepasses
@@ -249,6 +255,8 @@ class PixelTableImage {
   std::vector<TableShape> shape_;
   std::vector<float> variance_default_;
   std::vector<float> variance_chosen_;
+  std::vector<float> judged_default_;  // the smoothed validations of the default and the choice
+  std::vector<float> judged_chosen_;
 };
 
 // The per-pixel moments a prepass pass measured, as the tables need them: an image of 2·bins

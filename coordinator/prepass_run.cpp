@@ -142,13 +142,16 @@ absl::Status PrepassRun::finish_pass(int k) {
   PRISM_ASSIGN_OR_RETURN(PixelTableImage tables,
                          build_tables(moments_->moments(), *guides_, params_, default_masses_,
                                       sensor_weights_, model_, previous));
-  const double gain = tables.predicted_gain();
-  if (k == 1) first_pass_gain_ = gain;
-  if (k == 1 && passes() > 1 && gain < params_.min_image_gain) {
+  // Go on (keep the tables) only when both estimates say so: the pixels' own (unbiased, but a few
+  // large values dominate a small prepass) and the smoothed ones the choices were made with (far
+  // less noisy, a little optimistic).
+  const double decision = std::min(tables.predicted_gain(), tables.decision_gain());
+  if (k == 1) first_pass_gain_ = decision;
+  if (k == 1 && passes() > 1 && decision < params_.min_image_gain) {
     tables.reset_to_default();
     stopped_early_ = true;
-  } else if (k == passes() && gain < params_.min_final_gain) {
-    final_gain_ = gain;
+  } else if (k == passes() && decision < params_.min_final_gain) {
+    final_gain_ = decision;
     tables.reset_to_default();
     dropped_ = true;
   }

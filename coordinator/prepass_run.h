@@ -48,13 +48,15 @@ VarianceModel prepass_variance_model(const worker::RenderOptions& render);
 
 // What a finished prepass did, for reports and summary lines.
 struct PrepassOutcome {
-  int passes_run = 0;            // passes rendered
-  bool stopped_early = false;    // stopped after pass 1: predicted gain under kMinImageGain
-  bool dropped = false;          // the last pass's tables predicted under kMinFinalGain: dropped
-  double first_pass_gain = 0;    // predicted fraction of the variance removed, after pass 1
-  double predicted_gain = 0;     // the same for the last pass's tables (even if dropped)
-  double fallback_fraction = 0;  // pixels on the job's default distribution
-  std::array<double, kAlphaChoices> alpha_values{};           // alpha_choice of each index
+  int passes_run = 0;          // passes rendered
+  bool stopped_early = false;  // stopped after pass 1: predicted gain under kMinImageGain
+  bool dropped = false;        // the last pass's tables predicted under kMinFinalGain: dropped
+  // What the early stop looked at after pass 1 (the smaller of the tables' predicted_gain and
+  // decision_gain), and the last pass's tables' predicted_gain (unbiased), or what dropped them.
+  double first_pass_gain = 0;
+  double predicted_gain = 0;
+  double fallback_fraction = 0;                      // pixels on the job's default distribution
+  std::array<double, kAlphaChoices> alpha_values{};  // alpha_choice of each index
   std::array<std::int64_t, kAlphaChoices> alpha_histogram{};  // pixels per alpha
   std::array<std::int64_t, kTableShapes> shape_histogram{};   // learned pixels per TableShape
   double reconstruction_seconds = 0;                          // the coordinator's filters, tables

@@ -132,8 +132,9 @@ absl::Status TileAssembler::add(int tile_index, image::TileResult result) {
     }
     if (tile.finished) {
       return absl::FailedPreconditionError(absl::StrCat(
-          name, ": the tile was finished before the coordinator restarted; results for it are "
-                "no longer taken"));
+          name,
+          ": the tile was finished before the coordinator restarted; results for it are "
+          "no longer taken"));
     }
     for (const auto& other : tile.parts) {
       if (other.has_value() && other->buffers() != result.buffers()) {

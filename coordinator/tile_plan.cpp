@@ -9,8 +9,8 @@ namespace prism::coordinator {
 absl::StatusOr<TilePlan> plan_tiles(const TilePlanOptions& options) {
   if (options.width < 1 || options.height < 1 || options.width > image::kMaxImageSide ||
       options.height > image::kMaxImageSide) {
-    return absl::InvalidArgumentError(absl::StrCat("image size ", options.width, "x",
-                                                   options.height, " is out of range"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("image size ", options.width, "x", options.height, " is out of range"));
   }
   if (options.tile_size < 4 || options.tile_size > 1024) {
     return absl::InvalidArgumentError(

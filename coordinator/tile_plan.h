@@ -16,9 +16,9 @@ namespace prism::coordinator {
 struct TilePlanOptions {
   int width = 0;
   int height = 0;
-  int tile_size = 32;                    // 4..1024
-  std::uint64_t spp = 0;                 // >= 1
-  std::uint64_t samples_per_task = 0;    // 0: all of a pixel's samples in one task
+  int tile_size = 32;                  // 4..1024
+  std::uint64_t spp = 0;               // >= 1
+  std::uint64_t samples_per_task = 0;  // 0: all of a pixel's samples in one task
 };
 
 struct TilePlan {

@@ -40,7 +40,8 @@ TEST(TilePlanTest, SampleRangesCoverSppWithoutGaps) {
 
 TEST(TilePlanTest, RefusesOutOfRangeSizes) {
   EXPECT_EQ(plan_tiles({0, 10, 16, 1, 0}).status().code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_EQ(plan_tiles({10, 10, 2, 1, 0}).status().message(), "tile size 2 is out of range 4..1024");
+  EXPECT_EQ(plan_tiles({10, 10, 2, 1, 0}).status().message(),
+            "tile size 2 is out of range 4..1024");
   EXPECT_EQ(plan_tiles({10, 10, 16, 0, 0}).status().code(), absl::StatusCode::kInvalidArgument);
 }
 
