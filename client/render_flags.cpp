@@ -43,21 +43,24 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
                "Gradient: also write the raw primal and gradient EXRs (<stem>.primal.exr, "
                "<stem>.gradient.exr)");
   f.prepass_opt = cmd.add_flag("--prepass", f.prepass,
-                               "Learn per-pixel wavelength pdfs in a prepass (default: on for "
-                               "hero when the scene depends on wavelength)");
+                               "Learn per-pixel wavelength pdfs in a prepass (default: off)");
   f.no_prepass_opt = cmd.add_flag("--no-prepass", f.no_prepass, "No prepass");
   f.prepass_opt->excludes(f.no_prepass_opt);
   f.prepass_passes_opt =
       cmd.add_option("--prepass-passes", f.prepass_passes, "Prepass passes K (default 2)");
   f.prepass_spp_opt = cmd.add_option("--prepass-spp", f.prepass_spp,
-                                     "Samples per pixel of the last prepass (default 128)");
+                                     "Samples per pixel of the last prepass (default: 8 % of the "
+                                     "job's samples over the passes, at most 128; no prepass "
+                                     "under 16)");
   cmd.add_option("--prepass-mode", o.prepass_mode,
                  "samples (earlier passes take fewer samples) or image (earlier passes a smaller "
                  "film); default samples");
   f.prepass_epsilon_opt = cmd.add_option("--prepass-epsilon", f.prepass_epsilon,
-                                         "Defensive mixture weight (default 0.05)");
+                                         "Least share of the default distribution in a learned "
+                                         "table (default 0.05)");
   f.prepass_fallback_opt = cmd.add_option("--prepass-fallback", f.prepass_fallback,
-                                          "Fallback threshold h (default 2e-4)");
+                                          "Least predicted variance reduction for a pixel to get "
+                                          "a table, in [0, 1) (default 0.05)");
   f.prepass_sigma_s_opt = cmd.add_option("--prepass-sigma-s", f.prepass_sigma_s,
                                          "Bilateral filter spatial sigma, pixels (default 1.75)");
   f.prepass_sigma_r_opt = cmd.add_option("--prepass-sigma-r", f.prepass_sigma_r,

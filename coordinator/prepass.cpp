@@ -212,22 +212,26 @@ std::array<std::int64_t, kTableShapes> PixelTableImage::shape_histogram() const 
   return h;
 }
 
-double PixelTableImage::predicted_gain() const {
-  double chosen = 0.0, by_default = 0.0;
-  for (std::size_t i = 0; i < sources_.size(); ++i) {
-    chosen += variance_chosen_[i];
-    by_default += variance_default_[i];
+namespace {
+
+// 1 − Σ chosen / Σ by default: the fraction of the variance the choices remove.
+double gain_of(const std::vector<float>& chosen, const std::vector<float>& by_default) {
+  double c = 0.0, d = 0.0;
+  for (std::size_t i = 0; i < chosen.size(); ++i) {
+    c += chosen[i];
+    d += by_default[i];
   }
-  return by_default > 0.0 ? 1.0 - chosen / by_default : 0.0;
+  return d > 0.0 ? 1.0 - c / d : 0.0;
+}
+
+}  // namespace
+
+double PixelTableImage::predicted_gain() const {
+  return gain_of(variance_chosen_, variance_default_);
 }
 
 double PixelTableImage::decision_gain() const {
-  double chosen = 0.0, by_default = 0.0;
-  for (std::size_t i = 0; i < sources_.size(); ++i) {
-    chosen += judged_chosen_[i];
-    by_default += judged_default_[i];
-  }
-  return by_default > 0.0 ? 1.0 - chosen / by_default : 0.0;
+  return gain_of(judged_chosen_, judged_default_);
 }
 
 void PixelTableImage::reset_to_default() {

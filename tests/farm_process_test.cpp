@@ -57,6 +57,8 @@ int free_port() {
   return ntohs(addr.sin_port);
 }
 
+constexpr int kSpp = 16;
+
 class FarmProcessTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -301,6 +303,39 @@ class FarmProcessTest : public ::testing::Test {
     return read_pixels(out.parent_path() / read);
   }
 
+  // A prepass job of Ñ = `prepass_spp` (9 tiles, 27 tasks: pass 1, pass 2 done or skipped, the
+  // final pass) through a coordinator killed (-9) and restarted once `kill_after` tasks are done,
+  // compared byte for byte with `prism render` of the same job. Returns that render's JSON report.
+  std::string prepass_job_across_a_restart(int prepass_spp, int kill_after) {
+    const int port = free_port();
+    start_coordinator(port);
+    v1::JobSpec s = spec(upload(), kSpp);
+    s.mutable_prepass()->set_enabled(true);
+    s.mutable_prepass()->set_spp(prepass_spp);
+    const std::string job_id = submit(s);
+    EXPECT_FALSE(job_id.empty());
+    start_worker(0);
+    const v1::JobInfo mid = wait_for(
+        job_id,
+        [&](const v1::JobInfo& i) {
+          return i.progress().tasks_done() >= std::uint64_t(kill_after);
+        },
+        30);
+    EXPECT_GE(mid.progress().tasks_done(), std::uint64_t(kill_after));
+    kill9(coordinator_);
+    start_coordinator(port);
+    start_worker(1);
+    const v1::JobInfo done = wait_for(job_id, terminal, 60);
+    EXPECT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+    EXPECT_EQ(done.progress().tasks_done(), 27u);
+    EXPECT_EQ(done.progress().tasks_total(), 27u);
+    const std::string n = std::to_string(prepass_spp);
+    expect_identical(fetch_spectral(job_id),
+                     cli_render(kSpp, 0, {"--prepass", "--prepass-spp", n}));
+    std::ifstream json(root_ / "cli" / "cli.json");
+    return std::string((std::istreambuf_iterator<char>(json)), std::istreambuf_iterator<char>());
+  }
+
   void expect_identical(const std::vector<float>& farm, const std::vector<float>& cli) {
     ASSERT_EQ(farm.size(), cli.size());
     ASSERT_GT(farm.size(), 0u);
@@ -317,7 +352,6 @@ class FarmProcessTest : public ::testing::Test {
   std::unique_ptr<v1::FarmService::Stub> stub_;
 };
 
-constexpr int kSpp = 16;
 // About 0.1-0.2 s per 8x8 task on one thread: the kills land in the middle of the job.
 constexpr int kSlowSpp = 1024;
 
@@ -367,29 +401,8 @@ TEST_F(FarmProcessTest, APrepassJobMatchesPrismRenderByteForByteAcrossACoordinat
   // Two rooms under a red and a blue LED: the tables pay, so the prepass runs both passes.
   fs::copy_file(fs::path(PRISM_SOURCE_DIR) / "tests/testdata/pipeline/two_leds.pbrt",
                 root_ / "scene" / "scene.pbrt", fs::copy_options::overwrite_existing);
-  const int port = free_port();
-  start_coordinator(port);
-  v1::JobSpec s = spec(upload(), kSpp);
-  s.mutable_prepass()->set_enabled(true);
-  s.mutable_prepass()->set_spp(64);
-  const std::string job_id = submit(s);
-  ASSERT_FALSE(job_id.empty());
-  start_worker(0);
-  const v1::JobInfo mid = wait_for(
-      job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 10; }, 30);
-  ASSERT_GE(mid.progress().tasks_done(), 10u);
-  kill9(coordinator_);
-  start_coordinator(port);
-  start_worker(1);
-  const v1::JobInfo done = wait_for(job_id, terminal, 60);
-  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
-  EXPECT_EQ(done.progress().tasks_done(), 27u);
-  expect_identical(fetch_spectral(job_id),
-                   cli_render(kSpp, 0, {"--prepass", "--prepass-spp", "64"}));
+  const std::string report = prepass_job_across_a_restart(64, 10);
   // This one goes on after pass 1 (the next test covers the early stop).
-  std::ifstream json(root_ / "cli" / "cli.json");
-  const std::string report((std::istreambuf_iterator<char>(json)),
-                           std::istreambuf_iterator<char>());
   EXPECT_NE(report.find("\"stopped_early\": false"), std::string::npos) << report;
 }
 
@@ -420,30 +433,7 @@ AttributeBegin
 AttributeEnd
 )";
   }
-  const int port = free_port();
-  start_coordinator(port);
-  v1::JobSpec s = spec(upload(), kSpp);
-  s.mutable_prepass()->set_enabled(true);
-  s.mutable_prepass()->set_spp(128);
-  const std::string job_id = submit(s);
-  ASSERT_FALSE(job_id.empty());
-  start_worker(0);
-  const v1::JobInfo mid = wait_for(
-      job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 20; }, 30);
-  ASSERT_GE(mid.progress().tasks_done(), 20u);
-  kill9(coordinator_);
-  start_coordinator(port);
-  start_worker(1);
-  const v1::JobInfo done = wait_for(job_id, terminal, 60);
-  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
-  EXPECT_EQ(done.progress().tasks_done(), 27u);
-  EXPECT_EQ(done.progress().tasks_total(), 27u);
-  const std::vector<float> cli = cli_render(kSpp, 0, {"--prepass", "--prepass-spp", "128"});
-  expect_identical(fetch_spectral(job_id), cli);
-  // The local render made the same decision: its report says it stopped after pass 1.
-  std::ifstream json(root_ / "cli" / "cli.json");
-  const std::string report((std::istreambuf_iterator<char>(json)),
-                           std::istreambuf_iterator<char>());
+  const std::string report = prepass_job_across_a_restart(128, 20);
   EXPECT_NE(report.find("\"stopped_early\": true"), std::string::npos) << report;
 }
 
