@@ -70,8 +70,16 @@ absl::StatusOr<int> offset_from_metadata(const image::SpectralExr& gradient, con
 
 absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   // Flags first: a typo should not cost reading two large files.
-  PRISM_ASSIGN_OR_RETURN(const coordinator::PoissonNorm norm,
-                         coordinator::parse_poisson_norm(options.poisson));
+  if (options.poisson == "weighted") {
+    return absl::InvalidArgumentError(
+        "--poisson weighted needs the per-bin variances of I and G, which the primal and "
+        "gradient EXRs do not carry: reconstruct with l2 or l1, or render with --poisson weighted");
+  }
+  if (options.poisson != "l2" && options.poisson != "l1") {
+    return absl::InvalidArgumentError(
+        absl::StrCat("Poisson norm '", options.poisson, "': want l2 or l1"));
+  }
+  const coordinator::PoissonNorm norm = *coordinator::parse_poisson_norm(options.poisson);
   if (!std::isfinite(options.alpha) || options.alpha < coordinator::kMinPoissonAlpha ||
       options.alpha > coordinator::kMaxPoissonAlpha) {
     return absl::InvalidArgumentError(absl::StrCat(

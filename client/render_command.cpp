@@ -147,7 +147,7 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   PRISM_RETURN_IF_ERROR(parse_emitter_pdf(o.emitter_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_light_selection(o.light_selection).status());
   const bool gradient = *parse_integrator(o.integrator) == worker::IntegratorKind::kGradient;
-  if (!gradient && (o.delta || o.tau || o.alpha || o.poisson != "l2" || o.primal_and_gradients)) {
+  if (!gradient && (o.delta || o.tau || o.alpha || !o.poisson.empty() || o.primal_and_gradients)) {
     return absl::InvalidArgumentError(
         "--delta, --tau, --alpha, --poisson and --primal-and-gradients need --integrator gradient");
   }
@@ -165,7 +165,14 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
         absl::StrCat("--alpha ", *o.alpha, " is out of range: want ", coordinator::kMinPoissonAlpha,
                      "..", coordinator::kMaxPoissonAlpha, " (alpha must be > 0)"));
   }
-  PRISM_RETURN_IF_ERROR(coordinator::parse_poisson_norm(o.poisson).status());
+  if (!o.poisson.empty()) {
+    PRISM_RETURN_IF_ERROR(coordinator::parse_poisson_norm(o.poisson).status());
+  }
+  if (gradient && o.alpha && o.poisson == "weighted") {
+    return absl::InvalidArgumentError(
+        "--alpha is the screening weight of the l2 and l1 reconstructions; --poisson weighted "
+        "weighs each bin by its variances instead");
+  }
   if (o.prepass_mode != "samples" && o.prepass_mode != "image") {
     return absl::InvalidArgumentError(
         absl::StrCat("--prepass-mode '", o.prepass_mode, "': want samples or image"));
@@ -222,9 +229,9 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
     if (o.delta) g->set_delta(static_cast<float>(*o.delta));
     if (o.tau) g->set_tau(static_cast<float>(*o.tau));
     if (o.alpha) g->set_alpha(static_cast<float>(*o.alpha));
-    g->set_norm(*coordinator::parse_poisson_norm(o.poisson) == coordinator::PoissonNorm::kL1
-                    ? v1::POISSON_NORM_L1
-                    : v1::POISSON_NORM_L2);
+    g->set_norm(coordinator::to_proto(o.poisson.empty()
+                                          ? coordinator::PoissonNorm::kL2
+                                          : *coordinator::parse_poisson_norm(o.poisson)));
     spec.mutable_outputs()->set_primal_and_gradients(o.primal_and_gradients);
   }
   const bool prepass_options = has_prepass_options(o);

@@ -42,12 +42,12 @@ struct RenderCommandOptions {
   bool spectral_light_selection = true;
   std::optional<std::int64_t> max_depth;
   std::optional<std::int64_t> samples_per_task;  // unset: one task per tile
-  double exposure = 0.0;  // PNG preview, in stops
+  double exposure = 0.0;                         // PNG preview, in stops
   // Spectral gradient sampling (--integrator gradient); unset: the defaults (job_spec.h).
   std::optional<double> delta;  // fraction of the range, snapped to whole bins
   std::optional<double> tau;
   std::optional<double> alpha;
-  std::string poisson = "l2";
+  std::string poisson;                // empty: the job's default, l2
   bool primal_and_gradients = false;  // also write <stem>.primal.exr and <stem>.gradient.exr
   // The multi-pass prepass; unset: on for hero when the scene depends on wavelength.
   std::optional<bool> prepass;

@@ -6,8 +6,8 @@ namespace prism::client {
 
 void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   cmd.add_option("scene", o.scene, "pbrt-v4 scene file")->required();
-  f.output_opt = cmd.add_option(
-      "-o,--output", f.output, "Spectral EXR to write (default: the Film filename's stem, here)");
+  f.output_opt = cmd.add_option("-o,--output", f.output,
+                                "Spectral EXR to write (default: the Film filename's stem, here)");
   f.spp_opt = cmd.add_option("--spp", f.spp, "Samples per pixel (default: the scene's)");
   cmd.add_option("--integrator", o.integrator, "uniform, hero or gradient (default hero)");
   f.bins_opt =
@@ -37,8 +37,11 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
                                "whole bins (default 0.15)");
   f.tau_opt = cmd.add_option("--tau", f.tau, "Gradient: shift threshold (default 0)");
   f.alpha_opt =
-      cmd.add_option("--alpha", f.alpha, "Gradient: screened Poisson weight, > 0 (default 0.2)");
-  cmd.add_option("--poisson", o.poisson, "Gradient: reconstruction norm l2 or l1 (default l2)");
+      cmd.add_option("--alpha", f.alpha,
+                     "Gradient: screened Poisson weight of --poisson l2 and l1, > 0 (default 0.2)");
+  cmd.add_option("--poisson", o.poisson,
+                 "Gradient: reconstruction l2 (one alpha), l1 (IRLS) or weighted (per-bin inverse "
+                 "variances of I and G, unbiased but slower to converge; default l2)");
   cmd.add_flag("--primal-and-gradients", o.primal_and_gradients,
                "Gradient: also write the raw primal and gradient EXRs (<stem>.primal.exr, "
                "<stem>.gradient.exr)");

@@ -1039,6 +1039,11 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
         problem = "a prepass result without guide buffers";
       } else if (!prepass && gradient && !parsed->has_gradients()) {
         problem = "a gradient job's result without gradients";
+      } else if (!prepass && gradient &&
+                 it->second->params.render.gradient_variances != parsed->has_halves()) {
+        problem = parsed->has_halves()
+                      ? "a gradient job's result with halves its reconstruction does not use"
+                      : "a variance-weighted gradient job's result without halves";
       }
     }
     if (!problem.empty()) {

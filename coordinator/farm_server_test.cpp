@@ -479,6 +479,42 @@ TEST_F(FarmServerTest, AGradientResultWithoutGradientsIsTheWorkersFault) {
   EXPECT_TRUE(complete(worker_id, again->lease_id(), render(*again)).ok());
 }
 
+// A variance-weighted gradient job needs the halves (squares of G, the even samples' sums) in
+// every result; a result with gradients only is the worker's fault too, and the real render of
+// the task, which carries them, is accepted.
+TEST_F(FarmServerTest, AWeightedGradientResultWithoutHalvesIsTheWorkersFault) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  v1::JobSpec spec = small_spec(hash);
+  spec.set_integrator(v1::INTEGRATOR_GRADIENT);
+  spec.set_bins(16);
+  spec.mutable_gradient()->set_norm(v1::POISSON_NORM_WEIGHTED);
+  ASSERT_FALSE(submit(spec).job_id().empty());
+  const std::string worker_id = register_worker();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  const auto& t = lease->task().tile();
+  image::TileBuffers buffers;
+  buffers.gradients = true;
+  auto without = image::TileResult::create(
+      {t.x0(), t.y0(), t.x1(), t.y1()},
+      {lease->task().samples().begin(), lease->task().samples().end()}, 16, buffers);
+  ASSERT_TRUE(without.ok()) << without.status();
+  const grpc::Status refused =
+      complete(worker_id, lease->lease_id(), image::serialise_tile(*without));
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(refused.error_message().find("without halves"), std::string::npos)
+      << refused.error_message();
+  std::optional<v1::Lease> again = acquire(worker_id);
+  ASSERT_TRUE(again.has_value());
+  const std::string bytes = render(*again);
+  auto parsed = image::parse_tile(bytes);
+  ASSERT_TRUE(parsed.ok()) << parsed.status();
+  EXPECT_TRUE(parsed->has_halves());
+  EXPECT_TRUE(complete(worker_id, again->lease_id(), bytes).ok());
+}
+
 TEST_F(FarmServerTest, ListWorkersShowsWhatABusyWorkerRenders) {
   scene_root_ = root_ / "scene";
   std::string hash;

@@ -117,10 +117,14 @@ absl::Status gradient_of(const prism::v1::GradientOptions& g, int bins, JobParam
     case prism::v1::POISSON_NORM_L1:
       p.gradient.norm = PoissonNorm::kL1;
       break;
+    case prism::v1::POISSON_NORM_WEIGHTED:
+      p.gradient.norm = PoissonNorm::kWeighted;
+      break;
     default:
       return absl::InvalidArgumentError(
-          absl::StrCat("gradient.norm ", static_cast<int>(g.norm()), ": want l2 or l1"));
+          absl::StrCat("gradient.norm ", static_cast<int>(g.norm()), ": want l2, l1 or weighted"));
   }
+  p.render.gradient_variances = p.gradient.norm == PoissonNorm::kWeighted;
   return absl::OkStatus();
 }
 
@@ -332,6 +336,18 @@ prism::v1::LightSelection to_proto(worker::LightSelectionKind kind) {
   return prism::v1::LIGHT_SELECTION_UNSPECIFIED;
 }
 
+prism::v1::PoissonNorm to_proto(PoissonNorm norm) {
+  switch (norm) {
+    case PoissonNorm::kL2:
+      return prism::v1::POISSON_NORM_L2;
+    case PoissonNorm::kL1:
+      return prism::v1::POISSON_NORM_L1;
+    case PoissonNorm::kWeighted:
+      return prism::v1::POISSON_NORM_WEIGHTED;
+  }
+  return prism::v1::POISSON_NORM_UNSPECIFIED;
+}
+
 prism::v1::JobSpec to_proto(const JobParameters& p) {
   prism::v1::JobSpec spec;
   spec.set_bundle_hash(p.bundle_hash);
@@ -343,8 +359,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
     g->set_delta(static_cast<float>(p.gradient.delta));
     g->set_tau(p.render.gradient_tau);
     g->set_alpha(static_cast<float>(p.gradient.alpha));
-    g->set_norm(p.gradient.norm == PoissonNorm::kL1 ? prism::v1::POISSON_NORM_L1
-                                                    : prism::v1::POISSON_NORM_L2);
+    g->set_norm(to_proto(p.gradient.norm));
   }
   auto* prepass = spec.mutable_prepass();
   prepass->set_enabled(p.prepass.has_value());

@@ -88,6 +88,7 @@ void add_job_sections(const JobParameters& parameters, RenderReport& report);
 // The wire values of the option enums (both to_proto and `prism`'s flags use these).
 prism::v1::Integrator to_proto(worker::IntegratorKind kind);
 prism::v1::LightSelection to_proto(worker::LightSelectionKind kind);
+prism::v1::PoissonNorm to_proto(PoissonNorm norm);
 
 // Every value explicit (see the invariant above).
 prism::v1::JobSpec to_proto(const JobParameters& parameters);

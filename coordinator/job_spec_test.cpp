@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <string>
+#include <utility>
 
 #include "google/protobuf/util/message_differencer.h"
 
@@ -173,7 +174,7 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
          s.mutable_gradient()->set_norm(static_cast<prism::v1::PoissonNorm>(7));
        },
-       "gradient.norm 7: want l2 or l1"},
+       "gradient.norm 7: want l2, l1 or weighted"},
       {"primal_without_gradient",
        [](prism::v1::JobSpec& s) { s.mutable_outputs()->set_primal_and_gradients(true); },
        "outputs.primal_and_gradients needs the gradient integrator"},
@@ -256,6 +257,27 @@ TEST(JobSpecTest, GradientAndPrepassDefaultsSurviveTheExplicitForm) {
   EXPECT_EQ(again->prepass->fallback, p->prepass->fallback);
   EXPECT_EQ(again->prepass->sigma_s, p->prepass->sigma_s);
   EXPECT_EQ(again->prepass->sigma_r, p->prepass->sigma_r);
+}
+
+// The variance-weighted norm survives the wire and makes the workers sum the squares of G; the
+// other norms do not ask for them.
+TEST(JobSpecTest, WeightedNormAsksForGradientSquares) {
+  for (auto [wire, norm] : {std::pair{prism::v1::POISSON_NORM_WEIGHTED, PoissonNorm::kWeighted},
+                            std::pair{prism::v1::POISSON_NORM_L1, PoissonNorm::kL1},
+                            std::pair{prism::v1::POISSON_NORM_L2, PoissonNorm::kL2}}) {
+    prism::v1::JobSpec spec = minimal_spec();
+    spec.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+    spec.mutable_gradient()->set_norm(wire);
+    auto p = job_parameters(spec, test_scene());
+    ASSERT_TRUE(p.ok()) << p.status();
+    EXPECT_EQ(p->gradient.norm, norm);
+    EXPECT_EQ(p->render.gradient_variances, norm == PoissonNorm::kWeighted);
+    EXPECT_EQ(to_proto(*p).gradient().norm(), wire);
+    auto again = job_parameters(to_proto(*p), scene::SceneDescription{});
+    ASSERT_TRUE(again.ok()) << again.status();
+    EXPECT_EQ(again->gradient.norm, norm);
+    EXPECT_EQ(again->render.gradient_variances, p->render.gradient_variances);
+  }
 }
 
 // The prepass is off unless the spec asks for it, whatever the scene needs; an explicit

@@ -52,13 +52,15 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
   }
   std::unique_ptr<LocalRender> render(new LocalRender());
   render->options_ = options;
+  // The variance-weighted reconstruction needs the workers' squares of G.
+  render->options_.render.gradient_variances = options.poisson_norm == PoissonNorm::kWeighted;
   PRISM_ASSIGN_OR_RETURN(render->plan_,
                          plan_tiles({options.width, options.height, options.tile_size, options.spp,
                                      options.samples_per_task}));
   render->threads_ = options.threads > 0 ? options.threads : tbb::info::default_concurrency();
   const Clock::time_point start = Clock::now();
   PRISM_ASSIGN_OR_RETURN(render->scene_,
-                         worker::RenderScene::build(device, scene, library, options.render,
+                         worker::RenderScene::build(device, scene, library, render->options_.render,
                                                     options.width, options.height));
   if (options.render.integrator == worker::IntegratorKind::kGradient) {
     PRISM_ASSIGN_OR_RETURN(
@@ -71,23 +73,23 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
     render->finaliser_ = mean_finaliser();
   }
   if (options.prepass.has_value()) {
-    PRISM_ASSIGN_OR_RETURN(
-        worker::PrepassDistributions distributions,
-        worker::prepass_distributions(scene, options.render, library, options.render.bins));
+    PRISM_ASSIGN_OR_RETURN(worker::PrepassDistributions distributions,
+                           worker::prepass_distributions(scene, render->options_.render, library,
+                                                         render->options_.render.bins));
     PRISM_ASSIGN_OR_RETURN(
         PrepassRun run,
         PrepassRun::create(*options.prepass, options.width, options.height, options.tile_size,
-                           options.render.bins, distributions.job_default,
+                           render->options_.render.bins, distributions.job_default,
                            distributions.sensor.has_value() ? &*distributions.sensor : nullptr,
-                           prepass_variance_model(options.render)));
+                           prepass_variance_model(render->options_.render)));
     // Image-scaled passes render the same camera on a smaller film.
     for (int k = 1; k <= run.passes(); ++k) {
       const PrepassPass& pass = run.pass(k);
       std::unique_ptr<worker::RenderScene> pass_scene;
       if (pass.width != options.width || pass.height != options.height) {
-        PRISM_ASSIGN_OR_RETURN(pass_scene,
-                               worker::RenderScene::build(device, scene, library, options.render,
-                                                          pass.width, pass.height));
+        PRISM_ASSIGN_OR_RETURN(
+            pass_scene, worker::RenderScene::build(device, scene, library, render->options_.render,
+                                                   pass.width, pass.height));
       }
       render->pass_scenes_.push_back(std::move(pass_scene));
     }

@@ -165,6 +165,10 @@ std::string describe(float v) {
   return v > 0 ? "inf" : "-inf";
 }
 
+std::string value_text(float v) {
+  return std::isfinite(v) ? absl::StrCat(v) : describe(v);
+}
+
 // Where a failed run went wrong: a non-finite input value or an overflowing result.
 struct Fault {
   std::int64_t pixel = 0;
@@ -201,34 +205,36 @@ absl::Status fault_status(const Fault& fault, const std::string& pixel) {
                    "] = ", describe(fault.value), "; non-finite input is refused"));
 }
 
-// Solves the symmetric cyclic tridiagonal system of one IRLS chain in place of `x`:
-//   row j: (α + w[j−1] + w[j])·x[j] − w[j−1]·x[j−1] − w[j]·x[j+1] = rhs[j]   (indices mod L),
-// the normal equations of Σ_j w[j](x[j+1] − x[j] − G[j])² + α Σ_j (x[j] − I[j])². The matrix
-// is strictly diagonally dominant (α > 0, w >= 0), so elimination without pivoting is stable.
+// Solves the symmetric cyclic tridiagonal system of one weighted chain in place of `x`:
+//   row j: (a[j] + w[j−1] + w[j])·x[j] − w[j−1]·x[j−1] − w[j]·x[j+1] = rhs[j]   (indices mod L),
+// the normal equations of Σ_j w[j](x[j+1] − x[j] − G[j])² + Σ_j a[j](x[j] − I[j])²; `a` is a
+// callable giving a[j] (α for every j in the global-α solves). The matrix is strictly
+// diagonally dominant (a > 0, w >= 0), so elimination without pivoting is stable.
 // L = 2: both neighbours are the same element and the row is a 2x2 system, solved directly.
 // L >= 3: Sherman–Morrison on the tridiagonal part (Numerical Recipes' `cyclic`): with
 // γ = −d[0] the corners move into a rank-one update u·vᵀ, u = (γ, 0, ..., 0, A[L−1][0]),
 // v = (1, 0, ..., 0, A[0][L−1]/γ), and the modified diagonal d[0] − γ = 2d[0],
 // d[L−1] − A[L−1][0]·A[0][L−1]/γ = d[L−1] + w[L−1]²/d[0] stays dominant.
 // `cp`, `dp`, `dz` are scratch of L doubles.
-void solve_weighted_chain(int L, double alpha, const double* w, const double* rhs, double* x,
-                          double* cp, double* dp, double* dz) {
+template <typename Data>
+void solve_chain(int L, const Data& a, const double* w, const double* rhs, double* x, double* cp,
+                 double* dp, double* dz) {
   if (L == 2) {
     const double e = w[0] + w[1];
-    const double d = alpha + e;
-    const double det = alpha * (alpha + 2 * e);  // d² − e², without the cancellation
-    const double x0 = (d * rhs[0] + e * rhs[1]) / det;
-    const double x1 = (e * rhs[0] + d * rhs[1]) / det;
+    const double a0 = a(0), a1 = a(1);
+    const double det = a0 * a1 + e * (a0 + a1);  // (a0 + e)(a1 + e) − e², without cancellation
+    const double x0 = ((a1 + e) * rhs[0] + e * rhs[1]) / det;
+    const double x1 = (e * rhs[0] + (a0 + e) * rhs[1]) / det;
     x[0] = x0;
     x[1] = x1;
     return;
   }
   const double corner = -w[L - 1];  // A[0][L−1] = A[L−1][0]
-  const double d0 = alpha + w[L - 1] + w[0];
+  const double d0 = a(0) + w[L - 1] + w[0];
   const double gamma = -d0;
   auto diag = [&](int j) {
     if (j == 0) return d0 - gamma;
-    const double d = alpha + w[j - 1] + w[j];
+    const double d = a(j) + w[j - 1] + w[j];
     return j == L - 1 ? d - corner * corner / gamma : d;
   };
   // Thomas elimination for T·x = rhs and T·z = u at once; super[j] = −w[j], sub[j] = −w[j−1].
@@ -251,6 +257,12 @@ void solve_weighted_chain(int L, double alpha, const double* w, const double* rh
   const double fact =
       (dp[0] + corner * dp[L - 1] / gamma) / (1.0 + dz[0] + corner * dz[L - 1] / gamma);
   for (int j = 0; j < L; ++j) x[j] = dp[j] - fact * dz[j];
+}
+
+void solve_weighted_chain(int L, double alpha, const double* w, const double* rhs, double* x,
+                          double* cp, double* dp, double* dz) {
+  solve_chain(
+      L, [alpha](int) { return alpha; }, w, rhs, x, cp, dp, dz);
 }
 
 absl::Status check_one_pixel(int bins, std::span<const float> primal,
@@ -279,13 +291,15 @@ std::string_view to_string(PoissonKernel kernel) {
 }
 
 std::string_view to_string(PoissonNorm norm) {
-  return norm == PoissonNorm::kL1 ? "l1" : "l2";
+  return norm == PoissonNorm::kL1 ? "l1" : norm == PoissonNorm::kWeighted ? "weighted" : "l2";
 }
 
 absl::StatusOr<PoissonNorm> parse_poisson_norm(const std::string& text) {
   if (text == "l2") return PoissonNorm::kL2;
   if (text == "l1") return PoissonNorm::kL1;
-  return absl::InvalidArgumentError(absl::StrCat("Poisson norm '", text, "': want l2 or l1"));
+  if (text == "weighted") return PoissonNorm::kWeighted;
+  return absl::InvalidArgumentError(
+      absl::StrCat("Poisson norm '", text, "': want l2, l1 or weighted"));
 }
 
 // The L2 factorisation. Along a chain (x_j = Î[b_j], b_j = c + j·k mod B) the system is
@@ -603,6 +617,69 @@ absl::Status PoissonSolver::solve_l2(std::span<const float> primal, std::span<co
   return fault_status(locate_fault(primal, gradient, out, bins_, 0, 1), "0");
 }
 
+absl::Status PoissonSolver::solve_weighted(std::span<const float> primal,
+                                           std::span<const float> gradient,
+                                           std::span<const float> primal_variance,
+                                           std::span<const float> gradient_variance,
+                                           std::span<float> out) const {
+  PRISM_RETURN_IF_ERROR(check_one_pixel(bins_, primal, gradient, out));
+  const std::size_t B = static_cast<std::size_t>(bins_);
+  if (primal_variance.size() != B || gradient_variance.size() != B) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("Poisson reconstruction: ", primal_variance.size(), " primal and ",
+                     gradient_variance.size(), " gradient variances; want ", bins_, " (the bins)"));
+  }
+  double mean_i = 0, mean_g = 0;
+  for (std::size_t b = 0; b < B; ++b) {
+    if (!finite(primal[b]) || !finite(gradient[b])) {
+      return fault_status(locate_fault(primal, gradient, out, bins_, 0, 1), "0");
+    }
+    const float vi = primal_variance[b], vg = gradient_variance[b];
+    if (!(vi >= 0.0f) || !(vg >= 0.0f) || !finite(vi) || !finite(vg)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("Poisson reconstruction: pixel 0 variance[", b, "] = ", value_text(vi),
+                       " / ", value_text(vg), " (primal / gradient); want finite values >= 0"));
+    }
+    mean_i += vi;
+    mean_g += vg;
+  }
+  mean_i /= double(B);
+  mean_g /= double(B);
+  if (!(mean_i > 0) || !(mean_g > 0)) {
+    std::copy(primal.begin(), primal.end(), out.begin());
+    return absl::OkStatus();
+  }
+  // Weights scaled by the mean primal variance (the solution does not change), so they are of
+  // order 1 and bounded by 1/kVarianceFloor relative to each other within each term.
+  double a[image::kMaxBins], w_all[image::kMaxBins];
+  for (std::size_t b = 0; b < B; ++b) {
+    a[b] = mean_i / std::max(double(primal_variance[b]), kVarianceFloor * mean_i);
+    w_all[b] = mean_i / std::max(double(gradient_variance[b]), kVarianceFloor * mean_g);
+  }
+  const int L = length_;
+  double chain_a[image::kMaxBins], w[image::kMaxBins], rhs[image::kMaxBins], x[image::kMaxBins];
+  double cp[image::kMaxBins], dp[image::kMaxBins], dz[image::kMaxBins];
+  for (int c = 0; c < chains_; ++c) {
+    const int* order = order_.data() + c * L;
+    for (int j = 0; j < L; ++j) {
+      chain_a[j] = a[order[j]];
+      w[j] = w_all[order[j]];
+    }
+    for (int j = 0; j < L; ++j) {
+      const int jp = j == 0 ? L - 1 : j - 1;
+      rhs[j] =
+          chain_a[j] * primal[order[j]] + w[jp] * gradient[order[jp]] - w[j] * gradient[order[j]];
+    }
+    solve_chain(
+        L, [&](int j) { return chain_a[j]; }, w, rhs, x, cp, dp, dz);
+    for (int j = 0; j < L; ++j) out[order[j]] = static_cast<float>(x[j]);
+  }
+  for (std::size_t b = 0; b < B; ++b) {
+    if (!finite(out[b])) return fault_status(locate_fault(primal, gradient, out, bins_, 0, 1), "0");
+  }
+  return absl::OkStatus();
+}
+
 absl::Status PoissonSolver::solve_l1(std::span<const float> primal, std::span<const float> gradient,
                                      std::span<float> out) const {
   PRISM_RETURN_IF_ERROR(check_one_pixel(bins_, primal, gradient, out));
@@ -618,6 +695,10 @@ absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float
         absl::StrCat("Poisson reconstruction: primal, gradient and output have ", primal.size(),
                      ", ", gradient.size(), " and ", out.size(),
                      " values; want the same multiple of ", bins_, " (the bins)"));
+  }
+  if (norm == PoissonNorm::kWeighted) {
+    return absl::InvalidArgumentError(
+        "the variance-weighted reconstruction needs each pixel's variances: use solve_weighted");
   }
   const std::int64_t pixels = static_cast<std::int64_t>(primal.size() / B);
   std::vector<double> scratch(norm == PoissonNorm::kL2 ? std::size_t(kBatch) * length_ + B : 8 * B);

@@ -37,11 +37,12 @@
 
 namespace prism::coordinator {
 
-enum class PoissonNorm { kL2, kL1 };
+// kWeighted: the variance-weighted L2 reconstruction (PoissonSolver::solve_weighted).
+enum class PoissonNorm { kL2, kL1, kWeighted };
 
-// "l2" / "l1".
+// "l2" / "l1" / "weighted".
 std::string_view to_string(PoissonNorm norm);
-// INVALID_ARGUMENT naming the text unless it is "l2" or "l1".
+// INVALID_ARGUMENT naming the text unless it is "l2", "l1" or "weighted".
 absl::StatusOr<PoissonNorm> parse_poisson_norm(const std::string& text);
 
 // The screening weight α's accepted range. It bounds the condition number (α + 4)/α of the
@@ -85,6 +86,24 @@ class PoissonSolver {
   // solve_pixels amortises over many pixels.
   absl::Status solve_l1(std::span<const float> primal, std::span<const float> gradient,
                         std::span<float> out) const;
+
+  // The variance-weighted L2 reconstruction of one pixel (issue 12): instead of one α for all,
+  //   Î = argmin Σ_b ((DÎ)[b] − G[b])² / v_G[b] + Σ_b (Î[b] − I[b])² / v_I[b],
+  // v_I and v_G estimates of the variances of the pixel's means I[b] and G[b] (only their ratios
+  // matter; tile_finaliser.h says where they come from), each raised to at
+  // least kVarianceFloor times its mean over the pixel's bins (a bin no sample landed in has
+  // v = 0, but its value is not known exactly). Noisy bins lean on their neighbours through the
+  // gradients, noisy gradients on the primal. The same O(L) cyclic solve per chain, with
+  // per-bin weights; α is not used. Consistent gradients (G = DI) return I whatever the
+  // weights, so with weights independent of I and G the result is unbiased, and with weights
+  // estimated from the same samples it is consistent. A pixel whose mean v_I or v_G is 0
+  // (nothing varies, or no gradient was measured) returns I. Errors as solve_l2, and
+  // INVALID_ARGUMENT for a negative or non-finite variance. Allocates nothing (at most 8·kMaxBins
+  // doubles of stack).
+  absl::Status solve_weighted(std::span<const float> primal, std::span<const float> gradient,
+                              std::span<const float> primal_variance,
+                              std::span<const float> gradient_variance, std::span<float> out) const;
+  static constexpr double kVarianceFloor = 0.05;
 
   // Many pixels, pixel-interleaved: pixel p's bins are [p·bins(), (p+1)·bins()) of each span.
   // All three spans have the same size, a multiple of bins(). Errors name the pixel's index in

@@ -391,9 +391,185 @@ TEST(PoissonImage, MatchesPerPixelAndNamesBadPixels) {
       << bins_refused.status();
 }
 
+// The weighted oracle: the normal equations (A + DᵀWD)Î = A·I + DᵀW·G of
+// Σ_b a_b(Î[b] − I[b])² + Σ_b w_b((DÎ)[b] − G[b])², with the weights the header specifies
+// (a_b = 1/max(v_I[b], f·mean v_I), w_b = 1/max(v_G[b], f·mean v_G)), assembled as a dense
+// B×B matrix and solved by Gaussian elimination with partial pivoting in long double. It shares
+// nothing with the solver's chain decomposition or its cyclic elimination.
+std::vector<long double> weighted_oracle(const std::vector<float>& primal,
+                                         const std::vector<float>& gradient,
+                                         const std::vector<float>& var_i,
+                                         const std::vector<float>& var_g, int k) {
+  const int B = static_cast<int>(primal.size());
+  const long double f = PoissonSolver::kVarianceFloor;
+  long double mean_i = 0, mean_g = 0;
+  for (int b = 0; b < B; ++b) {
+    mean_i += var_i[b];
+    mean_g += var_g[b];
+  }
+  mean_i /= B;
+  mean_g /= B;
+  std::vector<std::vector<long double>> m(B, std::vector<long double>(B + 1, 0.0L));
+  for (int b = 0; b < B; ++b) {
+    const long double a = 1.0L / std::max<long double>(var_i[b], f * mean_i);
+    m[b][b] += a;
+    m[b][B] += a * primal[b];
+    // The term w(Î[b+k] − Î[b] − G[b])²: its gradient in Î[b+k] and Î[b].
+    const long double w = 1.0L / std::max<long double>(var_g[b], f * mean_g);
+    const int up = (b + k) % B;
+    m[up][up] += w;
+    m[up][b] -= w;
+    m[up][B] += w * gradient[b];
+    m[b][b] += w;
+    m[b][up] -= w;
+    m[b][B] -= w * gradient[b];
+  }
+  for (int c = 0; c < B; ++c) {
+    int pivot = c;
+    for (int r = c + 1; r < B; ++r) {
+      if (std::abs(m[r][c]) > std::abs(m[pivot][c])) pivot = r;
+    }
+    std::swap(m[c], m[pivot]);
+    for (int r = c + 1; r < B; ++r) {
+      const long double factor = m[r][c] / m[c][c];
+      for (int j = c; j <= B; ++j) m[r][j] -= factor * m[c][j];
+    }
+  }
+  std::vector<long double> x(B);
+  for (int r = B - 1; r >= 0; --r) {
+    long double sum = m[r][B];
+    for (int j = r + 1; j < B; ++j) sum -= m[r][j] * x[j];
+    x[r] = sum / m[r][r];
+  }
+  return x;
+}
+
+TEST(PoissonSolver, WeightedMatchesDenseOracle) {
+  std::mt19937_64 rng(31);
+  for (int bins : kBinCounts) {
+    for (int k : offsets_for(bins)) {
+      auto solver = PoissonSolver::create(bins, k, 0.2);
+      ASSERT_TRUE(solver.ok());
+      for (int trial = 0; trial < 3; ++trial) {
+        const std::vector<float> primal = random_values(rng, bins, 0.0f, 2.0f);
+        const std::vector<float> gradient = random_values(rng, bins, -1.0f, 1.0f);
+        // Variances over four decades, some bins below the floor and some exactly 0.
+        std::vector<float> var_i = random_values(rng, bins, -4.0f, 0.0f);
+        std::vector<float> var_g = random_values(rng, bins, -4.0f, 0.0f);
+        for (float& v : var_i) v = std::pow(10.0f, v);
+        for (float& v : var_g) v = std::pow(10.0f, v);
+        var_i[trial % bins] = 0;
+        var_g[(trial + 1) % bins] = 0;
+        std::vector<float> out(bins);
+        ASSERT_TRUE(solver->solve_weighted(primal, gradient, var_i, var_g, out).ok());
+        const std::vector<long double> want = weighted_oracle(primal, gradient, var_i, var_g, k);
+        long double scale = 0;
+        for (long double v : want) scale = std::max(scale, std::abs(v));
+        for (int b = 0; b < bins; ++b) {
+          // The weights' ratio is at most 1/kVarianceFloor times the variances' spread (1e4):
+          // κ ≲ 1e6, so the double solve is good to ~1e-9 relative; the float result rounds.
+          EXPECT_NEAR(out[b], double(want[b]), 2e-7 * double(scale) + 1e-30)
+              << "B " << bins << " k " << k << " trial " << trial << " bin " << b;
+        }
+      }
+    }
+  }
+}
+
+// Equal variances everywhere make the weighted objective the global one with α = v_G / v_I.
+TEST(PoissonSolver, WeightedWithEqualVariancesIsTheL2Solve) {
+  std::mt19937_64 rng(37);
+  for (int bins : kBinCounts) {
+    for (int k : offsets_for(bins)) {
+      const std::vector<float> primal = random_values(rng, bins, 0.0f, 2.0f);
+      const std::vector<float> gradient = random_values(rng, bins, -1.0f, 1.0f);
+      const std::vector<float> var_i(bins, 0.25f), var_g(bins, 0.5f);
+      auto weighted = PoissonSolver::create(bins, k, 0.2);
+      auto global = PoissonSolver::create(bins, k, 2.0);
+      ASSERT_TRUE(weighted.ok() && global.ok());
+      std::vector<float> a(bins), b(bins);
+      ASSERT_TRUE(weighted->solve_weighted(primal, gradient, var_i, var_g, a).ok());
+      ASSERT_TRUE(global->solve_l2(primal, gradient, b).ok());
+      for (int i = 0; i < bins; ++i) {
+        EXPECT_NEAR(a[i], b[i], 1e-6) << "B " << bins << " k " << k << " bin " << i;
+      }
+    }
+  }
+}
+
+// Consistent gradients (G = DI) make I the exact minimum whatever the weights; scaling all the
+// variances by one factor changes no weight ratio and so not the result; a pixel with no
+// variance (one sample, or nothing varies) returns I.
+TEST(PoissonSolver, WeightedKeepsConsistentInputAndScales) {
+  std::mt19937_64 rng(41);
+  for (int bins : kBinCounts) {
+    for (int k : offsets_for(bins)) {
+      auto solver = PoissonSolver::create(bins, k, 0.2);
+      ASSERT_TRUE(solver.ok());
+      const std::vector<float> primal = random_values(rng, bins, 1.0f, 2.0f);
+      std::vector<float> consistent(bins);
+      for (int b = 0; b < bins; ++b) consistent[b] = primal[(b + k) % bins] - primal[b];
+      std::vector<float> var_i = random_values(rng, bins, 1e-3f, 1.0f);
+      std::vector<float> var_g = random_values(rng, bins, 1e-3f, 1.0f);
+      std::vector<float> out(bins);
+      ASSERT_TRUE(solver->solve_weighted(primal, consistent, var_i, var_g, out).ok());
+      for (int b = 0; b < bins; ++b) {
+        EXPECT_NEAR(out[b], primal[b], 4 * std::ldexp(1.0f, -23)) << "B " << bins << " k " << k;
+      }
+
+      const std::vector<float> gradient = random_values(rng, bins, -1.0f, 1.0f);
+      std::vector<float> once(bins), scaled(bins);
+      ASSERT_TRUE(solver->solve_weighted(primal, gradient, var_i, var_g, once).ok());
+      std::vector<float> var_i4 = var_i, var_g4 = var_g;
+      for (float& v : var_i4) v *= 4;  // exact in binary
+      for (float& v : var_g4) v *= 4;
+      ASSERT_TRUE(solver->solve_weighted(primal, gradient, var_i4, var_g4, scaled).ok());
+      EXPECT_EQ(once, scaled) << "B " << bins << " k " << k;
+
+      const std::vector<float> zero(bins, 0.0f);
+      ASSERT_TRUE(solver->solve_weighted(primal, gradient, zero, var_g, out).ok());
+      EXPECT_EQ(out, primal);
+      ASSERT_TRUE(solver->solve_weighted(primal, gradient, var_i, zero, out).ok());
+      EXPECT_EQ(out, primal);
+    }
+  }
+}
+
+TEST(PoissonSolver, WeightedRefusesBadInput) {
+  auto solver = PoissonSolver::create(16, 3, 0.2);
+  ASSERT_TRUE(solver.ok());
+  std::vector<float> primal(16, 1.0f), gradient(16, 0.0f), var(16, 0.1f), out(16);
+  std::vector<float> short_var(15, 0.1f);
+  absl::Status s = solver->solve_weighted(primal, gradient, short_var, var, out);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("15 primal and 16 gradient variances"), std::string::npos) << s;
+
+  std::vector<float> negative = var;
+  negative[4] = -0.5f;
+  s = solver->solve_weighted(primal, gradient, var, negative, out);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("variance[4] = 0.1 / -0.5"), std::string::npos) << s;
+  std::vector<float> nan = var;
+  nan[9] = std::nanf("");
+  s = solver->solve_weighted(primal, gradient, nan, var, out);
+  EXPECT_NE(s.message().find("variance[9] = nan"), std::string::npos) << s;
+
+  std::vector<float> bad_primal = primal;
+  bad_primal[2] = std::numeric_limits<float>::infinity();
+  s = solver->solve_weighted(bad_primal, gradient, var, var, out);
+  EXPECT_NE(s.message().find("primal[2] = inf"), std::string::npos) << s;
+
+  std::vector<float> all(16 * 4, 1.0f), all_out(16 * 4);
+  s = solver->solve_pixels(PoissonNorm::kWeighted, all, all, all_out);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("use solve_weighted"), std::string::npos) << s;
+}
+
 TEST(PoissonNorm, Parses) {
   EXPECT_EQ(*parse_poisson_norm("l2"), PoissonNorm::kL2);
   EXPECT_EQ(*parse_poisson_norm("l1"), PoissonNorm::kL1);
+  EXPECT_EQ(*parse_poisson_norm("weighted"), PoissonNorm::kWeighted);
+  EXPECT_EQ(to_string(PoissonNorm::kWeighted), "weighted");
   auto bad = parse_poisson_norm("L3");
   EXPECT_EQ(bad.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_NE(bad.status().message().find("'L3'"), std::string::npos);

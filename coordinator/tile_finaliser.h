@@ -2,7 +2,10 @@
 // sample counts (image::finalise); a gradient job (algorithms.md §5) then reconstructs each pixel
 // from its mean primal I and mean gradient G with the screened Poisson solve (poisson.h). Pixels
 // are independent, so a tile is finalised as soon as its last sample range is merged, in the
-// farm and in `prism render` alike, and the result does not depend on the tiling.
+// farm and in `prism render` alike, and the result does not depend on the tiling, except with
+// the variance-weighted norm: its variances are pooled over each pixel's 3×3 block within the
+// tile, so pixels on a tile's edge pool fewer (the tile size is part of the job, so the same
+// job still gives the same bytes).
 #pragma once
 
 #include <functional>
@@ -22,7 +25,9 @@ using TileFinaliser = std::function<absl::StatusOr<image::SpectralImage>(const i
 TileFinaliser mean_finaliser();
 // Means of I and G, then the reconstruction of every pixel with `solver` (whose bins must be
 // the tiles'; INVALID_ARGUMENT otherwise) in `norm`. A tile without gradients is refused with
-// INVALID_ARGUMENT.
+// INVALID_ARGUMENT, and so is one without halves for PoissonNorm::kWeighted, which reconstructs
+// each pixel's even and odd samples apart, each with per-sample variances from the other half
+// and the 3×3 block around it, so that no weight depends on the values it weighs (unbiased).
 TileFinaliser reconstructing_finaliser(std::shared_ptr<const PoissonSolver> solver,
                                        PoissonNorm norm);
 

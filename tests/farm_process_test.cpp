@@ -369,7 +369,7 @@ TEST_F(FarmProcessTest, TwoWorkerProcessesMatchPrismRenderByteForByte) {
 
 // Spectral gradient sampling through the farm: workers return I and G, the coordinator merges
 // them and reconstructs each tile; the reconstruction and the raw I and G are the embedded
-// render's bytes.
+// render's bytes, with the L2 and the variance-weighted reconstruction.
 TEST_F(FarmProcessTest, AGradientJobMatchesPrismRenderByteForByte) {
   start_coordinator();
   v1::JobSpec s = spec(upload(), kSpp, 6);
@@ -392,6 +392,21 @@ TEST_F(FarmProcessTest, AGradientJobMatchesPrismRenderByteForByte) {
   ASSERT_EQ(farm_gradient.size(), cli_gradient.size());
   ASSERT_GT(farm_gradient.size(), 0u);
   EXPECT_EQ(std::memcmp(farm_gradient.data(), cli_gradient.data(), cli_gradient.size() * 4), 0);
+
+  // The variance-weighted reconstruction: the workers add the halves, the coordinator pools
+  // variances over each tile; the same bytes as `prism render --poisson weighted`.
+  v1::JobSpec weighted = spec(upload(), kSpp, 6);
+  weighted.set_integrator(v1::INTEGRATOR_GRADIENT);
+  weighted.mutable_gradient()->set_norm(v1::POISSON_NORM_WEIGHTED);
+  const std::string weighted_id = submit(weighted);
+  ASSERT_FALSE(weighted_id.empty());
+  const v1::JobInfo weighted_done = wait_for(weighted_id, terminal, 30);
+  ASSERT_EQ(weighted_done.state(), v1::JOB_STATE_DONE) << weighted_done.error();
+  const std::vector<float> farm_weighted = fetch_spectral(weighted_id);
+  EXPECT_NE(farm_weighted, fetch_spectral(job_id));
+  expect_identical(
+      farm_weighted,
+      cli_render(kSpp, 6, {"--no-prepass", "--integrator", "gradient", "--poisson", "weighted"}));
 }
 
 // The multi-pass prepass through the farm: two prepasses of 9 tile tasks each, the coordinator's

@@ -70,6 +70,9 @@ struct RenderOptions {
   // Eq. 16, made symmetric). Whoever builds the options snaps k with gradient_offset_bins below;
   // the gradient integrator checks 1 <= k < bins as an invariant.
   int gradient_offset_bins = 10;
+  // Also accumulate the squares of G and the even-indexed samples' sums (TileBuffers::halves),
+  // for the variance-weighted reconstruction.
+  bool gradient_variances = false;
   float gradient_tau = 0;
 
   int lanes() const { return integrator == IntegratorKind::kHero ? 4 : 1; }

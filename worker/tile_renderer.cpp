@@ -44,6 +44,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
   image::TileBuffers buffers;
   buffers.guides = task.want_guides;
   buffers.gradients = gradient != nullptr;
+  buffers.halves = gradient != nullptr && scene_.options().gradient_variances;
   auto created = image::TileResult::create(task.tile, task.samples, bins, buffers);
   if (!created.ok()) return created.status();
   image::TileResult result = std::move(*created);
@@ -61,6 +62,12 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
   auto squares = result.mutable_sum_squares();
   auto counts = result.mutable_counts();
   auto gradients = result.mutable_gradients();
+  auto gradient_squares = result.mutable_gradient_squares();
+  auto half_sums = result.mutable_half_sums();
+  auto half_squares = result.mutable_half_sum_squares();
+  auto half_gradients = result.mutable_half_gradients();
+  auto half_gradient_squares = result.mutable_half_gradient_squares();
+  auto half_counts = result.mutable_half_counts();
 
   // Each pixel is owned by one thread and its samples are added in index order, so every
   // double in the result is the same whatever the scheduling.
@@ -107,6 +114,25 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
               double* pixel_gradients = &gradients[std::size_t(index) * bins];
               pixel_gradients[g.bin] += g.gradient;
               pixel_gradients[g.bin_below] += g.gradient_below;
+              if (buffers.halves) {
+                // bin and bin_below differ (1 <= k < bins): each is one per-sample value.
+                const std::size_t o = std::size_t(index) * bins;
+                const double g2 = double(g.gradient) * g.gradient;
+                const double g2_below = double(g.gradient_below) * g.gradient_below;
+                gradient_squares[o + g.bin] += g2;
+                gradient_squares[o + g.bin_below] += g2_below;
+                // The halves split by the sample's global index, so they do not depend on how
+                // the samples were cut into tasks.
+                if (s % 2 == 0) {
+                  const double v = g.primal;
+                  half_sums[o + g.bin] += v;
+                  half_squares[o + g.bin] += v * v;
+                  half_gradients[o + g.bin] += g.gradient;
+                  half_gradients[o + g.bin_below] += g.gradient_below;
+                  half_gradient_squares[o + g.bin] += g2;
+                  half_gradient_squares[o + g.bin_below] += g2_below;
+                }
+              }
               if (task.want_guides) {
                 depth_sum += guide.depth;
                 normal_sum += guide.normal;
@@ -137,6 +163,10 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
             }
           }
           counts[std::size_t(index)] = task.samples.count();
+          if (buffers.halves) {
+            // The even indices in [s0, s1).
+            half_counts[std::size_t(index)] = (task.samples.s1 + 1) / 2 - (task.samples.s0 + 1) / 2;
+          }
           if (task.want_guides && guide_count > 0) {
             result.add_guides(x, y, depth_sum, normal_sum.x, normal_sum.y, normal_sum.z,
                               albedo_sum);

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <tbb/task_arena.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <filesystem>
@@ -231,6 +232,64 @@ TEST_F(TileRendererTest, APrepassOfAGradientJobIsAFourLaneHeroRenderWithoutGradi
   auto final_result = TileRenderer(*gradient).render(final_pass, nullptr);
   ASSERT_TRUE(final_result.ok()) << final_result.status();
   EXPECT_TRUE(final_result->has_gradients());
+}
+
+// With gradient_variances the gradient integrator also sums each sample's G[b]² (bin and
+// bin − k get one value each per sample) and keeps the even-indexed samples' sums apart, and
+// nothing else changes: the same sums, squares and gradients bit for bit. One sample makes each
+// square exactly the gradient's square; n samples bound it below by Cauchy–Schwarz,
+// Σ G² >= (Σ G)²/n. The halves of [0, 4) are the totals of samples 0 and 2, rendered alone.
+TEST_F(TileRendererTest, GradientVariancesAddSquaresAndHalves) {
+  RenderOptions options;
+  options.bins = 8;
+  options.integrator = IntegratorKind::kGradient;
+  options.gradient_offset_bins = 3;
+  auto plain = build(options);
+  options.gradient_variances = true;
+  auto with_halves = build(options);
+  ASSERT_TRUE(plain && with_halves);
+  const image::TileRect rect{0, 0, 16, 16};
+  auto render = [&](RenderScene& scene, std::uint64_t s0, std::uint64_t s1) {
+    auto result = TileRenderer(scene).render(RenderTask{rect, {s0, s1}, 0}, nullptr);
+    EXPECT_TRUE(result.ok()) << result.status();
+    return std::move(result).value();
+  };
+  for (std::uint64_t spp : {1u, 16u}) {
+    const image::TileResult a = render(*plain, 0, spp);
+    const image::TileResult b = render(*with_halves, 0, spp);
+    EXPECT_FALSE(a.has_halves());
+    ASSERT_TRUE(b.has_halves());
+    EXPECT_TRUE(std::ranges::equal(a.sums(), b.sums()));
+    EXPECT_TRUE(std::ranges::equal(a.sum_squares(), b.sum_squares()));
+    EXPECT_TRUE(std::ranges::equal(a.gradients(), b.gradients()));
+    int nonzero = 0;
+    for (std::size_t i = 0; i < b.gradients().size(); ++i) {
+      const double g = b.gradients()[i], g2 = b.gradient_squares()[i];
+      if (spp == 1) {
+        EXPECT_EQ(g2, g * g) << i;
+      } else {
+        EXPECT_GE(g2 * (1 + 1e-12), g * g / double(spp)) << i;
+      }
+      nonzero += g2 > 0;
+    }
+    EXPECT_GT(nonzero, 0);
+  }
+  const image::TileResult four = render(*with_halves, 0, 4);
+  image::TileResult even = render(*with_halves, 0, 1);
+  image::TileResult two = render(*with_halves, 2, 3);
+  for (std::size_t i = 0; i < even.sums().size(); ++i) {
+    EXPECT_EQ(four.half_sums()[i], even.sums()[i] + two.sums()[i]) << i;
+    EXPECT_EQ(four.half_sum_squares()[i], even.sum_squares()[i] + two.sum_squares()[i]) << i;
+    EXPECT_EQ(four.half_gradients()[i], even.gradients()[i] + two.gradients()[i]) << i;
+    EXPECT_EQ(four.half_gradient_squares()[i],
+              even.gradient_squares()[i] + two.gradient_squares()[i])
+        << i;
+  }
+  for (std::uint64_t c : four.half_counts()) EXPECT_EQ(c, 2u);
+  const image::TileResult odd = render(*with_halves, 1, 2);
+  const image::TileResult five = render(*with_halves, 3, 8);
+  for (std::uint64_t c : odd.half_counts()) EXPECT_EQ(c, 0u);
+  for (std::uint64_t c : five.half_counts()) EXPECT_EQ(c, 2u);
 }
 
 }  // namespace

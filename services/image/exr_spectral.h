@@ -51,7 +51,7 @@ inline constexpr std::string_view kMetaJobId = "job_id";
 //   gradient_delta        δ as a fraction of the range [360, 830] nm (informative: k decides).
 // A reconstructed image (coordinator/poisson.h) records how it was made:
 //   poisson_alpha         the screening weight α (shortest decimal that reads back exactly);
-//   poisson_norm          "l2" or "l1";
+//   poisson_norm          "l2", "l1" or "weighted";
 //   gradient_offset_bins  the k used.
 inline constexpr std::string_view kMetaGradientOffsetBins = "gradient_offset_bins";
 inline constexpr std::string_view kMetaGradientDelta = "gradient_delta";

@@ -162,6 +162,9 @@ absl::Status TileResult::validate(const TileRect& rect, const SampleRange& sampl
     return absl::InvalidArgumentError(
         absl::StrCat("tile has ", bins, " bins; allowed are 1..", kMaxBins));
   }
+  if (buffers.halves && !buffers.gradients) {
+    return absl::InvalidArgumentError("tile has halves (variance buffers) but no gradients");
+  }
   if (buffers.counter_names.size() > std::size_t(kMaxCounters)) {
     return absl::InvalidArgumentError(absl::StrCat("tile has ", buffers.counter_names.size(),
                                                    " counters; at most ", kMaxCounters,
@@ -196,6 +199,13 @@ absl::StatusOr<TileResult> TileResult::create(const TileRect& rect, const Sample
   r.sum_squares_.assign(area * bins, 0.0);
   r.counts_.assign(area, 0);
   if (buffers.gradients) r.gradients_.assign(area * bins, 0.0);
+  if (buffers.halves) {
+    for (std::vector<double>* v : {&r.gradient_squares_, &r.half_sums_, &r.half_sum_squares_,
+                                   &r.half_gradients_, &r.half_gradient_squares_}) {
+      v->assign(area * bins, 0.0);
+    }
+    r.half_counts_.assign(area, 0);
+  }
   if (buffers.guides) {
     r.depth_.assign(area, 0.0f);
     r.normals_.assign(area * 3, 0.0f);
@@ -267,7 +277,7 @@ absl::Status TileResult::add(const TileResult& other) {
   if (other.buffers_ != buffers_) {
     return absl::InvalidArgumentError(absl::StrCat(
         "cannot merge tile results of ", to_string(rect_),
-        " with different optional buffers (gradients, guides or counter names differ)"));
+        " with different optional buffers (gradients, halves, guides or counter names differ)"));
   }
   SampleRange merged;
   if (other.samples_.s0 == samples_.s1) {
@@ -285,6 +295,12 @@ absl::Status TileResult::add(const TileResult& other) {
   add_vectors(sum_squares_, other.sum_squares_);
   add_vectors(counts_, other.counts_);
   add_vectors(gradients_, other.gradients_);
+  add_vectors(gradient_squares_, other.gradient_squares_);
+  add_vectors(half_sums_, other.half_sums_);
+  add_vectors(half_sum_squares_, other.half_sum_squares_);
+  add_vectors(half_gradients_, other.half_gradients_);
+  add_vectors(half_gradient_squares_, other.half_gradient_squares_);
+  add_vectors(half_counts_, other.half_counts_);
   add_vectors(depth_, other.depth_);
   add_vectors(normals_, other.normals_);
   add_vectors(albedo_, other.albedo_);

@@ -14,6 +14,13 @@
 //      sum_squares double, area*bins, sum_squares[p*bins + b] sum over samples of I[b]^2
 //      counts      uint64, area,      counts[p]               samples taken in the pixel
 //      gradients   double, area*bins, gradients[p*bins + b]   (optional) sum of G[b] estimates
+//    (optional halves, with gradients: for the variance-weighted reconstruction)
+//      gradient_squares       double, area*bins   sum over samples of G[b]^2 (per-sample values)
+//      half_sums              double, area*bins   sums, sum_squares, gradients, gradient_squares
+//      half_sum_squares       double, area*bins     and counts over the samples with an even
+//      half_gradients         double, area*bins     index only (the odd half is the total minus
+//      half_gradient_squares  double, area*bins     these)
+//      half_counts            uint64, area
 //      depth       float,  area,      depth[p]                (optional guides) sum of depths
 //      normals     float,  area*3,    normals[p*3 + i]        (optional guides) sum of normals
 //      albedo      float,  area,      albedo[p]               (optional guides) sum of albedos
@@ -150,6 +157,9 @@ struct TileBuffers {
   bool gradients = false;
   bool guides = false;
   std::vector<std::string> counter_names;  // each 1..kMaxCounterNameLength printable chars
+  // The squares of G and the even-indexed half's sums too (the variance-weighted
+  // reconstruction needs them); only with gradients.
+  bool halves = false;
   friend bool operator==(const TileBuffers&, const TileBuffers&) = default;
 };
 
@@ -175,6 +185,7 @@ class TileResult {
   int bins() const { return bins_; }
   const TileBuffers& buffers() const { return buffers_; }
   bool has_gradients() const { return buffers_.gradients; }
+  bool has_halves() const { return buffers_.halves; }
   bool has_guides() const { return buffers_.guides; }
   int counter_count() const { return static_cast<int>(buffers_.counter_names.size()); }
 
@@ -204,6 +215,12 @@ class TileResult {
   std::span<const double> sum_squares() const { return sum_squares_; }
   std::span<const std::uint64_t> counts() const { return counts_; }
   std::span<const double> gradients() const { return gradients_; }
+  std::span<const double> gradient_squares() const { return gradient_squares_; }
+  std::span<const double> half_sums() const { return half_sums_; }
+  std::span<const double> half_sum_squares() const { return half_sum_squares_; }
+  std::span<const double> half_gradients() const { return half_gradients_; }
+  std::span<const double> half_gradient_squares() const { return half_gradient_squares_; }
+  std::span<const std::uint64_t> half_counts() const { return half_counts_; }
   std::span<const float> depth() const { return depth_; }
   std::span<const float> normals() const { return normals_; }
   std::span<const float> albedo() const { return albedo_; }
@@ -213,6 +230,12 @@ class TileResult {
   std::span<double> mutable_sum_squares() { return sum_squares_; }
   std::span<std::uint64_t> mutable_counts() { return counts_; }
   std::span<double> mutable_gradients() { return gradients_; }
+  std::span<double> mutable_gradient_squares() { return gradient_squares_; }
+  std::span<double> mutable_half_sums() { return half_sums_; }
+  std::span<double> mutable_half_sum_squares() { return half_sum_squares_; }
+  std::span<double> mutable_half_gradients() { return half_gradients_; }
+  std::span<double> mutable_half_gradient_squares() { return half_gradient_squares_; }
+  std::span<std::uint64_t> mutable_half_counts() { return half_counts_; }
   std::span<float> mutable_depth() { return depth_; }
   std::span<float> mutable_normals() { return normals_; }
   std::span<float> mutable_albedo() { return albedo_; }
@@ -233,6 +256,12 @@ class TileResult {
   std::vector<double> sum_squares_;
   std::vector<std::uint64_t> counts_;
   std::vector<double> gradients_;
+  std::vector<double> gradient_squares_;
+  std::vector<double> half_sums_;
+  std::vector<double> half_sum_squares_;
+  std::vector<double> half_gradients_;
+  std::vector<double> half_gradient_squares_;
+  std::vector<std::uint64_t> half_counts_;
   std::vector<float> depth_;
   std::vector<float> normals_;
   std::vector<float> albedo_;

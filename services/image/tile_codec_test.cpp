@@ -2,10 +2,12 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <bit>
 #include <cstring>
 #include <limits>
 #include <random>
+#include <utility>
 
 #include "services/base/check.h"
 
@@ -21,6 +23,12 @@ TileResult random_result(std::uint64_t seed, const TileBuffers& buffers) {
   for (double& v : result->mutable_sum_squares()) v = std::bit_cast<double>(rng());
   for (std::uint64_t& v : result->mutable_counts()) v = rng();
   for (double& v : result->mutable_gradients()) v = std::bit_cast<double>(rng());
+  for (double& v : result->mutable_gradient_squares()) v = std::bit_cast<double>(rng());
+  for (double& v : result->mutable_half_sums()) v = std::bit_cast<double>(rng());
+  for (double& v : result->mutable_half_sum_squares()) v = std::bit_cast<double>(rng());
+  for (double& v : result->mutable_half_gradients()) v = std::bit_cast<double>(rng());
+  for (double& v : result->mutable_half_gradient_squares()) v = std::bit_cast<double>(rng());
+  for (std::uint64_t& v : result->mutable_half_counts()) v = rng();
   for (float& v : result->mutable_depth()) v = std::bit_cast<float>(std::uint32_t(rng()));
   for (float& v : result->mutable_normals()) v = std::bit_cast<float>(std::uint32_t(rng()));
   for (float& v : result->mutable_albedo()) v = std::bit_cast<float>(std::uint32_t(rng()));
@@ -33,7 +41,8 @@ TileResult random_result(std::uint64_t seed, const TileBuffers& buffers) {
 
 TEST(TileCodec, RoundTripIsExact) {
   for (const TileBuffers& buffers :
-       {TileBuffers{}, TileBuffers{true, false, {}}, TileBuffers{true, true, {"rays", "shifts"}}}) {
+       {TileBuffers{}, TileBuffers{true, false, {}}, TileBuffers{true, true, {"rays", "shifts"}},
+        TileBuffers{true, false, {"rays"}, true}}) {
     TileResult original = random_result(7, buffers);
     std::string bytes = serialise_tile(original);
     auto parsed = parse_tile(bytes);
@@ -49,6 +58,17 @@ TEST(TileCodec, RoundTripIsExact) {
     EXPECT_EQ(std::memcmp(parsed->normals().data(), original.normals().data(),
                           original.normals().size_bytes()),
               0);
+    // The halves, bit for bit.
+    for (auto [a, b] :
+         {std::pair{parsed->gradient_squares(), original.gradient_squares()},
+          std::pair{parsed->half_sums(), original.half_sums()},
+          std::pair{parsed->half_sum_squares(), original.half_sum_squares()},
+          std::pair{parsed->half_gradients(), original.half_gradients()},
+          std::pair{parsed->half_gradient_squares(), original.half_gradient_squares()}}) {
+      ASSERT_EQ(a.size(), b.size());
+      EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
+    }
+    EXPECT_TRUE(std::ranges::equal(parsed->half_counts(), original.half_counts()));
     EXPECT_EQ(serialise_tile(*parsed), bytes);
   }
 }
@@ -90,8 +110,11 @@ TEST(TileCodec, CorruptedHeadersAreRefusedWithClearErrors) {
   put_u32(bad, 8, 2);
   refused(bad, "version");
   bad = good;
-  put_u32(bad, 12, 4);
+  put_u32(bad, 12, 8);
   refused(bad, "flags");
+  bad = good;
+  put_u32(bad, 12, 4);  // halves alone
+  refused(bad, "halves (variance buffers) but no gradients");
   bad = good;
   put_u32(bad, 12, 1);  // guides flag cleared: the payload is now too long
   refused(bad, "payload");

@@ -19,7 +19,7 @@
 // Usage: prism-bench-gradient-equal-time [scene.pbrt ...] [--resolution 80x60]
 //          [--spp 16,32,64,128,256] [--reference-spp 16384] [--cache-dir DIR] [--threads N]
 //          [--bins B (the scene's)] [--max-depth D (the scene's)] [--delta 0.15] [--tau 0]
-//          [--alpha 0.2] [--clock wall|cpu] [--inset x,y,w,h]
+//          [--alpha 0.2] [--poisson l2|l1|weighted] [--clock wall|cpu] [--inset x,y,w,h]
 //          [--csv path (scene,method,spp,seconds,relmse; relMSE of the whole image)]
 #include <tbb/info.h>
 
@@ -45,6 +45,7 @@ struct Setup {
   double delta = 0.15;
   double tau = 0;
   double alpha = coordinator::kDefaultPoissonAlpha;
+  coordinator::PoissonNorm norm = coordinator::PoissonNorm::kL2;
   bool cpu_clock = false;
 };
 
@@ -70,7 +71,7 @@ absl::StatusOr<coordinator::LocalRenderOptions> options_for(const Setup& setup,
                          worker::gradient_offset_bins(setup.delta, o.render.bins));
   o.render.gradient_tau = float(setup.tau);
   o.poisson_alpha = setup.alpha;
-  o.poisson_norm = coordinator::PoissonNorm::kL2;
+  o.poisson_norm = setup.norm;
   o.width = setup.width;
   o.height = setup.height;
   o.spp = spp;
@@ -108,10 +109,10 @@ std::string ratio_text(std::optional<double> value, bool extrapolated) {
 }
 
 int run(int argc, char** argv) {
-  auto flags =
-      parse_flags(argc, argv,
-                  {"--resolution", "--spp", "--reference-spp", "--cache-dir", "--threads", "--bins",
-                   "--max-depth", "--delta", "--tau", "--alpha", "--clock", "--csv", "--inset"});
+  auto flags = parse_flags(
+      argc, argv,
+      {"--resolution", "--spp", "--reference-spp", "--cache-dir", "--threads", "--bins",
+       "--max-depth", "--delta", "--tau", "--alpha", "--poisson", "--clock", "--csv", "--inset"});
   if (!flags.ok()) return fail(flags.status());
   auto size = parse_size(flags->get("--resolution", "80x60"));
   auto spp_list = parse_spp_list(flags->get("--spp", "16,32,64,128,256"));
@@ -127,6 +128,8 @@ int run(int argc, char** argv) {
         max_depth.status(), delta.status(), tau.status(), alpha.status()}) {
     if (!s.ok()) return fail(s);
   }
+  auto norm = coordinator::parse_poisson_norm(flags->get("--poisson", "l2"));
+  if (!norm.ok()) return fail(norm.status());
   const std::string clock = flags->get("--clock", "wall");
   if (clock != "wall" && clock != "cpu") {
     return fail(absl::InvalidArgumentError("--clock: want wall or cpu"));
@@ -138,6 +141,7 @@ int run(int argc, char** argv) {
   setup.bins = int(*bins);
   setup.max_depth = int(*max_depth);
   setup.delta = *delta;
+  setup.norm = *norm;
   setup.tau = *tau;
   setup.alpha = *alpha;
   setup.cpu_clock = clock == "cpu";
@@ -168,9 +172,10 @@ int run(int argc, char** argv) {
   worker::EmbreeDevice device;
   std::printf(
       "%dx%d, %d threads, spp %s, reference %.0f spp (uniform, independent samples), "
-      "gradient delta %.3g tau %.3g alpha %.3g L2, %s clock\n",
+      "gradient delta %.3g tau %.3g alpha %.3g %s, %s clock\n",
       setup.width, setup.height, setup.threads, flags->get("--spp", "16,32,64,128,256").c_str(),
-      *reference_spp, setup.delta, setup.tau, setup.alpha, clock.c_str());
+      *reference_spp, setup.delta, setup.tau, setup.alpha,
+      std::string(coordinator::to_string(setup.norm)).c_str(), clock.c_str());
   for (const std::string& path : scenes) {
     auto scene = load_bench_scene(path);
     if (!scene.ok()) return fail(scene.status());

@@ -35,7 +35,8 @@ std::string scene_key(const std::string& hash, const coordinator::JobParameters&
                       static_cast<int>(o.emitter_pdf), ",", o.defensive_epsilon, ",",
                       static_cast<int>(o.light_selection), ",", o.spectral_light_selection, ",",
                       static_cast<int>(o.sampler), ",", o.bins, ",", o.max_depth, ",",
-                      o.rr_min_depth, ",", o.seed);
+                      o.rr_min_depth, ",", o.seed, ",", o.gradient_offset_bins, ",", o.gradient_tau,
+                      ",", o.gradient_variances);
 }
 
 // A task as TileRenderer takes it, validated against its job: the pass, the film the pass
