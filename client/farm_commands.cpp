@@ -3,9 +3,9 @@
 #include <grpcpp/create_channel.h>
 #include <unistd.h>
 
+#include <condition_variable>
 #include <cstdlib>
 #include <fstream>
-#include <condition_variable>
 #include <map>
 #include <mutex>
 #include <thread>
@@ -61,7 +61,9 @@ class Farm {
 };
 
 // The server's message verbatim (the caller prints "prism: <message>").
-absl::Status rpc_error(const grpc::Status& status) { return rpc::from_grpc(status); }
+absl::Status rpc_error(const grpc::Status& status) {
+  return rpc::from_grpc(status);
+}
 
 std::string state_name(v1::JobState state) {
   std::string name = v1::JobState_Name(state);
@@ -89,12 +91,11 @@ std::string job_line(const v1::JobInfo& job) {
   const v1::JobProgress& p = job.progress();
   const double percent =
       p.samples_total() > 0 ? 100.0 * static_cast<double>(p.samples_done()) / p.samples_total() : 0;
-  std::string line = absl::StrFormat("%s  %-11s %5.1f%%  %llu/%llu tasks  %s", job.job_id(),
-                                     state_name(job.state()), percent,
-                                     static_cast<unsigned long long>(p.tasks_done()),
-                                     static_cast<unsigned long long>(p.tasks_total()),
-                                     job.spec().name().empty() ? job.spec().scene_path()
-                                                               : job.spec().name());
+  std::string line = absl::StrFormat(
+      "%s  %-11s %5.1f%%  %llu/%llu tasks  %s", job.job_id(), state_name(job.state()), percent,
+      static_cast<unsigned long long>(p.tasks_done()),
+      static_cast<unsigned long long>(p.tasks_total()),
+      job.spec().name().empty() ? job.spec().scene_path() : job.spec().name());
   if (!job.error().empty()) absl::StrAppend(&line, "  error: ", job.error());
   return line;
 }
@@ -138,8 +139,8 @@ absl::Status upload_if_missing(Farm& farm, const std::string& hash, const std::s
   writer->WritesDone();
   if (grpc::Status s = writer->Finish(); !s.ok()) return rpc_error(s);
   if (response.bundle_hash() != hash) {
-    return absl::DataLossError(absl::StrCat("the coordinator stored bundle ",
-                                            response.bundle_hash(), ", not ", hash));
+    return absl::DataLossError(
+        absl::StrCat("the coordinator stored bundle ", response.bundle_hash(), ", not ", hash));
   }
   return absl::OkStatus();
 }
@@ -231,7 +232,8 @@ absl::StatusOr<v1::JobInfo> watch(Farm& farm, const std::string& id, std::ostrea
     } else {
       out << job.job_id() << " " << state_name(job.state())
           << absl::StrFormat(" %.1f%% ", 100 * fraction) << human(p.samples_per_second())
-          << " samples/s eta " << eta(p.eta_seconds()) << "\n" << std::flush;
+          << " samples/s eta " << eta(p.eta_seconds()) << "\n"
+          << std::flush;
     }
     if (finished(job.state())) break;
   }
@@ -300,13 +302,26 @@ absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
   for (auto& [kind, bytes] : verified) {
     fs::path path;
     switch (kind) {
-      case v1::OUTPUT_KIND_SPECTRAL_EXR: path = paths.spectral_exr; break;
-      case v1::OUTPUT_KIND_RGB_EXR: path = paths.rgb_exr; break;
-      case v1::OUTPUT_KIND_PNG: path = paths.png; break;
-      case v1::OUTPUT_KIND_REPORT_JSON: path = paths.json; break;
-      case v1::OUTPUT_KIND_PRIMAL_EXR: path = paths.primal_exr; break;
-      case v1::OUTPUT_KIND_GRADIENT_EXR: path = paths.gradient_exr; break;
-      default: continue;  // outputs this client does not name yet
+      case v1::OUTPUT_KIND_SPECTRAL_EXR:
+        path = paths.spectral_exr;
+        break;
+      case v1::OUTPUT_KIND_RGB_EXR:
+        path = paths.rgb_exr;
+        break;
+      case v1::OUTPUT_KIND_PNG:
+        path = paths.png;
+        break;
+      case v1::OUTPUT_KIND_REPORT_JSON:
+        path = paths.json;
+        break;
+      case v1::OUTPUT_KIND_PRIMAL_EXR:
+        path = paths.primal_exr;
+        break;
+      case v1::OUTPUT_KIND_GRADIENT_EXR:
+        path = paths.gradient_exr;
+        break;
+      default:
+        continue;  // outputs this client does not name yet
     }
     PRISM_RETURN_IF_ERROR(write_atomically(path, bytes));
     absl::StrAppend(&written, written.empty() ? "" : ", ", path.string());
@@ -340,9 +355,8 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
   load.is_known_spectrum = [&](std::string_view name) { return library.contains(name); };
   load.is_known_ior = [&](std::string_view name) { return library.find_ior(name) != nullptr; };
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.render.scene, load));
-  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
-                         scene::make_bundle(loaded.root, loaded.scene_relpath,
-                                            loaded.description.files));
+  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle, scene::make_bundle(loaded.root, loaded.scene_relpath,
+                                                                  loaded.description.files));
   if (options.wait) {
     // Checked before anything is submitted, so a bad -o does not leave a job behind.
     PRISM_ASSIGN_OR_RETURN(coordinator::OutputPaths paths,
@@ -352,8 +366,8 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
   }
   PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec, job_spec_of(options.render, loaded.description,
                                                        bundle.content_hash, loaded.scene_relpath));
-  PRISM_RETURN_IF_ERROR(upload_if_missing(farm, bundle.content_hash, scene::pack(bundle),
-                                           options.progress));
+  PRISM_RETURN_IF_ERROR(
+      upload_if_missing(farm, bundle.content_hash, scene::pack(bundle), options.progress));
 
   v1::SubmitJobRequest request;
   *request.mutable_spec() = spec;
@@ -375,8 +389,8 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
   out << id << "\n";
   PRISM_ASSIGN_OR_RETURN(v1::JobInfo job, watch(farm, id, out, options.progress_is_terminal));
   PRISM_RETURN_IF_ERROR(job_outcome(job));
-  PRISM_ASSIGN_OR_RETURN(std::string written, fetch(farm, id, options.render.output,
-                                                     loaded.description.film.filename));
+  PRISM_ASSIGN_OR_RETURN(std::string written,
+                         fetch(farm, id, options.render.output, loaded.description.film.filename));
   return absl::StrCat(id, "\n", written);
 }
 
@@ -386,8 +400,8 @@ absl::StatusOr<std::string> run_status(const FarmConnection& c, const std::strin
   const v1::JobProgress& p = job.progress();
   std::string text = absl::StrCat(job_line(job), "\n");
   absl::StrAppend(&text, "samples ", p.samples_done(), "/", p.samples_total(), ", tiles ",
-                  p.tiles_finalised(), "/", p.tiles_total(), ", ",
-                  human(p.samples_per_second()), " samples/s, eta ", eta(p.eta_seconds()), "\n");
+                  p.tiles_finalised(), "/", p.tiles_total(), ", ", human(p.samples_per_second()),
+                  " samples/s, eta ", eta(p.eta_seconds()), "\n");
   return text;
 }
 

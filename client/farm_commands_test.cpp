@@ -8,8 +8,8 @@
 #include <filesystem>
 #include <fstream>
 #include <future>
-#include <thread>
 #include <sstream>
+#include <thread>
 
 #include "coordinator/testing/in_process_farm.h"
 
@@ -31,10 +31,9 @@ class FarmCommandsTest : public ::testing::Test {
  protected:
   void SetUp() override {
     root_ = fs::path(::testing::TempDir()) /
-            ("farm_cli_" + std::string(::testing::UnitTest::GetInstance()
-                                           ->current_test_info()
-                                           ->name()) +
-             "_" + std::to_string(::getpid()));
+            ("farm_cli_" +
+             std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) + "_" +
+             std::to_string(::getpid()));
     fs::remove_all(root_);
     fs::create_directories(root_ / "scene");
     std::ofstream(root_ / "scene" / "scene.pbrt") << kSmallScene;
@@ -116,8 +115,8 @@ TEST_F(FarmCommandsTest, WatchOutlivesQuietPeriodsAndFailsOnCancel) {
   const std::string id = submitted->substr(0, submitted->size() - 1);
   connection_.deadline = std::chrono::milliseconds(150);
   std::ostringstream progress;
-  auto watching = std::async(std::launch::async,
-                             [&] { return run_watch(connection_, id, progress, false); });
+  auto watching =
+      std::async(std::launch::async, [&] { return run_watch(connection_, id, progress, false); });
   std::this_thread::sleep_for(std::chrono::milliseconds(600));
   ASSERT_EQ(watching.wait_for(std::chrono::seconds(0)), std::future_status::timeout);
   ASSERT_TRUE(run_cancel(connection_, id).ok());
@@ -141,12 +140,12 @@ TEST_F(FarmCommandsTest, WrongTokenGetsTheServersMessage) {
 }
 
 TEST_F(FarmCommandsTest, UnknownJobIsNotFound) {
-  for (auto result : {run_status(connection_, "no-such-job"), run_cancel(connection_, "no-such-job"),
-                      run_fetch(connection_, "no-such-job", root_ / "out.exr")}) {
+  for (auto result :
+       {run_status(connection_, "no-such-job"), run_cancel(connection_, "no-such-job"),
+        run_fetch(connection_, "no-such-job", root_ / "out.exr")}) {
     ASSERT_FALSE(result.ok());
     EXPECT_EQ(result.status().code(), absl::StatusCode::kNotFound) << result.status();
-    EXPECT_NE(result.status().message().find("no-such-job"), std::string::npos)
-        << result.status();
+    EXPECT_NE(result.status().message().find("no-such-job"), std::string::npos) << result.status();
   }
   EXPECT_FALSE(fs::exists(root_ / "out.exr"));
 }
