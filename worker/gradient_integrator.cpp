@@ -68,7 +68,8 @@ GradientIntegrator::GradientIntegrator(const RenderScene& scene)
 GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                                          std::uint32_t sample_index,
                                          spectral::WavelengthPdfView lambda_pdf,
-                                         TraceCounters& counters, GuideValues* guides) const {
+                                         TraceCounters& counters, GuideValues* guides,
+                                         GradientEventSink* events) const {
   const RenderOptions& options = scene_.options();
   const Geometry& geometry = scene_.geometry();
   const spectral::WavelengthGrid& grid = scene_.grid();
@@ -158,12 +159,14 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     float contribution = 0;
     float ratio = 0;
   };
+  int depth = 0;
   auto accumulate = [&](float c, auto&& offset_event) {
     if (c == 0.0f) return;
     out.primal += c;
     // Roulette-free values for the threshold (both sides of a pair compute the same numbers).
     const float c_free = c * survival;
     float up = -c, down = c;  // unshifted
+    float own_values[2] = {0, 0};
     if (c_free > tau_) {
       catch_up();
       ++counters.gradient_events;
@@ -178,6 +181,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         }
         const float own = e.ratio > 0 ? e.contribution * survival / e.ratio
                                       : (e.contribution > 0 ? kInfinity : 0.0f);
+        own_values[side] = own;
         if (!(own > tau_)) {
           ++counters.gradient_shifts_wasted;
           continue;
@@ -193,6 +197,10 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     }
     out.gradient += up;
     out.gradient_below += down;
+    if (events != nullptr) {
+      events->record(
+          {c_free, c * c, {up * up, down * down}, {own_values[0], own_values[1]}, depth + 1});
+    }
   };
 
   // An emitter found by the sampled direction: the base's event, with the offsets' emitters
@@ -216,7 +224,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
 
   std::uint32_t crossings = 0;
   bool resolve_due = false;  // the base scattered at a surface and has not reached its next vertex
-  for (int depth = 0;;) {
+  for (;;) {
     const std::uint32_t dim = kDimBounce + kDimsPerBounce * std::uint32_t(depth);
     const std::uint32_t flight_dim =
         crossings == 0 ? dim + kFreeFlight

@@ -85,6 +85,26 @@ struct GradientSample {
   float gradient_below = 0;  // to G[bin_below]
 };
 
+// One base event of a traced sample, for the τ pilot (gradient_pilot.h): the roulette-free value
+// c the threshold compares, the square c² each side adds unshifted (G[i] −= c, G[i−k] += c), the
+// squares the sides added as traced (up to G[i], down to G[i−k]), the offsets' own roulette-free
+// values (0 where the shift failed or was not tried; a side is shifted at τ when c > τ and its
+// own value > τ), and the base's vertex count at the event (how far the offsets had to follow).
+struct GradientEvent {
+  float threshold_value = 0;
+  float unshifted_square = 0;
+  float side_square[2] = {0, 0};
+  float offset_value[2] = {0, 0};
+  int vertices = 0;
+};
+
+// Receives a sample's events in path order.
+class GradientEventSink {
+ public:
+  virtual ~GradientEventSink() = default;
+  virtual void record(const GradientEvent& event) = 0;
+};
+
 class GradientIntegrator {
  public:
   // The scene's options give k (gradient_offset_bins, 1 <= k < bins), τ, depth and roulette.
@@ -94,10 +114,10 @@ class GradientIntegrator {
   // from `lambda_pdf` (the scene's distribution or the pixel's table; lane 0 of
   // sample_lanes(u, 1)) and the offsets' MIS densities are that same density's pdf at λ ± δ, so
   // a pixel's table enters both sides of every pair alike. Pure function of its arguments;
-  // never allocates.
+  // never allocates (an event sink may).
   GradientSample trace(int px, int py, std::uint32_t pass, std::uint32_t sample_index,
                        spectral::WavelengthPdfView lambda_pdf, TraceCounters& counters,
-                       GuideValues* guides = nullptr) const;
+                       GuideValues* guides = nullptr, GradientEventSink* events = nullptr) const;
 
  private:
   const RenderScene& scene_;
