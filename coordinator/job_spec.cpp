@@ -106,6 +106,42 @@ absl::Status gradient_of(const prism::v1::GradientOptions& g, int bins, JobParam
         absl::StrCat("gradient.tau ", g.tau(), " is out of range: want a finite value >= 0"));
   }
   p.render.gradient_tau = g.tau();
+  if (g.has_tau_pilot()) {
+    const prism::v1::GradientTauPilot& t = g.tau_pilot();
+    if (!(t.epsilon() > 0.0f && t.epsilon() <= 1.0f)) {
+      return absl::InvalidArgumentError(absl::StrCat("gradient.tau_pilot.epsilon ", t.epsilon(),
+                                                     " is out of range: want (0, 1]"));
+    }
+    for (const auto& [name, value] :
+         {std::pair{"shifted_event_fraction", t.shifted_event_fraction()},
+          std::pair{"shifted_square_fraction", t.shifted_square_fraction()},
+          std::pair{"offset_vertex_fraction", t.offset_vertex_fraction()}}) {
+      if (!(value >= 0.0f && value <= 1.0f)) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("gradient.tau_pilot.", name, " ", value, " is out of range: want [0, 1]"));
+      }
+    }
+    if (!(t.lost_benefit_fraction() >= 0.0f && t.lost_benefit_fraction() <= t.epsilon())) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("gradient.tau_pilot.lost_benefit_fraction ", t.lost_benefit_fraction(),
+                       " is out of range: want [0, epsilon ", t.epsilon(), "]"));
+    }
+    if (!std::isfinite(t.second_moment_rise())) {
+      return absl::InvalidArgumentError(absl::StrCat("gradient.tau_pilot.second_moment_rise ",
+                                                     t.second_moment_rise(),
+                                                     " is out of range: want a finite value"));
+    }
+    p.gradient.tau_pilot = TauPilotReport{t.epsilon(),
+                                          t.pixels(),
+                                          t.spp(),
+                                          t.events(),
+                                          t.shifted_event_fraction(),
+                                          t.shifted_square_fraction(),
+                                          t.lost_benefit_fraction(),
+                                          t.offset_vertex_fraction(),
+                                          t.second_moment_rise(),
+                                          std::nullopt};
+  }
   PRISM_ASSIGN_OR_RETURN(p.gradient.alpha,
                          float_field("gradient.alpha", g.alpha(), kDefaultPoissonAlpha,
                                      kMinPoissonAlpha, false, kMaxPoissonAlpha));
@@ -229,7 +265,7 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   }
   if (!gradient && spec.has_gradient() &&
       (spec.gradient().delta() != 0.0f || spec.gradient().tau() != 0.0f ||
-       spec.gradient().alpha() != 0.0f ||
+       spec.gradient().alpha() != 0.0f || spec.gradient().has_tau_pilot() ||
        spec.gradient().norm() != prism::v1::POISSON_NORM_UNSPECIFIED)) {
     return absl::InvalidArgumentError(
         absl::StrCat("gradient options (delta, tau, alpha, norm) need the gradient integrator, "
@@ -287,6 +323,7 @@ void add_job_sections(const JobParameters& p, RenderReport& report) {
     g.offset_bins = p.render.gradient_offset_bins;
     g.delta = static_cast<float>(p.gradient.delta);
     g.tau = p.render.gradient_tau;
+    g.tau_pilot = p.gradient.tau_pilot;
     g.alpha = static_cast<float>(p.gradient.alpha);
     g.norm = std::string(to_string(p.gradient.norm));
     g.with_primal_and_gradients = p.outputs.primal_and_gradients;
@@ -348,6 +385,20 @@ prism::v1::PoissonNorm to_proto(PoissonNorm norm) {
   return prism::v1::POISSON_NORM_UNSPECIFIED;
 }
 
+prism::v1::GradientTauPilot to_proto(const TauPilotReport& r) {
+  prism::v1::GradientTauPilot t;
+  t.set_epsilon(r.epsilon);
+  t.set_pixels(r.pixels);
+  t.set_spp(r.spp);
+  t.set_events(r.events);
+  t.set_shifted_event_fraction(r.shifted_event_fraction);
+  t.set_shifted_square_fraction(r.shifted_square_fraction);
+  t.set_lost_benefit_fraction(r.lost_benefit_fraction);
+  t.set_offset_vertex_fraction(r.offset_vertex_fraction);
+  t.set_second_moment_rise(r.second_moment_rise);
+  return t;
+}
+
 prism::v1::JobSpec to_proto(const JobParameters& p) {
   prism::v1::JobSpec spec;
   spec.set_bundle_hash(p.bundle_hash);
@@ -358,6 +409,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
     auto* g = spec.mutable_gradient();
     g->set_delta(static_cast<float>(p.gradient.delta));
     g->set_tau(p.render.gradient_tau);
+    if (p.gradient.tau_pilot.has_value()) *g->mutable_tau_pilot() = to_proto(*p.gradient.tau_pilot);
     g->set_alpha(static_cast<float>(p.gradient.alpha));
     g->set_norm(to_proto(p.gradient.norm));
   }

@@ -54,6 +54,8 @@ struct GradientParameters {
   double delta = kDefaultGradientDelta;  // δ as a fraction of the range; k = round(δ·bins)
   double alpha = kDefaultPoissonAlpha;   // screening weight of the reconstruction
   PoissonNorm norm = PoissonNorm::kL2;
+  // How the client's pilot chose τ (`--tau auto`); reported only.
+  std::optional<TauPilotReport> tau_pilot;
 
   bool operator==(const GradientParameters&) const = default;
 };
@@ -89,6 +91,7 @@ void add_job_sections(const JobParameters& parameters, RenderReport& report);
 prism::v1::Integrator to_proto(worker::IntegratorKind kind);
 prism::v1::LightSelection to_proto(worker::LightSelectionKind kind);
 prism::v1::PoissonNorm to_proto(PoissonNorm norm);
+prism::v1::GradientTauPilot to_proto(const TauPilotReport& pilot);
 
 // Every value explicit (see the invariant above).
 prism::v1::JobSpec to_proto(const JobParameters& parameters);

@@ -157,6 +157,36 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.mutable_gradient()->set_tau(-1.0f);
        },
        "gradient.tau -1 is out of range"},
+      {"tau_pilot_without_gradient",
+       [](prism::v1::JobSpec& s) { s.mutable_gradient()->mutable_tau_pilot()->set_epsilon(0.1f); },
+       "gradient options (delta, tau, alpha, norm) need the gradient integrator"},
+      {"tau_pilot_epsilon",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->mutable_tau_pilot()->set_epsilon(0.0f);
+       },
+       "gradient.tau_pilot.epsilon 0 is out of range: want (0, 1]"},
+      {"tau_pilot_fraction",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->mutable_tau_pilot()->set_epsilon(0.1f);
+         s.mutable_gradient()->mutable_tau_pilot()->set_offset_vertex_fraction(1.5f);
+       },
+       "gradient.tau_pilot.offset_vertex_fraction 1.5 is out of range: want [0, 1]"},
+      {"tau_pilot_lost_benefit",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->mutable_tau_pilot()->set_epsilon(0.1f);
+         s.mutable_gradient()->mutable_tau_pilot()->set_lost_benefit_fraction(0.2f);
+       },
+       "gradient.tau_pilot.lost_benefit_fraction 0.2 is out of range: want [0, epsilon 0.1]"},
+      {"tau_pilot_rise",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->mutable_tau_pilot()->set_epsilon(0.1f);
+         s.mutable_gradient()->mutable_tau_pilot()->set_second_moment_rise(INFINITY);
+       },
+       "gradient.tau_pilot.second_moment_rise inf is out of range"},
       {"negative_alpha",
        [](prism::v1::JobSpec& s) {
          s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
@@ -257,6 +287,36 @@ TEST(JobSpecTest, GradientAndPrepassDefaultsSurviveTheExplicitForm) {
   EXPECT_EQ(again->prepass->fallback, p->prepass->fallback);
   EXPECT_EQ(again->prepass->sigma_s, p->prepass->sigma_s);
   EXPECT_EQ(again->prepass->sigma_r, p->prepass->sigma_r);
+}
+
+// The pilot's figures ride with the τ it chose, through the explicit form, into the report.
+TEST(JobSpecTest, TheTauPilotSurvivesTheExplicitFormAndReachesTheReport) {
+  prism::v1::JobSpec spec = minimal_spec();
+  spec.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+  spec.mutable_gradient()->set_tau(0.125f);
+  auto* t = spec.mutable_gradient()->mutable_tau_pilot();
+  t->set_epsilon(0.1f);
+  t->set_pixels(1200);
+  t->set_spp(8);
+  t->set_events(10736);
+  t->set_shifted_event_fraction(0.08f);
+  t->set_shifted_square_fraction(0.99f);
+  t->set_lost_benefit_fraction(0.09f);
+  t->set_second_moment_rise(-0.01f);
+  t->set_offset_vertex_fraction(0.07f);
+  auto p = job_parameters(spec, test_scene());
+  ASSERT_TRUE(p.ok()) << p.status();
+  ASSERT_TRUE(p->gradient.tau_pilot.has_value());
+  EXPECT_EQ(p->gradient.tau_pilot->events, 10736u);
+  EXPECT_EQ(p->render.gradient_tau, 0.125f);
+  EXPECT_EQ(to_proto(*p).gradient().tau_pilot().SerializeAsString(), t->SerializeAsString());
+  auto again = job_parameters(to_proto(*p), scene::SceneDescription{});
+  ASSERT_TRUE(again.ok()) << again.status();
+  EXPECT_EQ(again->gradient, p->gradient);
+  RenderReport report;
+  add_job_sections(*p, report);
+  ASSERT_TRUE(report.gradient.has_value());
+  EXPECT_EQ(report.gradient->tau_pilot, p->gradient.tau_pilot);
 }
 
 // The variance-weighted norm survives the wire and makes the workers sum the squares of G; the

@@ -302,6 +302,22 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
                      {"shifts", g.shifts},
                      {"failed_shifts", g.failed_shifts},
                      {"wasted_shifts", g.wasted_shifts}};
+    j["gradient"]["tau_source"] = g.tau_pilot.has_value() ? "pilot" : "given";
+    if (g.tau_pilot.has_value()) {
+      const TauPilotReport& t = *g.tau_pilot;
+      nlohmann::ordered_json pilot = {
+          {"epsilon", shortest(t.epsilon)},
+          {"pixels", t.pixels},
+          {"spp", t.spp},
+          {"events", t.events},
+          {"shifted_event_fraction", shortest(t.shifted_event_fraction)},
+          {"shifted_square_fraction", shortest(t.shifted_square_fraction)},
+          {"lost_benefit_fraction", shortest(t.lost_benefit_fraction)},
+          {"predicted_offset_work_fraction", shortest(t.offset_vertex_fraction)},
+          {"predicted_second_moment_rise", shortest(t.second_moment_rise)}};
+      if (t.seconds.has_value()) pilot["seconds"] = *t.seconds;
+      j["gradient"]["tau_pilot"] = pilot;
+    }
   }
   if (r.prepass.has_value()) {
     const PrepassReport& p = *r.prepass;

@@ -94,12 +94,30 @@ class BinStatisticsAccumulator {
 absl::StatusOr<image::RgbImage> to_linear_srgb(const image::SpectralImage& spectral,
                                                const spectral::ColorMatching& cmf);
 
+// The automatic τ's pilot (worker/gradient_pilot.h, the job spec's gradient.tau_pilot): float,
+// as the job spec keeps them.
+struct TauPilotReport {
+  float epsilon = 0;
+  std::uint32_t pixels = 0;
+  std::uint32_t spp = 0;
+  std::uint64_t events = 0;
+  float shifted_event_fraction = 0;
+  float shifted_square_fraction = 0;
+  float lost_benefit_fraction = 0;
+  float offset_vertex_fraction = 0;
+  float second_moment_rise = 0;
+  std::optional<double> seconds;  // where the pilot ran in this process (`prism render`)
+
+  bool operator==(const TauPilotReport&) const = default;
+};
+
 // Spectral gradient sampling in the report: the job's settings and the paper's Table 1
 // statistics from the workers' counters (worker::TraceCounters).
 struct GradientReport {
   int offset_bins = 0;
   float delta = 0;  // float, as the job spec keeps them
   float tau = 0;
+  std::optional<TauPilotReport> tau_pilot;  // τ was chosen by the pilot
   float alpha = 0;
   std::string norm;
   std::uint64_t base_paths = 0;     // camera samples

@@ -256,6 +256,41 @@ TEST(WriteOutputsTest, AFailedWriteNamesTheFileAndLeavesNothingPartial) {
   EXPECT_TRUE((listing(dir) == std::vector<fs::path>{"r.exr", "r.json", "r.png", "r.rgb.exr"}));
 }
 
+// A gradient job's τ says where it came from, and the pilot's figures come with it.
+TEST(WriteOutputsTest, TheJsonSaysHowTauWasChosen) {
+  const fs::path dir = fresh_dir("tau");
+  auto image = image::SpectralImage::create(2, 2, 8);
+  ASSERT_TRUE(image.ok());
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  auto paths = output_paths(dir / "render.exr", std::nullopt, "x.exr");
+  ASSERT_TRUE(paths.ok());
+  RenderReport report = sample_report();
+  report.gradient = GradientReport{};
+  report.gradient->tau = 0.25f;
+  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {0.0f}).ok());
+  nlohmann::json given = nlohmann::json::parse(*base::read_file(paths->json));
+  EXPECT_EQ(given["gradient"]["tau"], 0.25);
+  EXPECT_EQ(given["gradient"]["tau_source"], "given");
+  EXPECT_FALSE(given["gradient"].contains("tau_pilot"));
+
+  report.gradient->tau_pilot =
+      TauPilotReport{0.1f, 1200, 8, 5000, 0.25f, 0.5f, 0.0625f, 0.125f, 0.75f, 0.02};
+  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {0.0f}).ok());
+  nlohmann::json pilot = nlohmann::json::parse(*base::read_file(paths->json));
+  EXPECT_EQ(pilot["gradient"]["tau_source"], "pilot");
+  const nlohmann::json& t = pilot["gradient"]["tau_pilot"];
+  EXPECT_EQ(t["epsilon"], 0.1);
+  EXPECT_EQ(t["pixels"], 1200);
+  EXPECT_EQ(t["spp"], 8);
+  EXPECT_EQ(t["events"], 5000);
+  EXPECT_EQ(t["shifted_event_fraction"], 0.25);
+  EXPECT_EQ(t["shifted_square_fraction"], 0.5);
+  EXPECT_EQ(t["lost_benefit_fraction"], 0.0625);
+  EXPECT_EQ(t["predicted_offset_work_fraction"], 0.125);
+  EXPECT_EQ(t["predicted_second_moment_rise"], 0.75);
+  EXPECT_EQ(t["seconds"], 0.02);
+}
+
 TEST(PeakMemoryTest, IsAtLeastWhatWeTouch) {
   std::vector<char> block(64 << 20);
   for (std::size_t i = 0; i < block.size(); i += 4096) block[i] = char(i);
