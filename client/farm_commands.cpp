@@ -366,6 +366,12 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
   }
   PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec, job_spec_of(options.render, loaded.description,
                                                        bundle.content_hash, loaded.scene_relpath));
+  if (spec.integrator() == v1::INTEGRATOR_GRADIENT && !options.render.tau.has_value()) {
+    // The pilot runs here, so the job carries its τ and every worker traces with it.
+    worker::EmbreeDevice device;
+    PRISM_RETURN_IF_ERROR(
+        choose_tau(options.render, device, loaded.description, library, spec).status());
+  }
   PRISM_RETURN_IF_ERROR(
       upload_if_missing(farm, bundle.content_hash, scene::pack(bundle), options.progress));
 

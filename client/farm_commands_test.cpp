@@ -12,6 +12,8 @@
 #include <thread>
 
 #include "coordinator/testing/in_process_farm.h"
+#include "services/scene/scene_loader.h"
+#include "services/spectral/named_spectra.h"
 
 namespace prism::client {
 namespace {
@@ -105,6 +107,52 @@ TEST_F(FarmCommandsTest, SubmitUploadsOnceAndIsIdempotent) {
   auto workers = run_workers(connection_);
   ASSERT_TRUE(workers.ok()) << workers.status();
   EXPECT_EQ(*workers, "no workers\n");
+}
+
+// A gradient job without --tau: the client's pilot chooses τ before submitting, so the spec the
+// workers get carries it (with the pilot's figures), it is the τ `prism render` chooses for the
+// same flags, and submitting again is the same job.
+TEST_F(FarmCommandsTest, AGradientSubmitCarriesThePilotsTau) {
+  SubmitOptions options = submit_options(nullptr);
+  options.render.integrator = "gradient";
+  options.render.spp = 4;
+  auto first = run_submit(connection_, options);
+  ASSERT_TRUE(first.ok()) << first.status();
+  auto second = run_submit(connection_, options);
+  ASSERT_TRUE(second.ok()) << second.status();
+  EXPECT_EQ(*first, *second);
+  auto spec = farm_->farm().job_spec(first->substr(0, first->size() - 1));
+  ASSERT_TRUE(spec.ok()) << spec.status();
+  ASSERT_TRUE(spec->gradient().has_tau_pilot());
+  EXPECT_GT(spec->gradient().tau_pilot().events(), 0u);
+  EXPECT_LE(spec->gradient().tau_pilot().lost_benefit_fraction(),
+            spec->gradient().tau_pilot().epsilon());
+
+  // The embedded render's choice for the same flags, on one thread.
+  auto library = spectral::SpectrumLibrary::load_builtin();
+  ASSERT_TRUE(library.ok());
+  auto loaded = scene::load_scene(options.render.scene, {});
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  auto local = job_spec_of(options.render, loaded->description, std::string(64, '0'), "scene.pbrt");
+  ASSERT_TRUE(local.ok()) << local.status();
+  RenderCommandOptions one_thread = options.render;
+  one_thread.threads = 1;
+  worker::EmbreeDevice device;
+  auto seconds = choose_tau(one_thread, device, loaded->description, *library, *local);
+  ASSERT_TRUE(seconds.ok()) << seconds.status();
+  EXPECT_TRUE(seconds->has_value());
+  EXPECT_EQ(local->gradient().tau(), spec->gradient().tau());
+  EXPECT_EQ(local->gradient().tau_pilot().SerializeAsString(),
+            spec->gradient().tau_pilot().SerializeAsString());
+
+  // A τ given is kept, and no pilot runs.
+  options.render.tau = 0.25;
+  auto given = run_submit(connection_, options);
+  ASSERT_TRUE(given.ok()) << given.status();
+  auto given_spec = farm_->farm().job_spec(given->substr(0, given->size() - 1));
+  ASSERT_TRUE(given_spec.ok());
+  EXPECT_EQ(given_spec->gradient().tau(), 0.25f);
+  EXPECT_FALSE(given_spec->gradient().has_tau_pilot());
 }
 
 // No worker, so nothing changes for longer than the per-message deadline: the watch probes the

@@ -18,6 +18,8 @@
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/wavelength_grid.h"
+#include "worker/gradient_pilot.h"
+#include "worker/render_scene.h"
 
 namespace prism::client {
 namespace {
@@ -147,7 +149,8 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   PRISM_RETURN_IF_ERROR(parse_emitter_pdf(o.emitter_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_light_selection(o.light_selection).status());
   const bool gradient = *parse_integrator(o.integrator) == worker::IntegratorKind::kGradient;
-  if (!gradient && (o.delta || o.tau || o.alpha || !o.poisson.empty() || o.primal_and_gradients)) {
+  if (!gradient &&
+      (o.delta || o.tau || o.tau_auto || o.alpha || !o.poisson.empty() || o.primal_and_gradients)) {
     return absl::InvalidArgumentError(
         "--delta, --tau, --alpha, --poisson and --primal-and-gradients need --integrator gradient");
   }
@@ -212,6 +215,45 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   }
   // The names alone (the film's filename is not needed to check -o and --json).
   return coordinator::output_paths(o.output, o.json, "render.exr").status();
+}
+
+absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& o,
+                                                 worker::EmbreeDevice& device,
+                                                 const scene::SceneDescription& description,
+                                                 const spectral::SpectrumLibrary& library,
+                                                 v1::JobSpec& spec) {
+  PRISM_ASSIGN_OR_RETURN(worker::IntegratorKind integrator, parse_integrator(o.integrator));
+  if (integrator != worker::IntegratorKind::kGradient || o.tau.has_value()) return std::nullopt;
+  if (!device.valid()) {
+    return absl::InternalError(
+        absl::StrCat("could not create the Embree device: ", device.take_error().message()));
+  }
+  spec.mutable_gradient()->set_tau(0.0f);
+  spec.mutable_gradient()->clear_tau_pilot();
+  PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters job,
+                         coordinator::job_parameters(spec, description));
+  PRISM_ASSIGN_OR_RETURN(
+      std::unique_ptr<worker::RenderScene> scene,
+      worker::RenderScene::build(device, description, library, job.render, job.width, job.height));
+  worker::GradientPilotOptions options;
+  options.threads = o.threads.has_value() ? static_cast<int>(*o.threads) : 0;
+  PRISM_ASSIGN_OR_RETURN(worker::GradientPilot pilot,
+                         worker::run_gradient_pilot(*scene, job.width, job.height, options));
+  auto* g = spec.mutable_gradient();
+  g->set_tau(pilot.tau);
+  auto* t = g->mutable_tau_pilot();
+  t->set_epsilon(static_cast<float>(pilot.epsilon));
+  t->set_pixels(static_cast<std::uint32_t>(pilot.pixels));
+  t->set_spp(static_cast<std::uint32_t>(pilot.spp));
+  t->set_events(pilot.events);
+  t->set_shifted_event_fraction(static_cast<float>(pilot.shifted_event_fraction));
+  t->set_shifted_square_fraction(static_cast<float>(pilot.shifted_square_fraction));
+  // Kept <= epsilon in float as well, as the spec requires.
+  t->set_lost_benefit_fraction(
+      std::min(static_cast<float>(pilot.lost_benefit_fraction), static_cast<float>(pilot.epsilon)));
+  t->set_second_moment_rise(static_cast<float>(pilot.second_moment_rise));
+  t->set_offset_vertex_fraction(static_cast<float>(pilot.offset_vertex_fraction));
+  return pilot.seconds;
 }
 
 absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
@@ -304,6 +346,8 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   PRISM_ASSIGN_OR_RETURN(
       prism::v1::JobSpec spec,
       job_spec_of(options, description, bundle.content_hash, loaded.scene_relpath));
+  PRISM_ASSIGN_OR_RETURN(std::optional<double> pilot_seconds,
+                         choose_tau(options, device, description, library, spec));
   PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters job,
                          coordinator::job_parameters(spec, description));
   coordinator::LocalRenderOptions local;
@@ -356,6 +400,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   coordinator::add_job_sections(job, report);
   if (report.gradient.has_value()) {
     coordinator::fill_gradient_counters(report.counters, *report.gradient);
+    if (report.gradient->tau_pilot.has_value()) report.gradient->tau_pilot->seconds = pilot_seconds;
   }
   if (report.prepass.has_value()) {
     report.prepass->seconds = result->stats.prepass_seconds;
@@ -372,7 +417,12 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   const double seconds = report.render_seconds;
   return absl::StrCat(
       "rendered ", report.scene, ": ", report.width, "x", report.height, ", ", report.spp, " spp, ",
-      report.bins, " bins, ", report.integrator, ", ", report.threads, " threads in ",
+      report.bins, " bins, ", report.integrator,
+      report.gradient.has_value()
+          ? absl::StrCat(" (tau ", report.gradient->tau,
+                         report.gradient->tau_pilot.has_value() ? " from the pilot" : "", ")")
+          : std::string(),
+      ", ", report.threads, " threads in ",
       report.prepass.has_value() ? coordinator::prepass_summary(*report.prepass) + " + "
                                  : std::string(),
       absl::StrFormat("%.2f", seconds), " s (", human(seconds > 0 ? report.samples / seconds : NAN),

@@ -19,6 +19,7 @@
 #include "absl/status/statusor.h"
 #include "prism/v1/types.pb.h"
 #include "services/scene/scene_description.h"
+#include "services/spectral/named_spectra.h"
 #include "worker/embree_device.h"
 #include "worker/render_options.h"
 
@@ -45,7 +46,8 @@ struct RenderCommandOptions {
   double exposure = 0.0;                         // PNG preview, in stops
   // Spectral gradient sampling (--integrator gradient); unset: the defaults (job_spec.h).
   std::optional<double> delta;  // fraction of the range, snapped to whole bins
-  std::optional<double> tau;
+  std::optional<double> tau;    // unset: chosen by the pilot, as with tau_auto
+  bool tau_auto = false;        // --tau auto
   std::optional<double> alpha;
   std::string poisson;                // empty: the job's default, l2
   bool primal_and_gradients = false;  // also write <stem>.primal.exr and <stem>.gradient.exr
@@ -91,6 +93,16 @@ absl::StatusOr<prism::v1::JobSpec> job_spec_of(const RenderCommandOptions& optio
                                                const scene::SceneDescription& description,
                                                const std::string& bundle_hash,
                                                const std::string& scene_path);
+
+// The gradient integrator's τ when the flags give no number (`--tau auto`, or no --tau): runs the
+// pilot (worker/gradient_pilot.h) on the job `spec` describes, on --threads threads, and writes
+// its τ and figures into spec.gradient, so the farm and `prism render` trace with the same τ.
+// Returns the pilot's wall seconds, or nothing when no pilot ran (not a gradient job, or τ given).
+absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& options,
+                                                 worker::EmbreeDevice& device,
+                                                 const scene::SceneDescription& description,
+                                                 const spectral::SpectrumLibrary& library,
+                                                 prism::v1::JobSpec& spec);
 
 // Renders and writes the outputs; returns the one-line summary. Errors: the flags' (above),
 // the scene's (file:line:column), NOT_FOUND for a missing output directory, the render's, or

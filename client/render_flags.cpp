@@ -1,5 +1,8 @@
 #include "client/render_flags.h"
 
+#include <string>
+
+#include "absl/strings/str_cat.h"
 #include "services/base/status.h"
 
 namespace prism::client {
@@ -35,7 +38,9 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   f.delta_opt = cmd.add_option("--delta", f.delta,
                                "Gradient: spectral offset as a fraction of the range, snapped to "
                                "whole bins (default 0.15)");
-  f.tau_opt = cmd.add_option("--tau", f.tau, "Gradient: shift threshold (default 0)");
+  f.tau_opt = cmd.add_option("--tau", f.tau,
+                             "Gradient: shift threshold, a value >= 0 in the image's units, or "
+                             "auto: chosen by a short pilot render (default auto)");
   f.alpha_opt =
       cmd.add_option("--alpha", f.alpha,
                      "Gradient: screened Poisson weight of --poisson l2 and l1, > 0 (default 0.2)");
@@ -85,7 +90,24 @@ absl::Status apply_render_flags(const RenderFlags& f, RenderCommandOptions& o) {
     if (opt->count() > 0) target = value;
   };
   take(f.delta_opt, f.delta, o.delta);
-  take(f.tau_opt, f.tau, o.tau);
+  if (f.tau_opt->count() > 0) {
+    if (f.tau == "auto") {
+      o.tau_auto = true;
+    } else {
+      double tau = 0;
+      std::size_t used = 0;
+      try {
+        tau = std::stod(f.tau, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used == 0 || used != f.tau.size()) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("--tau '", f.tau, "': want a value >= 0 or auto"));
+      }
+      o.tau = tau;
+    }
+  }
   take(f.alpha_opt, f.alpha, o.alpha);
   take(f.prepass_passes_opt, f.prepass_passes, o.prepass_passes);
   take(f.prepass_spp_opt, f.prepass_spp, o.prepass_spp);

@@ -6,7 +6,6 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
-
 #include <cstdint>
 #include <string>
 
@@ -20,7 +19,8 @@ struct RenderFlags {
   std::string output, resolution, seed;
   std::int64_t spp = 0, bins = 0, max_depth = 0, samples_per_task = 0;
   bool no_spectral_light_selection = false;
-  double delta = 0, tau = 0, alpha = 0;
+  double delta = 0, alpha = 0;
+  std::string tau;  // a value >= 0 or "auto"
   std::int64_t prepass_passes = 0, prepass_spp = 0;
   double prepass_epsilon = 0, prepass_fallback = 0, prepass_sigma_s = 0, prepass_sigma_r = 0;
   bool prepass = false, no_prepass = false;

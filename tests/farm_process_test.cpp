@@ -404,9 +404,9 @@ TEST_F(FarmProcessTest, AGradientJobMatchesPrismRenderByteForByte) {
   ASSERT_EQ(weighted_done.state(), v1::JOB_STATE_DONE) << weighted_done.error();
   const std::vector<float> farm_weighted = fetch_spectral(weighted_id);
   EXPECT_NE(farm_weighted, fetch_spectral(job_id));
-  expect_identical(
-      farm_weighted,
-      cli_render(kSpp, 6, {"--no-prepass", "--integrator", "gradient", "--poisson", "weighted"}));
+  expect_identical(farm_weighted, cli_render(kSpp, 6,
+                                             {"--no-prepass", "--integrator", "gradient", "--tau",
+                                              "0", "--poisson", "weighted"}));
 }
 
 // The multi-pass prepass through the farm: two prepasses of 9 tile tasks each, the coordinator's
