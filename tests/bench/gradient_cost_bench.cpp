@@ -9,8 +9,11 @@
 // fraction of base paths with a shifted event and the fraction of offsets wasted by the
 // threshold τ (and the fraction whose shift failed).
 //
+// With --tau auto (the default) τ is the one the pilot of `prism render` picks
+// (worker/gradient_pilot.h); its time is printed beside the ratios, not added to them.
+//
 // Usage: prism-bench-gradient-cost [scene.pbrt ...] [--resolution 160x120] [--spp 16]
-//        [--threads N] [--bins 64] [--delta 0.15] [--tau 0] [--repeats 3]
+//        [--threads N] [--bins 64] [--delta 0.15] [--tau auto|T] [--repeats 3]
 #include <tbb/info.h>
 #include <tbb/task_arena.h>
 
@@ -21,6 +24,7 @@
 
 #include "tests/bench/bench_common.h"
 #include "worker/embree_device.h"
+#include "worker/gradient_pilot.h"
 #include "worker/render_scene.h"
 #include "worker/tile_renderer.h"
 
@@ -63,7 +67,8 @@ int run(int argc, char** argv) {
   auto threads = flags->number("--threads", tbb::info::default_concurrency(), 1, 4096);
   auto bins = flags->number("--bins", 64, 4, 256);
   auto delta = flags->number("--delta", 0.15, 0, 0.5);
-  auto tau = flags->number("--tau", 0, 0, 1e30);
+  const bool tau_auto = flags->get("--tau", "auto") == "auto";
+  auto tau = tau_auto ? absl::StatusOr<double>(0.0) : flags->number("--tau", 0, 0, 1e30);
   auto repeats = flags->number("--repeats", 3, 1, 100);
   for (const absl::Status& s : {size.status(), spp.status(), threads.status(), bins.status(),
                                 delta.status(), tau.status(), repeats.status()}) {
@@ -87,9 +92,9 @@ int run(int argc, char** argv) {
   worker::EmbreeDevice device;
   std::printf(
       "| scene | resolution | spp | threads | uniform samples/s | hero samples/s | "
-      "gradient samples/s | gradient / uniform | gradient / hero | rays/sample: uniform, hero, "
-      "gradient | paths shifted | shifts wasted (tau) | shifts failed |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+      "gradient samples/s | gradient / uniform | gradient / hero | tau (pilot s) | rays/sample: "
+      "uniform, hero, gradient | paths shifted | shifts wasted (tau) | shifts failed |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   for (const std::string& path : scenes) {
     auto scene = load_bench_scene(path);
     if (!scene.ok()) {
@@ -101,6 +106,25 @@ int run(int argc, char** argv) {
     options.max_depth = scene->description.integrator.max_depth;
     options.gradient_offset_bins = *k;
     options.gradient_tau = float(*tau);
+    double pilot_seconds = 0;
+    if (tau_auto) {
+      options.integrator = worker::IntegratorKind::kGradient;
+      auto built = worker::RenderScene::build(device, scene->description, *scene->library, options,
+                                              size->first, size->second);
+      if (!built.ok()) {
+        std::cerr << "prism-bench-gradient-cost: " << built.status().message() << "\n";
+        return 1;
+      }
+      worker::GradientPilotOptions pilot_options;
+      pilot_options.threads = int(*threads);
+      auto pilot = worker::run_gradient_pilot(**built, size->first, size->second, pilot_options);
+      if (!pilot.ok()) {
+        std::cerr << "prism-bench-gradient-cost: " << pilot.status().message() << "\n";
+        return 1;
+      }
+      options.gradient_tau = pilot->tau;
+      pilot_seconds = pilot->seconds;
+    }
     // Interleaved repeats, the fastest of each kept: load on a shared machine only slows.
     absl::StatusOr<Timed> uniform, hero, gradient;
     for (int r = 0; r < int(*repeats); ++r) {
@@ -120,13 +144,13 @@ int run(int argc, char** argv) {
     const double samples = double(size->first) * size->second * *spp;
     const worker::TraceCounters& g = gradient->counters;
     std::printf(
-        "| %s | %dx%d | %.0f | %.0f | %.3g | %.3g | %.3g | %.2f | %.2f | %.2f, %.2f, %.2f | "
-        "%.1f %% | %.1f %% | %.1f %% |\n",
+        "| %s | %dx%d | %.0f | %.0f | %.3g | %.3g | %.3g | %.2f | %.2f | %.3g (%.2f) | %.2f, %.2f, "
+        "%.2f | %.1f %% | %.1f %% | %.1f %% |\n",
         scene->name.c_str(), size->first, size->second, *spp, *threads, samples / uniform->seconds,
         samples / hero->seconds, samples / gradient->seconds, gradient->seconds / uniform->seconds,
-        gradient->seconds / hero->seconds, double(uniform->counters.rays) / samples,
-        double(hero->counters.rays) / samples, double(g.rays) / samples,
-        100.0 * double(g.gradient_shifted_paths) / samples,
+        gradient->seconds / hero->seconds, options.gradient_tau, pilot_seconds,
+        double(uniform->counters.rays) / samples, double(hero->counters.rays) / samples,
+        double(g.rays) / samples, 100.0 * double(g.gradient_shifted_paths) / samples,
         g.gradient_shifts > 0 ? 100.0 * double(g.gradient_shifts_wasted) / g.gradient_shifts : 0.0,
         g.gradient_shifts > 0 ? 100.0 * double(g.gradient_shifts_failed) / g.gradient_shifts : 0.0);
     std::fflush(stdout);

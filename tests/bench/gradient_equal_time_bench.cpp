@@ -14,12 +14,15 @@
 // each row's ratio divides its relMSE by the uniform curve's relMSE interpolated (log-log) at the
 // row's time, and a summary per scene compares the three curves at the time of uniform's
 // longest run. With --inset, the same figures over that rect too (one rect for every scene
-// given, so it is meant for one scene at a time, e.g. the caustic). Nothing is asserted.
+// given, so it is meant for one scene at a time, e.g. the caustic). With --tau auto the pilot
+// (worker/gradient_pilot.h) runs once per job, as `prism render` runs it, and its time is added
+// to every run of that curve. Nothing is asserted.
 //
 // Usage: prism-bench-gradient-equal-time [scene.pbrt ...] [--resolution 80x60]
 //          [--spp 16,32,64,128,256] [--reference-spp 16384] [--cache-dir DIR] [--threads N]
-//          [--bins B (the scene's)] [--max-depth D (the scene's)] [--delta 0.15] [--tau 0]
-//          [--alpha 0.2] [--poisson l2|l1|weighted] [--clock wall|cpu] [--inset x,y,w,h]
+//          [--bins B (the scene's)] [--max-depth D (the scene's)] [--delta 0.15]
+//          [--tau 0 | auto | auto:EPS, comma-separated: one gradient curve each] [--alpha 0.2]
+//          [--poisson l2|l1|weighted] [--clock wall|cpu] [--inset x,y,w,h]
 //          [--csv path (scene,method,spp,seconds,relmse; relMSE of the whole image)]
 #include <tbb/info.h>
 
@@ -28,11 +31,14 @@
 #include <iostream>
 #include <map>
 
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
 #include "services/base/status.h"
 #include "tests/bench/bench_common.h"
 #include "tests/bench/equal_time.h"
+#include "worker/gradient_pilot.h"
 
 namespace prism::bench {
 namespace {
@@ -43,24 +49,47 @@ struct Setup {
   int bins = -1;       // -1: the scene's
   int max_depth = -1;  // -1: the scene's
   double delta = 0.15;
-  double tau = 0;
   double alpha = coordinator::kDefaultPoissonAlpha;
   coordinator::PoissonNorm norm = coordinator::PoissonNorm::kL2;
   bool cpu_clock = false;
 };
 
 struct Method {
-  const char* name;
+  std::string name;
   worker::IntegratorKind integrator;
+  double tau = 0;
+  std::optional<double> pilot_epsilon;  // --tau auto: the pilot chooses τ
 };
-constexpr Method kMethods[] = {{"uniform", worker::IntegratorKind::kUniform},
-                               {"hero", worker::IntegratorKind::kHero},
-                               {"gradient", worker::IntegratorKind::kGradient}};
+
+// "0.05", "auto" or "auto:0.2".
+absl::StatusOr<Method> gradient_method(const std::string& entry, bool only) {
+  Method m{"gradient", worker::IntegratorKind::kGradient, 0, std::nullopt};
+  if (entry == "auto" || entry.starts_with("auto:")) {
+    m.pilot_epsilon = worker::GradientPilotOptions{}.epsilon;
+    if (entry.size() > 4) {
+      double eps = 0;
+      if (!absl::SimpleAtod(entry.substr(5), &eps) || !(eps > 0 && eps <= 1)) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("--tau ", entry, ": want auto:EPS, 0<EPS<=1"));
+      }
+      m.pilot_epsilon = eps;
+    }
+    if (!only) m.name = absl::StrFormat("gradient auto:%g", *m.pilot_epsilon);
+    return m;
+  }
+  if (!absl::SimpleAtod(entry, &m.tau) || !std::isfinite(m.tau) || m.tau < 0) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--tau ", entry, ": want a value >= 0, auto or auto:EPS"));
+  }
+  if (!only) m.name = absl::StrFormat("gradient tau=%g", m.tau);
+  return m;
+}
 
 absl::StatusOr<coordinator::LocalRenderOptions> options_for(const Setup& setup,
                                                             const LoadedBenchScene& scene,
                                                             worker::IntegratorKind integrator,
-                                                            std::uint64_t spp, std::uint64_t seed) {
+                                                            std::uint64_t spp, std::uint64_t seed,
+                                                            double tau = 0) {
   coordinator::LocalRenderOptions o;
   o.render.integrator = integrator;
   o.render.bins = setup.bins > 0 ? setup.bins : scene.description.film.bins.value_or(64);
@@ -69,7 +98,7 @@ absl::StatusOr<coordinator::LocalRenderOptions> options_for(const Setup& setup,
   o.render.seed = seed;
   PRISM_ASSIGN_OR_RETURN(o.render.gradient_offset_bins,
                          worker::gradient_offset_bins(setup.delta, o.render.bins));
-  o.render.gradient_tau = float(setup.tau);
+  o.render.gradient_tau = float(tau);
   o.poisson_alpha = setup.alpha;
   o.poisson_norm = setup.norm;
   o.width = setup.width;
@@ -80,7 +109,7 @@ absl::StatusOr<coordinator::LocalRenderOptions> options_for(const Setup& setup,
 }
 
 struct Row {
-  const char* method;
+  std::string method;
   std::uint64_t spp = 0;
   double wall = 0;
   double cpu = 0;
@@ -98,6 +127,34 @@ struct Region {
   std::map<std::string, std::vector<ConvergencePoint>> curves;
 };
 
+struct TimedPilot {
+  worker::GradientPilot pilot;
+  double wall = 0, cpu = 0;
+};
+
+// The pilot as `prism render --tau auto` runs it: its own scene built with τ = 0 (the build is
+// not timed, like the renders' own), the job's seed.
+absl::StatusOr<TimedPilot> run_pilot(worker::EmbreeDevice& device, const Setup& setup,
+                                     const LoadedBenchScene& scene, double epsilon,
+                                     std::uint64_t seed) {
+  PRISM_ASSIGN_OR_RETURN(
+      coordinator::LocalRenderOptions o,
+      options_for(setup, scene, worker::IntegratorKind::kGradient, 1, seed, 0.0));
+  PRISM_ASSIGN_OR_RETURN(
+      auto built, worker::RenderScene::build(device, scene.description, *scene.library, o.render,
+                                             setup.width, setup.height));
+  worker::GradientPilotOptions p;
+  p.epsilon = epsilon;
+  p.threads = setup.threads;
+  const double cpu_start = process_cpu_seconds();
+  const auto wall_start = std::chrono::steady_clock::now();
+  PRISM_ASSIGN_OR_RETURN(worker::GradientPilot pilot,
+                         worker::run_gradient_pilot(*built, setup.width, setup.height, p));
+  const double wall =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  return TimedPilot{pilot, wall, process_cpu_seconds() - cpu_start};
+}
+
 int fail(const absl::Status& status) {
   std::cerr << "prism-bench-gradient-equal-time: " << status.message() << "\n";
   return 1;
@@ -109,10 +166,10 @@ std::string ratio_text(std::optional<double> value, bool extrapolated) {
 }
 
 int run(int argc, char** argv) {
-  auto flags = parse_flags(
-      argc, argv,
-      {"--resolution", "--spp", "--reference-spp", "--cache-dir", "--threads", "--bins",
-       "--max-depth", "--delta", "--tau", "--alpha", "--poisson", "--clock", "--csv", "--inset"});
+  auto flags = parse_flags(argc, argv,
+                           {"--resolution", "--spp", "--reference-spp", "--cache-dir", "--threads",
+                            "--bins", "--max-depth", "--delta", "--tau", "--alpha", "--poisson",
+                            "--clock", "--csv", "--inset", "--seed"});
   if (!flags.ok()) return fail(flags.status());
   auto size = parse_size(flags->get("--resolution", "80x60"));
   auto spp_list = parse_spp_list(flags->get("--spp", "16,32,64,128,256"));
@@ -121,11 +178,11 @@ int run(int argc, char** argv) {
   auto bins = flags->number("--bins", -1, -1, 256);
   auto max_depth = flags->number("--max-depth", -1, -1, 1000);
   auto delta = flags->number("--delta", 0.15, 0, 0.5);
-  auto tau = flags->number("--tau", 0, 0, 1e30);
   auto alpha = flags->number("--alpha", coordinator::kDefaultPoissonAlpha, 1e-9, 1e9);
+  auto seed = flags->number("--seed", 1, 1, 1e9);
   for (const absl::Status& s :
        {size.status(), spp_list.status(), reference_spp.status(), threads.status(), bins.status(),
-        max_depth.status(), delta.status(), tau.status(), alpha.status()}) {
+        max_depth.status(), delta.status(), alpha.status(), seed.status()}) {
     if (!s.ok()) return fail(s);
   }
   auto norm = coordinator::parse_poisson_norm(flags->get("--poisson", "l2"));
@@ -142,7 +199,14 @@ int run(int argc, char** argv) {
   setup.max_depth = int(*max_depth);
   setup.delta = *delta;
   setup.norm = *norm;
-  setup.tau = *tau;
+  std::vector<Method> methods = {{"uniform", worker::IntegratorKind::kUniform, 0, std::nullopt},
+                                 {"hero", worker::IntegratorKind::kHero, 0, std::nullopt}};
+  const std::vector<std::string> taus = absl::StrSplit(flags->get("--tau", "0"), ',');
+  for (const std::string& entry : taus) {
+    auto m = gradient_method(entry, taus.size() == 1);
+    if (!m.ok()) return fail(m.status());
+    methods.push_back(*m);
+  }
   setup.alpha = *alpha;
   setup.cpu_clock = clock == "cpu";
   std::optional<image::Crop> inset;
@@ -172,9 +236,9 @@ int run(int argc, char** argv) {
   worker::EmbreeDevice device;
   std::printf(
       "%dx%d, %d threads, spp %s, reference %.0f spp (uniform, independent samples), "
-      "gradient delta %.3g tau %.3g alpha %.3g %s, %s clock\n",
+      "gradient delta %.3g tau %s alpha %.3g %s, %s clock\n",
       setup.width, setup.height, setup.threads, flags->get("--spp", "16,32,64,128,256").c_str(),
-      *reference_spp, setup.delta, setup.tau, setup.alpha,
+      *reference_spp, setup.delta, flags->get("--tau", "0").c_str(), setup.alpha,
       std::string(coordinator::to_string(setup.norm)).c_str(), clock.c_str());
   for (const std::string& path : scenes) {
     auto scene = load_bench_scene(path);
@@ -201,13 +265,32 @@ int run(int argc, char** argv) {
     }
 
     std::vector<Row> rows;
-    for (const Method& method : kMethods) {
+    for (const Method& method : methods) {
+      double tau = method.tau, pilot_wall = 0, pilot_cpu = 0;
+      if (method.pilot_epsilon.has_value()) {
+        auto pilot = run_pilot(device, setup, *scene, *method.pilot_epsilon, std::uint64_t(*seed));
+        if (!pilot.ok()) return fail(pilot.status());
+        tau = pilot->pilot.tau;
+        pilot_wall = pilot->wall;
+        pilot_cpu = pilot->cpu;
+        const worker::GradientPilot& p = pilot->pilot;
+        std::printf(
+            "%s %s: pilot %d pixels x %d spp, %llu events, %.2f s: tau %.4g shifts %.3f of the "
+            "events, %.3f of sum c^2; gives up %.3f of the benefit, sum of squares +%.3f, offset "
+            "catch-up %.3f\n",
+            scene->name.c_str(), method.name.c_str(), p.pixels, p.spp,
+            static_cast<unsigned long long>(p.events), setup.cpu_clock ? pilot_cpu : pilot_wall,
+            p.tau, p.shifted_event_fraction, p.shifted_square_fraction, p.lost_benefit_fraction,
+            p.second_moment_rise, p.offset_vertex_fraction);
+      }
       for (std::uint64_t spp : *spp_list) {
-        auto options = options_for(setup, *scene, method.integrator, spp, 1);
+        auto options =
+            options_for(setup, *scene, method.integrator, spp, std::uint64_t(*seed), tau);
         if (!options.ok()) return fail(options.status());
         auto timed = timed_render(device, *scene, *options);
         if (!timed.ok()) return fail(timed.status());
-        Row row{method.name, spp, timed->wall_seconds, timed->cpu_seconds, {}};
+        Row row{
+            method.name, spp, timed->wall_seconds + pilot_wall, timed->cpu_seconds + pilot_cpu, {}};
         for (Region& region : regions) {
           auto metrics =
               image::compare_spectral(timed->result.image, reference->image, region.crop);
@@ -223,7 +306,7 @@ int run(int argc, char** argv) {
               << absl::StrFormat("%.6g", row.rel_mse[0]) << "\n";
         }
         std::fprintf(stderr, "%s %s %llu spp: %.2f s, relMSE %.4g\n", scene->name.c_str(),
-                     method.name, static_cast<unsigned long long>(spp), row.seconds(setup),
+                     method.name.c_str(), static_cast<unsigned long long>(spp), row.seconds(setup),
                      row.rel_mse[0]);
       }
     }
@@ -245,7 +328,7 @@ int run(int argc, char** argv) {
     for (std::size_t r = 0; r < regions.size(); ++r) std::printf("---|---|---|");
     std::printf("\n");
     for (const Row& row : rows) {
-      std::printf("| %s | %llu | %.2f | %.2f |", row.method,
+      std::printf("| %s | %llu | %.2f | %.2f |", row.method.c_str(),
                   static_cast<unsigned long long>(row.spp), row.wall, row.cpu);
       for (std::size_t r = 0; r < regions.size(); ++r) {
         const double e = row.rel_mse[r] - regions[r].floor;
@@ -266,12 +349,12 @@ int run(int argc, char** argv) {
       auto u = error_at_time(region.curves["uniform"], t);
       std::printf("\n%s at %.2f s (uniform's longest run), relMSE - floor:", region.name.c_str(),
                   t);
-      for (const Method& method : kMethods) {
+      for (const Method& method : methods) {
         bool extrapolated = false;
         auto e = error_at_time(region.curves[method.name], t, &extrapolated);
         std::optional<double> ratio;
         if (e.has_value() && u.has_value()) ratio = *e / *u;
-        std::printf(" %s %s (ratio %s);", method.name,
+        std::printf(" %s %s (ratio %s);", method.name.c_str(),
                     e.has_value() ? absl::StrFormat("%.4g", *e).c_str() : "n/a",
                     ratio_text(ratio, extrapolated).c_str());
       }
