@@ -50,9 +50,7 @@ nlohmann::json to_json(const scene::LoadedScene& loaded, const scene::Bundle& bu
 
 absl::StatusOr<std::string> run_check(const CheckOptions& options) {
   PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library, spectral::SpectrumLibrary::load_builtin());
-  scene::LoadOptions load;
-  load.is_known_spectrum = [&](std::string_view name) { return library.contains(name); };
-  load.is_known_ior = [&](std::string_view name) { return library.find_ior(name) != nullptr; };
+  scene::LoadOptions load = scene::with_library_names(library);
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.scene, load));
   PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
                          scene::make_bundle(loaded.root, loaded.scene_relpath,

@@ -329,9 +329,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
 
   PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library,
                          spectral::SpectrumLibrary::load_builtin());
-  scene::LoadOptions load;
-  load.is_known_spectrum = [&](std::string_view name) { return library.contains(name); };
-  load.is_known_ior = [&](std::string_view name) { return library.find_ior(name) != nullptr; };
+  scene::LoadOptions load = scene::with_library_names(library);
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.scene, load));
   const scene::SceneDescription& description = loaded.description;
 

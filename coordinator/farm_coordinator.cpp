@@ -201,9 +201,7 @@ absl::StatusOr<std::string> FarmCoordinator::upload_bundle(const std::string& cl
     fs::remove_all(tmp, ec);
     return extracted;
   }
-  scene::LoadOptions load;
-  load.is_known_spectrum = [&](std::string_view name) { return library_.contains(name); };
-  load.is_known_ior = [&](std::string_view name) { return library_.find_ior(name) != nullptr; };
+  scene::LoadOptions load = scene::with_library_names(library_);
   absl::StatusOr<scene::LoadedScene> loaded = scene::load_scene(tmp / bundle.scene_path, load);
   if (!loaded.ok()) {
     fs::remove_all(tmp, ec);
@@ -287,9 +285,7 @@ std::vector<TaskSpec> FarmCoordinator::task_specs(const ActiveJob& job) const {
 
 absl::StatusOr<scene::LoadedScene> FarmCoordinator::load_bundle_scene(
     const std::string& hash, const std::string& scene_path) const {
-  scene::LoadOptions load;
-  load.is_known_spectrum = [&](std::string_view name) { return library_.contains(name); };
-  load.is_known_ior = [&](std::string_view name) { return library_.find_ior(name) != nullptr; };
+  scene::LoadOptions load = scene::with_library_names(library_);
   return scene::load_scene(scene_dir(hash) / scene_path, load);
 }
 
@@ -474,9 +470,7 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
     return absl::InvalidArgumentError(absl::StrCat(
         "scene_path '", spec.scene_path(), "' is not the bundle's scene '", bundle_scene, "'"));
   }
-  scene::LoadOptions load;
-  load.is_known_spectrum = [&](std::string_view name) { return library_.contains(name); };
-  load.is_known_ior = [&](std::string_view name) { return library_.find_ior(name) != nullptr; };
+  scene::LoadOptions load = scene::with_library_names(library_);
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded,
                          scene::load_scene(scene_dir(spec.bundle_hash()) / bundle_scene, load));
   PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, loaded.description));

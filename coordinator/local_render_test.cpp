@@ -18,9 +18,7 @@ class LocalRenderTest : public testing::Test {
     auto library = spectral::SpectrumLibrary::load_builtin();
     ASSERT_TRUE(library.ok()) << library.status();
     library_ = std::make_unique<spectral::SpectrumLibrary>(*std::move(library));
-    scene::LoadOptions load;
-    load.is_known_spectrum = [this](std::string_view n) { return library_->contains(n); };
-    load.is_known_ior = [this](std::string_view n) { return library_->find_ior(n) != nullptr; };
+    scene::LoadOptions load = scene::with_library_names(*library_);
     auto loaded = scene::load_scene(
         std::filesystem::path(PRISM_SOURCE_DIR) / "scenes/cornell-two-lights.pbrt", load);
     ASSERT_TRUE(loaded.ok()) << loaded.status();

@@ -49,9 +49,7 @@ class PipelineStatisticsTest : public testing::Test {
   }
 
   absl::StatusOr<scene::SceneDescription> load(const std::string& name) const {
-    scene::LoadOptions load;
-    load.is_known_spectrum = [this](std::string_view n) { return library_->contains(n); };
-    load.is_known_ior = [this](std::string_view n) { return library_->find_ior(n) != nullptr; };
+    scene::LoadOptions load = scene::with_library_names(*library_);
     PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded,
                            scene::load_scene(std::filesystem::path(PRISM_SOURCE_DIR) / name, load));
     return std::move(loaded.description);

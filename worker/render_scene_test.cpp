@@ -27,9 +27,7 @@ class RenderSceneTest : public ::testing::Test {
   }
 
   static scene::LoadOptions load_options() {
-    scene::LoadOptions o;
-    o.is_known_spectrum = [](std::string_view n) { return library_->contains(n); };
-    o.is_known_ior = [](std::string_view n) { return library_->find_ior(n) != nullptr; };
+    scene::LoadOptions o = scene::with_library_names(*library_);
     return o;
   }
   static scene::SceneDescription load(const std::string& relpath) {
@@ -92,6 +90,48 @@ class RenderSceneTest : public ::testing::Test {
 spectral::SpectrumLibrary* RenderSceneTest::library_ = nullptr;
 spectral::ColorMatching* RenderSceneTest::cmf_ = nullptr;
 EmbreeDevice* RenderSceneTest::device_ = nullptr;
+
+// pbrt-v4's metals, named as its scenes name them, load through the same name checks every
+// caller uses (scene::with_library_names) and build: metal-*-k is a spectrum and no IOR, so a
+// loader that checked a conductor's k as an IOR refused every such scene. Names of the wrong
+// kind are refused where they stand.
+TEST_F(RenderSceneTest, ConductorsTakeTheLibrarysMetalSpectra) {
+  auto gold = parse(R"(Camera "perspective"
+WorldBegin
+LightSource "point" "spectrum I" "stdillum-D65"
+Material "conductor" "spectrum eta" "metal-Au-eta" "spectrum k" "metal-Au-k"
+Shape "sphere" "float radius" 1
+)");
+  ASSERT_TRUE(gold.ok()) << gold.status();
+  auto rs = build(*gold);
+  ASSERT_TRUE(rs.ok()) << rs.status();
+  ASSERT_EQ((*rs)->materials().size(), 1u);
+  const auto& au = std::get<ConductorMaterial>((*rs)->materials()[0]);
+  for (float lambda : {450.0f, 550.0f, 650.0f}) {
+    EXPECT_EQ(spectral::eval(au.k, lambda),
+              spectral::eval(*library_->find_spectrum("metal-Au-k"), lambda));
+    EXPECT_EQ(spectral::eval(au.eta, lambda),
+              spectral::eval(*library_->find_spectrum("metal-Au-eta"), lambda));
+  }
+  // A metal the library does not have is refused where it stands.
+  auto platinum = parse(R"(WorldBegin
+Material "conductor" "spectrum k" "metal-Pt-k"
+Shape "sphere"
+)");
+  ASSERT_FALSE(platinum.ok());
+  EXPECT_EQ(std::string(platinum.status().message()),
+            "inline.pbrt:2:35: unknown named spectrum \"metal-Pt-k\"");
+  // metal-Au-k is a spectrum, not an index of refraction for a dielectric.
+  auto k_as_eta = parse(R"(WorldBegin
+Material "dielectric" "spectrum eta" "metal-Au-k"
+Shape "sphere"
+)");
+  ASSERT_FALSE(k_as_eta.ok());
+  EXPECT_NE(k_as_eta.status().message().find("inline.pbrt:2:"), std::string_view::npos)
+      << k_as_eta.status();
+  EXPECT_NE(k_as_eta.status().message().find("metal-Au-k"), std::string_view::npos)
+      << k_as_eta.status();
+}
 
 TEST_F(RenderSceneTest, PrismScene) {
   scene::SceneDescription desc = load("scenes/prism.pbrt");

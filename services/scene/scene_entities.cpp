@@ -345,8 +345,9 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     PRISM_ASSIGN_OR_RETURN(m.reflectance, params.find_spectrum("reflectance", SpectrumRole::kReflectance, ctx.spectra));
     if (m.reflectance && (params.has("eta") || params.has("k")))
       return param_error(params, "reflectance", "cannot be combined with eta or k");
-    PRISM_ASSIGN_OR_RETURN(m.eta, spectrum_or(params, "eta", SpectrumRole::kIor, ctx, SpectrumNamed{"metal-Cu-eta"}));
-    PRISM_ASSIGN_OR_RETURN(m.k, spectrum_or(params, "k", SpectrumRole::kIor, ctx, SpectrumNamed{"metal-Cu-k"}));
+    // The worker samples a conductor's η and k as spectra (metal-*-k is no IOR).
+    PRISM_ASSIGN_OR_RETURN(m.eta, spectrum_or(params, "eta", SpectrumRole::kUnbounded, ctx, SpectrumNamed{"metal-Cu-eta"}));
+    PRISM_ASSIGN_OR_RETURN(m.k, spectrum_or(params, "k", SpectrumRole::kUnbounded, ctx, SpectrumNamed{"metal-Cu-k"}));
     PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params));
     kind = std::move(m);
   } else if (type.name == "interface") {

@@ -16,9 +16,7 @@ absl::StatusOr<LoadedBenchScene> load_bench_scene(const std::filesystem::path& p
                          spectral::SpectrumLibrary::load_builtin());
   out.library = std::make_unique<spectral::SpectrumLibrary>(std::move(library));
   const spectral::SpectrumLibrary* lib = out.library.get();
-  scene::LoadOptions load;
-  load.is_known_spectrum = [lib](std::string_view name) { return lib->contains(name); };
-  load.is_known_ior = [lib](std::string_view name) { return lib->find_ior(name) != nullptr; };
+  scene::LoadOptions load = scene::with_library_names(*lib);
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(path, load));
   out.description = std::move(loaded.description);
   out.name = path.filename().string();

@@ -9,6 +9,7 @@
 #include "services/base/status.h"
 #include "services/image/tile_codec.h"
 #include "services/scene/path_guard.h"
+#include "services/scene/scene_loader.h"
 #include "services/spectral/pixel_tables.h"
 #include "worker/tile_renderer.h"
 
@@ -440,11 +441,7 @@ absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
     cached = CachedScene{};
     PRISM_ASSIGN_OR_RETURN(scene::PathGuard guard, scene::PathGuard::create(*dir));
     PRISM_ASSIGN_OR_RETURN(fs::path scene_file, guard.resolve(task.spec().scene_path()));
-    scene::LoadOptions load;
-    load.is_known_spectrum = [this](std::string_view name) { return library_.contains(name); };
-    load.is_known_ior = [this](std::string_view name) {
-      return library_.find_ior(name) != nullptr;
-    };
+    scene::LoadOptions load = scene::with_library_names(library_);
     PRISM_ASSIGN_OR_RETURN(cached.loaded, scene::load_scene(scene_file, load));
     cached.description_key = description_key;
   }

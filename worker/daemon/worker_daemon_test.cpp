@@ -318,9 +318,7 @@ class WorkerDaemonTest : public ::testing::Test {
 
   // The same task rendered here with TileRenderer: the bytes the worker must upload.
   std::string render_in_process(const v1::Lease& lease) {
-    scene::LoadOptions load;
-    load.is_known_spectrum = [&](std::string_view n) { return library_->contains(n); };
-    load.is_known_ior = [&](std::string_view n) { return library_->find_ior(n) != nullptr; };
+    scene::LoadOptions load = scene::with_library_names(*library_);
     auto loaded =
         scene::load_scene(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/furnace.pbrt", load);
     EXPECT_TRUE(loaded.ok()) << loaded.status();
