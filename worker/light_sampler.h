@@ -31,6 +31,11 @@ struct LightChoice {
   float pmf = 0;   // q(e | x, λ)
 };
 
+// The bins of the spectral factor's table Ê[e][b] in a render: fixed, not the job's bins, so
+// which emitter a path picks, and with it every sample's value at its own wavelengths (the RGB
+// outputs), does not depend on --bins.
+inline constexpr int kLightSelectionBins = 64;
+
 class LightSampler {
  public:
   // `lights` must outlive the sampler. The spatial grid (kSpatial) is estimated here from the

@@ -252,9 +252,11 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
   rs->camera_medium_ = scene.camera.medium;
 
   // The sampler keeps a pointer to lights_, which no longer changes.
+  PRISM_ASSIGN_OR_RETURN(spectral::WavelengthGrid selection_grid,
+                         spectral::WavelengthGrid::create(kLightSelectionBins));
   PRISM_ASSIGN_OR_RETURN(
       LightSampler sampler,
-      LightSampler::create(rs->lights_, *rs->geometry_, rs->grid_, options.light_selection,
+      LightSampler::create(rs->lights_, *rs->geometry_, selection_grid, options.light_selection,
                            options.spectral_light_selection));
   rs->light_sampler_ = std::make_unique<LightSampler>(std::move(sampler));
 
