@@ -410,7 +410,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
     PRISM_RETURN_IF_ERROR(coordinator::write_primal_and_gradient(
         *result->primal, *result->gradient, renderer->scene().cmf(), report, paths));
   }
-  PRISM_RETURN_IF_ERROR(coordinator::write_outputs(result->image, renderer->scene().cmf(), report,
+  PRISM_RETURN_IF_ERROR(coordinator::write_outputs(result->image, result->rgb, report,
                                                    paths, {static_cast<float>(options.exposure)}));
   const double seconds = report.render_seconds;
   return absl::StrCat(

@@ -411,7 +411,10 @@ absl::Status FarmCoordinator::attach_tiles(ActiveJob& job, const std::string& jo
 absl::Status FarmCoordinator::absorb_tile(ActiveJob& job, int tile, const image::TileResult& merged,
                                           const image::SpectralImage& finalised) const {
   job.statistics->add_tile(static_cast<std::size_t>(tile), merged);
-  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, to_linear_srgb(finalised, cmf_));
+  PRISM_ASSIGN_OR_RETURN(
+      image::RgbImage rgb,
+      tile_rgb(merged, finalised, job.params.render.integrator == worker::IntegratorKind::kGradient,
+               cmf_));
   PRISM_RETURN_IF_ERROR(job.rgb->paste(rgb, merged.rect().x0, merged.rect().y0));
   ++job.tiles_finalised;
   return absl::OkStatus();
@@ -1031,6 +1034,8 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
           it->second->params.render.integrator == worker::IntegratorKind::kGradient;
       if (prepass && !parsed->has_guides()) {
         problem = "a prepass result without guide buffers";
+      } else if (!prepass && !parsed->has_xyz()) {
+        problem = "a final-pass result without XYZ buffers (the RGB outputs need them)";
       } else if (!prepass && gradient && !parsed->has_gradients()) {
         problem = "a gradient job's result without gradients";
       } else if (!prepass && gradient &&

@@ -21,6 +21,7 @@
 #include "coordinator/testing/in_process_farm.h"
 #include "prism/v1/farm.grpc.pb.h"
 #include "prism/v1/worker.grpc.pb.h"
+#include "services/base/check.h"
 #include "services/base/sha256.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/tile_codec.h"
@@ -256,7 +257,7 @@ class FarmServerTest : public ::testing::Test {
     fs::create_directories(dir);
     OutputPaths paths{dir / "o.exr", dir / "o.rgb.exr", dir / "o.png", dir / "o.json"};
     RenderReport report;
-    EXPECT_TRUE(write_outputs(result->image, (*local)->scene().cmf(), report, paths, {}).ok());
+    EXPECT_TRUE(write_outputs(result->image, result->rgb, report, paths, {}).ok());
     auto exr = image::read_spectral_exr(paths.spectral_exr);
     EXPECT_TRUE(exr.ok()) << exr.status();
     return *std::move(exr);
@@ -458,9 +459,11 @@ TEST_F(FarmServerTest, AGradientResultWithoutGradientsIsTheWorkersFault) {
   std::optional<v1::Lease> lease = acquire(worker_id);
   ASSERT_TRUE(lease.has_value());
   const auto& t = lease->task().tile();
+  image::TileBuffers buffers;
+  buffers.xyz = true;  // what a final-pass result has, all but the gradients
   auto plain = image::TileResult::create(
       {t.x0(), t.y0(), t.x1(), t.y1()},
-      {lease->task().samples().begin(), lease->task().samples().end()}, 16);
+      {lease->task().samples().begin(), lease->task().samples().end()}, 16, buffers);
   ASSERT_TRUE(plain.ok()) << plain.status();
   const grpc::Status refused =
       complete(worker_id, lease->lease_id(), image::serialise_tile(*plain));
@@ -494,15 +497,26 @@ TEST_F(FarmServerTest, AWeightedGradientResultWithoutHalvesIsTheWorkersFault) {
   const std::string worker_id = register_worker();
   std::optional<v1::Lease> lease = acquire(worker_id);
   ASSERT_TRUE(lease.has_value());
-  const auto& t = lease->task().tile();
-  image::TileBuffers buffers;
-  buffers.gradients = true;
-  auto without = image::TileResult::create(
-      {t.x0(), t.y0(), t.x1(), t.y1()},
-      {lease->task().samples().begin(), lease->task().samples().end()}, 16, buffers);
-  ASSERT_TRUE(without.ok()) << without.status();
-  const grpc::Status refused =
-      complete(worker_id, lease->lease_id(), image::serialise_tile(*without));
+  // A final-pass result needs each sample's XYZ (the RGB outputs), and this job the halves.
+  auto empty_result = [](const v1::Lease& l, bool xyz) {
+    const auto& t = l.task().tile();
+    image::TileBuffers buffers;
+    buffers.gradients = true;
+    buffers.xyz = xyz;
+    auto r = image::TileResult::create({t.x0(), t.y0(), t.x1(), t.y1()},
+                                       {l.task().samples().begin(), l.task().samples().end()}, 16,
+                                       buffers);
+    PRISM_CHECK(r.ok());
+    return image::serialise_tile(*r);
+  };
+  const grpc::Status refused_xyz =
+      complete(worker_id, lease->lease_id(), empty_result(*lease, false));
+  EXPECT_EQ(refused_xyz.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(refused_xyz.error_message().find("without XYZ buffers"), std::string::npos)
+      << refused_xyz.error_message();
+  lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  const grpc::Status refused = complete(worker_id, lease->lease_id(), empty_result(*lease, true));
   EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_NE(refused.error_message().find("without halves"), std::string::npos)
       << refused.error_message();

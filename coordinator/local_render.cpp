@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "absl/strings/str_cat.h"
+#include "coordinator/outputs.h"
 #include "coordinator/tile_merge.h"
 #include "services/base/status.h"
 #include "services/spectral/pixel_tables.h"
@@ -220,6 +221,8 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   const int bins = scene_->grid().bins();
   PRISM_ASSIGN_OR_RETURN(image::SpectralImage image,
                          image::SpectralImage::create(options_.width, options_.height, bins));
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb,
+                         image::RgbImage::create(options_.width, options_.height));
   std::optional<image::SpectralImage> primal, gradient;
   const bool keep_raw = options_.keep_primal_and_gradients &&
                         options_.render.integrator == worker::IntegratorKind::kGradient;
@@ -333,6 +336,11 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
         PRISM_RETURN_IF_ERROR(
             image::paste_tile(image::finalise_gradients(merged), merged.rect(), *gradient));
       }
+      PRISM_ASSIGN_OR_RETURN(
+          image::RgbImage tile_colour,
+          tile_rgb(merged, finalised,
+                   options_.render.integrator == worker::IntegratorKind::kGradient, scene_->cmf()));
+      PRISM_RETURN_IF_ERROR(rgb.paste(tile_colour, merged.rect().x0, merged.rect().y0));
       return image::paste_tile(finalised, merged.rect(), image);
     };
     stage.finalise = finaliser_;
@@ -360,8 +368,8 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   stats.tasks = plan_.task_count();
   stats.tiles = static_cast<int>(plan_.tiles.size());
   stats.peak_tiles_in_flight = shared.peak_tiles_in_flight;
-  LocalRenderResult result{std::move(image), std::move(primal), std::move(gradient),
-                           statistics.finish(), stats};
+  LocalRenderResult result{std::move(image),    std::move(rgb),      std::move(primal),
+                           std::move(gradient), statistics.finish(), stats};
   result.prepass_tables = std::move(prepass_tables);
   return result;
 }

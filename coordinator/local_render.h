@@ -86,6 +86,8 @@ struct LocalRenderStats {
 struct LocalRenderResult {
   // Bin averages, width x height x bins; for a gradient job the Poisson reconstruction.
   image::SpectralImage image;
+  // Its linear sRGB for the RGB outputs, from each sample's exact wavelengths (tile_rgb).
+  image::RgbImage rgb;
   // Gradient jobs with keep_primal_and_gradients: the raw primal I and the gradient G (G[b]
   // estimates I[b+k] − I[b]), per-pixel means like `image`.
   std::optional<image::SpectralImage> primal;

@@ -209,6 +209,42 @@ absl::StatusOr<image::RgbImage> to_linear_srgb(const image::SpectralImage& spect
   return rgb;
 }
 
+absl::StatusOr<image::RgbImage> tile_rgb(const image::TileResult& merged,
+                                         const image::SpectralImage& finalised, bool reconstructed,
+                                         const spectral::ColorMatching& cmf) {
+  const image::TileRect& rect = merged.rect();
+  if (finalised.width() != rect.width() || finalised.height() != rect.height()) {
+    return absl::InvalidArgumentError(absl::StrCat("the finished tile is ", finalised.width(), "x",
+                                                   finalised.height(), ", its result ",
+                                                   image::to_string(rect)));
+  }
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, to_linear_srgb(finalised, cmf));
+  if (!merged.has_xyz()) return rgb;
+  std::optional<image::RgbImage> plain;
+  if (reconstructed) {
+    PRISM_ASSIGN_OR_RETURN(plain, to_linear_srgb(image::finalise(merged), cmf));
+  }
+  const std::span<const double> sums = merged.xyz_sums();
+  const std::span<const std::uint64_t> counts = merged.counts();
+  for (int y = 0; y < rect.height(); ++y) {
+    for (int x = 0; x < rect.width(); ++x) {
+      const std::size_t p = std::size_t(y) * rect.width() + x;
+      const double n = double(counts[p]);
+      const spectral::Xyz mean =
+          n > 0 ? spectral::Xyz{sums[p * 3] / n, sums[p * 3 + 1] / n, sums[p * 3 + 2] / n}
+                : spectral::Xyz{};
+      const spectral::Rgb c = spectral::xyz_to_linear_srgb(mean);
+      const double exact[3] = {c.r, c.g, c.b};
+      for (int k = 0; k < 3; ++k) {
+        double v = exact[k];
+        if (plain.has_value()) v += double(rgb.value(x, y, k)) - double(plain->value(x, y, k));
+        rgb.value(x, y, k) = static_cast<float>(v);
+      }
+    }
+  }
+  return rgb;
+}
+
 namespace {
 
 // A whole image as the row bands write_spectral_exr_rows asks for (valid while `image` lives).
@@ -366,6 +402,18 @@ absl::Status write_outputs(const image::SpectralImage& spectral, const spectral:
                            const RenderReport& report, const OutputPaths& paths,
                            const OutputOptions& options) {
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, to_linear_srgb(spectral, cmf));
+  return write_outputs(spectral.bins(), spectral.height(), rows_of(spectral), rgb, report, paths,
+                       options);
+}
+
+absl::Status write_outputs(const image::SpectralImage& spectral, const image::RgbImage& rgb,
+                           const RenderReport& report, const OutputPaths& paths,
+                           const OutputOptions& options) {
+  if (rgb.width() != spectral.width() || rgb.height() != spectral.height()) {
+    return absl::InvalidArgumentError(absl::StrCat("the RGB image is ", rgb.width(), "x",
+                                                   rgb.height(), ", the spectral image ",
+                                                   spectral.width(), "x", spectral.height()));
+  }
   return write_outputs(spectral.bins(), spectral.height(), rows_of(spectral), rgb, report, paths,
                        options);
 }

@@ -180,12 +180,26 @@ struct OutputOptions {
   float exposure_stops = 0.0f;  // PNG preview only
 };
 
+// The linear sRGB of one finished tile, as the RGB EXR and the PNG show it. With XYZ buffers
+// (final-pass results) it is the mean of the samples' own X, Y, Z, taken at their exact
+// wavelengths, so it does not depend on the bins (as pbrt-v4's RGB film); for a reconstructed
+// tile (`reconstructed`: a gradient job) the reconstruction's change of the bins' RGB is added,
+// RGB(finalised) − RGB(the bins' plain means). Without XYZ buffers, the bins' RGB
+// (to_linear_srgb of `finalised`). `finalised` must be the tile's finished bins (its rect's size).
+absl::StatusOr<image::RgbImage> tile_rgb(const image::TileResult& merged,
+                                         const image::SpectralImage& finalised, bool reconstructed,
+                                         const spectral::ColorMatching& cmf);
+
 // The report as a JSON document (non-finite numbers as null).
 std::string format_report_json(const RenderReport& report, const OutputPaths& paths);
 
 // Writes the four outputs. Each write is attempted; the error names every file that could not
 // be written and why (INTERNAL or the underlying code of the first failure).
 absl::Status write_outputs(const image::SpectralImage& spectral, const spectral::ColorMatching& cmf,
+                           const RenderReport& report, const OutputPaths& paths,
+                           const OutputOptions& options);
+// The same with the image's RGB given (tile_rgb, pasted).
+absl::Status write_outputs(const image::SpectralImage& spectral, const image::RgbImage& rgb,
                            const RenderReport& report, const OutputPaths& paths,
                            const OutputOptions& options);
 // The same from an image that is never whole in memory: its spectral rows come in bands of

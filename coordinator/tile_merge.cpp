@@ -40,7 +40,9 @@ std::array<std::uint8_t, 32> tile_result_digest(const image::TileResult& result)
                                  result.bins(),
                                  result.has_gradients(),
                                  result.has_guides(),
-                                 result.counter_count()};
+                                 result.counter_count(),
+                                 result.has_halves(),
+                                 result.has_xyz()};
   hash_span(hasher, std::span<const std::int64_t>(header));
   for (const std::string& name : result.buffers().counter_names) {
     hash_value(hasher, name.size());
@@ -50,6 +52,14 @@ std::array<std::uint8_t, 32> tile_result_digest(const image::TileResult& result)
   hash_span(hasher, result.sum_squares());
   hash_span(hasher, result.counts());
   hash_span(hasher, result.gradients());
+  hash_span(hasher, result.gradient_squares());
+  hash_span(hasher, result.half_sums());
+  hash_span(hasher, result.half_sum_squares());
+  hash_span(hasher, result.half_gradients());
+  hash_span(hasher, result.half_gradient_squares());
+  hash_span(hasher, result.half_counts());
+  hash_span(hasher, result.xyz_sums());
+  hash_span(hasher, result.xyz_squares());
   hash_span(hasher, result.depth());
   hash_span(hasher, result.normals());
   hash_span(hasher, result.albedo());

@@ -6,6 +6,7 @@
 #include <type_traits>
 
 #include "services/base/check.h"
+#include "services/spectral/color.h"
 #include "worker/bsdf.h"
 #include "worker/gradient_offset.h"
 #include "worker/gradient_shift.h"
@@ -565,6 +566,13 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       !std::isfinite(out.gradient_below)) {
     ++counters.non_finite;
     out.primal = out.gradient = out.gradient_below = 0;
+  } else if (out.primal != 0.0f) {
+    // primal is a per-bin average: times the bin width it is f/p at λ.
+    const double estimate = double(out.primal) * grid.bin_width();
+    const spectral::Xyz bar = scene_.cmf().cmf(lambda);
+    out.xyz[0] = bar.x * estimate;
+    out.xyz[1] = bar.y * estimate;
+    out.xyz[2] = bar.z * estimate;
   }
   return out;
 }

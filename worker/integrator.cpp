@@ -4,6 +4,7 @@
 #include <limits>
 
 #include "services/base/check.h"
+#include "services/spectral/color.h"
 #include "worker/bsdf.h"
 #include "worker/light.h"
 #include "worker/material.h"
@@ -399,11 +400,19 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
   const spectral::WavelengthGrid& grid = scene_.grid();
   const float inverse_width = 1.0f / float(grid.bin_width());
   bool finite = !path.radiance.has_non_finite();
+  const spectral::ColorMatching& cmf = scene_.cmf();
   for (int s = 0; s < lanes; ++s) {
     float pdf = path.lambda.pdf(s);
     out.bin[s] = grid.bin_of(path.lambda.lambda(s));
-    out.value[s] =
-        (finite && pdf > 0 && out.bin[s] >= 0) ? path.radiance[s] / pdf * inverse_width : 0.0f;
+    const bool counted = finite && pdf > 0 && out.bin[s] >= 0;
+    out.value[s] = counted ? path.radiance[s] / pdf * inverse_width : 0.0f;
+    if (counted && path.radiance[s] != 0.0f) {
+      const double estimate = double(path.radiance[s]) / pdf;
+      const spectral::Xyz bar = cmf.cmf(path.lambda.lambda(s));
+      out.xyz[0] += bar.x * estimate;
+      out.xyz[1] += bar.y * estimate;
+      out.xyz[2] += bar.z * estimate;
+    }
     if (out.bin[s] < 0) out.bin[s] = 0;
   }
   if (!finite) ++counters.non_finite;

@@ -45,6 +45,8 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
   buffers.guides = task.want_guides;
   buffers.gradients = gradient != nullptr;
   buffers.halves = gradient != nullptr && scene_.options().gradient_variances;
+  // The final pass's RGB comes from each sample's exact wavelengths, not from the bins.
+  buffers.xyz = !task.prepass;
   auto created = image::TileResult::create(task.tile, task.samples, bins, buffers);
   if (!created.ok()) return created.status();
   image::TileResult result = std::move(*created);
@@ -68,6 +70,8 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
   auto half_gradients = result.mutable_half_gradients();
   auto half_gradient_squares = result.mutable_half_gradient_squares();
   auto half_counts = result.mutable_half_counts();
+  auto xyz_sums = result.mutable_xyz_sums();
+  auto xyz_squares = result.mutable_xyz_squares();
 
   // Each pixel is owned by one thread and its samples are added in index order, so every
   // double in the result is the same whatever the scheduling.
@@ -98,6 +102,15 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
                   : spectral::WavelengthPdfView(job_pdf);
           double* pixel_sums = &sums[std::size_t(index) * bins];
           double* pixel_squares = &squares[std::size_t(index) * bins];
+          // A sample's X, Y, Z into the pixel's sums (in sample order, like the bins).
+          auto add_xyz = [&](const double* xyz) {
+            if (!buffers.xyz) return;
+            const std::size_t o = std::size_t(index) * 3;
+            for (int c = 0; c < 3; ++c) {
+              xyz_sums[o + c] += xyz[c];
+              xyz_squares[o + c] += xyz[c] * xyz[c];
+            }
+          };
           std::uint64_t guide_count = 0;
           float depth_sum = 0, albedo_sum = 0;
           Vec3f normal_sum;
@@ -111,6 +124,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
                 pixel_sums[g.bin] += v;
                 pixel_squares[g.bin] += v * v;
               }
+              add_xyz(g.xyz);
               double* pixel_gradients = &gradients[std::size_t(index) * bins];
               pixel_gradients[g.bin] += g.gradient;
               pixel_gradients[g.bin_below] += g.gradient_below;
@@ -144,6 +158,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
             SampleContribution c =
                 integrator_.trace(x, y, task.pass, std::uint32_t(s), lambda_pdf, local,
                                   task.want_guides ? &guide : nullptr, trace_options);
+            add_xyz(c.xyz);
             // Lanes that land in the same bin form one value of this sample for that bin, so
             // the sum of squares is that of per-sample bin values.
             for (int lane = 0; lane < c.lanes; ++lane) sample_values[c.bin[lane]] += c.value[lane];

@@ -206,6 +206,10 @@ absl::StatusOr<TileResult> TileResult::create(const TileRect& rect, const Sample
     }
     r.half_counts_.assign(area, 0);
   }
+  if (buffers.xyz) {
+    r.xyz_sums_.assign(area * 3, 0.0);
+    r.xyz_squares_.assign(area * 3, 0.0);
+  }
   if (buffers.guides) {
     r.depth_.assign(area, 0.0f);
     r.normals_.assign(area * 3, 0.0f);
@@ -277,7 +281,8 @@ absl::Status TileResult::add(const TileResult& other) {
   if (other.buffers_ != buffers_) {
     return absl::InvalidArgumentError(absl::StrCat(
         "cannot merge tile results of ", to_string(rect_),
-        " with different optional buffers (gradients, halves, guides or counter names differ)"));
+        " with different optional buffers (gradients, halves, xyz, guides or counter names "
+        "differ)"));
   }
   SampleRange merged;
   if (other.samples_.s0 == samples_.s1) {
@@ -301,6 +306,8 @@ absl::Status TileResult::add(const TileResult& other) {
   add_vectors(half_gradients_, other.half_gradients_);
   add_vectors(half_gradient_squares_, other.half_gradient_squares_);
   add_vectors(half_counts_, other.half_counts_);
+  add_vectors(xyz_sums_, other.xyz_sums_);
+  add_vectors(xyz_squares_, other.xyz_squares_);
   add_vectors(depth_, other.depth_);
   add_vectors(normals_, other.normals_);
   add_vectors(albedo_, other.albedo_);

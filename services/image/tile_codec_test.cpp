@@ -29,6 +29,8 @@ TileResult random_result(std::uint64_t seed, const TileBuffers& buffers) {
   for (double& v : result->mutable_half_gradients()) v = std::bit_cast<double>(rng());
   for (double& v : result->mutable_half_gradient_squares()) v = std::bit_cast<double>(rng());
   for (std::uint64_t& v : result->mutable_half_counts()) v = rng();
+  for (double& v : result->mutable_xyz_sums()) v = std::bit_cast<double>(rng());
+  for (double& v : result->mutable_xyz_squares()) v = std::bit_cast<double>(rng());
   for (float& v : result->mutable_depth()) v = std::bit_cast<float>(std::uint32_t(rng()));
   for (float& v : result->mutable_normals()) v = std::bit_cast<float>(std::uint32_t(rng()));
   for (float& v : result->mutable_albedo()) v = std::bit_cast<float>(std::uint32_t(rng()));
@@ -42,7 +44,8 @@ TileResult random_result(std::uint64_t seed, const TileBuffers& buffers) {
 TEST(TileCodec, RoundTripIsExact) {
   for (const TileBuffers& buffers :
        {TileBuffers{}, TileBuffers{true, false, {}}, TileBuffers{true, true, {"rays", "shifts"}},
-        TileBuffers{true, false, {"rays"}, true}}) {
+        TileBuffers{true, false, {"rays"}, true}, TileBuffers{false, false, {}, false, true},
+        TileBuffers{true, true, {"rays"}, true, true}}) {
     TileResult original = random_result(7, buffers);
     std::string bytes = serialise_tile(original);
     auto parsed = parse_tile(bytes);
@@ -69,6 +72,11 @@ TEST(TileCodec, RoundTripIsExact) {
       EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
     }
     EXPECT_TRUE(std::ranges::equal(parsed->half_counts(), original.half_counts()));
+    for (auto [a, b] : {std::pair{parsed->xyz_sums(), original.xyz_sums()},
+                        std::pair{parsed->xyz_squares(), original.xyz_squares()}}) {
+      ASSERT_EQ(a.size(), b.size());
+      EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
+    }
     EXPECT_EQ(serialise_tile(*parsed), bytes);
   }
 }
@@ -110,8 +118,11 @@ TEST(TileCodec, CorruptedHeadersAreRefusedWithClearErrors) {
   put_u32(bad, 8, 2);
   refused(bad, "version");
   bad = good;
-  put_u32(bad, 12, 8);
+  put_u32(bad, 12, 16);
   refused(bad, "flags");
+  bad = good;
+  put_u32(bad, 12, 2 | 8);  // xyz flag set: the payload is now too short
+  refused(bad, "payload");
   bad = good;
   put_u32(bad, 12, 4);  // halves alone
   refused(bad, "halves (variance buffers) but no gradients");
