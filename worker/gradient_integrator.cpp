@@ -118,8 +118,10 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
   for (Offset& o : offsets) o.medium = medium;
 
   const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
-  Ray ray =
-      scene_.camera().generate_ray({float(px) + film.u0, float(py) + film.u1}, {lens.u0, lens.u1});
+  // The film position from the pixel filter; the sample's value carries the filter's weight.
+  const FilterSample filtered = scene_.pixel_filter().sample(film.u0, film.u1);
+  Ray ray = scene_.camera().generate_ray({float(px) + filtered.x, float(py) + filtered.y},
+                                         {lens.u0, lens.u1});
   ++counters.camera_rays;
   if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
 
@@ -566,7 +568,12 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       !std::isfinite(out.gradient_below)) {
     ++counters.non_finite;
     out.primal = out.gradient = out.gradient_below = 0;
-  } else if (out.primal != 0.0f) {
+  } else if (filtered.weight != 1.0f) {
+    out.primal *= filtered.weight;
+    out.gradient *= filtered.weight;
+    out.gradient_below *= filtered.weight;
+  }
+  if (out.primal != 0.0f) {
     // primal is a per-bin average: times the bin width it is f/p at λ.
     const double estimate = double(out.primal) * grid.bin_width();
     const spectral::Xyz bar = scene_.cmf().cmf(lambda);

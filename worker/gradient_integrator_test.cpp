@@ -616,10 +616,11 @@ TEST_F(GradientIntegratorTest, PrimalIsTheUniformEstimatorSampleForSample) {
 // path at λ ± δ with equal densities, so per sample w = 1/2 and, exactly,
 //   G[i] = (c(λ+δ) − c(λ)) / 2,   G[i−k] = (c(λ) − c(λ−δ)) / 2,   c(λ) ∝ Le(λ).
 // With τ beyond every contribution nothing is shifted and G is the finite difference of the
-// sample's I bit for bit.
+// sample's I bit for bit. A unit box filter keeps every sample's filter weight exactly 1.
 constexpr char kEmitterInView[] = R"(LookAt 0 0 -3  0 0 0  0 1 0
 Camera "perspective" "float fov" 20
 Film "spectral" "integer xresolution" 4 "integer yresolution" 4 "integer nbuckets" 16
+PixelFilter "box"
 WorldBegin
 AttributeBegin
   AreaLightSource "diffuse" "spectrum L" [360 0.5 450 2 520 1 600 3 700 0.7 830 1.5]

@@ -111,8 +111,10 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
   path.medium = scene_.camera_medium();
 
   const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
-  Ray ray =
-      scene_.camera().generate_ray({float(px) + film.u0, float(py) + film.u1}, {lens.u0, lens.u1});
+  // The film position from the pixel filter; the sample's value carries the filter's weight.
+  const FilterSample filtered = scene_.pixel_filter().sample(film.u0, film.u1);
+  Ray ray = scene_.camera().generate_ray({float(px) + filtered.x, float(py) + filtered.y},
+                                         {lens.u0, lens.u1});
   ++counters.camera_rays;
   if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
 
@@ -405,9 +407,9 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     float pdf = path.lambda.pdf(s);
     out.bin[s] = grid.bin_of(path.lambda.lambda(s));
     const bool counted = finite && pdf > 0 && out.bin[s] >= 0;
-    out.value[s] = counted ? path.radiance[s] / pdf * inverse_width : 0.0f;
+    out.value[s] = counted ? path.radiance[s] / pdf * inverse_width * filtered.weight : 0.0f;
     if (counted && path.radiance[s] != 0.0f) {
-      const double estimate = double(path.radiance[s]) / pdf;
+      const double estimate = double(path.radiance[s]) / pdf * filtered.weight;
       const spectral::Xyz bar = cmf.cmf(path.lambda.lambda(s));
       out.xyz[0] += bar.x * estimate;
       out.xyz[1] += bar.y * estimate;

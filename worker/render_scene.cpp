@@ -204,6 +204,8 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
 
   PRISM_ASSIGN_OR_RETURN(rs->geometry_, Geometry::build(device, scene));
   PRISM_ASSIGN_OR_RETURN(rs->camera_, Camera::create(scene.camera, width, height));
+  PRISM_ASSIGN_OR_RETURN(PixelFilter filter, PixelFilter::create(scene.filter));
+  rs->pixel_filter_ = std::make_unique<PixelFilter>(std::move(filter));
 
   rs->materials_.reserve(scene.materials.size());
   for (const scene::Material& m : scene.materials) {

@@ -33,6 +33,7 @@
 #include "worker/light_sampler.h"
 #include "worker/material.h"
 #include "worker/medium.h"
+#include "worker/pixel_filter.h"
 #include "worker/render_options.h"
 
 namespace prism::worker {
@@ -72,6 +73,8 @@ class RenderScene {
 
   const Geometry& geometry() const { return *geometry_; }
   const Camera& camera() const { return camera_; }
+  // The scene's pixel filter (pbrt-v4's default gaussian when it names none).
+  const PixelFilter& pixel_filter() const { return *pixel_filter_; }
   const std::vector<Material>& materials() const { return materials_; }
   const std::vector<Light>& lights() const { return lights_; }
   const std::vector<HomogeneousMedium>& media() const { return media_; }
@@ -92,6 +95,7 @@ class RenderScene {
   RenderOptions options_;
   std::unique_ptr<Geometry> geometry_;
   Camera camera_;
+  std::unique_ptr<PixelFilter> pixel_filter_;
   std::vector<Material> materials_;
   std::vector<Light> lights_;
   std::vector<HomogeneousMedium> media_;

@@ -378,7 +378,7 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_RETURN_IF_ERROR(require_options(d, where));
     PRISM_RETURN_IF_ERROR(once(filter_at_, d, where));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
-    PRISM_RETURN_IF_ERROR(accept_pixel_filter(td.first, td.second, ctx_));
+    PRISM_ASSIGN_OR_RETURN(scene_.filter, make_pixel_filter(td.first, td.second));
   } else if (name == "ColorSpace") {
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "colour space name"));
     if (n.text != "srgb")

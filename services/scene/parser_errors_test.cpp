@@ -20,13 +20,16 @@ struct BadCase {
 };
 
 // gtest prints the parameter of a failing or listed test; name the file instead of dumping bytes.
-void PrintTo(const BadCase& c, std::ostream* os) { *os << c.file; }
+void PrintTo(const BadCase& c, std::ostream* os) {
+  *os << c.file;
+}
 
 const BadCase kBadCases[] = {
     {"unknown_directive.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_directive.pbrt:3:3: unknown directive 'Frobnicate'"},
     {"unknown_shape.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_shape.pbrt:2:7: unsupported shape type \"cone\" (supported: bilinearmesh, objmesh, plymesh, sphere, "
+     "unknown_shape.pbrt:2:7: unsupported shape type \"cone\" (supported: bilinearmesh, objmesh, "
+     "plymesh, sphere, "
      "trianglemesh)"},
     {"unused_parameter.pbrt", absl::StatusCode::kInvalidArgument,
      "unused_parameter.pbrt:3:3: unused parameter 'float radiu'"},
@@ -47,7 +50,8 @@ const BadCase kBadCases[] = {
     {"include_escape.pbrt", absl::StatusCode::kInvalidArgument,
      "include_escape.pbrt:2:9: path \"../outside.pbrt\" escapes the scene directory"},
     {"absolute_path.pbrt", absl::StatusCode::kInvalidArgument,
-     "absolute_path.pbrt:2:17: absolute path \"/etc/passwd\" refused: files must be named relative to the scene "
+     "absolute_path.pbrt:2:17: absolute path \"/etc/passwd\" refused: files must be named relative "
+     "to the scene "
      "file"},
     {"unterminated_string.pbrt", absl::StatusCode::kInvalidArgument,
      "unterminated_string.pbrt:2:35: unterminated string"},
@@ -56,18 +60,29 @@ const BadCase kBadCases[] = {
     {"undefined_named_material.pbrt", absl::StatusCode::kInvalidArgument,
      "undefined_named_material.pbrt:2:15: named material \"nope\" is not defined"},
     {"lambdamin.pbrt", absl::StatusCode::kInvalidArgument,
-     "lambdamin.pbrt:1:17: 'float lambdamin' must be 360 (Prism's spectral range is 360-830 nm), got 380"},
+     "lambdamin.pbrt:1:17: 'float lambdamin' must be 360 (Prism's spectral range is 360-830 nm), "
+     "got 380"},
     {"resolution_too_large.pbrt", absl::StatusCode::kInvalidArgument,
-     "resolution_too_large.pbrt:1:12: 'integer xresolution' must be between 1 and 16384, got 20000"},
+     "resolution_too_large.pbrt:1:12: 'integer xresolution' must be between 1 and 16384, got "
+     "20000"},
     {"unknown_named_spectrum.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_named_spectrum.pbrt:2:34: unknown named spectrum \"stdillum-F99\""},
     {"unknown_named_ior.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_named_ior.pbrt:2:38: unknown named spectrum \"glass-XYZ\""},
+    {"unknown_filter.pbrt", absl::StatusCode::kInvalidArgument,
+     "unknown_filter.pbrt:1:13: unsupported pixel filter type \"sinc\" (supported: box, gaussian, "
+     "triangle, mitchell, lanczos)"},
+    {"filter_parameter.pbrt", absl::StatusCode::kInvalidArgument,
+     "filter_parameter.pbrt:1:24: unused parameter 'float radius'"},
+    {"filter_radius.pbrt", absl::StatusCode::kInvalidArgument,
+     "filter_radius.pbrt:1:24: 'float xradius' must be between 0.01 and 16 pixels, got 0"},
     {"unknown_material.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_material.pbrt:2:10: unsupported material type \"plastic\" (supported: conductor, dielectric, diffuse, "
+     "unknown_material.pbrt:2:10: unsupported material type \"plastic\" (supported: conductor, "
+     "dielectric, diffuse, "
      "interface)"},
     {"unknown_light.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_light.pbrt:2:13: unsupported light type \"goniometric\" (supported: infinite, point, spot)"},
+     "unknown_light.pbrt:2:13: unsupported light type \"goniometric\" (supported: infinite, point, "
+     "spot)"},
     {"unknown_camera.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_camera.pbrt:1:8: unsupported camera type \"orthographic\" (supported: perspective)"},
     {"unknown_medium.pbrt", absl::StatusCode::kInvalidArgument,
@@ -75,7 +90,8 @@ const BadCase kBadCases[] = {
     {"undefined_medium.pbrt", absl::StatusCode::kInvalidArgument,
      "undefined_medium.pbrt:2:17: medium \"smoke\" is not defined"},
     {"partial_sphere.pbrt", absl::StatusCode::kInvalidArgument,
-     "partial_sphere.pbrt:2:16: 'float zmin' is not supported (only full spheres: zmin <= -radius)"},
+     "partial_sphere.pbrt:2:16: 'float zmin' is not supported (only full spheres: zmin <= "
+     "-radius)"},
     {"infinite_image.pbrt", absl::StatusCode::kInvalidArgument,
      "infinite_image.pbrt:2:24: 'string filename': image-based infinite lights are not supported"},
     {"shape_before_world.pbrt", absl::StatusCode::kInvalidArgument,
@@ -93,9 +109,11 @@ const BadCase kBadCases[] = {
     {"bad_index.pbrt", absl::StatusCode::kInvalidArgument,
      "bad_index.pbrt:2:53: 'integer indices' refers to vertex 3 but 'P' has 3 vertices"},
     {"film_sensor.pbrt", absl::StatusCode::kInvalidArgument,
-     "film_sensor.pbrt:1:12: 'string sensor' \"canon_eos_5d\" is not supported (supported: cie1931)"},
+     "film_sensor.pbrt:1:12: 'string sensor' \"canon_eos_5d\" is not supported (supported: "
+     "cie1931)"},
     {"two_iors.pbrt", absl::StatusCode::kInvalidArgument,
-     "two_iors.pbrt:2:39: 'float sellmeier' conflicts with another index of refraction (give one of eta, cauchy, "
+     "two_iors.pbrt:2:39: 'float sellmeier' conflicts with another index of refraction (give one "
+     "of eta, cauchy, "
      "sellmeier)"},
     {"texture.pbrt", absl::StatusCode::kInvalidArgument,
      "texture.pbrt:3:1: directive 'Texture' is not supported by Prism"},
@@ -109,7 +127,8 @@ class BadSceneTest : public ::testing::TestWithParam<BadCase> {};
 
 TEST_P(BadSceneTest, FailsWithExactMessage) {
   const BadCase& c = GetParam();
-  std::filesystem::path dir = std::filesystem::path(PRISM_SOURCE_DIR) / "services/scene/testdata/parser/bad";
+  std::filesystem::path dir =
+      std::filesystem::path(PRISM_SOURCE_DIR) / "services/scene/testdata/parser/bad";
   LoadOptions options;
   // As the built-in library has them: metal η tables are spectra and IORs, k tables spectra only.
   std::set<std::string, std::less<>> spectra = {"stdillum-A", "stdillum-D65", "stdillum-F11",
@@ -131,7 +150,8 @@ INSTANTIATE_TEST_SUITE_P(Corpus, BadSceneTest, ::testing::ValuesIn(kBadCases),
                          });
 
 TEST(BadSceneCorpus, EveryFileHasACase) {
-  std::filesystem::path dir = std::filesystem::path(PRISM_SOURCE_DIR) / "services/scene/testdata/parser/bad";
+  std::filesystem::path dir =
+      std::filesystem::path(PRISM_SOURCE_DIR) / "services/scene/testdata/parser/bad";
   std::set<std::string> listed;
   for (const BadCase& c : kBadCases) listed.insert(c.file);
   for (const auto& e : std::filesystem::directory_iterator(dir))
@@ -151,44 +171,55 @@ const MemoryCase kMemoryCases[] = {
     {"Camera \"perspective\"\nCamera \"perspective\"\nWorldBegin\n",
      "m.pbrt:2:1: 'Camera' given twice (first at m.pbrt:1:1)"},
     {"WorldBegin\nWorldBegin\n", "m.pbrt:2:1: 'WorldBegin' given twice (first at m.pbrt:1:1)"},
-    {"WorldBegin\nMakeNamedMaterial \"m\" \"string type\" \"diffuse\"\nMakeNamedMaterial \"m\" \"string type\" "
+    {"WorldBegin\nMakeNamedMaterial \"m\" \"string type\" \"diffuse\"\nMakeNamedMaterial \"m\" "
+     "\"string type\" "
      "\"diffuse\"\n",
      "m.pbrt:3:19: named material \"m\" redefined (first at m.pbrt:2:1)"},
     {"WorldBegin\nMakeNamedMaterial \"m\" \"rgb reflectance\" [1 1 1]\n",
      "m.pbrt:2:1: 'MakeNamedMaterial' needs a 'string type' parameter"},
     {"WorldBegin\nObjectBegin \"o\"\nAreaLightSource \"diffuse\"\nShape \"sphere\"\n",
      "m.pbrt:4:1: area lights inside ObjectBegin/ObjectEnd are not supported"},
-    {"WorldBegin\nObjectBegin \"o\"\nShape \"sphere\"\n", "m.pbrt:2:1: ObjectBegin \"o\" is never closed by ObjectEnd"},
+    {"WorldBegin\nObjectBegin \"o\"\nShape \"sphere\"\n",
+     "m.pbrt:2:1: ObjectBegin \"o\" is never closed by ObjectEnd"},
     {"WorldBegin\nObjectEnd\n", "m.pbrt:2:1: unmatched 'ObjectEnd'"},
     {"WorldBegin\nObjectInstance \"o\"\n", "m.pbrt:2:16: object \"o\" is not defined"},
-    {"WorldBegin\nTransformBegin\nAttributeEnd\n", "m.pbrt:3:1: 'AttributeEnd' closes the TransformBegin at m.pbrt:2:1"},
+    {"WorldBegin\nTransformBegin\nAttributeEnd\n",
+     "m.pbrt:3:1: 'AttributeEnd' closes the TransformBegin at m.pbrt:2:1"},
     {"WorldBegin\nMaterial \"diffuse\" \"rgb reflectance\" [0.5 1.5 0]\n",
      "m.pbrt:2:38: 'rgb reflectance' is a reflectance and has a component > 1"},
-    {"WorldBegin\nMaterial \"conductor\" \"rgb reflectance\" [0.5 0.5 0] \"spectrum eta\" \"metal-Ag-eta\"\n",
+    {"WorldBegin\nMaterial \"conductor\" \"rgb reflectance\" [0.5 0.5 0] \"spectrum eta\" "
+     "\"metal-Ag-eta\"\n",
      "m.pbrt:2:22: 'rgb reflectance' cannot be combined with eta or k"},
-    {"WorldBegin\nShape \"trianglemesh\" \"integer indices\" [0 1 2]\n", "m.pbrt:2:7: \"trianglemesh\" needs 'point3 P'"},
+    {"WorldBegin\nShape \"trianglemesh\" \"integer indices\" [0 1 2]\n",
+     "m.pbrt:2:7: \"trianglemesh\" needs 'point3 P'"},
     {"WorldBegin\nShape \"trianglemesh\" \"point3 P\" [0 0 0 1 0 0 0 1 0 1 1 1]\n",
-     "m.pbrt:2:7: \"trianglemesh\" needs 'integer indices' (only a single triangle of 3 vertices may omit them)"},
+     "m.pbrt:2:7: \"trianglemesh\" needs 'integer indices' (only a single triangle of 3 vertices "
+     "may omit them)"},
     {"WorldBegin\nRotate 30 0 0 0\n", "m.pbrt:2:1: 'Rotate' needs a non-zero axis"},
-    {"Transform [1 0 0 0 0 1 0 0 0 0 0 0 0 0 0 1]\nWorldBegin\n", "m.pbrt:1:1: 'Transform' matrix is singular"},
+    {"Transform [1 0 0 0 0 1 0 0 0 0 0 0 0 0 0 1]\nWorldBegin\n",
+     "m.pbrt:1:1: 'Transform' matrix is singular"},
     {"WorldBegin\n\"oops\"\n", "m.pbrt:2:1: expected a directive, found string \"oops\""},
-    {"LookAt 0 0 0 0 0 1 0 1\nWorldBegin\n", "m.pbrt:2:1: expected a number for 'LookAt', found 'WorldBegin'"},
+    {"LookAt 0 0 0 0 0 1 0 1\nWorldBegin\n",
+     "m.pbrt:2:1: expected a number for 'LookAt', found 'WorldBegin'"},
     {"WorldBegin\nShape \"sphere\" \"float phimax\" 180\n",
      "m.pbrt:2:16: 'float phimax' is not supported (only full spheres: phimax >= 360)"},
-    {"WorldBegin\nCoordSysTransform \"lamp\"\n", "m.pbrt:2:19: coordinate system \"lamp\" is not defined"},
+    {"WorldBegin\nCoordSysTransform \"lamp\"\n",
+     "m.pbrt:2:19: coordinate system \"lamp\" is not defined"},
     {"WorldBegin\nMaterial \"dielectric\" \"rgb eta\" [1.5 1.5 1.5]\n",
      "m.pbrt:2:23: 'rgb eta' cannot be an rgb value; use a float or a spectrum"},
     {"WorldBegin\nMaterial \"dielectric\" \"float sellmeier\" [1 2 3]\n",
      "m.pbrt:2:23: 'float sellmeier' needs 6 coefficients [B1 B2 B3 C1 C2 C3] (C in um^2), got 3"},
     {"WorldBegin\nMaterial \"diffuse\" \"texture reflectance\" \"checks\"\n",
-     "m.pbrt:2:20: parameter 'reflectance' has type 'texture', expected 'spectrum' or 'rgb' or 'blackbody' or 'float'"},
+     "m.pbrt:2:20: parameter 'reflectance' has type 'texture', expected 'spectrum' or 'rgb' or "
+     "'blackbody' or 'float'"},
     {"Camera \"perspective\" \"float shutteropen\" 0\nWorldBegin\n",
      "m.pbrt:1:22: 'float shutteropen': motion blur is not supported"},
     {"WorldBegin\nLightSource \"spot\" \"float coneangle\" 10 \"float conedeltaangle\" 20\n",
      "m.pbrt:2:41: 'float conedeltaangle' must be between 0 and coneangle, got 20"},
     {"MakeNamedMedium \"m\" \"string type\" \"homogeneous\" \"float g\" 1\nWorldBegin\n",
      "m.pbrt:1:49: 'float g' must be in (-1, 1), got 1"},
-    {"WorldBegin\nAttributeBegin\n  ReverseOrientation\nAttributeEnd\nShape \"sphere\" \"float radius\" -1\n",
+    {"WorldBegin\nAttributeBegin\n  ReverseOrientation\nAttributeEnd\nShape \"sphere\" \"float "
+     "radius\" -1\n",
      "m.pbrt:5:16: 'float radius' must be > 0, got -1"},
 };
 

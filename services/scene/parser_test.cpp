@@ -56,7 +56,8 @@ TEST(GoodScenes, CameraLookingDownPlusZIsTheWorldFrame) {
   EXPECT_EQ(std::get<SphereShape>(s.shapes[0].geometry).radius, 1.0);
   ASSERT_EQ(s.warnings.size(), 1u);
   EXPECT_EQ(s.warnings[0],
-            "camera.pbrt:8:9: warning: sampler \"halton\": Prism uses its own sample sequence; 64 samples per "
+            "camera.pbrt:8:9: warning: sampler \"halton\": Prism uses its own sample sequence; 64 "
+            "samples per "
             "pixel become the default spp");
   EXPECT_EQ(s.files, (std::vector<std::string>{"camera.pbrt"}));
 }
@@ -104,13 +105,17 @@ TEST(GoodScenes, Materials) {
   auto material_of = [&](size_t shape) -> const Material& {
     return s.materials[static_cast<size_t>(s.shapes[shape].material)];
   };
-  EXPECT_EQ(std::get<DiffuseMaterial>(material_of(0).kind).reflectance, SpectrumParam(SpectrumConstant{0.5}));
-  EXPECT_EQ(std::get<DiffuseMaterial>(material_of(1).kind).reflectance, SpectrumParam(SpectrumRgb{0.1, 0.2, 0.3}));
-  const auto& inline_table = std::get<SpectrumTabulated>(std::get<DiffuseMaterial>(material_of(2).kind).reflectance);
+  EXPECT_EQ(std::get<DiffuseMaterial>(material_of(0).kind).reflectance,
+            SpectrumParam(SpectrumConstant{0.5}));
+  EXPECT_EQ(std::get<DiffuseMaterial>(material_of(1).kind).reflectance,
+            SpectrumParam(SpectrumRgb{0.1, 0.2, 0.3}));
+  const auto& inline_table =
+      std::get<SpectrumTabulated>(std::get<DiffuseMaterial>(material_of(2).kind).reflectance);
   EXPECT_EQ(inline_table.wavelengths_nm, (std::vector<double>{400, 500, 700}));
   EXPECT_EQ(inline_table.values, (std::vector<double>{0.1, 0.5, 0.9}));
   EXPECT_EQ(inline_table.source, "inline");
-  const auto& file_table = std::get<SpectrumTabulated>(std::get<DiffuseMaterial>(material_of(3).kind).reflectance);
+  const auto& file_table =
+      std::get<SpectrumTabulated>(std::get<DiffuseMaterial>(material_of(3).kind).reflectance);
   EXPECT_EQ(file_table.source, "spectra/white.csv");
   EXPECT_EQ(file_table.wavelengths_nm, (std::vector<double>{400, 550, 700}));
   EXPECT_EQ(file_table.values, (std::vector<double>{0.5, 0.6, 0.7}));
@@ -206,13 +211,16 @@ Vec3 triangle_normal(const TriangleMeshData& m, size_t t) {
   Vec3 a = p(0), b = p(1), c = p(2);
   Vec3 e0{a[0] - c[0], a[1] - c[1], a[2] - c[2]};
   Vec3 e1{b[0] - c[0], b[1] - c[1], b[2] - c[2]};
-  return {e0[1] * e1[2] - e0[2] * e1[1], e0[2] * e1[0] - e0[0] * e1[2], e0[0] * e1[1] - e0[1] * e1[0]};
+  return {e0[1] * e1[2] - e0[2] * e1[1], e0[2] * e1[0] - e0[0] * e1[2],
+          e0[0] * e1[1] - e0[1] * e1[0]};
 }
 
 TEST(GoodScenes, MeshesIncludesAndFiles) {
   SceneDescription s = load_good("meshes.pbrt");
   ASSERT_EQ(s.shapes.size(), 8u);
-  auto mesh = [&](size_t i) -> const TriangleMeshShape& { return std::get<TriangleMeshShape>(s.shapes[i].geometry); };
+  auto mesh = [&](size_t i) -> const TriangleMeshShape& {
+    return std::get<TriangleMeshShape>(s.shapes[i].geometry);
+  };
   EXPECT_EQ(mesh(0).source, "trianglemesh");
   EXPECT_EQ(mesh(0).mesh->positions.size(), 4u);
   EXPECT_EQ(mesh(0).mesh->triangles.size(), 2u);
@@ -237,8 +245,8 @@ TEST(GoodScenes, MeshesIncludesAndFiles) {
   EXPECT_EQ(s.shapes[6].where.line, 5);
   EXPECT_TRUE(s.shapes[7].object_to_world.is_identity());
   EXPECT_EQ(s.triangle_count(), 11u);
-  EXPECT_EQ(s.files, (std::vector<std::string>{"meshes.pbrt", "meshes/tri.obj", "meshes/quad.ply", "sub/part.pbrt",
-                                               "sub/local.obj"}));
+  EXPECT_EQ(s.files, (std::vector<std::string>{"meshes.pbrt", "meshes/tri.obj", "meshes/quad.ply",
+                                               "sub/part.pbrt", "sub/local.obj"}));
 }
 
 TEST(GoodScenes, ObjectInstancesAreFlattenedWithComposedTransforms) {
@@ -260,14 +268,20 @@ TEST(GoodScenes, AcceptedButChangedInputIsReportedAsWarnings) {
   EXPECT_EQ(s.integrator.name, "mystery");
   EXPECT_FALSE(s.integrator.name_recognised);
   EXPECT_EQ(s.integrator.max_depth, 7);
+  // The pixel filter is pbrt-v4's, no longer ignored.
+  EXPECT_EQ(s.filter.type, PixelFilterType::kGaussian);
+  EXPECT_EQ(s.filter.x_radius, 1.5);
+  EXPECT_EQ(s.filter.y_radius, 1.25);
+  EXPECT_EQ(s.filter.sigma, 0.5);
   EXPECT_EQ(s.warnings,
             (std::vector<std::string>{
-                "warnings.pbrt:1:9: warning: sampler \"stratified\": Prism uses its own sample sequence; 15 samples "
+                "warnings.pbrt:1:9: warning: sampler \"stratified\": Prism uses its own sample "
+                "sequence; 15 samples "
                 "per pixel become the default spp",
-                "warnings.pbrt:2:12: warning: unknown integrator \"mystery\"; Prism renders with its spectral path "
+                "warnings.pbrt:2:12: warning: unknown integrator \"mystery\"; Prism renders with "
+                "its spectral path "
                 "tracer",
                 "warnings.pbrt:2:43: warning: integrator parameter 'bool regularize' ignored",
-                "warnings.pbrt:3:13: warning: pixel filter \"gaussian\" ignored; Prism uses its own",
                 "warnings.pbrt:4:8: warning: Option 'disablepixeljitter' ignored",
                 "warnings.pbrt:6:1: warning: AttributeBegin is never closed",
             }));

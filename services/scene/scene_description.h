@@ -79,6 +79,18 @@ struct Film {
   SourceLocation where;
 };
 
+// pbrt-v4's PixelFilter, with pbrt-v4's defaults: no directive means a gaussian of radius 1.5
+// and sigma 0.5. Every filter pbrt-v4 has is separable: f(x, y) = f_x(x)·f_y(y).
+enum class PixelFilterType { kBox, kGaussian, kTriangle, kMitchell, kLanczos };
+struct PixelFilterSpec {
+  PixelFilterType type = PixelFilterType::kGaussian;
+  double x_radius = 1.5, y_radius = 1.5;  // pixels
+  double sigma = 0.5;                     // gaussian
+  double b = 1.0 / 3.0, c = 1.0 / 3.0;    // mitchell
+  double tau = 3.0;                       // lanczos
+  SourceLocation where;                   // unset: the default
+};
+
 struct SamplerSpec {
   std::string name = "zsobol";  // as written; Prism always uses its own sequence
   int samples_per_pixel = 16;
@@ -119,7 +131,8 @@ struct ConductorMaterial {
 // No surface scattering: marks a boundary between media.
 struct InterfaceMaterial {};
 
-using MaterialKind = std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial, InterfaceMaterial>;
+using MaterialKind =
+    std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial, InterfaceMaterial>;
 
 struct Material {
   std::string name;  // empty for anonymous `Material` directives and the default material
@@ -220,6 +233,7 @@ struct Medium {
 struct SceneDescription {
   Camera camera;
   Film film;
+  PixelFilterSpec filter;
   SamplerSpec sampler;
   IntegratorSpec integrator;
   std::vector<Shape> shapes;

@@ -321,10 +321,43 @@ absl::StatusOr<IntegratorSpec> make_integrator(const TypeName& type, const Param
   return s;
 }
 
-absl::Status accept_pixel_filter(const TypeName& type, const ParameterList& params, const EntityContext& ctx) {
-  for (const Parameter& p : params.parameters()) p.used = true;
-  add_warning(ctx, type.where, absl::StrCat("pixel filter \"", type.name, "\" ignored; Prism uses its own"));
-  return absl::OkStatus();
+absl::StatusOr<PixelFilterSpec> make_pixel_filter(const TypeName& type, const ParameterList& params) {
+  PixelFilterSpec f;
+  f.where = type.where;
+  double radius = 0;
+  if (type.name == "box") {
+    f.type = PixelFilterType::kBox;
+    radius = 0.5;
+  } else if (type.name == "gaussian") {
+    f.type = PixelFilterType::kGaussian;
+    radius = 1.5;
+    PRISM_ASSIGN_OR_RETURN(f.sigma, params.get_float("sigma", 0.5));
+    PRISM_RETURN_IF_ERROR(check_range(params, "sigma", f.sigma, 1e-3, 1e3, "between 0.001 and 1000"));
+  } else if (type.name == "triangle") {
+    f.type = PixelFilterType::kTriangle;
+    radius = 2;
+  } else if (type.name == "mitchell") {
+    f.type = PixelFilterType::kMitchell;
+    radius = 2;
+    PRISM_ASSIGN_OR_RETURN(f.b, params.get_float("B", 1.0 / 3.0));
+    PRISM_ASSIGN_OR_RETURN(f.c, params.get_float("C", 1.0 / 3.0));
+    PRISM_RETURN_IF_ERROR(check_range(params, "B", f.b, -10, 10, "between -10 and 10"));
+    PRISM_RETURN_IF_ERROR(check_range(params, "C", f.c, -10, 10, "between -10 and 10"));
+  } else if (type.name == "lanczos") {
+    f.type = PixelFilterType::kLanczos;
+    radius = 4;
+    PRISM_ASSIGN_OR_RETURN(f.tau, params.get_float("tau", 3.0));
+    PRISM_RETURN_IF_ERROR(check_range(params, "tau", f.tau, 1e-3, 1e3, "between 0.001 and 1000"));
+  } else {
+    return unsupported_type(type, "pixel filter", {"box", "gaussian", "triangle", "mitchell", "lanczos"});
+  }
+  PRISM_ASSIGN_OR_RETURN(f.x_radius, params.get_float("xradius", radius));
+  PRISM_ASSIGN_OR_RETURN(f.y_radius, params.get_float("yradius", radius));
+  // A radius beyond 16 pixels would only blur; 0.01 keeps a box a box.
+  PRISM_RETURN_IF_ERROR(check_range(params, "xradius", f.x_radius, 0.01, 16, "between 0.01 and 16 pixels"));
+  PRISM_RETURN_IF_ERROR(check_range(params, "yradius", f.y_radius, 0.01, 16, "between 0.01 and 16 pixels"));
+  PRISM_RETURN_IF_ERROR(params.check_all_used());
+  return f;
 }
 
 absl::StatusOr<MaterialKind> make_material(const TypeName& type, const ParameterList& params,

@@ -43,9 +43,9 @@ absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterLi
                                          const EntityContext& ctx);
 absl::StatusOr<IntegratorSpec> make_integrator(const TypeName& type, const ParameterList& params,
                                                const EntityContext& ctx);
-// A pixel filter is accepted and ignored with a warning (Prism reconstructs with its own).
-absl::Status accept_pixel_filter(const TypeName& type, const ParameterList& params,
-                                 const EntityContext& ctx);
+// box, gaussian, triangle, mitchell and lanczos with pbrt-v4's parameters and defaults.
+absl::StatusOr<PixelFilterSpec> make_pixel_filter(const TypeName& type,
+                                                  const ParameterList& params);
 absl::StatusOr<MaterialKind> make_material(const TypeName& type, const ParameterList& params,
                                            const EntityContext& ctx);
 // `ctm` is the current transform at the directive (pbrt-v4 renderFromLight starts from it).
