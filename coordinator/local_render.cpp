@@ -223,6 +223,8 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
                          image::SpectralImage::create(options_.width, options_.height, bins));
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb,
                          image::RgbImage::create(options_.width, options_.height));
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb_standard_error,
+                         image::RgbImage::create(options_.width, options_.height));
   std::optional<image::SpectralImage> primal, gradient;
   const bool keep_raw = options_.keep_primal_and_gradients &&
                         options_.render.integrator == worker::IntegratorKind::kGradient;
@@ -341,6 +343,9 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
           tile_rgb(merged, finalised,
                    options_.render.integrator == worker::IntegratorKind::kGradient, scene_->cmf()));
       PRISM_RETURN_IF_ERROR(rgb.paste(tile_colour, merged.rect().x0, merged.rect().y0));
+      PRISM_ASSIGN_OR_RETURN(image::RgbImage tile_error, tile_rgb_standard_error(merged));
+      PRISM_RETURN_IF_ERROR(
+          rgb_standard_error.paste(tile_error, merged.rect().x0, merged.rect().y0));
       return image::paste_tile(finalised, merged.rect(), image);
     };
     stage.finalise = finaliser_;
@@ -368,8 +373,13 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   stats.tasks = plan_.task_count();
   stats.tiles = static_cast<int>(plan_.tiles.size());
   stats.peak_tiles_in_flight = shared.peak_tiles_in_flight;
-  LocalRenderResult result{std::move(image),    std::move(rgb),      std::move(primal),
-                           std::move(gradient), statistics.finish(), stats};
+  LocalRenderResult result{std::move(image),
+                           std::move(rgb),
+                           std::move(rgb_standard_error),
+                           std::move(primal),
+                           std::move(gradient),
+                           statistics.finish(),
+                           stats};
   result.prepass_tables = std::move(prepass_tables);
   return result;
 }

@@ -86,8 +86,11 @@ struct LocalRenderStats {
 struct LocalRenderResult {
   // Bin averages, width x height x bins; for a gradient job the Poisson reconstruction.
   image::SpectralImage image;
-  // Its linear sRGB for the RGB outputs, from each sample's exact wavelengths (tile_rgb).
+  // Its linear sRGB for the RGB outputs, from each sample's exact wavelengths (tile_rgb), and
+  // each pixel's standard error of that mean (tile_rgb_standard_error; for a gradient job that
+  // of the exact part, before the reconstruction's change).
   image::RgbImage rgb;
+  image::RgbImage rgb_standard_error;
   // Gradient jobs with keep_primal_and_gradients: the raw primal I and the gradient G (G[b]
   // estimates I[b+k] − I[b]), per-pixel means like `image`.
   std::optional<image::SpectralImage> primal;

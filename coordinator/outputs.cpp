@@ -245,6 +245,36 @@ absl::StatusOr<image::RgbImage> tile_rgb(const image::TileResult& merged,
   return rgb;
 }
 
+absl::StatusOr<image::RgbImage> tile_rgb_standard_error(const image::TileResult& merged) {
+  if (!merged.has_xyz()) {
+    return absl::FailedPreconditionError(absl::StrCat(
+        "tile ", image::to_string(merged.rect()), " has no XYZ buffers: no RGB standard errors"));
+  }
+  const image::TileRect& rect = merged.rect();
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage out, image::RgbImage::create(rect.width(), rect.height()));
+  const std::span<const double> sums = merged.xyz_sums();
+  const std::span<const double> squares = merged.rgb_squares();
+  const std::span<const std::uint64_t> counts = merged.counts();
+  for (int y = 0; y < rect.height(); ++y) {
+    for (int x = 0; x < rect.width(); ++x) {
+      const std::size_t p = std::size_t(y) * rect.width() + x;
+      const double n = double(counts[p]);
+      const spectral::Rgb mean =
+          n > 0 ? spectral::xyz_to_linear_srgb(
+                      {sums[p * 3] / n, sums[p * 3 + 1] / n, sums[p * 3 + 2] / n})
+                : spectral::Rgb{};
+      const double means[3] = {mean.r, mean.g, mean.b};
+      for (int c = 0; c < 3; ++c) {
+        const double variance =
+            n >= 2 ? std::max(0.0, squares[p * 3 + c] / n - means[c] * means[c]) / (n - 1)
+                   : std::nan("");
+        out.value(x, y, c) = static_cast<float>(std::sqrt(variance));
+      }
+    }
+  }
+  return out;
+}
+
 namespace {
 
 // A whole image as the row bands write_spectral_exr_rows asks for (valid while `image` lives).

@@ -190,6 +190,11 @@ absl::StatusOr<image::RgbImage> tile_rgb(const image::TileResult& merged,
                                          const image::SpectralImage& finalised, bool reconstructed,
                                          const spectral::ColorMatching& cmf);
 
+// The standard error of each pixel's RGB mean over its samples' own X, Y, Z (tile_rgb without a
+// reconstruction's change), from the samples' RGB squares: sqrt((Σc²/n − c̄²)/(n − 1)). NaN for
+// a pixel with fewer than 2 samples; FAILED_PRECONDITION without XYZ buffers.
+absl::StatusOr<image::RgbImage> tile_rgb_standard_error(const image::TileResult& merged);
+
 // The report as a JSON document (non-finite numbers as null).
 std::string format_report_json(const RenderReport& report, const OutputPaths& paths);
 

@@ -59,7 +59,7 @@ std::array<std::uint8_t, 32> tile_result_digest(const image::TileResult& result)
   hash_span(hasher, result.half_gradient_squares());
   hash_span(hasher, result.half_counts());
   hash_span(hasher, result.xyz_sums());
-  hash_span(hasher, result.xyz_squares());
+  hash_span(hasher, result.rgb_squares());
   hash_span(hasher, result.depth());
   hash_span(hasher, result.normals());
   hash_span(hasher, result.albedo());

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "absl/strings/str_cat.h"
+#include "services/spectral/color.h"
 
 namespace prism::worker {
 
@@ -71,7 +72,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
   auto half_gradient_squares = result.mutable_half_gradient_squares();
   auto half_counts = result.mutable_half_counts();
   auto xyz_sums = result.mutable_xyz_sums();
-  auto xyz_squares = result.mutable_xyz_squares();
+  auto rgb_squares = result.mutable_rgb_squares();
 
   // Each pixel is owned by one thread and its samples are added in index order, so every
   // double in the result is the same whatever the scheduling.
@@ -106,9 +107,11 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
           auto add_xyz = [&](const double* xyz) {
             if (!buffers.xyz) return;
             const std::size_t o = std::size_t(index) * 3;
+            const spectral::Rgb rgb = spectral::xyz_to_linear_srgb({xyz[0], xyz[1], xyz[2]});
+            const double channels[3] = {rgb.r, rgb.g, rgb.b};
             for (int c = 0; c < 3; ++c) {
               xyz_sums[o + c] += xyz[c];
-              xyz_squares[o + c] += xyz[c] * xyz[c];
+              rgb_squares[o + c] += channels[c] * channels[c];
             }
           };
           std::uint64_t guide_count = 0;

@@ -208,7 +208,7 @@ absl::StatusOr<TileResult> TileResult::create(const TileRect& rect, const Sample
   }
   if (buffers.xyz) {
     r.xyz_sums_.assign(area * 3, 0.0);
-    r.xyz_squares_.assign(area * 3, 0.0);
+    r.rgb_squares_.assign(area * 3, 0.0);
   }
   if (buffers.guides) {
     r.depth_.assign(area, 0.0f);
@@ -307,7 +307,7 @@ absl::Status TileResult::add(const TileResult& other) {
   add_vectors(half_gradient_squares_, other.half_gradient_squares_);
   add_vectors(half_counts_, other.half_counts_);
   add_vectors(xyz_sums_, other.xyz_sums_);
-  add_vectors(xyz_squares_, other.xyz_squares_);
+  add_vectors(rgb_squares_, other.rgb_squares_);
   add_vectors(depth_, other.depth_);
   add_vectors(normals_, other.normals_);
   add_vectors(albedo_, other.albedo_);

@@ -25,7 +25,9 @@
 //      xyz_sums    double, area*3,    xyz_sums[p*3 + c]       sum over samples of the sample's
 //                                                             CIE X, Y, Z (c = 0, 1, 2) from its
 //                                                             exact wavelengths: Σ_lanes x̄(λ)·L·w
-//      xyz_squares double, area*3,    xyz_squares[p*3 + c]    sum over samples of their squares
+//      rgb_squares double, area*3,    rgb_squares[p*3 + c]    sum over samples of the squares of
+//                                                             their linear sRGB R, G, B (the
+//                                                             outputs' per-pixel standard errors)
 //      depth       float,  area,      depth[p]                (optional guides) sum of depths
 //      normals     float,  area*3,    normals[p*3 + i]        (optional guides) sum of normals
 //      albedo      float,  area,      albedo[p]               (optional guides) sum of albedos
@@ -230,7 +232,7 @@ class TileResult {
   std::span<const double> half_gradient_squares() const { return half_gradient_squares_; }
   std::span<const std::uint64_t> half_counts() const { return half_counts_; }
   std::span<const double> xyz_sums() const { return xyz_sums_; }
-  std::span<const double> xyz_squares() const { return xyz_squares_; }
+  std::span<const double> rgb_squares() const { return rgb_squares_; }
   std::span<const float> depth() const { return depth_; }
   std::span<const float> normals() const { return normals_; }
   std::span<const float> albedo() const { return albedo_; }
@@ -247,7 +249,7 @@ class TileResult {
   std::span<double> mutable_half_gradient_squares() { return half_gradient_squares_; }
   std::span<std::uint64_t> mutable_half_counts() { return half_counts_; }
   std::span<double> mutable_xyz_sums() { return xyz_sums_; }
-  std::span<double> mutable_xyz_squares() { return xyz_squares_; }
+  std::span<double> mutable_rgb_squares() { return rgb_squares_; }
   std::span<float> mutable_depth() { return depth_; }
   std::span<float> mutable_normals() { return normals_; }
   std::span<float> mutable_albedo() { return albedo_; }
@@ -275,7 +277,7 @@ class TileResult {
   std::vector<double> half_gradient_squares_;
   std::vector<std::uint64_t> half_counts_;
   std::vector<double> xyz_sums_;
-  std::vector<double> xyz_squares_;
+  std::vector<double> rgb_squares_;
   std::vector<float> depth_;
   std::vector<float> normals_;
   std::vector<float> albedo_;

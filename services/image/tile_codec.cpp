@@ -127,7 +127,7 @@ std::string serialise_tile(const TileResult& result) {
   for (double v : result.half_gradient_squares()) w.f64(v);
   for (std::uint64_t v : result.half_counts()) w.u64(v);
   for (double v : result.xyz_sums()) w.f64(v);
-  for (double v : result.xyz_squares()) w.f64(v);
+  for (double v : result.rgb_squares()) w.f64(v);
   for (float v : result.depth()) w.f32(v);
   for (float v : result.normals()) w.f32(v);
   for (float v : result.albedo()) w.f32(v);
@@ -231,7 +231,7 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   for (double& v : t.mutable_half_gradient_squares()) v = std::bit_cast<double>(r.raw_u64());
   for (std::uint64_t& v : t.mutable_half_counts()) v = r.raw_u64();
   for (double& v : t.mutable_xyz_sums()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_xyz_squares()) v = std::bit_cast<double>(r.raw_u64());
+  for (double& v : t.mutable_rgb_squares()) v = std::bit_cast<double>(r.raw_u64());
   for (float& v : t.mutable_depth()) v = std::bit_cast<float>(r.raw_u32());
   for (float& v : t.mutable_normals()) v = std::bit_cast<float>(r.raw_u32());
   for (float& v : t.mutable_albedo()) v = std::bit_cast<float>(r.raw_u32());

@@ -30,7 +30,7 @@ TileResult random_result(std::uint64_t seed, const TileBuffers& buffers) {
   for (double& v : result->mutable_half_gradient_squares()) v = std::bit_cast<double>(rng());
   for (std::uint64_t& v : result->mutable_half_counts()) v = rng();
   for (double& v : result->mutable_xyz_sums()) v = std::bit_cast<double>(rng());
-  for (double& v : result->mutable_xyz_squares()) v = std::bit_cast<double>(rng());
+  for (double& v : result->mutable_rgb_squares()) v = std::bit_cast<double>(rng());
   for (float& v : result->mutable_depth()) v = std::bit_cast<float>(std::uint32_t(rng()));
   for (float& v : result->mutable_normals()) v = std::bit_cast<float>(std::uint32_t(rng()));
   for (float& v : result->mutable_albedo()) v = std::bit_cast<float>(std::uint32_t(rng()));
@@ -73,7 +73,7 @@ TEST(TileCodec, RoundTripIsExact) {
     }
     EXPECT_TRUE(std::ranges::equal(parsed->half_counts(), original.half_counts()));
     for (auto [a, b] : {std::pair{parsed->xyz_sums(), original.xyz_sums()},
-                        std::pair{parsed->xyz_squares(), original.xyz_squares()}}) {
+                        std::pair{parsed->rgb_squares(), original.rgb_squares()}}) {
       ASSERT_EQ(a.size(), b.size());
       EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
     }
