@@ -368,5 +368,70 @@ TEST(MediumBehindDispersiveGlassTest, EveryIntegratorGivesBeerLambertPerBin) {
   }
 }
 
+// pbrt-v4's distant light with a target illuminance, on a grey diffuse floor at 30° from the
+// light: every pixel's radiance is ρ/π·E·cos 30° spread over the flat spectrum, E the illuminance
+// on a surface facing the light (pbrt-v4: scale·L normalised to one nit, times `illuminance`).
+TEST(DistantLightTest, LightsAFloorAsItsIlluminanceSays) {
+  auto library = spectral::SpectrumLibrary::load_builtin();
+  ASSERT_TRUE(library.ok()) << library.status();
+  const std::filesystem::path file = std::filesystem::path(testing::TempDir()) / "distant.pbrt";
+  std::ofstream(file) << R"(LookAt 0 5 0  0 0 0  0 0 1
+Camera "perspective" "float fov" 20
+Film "spectral" "integer xresolution" 8 "integer yresolution" 8 "integer nbuckets" 16
+WorldBegin
+LightSource "distant" "spectrum L" [360 1 830 1] "point3 from" [1 1.7320508 0]
+  "point3 to" [0 0 0] "float illuminance" 3
+Material "diffuse" "spectrum reflectance" [360 0.5 830 0.5]
+Shape "trianglemesh" "point3 P" [-10 0 -10  10 0 -10  10 0 10  -10 0 10]
+  "integer indices" [0 1 2 0 2 3]
+)";
+  auto loaded = scene::load_scene(file, scene::with_library_names(*library));
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  const double expected =
+      0.5 / M_PI * 3.0 / cmf.photometric_sum(spectral::Spectrum(spectral::ConstantSpectrum{1.0f})) *
+      std::cos(M_PI / 6);
+  worker::EmbreeDevice device;
+  for (auto integrator : {worker::IntegratorKind::kUniform, worker::IntegratorKind::kHero,
+                          worker::IntegratorKind::kGradient}) {
+    SCOPED_TRACE(worker::name(integrator));
+    LocalRenderOptions o;
+    o.render.integrator = integrator;
+    o.render.bins = 16;
+    o.render.max_depth = 3;
+    o.render.seed = 9;
+    o.render.gradient_offset_bins = 2;
+    o.width = 8;
+    o.height = 8;
+    o.spp = 256;
+    o.threads = 2;
+    auto r = LocalRender::create(device, loaded->description, *library, o);
+    ASSERT_TRUE(r.ok()) << r.status();
+    auto result = (*r)->render();
+    ASSERT_TRUE(result.ok()) << result.status();
+    for (int b = 0; b < 16; ++b) {
+      double mean = 0, square = 0;
+      for (int y = 0; y < 8; ++y) {
+        for (int x = 0; x < 8; ++x) {
+          const double v = result->image.value(x, y, b);
+          mean += v / 64;
+          square += v * v / 64;
+        }
+      }
+      const double se = std::sqrt(std::max(0.0, square - mean * mean) / 63);
+      EXPECT_NEAR(mean, expected, 4 * se + 1e-6 * expected) << "bin " << b;
+    }
+  }
+  // The light needs a direction.
+  std::ofstream(file) << "WorldBegin\nLightSource \"distant\" \"point3 from\" [1 1 1] "
+                         "\"point3 to\" [1 1 1]\n";
+  auto pointless = scene::load_scene(file, scene::with_library_names(*library));
+  ASSERT_FALSE(pointless.ok());
+  EXPECT_NE(pointless.status().message().find("distant.pbrt:2:13: distant light needs 'from' and "
+                                              "'to' to differ"),
+            std::string_view::npos)
+      << pointless.status();
+}
+
 }  // namespace
 }  // namespace prism::coordinator

@@ -146,8 +146,7 @@ TEST(ConformanceRefusals, UnsupportedFeaturesAreNamedWhereTheyStand) {
                   "envmap.pbrt:11:26: 'string filename': image-based infinite lights "
                   "are not supported"},
         std::pair{"textures-coated",
-                  "textures-coated.pbrt:10:13: unsupported light type "
-                  "\"distant\" (supported: infinite, point, spot)"}}) {
+                  "textures-coated.pbrt:12:1: directive 'Texture' is not supported by Prism"}}) {
     auto loaded = scene::load_scene(kRoot / "scenes" / (std::string(name) + ".pbrt"),
                                     scene::with_library_names(*library));
     ASSERT_FALSE(loaded.ok()) << name;

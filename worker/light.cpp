@@ -381,7 +381,38 @@ std::optional<LightSample> sample_light(const Light& light, const LightContext& 
 }
 
 bool is_delta(const Light& light) {
-  return std::holds_alternative<PointLight>(light) || std::holds_alternative<SpotLight>(light);
+  return std::holds_alternative<PointLight>(light) || std::holds_alternative<SpotLight>(light) ||
+         std::holds_alternative<DistantLight>(light);
+}
+
+absl::StatusOr<DistantLight> DistantLight::create(const scene::Light& light,
+                                                  spectral::Spectrum spectrum, double scale,
+                                                  const Bounds3f& scene_bounds) {
+  const auto* distant = std::get_if<scene::DistantLight>(&light.kind);
+  PRISM_CHECK(distant != nullptr);
+  if (auto status = check_scale(scale, light.where); !status.ok()) return status;
+  const Vec3f w = to_vec(distant->direction_world);
+  if (!(length(w) > 0)) return scene::location_error(light.where, "distant light has no direction");
+  DistantLight l;
+  l.direction_ = normalize(w);
+  l.spectrum_ = std::move(spectrum);
+  l.scale_ = scale;
+  const bool empty = scene_bounds.lo.x > scene_bounds.hi.x;
+  l.scene_radius_ = empty ? 1.0 : std::max(1e-3, double(scene_bounds.radius()));
+  l.where_ = light.where;
+  return l;
+}
+
+std::optional<LightSample> DistantLight::sample(const LightContext& ctx,
+                                                const SampledWavelengths& lambda) const {
+  LightSample s;
+  s.radiance = scaled(spectrum_, scale_, lambda);
+  s.wi = direction_;
+  s.distance = std::numeric_limits<float>::infinity();
+  s.p_light = ctx.p + direction_ * float(2 * scene_radius_);
+  s.pdf = 1;
+  s.delta = true;
+  return s;
 }
 
 const spectral::Spectrum& light_spectrum(const Light& light) {
@@ -409,6 +440,10 @@ double light_power(const Light& light) {
           return emitted * 4 * M_PI;
         } else if constexpr (std::is_same_v<T, SpotLight>) {
           return emitted * 4 * M_PI * l.power_factor();
+        } else if constexpr (std::is_same_v<T, DistantLight>) {
+          // pbrt-v4: the power through the scene's bounding disc.
+          const double r = l.scene_radius();
+          return emitted * M_PI * r * r;
         } else {
           double r = l.scene_radius();
           return emitted * M_PI * r * r * 4 * M_PI;

@@ -46,7 +46,7 @@ struct LightSample {
   Vec3f n_light;             // geometric normal at p_light (area lights; 0 for the others), so
                              // shadow rays can stop just off the emitting surface
   float pdf = 0;             // solid-angle density of wi given this light; 1 for delta lights
-  bool delta = false;        // point and spot lights: not reachable by BSDF sampling
+  bool delta = false;        // point, spot and distant lights: not reachable by BSDF sampling
 };
 
 class AreaLight {
@@ -156,7 +156,29 @@ class InfiniteLight {
   scene::SourceLocation where_;
 };
 
-using Light = std::variant<AreaLight, PointLight, SpotLight, InfiniteLight>;
+// Radiance arriving along one direction from infinitely far (pbrt-v4's `distant`): a delta
+// light whose samples lie beyond the scene bounds along that direction.
+class DistantLight {
+ public:
+  static absl::StatusOr<DistantLight> create(const scene::Light& light,
+                                             spectral::Spectrum spectrum, double scale,
+                                             const Bounds3f& scene_bounds);
+  std::optional<LightSample> sample(const LightContext& ctx, const SampledWavelengths& lambda) const;
+  const spectral::Spectrum& spectrum() const { return spectrum_; }
+  double scale() const { return scale_; }
+  double scene_radius() const { return scene_radius_; }
+  Vec3f direction() const { return direction_; }  // towards the light
+  const scene::SourceLocation& where() const { return where_; }
+
+ private:
+  Vec3f direction_;
+  spectral::Spectrum spectrum_;
+  double scale_ = 1;
+  double scene_radius_ = 1;
+  scene::SourceLocation where_;
+};
+
+using Light = std::variant<AreaLight, PointLight, SpotLight, InfiniteLight, DistantLight>;
 
 // Samples a light (dispatching on its kind); `u` and `u_extra` are the sample numbers a light
 // may consume (u_extra picks a triangle of an area light).

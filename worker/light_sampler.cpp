@@ -66,6 +66,8 @@ double probe(const Light& light, const Vec3f& x, float min_distance) {
     float f = d2 > 0 ? spot->falloff(d / std::sqrt(d2)) : 1.0f;
     return f / std::max(double(d2), min_d2);
   }
+  // A distant light's irradiance is its radiance (one direction); the sky's gathers 4π of it.
+  if (std::holds_alternative<DistantLight>(light)) return 1.0;
   return 4 * M_PI;
 }
 

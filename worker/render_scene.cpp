@@ -94,6 +94,16 @@ absl::StatusOr<Light> make_light(const scene::Light& light, const Geometry& geom
     PRISM_ASSIGN_OR_RETURN(SpotLight l, SpotLight::create(light, std::move(e.spectrum), e.scale));
     return Light(std::move(l));
   }
+  if (const auto* d = std::get_if<scene::DistantLight>(&light.kind)) {
+    PRISM_RETURN_IF_ERROR(check_target(d->illuminance, "illuminance", light.where));
+    PRISM_ASSIGN_OR_RETURN(Emission e, emission(param, d->scale, light.where, "distant light L",
+                                                library, uplift, cmf));
+    // pbrt-v4: a unit-nit distant light gives illuminance 1 on a surface facing it.
+    if (d->illuminance) e.scale *= *d->illuminance;
+    PRISM_ASSIGN_OR_RETURN(DistantLight l, DistantLight::create(light, std::move(e.spectrum),
+                                                                e.scale, geometry.bounds()));
+    return Light(std::move(l));
+  }
   const auto& inf = std::get<scene::InfiniteLight>(light.kind);
   PRISM_RETURN_IF_ERROR(check_target(inf.illuminance, "illuminance", light.where));
   PRISM_ASSIGN_OR_RETURN(Emission e, emission(param, inf.scale, light.where, "infinite light L",

@@ -81,8 +81,8 @@ const BadCase kBadCases[] = {
      "dielectric, diffuse, "
      "interface)"},
     {"unknown_light.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_light.pbrt:2:13: unsupported light type \"goniometric\" (supported: infinite, point, "
-     "spot)"},
+     "unknown_light.pbrt:2:13: unsupported light type \"goniometric\" (supported: distant, "
+     "infinite, point, spot)"},
     {"unknown_camera.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_camera.pbrt:1:8: unsupported camera type \"orthographic\" (supported: perspective)"},
     {"unknown_medium.pbrt", absl::StatusCode::kInvalidArgument,

@@ -203,7 +203,16 @@ struct InfiniteLight {
   std::optional<double> illuminance;
 };
 
-using LightKind = std::variant<PointLight, SpotLight, InfiniteLight>;
+// pbrt-v4's `distant` light: radiance L arriving along one direction from infinitely far; the
+// light shines from `from` towards `to` (defaults 0,0,0 → 0,0,1), in light space.
+struct DistantLight {
+  SpectrumParam radiance = SpectrumNamed{kDefaultIlluminant};  // pbrt `L`
+  double scale = 1.0;
+  std::optional<double> illuminance;  // on a surface facing the light
+  Vec3 direction_world{0, 0, -1};     // unit, from the scene towards the light (from − to)
+};
+
+using LightKind = std::variant<PointLight, SpotLight, InfiniteLight, DistantLight>;
 
 struct Light {
   LightKind kind;

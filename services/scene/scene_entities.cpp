@@ -437,8 +437,25 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     PRISM_ASSIGN_OR_RETURN(i.illuminance, positive_optional(params, "illuminance"));
     light.light_to_world = ctm;
     light.kind = std::move(i);
+  } else if (type.name == "distant") {
+    DistantLight d;
+    PRISM_ASSIGN_OR_RETURN(d.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
+                                                   SpectrumNamed{kDefaultIlluminant}));
+    PRISM_ASSIGN_OR_RETURN(d.scale, params.get_float("scale", 1.0));
+    PRISM_ASSIGN_OR_RETURN(d.illuminance, positive_optional(params, "illuminance"));
+    PRISM_ASSIGN_OR_RETURN(Vec3 from, params.get_point3("from", {0, 0, 0}));
+    PRISM_ASSIGN_OR_RETURN(Vec3 to, params.get_point3("to", {0, 0, 1}));
+    const Vec3 w{from[0] - to[0], from[1] - to[1], from[2] - to[2]};
+    if (w[0] == 0 && w[1] == 0 && w[2] == 0)
+      return location_error(type.where, "distant light needs 'from' and 'to' to differ");
+    light.light_to_world = ctm;
+    const Vec3 world = ctm.apply_vector(w);
+    if (!(world[0] != 0 || world[1] != 0 || world[2] != 0))
+      return location_error(type.where, "distant light's direction vanishes under the transform");
+    d.direction_world = normalize(world);
+    light.kind = std::move(d);
   } else {
-    return unsupported_type(type, "light", {"infinite", "point", "spot"});
+    return unsupported_type(type, "light", {"distant", "infinite", "point", "spot"});
   }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return light;

@@ -55,6 +55,10 @@ std::string format_scene_summary(const SceneDescription& scene) {
         return absl::StrCat("infinite light: L ", describe(p.radiance), ", scale ", p.scale,
                             optional_number("illuminance", p.illuminance));
       }
+      std::string operator()(const DistantLight& p) const {
+        return absl::StrCat("distant light: L ", describe(p.radiance), ", scale ", p.scale,
+                            optional_number("illuminance", p.illuminance));
+      }
     };
     absl::StrAppend(&out, "  ", std::visit(Visitor{}, l.kind), " (", l.where.to_string(), ")\n");
   }

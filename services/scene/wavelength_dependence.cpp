@@ -10,6 +10,7 @@ const SpectrumParam& emission_spectrum(const Light& light) {
     const SpectrumParam& operator()(const PointLight& p) const { return p.intensity; }
     const SpectrumParam& operator()(const SpotLight& s) const { return s.intensity; }
     const SpectrumParam& operator()(const InfiniteLight& i) const { return i.radiance; }
+    const SpectrumParam& operator()(const DistantLight& d) const { return d.radiance; }
   };
   return std::visit(Visitor{}, light.kind);
 }
