@@ -211,7 +211,7 @@ TEST(RenderCliTest, BadScenesFailClearlyAndWriteNothing) {
                      "finite number"});
   expect_failure_writes_nothing(
       "unsupported", {{"render", source(bad + "unsupported.pbrt")},
-                      "prism: unsupported.pbrt:3:8: unsupported camera type \"orthographic\""});
+                      "prism: unsupported.pbrt:3:8: unsupported camera type \"realistic\""});
   expect_failure_writes_nothing("no_scene", {{"render", "no/such/scene.pbrt"}, "does not exist"});
 }
 

@@ -10,17 +10,19 @@
 namespace prism::worker {
 
 absl::StatusOr<Camera> Camera::create(const scene::Camera& camera, int width, int height) {
-  if (camera.type != "perspective") {
+  const bool orthographic = camera.type == "orthographic";
+  if (camera.type != "perspective" && !orthographic) {
     return scene::location_error(
-        camera.where, absl::StrCat("camera \"", camera.type,
-                                   "\" is not supported; Prism renders \"perspective\" only"));
+        camera.where,
+        absl::StrCat("camera \"", camera.type,
+                     "\" is not supported; Prism renders \"perspective\" and \"orthographic\""));
   }
   if (width < 1 || height < 1 || width > scene::kMaxResolution || height > scene::kMaxResolution) {
     return scene::location_error(
         camera.where, absl::StrCat("film resolution ", width, "x", height, " is outside 1..",
                                    scene::kMaxResolution, " per axis"));
   }
-  if (!(camera.fov_deg > 0.0 && camera.fov_deg < 180.0)) {
+  if (!orthographic && !(camera.fov_deg > 0.0 && camera.fov_deg < 180.0)) {
     return scene::location_error(
         camera.where, absl::StrCat("fov ", camera.fov_deg, " must be in (0, 180) degrees"));
   }
@@ -60,10 +62,13 @@ absl::StatusOr<Camera> Camera::create(const scene::Camera& camera, int width, in
                                    "] is empty; it needs xmin < xmax and ymin < ymax"));
   }
 
-  // Screen space maps to the z = 1 plane scaled by tan(fov/2) (pbrt-v4's Perspective()).
+  // Perspective: screen space maps to the z = 1 plane scaled by tan(fov/2) (pbrt-v4's
+  // Perspective()); orthographic: screen space is camera space on z = 0, unscaled.
   // Raster (0, 0) is the window's top-left corner, (xmin, ymax): raster y runs down, screen y up.
-  const double tan_half = std::tan(camera.fov_deg * 0.5 * std::numbers::pi / 180.0);
+  const double tan_half =
+      orthographic ? 1.0 : std::tan(camera.fov_deg * 0.5 * std::numbers::pi / 180.0);
   Camera c;
+  c.orthographic_ = orthographic;
   c.width_ = width;
   c.height_ = height;
   c.screen_x0_ = xmin * tan_half;
@@ -82,7 +87,17 @@ Ray Camera::generate_ray(Point2f film, Point2f lens) const {
   const double py = screen_y0_ + double(film.y) * screen_dy_;
   scene::Vec3 origin{0.0, 0.0, 0.0};
   scene::Vec3 direction{px, py, 1.0};
-  if (lens_radius_ > 0.0) {
+  if (orthographic_) {
+    // pbrt-v4's OrthographicCamera: parallel rays from the film point; a thin lens aims every
+    // lens point at where that ray meets z = f.
+    origin = {px, py, 0.0};
+    direction = {0.0, 0.0, 1.0};
+    if (lens_radius_ > 0.0) {
+      const Point2f d = sample_uniform_disk_concentric(lens);
+      origin = {px + lens_radius_ * d.x, py + lens_radius_ * d.y, 0.0};
+      direction = {px - origin[0], py - origin[1], focal_distance_};
+    }
+  } else if (lens_radius_ > 0.0) {
     // The pinhole ray through this film point meets z = f at f·(px, py, 1); every lens point
     // aims there, which is what puts that plane in focus.
     const Point2f d = sample_uniform_disk_concentric(lens);

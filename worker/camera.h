@@ -17,8 +17,9 @@ namespace prism::worker {
 
 class Camera {
  public:
-  // Film resolution width x height (the job's, which may override the scene's). Errors:
-  // non-perspective cameras, fov outside (0, 180), non-positive focal distance with a lens.
+  // Film resolution width x height (the job's, which may override the scene's). pbrt-v4's
+  // perspective and orthographic cameras (the latter's screen window in camera-space units).
+  // Errors: other cameras, fov outside (0, 180), non-positive focal distance with a lens.
   static absl::StatusOr<Camera> create(const scene::Camera& camera, int width, int height);
 
   // `film` is the position in raster space (pixel x + offset in [0,1), y likewise); `lens`
@@ -34,6 +35,7 @@ class Camera {
   // camera-from-raster: raster (x, y) -> point on the z = 1 plane in camera space.
   double screen_x0_ = 0, screen_y0_ = 0, screen_dx_ = 0, screen_dy_ = 0;
   double lens_radius_ = 0, focal_distance_ = 1;
+  bool orthographic_ = false;
   scene::Transform world_from_camera_;
 };
 

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <cstring>
 
@@ -170,14 +171,49 @@ TEST(CameraTest, RaysArePureFunctions) {
   }
 }
 
+// pbrt-v4's orthographic camera: parallel rays along the view direction from the film point,
+// the screen window in camera-space units (default [-1, 1] on the shorter axis), raster y down;
+// with a thin lens every lens point aims at where the film point's ray meets the focal plane.
+TEST(CameraTest, OrthographicRaysAreParallelAndSpanTheScreenWindow) {
+  scene::Camera c = look_at_camera({1, 2, 3}, {1, 2, 13}, {0, 1, 0}, 45);
+  c.type = "orthographic";
+  auto cam = Camera::create(c, 200, 100);
+  ASSERT_TRUE(cam.ok()) << cam.status();
+  // 200x100: x spans [-2, 2], y [-1, 1] in camera space; camera +x is world +x here (pbrt's
+  // look-at: right = up × forward), raster x runs with it and raster y against +y.
+  for (auto [fx, fy, wx, wy] :
+       {std::array<float, 4>{0, 0, 1 - 2, 2 + 1}, std::array<float, 4>{200, 100, 1 + 2, 2 - 1},
+        std::array<float, 4>{100, 50, 1, 2}}) {
+    const Ray r = cam->generate_ray({fx, fy}, {0.5f, 0.5f});
+    EXPECT_NEAR(r.direction.x, 0, 1e-6);
+    EXPECT_NEAR(r.direction.y, 0, 1e-6);
+    EXPECT_NEAR(r.direction.z, 1, 1e-6);
+    EXPECT_NEAR(r.origin.x, wx, 1e-5) << fx << "," << fy;
+    EXPECT_NEAR(r.origin.y, wy, 1e-5) << fx << "," << fy;
+    EXPECT_NEAR(r.origin.z, 3, 1e-5);
+  }
+  c.lens_radius = 0.3;
+  c.focal_distance = 4;
+  auto lens = Camera::create(c, 200, 100);
+  ASSERT_TRUE(lens.ok()) << lens.status();
+  for (float u : {0.1f, 0.5f, 0.9f}) {
+    const Ray r = lens->generate_ray({50, 20}, {u, 1 - u});
+    const Ray pinhole = cam->generate_ray({50, 20}, {0.5f, 0.5f});
+    // Both reach the same point on the focal plane z = 3 + 4.
+    const float t = (7 - r.origin.z) / r.direction.z;
+    EXPECT_NEAR(r.origin.x + t * r.direction.x, pinhole.origin.x, 1e-4);
+    EXPECT_NEAR(r.origin.y + t * r.direction.y, pinhole.origin.y, 1e-4);
+  }
+}
+
 TEST(CameraTest, UnsupportedCamerasAreRefusedWithTheirLocation) {
   scene::Camera c = look_at_camera({0, 0, 0}, {0, 0, 1}, {0, 1, 0}, 45);
-  c.type = "orthographic";
+  c.type = "realistic";
   auto r = Camera::create(c, 8, 8);
   ASSERT_FALSE(r.ok());
   EXPECT_EQ(r.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_TRUE(absl::StrContains(r.status().message(), "test.pbrt:3:1:")) << r.status();
-  EXPECT_TRUE(absl::StrContains(r.status().message(), "orthographic")) << r.status();
+  EXPECT_TRUE(absl::StrContains(r.status().message(), "realistic")) << r.status();
 
   c = look_at_camera({0, 0, 0}, {0, 0, 1}, {0, 1, 0}, 180);
   EXPECT_FALSE(Camera::create(c, 8, 8).ok());

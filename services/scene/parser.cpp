@@ -363,7 +363,7 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_RETURN_IF_ERROR(require_options(d, where));
     PRISM_RETURN_IF_ERROR(once(film_at_, d, where));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
-    PRISM_ASSIGN_OR_RETURN(scene_.film, make_film(td.first, td.second));
+    PRISM_ASSIGN_OR_RETURN(scene_.film, make_film(td.first, td.second, ctx_));
   } else if (name == "Sampler") {
     PRISM_RETURN_IF_ERROR(require_options(d, where));
     PRISM_RETURN_IF_ERROR(once(sampler_at_, d, where));

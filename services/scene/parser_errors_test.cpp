@@ -84,7 +84,8 @@ const BadCase kBadCases[] = {
      "unknown_light.pbrt:2:13: unsupported light type \"goniometric\" (supported: distant, "
      "infinite, point, spot)"},
     {"unknown_camera.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_camera.pbrt:1:8: unsupported camera type \"orthographic\" (supported: perspective)"},
+     "unknown_camera.pbrt:1:8: unsupported camera type \"realistic\" (supported: orthographic, "
+     "perspective)"},
     {"unknown_medium.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_medium.pbrt:1:25: unsupported medium type \"grid\" (supported: homogeneous)"},
     {"undefined_medium.pbrt", absl::StatusCode::kInvalidArgument,

@@ -287,5 +287,14 @@ TEST(GoodScenes, AcceptedButChangedInputIsReportedAsWarnings) {
             }));
 }
 
+// How pbrt-v4 stores its output does not change the image: accepted, and said.
+TEST(GoodScenes, StorageOnlyFilmParametersAreAcceptedWithANote) {
+  SceneDescription s = load_good("savefp16.pbrt");
+  EXPECT_EQ(s.film.x_resolution, 16);
+  EXPECT_EQ(s.warnings,
+            (std::vector<std::string>{"savefp16.pbrt:1:61: warning: film 'savefp16' false ignored: "
+                                      "Prism writes float32 EXRs (the image is the same)"}));
+}
+
 }  // namespace
 }  // namespace prism::scene

@@ -187,11 +187,15 @@ void add_warning(const EntityContext& ctx, const SourceLocation& where, std::str
 }
 
 absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& params) {
-  if (type.name != "perspective") return unsupported_type(type, "camera", {"perspective"});
+  if (type.name != "perspective" && type.name != "orthographic")
+    return unsupported_type(type, "camera", {"orthographic", "perspective"});
   Camera c;
+  c.type = type.name;
   c.where = type.where;
-  PRISM_ASSIGN_OR_RETURN(c.fov_deg, params.get_float("fov", 90.0));
-  PRISM_RETURN_IF_ERROR(check_range(params, "fov", c.fov_deg, 1e-6, 179.999, "in (0, 180) degrees"));
+  if (c.type == "perspective") {
+    PRISM_ASSIGN_OR_RETURN(c.fov_deg, params.get_float("fov", 90.0));
+    PRISM_RETURN_IF_ERROR(check_range(params, "fov", c.fov_deg, 1e-6, 179.999, "in (0, 180) degrees"));
+  }
   PRISM_ASSIGN_OR_RETURN(c.lens_radius, params.get_float("lensradius", 0.0));
   PRISM_RETURN_IF_ERROR(check_range(params, "lensradius", c.lens_radius, 0.0, 1e30, ">= 0"));
   PRISM_ASSIGN_OR_RETURN(c.focal_distance, params.get_float("focaldistance", 1e6));
@@ -209,7 +213,8 @@ absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& pa
   return c;
 }
 
-absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params) {
+absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params,
+                               const EntityContext& ctx) {
   Film f;
   f.where = type.where;
   if (type.name == "rgb") {
@@ -252,8 +257,14 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
   // The film diagonal matters only for the realistic camera.
   PRISM_ASSIGN_OR_RETURN(double diagonal, params.get_float("diagonal", 35.0));
   PRISM_RETURN_IF_ERROR(check_range(params, "diagonal", diagonal, 1e-9, 1e30, "> 0"));
-  for (const char* refused : {"cropwindow", "pixelbounds", "maxcomponentvalue", "savefp16"})
+  for (const char* refused : {"cropwindow", "pixelbounds", "maxcomponentvalue"})
     PRISM_RETURN_IF_ERROR(params.refuse(refused, "is not supported by Prism"));
+  if (const Parameter* fp16 = params.find("savefp16")) {
+    PRISM_ASSIGN_OR_RETURN(bool half, params.get_bool("savefp16", true));
+    add_warning(ctx, fp16->where,
+                absl::StrCat("film 'savefp16' ", half ? "true" : "false",
+                             " ignored: Prism writes float32 EXRs (the image is the same)"));
+  }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return f;
 }

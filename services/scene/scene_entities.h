@@ -38,7 +38,10 @@ struct EntityContext {
 void add_warning(const EntityContext& ctx, const SourceLocation& where, std::string_view message);
 
 absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& params);
-absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params);
+// Parameters that only change how pbrt-v4 stores its output (`savefp16`) are accepted with a
+// warning: Prism always writes float32.
+absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params,
+                               const EntityContext& ctx);
 absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterList& params,
                                          const EntityContext& ctx);
 absl::StatusOr<IntegratorSpec> make_integrator(const TypeName& type, const ParameterList& params,
