@@ -433,5 +433,73 @@ Shape "trianglemesh" "point3 P" [-10 0 -10  10 0 -10  10 0 10  -10 0 10]
       << pointless.status();
 }
 
+// A diffuse-transmission sheet (pbrt-v4's `diffusetransmission`, R 0.3, T 0.5) hanging in a
+// constant environment: lit from both sides, it shows (R + T) times the sky's radiance, with no
+// interreflection to count. Every integrator, per bin, within noise of the sky pixels' value.
+TEST(DiffuseTransmissionTest, ASheetInTheSkyShowsReflectancePlusTransmittance) {
+  auto library = spectral::SpectrumLibrary::load_builtin();
+  ASSERT_TRUE(library.ok()) << library.status();
+  const std::filesystem::path file = std::filesystem::path(testing::TempDir()) / "sheet.pbrt";
+  std::ofstream(file) << R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 30
+Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
+PixelFilter "box"
+WorldBegin
+LightSource "infinite" "spectrum L" [360 1 830 1]
+Material "diffusetransmission" "spectrum reflectance" [360 0.3 830 0.3]
+  "spectrum transmittance" [360 0.5 830 0.5]
+Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indices" [0 1 2 0 2 3]
+)";
+  auto loaded = scene::load_scene(file, scene::with_library_names(*library));
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  worker::EmbreeDevice device;
+  for (auto integrator : {worker::IntegratorKind::kUniform, worker::IntegratorKind::kHero,
+                          worker::IntegratorKind::kGradient}) {
+    SCOPED_TRACE(worker::name(integrator));
+    LocalRenderOptions o;
+    o.render.integrator = integrator;
+    o.render.bins = 8;
+    o.render.max_depth = 4;
+    o.render.seed = 2;
+    o.render.gradient_offset_bins = 1;
+    o.width = 16;
+    o.height = 16;
+    o.spp = 256;
+    o.threads = 2;
+    auto r = LocalRender::create(device, loaded->description, *library, o);
+    ASSERT_TRUE(r.ok()) << r.status();
+    auto result = (*r)->render();
+    ASSERT_TRUE(result.ok()) << result.status();
+    // The sheet (±1 at distance 5, fov 30) covers pixels 2.03..13.97: 4..11 are inside, columns
+    // 0 and 15 are sky.
+    for (int b = 0; b < 8; ++b) {
+      double sheet = 0, sheet2 = 0, sky = 0, sky2 = 0;
+      int n_sheet = 0, n_sky = 0;
+      for (int y = 0; y < 16; ++y) {
+        for (int x = 0; x < 16; ++x) {
+          const double v = result->image.value(x, y, b);
+          if (x >= 4 && x <= 11 && y >= 4 && y <= 11) {
+            sheet += v;
+            sheet2 += v * v;
+            ++n_sheet;
+          } else if (x == 0 || x == 15) {
+            sky += v;
+            sky2 += v * v;
+            ++n_sky;
+          }
+        }
+      }
+      sheet /= n_sheet;
+      sky /= n_sky;
+      const double se_sheet =
+          std::sqrt(std::max(0.0, sheet2 / n_sheet - sheet * sheet) / (n_sheet - 1));
+      const double se_sky = std::sqrt(std::max(0.0, sky2 / n_sky - sky * sky) / (n_sky - 1));
+      ASSERT_GT(sky, 0.0);
+      EXPECT_NEAR(sheet, 0.8 * sky, 4 * std::hypot(se_sheet, 0.8 * se_sky) + 1e-6 * sky)
+          << "bin " << b;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace prism::coordinator

@@ -32,6 +32,39 @@ SampledSpectrum DiffuseBsdf::pdf(const Vec3f& wo, const Vec3f& wi) const {
   return lanes_of(abs_cos_theta(wi) * kInvPi, lanes_);
 }
 
+SampledSpectrum DiffuseTransmissionBsdf::eval(const Vec3f& wo, const Vec3f& wi) const {
+  if (wo.z == 0.0f || wi.z == 0.0f) return {};
+  return (same_hemisphere(wo, wi) ? r_ : t_) * kInvPi;
+}
+
+SampledSpectrum DiffuseTransmissionBsdf::pdf(const Vec3f& wo, const Vec3f& wi) const {
+  SampledSpectrum p;
+  if (wo.z == 0.0f || wi.z == 0.0f) return p;
+  const bool reflect = same_hemisphere(wo, wi);
+  for (int s = 0; s < lanes_; ++s) {
+    const float total = r_[s] + t_[s];
+    if (total > 0) p[s] = (reflect ? r_[s] : t_[s]) / total * abs_cos_theta(wi) * kInvPi;
+  }
+  return p;
+}
+
+std::optional<BsdfSample> DiffuseTransmissionBsdf::sample(const Vec3f& wo, float uc,
+                                                          Point2f u) const {
+  if (wo.z == 0.0f) return std::nullopt;
+  const float total = r_[0] + t_[0];
+  if (!(total > 0)) return std::nullopt;
+  const bool reflect = uc < r_[0] / total;
+  Vec3f wi = sample_cosine_hemisphere(u);
+  // Cosine-sampled directions have z >= 0: on wo's side for reflection, the other for
+  // transmission.
+  if ((wo.z < 0.0f) == reflect) wi.z = -wi.z;
+  if (wi.z == 0.0f) return std::nullopt;
+  BsdfSample s{wi, eval(wo, wi), pdf(wo, wi)};
+  if (!(s.pdf[0] > 0)) return std::nullopt;
+  s.transmission = !reflect;
+  return s;
+}
+
 std::optional<BsdfSample> DielectricBsdf::sample(const Vec3f& wo, float uc, Point2f u) const {
   if (wo.z == 0.0f) return std::nullopt;
   if (specular()) return sample_smooth(wo, uc);
@@ -41,8 +74,9 @@ std::optional<BsdfSample> DielectricBsdf::sample(const Vec3f& wo, float uc, Poin
 std::optional<BsdfSample> DielectricBsdf::sample_smooth(const Vec3f& wo, float uc) const {
   if (index_matched()) {
     // No boundary at all: the ray passes straight through with weight 1.
-    return BsdfSample{-wo, lanes_of(1.0f / abs_cos_theta(wo), lanes_), lanes_of(1.0f, lanes_),
-                      true, true, false, 1.0f};
+    return BsdfSample{
+        -wo, lanes_of(1.0f / abs_cos_theta(wo), lanes_), lanes_of(1.0f, lanes_), true, true, false,
+        1.0f};
   }
   float r0 = fresnel_dielectric(cos_theta(wo), eta_[0]);
   if (uc < r0) {
@@ -157,8 +191,13 @@ std::optional<BsdfSample> ConductorBsdf::sample(const Vec3f& wo, float, Point2f 
   if (wo.z == 0.0f) return std::nullopt;
   if (specular()) {
     Vec3f wi(-wo.x, -wo.y, wo.z);
-    return BsdfSample{wi, fresnel(abs_cos_theta(wi)) / abs_cos_theta(wi), lanes_of(1.0f, lanes_),
-                      true, false, false, 1.0f};
+    return BsdfSample{wi,
+                      fresnel(abs_cos_theta(wi)) / abs_cos_theta(wi),
+                      lanes_of(1.0f, lanes_),
+                      true,
+                      false,
+                      false,
+                      1.0f};
   }
   Vec3f wm = distrib_.sample_wm(wo, u);
   Vec3f wi = reflect(wo, wm);

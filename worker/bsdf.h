@@ -71,8 +71,7 @@ class DielectricBsdf {
   std::optional<BsdfSample> sample_smooth(const Vec3f& wo, float uc) const;
   std::optional<BsdfSample> sample_rough(const Vec3f& wo, float uc, Point2f u) const;
   // Per-lane f and pdf of a rough pair (wo, wi).
-  void eval_rough(const Vec3f& wo, const Vec3f& wi, SampledSpectrum* f,
-                  SampledSpectrum* pdf) const;
+  void eval_rough(const Vec3f& wo, const Vec3f& wi, SampledSpectrum* f, SampledSpectrum* pdf) const;
 
   SampledSpectrum eta_;
   int lanes_;
@@ -101,7 +100,25 @@ class ConductorBsdf {
   TrowbridgeReitz distrib_;
 };
 
-using Bsdf = std::variant<DiffuseBsdf, DielectricBsdf, ConductorBsdf>;
+// pbrt-v4's DiffuseTransmissionBxDF: Lambertian reflection R/π on wo's side and transmission
+// T/π on the other. A lane picks its side with probability R/(R + T) of its own values (so
+// each lane's density is its own technique's, as CMIS needs), then a cosine direction.
+class DiffuseTransmissionBsdf {
+ public:
+  DiffuseTransmissionBsdf(const SampledSpectrum& r, const SampledSpectrum& t, int lanes)
+      : r_(r), t_(t), lanes_(lanes) {}
+  std::optional<BsdfSample> sample(const Vec3f& wo, float uc, Point2f u) const;
+  SampledSpectrum eval(const Vec3f& wo, const Vec3f& wi) const;
+  SampledSpectrum pdf(const Vec3f& wo, const Vec3f& wi) const;
+  bool specular() const { return false; }
+  bool dispersive() const { return false; }
+
+ private:
+  SampledSpectrum r_, t_;
+  int lanes_;
+};
+
+using Bsdf = std::variant<DiffuseBsdf, DielectricBsdf, ConductorBsdf, DiffuseTransmissionBsdf>;
 
 inline std::optional<BsdfSample> sample(const Bsdf& bsdf, const Vec3f& wo, float uc, Point2f u) {
   return std::visit([&](const auto& b) { return b.sample(wo, uc, u); }, bsdf);

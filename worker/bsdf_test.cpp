@@ -52,24 +52,30 @@ std::vector<Case> rough_cases() {
   SampledSpectrum refl = spectrum_of({0.8f, 0.5f, 0.2f, 0.9f});
   cases.push_back({"diffuse", DiffuseBsdf(refl, kLanes),
                    [=](int lane) { return Bsdf(DiffuseBsdf(with_hero(refl, lane), kLanes)); }});
+  // Each lane picks its side by its own R/(R + T): the lanes' densities differ.
+  SampledSpectrum r = spectrum_of({0.3f, 0.5f, 0.1f, 0.6f});
+  SampledSpectrum t = spectrum_of({0.6f, 0.2f, 0.8f, 0.3f});
+  cases.push_back({"diffuse transmission", DiffuseTransmissionBsdf(r, t, kLanes), [=](int lane) {
+                     return Bsdf(
+                         DiffuseTransmissionBsdf(with_hero(r, lane), with_hero(t, lane), kLanes));
+                   }});
   for (float alpha : {0.05f, 0.3f, 0.8f}) {
-    for (SampledSpectrum eta : {spectrum_of({1.5f, 1.52f, 1.55f, 1.6f}),
-                                spectrum_of({1.02f, 1.025f, 1.03f, 1.035f}),
-                                spectrum_of({2.4f, 2.45f, 2.5f, 2.42f})}) {
+    for (SampledSpectrum eta :
+         {spectrum_of({1.5f, 1.52f, 1.55f, 1.6f}), spectrum_of({1.02f, 1.025f, 1.03f, 1.035f}),
+          spectrum_of({2.4f, 2.45f, 2.5f, 2.42f})}) {
       TrowbridgeReitz d(alpha, alpha * 0.7f);
-      cases.push_back({"rough dielectric alpha " + std::to_string(alpha) + " eta " +
-                           std::to_string(eta[0]),
-                       DielectricBsdf(eta, kLanes, true, d), [=](int lane) {
-                         return Bsdf(DielectricBsdf(with_hero(eta, lane), kLanes, true, d));
-                       }});
+      cases.push_back(
+          {"rough dielectric alpha " + std::to_string(alpha) + " eta " + std::to_string(eta[0]),
+           DielectricBsdf(eta, kLanes, true, d),
+           [=](int lane) { return Bsdf(DielectricBsdf(with_hero(eta, lane), kLanes, true, d)); }});
     }
     SampledSpectrum eta = spectrum_of({0.2f, 0.5f, 1.1f, 0.15f});
     SampledSpectrum k = spectrum_of({3.9f, 2.9f, 2.6f, 3.5f});
     TrowbridgeReitz d(alpha, alpha);
     cases.push_back({"rough conductor alpha " + std::to_string(alpha),
                      ConductorBsdf(eta, k, kLanes, d), [=](int lane) {
-                       return Bsdf(ConductorBsdf(with_hero(eta, lane), with_hero(k, lane), kLanes,
-                                                 d));
+                       return Bsdf(
+                           ConductorBsdf(with_hero(eta, lane), with_hero(k, lane), kLanes, d));
                      }});
   }
   return cases;
@@ -85,8 +91,8 @@ TEST_P(BsdfSamplingTest, MatchesPdfPerLane) {
   const Case c = rough_cases()[GetParam()];
   for (float theta : {0.0f, 45.0f, 85.0f, 135.0f, 179.0f}) {
     Vec3f wo = direction(theta, 30);
-    auto expected = expected_counts(
-        [&](const Vec3f& wi) { return worker::pdf(c.bsdf, wo, wi); }, kLanes, kSamplesPerTest);
+    auto expected = expected_counts([&](const Vec3f& wi) { return worker::pdf(c.bsdf, wo, wi); },
+                                    kLanes, kSamplesPerTest);
     for (int lane = 0; lane < kLanes; ++lane) {
       Bsdf hero = c.with_lane_as_hero(lane);
       std::vector<double> observed(kCells, 0.0);
@@ -208,6 +214,32 @@ TEST(BsdfTest, AlbedoNeverExceedsOne) {
       }
       EXPECT_LE(sum[0] / kN, 1.0 + 1e-2) << c.name << " theta " << theta;
     }
+  }
+}
+
+// Diffuse transmission's hero estimator of its albedo is R + T in every sample (the side is
+// chosen in proportion to R and T, the direction by the cosine), and it transmits a fraction
+// T/(R + T) of them, to the side opposite wo.
+TEST(BsdfTest, DiffuseTransmissionAlbedoIsReflectancePlusTransmittance) {
+  DiffuseTransmissionBsdf bsdf(spectrum_of({0.3f, 0.5f, 0.1f, 0.6f}),
+                               spectrum_of({0.5f, 0.2f, 0.8f, 0.3f}), kLanes);
+  for (float theta : {30.0f, 150.0f}) {
+    const Vec3f wo = direction(theta, 20);
+    int transmitted = 0;
+    constexpr int kN = 20000;
+    for (std::uint32_t i = 0; i < kN; ++i) {
+      Sampler s(SamplerKind::kIndependent, SampleKey{4, 0, 0, 0, i});
+      const float uc = s.get1d();
+      Point2f u;
+      s.get2d(u.x, u.y);
+      auto bs = bsdf.sample(wo, uc, u);
+      ASSERT_TRUE(bs);
+      EXPECT_NEAR(bs->f[0] * abs_cos_theta(bs->wi) / bs->pdf[0], 0.8, 1e-5);
+      EXPECT_EQ(bs->transmission, !same_hemisphere(wo, bs->wi));
+      transmitted += bs->transmission ? 1 : 0;
+    }
+    // Binomial: 0.625 of 20000, standard deviation 0.0034.
+    EXPECT_NEAR(double(transmitted) / kN, 0.625, 4 * 0.0034) << "theta " << theta;
   }
 }
 

@@ -211,6 +211,16 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       if (!r.ok()) return invalid(absl::StrCat("conductor ", r.status().message()));
       return r;
     }
+    absl::StatusOr<Material> operator()(const scene::DiffuseTransmissionMaterial& m) const {
+      auto r = resolve_spectrum(m.reflectance, SpectrumRole::kReflectance, library, uplift);
+      if (!r.ok())
+        return invalid(absl::StrCat("diffusetransmission reflectance: ", r.status().message()));
+      auto t = resolve_spectrum(m.transmittance, SpectrumRole::kReflectance, library, uplift);
+      if (!t.ok()) {
+        return invalid(absl::StrCat("diffusetransmission transmittance: ", t.status().message()));
+      }
+      return Material(DiffuseTransmissionMaterial{*std::move(r), *std::move(t), float(m.scale)});
+    }
     absl::StatusOr<Material> operator()(const scene::InterfaceMaterial&) const {
       return Material(InterfaceMaterial{});
     }
@@ -248,6 +258,11 @@ std::optional<Bsdf> make_bsdf(const Material& material,
       return Bsdf(ConductorBsdf(eta, k, lanes, TrowbridgeReitz(m.alpha_x, m.alpha_y)));
     }
     std::optional<Bsdf> operator()(const InterfaceMaterial&) const { return std::nullopt; }
+    std::optional<Bsdf> operator()(const DiffuseTransmissionMaterial& m) const {
+      return Bsdf(DiffuseTransmissionBsdf(spectral::sample(m.reflectance, lambda) * m.scale,
+                                          spectral::sample(m.transmittance, lambda) * m.scale,
+                                          lanes));
+    }
   };
   return std::visit(Visitor{lambda, lanes}, material);
 }
@@ -268,6 +283,9 @@ bool depends_on_wavelength(const Material& material) {
       return !spectral::is_constant(m.eta) || !spectral::is_constant(m.k);
     }
     bool operator()(const InterfaceMaterial&) const { return false; }
+    bool operator()(const DiffuseTransmissionMaterial& m) const {
+      return !spectral::is_constant(m.reflectance) || !spectral::is_constant(m.transmittance);
+    }
   };
   return std::visit(Visitor{}, material);
 }

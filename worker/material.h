@@ -41,8 +41,15 @@ struct ConductorMaterial {
 
 struct InterfaceMaterial {};
 
+// Lambertian reflection and transmission; `scale` already applied.
+struct DiffuseTransmissionMaterial {
+  spectral::Spectrum reflectance;
+  spectral::Spectrum transmittance;
+  float scale = 1;
+};
+
 using Material = std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial,
-                              InterfaceMaterial>;
+                              InterfaceMaterial, DiffuseTransmissionMaterial>;
 
 // Resolves a scene material. Errors name the material's file:line:column (unknown names are
 // already refused by the parser; this catches values out of range, e.g. reflectance > 1).

@@ -131,8 +131,16 @@ struct ConductorMaterial {
 // No surface scattering: marks a boundary between media.
 struct InterfaceMaterial {};
 
-using MaterialKind =
-    std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial, InterfaceMaterial>;
+// pbrt-v4's `diffusetransmission`: Lambertian reflection R and transmission T, both times
+// `scale`.
+struct DiffuseTransmissionMaterial {
+  SpectrumParam reflectance = SpectrumConstant{0.25};
+  SpectrumParam transmittance = SpectrumConstant{0.25};
+  double scale = 1.0;
+};
+
+using MaterialKind = std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial,
+                                  InterfaceMaterial, DiffuseTransmissionMaterial>;
 
 struct Material {
   std::string name;  // empty for anonymous `Material` directives and the default material

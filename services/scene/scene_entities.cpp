@@ -396,8 +396,18 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     kind = std::move(m);
   } else if (type.name == "interface") {
     kind = InterfaceMaterial{};
+  } else if (type.name == "diffusetransmission") {
+    DiffuseTransmissionMaterial m;
+    PRISM_ASSIGN_OR_RETURN(m.reflectance, spectrum_or(params, "reflectance", SpectrumRole::kReflectance, ctx,
+                                                      SpectrumConstant{0.25}));
+    PRISM_ASSIGN_OR_RETURN(m.transmittance, spectrum_or(params, "transmittance", SpectrumRole::kReflectance,
+                                                        ctx, SpectrumConstant{0.25}));
+    PRISM_ASSIGN_OR_RETURN(m.scale, params.get_float("scale", 1.0));
+    PRISM_RETURN_IF_ERROR(check_range(params, "scale", m.scale, 0.0, 1e6, ">= 0"));
+    kind = std::move(m);
   } else {
-    return unsupported_type(type, "material", {"conductor", "dielectric", "diffuse", "interface"});
+    return unsupported_type(type, "material",
+                            {"conductor", "dielectric", "diffuse", "diffusetransmission", "interface"});
   }
   PRISM_RETURN_IF_ERROR(refuse_common_material_params(params));
   PRISM_RETURN_IF_ERROR(params.check_all_used());
