@@ -65,6 +65,30 @@ std::optional<BsdfSample> DiffuseTransmissionBsdf::sample(const Vec3f& wo, float
   return s;
 }
 
+float ThinDielectricBsdf::reflectance(int lane, float cos_theta_o) const {
+  float r = fresnel_dielectric(std::abs(cos_theta_o), eta_[lane]);
+  const float t = 1.0f - r;
+  if (r < 1.0f) r += t * t * r / (1.0f - r * r);
+  return r;
+}
+
+std::optional<BsdfSample> ThinDielectricBsdf::sample(const Vec3f& wo, float uc, Point2f) const {
+  if (wo.z == 0.0f) return std::nullopt;
+  const bool reflect = uc < reflectance(0, wo.z);
+  BsdfSample s;
+  s.wi = reflect ? Vec3f(-wo.x, -wo.y, wo.z) : -wo;
+  s.specular = true;
+  s.transmission = !reflect;
+  for (int i = 0; i < lanes_; ++i) {
+    const float r = reflectance(i, wo.z);
+    const float p = reflect ? r : 1.0f - r;
+    s.f[i] = p / abs_cos_theta(s.wi);
+    s.pdf[i] = p;
+  }
+  if (!(s.pdf[0] > 0)) return std::nullopt;
+  return s;
+}
+
 std::optional<BsdfSample> DielectricBsdf::sample(const Vec3f& wo, float uc, Point2f u) const {
   if (wo.z == 0.0f) return std::nullopt;
   if (specular()) return sample_smooth(wo, uc);

@@ -118,7 +118,28 @@ class DiffuseTransmissionBsdf {
   int lanes_;
 };
 
-using Bsdf = std::variant<DiffuseBsdf, DielectricBsdf, ConductorBsdf, DiffuseTransmissionBsdf>;
+// pbrt-v4's ThinDielectricBxDF: a thin slab's two interfaces with every internal bounce summed,
+// R' = R + T²R/(1 − R²) and T' = 1 − R' (R the interface's Fresnel reflectance at the lane's η).
+// Reflection mirrors and transmission passes straight through, so both events leave in the
+// same direction at every wavelength: every lane follows, each with its own probability.
+class ThinDielectricBsdf {
+ public:
+  ThinDielectricBsdf(const SampledSpectrum& eta, int lanes) : eta_(eta), lanes_(lanes) {}
+  std::optional<BsdfSample> sample(const Vec3f& wo, float uc, Point2f u) const;
+  SampledSpectrum eval(const Vec3f&, const Vec3f&) const { return {}; }
+  SampledSpectrum pdf(const Vec3f&, const Vec3f&) const { return {}; }
+  bool specular() const { return true; }
+  bool dispersive() const { return false; }
+  // R' of lane `lane` at cos θ_o.
+  float reflectance(int lane, float cos_theta_o) const;
+
+ private:
+  SampledSpectrum eta_;
+  int lanes_;
+};
+
+using Bsdf = std::variant<DiffuseBsdf, DielectricBsdf, ConductorBsdf, DiffuseTransmissionBsdf,
+                          ThinDielectricBsdf>;
 
 inline std::optional<BsdfSample> sample(const Bsdf& bsdf, const Vec3f& wo, float uc, Point2f u) {
   return std::visit([&](const auto& b) { return b.sample(wo, uc, u); }, bsdf);

@@ -243,6 +243,40 @@ TEST(BsdfTest, DiffuseTransmissionAlbedoIsReflectancePlusTransmittance) {
   }
 }
 
+// A thin dielectric slab: at normal incidence R' = 2R/(1 + R) (R = ((η−1)/(η+1))², every
+// internal bounce summed); reflection mirrors, transmission goes straight through, every lane
+// follows either event with its own probability, and the events' frequencies follow R'.
+TEST(BsdfTest, ThinDielectricSumsItsInternalBounces) {
+  const SampledSpectrum eta = spectrum_of({1.5f, 1.52f, 1.55f, 2.4f});
+  ThinDielectricBsdf bsdf(eta, kLanes);
+  for (int lane = 0; lane < kLanes; ++lane) {
+    const double r = std::pow((eta[lane] - 1.0) / (eta[lane] + 1.0), 2);
+    EXPECT_NEAR(bsdf.reflectance(lane, 1.0f), 2 * r / (1 + r), 1e-6) << lane;
+    EXPECT_NEAR(bsdf.reflectance(lane, -1.0f), 2 * r / (1 + r), 1e-6) << lane;
+  }
+  const Vec3f wo = direction(40, 15);
+  int reflected = 0;
+  constexpr int kN = 20000;
+  for (std::uint32_t i = 0; i < kN; ++i) {
+    auto bs = bsdf.sample(wo, (i + 0.5f) / kN, {0.5f, 0.5f});
+    ASSERT_TRUE(bs);
+    EXPECT_TRUE(bs->specular);
+    EXPECT_FALSE(bs->hero_only);
+    if (bs->transmission) {
+      EXPECT_EQ(bs->wi, -wo);
+    } else {
+      EXPECT_EQ(bs->wi, Vec3f(-wo.x, -wo.y, wo.z));
+      ++reflected;
+    }
+    for (int lane = 0; lane < kLanes; ++lane) {
+      const float r = bsdf.reflectance(lane, wo.z);
+      EXPECT_FLOAT_EQ(bs->pdf[lane], bs->transmission ? 1 - r : r);
+      EXPECT_FLOAT_EQ(bs->f[lane] * abs_cos_theta(bs->wi), bs->pdf[lane]);
+    }
+  }
+  EXPECT_NEAR(double(reflected) / kN, bsdf.reflectance(0, wo.z), 1.0 / kN + 1e-6);
+}
+
 TEST(BsdfTest, DiffuseAlbedoIsReflectance) {
   DiffuseBsdf bsdf(spectrum_of({0.25f, 1.0f, 0.5f, 0.75f}), kLanes);
   Vec3f wo = direction(40, 0);

@@ -34,6 +34,10 @@ EventValue event_value(const Bsdf& bsdf, const Vec3f& wo, const Vec3f& wi, bool 
     const float etap = cos_theta(wo) > 0 ? d->eta(0) : 1.0f / d->eta(0);
     return {(1.0f - f) / (etap * etap), 1.0f - f};
   }
+  if (const auto* thin = std::get_if<ThinDielectricBsdf>(&bsdf)) {
+    const float r = thin->reflectance(0, cos_theta(wo));
+    return transmission ? EventValue{1.0f - r, 1.0f - r} : EventValue{r, r};
+  }
   // A smooth conductor reflects with probability 1; its sample() ignores the numbers.
   auto s = sample(bsdf, wo, 0.0f, {0.5f, 0.5f});
   if (!s || transmission) return {};

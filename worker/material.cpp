@@ -211,6 +211,13 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       if (!r.ok()) return invalid(absl::StrCat("conductor ", r.status().message()));
       return r;
     }
+    absl::StatusOr<Material> operator()(const scene::ThinDielectricMaterial& m) const {
+      auto eta = resolve_ior(m.eta, library);
+      if (!eta.ok()) return invalid(absl::StrCat("thindielectric: ", eta.status().message()));
+      ThinDielectricMaterial out{*std::move(eta), false};
+      out.dispersive = spectral::is_dispersive(out.eta);
+      return Material(std::move(out));
+    }
     absl::StatusOr<Material> operator()(const scene::DiffuseTransmissionMaterial& m) const {
       auto r = resolve_spectrum(m.reflectance, SpectrumRole::kReflectance, library, uplift);
       if (!r.ok())
@@ -258,6 +265,11 @@ std::optional<Bsdf> make_bsdf(const Material& material,
       return Bsdf(ConductorBsdf(eta, k, lanes, TrowbridgeReitz(m.alpha_x, m.alpha_y)));
     }
     std::optional<Bsdf> operator()(const InterfaceMaterial&) const { return std::nullopt; }
+    std::optional<Bsdf> operator()(const ThinDielectricMaterial& m) const {
+      SampledSpectrum eta;
+      for (int i = 0; i < lanes; ++i) eta[i] = float(spectral::eta(m.eta, lambda.lambda(i)));
+      return Bsdf(ThinDielectricBsdf(eta, lanes));
+    }
     std::optional<Bsdf> operator()(const DiffuseTransmissionMaterial& m) const {
       return Bsdf(DiffuseTransmissionBsdf(spectral::sample(m.reflectance, lambda) * m.scale,
                                           spectral::sample(m.transmittance, lambda) * m.scale,
@@ -286,6 +298,7 @@ bool depends_on_wavelength(const Material& material) {
     bool operator()(const DiffuseTransmissionMaterial& m) const {
       return !spectral::is_constant(m.reflectance) || !spectral::is_constant(m.transmittance);
     }
+    bool operator()(const ThinDielectricMaterial& m) const { return m.dispersive; }
   };
   return std::visit(Visitor{}, material);
 }

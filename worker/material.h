@@ -41,6 +41,13 @@ struct ConductorMaterial {
 
 struct InterfaceMaterial {};
 
+// A thin slab of a dielectric: Fresnel reflection and straight transmission, never bent, so it
+// depends on wavelength through its Fresnel terms alone (no lane is ever terminated).
+struct ThinDielectricMaterial {
+  spectral::Ior eta;
+  bool dispersive = false;  // η varies with λ (the reflectance does; directions do not)
+};
+
 // Lambertian reflection and transmission; `scale` already applied.
 struct DiffuseTransmissionMaterial {
   spectral::Spectrum reflectance;
@@ -48,8 +55,9 @@ struct DiffuseTransmissionMaterial {
   float scale = 1;
 };
 
-using Material = std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial,
-                              InterfaceMaterial, DiffuseTransmissionMaterial>;
+using Material =
+    std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial, InterfaceMaterial,
+                 DiffuseTransmissionMaterial, ThinDielectricMaterial>;
 
 // Resolves a scene material. Errors name the material's file:line:column (unknown names are
 // already refused by the parser; this catches values out of range, e.g. reflectance > 1).

@@ -131,6 +131,11 @@ struct ConductorMaterial {
 // No surface scattering: marks a boundary between media.
 struct InterfaceMaterial {};
 
+// pbrt-v4's `thindielectric`: a thin slab (two parallel interfaces, internal bounces summed).
+struct ThinDielectricMaterial {
+  IorParam eta = IorConstant{1.5};
+};
+
 // pbrt-v4's `diffusetransmission`: Lambertian reflection R and transmission T, both times
 // `scale`.
 struct DiffuseTransmissionMaterial {
@@ -139,8 +144,9 @@ struct DiffuseTransmissionMaterial {
   double scale = 1.0;
 };
 
-using MaterialKind = std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial,
-                                  InterfaceMaterial, DiffuseTransmissionMaterial>;
+using MaterialKind =
+    std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial, InterfaceMaterial,
+                 DiffuseTransmissionMaterial, ThinDielectricMaterial>;
 
 struct Material {
   std::string name;  // empty for anonymous `Material` directives and the default material

@@ -396,6 +396,10 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     kind = std::move(m);
   } else if (type.name == "interface") {
     kind = InterfaceMaterial{};
+  } else if (type.name == "thindielectric") {
+    ThinDielectricMaterial m;
+    PRISM_ASSIGN_OR_RETURN(m.eta, read_dielectric_eta(params, ctx));
+    kind = std::move(m);
   } else if (type.name == "diffusetransmission") {
     DiffuseTransmissionMaterial m;
     PRISM_ASSIGN_OR_RETURN(m.reflectance, spectrum_or(params, "reflectance", SpectrumRole::kReflectance, ctx,
@@ -407,7 +411,8 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     kind = std::move(m);
   } else {
     return unsupported_type(type, "material",
-                            {"conductor", "dielectric", "diffuse", "diffusetransmission", "interface"});
+                            {"conductor", "dielectric", "diffuse", "diffusetransmission", "interface",
+                             "thindielectric"});
   }
   PRISM_RETURN_IF_ERROR(refuse_common_material_params(params));
   PRISM_RETURN_IF_ERROR(params.check_all_used());
