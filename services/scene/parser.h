@@ -8,7 +8,10 @@
 //
 // Every error is a Status whose message starts with `file:line:column: `; nothing is
 // silently dropped: unsupported input is an error naming it, input that is accepted but
-// changed (sampler, filter, integrator tuning, Option) is a warning in the result.
+// changed (sampler, integrator tuning, Option, the film's `savefp16`) is a warning in the
+// result. Beyond the basics it reads pbrt-v4's pixel filters (box, gaussian, triangle,
+// mitchell, lanczos), distant lights, orthographic cameras, and the `diffusetransmission` and
+// `thindielectric` materials.
 //
 // Deliberate differences from pbrt-v4:
 // - Include/Import and other file names are relative to the file that mentions them (pbrt-v4:
@@ -20,7 +23,9 @@
 //   dielectrics; a `float` where a spectrum is expected (a constant spectrum).
 // - A spectrum given as a string is a file if it contains '/' or '.', else a named spectrum.
 // - Refused (each by name): textures, partial spheres, image lights, motion blur, crop
-//   windows, non-default sensors, lambdamin/lambdamax other than 360/830 nm, emissive media.
+//   windows, non-default sensors, lambdamin/lambdamax other than 360/830 nm, emissive media,
+//   the coated, mix and measured materials, disks, cylinders and subdivision surfaces,
+//   spherical and realistic cameras.
 // - The homogeneous medium's `g` is kept (Henyey-Greenstein, as pbrt-v4); `preset` and `Le`
 //   are refused.
 // - Integrator names other than path/volpath are accepted with a warning and rendered by
