@@ -11,18 +11,24 @@ namespace prism::worker {
 
 absl::StatusOr<Camera> Camera::create(const scene::Camera& camera, int width, int height) {
   const bool orthographic = camera.type == "orthographic";
-  if (camera.type != "perspective" && !orthographic) {
-    return scene::location_error(
-        camera.where,
-        absl::StrCat("camera \"", camera.type,
-                     "\" is not supported; Prism renders \"perspective\" and \"orthographic\""));
+  const bool spherical = camera.type == "spherical";
+  if (camera.type != "perspective" && !orthographic && !spherical) {
+    return scene::location_error(camera.where,
+                                 absl::StrCat("camera \"", camera.type,
+                                              "\" is not supported; Prism renders \"perspective\", "
+                                              "\"orthographic\" and \"spherical\""));
+  }
+  if (spherical && camera.mapping != "equalarea" && camera.mapping != "equirectangular") {
+    return scene::location_error(camera.where,
+                                 absl::StrCat("spherical camera mapping \"", camera.mapping,
+                                              "\": want equalarea or equirectangular"));
   }
   if (width < 1 || height < 1 || width > scene::kMaxResolution || height > scene::kMaxResolution) {
     return scene::location_error(
         camera.where, absl::StrCat("film resolution ", width, "x", height, " is outside 1..",
                                    scene::kMaxResolution, " per axis"));
   }
-  if (!orthographic && !(camera.fov_deg > 0.0 && camera.fov_deg < 180.0)) {
+  if (!orthographic && !spherical && !(camera.fov_deg > 0.0 && camera.fov_deg < 180.0)) {
     return scene::location_error(
         camera.where, absl::StrCat("fov ", camera.fov_deg, " must be in (0, 180) degrees"));
   }
@@ -69,6 +75,7 @@ absl::StatusOr<Camera> Camera::create(const scene::Camera& camera, int width, in
       orthographic ? 1.0 : std::tan(camera.fov_deg * 0.5 * std::numbers::pi / 180.0);
   Camera c;
   c.orthographic_ = orthographic;
+  c.spherical_ = spherical ? (camera.mapping == "equalarea" ? 1 : 2) : 0;
   c.width_ = width;
   c.height_ = height;
   c.screen_x0_ = xmin * tan_half;
@@ -81,7 +88,41 @@ absl::StatusOr<Camera> Camera::create(const scene::Camera& camera, int width, in
   return c;
 }
 
+Vec3f equal_area_square_to_sphere(Point2f p) {
+  // pbrt-v4's EqualAreaSquareToSphere (Clarberg's octahedral equal-area map).
+  const double u = 2.0 * p.x - 1.0, v = 2.0 * p.y - 1.0;
+  const double up = std::abs(u), vp = std::abs(v);
+  const double signed_distance = 1.0 - (up + vp);
+  const double d = std::abs(signed_distance);
+  const double r = 1.0 - d;
+  const double phi = (r == 0.0 ? 1.0 : (vp - up) / r + 1.0) * std::numbers::pi / 4.0;
+  const double z = std::copysign(1.0 - r * r, signed_distance);
+  const double cos_phi = std::copysign(std::cos(phi), u);
+  const double sin_phi = std::copysign(std::sin(phi), v);
+  const double s = r * std::sqrt(std::max(0.0, 2.0 - r * r));
+  return {float(cos_phi * s), float(sin_phi * s), float(z)};
+}
+
 Ray Camera::generate_ray(Point2f film, Point2f lens) const {
+  if (spherical_ != 0) {
+    // pbrt-v4's SphericalCamera: the film's (u, v) in [0, 1]² picks a direction on the whole
+    // sphere, the map's z axis turned to camera +y.
+    const Point2f uv{film.x / float(width_), film.y / float(height_)};
+    Vec3f d;
+    if (spherical_ == 1) {
+      d = equal_area_square_to_sphere(uv);
+    } else {
+      const double theta = std::numbers::pi * uv.y, phi = 2.0 * std::numbers::pi * uv.x;
+      d = {float(std::sin(theta) * std::cos(phi)), float(std::sin(theta) * std::sin(phi)),
+           float(std::cos(theta))};
+    }
+    std::swap(d.y, d.z);
+    const scene::Vec3 o = world_from_camera_.apply_point({0.0, 0.0, 0.0});
+    const scene::Vec3 w = world_from_camera_.apply_vector({d.x, d.y, d.z});
+    const double len = std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    return Ray{{float(o[0]), float(o[1]), float(o[2])},
+               {float(w[0] / len), float(w[1] / len), float(w[2] / len)}};
+  }
   // Everything in double: the camera transform may carry large translations (scenes in mm).
   const double px = screen_x0_ + double(film.x) * screen_dx_;
   const double py = screen_y0_ + double(film.y) * screen_dy_;

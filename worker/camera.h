@@ -15,10 +15,13 @@
 
 namespace prism::worker {
 
+// pbrt-v4's EqualAreaSquareToSphere: [0, 1]² onto the unit sphere, preserving area.
+Vec3f equal_area_square_to_sphere(Point2f p);
+
 class Camera {
  public:
   // Film resolution width x height (the job's, which may override the scene's). pbrt-v4's
-  // perspective and orthographic cameras (the latter's screen window in camera-space units).
+  // perspective, orthographic (its screen window in camera-space units) and spherical cameras.
   // Errors: other cameras, fov outside (0, 180), non-positive focal distance with a lens.
   static absl::StatusOr<Camera> create(const scene::Camera& camera, int width, int height);
 
@@ -36,6 +39,7 @@ class Camera {
   double screen_x0_ = 0, screen_y0_ = 0, screen_dx_ = 0, screen_dy_ = 0;
   double lens_radius_ = 0, focal_distance_ = 1;
   bool orthographic_ = false;
+  int spherical_ = 0;  // 0: not spherical; 1: equal-area; 2: equirectangular
   scene::Transform world_from_camera_;
 };
 

@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <random>
 
 #include "absl/strings/match.h"
 #include "worker/sampler.h"
@@ -204,6 +205,64 @@ TEST(CameraTest, OrthographicRaysAreParallelAndSpanTheScreenWindow) {
     EXPECT_NEAR(r.origin.x + t * r.direction.x, pinhole.origin.x, 1e-4);
     EXPECT_NEAR(r.origin.y + t * r.direction.y, pinhole.origin.y, 1e-4);
   }
+}
+
+// pbrt-v4's equal-area square-to-sphere map: unit directions, the square's centre on +z and its
+// corners on −z, and equal areas (its Jacobian is constant).
+TEST(CameraTest, EqualAreaMapIsUnitAndPreservesArea) {
+  const Vec3f centre = equal_area_square_to_sphere({0.5f, 0.5f});
+  EXPECT_NEAR(centre.z, 1.0f, 1e-6);
+  for (Point2f corner : {Point2f{0, 0}, Point2f{1, 0}, Point2f{0, 1}, Point2f{1, 1}}) {
+    EXPECT_NEAR(equal_area_square_to_sphere(corner).z, -1.0f, 1e-6);
+  }
+  // The map's Jacobian is the sphere's area over the square's, 4π, wherever it is smooth (off the
+  // axes and the diamond |u − ½| + |v − ½| = ½ where the octants meet).
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> uniform(0.02f, 0.98f);
+  int checked = 0;
+  for (int i = 0; i < 400; ++i) {
+    const Point2f p{uniform(rng), uniform(rng)};
+    const float a = std::abs(p.x - 0.5f), b = std::abs(p.y - 0.5f);
+    if (a < 0.01f || b < 0.01f || std::abs(a + b - 0.5f) < 0.01f) continue;
+    constexpr float kEps = 1e-3f;
+    const Vec3f du = (equal_area_square_to_sphere({p.x + kEps, p.y}) -
+                      equal_area_square_to_sphere({p.x - kEps, p.y})) /
+                     (2 * kEps);
+    const Vec3f dv = (equal_area_square_to_sphere({p.x, p.y + kEps}) -
+                      equal_area_square_to_sphere({p.x, p.y - kEps})) /
+                     (2 * kEps);
+    EXPECT_NEAR(length(cross(du, dv)), 4 * kPi, 0.01 * 4 * kPi) << p.x << "," << p.y;
+    EXPECT_NEAR(length(equal_area_square_to_sphere(p)), 1.0f, 1e-5);
+    ++checked;
+  }
+  EXPECT_GT(checked, 300);
+}
+
+// The spherical camera sees the whole sphere from its origin: equirectangular rows are
+// latitudes (the top row looks along camera +y, the bottom along −y), the equal-area film's
+// centre looks up; every ray leaves the camera's position.
+TEST(CameraTest, SphericalCamerasMapTheFilmOntoTheSphere) {
+  scene::Camera c = look_at_camera({1, 2, 3}, {1, 2, 13}, {0, 1, 0}, 45);
+  c.type = "spherical";
+  c.mapping = "equirectangular";
+  auto equirect = Camera::create(c, 64, 32);
+  ASSERT_TRUE(equirect.ok()) << equirect.status();
+  const Ray top = equirect->generate_ray({17.3f, 0.0f}, {});
+  EXPECT_NEAR(top.direction.y, 1.0f, 1e-5);
+  const Ray bottom = equirect->generate_ray({40.0f, 32.0f}, {});
+  EXPECT_NEAR(bottom.direction.y, -1.0f, 1e-5);
+  const Ray horizon = equirect->generate_ray({16.0f, 16.0f}, {});  // θ = π/2, φ = π/2
+  EXPECT_NEAR(horizon.direction.y, 0.0f, 1e-5);
+  EXPECT_NEAR(horizon.direction.z, 1.0f, 1e-5);  // camera +z (the look direction) is world +z
+  EXPECT_NEAR(horizon.origin.x, 1.0f, 1e-5);
+  EXPECT_NEAR(horizon.origin.y, 2.0f, 1e-5);
+  EXPECT_NEAR(horizon.origin.z, 3.0f, 1e-5);
+  c.mapping = "equalarea";
+  auto area = Camera::create(c, 32, 32);
+  ASSERT_TRUE(area.ok()) << area.status();
+  EXPECT_NEAR(area->generate_ray({16.0f, 16.0f}, {}).direction.y, 1.0f, 1e-5);
+  c.mapping = "cylindrical";
+  EXPECT_FALSE(Camera::create(c, 32, 32).ok());
 }
 
 TEST(CameraTest, UnsupportedCamerasAreRefusedWithTheirLocation) {

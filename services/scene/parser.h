@@ -10,8 +10,8 @@
 // silently dropped: unsupported input is an error naming it, input that is accepted but
 // changed (sampler, integrator tuning, Option, the film's `savefp16`) is a warning in the
 // result. Beyond the basics it reads pbrt-v4's pixel filters (box, gaussian, triangle,
-// mitchell, lanczos), distant lights, orthographic cameras, and the `diffusetransmission` and
-// `thindielectric` materials.
+// mitchell, lanczos), distant lights, orthographic and spherical cameras, the `diffusetransmission`
+// and `thindielectric` materials.
 //
 // Deliberate differences from pbrt-v4:
 // - Include/Import and other file names are relative to the file that mentions them (pbrt-v4:
@@ -25,7 +25,7 @@
 // - Refused (each by name): textures, partial spheres, image lights, motion blur, crop
 //   windows, non-default sensors, lambdamin/lambdamax other than 360/830 nm, emissive media,
 //   the coated, mix and measured materials, disks, cylinders and subdivision surfaces,
-//   spherical and realistic cameras.
+//   realistic cameras.
 // - The homogeneous medium's `g` is kept (Henyey-Greenstein, as pbrt-v4); `preset` and `Le`
 //   are refused.
 // - Integrator names other than path/volpath are accepted with a warning and rendered by
@@ -62,7 +62,8 @@ enum class MeshFormat { kPly, kObj };
 
 // How the parser reads referenced files. Paths are normalised and relative to the scene root.
 struct SceneFiles {
-  std::function<absl::StatusOr<std::string>(const std::string& relpath, std::uint64_t max_bytes)> read;
+  std::function<absl::StatusOr<std::string>(const std::string& relpath, std::uint64_t max_bytes)>
+      read;
   std::function<absl::StatusOr<TriangleMeshData>(const std::string& relpath, MeshFormat format,
                                                  const MeshLimits& limits)>
       load_mesh;
@@ -75,8 +76,8 @@ absl::StatusOr<SceneDescription> parse_scene(std::string_view text, const std::s
 // Parses from memory. `files` maps normalised relative paths to contents (Include targets,
 // meshes, spectrum tables); a reference to anything else is NOT_FOUND. `name` is the scene's
 // file name in messages.
-absl::StatusOr<SceneDescription> parse_scene_string(std::string_view text, const std::string& name,
-                                                    const LoadOptions& options = {},
-                                                    const std::map<std::string, std::string>& files = {});
+absl::StatusOr<SceneDescription> parse_scene_string(
+    std::string_view text, const std::string& name, const LoadOptions& options = {},
+    const std::map<std::string, std::string>& files = {});
 
 }  // namespace prism::scene

@@ -84,7 +84,7 @@ const BadCase kBadCases[] = {
      "infinite, point, spot)"},
     {"unknown_camera.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_camera.pbrt:1:8: unsupported camera type \"realistic\" (supported: orthographic, "
-     "perspective)"},
+     "perspective, spherical)"},
     {"unknown_medium.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_medium.pbrt:1:25: unsupported medium type \"grid\" (supported: homogeneous)"},
     {"undefined_medium.pbrt", absl::StatusCode::kInvalidArgument,

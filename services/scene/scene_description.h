@@ -62,6 +62,9 @@ struct Camera {
   double focal_distance = 1e6;
   std::optional<double> frame_aspect_ratio;
   std::optional<std::array<double, 4>> screen_window;  // xmin, xmax, ymin, ymax
+  // spherical: "equalarea" (pbrt-v4's default, the equal-area octahedral square) or
+  // "equirectangular".
+  std::string mapping = "equalarea";
   int medium = -1;  // the outside medium current at the Camera directive
   SourceLocation where;
 };

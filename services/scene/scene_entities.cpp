@@ -12,18 +12,21 @@ namespace {
 
 absl::Status unsupported_type(const TypeName& type, const char* what,
                               std::initializer_list<const char*> supported) {
-  return location_error(type.where, absl::StrCat("unsupported ", what, " type \"", type.name,
-                                                 "\" (supported: ", absl::StrJoin(supported, ", "), ")"));
+  return location_error(type.where,
+                        absl::StrCat("unsupported ", what, " type \"", type.name,
+                                     "\" (supported: ", absl::StrJoin(supported, ", "), ")"));
 }
 
 // An error at the parameter's declaration.
-absl::Status param_error(const ParameterList& params, const std::string& name, const std::string& message) {
+absl::Status param_error(const ParameterList& params, const std::string& name,
+                         const std::string& message) {
   const Parameter* p = params.find(name);
-  return location_error(p->where, absl::StrCat("'", param_type_name(p->type), " ", name, "' ", message));
+  return location_error(p->where,
+                        absl::StrCat("'", param_type_name(p->type), " ", name, "' ", message));
 }
 
-absl::Status check_range(const ParameterList& params, const std::string& name, double value, double lo,
-                         double hi, const std::string& range_text) {
+absl::Status check_range(const ParameterList& params, const std::string& name, double value,
+                         double lo, double hi, const std::string& range_text) {
   if (params.has(name) && !(value >= lo && value <= hi))
     return param_error(params, name, absl::StrCat("must be ", range_text, ", got ", value));
   return absl::OkStatus();
@@ -48,24 +51,29 @@ absl::Status refuse_common_material_params(const ParameterList& params) {
   return absl::OkStatus();
 }
 
-absl::StatusOr<IorParam> read_dielectric_eta(const ParameterList& params, const EntityContext& ctx) {
+absl::StatusOr<IorParam> read_dielectric_eta(const ParameterList& params,
+                                             const EntityContext& ctx) {
   int given = params.has("eta") + params.has("cauchy") + params.has("sellmeier");
   if (given > 1) {
     const char* second = params.has("sellmeier") ? "sellmeier" : "cauchy";
-    return param_error(params, second, "conflicts with another index of refraction (give one of eta, cauchy, sellmeier)");
+    return param_error(
+        params, second,
+        "conflicts with another index of refraction (give one of eta, cauchy, sellmeier)");
   }
   if (params.has("cauchy")) {
     PRISM_ASSIGN_OR_RETURN(std::vector<double> c, params.get_floats("cauchy"));
     if (c.size() < 2 || c.size() > 4)
-      return param_error(params, "cauchy", absl::StrCat("needs 2 to 4 coefficients [A B C D], got ", c.size()));
+      return param_error(params, "cauchy",
+                         absl::StrCat("needs 2 to 4 coefficients [A B C D], got ", c.size()));
     if (!(c[0] > 0)) return param_error(params, "cauchy", "needs A > 0");
     return IorCauchy{c};
   }
   if (params.has("sellmeier")) {
     PRISM_ASSIGN_OR_RETURN(std::vector<double> c, params.get_floats("sellmeier"));
     if (c.size() != 6)
-      return param_error(params, "sellmeier",
-                         absl::StrCat("needs 6 coefficients [B1 B2 B3 C1 C2 C3] (C in um^2), got ", c.size()));
+      return param_error(
+          params, "sellmeier",
+          absl::StrCat("needs 6 coefficients [B1 B2 B3 C1 C2 C3] (C in um^2), got ", c.size()));
     IorSellmeier s;
     for (int i = 0; i < 3; ++i) {
       s.b[i] = c[i];
@@ -76,7 +84,8 @@ absl::StatusOr<IorParam> read_dielectric_eta(const ParameterList& params, const 
   }
   const Parameter* p = params.find("eta");
   if (p == nullptr) return IorConstant{1.5};
-  if (p->type == ParamType::kRgb) return param_error(params, "eta", "cannot be an rgb value; use a float or a spectrum");
+  if (p->type == ParamType::kRgb)
+    return param_error(params, "eta", "cannot be an rgb value; use a float or a spectrum");
   PRISM_ASSIGN_OR_RETURN(std::optional<SpectrumParam> found,
                          params.find_spectrum("eta", SpectrumRole::kIor, ctx.spectra));
   SpectrumParam s = found.value_or(SpectrumConstant{1.5});
@@ -94,13 +103,16 @@ absl::StatusOr<IorParam> read_dielectric_eta(const ParameterList& params, const 
 }
 
 absl::StatusOr<SpectrumParam> spectrum_or(const ParameterList& params, const std::string& name,
-                                          SpectrumRole role, const EntityContext& ctx, SpectrumParam fallback) {
-  PRISM_ASSIGN_OR_RETURN(std::optional<SpectrumParam> s, params.find_spectrum(name, role, ctx.spectra));
+                                          SpectrumRole role, const EntityContext& ctx,
+                                          SpectrumParam fallback) {
+  PRISM_ASSIGN_OR_RETURN(std::optional<SpectrumParam> s,
+                         params.find_spectrum(name, role, ctx.spectra));
   if (s) return std::move(*s);
   return fallback;
 }
 
-absl::StatusOr<std::optional<double>> positive_optional(const ParameterList& params, const std::string& name) {
+absl::StatusOr<std::optional<double>> positive_optional(const ParameterList& params,
+                                                        const std::string& name) {
   PRISM_ASSIGN_OR_RETURN(std::optional<double> v, params.find_float(name));
   if (v && !(*v > 0)) return param_error(params, name, "must be > 0");
   return v;
@@ -131,41 +143,54 @@ Transform frame_from_z(const Vec3& dir) {
   return *Transform::from_matrix(m);
 }
 
-absl::StatusOr<std::shared_ptr<TriangleMeshData>> inline_mesh(const ParameterList& params, bool bilinear,
-                                                              const TypeName& type, const EntityContext& ctx) {
+absl::StatusOr<std::shared_ptr<TriangleMeshData>> inline_mesh(const ParameterList& params,
+                                                              bool bilinear, const TypeName& type,
+                                                              const EntityContext& ctx) {
   const size_t corners = bilinear ? 4 : 3;
   PRISM_ASSIGN_OR_RETURN(std::vector<Vec3> p, params.get_triples("P", ParamType::kPoint3));
   PRISM_ASSIGN_OR_RETURN(std::vector<std::int64_t> indices, params.get_ints("indices"));
   PRISM_ASSIGN_OR_RETURN(std::vector<Vec3> n, params.get_triples("N", ParamType::kNormal3));
   PRISM_ASSIGN_OR_RETURN(auto uv, params.get_point2s("uv"));
-  if (p.empty()) return location_error(type.where, absl::StrCat("\"", type.name, "\" needs 'point3 P'"));
+  if (p.empty())
+    return location_error(type.where, absl::StrCat("\"", type.name, "\" needs 'point3 P'"));
   if (indices.empty()) {
     if (p.size() != corners)
-      return location_error(type.where, absl::StrCat("\"", type.name, "\" needs 'integer indices' (only a single ",
-                                                     bilinear ? "patch of 4" : "triangle of 3",
-                                                     " vertices may omit them)"));
+      return location_error(
+          type.where,
+          absl::StrCat("\"", type.name, "\" needs 'integer indices' (only a single ",
+                       bilinear ? "patch of 4" : "triangle of 3", " vertices may omit them)"));
     for (size_t i = 0; i < corners; ++i) indices.push_back(static_cast<std::int64_t>(i));
   }
   if (indices.size() % corners != 0)
-    return param_error(params, "indices", absl::StrCat("needs a multiple of ", corners, " values, got ", indices.size()));
+    return param_error(
+        params, "indices",
+        absl::StrCat("needs a multiple of ", corners, " values, got ", indices.size()));
   for (std::int64_t i : indices)
     if (i < 0 || static_cast<size_t>(i) >= p.size())
-      return param_error(params, "indices", absl::StrCat("refers to vertex ", i, " but 'P' has ", p.size(), " vertices"));
+      return param_error(
+          params, "indices",
+          absl::StrCat("refers to vertex ", i, " but 'P' has ", p.size(), " vertices"));
   if (!n.empty() && n.size() != p.size())
-    return param_error(params, "N", absl::StrCat("has ", n.size(), " normals for ", p.size(), " vertices"));
+    return param_error(params, "N",
+                       absl::StrCat("has ", n.size(), " normals for ", p.size(), " vertices"));
   if (!uv.empty() && uv.size() != p.size())
-    return param_error(params, "uv", absl::StrCat("has ", uv.size(), " uvs for ", p.size(), " vertices"));
+    return param_error(params, "uv",
+                       absl::StrCat("has ", uv.size(), " uvs for ", p.size(), " vertices"));
   size_t triangles = indices.size() / corners * (bilinear ? 2 : 1);
   if (triangles > ctx.mesh_limits.max_triangles)
-    return absl::ResourceExhaustedError(absl::StrCat(type.where.to_string(), ": \"", type.name, "\" has ", triangles,
-                                                     " triangles, more than the limit of ", ctx.mesh_limits.max_triangles));
+    return absl::ResourceExhaustedError(
+        absl::StrCat(type.where.to_string(), ": \"", type.name, "\" has ", triangles,
+                     " triangles, more than the limit of ", ctx.mesh_limits.max_triangles));
   auto mesh = std::make_shared<TriangleMeshData>();
   mesh->positions.reserve(p.size() + 1);
   for (const Vec3& v : p)
-    mesh->positions.push_back({static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])});
+    mesh->positions.push_back(
+        {static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])});
   for (const Vec3& v : n)
-    mesh->normals.push_back({static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])});
-  for (const auto& t : uv) mesh->uvs.push_back({static_cast<float>(t[0]), static_cast<float>(t[1])});
+    mesh->normals.push_back(
+        {static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])});
+  for (const auto& t : uv)
+    mesh->uvs.push_back({static_cast<float>(t[0]), static_cast<float>(t[1])});
   auto idx = [&](size_t i) { return static_cast<std::uint32_t>(indices[i]); };
   for (size_t i = 0; i < indices.size(); i += corners) {
     if (bilinear) {
@@ -183,18 +208,27 @@ absl::StatusOr<std::shared_ptr<TriangleMeshData>> inline_mesh(const ParameterLis
 }  // namespace
 
 void add_warning(const EntityContext& ctx, const SourceLocation& where, std::string_view message) {
-  if (ctx.warnings != nullptr) ctx.warnings->push_back(absl::StrCat(where.to_string(), ": warning: ", absl_view(message)));
+  if (ctx.warnings != nullptr)
+    ctx.warnings->push_back(absl::StrCat(where.to_string(), ": warning: ", absl_view(message)));
 }
 
 absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& params) {
-  if (type.name != "perspective" && type.name != "orthographic")
-    return unsupported_type(type, "camera", {"orthographic", "perspective"});
+  if (type.name != "perspective" && type.name != "orthographic" && type.name != "spherical")
+    return unsupported_type(type, "camera", {"orthographic", "perspective", "spherical"});
   Camera c;
   c.type = type.name;
   c.where = type.where;
+  if (c.type == "spherical") {
+    PRISM_ASSIGN_OR_RETURN(c.mapping, params.get_string("mapping", "equalarea"));
+    if (c.mapping != "equalarea" && c.mapping != "equirectangular")
+      return param_error(params, "mapping",
+                         absl::StrCat("\"", c.mapping, "\": want equalarea or equirectangular"));
+    PRISM_RETURN_IF_ERROR(params.refuse("lensradius", "the spherical camera has no lens"));
+  }
   if (c.type == "perspective") {
     PRISM_ASSIGN_OR_RETURN(c.fov_deg, params.get_float("fov", 90.0));
-    PRISM_RETURN_IF_ERROR(check_range(params, "fov", c.fov_deg, 1e-6, 179.999, "in (0, 180) degrees"));
+    PRISM_RETURN_IF_ERROR(
+        check_range(params, "fov", c.fov_deg, 1e-6, 179.999, "in (0, 180) degrees"));
   }
   PRISM_ASSIGN_OR_RETURN(c.lens_radius, params.get_float("lensradius", 0.0));
   PRISM_RETURN_IF_ERROR(check_range(params, "lensradius", c.lens_radius, 0.0, 1e30, ">= 0"));
@@ -204,7 +238,8 @@ absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& pa
   if (params.has("screenwindow")) {
     PRISM_ASSIGN_OR_RETURN(std::vector<double> w, params.get_floats("screenwindow"));
     if (w.size() != 4 || !(w[0] < w[1]) || !(w[2] < w[3]))
-      return param_error(params, "screenwindow", "needs 4 values xmin xmax ymin ymax with min < max");
+      return param_error(params, "screenwindow",
+                         "needs 4 values xmin xmax ymin ymax with min < max");
     c.screen_window = std::array<double, 4>{w[0], w[1], w[2], w[3]};
   }
   PRISM_RETURN_IF_ERROR(params.refuse("shutteropen", "motion blur is not supported"));
@@ -227,33 +262,40 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
   PRISM_ASSIGN_OR_RETURN(f.x_resolution, params.get_int("xresolution", 1280));
   PRISM_ASSIGN_OR_RETURN(f.y_resolution, params.get_int("yresolution", 720));
   std::string range = absl::StrCat("between 1 and ", kMaxResolution);
-  PRISM_RETURN_IF_ERROR(check_range(params, "xresolution", f.x_resolution, 1, kMaxResolution, range));
-  PRISM_RETURN_IF_ERROR(check_range(params, "yresolution", f.y_resolution, 1, kMaxResolution, range));
+  PRISM_RETURN_IF_ERROR(
+      check_range(params, "xresolution", f.x_resolution, 1, kMaxResolution, range));
+  PRISM_RETURN_IF_ERROR(
+      check_range(params, "yresolution", f.y_resolution, 1, kMaxResolution, range));
   PRISM_ASSIGN_OR_RETURN(f.filename, params.get_string("filename", "pbrt.exr"));
   if (f.type == FilmType::kSpectral) {
     if (params.has("nbuckets")) {
       PRISM_ASSIGN_OR_RETURN(int bins, params.get_int("nbuckets", 16));
-      PRISM_RETURN_IF_ERROR(check_range(params, "nbuckets", bins, kMinSpectralBins, kMaxSpectralBins,
-                                        absl::StrCat("between ", kMinSpectralBins, " and ", kMaxSpectralBins)));
+      PRISM_RETURN_IF_ERROR(
+          check_range(params, "nbuckets", bins, kMinSpectralBins, kMaxSpectralBins,
+                      absl::StrCat("between ", kMinSpectralBins, " and ", kMaxSpectralBins)));
       f.bins = bins;
     }
     PRISM_ASSIGN_OR_RETURN(double lmin, params.get_float("lambdamin", kLambdaMinNm));
     PRISM_ASSIGN_OR_RETURN(double lmax, params.get_float("lambdamax", kLambdaMaxNm));
     if (lmin != kLambdaMinNm)
-      return param_error(params, "lambdamin", absl::StrCat("must be ", kLambdaMinNm, " (Prism's spectral range is ",
-                                                           kLambdaMinNm, "-", kLambdaMaxNm, " nm), got ", lmin));
+      return param_error(params, "lambdamin",
+                         absl::StrCat("must be ", kLambdaMinNm, " (Prism's spectral range is ",
+                                      kLambdaMinNm, "-", kLambdaMaxNm, " nm), got ", lmin));
     if (lmax != kLambdaMaxNm)
-      return param_error(params, "lambdamax", absl::StrCat("must be ", kLambdaMaxNm, " (Prism's spectral range is ",
-                                                           kLambdaMinNm, "-", kLambdaMaxNm, " nm), got ", lmax));
+      return param_error(params, "lambdamax",
+                         absl::StrCat("must be ", kLambdaMaxNm, " (Prism's spectral range is ",
+                                      kLambdaMinNm, "-", kLambdaMaxNm, " nm), got ", lmax));
   }
   // The sensor settings that would change pixel values are accepted only at their defaults.
   PRISM_ASSIGN_OR_RETURN(std::string sensor, params.get_string("sensor", "cie1931"));
   if (sensor != "cie1931")
-    return param_error(params, "sensor", absl::StrCat("\"", sensor, "\" is not supported (supported: cie1931)"));
+    return param_error(params, "sensor",
+                       absl::StrCat("\"", sensor, "\" is not supported (supported: cie1931)"));
   PRISM_ASSIGN_OR_RETURN(double iso, params.get_float("iso", 100.0));
   if (iso != 100.0) return param_error(params, "iso", "is only supported at its default, 100");
   PRISM_ASSIGN_OR_RETURN(double white_balance, params.get_float("whitebalance", 0.0));
-  if (white_balance != 0.0) return param_error(params, "whitebalance", "is not supported (only 0, none)");
+  if (white_balance != 0.0)
+    return param_error(params, "whitebalance", "is not supported (only 0, none)");
   // The film diagonal matters only for the realistic camera.
   PRISM_ASSIGN_OR_RETURN(double diagonal, params.get_float("diagonal", 35.0));
   PRISM_RETURN_IF_ERROR(check_range(params, "diagonal", diagonal, 1e-9, 1e30, "> 0"));
@@ -276,8 +318,9 @@ absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterLi
   bool known = false;
   for (std::string_view k : kKnown) known |= k == type.name;
   if (!known)
-    return unsupported_type(type, "sampler",
-                            {"halton", "independent", "paddedsobol", "pmj02bn", "sobol", "stratified", "zsobol"});
+    return unsupported_type(
+        type, "sampler",
+        {"halton", "independent", "paddedsobol", "pmj02bn", "sobol", "stratified", "zsobol"});
   SamplerSpec s;
   s.name = type.name;
   if (type.name == "stratified") {
@@ -290,7 +333,8 @@ absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterLi
     s.samples_per_pixel = x * y;
   } else {
     PRISM_ASSIGN_OR_RETURN(s.samples_per_pixel, params.get_int("pixelsamples", 16));
-    PRISM_RETURN_IF_ERROR(check_range(params, "pixelsamples", s.samples_per_pixel, 1, 1 << 24, "between 1 and 16777216"));
+    PRISM_RETURN_IF_ERROR(check_range(params, "pixelsamples", s.samples_per_pixel, 1, 1 << 24,
+                                      "between 1 and 16777216"));
   }
   PRISM_ASSIGN_OR_RETURN(int seed, params.get_int("seed", 0));
   PRISM_ASSIGN_OR_RETURN(std::string randomization, params.get_string("randomization", ""));
@@ -305,34 +349,39 @@ absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterLi
 
 absl::StatusOr<IntegratorSpec> make_integrator(const TypeName& type, const ParameterList& params,
                                                const EntityContext& ctx) {
-  static constexpr std::string_view kPbrt[] = {"ambientocclusion", "aov", "bdpt", "function", "lightpath",
-                                               "mlt", "path", "randomwalk", "simplepath", "simplevolpath",
-                                               "sppm", "volpath"};
+  static constexpr std::string_view kPbrt[] = {
+      "ambientocclusion", "aov",        "bdpt",          "function", "lightpath", "mlt", "path",
+      "randomwalk",       "simplepath", "simplevolpath", "sppm",     "volpath"};
   IntegratorSpec s;
   s.name = type.name;
   bool pbrt_name = false;
   for (std::string_view k : kPbrt) pbrt_name |= k == type.name;
   s.name_recognised = pbrt_name;
   PRISM_ASSIGN_OR_RETURN(s.max_depth, params.get_int("maxdepth", 5));
-  PRISM_RETURN_IF_ERROR(check_range(params, "maxdepth", s.max_depth, 0, 1024, "between 0 and 1024"));
+  PRISM_RETURN_IF_ERROR(
+      check_range(params, "maxdepth", s.max_depth, 0, 1024, "between 0 and 1024"));
   if (!pbrt_name) {
-    add_warning(ctx, type.where, absl::StrCat("unknown integrator \"", type.name,
-                                              "\"; Prism renders with its spectral path tracer"));
+    add_warning(ctx, type.where,
+                absl::StrCat("unknown integrator \"", type.name,
+                             "\"; Prism renders with its spectral path tracer"));
   } else if (type.name != "path" && type.name != "volpath") {
-    add_warning(ctx, type.where, absl::StrCat("integrator \"", type.name,
-                                              "\" is rendered with Prism's spectral path tracer"));
+    add_warning(ctx, type.where,
+                absl::StrCat("integrator \"", type.name,
+                             "\" is rendered with Prism's spectral path tracer"));
   }
   // The integrator itself is replaced, so its remaining tuning parameters cannot apply.
   std::vector<const Parameter*> rest = params.unused();
   for (const Parameter* p : rest) {
     p->used = true;
-    add_warning(ctx, p->where, absl::StrCat("integrator parameter '", param_type_name(p->type), " ", p->name,
-                                            "' ignored"));
+    add_warning(ctx, p->where,
+                absl::StrCat("integrator parameter '", param_type_name(p->type), " ", p->name,
+                             "' ignored"));
   }
   return s;
 }
 
-absl::StatusOr<PixelFilterSpec> make_pixel_filter(const TypeName& type, const ParameterList& params) {
+absl::StatusOr<PixelFilterSpec> make_pixel_filter(const TypeName& type,
+                                                  const ParameterList& params) {
   PixelFilterSpec f;
   f.where = type.where;
   double radius = 0;
@@ -343,7 +392,8 @@ absl::StatusOr<PixelFilterSpec> make_pixel_filter(const TypeName& type, const Pa
     f.type = PixelFilterType::kGaussian;
     radius = 1.5;
     PRISM_ASSIGN_OR_RETURN(f.sigma, params.get_float("sigma", 0.5));
-    PRISM_RETURN_IF_ERROR(check_range(params, "sigma", f.sigma, 1e-3, 1e3, "between 0.001 and 1000"));
+    PRISM_RETURN_IF_ERROR(
+        check_range(params, "sigma", f.sigma, 1e-3, 1e3, "between 0.001 and 1000"));
   } else if (type.name == "triangle") {
     f.type = PixelFilterType::kTriangle;
     radius = 2;
@@ -360,13 +410,16 @@ absl::StatusOr<PixelFilterSpec> make_pixel_filter(const TypeName& type, const Pa
     PRISM_ASSIGN_OR_RETURN(f.tau, params.get_float("tau", 3.0));
     PRISM_RETURN_IF_ERROR(check_range(params, "tau", f.tau, 1e-3, 1e3, "between 0.001 and 1000"));
   } else {
-    return unsupported_type(type, "pixel filter", {"box", "gaussian", "triangle", "mitchell", "lanczos"});
+    return unsupported_type(type, "pixel filter",
+                            {"box", "gaussian", "triangle", "mitchell", "lanczos"});
   }
   PRISM_ASSIGN_OR_RETURN(f.x_radius, params.get_float("xradius", radius));
   PRISM_ASSIGN_OR_RETURN(f.y_radius, params.get_float("yradius", radius));
   // A radius beyond 16 pixels would only blur; 0.01 keeps a box a box.
-  PRISM_RETURN_IF_ERROR(check_range(params, "xradius", f.x_radius, 0.01, 16, "between 0.01 and 16 pixels"));
-  PRISM_RETURN_IF_ERROR(check_range(params, "yradius", f.y_radius, 0.01, 16, "between 0.01 and 16 pixels"));
+  PRISM_RETURN_IF_ERROR(
+      check_range(params, "xradius", f.x_radius, 0.01, 16, "between 0.01 and 16 pixels"));
+  PRISM_RETURN_IF_ERROR(
+      check_range(params, "yradius", f.y_radius, 0.01, 16, "between 0.01 and 16 pixels"));
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return f;
 }
@@ -376,8 +429,9 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
   MaterialKind kind;
   if (type.name == "diffuse") {
     DiffuseMaterial m;
-    PRISM_ASSIGN_OR_RETURN(m.reflectance, spectrum_or(params, "reflectance", SpectrumRole::kReflectance, ctx,
-                                                      SpectrumConstant{0.5}));
+    PRISM_ASSIGN_OR_RETURN(
+        m.reflectance,
+        spectrum_or(params, "reflectance", SpectrumRole::kReflectance, ctx, SpectrumConstant{0.5}));
     kind = std::move(m);
   } else if (type.name == "dielectric") {
     DielectricMaterial m;
@@ -386,12 +440,16 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     kind = std::move(m);
   } else if (type.name == "conductor") {
     ConductorMaterial m;
-    PRISM_ASSIGN_OR_RETURN(m.reflectance, params.find_spectrum("reflectance", SpectrumRole::kReflectance, ctx.spectra));
+    PRISM_ASSIGN_OR_RETURN(
+        m.reflectance,
+        params.find_spectrum("reflectance", SpectrumRole::kReflectance, ctx.spectra));
     if (m.reflectance && (params.has("eta") || params.has("k")))
       return param_error(params, "reflectance", "cannot be combined with eta or k");
     // The worker samples a conductor's η and k as spectra (metal-*-k is no IOR).
-    PRISM_ASSIGN_OR_RETURN(m.eta, spectrum_or(params, "eta", SpectrumRole::kUnbounded, ctx, SpectrumNamed{"metal-Cu-eta"}));
-    PRISM_ASSIGN_OR_RETURN(m.k, spectrum_or(params, "k", SpectrumRole::kUnbounded, ctx, SpectrumNamed{"metal-Cu-k"}));
+    PRISM_ASSIGN_OR_RETURN(m.eta, spectrum_or(params, "eta", SpectrumRole::kUnbounded, ctx,
+                                              SpectrumNamed{"metal-Cu-eta"}));
+    PRISM_ASSIGN_OR_RETURN(
+        m.k, spectrum_or(params, "k", SpectrumRole::kUnbounded, ctx, SpectrumNamed{"metal-Cu-k"}));
     PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params));
     kind = std::move(m);
   } else if (type.name == "interface") {
@@ -402,25 +460,27 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     kind = std::move(m);
   } else if (type.name == "diffusetransmission") {
     DiffuseTransmissionMaterial m;
-    PRISM_ASSIGN_OR_RETURN(m.reflectance, spectrum_or(params, "reflectance", SpectrumRole::kReflectance, ctx,
-                                                      SpectrumConstant{0.25}));
-    PRISM_ASSIGN_OR_RETURN(m.transmittance, spectrum_or(params, "transmittance", SpectrumRole::kReflectance,
-                                                        ctx, SpectrumConstant{0.25}));
+    PRISM_ASSIGN_OR_RETURN(m.reflectance,
+                           spectrum_or(params, "reflectance", SpectrumRole::kReflectance, ctx,
+                                       SpectrumConstant{0.25}));
+    PRISM_ASSIGN_OR_RETURN(m.transmittance,
+                           spectrum_or(params, "transmittance", SpectrumRole::kReflectance, ctx,
+                                       SpectrumConstant{0.25}));
     PRISM_ASSIGN_OR_RETURN(m.scale, params.get_float("scale", 1.0));
     PRISM_RETURN_IF_ERROR(check_range(params, "scale", m.scale, 0.0, 1e6, ">= 0"));
     kind = std::move(m);
   } else {
     return unsupported_type(type, "material",
-                            {"conductor", "dielectric", "diffuse", "diffusetransmission", "interface",
-                             "thindielectric"});
+                            {"conductor", "dielectric", "diffuse", "diffusetransmission",
+                             "interface", "thindielectric"});
   }
   PRISM_RETURN_IF_ERROR(refuse_common_material_params(params));
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return kind;
 }
 
-absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& params, const Transform& ctm,
-                                 const EntityContext& ctx) {
+absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& params,
+                                 const Transform& ctm, const EntityContext& ctx) {
   Light light;
   light.where = type.where;
   if (type.name == "point") {
@@ -443,9 +503,10 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     PRISM_ASSIGN_OR_RETURN(Vec3 to, params.get_point3("to", {0, 0, 1}));
     PRISM_ASSIGN_OR_RETURN(s.cone_angle_deg, params.get_float("coneangle", 30.0));
     PRISM_ASSIGN_OR_RETURN(s.cone_delta_angle_deg, params.get_float("conedeltaangle", 5.0));
-    PRISM_RETURN_IF_ERROR(check_range(params, "coneangle", s.cone_angle_deg, 1e-9, 180.0, "in (0, 180] degrees"));
-    PRISM_RETURN_IF_ERROR(check_range(params, "conedeltaangle", s.cone_delta_angle_deg, 0.0, s.cone_angle_deg,
-                                      "between 0 and coneangle"));
+    PRISM_RETURN_IF_ERROR(
+        check_range(params, "coneangle", s.cone_angle_deg, 1e-9, 180.0, "in (0, 180] degrees"));
+    PRISM_RETURN_IF_ERROR(check_range(params, "conedeltaangle", s.cone_delta_angle_deg, 0.0,
+                                      s.cone_angle_deg, "between 0 and coneangle"));
     Vec3 dir{to[0] - from[0], to[1] - from[1], to[2] - from[2]};
     if (dir[0] == 0 && dir[1] == 0 && dir[2] == 0)
       return location_error(type.where, "spot light needs 'from' and 'to' to differ");
@@ -454,7 +515,8 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     s.direction_world = normalize(light.light_to_world.apply_vector({0, 0, 1}));
     light.kind = std::move(s);
   } else if (type.name == "infinite") {
-    PRISM_RETURN_IF_ERROR(params.refuse("filename", "image-based infinite lights are not supported"));
+    PRISM_RETURN_IF_ERROR(
+        params.refuse("filename", "image-based infinite lights are not supported"));
     PRISM_RETURN_IF_ERROR(params.refuse("portal", "portals are not supported"));
     InfiniteLight i;
     PRISM_ASSIGN_OR_RETURN(i.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
@@ -502,14 +564,18 @@ absl::StatusOr<AreaLight> make_area_light(const TypeName& type, const ParameterL
   return a;
 }
 
-absl::StatusOr<Medium> make_medium(const TypeName& type, const ParameterList& params, const EntityContext& ctx) {
+absl::StatusOr<Medium> make_medium(const TypeName& type, const ParameterList& params,
+                                   const EntityContext& ctx) {
   if (type.name != "homogeneous") return unsupported_type(type, "medium", {"homogeneous"});
-  PRISM_RETURN_IF_ERROR(params.refuse("preset", "named scattering presets are not supported; give sigma_a and sigma_s"));
+  PRISM_RETURN_IF_ERROR(params.refuse(
+      "preset", "named scattering presets are not supported; give sigma_a and sigma_s"));
   PRISM_RETURN_IF_ERROR(params.refuse("Le", "emissive media are not supported"));
   PRISM_RETURN_IF_ERROR(params.refuse("Lescale", "emissive media are not supported"));
   HomogeneousMedium h;
-  PRISM_ASSIGN_OR_RETURN(h.sigma_a, spectrum_or(params, "sigma_a", SpectrumRole::kUnbounded, ctx, SpectrumConstant{1.0}));
-  PRISM_ASSIGN_OR_RETURN(h.sigma_s, spectrum_or(params, "sigma_s", SpectrumRole::kUnbounded, ctx, SpectrumConstant{1.0}));
+  PRISM_ASSIGN_OR_RETURN(h.sigma_a, spectrum_or(params, "sigma_a", SpectrumRole::kUnbounded, ctx,
+                                                SpectrumConstant{1.0}));
+  PRISM_ASSIGN_OR_RETURN(h.sigma_s, spectrum_or(params, "sigma_s", SpectrumRole::kUnbounded, ctx,
+                                                SpectrumConstant{1.0}));
   PRISM_ASSIGN_OR_RETURN(h.scale, params.get_float("scale", 1.0));
   PRISM_RETURN_IF_ERROR(check_range(params, "scale", h.scale, 0.0, 1e30, ">= 0"));
   PRISM_ASSIGN_OR_RETURN(h.g, params.get_float("g", 0.0));
@@ -530,18 +596,22 @@ absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const Pa
     PRISM_RETURN_IF_ERROR(params.refuse("S", "per-vertex tangents are not supported"));
     PRISM_RETURN_IF_ERROR(params.refuse("faceIndices", "face indices are not supported"));
     bool bilinear = type.name == "bilinearmesh";
-    PRISM_ASSIGN_OR_RETURN(std::shared_ptr<TriangleMeshData> mesh, inline_mesh(params, bilinear, type, ctx));
+    PRISM_ASSIGN_OR_RETURN(std::shared_ptr<TriangleMeshData> mesh,
+                           inline_mesh(params, bilinear, type, ctx));
     geometry = TriangleMeshShape{std::move(mesh), type.name};
   } else if (type.name == "plymesh" || type.name == "objmesh") {
     PRISM_RETURN_IF_ERROR(params.refuse("displacement", "displacement is not supported"));
     PRISM_RETURN_IF_ERROR(params.refuse("edgelength", "displacement is not supported"));
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
-    if (!filename) return location_error(type.where, absl::StrCat("\"", type.name, "\" needs 'string filename'"));
+    if (!filename)
+      return location_error(type.where,
+                            absl::StrCat("\"", type.name, "\" needs 'string filename'"));
     if (!ctx.load_mesh) return param_error(params, "filename", "cannot be read here");
     const Parameter* p = params.find("filename");
-    PRISM_ASSIGN_OR_RETURN(TriangleMeshShape shape,
-                           ctx.load_mesh(*filename, type.name == "plymesh" ? MeshFormat::kPly : MeshFormat::kObj,
-                                         p->where));
+    PRISM_ASSIGN_OR_RETURN(
+        TriangleMeshShape shape,
+        ctx.load_mesh(*filename, type.name == "plymesh" ? MeshFormat::kPly : MeshFormat::kObj,
+                      p->where));
     geometry = std::move(shape);
   } else if (type.name == "sphere") {
     SphereShape s;
@@ -550,12 +620,16 @@ absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const Pa
     PRISM_ASSIGN_OR_RETURN(double zmin, params.get_float("zmin", -s.radius));
     PRISM_ASSIGN_OR_RETURN(double zmax, params.get_float("zmax", s.radius));
     PRISM_ASSIGN_OR_RETURN(double phimax, params.get_float("phimax", 360.0));
-    if (zmin > -s.radius) return param_error(params, "zmin", "is not supported (only full spheres: zmin <= -radius)");
-    if (zmax < s.radius) return param_error(params, "zmax", "is not supported (only full spheres: zmax >= radius)");
-    if (phimax < 360.0) return param_error(params, "phimax", "is not supported (only full spheres: phimax >= 360)");
+    if (zmin > -s.radius)
+      return param_error(params, "zmin", "is not supported (only full spheres: zmin <= -radius)");
+    if (zmax < s.radius)
+      return param_error(params, "zmax", "is not supported (only full spheres: zmax >= radius)");
+    if (phimax < 360.0)
+      return param_error(params, "phimax", "is not supported (only full spheres: phimax >= 360)");
     geometry = s;
   } else {
-    return unsupported_type(type, "shape", {"bilinearmesh", "objmesh", "plymesh", "sphere", "trianglemesh"});
+    return unsupported_type(type, "shape",
+                            {"bilinearmesh", "objmesh", "plymesh", "sphere", "trianglemesh"});
   }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return geometry;
