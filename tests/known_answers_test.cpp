@@ -1,0 +1,288 @@
+// Scenes with answers known in closed form, rendered through the embedded pipeline (scene
+// loader, worker, tile merge, reconstruction) by `uniform`, `hero` and `gradient`: each bin's
+// mean over the image's pixels must agree with the answer within 4 standard errors of that
+// mean (the pixels are independent estimates). Each scene isolates one feature:
+//   - a chromatic absorbing medium behind dispersive glass (Beer–Lambert; where pbrt-v4's
+//     volpath is biased, docs/conformance.md),
+//   - a distant light with a target illuminance on a diffuse floor,
+//   - a diffuse-transmission sheet in a constant sky,
+//   - a thin dielectric sheet in front of an emitter.
+// Emitters that the answer does not count as reflectors are black (pbrt's default grey would
+// return light the formulas leave out).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <string>
+
+#include "coordinator/local_render.h"
+#include "services/base/status.h"
+#include "services/scene/scene_loader.h"
+#include "services/spectral/color.h"
+#include "services/spectral/named_spectra.h"
+
+namespace prism::coordinator {
+namespace {
+
+constexpr worker::IntegratorKind kIntegrators[] = {worker::IntegratorKind::kUniform,
+                                                   worker::IntegratorKind::kHero,
+                                                   worker::IntegratorKind::kGradient};
+
+class KnownAnswerTest : public testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    library_ = new spectral::SpectrumLibrary(*spectral::SpectrumLibrary::load_builtin());
+    device_ = new worker::EmbreeDevice();
+  }
+  static void TearDownTestSuite() {
+    delete device_;
+    delete library_;
+  }
+
+  // The scene `text`, written to a file named `name` and loaded as `prism render` loads it.
+  static absl::StatusOr<scene::SceneDescription> load(const std::string& name,
+                                                      const std::string& text) {
+    const std::filesystem::path file = std::filesystem::path(testing::TempDir()) / name;
+    std::ofstream(file) << text;
+    PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded,
+                           scene::load_scene(file, scene::with_library_names(*library_)));
+    return std::move(loaded.description);
+  }
+
+  // The scene's film resolution and bins, `spp` samples, 2 threads.
+  static absl::StatusOr<LocalRenderResult> render(const scene::SceneDescription& scene,
+                                                  worker::IntegratorKind integrator,
+                                                  std::uint64_t spp, std::uint64_t seed,
+                                                  int max_depth) {
+    LocalRenderOptions o;
+    o.render.integrator = integrator;
+    o.render.bins = scene.film.bins.value_or(16);
+    o.render.max_depth = max_depth;
+    o.render.seed = seed;
+    o.render.gradient_offset_bins = std::max(1, o.render.bins / 8);
+    o.width = scene.film.x_resolution;
+    o.height = scene.film.y_resolution;
+    o.spp = spp;
+    o.threads = 2;
+    PRISM_ASSIGN_OR_RETURN(auto r, LocalRender::create(*device_, scene, *library_, o));
+    return r->render();
+  }
+
+  struct Mean {
+    double mean = 0, standard_error = 0;
+  };
+  // Bin b's mean over the pixels `in` accepts, and its standard error.
+  static Mean pixel_mean(const image::SpectralImage& image, int b,
+                         const std::function<bool(int, int)>& in = nullptr) {
+    double sum = 0, square = 0;
+    int n = 0;
+    for (int y = 0; y < image.height(); ++y) {
+      for (int x = 0; x < image.width(); ++x) {
+        if (in && !in(x, y)) continue;
+        const double v = image.value(x, y, b);
+        sum += v;
+        square += v * v;
+        ++n;
+      }
+    }
+    const double mean = sum / n;
+    return {mean, std::sqrt(std::max(0.0, square / n - mean * mean) / (n - 1))};
+  }
+
+  // Every integrator's image, per bin, against expected(lower, upper nm of the bin).
+  static void expect_every_integrator(const scene::SceneDescription& scene, std::uint64_t spp,
+                                      int max_depth,
+                                      const std::function<double(double, double)>& expected) {
+    for (worker::IntegratorKind integrator : kIntegrators) {
+      SCOPED_TRACE(worker::name(integrator));
+      auto result = render(scene, integrator, spp, 5, max_depth);
+      ASSERT_TRUE(result.ok()) << result.status();
+      const spectral::WavelengthGrid grid = *spectral::WavelengthGrid::create(result->image.bins());
+      for (int b = 0; b < grid.bins(); ++b) {
+        const double want = expected(grid.lower(b), grid.upper(b));
+        const Mean got = pixel_mean(result->image, b);
+        EXPECT_NEAR(got.mean, want, 4 * got.standard_error + 1e-6 * want)
+            << "bin " << b << " (" << grid.lower(b) << "-" << grid.upper(b) << " nm): z "
+            << (got.mean - want) / got.standard_error;
+      }
+    }
+  }
+
+  // pbrt-v4's normalisation of a flat emission spectrum: 1 / Σ_1nm ȳ.
+  static double unit_flat_emission() {
+    const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+    return 1.0 / cmf.photometric_sum(spectral::Spectrum(spectral::ConstantSpectrum{1.0f}));
+  }
+
+  static spectral::SpectrumLibrary* library_;
+  static worker::EmbreeDevice* device_;
+};
+spectral::SpectrumLibrary* KnownAnswerTest::library_ = nullptr;
+worker::EmbreeDevice* KnownAnswerTest::device_ = nullptr;
+
+// Along the axis of a BK7 slab one unit thick, filled with a dye (piecewise-linear sigma_a,
+// scale 1.5), at a flat emitter behind it: at (near) normal incidence every wavelength crosses
+// the same length, so L(λ) = Le·(1 − R)²·τ / (1 − R²·τ²), R = ((η − 1)/(η + 1))², τ =
+// exp(−1.5·σ_a(λ)), the internal reflections retracing the axis.
+TEST_F(KnownAnswerTest, ADyeBehindDispersiveGlassFollowsBeerLambert) {
+  auto scene = load("dye_slab.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 1
+Film "spectral" "integer xresolution" 8 "integer yresolution" 8 "integer nbuckets" 16
+PixelFilter "box"
+WorldBegin
+MakeNamedMedium "dye" "string type" "homogeneous"
+  "spectrum sigma_a" [360 5 480 5 540 3 590 0.5 640 0.15 830 0.15]
+  "spectrum sigma_s" [360 0 830 0] "float scale" 1.5
+AttributeBegin
+  MediumInterface "dye" ""
+  Material "dielectric" "spectrum eta" "glass-BK7"
+  Shape "trianglemesh" "point3 P" [-2 -2 -0.5  2 -2 -0.5  2 2 -0.5  -2 2 -0.5]
+    "integer indices" [0 2 1 0 3 2]
+  Shape "trianglemesh" "point3 P" [-2 -2 0.5  2 -2 0.5  2 2 0.5  -2 2 0.5]
+    "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+AttributeBegin
+  Material "diffuse" "rgb reflectance" [0 0 0]
+  AreaLightSource "diffuse" "spectrum L" [360 1 830 1] "bool twosided" true
+  Shape "trianglemesh" "point3 P" [-4 -4 3  4 -4 3  4 4 3  -4 4 3] "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+)");
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  const spectral::Ior* bk7 = library_->find_ior("glass-BK7");
+  ASSERT_NE(bk7, nullptr);
+  const double le = unit_flat_emission();
+  auto sigma_a = [](double l) {
+    const double x[] = {360, 480, 540, 590, 640, 830}, y[] = {5, 5, 3, 0.5, 0.15, 0.15};
+    for (int i = 0; i < 5; ++i) {
+      if (l <= x[i + 1]) return y[i] + (y[i + 1] - y[i]) * (l - x[i]) / (x[i + 1] - x[i]);
+    }
+    return 0.15;
+  };
+  auto radiance = [&](double l) {
+    const double n = spectral::eta(*bk7, l);
+    const double r = (n - 1) * (n - 1) / ((n + 1) * (n + 1));
+    const double tau = std::exp(-1.5 * sigma_a(l));
+    return le * (1 - r) * (1 - r) * tau / (1 - r * r * tau * tau);
+  };
+  expect_every_integrator(*scene, 512, 24, [&](double lo, double hi) {
+    constexpr int kSteps = 2000;
+    double sum = 0;
+    for (int i = 0; i < kSteps; ++i) sum += radiance(lo + (i + 0.5) * (hi - lo) / kSteps);
+    return sum / kSteps;
+  });
+}
+
+// A distant light with `illuminance` 3 on a grey floor at 30° from the light: every pixel's
+// radiance is ρ/π·E·cos 30° over the flat spectrum, E the illuminance on a surface facing the
+// light (pbrt-v4: the spectrum normalised to one nit, times `illuminance`).
+TEST_F(KnownAnswerTest, ADistantLightLightsAFloorAsItsIlluminanceSays) {
+  auto scene = load("distant.pbrt", R"(LookAt 0 5 0  0 0 0  0 0 1
+Camera "perspective" "float fov" 20
+Film "spectral" "integer xresolution" 8 "integer yresolution" 8 "integer nbuckets" 16
+WorldBegin
+LightSource "distant" "spectrum L" [360 1 830 1] "point3 from" [1 1.7320508 0]
+  "point3 to" [0 0 0] "float illuminance" 3
+Material "diffuse" "spectrum reflectance" [360 0.5 830 0.5]
+Shape "trianglemesh" "point3 P" [-10 0 -10  10 0 -10  10 0 10  -10 0 10]
+  "integer indices" [0 1 2 0 2 3]
+)");
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  const double expected = 0.5 / M_PI * 3.0 * unit_flat_emission() * std::cos(M_PI / 6);
+  expect_every_integrator(*scene, 256, 3, [&](double, double) { return expected; });
+
+  auto pointless = load("distant.pbrt",
+                        "WorldBegin\nLightSource \"distant\" \"point3 from\" "
+                        "[1 1 1] \"point3 to\" [1 1 1]\n");
+  ASSERT_FALSE(pointless.ok());
+  EXPECT_NE(pointless.status().message().find(
+                "distant.pbrt:2:13: distant light needs 'from' and 'to' to differ"),
+            std::string_view::npos)
+      << pointless.status();
+}
+
+// A thin dielectric sheet (η 1.5) at normal incidence in front of a flat emitter passes
+// T' = (1 − R)/(1 + R) of its light at every wavelength, R = 0.04.
+TEST_F(KnownAnswerTest, AThinDielectricSheetPassesTheSlabTransmittance) {
+  auto scene = load("thin.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 1
+Film "spectral" "integer xresolution" 8 "integer yresolution" 8 "integer nbuckets" 8
+PixelFilter "box"
+WorldBegin
+AttributeBegin
+  Material "thindielectric" "float eta" 1.5
+  Shape "trianglemesh" "point3 P" [-2 -2 0  2 -2 0  2 2 0  -2 2 0] "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+AttributeBegin
+  Material "diffuse" "rgb reflectance" [0 0 0]
+  AreaLightSource "diffuse" "spectrum L" [360 1 830 1] "bool twosided" true
+  Shape "trianglemesh" "point3 P" [-4 -4 3  4 -4 3  4 4 3  -4 4 3] "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+)");
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  const double expected = unit_flat_emission() * (1 - 0.04) / (1 + 0.04);
+  expect_every_integrator(*scene, 256, 8, [&](double, double) { return expected; });
+}
+
+// Diverged gradient offsets (after a dispersive ball) crossing a thin dielectric sheet: nothing
+// non-finite.
+TEST_F(KnownAnswerTest, GradientOffsetsCrossAThinSheetFinitely) {
+  auto scene = load("thin_mixed.pbrt", R"(LookAt 0 1 -4  0 0 0  0 1 0
+Camera "perspective" "float fov" 40
+Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 16
+WorldBegin
+LightSource "infinite" "spectrum L" [360 1 830 1]
+AttributeBegin
+  Material "dielectric" "spectrum eta" "glass-SF11"
+  Translate 0 0 -1
+  Shape "sphere" "float radius" 0.7
+AttributeEnd
+Material "thindielectric" "spectrum eta" "glass-BK7"
+Shape "trianglemesh" "point3 P" [-2 -2 0  2 -2 0  2 2 0  -2 2 0] "integer indices" [0 1 2 0 2 3]
+Material "diffuse" "rgb reflectance" [0.5 0.5 0.5]
+Shape "trianglemesh" "point3 P" [-5 -1 -5  5 -1 -5  5 -1 5  -5 -1 5] "integer indices" [0 1 2 0 2 3]
+)");
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  auto result = render(*scene, worker::IntegratorKind::kGradient, 64, 1, 8);
+  ASSERT_TRUE(result.ok()) << result.status();
+  for (float v : result->image.data()) ASSERT_TRUE(std::isfinite(v));
+  EXPECT_EQ(result->stats.counters.non_finite, 0u);
+  EXPECT_GT(result->stats.counters.gradient_divergences, 0u);
+}
+
+// A diffuse-transmission sheet (R 0.3, T 0.5) in a constant sky, lit from both sides, shows
+// (R + T) times the sky's radiance (no interreflection to count): the sheet's pixels against the
+// sky's.
+TEST_F(KnownAnswerTest, ADiffuseTransmissionSheetShowsReflectancePlusTransmittance) {
+  auto scene = load("sheet.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 30
+Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
+PixelFilter "box"
+WorldBegin
+LightSource "infinite" "spectrum L" [360 1 830 1]
+Material "diffusetransmission" "spectrum reflectance" [360 0.3 830 0.3]
+  "spectrum transmittance" [360 0.5 830 0.5]
+Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indices" [0 1 2 0 2 3]
+)");
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  for (worker::IntegratorKind integrator : kIntegrators) {
+    SCOPED_TRACE(worker::name(integrator));
+    auto result = render(*scene, integrator, 256, 2, 4);
+    ASSERT_TRUE(result.ok()) << result.status();
+    // The sheet (±1 at distance 5, fov 30) covers pixels 2.03..13.97: 4..11 are inside, columns
+    // 0 and 15 are sky.
+    for (int b = 0; b < 8; ++b) {
+      const Mean sheet = pixel_mean(
+          result->image, b, [](int x, int y) { return x >= 4 && x <= 11 && y >= 4 && y <= 11; });
+      const Mean sky = pixel_mean(result->image, b, [](int x, int) { return x == 0 || x == 15; });
+      ASSERT_GT(sky.mean, 0.0);
+      EXPECT_NEAR(sheet.mean, 0.8 * sky.mean,
+                  4 * std::hypot(sheet.standard_error, 0.8 * sky.standard_error) + 1e-6 * sky.mean)
+          << "bin " << b;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace prism::coordinator
