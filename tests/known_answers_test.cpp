@@ -284,5 +284,54 @@ Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indice
   }
 }
 
+// A `mix` of a black and a white diffuse material (amount 0.3: the white one at 30 % of the
+// vertices, chosen by a hash of the hit) on a sheet in a constant sky shows 0.3 times the sky,
+// like the sheet the diffuse-transmission test uses; nested inside another mix with a second
+// white, amount 0.5, 0.65.
+TEST_F(KnownAnswerTest, AMixPicksItsComponentsInProportion) {
+  for (auto [outer, expected] :
+       {std::pair{std::string("speckled"), 0.3}, std::pair{std::string("nested"), 0.65}}) {
+    SCOPED_TRACE(outer);
+    auto scene = load("mix.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 30
+Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
+PixelFilter "box"
+WorldBegin
+LightSource "infinite" "spectrum L" [360 1 830 1]
+MakeNamedMaterial "black" "string type" "diffuse" "spectrum reflectance" [360 0 830 0]
+MakeNamedMaterial "white" "string type" "diffuse" "spectrum reflectance" [360 1 830 1]
+MakeNamedMaterial "speckled" "string type" "mix" "string materials" ["black" "white"]
+  "float amount" 0.3
+MakeNamedMaterial "nested" "string type" "mix" "string materials" ["speckled" "white"]
+  "float amount" 0.5
+NamedMaterial ")" + outer + R"("
+Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indices" [0 1 2 0 2 3]
+)");
+    ASSERT_TRUE(scene.ok()) << scene.status();
+    for (worker::IntegratorKind integrator : kIntegrators) {
+      SCOPED_TRACE(worker::name(integrator));
+      auto result = render(*scene, integrator, 256, 3, 4);
+      ASSERT_TRUE(result.ok()) << result.status();
+      for (int b = 0; b < 8; ++b) {
+        const Mean sheet = pixel_mean(
+            result->image, b, [](int x, int y) { return x >= 4 && x <= 11 && y >= 4 && y <= 11; });
+        const Mean sky = pixel_mean(result->image, b, [](int x, int) { return x == 0 || x == 15; });
+        EXPECT_NEAR(
+            sheet.mean, expected * sky.mean,
+            4 * std::hypot(sheet.standard_error, expected * sky.standard_error) + 1e-6 * sky.mean)
+            << "bin " << b;
+      }
+    }
+  }
+  // A mix names materials defined before it, and takes a float amount.
+  auto undefined =
+      load("mix_bad.pbrt", "WorldBegin\nMaterial \"mix\" \"string materials\" [\"a\" \"b\"]\n");
+  ASSERT_FALSE(undefined.ok());
+  EXPECT_NE(undefined.status().message().find("mix_bad.pbrt:2:16: mix: named material \"a\" is not "
+                                              "defined"),
+            std::string_view::npos)
+      << undefined.status();
+}
+
 }  // namespace
 }  // namespace prism::coordinator

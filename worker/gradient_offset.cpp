@@ -88,7 +88,8 @@ Shadow OffsetTracer::shadow_ray(Vec3f origin, Vec3f direction, const Vec3f& targ
     }
     if (!hit) return shadow;
     const ShapeInfo& info = scene_.shape(hit->shape);
-    if (!std::holds_alternative<InterfaceMaterial>(scene_.materials()[info.material])) {
+    if (!std::holds_alternative<InterfaceMaterial>(
+            scene_.material_at(info.material, hit->p, -direction))) {
       return Shadow{};
     }
     if (info.medium_transition) {
@@ -118,7 +119,8 @@ void OffsetTracer::trace_own(Offset& o, Ray own) const {
     }
     if (!hit) return;
     const ShapeInfo& info = scene_.shape(hit->shape);
-    if (std::holds_alternative<InterfaceMaterial>(scene_.materials()[info.material])) {
+    if (std::holds_alternative<InterfaceMaterial>(
+            scene_.material_at(info.material, hit->p, -own.direction))) {
       if (info.area_light >= 0) return o.fail();
       if (info.medium_transition) {
         o.medium = dot(own.direction, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
@@ -137,7 +139,7 @@ void OffsetTracer::resolve_pending(Offset& o, const BaseEvent& base, const Surfa
                                    const Vec3f& base_direction) const {
   const Geometry& geometry = scene_.geometry();
   const ShapeInfo& info_y = scene_.shape(o.hit.shape);
-  auto bsdf_y = make_bsdf(scene_.materials()[info_y.material], o.lambda);
+  auto bsdf_y = make_bsdf(scene_.material_at(info_y.material, o.hit.p, -o.direction), o.lambda);
   PRISM_CHECK(bsdf_y.has_value());
   const Frame frame_y = Frame::from_xz(o.hit.dpdu, o.hit.ns);
   const Vec3f wo_y = frame_y.to_local(-o.direction);
@@ -145,7 +147,8 @@ void OffsetTracer::resolve_pending(Offset& o, const BaseEvent& base, const Surfa
   o.pending = false;
   bool target_connectable = false;
   if (next != nullptr) {
-    const Material& m = scene_.materials()[scene_.shape(next->shape).material];
+    const Material& m =
+        scene_.material_at(scene_.shape(next->shape).material, next->p, -base_direction);
     auto bsdf_next = make_bsdf(m, o.lambda);
     target_connectable = bsdf_next && kind_of(*bsdf_next).connectable();
   }
@@ -222,7 +225,9 @@ void OffsetTracer::apply(Offset& o, const OffsetStep& step) const {
     case Kind::kArrive:
       if (o.state == OffsetState::kDiverged) {
         if (!o.has_hit) return o.fail();
-        auto bsdf_y = make_bsdf(scene_.materials()[scene_.shape(o.hit.shape).material], o.lambda);
+        auto bsdf_y =
+            make_bsdf(scene_.material_at(scene_.shape(o.hit.shape).material, o.hit.p, -o.direction),
+                      o.lambda);
         if (!bsdf_y || !(kind_of(*bsdf_y) == step.vertex_kind)) o.fail();
       }
       return;

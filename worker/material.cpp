@@ -211,6 +211,9 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       if (!r.ok()) return invalid(absl::StrCat("conductor ", r.status().message()));
       return r;
     }
+    absl::StatusOr<Material> operator()(const scene::MixMaterial& m) const {
+      return Material(MixMaterial{{m.materials[0], m.materials[1]}, float(m.amount)});
+    }
     absl::StatusOr<Material> operator()(const scene::ThinDielectricMaterial& m) const {
       auto eta = resolve_ior(m.eta, library);
       if (!eta.ok()) return invalid(absl::StrCat("thindielectric: ", eta.status().message()));
@@ -265,6 +268,11 @@ std::optional<Bsdf> make_bsdf(const Material& material,
       return Bsdf(ConductorBsdf(eta, k, lanes, TrowbridgeReitz(m.alpha_x, m.alpha_y)));
     }
     std::optional<Bsdf> operator()(const InterfaceMaterial&) const { return std::nullopt; }
+    std::optional<Bsdf> operator()(const MixMaterial&) const {
+      // RenderScene::material_at resolves a mix before any BSDF is made.
+      PRISM_CHECK(false);
+      return std::nullopt;
+    }
     std::optional<Bsdf> operator()(const ThinDielectricMaterial& m) const {
       SampledSpectrum eta;
       for (int i = 0; i < lanes; ++i) eta[i] = float(spectral::eta(m.eta, lambda.lambda(i)));
@@ -299,6 +307,8 @@ bool depends_on_wavelength(const Material& material) {
       return !spectral::is_constant(m.reflectance) || !spectral::is_constant(m.transmittance);
     }
     bool operator()(const ThinDielectricMaterial& m) const { return m.dispersive; }
+    // The scene asks its components (RenderScene::build); a mix alone cannot tell.
+    bool operator()(const MixMaterial&) const { return false; }
   };
   return std::visit(Visitor{}, material);
 }

@@ -48,6 +48,13 @@ struct ThinDielectricMaterial {
   bool dispersive = false;  // η varies with λ (the reflectance does; directions do not)
 };
 
+// Two of the scene's materials (indices into RenderScene::materials()), the second with
+// probability `amount`: RenderScene::material_at picks one per vertex before a BSDF is made.
+struct MixMaterial {
+  int materials[2] = {0, 0};
+  float amount = 0.5f;
+};
+
 // Lambertian reflection and transmission; `scale` already applied.
 struct DiffuseTransmissionMaterial {
   spectral::Spectrum reflectance;
@@ -57,7 +64,7 @@ struct DiffuseTransmissionMaterial {
 
 using Material =
     std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial, InterfaceMaterial,
-                 DiffuseTransmissionMaterial, ThinDielectricMaterial>;
+                 DiffuseTransmissionMaterial, ThinDielectricMaterial, MixMaterial>;
 
 // Resolves a scene material. Errors name the material's file:line:column (unknown names are
 // already refused by the parser; this catches values out of range, e.g. reflectance > 1).

@@ -1,5 +1,6 @@
 #include "worker/render_scene.h"
 
+#include <bit>
 #include <cmath>
 #include <numbers>
 #include <string>
@@ -239,6 +240,17 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
     info.medium_outside = shape.media.outside;
     info.medium_transition = shape.media.is_transition();
     info.wavelength_dependent = depends_on_wavelength(rs->materials_[size_t(shape.material)]);
+    // A mix depends on wavelength when a component (recursively) does.
+    std::vector<int> pending{shape.material};
+    while (!pending.empty()) {
+      const int m = pending.back();
+      pending.pop_back();
+      if (const auto* mix = std::get_if<MixMaterial>(&rs->materials_[size_t(m)])) {
+        for (int c : mix->materials) pending.push_back(c);
+      } else if (depends_on_wavelength(rs->materials_[size_t(m)])) {
+        info.wavelength_dependent = true;
+      }
+    }
     if (shape.area_light) {
       PRISM_ASSIGN_OR_RETURN(AreaLight light, make_area_light(shape, int(i), *rs->geometry_,
                                                               library, uplift, *rs->cmf_));
@@ -282,6 +294,36 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
                          spectral::BinnedShape::create(*rs->wavelength_pdf_, options.bins));
   rs->binned_shape_ = std::make_unique<spectral::BinnedShape>(std::move(shape));
   return rs;
+}
+
+namespace {
+
+std::uint64_t mix_bits(std::uint64_t h, float v) {
+  h ^= std::bit_cast<std::uint32_t>(v) + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
+  h ^= h >> 33;
+  h *= 0xff51afd7ed558ccdull;
+  h ^= h >> 33;
+  return h;
+}
+
+}  // namespace
+
+const Material& RenderScene::material_at(int index, const Vec3f& p, const Vec3f& wo) const {
+  const Material* m = &materials_[std::size_t(index)];
+  // Components are defined before the mix that names them, so this ends.
+  while (const auto* mix = std::get_if<MixMaterial>(m)) {
+    int chosen = mix->materials[0];
+    if (mix->amount >= 1.0f) {
+      chosen = mix->materials[1];
+    } else if (mix->amount > 0.0f) {
+      std::uint64_t h = std::uint64_t(mix->materials[0]) * 31 + std::uint64_t(mix->materials[1]);
+      for (float v : {p.x, p.y, p.z, wo.x, wo.y, wo.z}) h = mix_bits(h, v);
+      const float u = float(h >> 40) * 0x1p-24f;
+      chosen = mix->amount < u ? mix->materials[0] : mix->materials[1];
+    }
+    m = &materials_[std::size_t(chosen)];
+  }
+  return *m;
 }
 
 }  // namespace prism::worker

@@ -43,16 +43,20 @@ struct ObjectDefinition {
 
 const char* scope_begin_name(ScopeKind kind) {
   switch (kind) {
-    case ScopeKind::kAttribute: return "AttributeBegin";
-    case ScopeKind::kTransform: return "TransformBegin";
-    case ScopeKind::kObject: return "ObjectBegin";
+    case ScopeKind::kAttribute:
+      return "AttributeBegin";
+    case ScopeKind::kTransform:
+      return "TransformBegin";
+    case ScopeKind::kObject:
+      return "ObjectBegin";
   }
   return "";
 }
 
 class SceneParser {
  public:
-  SceneParser(const LoadOptions& options, const SceneFiles& files) : options_(options), files_(files) {
+  SceneParser(const LoadOptions& options, const SceneFiles& files)
+      : options_(options), files_(files) {
     ctx_.spectra.is_known_spectrum = options.is_known_spectrum;
     ctx_.spectra.is_known_ior = options.is_known_ior;
     ctx_.spectra.load_table = [this](const std::string& ref, const SourceLocation& where) {
@@ -60,9 +64,13 @@ class SceneParser {
     };
     ctx_.mesh_limits = options.mesh_limits;
     ctx_.warnings = &scene_.warnings;
-    ctx_.load_mesh = [this](const std::string& ref, MeshFormat format, const SourceLocation& where) {
-      return load_mesh(ref, format, where);
+    ctx_.find_material = [this](const std::string& name) -> std::optional<int> {
+      auto it = named_materials_.find(name);
+      if (it == named_materials_.end()) return std::nullopt;
+      return it->second;
     };
+    ctx_.load_mesh = [this](const std::string& ref, MeshFormat format,
+                            const SourceLocation& where) { return load_mesh(ref, format, where); };
   }
 
   absl::StatusOr<SceneDescription> run(std::string_view text, const std::string& relpath) {
@@ -71,11 +79,12 @@ class SceneParser {
     SourceLocation end{relpath, end_line_, end_column_};
     if (!in_world_) return location_error(end, "end of file before WorldBegin");
     if (current_object_)
-      return location_error(objects_[*current_object_].where,
-                            absl::StrCat("ObjectBegin \"", *current_object_, "\" is never closed by ObjectEnd"));
+      return location_error(
+          objects_[*current_object_].where,
+          absl::StrCat("ObjectBegin \"", *current_object_, "\" is never closed by ObjectEnd"));
     for (const Scope& s : scopes_)
-      scene_.warnings.push_back(absl::StrCat(s.where.to_string(), ": warning: ", scope_begin_name(s.kind),
-                                             " is never closed"));
+      scene_.warnings.push_back(absl::StrCat(
+          s.where.to_string(), ": warning: ", scope_begin_name(s.kind), " is never closed"));
     return std::move(scene_);
   }
 
@@ -84,23 +93,27 @@ class SceneParser {
   absl::Status directive(Tokenizer& tokens, const Token& name, int depth);
 
   // Arguments of directives.
-  absl::StatusOr<std::vector<double>> numbers(Tokenizer& tokens, size_t count, const Token& directive,
-                                              bool allow_brackets);
+  absl::StatusOr<std::vector<double>> numbers(Tokenizer& tokens, size_t count,
+                                              const Token& directive, bool allow_brackets);
   absl::StatusOr<Token> string_arg(Tokenizer& tokens, const Token& directive, const char* what);
 
   absl::Status require_world(const Token& directive, const SourceLocation& where) const {
     if (!in_world_)
-      return location_error(where, absl::StrCat("'", directive.text, "' is only allowed after WorldBegin"));
+      return location_error(
+          where, absl::StrCat("'", directive.text, "' is only allowed after WorldBegin"));
     return absl::OkStatus();
   }
   absl::Status require_options(const Token& directive, const SourceLocation& where) const {
     if (in_world_)
-      return location_error(where, absl::StrCat("'", directive.text, "' is not allowed after WorldBegin"));
+      return location_error(where,
+                            absl::StrCat("'", directive.text, "' is not allowed after WorldBegin"));
     return absl::OkStatus();
   }
-  absl::Status once(std::optional<SourceLocation>& seen, const Token& directive, const SourceLocation& where) {
+  absl::Status once(std::optional<SourceLocation>& seen, const Token& directive,
+                    const SourceLocation& where) {
     if (seen)
-      return location_error(where, absl::StrCat("'", directive.text, "' given twice (first at ", seen->to_string(), ")"));
+      return location_error(where, absl::StrCat("'", directive.text, "' given twice (first at ",
+                                                seen->to_string(), ")"));
     seen = where;
     return absl::OkStatus();
   }
@@ -109,10 +122,12 @@ class SceneParser {
     if (recorded_.insert(relpath).second) scene_.files.push_back(relpath);
   }
 
-  absl::StatusOr<std::string> resolve(const std::string& reference, const SourceLocation& where) const;
+  absl::StatusOr<std::string> resolve(const std::string& reference,
+                                      const SourceLocation& where) const;
   absl::StatusOr<std::string> read(const std::string& relpath, std::uint64_t max_bytes,
                                    const SourceLocation& where) const;
-  absl::StatusOr<SpectrumTabulated> load_table(const std::string& reference, const SourceLocation& where);
+  absl::StatusOr<SpectrumTabulated> load_table(const std::string& reference,
+                                               const SourceLocation& where);
   absl::StatusOr<TriangleMeshShape> load_mesh(const std::string& reference, MeshFormat format,
                                               const SourceLocation& where);
   absl::Status count_triangles(const ShapeGeometry& g, const SourceLocation& where);
@@ -132,7 +147,8 @@ class SceneParser {
   std::map<std::string, ObjectDefinition> objects_;
   std::optional<std::string> current_object_;
   bool in_world_ = false;
-  std::optional<SourceLocation> camera_at_, film_at_, sampler_at_, integrator_at_, filter_at_, world_at_;
+  std::optional<SourceLocation> camera_at_, film_at_, sampler_at_, integrator_at_, filter_at_,
+      world_at_;
   int default_material_ = -1;
   std::map<std::string, std::shared_ptr<const TriangleMeshData>> meshes_;
   std::map<std::string, SpectrumTabulated> tables_;
@@ -142,12 +158,14 @@ class SceneParser {
   int end_column_ = 1;
 };
 
-absl::StatusOr<std::string> SceneParser::resolve(const std::string& reference, const SourceLocation& where) const {
+absl::StatusOr<std::string> SceneParser::resolve(const std::string& reference,
+                                                 const SourceLocation& where) const {
   if (reference.empty()) return location_error(where, "empty file name");
   if (reference.front() == '/' || reference.front() == '\\' ||
       (reference.size() > 1 && reference[1] == ':'))
-    return location_error(where, absl::StrCat("absolute path \"", reference,
-                                              "\" refused: files must be named relative to the scene file"));
+    return location_error(
+        where, absl::StrCat("absolute path \"", reference,
+                            "\" refused: files must be named relative to the scene file"));
   // Relative to the directory of the file that mentions it.
   std::string joined = reference;
   if (size_t slash = where.file.rfind('/'); slash != std::string::npos)
@@ -156,7 +174,8 @@ absl::StatusOr<std::string> SceneParser::resolve(const std::string& reference, c
   for (absl::string_view part : absl::StrSplit(joined, '/')) {
     if (part == "..") {
       if (--level < 0)
-        return location_error(where, absl::StrCat("path \"", reference, "\" escapes the scene directory"));
+        return location_error(where,
+                              absl::StrCat("path \"", reference, "\" escapes the scene directory"));
     } else if (!part.empty() && part != ".") {
       ++level;
     }
@@ -184,7 +203,8 @@ absl::StatusOr<SpectrumTabulated> SceneParser::load_table(const std::string& ref
   return table;
 }
 
-absl::StatusOr<TriangleMeshShape> SceneParser::load_mesh(const std::string& reference, MeshFormat format,
+absl::StatusOr<TriangleMeshShape> SceneParser::load_mesh(const std::string& reference,
+                                                         MeshFormat format,
                                                          const SourceLocation& where) {
   PRISM_ASSIGN_OR_RETURN(std::string relpath, resolve(reference, where));
   auto it = meshes_.find(relpath);
@@ -201,7 +221,8 @@ absl::Status SceneParser::count_triangles(const ShapeGeometry& g, const SourceLo
   if (const auto* mesh = std::get_if<TriangleMeshShape>(&g)) {
     total_triangles_ += mesh->mesh->triangles.size();
     if (total_triangles_ > options_.max_total_triangles)
-      return absl::ResourceExhaustedError(absl::StrCat(where.to_string(), ": the scene has more than ",
+      return absl::ResourceExhaustedError(absl::StrCat(where.to_string(),
+                                                       ": the scene has more than ",
                                                        options_.max_total_triangles, " triangles"));
   }
   return absl::OkStatus();
@@ -216,7 +237,8 @@ int SceneParser::material_index(const SourceLocation& where) {
   return default_material_;
 }
 
-absl::StatusOr<int> SceneParser::medium_index(const Token& name, const SourceLocation& where) const {
+absl::StatusOr<int> SceneParser::medium_index(const Token& name,
+                                              const SourceLocation& where) const {
   if (name.text.empty()) return -1;
   auto it = named_media_.find(name.text);
   if (it == named_media_.end())
@@ -227,7 +249,8 @@ absl::StatusOr<int> SceneParser::medium_index(const Token& name, const SourceLoc
 absl::Status SceneParser::add_shape(Shape shape) {
   if (current_object_) {
     if (shape.area_light)
-      return location_error(shape.where, "area lights inside ObjectBegin/ObjectEnd are not supported");
+      return location_error(shape.where,
+                            "area lights inside ObjectBegin/ObjectEnd are not supported");
     objects_[*current_object_].shapes.push_back(std::move(shape));
     return absl::OkStatus();
   }
@@ -236,7 +259,8 @@ absl::Status SceneParser::add_shape(Shape shape) {
   return absl::OkStatus();
 }
 
-absl::StatusOr<std::vector<double>> SceneParser::numbers(Tokenizer& tokens, size_t count, const Token& directive,
+absl::StatusOr<std::vector<double>> SceneParser::numbers(Tokenizer& tokens, size_t count,
+                                                         const Token& directive,
                                                          bool allow_brackets) {
   std::vector<double> out;
   PRISM_ASSIGN_OR_RETURN(Token first, tokens.peek());
@@ -246,28 +270,32 @@ absl::StatusOr<std::vector<double>> SceneParser::numbers(Tokenizer& tokens, size
     PRISM_ASSIGN_OR_RETURN(Token t, tokens.next());
     SourceLocation at = tokens.location(t);
     if (t.kind != Token::Kind::kWord)
-      return location_error(at, absl::StrCat("'", directive.text, "' needs ", count, " numbers, found ",
-                                             t.kind == Token::Kind::kString ? absl::StrCat("string \"", t.text, "\"")
-                                                                            : std::string(token_kind_name(t.kind))));
+      return location_error(
+          at, absl::StrCat("'", directive.text, "' needs ", count, " numbers, found ",
+                           t.kind == Token::Kind::kString ? absl::StrCat("string \"", t.text, "\"")
+                                                          : std::string(token_kind_name(t.kind))));
     PRISM_ASSIGN_OR_RETURN(double v, parse_finite_number(t.text, at, directive.text));
     out.push_back(v);
   }
   if (bracketed) {
     PRISM_ASSIGN_OR_RETURN(Token close, tokens.next());
     if (close.kind != Token::Kind::kCloseBracket)
-      return location_error(tokens.location(close),
-                            absl::StrCat("'", directive.text, "' needs exactly ", count, " numbers in [ ]"));
+      return location_error(
+          tokens.location(close),
+          absl::StrCat("'", directive.text, "' needs exactly ", count, " numbers in [ ]"));
   }
   return out;
 }
 
-absl::StatusOr<Token> SceneParser::string_arg(Tokenizer& tokens, const Token& directive, const char* what) {
+absl::StatusOr<Token> SceneParser::string_arg(Tokenizer& tokens, const Token& directive,
+                                              const char* what) {
   PRISM_ASSIGN_OR_RETURN(Token t, tokens.next());
   if (t.kind != Token::Kind::kString)
-    return location_error(tokens.location(t), absl::StrCat("'", directive.text, "' needs a quoted ", what, ", found ",
-                                                           t.kind == Token::Kind::kWord
-                                                               ? absl::StrCat("'", t.text, "'")
-                                                               : std::string(token_kind_name(t.kind))));
+    return location_error(
+        tokens.location(t),
+        absl::StrCat("'", directive.text, "' needs a quoted ", what, ", found ",
+                     t.kind == Token::Kind::kWord ? absl::StrCat("'", t.text, "'")
+                                                  : std::string(token_kind_name(t.kind))));
   return t;
 }
 
@@ -283,10 +311,11 @@ absl::Status SceneParser::parse_file(std::string_view text, const std::string& r
       return absl::OkStatus();
     }
     if (t.kind != Token::Kind::kWord)
-      return location_error(tokens.location(t),
-                            absl::StrCat("expected a directive, found ",
-                                         t.kind == Token::Kind::kString ? absl::StrCat("string \"", t.text, "\"")
-                                                                        : std::string(token_kind_name(t.kind))));
+      return location_error(
+          tokens.location(t),
+          absl::StrCat("expected a directive, found ", t.kind == Token::Kind::kString
+                                                           ? absl::StrCat("string \"", t.text, "\"")
+                                                           : std::string(token_kind_name(t.kind))));
     PRISM_RETURN_IF_ERROR(directive(tokens, t, depth));
   }
 }
@@ -317,10 +346,12 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     apply(*t);
   } else if (name == "LookAt") {
     PRISM_ASSIGN_OR_RETURN(std::vector<double> v, numbers(tokens, 9, d, false));
-    std::optional<Transform> t = Transform::look_at({v[0], v[1], v[2]}, {v[3], v[4], v[5]}, {v[6], v[7], v[8]});
+    std::optional<Transform> t =
+        Transform::look_at({v[0], v[1], v[2]}, {v[3], v[4], v[5]}, {v[6], v[7], v[8]});
     if (!t)
-      return location_error(where, "'LookAt' needs distinct eye and look points and an up vector "
-                                   "not parallel to the view direction");
+      return location_error(where,
+                            "'LookAt' needs distinct eye and look points and an up vector "
+                            "not parallel to the view direction");
     apply(*t);
   } else if (name == "Transform" || name == "ConcatTransform") {
     PRISM_ASSIGN_OR_RETURN(std::vector<double> v, numbers(tokens, 16, d, true));
@@ -330,8 +361,10 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
       for (int j = 0; j < 4; ++j) m[j][i] = v[static_cast<size_t>(i * 4 + j)];
     std::optional<Transform> t = Transform::from_matrix(m);
     if (!t) return location_error(where, absl::StrCat("'", name, "' matrix is singular"));
-    if (name == "Transform") state_.ctm = *t;
-    else apply(*t);
+    if (name == "Transform")
+      state_.ctm = *t;
+    else
+      apply(*t);
   } else if (name == "Identity") {
     state_.ctm = Transform();
   } else if (name == "CoordinateSystem") {
@@ -341,12 +374,14 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "name"));
     auto it = named_coordinate_systems_.find(n.text);
     if (it == named_coordinate_systems_.end())
-      return location_error(tokens.location(n), absl::StrCat("coordinate system \"", n.text, "\" is not defined"));
+      return location_error(tokens.location(n),
+                            absl::StrCat("coordinate system \"", n.text, "\" is not defined"));
     state_.ctm = it->second;
   } else if (name == "ActiveTransform") {
     PRISM_ASSIGN_OR_RETURN(Token which, tokens.next());
     if (which.kind != Token::Kind::kWord || which.text != "All")
-      return location_error(tokens.location(which), "only 'ActiveTransform All' is supported (no motion blur)");
+      return location_error(tokens.location(which),
+                            "only 'ActiveTransform All' is supported (no motion blur)");
   } else if (name == "ReverseOrientation") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     state_.reverse_orientation = !state_.reverse_orientation;
@@ -382,13 +417,17 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
   } else if (name == "ColorSpace") {
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "colour space name"));
     if (n.text != "srgb")
-      return location_error(tokens.location(n), absl::StrCat("unsupported colour space \"", n.text, "\" (supported: srgb)"));
+      return location_error(tokens.location(n), absl::StrCat("unsupported colour space \"", n.text,
+                                                             "\" (supported: srgb)"));
   } else if (name == "Option") {
     PRISM_ASSIGN_OR_RETURN(ParameterList params, ParameterList::parse(tokens));
     for (const Parameter& p : params.parameters())
-      scene_.warnings.push_back(absl::StrCat(p.where.to_string(), ": warning: Option '", p.name, "' ignored"));
+      scene_.warnings.push_back(
+          absl::StrCat(p.where.to_string(), ": warning: Option '", p.name, "' ignored"));
   } else if (name == "WorldBegin") {
-    if (in_world_) return location_error(where, absl::StrCat("'WorldBegin' given twice (first at ", world_at_->to_string(), ")"));
+    if (in_world_)
+      return location_error(
+          where, absl::StrCat("'WorldBegin' given twice (first at ", world_at_->to_string(), ")"));
     in_world_ = true;
     world_at_ = where;
     state_.ctm = Transform();
@@ -397,18 +436,24 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     bool transform_only = name == "TransformBegin";
     if (transform_only)
-      scene_.warnings.push_back(absl::StrCat(where.to_string(), ": warning: TransformBegin is deprecated in pbrt-v4"));
-    scopes_.push_back(Scope{transform_only ? ScopeKind::kTransform : ScopeKind::kAttribute, state_, where});
+      scene_.warnings.push_back(
+          absl::StrCat(where.to_string(), ": warning: TransformBegin is deprecated in pbrt-v4"));
+    scopes_.push_back(
+        Scope{transform_only ? ScopeKind::kTransform : ScopeKind::kAttribute, state_, where});
   } else if (name == "AttributeEnd" || name == "TransformEnd") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     ScopeKind kind = name == "TransformEnd" ? ScopeKind::kTransform : ScopeKind::kAttribute;
     if (scopes_.empty())
-      return location_error(where, absl::StrCat("unmatched '", name, "' (no ", scope_begin_name(kind), " is open)"));
+      return location_error(
+          where, absl::StrCat("unmatched '", name, "' (no ", scope_begin_name(kind), " is open)"));
     if (scopes_.back().kind != kind)
-      return location_error(where, absl::StrCat("'", name, "' closes the ", scope_begin_name(scopes_.back().kind),
-                                                " at ", scopes_.back().where.to_string()));
-    if (kind == ScopeKind::kTransform) state_.ctm = scopes_.back().saved.ctm;
-    else state_ = scopes_.back().saved;
+      return location_error(
+          where, absl::StrCat("'", name, "' closes the ", scope_begin_name(scopes_.back().kind),
+                              " at ", scopes_.back().where.to_string()));
+    if (kind == ScopeKind::kTransform)
+      state_.ctm = scopes_.back().saved.ctm;
+    else
+      state_ = scopes_.back().saved;
     scopes_.pop_back();
   } else if (name == "Shape") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
@@ -436,14 +481,17 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "name"));
     PRISM_ASSIGN_OR_RETURN(ParameterList params, ParameterList::parse(tokens));
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> type, params.find_string("type"));
-    if (!type) return location_error(where, absl::StrCat("'", name, "' needs a 'string type' parameter"));
+    if (!type)
+      return location_error(where, absl::StrCat("'", name, "' needs a 'string type' parameter"));
     TypeName type_name{*type, params.find("type")->where};
     auto& names = is_material ? named_materials_ : named_media_;
     if (auto it = names.find(n.text); it != names.end()) {
-      const SourceLocation& first = is_material ? scene_.materials[static_cast<size_t>(it->second)].where
-                                                : scene_.media[static_cast<size_t>(it->second)].where;
-      return location_error(tokens.location(n), absl::StrCat(is_material ? "named material \"" : "medium \"",
-                                                             n.text, "\" redefined (first at ", first.to_string(), ")"));
+      const SourceLocation& first = is_material
+                                        ? scene_.materials[static_cast<size_t>(it->second)].where
+                                        : scene_.media[static_cast<size_t>(it->second)].where;
+      return location_error(tokens.location(n),
+                            absl::StrCat(is_material ? "named material \"" : "medium \"", n.text,
+                                         "\" redefined (first at ", first.to_string(), ")"));
     }
     if (is_material) {
       PRISM_ASSIGN_OR_RETURN(MaterialKind kind, make_material(type_name, params, ctx_));
@@ -461,7 +509,8 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "material name"));
     auto it = named_materials_.find(n.text);
     if (it == named_materials_.end())
-      return location_error(tokens.location(n), absl::StrCat("named material \"", n.text, "\" is not defined"));
+      return location_error(tokens.location(n),
+                            absl::StrCat("named material \"", n.text, "\" is not defined"));
     state_.material = it->second;
   } else if (name == "MediumInterface") {
     PRISM_ASSIGN_OR_RETURN(Token inside, string_arg(tokens, d, "medium name"));
@@ -474,7 +523,8 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_ASSIGN_OR_RETURN(state_.outside_medium, medium_index(outside, tokens.location(outside)));
   } else if (name == "LightSource") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
-    if (current_object_) return location_error(where, "light sources inside ObjectBegin/ObjectEnd are not supported");
+    if (current_object_)
+      return location_error(where, "light sources inside ObjectBegin/ObjectEnd are not supported");
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
     PRISM_ASSIGN_OR_RETURN(Light light, make_light(td.first, td.second, state_.ctm, ctx_));
     light.medium = state_.outside_medium;
@@ -491,7 +541,8 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     SourceLocation at = tokens.location(f);
     PRISM_ASSIGN_OR_RETURN(std::string relpath, resolve(f.text, at));
     if (depth + 1 > kMaxIncludeDepth)
-      return location_error(where, absl::StrCat("'", name, "' nesting is deeper than ", kMaxIncludeDepth, " levels"));
+      return location_error(
+          where, absl::StrCat("'", name, "' nesting is deeper than ", kMaxIncludeDepth, " levels"));
     PRISM_ASSIGN_OR_RETURN(std::string text, read(relpath, options_.max_scene_file_bytes, at));
     record_file(relpath);
     PRISM_RETURN_IF_ERROR(parse_file(text, relpath, depth + 1));
@@ -499,10 +550,12 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "object name"));
     if (current_object_)
-      return location_error(where, absl::StrCat("'ObjectBegin' inside the definition of \"", *current_object_, "\""));
+      return location_error(
+          where, absl::StrCat("'ObjectBegin' inside the definition of \"", *current_object_, "\""));
     if (auto it = objects_.find(n.text); it != objects_.end())
-      return location_error(tokens.location(n), absl::StrCat("object \"", n.text, "\" redefined (first at ",
-                                                             it->second.where.to_string(), ")"));
+      return location_error(tokens.location(n),
+                            absl::StrCat("object \"", n.text, "\" redefined (first at ",
+                                         it->second.where.to_string(), ")"));
     scopes_.push_back(Scope{ScopeKind::kObject, state_, where});
     objects_[n.text].where = where;
     current_object_ = n.text;
@@ -516,10 +569,12 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
   } else if (name == "ObjectInstance") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "object name"));
-    if (current_object_) return location_error(where, "'ObjectInstance' inside ObjectBegin/ObjectEnd");
+    if (current_object_)
+      return location_error(where, "'ObjectInstance' inside ObjectBegin/ObjectEnd");
     auto it = objects_.find(n.text);
     if (it == objects_.end())
-      return location_error(tokens.location(n), absl::StrCat("object \"", n.text, "\" is not defined"));
+      return location_error(tokens.location(n),
+                            absl::StrCat("object \"", n.text, "\" is not defined"));
     for (const Shape& s : it->second.shapes) {
       Shape copy = s;
       copy.object_to_world = state_.ctm * s.object_to_world;
@@ -527,8 +582,8 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
       copy.where = where;
       PRISM_RETURN_IF_ERROR(add_shape(std::move(copy)));
     }
-  } else if (name == "Texture" || name == "Attribute" || name == "TransformTimes" || name == "MakeNamedCamera" ||
-             name == "Accelerator" || name == "WorldEnd") {
+  } else if (name == "Texture" || name == "Attribute" || name == "TransformTimes" ||
+             name == "MakeNamedCamera" || name == "Accelerator" || name == "WorldEnd") {
     return location_error(where, absl::StrCat("directive '", name, "' is not supported by Prism"));
   } else {
     return location_error(where, absl::StrCat("unknown directive '", name, "'"));
@@ -544,28 +599,32 @@ absl::StatusOr<SceneDescription> parse_scene(std::string_view text, const std::s
   return parser.run(text, file_relpath);
 }
 
-absl::StatusOr<SceneDescription> parse_scene_string(std::string_view text, const std::string& name,
-                                                    const LoadOptions& options,
-                                                    const std::map<std::string, std::string>& files) {
+absl::StatusOr<SceneDescription> parse_scene_string(
+    std::string_view text, const std::string& name, const LoadOptions& options,
+    const std::map<std::string, std::string>& files) {
   SceneFiles access;
   auto lookup = [&files](const std::string& relpath) -> absl::StatusOr<const std::string*> {
     auto it = files.find(relpath);
-    if (it == files.end()) return absl::NotFoundError(absl::StrCat("file \"", relpath, "\" does not exist"));
+    if (it == files.end())
+      return absl::NotFoundError(absl::StrCat("file \"", relpath, "\" does not exist"));
     return &it->second;
   };
-  access.read = [lookup](const std::string& relpath, std::uint64_t max_bytes) -> absl::StatusOr<std::string> {
+  access.read = [lookup](const std::string& relpath,
+                         std::uint64_t max_bytes) -> absl::StatusOr<std::string> {
     PRISM_ASSIGN_OR_RETURN(const std::string* text, lookup(relpath));
     if (text->size() > max_bytes)
-      return absl::ResourceExhaustedError(absl::StrCat("file \"", relpath, "\" is larger than ", max_bytes, " bytes"));
+      return absl::ResourceExhaustedError(
+          absl::StrCat("file \"", relpath, "\" is larger than ", max_bytes, " bytes"));
     return *text;
   };
   access.load_mesh = [lookup](const std::string& relpath, MeshFormat format,
                               const MeshLimits& limits) -> absl::StatusOr<TriangleMeshData> {
     PRISM_ASSIGN_OR_RETURN(const std::string* bytes, lookup(relpath));
     if (bytes->size() > limits.max_file_bytes)
-      return absl::ResourceExhaustedError(absl::StrCat("file \"", relpath, "\" is larger than ",
-                                                       limits.max_file_bytes, " bytes"));
-    return format == MeshFormat::kPly ? parse_ply(*bytes, relpath, limits) : parse_obj(*bytes, relpath, limits);
+      return absl::ResourceExhaustedError(
+          absl::StrCat("file \"", relpath, "\" is larger than ", limits.max_file_bytes, " bytes"));
+    return format == MeshFormat::kPly ? parse_ply(*bytes, relpath, limits)
+                                      : parse_obj(*bytes, relpath, limits);
   };
   return parse_scene(text, name, options, access);
 }

@@ -24,8 +24,8 @@
 // - A spectrum given as a string is a file if it contains '/' or '.', else a named spectrum.
 // - Refused (each by name): textures, partial spheres, image lights, motion blur, crop
 //   windows, non-default sensors, lambdamin/lambdamax other than 360/830 nm, emissive media,
-//   the coated, mix and measured materials, disks, cylinders and subdivision surfaces,
-//   realistic cameras.
+//   the coated and measured materials, textured mix amounts, disks, cylinders and subdivision
+//   surfaces, realistic cameras.
 // - The homogeneous medium's `g` is kept (Henyey-Greenstein, as pbrt-v4); `preset` and `Le`
 //   are refused.
 // - Integrator names other than path/volpath are accepted with a warning and rendered by

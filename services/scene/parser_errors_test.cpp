@@ -78,7 +78,7 @@ const BadCase kBadCases[] = {
      "filter_radius.pbrt:1:24: 'float xradius' must be between 0.01 and 16 pixels, got 0"},
     {"unknown_material.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_material.pbrt:2:10: unsupported material type \"plastic\" (supported: conductor, "
-     "dielectric, diffuse, diffusetransmission, interface, thindielectric)"},
+     "dielectric, diffuse, diffusetransmission, interface, mix, thindielectric)"},
     {"unknown_light.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_light.pbrt:2:13: unsupported light type \"goniometric\" (supported: distant, "
      "infinite, point, spot)"},

@@ -134,6 +134,14 @@ struct ConductorMaterial {
 // No surface scattering: marks a boundary between media.
 struct InterfaceMaterial {};
 
+// pbrt-v4's `mix`: at each hit one of two earlier-defined materials (indices into
+// SceneDescription::materials), the second with probability `amount`, chosen by a hash of the
+// hit point and direction so that every query at one vertex agrees (pbrt-v4's ChooseMaterial).
+struct MixMaterial {
+  std::array<int, 2> materials{0, 0};
+  double amount = 0.5;
+};
+
 // pbrt-v4's `thindielectric`: a thin slab (two parallel interfaces, internal bounces summed).
 struct ThinDielectricMaterial {
   IorParam eta = IorConstant{1.5};
@@ -149,7 +157,7 @@ struct DiffuseTransmissionMaterial {
 
 using MaterialKind =
     std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial, InterfaceMaterial,
-                 DiffuseTransmissionMaterial, ThinDielectricMaterial>;
+                 DiffuseTransmissionMaterial, ThinDielectricMaterial, MixMaterial>;
 
 struct Material {
   std::string name;  // empty for anonymous `Material` directives and the default material

@@ -454,6 +454,27 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     kind = std::move(m);
   } else if (type.name == "interface") {
     kind = InterfaceMaterial{};
+  } else if (type.name == "mix") {
+    MixMaterial m;
+    const Parameter* names = params.find("materials");
+    if (names == nullptr || names->type != ParamType::kString || names->strings.size() != 2)
+      return location_error(names != nullptr ? names->where : type.where,
+                            "mix needs 'string materials' naming two earlier named materials");
+    names->used = true;
+    for (int i = 0; i < 2; ++i) {
+      std::optional<int> index =
+          ctx.find_material ? ctx.find_material(names->strings[i]) : std::nullopt;
+      if (!index)
+        return location_error(names->where, absl::StrCat("mix: named material \"",
+                                                         names->strings[i], "\" is not defined"));
+      m.materials[i] = *index;
+    }
+    if (const Parameter* amount = params.find("amount");
+        amount != nullptr && amount->type == ParamType::kTexture)
+      return param_error(params, "amount", "textured amounts are not supported; give a float");
+    PRISM_ASSIGN_OR_RETURN(m.amount, params.get_float("amount", 0.5));
+    PRISM_RETURN_IF_ERROR(check_range(params, "amount", m.amount, 0.0, 1.0, "in [0, 1]"));
+    kind = std::move(m);
   } else if (type.name == "thindielectric") {
     ThinDielectricMaterial m;
     PRISM_ASSIGN_OR_RETURN(m.eta, read_dielectric_eta(params, ctx));
@@ -472,7 +493,7 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
   } else {
     return unsupported_type(type, "material",
                             {"conductor", "dielectric", "diffuse", "diffusetransmission",
-                             "interface", "thindielectric"});
+                             "interface", "mix", "thindielectric"});
   }
   PRISM_RETURN_IF_ERROR(refuse_common_material_params(params));
   PRISM_RETURN_IF_ERROR(params.check_all_used());

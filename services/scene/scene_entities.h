@@ -28,6 +28,8 @@ struct EntityContext {
   SpectrumSources spectra;
   MeshLimits mesh_limits;
   std::vector<std::string>* warnings = nullptr;
+  // The index of an earlier named material (MakeNamedMaterial), or nullopt.
+  std::function<std::optional<int>(const std::string& name)> find_material;
   // Loads the mesh file `reference` (as written, at `where`) and returns it with its
   // root-relative path.
   std::function<absl::StatusOr<TriangleMeshShape>(const std::string& reference, MeshFormat format,
