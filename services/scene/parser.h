@@ -10,8 +10,8 @@
 // silently dropped: unsupported input is an error naming it, input that is accepted but
 // changed (sampler, integrator tuning, Option, the film's `savefp16`) is a warning in the
 // result. Beyond the basics it reads pbrt-v4's pixel filters (box, gaussian, triangle,
-// mitchell, lanczos), distant lights, orthographic and spherical cameras, the `diffusetransmission`
-// and `thindielectric` materials.
+// mitchell, lanczos), distant lights, orthographic and spherical cameras, and the
+// `diffusetransmission`, `thindielectric` and `mix` (float amount) materials.
 //
 // Deliberate differences from pbrt-v4:
 // - Include/Import and other file names are relative to the file that mentions them (pbrt-v4:
