@@ -47,10 +47,8 @@ double PixelFilter::Axis::evaluate(double x) const {
   switch (type) {
     case scene::PixelFilterType::kBox:
       return 1;
-    case scene::PixelFilterType::kGaussian: {
-      auto g = [&](double t) { return std::exp(-t * t / (2 * sigma * sigma)); };
-      return std::max(0.0, g(x) - g(radius));
-    }
+    case scene::PixelFilterType::kGaussian:
+      return std::max(0.0, std::exp(-x * x * inverse_two_sigma2) - gaussian_floor);
     case scene::PixelFilterType::kTriangle:
       return std::max(0.0, radius - std::abs(x));
     case scene::PixelFilterType::kMitchell:
@@ -68,9 +66,10 @@ void PixelFilter::Axis::sample(double u, double* x, double* weight) const {
     return;
   }
   const int cells = int(cdf.size()) - 1;
-  // The cell whose CDF interval holds u (cells of zero mass are never chosen).
-  const auto it = std::upper_bound(cdf.begin() + 1, cdf.end() - 1, u);
-  const int cell = int(it - cdf.begin()) - 1;
+  // The cell whose CDF interval holds u (cells of zero mass are never chosen): from the guide's
+  // cell for u's bucket, step up while the next boundary is at or below u.
+  int cell = guide[std::min(std::size_t(u * double(guide.size())), guide.size() - 1)];
+  while (cell < cells - 1 && cdf[cell + 1] <= u) ++cell;
   const double mass = cdf[cell + 1] - cdf[cell];
   const double width = 2 * radius / cells;
   const double t = mass > 0 ? std::clamp((u - cdf[cell]) / mass, 0.0, 1.0) : 0.5;
@@ -88,6 +87,8 @@ PixelFilter::Axis PixelFilter::make_axis(const scene::PixelFilterSpec& spec, dou
   a.b = spec.b;
   a.c = spec.c;
   a.tau = spec.tau;
+  a.inverse_two_sigma2 = 1.0 / (2.0 * spec.sigma * spec.sigma);
+  a.gaussian_floor = std::exp(-radius * radius * a.inverse_two_sigma2);
   if (a.type == scene::PixelFilterType::kBox) {
     a.integral = a.abs_integral = 2 * radius;
     return a;
@@ -106,6 +107,14 @@ PixelFilter::Axis PixelFilter::make_axis(const scene::PixelFilterSpec& spec, dou
   a.cdf.assign(static_cast<std::size_t>(cells) + 1, 0.0);
   for (int i = 0; i < cells; ++i) a.cdf[i + 1] = a.cdf[i] + masses[i] / a.abs_integral;
   a.cdf.back() = 1.0;
+  // The last cell whose lower boundary is at or below each bucket's start.
+  a.guide.resize(static_cast<std::size_t>(cells));
+  int cell = 0;
+  for (int j = 0; j < cells; ++j) {
+    const double start = double(j) / cells;
+    while (cell < cells - 1 && a.cdf[cell + 1] <= start) ++cell;
+    a.guide[j] = cell;
+  }
   return a;
 }
 

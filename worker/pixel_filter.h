@@ -55,6 +55,11 @@ class PixelFilter {
     double integral = 1;      // ∫ f
     double abs_integral = 1;  // ∫ |f|
     std::vector<double> cdf;  // cells + 1 entries, cdf[0] = 0, cdf.back() = 1
+    // guide[j]: the cell holding u = j / guide.size() − at most a few steps below the cell of
+    // any u in [j, j + 1) / guide.size(), so a lookup is O(1) on average.
+    std::vector<int> guide;
+    double gaussian_floor = 0;      // exp(−r²/2σ²), subtracted by the gaussian
+    double inverse_two_sigma2 = 0;  // 1/(2σ²)
     double evaluate(double x) const;
     // Offset from the centre and its weight factor for u in [0, 1).
     void sample(double u, double* x, double* weight) const;
