@@ -1034,8 +1034,8 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
           it->second->params.render.integrator == worker::IntegratorKind::kGradient;
       if (prepass && !parsed->has_guides()) {
         problem = "a prepass result without guide buffers";
-      } else if (!prepass && !parsed->has_xyz()) {
-        problem = "a final-pass result without XYZ buffers (the RGB outputs need them)";
+      } else if (!prepass && !parsed->has_rgb()) {
+        problem = "a final-pass result without RGB buffers (the RGB outputs need them)";
       } else if (!prepass && gradient && !parsed->has_gradients()) {
         problem = "a gradient job's result without gradients";
       } else if (!prepass && gradient &&

@@ -460,7 +460,7 @@ TEST_F(FarmServerTest, AGradientResultWithoutGradientsIsTheWorkersFault) {
   ASSERT_TRUE(lease.has_value());
   const auto& t = lease->task().tile();
   image::TileBuffers buffers;
-  buffers.xyz = true;  // what a final-pass result has, all but the gradients
+  buffers.rgb = true;  // what a final-pass result has, all but the gradients
   auto plain = image::TileResult::create(
       {t.x0(), t.y0(), t.x1(), t.y1()},
       {lease->task().samples().begin(), lease->task().samples().end()}, 16, buffers);
@@ -497,12 +497,12 @@ TEST_F(FarmServerTest, AWeightedGradientResultWithoutHalvesIsTheWorkersFault) {
   const std::string worker_id = register_worker();
   std::optional<v1::Lease> lease = acquire(worker_id);
   ASSERT_TRUE(lease.has_value());
-  // A final-pass result needs each sample's XYZ (the RGB outputs), and this job the halves.
+  // A final-pass result needs each sample's RGB (the RGB outputs), and this job the halves.
   auto empty_result = [](const v1::Lease& l, bool xyz) {
     const auto& t = l.task().tile();
     image::TileBuffers buffers;
     buffers.gradients = true;
-    buffers.xyz = xyz;
+    buffers.rgb = xyz;
     auto r = image::TileResult::create({t.x0(), t.y0(), t.x1(), t.y1()},
                                        {l.task().samples().begin(), l.task().samples().end()}, 16,
                                        buffers);
@@ -512,7 +512,7 @@ TEST_F(FarmServerTest, AWeightedGradientResultWithoutHalvesIsTheWorkersFault) {
   const grpc::Status refused_xyz =
       complete(worker_id, lease->lease_id(), empty_result(*lease, false));
   EXPECT_EQ(refused_xyz.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
-  EXPECT_NE(refused_xyz.error_message().find("without XYZ buffers"), std::string::npos)
+  EXPECT_NE(refused_xyz.error_message().find("without RGB buffers"), std::string::npos)
       << refused_xyz.error_message();
   lease = acquire(worker_id);
   ASSERT_TRUE(lease.has_value());

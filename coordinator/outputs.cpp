@@ -219,24 +219,19 @@ absl::StatusOr<image::RgbImage> tile_rgb(const image::TileResult& merged,
                                                    image::to_string(rect)));
   }
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, to_linear_srgb(finalised, cmf));
-  if (!merged.has_xyz()) return rgb;
+  if (!merged.has_rgb()) return rgb;
   std::optional<image::RgbImage> plain;
   if (reconstructed) {
     PRISM_ASSIGN_OR_RETURN(plain, to_linear_srgb(image::finalise(merged), cmf));
   }
-  const std::span<const double> sums = merged.xyz_sums();
+  const std::span<const double> sums = merged.rgb_sums();
   const std::span<const std::uint64_t> counts = merged.counts();
   for (int y = 0; y < rect.height(); ++y) {
     for (int x = 0; x < rect.width(); ++x) {
       const std::size_t p = std::size_t(y) * rect.width() + x;
       const double n = double(counts[p]);
-      const spectral::Xyz mean =
-          n > 0 ? spectral::Xyz{sums[p * 3] / n, sums[p * 3 + 1] / n, sums[p * 3 + 2] / n}
-                : spectral::Xyz{};
-      const spectral::Rgb c = spectral::xyz_to_linear_srgb(mean);
-      const double exact[3] = {c.r, c.g, c.b};
       for (int k = 0; k < 3; ++k) {
-        double v = exact[k];
+        double v = n > 0 ? sums[p * 3 + k] / n : 0.0;
         if (plain.has_value()) v += double(rgb.value(x, y, k)) - double(plain->value(x, y, k));
         rgb.value(x, y, k) = static_cast<float>(v);
       }
@@ -246,28 +241,23 @@ absl::StatusOr<image::RgbImage> tile_rgb(const image::TileResult& merged,
 }
 
 absl::StatusOr<image::RgbImage> tile_rgb_standard_error(const image::TileResult& merged) {
-  if (!merged.has_xyz()) {
+  if (!merged.has_rgb()) {
     return absl::FailedPreconditionError(absl::StrCat(
-        "tile ", image::to_string(merged.rect()), " has no XYZ buffers: no RGB standard errors"));
+        "tile ", image::to_string(merged.rect()), " has no RGB buffers: no RGB standard errors"));
   }
   const image::TileRect& rect = merged.rect();
   PRISM_ASSIGN_OR_RETURN(image::RgbImage out, image::RgbImage::create(rect.width(), rect.height()));
-  const std::span<const double> sums = merged.xyz_sums();
+  const std::span<const double> sums = merged.rgb_sums();
   const std::span<const double> squares = merged.rgb_squares();
   const std::span<const std::uint64_t> counts = merged.counts();
   for (int y = 0; y < rect.height(); ++y) {
     for (int x = 0; x < rect.width(); ++x) {
       const std::size_t p = std::size_t(y) * rect.width() + x;
       const double n = double(counts[p]);
-      const spectral::Rgb mean =
-          n > 0 ? spectral::xyz_to_linear_srgb(
-                      {sums[p * 3] / n, sums[p * 3 + 1] / n, sums[p * 3 + 2] / n})
-                : spectral::Rgb{};
-      const double means[3] = {mean.r, mean.g, mean.b};
       for (int c = 0; c < 3; ++c) {
+        const double mean = n > 0 ? sums[p * 3 + c] / n : 0.0;
         const double variance =
-            n >= 2 ? std::max(0.0, squares[p * 3 + c] / n - means[c] * means[c]) / (n - 1)
-                   : std::nan("");
+            n >= 2 ? std::max(0.0, squares[p * 3 + c] / n - mean * mean) / (n - 1) : std::nan("");
         out.value(x, y, c) = static_cast<float>(std::sqrt(variance));
       }
     }

@@ -180,19 +180,19 @@ struct OutputOptions {
   float exposure_stops = 0.0f;  // PNG preview only
 };
 
-// The linear sRGB of one finished tile, as the RGB EXR and the PNG show it. With XYZ buffers
-// (final-pass results) it is the mean of the samples' own X, Y, Z, taken at their exact
+// The linear sRGB of one finished tile, as the RGB EXR and the PNG show it. With RGB buffers
+// (final-pass results) it is the mean of the samples' own R, G, B, taken at their exact
 // wavelengths, so it does not depend on the bins (as pbrt-v4's RGB film); for a reconstructed
 // tile (`reconstructed`: a gradient job) the reconstruction's change of the bins' RGB is added,
-// RGB(finalised) − RGB(the bins' plain means). Without XYZ buffers, the bins' RGB
+// RGB(finalised) − RGB(the bins' plain means). Without RGB buffers, the bins' RGB
 // (to_linear_srgb of `finalised`). `finalised` must be the tile's finished bins (its rect's size).
 absl::StatusOr<image::RgbImage> tile_rgb(const image::TileResult& merged,
                                          const image::SpectralImage& finalised, bool reconstructed,
                                          const spectral::ColorMatching& cmf);
 
-// The standard error of each pixel's RGB mean over its samples' own X, Y, Z (tile_rgb without a
+// The standard error of each pixel's RGB mean over its samples' own R, G, B (tile_rgb without a
 // reconstruction's change), from the samples' RGB squares: sqrt((Σc²/n − c̄²)/(n − 1)). NaN for
-// a pixel with fewer than 2 samples; FAILED_PRECONDITION without XYZ buffers.
+// a pixel with fewer than 2 samples; FAILED_PRECONDITION without RGB buffers.
 absl::StatusOr<image::RgbImage> tile_rgb_standard_error(const image::TileResult& merged);
 
 // The report as a JSON document (non-finite numbers as null).

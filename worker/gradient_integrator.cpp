@@ -579,10 +579,10 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
   if (out.primal != 0.0f) {
     // primal is a per-bin average: times the bin width it is f/p at λ.
     const double estimate = double(out.primal) * grid.bin_width();
-    const spectral::Xyz bar = scene_.cmf().cmf(lambda);
-    out.xyz[0] = bar.x * estimate;
-    out.xyz[1] = bar.y * estimate;
-    out.xyz[2] = bar.z * estimate;
+    const spectral::Rgb bar = scene_.cmf().srgb(lambda);
+    out.rgb[0] = bar.r * estimate;
+    out.rgb[1] = bar.g * estimate;
+    out.rgb[2] = bar.b * estimate;
   }
   return out;
 }

@@ -83,8 +83,8 @@ struct GradientSample {
   float primal = 0;
   float gradient = 0;        // to G[bin]
   float gradient_below = 0;  // to G[bin_below]
-  // The primal's CIE X, Y, Z at the base wavelength (SampleContribution::xyz).
-  double xyz[3] = {0, 0, 0};
+  // The primal's linear sRGB at the base wavelength (SampleContribution::rgb).
+  double rgb[3] = {0, 0, 0};
 };
 
 // One base event of a traced sample, for the τ pilot (gradient_pilot.h): the roulette-free value

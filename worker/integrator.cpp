@@ -411,10 +411,10 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     out.value[s] = counted ? path.radiance[s] / pdf * inverse_width * filtered.weight : 0.0f;
     if (counted && path.radiance[s] != 0.0f) {
       const double estimate = double(path.radiance[s]) / pdf * filtered.weight;
-      const spectral::Xyz bar = cmf.cmf(path.lambda.lambda(s));
-      out.xyz[0] += bar.x * estimate;
-      out.xyz[1] += bar.y * estimate;
-      out.xyz[2] += bar.z * estimate;
+      const spectral::Rgb bar = cmf.srgb(path.lambda.lambda(s));
+      out.rgb[0] += bar.r * estimate;
+      out.rgb[1] += bar.g * estimate;
+      out.rgb[2] += bar.b * estimate;
     }
     if (out.bin[s] < 0) out.bin[s] = 0;
   }

@@ -46,10 +46,10 @@ struct SampleContribution {
   int lanes = 0;
   int bin[spectral::kMaxLanes] = {};
   float value[spectral::kMaxLanes] = {};
-  // The sample's CIE X, Y, Z from its lanes' exact wavelengths, Σ_lanes x̄(λ)·L(λ)·w/p(λ) (pbrt-v4's
-  // cie1931 sensor, no division by the Y integral): what the RGB outputs average, so that they do
-  // not depend on the bins. 0 when the sample is not finite.
-  double xyz[3] = {0, 0, 0};
+  // The sample's linear sRGB from its lanes' exact wavelengths, Σ_lanes r̄(λ)·L(λ)·w/p(λ) with
+  // r̄ the sRGB matching functions (pbrt-v4's cie1931 sensor, no division by the Y integral): what
+  // the RGB outputs average, so that they do not depend on the bins. 0 when not finite.
+  double rgb[3] = {0, 0, 0};
 };
 
 // Event counts for reports (rays traced, paths terminated by Russian roulette, ...); summed

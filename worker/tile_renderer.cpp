@@ -47,7 +47,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
   buffers.gradients = gradient != nullptr;
   buffers.halves = gradient != nullptr && scene_.options().gradient_variances;
   // The final pass's RGB comes from each sample's exact wavelengths, not from the bins.
-  buffers.xyz = !task.prepass;
+  buffers.rgb = !task.prepass;
   auto created = image::TileResult::create(task.tile, task.samples, bins, buffers);
   if (!created.ok()) return created.status();
   image::TileResult result = std::move(*created);
@@ -71,7 +71,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
   auto half_gradients = result.mutable_half_gradients();
   auto half_gradient_squares = result.mutable_half_gradient_squares();
   auto half_counts = result.mutable_half_counts();
-  auto xyz_sums = result.mutable_xyz_sums();
+  auto rgb_sums = result.mutable_rgb_sums();
   auto rgb_squares = result.mutable_rgb_squares();
 
   // Each pixel is owned by one thread and its samples are added in index order, so every
@@ -103,15 +103,13 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
                   : spectral::WavelengthPdfView(job_pdf);
           double* pixel_sums = &sums[std::size_t(index) * bins];
           double* pixel_squares = &squares[std::size_t(index) * bins];
-          // A sample's X, Y, Z into the pixel's sums (in sample order, like the bins).
-          auto add_xyz = [&](const double* xyz) {
-            if (!buffers.xyz) return;
+          // A sample's R, G, B into the pixel's sums (in sample order, like the bins).
+          auto add_rgb = [&](const double* rgb) {
+            if (!buffers.rgb) return;
             const std::size_t o = std::size_t(index) * 3;
-            const spectral::Rgb rgb = spectral::xyz_to_linear_srgb({xyz[0], xyz[1], xyz[2]});
-            const double channels[3] = {rgb.r, rgb.g, rgb.b};
             for (int c = 0; c < 3; ++c) {
-              xyz_sums[o + c] += xyz[c];
-              rgb_squares[o + c] += channels[c] * channels[c];
+              rgb_sums[o + c] += rgb[c];
+              rgb_squares[o + c] += rgb[c] * rgb[c];
             }
           };
           std::uint64_t guide_count = 0;
@@ -127,7 +125,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
                 pixel_sums[g.bin] += v;
                 pixel_squares[g.bin] += v * v;
               }
-              add_xyz(g.xyz);
+              add_rgb(g.rgb);
               double* pixel_gradients = &gradients[std::size_t(index) * bins];
               pixel_gradients[g.bin] += g.gradient;
               pixel_gradients[g.bin_below] += g.gradient_below;
@@ -161,7 +159,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
             SampleContribution c =
                 integrator_.trace(x, y, task.pass, std::uint32_t(s), lambda_pdf, local,
                                   task.want_guides ? &guide : nullptr, trace_options);
-            add_xyz(c.xyz);
+            add_rgb(c.rgb);
             // Lanes that land in the same bin form one value of this sample for that bin, so
             // the sum of squares is that of per-sample bin values.
             for (int lane = 0; lane < c.lanes; ++lane) sample_values[c.bin[lane]] += c.value[lane];

@@ -229,8 +229,8 @@ TEST_F(TileRendererTest, APrepassOfAGradientJobIsAFourLaneHeroRenderWithoutGradi
   same_pass.prepass = false;
   auto same = TileRenderer(*hero).render(same_pass, nullptr);
   ASSERT_TRUE(same.ok()) << same.status();
-  EXPECT_FALSE(from_hero->has_xyz());
-  EXPECT_TRUE(same->has_xyz());
+  EXPECT_FALSE(from_hero->has_rgb());
+  EXPECT_TRUE(same->has_rgb());
   EXPECT_TRUE(std::ranges::equal(same->sums(), from_hero->sums()));
   EXPECT_TRUE(std::ranges::equal(same->sum_squares(), from_hero->sum_squares()));
   EXPECT_TRUE(std::ranges::equal(same->counts(), from_hero->counts()));
@@ -240,7 +240,7 @@ TEST_F(TileRendererTest, APrepassOfAGradientJobIsAFourLaneHeroRenderWithoutGradi
   auto final_result = TileRenderer(*gradient).render(final_pass, nullptr);
   ASSERT_TRUE(final_result.ok()) << final_result.status();
   EXPECT_TRUE(final_result->has_gradients());
-  EXPECT_TRUE(final_result->has_xyz());
+  EXPECT_TRUE(final_result->has_rgb());
 }
 
 // With gradient_variances the gradient integrator also sums each sample's G[b]² (bin and

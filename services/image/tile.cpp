@@ -206,8 +206,8 @@ absl::StatusOr<TileResult> TileResult::create(const TileRect& rect, const Sample
     }
     r.half_counts_.assign(area, 0);
   }
-  if (buffers.xyz) {
-    r.xyz_sums_.assign(area * 3, 0.0);
+  if (buffers.rgb) {
+    r.rgb_sums_.assign(area * 3, 0.0);
     r.rgb_squares_.assign(area * 3, 0.0);
   }
   if (buffers.guides) {
@@ -281,7 +281,7 @@ absl::Status TileResult::add(const TileResult& other) {
   if (other.buffers_ != buffers_) {
     return absl::InvalidArgumentError(absl::StrCat(
         "cannot merge tile results of ", to_string(rect_),
-        " with different optional buffers (gradients, halves, xyz, guides or counter names "
+        " with different optional buffers (gradients, halves, rgb, guides or counter names "
         "differ)"));
   }
   SampleRange merged;
@@ -306,7 +306,7 @@ absl::Status TileResult::add(const TileResult& other) {
   add_vectors(half_gradients_, other.half_gradients_);
   add_vectors(half_gradient_squares_, other.half_gradient_squares_);
   add_vectors(half_counts_, other.half_counts_);
-  add_vectors(xyz_sums_, other.xyz_sums_);
+  add_vectors(rgb_sums_, other.rgb_sums_);
   add_vectors(rgb_squares_, other.rgb_squares_);
   add_vectors(depth_, other.depth_);
   add_vectors(normals_, other.normals_);

@@ -21,13 +21,11 @@
 //      half_gradients         double, area*bins     index only (the odd half is the total minus
 //      half_gradient_squares  double, area*bins     these)
 //      half_counts            uint64, area
-//    (optional xyz: final-pass tasks, for the RGB outputs)
-//      xyz_sums    double, area*3,    xyz_sums[p*3 + c]       sum over samples of the sample's
-//                                                             CIE X, Y, Z (c = 0, 1, 2) from its
-//                                                             exact wavelengths: Σ_lanes x̄(λ)·L·w
-//      rgb_squares double, area*3,    rgb_squares[p*3 + c]    sum over samples of the squares of
-//                                                             their linear sRGB R, G, B (the
-//                                                             outputs' per-pixel standard errors)
+//    (optional rgb: final-pass tasks, for the RGB outputs)
+//      rgb_sums    double, area*3,    rgb_sums[p*3 + c]       sum over samples of the sample's
+//                                                             linear sRGB R, G, B (c = 0, 1, 2)
+//                                                             from its exact wavelengths
+//      rgb_squares double, area*3,    rgb_squares[p*3 + c]    sum over samples of their squares
 //      depth       float,  area,      depth[p]                (optional guides) sum of depths
 //      normals     float,  area*3,    normals[p*3 + i]        (optional guides) sum of normals
 //      albedo      float,  area,      albedo[p]               (optional guides) sum of albedos
@@ -167,8 +165,9 @@ struct TileBuffers {
   // The squares of G and the even-indexed half's sums too (the variance-weighted
   // reconstruction needs them); only with gradients.
   bool halves = false;
-  // Each sample's CIE XYZ from its exact wavelengths (the RGB outputs do not depend on the bins).
-  bool xyz = false;
+  // Each sample's linear sRGB from its exact wavelengths (the RGB outputs do not depend on the
+  // bins).
+  bool rgb = false;
   friend bool operator==(const TileBuffers&, const TileBuffers&) = default;
 };
 
@@ -196,7 +195,7 @@ class TileResult {
   bool has_gradients() const { return buffers_.gradients; }
   bool has_halves() const { return buffers_.halves; }
   bool has_guides() const { return buffers_.guides; }
-  bool has_xyz() const { return buffers_.xyz; }
+  bool has_rgb() const { return buffers_.rgb; }
   int counter_count() const { return static_cast<int>(buffers_.counter_names.size()); }
 
   // Accumulation by a worker. (x,y) are image coordinates inside rect() (PRISM_CHECK).
@@ -231,7 +230,7 @@ class TileResult {
   std::span<const double> half_gradients() const { return half_gradients_; }
   std::span<const double> half_gradient_squares() const { return half_gradient_squares_; }
   std::span<const std::uint64_t> half_counts() const { return half_counts_; }
-  std::span<const double> xyz_sums() const { return xyz_sums_; }
+  std::span<const double> rgb_sums() const { return rgb_sums_; }
   std::span<const double> rgb_squares() const { return rgb_squares_; }
   std::span<const float> depth() const { return depth_; }
   std::span<const float> normals() const { return normals_; }
@@ -248,7 +247,7 @@ class TileResult {
   std::span<double> mutable_half_gradients() { return half_gradients_; }
   std::span<double> mutable_half_gradient_squares() { return half_gradient_squares_; }
   std::span<std::uint64_t> mutable_half_counts() { return half_counts_; }
-  std::span<double> mutable_xyz_sums() { return xyz_sums_; }
+  std::span<double> mutable_rgb_sums() { return rgb_sums_; }
   std::span<double> mutable_rgb_squares() { return rgb_squares_; }
   std::span<float> mutable_depth() { return depth_; }
   std::span<float> mutable_normals() { return normals_; }
@@ -276,7 +275,7 @@ class TileResult {
   std::vector<double> half_gradients_;
   std::vector<double> half_gradient_squares_;
   std::vector<std::uint64_t> half_counts_;
-  std::vector<double> xyz_sums_;
+  std::vector<double> rgb_sums_;
   std::vector<double> rgb_squares_;
   std::vector<float> depth_;
   std::vector<float> normals_;

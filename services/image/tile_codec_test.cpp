@@ -29,7 +29,7 @@ TileResult random_result(std::uint64_t seed, const TileBuffers& buffers) {
   for (double& v : result->mutable_half_gradients()) v = std::bit_cast<double>(rng());
   for (double& v : result->mutable_half_gradient_squares()) v = std::bit_cast<double>(rng());
   for (std::uint64_t& v : result->mutable_half_counts()) v = rng();
-  for (double& v : result->mutable_xyz_sums()) v = std::bit_cast<double>(rng());
+  for (double& v : result->mutable_rgb_sums()) v = std::bit_cast<double>(rng());
   for (double& v : result->mutable_rgb_squares()) v = std::bit_cast<double>(rng());
   for (float& v : result->mutable_depth()) v = std::bit_cast<float>(std::uint32_t(rng()));
   for (float& v : result->mutable_normals()) v = std::bit_cast<float>(std::uint32_t(rng()));
@@ -72,7 +72,7 @@ TEST(TileCodec, RoundTripIsExact) {
       EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
     }
     EXPECT_TRUE(std::ranges::equal(parsed->half_counts(), original.half_counts()));
-    for (auto [a, b] : {std::pair{parsed->xyz_sums(), original.xyz_sums()},
+    for (auto [a, b] : {std::pair{parsed->rgb_sums(), original.rgb_sums()},
                         std::pair{parsed->rgb_squares(), original.rgb_squares()}}) {
       ASSERT_EQ(a.size(), b.size());
       EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
@@ -121,7 +121,7 @@ TEST(TileCodec, CorruptedHeadersAreRefusedWithClearErrors) {
   put_u32(bad, 12, 16);
   refused(bad, "flags");
   bad = good;
-  put_u32(bad, 12, 2 | 8);  // xyz flag set: the payload is now too short
+  put_u32(bad, 12, 2 | 8);  // rgb flag set: the payload is now too short
   refused(bad, "payload");
   bad = good;
   put_u32(bad, 12, 4);  // halves alone

@@ -114,6 +114,11 @@ ColorMatching ColorMatching::cie1931() {
       for (double v : *values) cm.y_sum_ += v;
     }
   }
+  cm.srgb_table_.resize(kCmfSamples);
+  for (int i = 0; i < kCmfSamples; ++i) {
+    const Rgb c = xyz_to_linear_srgb({cm.table_[i][0], cm.table_[i][1], cm.table_[i][2]});
+    cm.srgb_table_[i] = {c.r, c.g, c.b};
+  }
   return cm;
 }
 
@@ -124,6 +129,16 @@ Xyz ColorMatching::cmf(float lambda_nm) const {
   const double t = f - static_cast<float>(i);
   const auto& a = table_[i];
   const auto& b = table_[i + 1];
+  return {a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), a[2] + t * (b[2] - a[2])};
+}
+
+Rgb ColorMatching::srgb(float lambda_nm) const {
+  if (!(lambda_nm >= kLambdaMin && lambda_nm <= kLambdaMax)) return {};
+  const float f = lambda_nm - kLambdaMin;
+  const int i = std::min(static_cast<int>(f), kCmfSamples - 2);
+  const double t = f - static_cast<float>(i);
+  const auto& a = srgb_table_[i];
+  const auto& b = srgb_table_[i + 1];
   return {a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), a[2] + t * (b[2] - a[2])};
 }
 

@@ -59,6 +59,9 @@ class ColorMatching {
 
   // x̄, ȳ, z̄ at lambda_nm, linear between the 1 nm samples; 0 outside [360, 830]. No allocation.
   Xyz cmf(float lambda_nm) const;
+  // The linear sRGB matching functions (xyz_to_linear_srgb of x̄, ȳ, z̄) at lambda_nm, linear
+  // between the 1 nm samples: a sample's RGB without a matrix per sample.
+  Rgb srgb(float lambda_nm) const;
   // Σ ȳ over the table (≈ 106.857).
   double y_sum() const { return y_sum_; }
   // XYZ of a spectrum by the 1 nm sum above, divided by kCieYIntegral.
@@ -69,8 +72,9 @@ class ColorMatching {
 
  private:
   ColorMatching() = default;
-  std::vector<std::array<double, 3>> table_;     // index i ↔ λ = 360 + i nm
-  std::vector<PiecewiseLinearSpectrum> curves_;  // x̄, ȳ, z̄ for exact bin integrals
+  std::vector<std::array<double, 3>> table_;       // index i ↔ λ = 360 + i nm
+  std::vector<std::array<double, 3>> srgb_table_;  // table_ in linear sRGB
+  std::vector<PiecewiseLinearSpectrum> curves_;    // x̄, ȳ, z̄ for exact bin integrals
   double y_sum_ = 0.0;
 };
 
