@@ -110,6 +110,28 @@ class KnownAnswerTest : public testing::Test {
     }
   }
 
+  // A 2 x 2 sheet at distance 5 filling the middle of a 16 x 16, fov 30 film in a constant sky
+  // (box filter): for every integrator and bin, the sheet's pixels (4..11, fully inside: it
+  // covers 2.03..13.97) show `ratio` times the sky's (columns 0 and 15).
+  static void expect_sheet_over_sky(const scene::SceneDescription& scene, double ratio,
+                                    std::uint64_t seed) {
+    for (worker::IntegratorKind integrator : kIntegrators) {
+      SCOPED_TRACE(worker::name(integrator));
+      auto result = render(scene, integrator, 256, seed, 4);
+      ASSERT_TRUE(result.ok()) << result.status();
+      for (int b = 0; b < result->image.bins(); ++b) {
+        const Mean sheet = pixel_mean(
+            result->image, b, [](int x, int y) { return x >= 4 && x <= 11 && y >= 4 && y <= 11; });
+        const Mean sky = pixel_mean(result->image, b, [](int x, int) { return x == 0 || x == 15; });
+        ASSERT_GT(sky.mean, 0.0);
+        EXPECT_NEAR(
+            sheet.mean, ratio * sky.mean,
+            4 * std::hypot(sheet.standard_error, ratio * sky.standard_error) + 1e-6 * sky.mean)
+            << "bin " << b;
+      }
+    }
+  }
+
   // pbrt-v4's normalisation of a flat emission spectrum: 1 / Σ_1nm ȳ.
   static double unit_flat_emission() {
     const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
@@ -266,22 +288,7 @@ Material "diffusetransmission" "spectrum reflectance" [360 0.3 830 0.3]
 Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indices" [0 1 2 0 2 3]
 )");
   ASSERT_TRUE(scene.ok()) << scene.status();
-  for (worker::IntegratorKind integrator : kIntegrators) {
-    SCOPED_TRACE(worker::name(integrator));
-    auto result = render(*scene, integrator, 256, 2, 4);
-    ASSERT_TRUE(result.ok()) << result.status();
-    // The sheet (±1 at distance 5, fov 30) covers pixels 2.03..13.97: 4..11 are inside, columns
-    // 0 and 15 are sky.
-    for (int b = 0; b < 8; ++b) {
-      const Mean sheet = pixel_mean(
-          result->image, b, [](int x, int y) { return x >= 4 && x <= 11 && y >= 4 && y <= 11; });
-      const Mean sky = pixel_mean(result->image, b, [](int x, int) { return x == 0 || x == 15; });
-      ASSERT_GT(sky.mean, 0.0);
-      EXPECT_NEAR(sheet.mean, 0.8 * sky.mean,
-                  4 * std::hypot(sheet.standard_error, 0.8 * sky.standard_error) + 1e-6 * sky.mean)
-          << "bin " << b;
-    }
-  }
+  expect_sheet_over_sky(*scene, 0.8, 2);
 }
 
 // A `mix` of a black and a white diffuse material (amount 0.3: the white one at 30 % of the
@@ -308,20 +315,7 @@ NamedMaterial ")" + outer + R"("
 Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indices" [0 1 2 0 2 3]
 )");
     ASSERT_TRUE(scene.ok()) << scene.status();
-    for (worker::IntegratorKind integrator : kIntegrators) {
-      SCOPED_TRACE(worker::name(integrator));
-      auto result = render(*scene, integrator, 256, 3, 4);
-      ASSERT_TRUE(result.ok()) << result.status();
-      for (int b = 0; b < 8; ++b) {
-        const Mean sheet = pixel_mean(
-            result->image, b, [](int x, int y) { return x >= 4 && x <= 11 && y >= 4 && y <= 11; });
-        const Mean sky = pixel_mean(result->image, b, [](int x, int) { return x == 0 || x == 15; });
-        EXPECT_NEAR(
-            sheet.mean, expected * sky.mean,
-            4 * std::hypot(sheet.standard_error, expected * sky.standard_error) + 1e-6 * sky.mean)
-            << "bin " << b;
-      }
-    }
+    expect_sheet_over_sky(*scene, expected, 3);
   }
   // A mix names materials defined before it, and takes a float amount.
   auto undefined =
