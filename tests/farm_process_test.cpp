@@ -174,8 +174,10 @@ class FarmProcessTest : public ::testing::Test {
     return context;
   }
 
-  std::string upload() {
-    auto bundle = scene::make_bundle(root_ / "scene", "scene.pbrt", {});
+  // `files`: what the scene references besides itself (SceneDescription::files, as the client
+  // passes them).
+  std::string upload(const std::vector<std::string>& files = {}) {
+    auto bundle = scene::make_bundle(root_ / "scene", "scene.pbrt", files);
     EXPECT_TRUE(bundle.ok()) << bundle.status();
     const std::string bytes = scene::pack(*bundle);
     auto context = client();
@@ -407,6 +409,28 @@ TEST_F(FarmProcessTest, AGradientJobMatchesPrismRenderByteForByte) {
   expect_identical(farm_weighted, cli_render(kSpp, 6,
                                              {"--no-prepass", "--integrator", "gradient", "--tau",
                                               "0", "--poisson", "weighted"}));
+}
+
+// A scene that reads images (an image texture and an environment map) and uses coated
+// materials and a disk: the images travel in the bundle and the workers decode them from it.
+TEST_F(FarmProcessTest, AJobWhoseSceneReadsImagesMatchesPrismRenderByteForByte) {
+  const fs::path source = fs::path(PRISM_SOURCE_DIR) / "tests/testdata/pipeline";
+  fs::copy_file(source / "textured.pbrt", root_ / "scene" / "scene.pbrt",
+                fs::copy_options::overwrite_existing);
+  fs::create_directories(root_ / "scene" / "textures");
+  for (const char* image : {"hues.png", "sky-equalarea.png"}) {
+    fs::copy_file(source / "textures" / image, root_ / "scene" / "textures" / image);
+  }
+  start_coordinator();
+  const std::string job_id =
+      submit(spec(upload({"textures/hues.png", "textures/sky-equalarea.png"}), kSpp));
+  ASSERT_FALSE(job_id.empty());
+  start_worker(0);
+  start_worker(1);
+  const v1::JobInfo done = wait_for(job_id, terminal, 30);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  EXPECT_EQ(done.progress().tasks_done(), 6u);
+  expect_identical(fetch_spectral(job_id), cli_render(kSpp));
 }
 
 // The multi-pass prepass through the farm: two prepasses of 9 tile tasks each, the coordinator's

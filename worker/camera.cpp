@@ -88,21 +88,6 @@ absl::StatusOr<Camera> Camera::create(const scene::Camera& camera, int width, in
   return c;
 }
 
-Vec3f equal_area_square_to_sphere(Point2f p) {
-  // pbrt-v4's EqualAreaSquareToSphere (Clarberg's octahedral equal-area map).
-  const double u = 2.0 * p.x - 1.0, v = 2.0 * p.y - 1.0;
-  const double up = std::abs(u), vp = std::abs(v);
-  const double signed_distance = 1.0 - (up + vp);
-  const double d = std::abs(signed_distance);
-  const double r = 1.0 - d;
-  const double phi = (r == 0.0 ? 1.0 : (vp - up) / r + 1.0) * std::numbers::pi / 4.0;
-  const double z = std::copysign(1.0 - r * r, signed_distance);
-  const double cos_phi = std::copysign(std::cos(phi), u);
-  const double sin_phi = std::copysign(std::sin(phi), v);
-  const double s = r * std::sqrt(std::max(0.0, 2.0 - r * r));
-  return {float(cos_phi * s), float(sin_phi * s), float(z)};
-}
-
 Ray Camera::generate_ray(Point2f film, Point2f lens) const {
   if (spherical_ != 0) {
     // pbrt-v4's SphericalCamera: the film's (u, v) in [0, 1]² picks a direction on the whole

@@ -10,13 +10,11 @@
 
 #include "absl/status/statusor.h"
 #include "services/scene/scene_description.h"
+#include "worker/equal_area.h"
 #include "worker/geometry.h"
 #include "worker/vecmath.h"
 
 namespace prism::worker {
-
-// pbrt-v4's EqualAreaSquareToSphere: [0, 1]² onto the unit sphere, preserving area.
-Vec3f equal_area_square_to_sphere(Point2f p);
 
 class Camera {
  public:

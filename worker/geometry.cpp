@@ -11,9 +11,15 @@ namespace {
 
 using scene::Float3;
 
-Vec3f to_vec(const scene::Vec3& v) { return {float(v[0]), float(v[1]), float(v[2])}; }
-scene::Vec3 to_double(const Vec3f& v) { return {v.x, v.y, v.z}; }
-Vec3f to_vec(const Float3& f) { return {f.x, f.y, f.z}; }
+Vec3f to_vec(const scene::Vec3& v) {
+  return {float(v[0]), float(v[1]), float(v[2])};
+}
+scene::Vec3 to_double(const Vec3f& v) {
+  return {v.x, v.y, v.z};
+}
+Vec3f to_vec(const Float3& f) {
+  return {f.x, f.y, f.z};
+}
 
 // Embree wants a row-major 3x4 matrix (RTC_FORMAT_FLOAT3X4_ROW_MAJOR).
 void instance_matrix(const scene::Transform& t, float out[12]) {
@@ -50,6 +56,67 @@ struct Geometry::SphereShape {
   bool flip = false;
 };
 
+// The object-space plane data (DiskShapeData) is what Embree's user callbacks read; the
+// instance carries the transform.
+struct Geometry::DiskShape : DiskShapeData {
+  scene::Transform object_to_world;
+  scene::Transform world_to_object;
+  bool flip = false;
+};
+
+namespace {
+
+// Embree user-geometry callbacks for a disk in its object space: the plane z = height, hit
+// where inner_radius <= r <= radius. N is 1 (rtcIntersect1 / rtcOccluded1 only).
+float disk_hit_t(const Geometry::DiskShapeData& d, float ox, float oy, float oz, float dx, float dy,
+                 float dz, float tnear, float tfar) {
+  if (dz == 0.0f) return -1.0f;
+  const float t = (d.height - oz) / dz;
+  if (!(t > tnear && t < tfar)) return -1.0f;
+  const float x = ox + t * dx, y = oy + t * dy;
+  const float r2 = x * x + y * y;
+  if (r2 > d.radius * d.radius || r2 < d.inner_radius * d.inner_radius) return -1.0f;
+  return t;
+}
+
+void disk_bounds(const RTCBoundsFunctionArguments* args) {
+  const auto* d = static_cast<const Geometry::DiskShapeData*>(args->geometryUserPtr);
+  RTCBounds* b = args->bounds_o;
+  b->lower_x = b->lower_y = -d->radius;
+  b->upper_x = b->upper_y = d->radius;
+  b->lower_z = b->upper_z = d->height;
+}
+
+void disk_intersect(const RTCIntersectFunctionNArguments* args) {
+  if (args->valid[0] == 0) return;
+  const auto* d = static_cast<const Geometry::DiskShapeData*>(args->geometryUserPtr);
+  RTCRayHit* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);
+  RTCRay& r = rh->ray;
+  const float t =
+      disk_hit_t(*d, r.org_x, r.org_y, r.org_z, r.dir_x, r.dir_y, r.dir_z, r.tnear, r.tfar);
+  if (t < 0.0f) return;
+  r.tfar = t;
+  rh->hit.Ng_x = 0;
+  rh->hit.Ng_y = 0;
+  rh->hit.Ng_z = 1;
+  rh->hit.u = rh->hit.v = 0;
+  rh->hit.primID = args->primID;
+  rh->hit.geomID = args->geomID;
+  rh->hit.instID[0] = args->context->instID[0];
+}
+
+void disk_occluded(const RTCOccludedFunctionNArguments* args) {
+  if (args->valid[0] == 0) return;
+  const auto* d = static_cast<const Geometry::DiskShapeData*>(args->geometryUserPtr);
+  RTCRay* r = reinterpret_cast<RTCRay*>(args->ray);
+  if (disk_hit_t(*d, r->org_x, r->org_y, r->org_z, r->dir_x, r->dir_y, r->dir_z, r->tnear,
+                 r->tfar) >= 0.0f) {
+    r->tfar = -std::numeric_limits<float>::infinity();
+  }
+}
+
+}  // namespace
+
 Geometry::~Geometry() {
   if (scene_ != nullptr) rtcReleaseScene(scene_);
   for (RTCScene s : sub_scenes_) rtcReleaseScene(s);
@@ -65,6 +132,7 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
   rtcSetSceneBuildQuality(g->scene_, RTC_BUILD_QUALITY_HIGH);
   g->meshes_.resize(desc.shapes.size());
   g->spheres_.resize(desc.shapes.size());
+  g->disks_.resize(desc.shapes.size());
 
   // A mesh object shared by several shapes is instanced; count the sharing first.
   std::map<const scene::TriangleMeshData*, int> uses;
@@ -151,8 +219,8 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
       sphere->flip = flip;
       RTCScene child = rtcNewScene(dev);
       RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_SPHERE_POINT);
-      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0,
-                                                            RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1));
+      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
+          geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1));
       if (v != nullptr) {
         v[0] = v[1] = v[2] = 0.0f;
         v[3] = float(s->radius);
@@ -169,6 +237,33 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
         g->bounds_.extend(to_vec(shape.object_to_world.apply_point(c)));
       }
       g->spheres_[i] = std::move(sphere);
+    } else if (auto* d = std::get_if<scene::DiskShape>(&shape.geometry)) {
+      auto disk = std::make_unique<DiskShape>();
+      disk->height = float(d->height);
+      disk->radius = float(d->radius);
+      disk->inner_radius = float(d->inner_radius);
+      disk->object_to_world = shape.object_to_world;
+      disk->world_to_object = shape.object_to_world.inverse();
+      disk->flip = flip;
+      RTCScene child = rtcNewScene(dev);
+      RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_USER);
+      rtcSetGeometryUserPrimitiveCount(geom, 1);
+      rtcSetGeometryUserData(geom, static_cast<DiskShapeData*>(disk.get()));
+      rtcSetGeometryBoundsFunction(geom, disk_bounds, nullptr);
+      rtcSetGeometryIntersectFunction(geom, disk_intersect);
+      rtcSetGeometryOccludedFunction(geom, disk_occluded);
+      rtcCommitGeometry(geom);
+      rtcAttachGeometryByID(child, geom, 0);
+      rtcReleaseGeometry(geom);
+      rtcCommitScene(child);
+      g->sub_scenes_.push_back(child);
+      attach_instance(child, shape.object_to_world, id);
+      for (int corner = 0; corner < 4; ++corner) {
+        scene::Vec3 c{corner & 1 ? d->radius : -d->radius, corner & 2 ? d->radius : -d->radius,
+                      d->height};
+        g->bounds_.extend(to_vec(shape.object_to_world.apply_point(c)));
+      }
+      g->disks_[i] = std::move(disk);
     }
   }
   rtcCommitScene(g->scene_);
@@ -283,6 +378,29 @@ SurfaceHit Geometry::finish_sphere_hit(int shape, const Ray& ray, float t) const
   return hit;
 }
 
+SurfaceHit Geometry::finish_disk_hit(int shape, const Ray& ray, float t) const {
+  const DiskShape& d = *disks_[shape];
+  scene::Vec3 po = d.world_to_object.apply_point(to_double(ray.origin + ray.direction * t));
+  po[2] = d.height;  // back onto the plane
+  SurfaceHit hit;
+  hit.t = t;
+  hit.shape = shape;
+  hit.p = to_vec(d.object_to_world.apply_point(po));
+  Vec3f n = normalize(to_vec(d.object_to_world.apply_normal({0, 0, 1})));
+  if (d.flip) n = -n;
+  hit.ng = hit.ns = n;
+  // pbrt-v4's disk parameterisation: u = φ/2π, v = (radius − r)/(radius − inner radius).
+  const double r = std::sqrt(po[0] * po[0] + po[1] * po[1]);
+  double phi = std::atan2(po[1], po[0]);
+  if (phi < 0) phi += 2 * M_PI;
+  hit.uv = {float(phi / (2 * M_PI)),
+            float((d.radius - r) / (double(d.radius) - double(d.inner_radius)))};
+  hit.dpdu = r > 0
+                 ? to_vec(d.object_to_world.apply_vector({-2 * M_PI * po[1], 2 * M_PI * po[0], 0}))
+                 : to_vec(d.object_to_world.apply_vector({1, 0, 0}));
+  return hit;
+}
+
 std::optional<SurfaceHit> Geometry::intersect(const Ray& ray, float t_max) const {
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
@@ -303,9 +421,10 @@ std::optional<SurfaceHit> Geometry::intersect(const Ray& ray, float t_max) const
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(scene_, &context, &rh);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return std::nullopt;
-  int shape = rh.hit.instID[0] != RTC_INVALID_GEOMETRY_ID ? int(rh.hit.instID[0])
-                                                           : int(rh.hit.geomID);
+  int shape =
+      rh.hit.instID[0] != RTC_INVALID_GEOMETRY_ID ? int(rh.hit.instID[0]) : int(rh.hit.geomID);
   if (spheres_[shape]) return finish_sphere_hit(shape, ray, rh.ray.tfar);
+  if (disks_[shape]) return finish_disk_hit(shape, ray, rh.ray.tfar);
   return finish_triangle_hit(shape, rh.hit.primID, rh.hit.u, rh.hit.v, rh.ray.tfar);
 }
 

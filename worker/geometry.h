@@ -33,12 +33,12 @@ struct Ray {
 
 struct SurfaceHit {
   float t = 0;
-  Vec3f p;      // world position
-  Vec3f ng;     // unit geometric normal (pbrt-v4 orientation, see above)
-  Vec3f ns;     // unit shading normal, on the same side as ng
-  Vec3f dpdu;   // surface tangent for anisotropic frames (may be zero)
+  Vec3f p;     // world position
+  Vec3f ng;    // unit geometric normal (pbrt-v4 orientation, see above)
+  Vec3f ns;    // unit shading normal, on the same side as ng
+  Vec3f dpdu;  // surface tangent for anisotropic frames (may be zero)
   Point2f uv;
-  int shape = -1;            // index into SceneDescription::shapes
+  int shape = -1;               // index into SceneDescription::shapes
   std::uint32_t primitive = 0;  // triangle index within the shape's mesh (0 for spheres)
 };
 
@@ -80,10 +80,17 @@ class Geometry {
   // extent so millimetre and kilometre scenes both avoid self-intersection.
   Vec3f offset_origin(const Vec3f& p, const Vec3f& ng, const Vec3f& direction) const;
 
+  // What Embree's disk callbacks read (object space); public for the callbacks only.
+  struct DiskShapeData {
+    float height = 0, radius = 1, inner_radius = 0;
+  };
+
  private:
   Geometry() = default;
   struct MeshShape;
   struct SphereShape;
+  struct DiskShape;
+  SurfaceHit finish_disk_hit(int shape, const Ray& ray, float t) const;
   SurfaceHit finish_triangle_hit(int shape, std::uint32_t prim, float u, float v, float t) const;
   SurfaceHit finish_sphere_hit(int shape, const Ray& ray, float t) const;
 
@@ -94,6 +101,7 @@ class Geometry {
   // data. Indexed by shape; geometry IDs equal shape indices.
   std::vector<std::unique_ptr<MeshShape>> meshes_;
   std::vector<std::unique_ptr<SphereShape>> spheres_;
+  std::vector<std::unique_ptr<DiskShape>> disks_;
   Bounds3f bounds_;
   float epsilon_ = 1e-4f;
 };

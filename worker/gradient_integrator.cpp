@@ -348,7 +348,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         };
         const float p_light_x =
             prev_specular ? 0.0f : light_density(prev_ctx, base_lambda, ray.direction);
-        emission_event(inf.radiance(base_lambda)[0], p_light_x,
+        emission_event(inf.radiance(ray.direction, base_lambda)[0], p_light_x,
                        [&](Offset& o) -> std::optional<std::pair<float, float>> {
                          Vec3f dir = ray.direction;
                          if (o.state == OffsetState::kDiverged) {
@@ -356,7 +356,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                            dir = o.direction;
                          }
                          return std::pair{
-                             inf.radiance(o.lambda)[0],
+                             inf.radiance(dir, o.lambda)[0],
                              prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, dir)};
                        });
       }
@@ -369,7 +369,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       guides->depth = std::min(1.0f, hit->t / std::max(1e-6f, far));
       guides->normal = hit->ns;
       if (const auto* diffuse = std::get_if<DiffuseMaterial>(material)) {
-        guides->albedo = spectral::sample(diffuse->reflectance, base_lambda)[0];
+        guides->albedo = diffuse->reflectance.at(texture_context(*hit), base_lambda)[0];
       } else {
         guides->albedo = 1.0f;
       }
@@ -418,7 +418,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     }
     if (depth == options.max_depth) break;
 
-    auto bsdf = make_bsdf(*material, base_lambda);
+    auto bsdf = make_bsdf(*material, base_lambda, texture_context(*hit));
     const VertexKind kind = gradient::kind_of(*bsdf);
     const Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
     const Vec3f wo = frame.to_local(-ray.direction);
@@ -442,11 +442,11 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       if (o.state == OffsetState::kDiverged) {
         v.bsdf =
             make_bsdf(scene_.material_at(scene_.shape(o.hit.shape).material, o.hit.p, -o.direction),
-                      o.lambda);
+                      o.lambda, texture_context(o.hit));
         v.frame = Frame::from_xz(o.hit.dpdu, o.hit.ns);
         v.wo = v.frame.to_local(-o.direction);
       } else {
-        v.bsdf = make_bsdf(*material, o.lambda);
+        v.bsdf = make_bsdf(*material, o.lambda, texture_context(*hit));
         v.frame = frame;
         v.wo = o.state == OffsetState::kReconnected ? frame.to_local(-o.direction) : wo;
       }

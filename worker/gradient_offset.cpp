@@ -16,7 +16,8 @@ constexpr float kInfinity = std::numeric_limits<float>::infinity();
 }  // namespace
 
 VertexKind kind_of(const Bsdf& bsdf) {
-  return {bsdf.index(), is_specular(bsdf), is_dispersive(bsdf)};
+  return {bsdf.index(), is_specular(bsdf), is_dispersive(bsdf),
+          std::holds_alternative<LayeredBsdf>(bsdf)};
 }
 
 float relative_eta(const Bsdf& bsdf) {
@@ -139,8 +140,10 @@ void OffsetTracer::resolve_pending(Offset& o, const BaseEvent& base, const Surfa
                                    const Vec3f& base_direction) const {
   const Geometry& geometry = scene_.geometry();
   const ShapeInfo& info_y = scene_.shape(o.hit.shape);
-  auto bsdf_y = make_bsdf(scene_.material_at(info_y.material, o.hit.p, -o.direction), o.lambda);
+  auto bsdf_y = make_bsdf(scene_.material_at(info_y.material, o.hit.p, -o.direction), o.lambda,
+                          texture_context(o.hit));
   PRISM_CHECK(bsdf_y.has_value());
+  if (kind_of(*bsdf_y).stochastic) return o.fail();  // VertexKind
   const Frame frame_y = Frame::from_xz(o.hit.dpdu, o.hit.ns);
   const Vec3f wo_y = frame_y.to_local(-o.direction);
   const LightContext ctx_y{o.hit.p, o.hit.ns};
@@ -149,7 +152,7 @@ void OffsetTracer::resolve_pending(Offset& o, const BaseEvent& base, const Surfa
   if (next != nullptr) {
     const Material& m =
         scene_.material_at(scene_.shape(next->shape).material, next->p, -base_direction);
-    auto bsdf_next = make_bsdf(m, o.lambda);
+    auto bsdf_next = make_bsdf(m, o.lambda, texture_context(*next));
     target_connectable = bsdf_next && kind_of(*bsdf_next).connectable();
   }
   if (kind_of(*bsdf_y).connectable() && target_connectable) {
@@ -227,7 +230,7 @@ void OffsetTracer::apply(Offset& o, const OffsetStep& step) const {
         if (!o.has_hit) return o.fail();
         auto bsdf_y =
             make_bsdf(scene_.material_at(scene_.shape(o.hit.shape).material, o.hit.p, -o.direction),
-                      o.lambda);
+                      o.lambda, texture_context(o.hit));
         if (!bsdf_y || !(kind_of(*bsdf_y) == step.vertex_kind)) o.fail();
       }
       return;
@@ -241,13 +244,14 @@ void OffsetTracer::apply(Offset& o, const OffsetStep& step) const {
 }
 
 void OffsetTracer::scatter(Offset& o, const OffsetStep& step) const {
+  if (step.vertex_kind.stochastic) return o.fail();  // VertexKind
   if (o.state == OffsetState::kDiverged) {
     o.pending = true;
     return;
   }
   const Geometry& geometry = scene_.geometry();
   const SurfaceHit& hit = step.hit;
-  auto b = make_bsdf(*step.material, o.lambda);
+  auto b = make_bsdf(*step.material, o.lambda, texture_context(step.hit));
   PRISM_CHECK(b.has_value());
   if (o.state == OffsetState::kSame && step.vertex_kind.dispersive &&
       step.base.scatter.transmission) {
@@ -293,7 +297,7 @@ DivergedNee OffsetTracer::diverged_nee(const Offset& o, const Bsdf& b, const Fra
   Vec3f target_y = ls.p_light;
   if (std::holds_alternative<InfiniteLight>(light)) {
     wi_y = ls.wi;  // the environment's point is a direction: J = 1
-    out.le = std::get<InfiniteLight>(light).radiance(o.lambda)[0];
+    out.le = std::get<InfiniteLight>(light).radiance(wi_y, o.lambda)[0];
     solid_angle_pdf_y = ls.pdf;
   } else if (ls.delta) {
     auto ls_y = sample_light(light, ctx_y, light_u, u_extra, o.lambda);

@@ -19,11 +19,16 @@ namespace prism::worker::gradient {
 
 // A vertex's kind for the shift: vertices must match in all three to be shifted onto each
 // other, and "connectable" means rough and not dispersive.
+// `stochastic`: a BSDF whose value and density are random-walk estimates (LayeredBsdf). Its
+// sample()'s pdf is an estimate, not the density the direction was drawn with, so an offset
+// weighted by it (f(λ')/p_x) or reconnected through it (p_x in the Jacobian) would be biased;
+// offsets fail there instead, which the base's MIS weight then covers (weight 1).
 struct VertexKind {
   std::size_t bsdf = 0;
   bool specular = false;
   bool dispersive = false;
-  bool connectable() const { return !specular && !dispersive; }
+  bool stochastic = false;
+  bool connectable() const { return !specular && !dispersive && !stochastic; }
   friend bool operator==(const VertexKind&, const VertexKind&) = default;
 };
 

@@ -305,7 +305,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       int infinite = scene_.infinite_light();
       if (infinite >= 0) {
         const auto& inf = std::get<InfiniteLight>(scene_.lights()[infinite]);
-        add_emission(inf.radiance(path.lambda), infinite, nullptr, ray.direction);
+        add_emission(inf.radiance(ray.direction, path.lambda), infinite, nullptr, ray.direction);
       }
       break;
     }
@@ -321,7 +321,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       guides->depth = std::min(1.0f, hit->t / std::max(1e-6f, far));
       guides->normal = hit->ns;
       if (const auto* diffuse = std::get_if<DiffuseMaterial>(&material)) {
-        guides->albedo = spectral::sample(diffuse->reflectance, path.lambda).average(lanes);
+        guides->albedo = diffuse->reflectance.at(texture_context(*hit), path.lambda).average(lanes);
       } else {
         guides->albedo = 1.0f;
       }
@@ -332,7 +332,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
                    ray.direction);
     }
 
-    auto bsdf = make_bsdf(material, path.lambda);
+    auto bsdf = make_bsdf(material, path.lambda, texture_context(*hit));
     if (!bsdf) {
       // A pure medium boundary: continue in the medium on the other side, same path vertex.
       if (info.medium_transition) {

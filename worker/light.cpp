@@ -56,6 +56,10 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
   light.two_sided_ = shape.area_light && shape.area_light->two_sided;
   if (auto status = check_scale(scale, light.where_); !status.ok()) return status;
 
+  if (std::holds_alternative<scene::DiskShape>(shape.geometry)) {
+    return scene::location_error(
+        shape.where, "a disk used as an area light is not supported yet; model it as a mesh");
+  }
   if (const auto* sphere = std::get_if<scene::SphereShape>(&shape.geometry)) {
     // A sphere light is sampled by the cone it subtends, which is only a sphere's cone under a
     // similarity: the linear part's columns must be orthogonal with one common length.
@@ -329,9 +333,11 @@ std::optional<LightSample> SpotLight::sample(const LightContext& ctx,
 
 absl::StatusOr<InfiniteLight> InfiniteLight::create(const scene::Light& light,
                                                     spectral::Spectrum spectrum, double scale,
-                                                    const Bounds3f& scene_bounds) {
+                                                    const Bounds3f& scene_bounds,
+                                                    std::shared_ptr<const EnvironmentMap> map) {
   if (auto status = check_scale(scale, light.where); !status.ok()) return status;
   InfiniteLight l;
+  l.map_ = std::move(map);
   l.spectrum_ = std::move(spectrum);
   l.scale_ = scale;
   l.where_ = light.where;
@@ -346,21 +352,29 @@ absl::StatusOr<InfiniteLight> InfiniteLight::create(const scene::Light& light,
 std::optional<LightSample> InfiniteLight::sample(const LightContext& ctx, Point2f u,
                                                  const SampledWavelengths& lambda) const {
   LightSample s;
-  s.wi = sample_uniform_sphere(u);
-  s.radiance = radiance(lambda);
+  if (map_) {
+    auto m = map_->sample(u);
+    if (!m) return std::nullopt;
+    s.wi = m->w;
+    s.pdf = m->pdf;
+  } else {
+    s.wi = sample_uniform_sphere(u);
+    s.pdf = 1.0f / (4.0f * kPi);
+  }
+  s.radiance = radiance(s.wi, lambda);
   s.distance = std::numeric_limits<float>::infinity();
   // Beyond the scene's bounding sphere in direction wi, for shadow rays that need an endpoint.
   float reach = length(ctx.p - scene_centre_) + 2.0f * float(scene_radius_);
   s.p_light = ctx.p + s.wi * reach;
-  s.pdf = 1.0f / (4.0f * kPi);
   return s;
 }
 
-float InfiniteLight::pdf(const Vec3f&) const {
-  return 1.0f / (4.0f * kPi);
+float InfiniteLight::pdf(const Vec3f& wi) const {
+  return map_ ? map_->pdf(wi) : 1.0f / (4.0f * kPi);
 }
 
-SampledSpectrum InfiniteLight::radiance(const SampledWavelengths& lambda) const {
+SampledSpectrum InfiniteLight::radiance(const Vec3f& w, const SampledWavelengths& lambda) const {
+  if (map_) return map_->radiance(w, lambda) * float(scale_);
   return scaled(spectrum_, scale_, lambda);
 }
 

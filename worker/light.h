@@ -8,10 +8,12 @@
 //                  or, for a sphere seen from outside, uniformly in the cone it subtends.
 //   PointLight     radiant intensity I(λ) at a point.
 //   SpotLight      pbrt-v4's spot: intensity times smoothstep falloff between the cone angles.
-//   InfiniteLight  constant radiance from every direction (sampled uniformly over the sphere).
+//   InfiniteLight  constant radiance from every direction (sampled uniformly over the sphere),
+//                  or an environment map (sampled by its texels' brightness).
 // All radiometric values are per lane (SampledSpectrum) for the path's wavelengths.
 #pragma once
 
+#include <memory>
 #include <optional>
 #include <variant>
 #include <vector>
@@ -23,6 +25,7 @@
 #include "services/spectral/sampled.h"
 #include "services/spectral/spectrum.h"
 #include "services/spectral/wavelength_grid.h"
+#include "worker/environment_map.h"
 #include "worker/geometry.h"
 #include "worker/vecmath.h"
 
@@ -87,9 +90,9 @@ class AreaLight {
   bool two_sided_ = false;
   double area_ = 0;
   bool is_sphere_ = false;
-  Vec3f sphere_centre_;      // world space; spheres as lights need a similarity transform
+  Vec3f sphere_centre_;  // world space; spheres as lights need a similarity transform
   float sphere_radius_ = 0;
-  bool sphere_flip_ = false;  // reverse orientation XOR handedness swap: emits inwards
+  bool sphere_flip_ = false;         // reverse orientation XOR handedness swap: emits inwards
   std::vector<float> triangle_cdf_;  // by area, triangles of the shape
 };
 
@@ -97,7 +100,8 @@ class PointLight {
  public:
   static absl::StatusOr<PointLight> create(const scene::Light& light, spectral::Spectrum spectrum,
                                            double scale);
-  std::optional<LightSample> sample(const LightContext& ctx, const SampledWavelengths& lambda) const;
+  std::optional<LightSample> sample(const LightContext& ctx,
+                                    const SampledWavelengths& lambda) const;
   const spectral::Spectrum& spectrum() const { return spectrum_; }
   double scale() const { return scale_; }
   Vec3f position() const { return position_; }
@@ -114,7 +118,8 @@ class SpotLight {
  public:
   static absl::StatusOr<SpotLight> create(const scene::Light& light, spectral::Spectrum spectrum,
                                           double scale);
-  std::optional<LightSample> sample(const LightContext& ctx, const SampledWavelengths& lambda) const;
+  std::optional<LightSample> sample(const LightContext& ctx,
+                                    const SampledWavelengths& lambda) const;
   const spectral::Spectrum& spectrum() const { return spectrum_; }
   double scale() const { return scale_; }
   Vec3f position() const { return position_; }
@@ -133,16 +138,18 @@ class SpotLight {
   scene::SourceLocation where_;
 };
 
+// Constant, or with an environment map (environment_map.h) whose mean colour is `spectrum`.
 class InfiniteLight {
  public:
   static absl::StatusOr<InfiniteLight> create(const scene::Light& light,
                                               spectral::Spectrum spectrum, double scale,
-                                              const Bounds3f& scene_bounds);
+                                              const Bounds3f& scene_bounds,
+                                              std::shared_ptr<const EnvironmentMap> map = nullptr);
   std::optional<LightSample> sample(const LightContext& ctx, Point2f u,
                                     const SampledWavelengths& lambda) const;
   float pdf(const Vec3f& wi) const;
-  // Radiance seen along a ray that escapes the scene.
-  SampledSpectrum radiance(const SampledWavelengths& lambda) const;
+  // Radiance seen along a ray (direction w) that escapes the scene.
+  SampledSpectrum radiance(const Vec3f& w, const SampledWavelengths& lambda) const;
   const spectral::Spectrum& spectrum() const { return spectrum_; }
   double scale() const { return scale_; }
   double scene_radius() const { return scene_radius_; }
@@ -154,16 +161,17 @@ class InfiniteLight {
   double scene_radius_ = 1;
   Vec3f scene_centre_;  // p_light of a sample lies beyond the scene bounds from here
   scene::SourceLocation where_;
+  std::shared_ptr<const EnvironmentMap> map_;
 };
 
 // Radiance arriving along one direction from infinitely far (pbrt-v4's `distant`): a delta
 // light whose samples lie beyond the scene bounds along that direction.
 class DistantLight {
  public:
-  static absl::StatusOr<DistantLight> create(const scene::Light& light,
-                                             spectral::Spectrum spectrum, double scale,
-                                             const Bounds3f& scene_bounds);
-  std::optional<LightSample> sample(const LightContext& ctx, const SampledWavelengths& lambda) const;
+  static absl::StatusOr<DistantLight> create(const scene::Light& light, spectral::Spectrum spectrum,
+                                             double scale, const Bounds3f& scene_bounds);
+  std::optional<LightSample> sample(const LightContext& ctx,
+                                    const SampledWavelengths& lambda) const;
   const spectral::Spectrum& spectrum() const { return spectrum_; }
   double scale() const { return scale_; }
   double scene_radius() const { return scene_radius_; }

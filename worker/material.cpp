@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -55,13 +56,36 @@ float reflectance_to_k(float r) {
   return 2.0f * std::sqrt(r) / std::sqrt(1.0f - r);
 }
 
-absl::StatusOr<Material> resolve_diffuse(const scene::DiffuseMaterial& m,
-                                         const spectral::SpectrumLibrary& library,
-                                         const spectral::RgbUplift& uplift) {
-  PRISM_ASSIGN_OR_RETURN(
-      spectral::Spectrum r,
-      resolve_spectrum(m.reflectance, SpectrumRole::kReflectance, library, uplift));
-  return DiffuseMaterial{std::move(r)};
+absl::StatusOr<SpectrumSlot> resolve_slot(const scene::SpectrumParam& param, int texture,
+                                          const spectral::SpectrumLibrary& library,
+                                          const spectral::RgbUplift& uplift,
+                                          const std::vector<TexturePtr>& textures) {
+  SpectrumSlot slot;
+  if (texture >= 0) {
+    slot.texture = textures[size_t(texture)];
+    return slot;
+  }
+  PRISM_ASSIGN_OR_RETURN(slot.constant,
+                         resolve_spectrum(param, SpectrumRole::kReflectance, library, uplift));
+  return slot;
+}
+
+absl::StatusOr<Layer> resolve_layer(const scene::LayerSpec& l,
+                                    const spectral::SpectrumLibrary& library,
+                                    const spectral::RgbUplift& uplift) {
+  Layer out;
+  out.thickness = std::max(float(l.thickness), std::numeric_limits<float>::min());
+  auto albedo = resolve_spectrum(l.albedo, SpectrumRole::kReflectance, library, uplift);
+  if (!albedo.ok()) return invalid(absl::StrCat("albedo: ", albedo.status().message()));
+  out.albedo = *std::move(albedo);
+  out.g = float(l.g);
+  out.max_depth = l.max_depth;
+  out.samples = l.samples;
+  return out;
+}
+
+float constant_eta(const scene::IorParam& param) {
+  return float(std::get<scene::IorConstant>(param).eta);
 }
 
 absl::StatusOr<Material> resolve_dielectric(const scene::DielectricMaterial& m,
@@ -189,17 +213,58 @@ absl::StatusOr<spectral::Ior> resolve_ior(const scene::IorParam& param,
 
 absl::StatusOr<Material> resolve_material(const scene::Material& material,
                                           const spectral::SpectrumLibrary& library,
-                                          const spectral::RgbUplift& uplift) {
+                                          const spectral::RgbUplift& uplift,
+                                          const std::vector<TexturePtr>& textures) {
   const std::string label = material.name.empty()
                                 ? std::string("material")
                                 : absl::StrCat("material \"", material.name, "\"");
   struct Visitor {
     const spectral::SpectrumLibrary& library;
     const spectral::RgbUplift& uplift;
+    const std::vector<TexturePtr>& textures;
     absl::StatusOr<Material> operator()(const scene::DiffuseMaterial& m) const {
-      auto r = resolve_diffuse(m, library, uplift);
+      auto r = resolve_slot(m.reflectance, m.reflectance_texture, library, uplift, textures);
       if (!r.ok()) return invalid(absl::StrCat("diffuse reflectance: ", r.status().message()));
-      return r;
+      return Material(DiffuseMaterial{*std::move(r)});
+    }
+    absl::StatusOr<Material> operator()(const scene::CoatedDiffuseMaterial& m) const {
+      auto r = resolve_slot(m.reflectance, m.reflectance_texture, library, uplift, textures);
+      if (!r.ok())
+        return invalid(absl::StrCat("coateddiffuse reflectance: ", r.status().message()));
+      PRISM_RETURN_IF_ERROR(check_roughness(m.roughness));
+      auto layer = resolve_layer(m.layer, library, uplift);
+      if (!layer.ok()) return invalid(absl::StrCat("coateddiffuse ", layer.status().message()));
+      CoatedDiffuseMaterial out{*std::move(r), constant_eta(m.eta),
+                                remap(m.roughness.u, m.roughness.remap),
+                                remap(m.roughness.v, m.roughness.remap), *std::move(layer)};
+      return Material(std::move(out));
+    }
+    absl::StatusOr<Material> operator()(const scene::CoatedConductorMaterial& m) const {
+      PRISM_RETURN_IF_ERROR(check_roughness(m.interface_roughness));
+      PRISM_RETURN_IF_ERROR(check_roughness(m.conductor_roughness));
+      scene::ConductorMaterial base;
+      base.eta = m.conductor_eta;
+      base.k = m.k;
+      base.reflectance = m.reflectance;
+      base.roughness = m.conductor_roughness;
+      auto conductor = resolve_conductor(base, library, uplift);
+      if (!conductor.ok()) {
+        return invalid(absl::StrCat("coatedconductor conductor ", conductor.status().message()));
+      }
+      auto layer = resolve_layer(m.layer, library, uplift);
+      if (!layer.ok()) return invalid(absl::StrCat("coatedconductor ", layer.status().message()));
+      auto& c = std::get<ConductorMaterial>(*conductor);
+      CoatedConductorMaterial out;
+      out.interface_eta = constant_eta(m.interface_eta);
+      out.interface_alpha_x = remap(m.interface_roughness.u, m.interface_roughness.remap);
+      out.interface_alpha_y = remap(m.interface_roughness.v, m.interface_roughness.remap);
+      out.eta = std::move(c.eta);
+      out.k = std::move(c.k);
+      out.reflectance = std::move(c.reflectance);
+      out.alpha_x = c.alpha_x;
+      out.alpha_y = c.alpha_y;
+      out.layer = *std::move(layer);
+      return Material(std::move(out));
     }
     absl::StatusOr<Material> operator()(const scene::DielectricMaterial& m) const {
       auto r = resolve_dielectric(m, library);
@@ -222,10 +287,10 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       return Material(std::move(out));
     }
     absl::StatusOr<Material> operator()(const scene::DiffuseTransmissionMaterial& m) const {
-      auto r = resolve_spectrum(m.reflectance, SpectrumRole::kReflectance, library, uplift);
+      auto r = resolve_slot(m.reflectance, m.reflectance_texture, library, uplift, textures);
       if (!r.ok())
         return invalid(absl::StrCat("diffusetransmission reflectance: ", r.status().message()));
-      auto t = resolve_spectrum(m.transmittance, SpectrumRole::kReflectance, library, uplift);
+      auto t = resolve_slot(m.transmittance, m.transmittance_texture, library, uplift, textures);
       if (!t.ok()) {
         return invalid(absl::StrCat("diffusetransmission transmittance: ", t.status().message()));
       }
@@ -235,19 +300,68 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       return Material(InterfaceMaterial{});
     }
   };
-  auto resolved = std::visit(Visitor{library, uplift}, material.kind);
+  auto resolved = std::visit(Visitor{library, uplift, textures}, material.kind);
   if (!resolved.ok()) return at(material.where, label, resolved.status());
   return resolved;
 }
 
-std::optional<Bsdf> make_bsdf(const Material& material,
+namespace {
+
+SampledSpectrum conductor_eta(const spectral::Spectrum& eta,
+                              const std::optional<spectral::Spectrum>& reflectance,
                               const spectral::SampledWavelengths& lambda) {
+  if (reflectance) return SampledSpectrum(1.0f);
+  return spectral::sample(eta, lambda);
+}
+
+SampledSpectrum conductor_k(const spectral::Spectrum& k,
+                            const std::optional<spectral::Spectrum>& reflectance,
+                            const spectral::SampledWavelengths& lambda) {
+  if (!reflectance) return spectral::sample(k, lambda);
+  SampledSpectrum out;
+  for (int i = 0; i < lambda.count(); ++i) {
+    out[i] = reflectance_to_k(spectral::eval(*reflectance, lambda.lambda(i)));
+  }
+  return out;
+}
+
+LayerParams layer_params(const Layer& layer, const spectral::SampledWavelengths& lambda) {
+  LayerParams p;
+  p.thickness = layer.thickness;
+  p.albedo = spectral::sample(layer.albedo, lambda);
+  p.g = layer.g;
+  p.max_depth = layer.max_depth;
+  p.samples = layer.samples;
+  return p;
+}
+
+}  // namespace
+
+std::optional<Bsdf> make_bsdf(const Material& material, const spectral::SampledWavelengths& lambda,
+                              const TextureContext& ctx) {
   const int lanes = lambda.count();
   struct Visitor {
     const spectral::SampledWavelengths& lambda;
+    const TextureContext& ctx;
     int lanes;
     std::optional<Bsdf> operator()(const DiffuseMaterial& m) const {
-      return Bsdf(DiffuseBsdf(spectral::sample(m.reflectance, lambda), lanes));
+      return Bsdf(DiffuseBsdf(m.reflectance.at(ctx, lambda), lanes));
+    }
+    std::optional<Bsdf> operator()(const CoatedDiffuseMaterial& m) const {
+      SampledSpectrum r = m.reflectance.at(ctx, lambda);
+      for (int i = 0; i < lanes; ++i) r[i] = std::clamp(r[i], 0.0f, 1.0f);
+      const DielectricBsdf top(SampledSpectrum(m.eta), lanes, false,
+                               TrowbridgeReitz(m.alpha_x, m.alpha_y));
+      return Bsdf(LayeredBsdf(top, DiffuseBsdf(r, lanes), layer_params(m.layer, lambda), lanes));
+    }
+    std::optional<Bsdf> operator()(const CoatedConductorMaterial& m) const {
+      const DielectricBsdf top(SampledSpectrum(m.interface_eta), lanes, false,
+                               TrowbridgeReitz(m.interface_alpha_x, m.interface_alpha_y));
+      const float inverse = 1.0f / m.interface_eta;
+      const ConductorBsdf base(conductor_eta(m.eta, m.reflectance, lambda) * inverse,
+                               conductor_k(m.k, m.reflectance, lambda) * inverse, lanes,
+                               TrowbridgeReitz(m.alpha_x, m.alpha_y));
+      return Bsdf(LayeredBsdf(top, base, layer_params(m.layer, lambda), lanes));
     }
     std::optional<Bsdf> operator()(const DielectricMaterial& m) const {
       SampledSpectrum eta;
@@ -279,12 +393,11 @@ std::optional<Bsdf> make_bsdf(const Material& material,
       return Bsdf(ThinDielectricBsdf(eta, lanes));
     }
     std::optional<Bsdf> operator()(const DiffuseTransmissionMaterial& m) const {
-      return Bsdf(DiffuseTransmissionBsdf(spectral::sample(m.reflectance, lambda) * m.scale,
-                                          spectral::sample(m.transmittance, lambda) * m.scale,
-                                          lanes));
+      return Bsdf(DiffuseTransmissionBsdf(m.reflectance.at(ctx, lambda) * m.scale,
+                                          m.transmittance.at(ctx, lambda) * m.scale, lanes));
     }
   };
-  return std::visit(Visitor{lambda, lanes}, material);
+  return std::visit(Visitor{lambda, ctx, lanes}, material);
 }
 
 bool is_dispersive(const Material& material) {
@@ -295,7 +408,15 @@ bool is_dispersive(const Material& material) {
 bool depends_on_wavelength(const Material& material) {
   struct Visitor {
     bool operator()(const DiffuseMaterial& m) const {
-      return !spectral::is_constant(m.reflectance);
+      return m.reflectance.varies_with_wavelength();
+    }
+    bool operator()(const CoatedDiffuseMaterial& m) const {
+      return m.reflectance.varies_with_wavelength() || !spectral::is_constant(m.layer.albedo);
+    }
+    bool operator()(const CoatedConductorMaterial& m) const {
+      if (!spectral::is_constant(m.layer.albedo)) return true;
+      if (m.reflectance) return !spectral::is_constant(*m.reflectance);
+      return !spectral::is_constant(m.eta) || !spectral::is_constant(m.k);
     }
     bool operator()(const DielectricMaterial& m) const { return m.dispersive; }
     bool operator()(const ConductorMaterial& m) const {
@@ -304,7 +425,7 @@ bool depends_on_wavelength(const Material& material) {
     }
     bool operator()(const InterfaceMaterial&) const { return false; }
     bool operator()(const DiffuseTransmissionMaterial& m) const {
-      return !spectral::is_constant(m.reflectance) || !spectral::is_constant(m.transmittance);
+      return m.reflectance.varies_with_wavelength() || m.transmittance.varies_with_wavelength();
     }
     bool operator()(const ThinDielectricMaterial& m) const { return m.dispersive; }
     // The scene asks its components (RenderScene::build); a mix alone cannot tell.

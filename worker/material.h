@@ -16,11 +16,25 @@
 #include "services/spectral/sampled.h"
 #include "services/spectral/spectrum.h"
 #include "worker/bsdf.h"
+#include "worker/texture.h"
 
 namespace prism::worker {
 
+// A spectrum slot that may be textured: the texture, when set, replaces the constant.
+struct SpectrumSlot {
+  spectral::Spectrum constant;  // values in [0, 1] for reflectances
+  TexturePtr texture;
+  spectral::SampledSpectrum at(const TextureContext& ctx,
+                               const spectral::SampledWavelengths& lambda) const {
+    return texture ? texture->spectrum(ctx, lambda) : spectral::sample(constant, lambda);
+  }
+  bool varies_with_wavelength() const {
+    return texture ? texture->varies_with_wavelength() : !spectral::is_constant(constant);
+  }
+};
+
 struct DiffuseMaterial {
-  spectral::Spectrum reflectance;  // values in [0, 1]
+  SpectrumSlot reflectance;
 };
 
 struct DielectricMaterial {
@@ -57,20 +71,52 @@ struct MixMaterial {
 
 // Lambertian reflection and transmission; `scale` already applied.
 struct DiffuseTransmissionMaterial {
-  spectral::Spectrum reflectance;
-  spectral::Spectrum transmittance;
+  SpectrumSlot reflectance;
+  SpectrumSlot transmittance;
   float scale = 1;
+};
+
+// The slab of a coated material (scene::LayerSpec with the albedo resolved).
+struct Layer {
+  float thickness = 0.01f;
+  spectral::Spectrum albedo = spectral::ConstantSpectrum{0};
+  float g = 0;
+  int max_depth = 10;
+  int samples = 1;
+};
+
+// pbrt-v4's coateddiffuse: a dielectric coat of constant η over a Lambertian base.
+struct CoatedDiffuseMaterial {
+  SpectrumSlot reflectance;
+  float eta = 1.5f;
+  float alpha_x = 0, alpha_y = 0;
+  Layer layer;
+};
+
+// pbrt-v4's coatedconductor: a dielectric coat over a conductor whose η and k (or reflectance
+// mapping) are taken relative to the coat, η_c/η_coat and k/η_coat, when the BSDF is made.
+struct CoatedConductorMaterial {
+  float interface_eta = 1.5f;
+  float interface_alpha_x = 0, interface_alpha_y = 0;
+  spectral::Spectrum eta;
+  spectral::Spectrum k;
+  std::optional<spectral::Spectrum> reflectance;
+  float alpha_x = 0, alpha_y = 0;
+  Layer layer;
 };
 
 using Material =
     std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial, InterfaceMaterial,
-                 DiffuseTransmissionMaterial, ThinDielectricMaterial, MixMaterial>;
+                 DiffuseTransmissionMaterial, ThinDielectricMaterial, MixMaterial,
+                 CoatedDiffuseMaterial, CoatedConductorMaterial>;
 
 // Resolves a scene material. Errors name the material's file:line:column (unknown names are
 // already refused by the parser; this catches values out of range, e.g. reflectance > 1).
+// `textures` are the scene's resolved textures (Texture::resolve_all), by scene index.
 absl::StatusOr<Material> resolve_material(const scene::Material& material,
                                           const spectral::SpectrumLibrary& library,
-                                          const spectral::RgbUplift& uplift);
+                                          const spectral::RgbUplift& uplift,
+                                          const std::vector<TexturePtr>& textures);
 
 // Resolves a spectrum parameter in a given role. Reflectances are bounded to [0,1] (RGB via the
 // albedo uplift); unbounded values (media coefficients) use the unbounded uplift; illuminants
@@ -86,8 +132,9 @@ absl::StatusOr<spectral::Ior> resolve_ior(const scene::IorParam& param,
                                           const spectral::SpectrumLibrary& library);
 
 // The BSDF at a hit for the given lanes; nullopt for the interface material. `lanes` is the
-// path's C. Never allocates.
-std::optional<Bsdf> make_bsdf(const Material& material, const spectral::SampledWavelengths& lambda);
+// path's C; `ctx` is where textures are looked up. Never allocates.
+std::optional<Bsdf> make_bsdf(const Material& material, const spectral::SampledWavelengths& lambda,
+                              const TextureContext& ctx);
 
 // True when sampling the material depends on wavelength (a dispersive dielectric): the event a
 // spectral shift or a lane split needs.

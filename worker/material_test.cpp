@@ -28,7 +28,7 @@ class MaterialTest : public ::testing::Test {
     return scene::Material{std::move(name), std::move(kind), {"scene.pbrt", 7, 3}};
   }
   static absl::StatusOr<Material> resolve(scene::MaterialKind kind) {
-    return resolve_material(material(std::move(kind)), *library_, *uplift_);
+    return resolve_material(material(std::move(kind)), *library_, *uplift_, {});
   }
   static spectral::SampledWavelengths lanes(std::initializer_list<float> nm) {
     spectral::SampledWavelengths w(int(nm.size()));
@@ -51,22 +51,22 @@ TEST_F(MaterialTest, EveryKindResolves) {
   };
   auto c = diffuse(scene::SpectrumConstant{0.25});
   ASSERT_TRUE(c.ok()) << c.status();
-  EXPECT_FLOAT_EQ(spectral::eval(std::get<DiffuseMaterial>(*c).reflectance, 500), 0.25f);
+  EXPECT_FLOAT_EQ(spectral::eval(std::get<DiffuseMaterial>(*c).reflectance.constant, 500), 0.25f);
   auto rgb = diffuse(scene::SpectrumRgb{0.8, 0.2, 0.1});
   ASSERT_TRUE(rgb.ok()) << rgb.status();
   EXPECT_TRUE(std::holds_alternative<spectral::RgbAlbedoSpectrum>(
-      std::get<DiffuseMaterial>(*rgb).reflectance));
+      std::get<DiffuseMaterial>(*rgb).reflectance.constant));
   auto table = diffuse(scene::SpectrumTabulated{{400, 700}, {0.2, 0.6}, "inline"});
   ASSERT_TRUE(table.ok()) << table.status();
-  EXPECT_NEAR(spectral::eval(std::get<DiffuseMaterial>(*table).reflectance, 550), 0.4f, 1e-6f);
+  EXPECT_NEAR(spectral::eval(std::get<DiffuseMaterial>(*table).reflectance.constant, 550), 0.4f, 1e-6f);
   auto named = diffuse(scene::SpectrumNamed{"colorchecker-dark-skin"});
   ASSERT_TRUE(named.ok()) << named.status();
-  EXPECT_EQ(spectral::eval(std::get<DiffuseMaterial>(*named).reflectance, 600),
+  EXPECT_EQ(spectral::eval(std::get<DiffuseMaterial>(*named).reflectance.constant, 600),
             spectral::eval(*library_->find_spectrum("colorchecker-dark-skin"), 600));
   auto bb = diffuse(scene::SpectrumBlackbody{5000});
   ASSERT_TRUE(bb.ok()) << bb.status();
   EXPECT_TRUE(std::holds_alternative<spectral::BlackbodySpectrum>(
-      std::get<DiffuseMaterial>(*bb).reflectance));
+      std::get<DiffuseMaterial>(*bb).reflectance.constant));
 
   auto dielectric = [&](scene::IorParam eta) {
     return resolve(scene::DielectricMaterial{std::move(eta), {}});
@@ -105,7 +105,7 @@ TEST_F(MaterialTest, Bk7IndexReachesTheBsdfLanes) {
     auto m = resolve(scene::DielectricMaterial{eta, {}});
     ASSERT_TRUE(m.ok()) << m.status();
     auto w = lanes({587.6f, 450.0f, 587.6f, 700.0f});
-    auto bsdf = make_bsdf(*m, w);
+    auto bsdf = make_bsdf(*m, w, TextureContext{});
     ASSERT_TRUE(bsdf.has_value());
     const auto& d = std::get<DielectricBsdf>(*bsdf);
     EXPECT_NEAR(d.eta(0), 1.5168f, 1e-4f);
@@ -130,7 +130,7 @@ TEST_F(MaterialTest, ReflectanceAboveOneIsRefusedWithItsLocation) {
                                {}},
   };
   for (const auto& kind : bad) {
-    auto r = resolve_material(material(kind, "paint"), *library_, *uplift_);
+    auto r = resolve_material(material(kind, "paint"), *library_, *uplift_, {});
     ASSERT_FALSE(r.ok());
     EXPECT_EQ(r.status().code(), absl::StatusCode::kInvalidArgument);
     EXPECT_TRUE(absl::StartsWith(r.status().message(), "scene.pbrt:7:3: material \"paint\""))
@@ -144,7 +144,7 @@ TEST_F(MaterialTest, ReflectanceAboveOneIsRefusedWithItsLocation) {
            scene::DielectricMaterial{scene::IorConstant{0}, {}},
            scene::DielectricMaterial{scene::IorConstant{1.5}, {-0.1, 0, true}},
        }) {
-    auto r = resolve_material(material(kind), *library_, *uplift_);
+    auto r = resolve_material(material(kind), *library_, *uplift_, {});
     ASSERT_FALSE(r.ok());
     EXPECT_TRUE(absl::StartsWith(r.status().message(), "scene.pbrt:7:3: ")) << r.status();
   }
@@ -157,7 +157,7 @@ TEST_F(MaterialTest, ConductorReflectanceMapsToNormalIncidenceFresnel) {
   auto m = resolve(c);
   ASSERT_TRUE(m.ok()) << m.status();
   auto w = lanes({400, 550, 700});
-  auto bsdf = make_bsdf(*m, w);
+  auto bsdf = make_bsdf(*m, w, TextureContext{});
   ASSERT_TRUE(bsdf.has_value());
   ASSERT_TRUE(std::holds_alternative<ConductorBsdf>(*bsdf));
   // A smooth conductor's reflection sample reports Fresnel as f·cos (its specular weight).
@@ -185,7 +185,7 @@ TEST_F(MaterialTest, RoughnessRemapping) {
   ASSERT_TRUE(raw.ok()) << raw.status();
   EXPECT_FLOAT_EQ(std::get<ConductorMaterial>(*raw).alpha_x, 0.25f);
   EXPECT_FLOAT_EQ(std::get<ConductorMaterial>(*raw).alpha_y, 0.04f);
-  auto bsdf = make_bsdf(*raw, lanes({500, 600}));
+  auto bsdf = make_bsdf(*raw, lanes({500, 600}), TextureContext{});
   ASSERT_TRUE(bsdf.has_value());
   EXPECT_FALSE(is_specular(*bsdf));
 }
@@ -193,7 +193,7 @@ TEST_F(MaterialTest, RoughnessRemapping) {
 TEST_F(MaterialTest, BsdfLanesBeyondTheCountAreZero) {
   auto m = resolve(scene::DiffuseMaterial{scene::SpectrumConstant{0.5}});
   ASSERT_TRUE(m.ok());
-  auto bsdf = make_bsdf(*m, lanes({400, 500}));
+  auto bsdf = make_bsdf(*m, lanes({400, 500}), TextureContext{});
   ASSERT_TRUE(bsdf.has_value());
   SampledSpectrum f = worker::eval(*bsdf, {0, 0, 1}, normalize(Vec3f(0.3f, 0, 1)));
   EXPECT_FLOAT_EQ(f[0], 0.5f * kInvPi);
@@ -202,7 +202,7 @@ TEST_F(MaterialTest, BsdfLanesBeyondTheCountAreZero) {
 }
 
 TEST_F(MaterialTest, InterfaceHasNoBsdf) {
-  EXPECT_FALSE(make_bsdf(Material(InterfaceMaterial{}), lanes({500})).has_value());
+  EXPECT_FALSE(make_bsdf(Material(InterfaceMaterial{}), lanes({500}), TextureContext{}).has_value());
 }
 
 TEST_F(MaterialTest, WavelengthDependenceTruthTable) {
@@ -232,7 +232,7 @@ TEST_F(MaterialTest, WavelengthDependenceTruthTable) {
     ASSERT_TRUE(m.ok()) << i << ": " << m.status();
     EXPECT_EQ(is_dispersive(*m), rows[i].dispersive) << "row " << i;
     EXPECT_EQ(depends_on_wavelength(*m), rows[i].depends) << "row " << i;
-    auto bsdf = make_bsdf(*m, lanes({450, 550, 650, 750}));
+    auto bsdf = make_bsdf(*m, lanes({450, 550, 650, 750}), TextureContext{});
     if (bsdf) {
       EXPECT_EQ(worker::is_dispersive(*bsdf), rows[i].dispersive) << "row " << i;
     }

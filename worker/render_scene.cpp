@@ -107,6 +107,24 @@ absl::StatusOr<Light> make_light(const scene::Light& light, const Geometry& geom
   }
   const auto& inf = std::get<scene::InfiniteLight>(light.kind);
   PRISM_RETURN_IF_ERROR(check_target(inf.illuminance, "illuminance", light.where));
+  if (inf.image) {
+    // The map's texels are RGB illuminants normalised, as pbrt-v4 does, by the colour space's
+    // illuminant (D65): the light's spectrum is its mean colour's, for power and spectral
+    // sampling.
+    auto map = EnvironmentMap::create(*inf.image, light.light_to_world, uplift);
+    if (!map.ok()) {
+      return scene::location_error(light.where, absl::StrCat("infinite light \"", inf.filename,
+                                                             "\": ", map.status().message()));
+    }
+    const spectral::Rgb mean = (*map)->mean_rgb();
+    PRISM_ASSIGN_OR_RETURN(
+        Emission e, emission(scene::SpectrumRgb{mean.r, mean.g, mean.b}, inf.scale, light.where,
+                             "infinite light image", library, uplift, cmf));
+    PRISM_ASSIGN_OR_RETURN(InfiniteLight l,
+                           InfiniteLight::create(light, std::move(e.spectrum), e.scale,
+                                                 geometry.bounds(), *std::move(map)));
+    return Light(std::move(l));
+  }
   PRISM_ASSIGN_OR_RETURN(Emission e, emission(param, inf.scale, light.where, "infinite light L",
                                               library, uplift, cmf));
   // pbrt-v4: the illuminance of a uniform unit-nit sky on an upward-facing patch is π.
@@ -218,9 +236,11 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
   PRISM_ASSIGN_OR_RETURN(PixelFilter filter, PixelFilter::create(scene.filter));
   rs->pixel_filter_ = std::make_unique<PixelFilter>(std::move(filter));
 
+  PRISM_ASSIGN_OR_RETURN(const std::vector<TexturePtr> textures,
+                         Texture::resolve_all(scene, library, uplift));
   rs->materials_.reserve(scene.materials.size());
   for (const scene::Material& m : scene.materials) {
-    PRISM_ASSIGN_OR_RETURN(Material material, resolve_material(m, library, uplift));
+    PRISM_ASSIGN_OR_RETURN(Material material, resolve_material(m, library, uplift, textures));
     rs->materials_.push_back(std::move(material));
   }
   rs->media_.reserve(scene.media.size());

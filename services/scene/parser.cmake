@@ -18,7 +18,7 @@ add_library(prism::scene ALIAS prism_scene)
 target_include_directories(prism_scene PUBLIC ${PROJECT_SOURCE_DIR})
 target_link_libraries(prism_scene
   PUBLIC prism_scene_io prism::base absl::status absl::statusor absl::strings
-  PRIVATE prism_warnings
+  PRIVATE prism::image prism_warnings
 )
 
 # fuzz_parse, shared by the corpus driver (always built and run by ctest) and libFuzzer.

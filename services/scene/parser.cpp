@@ -9,6 +9,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "services/base/status.h"
+#include "services/image/texture_image.h"
 #include "services/scene/mesh_obj.h"
 #include "services/scene/mesh_ply.h"
 #include "services/scene/parameters.h"
@@ -71,6 +72,15 @@ class SceneParser {
     };
     ctx_.load_mesh = [this](const std::string& ref, MeshFormat format,
                             const SourceLocation& where) { return load_mesh(ref, format, where); };
+    ctx_.find_texture = [this](const std::string& name, bool spectrum) -> std::optional<int> {
+      const auto& names = spectrum ? spectrum_textures_ : float_textures_;
+      auto it = names.find(name);
+      if (it == names.end()) return std::nullopt;
+      return it->second;
+    };
+    ctx_.load_image = [this](const std::string& ref, const SourceLocation& where) {
+      return load_image(ref, where);
+    };
   }
 
   absl::StatusOr<SceneDescription> run(std::string_view text, const std::string& relpath) {
@@ -130,6 +140,8 @@ class SceneParser {
                                                const SourceLocation& where);
   absl::StatusOr<TriangleMeshShape> load_mesh(const std::string& reference, MeshFormat format,
                                               const SourceLocation& where);
+  absl::StatusOr<EntityContext::LoadedImage> load_image(const std::string& reference,
+                                                        const SourceLocation& where);
   absl::Status count_triangles(const ShapeGeometry& g, const SourceLocation& where);
   int material_index(const SourceLocation& where);
   absl::StatusOr<int> medium_index(const Token& name, const SourceLocation& where) const;
@@ -152,6 +164,9 @@ class SceneParser {
   int default_material_ = -1;
   std::map<std::string, std::shared_ptr<const TriangleMeshData>> meshes_;
   std::map<std::string, SpectrumTabulated> tables_;
+  std::map<std::string, EntityContext::LoadedImage> images_;
+  std::map<std::string, int> spectrum_textures_;
+  std::map<std::string, int> float_textures_;
   std::set<std::string> recorded_;
   std::uint64_t total_triangles_ = 0;
   int end_line_ = 1;
@@ -215,6 +230,24 @@ absl::StatusOr<TriangleMeshShape> SceneParser::load_mesh(const std::string& refe
     it = meshes_.emplace(relpath, std::make_shared<const TriangleMeshData>(std::move(*mesh))).first;
   }
   return TriangleMeshShape{it->second, relpath};
+}
+
+absl::StatusOr<EntityContext::LoadedImage> SceneParser::load_image(const std::string& reference,
+                                                                   const SourceLocation& where) {
+  PRISM_ASSIGN_OR_RETURN(std::string relpath, resolve(reference, where));
+  if (auto it = images_.find(relpath); it != images_.end()) return it->second;
+  PRISM_ASSIGN_OR_RETURN(std::string bytes, read(relpath, options_.max_image_file_bytes, where));
+  absl::StatusOr<image::TextureImageData> decoded = image::decode_texture_image(bytes, relpath);
+  if (!decoded.ok()) return located(where, decoded.status());
+  record_file(relpath);
+  auto image = std::make_shared<TextureImage>();
+  image->width = decoded->width;
+  image->height = decoded->height;
+  image->channels = decoded->channels;
+  image->values = std::move(decoded->values);
+  EntityContext::LoadedImage loaded{std::move(image), decoded->eight_bit, relpath};
+  images_.emplace(relpath, loaded);
+  return loaded;
 }
 
 absl::Status SceneParser::count_triangles(const ShapeGeometry& g, const SourceLocation& where) {
@@ -582,8 +615,28 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
       copy.where = where;
       PRISM_RETURN_IF_ERROR(add_shape(std::move(copy)));
     }
-  } else if (name == "Texture" || name == "Attribute" || name == "TransformTimes" ||
-             name == "MakeNamedCamera" || name == "Accelerator" || name == "WorldEnd") {
+  } else if (name == "Texture") {
+    PRISM_RETURN_IF_ERROR(require_world(d, where));
+    PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "texture name"));
+    PRISM_ASSIGN_OR_RETURN(Token kind, string_arg(tokens, d, "texture type"));
+    if (kind.text != "spectrum" && kind.text != "float")
+      return location_error(tokens.location(kind),
+                            absl::StrCat("texture type \"", kind.text,
+                                         "\" is not supported (supported: float, spectrum)"));
+    const bool spectrum = kind.text == "spectrum";
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    PRISM_ASSIGN_OR_RETURN(TextureKind texture,
+                           make_texture(td.first, spectrum, td.second, state_.ctm, ctx_));
+    auto& names = spectrum ? spectrum_textures_ : float_textures_;
+    if (auto it = names.find(n.text); it != names.end())
+      return location_error(
+          tokens.location(n),
+          absl::StrCat(kind.text, " texture \"", n.text, "\" redefined (first at ",
+                       scene_.textures[static_cast<size_t>(it->second)].where.to_string(), ")"));
+    names[n.text] = static_cast<int>(scene_.textures.size());
+    scene_.textures.push_back(Texture{n.text, spectrum, std::move(texture), where});
+  } else if (name == "Attribute" || name == "TransformTimes" || name == "MakeNamedCamera" ||
+             name == "Accelerator" || name == "WorldEnd") {
     return location_error(where, absl::StrCat("directive '", name, "' is not supported by Prism"));
   } else {
     return location_error(where, absl::StrCat("unknown directive '", name, "'"));

@@ -55,6 +55,7 @@ struct LoadOptions {
   MeshLimits mesh_limits;
   std::uint64_t max_scene_file_bytes = std::uint64_t{256} << 20;  // each scene/include file
   std::uint64_t max_spectrum_file_bytes = std::uint64_t{16} << 20;
+  std::uint64_t max_image_file_bytes = std::uint64_t{1} << 30;  // each texture image
   std::uint64_t max_total_triangles = 200'000'000;
 };
 

@@ -28,9 +28,8 @@ const BadCase kBadCases[] = {
     {"unknown_directive.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_directive.pbrt:3:3: unknown directive 'Frobnicate'"},
     {"unknown_shape.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_shape.pbrt:2:7: unsupported shape type \"cone\" (supported: bilinearmesh, objmesh, "
-     "plymesh, sphere, "
-     "trianglemesh)"},
+     "unknown_shape.pbrt:2:7: unsupported shape type \"cone\" (supported: bilinearmesh, disk, "
+     "objmesh, plymesh, sphere, trianglemesh)"},
     {"unused_parameter.pbrt", absl::StatusCode::kInvalidArgument,
      "unused_parameter.pbrt:3:3: unused parameter 'float radiu'"},
     {"wrong_type_value.pbrt", absl::StatusCode::kInvalidArgument,
@@ -77,8 +76,9 @@ const BadCase kBadCases[] = {
     {"filter_radius.pbrt", absl::StatusCode::kInvalidArgument,
      "filter_radius.pbrt:1:24: 'float xradius' must be between 0.01 and 16 pixels, got 0"},
     {"unknown_material.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_material.pbrt:2:10: unsupported material type \"plastic\" (supported: conductor, "
-     "dielectric, diffuse, diffusetransmission, interface, mix, thindielectric)"},
+     "unknown_material.pbrt:2:10: unsupported material type \"plastic\" (supported: "
+     "coatedconductor, coateddiffuse, conductor, dielectric, diffuse, diffusetransmission, "
+     "interface, mix, thindielectric)"},
     {"unknown_light.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_light.pbrt:2:13: unsupported light type \"goniometric\" (supported: distant, "
      "infinite, point, spot)"},
@@ -93,7 +93,8 @@ const BadCase kBadCases[] = {
      "partial_sphere.pbrt:2:16: 'float zmin' is not supported (only full spheres: zmin <= "
      "-radius)"},
     {"infinite_image.pbrt", absl::StatusCode::kInvalidArgument,
-     "infinite_image.pbrt:2:24: 'string filename': image-based infinite lights are not supported"},
+     "infinite_image.pbrt:2:24: 'string filename' \"wide.png\" is 2x1; an equal-area "
+     "environment map must be square"},
     {"shape_before_world.pbrt", absl::StatusCode::kInvalidArgument,
      "shape_before_world.pbrt:1:1: 'Shape' is only allowed after WorldBegin"},
     {"camera_after_world.pbrt", absl::StatusCode::kInvalidArgument,
@@ -116,7 +117,25 @@ const BadCase kBadCases[] = {
      "of eta, cauchy, "
      "sellmeier)"},
     {"texture.pbrt", absl::StatusCode::kInvalidArgument,
-     "texture.pbrt:3:1: directive 'Texture' is not supported by Prism"},
+     "texture.pbrt:3:20: spectrum texture \"cheks\" is not defined"},
+    {"texture_wrong_kind.pbrt", absl::StatusCode::kInvalidArgument,
+     "texture_wrong_kind.pbrt:3:20: spectrum texture \"amount\" is not defined"},
+    {"texture_roughness.pbrt", absl::StatusCode::kInvalidArgument,
+     "texture_roughness.pbrt:3:22: 'texture roughness': a textured roughness is not supported "
+     "yet; give a float"},
+    {"texture_mapping.pbrt", absl::StatusCode::kInvalidArgument,
+     "texture_mapping.pbrt:2:44: 'string mapping' \"spherical\" is not supported (supported: uv)"},
+    {"texture_redefined.pbrt", absl::StatusCode::kInvalidArgument,
+     "texture_redefined.pbrt:3:9: spectrum texture \"checks\" redefined (first at "
+     "texture_redefined.pbrt:2:1)"},
+    {"texture_missing_image.pbrt", absl::StatusCode::kNotFound,
+     "texture_missing_image.pbrt:2:38: file \"wood.png\" does not exist"},
+    {"texture_not_an_image.pbrt", absl::StatusCode::kInvalidArgument,
+     "texture_not_an_image.pbrt:2:38: image \"not_an_image.png\": is neither a PNG nor an "
+     "OpenEXR file (Prism reads those two formats)"},
+    {"coat_spectral_eta.pbrt", absl::StatusCode::kInvalidArgument,
+     "coat_spectral_eta.pbrt:2:26: 'spectrum eta' must be a float: a coat whose index varies "
+     "with wavelength is not supported yet"},
     {"unterminated_bracket.pbrt", absl::StatusCode::kInvalidArgument,
      "unterminated_bracket.pbrt:2:38: unterminated '[' in the values of 'rgb reflectance'"},
     {"unknown_param_type.pbrt", absl::StatusCode::kInvalidArgument,
@@ -210,8 +229,7 @@ const MemoryCase kMemoryCases[] = {
     {"WorldBegin\nMaterial \"dielectric\" \"float sellmeier\" [1 2 3]\n",
      "m.pbrt:2:23: 'float sellmeier' needs 6 coefficients [B1 B2 B3 C1 C2 C3] (C in um^2), got 3"},
     {"WorldBegin\nMaterial \"diffuse\" \"texture reflectance\" \"checks\"\n",
-     "m.pbrt:2:20: parameter 'reflectance' has type 'texture', expected 'spectrum' or 'rgb' or "
-     "'blackbody' or 'float'"},
+     "m.pbrt:2:20: spectrum texture \"checks\" is not defined"},
     {"Camera \"perspective\" \"float shutteropen\" 0\nWorldBegin\n",
      "m.pbrt:1:22: 'float shutteropen': motion blur is not supported"},
     {"WorldBegin\nLightSource \"spot\" \"float coneangle\" 10 \"float conedeltaangle\" 20\n",

@@ -156,6 +156,85 @@ TEST(GoodScenes, Materials) {
   EXPECT_EQ(s.files, (std::vector<std::string>{"materials.pbrt", "spectra/white.csv"}));
 }
 
+TEST(GoodScenes, TexturesCoatedMaterialsAndDisks) {
+  SceneDescription s = load_good("textures.pbrt");
+  ASSERT_EQ(s.textures.size(), 8u);
+  auto texture = [&](const std::string& name) -> const Texture& {
+    for (const Texture& t : s.textures)
+      if (t.name == name) return t;
+    ADD_FAILURE() << name;
+    return s.textures[0];
+  };
+  const auto& checks = std::get<CheckerboardTexture>(texture("checks").kind);
+  EXPECT_TRUE(texture("checks").spectrum);
+  EXPECT_DOUBLE_EQ(checks.mapping.su, 4);
+  EXPECT_DOUBLE_EQ(checks.mapping.sv, 2);
+  EXPECT_EQ(checks.tex1.spectrum, SpectrumParam(SpectrumRgb{0.8, 0.8, 0.75}));
+  EXPECT_EQ(checks.tex2.texture, -1);
+
+  // 8-bit images are decoded by their encoding: sRGB by default, exactly pbrt-v4's curve.
+  const auto& quad = std::get<ImageTexture>(texture("quad").kind);
+  EXPECT_EQ(quad.filename, "textures/quad.png");
+  EXPECT_EQ(quad.wrap, TextureWrap::kClamp);
+  EXPECT_TRUE(quad.invert);
+  EXPECT_DOUBLE_EQ(quad.scale, 0.5);
+  ASSERT_EQ(quad.image->width, 2);
+  ASSERT_EQ(quad.image->height, 2);
+  ASSERT_EQ(quad.image->channels, 3);
+  EXPECT_FLOAT_EQ(quad.image->values[0], 1.0f);  // top-left red
+  EXPECT_FLOAT_EQ(quad.image->values[1], 0.0f);
+  EXPECT_FLOAT_EQ(quad.image->values[9], float(std::pow((128 / 255.0 + 0.055) / 1.055, 2.4)));
+  const auto& linear = std::get<ImageTexture>(texture("quad-linear").kind);
+  EXPECT_FLOAT_EQ(linear.image->values[9], 128 / 255.0f);
+  const auto& grey = std::get<ImageTexture>(texture("grey").kind);
+  EXPECT_FALSE(texture("grey").spectrum);
+  ASSERT_EQ(grey.image->channels, 1);
+  EXPECT_FLOAT_EQ(grey.image->values[0], float(std::pow(64 / 255.0, 2.0)));
+
+  const auto& scaled = std::get<ScaleTexture>(texture("scaled").kind);
+  EXPECT_EQ(s.textures[size_t(scaled.tex.texture)].name, "quad");
+  EXPECT_EQ(s.textures[size_t(scaled.scale.texture)].name, "half");
+  const auto& mixed = std::get<MixTexture>(texture("mixed").kind);
+  EXPECT_EQ(mixed.tex2.spectrum, SpectrumParam(SpectrumRgb{0.1, 0.2, 0.3}));
+  EXPECT_EQ(s.textures[size_t(mixed.amount.texture)].name, "grey");
+  // directionmix's dir is in the space current at the directive: Rotate 90 about x takes +y
+  // to +z.
+  expect_near(std::get<DirectionMixTexture>(texture("facing").kind).direction_world, {0, 0, 1});
+
+  ASSERT_EQ(s.shapes.size(), 3u);
+  const auto& disk = std::get<DiskShape>(s.shapes[0].geometry);
+  EXPECT_DOUBLE_EQ(disk.radius, 2);
+  EXPECT_DOUBLE_EQ(disk.inner_radius, 0.5);
+  EXPECT_DOUBLE_EQ(disk.height, 0.25);
+  const auto& diffuse = std::get<DiffuseMaterial>(s.materials[size_t(s.shapes[0].material)].kind);
+  EXPECT_EQ(s.textures[size_t(diffuse.reflectance_texture)].name, "mixed");
+
+  const auto& coated =
+      std::get<CoatedDiffuseMaterial>(s.materials[size_t(s.shapes[1].material)].kind);
+  EXPECT_EQ(s.textures[size_t(coated.reflectance_texture)].name, "facing");
+  EXPECT_EQ(coated.eta, IorParam(IorConstant{1.5}));
+  EXPECT_DOUBLE_EQ(coated.roughness.u, 0.1);
+  EXPECT_DOUBLE_EQ(coated.layer.thickness, 0.02);
+  EXPECT_EQ(coated.layer.albedo, SpectrumParam(SpectrumRgb{0.5, 0.4, 0.3}));
+  EXPECT_DOUBLE_EQ(coated.layer.g, 0.2);
+  EXPECT_EQ(coated.layer.max_depth, 5);
+  EXPECT_EQ(coated.layer.samples, 2);
+  const auto& metal =
+      std::get<CoatedConductorMaterial>(s.materials[size_t(s.shapes[2].material)].kind);
+  EXPECT_EQ(metal.interface_eta, IorParam(IorConstant{1.4}));
+  EXPECT_DOUBLE_EQ(metal.interface_roughness.u, 0.05);
+  EXPECT_EQ(metal.conductor_eta, SpectrumParam(SpectrumNamed{"metal-Au-eta"}));
+  EXPECT_EQ(metal.k, SpectrumParam(SpectrumNamed{"metal-Au-k"}));
+  EXPECT_DOUBLE_EQ(metal.conductor_roughness.u, 0.3);
+  EXPECT_DOUBLE_EQ(metal.conductor_roughness.v, 0.2);
+  EXPECT_EQ(metal.layer.max_depth, 10);  // pbrt-v4's defaults
+  EXPECT_EQ(metal.layer.samples, 1);
+  EXPECT_DOUBLE_EQ(metal.layer.thickness, 0.01);
+  // Images are scene files: a bundle must carry them.
+  EXPECT_EQ(s.files,
+            (std::vector<std::string>{"textures.pbrt", "textures/quad.png", "textures/grey.png"}));
+}
+
 TEST(GoodScenes, LightsAreaLightsAndMedia) {
   SceneDescription s = load_good("lights.pbrt");
   ASSERT_EQ(s.lights.size(), 4u);

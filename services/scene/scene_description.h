@@ -41,6 +41,7 @@
 #include "services/scene/mesh.h"
 #include "services/scene/source_location.h"
 #include "services/scene/spectrum_param.h"
+#include "services/scene/texture_description.h"
 #include "services/scene/transform.h"
 
 namespace prism::scene {
@@ -105,8 +106,11 @@ struct IntegratorSpec {
   bool name_recognised = true;  // false: an unknown name, mapped to Prism's path tracer
 };
 
+// A spectrum slot of a material may instead name a spectrum texture: `*_texture` is then its
+// index into SceneDescription::textures and the spectrum beside it is unused.
 struct DiffuseMaterial {
   SpectrumParam reflectance = SpectrumConstant{0.5};
+  int reflectance_texture = -1;
 };
 
 // Roughness as written; with remap_roughness the tracer maps it to the microfacet alpha
@@ -152,12 +156,47 @@ struct ThinDielectricMaterial {
 struct DiffuseTransmissionMaterial {
   SpectrumParam reflectance = SpectrumConstant{0.25};
   SpectrumParam transmittance = SpectrumConstant{0.25};
+  int reflectance_texture = -1;
+  int transmittance_texture = -1;
   double scale = 1.0;
+};
+
+// pbrt-v4's layered materials: a dielectric coat (η, roughness) over a base, a slab of
+// `thickness` between them holding an optional scattering medium (`albedo`, HG `g`; unit
+// extinction per unit thickness), evaluated stochastically with `nsamples` random walks of at
+// most `maxdepth` events (worker/layered_bsdf.h).
+struct LayerSpec {
+  double thickness = 0.01;
+  SpectrumParam albedo = SpectrumConstant{0};
+  double g = 0;
+  int max_depth = 10;
+  int samples = 1;
+};
+
+struct CoatedDiffuseMaterial {
+  SpectrumParam reflectance = SpectrumConstant{0.5};
+  int reflectance_texture = -1;
+  IorParam eta = IorConstant{1.5};
+  Roughness roughness;
+  LayerSpec layer;
+};
+
+// The conductor's η and k (or reflectance) as written; pbrt-v4 divides them by the coat's η
+// when it builds the BSDF (the base sits inside the coat).
+struct CoatedConductorMaterial {
+  IorParam interface_eta = IorConstant{1.5};
+  Roughness interface_roughness;
+  SpectrumParam conductor_eta = SpectrumNamed{"metal-Cu-eta"};
+  SpectrumParam k = SpectrumNamed{"metal-Cu-k"};
+  std::optional<SpectrumParam> reflectance;
+  Roughness conductor_roughness;
+  LayerSpec layer;
 };
 
 using MaterialKind =
     std::variant<DiffuseMaterial, DielectricMaterial, ConductorMaterial, InterfaceMaterial,
-                 DiffuseTransmissionMaterial, ThinDielectricMaterial, MixMaterial>;
+                 DiffuseTransmissionMaterial, ThinDielectricMaterial, MixMaterial,
+                 CoatedDiffuseMaterial, CoatedConductorMaterial>;
 
 struct Material {
   std::string name;  // empty for anonymous `Material` directives and the default material
@@ -177,7 +216,15 @@ struct SphereShape {
   double radius = 1.0;  // full sphere; partial spheres are refused
 };
 
-using ShapeGeometry = std::variant<TriangleMeshShape, SphereShape>;
+// pbrt-v4's disk: in the plane z = height, radius `radius`, a hole of `inner_radius`; its normal
+// is +z in object space (flipped by the orientation rule above). Partial disks are refused.
+struct DiskShape {
+  double height = 0.0;
+  double radius = 1.0;
+  double inner_radius = 0.0;
+};
+
+using ShapeGeometry = std::variant<TriangleMeshShape, SphereShape, DiskShape>;
 
 struct AreaLight {
   SpectrumParam radiance = SpectrumNamed{kDefaultIlluminant};  // pbrt `L`
@@ -221,11 +268,15 @@ struct SpotLight {
   Vec3 direction_world{0, 0, 1};  // unit vector, light space +z in world
 };
 
-// A constant environment (no image maps).
+// A constant environment, or with `image` an environment map: pbrt-v4's equal-area octahedral
+// square image (RGB, linear after decoding), looked up at the nearest texel of the light-space
+// direction's equal-area square coordinates; `radiance` is then unused.
 struct InfiniteLight {
   SpectrumParam radiance = SpectrumNamed{kDefaultIlluminant};  // pbrt `L`
   double scale = 1.0;
   std::optional<double> illuminance;
+  std::shared_ptr<const TextureImage> image;
+  std::string filename;  // the image's path relative to the scene root
 };
 
 // pbrt-v4's `distant` light: radiance L arriving along one direction from infinitely far; the
@@ -274,6 +325,7 @@ struct SceneDescription {
   std::vector<Material> materials;
   std::vector<Light> lights;
   std::vector<Medium> media;
+  std::vector<Texture> textures;  // float and spectrum, in definition order
   // "file:line:column: message" for accepted-but-changed input (unknown integrator, ignored
   // sampler or filter settings, unbalanced AttributeBegin at the end, ...).
   std::vector<std::string> warnings;

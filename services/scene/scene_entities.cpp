@@ -32,13 +32,31 @@ absl::Status check_range(const ParameterList& params, const std::string& name, d
   return absl::OkStatus();
 }
 
-absl::StatusOr<Roughness> read_roughness(const ParameterList& params) {
+// Float slots Prism does not texture yet: a clear refusal instead of a type error.
+absl::Status refuse_float_textures(const ParameterList& params,
+                                   std::initializer_list<const char*> names) {
+  for (const char* name : names) {
+    const Parameter* p = params.find(name);
+    if (p != nullptr && p->type == ParamType::kTexture)
+      return location_error(p->where, absl::StrCat("'texture ", name, "': a textured ", name,
+                                                   " is not supported yet; give a float"));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<Roughness> read_roughness(const ParameterList& params,
+                                         const std::string& prefix = "") {
+  const std::string rough_name = absl::StrCat(prefix, "roughness");
+  const std::string u_name = absl::StrCat(prefix, "uroughness");
+  const std::string v_name = absl::StrCat(prefix, "vroughness");
+  PRISM_RETURN_IF_ERROR(
+      refuse_float_textures(params, {rough_name.c_str(), u_name.c_str(), v_name.c_str()}));
   Roughness r;
-  PRISM_ASSIGN_OR_RETURN(double rough, params.get_float("roughness", 0.0));
-  PRISM_ASSIGN_OR_RETURN(r.u, params.get_float("uroughness", rough));
-  PRISM_ASSIGN_OR_RETURN(r.v, params.get_float("vroughness", rough));
+  PRISM_ASSIGN_OR_RETURN(double rough, params.get_float(rough_name, 0.0));
+  PRISM_ASSIGN_OR_RETURN(r.u, params.get_float(u_name, rough));
+  PRISM_ASSIGN_OR_RETURN(r.v, params.get_float(v_name, rough));
   PRISM_ASSIGN_OR_RETURN(r.remap, params.get_bool("remaproughness", true));
-  for (const char* name : {"roughness", "uroughness", "vroughness"}) {
+  for (const std::string& name : {rough_name, u_name, v_name}) {
     PRISM_ASSIGN_OR_RETURN(double v, params.get_float(name, 0.0));
     PRISM_RETURN_IF_ERROR(check_range(params, name, v, 0.0, 1e30, ">= 0"));
   }
@@ -109,6 +127,108 @@ absl::StatusOr<SpectrumParam> spectrum_or(const ParameterList& params, const std
                          params.find_spectrum(name, role, ctx.spectra));
   if (s) return std::move(*s);
   return fallback;
+}
+
+// `texture name`: the index of an earlier texture of the wanted kind.
+absl::StatusOr<int> texture_reference(const Parameter& p, bool spectrum, const EntityContext& ctx) {
+  p.used = true;
+  if (p.strings.size() != 1)
+    return location_error(p.where, absl::StrCat("'texture ", p.name, "' takes one texture name"));
+  std::optional<int> index =
+      ctx.find_texture ? ctx.find_texture(p.strings[0], spectrum) : std::nullopt;
+  if (!index)
+    return location_error(p.where, absl::StrCat(spectrum ? "spectrum" : "float", " texture \"",
+                                                p.strings[0], "\" is not defined"));
+  return *index;
+}
+
+// A material's spectrum slot: a spectrum, or `texture name` naming a spectrum texture.
+absl::Status read_spectrum_slot(const ParameterList& params, const std::string& name,
+                                SpectrumRole role, const EntityContext& ctx, SpectrumParam* value,
+                                int* texture) {
+  if (const Parameter* p = params.find(name); p != nullptr && p->type == ParamType::kTexture) {
+    PRISM_ASSIGN_OR_RETURN(*texture, texture_reference(*p, true, ctx));
+    return absl::OkStatus();
+  }
+  PRISM_ASSIGN_OR_RETURN(std::optional<SpectrumParam> s,
+                         params.find_spectrum(name, role, ctx.spectra));
+  if (s) *value = std::move(*s);
+  return absl::OkStatus();
+}
+
+// A texture's own parameter: another texture or a constant. Spectrum constants are read as
+// unbounded (a texture may be scaled down later); the worker uplifts RGB as an albedo where it
+// is one.
+absl::StatusOr<TextureInput> texture_input(const ParameterList& params, const std::string& name,
+                                           bool spectrum, double fallback,
+                                           const EntityContext& ctx) {
+  TextureInput in;
+  in.value = fallback;
+  in.spectrum = SpectrumConstant{fallback};
+  const Parameter* p = params.find(name);
+  if (p == nullptr) return in;
+  if (p->type == ParamType::kTexture) {
+    PRISM_ASSIGN_OR_RETURN(in.texture, texture_reference(*p, spectrum, ctx));
+    return in;
+  }
+  if (spectrum) {
+    PRISM_ASSIGN_OR_RETURN(std::optional<SpectrumParam> s,
+                           params.find_spectrum(name, SpectrumRole::kUnbounded, ctx.spectra));
+    in.spectrum = std::move(*s);
+  } else {
+    PRISM_ASSIGN_OR_RETURN(in.value, params.get_float(name, fallback));
+  }
+  return in;
+}
+
+absl::StatusOr<UvMapping> read_uv_mapping(const ParameterList& params) {
+  PRISM_ASSIGN_OR_RETURN(std::string mapping, params.get_string("mapping", "uv"));
+  if (mapping != "uv")
+    return param_error(params, "mapping",
+                       absl::StrCat("\"", mapping, "\" is not supported (supported: uv)"));
+  UvMapping m;
+  PRISM_ASSIGN_OR_RETURN(m.su, params.get_float("uscale", 1.0));
+  PRISM_ASSIGN_OR_RETURN(m.sv, params.get_float("vscale", 1.0));
+  PRISM_ASSIGN_OR_RETURN(m.du, params.get_float("udelta", 0.0));
+  PRISM_ASSIGN_OR_RETURN(m.dv, params.get_float("vdelta", 0.0));
+  return m;
+}
+
+double srgb_to_linear(double c) {
+  return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4);
+}
+
+absl::StatusOr<LayerSpec> read_layer(const ParameterList& params, const EntityContext& ctx) {
+  PRISM_RETURN_IF_ERROR(refuse_float_textures(params, {"thickness", "g"}));
+  LayerSpec l;
+  PRISM_ASSIGN_OR_RETURN(l.thickness, params.get_float("thickness", 0.01));
+  PRISM_RETURN_IF_ERROR(check_range(params, "thickness", l.thickness, 1e-30, 1e30, "> 0"));
+  PRISM_ASSIGN_OR_RETURN(l.g, params.get_float("g", 0.0));
+  PRISM_RETURN_IF_ERROR(check_range(params, "g", l.g, -0.99, 0.99, "in [-0.99, 0.99]"));
+  PRISM_ASSIGN_OR_RETURN(l.max_depth, params.get_int("maxdepth", 10));
+  PRISM_RETURN_IF_ERROR(check_range(params, "maxdepth", l.max_depth, 1, 1000, "in [1, 1000]"));
+  PRISM_ASSIGN_OR_RETURN(l.samples, params.get_int("nsamples", 1));
+  PRISM_RETURN_IF_ERROR(check_range(params, "nsamples", l.samples, 1, 1000, "in [1, 1000]"));
+  if (const Parameter* p = params.find("albedo"); p != nullptr && p->type == ParamType::kTexture)
+    return location_error(p->where, "'texture albedo': a textured albedo is not supported yet");
+  PRISM_ASSIGN_OR_RETURN(l.albedo, spectrum_or(params, "albedo", SpectrumRole::kReflectance, ctx,
+                                               SpectrumConstant{0.0}));
+  return l;
+}
+
+absl::StatusOr<IorParam> read_coat_eta(const ParameterList& params, const std::string& name,
+                                       const EntityContext& ctx) {
+  PRISM_RETURN_IF_ERROR(refuse_float_textures(params, {name.c_str()}));
+  const Parameter* p = params.find(name);
+  if (p == nullptr) return IorConstant{1.5};
+  if (p->type == ParamType::kFloat) {
+    PRISM_ASSIGN_OR_RETURN(double eta, params.get_float(name, 1.5));
+    if (!(eta > 0)) return param_error(params, name, "must be > 0");
+    return IorConstant{eta};
+  }
+  return param_error(params, name,
+                     "must be a float: a coat whose index varies with wavelength is not "
+                     "supported yet");
 }
 
 absl::StatusOr<std::optional<double>> positive_optional(const ParameterList& params,
@@ -429,9 +549,8 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
   MaterialKind kind;
   if (type.name == "diffuse") {
     DiffuseMaterial m;
-    PRISM_ASSIGN_OR_RETURN(
-        m.reflectance,
-        spectrum_or(params, "reflectance", SpectrumRole::kReflectance, ctx, SpectrumConstant{0.5}));
+    PRISM_RETURN_IF_ERROR(read_spectrum_slot(params, "reflectance", SpectrumRole::kReflectance, ctx,
+                                             &m.reflectance, &m.reflectance_texture));
     kind = std::move(m);
   } else if (type.name == "dielectric") {
     DielectricMaterial m;
@@ -481,21 +600,154 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     kind = std::move(m);
   } else if (type.name == "diffusetransmission") {
     DiffuseTransmissionMaterial m;
-    PRISM_ASSIGN_OR_RETURN(m.reflectance,
-                           spectrum_or(params, "reflectance", SpectrumRole::kReflectance, ctx,
-                                       SpectrumConstant{0.25}));
-    PRISM_ASSIGN_OR_RETURN(m.transmittance,
-                           spectrum_or(params, "transmittance", SpectrumRole::kReflectance, ctx,
-                                       SpectrumConstant{0.25}));
+    PRISM_RETURN_IF_ERROR(read_spectrum_slot(params, "reflectance", SpectrumRole::kReflectance, ctx,
+                                             &m.reflectance, &m.reflectance_texture));
+    PRISM_RETURN_IF_ERROR(read_spectrum_slot(params, "transmittance", SpectrumRole::kReflectance,
+                                             ctx, &m.transmittance, &m.transmittance_texture));
     PRISM_ASSIGN_OR_RETURN(m.scale, params.get_float("scale", 1.0));
     PRISM_RETURN_IF_ERROR(check_range(params, "scale", m.scale, 0.0, 1e6, ">= 0"));
     kind = std::move(m);
+  } else if (type.name == "coateddiffuse") {
+    CoatedDiffuseMaterial m;
+    PRISM_RETURN_IF_ERROR(read_spectrum_slot(params, "reflectance", SpectrumRole::kReflectance, ctx,
+                                             &m.reflectance, &m.reflectance_texture));
+    PRISM_ASSIGN_OR_RETURN(m.eta, read_coat_eta(params, "eta", ctx));
+    PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params));
+    PRISM_ASSIGN_OR_RETURN(m.layer, read_layer(params, ctx));
+    kind = std::move(m);
+  } else if (type.name == "coatedconductor") {
+    CoatedConductorMaterial m;
+    PRISM_ASSIGN_OR_RETURN(m.interface_eta, read_coat_eta(params, "interface.eta", ctx));
+    PRISM_ASSIGN_OR_RETURN(m.interface_roughness, read_roughness(params, "interface."));
+    PRISM_ASSIGN_OR_RETURN(m.conductor_roughness, read_roughness(params, "conductor."));
+    PRISM_ASSIGN_OR_RETURN(
+        m.reflectance,
+        params.find_spectrum("reflectance", SpectrumRole::kReflectance, ctx.spectra));
+    if (m.reflectance && (params.has("conductor.eta") || params.has("conductor.k")))
+      return param_error(params, "reflectance", "cannot be combined with conductor.eta or k");
+    PRISM_ASSIGN_OR_RETURN(m.conductor_eta,
+                           spectrum_or(params, "conductor.eta", SpectrumRole::kUnbounded, ctx,
+                                       SpectrumNamed{"metal-Cu-eta"}));
+    PRISM_ASSIGN_OR_RETURN(m.k, spectrum_or(params, "conductor.k", SpectrumRole::kUnbounded, ctx,
+                                            SpectrumNamed{"metal-Cu-k"}));
+    PRISM_ASSIGN_OR_RETURN(m.layer, read_layer(params, ctx));
+    kind = std::move(m);
   } else {
-    return unsupported_type(type, "material",
-                            {"conductor", "dielectric", "diffuse", "diffusetransmission",
-                             "interface", "mix", "thindielectric"});
+    return unsupported_type(
+        type, "material",
+        {"coatedconductor", "coateddiffuse", "conductor", "dielectric", "diffuse",
+         "diffusetransmission", "interface", "mix", "thindielectric"});
   }
   PRISM_RETURN_IF_ERROR(refuse_common_material_params(params));
+  PRISM_RETURN_IF_ERROR(params.check_all_used());
+  return kind;
+}
+
+absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
+                                         const ParameterList& params, const Transform& ctm,
+                                         const EntityContext& ctx) {
+  TextureKind kind;
+  if (type.name == "constant") {
+    PRISM_ASSIGN_OR_RETURN(TextureInput value, texture_input(params, "value", spectrum, 1.0, ctx));
+    kind = ConstantTexture{std::move(value)};
+  } else if (type.name == "checkerboard") {
+    PRISM_ASSIGN_OR_RETURN(int dimension, params.get_int("dimension", 2));
+    if (dimension != 2)
+      return param_error(params, "dimension", "is not supported (only 2D checkerboards)");
+    CheckerboardTexture c;
+    PRISM_ASSIGN_OR_RETURN(c.mapping, read_uv_mapping(params));
+    PRISM_ASSIGN_OR_RETURN(c.tex1, texture_input(params, "tex1", spectrum, 1.0, ctx));
+    PRISM_ASSIGN_OR_RETURN(c.tex2, texture_input(params, "tex2", spectrum, 0.0, ctx));
+    kind = std::move(c);
+  } else if (type.name == "imagemap") {
+    ImageTexture t;
+    PRISM_ASSIGN_OR_RETURN(t.mapping, read_uv_mapping(params));
+    PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
+    if (!filename || filename->empty())
+      return location_error(type.where, "imagemap needs a 'string filename'");
+    if (!ctx.load_image) return location_error(type.where, "image textures cannot be read here");
+    PRISM_ASSIGN_OR_RETURN(EntityContext::LoadedImage loaded,
+                           ctx.load_image(*filename, params.find("filename")->where));
+    t.filename = loaded.relpath;
+    PRISM_ASSIGN_OR_RETURN(t.scale, params.get_float("scale", 1.0));
+    PRISM_ASSIGN_OR_RETURN(t.invert, params.get_bool("invert", false));
+    PRISM_ASSIGN_OR_RETURN(std::string wrap, params.get_string("wrap", "repeat"));
+    if (wrap == "repeat") {
+      t.wrap = TextureWrap::kRepeat;
+    } else if (wrap == "clamp") {
+      t.wrap = TextureWrap::kClamp;
+    } else if (wrap == "black") {
+      t.wrap = TextureWrap::kBlack;
+    } else {
+      return param_error(params, "wrap",
+                         absl::StrCat("\"", wrap, "\" is not supported (repeat, clamp, black)"));
+    }
+    // pbrt-v4 reads 8-bit PNGs as sRGB unless told otherwise; float images are linear.
+    PRISM_ASSIGN_OR_RETURN(std::string encoding, params.get_string("encoding", "sRGB"));
+    double gamma = 0;
+    if (encoding == "sRGB" || encoding == "linear") {
+    } else if (encoding.rfind("gamma ", 0) == 0) {
+      absl::StatusOr<double> g =
+          parse_finite_number(encoding.substr(6), params.find("encoding")->where, "gamma");
+      if (!g.ok() || !(*g > 0))
+        return param_error(params, "encoding", "needs a positive exponent after \"gamma \"");
+      gamma = *g;
+    } else {
+      return param_error(
+          params, "encoding",
+          absl::StrCat("\"", encoding, "\" is not supported (sRGB, linear, gamma <exponent>)"));
+    }
+    // Filtering only changes how pbrt-v4 prefilters a minified texture; Prism evaluates the
+    // texture itself at each hit (texture_description.h), so these are accepted with a note.
+    PRISM_ASSIGN_OR_RETURN(std::string filter, params.get_string("filter", "bilinear"));
+    if (filter != "bilinear" && filter != "point" && filter != "trilinear" && filter != "ewa")
+      return param_error(
+          params, "filter",
+          absl::StrCat("\"", filter,
+                       "\" is not a pbrt-v4 filter (point, bilinear, trilinear, ewa)"));
+    PRISM_ASSIGN_OR_RETURN(double anisotropy, params.get_float("maxanisotropy", 8.0));
+    (void)anisotropy;
+    if (filter != "bilinear")
+      add_warning(ctx, params.find("filter")->where,
+                  absl::StrCat("filter \"", filter,
+                               "\" ignored: Prism looks textures up bilinearly at each hit"));
+    if (!loaded.eight_bit || encoding == "linear") {
+      t.image = loaded.image;
+    } else {
+      auto decoded = std::make_shared<TextureImage>(*loaded.image);
+      for (float& v : decoded->values)
+        v = float(gamma > 0 ? std::pow(double(v), gamma) : srgb_to_linear(double(v)));
+      t.image = std::move(decoded);
+    }
+    kind = std::move(t);
+  } else if (type.name == "scale") {
+    ScaleTexture t;
+    PRISM_ASSIGN_OR_RETURN(t.tex, texture_input(params, "tex", spectrum, 1.0, ctx));
+    PRISM_ASSIGN_OR_RETURN(t.scale, texture_input(params, "scale", false, 1.0, ctx));
+    kind = std::move(t);
+  } else if (type.name == "mix") {
+    MixTexture t;
+    PRISM_ASSIGN_OR_RETURN(t.tex1, texture_input(params, "tex1", spectrum, 0.0, ctx));
+    PRISM_ASSIGN_OR_RETURN(t.tex2, texture_input(params, "tex2", spectrum, 1.0, ctx));
+    PRISM_ASSIGN_OR_RETURN(t.amount, texture_input(params, "amount", false, 0.5, ctx));
+    kind = std::move(t);
+  } else if (type.name == "directionmix") {
+    DirectionMixTexture t;
+    PRISM_ASSIGN_OR_RETURN(t.tex1, texture_input(params, "tex1", spectrum, 0.0, ctx));
+    PRISM_ASSIGN_OR_RETURN(t.tex2, texture_input(params, "tex2", spectrum, 1.0, ctx));
+    PRISM_ASSIGN_OR_RETURN(std::vector<Vec3> dir, params.get_triples("dir", ParamType::kVector3));
+    Vec3 d = dir.empty() ? Vec3{0, 1, 0} : dir[0];
+    if (dir.size() > 1) return param_error(params, "dir", "takes one vector");
+    d = ctm.apply_vector(d);
+    const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    if (!(len > 0)) return param_error(params, "dir", "must not be zero");
+    t.direction_world = {d[0] / len, d[1] / len, d[2] / len};
+    kind = std::move(t);
+  } else {
+    return unsupported_type(
+        type, spectrum ? "spectrum texture" : "float texture",
+        {"checkerboard", "constant", "directionmix", "imagemap", "mix", "scale"});
+  }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return kind;
 }
@@ -536,10 +788,31 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     s.direction_world = normalize(light.light_to_world.apply_vector({0, 0, 1}));
     light.kind = std::move(s);
   } else if (type.name == "infinite") {
-    PRISM_RETURN_IF_ERROR(
-        params.refuse("filename", "image-based infinite lights are not supported"));
     PRISM_RETURN_IF_ERROR(params.refuse("portal", "portals are not supported"));
     InfiniteLight i;
+    PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
+    if (filename && !filename->empty()) {
+      if (params.has("L"))
+        return param_error(params, "L", "cannot be combined with an image 'filename'");
+      PRISM_RETURN_IF_ERROR(params.refuse(
+          "illuminance", "is not supported with an image 'filename' yet; use 'scale'"));
+      if (!ctx.load_image) return location_error(type.where, "images cannot be read here");
+      PRISM_ASSIGN_OR_RETURN(EntityContext::LoadedImage loaded,
+                             ctx.load_image(*filename, params.find("filename")->where));
+      if (loaded.image->width != loaded.image->height)
+        return param_error(
+            params, "filename",
+            absl::StrCat("\"", loaded.relpath, "\" is ", loaded.image->width, "x",
+                         loaded.image->height, "; an equal-area environment map must be square"));
+      i.filename = loaded.relpath;
+      if (loaded.eight_bit) {
+        auto decoded = std::make_shared<TextureImage>(*loaded.image);
+        for (float& v : decoded->values) v = float(srgb_to_linear(double(v)));
+        i.image = std::move(decoded);
+      } else {
+        i.image = loaded.image;
+      }
+    }
     PRISM_ASSIGN_OR_RETURN(i.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
                                                    SpectrumNamed{kDefaultIlluminant}));
     PRISM_ASSIGN_OR_RETURN(i.scale, params.get_float("scale", 1.0));
@@ -648,9 +921,21 @@ absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const Pa
     if (phimax < 360.0)
       return param_error(params, "phimax", "is not supported (only full spheres: phimax >= 360)");
     geometry = s;
+  } else if (type.name == "disk") {
+    DiskShape disk;
+    PRISM_ASSIGN_OR_RETURN(disk.height, params.get_float("height", 0.0));
+    PRISM_ASSIGN_OR_RETURN(disk.radius, params.get_float("radius", 1.0));
+    PRISM_ASSIGN_OR_RETURN(disk.inner_radius, params.get_float("innerradius", 0.0));
+    PRISM_ASSIGN_OR_RETURN(double phimax, params.get_float("phimax", 360.0));
+    PRISM_RETURN_IF_ERROR(check_range(params, "radius", disk.radius, 1e-30, 1e30, "> 0"));
+    if (!(disk.inner_radius >= 0 && disk.inner_radius < disk.radius))
+      return param_error(params, "innerradius", "must be in [0, radius)");
+    if (phimax < 360.0)
+      return param_error(params, "phimax", "is not supported (only full disks: phimax >= 360)");
+    geometry = disk;
   } else {
-    return unsupported_type(type, "shape",
-                            {"bilinearmesh", "objmesh", "plymesh", "sphere", "trianglemesh"});
+    return unsupported_type(
+        type, "shape", {"bilinearmesh", "disk", "objmesh", "plymesh", "sphere", "trianglemesh"});
   }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return geometry;

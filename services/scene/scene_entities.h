@@ -35,6 +35,18 @@ struct EntityContext {
   std::function<absl::StatusOr<TriangleMeshShape>(const std::string& reference, MeshFormat format,
                                                   const SourceLocation& where)>
       load_mesh;
+  // The index of an earlier texture of that kind (spectrum or float) called `name`, or nullopt.
+  std::function<std::optional<int>(const std::string& name, bool spectrum)> find_texture;
+  // Decodes the image file `reference` (PNG or OpenEXR); values as in the file (8-bit samples
+  // still in the file's encoding, eight_bit set), with the root-relative path.
+  struct LoadedImage {
+    std::shared_ptr<const TextureImage> image;
+    bool eight_bit = false;
+    std::string relpath;
+  };
+  std::function<absl::StatusOr<LoadedImage>(const std::string& reference,
+                                            const SourceLocation& where)>
+      load_image;
 };
 
 void add_warning(const EntityContext& ctx, const SourceLocation& where, std::string_view message);
@@ -58,6 +70,11 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
                                  const Transform& ctm, const EntityContext& ctx);
 absl::StatusOr<AreaLight> make_area_light(const TypeName& type, const ParameterList& params,
                                           const EntityContext& ctx);
+// `Texture "name" "float"|"spectrum" "class" ...`: constant, checkerboard, imagemap, scale, mix,
+// directionmix (texture_description.h). `ctm` transforms directionmix's `dir`.
+absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
+                                         const ParameterList& params, const Transform& ctm,
+                                         const EntityContext& ctx);
 absl::StatusOr<Medium> make_medium(const TypeName& type, const ParameterList& params,
                                    const EntityContext& ctx);
 absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const ParameterList& params,

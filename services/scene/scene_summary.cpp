@@ -12,7 +12,8 @@ std::string optional_number(const char* label, const std::optional<double>& v) {
 
 std::string material_label(const SceneDescription& scene, int index) {
   const Material& m = scene.materials[static_cast<size_t>(index)];
-  std::string name = m.name.empty() ? absl::StrCat("material #", index) : absl::StrCat("\"", m.name, "\"");
+  std::string name =
+      m.name.empty() ? absl::StrCat("material #", index) : absl::StrCat("\"", m.name, "\"");
   return absl::StrCat(name, " (", m.where.to_string(), ")");
 }
 
@@ -22,14 +23,28 @@ std::string format_scene_summary(const SceneDescription& scene) {
   std::string out;
   const Film& film = scene.film;
   absl::StrAppend(&out, "resolution: ", film.x_resolution, "x", film.y_resolution, "\n");
-  absl::StrAppend(&out, "film: ", film.type == FilmType::kSpectral ? "spectral" : "rgb", " \"", film.filename, "\"\n");
+  absl::StrAppend(&out, "film: ", film.type == FilmType::kSpectral ? "spectral" : "rgb", " \"",
+                  film.filename, "\"\n");
   absl::StrAppend(&out, "samples per pixel: ", scene.sampler.samples_per_pixel, "\n");
-  absl::StrAppend(&out, "spectral bins: ", film.bins ? absl::StrCat(*film.bins) : std::string("default"), "\n");
-  absl::StrAppend(&out, "integrator: ", scene.integrator.name, ", max depth ", scene.integrator.max_depth, "\n");
+  absl::StrAppend(
+      &out, "spectral bins: ", film.bins ? absl::StrCat(*film.bins) : std::string("default"), "\n");
+  absl::StrAppend(&out, "integrator: ", scene.integrator.name, ", max depth ",
+                  scene.integrator.max_depth, "\n");
   size_t meshes = 0;
   size_t spheres = 0;
-  for (const Shape& s : scene.shapes) (std::holds_alternative<SphereShape>(s.geometry) ? spheres : meshes)++;
-  absl::StrAppend(&out, "shapes: ", scene.shapes.size(), " (", meshes, " triangle meshes, ", spheres, " spheres)\n");
+  size_t disks = 0;
+  for (const Shape& s : scene.shapes) {
+    if (std::holds_alternative<SphereShape>(s.geometry)) {
+      ++spheres;
+    } else if (std::holds_alternative<DiskShape>(s.geometry)) {
+      ++disks;
+    } else {
+      ++meshes;
+    }
+  }
+  absl::StrAppend(&out, "shapes: ", scene.shapes.size(), " (", meshes, " triangle meshes, ",
+                  spheres, " spheres", disks > 0 ? absl::StrCat(", ", disks, " disks") : "", ")\n");
+  if (!scene.textures.empty()) absl::StrAppend(&out, "textures: ", scene.textures.size(), "\n");
   absl::StrAppend(&out, "triangles: ", scene.triangle_count(), "\n");
 
   WavelengthDependence dependence = analyze_wavelength_dependence(scene);
@@ -38,8 +53,9 @@ std::string format_scene_summary(const SceneDescription& scene) {
   for (const Shape& s : scene.shapes) {
     if (!s.area_light) continue;
     const AreaLight& a = *s.area_light;
-    absl::StrAppend(&out, "  area light at ", s.where.to_string(), ": L ", describe(a.radiance), ", scale ", a.scale,
-                    a.two_sided ? ", two-sided" : "", optional_number("power", a.power), "\n");
+    absl::StrAppend(&out, "  area light at ", s.where.to_string(), ": L ", describe(a.radiance),
+                    ", scale ", a.scale, a.two_sided ? ", two-sided" : "",
+                    optional_number("power", a.power), "\n");
   }
   for (const Light& l : scene.lights) {
     struct Visitor {
@@ -65,13 +81,15 @@ std::string format_scene_summary(const SceneDescription& scene) {
   absl::StrAppend(&out, "dispersive materials: ", dependence.dispersive_materials.size(), "\n");
   for (int m : dependence.dispersive_materials) {
     const auto& d = std::get<DielectricMaterial>(scene.materials[static_cast<size_t>(m)].kind);
-    absl::StrAppend(&out, "  ", material_label(scene, m), ": dielectric eta ", describe(d.eta), "\n");
+    absl::StrAppend(&out, "  ", material_label(scene, m), ": dielectric eta ", describe(d.eta),
+                    "\n");
   }
   absl::StrAppend(&out, "media: ", scene.media.size(), "\n");
   for (const Medium& m : scene.media) {
     const auto& h = std::get<HomogeneousMedium>(m.kind);
-    absl::StrAppend(&out, "  \"", m.name, "\" (", m.where.to_string(), "): homogeneous sigma_a ", describe(h.sigma_a),
-                    ", sigma_s ", describe(h.sigma_s), ", scale ", h.scale, ", g ", h.g, "\n");
+    absl::StrAppend(&out, "  \"", m.name, "\" (", m.where.to_string(), "): homogeneous sigma_a ",
+                    describe(h.sigma_a), ", sigma_s ", describe(h.sigma_s), ", scale ", h.scale,
+                    ", g ", h.g, "\n");
   }
   absl::StrAppend(&out, "warnings: ", scene.warnings.size(), "\n");
   for (const std::string& w : scene.warnings) absl::StrAppend(&out, "  ", w, "\n");
