@@ -294,10 +294,12 @@ Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indice
 // A `mix` of a black and a white diffuse material (amount 0.3: the white one at 30 % of the
 // vertices, chosen by a hash of the hit) on a sheet in a constant sky shows 0.3 times the sky,
 // like the sheet the diffuse-transmission test uses; nested inside another mix with a second
-// white, amount 0.5, 0.65.
+// white, amount 0.5, 0.65; with a float checkerboard of amounts 0.1 and 0.5 over four equal
+// cells symmetric about the image centre, their mean, 0.3.
 TEST_F(KnownAnswerTest, AMixPicksItsComponentsInProportion) {
   for (auto [outer, expected] :
-       {std::pair{std::string("speckled"), 0.3}, std::pair{std::string("nested"), 0.65}}) {
+       {std::pair{std::string("speckled"), 0.3}, std::pair{std::string("nested"), 0.65},
+        std::pair{std::string("textured"), 0.3}}) {
     SCOPED_TRACE(outer);
     auto scene = load("mix.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
 Camera "perspective" "float fov" 30
@@ -311,8 +313,13 @@ MakeNamedMaterial "speckled" "string type" "mix" "string materials" ["black" "wh
   "float amount" 0.3
 MakeNamedMaterial "nested" "string type" "mix" "string materials" ["speckled" "white"]
   "float amount" 0.5
+Texture "amounts" "float" "checkerboard" "float uscale" 2 "float vscale" 2
+  "float tex1" 0.1 "float tex2" 0.5
+MakeNamedMaterial "textured" "string type" "mix" "string materials" ["black" "white"]
+  "texture amount" "amounts"
 NamedMaterial ")" + outer + R"("
 Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indices" [0 1 2 0 2 3]
+  "point2 uv" [0 0 1 0 1 1 0 1]
 )");
     ASSERT_TRUE(scene.ok()) << scene.status();
     expect_sheet_over_sky(*scene, expected, 3);

@@ -326,7 +326,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
 
     const ShapeInfo* info = hit ? &scene_.shape(hit->shape) : nullptr;
     const Material* material =
-        hit ? &scene_.material_at(info->material, hit->p, -ray.direction) : nullptr;
+        hit ? &scene_.material_at(info->material, *hit, -ray.direction) : nullptr;
     const bool at_vertex = !hit || !std::holds_alternative<InterfaceMaterial>(*material);
     if (resolve_due && at_vertex) {
       gradient::OffsetStep& step = record();
@@ -441,7 +441,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       OffsetVertex v;
       if (o.state == OffsetState::kDiverged) {
         v.bsdf =
-            make_bsdf(scene_.material_at(scene_.shape(o.hit.shape).material, o.hit.p, -o.direction),
+            make_bsdf(scene_.material_at(scene_.shape(o.hit.shape).material, o.hit, -o.direction),
                       o.lambda, texture_context(o.hit));
         v.frame = Frame::from_xz(o.hit.dpdu, o.hit.ns);
         v.wo = v.frame.to_local(-o.direction);

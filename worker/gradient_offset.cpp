@@ -90,7 +90,7 @@ Shadow OffsetTracer::shadow_ray(Vec3f origin, Vec3f direction, const Vec3f& targ
     if (!hit) return shadow;
     const ShapeInfo& info = scene_.shape(hit->shape);
     if (!std::holds_alternative<InterfaceMaterial>(
-            scene_.material_at(info.material, hit->p, -direction))) {
+            scene_.material_at(info.material, *hit, -direction))) {
       return Shadow{};
     }
     if (info.medium_transition) {
@@ -121,7 +121,7 @@ void OffsetTracer::trace_own(Offset& o, Ray own) const {
     if (!hit) return;
     const ShapeInfo& info = scene_.shape(hit->shape);
     if (std::holds_alternative<InterfaceMaterial>(
-            scene_.material_at(info.material, hit->p, -own.direction))) {
+            scene_.material_at(info.material, *hit, -own.direction))) {
       if (info.area_light >= 0) return o.fail();
       if (info.medium_transition) {
         o.medium = dot(own.direction, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
@@ -140,7 +140,7 @@ void OffsetTracer::resolve_pending(Offset& o, const BaseEvent& base, const Surfa
                                    const Vec3f& base_direction) const {
   const Geometry& geometry = scene_.geometry();
   const ShapeInfo& info_y = scene_.shape(o.hit.shape);
-  auto bsdf_y = make_bsdf(scene_.material_at(info_y.material, o.hit.p, -o.direction), o.lambda,
+  auto bsdf_y = make_bsdf(scene_.material_at(info_y.material, o.hit, -o.direction), o.lambda,
                           texture_context(o.hit));
   PRISM_CHECK(bsdf_y.has_value());
   if (kind_of(*bsdf_y).stochastic) return o.fail();  // VertexKind
@@ -151,7 +151,7 @@ void OffsetTracer::resolve_pending(Offset& o, const BaseEvent& base, const Surfa
   bool target_connectable = false;
   if (next != nullptr) {
     const Material& m =
-        scene_.material_at(scene_.shape(next->shape).material, next->p, -base_direction);
+        scene_.material_at(scene_.shape(next->shape).material, *next, -base_direction);
     auto bsdf_next = make_bsdf(m, o.lambda, texture_context(*next));
     target_connectable = bsdf_next && kind_of(*bsdf_next).connectable();
   }
@@ -229,7 +229,7 @@ void OffsetTracer::apply(Offset& o, const OffsetStep& step) const {
       if (o.state == OffsetState::kDiverged) {
         if (!o.has_hit) return o.fail();
         auto bsdf_y =
-            make_bsdf(scene_.material_at(scene_.shape(o.hit.shape).material, o.hit.p, -o.direction),
+            make_bsdf(scene_.material_at(scene_.shape(o.hit.shape).material, o.hit, -o.direction),
                       o.lambda, texture_context(o.hit));
         if (!bsdf_y || !(kind_of(*bsdf_y) == step.vertex_kind)) o.fail();
       }

@@ -182,7 +182,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       if (!hit) return shadow;
       const ShapeInfo& info = scene_.shape(hit->shape);
       if (!std::holds_alternative<InterfaceMaterial>(
-              scene_.material_at(info.material, hit->p, -direction))) {
+              scene_.material_at(info.material, *hit, -direction))) {
         return Shadow{};
       }
       if (info.medium_transition) {
@@ -311,7 +311,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     }
 
     const ShapeInfo& info = scene_.shape(hit->shape);
-    const Material& material = scene_.material_at(info.material, hit->p, -ray.direction);
+    const Material& material = scene_.material_at(info.material, *hit, -ray.direction);
     if (info.wavelength_dependent) spectral_event = true;
     if (depth == 0 && guides && !std::holds_alternative<InterfaceMaterial>(material)) {
       // Normalised so that every point of the scene's bounding sphere lies in [0, 1] and a miss

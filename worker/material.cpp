@@ -42,6 +42,23 @@ float remap(double roughness, bool remap_roughness) {
   return remap_roughness ? TrowbridgeReitz::roughness_to_alpha(r) : r;
 }
 
+RoughnessTextures roughness_textures(const scene::Roughness& r,
+                                     const std::vector<TexturePtr>& textures) {
+  RoughnessTextures t;
+  if (r.u_texture >= 0) t.u = textures[size_t(r.u_texture)];
+  if (r.v_texture >= 0) t.v = textures[size_t(r.v_texture)];
+  t.remap = r.remap;
+  return t;
+}
+
+// The microfacet distribution at a hit: the constant alphas, or the textures' values remapped.
+TrowbridgeReitz distribution(float alpha_x, float alpha_y, const RoughnessTextures& t,
+                             const TextureContext& ctx) {
+  if (t.u) alpha_x = remap(std::max(0.0f, t.u->value(ctx)), t.remap);
+  if (t.v) alpha_y = remap(std::max(0.0f, t.v->value(ctx)), t.remap);
+  return TrowbridgeReitz(alpha_x, alpha_y);
+}
+
 absl::Status check_roughness(const scene::Roughness& r) {
   if (!(r.u >= 0.0) || !(r.v >= 0.0)) {
     return invalid(absl::StrCat("roughness (", r.u, ", ", r.v, ") must be >= 0"));
@@ -234,9 +251,12 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       PRISM_RETURN_IF_ERROR(check_roughness(m.roughness));
       auto layer = resolve_layer(m.layer, library, uplift);
       if (!layer.ok()) return invalid(absl::StrCat("coateddiffuse ", layer.status().message()));
-      CoatedDiffuseMaterial out{*std::move(r), constant_eta(m.eta),
+      CoatedDiffuseMaterial out{*std::move(r),
+                                constant_eta(m.eta),
                                 remap(m.roughness.u, m.roughness.remap),
-                                remap(m.roughness.v, m.roughness.remap), *std::move(layer)};
+                                remap(m.roughness.v, m.roughness.remap),
+                                roughness_textures(m.roughness, textures),
+                                *std::move(layer)};
       return Material(std::move(out));
     }
     absl::StatusOr<Material> operator()(const scene::CoatedConductorMaterial& m) const {
@@ -258,6 +278,8 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       out.interface_eta = constant_eta(m.interface_eta);
       out.interface_alpha_x = remap(m.interface_roughness.u, m.interface_roughness.remap);
       out.interface_alpha_y = remap(m.interface_roughness.v, m.interface_roughness.remap);
+      out.interface_roughness_textures = roughness_textures(m.interface_roughness, textures);
+      out.roughness_textures = roughness_textures(m.conductor_roughness, textures);
       out.eta = std::move(c.eta);
       out.k = std::move(c.k);
       out.reflectance = std::move(c.reflectance);
@@ -269,15 +291,21 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
     absl::StatusOr<Material> operator()(const scene::DielectricMaterial& m) const {
       auto r = resolve_dielectric(m, library);
       if (!r.ok()) return invalid(absl::StrCat("dielectric: ", r.status().message()));
+      std::get<DielectricMaterial>(*r).roughness_textures =
+          roughness_textures(m.roughness, textures);
       return r;
     }
     absl::StatusOr<Material> operator()(const scene::ConductorMaterial& m) const {
       auto r = resolve_conductor(m, library, uplift);
       if (!r.ok()) return invalid(absl::StrCat("conductor ", r.status().message()));
+      std::get<ConductorMaterial>(*r).roughness_textures =
+          roughness_textures(m.roughness, textures);
       return r;
     }
     absl::StatusOr<Material> operator()(const scene::MixMaterial& m) const {
-      return Material(MixMaterial{{m.materials[0], m.materials[1]}, float(m.amount)});
+      MixMaterial out{{m.materials[0], m.materials[1]}, float(m.amount), nullptr};
+      if (m.amount_texture >= 0) out.amount_texture = textures[size_t(m.amount_texture)];
+      return Material(std::move(out));
     }
     absl::StatusOr<Material> operator()(const scene::ThinDielectricMaterial& m) const {
       auto eta = resolve_ior(m.eta, library);
@@ -351,22 +379,24 @@ std::optional<Bsdf> make_bsdf(const Material& material, const spectral::SampledW
       SampledSpectrum r = m.reflectance.at(ctx, lambda);
       for (int i = 0; i < lanes; ++i) r[i] = std::clamp(r[i], 0.0f, 1.0f);
       const DielectricBsdf top(SampledSpectrum(m.eta), lanes, false,
-                               TrowbridgeReitz(m.alpha_x, m.alpha_y));
+                               distribution(m.alpha_x, m.alpha_y, m.roughness_textures, ctx));
       return Bsdf(LayeredBsdf(top, DiffuseBsdf(r, lanes), layer_params(m.layer, lambda), lanes));
     }
     std::optional<Bsdf> operator()(const CoatedConductorMaterial& m) const {
       const DielectricBsdf top(SampledSpectrum(m.interface_eta), lanes, false,
-                               TrowbridgeReitz(m.interface_alpha_x, m.interface_alpha_y));
+                               distribution(m.interface_alpha_x, m.interface_alpha_y,
+                                            m.interface_roughness_textures, ctx));
       const float inverse = 1.0f / m.interface_eta;
       const ConductorBsdf base(conductor_eta(m.eta, m.reflectance, lambda) * inverse,
                                conductor_k(m.k, m.reflectance, lambda) * inverse, lanes,
-                               TrowbridgeReitz(m.alpha_x, m.alpha_y));
+                               distribution(m.alpha_x, m.alpha_y, m.roughness_textures, ctx));
       return Bsdf(LayeredBsdf(top, base, layer_params(m.layer, lambda), lanes));
     }
     std::optional<Bsdf> operator()(const DielectricMaterial& m) const {
       SampledSpectrum eta;
       for (int i = 0; i < lanes; ++i) eta[i] = float(spectral::eta(m.eta, lambda.lambda(i)));
-      return Bsdf(DielectricBsdf(eta, lanes, m.dispersive, TrowbridgeReitz(m.alpha_x, m.alpha_y)));
+      return Bsdf(DielectricBsdf(eta, lanes, m.dispersive,
+                                 distribution(m.alpha_x, m.alpha_y, m.roughness_textures, ctx)));
     }
     std::optional<Bsdf> operator()(const ConductorMaterial& m) const {
       SampledSpectrum eta, k;
@@ -379,7 +409,8 @@ std::optional<Bsdf> make_bsdf(const Material& material, const spectral::SampledW
         eta = spectral::sample(m.eta, lambda);
         k = spectral::sample(m.k, lambda);
       }
-      return Bsdf(ConductorBsdf(eta, k, lanes, TrowbridgeReitz(m.alpha_x, m.alpha_y)));
+      return Bsdf(ConductorBsdf(eta, k, lanes,
+                                distribution(m.alpha_x, m.alpha_y, m.roughness_textures, ctx)));
     }
     std::optional<Bsdf> operator()(const InterfaceMaterial&) const { return std::nullopt; }
     std::optional<Bsdf> operator()(const MixMaterial&) const {

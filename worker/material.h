@@ -37,10 +37,18 @@ struct DiffuseMaterial {
   SpectrumSlot reflectance;
 };
 
+// Float textures that replace a microfacet alpha per hit (pbrt-v4's textured roughness),
+// remapped like the constants; unset axes keep the material's constant alpha.
+struct RoughnessTextures {
+  TexturePtr u, v;
+  bool remap = true;
+};
+
 struct DielectricMaterial {
   spectral::Ior eta;
   bool dispersive = false;
   float alpha_x = 0, alpha_y = 0;  // microfacet alphas after pbrt's remapping; 0: smooth
+  RoughnessTextures roughness_textures;
 };
 
 struct ConductorMaterial {
@@ -51,6 +59,7 @@ struct ConductorMaterial {
   // pbrt-v4's mapping per lane exactly, η = 1, k = 2·√r / √(1 − clamp(r, 0, 0.9999)); eta and
   // k above hold the same mapping tabulated at 1 nm, for readers that want a spectrum.
   std::optional<spectral::Spectrum> reflectance;
+  RoughnessTextures roughness_textures;
 };
 
 struct InterfaceMaterial {};
@@ -67,6 +76,7 @@ struct ThinDielectricMaterial {
 struct MixMaterial {
   int materials[2] = {0, 0};
   float amount = 0.5f;
+  TexturePtr amount_texture;  // replaces `amount` per hit when set
 };
 
 // Lambertian reflection and transmission; `scale` already applied.
@@ -90,6 +100,7 @@ struct CoatedDiffuseMaterial {
   SpectrumSlot reflectance;
   float eta = 1.5f;
   float alpha_x = 0, alpha_y = 0;
+  RoughnessTextures roughness_textures;
   Layer layer;
 };
 
@@ -98,10 +109,12 @@ struct CoatedDiffuseMaterial {
 struct CoatedConductorMaterial {
   float interface_eta = 1.5f;
   float interface_alpha_x = 0, interface_alpha_y = 0;
+  RoughnessTextures interface_roughness_textures;
   spectral::Spectrum eta;
   spectral::Spectrum k;
   std::optional<spectral::Spectrum> reflectance;
   float alpha_x = 0, alpha_y = 0;
+  RoughnessTextures roughness_textures;
   Layer layer;
 };
 

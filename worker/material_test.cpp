@@ -58,7 +58,8 @@ TEST_F(MaterialTest, EveryKindResolves) {
       std::get<DiffuseMaterial>(*rgb).reflectance.constant));
   auto table = diffuse(scene::SpectrumTabulated{{400, 700}, {0.2, 0.6}, "inline"});
   ASSERT_TRUE(table.ok()) << table.status();
-  EXPECT_NEAR(spectral::eval(std::get<DiffuseMaterial>(*table).reflectance.constant, 550), 0.4f, 1e-6f);
+  EXPECT_NEAR(spectral::eval(std::get<DiffuseMaterial>(*table).reflectance.constant, 550), 0.4f,
+              1e-6f);
   auto named = diffuse(scene::SpectrumNamed{"colorchecker-dark-skin"});
   ASSERT_TRUE(named.ok()) << named.status();
   EXPECT_EQ(spectral::eval(std::get<DiffuseMaterial>(*named).reflectance.constant, 600),
@@ -202,7 +203,8 @@ TEST_F(MaterialTest, BsdfLanesBeyondTheCountAreZero) {
 }
 
 TEST_F(MaterialTest, InterfaceHasNoBsdf) {
-  EXPECT_FALSE(make_bsdf(Material(InterfaceMaterial{}), lanes({500}), TextureContext{}).has_value());
+  EXPECT_FALSE(
+      make_bsdf(Material(InterfaceMaterial{}), lanes({500}), TextureContext{}).has_value());
 }
 
 TEST_F(MaterialTest, WavelengthDependenceTruthTable) {
@@ -236,6 +238,32 @@ TEST_F(MaterialTest, WavelengthDependenceTruthTable) {
     if (bsdf) {
       EXPECT_EQ(worker::is_dispersive(*bsdf), rows[i].dispersive) << "row " << i;
     }
+  }
+}
+
+// A float texture in a roughness slot sets that axis's alpha per hit, remapped like a constant
+// (pbrt-v4's sqrt), while the other axis keeps its constant; the texture is evaluated at the
+// hit's uv, so two hits get two distributions.
+TEST_F(MaterialTest, TexturedRoughnessIsEvaluatedAtTheHit) {
+  // A 2-cell checkerboard of roughness 0.25 (u < 0.5) and 0.64 (u >= 0.5).
+  using texture_nodes::Checkerboard;
+  using texture_nodes::Input;
+  scene::UvMapping mapping;
+  mapping.su = 2;
+  mapping.sv = 0;  // t = 0 everywhere: the cell is floor(2u)
+  auto checks = std::make_shared<const Texture>(
+      Checkerboard{mapping, Input{nullptr, 0.25f, {}}, Input{nullptr, 0.64f, {}}}, false);
+  scene::DielectricMaterial glass;
+  glass.roughness.u_texture = 0;
+  glass.roughness.v = 0.09;
+  auto m = resolve_material(material(glass), *library_, *uplift_, {checks});
+  ASSERT_TRUE(m.ok()) << m.status();
+  for (auto [u, alpha] : {std::pair{0.2f, 0.5f}, std::pair{0.7f, 0.8f}}) {
+    auto bsdf = make_bsdf(*m, lanes({550}), TextureContext{{u, 0.5f}, {0, 0, 1}});
+    ASSERT_TRUE(bsdf.has_value());
+    const auto& d = std::get<DielectricBsdf>(*bsdf).distribution();
+    EXPECT_FLOAT_EQ(d.alpha_x(), alpha) << u;
+    EXPECT_FLOAT_EQ(d.alpha_y(), 0.3f) << u;
   }
 }
 

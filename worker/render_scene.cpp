@@ -328,18 +328,21 @@ std::uint64_t mix_bits(std::uint64_t h, float v) {
 
 }  // namespace
 
-const Material& RenderScene::material_at(int index, const Vec3f& p, const Vec3f& wo) const {
+const Material& RenderScene::material_at(int index, const SurfaceHit& hit, const Vec3f& wo) const {
+  const Vec3f& p = hit.p;
   const Material* m = &materials_[std::size_t(index)];
   // Components are defined before the mix that names them, so this ends.
   while (const auto* mix = std::get_if<MixMaterial>(m)) {
     int chosen = mix->materials[0];
-    if (mix->amount >= 1.0f) {
+    const float amount =
+        mix->amount_texture ? mix->amount_texture->value(texture_context(hit)) : mix->amount;
+    if (amount >= 1.0f) {
       chosen = mix->materials[1];
-    } else if (mix->amount > 0.0f) {
+    } else if (amount > 0.0f) {
       std::uint64_t h = std::uint64_t(mix->materials[0]) * 31 + std::uint64_t(mix->materials[1]);
       for (float v : {p.x, p.y, p.z, wo.x, wo.y, wo.z}) h = mix_bits(h, v);
       const float u = float(h >> 40) * 0x1p-24f;
-      chosen = mix->amount < u ? mix->materials[0] : mix->materials[1];
+      chosen = amount < u ? mix->materials[0] : mix->materials[1];
     }
     m = &materials_[std::size_t(chosen)];
   }

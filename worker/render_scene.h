@@ -76,10 +76,11 @@ class RenderScene {
   // The scene's pixel filter (pbrt-v4's default gaussian when it names none).
   const PixelFilter& pixel_filter() const { return *pixel_filter_; }
   const std::vector<Material>& materials() const { return materials_; }
-  // Material `index` as it stands at a vertex at p seen from direction wo (unit, away from the
+  // Material `index` as it stands at the hit seen from direction wo (unit, away from the
   // surface): a mix resolved to one of its components by pbrt-v4's rule, a hash of (p, wo) and
-  // the components against `amount`, so every query at one vertex agrees.
-  const Material& material_at(int index, const Vec3f& p, const Vec3f& wo) const;
+  // the components against `amount` (its texture's value at the hit when textured), so every
+  // query at one vertex agrees.
+  const Material& material_at(int index, const SurfaceHit& hit, const Vec3f& wo) const;
   const std::vector<Light>& lights() const { return lights_; }
   const std::vector<HomogeneousMedium>& media() const { return media_; }
   const ShapeInfo& shape(int index) const { return shapes_[index]; }

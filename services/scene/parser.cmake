@@ -1,6 +1,7 @@
 # prism_scene (prism::scene): the pbrt-v4 tokenizer, parser and scene description, on top of
 # prism_scene_io (meshes, path confinement). Also the parser's fuzz target and corpus test.
 set(PRISM_SCENE_PARSER_SOURCES
+  ${CMAKE_CURRENT_LIST_DIR}/loop_subdivision.cpp
   ${CMAKE_CURRENT_LIST_DIR}/parameters.cpp
   ${CMAKE_CURRENT_LIST_DIR}/parser.cpp
   ${CMAKE_CURRENT_LIST_DIR}/scene_description.cpp
@@ -56,5 +57,10 @@ prism_test(NAME scene_parser_test
     ${CMAKE_CURRENT_LIST_DIR}/parser_errors_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/scene_loader_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/scene_summary_test.cpp
+  LIBS prism::scene
+)
+
+prism_test(NAME scene_loop_subdivision_test
+  SOURCES ${CMAKE_CURRENT_LIST_DIR}/loop_subdivision_test.cpp
   LIBS prism::scene
 )

@@ -201,7 +201,7 @@ TEST(GoodScenes, TexturesCoatedMaterialsAndDisks) {
   // to +z.
   expect_near(std::get<DirectionMixTexture>(texture("facing").kind).direction_world, {0, 0, 1});
 
-  ASSERT_EQ(s.shapes.size(), 3u);
+  ASSERT_EQ(s.shapes.size(), 4u);
   const auto& disk = std::get<DiskShape>(s.shapes[0].geometry);
   EXPECT_DOUBLE_EQ(disk.radius, 2);
   EXPECT_DOUBLE_EQ(disk.inner_radius, 0.5);
@@ -230,6 +230,21 @@ TEST(GoodScenes, TexturesCoatedMaterialsAndDisks) {
   EXPECT_EQ(metal.layer.max_depth, 10);  // pbrt-v4's defaults
   EXPECT_EQ(metal.layer.samples, 1);
   EXPECT_DOUBLE_EQ(metal.layer.thickness, 0.01);
+  // Float textures in float slots: a textured roughness on one axis (the other given as a
+  // number), a textured mix amount.
+  const Material* textured = nullptr;
+  for (const Material& m : s.materials) {
+    if (const auto* c = std::get_if<ConductorMaterial>(&m.kind); c && m.name.empty()) {
+      textured = &m;
+    }
+  }
+  ASSERT_NE(textured, nullptr);
+  const auto& conductor = std::get<ConductorMaterial>(textured->kind);
+  EXPECT_EQ(s.textures[size_t(conductor.roughness.u_texture)].name, "grey");
+  EXPECT_EQ(conductor.roughness.v_texture, -1);
+  EXPECT_DOUBLE_EQ(conductor.roughness.v, 0.3);
+  const auto& mix = std::get<MixMaterial>(s.materials[size_t(s.shapes[3].material)].kind);
+  EXPECT_EQ(s.textures[size_t(mix.amount_texture)].name, "half");
   // Images are scene files: a bundle must carry them.
   EXPECT_EQ(s.files,
             (std::vector<std::string>{"textures.pbrt", "textures/quad.png", "textures/grey.png"}));

@@ -115,10 +115,14 @@ struct DiffuseMaterial {
 
 // Roughness as written; with remap_roughness the tracer maps it to the microfacet alpha
 // with pbrt-v4's TrowbridgeReitzDistribution::RoughnessToAlpha (sqrt). Zero is smooth.
+// A `texture roughness` (or uroughness, vroughness) gives the axis a float texture instead: its
+// index into SceneDescription::textures, evaluated and remapped per hit.
 struct Roughness {
   double u = 0.0;
   double v = 0.0;
   bool remap = true;
+  int u_texture = -1;
+  int v_texture = -1;
 };
 
 struct DielectricMaterial {
@@ -144,6 +148,7 @@ struct InterfaceMaterial {};
 struct MixMaterial {
   std::array<int, 2> materials{0, 0};
   double amount = 0.5;
+  int amount_texture = -1;  // a float texture instead of `amount`
 };
 
 // pbrt-v4's `thindielectric`: a thin slab (two parallel interfaces, internal bounces summed).

@@ -44,19 +44,40 @@ absl::Status refuse_float_textures(const ParameterList& params,
   return absl::OkStatus();
 }
 
-absl::StatusOr<Roughness> read_roughness(const ParameterList& params,
+absl::StatusOr<int> texture_reference(const Parameter& p, bool spectrum, const EntityContext& ctx);
+
+// A float slot that may name a float texture: sets *value or *texture when the parameter is
+// given, leaves them as they are otherwise.
+absl::Status read_float_slot(const ParameterList& params, const std::string& name,
+                             const EntityContext& ctx, double* value, int* texture) {
+  const Parameter* p = params.find(name);
+  if (p == nullptr) return absl::OkStatus();
+  if (p->type == ParamType::kTexture) {
+    PRISM_ASSIGN_OR_RETURN(*texture, texture_reference(*p, false, ctx));
+    return absl::OkStatus();
+  }
+  PRISM_ASSIGN_OR_RETURN(*value, params.get_float(name, *value));
+  *texture = -1;
+  return absl::OkStatus();
+}
+
+absl::StatusOr<Roughness> read_roughness(const ParameterList& params, const EntityContext& ctx,
                                          const std::string& prefix = "") {
   const std::string rough_name = absl::StrCat(prefix, "roughness");
   const std::string u_name = absl::StrCat(prefix, "uroughness");
   const std::string v_name = absl::StrCat(prefix, "vroughness");
-  PRISM_RETURN_IF_ERROR(
-      refuse_float_textures(params, {rough_name.c_str(), u_name.c_str(), v_name.c_str()}));
   Roughness r;
-  PRISM_ASSIGN_OR_RETURN(double rough, params.get_float(rough_name, 0.0));
-  PRISM_ASSIGN_OR_RETURN(r.u, params.get_float(u_name, rough));
-  PRISM_ASSIGN_OR_RETURN(r.v, params.get_float(v_name, rough));
+  double rough = 0;
+  int rough_texture = -1;
+  PRISM_RETURN_IF_ERROR(read_float_slot(params, rough_name, ctx, &rough, &rough_texture));
+  r.u = r.v = rough;
+  r.u_texture = r.v_texture = rough_texture;
+  PRISM_RETURN_IF_ERROR(read_float_slot(params, u_name, ctx, &r.u, &r.u_texture));
+  PRISM_RETURN_IF_ERROR(read_float_slot(params, v_name, ctx, &r.v, &r.v_texture));
   PRISM_ASSIGN_OR_RETURN(r.remap, params.get_bool("remaproughness", true));
   for (const std::string& name : {rough_name, u_name, v_name}) {
+    const Parameter* p = params.find(name);
+    if (p == nullptr || p->type == ParamType::kTexture) continue;
     PRISM_ASSIGN_OR_RETURN(double v, params.get_float(name, 0.0));
     PRISM_RETURN_IF_ERROR(check_range(params, name, v, 0.0, 1e30, ">= 0"));
   }
@@ -555,7 +576,7 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
   } else if (type.name == "dielectric") {
     DielectricMaterial m;
     PRISM_ASSIGN_OR_RETURN(m.eta, read_dielectric_eta(params, ctx));
-    PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params));
+    PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params, ctx));
     kind = std::move(m);
   } else if (type.name == "conductor") {
     ConductorMaterial m;
@@ -569,7 +590,7 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
                                               SpectrumNamed{"metal-Cu-eta"}));
     PRISM_ASSIGN_OR_RETURN(
         m.k, spectrum_or(params, "k", SpectrumRole::kUnbounded, ctx, SpectrumNamed{"metal-Cu-k"}));
-    PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params));
+    PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params, ctx));
     kind = std::move(m);
   } else if (type.name == "interface") {
     kind = InterfaceMaterial{};
@@ -588,11 +609,9 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
                                                          names->strings[i], "\" is not defined"));
       m.materials[i] = *index;
     }
-    if (const Parameter* amount = params.find("amount");
-        amount != nullptr && amount->type == ParamType::kTexture)
-      return param_error(params, "amount", "textured amounts are not supported; give a float");
-    PRISM_ASSIGN_OR_RETURN(m.amount, params.get_float("amount", 0.5));
-    PRISM_RETURN_IF_ERROR(check_range(params, "amount", m.amount, 0.0, 1.0, "in [0, 1]"));
+    PRISM_RETURN_IF_ERROR(read_float_slot(params, "amount", ctx, &m.amount, &m.amount_texture));
+    if (m.amount_texture < 0)
+      PRISM_RETURN_IF_ERROR(check_range(params, "amount", m.amount, 0.0, 1.0, "in [0, 1]"));
     kind = std::move(m);
   } else if (type.name == "thindielectric") {
     ThinDielectricMaterial m;
@@ -612,14 +631,14 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     PRISM_RETURN_IF_ERROR(read_spectrum_slot(params, "reflectance", SpectrumRole::kReflectance, ctx,
                                              &m.reflectance, &m.reflectance_texture));
     PRISM_ASSIGN_OR_RETURN(m.eta, read_coat_eta(params, "eta", ctx));
-    PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params));
+    PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params, ctx));
     PRISM_ASSIGN_OR_RETURN(m.layer, read_layer(params, ctx));
     kind = std::move(m);
   } else if (type.name == "coatedconductor") {
     CoatedConductorMaterial m;
     PRISM_ASSIGN_OR_RETURN(m.interface_eta, read_coat_eta(params, "interface.eta", ctx));
-    PRISM_ASSIGN_OR_RETURN(m.interface_roughness, read_roughness(params, "interface."));
-    PRISM_ASSIGN_OR_RETURN(m.conductor_roughness, read_roughness(params, "conductor."));
+    PRISM_ASSIGN_OR_RETURN(m.interface_roughness, read_roughness(params, ctx, "interface."));
+    PRISM_ASSIGN_OR_RETURN(m.conductor_roughness, read_roughness(params, ctx, "conductor."));
     PRISM_ASSIGN_OR_RETURN(
         m.reflectance,
         params.find_spectrum("reflectance", SpectrumRole::kReflectance, ctx.spectra));
