@@ -56,9 +56,9 @@ struct Geometry::SphereShape {
   bool flip = false;
 };
 
-// The object-space plane data (DiskShapeData) is what Embree's user callbacks read; the
-// instance carries the transform.
-struct Geometry::DiskShape : DiskShapeData {
+// The object-space data (QuadricShapeData) is what Embree's user callbacks read; the instance
+// carries the transform.
+struct Geometry::QuadricShape : QuadricShapeData {
   scene::Transform object_to_world;
   scene::Transform world_to_object;
   bool flip = false;
@@ -66,36 +66,58 @@ struct Geometry::DiskShape : DiskShapeData {
 
 namespace {
 
-// Embree user-geometry callbacks for a disk in its object space: the plane z = height, hit
-// where inner_radius <= r <= radius. N is 1 (rtcIntersect1 / rtcOccluded1 only).
-float disk_hit_t(const Geometry::DiskShapeData& d, float ox, float oy, float oz, float dx, float dy,
-                 float dz, float tnear, float tfar) {
-  if (dz == 0.0f) return -1.0f;
-  const float t = (d.height - oz) / dz;
-  if (!(t > tnear && t < tfar)) return -1.0f;
-  const float x = ox + t * dx, y = oy + t * dy;
-  const float r2 = x * x + y * y;
-  if (r2 > d.radius * d.radius || r2 < d.inner_radius * d.inner_radius) return -1.0f;
-  return t;
+// The nearest hit with t in (tnear, tfar) of a quadric in its object space, or −1: a disk is the
+// plane z = height where inner_radius <= r <= radius; a cylinder is x² + y² = radius² with
+// z_min <= z <= z_max, open at both ends, so a ray may hit its inside. Double precision keeps
+// the cylinder's quadratic from cancelling at grazing angles.
+float quadric_hit_t(const Geometry::QuadricShapeData& q, const RTCRay& ray) {
+  const double ox = ray.org_x, oy = ray.org_y, oz = ray.org_z;
+  const double dx = ray.dir_x, dy = ray.dir_y, dz = ray.dir_z;
+  if (q.cylinder) {
+    const double a = dx * dx + dy * dy;
+    if (a == 0) return -1.0f;
+    const double b = 2 * (dx * ox + dy * oy);
+    const double c = ox * ox + oy * oy - double(q.radius) * q.radius;
+    const double discriminant = b * b - 4 * a * c;
+    if (discriminant < 0) return -1.0f;
+    const double root = std::sqrt(discriminant);
+    const double qq = b < 0 ? -0.5 * (b - root) : -0.5 * (b + root);
+    double t0 = qq / a, t1 = qq != 0 ? c / qq : t0;
+    if (t0 > t1) std::swap(t0, t1);
+    for (double t : {t0, t1}) {
+      if (!(t > ray.tnear && t < ray.tfar)) continue;
+      const double z = oz + t * dz;
+      if (z >= q.z_min && z <= q.z_max) return float(t);
+    }
+    return -1.0f;
+  }
+  if (dz == 0) return -1.0f;
+  const double t = (q.height - oz) / dz;
+  if (!(t > ray.tnear && t < ray.tfar)) return -1.0f;
+  const double x = ox + t * dx, y = oy + t * dy;
+  const double r2 = x * x + y * y;
+  if (r2 > double(q.radius) * q.radius || r2 < double(q.inner_radius) * q.inner_radius) {
+    return -1.0f;
+  }
+  return float(t);
 }
 
-void disk_bounds(const RTCBoundsFunctionArguments* args) {
-  const auto* d = static_cast<const Geometry::DiskShapeData*>(args->geometryUserPtr);
+void quadric_bounds(const RTCBoundsFunctionArguments* args) {
+  const auto* q = static_cast<const Geometry::QuadricShapeData*>(args->geometryUserPtr);
   RTCBounds* b = args->bounds_o;
-  b->lower_x = b->lower_y = -d->radius;
-  b->upper_x = b->upper_y = d->radius;
-  b->lower_z = b->upper_z = d->height;
+  b->lower_x = b->lower_y = -q->radius;
+  b->upper_x = b->upper_y = q->radius;
+  b->lower_z = q->cylinder ? q->z_min : q->height;
+  b->upper_z = q->cylinder ? q->z_max : q->height;
 }
 
-void disk_intersect(const RTCIntersectFunctionNArguments* args) {
+void quadric_intersect(const RTCIntersectFunctionNArguments* args) {
   if (args->valid[0] == 0) return;
-  const auto* d = static_cast<const Geometry::DiskShapeData*>(args->geometryUserPtr);
+  const auto* q = static_cast<const Geometry::QuadricShapeData*>(args->geometryUserPtr);
   RTCRayHit* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);
-  RTCRay& r = rh->ray;
-  const float t =
-      disk_hit_t(*d, r.org_x, r.org_y, r.org_z, r.dir_x, r.dir_y, r.dir_z, r.tnear, r.tfar);
+  const float t = quadric_hit_t(*q, rh->ray);
   if (t < 0.0f) return;
-  r.tfar = t;
+  rh->ray.tfar = t;
   rh->hit.Ng_x = 0;
   rh->hit.Ng_y = 0;
   rh->hit.Ng_z = 1;
@@ -105,14 +127,11 @@ void disk_intersect(const RTCIntersectFunctionNArguments* args) {
   rh->hit.instID[0] = args->context->instID[0];
 }
 
-void disk_occluded(const RTCOccludedFunctionNArguments* args) {
+void quadric_occluded(const RTCOccludedFunctionNArguments* args) {
   if (args->valid[0] == 0) return;
-  const auto* d = static_cast<const Geometry::DiskShapeData*>(args->geometryUserPtr);
+  const auto* q = static_cast<const Geometry::QuadricShapeData*>(args->geometryUserPtr);
   RTCRay* r = reinterpret_cast<RTCRay*>(args->ray);
-  if (disk_hit_t(*d, r->org_x, r->org_y, r->org_z, r->dir_x, r->dir_y, r->dir_z, r->tnear,
-                 r->tfar) >= 0.0f) {
-    r->tfar = -std::numeric_limits<float>::infinity();
-  }
+  if (quadric_hit_t(*q, *r) >= 0.0f) r->tfar = -std::numeric_limits<float>::infinity();
 }
 
 }  // namespace
@@ -132,7 +151,7 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
   rtcSetSceneBuildQuality(g->scene_, RTC_BUILD_QUALITY_HIGH);
   g->meshes_.resize(desc.shapes.size());
   g->spheres_.resize(desc.shapes.size());
-  g->disks_.resize(desc.shapes.size());
+  g->quadrics_.resize(desc.shapes.size());
 
   // A mesh object shared by several shapes is instanced; count the sharing first.
   std::map<const scene::TriangleMeshData*, int> uses;
@@ -237,33 +256,44 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
         g->bounds_.extend(to_vec(shape.object_to_world.apply_point(c)));
       }
       g->spheres_[i] = std::move(sphere);
-    } else if (auto* d = std::get_if<scene::DiskShape>(&shape.geometry)) {
-      auto disk = std::make_unique<DiskShape>();
-      disk->height = float(d->height);
-      disk->radius = float(d->radius);
-      disk->inner_radius = float(d->inner_radius);
-      disk->object_to_world = shape.object_to_world;
-      disk->world_to_object = shape.object_to_world.inverse();
-      disk->flip = flip;
+    } else if (std::holds_alternative<scene::DiskShape>(shape.geometry) ||
+               std::holds_alternative<scene::CylinderShape>(shape.geometry)) {
+      auto quadric = std::make_unique<QuadricShape>();
+      if (const auto* d = std::get_if<scene::DiskShape>(&shape.geometry)) {
+        quadric->height = float(d->height);
+        quadric->radius = float(d->radius);
+        quadric->inner_radius = float(d->inner_radius);
+      } else {
+        const auto& c = std::get<scene::CylinderShape>(shape.geometry);
+        quadric->cylinder = true;
+        quadric->radius = float(c.radius);
+        quadric->z_min = float(c.z_min);
+        quadric->z_max = float(c.z_max);
+      }
+      quadric->object_to_world = shape.object_to_world;
+      quadric->world_to_object = shape.object_to_world.inverse();
+      quadric->flip = flip;
       RTCScene child = rtcNewScene(dev);
       RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_USER);
       rtcSetGeometryUserPrimitiveCount(geom, 1);
-      rtcSetGeometryUserData(geom, static_cast<DiskShapeData*>(disk.get()));
-      rtcSetGeometryBoundsFunction(geom, disk_bounds, nullptr);
-      rtcSetGeometryIntersectFunction(geom, disk_intersect);
-      rtcSetGeometryOccludedFunction(geom, disk_occluded);
+      rtcSetGeometryUserData(geom, static_cast<QuadricShapeData*>(quadric.get()));
+      rtcSetGeometryBoundsFunction(geom, quadric_bounds, nullptr);
+      rtcSetGeometryIntersectFunction(geom, quadric_intersect);
+      rtcSetGeometryOccludedFunction(geom, quadric_occluded);
       rtcCommitGeometry(geom);
       rtcAttachGeometryByID(child, geom, 0);
       rtcReleaseGeometry(geom);
       rtcCommitScene(child);
       g->sub_scenes_.push_back(child);
       attach_instance(child, shape.object_to_world, id);
-      for (int corner = 0; corner < 4; ++corner) {
-        scene::Vec3 c{corner & 1 ? d->radius : -d->radius, corner & 2 ? d->radius : -d->radius,
-                      d->height};
+      const double r = quadric->radius;
+      const double z0 = quadric->cylinder ? quadric->z_min : quadric->height;
+      const double z1 = quadric->cylinder ? quadric->z_max : quadric->height;
+      for (int corner = 0; corner < 8; ++corner) {
+        scene::Vec3 c{corner & 1 ? r : -r, corner & 2 ? r : -r, corner & 4 ? z1 : z0};
         g->bounds_.extend(to_vec(shape.object_to_world.apply_point(c)));
       }
-      g->disks_[i] = std::move(disk);
+      g->quadrics_[i] = std::move(quadric);
     }
   }
   rtcCommitScene(g->scene_);
@@ -378,26 +408,37 @@ SurfaceHit Geometry::finish_sphere_hit(int shape, const Ray& ray, float t) const
   return hit;
 }
 
-SurfaceHit Geometry::finish_disk_hit(int shape, const Ray& ray, float t) const {
-  const DiskShape& d = *disks_[shape];
-  scene::Vec3 po = d.world_to_object.apply_point(to_double(ray.origin + ray.direction * t));
-  po[2] = d.height;  // back onto the plane
+SurfaceHit Geometry::finish_quadric_hit(int shape, const Ray& ray, float t) const {
+  const QuadricShape& q = *quadrics_[shape];
+  scene::Vec3 po = q.world_to_object.apply_point(to_double(ray.origin + ray.direction * t));
+  const double r = std::sqrt(po[0] * po[0] + po[1] * po[1]);
+  if (q.cylinder) {
+    // Back onto the surface: the float hit point drifts off it.
+    if (r > 0) {
+      po[0] *= q.radius / r;
+      po[1] *= q.radius / r;
+    }
+  } else {
+    po[2] = q.height;
+  }
   SurfaceHit hit;
   hit.t = t;
   hit.shape = shape;
-  hit.p = to_vec(d.object_to_world.apply_point(po));
-  Vec3f n = normalize(to_vec(d.object_to_world.apply_normal({0, 0, 1})));
-  if (d.flip) n = -n;
-  hit.ng = hit.ns = n;
-  // pbrt-v4's disk parameterisation: u = φ/2π, v = (radius − r)/(radius − inner radius).
-  const double r = std::sqrt(po[0] * po[0] + po[1] * po[1]);
+  hit.p = to_vec(q.object_to_world.apply_point(po));
+  // pbrt-v4's parameterisations: u = φ/2π; v = (radius − r)/(radius − inner radius) on a disk,
+  // (z − z_min)/(z_max − z_min) on a cylinder. Normals: +z on a disk, outwards on a cylinder.
   double phi = std::atan2(po[1], po[0]);
   if (phi < 0) phi += 2 * M_PI;
-  hit.uv = {float(phi / (2 * M_PI)),
-            float((d.radius - r) / (double(d.radius) - double(d.inner_radius)))};
+  const scene::Vec3 n_object = q.cylinder ? scene::Vec3{po[0], po[1], 0} : scene::Vec3{0, 0, 1};
+  Vec3f n = normalize(to_vec(q.object_to_world.apply_normal(n_object)));
+  if (q.flip) n = -n;
+  hit.ng = hit.ns = n;
+  const double v = q.cylinder ? (po[2] - q.z_min) / (double(q.z_max) - double(q.z_min))
+                              : (q.radius - r) / (double(q.radius) - double(q.inner_radius));
+  hit.uv = {float(phi / (2 * M_PI)), float(v)};
   hit.dpdu = r > 0
-                 ? to_vec(d.object_to_world.apply_vector({-2 * M_PI * po[1], 2 * M_PI * po[0], 0}))
-                 : to_vec(d.object_to_world.apply_vector({1, 0, 0}));
+                 ? to_vec(q.object_to_world.apply_vector({-2 * M_PI * po[1], 2 * M_PI * po[0], 0}))
+                 : to_vec(q.object_to_world.apply_vector({1, 0, 0}));
   return hit;
 }
 
@@ -424,7 +465,7 @@ std::optional<SurfaceHit> Geometry::intersect(const Ray& ray, float t_max) const
   int shape =
       rh.hit.instID[0] != RTC_INVALID_GEOMETRY_ID ? int(rh.hit.instID[0]) : int(rh.hit.geomID);
   if (spheres_[shape]) return finish_sphere_hit(shape, ray, rh.ray.tfar);
-  if (disks_[shape]) return finish_disk_hit(shape, ray, rh.ray.tfar);
+  if (quadrics_[shape]) return finish_quadric_hit(shape, ray, rh.ray.tfar);
   return finish_triangle_hit(shape, rh.hit.primID, rh.hit.u, rh.hit.v, rh.ray.tfar);
 }
 

@@ -3,7 +3,8 @@
 // build time and shared with Embree without a copy; a mesh object used by several shapes (pbrt
 // object instancing) is built once in its own scene and instanced. Spheres are exact: an
 // Embree sphere primitive in object space inside an instance carrying the shape's transform, so
-// any affine transform (an ellipsoid) is still intersected exactly.
+// any affine transform (an ellipsoid) is still intersected exactly. Disks and cylinders are
+// exact too: Embree user geometry in object space, inside an instance.
 //
 // Normals follow pbrt-v4 (scene_description.h): a triangle's geometric normal is
 // cross(p0 − p2, p1 − p2) from world positions, negated under reverse orientation XOR a
@@ -80,17 +81,21 @@ class Geometry {
   // extent so millimetre and kilometre scenes both avoid self-intersection.
   Vec3f offset_origin(const Vec3f& p, const Vec3f& ng, const Vec3f& direction) const;
 
-  // What Embree's disk callbacks read (object space); public for the callbacks only.
-  struct DiskShapeData {
-    float height = 0, radius = 1, inner_radius = 0;
+  // What Embree's user callbacks for disks and cylinders read (object space); public for the
+  // callbacks only.
+  struct QuadricShapeData {
+    bool cylinder = false;
+    float radius = 1;
+    float height = 0, inner_radius = 0;  // disk
+    float z_min = -1, z_max = 1;         // cylinder
   };
 
  private:
   Geometry() = default;
   struct MeshShape;
   struct SphereShape;
-  struct DiskShape;
-  SurfaceHit finish_disk_hit(int shape, const Ray& ray, float t) const;
+  struct QuadricShape;
+  SurfaceHit finish_quadric_hit(int shape, const Ray& ray, float t) const;
   SurfaceHit finish_triangle_hit(int shape, std::uint32_t prim, float u, float v, float t) const;
   SurfaceHit finish_sphere_hit(int shape, const Ray& ray, float t) const;
 
@@ -101,7 +106,7 @@ class Geometry {
   // data. Indexed by shape; geometry IDs equal shape indices.
   std::vector<std::unique_ptr<MeshShape>> meshes_;
   std::vector<std::unique_ptr<SphereShape>> spheres_;
-  std::vector<std::unique_ptr<DiskShape>> disks_;
+  std::vector<std::unique_ptr<QuadricShape>> quadrics_;
   Bounds3f bounds_;
   float epsilon_ = 1e-4f;
 };

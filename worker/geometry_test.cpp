@@ -75,6 +75,62 @@ TEST(GeometryTest, EllipsoidIsIntersectedExactly) {
   EXPECT_NEAR(dot(oblique->ng, expected), 1.0f, 1e-5f);
 }
 
+// pbrt-v4's disk (a hole of inner radius, uv = (φ/2π, (R − r)/(R − r_i)), normal +z) and its open
+// cylinder (seen from inside too, uv = (φ/2π, (z − z_min)/(z_max − z_min)), normal outwards),
+// both under a transform, against the closed-form hits.
+TEST(GeometryTest, DisksAndCylindersAreIntersectedExactly) {
+  EmbreeDevice device;
+  scene::SceneDescription desc;
+  scene::Shape disk;
+  disk.geometry = scene::DiskShape{0.5, 2.0, 1.0};  // plane z = 0.5, 1 <= r <= 2
+  disk.object_to_world = scene::Transform::translate({0, 0, 10});
+  desc.shapes.push_back(disk);
+  scene::Shape cylinder;
+  cylinder.geometry = scene::CylinderShape{1.0, -1.0, 2.0};
+  cylinder.object_to_world =
+      scene::Transform::translate({10, 0, 0}) * *scene::Transform::scale({2, 2, 1});
+  cylinder.transform_swaps_handedness = false;
+  desc.shapes.push_back(cylinder);
+  auto geometry = Geometry::build(device, desc);
+  ASSERT_TRUE(geometry.ok()) << geometry.status();
+
+  // Disk: a ray down −z through r = 1.5 hits the plane z = 10.5; through the hole it misses.
+  auto hit = (*geometry)->intersect({{0, 1.5f, 20}, {0, 0, -1}}, 1e30f);
+  ASSERT_TRUE(hit);
+  EXPECT_EQ(hit->shape, 0);
+  EXPECT_NEAR(hit->t, 9.5f, 1e-5f);
+  EXPECT_NEAR(hit->ng.z, 1.0f, 1e-6f);
+  EXPECT_NEAR(hit->uv.x, 0.25f, 1e-5f);  // φ = 90°
+  EXPECT_NEAR(hit->uv.y, 0.5f, 1e-5f);   // (2 − 1.5) / (2 − 1)
+  EXPECT_FALSE((*geometry)->intersect({{0, 0.5f, 20}, {0, 0, -1}}, 1e30f));
+  EXPECT_FALSE((*geometry)->intersect({{0, 2.5f, 20}, {0, 0, -1}}, 1e30f));
+  EXPECT_TRUE((*geometry)->occluded({{1.5f, 0, 20}, {0, 0, -1}}, 10.0f));
+  EXPECT_FALSE((*geometry)->occluded({{1.5f, 0, 20}, {0, 0, -1}}, 9.0f));
+
+  // Cylinder of radius 2 (after the scale) about x = 10, z in [−1, 2]: from x = 0 along +x the
+  // outside is hit at x = 8 with the outward normal −x.
+  auto side = (*geometry)->intersect({{0, 0, 0.5f}, {1, 0, 0}}, 1e30f);
+  ASSERT_TRUE(side);
+  EXPECT_EQ(side->shape, 1);
+  EXPECT_NEAR(side->t, 8.0f, 1e-4f);
+  EXPECT_NEAR(side->ng.x, -1.0f, 1e-5f);
+  EXPECT_NEAR(side->uv.x, 0.5f, 1e-5f);         // φ = 180°
+  EXPECT_NEAR(side->uv.y, 1.5f / 3.0f, 1e-5f);  // (0.5 + 1) / 3
+  // From the axis, the inside of the wall at x = 12; the normal still points outwards (+x).
+  auto inside = (*geometry)->intersect({{10, 0, 0}, {1, 0, 0}}, 1e30f);
+  ASSERT_TRUE(inside);
+  EXPECT_NEAR(inside->t, 2.0f, 1e-4f);
+  EXPECT_NEAR(inside->ng.x, 1.0f, 1e-5f);
+  // Open ends: a ray along the axis passes; above z_max the ray misses the wall.
+  EXPECT_FALSE((*geometry)->intersect({{10, 0, -5}, {0, 0, 1}}, 1e30f));
+  EXPECT_FALSE((*geometry)->intersect({{0, 0, 2.5f}, {1, 0, 0}}, 1e30f));
+  // Oblique: the hit lies on the surface.
+  auto oblique = (*geometry)->intersect({{0, 0.7f, 0}, Vec3f(1, 0.1f, 0.05f)}, 1e30f);
+  ASSERT_TRUE(oblique);
+  const float dx = (oblique->p.x - 10) / 2, dy = oblique->p.y / 2;
+  EXPECT_NEAR(dx * dx + dy * dy, 1.0f, 1e-5f);
+}
+
 TEST(GeometryTest, SharedMeshIsInstanced) {
   EmbreeDevice device;
   scene::SceneDescription desc;

@@ -56,9 +56,11 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
   light.two_sided_ = shape.area_light && shape.area_light->two_sided;
   if (auto status = check_scale(scale, light.where_); !status.ok()) return status;
 
-  if (std::holds_alternative<scene::DiskShape>(shape.geometry)) {
-    return scene::location_error(
-        shape.where, "a disk used as an area light is not supported yet; model it as a mesh");
+  if (std::holds_alternative<scene::DiskShape>(shape.geometry) ||
+      std::holds_alternative<scene::CylinderShape>(shape.geometry)) {
+    return scene::location_error(shape.where,
+                                 "a disk or cylinder used as an area light is not supported yet; "
+                                 "model it as a mesh");
   }
   if (const auto* sphere = std::get_if<scene::SphereShape>(&shape.geometry)) {
     // A sphere light is sampled by the cone it subtends, which is only a sphere's cone under a

@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <limits>
 #include <numbers>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -317,8 +318,7 @@ absl::StatusOr<TriangleMeshData> loop_subdivide(const std::vector<Float3>& posit
     if (tri[0] == tri[1] || tri[1] == tri[2] || tri[2] == tri[0]) {
       return absl::InvalidArgumentError(absl::StrCat("triangle ", t, " (", tri[0], ", ", tri[1],
                                                      ", ", tri[2],
-                                                     ") is degenerate: it repeats a "
-                                                     "vertex"));
+                                                     ") is degenerate: it repeats a vertex"));
     }
   }
 

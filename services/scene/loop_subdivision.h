@@ -16,15 +16,19 @@
 //     triangles, the regular case) and its sine mask for more.
 //
 // So boundary curves are uniform cubic B-splines of the control boundary polygon (a straight run
-// of boundary vertices stays straight) and no boundary vertex is pinned as a corner.
+// of boundary vertices stays straight) and no boundary vertex is pinned as a corner. pbrt-v4's
+// boundary limit rule is kept although the exact limit of that B-spline is 1/6, 2/3, 1/6: it
+// leaves boundary vertices slightly off the limit curve, by an amount that shrinks fourfold per
+// level (about 1e-3 of a control edge at the default 3 levels). Interior vertices are exactly on
+// the limit surface.
 //
-// Two points where this differs from pbrt-v4 itself (both documented in the report that added
-// this file): the tangent masks are applied to the finest-level control points, as the
-// eigen-analysis the masks come from assumes, where pbrt-v4 applies them to the already
-// projected limit points (the directions differ by a small angle that vanishes with `levels`);
-// and the normals point to the side of Prism's geometric normal cross(p0 − p2, p1 − p2) of the
-// surrounding triangles (the side their counter-clockwise winding faces), whereas pbrt-v4's
-// cross(S, T) points to the opposite side because it walks interior one-rings clockwise.
+// Two deliberate differences from pbrt-v4. The tangent masks are applied to the finest level's
+// control points, which is what the masks are derived for (they are left eigenvectors of the
+// refinement, so a vertex's normal does not turn when the mesh is refined further); pbrt-v4
+// applies them to the already projected limit points, which tilts interior normals by up to a
+// few degrees at low levels. And the normals point to the side of Prism's geometric normal
+// cross(p0 − p2, p1 − p2) of the triangles around them (the side their winding faces), whereas
+// pbrt-v4's cross(S, T), with its one-ring order, points to the other side.
 //
 // Output layout: control vertex i keeps index i at every level (even vertices come first, then
 // one new vertex per edge of the level before), so its output position is its limit position.

@@ -377,7 +377,9 @@ TEST(LoopSubdivisionTest, OctahedronConvergesToSmoothSurface) {
     if (level > 2) {
       EXPECT_LT(dihedral, 0.75 * previous_dihedral);
     }
-    if (level == 5) EXPECT_LT(previous_lo - lo, 1e-3);
+    if (level == 5) {
+      EXPECT_LT(previous_lo - lo, 1e-3);
+    }
     previous_lo = lo;
     previous_hi = hi;
     previous_dihedral = dihedral;
@@ -491,11 +493,15 @@ TEST(LoopSubdivisionTest, OpenFlatMeshesKeepBoundaryCurves) {
           if (p.y < 0.5f && p.x >= 1 && p.x <= 2) {
             EXPECT_EQ(p.y, 0.0f);
           }
-          if (p.y > 2.5f && p.x >= 1 && p.x <= 2) EXPECT_EQ(p.y, 3.0f);
+          if (p.y > 2.5f && p.x >= 1 && p.x <= 2) {
+            EXPECT_EQ(p.y, 3.0f);
+          }
           if (p.x < 0.5f && p.y >= 1 && p.y <= 2) {
             EXPECT_EQ(p.x, 0.0f);
           }
-          if (p.x > 2.5f && p.y >= 1 && p.y <= 2) EXPECT_EQ(p.x, 3.0f);
+          if (p.x > 2.5f && p.y >= 1 && p.y <= 2) {
+            EXPECT_EQ(p.x, 3.0f);
+          }
         }
       }
     }
@@ -526,6 +532,18 @@ TEST(LoopSubdivisionTest, UnreferencedVerticesKeepTheirIndex) {
     for (std::uint32_t i : t) EXPECT_NE(i, 3u);
   }
   EXPECT_EQ(m.triangles.size(), 8u * 16);
+}
+
+// Coincident control points leave the tangent masks (and the triangles) without a plane: the
+// result still passes validation, with finite normals.
+TEST(LoopSubdivisionTest, CoincidentPointsGiveFiniteNormals) {
+  Control c = tetrahedron();
+  c.p[1] = c.p[2] = c.p[3] = Float3{0, 0, 0};
+  for (int level = 0; level <= 2; ++level) {
+    auto m = loop_subdivide(c.p, c.t, level, 1'000'000);
+    ASSERT_TRUE(m.ok()) << m.status();
+    EXPECT_TRUE(m->validate().ok());
+  }
 }
 
 void expect_error(const Control& c, int levels, absl::StatusCode code, const std::string& text,
@@ -580,7 +598,8 @@ TEST(LoopSubdivisionTest, RefusesBadInput) {
                "limit of 2047",
                2047);
   EXPECT_TRUE(loop_subdivide(octa.p, octa.t, 4, 2048).ok());
-  expect_error(octa, 8, StatusCode::kResourceExhausted, "more than the limit of 1000000");
+  expect_error(octa, 8, StatusCode::kResourceExhausted, "8 x 4^8 triangles, more than the limit",
+               500'000);
 }
 
 }  // namespace

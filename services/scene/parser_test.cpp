@@ -201,7 +201,12 @@ TEST(GoodScenes, TexturesCoatedMaterialsAndDisks) {
   // to +z.
   expect_near(std::get<DirectionMixTexture>(texture("facing").kind).direction_world, {0, 0, 1});
 
-  ASSERT_EQ(s.shapes.size(), 4u);
+  ASSERT_EQ(s.shapes.size(), 5u);
+  // pbrt-v4 orders a cylinder's zmin and zmax.
+  const auto& cylinder = std::get<CylinderShape>(s.shapes[4].geometry);
+  EXPECT_DOUBLE_EQ(cylinder.radius, 0.5);
+  EXPECT_DOUBLE_EQ(cylinder.z_min, -2);
+  EXPECT_DOUBLE_EQ(cylinder.z_max, 1);
   const auto& disk = std::get<DiskShape>(s.shapes[0].geometry);
   EXPECT_DOUBLE_EQ(disk.radius, 2);
   EXPECT_DOUBLE_EQ(disk.inner_radius, 0.5);

@@ -229,7 +229,15 @@ struct DiskShape {
   double inner_radius = 0.0;
 };
 
-using ShapeGeometry = std::variant<TriangleMeshShape, SphereShape, DiskShape>;
+// pbrt-v4's cylinder: x² + y² = radius², z_min <= z <= z_max, open at both ends; its normal
+// points outwards in object space. Partial cylinders (phimax < 360) are refused.
+struct CylinderShape {
+  double radius = 1.0;
+  double z_min = -1.0;
+  double z_max = 1.0;
+};
+
+using ShapeGeometry = std::variant<TriangleMeshShape, SphereShape, DiskShape, CylinderShape>;
 
 struct AreaLight {
   SpectrumParam radiance = SpectrumNamed{kDefaultIlluminant};  // pbrt `L`

@@ -952,9 +952,23 @@ absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const Pa
     if (phimax < 360.0)
       return param_error(params, "phimax", "is not supported (only full disks: phimax >= 360)");
     geometry = disk;
+  } else if (type.name == "cylinder") {
+    CylinderShape c;
+    PRISM_ASSIGN_OR_RETURN(c.radius, params.get_float("radius", 1.0));
+    PRISM_ASSIGN_OR_RETURN(c.z_min, params.get_float("zmin", -1.0));
+    PRISM_ASSIGN_OR_RETURN(c.z_max, params.get_float("zmax", 1.0));
+    PRISM_ASSIGN_OR_RETURN(double phimax, params.get_float("phimax", 360.0));
+    PRISM_RETURN_IF_ERROR(check_range(params, "radius", c.radius, 1e-30, 1e30, "> 0"));
+    if (c.z_min > c.z_max) std::swap(c.z_min, c.z_max);  // pbrt-v4 orders them too
+    if (!(c.z_max > c.z_min))
+      return location_error(type.where, "cylinder needs zmin and zmax to differ");
+    if (phimax < 360.0)
+      return param_error(params, "phimax", "is not supported (only full cylinders: phimax >= 360)");
+    geometry = c;
   } else {
     return unsupported_type(
-        type, "shape", {"bilinearmesh", "disk", "objmesh", "plymesh", "sphere", "trianglemesh"});
+        type, "shape",
+        {"bilinearmesh", "cylinder", "disk", "objmesh", "plymesh", "sphere", "trianglemesh"});
   }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return geometry;

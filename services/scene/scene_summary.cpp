@@ -32,18 +32,20 @@ std::string format_scene_summary(const SceneDescription& scene) {
                   scene.integrator.max_depth, "\n");
   size_t meshes = 0;
   size_t spheres = 0;
-  size_t disks = 0;
+  size_t quadrics = 0;
   for (const Shape& s : scene.shapes) {
     if (std::holds_alternative<SphereShape>(s.geometry)) {
       ++spheres;
-    } else if (std::holds_alternative<DiskShape>(s.geometry)) {
-      ++disks;
+    } else if (std::holds_alternative<DiskShape>(s.geometry) ||
+               std::holds_alternative<CylinderShape>(s.geometry)) {
+      ++quadrics;
     } else {
       ++meshes;
     }
   }
   absl::StrAppend(&out, "shapes: ", scene.shapes.size(), " (", meshes, " triangle meshes, ",
-                  spheres, " spheres", disks > 0 ? absl::StrCat(", ", disks, " disks") : "", ")\n");
+                  spheres, " spheres",
+                  quadrics > 0 ? absl::StrCat(", ", quadrics, " disks and cylinders") : "", ")\n");
   if (!scene.textures.empty()) absl::StrAppend(&out, "textures: ", scene.textures.size(), "\n");
   absl::StrAppend(&out, "triangles: ", scene.triangle_count(), "\n");
 
