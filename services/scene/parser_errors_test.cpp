@@ -29,7 +29,7 @@ const BadCase kBadCases[] = {
      "unknown_directive.pbrt:3:3: unknown directive 'Frobnicate'"},
     {"unknown_shape.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_shape.pbrt:2:7: unsupported shape type \"cone\" (supported: bilinearmesh, "
-     "cylinder, disk, objmesh, plymesh, sphere, trianglemesh)"},
+     "cylinder, disk, loopsubdiv, objmesh, plymesh, sphere, trianglemesh)"},
     {"unused_parameter.pbrt", absl::StatusCode::kInvalidArgument,
      "unused_parameter.pbrt:3:3: unused parameter 'float radiu'"},
     {"wrong_type_value.pbrt", absl::StatusCode::kInvalidArgument,

@@ -201,7 +201,18 @@ TEST(GoodScenes, TexturesCoatedMaterialsAndDisks) {
   // to +z.
   expect_near(std::get<DirectionMixTexture>(texture("facing").kind).direction_world, {0, 0, 1});
 
-  ASSERT_EQ(s.shapes.size(), 5u);
+  ASSERT_EQ(s.shapes.size(), 6u);
+  // loopsubdiv: 8 · 4² triangles; its normals follow pbrt-v4, against the winding's side (the
+  // octahedron's outside), so the geometric normals turn inwards as in pbrt-v4.
+  const auto& subdivided = std::get<TriangleMeshShape>(s.shapes[5].geometry);
+  EXPECT_EQ(subdivided.source, "loopsubdiv");
+  EXPECT_EQ(subdivided.mesh->triangles.size(), 128u);
+  ASSERT_EQ(subdivided.mesh->normals.size(), subdivided.mesh->positions.size());
+  for (size_t i = 0; i < subdivided.mesh->positions.size(); ++i) {
+    const Float3& p = subdivided.mesh->positions[i];
+    const Float3& n = subdivided.mesh->normals[i];
+    EXPECT_LT(p.x * n.x + p.y * n.y + p.z * n.z, 0.0f) << i;
+  }
   // pbrt-v4 orders a cylinder's zmin and zmax.
   const auto& cylinder = std::get<CylinderShape>(s.shapes[4].geometry);
   EXPECT_DOUBLE_EQ(cylinder.radius, 0.5);

@@ -6,6 +6,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "services/base/status.h"
+#include "services/scene/loop_subdivision.h"
 
 namespace prism::scene {
 namespace {
@@ -952,6 +953,45 @@ absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const Pa
     if (phimax < 360.0)
       return param_error(params, "phimax", "is not supported (only full disks: phimax >= 360)");
     geometry = disk;
+  } else if (type.name == "loopsubdiv") {
+    PRISM_ASSIGN_OR_RETURN(int levels, params.get_int("levels", 3));
+    PRISM_RETURN_IF_ERROR(check_range(params, "levels", levels, 0, kMaxLoopLevels,
+                                      absl::StrCat("in [0, ", kMaxLoopLevels, "]")));
+    PRISM_ASSIGN_OR_RETURN(std::vector<Vec3> p, params.get_triples("P", ParamType::kPoint3));
+    PRISM_ASSIGN_OR_RETURN(std::vector<std::int64_t> indices, params.get_ints("indices"));
+    if (p.empty() || indices.empty())
+      return location_error(type.where, "\"loopsubdiv\" needs 'point3 P' and 'integer indices'");
+    if (indices.size() % 3 != 0)
+      return param_error(params, "indices",
+                         absl::StrCat("needs a multiple of 3 values, got ", indices.size()));
+    std::vector<Float3> positions;
+    positions.reserve(p.size());
+    for (const Vec3& v : p) positions.push_back({float(v[0]), float(v[1]), float(v[2])});
+    std::vector<Triangle> triangles;
+    for (size_t i = 0; i < indices.size(); i += 3) {
+      for (size_t k = 0; k < 3; ++k) {
+        if (indices[i + k] < 0 || size_t(indices[i + k]) >= p.size())
+          return param_error(params, "indices",
+                             absl::StrCat("refers to vertex ", indices[i + k], " but 'P' has ",
+                                          p.size(), " vertices"));
+      }
+      triangles.push_back({std::uint32_t(indices[i]), std::uint32_t(indices[i + 1]),
+                           std::uint32_t(indices[i + 2])});
+    }
+    absl::StatusOr<TriangleMeshData> mesh =
+        loop_subdivide(positions, triangles, levels, ctx.mesh_limits.max_triangles);
+    if (!mesh.ok()) {
+      return absl::Status(
+          mesh.status().code(),
+          absl::StrCat(type.where.to_string(), ": loopsubdiv: ", mesh.status().message()));
+    }
+    // pbrt-v4's limit normals, cross(S, T) over its one-ring order, point away from the side the
+    // control triangles' winding faces, and pbrt-v4 turns the geometric normal to the shading
+    // normal: the surface's outside is on the far side of its winding. Prism follows, so
+    // one-sided emission and a dielectric's inside are where pbrt-v4 puts them.
+    for (Float3& n : mesh->normals) n = {-n.x, -n.y, -n.z};
+    geometry =
+        TriangleMeshShape{std::make_shared<const TriangleMeshData>(*std::move(mesh)), "loopsubdiv"};
   } else if (type.name == "cylinder") {
     CylinderShape c;
     PRISM_ASSIGN_OR_RETURN(c.radius, params.get_float("radius", 1.0));
@@ -966,9 +1006,9 @@ absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const Pa
       return param_error(params, "phimax", "is not supported (only full cylinders: phimax >= 360)");
     geometry = c;
   } else {
-    return unsupported_type(
-        type, "shape",
-        {"bilinearmesh", "cylinder", "disk", "objmesh", "plymesh", "sphere", "trianglemesh"});
+    return unsupported_type(type, "shape",
+                            {"bilinearmesh", "cylinder", "disk", "loopsubdiv", "objmesh", "plymesh",
+                             "sphere", "trianglemesh"});
   }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return geometry;
