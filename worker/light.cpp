@@ -56,11 +56,27 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
   light.two_sided_ = shape.area_light && shape.area_light->two_sided;
   if (auto status = check_scale(scale, light.where_); !status.ok()) return status;
 
-  if (std::holds_alternative<scene::DiskShape>(shape.geometry) ||
-      std::holds_alternative<scene::CylinderShape>(shape.geometry)) {
-    return scene::location_error(shape.where,
-                                 "a disk or cylinder used as an area light is not supported yet; "
-                                 "model it as a mesh");
+  if (std::holds_alternative<scene::CylinderShape>(shape.geometry)) {
+    return scene::location_error(
+        shape.where, "a cylinder used as an area light is not supported yet; model it as a mesh");
+  }
+  if (const auto* disk = std::get_if<scene::DiskShape>(&shape.geometry)) {
+    // Uniform in the object-space annulus is uniform on the world disk (an affine map scales
+    // every area by the same factor: the length of the mapped x and y axes' cross product).
+    const scene::Transform& t = shape.object_to_world;
+    const Vec3f ex = to_vec(t.apply_vector({1, 0, 0})), ey = to_vec(t.apply_vector({0, 1, 0}));
+    const double scale = double(length(cross(ex, ey)));
+    light.area_ =
+        M_PI * (disk->radius * disk->radius - disk->inner_radius * disk->inner_radius) * scale;
+    if (!(light.area_ > 0) || !std::isfinite(light.area_)) {
+      return scene::location_error(shape.where, "disk area light has zero area");
+    }
+    light.is_disk_ = true;
+    light.disk_ = *disk;
+    light.disk_to_world_ = t;
+    Vec3f n = normalize(to_vec(t.apply_normal({0, 0, 1})));
+    light.disk_normal_ = shape.reverse_orientation != shape.transform_swaps_handedness ? -n : n;
+    return light;
   }
   if (const auto* sphere = std::get_if<scene::SphereShape>(&shape.geometry)) {
     // A sphere light is sampled by the cone it subtends, which is only a sphere's cone under a
@@ -129,7 +145,27 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
 
 std::optional<LightSample> AreaLight::sample(const LightContext& ctx, Point2f u, float u_tri,
                                              const SampledWavelengths& lambda) const {
+  if (is_disk_) return sample_disk(ctx, u, lambda);
   return is_sphere_ ? sample_sphere(ctx, u, lambda) : sample_triangles(ctx, u, u_tri, lambda);
+}
+
+std::optional<LightSample> AreaLight::sample_disk(const LightContext& ctx, Point2f u,
+                                                  const SampledWavelengths& lambda) const {
+  const double ri2 = disk_.inner_radius * disk_.inner_radius;
+  const double r = std::sqrt(ri2 + double(u.x) * (disk_.radius * disk_.radius - ri2));
+  const double phi = 2 * M_PI * double(u.y);
+  const Vec3f p =
+      to_vec(disk_to_world_.apply_point({r * std::cos(phi), r * std::sin(phi), disk_.height}));
+  Vec3f d = p - ctx.p;
+  float dist2 = length_squared(d);
+  if (!(dist2 > 0)) return std::nullopt;
+  float dist = std::sqrt(dist2);
+  Vec3f wi = d / dist;
+  float cos_light = dot(disk_normal_, -wi);
+  if (!two_sided_ && cos_light <= 0) return std::nullopt;
+  float pdf = dist2 / (std::abs(cos_light) * float(area_));
+  if (!std::isfinite(pdf) || !(pdf > 0)) return std::nullopt;
+  return area_sample(wi, dist, p, disk_normal_, pdf, lambda);
 }
 
 LightSample AreaLight::area_sample(const Vec3f& wi, float dist, const Vec3f& p, const Vec3f& n,

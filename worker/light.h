@@ -3,9 +3,9 @@
 // spectrum is divided by ColorMatching::photometric_sum before the scene's `scale`, and
 // `power` then rescales to a total power).
 // Closed set as a std::variant:
-//   AreaLight      a diffuse emitter over one shape (all its triangles, or a sphere), one- or
-//                  two-sided; positions are sampled uniformly by area (triangles chosen by area)
-//                  or, for a sphere seen from outside, uniformly in the cone it subtends.
+//   AreaLight      a diffuse emitter over one shape (all its triangles, a sphere or a disk), one-
+//                  or two-sided; positions are sampled uniformly by area (triangles chosen by
+//                  area) or, for a sphere seen from outside, uniformly in the cone it subtends.
 //   PointLight     radiant intensity I(λ) at a point.
 //   SpotLight      pbrt-v4's spot: intensity times smoothstep falloff between the cone angles.
 //   InfiniteLight  constant radiance from every direction (sampled uniformly over the sphere),
@@ -81,6 +81,8 @@ class AreaLight {
                           const SampledWavelengths& lambda) const;
   std::optional<LightSample> sample_sphere(const LightContext& ctx, Point2f u,
                                            const SampledWavelengths& lambda) const;
+  std::optional<LightSample> sample_disk(const LightContext& ctx, Point2f u,
+                                         const SampledWavelengths& lambda) const;
 
   int shape_ = -1;
   scene::SourceLocation where_;
@@ -94,6 +96,10 @@ class AreaLight {
   float sphere_radius_ = 0;
   bool sphere_flip_ = false;         // reverse orientation XOR handedness swap: emits inwards
   std::vector<float> triangle_cdf_;  // by area, triangles of the shape
+  bool is_disk_ = false;             // sampled uniformly by area in its object-space annulus
+  scene::DiskShape disk_;
+  scene::Transform disk_to_world_;
+  Vec3f disk_normal_;  // world, after the orientation rule: the side it emits to
 };
 
 class PointLight {

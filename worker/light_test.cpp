@@ -483,6 +483,44 @@ TEST(AreaLightTest, IrradianceMatchesAnalyticValues) {
       normalize(Vec3f(1, 2, -1)), 3 * M_PI, "sphere inside");
 }
 
+// A disk light (with a hole, under a rotation and a non-uniform scale: an elliptical annulus):
+// sampled directions follow pdf(), and on its axis a circular disk gives the closed-form
+// irradiance E = π L (R²/(h² + R²) − r²/(h² + r²)); reversed, it lights the other side only.
+TEST(AreaLightTest, DiskDirectionsFollowPdfAndIrradianceIsAnalytic) {
+  auto shape = [](const scene::Transform& t, double inner, bool reverse) {
+    scene::Shape s;
+    s.geometry = scene::DiskShape{0.0, 1.0, inner};
+    s.object_to_world = t;
+    s.transform_swaps_handedness = t.swaps_handedness();
+    s.reverse_orientation = reverse;
+    s.area_light = scene::AreaLight{};
+    s.where = at(31);
+    return s;
+  };
+  auto t = scene::Transform::translate({0.3f, 0.1f, 3}) * *scene::Transform::rotate(25, {1, 0, 0}) *
+           *scene::Transform::scale({1.5, 0.8, 1});
+  auto w = build({shape(t, 0.4, /*reverse=*/true)});
+  AreaLight ring = area_light(*w, 0);
+  EXPECT_NEAR(ring.area(), M_PI * (1 - 0.16) * 1.2, 1e-4);
+  // The disk's +z (rotated) faces away from the origin; reversed, it emits towards it.
+  for (const AreaCase& k : {AreaCase{"below", {{0, 0, 0}, {}}, {0.3f, 0.1f, 3}, 1.5f},
+                            AreaCase{"oblique", {{2, -1, 1}, {}}, {0.3f, 0.1f, 3}, 1.5f}}) {
+    check_area_light(*w, ring, k);
+  }
+  EXPECT_FALSE(ring.sample({{0, 0, 6}, {}}, {0.3f, 0.3f}, 0.5f, lanes({550})));
+
+  // Circular, facing down at height h = 2, radiance 2.
+  auto wc = build({shape(scene::Transform::translate({0, 0, 2}), 0.5, /*reverse=*/true)});
+  AreaLight disk = area_light(*wc, 0, spectral::ConstantSpectrum{0.5f}, 4.0);
+  const double h = 2, big = 1, hole = 0.5;
+  expect_irradiance(
+      [&](Point2f u, float ue) {
+        return disk.sample({{0, 0, 0}, {0, 0, 1}}, u, ue, lanes({600}));
+      },
+      {0, 0, 1}, 2 * M_PI * (big * big / (h * h + big * big) - hole * hole / (h * h + hole * hole)),
+      "disk on axis");
+}
+
 TEST(PointSpotInfiniteTest, PointLightIsInverseSquare) {
   scene::Light desc = point_desc({1, 2, 3}, 30);
   auto light = PointLight::create(desc, spectral::ConstantSpectrum{2}, 3.0);
