@@ -291,6 +291,36 @@ Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indice
   expect_sheet_over_sky(*scene, 0.8, 2);
 }
 
+// pbrt-v4's alpha cut-outs on a black sheet in a constant sky: the sheet shows (1 − α) of the
+// sky, for a constant α = 0.3 and for a checkerboard of α 0.2 / 0.6 (four equal cells about the
+// image centre: 0.6). A black sphere of α 0.5 seen through its middle is crossed twice, each
+// crossing deciding on its own: 0.25 of the sky; a disk of α 0.4, 0.6.
+TEST_F(KnownAnswerTest, AlphaCutOutsLetTheSkyThroughInProportion) {
+  for (auto [shape, expected] :
+       {std::pair{std::string(R"(Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0]
+  "integer indices" [0 1 2 0 2 3] "float alpha" 0.3)"),
+                  0.7},
+        std::pair{std::string(R"(Texture "holes" "float" "checkerboard" "float uscale" 2
+  "float vscale" 2 "float tex1" 0.2 "float tex2" 0.6
+Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0]
+  "integer indices" [0 1 2 0 2 3] "point2 uv" [0 0 1 0 1 1 0 1] "texture alpha" "holes")"),
+                  0.6},
+        std::pair{std::string(R"(Shape "sphere" "float radius" 0.9 "float alpha" 0.5)"), 0.25},
+        std::pair{std::string(R"(Shape "disk" "float radius" 1 "float alpha" 0.4)"), 0.6}}) {
+    SCOPED_TRACE(shape);
+    auto scene = load("alpha.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 30
+Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
+PixelFilter "box"
+WorldBegin
+LightSource "infinite" "spectrum L" [360 1 830 1]
+Material "diffuse" "spectrum reflectance" [360 0 830 0]
+)" + shape + "\n");
+    ASSERT_TRUE(scene.ok()) << scene.status();
+    expect_sheet_over_sky(*scene, expected, 5);
+  }
+}
+
 // A `mix` of a black and a white diffuse material (amount 0.3: the white one at 30 % of the
 // vertices, chosen by a hash of the hit) on a sheet in a constant sky shows 0.3 times the sky,
 // like the sheet the diffuse-transmission test uses; nested inside another mix with a second

@@ -1,6 +1,9 @@
 #include "worker/geometry.h"
 
+#include <algorithm>
+#include <bit>
 #include <cmath>
+#include <cstdint>
 #include <map>
 
 #include "absl/strings/str_cat.h"
@@ -64,7 +67,76 @@ struct Geometry::QuadricShape : QuadricShapeData {
   bool flip = false;
 };
 
+struct Geometry::AlphaFilter {
+  const AlphaFunction* alpha = nullptr;
+  const MeshShape* mesh = nullptr;  // triangles: the uvs; null for spheres
+};
+
 namespace {
+
+// pbrt-v4's stochastic alpha test for a hit at distance t along the ray (o, d): keep it when a
+// hash of (o, d, t), uniform in [0, 1), is at most the alpha there.
+bool alpha_keeps(const AlphaFunction& alpha, const Point2f& uv, const Vec3f& n, float ox, float oy,
+                 float oz, float dx, float dy, float dz, float t) {
+  const float a = alpha(uv, n);
+  if (a >= 1.0f) return true;
+  if (!(a > 0.0f)) return false;
+  // Each input through a full splitmix64 finaliser, so one differing bit (t of two stacked
+  // layers) changes every bit of u.
+  auto mix = [](std::uint64_t x) {
+    x ^= x >> 30;
+    x *= 0xbf58476d1ce4e5b9ull;
+    x ^= x >> 27;
+    x *= 0x94d049bb133111ebull;
+    return x ^ (x >> 31);
+  };
+  std::uint64_t h = 0x9e3779b97f4a7c15ull;
+  for (float v : {ox, oy, oz, dx, dy, dz, t}) h = mix(h + std::bit_cast<std::uint32_t>(v));
+  const float u = float(h >> 40) * 0x1p-24f;
+  return u <= a;
+}
+
+Vec3f unit_or_z(float x, float y, float z) {
+  const Vec3f n(x, y, z);
+  const float len = length(n);
+  return len > 0 ? n / len : Vec3f(0, 0, 1);
+}
+
+// Intersection and occlusion filters of cut-out triangles and spheres (N = 1).
+void alpha_filter(const RTCFilterFunctionNArguments* args) {
+  if (args->valid[0] == 0) return;
+  const auto* f = static_cast<const Geometry::AlphaFilter*>(args->geometryUserPtr);
+  RTCRayN* ray = args->ray;
+  RTCHitN* hit = args->hit;
+  const float ox = RTCRayN_org_x(ray, 1, 0), oy = RTCRayN_org_y(ray, 1, 0),
+              oz = RTCRayN_org_z(ray, 1, 0);
+  const float dx = RTCRayN_dir_x(ray, 1, 0), dy = RTCRayN_dir_y(ray, 1, 0),
+              dz = RTCRayN_dir_z(ray, 1, 0);
+  const float t = RTCRayN_tfar(ray, 1, 0);
+  const Vec3f n =
+      unit_or_z(RTCHitN_Ng_x(hit, 1, 0), RTCHitN_Ng_y(hit, 1, 0), RTCHitN_Ng_z(hit, 1, 0));
+  Point2f uv;
+  if (f->mesh != nullptr) {
+    const float b1 = RTCHitN_u(hit, 1, 0), b2 = RTCHitN_v(hit, 1, 0), b0 = 1 - b1 - b2;
+    const auto& tri = f->mesh->source->triangles[RTCHitN_primID(hit, 1, 0)];
+    Point2f uv0{0, 0}, uv1{1, 0}, uv2{1, 1};
+    if (!f->mesh->uvs.empty()) {
+      uv0 = {f->mesh->uvs[tri[0]].u, f->mesh->uvs[tri[0]].v};
+      uv1 = {f->mesh->uvs[tri[1]].u, f->mesh->uvs[tri[1]].v};
+      uv2 = {f->mesh->uvs[tri[2]].u, f->mesh->uvs[tri[2]].v};
+    }
+    uv = {uv0.x * b0 + uv1.x * b1 + uv2.x * b2, uv0.y * b0 + uv1.y * b1 + uv2.y * b2};
+  } else {
+    // The sphere's object space (the instance's): the hit point on the sphere about the origin.
+    const double px = ox + double(t) * dx, py = oy + double(t) * dy, pz = oz + double(t) * dz;
+    double phi = std::atan2(py, px);
+    if (phi < 0) phi += 2 * M_PI;
+    const double r = std::sqrt(px * px + py * py + pz * pz);
+    const double cos_theta = r > 0 ? std::clamp(pz / r, -1.0, 1.0) : 1.0;
+    uv = {float(phi / (2 * M_PI)), float(1 - std::acos(cos_theta) / M_PI)};
+  }
+  if (!alpha_keeps(*f->alpha, uv, n, ox, oy, oz, dx, dy, dz, t)) args->valid[0] = 0;
+}
 
 // The nearest hit with t in (tnear, tfar) of a quadric in its object space, or −1: a disk is the
 // plane z = height where inner_radius <= r <= radius; a cylinder is x² + y² = radius² with
@@ -87,7 +159,18 @@ float quadric_hit_t(const Geometry::QuadricShapeData& q, const RTCRay& ray) {
     for (double t : {t0, t1}) {
       if (!(t > ray.tnear && t < ray.tfar)) continue;
       const double z = oz + t * dz;
-      if (z >= q.z_min && z <= q.z_max) return float(t);
+      if (!(z >= q.z_min && z <= q.z_max)) continue;
+      if (q.alpha != nullptr) {
+        const double x = ox + t * dx, y = oy + t * dy;
+        double phi = std::atan2(y, x);
+        if (phi < 0) phi += 2 * M_PI;
+        const Point2f uv{float(phi / (2 * M_PI)), float((z - q.z_min) / (q.z_max - q.z_min))};
+        if (!alpha_keeps(*q.alpha, uv, unit_or_z(float(x), float(y), 0), ray.org_x, ray.org_y,
+                         ray.org_z, ray.dir_x, ray.dir_y, ray.dir_z, float(t))) {
+          continue;
+        }
+      }
+      return float(t);
     }
     return -1.0f;
   }
@@ -98,6 +181,17 @@ float quadric_hit_t(const Geometry::QuadricShapeData& q, const RTCRay& ray) {
   const double r2 = x * x + y * y;
   if (r2 > double(q.radius) * q.radius || r2 < double(q.inner_radius) * q.inner_radius) {
     return -1.0f;
+  }
+  if (q.alpha != nullptr) {
+    const double r = std::sqrt(r2);
+    double phi = std::atan2(y, x);
+    if (phi < 0) phi += 2 * M_PI;
+    const Point2f uv{float(phi / (2 * M_PI)),
+                     float((q.radius - r) / (double(q.radius) - double(q.inner_radius)))};
+    if (!alpha_keeps(*q.alpha, uv, {0, 0, 1}, ray.org_x, ray.org_y, ray.org_z, ray.dir_x, ray.dir_y,
+                     ray.dir_z, float(t))) {
+      return -1.0f;
+    }
   }
   return float(t);
 }
@@ -142,7 +236,8 @@ Geometry::~Geometry() {
 }
 
 absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
-                                                          const scene::SceneDescription& desc) {
+                                                          const scene::SceneDescription& desc,
+                                                          std::vector<AlphaFunction> alpha) {
   if (!device.valid()) return device.take_error();
   std::unique_ptr<Geometry> g(new Geometry());
   g->device_ = &device;
@@ -152,6 +247,19 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
   g->meshes_.resize(desc.shapes.size());
   g->spheres_.resize(desc.shapes.size());
   g->quadrics_.resize(desc.shapes.size());
+  g->alpha_ = std::move(alpha);
+  g->alpha_.resize(desc.shapes.size());
+  // Cut-outs get Embree filter callbacks reading this per-geometry data.
+  auto add_filter = [&](RTCGeometry geom, std::size_t shape, const MeshShape* mesh) {
+    if (!g->alpha_[shape]) return;
+    auto filter = std::make_unique<AlphaFilter>();
+    filter->alpha = &g->alpha_[shape];
+    filter->mesh = mesh;
+    rtcSetGeometryUserData(geom, filter.get());
+    rtcSetGeometryIntersectFilterFunction(geom, alpha_filter);
+    rtcSetGeometryOccludedFilterFunction(geom, alpha_filter);
+    g->filters_.push_back(std::move(filter));
+  };
 
   // A mesh object shared by several shapes is instanced; count the sharing first.
   std::map<const scene::TriangleMeshData*, int> uses;
@@ -160,8 +268,9 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
   }
   std::map<const scene::TriangleMeshData*, RTCScene> instanced_scenes;
 
-  auto attach_triangles = [&](RTCScene target, MeshShape& mesh, unsigned id) {
+  auto attach_triangles = [&](RTCScene target, MeshShape& mesh, unsigned id, std::size_t shape) {
     RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+    add_filter(geom, shape, &mesh);
     rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
                                mesh.positions.data(), 0, sizeof(Float3), mesh.vertex_count);
     rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
@@ -192,7 +301,8 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
       mesh->flip = flip;
       mesh->object_to_world = shape.object_to_world;
       mesh->vertex_count = static_cast<std::uint32_t>(m->mesh->positions.size());
-      mesh->instanced = uses[m->mesh.get()] > 1;
+      // A cut-out mesh is never shared: its filter is its own.
+      mesh->instanced = uses[m->mesh.get()] > 1 && !g->alpha_[i];
       const auto& src = *m->mesh;
       for (const Float3& p : src.positions) {
         g->bounds_.extend(to_vec(shape.object_to_world.apply_point({p.x, p.y, p.z})));
@@ -204,7 +314,7 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
           mesh->positions = src.positions;
           mesh->positions.push_back({});
           child = rtcNewScene(dev);
-          attach_triangles(child, *mesh, 0);
+          attach_triangles(child, *mesh, 0, i);
           rtcCommitScene(child);
           g->sub_scenes_.push_back(child);
         } else {
@@ -227,7 +337,7 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
           mesh->normals.push_back({float(w[0]), float(w[1]), float(w[2])});
         }
         mesh->uvs = src.uvs;
-        attach_triangles(g->scene_, *mesh, id);
+        attach_triangles(g->scene_, *mesh, id, i);
       }
       g->meshes_[i] = std::move(mesh);
     } else if (auto* s = std::get_if<scene::SphereShape>(&shape.geometry)) {
@@ -244,6 +354,7 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
         v[0] = v[1] = v[2] = 0.0f;
         v[3] = float(s->radius);
       }
+      add_filter(geom, i, nullptr);
       rtcCommitGeometry(geom);
       rtcAttachGeometryByID(child, geom, 0);
       rtcReleaseGeometry(geom);
@@ -273,6 +384,7 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
       quadric->object_to_world = shape.object_to_world;
       quadric->world_to_object = shape.object_to_world.inverse();
       quadric->flip = flip;
+      if (g->alpha_[i]) quadric->alpha = &g->alpha_[i];
       RTCScene child = rtcNewScene(dev);
       RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_USER);
       rtcSetGeometryUserPrimitiveCount(geom, 1);

@@ -16,6 +16,7 @@
 
 #include <embree3/rtcore.h>
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <vector>
@@ -51,12 +52,21 @@ struct Bounds3f {
   float radius() const { return length(hi - lo) * 0.5f; }
 };
 
+// A shape's alpha (pbrt-v4's `alpha`, a float or a float texture) at a hit's uv and unit
+// geometric normal; empty for opaque shapes.
+using AlphaFunction = std::function<float(const Point2f& uv, const Vec3f& n)>;
+
 class Geometry {
  public:
-  // Builds and commits the scene. Errors: Embree failures (with Embree's message) or shapes
+  // Builds and commits the scene. `alpha` (empty, or one per shape) makes shapes cut-outs:
+  // pbrt-v4's stochastic test, a hit with alpha a < 1 is ignored when a hash of the ray and the
+  // hit distance, uniform in [0, 1), exceeds a (always when a <= 0), for every ray, shadow rays
+  // included. The hash includes the distance so that layers along one ray decide independently,
+  // as pbrt-v4's re-spawned rays do. Errors: Embree failures (with Embree's message) or shapes
   // Prism cannot intersect.
   static absl::StatusOr<std::unique_ptr<Geometry>> build(EmbreeDevice& device,
-                                                         const scene::SceneDescription& scene);
+                                                         const scene::SceneDescription& scene,
+                                                         std::vector<AlphaFunction> alpha = {});
   ~Geometry();
   Geometry(const Geometry&) = delete;
   Geometry& operator=(const Geometry&) = delete;
@@ -88,7 +98,10 @@ class Geometry {
     float radius = 1;
     float height = 0, inner_radius = 0;  // disk
     float z_min = -1, z_max = 1;         // cylinder
+    const AlphaFunction* alpha = nullptr;
   };
+  // What the triangle and sphere filter callbacks read; public for the callbacks only.
+  struct AlphaFilter;
 
  private:
   Geometry() = default;
@@ -107,6 +120,8 @@ class Geometry {
   std::vector<std::unique_ptr<MeshShape>> meshes_;
   std::vector<std::unique_ptr<SphereShape>> spheres_;
   std::vector<std::unique_ptr<QuadricShape>> quadrics_;
+  std::vector<AlphaFunction> alpha_;  // per shape (empty: none)
+  std::vector<std::unique_ptr<AlphaFilter>> filters_;
   Bounds3f bounds_;
   float epsilon_ = 1e-4f;
 };

@@ -131,6 +131,67 @@ TEST(GeometryTest, DisksAndCylindersAreIntersectedExactly) {
   EXPECT_NEAR(dx * dx + dy * dy, 1.0f, 1e-5f);
 }
 
+// pbrt-v4's stochastic alpha: a quad of alpha 0.3 stops 30 % of rays (binomial, 5σ), alpha 0
+// none; two stacked quads of alpha 0.5 let 25 % through, since layers decide independently;
+// shadow rays see the same; a textured alpha is read at the hit's uv.
+TEST(GeometryTest, AlphaCutOutsAreStochasticAndIndependentPerLayer) {
+  EmbreeDevice device;
+  scene::SceneDescription desc;
+  desc.shapes.push_back(quad_shape(5));
+  desc.shapes.push_back(quad_shape(6));
+  desc.shapes.push_back(quad_shape(20));
+  {
+    // Per-vertex uvs, so that u = (x + 1) / 2 over the whole quad.
+    auto mesh = std::make_shared<scene::TriangleMeshData>(
+        *std::get<scene::TriangleMeshShape>(desc.shapes[2].geometry).mesh);
+    mesh->uvs = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+    desc.shapes[2].geometry = scene::TriangleMeshShape{mesh, "test"};
+  }
+  std::vector<AlphaFunction> alpha(3);
+  alpha[0] = [](const Point2f&, const Vec3f&) { return 0.5f; };
+  alpha[1] = [](const Point2f&, const Vec3f&) { return 0.5f; };
+  // The third: 0 where u < 0.5 (x < 0), else 0.3.
+  alpha[2] = [](const Point2f& uv, const Vec3f&) { return uv.x < 0.5f ? 0.0f : 0.3f; };
+  auto geometry = Geometry::build(device, desc, alpha);
+  ASSERT_TRUE(geometry.ok()) << geometry.status();
+  constexpr int kN = 40000;
+  int first = 0, second = 0, through = 0, occluded = 0;
+  for (int i = 0; i < kN; ++i) {
+    // Distinct rays: a jittered grid of origins inside the quads' footprint.
+    const float x = -0.9f + 1.8f * float(i % 200) / 200, y = -0.9f + 1.8f * float(i / 200) / 200;
+    auto hit = (*geometry)->intersect({{x, y, 0}, {0, 0, 1}}, 10.0f);
+    if (!hit) {
+      ++through;
+    } else if (hit->shape == 0) {
+      ++first;
+    } else {
+      ++second;
+    }
+    if ((*geometry)->occluded({{x, y, 0}, {0, 0, 1}}, 10.0f)) ++occluded;
+  }
+  auto expect_fraction = [&](int count, double p, const char* what) {
+    EXPECT_NEAR(double(count) / kN, p, 5 * std::sqrt(p * (1 - p) / kN)) << what;
+  };
+  expect_fraction(first, 0.5, "first layer");
+  expect_fraction(second, 0.25, "second layer");
+  expect_fraction(through, 0.25, "through both");
+  EXPECT_EQ(occluded, first + second);  // the same hash decides shadow rays
+
+  // Behind, the textured quad: rays through its u < 0.5 half always pass; the rest stop at 0.3.
+  int stopped_left = 0, stopped_right = 0, left = 0, right = 0;
+  for (int i = 0; i < kN; ++i) {
+    const float x = -0.9f + 1.8f * float(i % 200) / 200, y = -0.9f + 1.8f * float(i / 200) / 200;
+    auto hit = (*geometry)->intersect({{x, y, 10}, {0, 0, 1}}, 1e30f);
+    const bool stopped = hit && hit->shape == 2;
+    const bool on_left = (x + 1) / 2 < 0.5f;
+    (on_left ? left : right)++;
+    if (stopped) (on_left ? stopped_left : stopped_right)++;
+  }
+  EXPECT_EQ(stopped_left, 0);
+  EXPECT_NEAR(double(stopped_right) / right, 0.3, 5 * std::sqrt(0.21 / right));
+  EXPECT_GT(left, 0);
+}
+
 TEST(GeometryTest, SharedMeshIsInstanced) {
   EmbreeDevice device;
   scene::SceneDescription desc;

@@ -56,6 +56,10 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
   light.two_sided_ = shape.area_light && shape.area_light->two_sided;
   if (auto status = check_scale(scale, light.where_); !status.ok()) return status;
 
+  if (shape.alpha < 1.0 || shape.alpha_texture >= 0) {
+    return scene::location_error(shape.where,
+                                 "an area light with an 'alpha' cut-out is not supported yet");
+  }
   if (std::holds_alternative<scene::CylinderShape>(shape.geometry)) {
     return scene::location_error(
         shape.where, "a cylinder used as an area light is not supported yet; model it as a mesh");

@@ -231,13 +231,26 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
   rs->cmf_ = std::make_unique<spectral::ColorMatching>(spectral::ColorMatching::cie1931());
   const spectral::RgbUplift uplift(*rs->cmf_);
 
-  PRISM_ASSIGN_OR_RETURN(rs->geometry_, Geometry::build(device, scene));
+  PRISM_ASSIGN_OR_RETURN(const std::vector<TexturePtr> textures,
+                         Texture::resolve_all(scene, library, uplift));
+  std::vector<AlphaFunction> alpha(scene.shapes.size());
+  for (size_t i = 0; i < scene.shapes.size(); ++i) {
+    const scene::Shape& shape = scene.shapes[i];
+    if (shape.alpha_texture >= 0) {
+      TexturePtr texture = textures[size_t(shape.alpha_texture)];
+      alpha[i] = [texture](const Point2f& uv, const Vec3f& n) {
+        return texture->value(TextureContext{uv, n});
+      };
+    } else if (shape.alpha < 1.0) {
+      const float a = float(shape.alpha);
+      alpha[i] = [a](const Point2f&, const Vec3f&) { return a; };
+    }
+  }
+  PRISM_ASSIGN_OR_RETURN(rs->geometry_, Geometry::build(device, scene, std::move(alpha)));
   PRISM_ASSIGN_OR_RETURN(rs->camera_, Camera::create(scene.camera, width, height));
   PRISM_ASSIGN_OR_RETURN(PixelFilter filter, PixelFilter::create(scene.filter));
   rs->pixel_filter_ = std::make_unique<PixelFilter>(std::move(filter));
 
-  PRISM_ASSIGN_OR_RETURN(const std::vector<TexturePtr> textures,
-                         Texture::resolve_all(scene, library, uplift));
   rs->materials_.reserve(scene.materials.size());
   for (const scene::Material& m : scene.materials) {
     PRISM_ASSIGN_OR_RETURN(Material material, resolve_material(m, library, uplift, textures));

@@ -491,8 +491,9 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
   } else if (name == "Shape") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
-    PRISM_ASSIGN_OR_RETURN(ShapeGeometry geometry, make_shape_geometry(td.first, td.second, ctx_));
     Shape shape;
+    PRISM_RETURN_IF_ERROR(read_shape_alpha(td.second, ctx_, &shape.alpha, &shape.alpha_texture));
+    PRISM_ASSIGN_OR_RETURN(ShapeGeometry geometry, make_shape_geometry(td.first, td.second, ctx_));
     shape.geometry = std::move(geometry);
     shape.object_to_world = state_.ctm;
     shape.transform_swaps_handedness = state_.ctm.swaps_handedness();

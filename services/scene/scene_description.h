@@ -261,6 +261,10 @@ struct Shape {
   int material = 0;  // index into SceneDescription::materials
   std::optional<AreaLight> area_light;
   MediumInterface media;
+  // pbrt-v4's `alpha` cut-out: a constant (1: opaque) or a float texture (index into
+  // SceneDescription::textures) at the hit's uv.
+  double alpha = 1.0;
+  int alpha_texture = -1;
   SourceLocation where;
 };
 

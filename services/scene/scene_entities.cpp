@@ -901,10 +901,17 @@ absl::StatusOr<Medium> make_medium(const TypeName& type, const ParameterList& pa
   return m;
 }
 
+absl::Status read_shape_alpha(const ParameterList& params, const EntityContext& ctx, double* alpha,
+                              int* alpha_texture) {
+  PRISM_RETURN_IF_ERROR(read_float_slot(params, "alpha", ctx, alpha, alpha_texture));
+  if (*alpha_texture < 0)
+    PRISM_RETURN_IF_ERROR(check_range(params, "alpha", *alpha, 0.0, 1.0, "in [0, 1]"));
+  return absl::OkStatus();
+}
+
 absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const ParameterList& params,
                                                   const EntityContext& ctx) {
   ShapeGeometry geometry;
-  PRISM_RETURN_IF_ERROR(params.refuse("alpha", "alpha masks are not supported"));
   PRISM_RETURN_IF_ERROR(params.refuse("emissionfilename", "image area lights are not supported"));
   if (type.name == "trianglemesh" || type.name == "bilinearmesh") {
     PRISM_RETURN_IF_ERROR(params.refuse("S", "per-vertex tangents are not supported"));

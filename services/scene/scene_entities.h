@@ -77,6 +77,9 @@ absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
                                          const EntityContext& ctx);
 absl::StatusOr<Medium> make_medium(const TypeName& type, const ParameterList& params,
                                    const EntityContext& ctx);
+// A shape's `alpha` (float in [0, 1] or a float texture); leaves the defaults when absent.
+absl::Status read_shape_alpha(const ParameterList& params, const EntityContext& ctx, double* alpha,
+                              int* alpha_texture);
 absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const ParameterList& params,
                                                   const EntityContext& ctx);
 
