@@ -6,6 +6,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "services/base/check.h"
+#include "worker/equal_area.h"
 
 namespace prism::worker {
 namespace {
@@ -300,7 +301,33 @@ absl::StatusOr<PointLight> PointLight::create(const scene::Light& light,
   l.spectrum_ = std::move(spectrum);
   l.scale_ = scale;
   l.where_ = light.where;
+  if (point->goniometric) {
+    l.image_ = point->goniometric;
+    double sum = 0;
+    for (float v : l.image_->values) sum += std::max(0.0f, v);
+    l.mean_modulation_ = sum / double(l.image_->values.size());
+    // Light space from world (the rotation part of the light's frame), then pbrt-v4's y <-> z.
+    const scene::Matrix4& inv = light.light_to_world.inverse_matrix();
+    for (int c = 0; c < 3; ++c) {
+      l.light_from_world_[0][c] = float(inv[0][c]);
+      l.light_from_world_[1][c] = float(inv[2][c]);
+      l.light_from_world_[2][c] = float(inv[1][c]);
+    }
+  }
   return l;
+}
+
+float PointLight::modulation(const Vec3f& w) const {
+  if (!image_) return 1.0f;
+  const auto& m = light_from_world_;
+  const Vec3f local = normalize(Vec3f(m[0][0] * w.x + m[0][1] * w.y + m[0][2] * w.z,
+                                      m[1][0] * w.x + m[1][1] * w.y + m[1][2] * w.z,
+                                      m[2][0] * w.x + m[2][1] * w.y + m[2][2] * w.z));
+  const Point2f uv = equal_area_sphere_to_square(local);
+  const int n = image_->width;
+  const int x = std::clamp(int(uv.x * float(n)), 0, n - 1);
+  const int y = std::clamp(int(uv.y * float(n)), 0, n - 1);
+  return std::max(0.0f, image_->values[size_t(y) * size_t(n) + size_t(x)]);
 }
 
 std::optional<LightSample> PointLight::sample(const LightContext& ctx,
@@ -310,8 +337,8 @@ std::optional<LightSample> PointLight::sample(const LightContext& ctx,
   if (!(dist2 > 0)) return std::nullopt;
   float dist = std::sqrt(dist2);
   LightSample s;
-  s.radiance = scaled(spectrum_, scale_, lambda) / dist2;
   s.wi = d / dist;
+  s.radiance = scaled(spectrum_, scale_, lambda) * (modulation(-s.wi) / dist2);
   s.distance = dist;
   s.p_light = position_;
   s.pdf = 1;
@@ -493,7 +520,7 @@ double light_power(const Light& light) {
         if constexpr (std::is_same_v<T, AreaLight>) {
           return emitted * M_PI * l.area() * (l.two_sided() ? 2.0 : 1.0);
         } else if constexpr (std::is_same_v<T, PointLight>) {
-          return emitted * 4 * M_PI;
+          return emitted * 4 * M_PI * l.mean_modulation();
         } else if constexpr (std::is_same_v<T, SpotLight>) {
           return emitted * 4 * M_PI * l.power_factor();
         } else if constexpr (std::is_same_v<T, DistantLight>) {

@@ -102,6 +102,8 @@ class AreaLight {
   Vec3f disk_normal_;  // world, after the orientation rule: the side it emits to
 };
 
+// A point light, or pbrt-v4's goniometric light: the intensity times a grey equal-area image
+// looked up (nearest texel) at the light-space direction with y and z swapped.
 class PointLight {
  public:
   static absl::StatusOr<PointLight> create(const scene::Light& light, spectral::Spectrum spectrum,
@@ -112,12 +114,20 @@ class PointLight {
   double scale() const { return scale_; }
   Vec3f position() const { return position_; }
   const scene::SourceLocation& where() const { return where_; }
+  // The goniometric factor towards world direction w (unit, away from the light); 1 without an
+  // image.
+  float modulation(const Vec3f& w) const;
+  // Its mean over the sphere (every texel covers the same solid angle): 1 without an image.
+  double mean_modulation() const { return mean_modulation_; }
 
  private:
   Vec3f position_;
   spectral::Spectrum spectrum_;
   double scale_ = 1;
   scene::SourceLocation where_;
+  std::shared_ptr<const scene::TextureImage> image_;
+  float light_from_world_[3][3] = {};
+  double mean_modulation_ = 1;
 };
 
 class SpotLight {

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "services/spectral/testing/chi_square.h"
+#include "worker/equal_area.h"
 #include "worker/light_sampler.h"
 
 namespace prism::worker {
@@ -539,6 +540,49 @@ TEST(PointSpotInfiniteTest, PointLightIsInverseSquare) {
   ASSERT_TRUE(t);
   EXPECT_NEAR(t->radiance[0] * dot(t->wi, Vec3f(0, 0, 1)), 6.0 * 0.8 / 25.0, 1e-6);
   EXPECT_NEAR(light_power(Light(*light)), 6.0 * 470 * 4 * M_PI, 1e-2);
+}
+
+// pbrt-v4's goniometric light: a point light times its equal-area image at the light-space
+// direction with y and z swapped, so the image's centre (+z of the square) is light-space +y.
+// An image bright (1) on that hemisphere and dim (0.25) on the other, under a 90° rotation
+// about z (light +y becomes world −x): intensity 1 towards −x, 0.25 towards +x; its power
+// integrates the image over the sphere.
+TEST(PointSpotInfiniteTest, GoniometricLightFollowsItsImage) {
+  auto image = std::make_shared<scene::TextureImage>();
+  constexpr int kN = 16;
+  image->width = image->height = kN;
+  image->channels = 1;
+  for (int y = 0; y < kN; ++y) {
+    for (int x = 0; x < kN; ++x) {
+      const Vec3f d = equal_area_square_to_sphere({(x + 0.5f) / kN, (y + 0.5f) / kN});
+      image->values.push_back(d.z > 0 ? 1.0f : 0.25f);
+    }
+  }
+  scene::PointLight point;
+  point.goniometric = image;
+  scene::Light desc;
+  desc.light_to_world = *scene::Transform::rotate(90, {0, 0, 1});
+  point.position_world = {0, 0, 0};
+  desc.kind = point;
+  desc.where = at(41);
+  auto light = PointLight::create(desc, spectral::ConstantSpectrum{2}, 1.5);
+  ASSERT_TRUE(light.ok()) << light.status();
+  SampledWavelengths lambda = lanes({550});
+  auto towards = [&](Vec3f p) {
+    auto s = light->sample({p, {}}, lambda);
+    EXPECT_TRUE(s.has_value());
+    return s ? s->radiance[0] * length_squared(p) : 0.0f;
+  };
+  EXPECT_NEAR(towards({-4, 0, 0}), 3.0f, 1e-5f);
+  EXPECT_NEAR(towards({4, 0, 0}), 0.75f, 1e-5f);
+  // Every texel covers 4π/N² sr: the mean is the image's mean (texels on the diamond |u|+|v| = 1
+  // have z = 0 and count as dim).
+  double mean = 0;
+  for (float v : image->values) mean += v;
+  mean /= kN * kN;
+  EXPECT_NEAR(light->mean_modulation(), mean, 1e-9);
+  const double emitted = 2 * 1.5 * 470;
+  EXPECT_NEAR(light_power(Light(*light)), emitted * 4 * M_PI * mean, 1e-6 * emitted);
 }
 
 TEST(PointSpotInfiniteTest, SpotFalloffIsPbrtSmoothStep) {

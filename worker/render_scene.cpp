@@ -73,7 +73,21 @@ absl::StatusOr<Light> make_light(const scene::Light& light, const Geometry& geom
     PRISM_RETURN_IF_ERROR(check_target(p->power, "power", light.where));
     PRISM_ASSIGN_OR_RETURN(
         Emission e, emission(param, p->scale, light.where, "point light I", library, uplift, cmf));
-    if (p->power) e.scale *= *p->power / (4.0 * kPiD);
+    // pbrt-v4: a goniometric light's power integrates its image over the sphere.
+    if (p->power) {
+      double mean = 1;
+      if (p->goniometric) {
+        double sum = 0;
+        for (float v : p->goniometric->values) sum += std::max(0.0f, v);
+        mean = sum / double(p->goniometric->values.size());
+        if (!(mean > 0)) {
+          return scene::location_error(light.where,
+                                       "a goniometric light with a black image cannot reach a "
+                                       "\"power\"");
+        }
+      }
+      e.scale *= *p->power / (4.0 * kPiD * mean);
+    }
     PRISM_ASSIGN_OR_RETURN(PointLight l, PointLight::create(light, std::move(e.spectrum), e.scale));
     return Light(std::move(l));
   }

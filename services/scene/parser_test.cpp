@@ -261,6 +261,14 @@ TEST(GoodScenes, TexturesCoatedMaterialsAndDisks) {
   EXPECT_DOUBLE_EQ(conductor.roughness.v, 0.3);
   const auto& mix = std::get<MixMaterial>(s.materials[size_t(s.shapes[3].material)].kind);
   EXPECT_EQ(s.textures[size_t(mix.amount_texture)].name, "half");
+  // A goniometric light is a point light with a grey image (8-bit sRGB decoded).
+  ASSERT_EQ(s.lights.size(), 1u);
+  const auto& gonio = std::get<PointLight>(s.lights[0].kind);
+  ASSERT_NE(gonio.goniometric, nullptr);
+  EXPECT_EQ(gonio.filename, "textures/grey.png");
+  EXPECT_FLOAT_EQ(gonio.goniometric->values[0],
+                  float(std::pow((64 / 255.0 + 0.055) / 1.055, 2.4)));
+  EXPECT_EQ(gonio.power, std::optional<double>(10));
   // Images are scene files: a bundle must carry them.
   EXPECT_EQ(s.files,
             (std::vector<std::string>{"textures.pbrt", "textures/quad.png", "textures/grey.png"}));

@@ -268,11 +268,16 @@ struct Shape {
   SourceLocation where;
 };
 
+// Also pbrt-v4's `goniometric` light: a point light whose intensity is modulated by a grey
+// equal-area octahedral image over the directions of light space with y and z swapped (pbrt-v4
+// maps the image's centre, +z of the square, to light-space +y); RGB images are averaged to grey.
 struct PointLight {
   SpectrumParam intensity = SpectrumNamed{kDefaultIlluminant};  // pbrt `I`
   double scale = 1.0;
   std::optional<double> power;
   Vec3 position_world{};  // light_to_world applied to the origin
+  std::shared_ptr<const TextureImage> goniometric;  // grey, square; null for a plain point
+  std::string filename;
 };
 
 struct SpotLight {

@@ -786,6 +786,41 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     light.light_to_world = ctm * Transform::translate(from);
     p.position_world = light.light_to_world.apply_point({0, 0, 0});
     light.kind = std::move(p);
+  } else if (type.name == "goniometric") {
+    PointLight p;
+    PRISM_ASSIGN_OR_RETURN(p.intensity, spectrum_or(params, "I", SpectrumRole::kIlluminant, ctx,
+                                                    SpectrumNamed{kDefaultIlluminant}));
+    PRISM_ASSIGN_OR_RETURN(p.scale, params.get_float("scale", 1.0));
+    PRISM_ASSIGN_OR_RETURN(p.power, positive_optional(params, "power"));
+    PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
+    if (!filename || filename->empty())
+      return location_error(type.where, "goniometric light needs a 'string filename'");
+    if (!ctx.load_image) return location_error(type.where, "images cannot be read here");
+    PRISM_ASSIGN_OR_RETURN(EntityContext::LoadedImage loaded,
+                           ctx.load_image(*filename, params.find("filename")->where));
+    if (loaded.image->width != loaded.image->height)
+      return param_error(
+          params, "filename",
+          absl::StrCat("\"", loaded.relpath, "\" is ", loaded.image->width, "x",
+                       loaded.image->height, "; a goniometric (equal-area) image must be square"));
+    auto grey = std::make_shared<TextureImage>();
+    grey->width = loaded.image->width;
+    grey->height = loaded.image->height;
+    grey->channels = 1;
+    const int c = loaded.image->channels;
+    for (size_t i = 0; i < loaded.image->values.size(); i += size_t(c)) {
+      double sum = 0;
+      for (int k = 0; k < c; ++k) {
+        const double v = loaded.image->values[i + size_t(k)];
+        sum += loaded.eight_bit ? srgb_to_linear(v) : v;
+      }
+      grey->values.push_back(float(sum / c));
+    }
+    p.goniometric = std::move(grey);
+    p.filename = loaded.relpath;
+    light.light_to_world = ctm;
+    p.position_world = light.light_to_world.apply_point({0, 0, 0});
+    light.kind = std::move(p);
   } else if (type.name == "spot") {
     SpotLight s;
     PRISM_ASSIGN_OR_RETURN(s.intensity, spectrum_or(params, "I", SpectrumRole::kIlluminant, ctx,
@@ -857,7 +892,7 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     d.direction_world = normalize(world);
     light.kind = std::move(d);
   } else {
-    return unsupported_type(type, "light", {"distant", "infinite", "point", "spot"});
+    return unsupported_type(type, "light", {"distant", "goniometric", "infinite", "point", "spot"});
   }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return light;
