@@ -291,8 +291,43 @@ SampledSpectrum AreaLight::radiance(const Vec3f& n, const Vec3f& w,
   return scaled(spectrum_, scale_, lambda);
 }
 
+absl::StatusOr<std::shared_ptr<const ProjectionImage>> ProjectionImage::create(
+    const scene::TextureImage& image, double fov_deg, const spectral::RgbUplift& uplift) {
+  auto out = std::make_shared<ProjectionImage>();
+  out->width = image.width;
+  out->height = image.height;
+  const size_t texels = size_t(image.width) * size_t(image.height);
+  out->scale.resize(texels);
+  out->polynomial.resize(texels);
+  double sum[3] = {0, 0, 0};
+  for (size_t i = 0; i < texels; ++i) {
+    float rgb[3];
+    for (int c = 0; c < 3; ++c) {
+      const int channel = image.channels == 1 ? 0 : c;
+      rgb[c] = std::max(0.0f, image.values[i * size_t(image.channels) + size_t(channel)]);
+      sum[c] += rgb[c];
+    }
+    auto s = uplift.illuminant({rgb[0], rgb[1], rgb[2]});
+    if (!s.ok()) return s.status();
+    if (!out->illuminant) out->illuminant = s->illuminant;
+    out->scale[i] = s->scale;
+    out->polynomial[i] = s->polynomial;
+  }
+  out->mean = {sum[0] / double(texels), sum[1] / double(texels), sum[2] / double(texels)};
+  const double aspect = double(image.width) / double(image.height);
+  out->x_max = float(aspect > 1 ? aspect : 1.0);
+  out->y_max = float(aspect > 1 ? 1.0 : 1.0 / aspect);
+  out->tan_half = float(std::tan(fov_deg * M_PI / 360.0));
+  // A rectangular pyramid of half-angles α, β covers 4·asin(sin α · sin β) sr.
+  const double alpha = std::atan(double(out->x_max) * out->tan_half);
+  const double beta = std::atan(double(out->y_max) * out->tan_half);
+  out->solid_angle_fraction = 4 * std::asin(std::sin(alpha) * std::sin(beta)) / (4 * M_PI);
+  return std::shared_ptr<const ProjectionImage>(std::move(out));
+}
+
 absl::StatusOr<PointLight> PointLight::create(const scene::Light& light,
-                                              spectral::Spectrum spectrum, double scale) {
+                                              spectral::Spectrum spectrum, double scale,
+                                              std::shared_ptr<const ProjectionImage> projection) {
   const auto* point = std::get_if<scene::PointLight>(&light.kind);
   PRISM_CHECK(point != nullptr);
   if (auto status = check_scale(scale, light.where); !status.ok()) return status;
@@ -301,20 +336,52 @@ absl::StatusOr<PointLight> PointLight::create(const scene::Light& light,
   l.spectrum_ = std::move(spectrum);
   l.scale_ = scale;
   l.where_ = light.where;
+  const scene::Matrix4& inverse = light.light_to_world.inverse_matrix();
+  if (projection) {
+    l.projection_ = std::move(projection);
+    l.mean_modulation_ = l.projection_->solid_angle_fraction;
+    // pbrt-v4 flips light-space y before projecting.
+    for (int c = 0; c < 3; ++c) {
+      l.light_from_world_[0][c] = float(inverse[0][c]);
+      l.light_from_world_[1][c] = -float(inverse[1][c]);
+      l.light_from_world_[2][c] = float(inverse[2][c]);
+    }
+  }
   if (point->goniometric) {
     l.image_ = point->goniometric;
     double sum = 0;
     for (float v : l.image_->values) sum += std::max(0.0f, v);
     l.mean_modulation_ = sum / double(l.image_->values.size());
     // Light space from world (the rotation part of the light's frame), then pbrt-v4's y <-> z.
-    const scene::Matrix4& inv = light.light_to_world.inverse_matrix();
     for (int c = 0; c < 3; ++c) {
-      l.light_from_world_[0][c] = float(inv[0][c]);
-      l.light_from_world_[1][c] = float(inv[2][c]);
-      l.light_from_world_[2][c] = float(inv[1][c]);
+      l.light_from_world_[0][c] = float(inverse[0][c]);
+      l.light_from_world_[1][c] = float(inverse[2][c]);
+      l.light_from_world_[2][c] = float(inverse[1][c]);
     }
   }
   return l;
+}
+
+SampledSpectrum PointLight::projected(const Vec3f& w, const SampledWavelengths& lambda) const {
+  SampledSpectrum out;
+  const auto& m = light_from_world_;
+  const Vec3f local(m[0][0] * w.x + m[0][1] * w.y + m[0][2] * w.z,
+                    m[1][0] * w.x + m[1][1] * w.y + m[1][2] * w.z,
+                    m[2][0] * w.x + m[2][1] * w.y + m[2][2] * w.z);
+  const ProjectionImage& p = *projection_;
+  if (!(local.z > 0)) return out;
+  const float sx = local.x / (local.z * p.tan_half), sy = local.y / (local.z * p.tan_half);
+  if (std::abs(sx) > p.x_max || std::abs(sy) > p.y_max) return out;
+  const float u = (sx + p.x_max) / (2 * p.x_max), v = (sy + p.y_max) / (2 * p.y_max);
+  const int x = std::clamp(int(u * float(p.width)), 0, p.width - 1);
+  const int y = std::clamp(int(v * float(p.height)), 0, p.height - 1);
+  const size_t texel = size_t(y) * size_t(p.width) + size_t(x);
+  if (p.scale[texel] == 0) return out;
+  for (int s = 0; s < lambda.count(); ++s) {
+    const float l = lambda.lambda(s);
+    out[s] = float(scale_) * p.scale[texel] * p.polynomial[texel](l) * (*p.illuminant)(l);
+  }
+  return out;
 }
 
 float PointLight::modulation(const Vec3f& w) const {
@@ -338,7 +405,11 @@ std::optional<LightSample> PointLight::sample(const LightContext& ctx,
   float dist = std::sqrt(dist2);
   LightSample s;
   s.wi = d / dist;
-  s.radiance = scaled(spectrum_, scale_, lambda) * (modulation(-s.wi) / dist2);
+  if (projection_) {
+    s.radiance = projected(-s.wi, lambda) / dist2;
+  } else {
+    s.radiance = scaled(spectrum_, scale_, lambda) * (modulation(-s.wi) / dist2);
+  }
   s.distance = dist;
   s.p_light = position_;
   s.pdf = 1;

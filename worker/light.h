@@ -102,12 +102,31 @@ class AreaLight {
   Vec3f disk_normal_;  // world, after the orientation rule: the side it emits to
 };
 
+// pbrt-v4's projection-light image: per texel an RGB illuminant m·s(λ)·D65(λ) (RgbUplift), and
+// the frustum: directions with light-space z > 0 whose perspective projection (x, y)/(z·tan(fov/2))
+// falls in [−x_max, x_max] × [−y_max, y_max] (the image's aspect; the shorter axis spans ±1).
+struct ProjectionImage {
+  int width = 0, height = 0;
+  std::vector<float> scale;
+  std::vector<spectral::SigmoidPolynomial> polynomial;
+  std::shared_ptr<const spectral::PiecewiseLinearSpectrum> illuminant;
+  float tan_half = 1, x_max = 1, y_max = 1;
+  spectral::Rgb mean;               // over the texels
+  double solid_angle_fraction = 0;  // of the sphere the frustum covers
+
+  static absl::StatusOr<std::shared_ptr<const ProjectionImage>> create(
+      const scene::TextureImage& image, double fov_deg, const spectral::RgbUplift& uplift);
+};
+
 // A point light, or pbrt-v4's goniometric light: the intensity times a grey equal-area image
-// looked up (nearest texel) at the light-space direction with y and z swapped.
+// looked up (nearest texel) at the light-space direction with y and z swapped, or its projection
+// light: the nearest texel's RGB illuminant of a ProjectionImage (light-space y flipped, as
+// pbrt-v4), 0 outside the frustum.
 class PointLight {
  public:
   static absl::StatusOr<PointLight> create(const scene::Light& light, spectral::Spectrum spectrum,
-                                           double scale);
+                                           double scale,
+                                           std::shared_ptr<const ProjectionImage> projection = {});
   std::optional<LightSample> sample(const LightContext& ctx,
                                     const SampledWavelengths& lambda) const;
   const spectral::Spectrum& spectrum() const { return spectrum_; }
@@ -117,8 +136,12 @@ class PointLight {
   // The goniometric factor towards world direction w (unit, away from the light); 1 without an
   // image.
   float modulation(const Vec3f& w) const;
-  // Its mean over the sphere (every texel covers the same solid angle): 1 without an image.
+  // Its mean over the sphere (every texel covers the same solid angle): 1 without an image; for
+  // a projection light the fraction of the sphere its frustum covers (its spectrum is then the
+  // image's mean colour).
   double mean_modulation() const { return mean_modulation_; }
+  // A projection light's intensity towards world direction w (unit, away from the light).
+  SampledSpectrum projected(const Vec3f& w, const SampledWavelengths& lambda) const;
 
  private:
   Vec3f position_;
@@ -126,6 +149,7 @@ class PointLight {
   double scale_ = 1;
   scene::SourceLocation where_;
   std::shared_ptr<const scene::TextureImage> image_;
+  std::shared_ptr<const ProjectionImage> projection_;
   float light_from_world_[3][3] = {};
   double mean_modulation_ = 1;
 };

@@ -585,6 +585,60 @@ TEST(PointSpotInfiniteTest, GoniometricLightFollowsItsImage) {
   EXPECT_NEAR(light_power(Light(*light)), emitted * 4 * M_PI * mean, 1e-6 * emitted);
 }
 
+// pbrt-v4's projection light: an image through a perspective frustum along light +z, the image's
+// top towards light +y (pbrt-v4 flips y), each texel an RGB illuminant, nothing outside the
+// frustum or behind the light.
+TEST(PointSpotInfiniteTest, ProjectionLightProjectsItsImage) {
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  const spectral::RgbUplift uplift(cmf);
+  auto light_for = [&](int w, int h, std::vector<float> rgb) {
+    scene::TextureImage image;
+    image.width = w;
+    image.height = h;
+    image.channels = 3;
+    image.values = std::move(rgb);
+    auto projection = ProjectionImage::create(image, 60, uplift);
+    EXPECT_TRUE(projection.ok());
+    scene::PointLight point;
+    scene::Light desc;
+    desc.kind = point;
+    desc.where = at(43);
+    auto l = PointLight::create(desc, spectral::ConstantSpectrum{1}, 2.0, *projection);
+    EXPECT_TRUE(l.ok());
+    return *l;
+  };
+  SampledWavelengths lambda = lanes({450, 550, 650});
+  auto expect_texel = [&](const PointLight& l, Vec3f p, std::optional<spectral::Rgb> rgb,
+                          const char* what) {
+    auto s = l.sample({p, {}}, lambda);
+    ASSERT_TRUE(s.has_value()) << what;
+    for (int k = 0; k < 3; ++k) {
+      float want = 0;
+      if (rgb) {
+        auto illuminant = uplift.illuminant(*rgb);
+        ASSERT_TRUE(illuminant.ok());
+        want = 2.0f * (*illuminant)(lambda.lambda(k)) / length_squared(p);
+      }
+      EXPECT_NEAR(s->radiance[k], want, 1e-5f * (1 + want)) << what << " lane " << k;
+    }
+  };
+  // 2x1, red | blue, fov 60 (the shorter, vertical axis): x spans ±2·tan 30°·z.
+  PointLight wide = light_for(2, 1, {1, 0, 0, 0, 0, 1});
+  expect_texel(wide, {-0.5f, 0, 1}, spectral::Rgb{1, 0, 0}, "left");
+  expect_texel(wide, {0.5f, 0.2f, 1}, spectral::Rgb{0, 0, 1}, "right");
+  expect_texel(wide, {1.3f, 0, 1}, std::nullopt, "beyond the side (tan > 2 tan 30°)");
+  expect_texel(wide, {0, 0.7f, 1}, std::nullopt, "beyond the top (tan > tan 30°)");
+  expect_texel(wide, {0, 0, -1}, std::nullopt, "behind");
+  // 1x2, green over white: the file's top row towards +y.
+  PointLight tall = light_for(1, 2, {0, 1, 0, 1, 1, 1});
+  expect_texel(tall, {0, 0.3f, 1}, spectral::Rgb{0, 1, 0}, "up");
+  expect_texel(tall, {0, -0.3f, 1}, spectral::Rgb{1, 1, 1}, "down");
+  // Its power for emitter selection counts the frustum's solid angle: 4·asin(sin α·sin β).
+  const double alpha = std::atan(std::tan(M_PI / 6)), beta = std::atan(2 * std::tan(M_PI / 6));
+  // (tan(fov/2) is kept as a float: agreement to float precision.)
+  EXPECT_NEAR(tall.mean_modulation(), std::asin(std::sin(alpha) * std::sin(beta)) / M_PI, 1e-7);
+}
+
 TEST(PointSpotInfiniteTest, SpotFalloffIsPbrtSmoothStep) {
   scene::Light desc = spot_desc({0, 0, 0}, {0, 0, 1}, 30, 10, 31);
   auto light = SpotLight::create(desc, spectral::ConstantSpectrum{1}, 1.0);

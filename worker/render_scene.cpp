@@ -69,6 +69,22 @@ absl::StatusOr<Light> make_light(const scene::Light& light, const Geometry& geom
                                  const spectral::RgbUplift& uplift,
                                  const spectral::ColorMatching& cmf) {
   const scene::SpectrumParam& param = scene::emission_spectrum(light);
+  if (const auto* p = std::get_if<scene::PointLight>(&light.kind); p && p->projection) {
+    // Texels are RGB illuminants normalised by D65's photometric integral, as pbrt-v4 does; the
+    // light's spectrum is its mean colour's, for power and spectral sampling.
+    auto image = ProjectionImage::create(*p->projection, p->fov_deg, uplift);
+    if (!image.ok()) {
+      return scene::location_error(light.where, absl::StrCat("projection light \"", p->filename,
+                                                             "\": ", image.status().message()));
+    }
+    const spectral::Rgb mean = (*image)->mean;
+    PRISM_ASSIGN_OR_RETURN(
+        Emission e, emission(scene::SpectrumRgb{mean.r, mean.g, mean.b}, p->scale, light.where,
+                             "projection light image", library, uplift, cmf));
+    PRISM_ASSIGN_OR_RETURN(
+        PointLight l, PointLight::create(light, std::move(e.spectrum), e.scale, *std::move(image)));
+    return Light(std::move(l));
+  }
   if (const auto* p = std::get_if<scene::PointLight>(&light.kind)) {
     PRISM_RETURN_IF_ERROR(check_target(p->power, "power", light.where));
     PRISM_ASSIGN_OR_RETURN(

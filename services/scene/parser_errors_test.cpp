@@ -80,8 +80,8 @@ const BadCase kBadCases[] = {
      "coatedconductor, coateddiffuse, conductor, dielectric, diffuse, diffusetransmission, "
      "interface, mix, thindielectric)"},
     {"unknown_light.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_light.pbrt:2:13: unsupported light type \"projection\" (supported: distant, "
-     "goniometric, infinite, point, spot)"},
+     "unknown_light.pbrt:2:13: unsupported light type \"portal\" (supported: distant, "
+     "goniometric, infinite, point, projection, spot)"},
     {"unknown_camera.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_camera.pbrt:1:8: unsupported camera type \"realistic\" (supported: orthographic, "
      "perspective, spherical)"},

@@ -278,6 +278,10 @@ struct PointLight {
   Vec3 position_world{};  // light_to_world applied to the origin
   std::shared_ptr<const TextureImage> goniometric;  // grey, square; null for a plain point
   std::string filename;
+  // pbrt-v4's `projection` light: an RGB image projected through a perspective frustum of
+  // `fov` degrees (the shorter image axis) along light-space +z; `intensity` is then unused.
+  std::shared_ptr<const TextureImage> projection;  // linear RGB
+  double fov_deg = 90.0;
 };
 
 struct SpotLight {

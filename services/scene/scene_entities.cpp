@@ -821,6 +821,30 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     light.light_to_world = ctm;
     p.position_world = light.light_to_world.apply_point({0, 0, 0});
     light.kind = std::move(p);
+  } else if (type.name == "projection") {
+    PointLight p;
+    PRISM_ASSIGN_OR_RETURN(p.scale, params.get_float("scale", 1.0));
+    PRISM_RETURN_IF_ERROR(
+        params.refuse("power", "is not supported on projection lights yet; use 'scale'"));
+    PRISM_ASSIGN_OR_RETURN(p.fov_deg, params.get_float("fov", 90.0));
+    PRISM_RETURN_IF_ERROR(check_range(params, "fov", p.fov_deg, 1e-3, 179.9, "in (0, 180)"));
+    PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
+    if (!filename || filename->empty())
+      return location_error(type.where, "projection light needs a 'string filename'");
+    if (!ctx.load_image) return location_error(type.where, "images cannot be read here");
+    PRISM_ASSIGN_OR_RETURN(EntityContext::LoadedImage loaded,
+                           ctx.load_image(*filename, params.find("filename")->where));
+    if (loaded.eight_bit) {
+      auto decoded = std::make_shared<TextureImage>(*loaded.image);
+      for (float& v : decoded->values) v = float(srgb_to_linear(double(v)));
+      p.projection = std::move(decoded);
+    } else {
+      p.projection = loaded.image;
+    }
+    p.filename = loaded.relpath;
+    light.light_to_world = ctm;
+    p.position_world = light.light_to_world.apply_point({0, 0, 0});
+    light.kind = std::move(p);
   } else if (type.name == "spot") {
     SpotLight s;
     PRISM_ASSIGN_OR_RETURN(s.intensity, spectrum_or(params, "I", SpectrumRole::kIlluminant, ctx,
@@ -892,7 +916,8 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     d.direction_world = normalize(world);
     light.kind = std::move(d);
   } else {
-    return unsupported_type(type, "light", {"distant", "goniometric", "infinite", "point", "spot"});
+    return unsupported_type(type, "light",
+                            {"distant", "goniometric", "infinite", "point", "projection", "spot"});
   }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return light;
