@@ -9,19 +9,13 @@
 
 namespace prism::worker {
 
-absl::StatusOr<std::shared_ptr<const EnvironmentMap>> EnvironmentMap::create(
-    const scene::TextureImage& image, const scene::Transform& light_to_world,
-    const spectral::RgbUplift& uplift) {
-  if (image.width != image.height || image.width < 1) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("environment map is ", image.width, "x", image.height, "; it must be square"));
-  }
-  std::shared_ptr<EnvironmentMap> map(new EnvironmentMap());
-  const int n = image.width;
-  map->size_ = n;
-  const size_t texels = size_t(n) * size_t(n);
-  map->texels_.resize(texels);
-  map->weight_.resize(texels);
+absl::StatusOr<IlluminantTexels> IlluminantTexels::create(const scene::TextureImage& image,
+                                                          const spectral::RgbUplift& uplift) {
+  IlluminantTexels out;
+  const size_t texels = size_t(image.width) * size_t(image.height);
+  out.scale.resize(texels);
+  out.polynomial.resize(texels);
+  out.brightness.resize(texels);
   double sum[3] = {0, 0, 0};
   for (size_t i = 0; i < texels; ++i) {
     float rgb[3];
@@ -32,17 +26,44 @@ absl::StatusOr<std::shared_ptr<const EnvironmentMap>> EnvironmentMap::create(
     }
     PRISM_ASSIGN_OR_RETURN(spectral::RgbIlluminantSpectrum s,
                            uplift.illuminant({rgb[0], rgb[1], rgb[2]}));
-    if (!map->illuminant_) map->illuminant_ = s.illuminant;
-    map->texels_[i] = {s.scale, s.polynomial};
-    map->weight_[i] = (rgb[0] + rgb[1] + rgb[2]) / 3;
+    if (!out.illuminant) out.illuminant = s.illuminant;
+    out.scale[i] = s.scale;
+    out.polynomial[i] = s.polynomial;
+    out.brightness[i] = (rgb[0] + rgb[1] + rgb[2]) / 3;
   }
-  map->mean_ = {sum[0] / double(texels), sum[1] / double(texels), sum[2] / double(texels)};
+  out.mean = {sum[0] / double(texels), sum[1] / double(texels), sum[2] / double(texels)};
+  return out;
+}
+
+spectral::SampledSpectrum IlluminantTexels::at(size_t texel,
+                                               const spectral::SampledWavelengths& lambda) const {
+  spectral::SampledSpectrum out;
+  if (scale[texel] == 0) return out;
+  for (int s = 0; s < lambda.count(); ++s) {
+    const float l = lambda.lambda(s);
+    out[s] = scale[texel] * polynomial[texel](l) * (*illuminant)(l);
+  }
+  return out;
+}
+
+absl::StatusOr<std::shared_ptr<const EnvironmentMap>> EnvironmentMap::create(
+    const scene::TextureImage& image, const scene::Transform& light_to_world,
+    const spectral::RgbUplift& uplift) {
+  if (image.width != image.height || image.width < 1) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("environment map is ", image.width, "x", image.height, "; it must be square"));
+  }
+  std::shared_ptr<EnvironmentMap> map(new EnvironmentMap());
+  const int n = image.width;
+  map->size_ = n;
+  PRISM_ASSIGN_OR_RETURN(map->texels_, IlluminantTexels::create(image, uplift));
+  const std::vector<float>& weight = map->texels_.brightness;
 
   map->row_cdf_.assign(size_t(n) + 1, 0.0);
   map->column_cdf_.assign(size_t(n) * (size_t(n) + 1), 0.0);
   for (int y = 0; y < n; ++y) {
     double* cdf = &map->column_cdf_[size_t(y) * (size_t(n) + 1)];
-    for (int x = 0; x < n; ++x) cdf[x + 1] = cdf[x] + map->weight_[size_t(y) * size_t(n) + x];
+    for (int x = 0; x < n; ++x) cdf[x + 1] = cdf[x] + weight[size_t(y) * size_t(n) + x];
     map->row_cdf_[size_t(y) + 1] = map->row_cdf_[size_t(y)] + cdf[n];
   }
   map->total_ = map->row_cdf_[size_t(n)];
@@ -82,14 +103,7 @@ int EnvironmentMap::texel_of(const Vec3f& w_world) const {
 
 spectral::SampledSpectrum EnvironmentMap::radiance(
     const Vec3f& w, const spectral::SampledWavelengths& lambda) const {
-  const Texel& t = texels_[size_t(texel_of(w))];
-  spectral::SampledSpectrum out;
-  if (t.scale == 0) return out;
-  for (int s = 0; s < lambda.count(); ++s) {
-    const float l = lambda.lambda(s);
-    out[s] = t.scale * t.polynomial(l) * (*illuminant_)(l);
-  }
-  return out;
+  return texels_.at(size_t(texel_of(w)), lambda);
 }
 
 std::optional<EnvironmentMap::Sample> EnvironmentMap::sample(Point2f u) const {
@@ -107,7 +121,7 @@ std::optional<EnvironmentMap::Sample> EnvironmentMap::sample(Point2f u) const {
   const int y = pick(row_cdf_.data(), size_, double(u.y) * total_, &fy);
   const double* columns = &column_cdf_[size_t(y) * (size_t(size_) + 1)];
   const int x = pick(columns, size_, double(u.x) * columns[size_], &fx);
-  const float weight = weight_[size_t(y) * size_t(size_) + size_t(x)];
+  const float weight = texels_.brightness[size_t(y) * size_t(size_) + size_t(x)];
   if (!(weight > 0)) return std::nullopt;
   const Point2f p{(float(x) + float(fx)) / float(size_), (float(y) + float(fy)) / float(size_)};
   Sample s;
@@ -118,7 +132,7 @@ std::optional<EnvironmentMap::Sample> EnvironmentMap::sample(Point2f u) const {
 
 float EnvironmentMap::pdf(const Vec3f& w) const {
   if (!(total_ > 0)) return 0;
-  const float weight = weight_[size_t(texel_of(w))];
+  const float weight = texels_.brightness[size_t(texel_of(w))];
   return float(double(weight) * double(size_) * double(size_) / total_) / (4 * kPi);
 }
 

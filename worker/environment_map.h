@@ -22,6 +22,22 @@
 
 namespace prism::worker {
 
+// An RGB image's texels as RGB illuminants (pbrt-v4's RGBIlluminantSpectrum: m·s(λ)·D65(λ),
+// uplifted once per texel), for images that emit: environment maps and projection lights.
+struct IlluminantTexels {
+  std::vector<float> scale;  // m; 0 for black texels
+  std::vector<spectral::SigmoidPolynomial> polynomial;
+  std::vector<float> brightness;  // the mean of each texel's RGB (a sampling weight)
+  std::shared_ptr<const spectral::PiecewiseLinearSpectrum> illuminant;
+  spectral::Rgb mean;  // over the texels
+
+  // Linear RGB (or grey) texels, negative values clamped to 0.
+  static absl::StatusOr<IlluminantTexels> create(const scene::TextureImage& image,
+                                                 const spectral::RgbUplift& uplift);
+  // Texel `texel` at each of lambda's lanes.
+  spectral::SampledSpectrum at(size_t texel, const spectral::SampledWavelengths& lambda) const;
+};
+
 class EnvironmentMap {
  public:
   // `image` is square, linear RGB (or grey); `light_to_world` orients it.
@@ -40,7 +56,7 @@ class EnvironmentMap {
   std::optional<Sample> sample(Point2f u) const;
   float pdf(const Vec3f& w) const;
   // The mean linear RGB over the sphere (every texel covers the same solid angle).
-  const spectral::Rgb& mean_rgb() const { return mean_; }
+  const spectral::Rgb& mean_rgb() const { return texels_.mean; }
 
  private:
   EnvironmentMap() = default;
@@ -49,19 +65,12 @@ class EnvironmentMap {
   Vec3f to_world(const Vec3f& w) const;
 
   int size_ = 0;
-  struct Texel {
-    float scale = 0;  // m of the RGB illuminant uplift; 0 for black
-    spectral::SigmoidPolynomial polynomial;
-  };
-  std::vector<Texel> texels_;
-  std::shared_ptr<const spectral::PiecewiseLinearSpectrum> illuminant_;
-  std::vector<float> weight_;       // the sampling function per texel (mean RGB)
+  IlluminantTexels texels_;
   std::vector<double> row_cdf_;     // size_ + 1
   std::vector<double> column_cdf_;  // size_ rows of size_ + 1
   double total_ = 0;                // Σ weight_
   float world_from_light_[3][3] = {};
   float light_from_world_[3][3] = {};
-  spectral::Rgb mean_;
 };
 
 }  // namespace prism::worker

@@ -74,6 +74,30 @@ struct Geometry::AlphaFilter {
 
 namespace {
 
+// pbrt-v4's parameterisations (object space): u = φ/2π everywhere; v = 1 − θ/π on a sphere about
+// the origin, (radius − r)/(radius − inner radius) on a disk, (z − z_min)/(z_max − z_min) on a
+// cylinder.
+double azimuth_u(double x, double y) {
+  double phi = std::atan2(y, x);
+  if (phi < 0) phi += 2 * M_PI;
+  return phi / (2 * M_PI);
+}
+
+Point2f sphere_uv(double x, double y, double z) {
+  const double r = std::sqrt(x * x + y * y + z * z);
+  const double cos_theta = r > 0 ? std::clamp(z / r, -1.0, 1.0) : 1.0;
+  return {float(azimuth_u(x, y)), float(1 - std::acos(cos_theta) / M_PI)};
+}
+
+Point2f quadric_uv(const Geometry::QuadricShapeData& q, double x, double y, double z) {
+  if (q.cylinder) {
+    return {float(azimuth_u(x, y)), float((z - q.z_min) / (double(q.z_max) - double(q.z_min)))};
+  }
+  const double r = std::sqrt(x * x + y * y);
+  return {float(azimuth_u(x, y)),
+          float((q.radius - r) / (double(q.radius) - double(q.inner_radius)))};
+}
+
 // pbrt-v4's stochastic alpha test for a hit at distance t along the ray (o, d): keep it when a
 // hash of (o, d, t), uniform in [0, 1), is at most the alpha there.
 bool alpha_keeps(const AlphaFunction& alpha, const Point2f& uv, const Vec3f& n, float ox, float oy,
@@ -128,12 +152,7 @@ void alpha_filter(const RTCFilterFunctionNArguments* args) {
     uv = {uv0.x * b0 + uv1.x * b1 + uv2.x * b2, uv0.y * b0 + uv1.y * b1 + uv2.y * b2};
   } else {
     // The sphere's object space (the instance's): the hit point on the sphere about the origin.
-    const double px = ox + double(t) * dx, py = oy + double(t) * dy, pz = oz + double(t) * dz;
-    double phi = std::atan2(py, px);
-    if (phi < 0) phi += 2 * M_PI;
-    const double r = std::sqrt(px * px + py * py + pz * pz);
-    const double cos_theta = r > 0 ? std::clamp(pz / r, -1.0, 1.0) : 1.0;
-    uv = {float(phi / (2 * M_PI)), float(1 - std::acos(cos_theta) / M_PI)};
+    uv = sphere_uv(ox + double(t) * dx, oy + double(t) * dy, oz + double(t) * dz);
   }
   if (!alpha_keeps(*f->alpha, uv, n, ox, oy, oz, dx, dy, dz, t)) args->valid[0] = 0;
 }
@@ -162,11 +181,9 @@ float quadric_hit_t(const Geometry::QuadricShapeData& q, const RTCRay& ray) {
       if (!(z >= q.z_min && z <= q.z_max)) continue;
       if (q.alpha != nullptr) {
         const double x = ox + t * dx, y = oy + t * dy;
-        double phi = std::atan2(y, x);
-        if (phi < 0) phi += 2 * M_PI;
-        const Point2f uv{float(phi / (2 * M_PI)), float((z - q.z_min) / (q.z_max - q.z_min))};
-        if (!alpha_keeps(*q.alpha, uv, unit_or_z(float(x), float(y), 0), ray.org_x, ray.org_y,
-                         ray.org_z, ray.dir_x, ray.dir_y, ray.dir_z, float(t))) {
+        if (!alpha_keeps(*q.alpha, quadric_uv(q, x, y, z), unit_or_z(float(x), float(y), 0),
+                         ray.org_x, ray.org_y, ray.org_z, ray.dir_x, ray.dir_y, ray.dir_z,
+                         float(t))) {
           continue;
         }
       }
@@ -183,13 +200,8 @@ float quadric_hit_t(const Geometry::QuadricShapeData& q, const RTCRay& ray) {
     return -1.0f;
   }
   if (q.alpha != nullptr) {
-    const double r = std::sqrt(r2);
-    double phi = std::atan2(y, x);
-    if (phi < 0) phi += 2 * M_PI;
-    const Point2f uv{float(phi / (2 * M_PI)),
-                     float((q.radius - r) / (double(q.radius) - double(q.inner_radius)))};
-    if (!alpha_keeps(*q.alpha, uv, {0, 0, 1}, ray.org_x, ray.org_y, ray.org_z, ray.dir_x, ray.dir_y,
-                     ray.dir_z, float(t))) {
+    if (!alpha_keeps(*q.alpha, quadric_uv(q, x, y, q.height), {0, 0, 1}, ray.org_x, ray.org_y,
+                     ray.org_z, ray.dir_x, ray.dir_y, ray.dir_z, float(t))) {
       return -1.0f;
     }
   }
@@ -512,10 +524,7 @@ SurfaceHit Geometry::finish_sphere_hit(int shape, const Ray& ray, float t) const
   Vec3f n = normalize(to_vec(s.object_to_world.apply_normal(po)));
   if (s.flip) n = -n;
   hit.ng = hit.ns = n;
-  double phi = std::atan2(po[1], po[0]);
-  if (phi < 0) phi += 2 * M_PI;
-  double cos_theta = std::clamp(po[2] / s.radius, -1.0, 1.0);
-  hit.uv = {float(phi / (2 * M_PI)), float(1 - std::acos(cos_theta) / M_PI)};
+  hit.uv = sphere_uv(po[0], po[1], po[2]);
   hit.dpdu = to_vec(s.object_to_world.apply_vector({-2 * M_PI * po[1], 2 * M_PI * po[0], 0}));
   return hit;
 }
@@ -537,17 +546,12 @@ SurfaceHit Geometry::finish_quadric_hit(int shape, const Ray& ray, float t) cons
   hit.t = t;
   hit.shape = shape;
   hit.p = to_vec(q.object_to_world.apply_point(po));
-  // pbrt-v4's parameterisations: u = φ/2π; v = (radius − r)/(radius − inner radius) on a disk,
-  // (z − z_min)/(z_max − z_min) on a cylinder. Normals: +z on a disk, outwards on a cylinder.
-  double phi = std::atan2(po[1], po[0]);
-  if (phi < 0) phi += 2 * M_PI;
+  // Normals: +z on a disk, outwards on a cylinder.
   const scene::Vec3 n_object = q.cylinder ? scene::Vec3{po[0], po[1], 0} : scene::Vec3{0, 0, 1};
   Vec3f n = normalize(to_vec(q.object_to_world.apply_normal(n_object)));
   if (q.flip) n = -n;
   hit.ng = hit.ns = n;
-  const double v = q.cylinder ? (po[2] - q.z_min) / (double(q.z_max) - double(q.z_min))
-                              : (q.radius - r) / (double(q.radius) - double(q.inner_radius));
-  hit.uv = {float(phi / (2 * M_PI)), float(v)};
+  hit.uv = quadric_uv(q, po[0], po[1], po[2]);
   hit.dpdu = r > 0
                  ? to_vec(q.object_to_world.apply_vector({-2 * M_PI * po[1], 2 * M_PI * po[0], 0}))
                  : to_vec(q.object_to_world.apply_vector({1, 0, 0}));

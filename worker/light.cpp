@@ -6,6 +6,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "services/base/check.h"
+#include "services/base/status.h"
 #include "worker/equal_area.h"
 
 namespace prism::worker {
@@ -296,24 +297,7 @@ absl::StatusOr<std::shared_ptr<const ProjectionImage>> ProjectionImage::create(
   auto out = std::make_shared<ProjectionImage>();
   out->width = image.width;
   out->height = image.height;
-  const size_t texels = size_t(image.width) * size_t(image.height);
-  out->scale.resize(texels);
-  out->polynomial.resize(texels);
-  double sum[3] = {0, 0, 0};
-  for (size_t i = 0; i < texels; ++i) {
-    float rgb[3];
-    for (int c = 0; c < 3; ++c) {
-      const int channel = image.channels == 1 ? 0 : c;
-      rgb[c] = std::max(0.0f, image.values[i * size_t(image.channels) + size_t(channel)]);
-      sum[c] += rgb[c];
-    }
-    auto s = uplift.illuminant({rgb[0], rgb[1], rgb[2]});
-    if (!s.ok()) return s.status();
-    if (!out->illuminant) out->illuminant = s->illuminant;
-    out->scale[i] = s->scale;
-    out->polynomial[i] = s->polynomial;
-  }
-  out->mean = {sum[0] / double(texels), sum[1] / double(texels), sum[2] / double(texels)};
+  PRISM_ASSIGN_OR_RETURN(out->texels, IlluminantTexels::create(image, uplift));
   const double aspect = double(image.width) / double(image.height);
   out->x_max = float(aspect > 1 ? aspect : 1.0);
   out->y_max = float(aspect > 1 ? 1.0 : 1.0 / aspect);
@@ -375,13 +359,7 @@ SampledSpectrum PointLight::projected(const Vec3f& w, const SampledWavelengths& 
   const float u = (sx + p.x_max) / (2 * p.x_max), v = (sy + p.y_max) / (2 * p.y_max);
   const int x = std::clamp(int(u * float(p.width)), 0, p.width - 1);
   const int y = std::clamp(int(v * float(p.height)), 0, p.height - 1);
-  const size_t texel = size_t(y) * size_t(p.width) + size_t(x);
-  if (p.scale[texel] == 0) return out;
-  for (int s = 0; s < lambda.count(); ++s) {
-    const float l = lambda.lambda(s);
-    out[s] = float(scale_) * p.scale[texel] * p.polynomial[texel](l) * (*p.illuminant)(l);
-  }
-  return out;
+  return p.texels.at(size_t(y) * size_t(p.width) + size_t(x), lambda) * float(scale_);
 }
 
 float PointLight::modulation(const Vec3f& w) const {

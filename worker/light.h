@@ -107,11 +107,8 @@ class AreaLight {
 // falls in [−x_max, x_max] × [−y_max, y_max] (the image's aspect; the shorter axis spans ±1).
 struct ProjectionImage {
   int width = 0, height = 0;
-  std::vector<float> scale;
-  std::vector<spectral::SigmoidPolynomial> polynomial;
-  std::shared_ptr<const spectral::PiecewiseLinearSpectrum> illuminant;
+  IlluminantTexels texels;
   float tan_half = 1, x_max = 1, y_max = 1;
-  spectral::Rgb mean;               // over the texels
   double solid_angle_fraction = 0;  // of the sphere the frustum covers
 
   static absl::StatusOr<std::shared_ptr<const ProjectionImage>> create(

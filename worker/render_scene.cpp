@@ -77,7 +77,7 @@ absl::StatusOr<Light> make_light(const scene::Light& light, const Geometry& geom
       return scene::location_error(light.where, absl::StrCat("projection light \"", p->filename,
                                                              "\": ", image.status().message()));
     }
-    const spectral::Rgb mean = (*image)->mean;
+    const spectral::Rgb mean = (*image)->texels.mean;
     PRISM_ASSIGN_OR_RETURN(
         Emission e, emission(scene::SpectrumRgb{mean.r, mean.g, mean.b}, p->scale, light.where,
                              "projection light image", library, uplift, cmf));

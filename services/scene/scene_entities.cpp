@@ -220,6 +220,31 @@ double srgb_to_linear(double c) {
   return c <= 0.04045 ? c / 12.92 : std::pow((c + 0.055) / 1.055, 2.4);
 }
 
+// A light's image (`string filename`), linear: 8-bit files decoded as sRGB, as pbrt-v4 reads
+// them. `square_for` names what needs a square image ("" when any shape will do).
+struct LightImage {
+  std::shared_ptr<const TextureImage> image;
+  std::string relpath;
+};
+absl::StatusOr<LightImage> read_light_image(const ParameterList& params, const TypeName& type,
+                                            const EntityContext& ctx, const std::string& filename,
+                                            const char* square_for) {
+  if (!ctx.load_image) return location_error(type.where, "images cannot be read here");
+  PRISM_ASSIGN_OR_RETURN(EntityContext::LoadedImage loaded,
+                         ctx.load_image(filename, params.find("filename")->where));
+  if (*square_for != '\0' && loaded.image->width != loaded.image->height)
+    return param_error(params, "filename",
+                       absl::StrCat("\"", loaded.relpath, "\" is ", loaded.image->width, "x",
+                                    loaded.image->height, "; ", square_for, " must be square"));
+  LightImage out{loaded.image, loaded.relpath};
+  if (loaded.eight_bit) {
+    auto decoded = std::make_shared<TextureImage>(*loaded.image);
+    for (float& v : decoded->values) v = float(srgb_to_linear(double(v)));
+    out.image = std::move(decoded);
+  }
+  return out;
+}
+
 absl::StatusOr<LayerSpec> read_layer(const ParameterList& params, const EntityContext& ctx) {
   PRISM_RETURN_IF_ERROR(refuse_float_textures(params, {"thickness", "g"}));
   LayerSpec l;
@@ -795,14 +820,8 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
     if (!filename || filename->empty())
       return location_error(type.where, "goniometric light needs a 'string filename'");
-    if (!ctx.load_image) return location_error(type.where, "images cannot be read here");
-    PRISM_ASSIGN_OR_RETURN(EntityContext::LoadedImage loaded,
-                           ctx.load_image(*filename, params.find("filename")->where));
-    if (loaded.image->width != loaded.image->height)
-      return param_error(
-          params, "filename",
-          absl::StrCat("\"", loaded.relpath, "\" is ", loaded.image->width, "x",
-                       loaded.image->height, "; a goniometric (equal-area) image must be square"));
+    PRISM_ASSIGN_OR_RETURN(LightImage loaded, read_light_image(params, type, ctx, *filename,
+                                                               "a goniometric (equal-area) image"));
     auto grey = std::make_shared<TextureImage>();
     grey->width = loaded.image->width;
     grey->height = loaded.image->height;
@@ -810,10 +829,7 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     const int c = loaded.image->channels;
     for (size_t i = 0; i < loaded.image->values.size(); i += size_t(c)) {
       double sum = 0;
-      for (int k = 0; k < c; ++k) {
-        const double v = loaded.image->values[i + size_t(k)];
-        sum += loaded.eight_bit ? srgb_to_linear(v) : v;
-      }
+      for (int k = 0; k < c; ++k) sum += loaded.image->values[i + size_t(k)];
       grey->values.push_back(float(sum / c));
     }
     p.goniometric = std::move(grey);
@@ -831,16 +847,8 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
     if (!filename || filename->empty())
       return location_error(type.where, "projection light needs a 'string filename'");
-    if (!ctx.load_image) return location_error(type.where, "images cannot be read here");
-    PRISM_ASSIGN_OR_RETURN(EntityContext::LoadedImage loaded,
-                           ctx.load_image(*filename, params.find("filename")->where));
-    if (loaded.eight_bit) {
-      auto decoded = std::make_shared<TextureImage>(*loaded.image);
-      for (float& v : decoded->values) v = float(srgb_to_linear(double(v)));
-      p.projection = std::move(decoded);
-    } else {
-      p.projection = loaded.image;
-    }
+    PRISM_ASSIGN_OR_RETURN(LightImage loaded, read_light_image(params, type, ctx, *filename, ""));
+    p.projection = loaded.image;
     p.filename = loaded.relpath;
     light.light_to_world = ctm;
     p.position_world = light.light_to_world.apply_point({0, 0, 0});
@@ -875,22 +883,10 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
         return param_error(params, "L", "cannot be combined with an image 'filename'");
       PRISM_RETURN_IF_ERROR(params.refuse(
           "illuminance", "is not supported with an image 'filename' yet; use 'scale'"));
-      if (!ctx.load_image) return location_error(type.where, "images cannot be read here");
-      PRISM_ASSIGN_OR_RETURN(EntityContext::LoadedImage loaded,
-                             ctx.load_image(*filename, params.find("filename")->where));
-      if (loaded.image->width != loaded.image->height)
-        return param_error(
-            params, "filename",
-            absl::StrCat("\"", loaded.relpath, "\" is ", loaded.image->width, "x",
-                         loaded.image->height, "; an equal-area environment map must be square"));
+      PRISM_ASSIGN_OR_RETURN(LightImage loaded, read_light_image(params, type, ctx, *filename,
+                                                                 "an equal-area environment map"));
       i.filename = loaded.relpath;
-      if (loaded.eight_bit) {
-        auto decoded = std::make_shared<TextureImage>(*loaded.image);
-        for (float& v : decoded->values) v = float(srgb_to_linear(double(v)));
-        i.image = std::move(decoded);
-      } else {
-        i.image = loaded.image;
-      }
+      i.image = loaded.image;
     }
     PRISM_ASSIGN_OR_RETURN(i.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
                                                    SpectrumNamed{kDefaultIlluminant}));
