@@ -303,6 +303,24 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
     rtcReleaseGeometry(inst);
   };
 
+  // An object-space primitive in its own scene, instanced with the shape's transform; its
+  // object-space box [lo, hi] extends the world bounds.
+  auto attach_object_space = [&](RTCGeometry geom, const scene::Transform& t, unsigned id,
+                                 const scene::Vec3& lo, const scene::Vec3& hi) {
+    RTCScene child = rtcNewScene(dev);
+    rtcCommitGeometry(geom);
+    rtcAttachGeometryByID(child, geom, 0);
+    rtcReleaseGeometry(geom);
+    rtcCommitScene(child);
+    g->sub_scenes_.push_back(child);
+    attach_instance(child, t, id);
+    for (int corner = 0; corner < 8; ++corner) {
+      const scene::Vec3 c{corner & 1 ? hi[0] : lo[0], corner & 2 ? hi[1] : lo[1],
+                          corner & 4 ? hi[2] : lo[2]};
+      g->bounds_.extend(to_vec(t.apply_point(c)));
+    }
+  };
+
   for (std::size_t i = 0; i < desc.shapes.size(); ++i) {
     const scene::Shape& shape = desc.shapes[i];
     bool flip = shape.reverse_orientation != shape.transform_swaps_handedness;
@@ -358,7 +376,6 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
       sphere->object_to_world = shape.object_to_world;
       sphere->world_to_object = shape.object_to_world.inverse();
       sphere->flip = flip;
-      RTCScene child = rtcNewScene(dev);
       RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_SPHERE_POINT);
       auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
           geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1));
@@ -367,17 +384,8 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
         v[3] = float(s->radius);
       }
       add_filter(geom, i, nullptr);
-      rtcCommitGeometry(geom);
-      rtcAttachGeometryByID(child, geom, 0);
-      rtcReleaseGeometry(geom);
-      rtcCommitScene(child);
-      g->sub_scenes_.push_back(child);
-      attach_instance(child, shape.object_to_world, id);
-      for (int corner = 0; corner < 8; ++corner) {
-        scene::Vec3 c{corner & 1 ? s->radius : -s->radius, corner & 2 ? s->radius : -s->radius,
-                      corner & 4 ? s->radius : -s->radius};
-        g->bounds_.extend(to_vec(shape.object_to_world.apply_point(c)));
-      }
+      attach_object_space(geom, shape.object_to_world, id, {-s->radius, -s->radius, -s->radius},
+                          {s->radius, s->radius, s->radius});
       g->spheres_[i] = std::move(sphere);
     } else if (std::holds_alternative<scene::DiskShape>(shape.geometry) ||
                std::holds_alternative<scene::CylinderShape>(shape.geometry)) {
@@ -397,26 +405,16 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
       quadric->world_to_object = shape.object_to_world.inverse();
       quadric->flip = flip;
       if (g->alpha_[i]) quadric->alpha = &g->alpha_[i];
-      RTCScene child = rtcNewScene(dev);
       RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_USER);
       rtcSetGeometryUserPrimitiveCount(geom, 1);
       rtcSetGeometryUserData(geom, static_cast<QuadricShapeData*>(quadric.get()));
       rtcSetGeometryBoundsFunction(geom, quadric_bounds, nullptr);
       rtcSetGeometryIntersectFunction(geom, quadric_intersect);
       rtcSetGeometryOccludedFunction(geom, quadric_occluded);
-      rtcCommitGeometry(geom);
-      rtcAttachGeometryByID(child, geom, 0);
-      rtcReleaseGeometry(geom);
-      rtcCommitScene(child);
-      g->sub_scenes_.push_back(child);
-      attach_instance(child, shape.object_to_world, id);
       const double r = quadric->radius;
       const double z0 = quadric->cylinder ? quadric->z_min : quadric->height;
       const double z1 = quadric->cylinder ? quadric->z_max : quadric->height;
-      for (int corner = 0; corner < 8; ++corner) {
-        scene::Vec3 c{corner & 1 ? r : -r, corner & 2 ? r : -r, corner & 4 ? z1 : z0};
-        g->bounds_.extend(to_vec(shape.object_to_world.apply_point(c)));
-      }
+      attach_object_space(geom, shape.object_to_world, id, {-r, -r, z0}, {r, r, z1});
       g->quadrics_[i] = std::move(quadric);
     }
   }
