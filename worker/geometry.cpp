@@ -1,13 +1,13 @@
 #include "worker/geometry.h"
 
 #include <algorithm>
-#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <map>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/check.h"
+#include "worker/float_hash.h"
 
 namespace prism::worker {
 namespace {
@@ -105,18 +105,8 @@ bool alpha_keeps(const AlphaFunction& alpha, const Point2f& uv, const Vec3f& n, 
   const float a = alpha(uv, n);
   if (a >= 1.0f) return true;
   if (!(a > 0.0f)) return false;
-  // Each input through a full splitmix64 finaliser, so one differing bit (t of two stacked
-  // layers) changes every bit of u.
-  auto mix = [](std::uint64_t x) {
-    x ^= x >> 30;
-    x *= 0xbf58476d1ce4e5b9ull;
-    x ^= x >> 27;
-    x *= 0x94d049bb133111ebull;
-    return x ^ (x >> 31);
-  };
-  std::uint64_t h = 0x9e3779b97f4a7c15ull;
-  for (float v : {ox, oy, oz, dx, dy, dz, t}) h = mix(h + std::bit_cast<std::uint32_t>(v));
-  const float u = float(h >> 40) * 0x1p-24f;
+  // The distance t makes layers along one ray decide independently.
+  const float u = unit_float(hash_floats(0, {ox, oy, oz, dx, dy, dz, t}));
   return u <= a;
 }
 

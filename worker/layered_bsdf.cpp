@@ -1,12 +1,12 @@
 #include "worker/layered_bsdf.h"
 
 #include <algorithm>
-#include <bit>
 #include <cfloat>
 #include <cmath>
 #include <cstdint>
 #include <initializer_list>
 
+#include "worker/float_hash.h"
 #include "worker/fresnel.h"
 #include "worker/medium.h"
 
@@ -19,21 +19,11 @@ constexpr float kInv4Pi = 0.25f * kInvPi;
 // Reproducible randomness: splitmix64 (Steele, Lea and Flood 2014) as a counter-based generator.
 // A walk's numbers depend only on the call's arguments, never on a thread's history.
 
-constexpr std::uint64_t kGolden = 0x9E3779B97F4A7C15ull;
-
-std::uint64_t mix64(std::uint64_t z) {
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
-
 // Separate streams so eval() and pdf() of the same pair of directions draw unrelated numbers.
 enum class Stream : std::uint64_t { kEval = 1, kPdf = 2, kSample = 3 };
 
 std::uint64_t seed_of(Stream stream, std::initializer_list<float> values) {
-  std::uint64_t h = mix64(static_cast<std::uint64_t>(stream) * kGolden);
-  for (float v : values) h = mix64(h ^ (std::uint64_t{std::bit_cast<std::uint32_t>(v)} + kGolden));
-  return h;
+  return hash_floats(static_cast<std::uint64_t>(stream), values);
 }
 
 class WalkRng {
@@ -41,8 +31,8 @@ class WalkRng {
   explicit WalkRng(std::uint64_t seed) : state_(seed) {}
   // 24 random bits: uniform on [0, 1 − 2⁻²⁴], exact in a float and never 1.
   float uniform() {
-    state_ += kGolden;
-    return float(mix64(state_) >> 40) * 0x1p-24f;
+    state_ += kGoldenGamma;
+    return unit_float(mix64(state_));
   }
   // Two numbers, drawn in a fixed order (argument evaluation order is unspecified in C++).
   Point2f uniform2() {

@@ -1,6 +1,5 @@
 #include "worker/render_scene.h"
 
-#include <bit>
 #include <cmath>
 #include <numbers>
 #include <string>
@@ -10,6 +9,7 @@
 #include "services/base/status.h"
 #include "services/scene/source_location.h"
 #include "services/scene/wavelength_dependence.h"
+#include "worker/float_hash.h"
 
 namespace prism::worker {
 namespace {
@@ -359,18 +359,6 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
   return rs;
 }
 
-namespace {
-
-std::uint64_t mix_bits(std::uint64_t h, float v) {
-  h ^= std::bit_cast<std::uint32_t>(v) + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
-  h ^= h >> 33;
-  h *= 0xff51afd7ed558ccdull;
-  h ^= h >> 33;
-  return h;
-}
-
-}  // namespace
-
 const Material& RenderScene::material_at(int index, const SurfaceHit& hit, const Vec3f& wo) const {
   const Vec3f& p = hit.p;
   const Material* m = &materials_[std::size_t(index)];
@@ -382,9 +370,9 @@ const Material& RenderScene::material_at(int index, const SurfaceHit& hit, const
     if (amount >= 1.0f) {
       chosen = mix->materials[1];
     } else if (amount > 0.0f) {
-      std::uint64_t h = std::uint64_t(mix->materials[0]) * 31 + std::uint64_t(mix->materials[1]);
-      for (float v : {p.x, p.y, p.z, wo.x, wo.y, wo.z}) h = mix_bits(h, v);
-      const float u = float(h >> 40) * 0x1p-24f;
+      const float u = unit_float(
+          hash_floats(std::uint64_t(mix->materials[0]) * 31 + std::uint64_t(mix->materials[1]),
+                      {p.x, p.y, p.z, wo.x, wo.y, wo.z}));
       chosen = amount < u ? mix->materials[0] : mix->materials[1];
     }
     m = &materials_[std::size_t(chosen)];
