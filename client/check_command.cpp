@@ -13,9 +13,12 @@
 namespace prism::client {
 namespace {
 
-std::string name_of(const scene::Material& m) { return m.name.empty() ? "(anonymous)" : m.name; }
+std::string name_of(const scene::Material& m) {
+  return m.name.empty() ? "(anonymous)" : m.name;
+}
 
-nlohmann::json to_json(const scene::LoadedScene& loaded, const scene::Bundle& bundle) {
+nlohmann::json to_json(const scene::LoadedScene& loaded, const scene::Bundle& bundle,
+                       bool renders) {
   const scene::SceneDescription& s = loaded.description;
   auto dependence = scene::analyze_wavelength_dependence(s);
   nlohmann::json j;
@@ -31,7 +34,8 @@ nlohmann::json to_json(const scene::LoadedScene& loaded, const scene::Bundle& bu
   j["area_lights"] = s.area_light_count();
   j["lights"] = s.lights.size();
   nlohmann::json emitters = nlohmann::json::array();
-  for (const auto& spectrum : dependence.emitter_spectra) emitters.push_back(scene::describe(spectrum));
+  for (const auto& spectrum : dependence.emitter_spectra)
+    emitters.push_back(scene::describe(spectrum));
   j["emitter_spectra"] = emitters;
   nlohmann::json dispersive = nlohmann::json::array();
   for (int m : dependence.dispersive_materials) dispersive.push_back(name_of(s.materials[m]));
@@ -41,6 +45,19 @@ nlohmann::json to_json(const scene::LoadedScene& loaded, const scene::Bundle& bu
   j["media"] = media;
   j["needs_spectral_transport"] = dependence.needs_spectral_transport();
   j["warnings"] = s.warnings;
+  nlohmann::json features = nlohmann::json::array();
+  for (const scene::FeatureUse& f : s.features) {
+    nlohmann::json entry = {{"feature", f.feature},
+                            {"status", scene::feature_status_name(f.status)},
+                            {"where", f.where.to_string()},
+                            {"uses", f.uses},
+                            {"note", f.note}};
+    if (f.status == scene::FeatureStatus::kRefused) entry["substitution"] = f.substitution;
+    features.push_back(entry);
+  }
+  j["features"] = features;
+  j["refused"] = scene::count_features(s.features, scene::FeatureStatus::kRefused);
+  j["renders"] = renders;
   j["bundle_hash"] = bundle.content_hash;
   j["bundle_files"] = bundle.entries.size();
   return j;
@@ -48,16 +65,35 @@ nlohmann::json to_json(const scene::LoadedScene& loaded, const scene::Bundle& bu
 
 }  // namespace
 
-absl::StatusOr<std::string> run_check(const CheckOptions& options) {
-  PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library, spectral::SpectrumLibrary::load_builtin());
+absl::StatusOr<CheckReport> run_check(const CheckOptions& options) {
+  PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library,
+                         spectral::SpectrumLibrary::load_builtin());
+  // Substituting lets the check go on past the first refusal and list them all.
   scene::LoadOptions load = scene::with_library_names(library);
+  load.allow_unsupported = true;
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.scene, load));
-  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
-                         scene::make_bundle(loaded.root, loaded.scene_relpath,
-                                            loaded.description.files));
-  if (options.json) return to_json(loaded, bundle).dump(2) + "\n";
-  return absl::StrCat(scene::format_scene_summary(loaded.description), "bundle: ",
-                      bundle.entries.size(), " files, hash ", bundle.content_hash, "\n");
+  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle, scene::make_bundle(loaded.root, loaded.scene_relpath,
+                                                                  loaded.description.files));
+  const int refused =
+      scene::count_features(loaded.description.features, scene::FeatureStatus::kRefused);
+  CheckReport report;
+  report.renders = refused == 0 || options.allow_unsupported;
+  if (options.json) {
+    report.text = to_json(loaded, bundle, report.renders).dump(2) + "\n";
+    return report;
+  }
+  report.text = absl::StrCat(
+      scene::format_scene_summary(loaded.description),
+      scene::format_scene_features(loaded.description.features), "bundle: ", bundle.entries.size(),
+      " files, hash ", bundle.content_hash, "\n",
+      refused == 0 ? ""
+      : report.renders
+          ? absl::StrCat("renders with --allow-unsupported: ", refused,
+                         " refused features are substituted as listed\n")
+          : absl::StrCat("prism render refuses this scene: ", refused,
+                         " features are not supported (--allow-unsupported substitutes them as "
+                         "listed)\n"));
+  return report;
 }
 
 }  // namespace prism::client

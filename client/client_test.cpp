@@ -15,16 +15,18 @@ namespace fs = std::filesystem;
 const fs::path kScenes = fs::path(PRISM_SOURCE_DIR) / "scenes";
 
 TEST(CheckCommandTest, ReportsTheDispersivePrismScene) {
-  auto text = run_check({kScenes / "prism.pbrt", false});
-  ASSERT_TRUE(text.ok()) << text.status();
-  EXPECT_NE(text->find("resolution: 320x240"), std::string::npos) << *text;
-  EXPECT_NE(text->find("stdillum-F11"), std::string::npos);
-  EXPECT_NE(text->find("dispersive materials: 1"), std::string::npos);
-  EXPECT_NE(text->find("bundle: 2 files, hash "), std::string::npos);
+  auto checked = run_check({kScenes / "prism.pbrt", false});
+  ASSERT_TRUE(checked.ok()) << checked.status();
+  const std::string& text = checked->text;
+  EXPECT_TRUE(checked->renders);
+  EXPECT_NE(text.find("resolution: 320x240"), std::string::npos) << text;
+  EXPECT_NE(text.find("stdillum-F11"), std::string::npos);
+  EXPECT_NE(text.find("dispersive materials: 1"), std::string::npos);
+  EXPECT_NE(text.find("bundle: 2 files, hash "), std::string::npos);
 
   auto json = run_check({kScenes / "prism.pbrt", true});
   ASSERT_TRUE(json.ok());
-  auto j = nlohmann::json::parse(*json);
+  auto j = nlohmann::json::parse(json->text);
   EXPECT_EQ(j["width"], 320);
   EXPECT_EQ(j["dispersive_materials"].size(), 1u);
   EXPECT_EQ(j["bundle_hash"].get<std::string>().size(), 64u);
@@ -34,12 +36,12 @@ TEST(CheckCommandTest, ReportsTheDispersivePrismScene) {
 TEST(CheckCommandTest, ReportsTwoEmitterSpectraInTheCornellBox) {
   auto json = run_check({kScenes / "cornell-two-lights.pbrt", true});
   ASSERT_TRUE(json.ok()) << json.status();
-  auto j = nlohmann::json::parse(*json);
+  auto j = nlohmann::json::parse(json->text);
   EXPECT_EQ(j["emitter_spectra"].size(), 2u);
   EXPECT_EQ(j["area_lights"], 2);
   EXPECT_TRUE(j["media"].empty());
   // The same scene gives the same bundle hash every time.
-  auto again = nlohmann::json::parse(*run_check({kScenes / "cornell-two-lights.pbrt", true}));
+  auto again = nlohmann::json::parse(run_check({kScenes / "cornell-two-lights.pbrt", true})->text);
   EXPECT_EQ(j["bundle_hash"], again["bundle_hash"]);
 }
 

@@ -352,7 +352,13 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
   PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library,
                          spectral::SpectrumLibrary::load_builtin());
   scene::LoadOptions load = scene::with_library_names(library);
+  load.allow_unsupported = options.render.allow_unsupported;
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.render.scene, load));
+  if (options.render.warnings != nullptr) {
+    for (const std::string& w : loaded.description.warnings) *options.render.warnings << w << "\n";
+    for (const std::string& w : scene::feature_warnings(loaded.description.features))
+      *options.render.warnings << w << "\n";
+  }
   PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle, scene::make_bundle(loaded.root, loaded.scene_relpath,
                                                                   loaded.description.files));
   if (options.wait) {

@@ -38,6 +38,9 @@ int main(int argc, char** argv) {
   auto* check_cmd = app.add_subcommand("check", "Validate a scene and summarise what it needs");
   check_cmd->add_option("scene", check.scene, "pbrt-v4 scene file")->required();
   check_cmd->add_flag("--json", check.json, "Print the summary as JSON");
+  check_cmd->add_flag(
+      "--allow-unsupported", check.allow_unsupported,
+      "Succeed when the scene uses refused features (render would substitute them)");
 
   prism::client::CompareOptions compare;
   std::string crop;
@@ -131,6 +134,7 @@ int main(int argc, char** argv) {
       return report(applied);
     }
     submit.progress = &std::cerr;
+    submit.render.warnings = &std::cerr;
     submit.progress_is_terminal = isatty(STDERR_FILENO) != 0;
     return report(prism::client::run_submit(farm, submit));
   }
@@ -147,7 +151,12 @@ int main(int argc, char** argv) {
   }
   if (workers_cmd->parsed()) return report(prism::client::run_workers(farm));
 
-  if (check_cmd->parsed()) return report(prism::client::run_check(check));
+  if (check_cmd->parsed()) {
+    absl::StatusOr<prism::client::CheckReport> checked = prism::client::run_check(check);
+    if (!checked.ok()) return report(checked.status());
+    std::cout << checked->text;
+    return checked->renders ? 0 : 1;
+  }
   if (compare_cmd->parsed()) {
     if (!crop.empty()) {
       auto parsed = prism::client::parse_crop(crop);
@@ -168,6 +177,7 @@ int main(int argc, char** argv) {
     if (json_opt->count() > 0) render.json = json_path;
     if (threads_opt->count() > 0) render.threads = threads;
     if (isatty(STDERR_FILENO)) render.progress = &std::cerr;
+    render.warnings = &std::cerr;
     // The flags are checked before Embree starts, so a typo costs nothing.
     if (absl::Status flags = prism::client::validate_render_flags(render); !flags.ok()) {
       return report(flags);

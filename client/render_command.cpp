@@ -311,6 +311,7 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   spec.set_spectral_light_selection(o.spectral_light_selection);
   spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
   spec.set_name(o.scene.filename().string());
+  spec.set_allow_unsupported(o.allow_unsupported);
   // The coordinator applies the same rules; checking here fails before any upload, and
   // to_proto makes every value explicit so the token does not depend on scene defaults.
   PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters parameters,
@@ -330,8 +331,14 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library,
                          spectral::SpectrumLibrary::load_builtin());
   scene::LoadOptions load = scene::with_library_names(library);
+  load.allow_unsupported = options.allow_unsupported;
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.scene, load));
   const scene::SceneDescription& description = loaded.description;
+  if (options.warnings != nullptr) {
+    for (const std::string& w : description.warnings) *options.warnings << w << "\n";
+    for (const std::string& w : scene::feature_warnings(description.features))
+      *options.warnings << w << "\n";
+  }
 
   PRISM_ASSIGN_OR_RETURN(
       coordinator::OutputPaths paths,
@@ -395,6 +402,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   report.counters = worker::counter_list(result->stats.counters);
   report.peak_memory_bytes = coordinator::peak_memory_bytes();
   report.statistics = std::move(result->statistics);
+  report.scene_features = coordinator::reported_features(description);
   coordinator::add_job_sections(job, report);
   if (report.gradient.has_value()) {
     coordinator::fill_gradient_counters(report.counters, *report.gradient);

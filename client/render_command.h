@@ -60,8 +60,13 @@ struct RenderCommandOptions {
   std::optional<double> prepass_fallback;
   std::optional<double> prepass_sigma_s;
   std::optional<double> prepass_sigma_r;
+  // Render a scene with unsupported input, each refused feature substituted (and listed in
+  // the JSON report) instead of refusing the scene.
+  bool allow_unsupported = false;
   // Where to draw a progress bar (a terminal); null: none.
   std::ostream* progress = nullptr;
+  // Where the scene's warnings go (null: nowhere).
+  std::ostream* warnings = nullptr;
 };
 
 inline constexpr std::int64_t kMaxSpp = std::int64_t{1} << 24;

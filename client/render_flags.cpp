@@ -53,6 +53,9 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   f.prepass_opt = cmd.add_flag("--prepass", f.prepass,
                                "Learn per-pixel wavelength pdfs in a prepass (default: off)");
   f.no_prepass_opt = cmd.add_flag("--no-prepass", f.no_prepass, "No prepass");
+  cmd.add_flag("--allow-unsupported", o.allow_unsupported,
+               "Render a scene with pbrt-v4 features Prism does not support, each replaced by "
+               "the substitution `prism check` lists (and the JSON report records)");
   f.prepass_opt->excludes(f.no_prepass_opt);
   f.prepass_passes_opt =
       cmd.add_option("--prepass-passes", f.prepass_passes, "Prepass passes K (default 2)");

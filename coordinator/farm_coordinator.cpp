@@ -201,7 +201,10 @@ absl::StatusOr<std::string> FarmCoordinator::upload_bundle(const std::string& cl
     fs::remove_all(tmp, ec);
     return extracted;
   }
+  // The upload checks that the scene is well formed; whether its unsupported features may be
+  // substituted is each job's choice (JobSpec.allow_unsupported), checked at submit.
   scene::LoadOptions load = scene::with_library_names(library_);
+  load.allow_unsupported = true;
   absl::StatusOr<scene::LoadedScene> loaded = scene::load_scene(tmp / bundle.scene_path, load);
   if (!loaded.ok()) {
     fs::remove_all(tmp, ec);
@@ -284,8 +287,9 @@ std::vector<TaskSpec> FarmCoordinator::task_specs(const ActiveJob& job) const {
 }
 
 absl::StatusOr<scene::LoadedScene> FarmCoordinator::load_bundle_scene(
-    const std::string& hash, const std::string& scene_path) const {
+    bool allow_unsupported, const std::string& hash, const std::string& scene_path) const {
   scene::LoadOptions load = scene::with_library_names(library_);
+  load.allow_unsupported = allow_unsupported;
   return scene::load_scene(scene_dir(hash) / scene_path, load);
 }
 
@@ -295,6 +299,7 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
   auto job = std::make_unique<ActiveJob>();
   job->params = params;
   job->spec = spec;
+  job->scene_features = reported_features(scene);
   PRISM_ASSIGN_OR_RETURN(job->plan, plan_tiles({params.width, params.height, params.tile_size,
                                                 params.spp, params.samples_per_task}));
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, image::RgbImage::create(params.width, params.height));
@@ -474,6 +479,7 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
         "scene_path '", spec.scene_path(), "' is not the bundle's scene '", bundle_scene, "'"));
   }
   scene::LoadOptions load = scene::with_library_names(library_);
+  load.allow_unsupported = spec.allow_unsupported();
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded,
                          scene::load_scene(scene_dir(spec.bundle_hash()) / bundle_scene, load));
   PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, loaded.description));
@@ -527,15 +533,13 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
     return absl::DataLossError("the stored job spec does not parse");
   }
   // The stored spec is explicit, so the scene's defaults are not needed to decode it; a prepass
-  // needs the scene's emitter spectra.
+  // needs the scene's emitter spectra, and the report its features.
   PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, scene::SceneDescription{}));
-  scene::SceneDescription description;
-  if (params.prepass.has_value()) {
-    PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded,
-                           load_bundle_scene(params.bundle_hash, params.scene_path));
-    description = std::move(loaded.description);
-  }
-  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active, make_active(params, spec, description));
+  PRISM_ASSIGN_OR_RETURN(
+      scene::LoadedScene loaded,
+      load_bundle_scene(params.allow_unsupported, params.bundle_hash, params.scene_path));
+  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active,
+                         make_active(params, spec, loaded.description));
   PRISM_ASSIGN_OR_RETURN(std::vector<store::TaskRecord> tasks, store_->tasks_of(record.id));
   const std::vector<TaskSpec> specs = task_specs(*active);
   if (tasks.size() != specs.size()) {
@@ -865,6 +869,7 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   report.peak_memory_bytes = peak_memory_bytes();
   report.statistics = job.statistics->finish();
   report.counters.assign(job.counters.begin(), job.counters.end());
+  report.scene_features = job.scene_features;
   add_job_sections(p, report);
   if (report.gradient.has_value()) fill_gradient_counters(report.counters, *report.gradient);
   if (report.prepass.has_value()) {

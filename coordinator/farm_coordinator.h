@@ -212,7 +212,8 @@ class FarmCoordinator {
     double render_seconds = 0;  // summed over workers
     std::uint64_t rays = 0;
     std::chrono::steady_clock::time_point started;
-    std::uint64_t samples_at_start = 0;  // done before this incarnation (resumed)
+    std::uint64_t samples_at_start = 0;            // done before this incarnation (resumed)
+    std::vector<SceneFeatureNote> scene_features;  // for the report
   };
 
   explicit FarmCoordinator(FarmOptions options);
@@ -225,7 +226,8 @@ class FarmCoordinator {
                                                          const prism::v1::JobSpec& spec,
                                                          const scene::SceneDescription& scene);
   // Loads the checked scene of a stored bundle.
-  absl::StatusOr<scene::LoadedScene> load_bundle_scene(const std::string& hash,
+  absl::StatusOr<scene::LoadedScene> load_bundle_scene(bool allow_unsupported,
+                                                       const std::string& hash,
                                                        const std::string& scene_path) const;
   // The final pass's stage index (the number of prepasses).
   static int final_stage_of(const ActiveJob& job) {

@@ -220,6 +220,7 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
                      kMaxScenePathBytes, " bytes"));
   }
   p.scene_path = spec.scene_path();
+  p.allow_unsupported = spec.allow_unsupported();
   if (spec.name().size() > kMaxJobNameBytes) {
     return absl::InvalidArgumentError(
         absl::StrCat("name is ", spec.name().size(), " bytes: want at most ", kMaxJobNameBytes));
@@ -399,11 +400,22 @@ prism::v1::GradientTauPilot to_proto(const TauPilotReport& r) {
   return t;
 }
 
+std::vector<SceneFeatureNote> reported_features(const scene::SceneDescription& scene) {
+  std::vector<SceneFeatureNote> out;
+  for (const scene::FeatureUse& f : scene.features) {
+    if (f.status == scene::FeatureStatus::kSupported) continue;
+    out.push_back(SceneFeatureNote{scene::feature_status_name(f.status), f.feature,
+                                   f.where.to_string(), f.uses, f.note, f.substitution});
+  }
+  return out;
+}
+
 prism::v1::JobSpec to_proto(const JobParameters& p) {
   prism::v1::JobSpec spec;
   spec.set_bundle_hash(p.bundle_hash);
   spec.set_scene_path(p.scene_path);
   spec.set_name(p.name);
+  spec.set_allow_unsupported(p.allow_unsupported);
   spec.set_integrator(to_proto(p.render.integrator));
   if (p.render.integrator == worker::IntegratorKind::kGradient) {
     auto* g = spec.mutable_gradient();

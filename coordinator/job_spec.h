@@ -73,6 +73,7 @@ struct JobParameters {
   JobOutputs outputs;
   GradientParameters gradient;               // used by gradient jobs only
   std::optional<PrepassParameters> prepass;  // set when the job runs a prepass
+  bool allow_unsupported = false;            // the scene loads with substitutions
 };
 
 // Validates every field of `spec` and fills the unset ones from `scene`. INVALID_ARGUMENT naming
@@ -82,6 +83,9 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
 
 // Whether a job with this integrator runs a prepass when its spec does not say (the rule above).
 bool prepass_by_default(worker::IntegratorKind integrator, const scene::SceneDescription& scene);
+
+// The scene's features a report lists: every one not rendered exactly as pbrt-v4 would.
+std::vector<SceneFeatureNote> reported_features(const scene::SceneDescription& scene);
 
 // The report's gradient and prepass sections from the job's settings (their measured figures,
 // counters and times, are the caller's to fill).

@@ -406,6 +406,22 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
     j["prepass"]["learned_shapes"] = {{"second_moment", p.outcome.shape_histogram[0]},
                                       {"within_lane", p.outcome.shape_histogram[1]}};
   }
+  // Where the image is not pbrt-v4's: every substitution (--allow-unsupported), approximation
+  // and ignored setting, so a reference says what it is a reference of.
+  nlohmann::ordered_json features = {{"substituted", nlohmann::ordered_json::array()},
+                                     {"approximated", nlohmann::ordered_json::array()},
+                                     {"ignored", nlohmann::ordered_json::array()}};
+  for (const SceneFeatureNote& f : r.scene_features) {
+    nlohmann::ordered_json entry = {
+        {"feature", f.feature}, {"where", f.where}, {"uses", f.uses}, {"note", f.note}};
+    if (f.status == "refused") {
+      entry["substitution"] = f.substitution;
+      features["substituted"].push_back(entry);
+    } else if (f.status == "approximated" || f.status == "ignored") {
+      features[f.status].push_back(entry);
+    }
+  }
+  j["scene_features"] = features;
   nlohmann::ordered_json outputs = {{"spectral_exr", paths.spectral_exr.string()},
                                     {"rgb_exr", paths.rgb_exr.string()},
                                     {"png", paths.png.string()},

@@ -146,6 +146,15 @@ struct PrepassReport {
 std::string prepass_summary(const PrepassReport& prepass);
 
 // What the JSON report records besides the image.
+struct SceneFeatureNote {
+  std::string status;  // "refused" (substituted), "approximated" or "ignored"
+  std::string feature;
+  std::string where;  // file:line:column of the first use
+  int uses = 1;
+  std::string note;
+  std::string substitution;  // what was rendered instead ("refused" only)
+};
+
 struct RenderReport {
   std::string scene;
   int width = 0;
@@ -170,6 +179,9 @@ struct RenderReport {
   BinStatistics statistics;
   std::optional<GradientReport> gradient;
   std::optional<PrepassReport> prepass;
+  // The scene's features that Prism did not render exactly as pbrt-v4 would
+  // (services/scene/scene_features.h): substituted, approximated or ignored, in scene order.
+  std::vector<SceneFeatureNote> scene_features;
 };
 
 // The counters of a gradient job's Table 1, taken from the named counters.

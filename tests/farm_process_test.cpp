@@ -247,6 +247,12 @@ class FarmProcessTest : public ::testing::Test {
 
   std::vector<float> fetch_spectral(const std::string& job_id,
                                     v1::OutputKind kind = v1::OUTPUT_KIND_SPECTRAL_EXR) {
+    const fs::path file = root_ / "farm.exr";
+    std::ofstream(file, std::ios::binary) << fetch_bytes(job_id, kind);
+    return read_pixels(file);
+  }
+
+  std::string fetch_bytes(const std::string& job_id, v1::OutputKind kind) {
     v1::GetResultRequest request;
     request.set_job_id(job_id);
     request.add_kinds(kind);
@@ -260,9 +266,7 @@ class FarmProcessTest : public ::testing::Test {
     }
     EXPECT_TRUE(reader->Finish().ok());
     EXPECT_EQ(sha, base::sha256_hex(bytes));
-    const fs::path file = root_ / "farm.exr";
-    std::ofstream(file, std::ios::binary) << bytes;
-    return read_pixels(file);
+    return bytes;
   }
 
   static std::vector<float> read_pixels(const fs::path& file) {
@@ -431,6 +435,54 @@ TEST_F(FarmProcessTest, AJobWhoseSceneReadsImagesMatchesPrismRenderByteForByte) 
   ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
   EXPECT_EQ(done.progress().tasks_done(), 6u);
   expect_identical(fetch_spectral(job_id), cli_render(kSpp));
+}
+
+// A scene with features Prism does not support (a hair material, a partial sphere) is refused
+// at submit unless the job allows substitutions; then the workers load it with the same
+// substitutions as `prism render --allow-unsupported`, and the report lists them.
+TEST_F(FarmProcessTest, AJobThatAllowsUnsupportedInputMatchesPrismRenderAndListsSubstitutions) {
+  {
+    std::ofstream scene(root_ / "scene" / "scene.pbrt");
+    scene << R"(LookAt 0 2 -5  0 0.5 0  0 1 0
+Camera "perspective" "float fov" 40
+Film "spectral" "integer xresolution" 24 "integer yresolution" 24 "integer nbuckets" 16
+Sampler "independent" "integer pixelsamples" 16
+WorldBegin
+LightSource "point" "point3 from" [0 4 -2] "blackbody I" 4000 "float scale" 20
+Material "hair" "float eumelanin" 1.3
+Shape "trianglemesh" "point3 P" [-4 0 -4  4 0 -4  4 0 4  -4 0 4] "integer indices" [0 1 2 0 2 3]
+Material "diffuse" "rgb reflectance" [0.7 0.3 0.2]
+Translate 0 0.7 0
+Shape "sphere" "float radius" 0.7 "float zmin" 0
+)";
+  }
+  start_coordinator();
+  const std::string hash = upload();
+  v1::JobSpec strict = spec(hash, kSpp);
+  {
+    v1::SubmitJobRequest request;
+    *request.mutable_spec() = strict;
+    v1::SubmitJobResponse response;
+    auto context = client();
+    const grpc::Status status = stub_->SubmitJob(context.get(), request, &response);
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_NE(status.error_message().find("scene.pbrt:7:10: unsupported material type \"hair\""),
+              std::string::npos)
+        << status.error_message();
+  }
+  v1::JobSpec allowed = strict;
+  allowed.set_allow_unsupported(true);
+  const std::string job_id = submit(allowed);
+  ASSERT_FALSE(job_id.empty());
+  start_worker(0);
+  start_worker(1);
+  const v1::JobInfo done = wait_for(job_id, terminal, 30);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral(job_id),
+                   cli_render(kSpp, 0, {"--no-prepass", "--allow-unsupported"}));
+  const std::string report = fetch_bytes(job_id, v1::OUTPUT_KIND_REPORT_JSON);
+  EXPECT_NE(report.find("\"feature\": \"Material \\\"hair\\\"\""), std::string::npos) << report;
+  EXPECT_NE(report.find("\"substitution\": \"a full sphere\""), std::string::npos) << report;
 }
 
 // The multi-pass prepass through the farm: two prepasses of 9 tile tasks each, the coordinator's

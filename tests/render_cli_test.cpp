@@ -250,3 +250,48 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
 }
 
 }  // namespace
+
+// A scene with a refused feature (a realistic camera) renders only when the user allows it, and
+// the report lists what was rendered instead; `prism check` lists the refusal either way.
+TEST(RenderCliTest, UnsupportedFeaturesRenderOnlyWhenAllowedAndTheReportListsThem) {
+  const std::string scene = source("tests/testdata/render/unsupported.pbrt");
+  CommandRun check = run_prism(fresh_dir("check_unsupported"), {"check", scene});
+  EXPECT_EQ(check.exit_code, 1) << check.output;
+  EXPECT_NE(check.output.find("  refused      Camera \"realistic\" (unsupported.pbrt:3:8): "
+                              "unsupported camera type \"realistic\" (supported: orthographic, "
+                              "perspective, spherical); --allow-unsupported renders a perspective "
+                              "camera with a 90 degree field of view"),
+            std::string::npos)
+      << check.output;
+  EXPECT_NE(check.output.find("prism render refuses this scene: 1 features are not supported"),
+            std::string::npos)
+      << check.output;
+  CommandRun allowed_check =
+      run_prism(fresh_dir("check_allowed"), {"check", scene, "--allow-unsupported", "--json"});
+  ASSERT_EQ(allowed_check.exit_code, 0) << allowed_check.output;
+  auto checked = nlohmann::json::parse(allowed_check.output);
+  EXPECT_EQ(checked["refused"], 1);
+  EXPECT_TRUE(checked["renders"]);
+
+  const fs::path dir = fresh_dir("render_allowed");
+  CommandRun run =
+      run_prism(dir, {"render", scene, "-o", "u.exr", "--allow-unsupported", "--threads", "1"});
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  // The substitution is said on the terminal and recorded in the report.
+  EXPECT_NE(run.output.find("unsupported.pbrt:3:8: warning: unsupported camera type "
+                            "\"realistic\" (supported: orthographic, perspective, spherical); "
+                            "rendered as a perspective camera with a 90 degree field of view"),
+            std::string::npos)
+      << run.output;
+  auto text = prism::base::read_file(dir / "u.json");
+  ASSERT_TRUE(text.ok()) << text.status();
+  auto report = nlohmann::json::parse(*text);
+  const auto& substituted = report["scene_features"]["substituted"];
+  ASSERT_EQ(substituted.size(), 1u) << report["scene_features"].dump(2);
+  EXPECT_EQ(substituted[0]["feature"], "Camera \"realistic\"");
+  EXPECT_EQ(substituted[0]["where"], "unsupported.pbrt:3:8");
+  EXPECT_EQ(substituted[0]["substitution"], "a perspective camera with a 90 degree field of view");
+  // The sampler type cannot change the image: accepted, and noted.
+  ASSERT_EQ(report["scene_features"]["ignored"].size(), 1u);
+  EXPECT_EQ(report["scene_features"]["ignored"][0]["feature"], "Sampler \"zsobol\"");
+}

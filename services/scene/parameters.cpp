@@ -347,16 +347,34 @@ absl::StatusOr<std::optional<SpectrumParam>> ParameterList::find_spectrum(
   return std::optional<SpectrumParam>(SpectrumNamed{ref});
 }
 
-absl::Status ParameterList::refuse(std::string_view name, std::string_view message) const {
+std::string ParameterList::feature(const Parameter& p) const {
+  return owner_.empty() ? absl::StrCat("'", decl(p), "'")
+                        : absl::StrCat(owner_, " '", decl(p), "'");
+}
+
+absl::Status ParameterList::refuse(std::string_view name, std::string_view message,
+                                   std::string_view substitution) const {
   const Parameter* p = find(name);
   if (p == nullptr) return absl::OkStatus();
-  return location_error(p->where, absl::StrCat("'", decl(*p), "': ", absl_view(message)));
+  std::string text = absl::StrCat("'", decl(*p), "': ", absl_view(message));
+  if (features_ == nullptr) return location_error(p->where, text);
+  p->used = true;
+  return features_->refuse(feature(*p), p->where, text, substitution);
 }
 
 absl::Status ParameterList::check_all_used() const {
-  for (const Parameter& p : params_)
-    if (!p.used) return location_error(p.where, absl::StrCat("unused parameter '", decl(p), "'"));
+  for (const Parameter& p : params_) {
+    if (p.used) continue;
+    std::string text = absl::StrCat("unused parameter '", decl(p), "'");
+    if (features_ == nullptr) return location_error(p.where, text);
+    p.used = true;
+    PRISM_RETURN_IF_ERROR(features_->refuse(feature(p), p.where, text, "the scene without it"));
+  }
   return absl::OkStatus();
+}
+
+void ParameterList::mark_all_used() const {
+  for (const Parameter& p : params_) p.used = true;
 }
 
 std::vector<const Parameter*> ParameterList::unused() const {

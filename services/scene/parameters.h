@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "services/scene/scene_features.h"
 #include "services/scene/source_location.h"
 #include "services/scene/spectrum_param.h"
 #include "services/scene/tokenizer.h"
@@ -86,10 +87,25 @@ class ParameterList {
                                                              SpectrumRole role,
                                                              const SpectrumSources& sources) const;
 
-  // An error if `name` is present: `<message>` at its position.
-  absl::Status refuse(std::string_view name, std::string_view message) const;
-  // The first parameter that no getter read, as an error: "unused parameter 'float foo'".
+  // Who owns these parameters (`Material "coateddiffuse"`) and the recorder of the parse's
+  // features; without a recorder every refusal is an error.
+  void set_policy(FeatureRecorder* features, std::string owner) {
+    features_ = features;
+    owner_ = std::move(owner);
+  }
+  FeatureRecorder* features() const { return features_; }
+  // `Material "coateddiffuse" 'texture albedo'`: the feature a parameter is, for reports.
+  std::string feature(const Parameter& p) const;
+
+  // An error if `name` is present: `<message>` at its position. When the recorder allows
+  // unsupported input, the refusal is recorded with `substitution` and the parameter dropped.
+  absl::Status refuse(std::string_view name, std::string_view message,
+                      std::string_view substitution = "the scene without it") const;
+  // The first parameter that no getter read, as an error: "unused parameter 'float foo'"
+  // (recorded and dropped when the recorder allows unsupported input).
   absl::Status check_all_used() const;
+  // Marks every parameter read: they belong to something refused as a whole.
+  void mark_all_used() const;
   // The parameters no getter has read so far.
   std::vector<const Parameter*> unused() const;
 
@@ -100,7 +116,9 @@ class ParameterList {
                                          std::initializer_list<ParamType> types) const;
   const SourceLocation& value_where(const Parameter* p) const;
   std::vector<Parameter> params_;
-  std::vector<SourceLocation> value_where_;  // parallel to params_: where each value list starts
+  std::vector<SourceLocation> value_where_;
+  FeatureRecorder* features_ = nullptr;
+  std::string owner_;  // parallel to params_: where each value list starts
 };
 
 // A finite number from a whole word (a leading '+' is allowed). Errors: not a number, or

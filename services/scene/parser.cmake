@@ -6,6 +6,7 @@ set(PRISM_SCENE_PARSER_SOURCES
   ${CMAKE_CURRENT_LIST_DIR}/parser.cpp
   ${CMAKE_CURRENT_LIST_DIR}/scene_description.cpp
   ${CMAKE_CURRENT_LIST_DIR}/scene_entities.cpp
+  ${CMAKE_CURRENT_LIST_DIR}/scene_features.cpp
   ${CMAKE_CURRENT_LIST_DIR}/scene_loader.cpp
   ${CMAKE_CURRENT_LIST_DIR}/scene_summary.cpp
   ${CMAKE_CURRENT_LIST_DIR}/spectrum_param.cpp
@@ -57,6 +58,7 @@ prism_test(NAME scene_parser_test
     ${CMAKE_CURRENT_LIST_DIR}/parser_errors_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/scene_loader_test.cpp
     ${CMAKE_CURRENT_LIST_DIR}/scene_summary_test.cpp
+    ${CMAKE_CURRENT_LIST_DIR}/scene_features_test.cpp
   LIBS prism::scene
 )
 

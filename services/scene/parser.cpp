@@ -1,5 +1,6 @@
 #include "services/scene/parser.h"
 
+#include <cctype>
 #include <map>
 #include <optional>
 #include <set>
@@ -22,6 +23,9 @@ namespace {
 
 struct GraphicsState {
   Transform ctm;
+  // False after `ActiveTransform EndTime`: Prism renders the shutter-open transforms only
+  // (motion blur is refused), so end-time transforms are dropped.
+  bool start_transform_active = true;
   bool reverse_orientation = false;
   int material = -1;  // -1: pbrt-v4's default material (diffuse, reflectance 0.5)
   std::optional<AreaLight> area_light;
@@ -54,17 +58,51 @@ const char* scope_begin_name(ScopeKind kind) {
   return "";
 }
 
+// pbrt-v4's `Option` directive. Options that only affect speed, statistics or output files
+// cannot change the image; `disabletexturefiltering` is what Prism does anyway; the rest
+// change the image and are refused.
+absl::Status apply_options(const ParameterList& params, FeatureRecorder& features) {
+  static constexpr std::string_view kNoEffect[] = {"seed",
+                                                   "quickrender",
+                                                   "quiet",
+                                                   "rendercoordsys",
+                                                   "wavefront",
+                                                   "msereferenceimage",
+                                                   "msereferenceout",
+                                                   "displacementedgescale",
+                                                   "recordpixelstatistics",
+                                                   "useGPU"};
+  for (const Parameter& p : params.parameters()) {
+    p.used = true;
+    const std::string feature = params.feature(p);
+    bool no_effect = false;
+    for (std::string_view k : kNoEffect) no_effect |= k == p.name;
+    if (no_effect) {
+      features.ignored(feature, p.where, "does not change the converged image");
+    } else if (p.name == "disabletexturefiltering") {
+      features.supported(feature, p.where, "Prism never prefilters textures");
+    } else if (p.type == ParamType::kBool && p.bools.size() == 1 && !p.bools[0]) {
+      features.ignored(feature, p.where, "false is pbrt-v4's default");
+    } else {
+      PRISM_RETURN_IF_ERROR(features.refuse(
+          feature, p.where,
+          absl::StrCat("Option '", p.name, "' changes the image and is not supported by Prism"),
+          "the scene without the option"));
+    }
+  }
+  return absl::OkStatus();
+}
+
 class SceneParser {
  public:
   SceneParser(const LoadOptions& options, const SceneFiles& files)
-      : options_(options), files_(files) {
+      : options_(options), files_(files), features_(options.allow_unsupported, &scene_.features) {
     ctx_.spectra.is_known_spectrum = options.is_known_spectrum;
     ctx_.spectra.is_known_ior = options.is_known_ior;
     ctx_.spectra.load_table = [this](const std::string& ref, const SourceLocation& where) {
       return load_table(ref, where);
     };
     ctx_.mesh_limits = options.mesh_limits;
-    ctx_.warnings = &scene_.warnings;
     ctx_.find_material = [this](const std::string& name) -> std::optional<int> {
       auto it = named_materials_.find(name);
       if (it == named_materials_.end()) return std::nullopt;
@@ -146,11 +184,29 @@ class SceneParser {
   int material_index(const SourceLocation& where);
   absl::StatusOr<int> medium_index(const Token& name, const SourceLocation& where) const;
   absl::Status add_shape(Shape shape);
+  // Emitting shapes Prism cannot sample yet: refused, or made non-emitting.
+  absl::Status check_emitter(Shape& shape);
+
+  // A directive's parameters, owned by `owner` (`Material "diffuse"`) for feature reports.
+  absl::StatusOr<ParameterList> parameters(Tokenizer& tokens, std::string owner) {
+    PRISM_ASSIGN_OR_RETURN(ParameterList params, ParameterList::parse(tokens));
+    params.set_policy(&features_, std::move(owner));
+    return params;
+  }
+  // A directive Prism does not run, refused (or, allowing unsupported input, skipped with its
+  // arguments: everything up to the next directive name).
+  absl::Status skip_directive(Tokenizer& tokens, const Token& d, const SourceLocation& where,
+                              const std::string& message);
+  // Transform directives change the CTM only while the start-time transform is active.
+  void set_ctm(const Transform& t) {
+    if (state_.start_transform_active) state_.ctm = t;
+  }
 
   const LoadOptions& options_;
   const SceneFiles& files_;
   EntityContext ctx_;
   SceneDescription scene_;
+  FeatureRecorder features_;
   GraphicsState state_;
   std::vector<Scope> scopes_;
   std::map<std::string, Transform> named_coordinate_systems_;
@@ -279,11 +335,48 @@ absl::StatusOr<int> SceneParser::medium_index(const Token& name,
   return it->second;
 }
 
+absl::Status SceneParser::check_emitter(Shape& shape) {
+  auto refuse = [&](const char* feature, const char* message) -> absl::Status {
+    PRISM_RETURN_IF_ERROR(
+        features_.refuse(feature, shape.where, message, "a shape that does not emit"));
+    shape.area_light.reset();
+    return absl::OkStatus();
+  };
+  if (shape.alpha < 1.0 || shape.alpha_texture >= 0)
+    return refuse("area light with an alpha cut-out",
+                  "an area light with an 'alpha' cut-out is not supported yet");
+  if (std::holds_alternative<CylinderShape>(shape.geometry))
+    return refuse("cylinder area light",
+                  "a cylinder used as an area light is not supported yet; model it as a mesh");
+  return absl::OkStatus();
+}
+
+absl::Status SceneParser::skip_directive(Tokenizer& tokens, const Token& d,
+                                         const SourceLocation& where, const std::string& message) {
+  PRISM_RETURN_IF_ERROR(features_.refuse(absl::StrCat("directive ", d.text), where, message,
+                                         "the scene without the directive"));
+  // Its arguments are strings, numbers and brackets; the next directive is a word that starts
+  // with a letter.
+  while (true) {
+    PRISM_ASSIGN_OR_RETURN(Token next, tokens.peek());
+    if (next.kind == Token::Kind::kEnd) return absl::OkStatus();
+    if (next.kind == Token::Kind::kWord && !next.text.empty() &&
+        std::isalpha(static_cast<unsigned char>(next.text[0])) && next.text != "true" &&
+        next.text != "false")
+      return absl::OkStatus();
+    PRISM_RETURN_IF_ERROR(tokens.next().status());
+  }
+}
+
 absl::Status SceneParser::add_shape(Shape shape) {
   if (current_object_) {
-    if (shape.area_light)
-      return location_error(shape.where,
-                            "area lights inside ObjectBegin/ObjectEnd are not supported");
+    if (shape.area_light) {
+      PRISM_RETURN_IF_ERROR(
+          features_.refuse("area light inside ObjectBegin", shape.where,
+                           "area lights inside ObjectBegin/ObjectEnd are not supported",
+                           "the instanced shapes without emission"));
+      shape.area_light.reset();
+    }
     objects_[*current_object_].shapes.push_back(std::move(shape));
     return absl::OkStatus();
   }
@@ -357,10 +450,11 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
   const std::string& name = d.text;
   SourceLocation where = tokens.location(d);
 
-  auto apply = [&](const Transform& t) { state_.ctm = state_.ctm * t; };
+  auto apply = [&](const Transform& t) { set_ctm(state_.ctm * t); };
   auto typed_directive = [&]() -> absl::StatusOr<std::pair<TypeName, ParameterList>> {
     PRISM_ASSIGN_OR_RETURN(Token type, string_arg(tokens, d, "type name"));
-    PRISM_ASSIGN_OR_RETURN(ParameterList params, ParameterList::parse(tokens));
+    PRISM_ASSIGN_OR_RETURN(ParameterList params,
+                           parameters(tokens, absl::StrCat(name, " \"", type.text, "\"")));
     return std::make_pair(TypeName{type.text, tokens.location(type)}, std::move(params));
   };
 
@@ -395,11 +489,11 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     std::optional<Transform> t = Transform::from_matrix(m);
     if (!t) return location_error(where, absl::StrCat("'", name, "' matrix is singular"));
     if (name == "Transform")
-      state_.ctm = *t;
+      set_ctm(*t);
     else
       apply(*t);
   } else if (name == "Identity") {
-    state_.ctm = Transform();
+    set_ctm(Transform());
   } else if (name == "CoordinateSystem") {
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "name"));
     named_coordinate_systems_[n.text] = state_.ctm;
@@ -409,12 +503,20 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     if (it == named_coordinate_systems_.end())
       return location_error(tokens.location(n),
                             absl::StrCat("coordinate system \"", n.text, "\" is not defined"));
-    state_.ctm = it->second;
+    set_ctm(it->second);
   } else if (name == "ActiveTransform") {
     PRISM_ASSIGN_OR_RETURN(Token which, tokens.next());
-    if (which.kind != Token::Kind::kWord || which.text != "All")
-      return location_error(tokens.location(which),
-                            "only 'ActiveTransform All' is supported (no motion blur)");
+    SourceLocation at = tokens.location(which);
+    if (which.kind != Token::Kind::kWord ||
+        (which.text != "All" && which.text != "StartTime" && which.text != "EndTime"))
+      return location_error(at, "'ActiveTransform' takes All, StartTime or EndTime");
+    if (which.text != "All")
+      PRISM_RETURN_IF_ERROR(features_.refuse(
+          absl::StrCat("ActiveTransform ", which.text), at,
+          absl::StrCat("'ActiveTransform ", which.text,
+                       "' animates transforms, and Prism does not render motion blur"),
+          "the shutter-open (StartTime) transforms, without motion"));
+    state_.start_transform_active = which.text != "EndTime";
   } else if (name == "ReverseOrientation") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     state_.reverse_orientation = !state_.reverse_orientation;
@@ -431,17 +533,17 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_RETURN_IF_ERROR(require_options(d, where));
     PRISM_RETURN_IF_ERROR(once(film_at_, d, where));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
-    PRISM_ASSIGN_OR_RETURN(scene_.film, make_film(td.first, td.second, ctx_));
+    PRISM_ASSIGN_OR_RETURN(scene_.film, make_film(td.first, td.second));
   } else if (name == "Sampler") {
     PRISM_RETURN_IF_ERROR(require_options(d, where));
     PRISM_RETURN_IF_ERROR(once(sampler_at_, d, where));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
-    PRISM_ASSIGN_OR_RETURN(scene_.sampler, make_sampler(td.first, td.second, ctx_));
+    PRISM_ASSIGN_OR_RETURN(scene_.sampler, make_sampler(td.first, td.second));
   } else if (name == "Integrator") {
     PRISM_RETURN_IF_ERROR(require_options(d, where));
     PRISM_RETURN_IF_ERROR(once(integrator_at_, d, where));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
-    PRISM_ASSIGN_OR_RETURN(scene_.integrator, make_integrator(td.first, td.second, ctx_));
+    PRISM_ASSIGN_OR_RETURN(scene_.integrator, make_integrator(td.first, td.second));
   } else if (name == "PixelFilter") {
     PRISM_RETURN_IF_ERROR(require_options(d, where));
     PRISM_RETURN_IF_ERROR(once(filter_at_, d, where));
@@ -450,13 +552,13 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
   } else if (name == "ColorSpace") {
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "colour space name"));
     if (n.text != "srgb")
-      return location_error(tokens.location(n), absl::StrCat("unsupported colour space \"", n.text,
-                                                             "\" (supported: srgb)"));
+      PRISM_RETURN_IF_ERROR(features_.refuse(
+          absl::StrCat("ColorSpace \"", n.text, "\""), tokens.location(n),
+          absl::StrCat("unsupported colour space \"", n.text, "\" (supported: srgb)"),
+          "RGB values read as sRGB"));
   } else if (name == "Option") {
-    PRISM_ASSIGN_OR_RETURN(ParameterList params, ParameterList::parse(tokens));
-    for (const Parameter& p : params.parameters())
-      scene_.warnings.push_back(
-          absl::StrCat(p.where.to_string(), ": warning: Option '", p.name, "' ignored"));
+    PRISM_ASSIGN_OR_RETURN(ParameterList params, parameters(tokens, "Option"));
+    PRISM_RETURN_IF_ERROR(apply_options(params, features_));
   } else if (name == "WorldBegin") {
     if (in_world_)
       return location_error(
@@ -469,8 +571,8 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     bool transform_only = name == "TransformBegin";
     if (transform_only)
-      scene_.warnings.push_back(
-          absl::StrCat(where.to_string(), ": warning: TransformBegin is deprecated in pbrt-v4"));
+      features_.supported("TransformBegin", where,
+                          "deprecated in pbrt-v4; read as pbrt-v4 reads it");
     scopes_.push_back(
         Scope{transform_only ? ScopeKind::kTransform : ScopeKind::kAttribute, state_, where});
   } else if (name == "AttributeEnd" || name == "TransformEnd") {
@@ -484,7 +586,7 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
           where, absl::StrCat("'", name, "' closes the ", scope_begin_name(scopes_.back().kind),
                               " at ", scopes_.back().where.to_string()));
     if (kind == ScopeKind::kTransform)
-      state_.ctm = scopes_.back().saved.ctm;
+      state_.ctm = scopes_.back().saved.ctm;  // restores even under ActiveTransform EndTime
     else
       state_ = scopes_.back().saved;
     scopes_.pop_back();
@@ -493,8 +595,10 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
     Shape shape;
     PRISM_RETURN_IF_ERROR(read_shape_alpha(td.second, ctx_, &shape.alpha, &shape.alpha_texture));
-    PRISM_ASSIGN_OR_RETURN(ShapeGeometry geometry, make_shape_geometry(td.first, td.second, ctx_));
-    shape.geometry = std::move(geometry);
+    PRISM_ASSIGN_OR_RETURN(std::optional<ShapeGeometry> geometry,
+                           make_shape_geometry(td.first, td.second, ctx_));
+    if (!geometry) return absl::OkStatus();  // refused and dropped (allow_unsupported)
+    shape.geometry = std::move(*geometry);
     shape.object_to_world = state_.ctm;
     shape.transform_swaps_handedness = state_.ctm.swaps_handedness();
     shape.reverse_orientation = state_.reverse_orientation;
@@ -502,6 +606,7 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     shape.area_light = state_.area_light;
     shape.media = {state_.inside_medium, state_.outside_medium};
     shape.where = where;
+    if (shape.area_light) PRISM_RETURN_IF_ERROR(check_emitter(shape));
     PRISM_RETURN_IF_ERROR(add_shape(std::move(shape)));
   } else if (name == "Material") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
@@ -518,6 +623,7 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     if (!type)
       return location_error(where, absl::StrCat("'", name, "' needs a 'string type' parameter"));
     TypeName type_name{*type, params.find("type")->where};
+    params.set_policy(&features_, absl::StrCat(name, " \"", n.text, "\""));
     auto& names = is_material ? named_materials_ : named_media_;
     if (auto it = names.find(n.text); it != names.end()) {
       const SourceLocation& first = is_material
@@ -558,17 +664,25 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
   } else if (name == "LightSource") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     if (current_object_)
-      return location_error(where, "light sources inside ObjectBegin/ObjectEnd are not supported");
+      PRISM_RETURN_IF_ERROR(
+          features_.refuse("light source inside ObjectBegin", where,
+                           "light sources inside ObjectBegin/ObjectEnd are not supported",
+                           "the scene without the light"));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
-    PRISM_ASSIGN_OR_RETURN(Light light, make_light(td.first, td.second, state_.ctm, ctx_));
-    light.medium = state_.outside_medium;
-    light.where = where;
-    scene_.lights.push_back(std::move(light));
+    PRISM_ASSIGN_OR_RETURN(std::optional<Light> light,
+                           make_light(td.first, td.second, state_.ctm, ctx_));
+    if (current_object_) light.reset();
+    if (light) {
+      light->medium = state_.outside_medium;
+      light->where = where;
+      scene_.lights.push_back(std::move(*light));
+    }
   } else if (name == "AreaLightSource") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
-    PRISM_ASSIGN_OR_RETURN(AreaLight area, make_area_light(td.first, td.second, ctx_));
-    area.where = where;
+    PRISM_ASSIGN_OR_RETURN(std::optional<AreaLight> area,
+                           make_area_light(td.first, td.second, ctx_));
+    if (area) area->where = where;
     state_.area_light = std::move(area);
   } else if (name == "Include" || name == "Import") {
     PRISM_ASSIGN_OR_RETURN(Token f, string_arg(tokens, d, "file name"));
@@ -636,11 +750,30 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
                        scene_.textures[static_cast<size_t>(it->second)].where.to_string(), ")"));
     names[n.text] = static_cast<int>(scene_.textures.size());
     scene_.textures.push_back(Texture{n.text, spectrum, std::move(texture), where});
-  } else if (name == "Attribute" || name == "TransformTimes" || name == "MakeNamedCamera" ||
-             name == "Accelerator" || name == "WorldEnd") {
-    return location_error(where, absl::StrCat("directive '", name, "' is not supported by Prism"));
+  } else if (name == "Accelerator") {
+    PRISM_RETURN_IF_ERROR(require_options(d, where));
+    PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    td.second.mark_all_used();
+    features_.ignored(absl::StrCat("Accelerator \"", td.first.name, "\""), where,
+                      "Prism always builds Embree's BVH; the image is the same");
+  } else if (name == "TransformTimes") {
+    PRISM_ASSIGN_OR_RETURN(std::vector<double> v, numbers(tokens, 2, d, false));
+    (void)v;
+    features_.ignored("TransformTimes", where,
+                      "the shutter times only matter for animated transforms, which are refused");
+  } else if (name == "WorldEnd") {
+    features_.ignored("WorldEnd", where, "a pbrt-v3 directive; the scene ends with its file");
+  } else if (name == "Attribute") {
+    PRISM_RETURN_IF_ERROR(skip_directive(
+        tokens, d, where,
+        "directive 'Attribute' (default parameters for later shapes, lights, materials, media "
+        "or textures) is not supported by Prism"));
+  } else if (name == "MakeNamedCamera") {
+    PRISM_RETURN_IF_ERROR(
+        skip_directive(tokens, d, where, "directive 'MakeNamedCamera' is not supported by Prism"));
   } else {
-    return location_error(where, absl::StrCat("unknown directive '", name, "'"));
+    PRISM_RETURN_IF_ERROR(
+        skip_directive(tokens, d, where, absl::StrCat("unknown directive '", name, "'")));
   }
   return absl::OkStatus();
 }

@@ -6,12 +6,14 @@
 // the parser reaches them only through SceneFiles, so the same code parses from disk
 // (scene_loader.h) and from memory (tests, fuzzing).
 //
-// Every error is a Status whose message starts with `file:line:column: `; nothing is
-// silently dropped: unsupported input is an error naming it, input that is accepted but
-// changed (sampler, integrator tuning, Option, the film's `savefp16`) is a warning in the
-// result. Beyond the basics it reads pbrt-v4's pixel filters (box, gaussian, triangle,
-// mitchell, lanczos), distant lights, orthographic and spherical cameras, and the
-// `diffusetransmission`, `thindielectric` and `mix` (float amount) materials.
+// Every error is a Status whose message starts with `file:line:column: `. Nothing is silently
+// dropped (scene_features.h): every feature the scene uses is recorded in
+// SceneDescription::features as supported, approximated (textures without pbrt-v4's
+// ray-differential filtering), ignored (cannot change the converged image: the sampler type,
+// Accelerator, the film's `savefp16`, speed-only Options and integrator tuning) or refused.
+// A refusal is an error naming the feature, unless LoadOptions::allow_unsupported: then its
+// substitution is recorded and rendered (an unknown material becomes pbrt-v4's default diffuse,
+// an unknown shape or light is dropped, a partial sphere is whole, ...).
 //
 // Deliberate differences from pbrt-v4:
 // - Include/Import and other file names are relative to the file that mentions them (pbrt-v4:
@@ -22,14 +24,14 @@
 // - Extensions: `objmesh` shapes (Wavefront OBJ); `float cauchy` / `float sellmeier` IORs on
 //   dielectrics; a `float` where a spectrum is expected (a constant spectrum).
 // - A spectrum given as a string is a file if it contains '/' or '.', else a named spectrum.
-// - Refused (each by name): textures, partial spheres, image lights, motion blur, crop
-//   windows, non-default sensors, lambdamin/lambdamax other than 360/830 nm, emissive media,
-//   the coated and measured materials, textured mix amounts, disks, cylinders and subdivision
-//   surfaces, realistic cameras.
+// - Refused (each by name): partial spheres, disks and cylinders, image area lights, motion
+//   blur (ActiveTransform StartTime/EndTime), crop windows, non-default sensors,
+//   lambdamin/lambdamax other than 360/830 nm, emissive and heterogeneous media, the measured,
+//   hair and subsurface materials, textured layer parameters, spectral coat indices, cylinder
+//   and alpha-masked emitters, portals, realistic cameras, Attribute, and the integrators that
+//   render something other than light transport (ambientocclusion, aov, function).
 // - The homogeneous medium's `g` is kept (Henyey-Greenstein, as pbrt-v4); `preset` and `Le`
 //   are refused.
-// - Integrator names other than path/volpath are accepted with a warning and rendered by
-//   Prism's spectral path tracer; their tuning parameters are ignored with a warning.
 // - Unclosed AttributeBegin at the end is a warning (as pbrt-v4); unmatched AttributeEnd is
 //   an error.
 #pragma once
@@ -57,6 +59,10 @@ struct LoadOptions {
   std::uint64_t max_spectrum_file_bytes = std::uint64_t{16} << 20;
   std::uint64_t max_image_file_bytes = std::uint64_t{1} << 30;  // each texture image
   std::uint64_t max_total_triangles = 200'000'000;
+  // Input that would change the image and that Prism does not render is an error naming it;
+  // with this set it is recorded in SceneDescription::features with what Prism renders instead
+  // (a dropped parameter or shape, a default material, ...), and loading goes on.
+  bool allow_unsupported = false;
 };
 
 enum class MeshFormat { kPly, kObj };

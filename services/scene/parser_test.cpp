@@ -54,9 +54,11 @@ TEST(GoodScenes, CameraLookingDownPlusZIsTheWorldFrame) {
   EXPECT_TRUE(s.integrator.name_recognised);
   ASSERT_EQ(s.shapes.size(), 1u);
   EXPECT_EQ(std::get<SphereShape>(s.shapes[0].geometry).radius, 1.0);
-  ASSERT_EQ(s.warnings.size(), 1u);
-  EXPECT_EQ(s.warnings[0],
-            "camera.pbrt:8:9: warning: sampler \"halton\": Prism uses its own sample sequence; 64 "
+  EXPECT_TRUE(s.warnings.empty());
+  ASSERT_EQ(feature_warnings(s.features).size(), 1u);
+  EXPECT_EQ(feature_warnings(s.features)[0],
+            "camera.pbrt:8:9: warning: Sampler \"halton\" ignored: Prism uses its own sample "
+            "sequence; 64 "
             "samples per "
             "pixel become the default spp");
   EXPECT_EQ(s.files, (std::vector<std::string>{"camera.pbrt"}));
@@ -383,25 +385,29 @@ TEST(GoodScenes, AcceptedButChangedInputIsReportedAsWarnings) {
   SceneDescription s = load_good("warnings.pbrt");
   EXPECT_EQ(s.sampler.name, "stratified");
   EXPECT_EQ(s.sampler.samples_per_pixel, 15);
-  EXPECT_EQ(s.integrator.name, "mystery");
-  EXPECT_FALSE(s.integrator.name_recognised);
+  EXPECT_EQ(s.integrator.name, "bdpt");
+  EXPECT_TRUE(s.integrator.name_recognised);
   EXPECT_EQ(s.integrator.max_depth, 7);
   // The pixel filter is pbrt-v4's, no longer ignored.
   EXPECT_EQ(s.filter.type, PixelFilterType::kGaussian);
   EXPECT_EQ(s.filter.x_radius, 1.5);
   EXPECT_EQ(s.filter.y_radius, 1.25);
   EXPECT_EQ(s.filter.sigma, 0.5);
-  EXPECT_EQ(s.warnings,
+  EXPECT_EQ(
+      s.warnings,
+      (std::vector<std::string>{"warnings.pbrt:7:1: warning: AttributeBegin is never closed"}));
+  EXPECT_EQ(feature_warnings(s.features),
             (std::vector<std::string>{
-                "warnings.pbrt:1:9: warning: sampler \"stratified\": Prism uses its own sample "
-                "sequence; 15 samples "
-                "per pixel become the default spp",
-                "warnings.pbrt:2:12: warning: unknown integrator \"mystery\"; Prism renders with "
-                "its spectral path "
-                "tracer",
-                "warnings.pbrt:2:43: warning: integrator parameter 'bool regularize' ignored",
-                "warnings.pbrt:4:8: warning: Option 'disablepixeljitter' ignored",
-                "warnings.pbrt:6:1: warning: AttributeBegin is never closed",
+                "warnings.pbrt:1:9: warning: Sampler \"stratified\" ignored: Prism uses its own "
+                "sample sequence; 15 samples per pixel become the default spp",
+                "warnings.pbrt:2:12: warning: Integrator \"bdpt\" ignored: converges to the same "
+                "image; rendered by Prism's spectral path tracer",
+                "warnings.pbrt:2:40: warning: Integrator \"bdpt\" 'string lightsampler' ignored: "
+                "integrator tuning does not change the converged image",
+                "warnings.pbrt:4:8: warning: Option 'bool disablepixeljitter' ignored: false is "
+                "pbrt-v4's default",
+                "warnings.pbrt:5:1: warning: Accelerator \"bvh\" ignored: Prism always builds "
+                "Embree's BVH; the image is the same",
             }));
 }
 
@@ -409,9 +415,10 @@ TEST(GoodScenes, AcceptedButChangedInputIsReportedAsWarnings) {
 TEST(GoodScenes, StorageOnlyFilmParametersAreAcceptedWithANote) {
   SceneDescription s = load_good("savefp16.pbrt");
   EXPECT_EQ(s.film.x_resolution, 16);
-  EXPECT_EQ(s.warnings,
-            (std::vector<std::string>{"savefp16.pbrt:1:61: warning: film 'savefp16' false ignored: "
-                                      "Prism writes float32 EXRs (the image is the same)"}));
+  EXPECT_EQ(feature_warnings(s.features),
+            (std::vector<std::string>{"savefp16.pbrt:1:61: warning: Film \"rgb\" 'bool savefp16' "
+                                      "ignored: Prism writes float32 EXRs (the image is the "
+                                      "same)"}));
 }
 
 }  // namespace

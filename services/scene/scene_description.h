@@ -39,6 +39,7 @@
 #include <vector>
 
 #include "services/scene/mesh.h"
+#include "services/scene/scene_features.h"
 #include "services/scene/source_location.h"
 #include "services/scene/spectrum_param.h"
 #include "services/scene/texture_description.h"
@@ -352,8 +353,10 @@ struct SceneDescription {
   std::vector<Light> lights;
   std::vector<Medium> media;
   std::vector<Texture> textures;  // float and spectrum, in definition order
-  // "file:line:column: message" for accepted-but-changed input (unknown integrator, ignored
-  // sampler or filter settings, unbalanced AttributeBegin at the end, ...).
+  // Each feature the scene uses and what Prism did with it (scene_features.h).
+  std::vector<FeatureUse> features;
+  // "file:line:column: warning: message" for what is not a feature (an AttributeBegin never
+  // closed); feature_warnings(features) gives the features' notes in the same form.
   std::vector<std::string> warnings;
   // Every file the parse opened, relative to the scene root, in first-open order, scene file
   // first; what a bundle must contain.

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <string_view>
+#include <utility>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
@@ -11,11 +12,53 @@
 namespace prism::scene {
 namespace {
 
-absl::Status unsupported_type(const TypeName& type, const char* what,
-                              std::initializer_list<const char*> supported) {
-  return location_error(type.where,
-                        absl::StrCat("unsupported ", what, " type \"", type.name,
-                                     "\" (supported: ", absl::StrJoin(supported, ", "), ")"));
+// `Material "coateddiffuse"`: the feature a directive's type is, in reports, named by the
+// directive as the scene writes it.
+std::string type_feature(std::string_view what, const TypeName& type) {
+  static constexpr std::pair<std::string_view, std::string_view> kDirective[] = {
+      {"camera", "Camera"},
+      {"film", "Film"},
+      {"sampler", "Sampler"},
+      {"integrator", "Integrator"},
+      {"pixel filter", "PixelFilter"},
+      {"material", "Material"},
+      {"spectrum texture", "Texture"},
+      {"float texture", "Texture"},
+      {"light", "LightSource"},
+      {"area light", "AreaLightSource"},
+      {"medium", "MakeNamedMedium"},
+      {"shape", "Shape"}};
+  for (const auto& [w, directive] : kDirective)
+    if (w == what) return absl::StrCat(absl_view(directive), " \"", type.name, "\"");
+  return absl::StrCat(absl_view(what), " \"", type.name, "\"");
+}
+
+void note_supported(const ParameterList& params, const char* what, const TypeName& type,
+                    std::string_view note = {}) {
+  if (params.features() != nullptr)
+    params.features()->supported(type_feature(what, type), type.where, note);
+}
+
+// A refusal at `where`: the error, or (the load allows unsupported input) OK once the
+// substitution is recorded; the caller then builds the substitution.
+absl::Status refuse_at(const ParameterList& params, const std::string& feature,
+                       const SourceLocation& where, const std::string& message,
+                       std::string_view substitution) {
+  if (params.features() == nullptr) return location_error(where, message);
+  return params.features()->refuse(feature, where, message, substitution);
+}
+
+// An unknown type: refused, or substituted as a whole (its parameters go with it).
+absl::Status unsupported_type(const ParameterList& params, const TypeName& type, const char* what,
+                              std::initializer_list<const char*> supported,
+                              std::string_view substitution) {
+  PRISM_RETURN_IF_ERROR(
+      refuse_at(params, type_feature(what, type), type.where,
+                absl::StrCat("unsupported ", what, " type \"", type.name,
+                             "\" (supported: ", absl::StrJoin(supported, ", "), ")"),
+                substitution));
+  params.mark_all_used();
+  return absl::OkStatus();
 }
 
 // An error at the parameter's declaration.
@@ -33,16 +76,30 @@ absl::Status check_range(const ParameterList& params, const std::string& name, d
   return absl::OkStatus();
 }
 
-// Float slots Prism does not texture yet: a clear refusal instead of a type error.
-absl::Status refuse_float_textures(const ParameterList& params,
-                                   std::initializer_list<const char*> names) {
-  for (const char* name : names) {
-    const Parameter* p = params.find(name);
-    if (p != nullptr && p->type == ParamType::kTexture)
-      return location_error(p->where, absl::StrCat("'texture ", name, "': a textured ", name,
-                                                   " is not supported yet; give a float"));
+// A value Prism does not render (a partial sphere's zmin): the error at the parameter, or
+// (allowing unsupported input) OK with `substitution` recorded.
+absl::Status refuse_value(const ParameterList& params, const std::string& name,
+                          const std::string& message, std::string_view substitution) {
+  const Parameter* p = params.find(name);
+  return refuse_at(params, params.feature(*p), p->where,
+                   absl::StrCat("'", param_type_name(p->type), " ", name, "' ", message),
+                   substitution);
+}
+
+// A float slot Prism does not texture: the float, its default when absent, and a refusal
+// (or, allowing unsupported input, the default) when it names a texture.
+absl::StatusOr<double> untextured_float(const ParameterList& params, const std::string& name,
+                                        double fallback) {
+  const Parameter* p = params.find(name);
+  if (p != nullptr && p->type == ParamType::kTexture) {
+    PRISM_RETURN_IF_ERROR(refuse_at(
+        params, params.feature(*p), p->where,
+        absl::StrCat("'texture ", name, "': a textured ", name, " is not supported; give a float"),
+        absl::StrCat("the default ", name, " ", fallback)));
+    p->used = true;
+    return fallback;
   }
-  return absl::OkStatus();
+  return params.get_float(name, fallback);
 }
 
 absl::StatusOr<int> texture_reference(const Parameter& p, bool spectrum, const EntityContext& ctx);
@@ -86,8 +143,10 @@ absl::StatusOr<Roughness> read_roughness(const ParameterList& params, const Enti
 }
 
 absl::Status refuse_common_material_params(const ParameterList& params) {
-  PRISM_RETURN_IF_ERROR(params.refuse("displacement", "displacement is not supported"));
-  PRISM_RETURN_IF_ERROR(params.refuse("normalmap", "normal maps are not supported"));
+  PRISM_RETURN_IF_ERROR(
+      params.refuse("displacement", "displacement is not supported", "the undisplaced surface"));
+  PRISM_RETURN_IF_ERROR(params.refuse("normalmap", "normal maps are not supported",
+                                      "the surface's own shading normals"));
   return absl::OkStatus();
 }
 
@@ -206,8 +265,9 @@ absl::StatusOr<TextureInput> texture_input(const ParameterList& params, const st
 absl::StatusOr<UvMapping> read_uv_mapping(const ParameterList& params) {
   PRISM_ASSIGN_OR_RETURN(std::string mapping, params.get_string("mapping", "uv"));
   if (mapping != "uv")
-    return param_error(params, "mapping",
-                       absl::StrCat("\"", mapping, "\" is not supported (supported: uv)"));
+    PRISM_RETURN_IF_ERROR(refuse_value(
+        params, "mapping", absl::StrCat("\"", mapping, "\" is not supported (supported: uv)"),
+        "the uv mapping"));
   UvMapping m;
   PRISM_ASSIGN_OR_RETURN(m.su, params.get_float("uscale", 1.0));
   PRISM_ASSIGN_OR_RETURN(m.sv, params.get_float("vscale", 1.0));
@@ -246,36 +306,42 @@ absl::StatusOr<LightImage> read_light_image(const ParameterList& params, const T
 }
 
 absl::StatusOr<LayerSpec> read_layer(const ParameterList& params, const EntityContext& ctx) {
-  PRISM_RETURN_IF_ERROR(refuse_float_textures(params, {"thickness", "g"}));
   LayerSpec l;
-  PRISM_ASSIGN_OR_RETURN(l.thickness, params.get_float("thickness", 0.01));
+  PRISM_ASSIGN_OR_RETURN(l.thickness, untextured_float(params, "thickness", 0.01));
   PRISM_RETURN_IF_ERROR(check_range(params, "thickness", l.thickness, 1e-30, 1e30, "> 0"));
-  PRISM_ASSIGN_OR_RETURN(l.g, params.get_float("g", 0.0));
+  PRISM_ASSIGN_OR_RETURN(l.g, untextured_float(params, "g", 0.0));
   PRISM_RETURN_IF_ERROR(check_range(params, "g", l.g, -0.99, 0.99, "in [-0.99, 0.99]"));
   PRISM_ASSIGN_OR_RETURN(l.max_depth, params.get_int("maxdepth", 10));
   PRISM_RETURN_IF_ERROR(check_range(params, "maxdepth", l.max_depth, 1, 1000, "in [1, 1000]"));
   PRISM_ASSIGN_OR_RETURN(l.samples, params.get_int("nsamples", 1));
   PRISM_RETURN_IF_ERROR(check_range(params, "nsamples", l.samples, 1, 1000, "in [1, 1000]"));
-  if (const Parameter* p = params.find("albedo"); p != nullptr && p->type == ParamType::kTexture)
-    return location_error(p->where, "'texture albedo': a textured albedo is not supported yet");
+  if (const Parameter* p = params.find("albedo"); p != nullptr && p->type == ParamType::kTexture) {
+    PRISM_RETURN_IF_ERROR(refuse_at(params, params.feature(*p), p->where,
+                                    "'texture albedo': a textured albedo is not supported yet",
+                                    "albedo 0 (no medium between the layers)"));
+    p->used = true;
+    l.albedo = SpectrumConstant{0.0};
+    return l;
+  }
   PRISM_ASSIGN_OR_RETURN(l.albedo, spectrum_or(params, "albedo", SpectrumRole::kReflectance, ctx,
                                                SpectrumConstant{0.0}));
   return l;
 }
 
-absl::StatusOr<IorParam> read_coat_eta(const ParameterList& params, const std::string& name,
-                                       const EntityContext& ctx) {
-  PRISM_RETURN_IF_ERROR(refuse_float_textures(params, {name.c_str()}));
+absl::StatusOr<IorParam> read_coat_eta(const ParameterList& params, const std::string& name) {
   const Parameter* p = params.find(name);
   if (p == nullptr) return IorConstant{1.5};
-  if (p->type == ParamType::kFloat) {
-    PRISM_ASSIGN_OR_RETURN(double eta, params.get_float(name, 1.5));
+  if (p->type == ParamType::kFloat || p->type == ParamType::kTexture) {
+    PRISM_ASSIGN_OR_RETURN(double eta, untextured_float(params, name, 1.5));
     if (!(eta > 0)) return param_error(params, name, "must be > 0");
     return IorConstant{eta};
   }
-  return param_error(params, name,
-                     "must be a float: a coat whose index varies with wavelength is not "
-                     "supported yet");
+  PRISM_RETURN_IF_ERROR(refuse_value(params, name,
+                                     "must be a float: a coat whose index varies with wavelength "
+                                     "is not supported yet",
+                                     "a coat of index 1.5"));
+  p->used = true;
+  return IorConstant{1.5};
 }
 
 absl::StatusOr<std::optional<double>> positive_optional(const ParameterList& params,
@@ -374,14 +440,16 @@ absl::StatusOr<std::shared_ptr<TriangleMeshData>> inline_mesh(const ParameterLis
 
 }  // namespace
 
-void add_warning(const EntityContext& ctx, const SourceLocation& where, std::string_view message) {
-  if (ctx.warnings != nullptr)
-    ctx.warnings->push_back(absl::StrCat(where.to_string(), ": warning: ", absl_view(message)));
-}
-
 absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& params) {
-  if (type.name != "perspective" && type.name != "orthographic" && type.name != "spherical")
-    return unsupported_type(type, "camera", {"orthographic", "perspective", "spherical"});
+  if (type.name != "perspective" && type.name != "orthographic" && type.name != "spherical") {
+    PRISM_RETURN_IF_ERROR(unsupported_type(params, type, "camera",
+                                           {"orthographic", "perspective", "spherical"},
+                                           "a perspective camera with a 90 degree field of view"));
+    Camera c;
+    c.where = type.where;
+    return c;
+  }
+  note_supported(params, "camera", type);
   Camera c;
   c.type = type.name;
   c.where = type.where;
@@ -409,14 +477,23 @@ absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& pa
                          "needs 4 values xmin xmax ymin ymax with min < max");
     c.screen_window = std::array<double, 4>{w[0], w[1], w[2], w[3]};
   }
-  PRISM_RETURN_IF_ERROR(params.refuse("shutteropen", "motion blur is not supported"));
-  PRISM_RETURN_IF_ERROR(params.refuse("shutterclose", "motion blur is not supported"));
+  // Prism's transforms never move (ActiveTransform StartTime/EndTime is refused), and a static
+  // scene looks the same at every time of the shutter interval.
+  for (const char* shutter : {"shutteropen", "shutterclose"}) {
+    if (const Parameter* p = params.find(shutter)) {
+      PRISM_ASSIGN_OR_RETURN(double t, params.get_float(shutter, 0.0));
+      (void)t;
+      if (params.features() != nullptr)
+        params.features()->ignored(params.feature(*p), p->where,
+                                   "nothing in a Prism scene moves, so the shutter interval "
+                                   "does not change the image");
+    }
+  }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return c;
 }
 
-absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params,
-                               const EntityContext& ctx) {
+absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params) {
   Film f;
   f.where = type.where;
   if (type.name == "rgb") {
@@ -424,8 +501,14 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
   } else if (type.name == "spectral") {
     f.type = FilmType::kSpectral;
   } else {
-    return unsupported_type(type, "film", {"rgb", "spectral"});
+    // Its common parameters (resolution, file name) still apply to the rgb film.
+    PRISM_RETURN_IF_ERROR(refuse_at(
+        params, type_feature("film", type), type.where,
+        absl::StrCat("unsupported film type \"", type.name, "\" (supported: rgb, spectral)"),
+        "an rgb film"));
+    f.type = FilmType::kRgb;
   }
+  if (f.type == FilmType::kSpectral || type.name == "rgb") note_supported(params, "film", type);
   PRISM_ASSIGN_OR_RETURN(f.x_resolution, params.get_int("xresolution", 1280));
   PRISM_ASSIGN_OR_RETURN(f.y_resolution, params.get_int("yresolution", 720));
   std::string range = absl::StrCat("between 1 and ", kMaxResolution);
@@ -444,50 +527,66 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
     }
     PRISM_ASSIGN_OR_RETURN(double lmin, params.get_float("lambdamin", kLambdaMinNm));
     PRISM_ASSIGN_OR_RETURN(double lmax, params.get_float("lambdamax", kLambdaMaxNm));
+    const std::string range = absl::StrCat(kLambdaMinNm, "-", kLambdaMaxNm, " nm");
     if (lmin != kLambdaMinNm)
-      return param_error(params, "lambdamin",
-                         absl::StrCat("must be ", kLambdaMinNm, " (Prism's spectral range is ",
-                                      kLambdaMinNm, "-", kLambdaMaxNm, " nm), got ", lmin));
+      PRISM_RETURN_IF_ERROR(
+          refuse_value(params, "lambdamin",
+                       absl::StrCat("must be ", kLambdaMinNm, " (Prism's spectral range is ", range,
+                                    "), got ", lmin),
+                       absl::StrCat("bins over ", range)));
     if (lmax != kLambdaMaxNm)
-      return param_error(params, "lambdamax",
-                         absl::StrCat("must be ", kLambdaMaxNm, " (Prism's spectral range is ",
-                                      kLambdaMinNm, "-", kLambdaMaxNm, " nm), got ", lmax));
+      PRISM_RETURN_IF_ERROR(
+          refuse_value(params, "lambdamax",
+                       absl::StrCat("must be ", kLambdaMaxNm, " (Prism's spectral range is ", range,
+                                    "), got ", lmax),
+                       absl::StrCat("bins over ", range)));
   }
   // The sensor settings that would change pixel values are accepted only at their defaults.
   PRISM_ASSIGN_OR_RETURN(std::string sensor, params.get_string("sensor", "cie1931"));
   if (sensor != "cie1931")
-    return param_error(params, "sensor",
-                       absl::StrCat("\"", sensor, "\" is not supported (supported: cie1931)"));
+    PRISM_RETURN_IF_ERROR(refuse_value(
+        params, "sensor", absl::StrCat("\"", sensor, "\" is not supported (supported: cie1931)"),
+        "the CIE 1931 observer"));
   PRISM_ASSIGN_OR_RETURN(double iso, params.get_float("iso", 100.0));
-  if (iso != 100.0) return param_error(params, "iso", "is only supported at its default, 100");
+  if (iso != 100.0)
+    PRISM_RETURN_IF_ERROR(
+        refuse_value(params, "iso", "is only supported at its default, 100", "iso 100"));
   PRISM_ASSIGN_OR_RETURN(double white_balance, params.get_float("whitebalance", 0.0));
   if (white_balance != 0.0)
-    return param_error(params, "whitebalance", "is not supported (only 0, none)");
+    PRISM_RETURN_IF_ERROR(refuse_value(params, "whitebalance", "is not supported (only 0, none)",
+                                       "no white balance"));
   // The film diagonal matters only for the realistic camera.
   PRISM_ASSIGN_OR_RETURN(double diagonal, params.get_float("diagonal", 35.0));
   PRISM_RETURN_IF_ERROR(check_range(params, "diagonal", diagonal, 1e-9, 1e30, "> 0"));
-  for (const char* refused : {"cropwindow", "pixelbounds", "maxcomponentvalue"})
-    PRISM_RETURN_IF_ERROR(params.refuse(refused, "is not supported by Prism"));
+  PRISM_RETURN_IF_ERROR(
+      params.refuse("cropwindow", "is not supported by Prism", "the whole image"));
+  PRISM_RETURN_IF_ERROR(
+      params.refuse("pixelbounds", "is not supported by Prism", "the whole image"));
+  PRISM_RETURN_IF_ERROR(
+      params.refuse("maxcomponentvalue", "is not supported by Prism", "unclamped samples"));
   if (const Parameter* fp16 = params.find("savefp16")) {
     PRISM_ASSIGN_OR_RETURN(bool half, params.get_bool("savefp16", true));
-    add_warning(ctx, fp16->where,
-                absl::StrCat("film 'savefp16' ", half ? "true" : "false",
-                             " ignored: Prism writes float32 EXRs (the image is the same)"));
+    (void)half;
+    if (params.features() != nullptr)
+      params.features()->ignored(params.feature(*fp16), fp16->where,
+                                 "Prism writes float32 EXRs (the image is the same)");
   }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return f;
 }
 
-absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterList& params,
-                                         const EntityContext& ctx) {
+absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterList& params) {
   static constexpr std::string_view kKnown[] = {"halton", "independent", "paddedsobol", "pmj02bn",
                                                 "sobol",  "stratified",  "zsobol"};
   bool known = false;
   for (std::string_view k : kKnown) known |= k == type.name;
-  if (!known)
-    return unsupported_type(
-        type, "sampler",
-        {"halton", "independent", "paddedsobol", "pmj02bn", "sobol", "stratified", "zsobol"});
+  if (!known) {
+    PRISM_RETURN_IF_ERROR(unsupported_type(
+        params, type, "sampler",
+        {"halton", "independent", "paddedsobol", "pmj02bn", "sobol", "stratified", "zsobol"},
+        "Prism's own sequence at 16 samples per pixel"));
+    return SamplerSpec{};
+  }
   SamplerSpec s;
   s.name = type.name;
   if (type.name == "stratified") {
@@ -508,41 +607,63 @@ absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterLi
   (void)seed;
   (void)randomization;
   PRISM_RETURN_IF_ERROR(params.check_all_used());
-  add_warning(ctx, type.where,
-              absl::StrCat("sampler \"", type.name, "\": Prism uses its own sample sequence; ",
-                           s.samples_per_pixel, " samples per pixel become the default spp"));
+  if (params.features() != nullptr)
+    params.features()->ignored(
+        type_feature("sampler", type), type.where,
+        absl::StrCat("Prism uses its own sample sequence; ", s.samples_per_pixel,
+                     " samples per pixel become the default spp"));
   return s;
 }
 
-absl::StatusOr<IntegratorSpec> make_integrator(const TypeName& type, const ParameterList& params,
-                                               const EntityContext& ctx) {
+absl::StatusOr<IntegratorSpec> make_integrator(const TypeName& type, const ParameterList& params) {
   static constexpr std::string_view kPbrt[] = {
       "ambientocclusion", "aov",        "bdpt",          "function", "lightpath", "mlt", "path",
       "randomwalk",       "simplepath", "simplevolpath", "sppm",     "volpath"};
+  // Integrators that render something other than the light transport (ambient occlusion,
+  // AOVs, a function plot) would give another image: refused.
+  static constexpr std::string_view kOtherImage[] = {"ambientocclusion", "aov", "function"};
   IntegratorSpec s;
   s.name = type.name;
   bool pbrt_name = false;
   for (std::string_view k : kPbrt) pbrt_name |= k == type.name;
+  bool other_image = false;
+  for (std::string_view k : kOtherImage) other_image |= k == type.name;
   s.name_recognised = pbrt_name;
   PRISM_ASSIGN_OR_RETURN(s.max_depth, params.get_int("maxdepth", 5));
   PRISM_RETURN_IF_ERROR(
       check_range(params, "maxdepth", s.max_depth, 0, 1024, "between 0 and 1024"));
-  if (!pbrt_name) {
-    add_warning(ctx, type.where,
-                absl::StrCat("unknown integrator \"", type.name,
-                             "\"; Prism renders with its spectral path tracer"));
-  } else if (type.name != "path" && type.name != "volpath") {
-    add_warning(ctx, type.where,
-                absl::StrCat("integrator \"", type.name,
-                             "\" is rendered with Prism's spectral path tracer"));
+  const std::string feature = type_feature("integrator", type);
+  if (!pbrt_name || other_image) {
+    PRISM_RETURN_IF_ERROR(refuse_at(
+        params, feature, type.where,
+        pbrt_name ? absl::StrCat("integrator \"", type.name,
+                                 "\" renders something other than the light transport; Prism "
+                                 "renders path, volpath and the integrators that converge to "
+                                 "the same image")
+                  : absl::StrCat("unknown integrator \"", type.name, "\""),
+        "Prism's spectral path tracer"));
+  } else if (type.name == "path" || type.name == "volpath") {
+    note_supported(params, "integrator", type);
+  } else if (params.features() != nullptr) {
+    params.features()->ignored(feature, type.where,
+                               "converges to the same image; rendered by Prism's spectral "
+                               "path tracer");
   }
-  // The integrator itself is replaced, so its remaining tuning parameters cannot apply.
-  std::vector<const Parameter*> rest = params.unused();
-  for (const Parameter* p : rest) {
-    p->used = true;
-    add_warning(ctx, p->where,
-                absl::StrCat("integrator parameter '", param_type_name(p->type), " ", p->name,
-                             "' ignored"));
+  // Settings that change the converged image are refused; the rest only tune how fast the
+  // replaced integrator converges.
+  for (const char* changes : {"regularize", "visualizestrategies", "visualizeweights"}) {
+    if (!params.has(changes)) continue;
+    PRISM_ASSIGN_OR_RETURN(bool on, params.get_bool(changes, false));
+    if (on)
+      PRISM_RETURN_IF_ERROR(refuse_value(params, changes, "changes the image; Prism renders it off",
+                                         absl::StrCat("'", changes, "' false")));
+  }
+  for (const Parameter& p : params.parameters()) {
+    if (p.used) continue;
+    p.used = true;
+    if (params.features() != nullptr)
+      params.features()->ignored(params.feature(p), p.where,
+                                 "integrator tuning does not change the converged image");
   }
   return s;
 }
@@ -577,9 +698,12 @@ absl::StatusOr<PixelFilterSpec> make_pixel_filter(const TypeName& type,
     PRISM_ASSIGN_OR_RETURN(f.tau, params.get_float("tau", 3.0));
     PRISM_RETURN_IF_ERROR(check_range(params, "tau", f.tau, 1e-3, 1e3, "between 0.001 and 1000"));
   } else {
-    return unsupported_type(type, "pixel filter",
-                            {"box", "gaussian", "triangle", "mitchell", "lanczos"});
+    PRISM_RETURN_IF_ERROR(unsupported_type(params, type, "pixel filter",
+                                           {"box", "gaussian", "triangle", "mitchell", "lanczos"},
+                                           "pbrt-v4's default gaussian filter"));
+    return f;
   }
+  note_supported(params, "pixel filter", type);
   PRISM_ASSIGN_OR_RETURN(f.x_radius, params.get_float("xradius", radius));
   PRISM_ASSIGN_OR_RETURN(f.y_radius, params.get_float("yradius", radius));
   // A radius beyond 16 pixels would only blur; 0.01 keeps a box a box.
@@ -656,13 +780,13 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     CoatedDiffuseMaterial m;
     PRISM_RETURN_IF_ERROR(read_spectrum_slot(params, "reflectance", SpectrumRole::kReflectance, ctx,
                                              &m.reflectance, &m.reflectance_texture));
-    PRISM_ASSIGN_OR_RETURN(m.eta, read_coat_eta(params, "eta", ctx));
+    PRISM_ASSIGN_OR_RETURN(m.eta, read_coat_eta(params, "eta"));
     PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params, ctx));
     PRISM_ASSIGN_OR_RETURN(m.layer, read_layer(params, ctx));
     kind = std::move(m);
   } else if (type.name == "coatedconductor") {
     CoatedConductorMaterial m;
-    PRISM_ASSIGN_OR_RETURN(m.interface_eta, read_coat_eta(params, "interface.eta", ctx));
+    PRISM_ASSIGN_OR_RETURN(m.interface_eta, read_coat_eta(params, "interface.eta"));
     PRISM_ASSIGN_OR_RETURN(m.interface_roughness, read_roughness(params, ctx, "interface."));
     PRISM_ASSIGN_OR_RETURN(m.conductor_roughness, read_roughness(params, ctx, "conductor."));
     PRISM_ASSIGN_OR_RETURN(
@@ -678,11 +802,19 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     PRISM_ASSIGN_OR_RETURN(m.layer, read_layer(params, ctx));
     kind = std::move(m);
   } else {
-    return unsupported_type(
-        type, "material",
-        {"coatedconductor", "coateddiffuse", "conductor", "dielectric", "diffuse",
-         "diffusetransmission", "interface", "mix", "thindielectric"});
+    PRISM_RETURN_IF_ERROR(
+        unsupported_type(params, type, "material",
+                         {"coatedconductor", "coateddiffuse", "conductor", "dielectric", "diffuse",
+                          "diffusetransmission", "interface", "mix", "thindielectric"},
+                         "pbrt-v4's default material (diffuse, reflectance 0.5)"));
+    return MaterialKind{DiffuseMaterial{}};
   }
+  if (type.name == "coateddiffuse" || type.name == "coatedconductor")
+    note_supported(params, "material", type,
+                   "pbrt-v4's stochastic layered BSDF without its two biases "
+                   "(docs/conformance.md)");
+  else
+    note_supported(params, "material", type);
   PRISM_RETURN_IF_ERROR(refuse_common_material_params(params));
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return kind;
@@ -698,7 +830,9 @@ absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
   } else if (type.name == "checkerboard") {
     PRISM_ASSIGN_OR_RETURN(int dimension, params.get_int("dimension", 2));
     if (dimension != 2)
-      return param_error(params, "dimension", "is not supported (only 2D checkerboards)");
+      PRISM_RETURN_IF_ERROR(refuse_value(params, "dimension",
+                                         "is not supported (only 2D checkerboards)",
+                                         "a 2D checkerboard in uv"));
     CheckerboardTexture c;
     PRISM_ASSIGN_OR_RETURN(c.mapping, read_uv_mapping(params));
     PRISM_ASSIGN_OR_RETURN(c.tex1, texture_input(params, "tex1", spectrum, 1.0, ctx));
@@ -724,8 +858,9 @@ absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
     } else if (wrap == "black") {
       t.wrap = TextureWrap::kBlack;
     } else {
-      return param_error(params, "wrap",
-                         absl::StrCat("\"", wrap, "\" is not supported (repeat, clamp, black)"));
+      PRISM_RETURN_IF_ERROR(refuse_value(
+          params, "wrap", absl::StrCat("\"", wrap, "\" is not supported (repeat, clamp, black)"),
+          "wrap \"repeat\""));
     }
     // pbrt-v4 reads 8-bit PNGs as sRGB unless told otherwise; float images are linear.
     PRISM_ASSIGN_OR_RETURN(std::string encoding, params.get_string("encoding", "sRGB"));
@@ -738,9 +873,11 @@ absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
         return param_error(params, "encoding", "needs a positive exponent after \"gamma \"");
       gamma = *g;
     } else {
-      return param_error(
+      PRISM_RETURN_IF_ERROR(refuse_value(
           params, "encoding",
-          absl::StrCat("\"", encoding, "\" is not supported (sRGB, linear, gamma <exponent>)"));
+          absl::StrCat("\"", encoding, "\" is not supported (sRGB, linear, gamma <exponent>)"),
+          "sRGB decoding"));
+      encoding = "sRGB";
     }
     // Filtering only changes how pbrt-v4 prefilters a minified texture; Prism evaluates the
     // texture itself at each hit (texture_description.h), so these are accepted with a note.
@@ -752,10 +889,6 @@ absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
                        "\" is not a pbrt-v4 filter (point, bilinear, trilinear, ewa)"));
     PRISM_ASSIGN_OR_RETURN(double anisotropy, params.get_float("maxanisotropy", 8.0));
     (void)anisotropy;
-    if (filter != "bilinear")
-      add_warning(ctx, params.find("filter")->where,
-                  absl::StrCat("filter \"", filter,
-                               "\" ignored: Prism looks textures up bilinearly at each hit"));
     if (!loaded.eight_bit || encoding == "linear") {
       t.image = loaded.image;
     } else {
@@ -789,16 +922,30 @@ absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
     t.direction_world = {d[0] / len, d[1] / len, d[2] / len};
     kind = std::move(t);
   } else {
-    return unsupported_type(
-        type, spectrum ? "spectrum texture" : "float texture",
-        {"checkerboard", "constant", "directionmix", "imagemap", "mix", "scale"});
+    PRISM_RETURN_IF_ERROR(
+        unsupported_type(params, type, spectrum ? "spectrum texture" : "float texture",
+                         {"checkerboard", "constant", "directionmix", "imagemap", "mix", "scale"},
+                         "a constant 0.5"));
+    TextureInput half;
+    half.value = 0.5;
+    half.spectrum = SpectrumConstant{0.5};
+    return TextureKind{ConstantTexture{half}};
   }
+  const char* what = spectrum ? "spectrum texture" : "float texture";
+  if ((type.name == "imagemap" || type.name == "checkerboard") && params.features() != nullptr)
+    params.features()->approximated(
+        type_feature(what, type), type.where,
+        "looked up at each hit without pbrt-v4's ray-differential filtering; texture detail "
+        "smaller than a pixel converges to its pixel-filtered average instead of pbrt-v4's "
+        "prefiltered (slightly blurrier) one");
+  else
+    note_supported(params, what, type);
   PRISM_RETURN_IF_ERROR(params.check_all_used());
   return kind;
 }
 
-absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& params,
-                                 const Transform& ctm, const EntityContext& ctx) {
+absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const ParameterList& params,
+                                                const Transform& ctm, const EntityContext& ctx) {
   Light light;
   light.where = type.where;
   if (type.name == "point") {
@@ -840,8 +987,8 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
   } else if (type.name == "projection") {
     PointLight p;
     PRISM_ASSIGN_OR_RETURN(p.scale, params.get_float("scale", 1.0));
-    PRISM_RETURN_IF_ERROR(
-        params.refuse("power", "is not supported on projection lights yet; use 'scale'"));
+    PRISM_RETURN_IF_ERROR(params.refuse(
+        "power", "is not supported on projection lights yet; use 'scale'", "'scale' alone"));
     PRISM_ASSIGN_OR_RETURN(p.fov_deg, params.get_float("fov", 90.0));
     PRISM_RETURN_IF_ERROR(check_range(params, "fov", p.fov_deg, 1e-3, 179.9, "in (0, 180)"));
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
@@ -875,14 +1022,17 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     s.direction_world = normalize(light.light_to_world.apply_vector({0, 0, 1}));
     light.kind = std::move(s);
   } else if (type.name == "infinite") {
-    PRISM_RETURN_IF_ERROR(params.refuse("portal", "portals are not supported"));
+    PRISM_RETURN_IF_ERROR(params.refuse(
+        "portal", "portals are not supported",
+        "the image as an ordinary equal-area environment map, light from every direction"));
     InfiniteLight i;
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
     if (filename && !filename->empty()) {
       if (params.has("L"))
         return param_error(params, "L", "cannot be combined with an image 'filename'");
-      PRISM_RETURN_IF_ERROR(params.refuse(
-          "illuminance", "is not supported with an image 'filename' yet; use 'scale'"));
+      PRISM_RETURN_IF_ERROR(
+          params.refuse("illuminance", "is not supported with an image 'filename' yet; use 'scale'",
+                        "'scale' alone"));
       PRISM_ASSIGN_OR_RETURN(LightImage loaded, read_light_image(params, type, ctx, *filename,
                                                                  "an equal-area environment map"));
       i.filename = loaded.relpath;
@@ -912,17 +1062,28 @@ absl::StatusOr<Light> make_light(const TypeName& type, const ParameterList& para
     d.direction_world = normalize(world);
     light.kind = std::move(d);
   } else {
-    return unsupported_type(type, "light",
-                            {"distant", "goniometric", "infinite", "point", "projection", "spot"});
+    PRISM_RETURN_IF_ERROR(
+        unsupported_type(params, type, "light",
+                         {"distant", "goniometric", "infinite", "point", "projection", "spot"},
+                         "the scene without this light"));
+    return std::optional<Light>();
   }
+  note_supported(params, "light", type);
   PRISM_RETURN_IF_ERROR(params.check_all_used());
-  return light;
+  return std::optional<Light>(std::move(light));
 }
 
-absl::StatusOr<AreaLight> make_area_light(const TypeName& type, const ParameterList& params,
-                                          const EntityContext& ctx) {
-  if (type.name != "diffuse") return unsupported_type(type, "area light", {"diffuse"});
-  PRISM_RETURN_IF_ERROR(params.refuse("filename", "image area lights are not supported"));
+absl::StatusOr<std::optional<AreaLight>> make_area_light(const TypeName& type,
+                                                         const ParameterList& params,
+                                                         const EntityContext& ctx) {
+  if (type.name != "diffuse") {
+    PRISM_RETURN_IF_ERROR(
+        unsupported_type(params, type, "area light", {"diffuse"}, "shapes that do not emit"));
+    return std::optional<AreaLight>();
+  }
+  note_supported(params, "area light", type);
+  PRISM_RETURN_IF_ERROR(
+      params.refuse("filename", "image area lights are not supported", "the uniform radiance 'L'"));
   AreaLight a;
   a.where = type.where;
   PRISM_ASSIGN_OR_RETURN(a.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
@@ -931,16 +1092,27 @@ absl::StatusOr<AreaLight> make_area_light(const TypeName& type, const ParameterL
   PRISM_ASSIGN_OR_RETURN(a.two_sided, params.get_bool("twosided", false));
   PRISM_ASSIGN_OR_RETURN(a.power, positive_optional(params, "power"));
   PRISM_RETURN_IF_ERROR(params.check_all_used());
-  return a;
+  return std::optional<AreaLight>(std::move(a));
 }
 
 absl::StatusOr<Medium> make_medium(const TypeName& type, const ParameterList& params,
                                    const EntityContext& ctx) {
-  if (type.name != "homogeneous") return unsupported_type(type, "medium", {"homogeneous"});
+  if (type.name != "homogeneous") {
+    PRISM_RETURN_IF_ERROR(unsupported_type(params, type, "medium", {"homogeneous"},
+                                           "a vacuum (no absorption, no scattering)"));
+    Medium m;
+    m.kind = HomogeneousMedium{SpectrumConstant{0.0}, SpectrumConstant{0.0}, 1.0, 0.0};
+    m.where = type.where;
+    return m;
+  }
+  note_supported(params, "medium", type);
   PRISM_RETURN_IF_ERROR(params.refuse(
-      "preset", "named scattering presets are not supported; give sigma_a and sigma_s"));
-  PRISM_RETURN_IF_ERROR(params.refuse("Le", "emissive media are not supported"));
-  PRISM_RETURN_IF_ERROR(params.refuse("Lescale", "emissive media are not supported"));
+      "preset", "named scattering presets are not supported; give sigma_a and sigma_s",
+      "sigma_a and sigma_s as given (default 1)"));
+  PRISM_RETURN_IF_ERROR(
+      params.refuse("Le", "emissive media are not supported", "a medium that does not emit"));
+  PRISM_RETURN_IF_ERROR(
+      params.refuse("Lescale", "emissive media are not supported", "a medium that does not emit"));
   HomogeneousMedium h;
   PRISM_ASSIGN_OR_RETURN(h.sigma_a, spectrum_or(params, "sigma_a", SpectrumRole::kUnbounded, ctx,
                                                 SpectrumConstant{1.0}));
@@ -965,20 +1137,32 @@ absl::Status read_shape_alpha(const ParameterList& params, const EntityContext& 
   return absl::OkStatus();
 }
 
-absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const ParameterList& params,
-                                                  const EntityContext& ctx) {
+absl::StatusOr<std::optional<ShapeGeometry>> make_shape_geometry(const TypeName& type,
+                                                                 const ParameterList& params,
+                                                                 const EntityContext& ctx) {
   ShapeGeometry geometry;
-  PRISM_RETURN_IF_ERROR(params.refuse("emissionfilename", "image area lights are not supported"));
+  PRISM_RETURN_IF_ERROR(params.refuse("emissionfilename", "image area lights are not supported",
+                                      "the area light's uniform radiance 'L'"));
   if (type.name == "trianglemesh" || type.name == "bilinearmesh") {
-    PRISM_RETURN_IF_ERROR(params.refuse("S", "per-vertex tangents are not supported"));
-    PRISM_RETURN_IF_ERROR(params.refuse("faceIndices", "face indices are not supported"));
+    PRISM_RETURN_IF_ERROR(params.refuse("S", "per-vertex tangents are not supported",
+                                        "tangents from the surface's uv parametrisation"));
+    // Face indices only select ptex faces, and Prism has no ptex texture to select them.
+    if (const Parameter* p = params.find("faceIndices")) {
+      p->used = true;
+      if (params.features() != nullptr)
+        params.features()->ignored(params.feature(*p), p->where,
+                                   "face indices only address ptex textures, which Prism does "
+                                   "not read");
+    }
     bool bilinear = type.name == "bilinearmesh";
     PRISM_ASSIGN_OR_RETURN(std::shared_ptr<TriangleMeshData> mesh,
                            inline_mesh(params, bilinear, type, ctx));
     geometry = TriangleMeshShape{std::move(mesh), type.name};
   } else if (type.name == "plymesh" || type.name == "objmesh") {
-    PRISM_RETURN_IF_ERROR(params.refuse("displacement", "displacement is not supported"));
-    PRISM_RETURN_IF_ERROR(params.refuse("edgelength", "displacement is not supported"));
+    PRISM_RETURN_IF_ERROR(
+        params.refuse("displacement", "displacement is not supported", "the undisplaced mesh"));
+    PRISM_RETURN_IF_ERROR(
+        params.refuse("edgelength", "displacement is not supported", "the undisplaced mesh"));
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
     if (!filename)
       return location_error(type.where,
@@ -998,11 +1182,16 @@ absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const Pa
     PRISM_ASSIGN_OR_RETURN(double zmax, params.get_float("zmax", s.radius));
     PRISM_ASSIGN_OR_RETURN(double phimax, params.get_float("phimax", 360.0));
     if (zmin > -s.radius)
-      return param_error(params, "zmin", "is not supported (only full spheres: zmin <= -radius)");
+      PRISM_RETURN_IF_ERROR(refuse_value(params, "zmin",
+                                         "is not supported (only full spheres: zmin <= -radius)",
+                                         "a full sphere"));
     if (zmax < s.radius)
-      return param_error(params, "zmax", "is not supported (only full spheres: zmax >= radius)");
+      PRISM_RETURN_IF_ERROR(refuse_value(
+          params, "zmax", "is not supported (only full spheres: zmax >= radius)", "a full sphere"));
     if (phimax < 360.0)
-      return param_error(params, "phimax", "is not supported (only full spheres: phimax >= 360)");
+      PRISM_RETURN_IF_ERROR(refuse_value(params, "phimax",
+                                         "is not supported (only full spheres: phimax >= 360)",
+                                         "a full sphere"));
     geometry = s;
   } else if (type.name == "disk") {
     DiskShape disk;
@@ -1014,7 +1203,8 @@ absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const Pa
     if (!(disk.inner_radius >= 0 && disk.inner_radius < disk.radius))
       return param_error(params, "innerradius", "must be in [0, radius)");
     if (phimax < 360.0)
-      return param_error(params, "phimax", "is not supported (only full disks: phimax >= 360)");
+      PRISM_RETURN_IF_ERROR(refuse_value(
+          params, "phimax", "is not supported (only full disks: phimax >= 360)", "a full disk"));
     geometry = disk;
   } else if (type.name == "loopsubdiv") {
     PRISM_ASSIGN_OR_RETURN(int levels, params.get_int("levels", 3));
@@ -1066,15 +1256,20 @@ absl::StatusOr<ShapeGeometry> make_shape_geometry(const TypeName& type, const Pa
     if (!(c.z_max > c.z_min))
       return location_error(type.where, "cylinder needs zmin and zmax to differ");
     if (phimax < 360.0)
-      return param_error(params, "phimax", "is not supported (only full cylinders: phimax >= 360)");
+      PRISM_RETURN_IF_ERROR(refuse_value(params, "phimax",
+                                         "is not supported (only full cylinders: phimax >= 360)",
+                                         "a full cylinder"));
     geometry = c;
   } else {
-    return unsupported_type(type, "shape",
-                            {"bilinearmesh", "cylinder", "disk", "loopsubdiv", "objmesh", "plymesh",
-                             "sphere", "trianglemesh"});
+    PRISM_RETURN_IF_ERROR(unsupported_type(params, type, "shape",
+                                           {"bilinearmesh", "cylinder", "disk", "loopsubdiv",
+                                            "objmesh", "plymesh", "sphere", "trianglemesh"},
+                                           "the scene without this shape"));
+    return std::optional<ShapeGeometry>();
   }
+  note_supported(params, "shape", type);
   PRISM_RETURN_IF_ERROR(params.check_all_used());
-  return geometry;
+  return std::optional<ShapeGeometry>(std::move(geometry));
 }
 
 }  // namespace prism::scene

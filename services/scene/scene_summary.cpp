@@ -1,6 +1,7 @@
 #include "services/scene/scene_summary.h"
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "services/scene/wavelength_dependence.h"
 
 namespace prism::scene {
@@ -95,6 +96,24 @@ std::string format_scene_summary(const SceneDescription& scene) {
   }
   absl::StrAppend(&out, "warnings: ", scene.warnings.size(), "\n");
   for (const std::string& w : scene.warnings) absl::StrAppend(&out, "  ", w, "\n");
+  return out;
+}
+
+std::string format_scene_features(const std::vector<FeatureUse>& features) {
+  std::string out = absl::StrCat(
+      "features: ", features.size(), " (", count_features(features, FeatureStatus::kSupported),
+      " supported, ", count_features(features, FeatureStatus::kApproximated), " approximated, ",
+      count_features(features, FeatureStatus::kIgnored), " ignored, ",
+      count_features(features, FeatureStatus::kRefused), " refused)\n");
+  for (const FeatureUse& f : features) {
+    absl::StrAppend(&out, "  ", absl::StrFormat("%-12s", feature_status_name(f.status)), " ",
+                    f.feature, f.uses > 1 ? absl::StrCat(" x", f.uses) : "", " (",
+                    f.where.to_string(), ")");
+    if (!f.note.empty()) absl::StrAppend(&out, ": ", f.note);
+    if (f.status == FeatureStatus::kRefused)
+      absl::StrAppend(&out, "; --allow-unsupported renders ", f.substitution);
+    absl::StrAppend(&out, "\n");
+  }
   return out;
 }
 

@@ -12,4 +12,9 @@ namespace prism::scene {
 
 std::string format_scene_summary(const SceneDescription& scene);
 
+// One line per feature the scene uses (scene_features.h), in first-use order, after a count by
+// status: "  refused      Shape \"curve\" (s.pbrt:8:7): <why>; --allow-unsupported renders
+// <substitution>".
+std::string format_scene_features(const std::vector<FeatureUse>& features);
+
 }  // namespace prism::scene

@@ -8,7 +8,8 @@
 namespace prism::scene {
 namespace {
 
-constexpr char kScene[] = R"(Film "spectral" "integer xresolution" 64 "integer yresolution" 32 "integer nbuckets" 16
+constexpr char kScene[] =
+    R"(Film "spectral" "integer xresolution" 64 "integer yresolution" 32 "integer nbuckets" 16
 Sampler "independent" "integer pixelsamples" 8
 WorldBegin
 MakeNamedMedium "smoke" "string type" "homogeneous" "float sigma_a" 0.5
@@ -40,10 +41,9 @@ TEST(SceneSummary, ListsWhatTheRendererNeeds) {
             "dispersive materials: 1\n"
             "  \"glass\" (s.pbrt:10:1): dielectric eta named \"glass-BK7\"\n"
             "media: 1\n"
-            "  \"smoke\" (s.pbrt:4:1): homogeneous sigma_a constant 0.5, sigma_s constant 1, scale 1, g 0\n"
-            "warnings: 1\n"
-            "  s.pbrt:2:9: warning: sampler \"independent\": Prism uses its own sample sequence; 8 samples per "
-            "pixel become the default spp\n");
+            "  \"smoke\" (s.pbrt:4:1): homogeneous sigma_a constant 0.5, sigma_s constant 1, scale "
+            "1, g 0\n"
+            "warnings: 0\n");
   WavelengthDependence d = analyze_wavelength_dependence(*s);
   EXPECT_TRUE(d.needs_spectral_transport());
   EXPECT_EQ(d.media, (std::vector<int>{0}));
@@ -51,7 +51,8 @@ TEST(SceneSummary, ListsWhatTheRendererNeeds) {
 
 TEST(SceneSummary, ConstantIorAndOneEmitterSpectrumNeedNoSpectralTransport) {
   absl::StatusOr<SceneDescription> s = parse_scene_string(
-      "WorldBegin\nLightSource \"point\"\nLightSource \"spot\"\nMaterial \"dielectric\" \"float eta\" 1.5\n"
+      "WorldBegin\nLightSource \"point\"\nLightSource \"spot\"\nMaterial \"dielectric\" \"float "
+      "eta\" 1.5\n"
       "Shape \"sphere\"\n",
       "s.pbrt");
   ASSERT_TRUE(s.ok()) << s.status();

@@ -436,12 +436,14 @@ absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
   // Everything from here to a built RenderScene is the scene's (or the spec's) fault.
   *failure_class = v1::FAILURE_CLASS_SCENE;
   CachedScene& cached = *scene_cache_;
-  const std::string description_key = absl::StrCat(hash, "|", task.spec().scene_path());
+  const std::string description_key =
+      absl::StrCat(hash, "|", task.spec().scene_path(), "|", task.spec().allow_unsupported());
   if (cached.description_key != description_key) {
     cached = CachedScene{};
     PRISM_ASSIGN_OR_RETURN(scene::PathGuard guard, scene::PathGuard::create(*dir));
     PRISM_ASSIGN_OR_RETURN(fs::path scene_file, guard.resolve(task.spec().scene_path()));
     scene::LoadOptions load = scene::with_library_names(library_);
+    load.allow_unsupported = task.spec().allow_unsupported();
     PRISM_ASSIGN_OR_RETURN(cached.loaded, scene::load_scene(scene_file, load));
     cached.description_key = description_key;
   }
