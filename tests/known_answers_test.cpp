@@ -5,6 +5,8 @@
 //   - a chromatic absorbing medium behind dispersive glass (Beer–Lambert; where pbrt-v4's
 //     volpath is biased, docs/conformance.md),
 //   - a distant light with a target illuminance on a diffuse floor,
+//   - an environment image with a target illuminance on a diffuse floor (where pbrt-v4's
+//     normalisation is off by 2, docs/conformance.md),
 //   - a diffuse-transmission sheet in a constant sky,
 //   - a thin dielectric sheet in front of an emitter.
 // Emitters that the answer does not count as reflectors are black (pbrt's default grey would
@@ -19,6 +21,7 @@
 
 #include "coordinator/local_render.h"
 #include "services/base/status.h"
+#include "services/image/png.h"
 #include "services/scene/scene_loader.h"
 #include "services/spectral/color.h"
 #include "services/spectral/named_spectra.h"
@@ -222,6 +225,43 @@ Shape "trianglemesh" "point3 P" [-10 0 -10  10 0 -10  10 0 10  -10 0 10]
                 "distant.pbrt:2:13: distant light needs 'from' and 'to' to differ"),
             std::string_view::npos)
       << pointless.status();
+}
+
+// An environment image with `illuminance` 2 over a grey floor: a white image is D65 at every
+// texel, so the floor's radiance is ρ·E/π · D65(λ)/Y(D65), the same as under a uniform D65 sky
+// with that illuminance. pbrt-v4 weighs the texels by 2π/N instead of 4π/N and would light
+// this floor twice as brightly as its own uniform sky (docs/conformance.md).
+TEST_F(KnownAnswerTest, AnEnvironmentImageLightsAFloorAsItsIlluminanceSays) {
+  const std::filesystem::path dir = std::filesystem::path(testing::TempDir());
+  auto white = image::RgbImage::create(16, 16);
+  ASSERT_TRUE(white.ok());
+  for (float& v : white->data()) v = 1.0f;
+  ASSERT_TRUE(image::write_png_preview(dir / "white-equalarea.png", *white).ok());
+  const std::string floor = R"(Material "diffuse" "spectrum reflectance" [360 0.5 830 0.5]
+Shape "trianglemesh" "point3 P" [-10 0 -10  10 0 -10  10 0 10  -10 0 10]
+  "integer indices" [0 1 2 0 2 3]
+)";
+  const std::string camera = R"(LookAt 0 5 0  0 0 0  0 0 1
+Camera "perspective" "float fov" 20
+Film "spectral" "integer xresolution" 8 "integer yresolution" 8 "integer nbuckets" 16
+WorldBegin
+Rotate -90 1 0 0
+)";
+  const spectral::Spectrum& d65 = *library_->find_spectrum("stdillum-D65");
+  const double y_d65 =
+      spectral::ColorMatching::cie1931().photometric_sum(spectral::Spectrum(d65));
+  auto expected = [&](double lo, double hi) {
+    return 0.5 * 2.0 / M_PI * spectral::integrate(d65, lo, hi) / (hi - lo) / y_d65;
+  };
+  for (const char* light : {"LightSource \"infinite\" \"string filename\" "
+                            "\"white-equalarea.png\" \"float illuminance\" 2\n",
+                            "LightSource \"infinite\" \"spectrum L\" \"stdillum-D65\" "
+                            "\"float illuminance\" 2\n"}) {
+    SCOPED_TRACE(light);
+    auto scene = load("sky.pbrt", camera + light + "Identity\n" + floor);
+    ASSERT_TRUE(scene.ok()) << scene.status();
+    expect_every_integrator(*scene, 256, 2, expected);
+  }
 }
 
 // A thin dielectric sheet (η 1.5) at normal incidence in front of a flat emitter passes

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/status.h"
@@ -67,6 +68,44 @@ absl::StatusOr<std::shared_ptr<const EnvironmentMap>> EnvironmentMap::create(
     map->row_cdf_[size_t(y) + 1] = map->row_cdf_[size_t(y)] + cdf[n];
   }
   map->total_ = map->row_cdf_[size_t(n)];
+
+  // sRGB's luminance row (the Y of its RGB-to-XYZ matrix), as pbrt-v4 weighs texels.
+  constexpr double kLuminance[3] = {0.2126729, 0.7151522, 0.0721750};
+  // Each texel's mean of max(cos θ, 0) over sub x sub points: at least 64 x 64 over the whole
+  // square, and 8 x 8 in texels the horizon crosses, so that a constant map's illuminance is
+  // π·L within 0.2 % at every size.
+  auto cosine = [n](double u, double v) {
+    return std::max(0.0, double(equal_area_square_to_sphere(
+                                    Point2f{float(u / double(n)), float(v / double(n))})
+                                    .z));
+  };
+  const int interior_sub = std::max(1, 64 / n);
+  double upper = 0;
+  for (int y = 0; y < n; ++y) {
+    for (int x = 0; x < n; ++x) {
+      // The horizon is the inner diamond's edge, straight in the square: a texel is cut by it
+      // exactly when its corners disagree.
+      int above = 0;
+      for (int corner = 0; corner < 4; ++corner)
+        above += cosine(x + (corner & 1), y + (corner >> 1)) > 0;
+      if (above == 0) continue;
+      const int sub = above == 4 ? interior_sub : std::max(8, interior_sub);
+      double mean_cos = 0;
+      for (int j = 0; j < sub; ++j)
+        for (int i = 0; i < sub; ++i)
+          mean_cos += cosine(x + (i + 0.5) / sub, y + (j + 0.5) / sub);
+      mean_cos /= double(sub) * double(sub);
+      if (!(mean_cos > 0)) continue;
+      const size_t texel = (size_t(y) * size_t(n) + size_t(x)) * size_t(image.channels);
+      double luminance = 0;
+      for (int c = 0; c < 3; ++c) {
+        const float v = image.values[texel + size_t(image.channels == 1 ? 0 : c)];
+        luminance += kLuminance[c] * double(std::max(0.0f, v));
+      }
+      upper += luminance * mean_cos;
+    }
+  }
+  map->upper_illuminance_ = upper * 4.0 * std::numbers::pi / (double(n) * double(n));
 
   const scene::Matrix4& m = light_to_world.matrix();
   const scene::Matrix4& inv = light_to_world.inverse_matrix();

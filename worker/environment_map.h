@@ -57,6 +57,11 @@ class EnvironmentMap {
   float pdf(const Vec3f& w) const;
   // The mean linear RGB over the sphere (every texel covers the same solid angle).
   const spectral::Rgb& mean_rgb() const { return texels_.mean; }
+  // The illuminance the map (at scale 1) gives a patch facing light-space +z, from the texels'
+  // sRGB luminance: Σ_{z > 0} Y·cos θ · 4π / N, each of the N texels covering 4π / N sr. This
+  // is what `illuminance` normalises; pbrt-v4 weighs each texel 2π / N instead, which gives a
+  // map twice the illuminance asked for (docs/conformance.md).
+  double upper_hemisphere_illuminance() const { return upper_illuminance_; }
 
  private:
   EnvironmentMap() = default;
@@ -69,6 +74,7 @@ class EnvironmentMap {
   std::vector<double> row_cdf_;     // size_ + 1
   std::vector<double> column_cdf_;  // size_ rows of size_ + 1
   double total_ = 0;                // Σ weight_
+  double upper_illuminance_ = 0;
   float world_from_light_[3][3] = {};
   float light_from_world_[3][3] = {};
 };

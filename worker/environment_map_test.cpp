@@ -125,3 +125,37 @@ TEST_F(EnvironmentMapTest, SamplesTexelsByBrightnessWithTheDensityItReports) {
 
 }  // namespace
 }  // namespace prism::worker
+
+namespace prism::worker {
+namespace {
+
+// The illuminance `illuminance` normalises: a constant map of luminance 1 gives π on a patch
+// facing light-space +z (not pbrt-v4's π/2) at any size; a map lit only by texels whose
+// centres are below the horizon gives only the upper parts of the texels the horizon cuts.
+TEST_F(EnvironmentMapTest, UpperHemisphereIlluminanceIsTheCosineWeightedIntegral) {
+  for (int n : {4, 16, 64}) {
+    scene::TextureImage image;
+    image.width = image.height = n;
+    image.channels = 1;
+    image.values.assign(size_t(n) * size_t(n), 1.0f);
+    auto map = EnvironmentMap::create(image, scene::Transform(), *uplift_);
+    ASSERT_TRUE(map.ok()) << map.status();
+    EXPECT_NEAR((*map)->upper_hemisphere_illuminance(), M_PI, 0.002 * M_PI) << n;
+
+    // Light only where z <= 0: the square outside the inner diamond |u-½| + |v-½| <= ½.
+    for (int y = 0; y < n; ++y)
+      for (int x = 0; x < n; ++x) {
+        const Vec3f w = equal_area_square_to_sphere(
+            Point2f{(float(x) + 0.5f) / float(n), (float(y) + 0.5f) / float(n)});
+        image.values[size_t(y * n + x)] = w.z > 0 ? 0.0f : 1.0f;
+      }
+    map = EnvironmentMap::create(image, scene::Transform(), *uplift_);
+    ASSERT_TRUE(map.ok());
+    // Texels cut by the horizon still contribute their upper part, a share that shrinks with
+    // the texel size.
+    EXPECT_LT((*map)->upper_hemisphere_illuminance(), (n == 4 ? 0.3 : 1.3 / n) * M_PI) << n;
+  }
+}
+
+}  // namespace
+}  // namespace prism::worker

@@ -306,6 +306,24 @@ absl::StatusOr<std::shared_ptr<const ProjectionImage>> ProjectionImage::create(
   const double alpha = std::atan(double(out->x_max) * out->tan_half);
   const double beta = std::atan(double(out->y_max) * out->tan_half);
   out->solid_angle_fraction = 4 * std::asin(std::sin(alpha) * std::sin(beta)) / (4 * M_PI);
+  constexpr double kLuminance[3] = {0.2126729, 0.7151522, 0.0721750};  // sRGB's Y row
+  const double t = out->tan_half;
+  const double texel_area = 4 * t * t * out->x_max * out->y_max / (double(image.width) * image.height);
+  double flux = 0;
+  for (int y = 0; y < image.height; ++y) {
+    for (int x = 0; x < image.width; ++x) {
+      const double sx = out->x_max * (2 * (x + 0.5) / image.width - 1);
+      const double sy = out->y_max * (2 * (y + 0.5) / image.height - 1);
+      const double cos_theta = 1 / std::sqrt(1 + t * t * (sx * sx + sy * sy));
+      const size_t texel = (size_t(y) * size_t(image.width) + size_t(x)) * size_t(image.channels);
+      double luminance = 0;
+      for (int c = 0; c < 3; ++c)
+        luminance += kLuminance[c] *
+                     double(std::max(0.0f, image.values[texel + size_t(image.channels == 1 ? 0 : c)]));
+      flux += luminance * cos_theta * cos_theta * cos_theta * texel_area;
+    }
+  }
+  out->flux_per_unit_scale = flux;
   return std::shared_ptr<const ProjectionImage>(std::move(out));
 }
 

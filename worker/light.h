@@ -110,6 +110,9 @@ struct ProjectionImage {
   IlluminantTexels texels;
   float tan_half = 1, x_max = 1, y_max = 1;
   double solid_angle_fraction = 0;  // of the sphere the frustum covers
+  // pbrt-v4's k_e for `power`: the luminous flux at unit scale, ∫ Y dω over the frustum from
+  // the texels' sRGB luminance, each texel centre's solid angle cos³θ · (its area at z = 1).
+  double flux_per_unit_scale = 0;
 
   static absl::StatusOr<std::shared_ptr<const ProjectionImage>> create(
       const scene::TextureImage& image, double fov_deg, const spectral::RgbUplift& uplift);

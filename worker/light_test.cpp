@@ -639,6 +639,29 @@ TEST(PointSpotInfiniteTest, ProjectionLightProjectsItsImage) {
   EXPECT_NEAR(tall.mean_modulation(), std::asin(std::sin(alpha) * std::sin(beta)) / M_PI, 1e-7);
 }
 
+// pbrt-v4's `power` on a projection light divides by the flux at unit scale: the image's sRGB
+// luminance integrated over the frustum's solid angle. A uniform image's flux is its luminance
+// times the pyramid's solid angle, 4·asin(sin α·sin β).
+TEST(PointSpotInfiniteTest, ProjectionFluxIsTheLuminanceOverTheFrustum) {
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  const spectral::RgbUplift uplift(cmf);
+  const double alpha = std::atan(2 * std::tan(M_PI / 6)), beta = std::atan(std::tan(M_PI / 6));
+  const double frustum = 4 * std::asin(std::sin(alpha) * std::sin(beta));
+  for (const auto& [rgb, luminance] :
+       {std::pair{spectral::Rgb{1, 1, 1}, 1.0}, std::pair{spectral::Rgb{1, 0, 0}, 0.2126729},
+        std::pair{spectral::Rgb{0, 0.5, 0}, 0.5 * 0.7151522}}) {
+    scene::TextureImage image;
+    image.width = 128;
+    image.height = 64;
+    image.channels = 3;
+    for (int i = 0; i < image.width * image.height; ++i)
+      image.values.insert(image.values.end(), {float(rgb.r), float(rgb.g), float(rgb.b)});
+    auto projection = ProjectionImage::create(image, 60, uplift);
+    ASSERT_TRUE(projection.ok());
+    EXPECT_NEAR((*projection)->flux_per_unit_scale, luminance * frustum, 1e-4 * frustum);
+  }
+}
+
 TEST(PointSpotInfiniteTest, SpotFalloffIsPbrtSmoothStep) {
   scene::Light desc = spot_desc({0, 0, 0}, {0, 0, 1}, 30, 10, 31);
   auto light = SpotLight::create(desc, spectral::ConstantSpectrum{1}, 1.0);

@@ -78,9 +78,19 @@ absl::StatusOr<Light> make_light(const scene::Light& light, const Geometry& geom
                                                              "\": ", image.status().message()));
     }
     const spectral::Rgb mean = (*image)->texels.mean;
+    PRISM_RETURN_IF_ERROR(check_target(p->power, "power", light.where));
     PRISM_ASSIGN_OR_RETURN(
         Emission e, emission(scene::SpectrumRgb{mean.r, mean.g, mean.b}, p->scale, light.where,
                              "projection light image", library, uplift, cmf));
+    if (p->power) {
+      const double k_e = (*image)->flux_per_unit_scale;
+      if (!(k_e > 0)) {
+        return scene::location_error(light.where, absl::StrCat("projection light \"", p->filename,
+                                                               "\" is black and cannot reach a "
+                                                               "\"power\""));
+      }
+      e.scale *= *p->power / k_e;
+    }
     PRISM_ASSIGN_OR_RETURN(
         PointLight l, PointLight::create(light, std::move(e.spectrum), e.scale, *std::move(image)));
     return Light(std::move(l));
@@ -150,6 +160,18 @@ absl::StatusOr<Light> make_light(const scene::Light& light, const Geometry& geom
     PRISM_ASSIGN_OR_RETURN(
         Emission e, emission(scene::SpectrumRgb{mean.r, mean.g, mean.b}, inf.scale, light.where,
                              "infinite light image", library, uplift, cmf));
+    // The texels' radiance at scale 1 / Y(D65) has their RGB luminance, so the map's upper
+    // hemisphere illuminance at that scale is k_e.
+    if (inf.illuminance) {
+      const double k_e = (*map)->upper_hemisphere_illuminance();
+      if (!(k_e > 0)) {
+        return scene::location_error(light.where,
+                                     absl::StrCat("infinite light \"", inf.filename,
+                                                  "\" is black above the horizon (light-space "
+                                                  "+z) and cannot reach an \"illuminance\""));
+      }
+      e.scale *= *inf.illuminance / k_e;
+    }
     PRISM_ASSIGN_OR_RETURN(InfiniteLight l,
                            InfiniteLight::create(light, std::move(e.spectrum), e.scale,
                                                  geometry.bounds(), *std::move(map)));

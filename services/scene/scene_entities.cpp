@@ -987,8 +987,7 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
   } else if (type.name == "projection") {
     PointLight p;
     PRISM_ASSIGN_OR_RETURN(p.scale, params.get_float("scale", 1.0));
-    PRISM_RETURN_IF_ERROR(params.refuse(
-        "power", "is not supported on projection lights yet; use 'scale'", "'scale' alone"));
+    PRISM_ASSIGN_OR_RETURN(p.power, positive_optional(params, "power"));
     PRISM_ASSIGN_OR_RETURN(p.fov_deg, params.get_float("fov", 90.0));
     PRISM_RETURN_IF_ERROR(check_range(params, "fov", p.fov_deg, 1e-3, 179.9, "in (0, 180)"));
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
@@ -1030,9 +1029,6 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
     if (filename && !filename->empty()) {
       if (params.has("L"))
         return param_error(params, "L", "cannot be combined with an image 'filename'");
-      PRISM_RETURN_IF_ERROR(
-          params.refuse("illuminance", "is not supported with an image 'filename' yet; use 'scale'",
-                        "'scale' alone"));
       PRISM_ASSIGN_OR_RETURN(LightImage loaded, read_light_image(params, type, ctx, *filename,
                                                                  "an equal-area environment map"));
       i.filename = loaded.relpath;
