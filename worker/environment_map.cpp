@@ -75,9 +75,9 @@ absl::StatusOr<std::shared_ptr<const EnvironmentMap>> EnvironmentMap::create(
   // square, and 8 x 8 in texels the horizon crosses, so that a constant map's illuminance is
   // π·L within 0.2 % at every size.
   auto cosine = [n](double u, double v) {
-    return std::max(0.0, double(equal_area_square_to_sphere(
-                                    Point2f{float(u / double(n)), float(v / double(n))})
-                                    .z));
+    return std::max(
+        0.0,
+        double(equal_area_square_to_sphere(Point2f{float(u / double(n)), float(v / double(n))}).z));
   };
   const int interior_sub = std::max(1, 64 / n);
   double upper = 0;
@@ -92,8 +92,7 @@ absl::StatusOr<std::shared_ptr<const EnvironmentMap>> EnvironmentMap::create(
       const int sub = above == 4 ? interior_sub : std::max(8, interior_sub);
       double mean_cos = 0;
       for (int j = 0; j < sub; ++j)
-        for (int i = 0; i < sub; ++i)
-          mean_cos += cosine(x + (i + 0.5) / sub, y + (j + 0.5) / sub);
+        for (int i = 0; i < sub; ++i) mean_cos += cosine(x + (i + 0.5) / sub, y + (j + 0.5) / sub);
       mean_cos /= double(sub) * double(sub);
       if (!(mean_cos > 0)) continue;
       const size_t texel = (size_t(y) * size_t(n) + size_t(x)) * size_t(image.channels);

@@ -46,6 +46,26 @@ absl::Status check_scale(double scale, const scene::SourceLocation& where) {
 
 }  // namespace
 
+namespace {
+
+// s² when the transform's linear part is a similarity (orthogonal columns of one common
+// length s), else nullopt.
+std::optional<double> similarity_scale_squared(const scene::Transform& t) {
+  const scene::Matrix4& m = t.matrix();
+  double gram[3][3];
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j)
+      gram[i][j] = m[0][i] * m[0][j] + m[1][i] * m[1][j] + m[2][i] * m[2][j];
+  const double s2 = (gram[0][0] + gram[1][1] + gram[2][2]) / 3.0;
+  if (!(s2 > 0)) return std::nullopt;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j)
+      if (std::abs(gram[i][j] - (i == j ? s2 : 0.0)) > 1e-5 * s2) return std::nullopt;
+  return s2;
+}
+
+}  // namespace
+
 absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape_index,
                                             const Geometry& geometry, spectral::Spectrum spectrum,
                                             double scale) {
@@ -62,9 +82,25 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
     return scene::location_error(shape.where,
                                  "an area light with an 'alpha' cut-out is not supported yet");
   }
-  if (std::holds_alternative<scene::CylinderShape>(shape.geometry)) {
-    return scene::location_error(
-        shape.where, "a cylinder used as an area light is not supported yet; model it as a mesh");
+  if (const auto* cylinder = std::get_if<scene::CylinderShape>(&shape.geometry)) {
+    // Uniform in (z, φ) is uniform by area on the object-space cylinder, and stays so under a
+    // similarity (pbrt-v4 samples the same way and ignores the transform's scale).
+    const std::optional<double> s2 = similarity_scale_squared(shape.object_to_world);
+    if (!s2) {
+      return scene::location_error(
+          shape.where,
+          "a cylinder used as an area light must have a similarity transform (uniform scale, "
+          "rotation, translation); model an elliptic emitter as a triangle mesh");
+    }
+    light.area_ = 2 * M_PI * cylinder->radius * (cylinder->z_max - cylinder->z_min) * *s2;
+    if (!(light.area_ > 0) || !std::isfinite(light.area_)) {
+      return scene::location_error(shape.where, "cylinder area light has zero area");
+    }
+    light.is_cylinder_ = true;
+    light.cylinder_ = *cylinder;
+    light.cylinder_to_world_ = shape.object_to_world;
+    light.cylinder_flip_ = shape.reverse_orientation != shape.transform_swaps_handedness;
+    return light;
   }
   if (const auto* disk = std::get_if<scene::DiskShape>(&shape.geometry)) {
     // Uniform in the object-space annulus is uniform on the world disk (an affine map scales
@@ -86,29 +122,15 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
   }
   if (const auto* sphere = std::get_if<scene::SphereShape>(&shape.geometry)) {
     // A sphere light is sampled by the cone it subtends, which is only a sphere's cone under a
-    // similarity: the linear part's columns must be orthogonal with one common length.
-    const scene::Matrix4& m = shape.object_to_world.matrix();
-    double gram[3][3];
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) {
-        gram[i][j] = m[0][i] * m[0][j] + m[1][i] * m[1][j] + m[2][i] * m[2][j];
-      }
-    }
-    double s2 = (gram[0][0] + gram[1][1] + gram[2][2]) / 3.0;
-    bool similarity = s2 > 0;
-    for (int i = 0; i < 3 && similarity; ++i) {
-      for (int j = 0; j < 3; ++j) {
-        double expected = i == j ? s2 : 0.0;
-        if (std::abs(gram[i][j] - expected) > 1e-5 * s2) similarity = false;
-      }
-    }
-    if (!similarity) {
+    // similarity.
+    const std::optional<double> s2 = similarity_scale_squared(shape.object_to_world);
+    if (!s2) {
       return scene::location_error(
           shape.where,
           "a sphere used as an area light must have a similarity transform (uniform scale, "
           "rotation, translation); model an ellipsoidal emitter as a triangle mesh");
     }
-    double radius = sphere->radius * std::sqrt(s2);
+    double radius = sphere->radius * std::sqrt(*s2);
     if (!(radius > 0) || !std::isfinite(radius)) {
       return scene::location_error(shape.where, "sphere area light has zero radius");
     }
@@ -152,6 +174,7 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
 std::optional<LightSample> AreaLight::sample(const LightContext& ctx, Point2f u, float u_tri,
                                              const SampledWavelengths& lambda) const {
   if (is_disk_) return sample_disk(ctx, u, lambda);
+  if (is_cylinder_) return sample_cylinder(ctx, u, lambda);
   return is_sphere_ ? sample_sphere(ctx, u, lambda) : sample_triangles(ctx, u, u_tri, lambda);
 }
 
@@ -162,16 +185,34 @@ std::optional<LightSample> AreaLight::sample_disk(const LightContext& ctx, Point
   const double phi = 2 * M_PI * double(u.y);
   const Vec3f p =
       to_vec(disk_to_world_.apply_point({r * std::cos(phi), r * std::sin(phi), disk_.height}));
+  return uniform_area_sample(ctx, p, disk_normal_, lambda);
+}
+
+std::optional<LightSample> AreaLight::sample_cylinder(const LightContext& ctx, Point2f u,
+                                                      const SampledWavelengths& lambda) const {
+  const double z = cylinder_.z_min + double(u.x) * (cylinder_.z_max - cylinder_.z_min);
+  const double phi = 2 * M_PI * double(u.y);
+  const scene::Vec3 po{cylinder_.radius * std::cos(phi), cylinder_.radius * std::sin(phi), z};
+  const Vec3f p = to_vec(cylinder_to_world_.apply_point(po));
+  // The normal exactly as Geometry::finish_quadric_hit builds it.
+  Vec3f n = normalize(to_vec(cylinder_to_world_.apply_normal({po[0], po[1], 0})));
+  if (cylinder_flip_) n = -n;
+  return uniform_area_sample(ctx, p, n, lambda);
+}
+
+std::optional<LightSample> AreaLight::uniform_area_sample(const LightContext& ctx, const Vec3f& p,
+                                                          const Vec3f& n,
+                                                          const SampledWavelengths& lambda) const {
   Vec3f d = p - ctx.p;
   float dist2 = length_squared(d);
   if (!(dist2 > 0)) return std::nullopt;
   float dist = std::sqrt(dist2);
   Vec3f wi = d / dist;
-  float cos_light = dot(disk_normal_, -wi);
+  float cos_light = dot(n, -wi);
   if (!two_sided_ && cos_light <= 0) return std::nullopt;
   float pdf = dist2 / (std::abs(cos_light) * float(area_));
   if (!std::isfinite(pdf) || !(pdf > 0)) return std::nullopt;
-  return area_sample(wi, dist, p, disk_normal_, pdf, lambda);
+  return area_sample(wi, dist, p, n, pdf, lambda);
 }
 
 LightSample AreaLight::area_sample(const Vec3f& wi, float dist, const Vec3f& p, const Vec3f& n,
@@ -308,7 +349,8 @@ absl::StatusOr<std::shared_ptr<const ProjectionImage>> ProjectionImage::create(
   out->solid_angle_fraction = 4 * std::asin(std::sin(alpha) * std::sin(beta)) / (4 * M_PI);
   constexpr double kLuminance[3] = {0.2126729, 0.7151522, 0.0721750};  // sRGB's Y row
   const double t = out->tan_half;
-  const double texel_area = 4 * t * t * out->x_max * out->y_max / (double(image.width) * image.height);
+  const double texel_area =
+      4 * t * t * out->x_max * out->y_max / (double(image.width) * image.height);
   double flux = 0;
   for (int y = 0; y < image.height; ++y) {
     for (int x = 0; x < image.width; ++x) {
@@ -318,8 +360,9 @@ absl::StatusOr<std::shared_ptr<const ProjectionImage>> ProjectionImage::create(
       const size_t texel = (size_t(y) * size_t(image.width) + size_t(x)) * size_t(image.channels);
       double luminance = 0;
       for (int c = 0; c < 3; ++c)
-        luminance += kLuminance[c] *
-                     double(std::max(0.0f, image.values[texel + size_t(image.channels == 1 ? 0 : c)]));
+        luminance +=
+            kLuminance[c] *
+            double(std::max(0.0f, image.values[texel + size_t(image.channels == 1 ? 0 : c)]));
       flux += luminance * cos_theta * cos_theta * cos_theta * texel_area;
     }
   }

@@ -83,6 +83,12 @@ class AreaLight {
                                            const SampledWavelengths& lambda) const;
   std::optional<LightSample> sample_disk(const LightContext& ctx, Point2f u,
                                          const SampledWavelengths& lambda) const;
+  std::optional<LightSample> sample_cylinder(const LightContext& ctx, Point2f u,
+                                             const SampledWavelengths& lambda) const;
+  // A sampled point p with unit normal n (its emitting side) seen from ctx, or nullopt.
+  std::optional<LightSample> uniform_area_sample(const LightContext& ctx, const Vec3f& p,
+                                                 const Vec3f& n,
+                                                 const SampledWavelengths& lambda) const;
 
   int shape_ = -1;
   scene::SourceLocation where_;
@@ -100,6 +106,10 @@ class AreaLight {
   scene::DiskShape disk_;
   scene::Transform disk_to_world_;
   Vec3f disk_normal_;  // world, after the orientation rule: the side it emits to
+  bool is_cylinder_ = false;  // uniform in (z, φ): uniform by area under a similarity
+  scene::CylinderShape cylinder_;
+  scene::Transform cylinder_to_world_;
+  bool cylinder_flip_ = false;  // emits inwards
 };
 
 // pbrt-v4's projection-light image: per texel an RGB illuminant m·s(λ)·D65(λ) (RgbUplift), and

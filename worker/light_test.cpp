@@ -286,7 +286,10 @@ void check_area_light(const World& w, const AreaLight& light, const AreaCase& c)
       continue;
     }
     EXPECT_NEAR(hit->t, s->distance, 1e-3f * s->distance) << c.name;
-    EXPECT_NEAR(light.pdf(c.ctx, s->wi, *hit), s->pdf, 2e-3f * s->pdf) << c.name;
+    // At grazing angles the density ∝ 1/cos θ_light magnifies the float error of the hit point
+    // (a cylinder's silhouette is always grazing); there only the distribution test above holds.
+    if (abs_dot(hit->ng, s->wi) > 0.05f)
+      EXPECT_NEAR(light.pdf(c.ctx, s->wi, *hit), s->pdf, 2e-3f * s->pdf) << c.name;
     EXPECT_NEAR(length(hit->p - s->p_light), 0.0f, 1e-3f * s->distance) << c.name;
     // n_light is the geometric normal intersections report there (shadow rays offset by it).
     EXPECT_NEAR(dot(hit->ng, s->n_light), 1.0f, 1e-3f) << c.name;
@@ -520,6 +523,60 @@ TEST(AreaLightTest, DiskDirectionsFollowPdfAndIrradianceIsAnalytic) {
       },
       {0, 0, 1}, 2 * M_PI * (big * big / (h * h + big * big) - hole * hole / (h * h + hole * hole)),
       "disk on axis");
+}
+
+// A cylinder light under a rotation and a uniform scale: sampled directions follow pdf() from
+// outside and from inside; on the axis at the middle of an inward-emitting cylinder of radius
+// R and half-length h, a patch facing along the axis receives E = π L h²/(h² + R²) (the open
+// end takes the cone of half-angle atan(R/h)).
+TEST(AreaLightTest, CylinderDirectionsFollowPdfAndIrradianceIsAnalytic) {
+  auto shape = [](const scene::Transform& t, bool reverse) {
+    scene::Shape s;
+    s.geometry = scene::CylinderShape{0.5, -1.0, 1.0};
+    s.object_to_world = t;
+    s.transform_swaps_handedness = t.swaps_handedness();
+    s.reverse_orientation = reverse;
+    s.area_light = scene::AreaLight{};
+    s.where = at(37);
+    return s;
+  };
+  auto t = scene::Transform::translate({0.2f, -0.3f, 4}) *
+           *scene::Transform::rotate(40, {1, 1, 0}) * *scene::Transform::scale({1.5, 1.5, 1.5});
+  auto w = build({shape(t, /*reverse=*/false)});
+  AreaLight tube = area_light(*w, 0);
+  EXPECT_NEAR(tube.area(), 2 * M_PI * 0.5 * 2 * 1.5 * 1.5, 1e-4);
+  for (const AreaCase& k : {AreaCase{"outside", {{0, 0, 0}, {}}, {0.2f, -0.3f, 4}, 2.0f},
+                            AreaCase{"oblique", {{3, -1, 4.5f}, {}}, {0.2f, -0.3f, 4}, 2.0f}}) {
+    check_area_light(*w, tube, k);
+  }
+  auto wi = build({shape(t, /*reverse=*/true)});
+  AreaLight inward = area_light(*wi, 0);
+  check_area_light(*wi, inward, AreaCase{"inside", {{0.2f, -0.3f, 4}, {}}, {0.2f, -0.3f, 4}, 2.0f});
+
+  // Radius 1, half-length 2, centred at the origin along z, emitting inwards with radiance 2.
+  scene::Shape long_tube = shape(scene::Transform(), true);
+  long_tube.geometry = scene::CylinderShape{1.0, -2.0, 2.0};
+  auto wl = build({long_tube});
+  AreaLight lamp = area_light(*wl, 0, spectral::ConstantSpectrum{0.5f}, 4.0);
+  expect_irradiance(
+      [&](Point2f u, float ue) {
+        return lamp.sample({{0, 0, 0}, {0, 0, 1}}, u, ue, lanes({600}));
+      },
+      {0, 0, 1}, 2 * M_PI * 4.0 / (4.0 + 1.0), "cylinder on axis");
+}
+
+// Under a non-uniform scale the uniform (z, φ) sample is not uniform by area: refused by name.
+TEST(AreaLightTest, NonSimilarityCylinderIsRefusedWithLocation) {
+  scene::Shape s;
+  s.geometry = scene::CylinderShape{1.0, -1.0, 1.0};
+  s.object_to_world = *scene::Transform::scale({1, 2, 1});
+  s.area_light = scene::AreaLight{};
+  s.where = at(12);
+  auto w = build({s});
+  auto light = AreaLight::create(s, 0, *w->geometry, spectral::ConstantSpectrum{1}, 1.0);
+  ASSERT_FALSE(light.ok());
+  EXPECT_NE(light.status().message().find(":12:"), std::string_view::npos) << light.status();
+  EXPECT_NE(light.status().message().find("similarity transform"), std::string_view::npos);
 }
 
 TEST(PointSpotInfiniteTest, PointLightIsInverseSquare) {

@@ -184,7 +184,7 @@ class SceneParser {
   int material_index(const SourceLocation& where);
   absl::StatusOr<int> medium_index(const Token& name, const SourceLocation& where) const;
   absl::Status add_shape(Shape shape);
-  // Emitting shapes Prism cannot sample yet: refused, or made non-emitting.
+  // Emitting shapes Prism cannot sample yet (alpha-masked ones): refused, or made non-emitting.
   absl::Status check_emitter(Shape& shape);
 
   // A directive's parameters, owned by `owner` (`Material "diffuse"`) for feature reports.
@@ -345,9 +345,6 @@ absl::Status SceneParser::check_emitter(Shape& shape) {
   if (shape.alpha < 1.0 || shape.alpha_texture >= 0)
     return refuse("area light with an alpha cut-out",
                   "an area light with an 'alpha' cut-out is not supported yet");
-  if (std::holds_alternative<CylinderShape>(shape.geometry))
-    return refuse("cylinder area light",
-                  "a cylinder used as an area light is not supported yet; model it as a mesh");
   return absl::OkStatus();
 }
 

@@ -29,7 +29,7 @@ AttributeBegin
   Translate 0 0 5
   ActiveTransform All
   AreaLightSource "diffuse" "blackbody L" 3000
-  Shape "cylinder" "float mystery" 1
+  Shape "cylinder" "float alpha" 0.5 "float mystery" 1
 AttributeEnd
 )";
 
@@ -97,8 +97,8 @@ TEST(SceneFeatures, AllowingUnsupportedInputRendersAListedSubstitutionForEach) {
       {"Texture \"fbm\"", "u.pbrt:10:25", "a constant 0.5"},
       {"ActiveTransform EndTime", "u.pbrt:12:19",
        "the shutter-open (StartTime) transforms, without motion"},
-      {"Shape \"cylinder\" 'float mystery'", "u.pbrt:16:20", "the scene without it"},
-      {"cylinder area light", "u.pbrt:16:3", "a shape that does not emit"},
+      {"Shape \"cylinder\" 'float mystery'", "u.pbrt:16:38", "the scene without it"},
+      {"area light with an alpha cut-out", "u.pbrt:16:3", "a shape that does not emit"},
   };
   for (const Expected& e : expected) {
     const FeatureUse* f = find_feature(s, e.feature);
