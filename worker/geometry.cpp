@@ -517,6 +517,34 @@ SurfaceHit Geometry::finish_sphere_hit(int shape, const Ray& ray, float t) const
   return hit;
 }
 
+float Geometry::alpha_on_triangle(int shape, std::uint32_t primitive, float u, float v,
+                                  const Vec3f& n) const {
+  if (!has_alpha(shape)) return 1.0f;
+  const MeshShape& m = *meshes_[size_t(shape)];
+  const auto& tri = m.source->triangles[primitive];
+  Point2f uv0{0, 0}, uv1{1, 0}, uv2{1, 1};
+  if (!m.uvs.empty()) {
+    uv0 = {m.uvs[tri[0]].u, m.uvs[tri[0]].v};
+    uv1 = {m.uvs[tri[1]].u, m.uvs[tri[1]].v};
+    uv2 = {m.uvs[tri[2]].u, m.uvs[tri[2]].v};
+  }
+  const float b0 = 1 - u - v;
+  return alpha_[size_t(shape)](
+      {uv0.x * b0 + uv1.x * u + uv2.x * v, uv0.y * b0 + uv1.y * u + uv2.y * v}, n);
+}
+
+float Geometry::alpha_at_point(int shape, const Vec3f& p, const Vec3f& n) const {
+  if (!has_alpha(shape)) return 1.0f;
+  if (spheres_[size_t(shape)]) {
+    const scene::Vec3 po = spheres_[size_t(shape)]->world_to_object.apply_point(to_double(p));
+    return alpha_[size_t(shape)](sphere_uv(po[0], po[1], po[2]), n);
+  }
+  PRISM_CHECK(quadrics_[size_t(shape)] != nullptr);
+  const QuadricShape& q = *quadrics_[size_t(shape)];
+  const scene::Vec3 po = q.world_to_object.apply_point(to_double(p));
+  return alpha_[size_t(shape)](quadric_uv(q, po[0], po[1], q.cylinder ? po[2] : q.height), n);
+}
+
 SurfaceHit Geometry::finish_quadric_hit(int shape, const Ray& ray, float t) const {
   const QuadricShape& q = *quadrics_[shape];
   scene::Vec3 po = q.world_to_object.apply_point(to_double(ray.origin + ray.direction * t));

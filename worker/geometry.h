@@ -87,6 +87,14 @@ class Geometry {
   WorldTriangle triangle(int shape, std::uint32_t primitive) const;
   std::uint32_t triangle_count(int shape) const;
 
+  // Whether the shape has an alpha, and its value at a point of the surface (unit geometric
+  // normal n), for sampling emitters: on a mesh triangle by the barycentrics of p1 and p2 (the
+  // hit's u, v), on a sphere, disk or cylinder at the world point p. 1 without an alpha.
+  bool has_alpha(int shape) const { return size_t(shape) < alpha_.size() && alpha_[size_t(shape)]; }
+  float alpha_on_triangle(int shape, std::uint32_t primitive, float u, float v,
+                          const Vec3f& n) const;
+  float alpha_at_point(int shape, const Vec3f& p, const Vec3f& n) const;
+
   // A small offset along the normal for rays leaving a surface at p, scaled with the scene's
   // extent so millimetre and kilometre scenes both avoid self-intersection.
   Vec3f offset_origin(const Vec3f& p, const Vec3f& ng, const Vec3f& direction) const;

@@ -8,6 +8,7 @@
 #include "services/base/check.h"
 #include "services/base/status.h"
 #include "worker/equal_area.h"
+#include "worker/float_hash.h"
 
 namespace prism::worker {
 namespace {
@@ -48,6 +49,9 @@ absl::Status check_scale(double scale, const scene::SourceLocation& where) {
 
 namespace {
 
+// Seeds the emitter-alpha hash apart from the intersection alpha test's.
+constexpr std::uint64_t kEmitterAlphaSeed = 0x616c706861ull;
+
 // s² when the transform's linear part is a similarity (orthogonal columns of one common
 // length s), else nullopt.
 std::optional<double> similarity_scale_squared(const scene::Transform& t) {
@@ -78,10 +82,7 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
   light.two_sided_ = shape.area_light && shape.area_light->two_sided;
   if (auto status = check_scale(scale, light.where_); !status.ok()) return status;
 
-  if (shape.alpha < 1.0 || shape.alpha_texture >= 0) {
-    return scene::location_error(shape.where,
-                                 "an area light with an 'alpha' cut-out is not supported yet");
-  }
+  light.has_alpha_ = geometry.has_alpha(shape_index);
   if (const auto* cylinder = std::get_if<scene::CylinderShape>(&shape.geometry)) {
     // Uniform in (z, φ) is uniform by area on the object-space cylinder, and stays so under a
     // similarity (pbrt-v4 samples the same way and ignores the transform's scale).
@@ -185,6 +186,8 @@ std::optional<LightSample> AreaLight::sample_disk(const LightContext& ctx, Point
   const double phi = 2 * M_PI * double(u.y);
   const Vec3f p =
       to_vec(disk_to_world_.apply_point({r * std::cos(phi), r * std::sin(phi), disk_.height}));
+  if (has_alpha_ && masked(geometry_->alpha_at_point(shape_, p, disk_normal_), p))
+    return std::nullopt;
   return uniform_area_sample(ctx, p, disk_normal_, lambda);
 }
 
@@ -197,7 +200,14 @@ std::optional<LightSample> AreaLight::sample_cylinder(const LightContext& ctx, P
   // The normal exactly as Geometry::finish_quadric_hit builds it.
   Vec3f n = normalize(to_vec(cylinder_to_world_.apply_normal({po[0], po[1], 0})));
   if (cylinder_flip_) n = -n;
+  if (has_alpha_ && masked(geometry_->alpha_at_point(shape_, p, n), p)) return std::nullopt;
   return uniform_area_sample(ctx, p, n, lambda);
+}
+
+bool AreaLight::masked(float alpha, const Vec3f& p) {
+  if (alpha >= 1.0f) return false;
+  if (!(alpha > 0.0f)) return true;
+  return unit_float(hash_floats(kEmitterAlphaSeed, {p.x, p.y, p.z})) > alpha;
 }
 
 std::optional<LightSample> AreaLight::uniform_area_sample(const LightContext& ctx, const Vec3f& p,
@@ -256,6 +266,8 @@ std::optional<LightSample> AreaLight::sample_triangles(const LightContext& ctx, 
     float ls = length(ns);
     if (ls > 0) n = face_forward(n, ns / ls);
   }
+  if (has_alpha_ && masked(geometry_->alpha_on_triangle(shape_, index, b1, b2, n), p))
+    return std::nullopt;
   Vec3f d = p - ctx.p;
   float dist2 = length_squared(d);
   if (!(dist2 > 0)) return std::nullopt;
@@ -303,6 +315,7 @@ std::optional<LightSample> AreaLight::sample_sphere(const LightContext& ctx, Poi
     pdf = 1.0f / (2.0f * kPi * omc);
   }
   Vec3f ng = sphere_flip_ ? -n : n;
+  if (has_alpha_ && masked(geometry_->alpha_at_point(shape_, p, ng), p)) return std::nullopt;
   Vec3f d = p - ctx.p;
   float dist = length(d);
   if (!(dist > 0)) return std::nullopt;

@@ -90,7 +90,12 @@ class AreaLight {
                                                  const Vec3f& n,
                                                  const SampledWavelengths& lambda) const;
 
+  // pbrt-v4's emitter alpha: a sampled point emits when a hash of its position, uniform in
+  // [0, 1), is at most the shape's alpha there.
+  static bool masked(float alpha, const Vec3f& p);
+
   int shape_ = -1;
+  bool has_alpha_ = false;
   scene::SourceLocation where_;
   const Geometry* geometry_ = nullptr;
   spectral::Spectrum spectrum_;

@@ -109,10 +109,11 @@ struct World {
   std::unique_ptr<Geometry> geometry;
 };
 
-std::unique_ptr<World> build(std::vector<scene::Shape> shapes) {
+std::unique_ptr<World> build(std::vector<scene::Shape> shapes,
+                             std::vector<AlphaFunction> alpha = {}) {
   auto w = std::make_unique<World>();
   w->desc.shapes = std::move(shapes);
-  auto g = Geometry::build(w->device, w->desc);
+  auto g = Geometry::build(w->device, w->desc, std::move(alpha));
   PRISM_CHECK(g.ok());
   w->geometry = std::move(*g);
   return w;
@@ -577,6 +578,49 @@ TEST(AreaLightTest, NonSimilarityCylinderIsRefusedWithLocation) {
   ASSERT_FALSE(light.ok());
   EXPECT_NE(light.status().message().find(":12:"), std::string_view::npos) << light.status();
   EXPECT_NE(light.status().message().find("similarity transform"), std::string_view::npos);
+}
+
+// pbrt-v4's emitter alpha: a sampled point whose alpha is 0 (or, for a fraction a, whose
+// position hashes above a) gives no sample. On the axis of a disk of radiance 2, an alpha that
+// keeps the half φ < π gives half the full disk's irradiance, a constant 0.3 keeps 0.3 of it,
+// and the sampled density is unchanged (pbrt-v4 does not renormalise).
+TEST(AreaLightTest, AlphaMaskedEmittersLoseTheMaskedPart) {
+  scene::Shape disk;
+  disk.geometry = scene::DiskShape{0.0, 1.0, 0.0};
+  disk.object_to_world = scene::Transform::translate({0, 0, 2});
+  disk.reverse_orientation = true;  // faces down, towards the origin
+  disk.area_light = scene::AreaLight{};
+  disk.where = at(41);
+  const double full = 2 * M_PI * 1.0 / (4.0 + 1.0);
+  struct Case {
+    const char* name;
+    AlphaFunction alpha;
+    double fraction;
+  };
+  const Case cases[] = {
+      {"half disk", [](const Point2f& uv, const Vec3f&) { return uv.x < 0.5f ? 1.0f : 0.0f; }, 0.5},
+      {"alpha 0.3", [](const Point2f&, const Vec3f&) { return 0.3f; }, 0.3},
+      {"opaque", nullptr, 1.0}};
+  for (const Case& c : cases) {
+    auto w = build({disk}, {c.alpha});
+    AreaLight light = area_light(*w, 0, spectral::ConstantSpectrum{0.5f}, 4.0);
+    expect_irradiance(
+        [&](Point2f u, float ue) {
+          return light.sample({{0, 0, 0}, {0, 0, 1}}, u, ue, lanes({600}));
+        },
+        {0, 0, 1}, c.fraction * full, c.name);
+    if (c.alpha) {
+      // The masked half is where φ >= π: y < 0 on the disk.
+      int kept_below = 0;
+      for (int i = 0; i < 2000; ++i) {
+        auto ls =
+            light.sample({{0, 0, 0}, {0, 0, 1}},
+                         {(i + 0.5f) / 2000, (i * 0.618f) - int(i * 0.618f)}, 0.5f, lanes({600}));
+        if (ls && ls->p_light.y < -1e-4f) ++kept_below;
+      }
+      if (c.fraction == 0.5) EXPECT_EQ(kept_below, 0) << c.name;
+    }
+  }
 }
 
 TEST(PointSpotInfiniteTest, PointLightIsInverseSquare) {

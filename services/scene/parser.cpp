@@ -184,8 +184,6 @@ class SceneParser {
   int material_index(const SourceLocation& where);
   absl::StatusOr<int> medium_index(const Token& name, const SourceLocation& where) const;
   absl::Status add_shape(Shape shape);
-  // Emitting shapes Prism cannot sample yet (alpha-masked ones): refused, or made non-emitting.
-  absl::Status check_emitter(Shape& shape);
 
   // A directive's parameters, owned by `owner` (`Material "diffuse"`) for feature reports.
   absl::StatusOr<ParameterList> parameters(Tokenizer& tokens, std::string owner) {
@@ -333,19 +331,6 @@ absl::StatusOr<int> SceneParser::medium_index(const Token& name,
   if (it == named_media_.end())
     return location_error(where, absl::StrCat("medium \"", name.text, "\" is not defined"));
   return it->second;
-}
-
-absl::Status SceneParser::check_emitter(Shape& shape) {
-  auto refuse = [&](const char* feature, const char* message) -> absl::Status {
-    PRISM_RETURN_IF_ERROR(
-        features_.refuse(feature, shape.where, message, "a shape that does not emit"));
-    shape.area_light.reset();
-    return absl::OkStatus();
-  };
-  if (shape.alpha < 1.0 || shape.alpha_texture >= 0)
-    return refuse("area light with an alpha cut-out",
-                  "an area light with an 'alpha' cut-out is not supported yet");
-  return absl::OkStatus();
 }
 
 absl::Status SceneParser::skip_directive(Tokenizer& tokens, const Token& d,
@@ -603,7 +588,6 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     shape.area_light = state_.area_light;
     shape.media = {state_.inside_medium, state_.outside_medium};
     shape.where = where;
-    if (shape.area_light) PRISM_RETURN_IF_ERROR(check_emitter(shape));
     PRISM_RETURN_IF_ERROR(add_shape(std::move(shape)));
   } else if (name == "Material") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));

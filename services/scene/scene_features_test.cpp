@@ -63,13 +63,13 @@ TEST(SceneFeatures, AllowingUnsupportedInputRendersAListedSubstitutionForEach) {
   EXPECT_EQ(s.camera.fov_deg, 90.0);
   EXPECT_EQ(s.film.x_resolution, 8);
   // The hair material becomes the default diffuse one, the partial sphere a full sphere, the
-  // curve is dropped; the cylinder keeps its place but does not emit.
+  // curve is dropped.
   ASSERT_EQ(s.materials.size(), 1u);
   EXPECT_TRUE(std::holds_alternative<DiffuseMaterial>(s.materials[0].kind));
   ASSERT_EQ(s.shapes.size(), 2u);
   EXPECT_TRUE(std::holds_alternative<SphereShape>(s.shapes[0].geometry));
   EXPECT_TRUE(std::holds_alternative<CylinderShape>(s.shapes[1].geometry));
-  EXPECT_FALSE(s.shapes[1].area_light.has_value());
+  EXPECT_TRUE(s.shapes[1].area_light.has_value());
   // The end-time translation is dropped: the shutter-open transform is the identity.
   EXPECT_TRUE(s.shapes[1].object_to_world.is_identity());
   // The cloud medium is a vacuum; the fbm texture a constant 0.5.
@@ -98,7 +98,6 @@ TEST(SceneFeatures, AllowingUnsupportedInputRendersAListedSubstitutionForEach) {
       {"ActiveTransform EndTime", "u.pbrt:12:19",
        "the shutter-open (StartTime) transforms, without motion"},
       {"Shape \"cylinder\" 'float mystery'", "u.pbrt:16:38", "the scene without it"},
-      {"area light with an alpha cut-out", "u.pbrt:16:3", "a shape that does not emit"},
   };
   for (const Expected& e : expected) {
     const FeatureUse* f = find_feature(s, e.feature);
