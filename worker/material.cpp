@@ -89,10 +89,11 @@ absl::StatusOr<SpectrumSlot> resolve_slot(const scene::SpectrumParam& param, int
 
 absl::StatusOr<Layer> resolve_layer(const scene::LayerSpec& l,
                                     const spectral::SpectrumLibrary& library,
-                                    const spectral::RgbUplift& uplift) {
+                                    const spectral::RgbUplift& uplift,
+                                    const std::vector<TexturePtr>& textures) {
   Layer out;
   out.thickness = std::max(float(l.thickness), std::numeric_limits<float>::min());
-  auto albedo = resolve_spectrum(l.albedo, SpectrumRole::kReflectance, library, uplift);
+  auto albedo = resolve_slot(l.albedo, l.albedo_texture, library, uplift, textures);
   if (!albedo.ok()) return invalid(absl::StrCat("albedo: ", albedo.status().message()));
   out.albedo = *std::move(albedo);
   out.g = float(l.g);
@@ -249,7 +250,7 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       if (!r.ok())
         return invalid(absl::StrCat("coateddiffuse reflectance: ", r.status().message()));
       PRISM_RETURN_IF_ERROR(check_roughness(m.roughness));
-      auto layer = resolve_layer(m.layer, library, uplift);
+      auto layer = resolve_layer(m.layer, library, uplift, textures);
       if (!layer.ok()) return invalid(absl::StrCat("coateddiffuse ", layer.status().message()));
       CoatedDiffuseMaterial out{*std::move(r),
                                 constant_eta(m.eta),
@@ -271,7 +272,7 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       if (!conductor.ok()) {
         return invalid(absl::StrCat("coatedconductor conductor ", conductor.status().message()));
       }
-      auto layer = resolve_layer(m.layer, library, uplift);
+      auto layer = resolve_layer(m.layer, library, uplift, textures);
       if (!layer.ok()) return invalid(absl::StrCat("coatedconductor ", layer.status().message()));
       auto& c = std::get<ConductorMaterial>(*conductor);
       CoatedConductorMaterial out;
@@ -353,10 +354,11 @@ SampledSpectrum conductor_k(const spectral::Spectrum& k,
   return out;
 }
 
-LayerParams layer_params(const Layer& layer, const spectral::SampledWavelengths& lambda) {
+LayerParams layer_params(const Layer& layer, const spectral::SampledWavelengths& lambda,
+                         const TextureContext& ctx) {
   LayerParams p;
   p.thickness = layer.thickness;
-  p.albedo = spectral::sample(layer.albedo, lambda);
+  p.albedo = layer.albedo.at(ctx, lambda);
   p.g = layer.g;
   p.max_depth = layer.max_depth;
   p.samples = layer.samples;
@@ -380,7 +382,7 @@ std::optional<Bsdf> make_bsdf(const Material& material, const spectral::SampledW
       for (int i = 0; i < lanes; ++i) r[i] = std::clamp(r[i], 0.0f, 1.0f);
       const DielectricBsdf top(SampledSpectrum(m.eta), lanes, false,
                                distribution(m.alpha_x, m.alpha_y, m.roughness_textures, ctx));
-      return Bsdf(LayeredBsdf(top, DiffuseBsdf(r, lanes), layer_params(m.layer, lambda), lanes));
+      return Bsdf(LayeredBsdf(top, DiffuseBsdf(r, lanes), layer_params(m.layer, lambda, ctx), lanes));
     }
     std::optional<Bsdf> operator()(const CoatedConductorMaterial& m) const {
       const DielectricBsdf top(SampledSpectrum(m.interface_eta), lanes, false,
@@ -390,7 +392,7 @@ std::optional<Bsdf> make_bsdf(const Material& material, const spectral::SampledW
       const ConductorBsdf base(conductor_eta(m.eta, m.reflectance, lambda) * inverse,
                                conductor_k(m.k, m.reflectance, lambda) * inverse, lanes,
                                distribution(m.alpha_x, m.alpha_y, m.roughness_textures, ctx));
-      return Bsdf(LayeredBsdf(top, base, layer_params(m.layer, lambda), lanes));
+      return Bsdf(LayeredBsdf(top, base, layer_params(m.layer, lambda, ctx), lanes));
     }
     std::optional<Bsdf> operator()(const DielectricMaterial& m) const {
       SampledSpectrum eta;
@@ -442,10 +444,10 @@ bool depends_on_wavelength(const Material& material) {
       return m.reflectance.varies_with_wavelength();
     }
     bool operator()(const CoatedDiffuseMaterial& m) const {
-      return m.reflectance.varies_with_wavelength() || !spectral::is_constant(m.layer.albedo);
+      return m.reflectance.varies_with_wavelength() || m.layer.albedo.varies_with_wavelength();
     }
     bool operator()(const CoatedConductorMaterial& m) const {
-      if (!spectral::is_constant(m.layer.albedo)) return true;
+      if (m.layer.albedo.varies_with_wavelength()) return true;
       if (m.reflectance) return !spectral::is_constant(*m.reflectance);
       return !spectral::is_constant(m.eta) || !spectral::is_constant(m.k);
     }

@@ -86,10 +86,10 @@ struct DiffuseTransmissionMaterial {
   float scale = 1;
 };
 
-// The slab of a coated material (scene::LayerSpec with the albedo resolved).
+// The slab of a coated material (scene::LayerSpec with the albedo resolved, or its texture).
 struct Layer {
   float thickness = 0.01f;
-  spectral::Spectrum albedo = spectral::ConstantSpectrum{0};
+  SpectrumSlot albedo{spectral::ConstantSpectrum{0}, nullptr};
   float g = 0;
   int max_depth = 10;
   int samples = 1;

@@ -267,6 +267,42 @@ TEST_F(MaterialTest, TexturedRoughnessIsEvaluatedAtTheHit) {
   }
 }
 
+// A textured slab albedo (pbrt-v4's `texture albedo` on coated materials) is looked up at the
+// hit: each cell of a checkerboard gives exactly the BSDF of the constant albedo it holds.
+TEST_F(MaterialTest, TexturedLayerAlbedoIsEvaluatedAtTheHit) {
+  using texture_nodes::Checkerboard;
+  using texture_nodes::Input;
+  scene::UvMapping mapping;
+  mapping.su = 2;
+  mapping.sv = 0;
+  auto checks = std::make_shared<const Texture>(
+      Checkerboard{mapping, Input{nullptr, 0, spectral::ConstantSpectrum{0.2f}},
+                   Input{nullptr, 0, spectral::ConstantSpectrum{0.9f}}},
+      true);
+  scene::CoatedDiffuseMaterial coated;
+  coated.roughness.u = coated.roughness.v = 0.3;
+  coated.layer.thickness = 0.5;
+  coated.layer.albedo_texture = 0;
+  auto textured = resolve_material(material(coated), *library_, *uplift_, {checks});
+  ASSERT_TRUE(textured.ok()) << textured.status();
+  const Vec3f wo = normalize(Vec3f{0.3f, 0.1f, 0.9f}), wi = normalize(Vec3f{-0.5f, 0.2f, 0.7f});
+  for (auto [u, albedo] : {std::pair{0.2f, 0.2}, std::pair{0.7f, 0.9}}) {
+    scene::CoatedDiffuseMaterial plain = coated;
+    plain.layer.albedo_texture = -1;
+    plain.layer.albedo = scene::SpectrumConstant{albedo};
+    auto constant = resolve(plain);
+    ASSERT_TRUE(constant.ok());
+    const TextureContext at{{u, 0.5f}, {0, 0, 1}};
+    auto a = make_bsdf(*textured, lanes({450, 600}), at);
+    auto b = make_bsdf(*constant, lanes({450, 600}), at);
+    ASSERT_TRUE(a && b);
+    const SampledSpectrum fa = std::get<LayeredBsdf>(*a).eval(wo, wi);
+    const SampledSpectrum fb = std::get<LayeredBsdf>(*b).eval(wo, wi);
+    EXPECT_GT(fa[0], 0.0f) << u;
+    for (int k = 0; k < 2; ++k) EXPECT_EQ(fa[k], fb[k]) << u << " lane " << k;
+  }
+}
+
 TEST_F(MaterialTest, SpectrumRolesPickTheUplift) {
   scene::SpectrumParam rgb = scene::SpectrumRgb{2.0, 1.0, 0.5};
   EXPECT_FALSE(resolve_spectrum(rgb, SpectrumRole::kReflectance, *library_, *uplift_).ok());

@@ -174,6 +174,7 @@ struct DiffuseTransmissionMaterial {
 struct LayerSpec {
   double thickness = 0.01;
   SpectrumParam albedo = SpectrumConstant{0};
+  int albedo_texture = -1;  // a spectrum texture replacing `albedo`
   double g = 0;
   int max_depth = 10;
   int samples = 1;

@@ -315,16 +315,8 @@ absl::StatusOr<LayerSpec> read_layer(const ParameterList& params, const EntityCo
   PRISM_RETURN_IF_ERROR(check_range(params, "maxdepth", l.max_depth, 1, 1000, "in [1, 1000]"));
   PRISM_ASSIGN_OR_RETURN(l.samples, params.get_int("nsamples", 1));
   PRISM_RETURN_IF_ERROR(check_range(params, "nsamples", l.samples, 1, 1000, "in [1, 1000]"));
-  if (const Parameter* p = params.find("albedo"); p != nullptr && p->type == ParamType::kTexture) {
-    PRISM_RETURN_IF_ERROR(refuse_at(params, params.feature(*p), p->where,
-                                    "'texture albedo': a textured albedo is not supported yet",
-                                    "albedo 0 (no medium between the layers)"));
-    p->used = true;
-    l.albedo = SpectrumConstant{0.0};
-    return l;
-  }
-  PRISM_ASSIGN_OR_RETURN(l.albedo, spectrum_or(params, "albedo", SpectrumRole::kReflectance, ctx,
-                                               SpectrumConstant{0.0}));
+  PRISM_RETURN_IF_ERROR(read_spectrum_slot(params, "albedo", SpectrumRole::kReflectance, ctx,
+                                           &l.albedo, &l.albedo_texture));
   return l;
 }
 

@@ -122,7 +122,7 @@ TEST(SceneFeatures, EverySupportedApproximatedAndIgnoredUseIsListedOnce) {
 Accelerator "kdtree"
 WorldBegin
 Texture "checks" "spectrum" "checkerboard" "float uscale" 4
-Material "coateddiffuse" "texture reflectance" "checks"
+Material "coateddiffuse" "texture reflectance" "checks" "texture albedo" "checks"
 Shape "sphere"
 Shape "sphere" "float radius" 2
 Shape "trianglemesh" "point3 P" [0 0 0 1 0 0 0 1 0] "integer faceIndices" [0]
@@ -143,6 +143,10 @@ Shape "trianglemesh" "point3 P" [0 0 0 1 0 0 0 1 0] "integer faceIndices" [0]
   EXPECT_EQ(find_feature(*s, "Shape \"sphere\"")->uses, 2);
   EXPECT_EQ(find_feature(*s, "Shape \"sphere\"")->where.to_string(), "f.pbrt:6:7");
   EXPECT_EQ(count_features(s->features, FeatureStatus::kRefused), 0);
+  // The slab's albedo takes a spectrum texture too.
+  const auto& coated = std::get<CoatedDiffuseMaterial>(s->materials[0].kind);
+  EXPECT_EQ(coated.reflectance_texture, 0);
+  EXPECT_EQ(coated.layer.albedo_texture, 0);
 }
 
 // Options are sorted by what they do to the image, not accepted wholesale.
