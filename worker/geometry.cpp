@@ -1,6 +1,7 @@
 #include "worker/geometry.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <map>
@@ -74,6 +75,20 @@ struct Geometry::AlphaFilter {
 
 namespace {
 
+// A mesh triangle's vertex uvs: the mesh's, or pbrt-v4's default (0,0), (1,0), (1,1).
+std::array<Point2f, 3> triangle_uvs(const std::vector<scene::Float2>& uvs,
+                                    const scene::Triangle& tri) {
+  if (uvs.empty()) return {Point2f{0, 0}, Point2f{1, 0}, Point2f{1, 1}};
+  return {Point2f{uvs[tri[0]].u, uvs[tri[0]].v}, Point2f{uvs[tri[1]].u, uvs[tri[1]].v},
+          Point2f{uvs[tri[2]].u, uvs[tri[2]].v}};
+}
+
+// The uv at barycentrics (u, v) of vertices 1 and 2.
+Point2f interpolate_uv(const std::array<Point2f, 3>& t, float u, float v) {
+  const float b0 = 1 - u - v;
+  return {t[0].x * b0 + t[1].x * u + t[2].x * v, t[0].y * b0 + t[1].y * u + t[2].y * v};
+}
+
 // pbrt-v4's parameterisations (object space): u = φ/2π everywhere; v = 1 − θ/π on a sphere about
 // the origin, (radius − r)/(radius − inner radius) on a disk, (z − z_min)/(z_max − z_min) on a
 // cylinder.
@@ -131,15 +146,9 @@ void alpha_filter(const RTCFilterFunctionNArguments* args) {
       unit_or_z(RTCHitN_Ng_x(hit, 1, 0), RTCHitN_Ng_y(hit, 1, 0), RTCHitN_Ng_z(hit, 1, 0));
   Point2f uv;
   if (f->mesh != nullptr) {
-    const float b1 = RTCHitN_u(hit, 1, 0), b2 = RTCHitN_v(hit, 1, 0), b0 = 1 - b1 - b2;
     const auto& tri = f->mesh->source->triangles[RTCHitN_primID(hit, 1, 0)];
-    Point2f uv0{0, 0}, uv1{1, 0}, uv2{1, 1};
-    if (!f->mesh->uvs.empty()) {
-      uv0 = {f->mesh->uvs[tri[0]].u, f->mesh->uvs[tri[0]].v};
-      uv1 = {f->mesh->uvs[tri[1]].u, f->mesh->uvs[tri[1]].v};
-      uv2 = {f->mesh->uvs[tri[2]].u, f->mesh->uvs[tri[2]].v};
-    }
-    uv = {uv0.x * b0 + uv1.x * b1 + uv2.x * b2, uv0.y * b0 + uv1.y * b1 + uv2.y * b2};
+    uv =
+        interpolate_uv(triangle_uvs(f->mesh->uvs, tri), RTCHitN_u(hit, 1, 0), RTCHitN_v(hit, 1, 0));
   } else {
     // The sphere's object space (the instance's): the hit point on the sphere about the origin.
     uv = sphere_uv(ox + double(t) * dx, oy + double(t) * dy, oz + double(t) * dz);
@@ -480,14 +489,9 @@ SurfaceHit Geometry::finish_triangle_hit(int shape, std::uint32_t prim, float u,
       hit.ng = face_forward(n, hit.ns);
     }
   }
-  const auto& tri = m.source->triangles[prim];
-  Point2f uv0{0, 0}, uv1{1, 0}, uv2{1, 1};
-  if (!m.uvs.empty()) {
-    uv0 = {m.uvs[tri[0]].u, m.uvs[tri[0]].v};
-    uv1 = {m.uvs[tri[1]].u, m.uvs[tri[1]].v};
-    uv2 = {m.uvs[tri[2]].u, m.uvs[tri[2]].v};
-  }
-  hit.uv = {uv0.x * b0 + uv1.x * u + uv2.x * v, uv0.y * b0 + uv1.y * u + uv2.y * v};
+  const std::array<Point2f, 3> uvs = triangle_uvs(m.uvs, m.source->triangles[prim]);
+  const Point2f &uv0 = uvs[0], &uv1 = uvs[1], &uv2 = uvs[2];
+  hit.uv = interpolate_uv(uvs, u, v);
   // dp/du from the uv parameterisation (pbrt-v4 Triangle), falling back to an edge.
   float du02 = uv0.x - uv2.x, du12 = uv1.x - uv2.x, dv02 = uv0.y - uv2.y, dv12 = uv1.y - uv2.y;
   float det = du02 * dv12 - dv02 * du12;
@@ -521,16 +525,8 @@ float Geometry::alpha_on_triangle(int shape, std::uint32_t primitive, float u, f
                                   const Vec3f& n) const {
   if (!has_alpha(shape)) return 1.0f;
   const MeshShape& m = *meshes_[size_t(shape)];
-  const auto& tri = m.source->triangles[primitive];
-  Point2f uv0{0, 0}, uv1{1, 0}, uv2{1, 1};
-  if (!m.uvs.empty()) {
-    uv0 = {m.uvs[tri[0]].u, m.uvs[tri[0]].v};
-    uv1 = {m.uvs[tri[1]].u, m.uvs[tri[1]].v};
-    uv2 = {m.uvs[tri[2]].u, m.uvs[tri[2]].v};
-  }
-  const float b0 = 1 - u - v;
   return alpha_[size_t(shape)](
-      {uv0.x * b0 + uv1.x * u + uv2.x * v, uv0.y * b0 + uv1.y * u + uv2.y * v}, n);
+      interpolate_uv(triangle_uvs(m.uvs, m.source->triangles[primitive]), u, v), n);
 }
 
 float Geometry::alpha_at_point(int shape, const Vec3f& p, const Vec3f& n) const {
