@@ -5,7 +5,8 @@
 //    the base paths in these scenes), on a prism casting a dispersive caustic, a
 //    diffuse object inside smooth glass, and a rough-glass object with coloured caustics;
 //  - the multi-pass prepass: the final pass sampling each pixel's learned table, on a scene with
-//    three emitters of different spectra, an absorbing medium and dispersive glass.
+//    three emitters of different spectra, an absorbing medium and dispersive glass;
+//  - hero's lane termination at coats whose index varies with wavelength.
 //
 // Statistic. The reconstruction mixes the bins of a pixel, so per-bin errors are not available
 // from one render's sums of squares; instead each method renders the same small film with R
@@ -240,6 +241,24 @@ INSTANTIATE_TEST_SUITE_P(
                     PrepassCase{"hero_image_scaled", worker::IntegratorKind::kHero, true},
                     PrepassCase{"gradient", worker::IntegratorKind::kGradient, false}),
     [](const testing::TestParamInfo<PrepassCase>& info) { return std::string(info.param.name); });
+
+// Coats whose index varies with wavelength: hero makes the BSDF at the hero wavelength and
+// terminates the other lanes before next-event estimation (pbrt-v4's TerminateSecondary); the
+// image must agree with `uniform`, which traces one wavelength per path, per bin. Power, checked
+// by hand: without the termination (every lane uses the hero's index) the largest |z| is 7.7.
+TEST_F(PipelineStatisticsTest, HeroWithADispersiveCoatAgreesWithUniformPerBin) {
+  auto scene = load("tests/testdata/pipeline/spectral_coat.pbrt");
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  constexpr int kSeeds = 16;
+  LocalRenderOptions uniform = base_options(24, 24, 256);
+  uniform.render.integrator = worker::IntegratorKind::kUniform;
+  LocalRenderOptions hero = uniform;
+  hero.render.integrator = worker::IntegratorKind::kHero;
+  const SeedStats u = over_seeds(*scene, uniform, kSeeds);
+  const SeedStats h = over_seeds(*scene, hero, kSeeds);
+  std::string detail;
+  EXPECT_LT(max_z(h, u, &detail), 5.0) << detail;
+}
 
 // Grazing refraction, TIR of offsets, η → 1, a line-spectrum emitter and a very bright one: no
 // NaN or Inf reaches I, G, the reconstruction, or the prepass's final image.

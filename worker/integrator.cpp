@@ -343,6 +343,13 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       continue;
     }
     if (depth == options.max_depth || stops_early(depth)) break;
+    // A coat of wavelength-dependent index was made for the hero wavelength alone (pbrt-v4
+    // terminates the others when it makes the BSDF, before next-event estimation).
+    if (terminates_secondary(material) && live_lanes() > 1) {
+      path.lambda.terminate_secondary();
+      for (int k = 1; k < spectral::kMaxLanes; ++k) path.beta[k] = path.r[k] = 0;
+      ++counters.lane_splits;
+    }
 
     Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
     Vec3f wo = frame.to_local(-ray.direction);

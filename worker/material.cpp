@@ -102,8 +102,18 @@ absl::StatusOr<Layer> resolve_layer(const scene::LayerSpec& l,
   return out;
 }
 
-float constant_eta(const scene::IorParam& param) {
-  return float(std::get<scene::IorConstant>(param).eta);
+struct CoatEta {
+  float constant = 1.5f;
+  std::optional<spectral::Ior> dispersive;
+};
+
+absl::StatusOr<CoatEta> coat_eta(const scene::IorParam& param,
+                                 const spectral::SpectrumLibrary& library) {
+  PRISM_ASSIGN_OR_RETURN(spectral::Ior ior, resolve_ior(param, library));
+  CoatEta out;
+  out.constant = float(spectral::eta(ior, 550.0));
+  if (spectral::is_dispersive(ior)) out.dispersive = std::move(ior);
+  return out;
 }
 
 absl::StatusOr<Material> resolve_dielectric(const scene::DielectricMaterial& m,
@@ -252,8 +262,11 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       PRISM_RETURN_IF_ERROR(check_roughness(m.roughness));
       auto layer = resolve_layer(m.layer, library, uplift, textures);
       if (!layer.ok()) return invalid(absl::StrCat("coateddiffuse ", layer.status().message()));
+      auto eta = coat_eta(m.eta, library);
+      if (!eta.ok()) return invalid(absl::StrCat("coateddiffuse eta: ", eta.status().message()));
       CoatedDiffuseMaterial out{*std::move(r),
-                                constant_eta(m.eta),
+                                eta->constant,
+                                eta->dispersive,
                                 remap(m.roughness.u, m.roughness.remap),
                                 remap(m.roughness.v, m.roughness.remap),
                                 roughness_textures(m.roughness, textures),
@@ -276,7 +289,12 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       if (!layer.ok()) return invalid(absl::StrCat("coatedconductor ", layer.status().message()));
       auto& c = std::get<ConductorMaterial>(*conductor);
       CoatedConductorMaterial out;
-      out.interface_eta = constant_eta(m.interface_eta);
+      auto eta = coat_eta(m.interface_eta, library);
+      if (!eta.ok()) {
+        return invalid(absl::StrCat("coatedconductor interface.eta: ", eta.status().message()));
+      }
+      out.interface_eta = eta->constant;
+      out.dispersive_interface_eta = eta->dispersive;
       out.interface_alpha_x = remap(m.interface_roughness.u, m.interface_roughness.remap);
       out.interface_alpha_y = remap(m.interface_roughness.v, m.interface_roughness.remap);
       out.interface_roughness_textures = roughness_textures(m.interface_roughness, textures);
@@ -380,15 +398,21 @@ std::optional<Bsdf> make_bsdf(const Material& material, const spectral::SampledW
     std::optional<Bsdf> operator()(const CoatedDiffuseMaterial& m) const {
       SampledSpectrum r = m.reflectance.at(ctx, lambda);
       for (int i = 0; i < lanes; ++i) r[i] = std::clamp(r[i], 0.0f, 1.0f);
-      const DielectricBsdf top(SampledSpectrum(m.eta), lanes, false,
+      const float eta =
+          m.dispersive_eta ? float(spectral::eta(*m.dispersive_eta, lambda.lambda(0))) : m.eta;
+      const DielectricBsdf top(SampledSpectrum(eta), lanes, false,
                                distribution(m.alpha_x, m.alpha_y, m.roughness_textures, ctx));
-      return Bsdf(LayeredBsdf(top, DiffuseBsdf(r, lanes), layer_params(m.layer, lambda, ctx), lanes));
+      return Bsdf(
+          LayeredBsdf(top, DiffuseBsdf(r, lanes), layer_params(m.layer, lambda, ctx), lanes));
     }
     std::optional<Bsdf> operator()(const CoatedConductorMaterial& m) const {
-      const DielectricBsdf top(SampledSpectrum(m.interface_eta), lanes, false,
+      const float eta = m.dispersive_interface_eta
+                            ? float(spectral::eta(*m.dispersive_interface_eta, lambda.lambda(0)))
+                            : m.interface_eta;
+      const DielectricBsdf top(SampledSpectrum(eta), lanes, false,
                                distribution(m.interface_alpha_x, m.interface_alpha_y,
                                             m.interface_roughness_textures, ctx));
-      const float inverse = 1.0f / m.interface_eta;
+      const float inverse = 1.0f / eta;
       const ConductorBsdf base(conductor_eta(m.eta, m.reflectance, lambda) * inverse,
                                conductor_k(m.k, m.reflectance, lambda) * inverse, lanes,
                                distribution(m.alpha_x, m.alpha_y, m.roughness_textures, ctx));
@@ -433,6 +457,14 @@ std::optional<Bsdf> make_bsdf(const Material& material, const spectral::SampledW
   return std::visit(Visitor{lambda, ctx, lanes}, material);
 }
 
+bool terminates_secondary(const Material& material) {
+  if (const auto* c = std::get_if<CoatedDiffuseMaterial>(&material))
+    return c->dispersive_eta.has_value();
+  if (const auto* c = std::get_if<CoatedConductorMaterial>(&material))
+    return c->dispersive_interface_eta.has_value();
+  return false;
+}
+
 bool is_dispersive(const Material& material) {
   const auto* d = std::get_if<DielectricMaterial>(&material);
   return d != nullptr && d->dispersive;
@@ -444,10 +476,11 @@ bool depends_on_wavelength(const Material& material) {
       return m.reflectance.varies_with_wavelength();
     }
     bool operator()(const CoatedDiffuseMaterial& m) const {
-      return m.reflectance.varies_with_wavelength() || m.layer.albedo.varies_with_wavelength();
+      return m.reflectance.varies_with_wavelength() || m.layer.albedo.varies_with_wavelength() ||
+             m.dispersive_eta.has_value();
     }
     bool operator()(const CoatedConductorMaterial& m) const {
-      if (m.layer.albedo.varies_with_wavelength()) return true;
+      if (m.layer.albedo.varies_with_wavelength() || m.dispersive_interface_eta) return true;
       if (m.reflectance) return !spectral::is_constant(*m.reflectance);
       return !spectral::is_constant(m.eta) || !spectral::is_constant(m.k);
     }

@@ -99,6 +99,9 @@ struct Layer {
 struct CoatedDiffuseMaterial {
   SpectrumSlot reflectance;
   float eta = 1.5f;
+  // A coat index that varies with wavelength: evaluated at the hero wavelength, the other
+  // lanes terminated (terminates_secondary), as pbrt-v4 does.
+  std::optional<spectral::Ior> dispersive_eta;
   float alpha_x = 0, alpha_y = 0;
   RoughnessTextures roughness_textures;
   Layer layer;
@@ -108,6 +111,7 @@ struct CoatedDiffuseMaterial {
 // mapping) are taken relative to the coat, η_c/η_coat and k/η_coat, when the BSDF is made.
 struct CoatedConductorMaterial {
   float interface_eta = 1.5f;
+  std::optional<spectral::Ior> dispersive_interface_eta;  // as CoatedDiffuseMaterial's
   float interface_alpha_x = 0, interface_alpha_y = 0;
   RoughnessTextures interface_roughness_textures;
   spectral::Spectrum eta;
@@ -152,6 +156,9 @@ std::optional<Bsdf> make_bsdf(const Material& material, const spectral::SampledW
 // True when sampling the material depends on wavelength (a dispersive dielectric): the event a
 // spectral shift or a lane split needs.
 bool is_dispersive(const Material& material);
+// Whether a path that meets this material keeps only its hero wavelength from here on: a coat
+// whose index varies with wavelength (the layered walk cannot follow several indices at once).
+bool terminates_secondary(const Material& material);
 // True when the material's value varies with wavelength at all (coloured reflectance, a
 // conductor whose η or k is not constant, dispersive glass): what "no wavelength-dependent
 // event" tests look for. Constant-parameter materials and `interface` are false.

@@ -133,9 +133,8 @@ const BadCase kBadCases[] = {
     {"texture_not_an_image.pbrt", absl::StatusCode::kInvalidArgument,
      "texture_not_an_image.pbrt:2:38: image \"not_an_image.png\": is neither a PNG nor an "
      "OpenEXR file (Prism reads those two formats)"},
-    {"coat_spectral_eta.pbrt", absl::StatusCode::kInvalidArgument,
-     "coat_spectral_eta.pbrt:2:26: 'spectrum eta' must be a float: a coat whose index varies "
-     "with wavelength is not supported yet"},
+    {"coat_rgb_eta.pbrt", absl::StatusCode::kInvalidArgument,
+     "coat_rgb_eta.pbrt:2:26: 'rgb eta' cannot be an rgb value; use a float or a spectrum"},
     {"unterminated_bracket.pbrt", absl::StatusCode::kInvalidArgument,
      "unterminated_bracket.pbrt:2:38: unterminated '[' in the values of 'rgb reflectance'"},
     {"unknown_param_type.pbrt", absl::StatusCode::kInvalidArgument,

@@ -150,6 +150,9 @@ absl::Status refuse_common_material_params(const ParameterList& params) {
   return absl::OkStatus();
 }
 
+absl::StatusOr<IorParam> ior_parameter(const ParameterList& params, const std::string& name,
+                                       const EntityContext& ctx);
+
 absl::StatusOr<IorParam> read_dielectric_eta(const ParameterList& params,
                                              const EntityContext& ctx) {
   int given = params.has("eta") + params.has("cauchy") + params.has("sellmeier");
@@ -181,24 +184,31 @@ absl::StatusOr<IorParam> read_dielectric_eta(const ParameterList& params,
     }
     return s;
   }
-  const Parameter* p = params.find("eta");
+  return ior_parameter(params, "eta", ctx);
+}
+
+// An index of refraction given as a float or a spectrum (a named IOR, a table or a file);
+// 1.5 when absent.
+absl::StatusOr<IorParam> ior_parameter(const ParameterList& params, const std::string& name,
+                                       const EntityContext& ctx) {
+  const Parameter* p = params.find(name);
   if (p == nullptr) return IorConstant{1.5};
   if (p->type == ParamType::kRgb)
-    return param_error(params, "eta", "cannot be an rgb value; use a float or a spectrum");
+    return param_error(params, name, "cannot be an rgb value; use a float or a spectrum");
   PRISM_ASSIGN_OR_RETURN(std::optional<SpectrumParam> found,
-                         params.find_spectrum("eta", SpectrumRole::kIor, ctx.spectra));
+                         params.find_spectrum(name, SpectrumRole::kIor, ctx.spectra));
   SpectrumParam s = found.value_or(SpectrumConstant{1.5});
   if (const auto* c = std::get_if<SpectrumConstant>(&s)) {
-    if (!(c->value > 0)) return param_error(params, "eta", "must be > 0");
+    if (!(c->value > 0)) return param_error(params, name, "must be > 0");
     return IorConstant{c->value};
   }
   if (const auto* n = std::get_if<SpectrumNamed>(&s)) return IorNamed{n->name};
   if (auto* t = std::get_if<SpectrumTabulated>(&s)) {
     for (double v : t->values)
-      if (!(v > 0)) return param_error(params, "eta", "needs values > 0");
+      if (!(v > 0)) return param_error(params, name, "needs values > 0");
     return IorTabulated{std::move(*t)};
   }
-  return param_error(params, "eta", "must be a float or a spectrum (named, table or file)");
+  return param_error(params, name, "must be a float or a spectrum (named, table or file)");
 }
 
 absl::StatusOr<SpectrumParam> spectrum_or(const ParameterList& params, const std::string& name,
@@ -320,20 +330,16 @@ absl::StatusOr<LayerSpec> read_layer(const ParameterList& params, const EntityCo
   return l;
 }
 
-absl::StatusOr<IorParam> read_coat_eta(const ParameterList& params, const std::string& name) {
+// A coat's index: a float or a spectrum (pbrt-v4 evaluates a varying one at the hero
+// wavelength and terminates the others, as Prism does).
+absl::StatusOr<IorParam> read_coat_eta(const ParameterList& params, const std::string& name,
+                                       const EntityContext& ctx) {
   const Parameter* p = params.find(name);
-  if (p == nullptr) return IorConstant{1.5};
-  if (p->type == ParamType::kFloat || p->type == ParamType::kTexture) {
+  if (p != nullptr && p->type == ParamType::kTexture) {
     PRISM_ASSIGN_OR_RETURN(double eta, untextured_float(params, name, 1.5));
-    if (!(eta > 0)) return param_error(params, name, "must be > 0");
     return IorConstant{eta};
   }
-  PRISM_RETURN_IF_ERROR(refuse_value(params, name,
-                                     "must be a float: a coat whose index varies with wavelength "
-                                     "is not supported yet",
-                                     "a coat of index 1.5"));
-  p->used = true;
-  return IorConstant{1.5};
+  return ior_parameter(params, name, ctx);
 }
 
 absl::StatusOr<std::optional<double>> positive_optional(const ParameterList& params,
@@ -772,13 +778,13 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
     CoatedDiffuseMaterial m;
     PRISM_RETURN_IF_ERROR(read_spectrum_slot(params, "reflectance", SpectrumRole::kReflectance, ctx,
                                              &m.reflectance, &m.reflectance_texture));
-    PRISM_ASSIGN_OR_RETURN(m.eta, read_coat_eta(params, "eta"));
+    PRISM_ASSIGN_OR_RETURN(m.eta, read_coat_eta(params, "eta", ctx));
     PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params, ctx));
     PRISM_ASSIGN_OR_RETURN(m.layer, read_layer(params, ctx));
     kind = std::move(m);
   } else if (type.name == "coatedconductor") {
     CoatedConductorMaterial m;
-    PRISM_ASSIGN_OR_RETURN(m.interface_eta, read_coat_eta(params, "interface.eta"));
+    PRISM_ASSIGN_OR_RETURN(m.interface_eta, read_coat_eta(params, "interface.eta", ctx));
     PRISM_ASSIGN_OR_RETURN(m.interface_roughness, read_roughness(params, ctx, "interface."));
     PRISM_ASSIGN_OR_RETURN(m.conductor_roughness, read_roughness(params, ctx, "conductor."));
     PRISM_ASSIGN_OR_RETURN(

@@ -62,5 +62,24 @@ TEST(SceneSummary, ConstantIorAndOneEmitterSpectrumNeedNoSpectralTransport) {
   EXPECT_FALSE(d.needs_spectral_transport());
 }
 
+// A coat whose index varies with wavelength disperses (the job's spectral machinery and hero's
+// lane handling follow it); a constant coat does not.
+TEST(SceneSummary, ACoatOfVaryingIndexIsDispersive) {
+  absl::StatusOr<SceneDescription> s = parse_scene_string(R"(WorldBegin
+LightSource "point"
+Material "coateddiffuse" "spectrum eta" "glass-BK7"
+Shape "sphere"
+Material "coatedconductor" "spectrum interface.eta" [360 1.4 830 1.6]
+Shape "sphere"
+Material "coateddiffuse" "float eta" 1.7
+Shape "sphere"
+)",
+                                                          "s.pbrt");
+  ASSERT_TRUE(s.ok()) << s.status();
+  WavelengthDependence d = analyze_wavelength_dependence(*s);
+  EXPECT_EQ(d.dispersive_materials, (std::vector<int>{0, 1}));
+  EXPECT_TRUE(d.needs_spectral_transport());
+}
+
 }  // namespace
 }  // namespace prism::scene

@@ -20,7 +20,8 @@ WavelengthDependence analyze_wavelength_dependence(const SceneDescription& scene
   std::set<int> used_materials;
   std::set<int> used_media;
   auto add_emitter = [&](const SpectrumParam& s) {
-    if (std::find(out.emitter_spectra.begin(), out.emitter_spectra.end(), s) == out.emitter_spectra.end())
+    if (std::find(out.emitter_spectra.begin(), out.emitter_spectra.end(), s) ==
+        out.emitter_spectra.end())
       out.emitter_spectra.push_back(s);
   };
   auto add_medium = [&](int m) {
@@ -38,8 +39,15 @@ WavelengthDependence analyze_wavelength_dependence(const SceneDescription& scene
   }
   add_medium(scene.camera.medium);
   for (int m : used_materials) {
-    const auto* d = std::get_if<DielectricMaterial>(&scene.materials[static_cast<size_t>(m)].kind);
-    if (d != nullptr && is_dispersive(d->eta)) out.dispersive_materials.push_back(m);
+    const MaterialKind& kind = scene.materials[static_cast<size_t>(m)].kind;
+    // A coat whose index varies with wavelength disperses as a dielectric does.
+    bool dispersive = false;
+    if (const auto* d = std::get_if<DielectricMaterial>(&kind)) dispersive = is_dispersive(d->eta);
+    if (const auto* c = std::get_if<CoatedDiffuseMaterial>(&kind))
+      dispersive = is_dispersive(c->eta);
+    if (const auto* c = std::get_if<CoatedConductorMaterial>(&kind))
+      dispersive = is_dispersive(c->interface_eta);
+    if (dispersive) out.dispersive_materials.push_back(m);
   }
   out.media.assign(used_media.begin(), used_media.end());
   return out;
