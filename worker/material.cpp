@@ -97,6 +97,8 @@ absl::StatusOr<Layer> resolve_layer(const scene::LayerSpec& l,
   if (!albedo.ok()) return invalid(absl::StrCat("albedo: ", albedo.status().message()));
   out.albedo = *std::move(albedo);
   out.g = float(l.g);
+  if (l.thickness_texture >= 0) out.thickness_texture = textures[size_t(l.thickness_texture)];
+  if (l.g_texture >= 0) out.g_texture = textures[size_t(l.g_texture)];
   out.max_depth = l.max_depth;
   out.samples = l.samples;
   return out;
@@ -377,7 +379,9 @@ LayerParams layer_params(const Layer& layer, const spectral::SampledWavelengths&
   LayerParams p;
   p.thickness = layer.thickness;
   p.albedo = layer.albedo.at(ctx, lambda);
-  p.g = layer.g;
+  if (layer.thickness_texture)
+    p.thickness = std::max(layer.thickness_texture->value(ctx), std::numeric_limits<float>::min());
+  p.g = layer.g_texture ? std::clamp(layer.g_texture->value(ctx), -0.99f, 0.99f) : layer.g;
   p.max_depth = layer.max_depth;
   p.samples = layer.samples;
   return p;

@@ -90,6 +90,9 @@ struct DiffuseTransmissionMaterial {
 struct Layer {
   float thickness = 0.01f;
   SpectrumSlot albedo{spectral::ConstantSpectrum{0}, nullptr};
+  // pbrt-v4's textured thickness and g, evaluated per hit (clamped to > 0 and [-0.99, 0.99]).
+  TexturePtr thickness_texture;
+  TexturePtr g_texture;
   float g = 0;
   int max_depth = 10;
   int samples = 1;

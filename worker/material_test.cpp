@@ -303,6 +303,46 @@ TEST_F(MaterialTest, TexturedLayerAlbedoIsEvaluatedAtTheHit) {
   }
 }
 
+// Textured slab thickness and g (pbrt-v4 takes float textures there) are looked up at the hit:
+// each checkerboard cell gives exactly the BSDF of the constants it holds.
+TEST_F(MaterialTest, TexturedLayerThicknessAndGAreEvaluatedAtTheHit) {
+  using texture_nodes::Checkerboard;
+  using texture_nodes::Input;
+  scene::UvMapping mapping;
+  mapping.su = 2;
+  mapping.sv = 0;
+  auto checker = [&](float a, float b) {
+    return std::make_shared<const Texture>(
+        Checkerboard{mapping, Input{nullptr, a, {}}, Input{nullptr, b, {}}}, false);
+  };
+  scene::CoatedDiffuseMaterial coated;
+  coated.roughness.u = coated.roughness.v = 0.3;
+  coated.layer.albedo = scene::SpectrumConstant{0.8};
+  coated.layer.thickness_texture = 0;
+  coated.layer.g_texture = 1;
+  auto textured = resolve_material(material(coated), *library_, *uplift_,
+                                   {checker(0.02f, 2.0f), checker(0.6f, -0.4f)});
+  ASSERT_TRUE(textured.ok()) << textured.status();
+  const Vec3f wo = normalize(Vec3f{0.3f, 0.1f, 0.9f}), wi = normalize(Vec3f{-0.5f, 0.2f, 0.7f});
+  std::vector<float> seen;
+  for (auto [u, thickness, g] : {std::tuple{0.2f, 0.02, 0.6}, std::tuple{0.7f, 2.0, -0.4}}) {
+    scene::CoatedDiffuseMaterial plain = coated;
+    plain.layer.thickness_texture = plain.layer.g_texture = -1;
+    plain.layer.thickness = thickness;
+    plain.layer.g = g;
+    auto constant = resolve(plain);
+    ASSERT_TRUE(constant.ok());
+    const TextureContext at{{u, 0.5f}, {0, 0, 1}};
+    auto a = make_bsdf(*textured, lanes({550}), at);
+    auto b = make_bsdf(*constant, lanes({550}), at);
+    ASSERT_TRUE(a && b);
+    const float fa = std::get<LayeredBsdf>(*a).eval(wo, wi)[0];
+    EXPECT_EQ(fa, std::get<LayeredBsdf>(*b).eval(wo, wi)[0]) << u;
+    seen.push_back(fa);
+  }
+  EXPECT_NE(seen[0], seen[1]);  // the slab's parameters matter here
+}
+
 TEST_F(MaterialTest, SpectrumRolesPickTheUplift) {
   scene::SpectrumParam rgb = scene::SpectrumRgb{2.0, 1.0, 0.5};
   EXPECT_FALSE(resolve_spectrum(rgb, SpectrumRole::kReflectance, *library_, *uplift_).ok());

@@ -120,9 +120,8 @@ const BadCase kBadCases[] = {
      "texture.pbrt:3:20: spectrum texture \"cheks\" is not defined"},
     {"texture_wrong_kind.pbrt", absl::StatusCode::kInvalidArgument,
      "texture_wrong_kind.pbrt:3:20: spectrum texture \"amount\" is not defined"},
-    {"texture_thickness.pbrt", absl::StatusCode::kInvalidArgument,
-     "texture_thickness.pbrt:3:26: 'texture thickness': a textured thickness is not supported; "
-     "give a float"},
+    {"texture_coat_eta.pbrt", absl::StatusCode::kInvalidArgument,
+     "texture_coat_eta.pbrt:3:26: 'texture eta': a textured eta is not supported; give a float"},
     {"texture_mapping.pbrt", absl::StatusCode::kInvalidArgument,
      "texture_mapping.pbrt:2:44: 'string mapping' \"spherical\" is not supported (supported: uv)"},
     {"texture_redefined.pbrt", absl::StatusCode::kInvalidArgument,

@@ -173,6 +173,8 @@ struct DiffuseTransmissionMaterial {
 // most `maxdepth` events (worker/layered_bsdf.h).
 struct LayerSpec {
   double thickness = 0.01;
+  int thickness_texture = -1;  // float textures replacing thickness and g per hit
+  int g_texture = -1;
   SpectrumParam albedo = SpectrumConstant{0};
   int albedo_texture = -1;  // a spectrum texture replacing `albedo`
   double g = 0;

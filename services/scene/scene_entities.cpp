@@ -317,10 +317,12 @@ absl::StatusOr<LightImage> read_light_image(const ParameterList& params, const T
 
 absl::StatusOr<LayerSpec> read_layer(const ParameterList& params, const EntityContext& ctx) {
   LayerSpec l;
-  PRISM_ASSIGN_OR_RETURN(l.thickness, untextured_float(params, "thickness", 0.01));
-  PRISM_RETURN_IF_ERROR(check_range(params, "thickness", l.thickness, 1e-30, 1e30, "> 0"));
-  PRISM_ASSIGN_OR_RETURN(l.g, untextured_float(params, "g", 0.0));
-  PRISM_RETURN_IF_ERROR(check_range(params, "g", l.g, -0.99, 0.99, "in [-0.99, 0.99]"));
+  PRISM_RETURN_IF_ERROR(read_float_slot(params, "thickness", ctx, &l.thickness, &l.thickness_texture));
+  if (l.thickness_texture < 0)
+    PRISM_RETURN_IF_ERROR(check_range(params, "thickness", l.thickness, 1e-30, 1e30, "> 0"));
+  PRISM_RETURN_IF_ERROR(read_float_slot(params, "g", ctx, &l.g, &l.g_texture));
+  if (l.g_texture < 0)
+    PRISM_RETURN_IF_ERROR(check_range(params, "g", l.g, -0.99, 0.99, "in [-0.99, 0.99]"));
   PRISM_ASSIGN_OR_RETURN(l.max_depth, params.get_int("maxdepth", 10));
   PRISM_RETURN_IF_ERROR(check_range(params, "maxdepth", l.max_depth, 1, 1000, "in [1, 1000]"));
   PRISM_ASSIGN_OR_RETURN(l.samples, params.get_int("nsamples", 1));
