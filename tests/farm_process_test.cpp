@@ -209,14 +209,22 @@ class FarmProcessTest : public ::testing::Test {
     return s;
   }
 
-  std::string submit(const v1::JobSpec& s) {
+  // The coordinator's answer to SubmitJob; `job_id` is set when it accepts.
+  grpc::Status try_submit(const v1::JobSpec& s, std::string* job_id) {
     v1::SubmitJobRequest request;
     *request.mutable_spec() = s;
     v1::SubmitJobResponse response;
     auto context = client();
     const grpc::Status status = stub_->SubmitJob(context.get(), request, &response);
+    *job_id = response.job().job_id();
+    return status;
+  }
+
+  std::string submit(const v1::JobSpec& s) {
+    std::string job_id;
+    const grpc::Status status = try_submit(s, &job_id);
     EXPECT_TRUE(status.ok()) << status.error_message();
-    return response.job().job_id();
+    return job_id;
   }
 
   v1::JobInfo get_job(const std::string& job_id) {
@@ -460,11 +468,9 @@ Shape "sphere" "float radius" 0.7 "float zmin" 0
   const std::string hash = upload();
   v1::JobSpec strict = spec(hash, kSpp);
   {
-    v1::SubmitJobRequest request;
-    *request.mutable_spec() = strict;
-    v1::SubmitJobResponse response;
-    auto context = client();
-    const grpc::Status status = stub_->SubmitJob(context.get(), request, &response);
+    std::string refused_id;
+    const grpc::Status status = try_submit(strict, &refused_id);
+    EXPECT_TRUE(refused_id.empty());
     EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
     EXPECT_NE(status.error_message().find("scene.pbrt:7:10: unsupported material type \"hair\""),
               std::string::npos)
