@@ -496,10 +496,9 @@ absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& pa
 absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params) {
   Film f;
   f.where = type.where;
-  if (type.name == "rgb") {
-    f.type = FilmType::kRgb;
-  } else if (type.name == "spectral") {
-    f.type = FilmType::kSpectral;
+  if (type.name == "rgb" || type.name == "spectral") {
+    f.type = type.name == "rgb" ? FilmType::kRgb : FilmType::kSpectral;
+    note_supported(params, "film", type);
   } else {
     // Its common parameters (resolution, file name) still apply to the rgb film.
     PRISM_RETURN_IF_ERROR(refuse_at(
@@ -508,7 +507,6 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
         "an rgb film"));
     f.type = FilmType::kRgb;
   }
-  if (f.type == FilmType::kSpectral || type.name == "rgb") note_supported(params, "film", type);
   PRISM_ASSIGN_OR_RETURN(f.x_resolution, params.get_int("xresolution", 1280));
   PRISM_ASSIGN_OR_RETURN(f.y_resolution, params.get_int("yresolution", 720));
   std::string range = absl::StrCat("between 1 and ", kMaxResolution);
