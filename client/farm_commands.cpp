@@ -356,7 +356,7 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.render.scene, load));
   if (options.render.warnings != nullptr) {
     for (const std::string& w : loaded.description.warnings) *options.render.warnings << w << "\n";
-    for (const std::string& w : scene::feature_warnings(loaded.description.features))
+    for (const std::string& w : scene::feature_warnings(loaded.description.features, false))
       *options.render.warnings << w << "\n";
   }
   PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle, scene::make_bundle(loaded.root, loaded.scene_relpath,

@@ -336,7 +336,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   const scene::SceneDescription& description = loaded.description;
   if (options.warnings != nullptr) {
     for (const std::string& w : description.warnings) *options.warnings << w << "\n";
-    for (const std::string& w : scene::feature_warnings(description.features))
+    for (const std::string& w : scene::feature_warnings(description.features, false))
       *options.warnings << w << "\n";
   }
 

@@ -56,15 +56,18 @@ absl::Status FeatureRecorder::refuse(std::string_view feature, const SourceLocat
   return absl::OkStatus();
 }
 
-std::vector<std::string> feature_warnings(const std::vector<FeatureUse>& features) {
+std::vector<std::string> feature_warnings(const std::vector<FeatureUse>& features,
+                                          bool include_ignored) {
   std::vector<std::string> out;
   for (const FeatureUse& f : features) {
     const std::string at = absl::StrCat(f.where.to_string(), ": warning: ");
     switch (f.status) {
       case FeatureStatus::kSupported:
         break;
-      case FeatureStatus::kApproximated:
       case FeatureStatus::kIgnored:
+        if (!include_ignored) break;
+        [[fallthrough]];
+      case FeatureStatus::kApproximated:
         out.push_back(
             absl::StrCat(at, f.feature, " ", feature_status_name(f.status), ": ", f.note));
         break;

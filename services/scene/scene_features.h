@@ -65,7 +65,9 @@ int count_features(const std::vector<FeatureUse>& features, FeatureStatus status
 
 // What a render prints about the features it does not render exactly as pbrt-v4 would, one
 // line each: "file:line:column: warning: <feature> ignored: <note>", "... approximated: ...",
-// "...: <refusal>; rendered as <substitution>".
-std::vector<std::string> feature_warnings(const std::vector<FeatureUse>& features);
+// "...: <refusal>; rendered as <substitution>". Renders leave the ignored ones to the report
+// (include_ignored false): they cannot change the image.
+std::vector<std::string> feature_warnings(const std::vector<FeatureUse>& features,
+                                          bool include_ignored = true);
 
 }  // namespace prism::scene
