@@ -37,6 +37,22 @@ class MaterialTest : public ::testing::Test {
     return w;
   }
 
+  // A texture of two cells: `a` where u < 0.5, `b` where u >= 0.5 (a checkerboard of 2 x 1).
+  static TexturePtr two_cells(texture_nodes::Input a, texture_nodes::Input b, bool spectrum) {
+    scene::UvMapping mapping;
+    mapping.su = 2;
+    mapping.sv = 0;  // t = 0 everywhere: the cell is floor(2u)
+    return std::make_shared<const Texture>(
+        texture_nodes::Checkerboard{mapping, std::move(a), std::move(b)}, spectrum);
+  }
+  // A layered material's f at u (v = 0.5) for one fixed pair of directions, at 450 and 600 nm.
+  static SampledSpectrum layered_f(const Material& m, float u) {
+    const Vec3f wo = normalize(Vec3f{0.3f, 0.1f, 0.9f}), wi = normalize(Vec3f{-0.5f, 0.2f, 0.7f});
+    auto bsdf = make_bsdf(m, lanes({450, 600}), TextureContext{{u, 0.5f}, {0, 0, 1}});
+    EXPECT_TRUE(bsdf.has_value());
+    return bsdf ? std::get<LayeredBsdf>(*bsdf).eval(wo, wi) : SampledSpectrum();
+  }
+
   static spectral::SpectrumLibrary* library_;
   static spectral::ColorMatching* cmf_;
   static spectral::RgbUplift* uplift_;
@@ -270,34 +286,22 @@ TEST_F(MaterialTest, TexturedRoughnessIsEvaluatedAtTheHit) {
 // A textured slab albedo (pbrt-v4's `texture albedo` on coated materials) is looked up at the
 // hit: each cell of a checkerboard gives exactly the BSDF of the constant albedo it holds.
 TEST_F(MaterialTest, TexturedLayerAlbedoIsEvaluatedAtTheHit) {
-  using texture_nodes::Checkerboard;
   using texture_nodes::Input;
-  scene::UvMapping mapping;
-  mapping.su = 2;
-  mapping.sv = 0;
-  auto checks = std::make_shared<const Texture>(
-      Checkerboard{mapping, Input{nullptr, 0, spectral::ConstantSpectrum{0.2f}},
-                   Input{nullptr, 0, spectral::ConstantSpectrum{0.9f}}},
-      true);
+  auto checks = two_cells(Input{nullptr, 0, spectral::ConstantSpectrum{0.2f}},
+                          Input{nullptr, 0, spectral::ConstantSpectrum{0.9f}}, true);
   scene::CoatedDiffuseMaterial coated;
   coated.roughness.u = coated.roughness.v = 0.3;
   coated.layer.thickness = 0.5;
   coated.layer.albedo_texture = 0;
   auto textured = resolve_material(material(coated), *library_, *uplift_, {checks});
   ASSERT_TRUE(textured.ok()) << textured.status();
-  const Vec3f wo = normalize(Vec3f{0.3f, 0.1f, 0.9f}), wi = normalize(Vec3f{-0.5f, 0.2f, 0.7f});
   for (auto [u, albedo] : {std::pair{0.2f, 0.2}, std::pair{0.7f, 0.9}}) {
     scene::CoatedDiffuseMaterial plain = coated;
     plain.layer.albedo_texture = -1;
     plain.layer.albedo = scene::SpectrumConstant{albedo};
     auto constant = resolve(plain);
     ASSERT_TRUE(constant.ok());
-    const TextureContext at{{u, 0.5f}, {0, 0, 1}};
-    auto a = make_bsdf(*textured, lanes({450, 600}), at);
-    auto b = make_bsdf(*constant, lanes({450, 600}), at);
-    ASSERT_TRUE(a && b);
-    const SampledSpectrum fa = std::get<LayeredBsdf>(*a).eval(wo, wi);
-    const SampledSpectrum fb = std::get<LayeredBsdf>(*b).eval(wo, wi);
+    const SampledSpectrum fa = layered_f(*textured, u), fb = layered_f(*constant, u);
     EXPECT_GT(fa[0], 0.0f) << u;
     for (int k = 0; k < 2; ++k) EXPECT_EQ(fa[k], fb[k]) << u << " lane " << k;
   }
@@ -306,14 +310,9 @@ TEST_F(MaterialTest, TexturedLayerAlbedoIsEvaluatedAtTheHit) {
 // Textured slab thickness and g (pbrt-v4 takes float textures there) are looked up at the hit:
 // each checkerboard cell gives exactly the BSDF of the constants it holds.
 TEST_F(MaterialTest, TexturedLayerThicknessAndGAreEvaluatedAtTheHit) {
-  using texture_nodes::Checkerboard;
   using texture_nodes::Input;
-  scene::UvMapping mapping;
-  mapping.su = 2;
-  mapping.sv = 0;
-  auto checker = [&](float a, float b) {
-    return std::make_shared<const Texture>(
-        Checkerboard{mapping, Input{nullptr, a, {}}, Input{nullptr, b, {}}}, false);
+  auto checker = [](float a, float b) {
+    return two_cells(Input{nullptr, a, {}}, Input{nullptr, b, {}}, false);
   };
   scene::CoatedDiffuseMaterial coated;
   coated.roughness.u = coated.roughness.v = 0.3;
@@ -323,7 +322,6 @@ TEST_F(MaterialTest, TexturedLayerThicknessAndGAreEvaluatedAtTheHit) {
   auto textured = resolve_material(material(coated), *library_, *uplift_,
                                    {checker(0.02f, 2.0f), checker(0.6f, -0.4f)});
   ASSERT_TRUE(textured.ok()) << textured.status();
-  const Vec3f wo = normalize(Vec3f{0.3f, 0.1f, 0.9f}), wi = normalize(Vec3f{-0.5f, 0.2f, 0.7f});
   std::vector<float> seen;
   for (auto [u, thickness, g] : {std::tuple{0.2f, 0.02, 0.6}, std::tuple{0.7f, 2.0, -0.4}}) {
     scene::CoatedDiffuseMaterial plain = coated;
@@ -332,13 +330,9 @@ TEST_F(MaterialTest, TexturedLayerThicknessAndGAreEvaluatedAtTheHit) {
     plain.layer.g = g;
     auto constant = resolve(plain);
     ASSERT_TRUE(constant.ok());
-    const TextureContext at{{u, 0.5f}, {0, 0, 1}};
-    auto a = make_bsdf(*textured, lanes({550}), at);
-    auto b = make_bsdf(*constant, lanes({550}), at);
-    ASSERT_TRUE(a && b);
-    const float fa = std::get<LayeredBsdf>(*a).eval(wo, wi)[0];
-    EXPECT_EQ(fa, std::get<LayeredBsdf>(*b).eval(wo, wi)[0]) << u;
-    seen.push_back(fa);
+    const SampledSpectrum fa = layered_f(*textured, u), fb = layered_f(*constant, u);
+    for (int k = 0; k < 2; ++k) EXPECT_EQ(fa[k], fb[k]) << u << " lane " << k;
+    seen.push_back(fa[0]);
   }
   EXPECT_NE(seen[0], seen[1]);  // the slab's parameters matter here
 }
