@@ -260,6 +260,33 @@ TEST_F(PipelineStatisticsTest, HeroWithADispersiveCoatAgreesWithUniformPerBin) {
   EXPECT_LT(max_z(h, u, &detail), 5.0) << detail;
 }
 
+// A portal changes how the environment is sampled, not the light that reaches a room whose only
+// opening is the portal's window: hero and the gradient reconstruction with the portal agree per
+// bin with hero on the same room without it.
+TEST_F(PipelineStatisticsTest, APortalChangesSamplingNotTheImage) {
+  auto with_portal = load("tests/testdata/pipeline/portal_room.pbrt");
+  ASSERT_TRUE(with_portal.ok()) << with_portal.status();
+  scene::SceneDescription without_portal = *with_portal;
+  for (scene::Light& light : without_portal.lights) {
+    if (auto* inf = std::get_if<scene::InfiniteLight>(&light.kind)) {
+      ASSERT_TRUE(inf->portal.has_value());
+      inf->portal.reset();
+    }
+  }
+  constexpr int kSeeds = 12;
+  LocalRenderOptions hero = base_options(24, 24, 64);
+  hero.render.integrator = worker::IntegratorKind::kHero;
+  LocalRenderOptions gradient = hero;
+  gradient.render.integrator = worker::IntegratorKind::kGradient;
+  const SeedStats plain = over_seeds(without_portal, hero, kSeeds);
+  const SeedStats portal_hero = over_seeds(*with_portal, hero, kSeeds);
+  const SeedStats portal_gradient = over_seeds(*with_portal, gradient, kSeeds);
+  std::string detail;
+  EXPECT_LT(max_z(portal_hero, plain, &detail), 5.0) << detail;
+  detail.clear();
+  EXPECT_LT(max_z(portal_gradient, plain, &detail), 5.0) << detail;
+}
+
 // Grazing refraction, TIR of offsets, η → 1, a line-spectrum emitter and a very bright one: no
 // NaN or Inf reaches I, G, the reconstruction, or the prepass's final image.
 TEST_F(PipelineStatisticsTest, NumericalCornersGiveFiniteOutputs) {

@@ -344,19 +344,20 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         const auto& inf = std::get<InfiniteLight>(scene_.lights()[infinite]);
         auto light_density = [&](const LightContext& ctx, const SampledWavelengths& l,
                                  const Vec3f& dir) {
-          return scene_.light_sampler().pmf(ctx.p, l, infinite) * inf.pdf(dir);
+          return scene_.light_sampler().pmf(ctx.p, l, infinite) * inf.pdf(ctx.p, dir);
         };
         const float p_light_x =
             prev_specular ? 0.0f : light_density(prev_ctx, base_lambda, ray.direction);
-        emission_event(inf.radiance(ray.direction, base_lambda)[0], p_light_x,
+        emission_event(inf.radiance(ray.origin, ray.direction, base_lambda)[0], p_light_x,
                        [&](Offset& o) -> std::optional<std::pair<float, float>> {
-                         Vec3f dir = ray.direction;
+                         Vec3f origin = ray.origin, dir = ray.direction;
                          if (o.state == OffsetState::kDiverged) {
                            if (o.has_hit) return std::pair{0.0f, 0.0f};
+                           origin = o.prev_ctx.p;
                            dir = o.direction;
                          }
                          return std::pair{
-                             inf.radiance(dir, o.lambda)[0],
+                             inf.radiance(origin, dir, o.lambda)[0],
                              prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, dir)};
                        });
       }

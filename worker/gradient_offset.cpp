@@ -297,8 +297,9 @@ DivergedNee OffsetTracer::diverged_nee(const Offset& o, const Bsdf& b, const Fra
   Vec3f target_y = ls.p_light;
   if (std::holds_alternative<InfiniteLight>(light)) {
     wi_y = ls.wi;  // the environment's point is a direction: J = 1
-    out.le = std::get<InfiniteLight>(light).radiance(wi_y, o.lambda)[0];
-    solid_angle_pdf_y = ls.pdf;
+    const auto& inf = std::get<InfiniteLight>(light);
+    out.le = inf.radiance(o.hit.p, wi_y, o.lambda)[0];
+    solid_angle_pdf_y = inf.pdf(o.hit.p, wi_y);  // a portal's window depends on the point
   } else if (ls.delta) {
     auto ls_y = sample_light(light, ctx_y, light_u, u_extra, o.lambda);
     if (!ls_y) return out;

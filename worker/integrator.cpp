@@ -130,7 +130,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       if (const auto* area = std::get_if<AreaLight>(&l)) {
         p_light *= area->pdf(path.prev_ctx, direction, *hit);
       } else if (const auto* inf = std::get_if<InfiniteLight>(&l)) {
-        p_light *= inf->pdf(direction);
+        p_light *= inf->pdf(path.prev_ctx.p, direction);
       }
       for (int k = 0; k < lanes; ++k) {
         denominator += path.r_prev[k] * p_light / path.pdf_since_prev;
@@ -305,7 +305,8 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
       int infinite = scene_.infinite_light();
       if (infinite >= 0) {
         const auto& inf = std::get<InfiniteLight>(scene_.lights()[infinite]);
-        add_emission(inf.radiance(ray.direction, path.lambda), infinite, nullptr, ray.direction);
+        add_emission(inf.radiance(ray.origin, ray.direction, path.lambda), infinite, nullptr,
+                     ray.direction);
       }
       break;
     }

@@ -533,6 +533,10 @@ absl::StatusOr<InfiniteLight> InfiniteLight::create(const scene::Light& light,
   l.spectrum_ = std::move(spectrum);
   l.scale_ = scale;
   l.where_ = light.where;
+  if (const auto* inf = std::get_if<scene::InfiniteLight>(&light.kind); inf && inf->portal) {
+    if (!l.map_) return scene::location_error(light.where, "a portal needs an environment image");
+    l.portal_ = Portal::create(*inf->portal);
+  }
   bool empty = scene_bounds.lo.x > scene_bounds.hi.x;
   l.scene_centre_ = empty ? Vec3f() : scene_bounds.centre();
   l.scene_radius_ = empty ? 0.0 : double(scene_bounds.radius());
@@ -541,10 +545,25 @@ absl::StatusOr<InfiniteLight> InfiniteLight::create(const scene::Light& light,
   return l;
 }
 
+// The largest float below 1, for sample numbers stretched back over [0, 1).
+constexpr float kBelowOne = 0x1.fffffep-1f;
+
 std::optional<LightSample> InfiniteLight::sample(const LightContext& ctx, Point2f u,
                                                  const SampledWavelengths& lambda) const {
   LightSample s;
-  if (map_) {
+  if (portal_) {
+    // u.x picks the technique and is then stretched back over [0, 1).
+    std::optional<Vec3f> w;
+    if (u.x < 0.5f) {
+      if (auto m = map_->sample(Point2f{std::min(2 * u.x, kBelowOne), u.y})) w = m->w;
+    } else if (auto m = portal_->sample(ctx.p, Point2f{std::min(2 * u.x - 1, kBelowOne), u.y})) {
+      w = m->w;
+    }
+    if (!w) return std::nullopt;
+    s.wi = *w;
+    s.pdf = pdf(ctx.p, s.wi);
+    if (!(s.pdf > 0)) return std::nullopt;
+  } else if (map_) {
     auto m = map_->sample(u);
     if (!m) return std::nullopt;
     s.wi = m->w;
@@ -553,7 +572,7 @@ std::optional<LightSample> InfiniteLight::sample(const LightContext& ctx, Point2
     s.wi = sample_uniform_sphere(u);
     s.pdf = 1.0f / (4.0f * kPi);
   }
-  s.radiance = radiance(s.wi, lambda);
+  s.radiance = radiance(ctx.p, s.wi, lambda);
   s.distance = std::numeric_limits<float>::infinity();
   // Beyond the scene's bounding sphere in direction wi, for shadow rays that need an endpoint.
   float reach = length(ctx.p - scene_centre_) + 2.0f * float(scene_radius_);
@@ -561,11 +580,18 @@ std::optional<LightSample> InfiniteLight::sample(const LightContext& ctx, Point2
   return s;
 }
 
-float InfiniteLight::pdf(const Vec3f& wi) const {
+float InfiniteLight::pdf(const Vec3f& p, const Vec3f& wi) const {
+  if (portal_) {
+    const float window = portal_->pdf(p, wi);
+    // Directions outside the window carry no radiance: no technique need reach them.
+    return window > 0 ? 0.5f * (map_->pdf(wi) + window) : 0.0f;
+  }
   return map_ ? map_->pdf(wi) : 1.0f / (4.0f * kPi);
 }
 
-SampledSpectrum InfiniteLight::radiance(const Vec3f& w, const SampledWavelengths& lambda) const {
+SampledSpectrum InfiniteLight::radiance(const Vec3f& p, const Vec3f& w,
+                                        const SampledWavelengths& lambda) const {
+  if (portal_ && !portal_->passes(p, w)) return SampledSpectrum(0.0f);
   if (map_) return map_->radiance(w, lambda) * float(scale_);
   return scaled(spectrum_, scale_, lambda);
 }
@@ -651,6 +677,8 @@ double light_power(const Light& light) {
           const double r = l.scene_radius();
           return emitted * M_PI * r * r;
         } else {
+          // Through a portal, the flux a hemisphere of radiance sends through its window.
+          if (l.portal()) return emitted * M_PI * l.portal()->area();
           double r = l.scene_radius();
           return emitted * M_PI * r * r * 4 * M_PI;
         }

@@ -9,7 +9,8 @@
 //   PointLight     radiant intensity I(λ) at a point.
 //   SpotLight      pbrt-v4's spot: intensity times smoothstep falloff between the cone angles.
 //   InfiniteLight  constant radiance from every direction (sampled uniformly over the sphere),
-//                  or an environment map (sampled by its texels' brightness).
+//                  or an environment map (sampled by its texels' brightness), optionally
+//                  through a portal.
 // All radiometric values are per lane (SampledSpectrum) for the path's wavelengths.
 #pragma once
 
@@ -27,6 +28,7 @@
 #include "services/spectral/wavelength_grid.h"
 #include "worker/environment_map.h"
 #include "worker/geometry.h"
+#include "worker/portal.h"
 #include "worker/vecmath.h"
 
 namespace prism::worker {
@@ -193,7 +195,10 @@ class SpotLight {
   scene::SourceLocation where_;
 };
 
-// Constant, or with an environment map (environment_map.h) whose mean colour is `spectrum`.
+// Constant, or with an environment map (environment_map.h) whose mean colour is `spectrum`,
+// optionally seen only through a portal (portal.h). With a portal, a sample is drawn from the
+// map's own density or the window's with probability ½ each, and its density is the mixture's
+// (one-sample MIS, balance heuristic): the window's covers a dim sky, the map's a bright sun.
 class InfiniteLight {
  public:
   static absl::StatusOr<InfiniteLight> create(const scene::Light& light,
@@ -202,9 +207,11 @@ class InfiniteLight {
                                               std::shared_ptr<const EnvironmentMap> map = nullptr);
   std::optional<LightSample> sample(const LightContext& ctx, Point2f u,
                                     const SampledWavelengths& lambda) const;
-  float pdf(const Vec3f& wi) const;
-  // Radiance seen along a ray (direction w) that escapes the scene.
-  SampledSpectrum radiance(const Vec3f& w, const SampledWavelengths& lambda) const;
+  // The solid-angle density of sample() from p at wi.
+  float pdf(const Vec3f& p, const Vec3f& wi) const;
+  // Radiance seen along a ray from p in direction w that escapes the scene.
+  SampledSpectrum radiance(const Vec3f& p, const Vec3f& w, const SampledWavelengths& lambda) const;
+  const std::optional<Portal>& portal() const { return portal_; }
   const spectral::Spectrum& spectrum() const { return spectrum_; }
   double scale() const { return scale_; }
   double scene_radius() const { return scene_radius_; }
@@ -217,6 +224,7 @@ class InfiniteLight {
   Vec3f scene_centre_;  // p_light of a sample lies beyond the scene bounds from here
   scene::SourceLocation where_;
   std::shared_ptr<const EnvironmentMap> map_;
+  std::optional<Portal> portal_;
 };
 
 // Radiance arriving along one direction from infinitely far (pbrt-v4's `distant`): a delta
@@ -255,7 +263,8 @@ double light_scale(const Light& light);
 const scene::SourceLocation& light_location(const Light& light);
 // Total emitted power (W, up to the common spectral normalisation), for the `power` pmf:
 // scale · ∫ S(λ) dλ · geometric factor (π·area·(two-sided? 2 : 1) for area lights, 4π for
-// points, the spot's cone factor, π·r²·4π for the infinite light with scene radius r).
+// points, the spot's cone factor, π·r²·4π for the infinite light with scene radius r, π·A
+// through a portal of area A).
 double light_power(const Light& light);
 
 }  // namespace prism::worker

@@ -809,15 +809,83 @@ TEST(PointSpotInfiniteTest, InfiniteLightIsUniformAndGivesPiL) {
       [&](Point2f u, float) -> std::optional<Vec3f> {
         auto s = light->sample(ctx, u, lambda);
         EXPECT_TRUE(s);
-        EXPECT_EQ(s->pdf, light->pdf(s->wi));
+        EXPECT_EQ(s->pdf, light->pdf(ctx.p, s->wi));
         EXPECT_EQ(s->distance, kInf);
         EXPECT_GT(length(s->p_light - bounds.centre()), 3.0f);
         return s->wi;
       },
-      [&](const Vec3f& w) { return light->pdf(w); }, bins, "infinite");
+      [&](const Vec3f& w) { return light->pdf(ctx.p, w); }, bins, "infinite");
   expect_irradiance([&](Point2f u, float) { return light->sample(ctx, u, lambda); },
                     normalize(Vec3f(0.3f, -0.2f, 1)), M_PI, "infinite");
   EXPECT_NEAR(light_power(Light(*light)), 1.0 * 470 * M_PI * 9 * 4 * M_PI, 1e-2);
+}
+
+// An environment seen through pbrt-v4's portal: an a×b window in the plane z = 2, its front
+// (x = p3 − p0, y = p1 − p0, z = x × y) facing +z. Under a uniform map, the irradiance below a
+// corner is the map's radiance times the corner form factor; samples follow the mixture density
+// the light reports, a bright patch in the map included; nothing reaches a point in front of the
+// window or a direction beside it; the power is π·A times the radiance.
+TEST(PointSpotInfiniteTest, PortalLetsTheMapInThroughItsWindowOnly) {
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  const spectral::RgbUplift uplift(cmf);
+  const double a = 1.5, b = 0.75, h = 2;
+  scene::InfiniteLight inf;
+  inf.portal = std::array<scene::Vec3, 4>{scene::Vec3{0, 0, h}, scene::Vec3{0, b, h},
+                                          scene::Vec3{a, b, h}, scene::Vec3{a, 0, h}};
+  scene::Light desc;
+  desc.kind = inf;
+  desc.where = at(7);
+  auto light_for = [&](float sun) {
+    scene::TextureImage image;
+    image.width = image.height = 32;
+    image.channels = 3;
+    for (int y = 0; y < 32; ++y) {
+      for (int x = 0; x < 32; ++x) {
+        const Vec3f d = equal_area_square_to_sphere({(x + 0.5f) / 32, (y + 0.5f) / 32});
+        const float v = dot(d, normalize(Vec3f(0.6f, 0.2f, 1))) > 0.97f ? sun : 1.0f;
+        image.values.insert(image.values.end(), {v, v, v});
+      }
+    }
+    auto map = EnvironmentMap::create(image, scene::Transform(), uplift);
+    EXPECT_TRUE(map.ok());
+    Bounds3f bounds;
+    bounds.extend({-1, -1, -1});
+    bounds.extend({1, 1, 1});
+    auto light = InfiniteLight::create(desc, spectral::ConstantSpectrum{1}, 2.0, bounds, *map);
+    EXPECT_TRUE(light.ok()) << light.status();
+    return *light;
+  };
+  SampledWavelengths lambda = lanes({550});
+  const LightContext below{{0, 0, 0}, {0, 0, 1}};
+
+  const InfiniteLight uniform = light_for(1.0f);
+  const float radiance = uniform.radiance(below.p, Vec3f(0, 0, 1) * 1.0f, lambda)[0];
+  ASSERT_GT(radiance, 0);
+  // Looking straight up from the corner passes the window's edge; just beside it does not.
+  EXPECT_EQ(uniform.radiance(below.p, normalize(Vec3f(-0.01f, 0.2f, 1)), lambda)[0], 0);
+  EXPECT_EQ(uniform.pdf(below.p, normalize(Vec3f(-0.01f, 0.2f, 1))), 0);
+  EXPECT_EQ(uniform.radiance(below.p, normalize(Vec3f(0.5f, 0.2f, -1)), lambda)[0], 0);
+  expect_irradiance([&](Point2f u, float) { return uniform.sample(below, u, lambda); },
+                    Vec3f(0, 0, 1), radiance * corner_irradiance(a, b, h), "portal corner");
+  // In front of the window (z > 2) nothing comes through, whatever the direction.
+  const LightContext outside{{0.5f, 0.3f, 3}, {0, 0, 1}};
+  EXPECT_FALSE(uniform.sample(outside, {0.3f, 0.4f}, lambda));
+  EXPECT_FALSE(uniform.sample(outside, {0.8f, 0.4f}, lambda));
+  EXPECT_EQ(uniform.radiance(outside.p, Vec3f(0, 0, 1), lambda)[0], 0);
+  EXPECT_NEAR(light_power(Light(uniform)), 2.0 * 470 * M_PI * a * b, 1e-2);
+
+  const InfiniteLight sunny = light_for(200.0f);
+  const LightContext off_axis{{1.2f, -0.4f, 0.5f}, {0, 0, 1}};
+  Binning bins{Frame::from_z(Vec3f(0, 0, 1)), M_PI / 2};
+  expect_directions_follow_pdf(
+      [&](Point2f u, float) -> std::optional<Vec3f> {
+        auto s = sunny.sample(off_axis, u, lambda);
+        if (!s) return std::nullopt;
+        EXPECT_NEAR(s->pdf, sunny.pdf(off_axis.p, s->wi), 1e-4f * s->pdf);
+        EXPECT_GT(s->radiance[0], 0);
+        return s->wi;
+      },
+      [&](const Vec3f& w) { return sunny.pdf(off_axis.p, w); }, bins, "portal mixture");
 }
 
 // ---- LightSampler ------------------------------------------------------------------------------

@@ -27,8 +27,8 @@
 // - Refused (each by name): partial spheres, disks and cylinders, image area lights, motion
 //   blur (ActiveTransform StartTime/EndTime), crop windows, non-default sensors,
 //   lambdamin/lambdamax other than 360/830 nm, emissive and heterogeneous media, the measured,
-//   hair and subsurface materials, textured coat indices, emitters
-//   inside ObjectBegin, portals, realistic cameras, Attribute, and the integrators that
+//   hair and subsurface materials, textured coat indices (pbrt-v4 rejects them too), emitters
+//   inside ObjectBegin, realistic cameras, Attribute, and the integrators that
 //   render something other than light transport (ambientocclusion, aov, function).
 // - The homogeneous medium's `g` is kept (Henyey-Greenstein, as pbrt-v4); `preset` and `Le`
 //   are refused.

@@ -116,12 +116,22 @@ const BadCase kBadCases[] = {
      "two_iors.pbrt:2:39: 'float sellmeier' conflicts with another index of refraction (give one "
      "of eta, cauchy, "
      "sellmeier)"},
+    {"portal_not_rectangle.pbrt", absl::StatusCode::kInvalidArgument,
+     "portal_not_rectangle.pbrt:2:52: 'point3 portal' is not a rectangle (its corners p0, p1, p2, "
+     "p3 must go around one, with p2 = p1 + p3 - p0 and a right angle at p0)"},
+    {"portal_three_corners.pbrt", absl::StatusCode::kInvalidArgument,
+     "portal_three_corners.pbrt:2:52: 'point3 portal' needs 4 points (the corners of a "
+     "rectangle), got 3"},
+    {"portal_constant.pbrt", absl::StatusCode::kInvalidArgument,
+     "portal_constant.pbrt:2:40: 'point3 portal' needs an image 'filename' (pbrt-v4 has no "
+     "portal for a constant 'L')"},
     {"texture.pbrt", absl::StatusCode::kInvalidArgument,
      "texture.pbrt:3:20: spectrum texture \"cheks\" is not defined"},
     {"texture_wrong_kind.pbrt", absl::StatusCode::kInvalidArgument,
      "texture_wrong_kind.pbrt:3:20: spectrum texture \"amount\" is not defined"},
     {"texture_coat_eta.pbrt", absl::StatusCode::kInvalidArgument,
-     "texture_coat_eta.pbrt:3:26: 'texture eta': a textured eta is not supported; give a float"},
+     "texture_coat_eta.pbrt:3:26: 'texture eta': a coat's eta is a float or a spectrum, not a "
+     "texture (pbrt-v4 rejects it too, as an unused parameter)"},
     {"texture_mapping.pbrt", absl::StatusCode::kInvalidArgument,
      "texture_mapping.pbrt:2:44: 'string mapping' \"spherical\" is not supported (supported: uv)"},
     {"texture_redefined.pbrt", absl::StatusCode::kInvalidArgument,

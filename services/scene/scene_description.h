@@ -301,12 +301,17 @@ struct SpotLight {
 // A constant environment, or with `image` an environment map: pbrt-v4's equal-area octahedral
 // square image (RGB, linear after decoding), looked up at the nearest texel of the light-space
 // direction's equal-area square coordinates; `radiance` is then unused.
+// With a `portal` (image maps only, as pbrt-v4), the map lights the scene only through that
+// rectangle: a ray escaping along w sees the map when it crosses the rectangle towards the
+// portal's front (pbrt-v4: +z of the frame x = p3 − p0, y = p1 − p0), and nothing otherwise.
 struct InfiniteLight {
   SpectrumParam radiance = SpectrumNamed{kDefaultIlluminant};  // pbrt `L`
   double scale = 1.0;
   std::optional<double> illuminance;
   std::shared_ptr<const TextureImage> image;
   std::string filename;  // the image's path relative to the scene root
+  // The portal's corners p0..p3 in world space (pbrt-v4 does not apply the CTM to them).
+  std::optional<std::array<Vec3, 4>> portal;
 };
 
 // pbrt-v4's `distant` light: radiance L arriving along one direction from infinitely far; the

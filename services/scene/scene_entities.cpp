@@ -86,22 +86,6 @@ absl::Status refuse_value(const ParameterList& params, const std::string& name,
                    substitution);
 }
 
-// A float slot Prism does not texture: the float, its default when absent, and a refusal
-// (or, allowing unsupported input, the default) when it names a texture.
-absl::StatusOr<double> untextured_float(const ParameterList& params, const std::string& name,
-                                        double fallback) {
-  const Parameter* p = params.find(name);
-  if (p != nullptr && p->type == ParamType::kTexture) {
-    PRISM_RETURN_IF_ERROR(refuse_at(
-        params, params.feature(*p), p->where,
-        absl::StrCat("'texture ", name, "': a textured ", name, " is not supported; give a float"),
-        absl::StrCat("the default ", name, " ", fallback)));
-    p->used = true;
-    return fallback;
-  }
-  return params.get_float(name, fallback);
-}
-
 absl::StatusOr<int> texture_reference(const Parameter& p, bool spectrum, const EntityContext& ctx);
 
 // A float slot that may name a float texture: sets *value or *texture when the parameter is
@@ -333,15 +317,51 @@ absl::StatusOr<LayerSpec> read_layer(const ParameterList& params, const EntityCo
 }
 
 // A coat's index: a float or a spectrum (pbrt-v4 evaluates a varying one at the hero
-// wavelength and terminates the others, as Prism does).
+// wavelength and terminates the others, as Prism does). pbrt-v4 does not texture it: its
+// coated materials read `eta` as a float or a spectrum only, so a `texture eta` is an unused
+// parameter there and pbrt-v4 stops; Prism refuses it by name.
 absl::StatusOr<IorParam> read_coat_eta(const ParameterList& params, const std::string& name,
                                        const EntityContext& ctx) {
   const Parameter* p = params.find(name);
   if (p != nullptr && p->type == ParamType::kTexture) {
-    PRISM_ASSIGN_OR_RETURN(double eta, untextured_float(params, name, 1.5));
-    return IorConstant{eta};
+    PRISM_RETURN_IF_ERROR(
+        refuse_at(params, params.feature(*p), p->where,
+                  absl::StrCat("'texture ", name, "': a coat's ", name,
+                               " is a float or a spectrum, not a texture (pbrt-v4 rejects it too, "
+                               "as an unused parameter)"),
+                  absl::StrCat("the default ", name, " 1.5")));
+    p->used = true;
+    return IorConstant{1.5};
   }
   return ior_parameter(params, name, ctx);
+}
+
+// An image infinite light's `point3 portal`: four corners of a rectangle, in order around it,
+// in world space.
+absl::StatusOr<std::optional<std::array<Vec3, 4>>> read_portal(const ParameterList& params) {
+  if (!params.has("portal")) return std::nullopt;
+  PRISM_ASSIGN_OR_RETURN(std::vector<Vec3> p, params.get_triples("portal", ParamType::kPoint3));
+  if (p.size() != 4) {
+    return param_error(params, "portal",
+                       absl::StrCat("needs 4 points (the corners of a rectangle), got ", p.size()));
+  }
+  auto sub = [](const Vec3& a, const Vec3& b) {
+    return Vec3{a[0] - b[0], a[1] - b[1], a[2] - b[2]};
+  };
+  auto len = [](const Vec3& v) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); };
+  const Vec3 e01 = sub(p[1], p[0]), e03 = sub(p[3], p[0]);
+  const double l01 = len(e01), l03 = len(e03);
+  if (!(l01 > 0) || !(l03 > 0) || !std::isfinite(l01) || !std::isfinite(l03))
+    return param_error(params, "portal", "has coincident corners");
+  // A rectangle: right angle at p0 and p2 = p1 + p3 − p0 (pbrt-v4 checks the same to 1e-3).
+  const double cos0 = (e01[0] * e03[0] + e01[1] * e03[1] + e01[2] * e03[2]) / (l01 * l03);
+  const Vec3 gap = sub(p[2], Vec3{p[1][0] + e03[0], p[1][1] + e03[1], p[1][2] + e03[2]});
+  if (std::abs(cos0) > 1e-3 || len(gap) > 1e-3 * std::max(l01, l03)) {
+    return param_error(params, "portal",
+                       "is not a rectangle (its corners p0, p1, p2, p3 must go around one, with "
+                       "p2 = p1 + p3 - p0 and a right angle at p0)");
+  }
+  return std::array<Vec3, 4>{p[0], p[1], p[2], p[3]};
 }
 
 absl::StatusOr<std::optional<double>> positive_optional(const ParameterList& params,
@@ -1019,10 +1039,8 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
     s.direction_world = normalize(light.light_to_world.apply_vector({0, 0, 1}));
     light.kind = std::move(s);
   } else if (type.name == "infinite") {
-    PRISM_RETURN_IF_ERROR(params.refuse(
-        "portal", "portals are not supported",
-        "the image as an ordinary equal-area environment map, light from every direction"));
     InfiniteLight i;
+    PRISM_ASSIGN_OR_RETURN(i.portal, read_portal(params));
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
     if (filename && !filename->empty()) {
       if (params.has("L"))
@@ -1031,6 +1049,10 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
                                                                  "an equal-area environment map"));
       i.filename = loaded.relpath;
       i.image = loaded.image;
+    }
+    if (i.portal && !i.image) {
+      return param_error(params, "portal",
+                         "needs an image 'filename' (pbrt-v4 has no portal for a constant 'L')");
     }
     PRISM_ASSIGN_OR_RETURN(i.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
                                                    SpectrumNamed{kDefaultIlluminant}));

@@ -71,6 +71,11 @@ std::string format_scene_summary(const SceneDescription& scene) {
                             optional_number("power", p.power), ", cone ", p.cone_angle_deg, " deg");
       }
       std::string operator()(const InfiniteLight& p) const {
+        if (p.image) {
+          return absl::StrCat("infinite light: image ", p.filename, ", scale ", p.scale,
+                              optional_number("illuminance", p.illuminance),
+                              p.portal ? ", through a portal" : "");
+        }
         return absl::StrCat("infinite light: L ", describe(p.radiance), ", scale ", p.scale,
                             optional_number("illuminance", p.illuminance));
       }
