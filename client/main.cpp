@@ -1,13 +1,14 @@
 // The `prism` command line. Each subcommand parses its flags here, runs the library code in
 // client/, prints the result on stdout and any error on stderr, and exits non-zero on failure.
-#include <CLI/CLI.hpp>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
 #include <cstdint>
 #include <cstdio>
 #include <iostream>
 #include <string>
 
+#include "client/bench_command.h"
 #include "client/check_command.h"
 #include "client/compare_command.h"
 #include "client/farm_commands.h"
@@ -81,6 +82,38 @@ int main(int argc, char** argv) {
                                              "Render threads (default: all hardware threads)");
   auto* json_opt =
       render_cmd->add_option("--json", json_path, "JSON report path (default: <output stem>.json)");
+
+  prism::client::BenchOptions bench;
+  std::int64_t bench_reference_spp = 0, bench_bins = 0, bench_threads = 0;
+  std::string bench_cache, bench_resolution;
+  auto* bench_cmd = app.add_subcommand(
+      "bench", "Error against time of the rendering methods on scenes (CSV, report, plots)");
+  bench_cmd->add_option("scenes", bench.scenes, "pbrt-v4 scene files")->required();
+  bench_cmd->add_option("--methods", bench.methods,
+                        "Comma-separated: uniform, hero, hero+prepass, gradient (default all)");
+  auto* budgets_opt = bench_cmd->add_option(
+      "--budgets", bench.budgets, "Time budgets per render, e.g. 10s,30s,2m (default 10s,30s)");
+  auto* bench_spp_opt =
+      bench_cmd->add_option("--spp", bench.spp, "Samples per pixel instead, e.g. 64,256,1024");
+  budgets_opt->excludes(bench_spp_opt);
+  bench_cmd->add_option("--seeds", bench.seeds, "Renders per method and budget (default 2)");
+  bench_cmd->add_option("--reference", bench.references,
+                        "Reference spectral EXR, one per scene (default: rendered and cached)");
+  auto* reference_spp_opt = bench_cmd->add_option(
+      "--reference-spp", bench_reference_spp,
+      "Samples per pixel of a rendered reference (default: 4x the largest budget)");
+  bench_cmd->add_option("--reference-cache", bench_cache,
+                        "Where rendered references are kept (default ~/.cache/prism/references)");
+  bench_cmd->add_option("--inset", bench.insets, "A region x,y,w,h also measured (repeatable)");
+  bench_cmd->add_option("--resolution", bench_resolution, "Film resolution WxH (default: scene)");
+  auto* bench_bins_opt = bench_cmd->add_option("--bins", bench_bins, "Spectral bins");
+  auto* bench_threads_opt = bench_cmd->add_option("--threads", bench_threads, "Render threads");
+  bench_cmd->add_option("--clock", bench.clock, "wall or cpu (default wall)");
+  bench_cmd->add_option("--baseline", bench.baseline,
+                        "Method the equal-time ratios divide by (default hero)");
+  bench_cmd->add_option("-o,--output", bench.output, "Output directory (default ./bench)");
+  bench_cmd->add_flag("--allow-unsupported", bench.allow_unsupported,
+                      "Render scenes with unsupported input, substituting it");
 
   // The farm subcommands share the connection flags.
   prism::client::FarmConnection farm;
@@ -168,6 +201,16 @@ int main(int argc, char** argv) {
   if (reconstruct_cmd->parsed()) {
     if (offset_opt->count() > 0) reconstruct.offset_bins = offset_bins;
     return report(prism::client::run_reconstruct(reconstruct));
+  }
+  if (bench_cmd->parsed()) {
+    if (reference_spp_opt->count() > 0) bench.reference_spp = bench_reference_spp;
+    if (!bench_cache.empty()) bench.reference_cache = bench_cache;
+    if (!bench_resolution.empty()) bench.resolution = bench_resolution;
+    if (bench_bins_opt->count() > 0) bench.bins = bench_bins;
+    if (bench_threads_opt->count() > 0) bench.threads = bench_threads;
+    bench.log = &std::cerr;
+    prism::worker::EmbreeDevice device;
+    return report(prism::client::run_bench(bench, device));
   }
   if (render_cmd->parsed()) {
     if (absl::Status applied = prism::client::apply_render_flags(render_flags, render);

@@ -319,6 +319,34 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   return coordinator::to_proto(parameters);
 }
 
+absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& options,
+                                              worker::EmbreeDevice& device,
+                                              const scene::SceneDescription& description,
+                                              const spectral::SpectrumLibrary& library,
+                                              const std::string& bundle_hash,
+                                              const std::string& scene_relpath) {
+  PreparedRender prepared;
+  PRISM_ASSIGN_OR_RETURN(prepared.spec,
+                         job_spec_of(options, description, bundle_hash, scene_relpath));
+  PRISM_ASSIGN_OR_RETURN(prepared.pilot_seconds,
+                         choose_tau(options, device, description, library, prepared.spec));
+  PRISM_ASSIGN_OR_RETURN(prepared.job, coordinator::job_parameters(prepared.spec, description));
+  const coordinator::JobParameters& job = prepared.job;
+  coordinator::LocalRenderOptions& local = prepared.local;
+  local.render = job.render;
+  local.width = job.width;
+  local.height = job.height;
+  local.spp = job.spp;
+  local.samples_per_task = job.samples_per_task;
+  local.tile_size = job.tile_size;
+  local.threads = options.threads.has_value() ? static_cast<int>(*options.threads) : 0;
+  local.poisson_alpha = job.gradient.alpha;
+  local.poisson_norm = job.gradient.norm;
+  local.keep_primal_and_gradients = job.outputs.primal_and_gradients;
+  local.prepass = job.prepass;
+  return prepared;
+}
+
 absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
                                        worker::EmbreeDevice& device) {
   const Clock::time_point start = Clock::now();
@@ -348,26 +376,13 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   // The same job the farm would run: one set of rules for defaults and ranges.
   PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
                          scene::make_bundle(loaded.root, loaded.scene_relpath, description.files));
-  PRISM_ASSIGN_OR_RETURN(
-      prism::v1::JobSpec spec,
-      job_spec_of(options, description, bundle.content_hash, loaded.scene_relpath));
-  PRISM_ASSIGN_OR_RETURN(std::optional<double> pilot_seconds,
-                         choose_tau(options, device, description, library, spec));
-  PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters job,
-                         coordinator::job_parameters(spec, description));
-  coordinator::LocalRenderOptions local;
-  local.render = job.render;
+  PRISM_ASSIGN_OR_RETURN(PreparedRender prepared,
+                         prepare_render(options, device, description, library, bundle.content_hash,
+                                        loaded.scene_relpath));
+  const coordinator::JobParameters& job = prepared.job;
+  const std::optional<double> pilot_seconds = prepared.pilot_seconds;
+  coordinator::LocalRenderOptions& local = prepared.local;
   const worker::RenderOptions& render = local.render;
-  local.width = job.width;
-  local.height = job.height;
-  local.spp = job.spp;
-  local.samples_per_task = job.samples_per_task;
-  local.tile_size = job.tile_size;
-  local.threads = options.threads.has_value() ? static_cast<int>(*options.threads) : 0;
-  local.poisson_alpha = job.gradient.alpha;
-  local.poisson_norm = job.gradient.norm;
-  local.keep_primal_and_gradients = job.outputs.primal_and_gradients;
-  local.prepass = job.prepass;
   if (options.progress != nullptr) {
     std::ostream* out = options.progress;
     local.progress = [out](const coordinator::RenderProgress& p) { draw_progress(*out, p); };

@@ -17,6 +17,8 @@
 #include <string>
 
 #include "absl/status/statusor.h"
+#include "coordinator/job_spec.h"
+#include "coordinator/local_render.h"
 #include "prism/v1/types.pb.h"
 #include "services/scene/scene_description.h"
 #include "services/spectral/named_spectra.h"
@@ -108,6 +110,25 @@ absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& opt
                                                  const scene::SceneDescription& description,
                                                  const spectral::SpectrumLibrary& library,
                                                  prism::v1::JobSpec& spec);
+
+// The embedded render of a job, ready to run: the spec, its parameters (every default filled),
+// LocalRender's options and the τ pilot's wall seconds when one ran.
+struct PreparedRender {
+  prism::v1::JobSpec spec;
+  coordinator::JobParameters job;
+  coordinator::LocalRenderOptions local;
+  std::optional<double> pilot_seconds;
+};
+
+// What run_render does before rendering, for callers that run many renders of one loaded scene
+// (prism bench): job_spec_of, choose_tau and the LocalRender options. `bundle_hash` and
+// `scene_relpath` name the scene's bundle as the farm would.
+absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& options,
+                                              worker::EmbreeDevice& device,
+                                              const scene::SceneDescription& description,
+                                              const spectral::SpectrumLibrary& library,
+                                              const std::string& bundle_hash,
+                                              const std::string& scene_relpath);
 
 // Renders and writes the outputs; returns the one-line summary. Errors: the flags' (above),
 // the scene's (file:line:column), NOT_FOUND for a missing output directory, the render's, or

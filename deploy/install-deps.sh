@@ -10,6 +10,7 @@ packages=(
   libspdlog-dev libfmt-dev libtbb-dev libcli11-dev libsqlite3-dev libpng-dev
   libtinyobjloader-dev libssl-dev libcpp-httplib-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  gnuplot-nox fonts-dejavu-core
 )
 
 missing=()

@@ -10,6 +10,7 @@
 #include <cstring>
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -249,6 +250,26 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
   }
 }
 
+// Reads a CSV's rows as fields (a quoted field may hold commas).
+std::vector<std::vector<std::string>> csv_rows(const std::string& text) {
+  std::vector<std::vector<std::string>> rows;
+  std::vector<std::string> fields(1);
+  bool quoted = false;
+  for (char c : text) {
+    if (c == '"') {
+      quoted = !quoted;
+    } else if (c == ',' && !quoted) {
+      fields.emplace_back();
+    } else if (c == '\n' && !quoted) {
+      rows.push_back(std::move(fields));
+      fields.assign(1, "");
+    } else {
+      fields.back().push_back(c);
+    }
+  }
+  return rows;
+}
+
 }  // namespace
 
 // A scene with a refused feature (a realistic camera) renders only when the user allows it, and
@@ -294,4 +315,95 @@ TEST(RenderCliTest, UnsupportedFeaturesRenderOnlyWhenAllowedAndTheReportListsThe
   // The sampler type cannot change the image: accepted, and noted.
   ASSERT_EQ(report["scene_features"]["ignored"].size(), 1u);
   EXPECT_EQ(report["scene_features"]["ignored"][0]["feature"], "Sampler \"zsobol\"");
+}
+
+// `prism bench` on a small scene: every method, budget, seed and region has a row with finite
+// errors and a known noise floor; the report and both plots are written; a second run against
+// the cached reference file finds the same floor; bad flags fail before rendering.
+TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
+  const fs::path dir = fresh_dir("bench");
+  const std::vector<std::string> common = {"bench",
+                                           source("scenes/three-emitters.pbrt"),
+                                           "--resolution",
+                                           "32x24",
+                                           "--seeds",
+                                           "2",
+                                           "--inset",
+                                           "4,4,8,8",
+                                           "--reference-spp",
+                                           "8",
+                                           "--reference-cache",
+                                           "cache",
+                                           "--threads",
+                                           "2"};
+  std::vector<std::string> args = common;
+  args.insert(args.end(), {"--spp", "2,4", "-o", "out"});
+  CommandRun run = run_prism(dir, args);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  auto csv = prism::base::read_file(dir / "out" / "results.csv");
+  ASSERT_TRUE(csv.ok()) << csv.status();
+  const auto rows = csv_rows(*csv);
+  // A header, then 4 methods x 2 budgets x 2 seeds x 2 regions.
+  ASSERT_EQ(rows.size(), 33u) << *csv;
+  const std::vector<std::string>& header = rows[0];
+  auto column = [&](const std::string& name) {
+    return std::find(header.begin(), header.end(), name) - header.begin();
+  };
+  std::set<std::string> methods, regions;
+  std::string floor;
+  for (std::size_t i = 1; i < rows.size(); ++i) {
+    ASSERT_EQ(rows[i].size(), header.size()) << i;
+    methods.insert(rows[i][column("method")]);
+    regions.insert(rows[i][column("region")]);
+    EXPECT_EQ(rows[i][column("floor_known")], "1");
+    EXPECT_TRUE(std::isfinite(std::stod(rows[i][column("rel_mse")])));
+    EXPECT_GT(std::stod(rows[i][column("seconds")]), 0);
+    if (rows[i][column("region")] == "image") floor = rows[i][column("mse_floor")];
+  }
+  EXPECT_EQ(methods, (std::set<std::string>{"uniform", "hero", "hero+prepass", "gradient"}));
+  EXPECT_EQ(regions, (std::set<std::string>{"image", "4,4,8,8"}));
+  auto report = prism::base::read_file(dir / "out" / "report.md");
+  ASSERT_TRUE(report.ok());
+  EXPECT_NE(report->find("## three-emitters: whole image"), std::string::npos) << *report;
+  EXPECT_NE(report->find("## three-emitters: 4,4,8,8"), std::string::npos);
+  EXPECT_NE(report->find("relMSE ÷ hero at equal time"), std::string::npos);
+  auto svg = prism::base::read_file(dir / "out" / "three-emitters.svg");
+  ASSERT_TRUE(svg.ok());
+  EXPECT_NE(svg->find("<svg"), std::string::npos);
+  auto png = prism::image::read_png(dir / "out" / "three-emitters.png");
+  ASSERT_TRUE(png.ok()) << png.status();
+  EXPECT_EQ(png->width, 1200);
+
+  // The cached reference, given explicitly, brings its half along: the same floor.
+  fs::path cached;
+  for (const auto& entry : fs::directory_iterator(dir / "cache")) {
+    const std::string name = entry.path().filename().string();
+    if (name.ends_with(".exr") && !name.ends_with(".half.exr")) cached = entry.path();
+  }
+  ASSERT_FALSE(cached.empty());
+  CommandRun again = run_prism(
+      dir, {"bench", source("scenes/three-emitters.pbrt"), "--resolution", "32x24", "--methods",
+            "hero", "--spp", "2", "--seeds", "1", "--reference", cached.string(), "-o", "again"});
+  ASSERT_EQ(again.exit_code, 0) << again.output;
+  auto again_csv = prism::base::read_file(dir / "again" / "results.csv");
+  ASSERT_TRUE(again_csv.ok());
+  const auto again_rows = csv_rows(*again_csv);
+  ASSERT_EQ(again_rows.size(), 2u);
+  EXPECT_EQ(again_rows[1][column("mse_floor")], floor);
+
+  const std::vector<std::pair<std::vector<std::string>, std::string>> bad = {
+      {{"--methods", "hero,nope", "--spp", "2"}, "unknown method 'nope'"},
+      {{"--budgets", "10s,5s"}, "--budgets '10s,5s': want increasing durations"},
+      {{"--spp", "2", "--inset", "30,20,8,8"}, "--inset 30,20,8,8"},
+      {{"--spp", "2", "--clock", "sundial"}, "--clock 'sundial'"},
+  };
+  for (const auto& [extra, message] : bad) {
+    std::vector<std::string> bad_args = common;
+    bad_args.insert(bad_args.end(), extra.begin(), extra.end());
+    bad_args.insert(bad_args.end(), {"-o", "bad"});
+    CommandRun failed = run_prism(dir, bad_args);
+    EXPECT_EQ(failed.exit_code, 1) << failed.output;
+    EXPECT_NE(failed.output.find(message), std::string::npos) << failed.output;
+    EXPECT_FALSE(fs::exists(dir / "bad" / "results.csv"));
+  }
 }

@@ -6,22 +6,8 @@
 
 #include "absl/strings/str_cat.h"
 #include "services/base/status.h"
-#include "services/scene/scene_loader.h"
 
 namespace prism::bench {
-
-absl::StatusOr<LoadedBenchScene> load_bench_scene(const std::filesystem::path& path) {
-  LoadedBenchScene out;
-  PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library,
-                         spectral::SpectrumLibrary::load_builtin());
-  out.library = std::make_unique<spectral::SpectrumLibrary>(std::move(library));
-  const spectral::SpectrumLibrary* lib = out.library.get();
-  scene::LoadOptions load = scene::with_library_names(*lib);
-  PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(path, load));
-  out.description = std::move(loaded.description);
-  out.name = path.filename().string();
-  return out;
-}
 
 std::filesystem::path source_path(const std::string& relative) {
   return std::filesystem::path(PRISM_SOURCE_DIR) / relative;

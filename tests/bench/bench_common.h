@@ -10,19 +10,15 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "client/evaluation.h"
 #include "services/scene/scene_description.h"
 #include "services/spectral/named_spectra.h"
 
 namespace prism::bench {
 
-struct LoadedBenchScene {
-  std::unique_ptr<spectral::SpectrumLibrary> library;
-  scene::SceneDescription description;
-  std::string name;  // as given
-};
-
-// Named spectra checked against the built-in library, files confined to the scene directory.
-absl::StatusOr<LoadedBenchScene> load_bench_scene(const std::filesystem::path& path);
+// A scene loaded as `prism render` and `prism bench` load it (client/evaluation.h).
+using LoadedBenchScene = evaluation::BenchScene;
+using evaluation::load_bench_scene;
 
 // A path relative to the source tree (PRISM_SOURCE_DIR), so the benchmarks run from anywhere.
 std::filesystem::path source_path(const std::string& relative);

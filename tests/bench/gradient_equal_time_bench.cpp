@@ -247,8 +247,8 @@ int run(int argc, char** argv) {
                                          std::uint64_t(*reference_spp), 0x5eed);
     if (!reference_options.ok()) return fail(reference_options.status());
     reference_options->render.sampler = worker::SamplerKind::kIndependent;
-    auto reference = cached_reference(device, *scene, path, *reference_options, cache_dir,
-                                      "gradient-equal-time");
+    auto reference =
+        cached_reference(device, *scene, *reference_options, cache_dir, "gradient-equal-time");
     if (!reference.ok()) return fail(reference.status());
     std::vector<Region> regions(1);
     regions[0].name = "image";

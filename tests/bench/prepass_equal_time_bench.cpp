@@ -242,8 +242,8 @@ int run(int argc, char** argv) {
   coordinator::LocalRenderOptions reference_options =
       options_for(setup, MethodKind::kMixture, std::uint64_t(*reference_spp), 0x5eed);
   reference_options.render.sampler = worker::SamplerKind::kIndependent;
-  auto reference = cached_reference(device, *scene, scene_path, reference_options, cache_dir,
-                                    "prepass-equal-time");
+  auto reference =
+      cached_reference(device, *scene, reference_options, cache_dir, "prepass-equal-time");
   if (!reference.ok()) return fail(reference.status());
   for (std::vector<Region>* list : {&regions, &cells}) {
     for (Region& region : *list) {

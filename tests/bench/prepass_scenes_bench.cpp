@@ -200,8 +200,8 @@ int run(int argc, char** argv) {
     reference_options.spp = std::uint64_t(*reference_spp);
     reference_options.render.seed = 0x5eed;
     reference_options.render.sampler = worker::SamplerKind::kIndependent;
-    auto reference = cached_reference(device, *scene, scene_path, reference_options, cache_dir,
-                                      "prepass-scenes");
+    auto reference =
+        cached_reference(device, *scene, reference_options, cache_dir, "prepass-scenes");
     if (!reference.ok()) return fail(reference.status());
     std::vector<Region> regions = {{"whole image", std::nullopt}};
     for (auto [it, end] = insets.equal_range(name); it != end; ++it) {

@@ -1,4 +1,4 @@
-#include "tests/bench/equal_time.h"
+#include "client/evaluation.h"
 
 #include <sys/resource.h>
 
@@ -17,8 +17,10 @@
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
+#include "services/scene/bundle.h"
+#include "services/scene/scene_loader.h"
 
-namespace prism::bench {
+namespace prism::evaluation {
 namespace {
 
 double mean_of(const std::vector<double>& v) {
@@ -32,7 +34,10 @@ std::string describe(const coordinator::LocalRenderOptions& o) {
                       worker::name(r.spectral_pdf), "|", worker::name(r.emitter_pdf), "|",
                       worker::name(r.light_selection), "|", r.spectral_light_selection, "|",
                       static_cast<int>(r.sampler), "|bins ", r.bins, "|depth ", r.max_depth, "|rr ",
-                      r.rr_min_depth, "|seed ", r.seed, "|eps ", r.defensive_epsilon);
+                      r.rr_min_depth, "|seed ", r.seed, "|eps ", r.defensive_epsilon, "|k ",
+                      r.gradient_offset_bins, "|tau ", r.gradient_tau, "|prepass ",
+                      o.prepass.has_value(), "|alpha ", o.poisson_alpha, "|per task ",
+                      o.samples_per_task);
 }
 
 absl::Status write_image(const std::filesystem::path& path, const image::SpectralImage& image,
@@ -51,8 +56,25 @@ double process_cpu_seconds() {
          1e-6 * double(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
 }
 
-absl::StatusOr<TimedRender> timed_render(worker::EmbreeDevice& device,
-                                         const LoadedBenchScene& scene,
+absl::StatusOr<BenchScene> load_bench_scene(const std::filesystem::path& path,
+                                            bool allow_unsupported) {
+  BenchScene out;
+  PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library,
+                         spectral::SpectrumLibrary::load_builtin());
+  out.library = std::make_unique<spectral::SpectrumLibrary>(std::move(library));
+  scene::LoadOptions load = scene::with_library_names(*out.library);
+  load.allow_unsupported = allow_unsupported;
+  PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(path, load));
+  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle, scene::make_bundle(loaded.root, loaded.scene_relpath,
+                                                                  loaded.description.files));
+  out.description = std::move(loaded.description);
+  out.name = path.filename().string();
+  out.bundle_hash = bundle.content_hash;
+  out.scene_relpath = loaded.scene_relpath;
+  return out;
+}
+
+absl::StatusOr<TimedRender> timed_render(worker::EmbreeDevice& device, const BenchScene& scene,
                                          const coordinator::LocalRenderOptions& options) {
   PRISM_ASSIGN_OR_RETURN(auto renderer, coordinator::LocalRender::create(device, scene.description,
                                                                          *scene.library, options));
@@ -70,15 +92,13 @@ absl::StatusOr<image::ErrorMetrics> Reference::floor(const std::optional<image::
   return image::compare_spectral(half, image, crop);
 }
 
-absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device,
-                                           const LoadedBenchScene& scene,
-                                           const std::filesystem::path& scene_path,
+absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device, const BenchScene& scene,
                                            const coordinator::LocalRenderOptions& options,
                                            const std::filesystem::path& cache_dir,
                                            const std::string& tag) {
-  PRISM_ASSIGN_OR_RETURN(std::string scene_text, base::read_file(scene_path));
-  const std::string key =
-      base::sha256_hex(absl::StrCat(scene_text, "|", describe(options))).substr(0, 16);
+  const std::string key = base::sha256_hex(absl::StrCat(scene.bundle_hash, "|", scene.scene_relpath,
+                                                        "|", describe(options)))
+                              .substr(0, 16);
   const std::filesystem::path average_path =
       cache_dir / absl::StrCat("prism-bench-", tag, "-reference-", key, ".exr");
   const std::filesystem::path half_path =
@@ -162,20 +182,6 @@ std::optional<double> error_at_time(std::span<const ConvergencePoint> points, do
   return usable.back().error;
 }
 
-absl::StatusOr<image::Crop> parse_crop(const std::string& text) {
-  std::vector<std::string> parts = absl::StrSplit(text, ',');
-  int v[4] = {0, 0, 0, 0};
-  bool ok = parts.size() == 4;
-  for (std::size_t i = 0; ok && i < 4; ++i) {
-    auto [end, ec] = std::from_chars(parts[i].data(), parts[i].data() + parts[i].size(), v[i]);
-    ok = ec == std::errc() && end == parts[i].data() + parts[i].size() && v[i] >= 0;
-  }
-  if (!ok || v[2] < 1 || v[3] < 1) {
-    return absl::InvalidArgumentError(absl::StrCat("crop '", text, "': want x,y,w,h"));
-  }
-  return image::Crop{v[0], v[1], v[2], v[3]};
-}
-
 absl::StatusOr<std::vector<std::uint64_t>> parse_spp_list(const std::string& text) {
   std::vector<std::uint64_t> out;
   for (absl::string_view part : absl::StrSplit(text, ',')) {
@@ -191,4 +197,4 @@ absl::StatusOr<std::vector<std::uint64_t>> parse_spp_list(const std::string& tex
   return out;
 }
 
-}  // namespace prism::bench
+}  // namespace prism::evaluation

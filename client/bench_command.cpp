@@ -1,0 +1,639 @@
+#include "client/bench_command.h"
+
+#include <fcntl.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <charconv>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <map>
+#include <set>
+#include <thread>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+#include "absl/strings/str_split.h"
+#include "client/compare_command.h"
+#include "client/evaluation.h"
+#include "client/render_command.h"
+#include "services/base/atomic_file.h"
+#include "services/base/status.h"
+#include "services/image/exr_spectral.h"
+
+extern char** environ;
+
+namespace prism::client {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+constexpr std::uint64_t kReferenceSeed = 1000003;
+constexpr std::uint64_t kCalibrationSeed = 999;
+constexpr std::uint64_t kMaxReferenceSpp = std::uint64_t{1} << 20;
+
+// A CSV field: quoted when it holds a comma, a quote or a line break.
+std::string csv_field(const std::string& text) {
+  if (text.find_first_of(",\"\n") == std::string::npos) return text;
+  std::string out = "\"";
+  for (char c : text) {
+    if (c == '"') out.push_back('"');
+    out.push_back(c);
+  }
+  out.push_back('"');
+  return out;
+}
+
+// A gnuplot single-quoted string ('' stands for one quote).
+std::string gnuplot_string(const std::string& text) {
+  std::string out = "'";
+  for (char c : text) {
+    if (c == '\'') out.push_back('\'');
+    out.push_back(c);
+  }
+  out.push_back('\'');
+  return out;
+}
+
+std::string number(double v) {
+  return absl::StrFormat("%.6g", v);
+}
+
+// Means over seeds of one (scene, region, method, budget).
+struct Cell {
+  std::uint64_t spp = 0;
+  double seconds = 0, mse = 0, rel_mse = 0, ssim = 0;
+  int count = 0;
+};
+
+// Keys in the order they first appear.
+template <typename T>
+void remember(std::vector<T>& order, const T& key) {
+  if (std::find(order.begin(), order.end(), key) == order.end()) order.push_back(key);
+}
+
+struct Grouped {
+  std::vector<std::string> scenes, regions, methods, budgets;
+  std::map<std::tuple<std::string, std::string, std::string, std::string>, Cell> cells;
+
+  const Cell* find(const std::string& scene, const std::string& region, const std::string& method,
+                   const std::string& budget) const {
+    auto it = cells.find({scene, region, method, budget});
+    return it == cells.end() ? nullptr : &it->second;
+  }
+  // The method's curve in (scene, region): one point per budget.
+  std::vector<evaluation::ConvergencePoint> curve(const std::string& scene,
+                                                  const std::string& region,
+                                                  const std::string& method) const {
+    std::vector<evaluation::ConvergencePoint> points;
+    for (const std::string& b : budgets) {
+      if (const Cell* c = find(scene, region, method, b)) {
+        points.push_back({c->spp, c->seconds, c->rel_mse});
+      }
+    }
+    return points;
+  }
+};
+
+Grouped group(const std::vector<BenchRow>& rows) {
+  Grouped g;
+  for (const BenchRow& r : rows) {
+    remember(g.scenes, r.scene);
+    remember(g.regions, r.region);
+    remember(g.methods, r.method);
+    remember(g.budgets, r.budget);
+    Cell& c = g.cells[{r.scene, r.region, r.method, r.budget}];
+    c.spp = r.spp;
+    c.seconds += r.seconds;
+    c.mse += r.metrics.mse;
+    c.rel_mse += r.metrics.rel_mse;
+    c.ssim += r.metrics.ssim;
+    ++c.count;
+  }
+  for (auto& [key, c] : g.cells) {
+    c.seconds /= c.count;
+    c.mse /= c.count;
+    c.rel_mse /= c.count;
+    c.ssim /= c.count;
+  }
+  return g;
+}
+
+absl::StatusOr<double> parse_positive(const std::string& text, const std::string& what) {
+  double value = 0;
+  auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+  if (ec != std::errc() || end != text.data() + text.size() || !std::isfinite(value) ||
+      !(value > 0)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(what, ": '", text, "' is not a positive number"));
+  }
+  return value;
+}
+
+// A method's render options on top of the bench's shared ones.
+absl::StatusOr<RenderCommandOptions> method_options(const std::string& method,
+                                                    const RenderCommandOptions& base) {
+  RenderCommandOptions o = base;
+  o.prepass = false;
+  if (method == "uniform") {
+    o.integrator = "uniform";
+  } else if (method == "hero") {
+    o.integrator = "hero";
+  } else if (method == "hero+prepass") {
+    o.integrator = "hero";
+    o.prepass = true;
+  } else if (method == "gradient") {
+    o.integrator = "gradient";
+  } else {
+    return absl::InvalidArgumentError(absl::StrCat("--methods: unknown method '", method,
+                                                   "' (choose from uniform, hero, hero+prepass, "
+                                                   "gradient)"));
+  }
+  return o;
+}
+
+struct Timed {
+  coordinator::LocalRenderResult result;
+  double wall = 0, cpu = 0;
+  double on(const std::string& clock) const { return clock == "cpu" ? cpu : wall; }
+};
+
+// One render of the method: its pilot (τ), prepass, final pass and reconstruction, timed.
+absl::StatusOr<Timed> timed_method(worker::EmbreeDevice& device,
+                                   const evaluation::BenchScene& scene,
+                                   const RenderCommandOptions& options) {
+  const double cpu_start = evaluation::process_cpu_seconds();
+  PRISM_ASSIGN_OR_RETURN(PreparedRender prepared,
+                         prepare_render(options, device, scene.description, *scene.library,
+                                        scene.bundle_hash, scene.scene_relpath));
+  const double prepare_cpu = evaluation::process_cpu_seconds() - cpu_start;
+  PRISM_ASSIGN_OR_RETURN(evaluation::TimedRender timed,
+                         evaluation::timed_render(device, scene, prepared.local));
+  return Timed{std::move(timed.result), timed.wall_seconds + prepared.pilot_seconds.value_or(0.0),
+               timed.cpu_seconds + (prepared.pilot_seconds.has_value() ? prepare_cpu : 0.0)};
+}
+
+std::string home_cache() {
+  if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg != nullptr && *xdg != '\0') {
+    return (fs::path(xdg) / "prism" / "references").string();
+  }
+  if (const char* home = std::getenv("HOME"); home != nullptr && *home != '\0') {
+    return (fs::path(home) / ".cache" / "prism" / "references").string();
+  }
+  return {};
+}
+
+// Runs gnuplot on `script`; its messages go to `log`.
+absl::Status run_gnuplot(const fs::path& script, const fs::path& log) {
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, log.c_str(),
+                                   O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
+  std::string program = "gnuplot", argument = script.string();
+  char* argv[] = {program.data(), argument.data(), nullptr};
+  pid_t pid = 0;
+  const int spawned = posix_spawnp(&pid, "gnuplot", &actions, nullptr, argv, environ);
+  posix_spawn_file_actions_destroy(&actions);
+  if (spawned != 0) {
+    return absl::FailedPreconditionError(
+        absl::StrCat("cannot run gnuplot (", std::strerror(spawned),
+                     "): install it with deploy/install-deps.sh (Debian package gnuplot-nox)"));
+  }
+  int status = 0;
+  while (waitpid(pid, &status, 0) < 0 && errno == EINTR) {
+  }
+  if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+    absl::StatusOr<std::string> text = base::read_file(log);
+    return absl::InternalError(absl::StrCat("gnuplot failed on ", script.string(), ": ",
+                                            text.ok() ? *text : std::string("(no log)")));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<std::vector<double>> parse_budgets(const std::string& text) {
+  std::vector<double> out;
+  for (absl::string_view part : absl::StrSplit(text, ',')) {
+    std::string digits(part);
+    double unit = 1;
+    if (!digits.empty() && (digits.back() == 's' || digits.back() == 'm')) {
+      unit = digits.back() == 'm' ? 60 : 1;
+      digits.pop_back();
+    }
+    auto value = parse_positive(digits, absl::StrCat("--budgets '", text, "'"));
+    if (!value.ok()) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--budgets '", text, "': want increasing durations such as 10s,30s,2m"));
+    }
+    const double seconds = *value * unit;
+    if (!out.empty() && seconds <= out.back()) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--budgets '", text, "': want increasing durations such as 10s,30s,2m"));
+    }
+    out.push_back(seconds);
+  }
+  return out;
+}
+
+std::string bench_csv(const std::vector<BenchRow>& rows) {
+  std::string out =
+      "scene,method,budget,seed,region,spp,seconds,wall_seconds,cpu_seconds,mse,rel_mse,ssim,"
+      "mse_floor,rel_mse_floor,floor_known,nonfinite_fraction\n";
+  for (const BenchRow& r : rows) {
+    absl::StrAppend(&out, csv_field(r.scene), ",", csv_field(r.method), ",", csv_field(r.budget),
+                    ",", r.seed, ",", csv_field(r.region), ",", r.spp, ",",
+                    absl::StrFormat("%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g", r.seconds,
+                                    r.wall_seconds, r.cpu_seconds, r.metrics.mse, r.metrics.rel_mse,
+                                    r.metrics.ssim, r.mse_floor, r.rel_mse_floor),
+                    ",", r.floor_known ? 1 : 0, ",",
+                    absl::StrFormat("%.9g", r.metrics.nonfinite_fraction), "\n");
+  }
+  return out;
+}
+
+std::string bench_report(const std::vector<BenchRow>& rows, const std::string& baseline,
+                         const std::string& header) {
+  const Grouped g = group(rows);
+  std::string out = header;
+  const bool has_baseline =
+      std::find(g.methods.begin(), g.methods.end(), baseline) != g.methods.end();
+  if (!has_baseline) {
+    absl::StrAppend(&out, "\nThe baseline '", baseline,
+                    "' was not among the methods: no equal-time ratios.\n");
+  }
+  for (const std::string& scene : g.scenes) {
+    for (const std::string& region : g.regions) {
+      bool any = false;
+      for (const std::string& m : g.methods) {
+        for (const std::string& b : g.budgets) any |= g.find(scene, region, m, b) != nullptr;
+      }
+      if (!any) continue;
+      absl::StrAppend(
+          &out, "\n## ", scene, ": ", region == "image" ? "whole image" : region,
+          "\n\n| method | budget | spp | seconds | MSE | relMSE | SSIM |",
+          has_baseline ? absl::StrCat(" relMSE ÷ ", baseline, " at equal time |") : std::string(),
+          "\n|---|---|---|---|---|---|---|", has_baseline ? "---|" : "", "\n");
+      const auto base_curve = has_baseline ? g.curve(scene, region, baseline)
+                                           : std::vector<evaluation::ConvergencePoint>{};
+      for (const std::string& m : g.methods) {
+        for (const std::string& b : g.budgets) {
+          const Cell* c = g.find(scene, region, m, b);
+          if (c == nullptr) continue;
+          absl::StrAppend(&out, "| ", m, " | ", b, " | ", c->spp, " | ",
+                          absl::StrFormat("%.2f", c->seconds), " | ", number(c->mse), " | ",
+                          number(c->rel_mse), " | ", absl::StrFormat("%.4f", c->ssim), " |");
+          if (has_baseline) {
+            bool extrapolated = false;
+            const std::optional<double> base =
+                evaluation::error_at_time(base_curve, c->seconds, &extrapolated);
+            if (base.has_value() && *base > 0 && c->rel_mse > 0) {
+              absl::StrAppend(&out, " ", absl::StrFormat("%.3f", c->rel_mse / *base),
+                              extrapolated ? " (extrapolated)" : "", " |");
+            } else {
+              absl::StrAppend(&out, " – |");
+            }
+          }
+          absl::StrAppend(&out, "\n");
+        }
+      }
+    }
+  }
+  return out;
+}
+
+BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene,
+                     const std::string& clock, const fs::path& data_file, const fs::path& svg,
+                     const fs::path& png) {
+  const Grouped g = group(rows);
+  BenchPlot plot;
+  std::vector<std::string> series;
+  int index = 0;
+  for (std::size_t mi = 0; mi < g.methods.size(); ++mi) {
+    const std::string& method = g.methods[mi];
+    for (std::size_t ri = 0; ri < g.regions.size(); ++ri) {
+      const std::string& region = g.regions[ri];
+      std::vector<evaluation::ConvergencePoint> points = g.curve(scene, region, method);
+      std::erase_if(points, [](const evaluation::ConvergencePoint& p) {
+        return !(p.error > 0) || !(p.seconds > 0);
+      });
+      if (points.empty()) continue;
+      std::sort(points.begin(), points.end(),
+                [](const auto& a, const auto& b) { return a.seconds < b.seconds; });
+      absl::StrAppend(&plot.data, "# ", method, " ", region, "\n");
+      for (const auto& p : points) {
+        absl::StrAppend(&plot.data, absl::StrFormat("%.9g %.9g %d\n", p.seconds, p.error, p.spp));
+      }
+      absl::StrAppend(&plot.data, "\n\n");
+      const bool inset = region != "image";
+      series.push_back(absl::StrCat(
+          gnuplot_string(data_file.string()), " index ", index, " using 1:2 with linespoints lc ",
+          mi + 1, " lw ", inset ? "1.5" : "2.5", " pt ", inset ? 6 : 7, " dt ", inset ? 2 : 1,
+          " title ", gnuplot_string(inset ? absl::StrCat(method, ", inset ", region) : method)));
+      ++index;
+    }
+  }
+  const std::string axes = absl::StrCat(
+      "set title ", gnuplot_string(scene), "\nset logscale xy\nset xlabel ",
+      gnuplot_string(clock == "cpu" ? "seconds (process CPU)" : "seconds (wall clock)"),
+      "\nset ylabel ", gnuplot_string("relMSE over spectral bins (minus the reference floor)"),
+      "\nset key below noenhanced\nset grid xtics ytics mxtics mytics\n"
+      "set format x '%g'\nset format y '%.0e'\n");
+  const std::string draw = series.empty()
+                               ? std::string(
+                                     "set label 1 'no positive errors to plot' at graph 0.3,0.5\n"
+                                     "plot [1:10] [1e-6:1] NaN notitle\n")
+                               : absl::StrCat("plot ", absl::StrJoin(series, ", \\\n     "), "\n");
+  plot.script = absl::StrCat(
+      "# Drawn by prism bench: relMSE against seconds for ", scene, ", one curve per method,\n",
+      "# insets dashed. Rerun with: gnuplot <this file>\n",
+      "set terminal svg size 900,600 dynamic font 'Sans,12' background rgb 'white'\n",
+      "set output ", gnuplot_string(svg.string() + ".tmp"), "\n", axes, draw,
+      "set output\nset terminal pngcairo size 1200,800 font 'Sans,12' background rgb 'white'\n",
+      "set output ", gnuplot_string(png.string() + ".tmp"), "\nreplot\nset output\n");
+  return plot;
+}
+
+absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::EmbreeDevice& device) {
+  // ---- Flags, all checked before any render.
+  if (options.scenes.empty()) return absl::InvalidArgumentError("prism bench needs a scene");
+  std::vector<std::string> methods = absl::StrSplit(options.methods, ',');
+  for (const std::string& m : methods) {
+    PRISM_RETURN_IF_ERROR(method_options(m, RenderCommandOptions{}).status());
+  }
+  if (std::set<std::string>(methods.begin(), methods.end()).size() != methods.size()) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--methods '", options.methods, "' names a method twice"));
+  }
+  if (!options.budgets.empty() && !options.spp.empty()) {
+    return absl::InvalidArgumentError("give --budgets or --spp, not both");
+  }
+  const bool by_time = options.spp.empty();
+  std::vector<double> budgets;
+  std::vector<std::uint64_t> spps;
+  if (by_time) {
+    PRISM_ASSIGN_OR_RETURN(budgets,
+                           parse_budgets(options.budgets.empty() ? "10s,30s" : options.budgets));
+  } else {
+    PRISM_ASSIGN_OR_RETURN(spps, evaluation::parse_spp_list(options.spp));
+  }
+  if (options.seeds < 1 || options.seeds > 64) {
+    return absl::InvalidArgumentError(absl::StrCat("--seeds ", options.seeds, " is outside 1..64"));
+  }
+  if (options.clock != "wall" && options.clock != "cpu") {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--clock '", options.clock, "': choose wall or cpu"));
+  }
+  if (!options.references.empty() && options.references.size() != options.scenes.size()) {
+    return absl::InvalidArgumentError(absl::StrCat("give one --reference per scene (",
+                                                   options.scenes.size(), " scenes, ",
+                                                   options.references.size(), " references)"));
+  }
+  if (options.reference_spp.has_value() &&
+      (*options.reference_spp < 2 || std::uint64_t(*options.reference_spp) > kMaxReferenceSpp)) {
+    return absl::InvalidArgumentError(absl::StrCat("--reference-spp ", *options.reference_spp,
+                                                   " is outside 2..", kMaxReferenceSpp));
+  }
+  std::vector<image::Crop> insets;
+  for (const std::string& text : options.insets) {
+    PRISM_ASSIGN_OR_RETURN(image::Crop crop, parse_crop(text));
+    insets.push_back(crop);
+  }
+  RenderCommandOptions base;
+  base.resolution = options.resolution;
+  base.bins = options.bins;
+  base.threads = options.threads;
+  base.allow_unsupported = options.allow_unsupported;
+  PRISM_RETURN_IF_ERROR(validate_render_flags(base));
+  const fs::path cache = options.reference_cache.has_value() ? *options.reference_cache
+                         : home_cache().empty()              ? options.output / "references"
+                                                             : fs::path(home_cache());
+  std::error_code ec;
+  fs::create_directories(options.output, ec);
+  if (ec) {
+    return absl::InvalidArgumentError(absl::StrCat("cannot create the output directory ",
+                                                   options.output.string(), ": ", ec.message()));
+  }
+  if (!device.valid()) {
+    return absl::InternalError(
+        absl::StrCat("could not create the Embree device: ", device.take_error().message()));
+  }
+  auto log = [&](const std::string& line) {
+    if (options.log != nullptr) *options.log << "bench: " << line << "\n" << std::flush;
+  };
+
+  std::vector<BenchRow> rows;
+  std::vector<std::string> stems;
+  std::string header = absl::StrCat(
+      "# prism bench\n\nClock: ", options.clock, "; ", options.seeds,
+      " seed(s); threads: ", options.threads.has_value() ? absl::StrCat(*options.threads) : "all",
+      " (", std::thread::hardware_concurrency(),
+      " hardware). Seconds include the τ pilot, the "
+      "prepass and the reconstruction, not the scene build. Errors are over spectral bins, mean "
+      "over seeds; MSE and relMSE are minus the reference's noise floor where it is known.\n");
+  std::string summary;
+
+  for (std::size_t si = 0; si < options.scenes.size(); ++si) {
+    const fs::path& path = options.scenes[si];
+    PRISM_ASSIGN_OR_RETURN(evaluation::BenchScene scene,
+                           evaluation::load_bench_scene(path, options.allow_unsupported));
+    std::string stem = path.stem().string();
+    for (int n = 2; std::find(stems.begin(), stems.end(), stem) != stems.end(); ++n) {
+      stem = absl::StrCat(path.stem().string(), "-", n);
+    }
+    stems.push_back(stem);
+    RenderCommandOptions scene_base = base;
+    scene_base.scene = path;
+
+    // The film this bench renders (the scene's, or --resolution) and its regions.
+    RenderCommandOptions probe = scene_base;
+    probe.spp = 1;
+    PRISM_ASSIGN_OR_RETURN(
+        v1::JobSpec probe_spec,
+        job_spec_of(probe, scene.description, scene.bundle_hash, scene.scene_relpath));
+    const int width = static_cast<int>(probe_spec.width());
+    const int height = static_cast<int>(probe_spec.height());
+    const int bins = static_cast<int>(probe_spec.bins());
+    std::vector<std::pair<std::string, std::optional<image::Crop>>> regions{{"image", {}}};
+    for (std::size_t i = 0; i < insets.size(); ++i) {
+      if (auto rect = image::crop_rect(insets[i], width, height); !rect.ok()) {
+        return absl::InvalidArgumentError(absl::StrCat("--inset ", options.insets[i], ": ",
+                                                       rect.status().message(), " (", scene.name,
+                                                       " renders ", width, "x", height, ")"));
+      }
+      regions.push_back({options.insets[i], insets[i]});
+    }
+
+    // Calibration: the clock's seconds per sample of a method, from a short render.
+    auto calibrate = [&](const RenderCommandOptions& o) -> absl::StatusOr<double> {
+      RenderCommandOptions c = o;
+      c.spp = 4;
+      c.seed = kCalibrationSeed;
+      PRISM_ASSIGN_OR_RETURN(Timed t, timed_method(device, scene, c));
+      return std::max(1e-6, t.on(options.clock) / 4.0);
+    };
+
+    // ---- The reference.
+    std::optional<evaluation::Reference> reference;
+    bool floor_known = false;
+    std::string reference_text;
+    if (!options.references.empty()) {
+      const fs::path& ref_path = options.references[si];
+      PRISM_ASSIGN_OR_RETURN(image::SpectralExr exr, image::read_spectral_exr(ref_path));
+      if (exr.spectral.width() != width || exr.spectral.height() != height ||
+          exr.spectral.bins() != bins) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("--reference ", ref_path.string(), " is ", exr.spectral.width(), "x",
+                         exr.spectral.height(), " with ", exr.spectral.bins(), " bins; ",
+                         scene.name, " renders ", width, "x", height, " with ", bins, " bins"));
+      }
+      image::SpectralImage half_image = exr.spectral;
+      fs::path half_path = ref_path;
+      half_path.replace_extension(".half.exr");
+      if (fs::exists(half_path)) {
+        PRISM_ASSIGN_OR_RETURN(image::SpectralExr half, image::read_spectral_exr(half_path));
+        if (half.spectral.width() == width && half.spectral.height() == height &&
+            half.spectral.bins() == bins) {
+          half_image = std::move(half.spectral);
+          floor_known = true;
+        }
+      }
+      reference = evaluation::Reference{std::move(exr.spectral), std::move(half_image), 0, 0, 0};
+      reference_text = absl::StrCat(ref_path.string(),
+                                    floor_known ? " (noise floor from " + half_path.string() + ")"
+                                                : " (noise floor unknown)");
+    } else {
+      RenderCommandOptions ref = scene_base;
+      ref.integrator = "hero";
+      ref.prepass = false;
+      std::uint64_t spp = 0;
+      if (options.reference_spp.has_value()) {
+        spp = static_cast<std::uint64_t>(*options.reference_spp);
+      } else if (by_time) {
+        PRISM_ASSIGN_OR_RETURN(double rate, calibrate(ref));
+        spp = static_cast<std::uint64_t>(4 * budgets.back() / rate);
+      } else {
+        spp = 4 * spps.back();
+      }
+      spp = std::clamp<std::uint64_t>(spp + (spp & 1), 2, kMaxReferenceSpp);
+      ref.spp = static_cast<std::int64_t>(spp);
+      ref.seed = kReferenceSeed;
+      PRISM_ASSIGN_OR_RETURN(PreparedRender prepared,
+                             prepare_render(ref, device, scene.description, *scene.library,
+                                            scene.bundle_hash, scene.scene_relpath));
+      PRISM_ASSIGN_OR_RETURN(
+          reference, evaluation::cached_reference(device, scene, prepared.local, cache, "bench"));
+      floor_known = true;
+      reference_text =
+          absl::StrCat("hero without a prepass, ", reference->spp,
+                       " spp in two independent halves (cached in ", cache.string(), ")");
+    }
+    absl::StrAppend(&header, "\n", stem, ": ", width, "x", height, ", ", bins,
+                    " bins; reference: ", reference_text, ".\n");
+    std::vector<image::ErrorMetrics> floors;
+    for (const auto& [name, crop] : regions) {
+      image::ErrorMetrics floor;
+      floor.mse = floor.rel_mse = 0;
+      if (floor_known) {
+        PRISM_ASSIGN_OR_RETURN(floor, reference->floor(crop));
+      }
+      floors.push_back(floor);
+    }
+
+    // ---- The methods.
+    for (const std::string& method : methods) {
+      PRISM_ASSIGN_OR_RETURN(RenderCommandOptions mo, method_options(method, scene_base));
+      double rate = 0;
+      if (by_time) {
+        PRISM_ASSIGN_OR_RETURN(rate, calibrate(mo));
+      }
+      const std::size_t count = by_time ? budgets.size() : spps.size();
+      for (std::size_t bi = 0; bi < count; ++bi) {
+        const std::string budget =
+            by_time ? absl::StrCat(number(budgets[bi]), "s") : absl::StrCat(spps[bi], "spp");
+        std::uint64_t spp =
+            by_time ? std::max<std::uint64_t>(1, std::uint64_t(budgets[bi] / rate)) : spps[bi];
+        for (int seed = 1; seed <= options.seeds; ++seed) {
+          RenderCommandOptions o = mo;
+          o.seed = static_cast<std::uint64_t>(seed);
+          o.spp = static_cast<std::int64_t>(spp);
+          PRISM_ASSIGN_OR_RETURN(Timed t, timed_method(device, scene, o));
+          if (by_time && seed == 1) {
+            // One correction when the calibration missed the budget by more than a quarter.
+            const double spent = t.on(options.clock);
+            if (std::abs(spent - budgets[bi]) > 0.25 * budgets[bi] && spent > 0) {
+              spp = std::max<std::uint64_t>(1, std::uint64_t(double(spp) * budgets[bi] / spent));
+              o.spp = static_cast<std::int64_t>(spp);
+              PRISM_ASSIGN_OR_RETURN(t, timed_method(device, scene, o));
+            }
+            rate = t.on(options.clock) / double(spp);
+          }
+          for (std::size_t ri = 0; ri < regions.size(); ++ri) {
+            PRISM_ASSIGN_OR_RETURN(
+                image::ErrorMetrics m,
+                image::compare_spectral(t.result.image, reference->image, regions[ri].second));
+            BenchRow row;
+            row.scene = stem;
+            row.method = method;
+            row.budget = budget;
+            row.seed = seed;
+            row.region = regions[ri].first;
+            row.spp = spp;
+            row.seconds = t.on(options.clock);
+            row.wall_seconds = t.wall;
+            row.cpu_seconds = t.cpu;
+            row.mse_floor = floors[ri].mse;
+            row.rel_mse_floor = floors[ri].rel_mse;
+            row.floor_known = floor_known;
+            m.mse -= row.mse_floor;
+            m.rel_mse -= row.rel_mse_floor;
+            row.metrics = m;
+            rows.push_back(row);
+          }
+          log(absl::StrCat(stem, " ", method, " ", budget, " seed ", seed, ": ", spp, " spp, ",
+                           absl::StrFormat("%.2f", t.on(options.clock)), " s, relMSE ",
+                           number(rows[rows.size() - regions.size()].metrics.rel_mse)));
+        }
+      }
+    }
+  }
+
+  // ---- Outputs: the CSV and the report first, then the plots.
+  const fs::path csv = options.output / "results.csv";
+  const fs::path report = options.output / "report.md";
+  const std::string csv_text = bench_csv(rows);
+  PRISM_RETURN_IF_ERROR(base::write_file_atomic(csv, csv_text));
+  const std::string report_text = bench_report(rows, options.baseline, header);
+  PRISM_RETURN_IF_ERROR(base::write_file_atomic(report, report_text));
+  absl::StrAppend(&summary, "wrote ", csv.string(), " (", rows.size(), " rows), ", report.string());
+  for (const std::string& stem : stems) {
+    const fs::path data = options.output / (stem + ".dat");
+    const fs::path script = options.output / (stem + ".gp");
+    const fs::path svg = options.output / (stem + ".svg");
+    const fs::path png = options.output / (stem + ".png");
+    const BenchPlot plot = bench_plot(rows, stem, options.clock, data, svg, png);
+    PRISM_RETURN_IF_ERROR(base::write_file_atomic(data, plot.data));
+    PRISM_RETURN_IF_ERROR(base::write_file_atomic(script, plot.script));
+    PRISM_RETURN_IF_ERROR(run_gnuplot(script, options.output / (stem + ".gnuplot.log")));
+    for (const fs::path& out : {svg, png}) {
+      fs::rename(fs::path(out.string() + ".tmp"), out, ec);
+      if (ec) {
+        return absl::InternalError(
+            absl::StrCat("cannot move ", out.string(), ".tmp into place: ", ec.message()));
+      }
+    }
+    fs::remove(options.output / (stem + ".gnuplot.log"), ec);
+    absl::StrAppend(&summary, ", ", svg.string(), ", ", png.string());
+  }
+  return absl::StrCat(summary, "\n");
+}
+
+}  // namespace prism::client

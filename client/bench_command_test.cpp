@@ -1,0 +1,110 @@
+#include "client/bench_command.h"
+
+#include <gtest/gtest.h>
+
+#include <string>
+#include <vector>
+
+#include "absl/strings/str_split.h"
+
+namespace prism::client {
+namespace {
+
+BenchRow row(const std::string& method, const std::string& budget, double seconds, double rel_mse,
+             const std::string& region = "image", int seed = 1) {
+  BenchRow r;
+  r.scene = "box";
+  r.method = method;
+  r.budget = budget;
+  r.seed = seed;
+  r.region = region;
+  r.spp = 16;
+  r.seconds = seconds;
+  r.metrics.rel_mse = rel_mse;
+  r.metrics.mse = rel_mse / 10;
+  r.metrics.ssim = 0.9;
+  return r;
+}
+
+TEST(BenchCommandTest, BudgetsAreIncreasingDurations) {
+  auto b = parse_budgets("10s,30,1.5m");
+  ASSERT_TRUE(b.ok()) << b.status();
+  EXPECT_EQ(*b, (std::vector<double>{10, 30, 90}));
+  for (const char* bad : {"", "10s,5s", "0s", "-1", "10x", "s", "10s,,20s", "nan"}) {
+    auto parsed = parse_budgets(bad);
+    EXPECT_FALSE(parsed.ok()) << bad;
+    if (!parsed.ok()) {
+      EXPECT_NE(std::string(parsed.status().message()).find("--budgets"), std::string::npos);
+    }
+  }
+}
+
+// A region with commas is one quoted field; every row has the header's column count.
+TEST(BenchCommandTest, CsvQuotesRegionsAndKeepsItsColumns) {
+  const std::string csv =
+      bench_csv({row("hero", "10s", 10.5, 0.01), row("hero", "10s", 10.5, 0.02, "1,2,3,4")});
+  std::vector<std::string> lines = absl::StrSplit(csv, '\n', absl::SkipEmpty());
+  ASSERT_EQ(lines.size(), 3u);
+  EXPECT_NE(lines[2].find(",\"1,2,3,4\","), std::string::npos) << lines[2];
+  const auto columns = [](const std::string& line) {
+    int n = 1;
+    bool quoted = false;
+    for (char c : line) {
+      if (c == '"') quoted = !quoted;
+      if (c == ',' && !quoted) ++n;
+    }
+    return n;
+  };
+  EXPECT_EQ(columns(lines[1]), columns(lines[0]));
+  EXPECT_EQ(columns(lines[2]), columns(lines[0]));
+}
+
+// The equal-time ratio divides by the baseline's relMSE interpolated log-linearly at the
+// method's seconds: hero's curve through (1 s, 0.1) and (4 s, 0.025) is 0.05 at 2 s, so a
+// method with 0.025 at 2 s is at 0.5; means are over seeds.
+TEST(BenchCommandTest, ReportGivesEqualTimeRatiosAgainstTheBaseline) {
+  std::vector<BenchRow> rows = {row("hero", "a", 1, 0.1), row("hero", "b", 4, 0.025),
+                                row("gradient", "a", 2, 0.02, "image", 1),
+                                row("gradient", "a", 2, 0.03, "image", 2),
+                                row("gradient", "b", 8, 0.004)};
+  const std::string report = bench_report(rows, "hero", "# header\n");
+  EXPECT_EQ(report.rfind("# header\n", 0), 0u);
+  EXPECT_NE(report.find("| gradient | a | 16 | 2.00 | 0.0025 | 0.025 | 0.9000 | 0.500 |"),
+            std::string::npos)
+      << report;
+  // Beyond the baseline's last point its error falls as 1/time: 0.025 · 4/8 = 0.0125.
+  EXPECT_NE(report.find("| gradient | b | 16 | 8.00 | 0.0004 | 0.004 | 0.9000 | 0.320 "
+                        "(extrapolated) |"),
+            std::string::npos)
+      << report;
+  EXPECT_NE(report.find("| hero | a | 16 | 1.00 | 0.01 | 0.1 | 0.9000 | 1.000 |"),
+            std::string::npos)
+      << report;
+  const std::string without = bench_report(rows, "uniform", "");
+  EXPECT_NE(without.find("'uniform' was not among the methods"), std::string::npos);
+}
+
+// One data block per method and region with positive errors, in time order; insets dashed.
+TEST(BenchCommandTest, PlotHasACurvePerMethodAndDashedInsets) {
+  std::vector<BenchRow> rows = {row("hero", "b", 4, 0.025), row("hero", "a", 1, 0.1),
+                                row("hero", "a", 1, 0.2, "0,0,8,8"),
+                                row("gradient", "a", 2, -0.001)};
+  const BenchPlot plot = bench_plot(rows, "box", "wall", "/d/box.dat", "/d/box.svg", "/d/box.png");
+  EXPECT_EQ(plot.data, "# hero image\n1 0.1 16\n4 0.025 16\n\n\n# hero 0,0,8,8\n1 0.2 16\n\n\n");
+  EXPECT_NE(plot.script.find("index 0 using 1:2 with linespoints lc 1 lw 2.5 pt 7 dt 1 title "
+                             "'hero'"),
+            std::string::npos)
+      << plot.script;
+  EXPECT_NE(plot.script.find("index 1 using 1:2 with linespoints lc 1 lw 1.5 pt 6 dt 2 title "
+                             "'hero, inset 0,0,8,8'"),
+            std::string::npos)
+      << plot.script;
+  // The gradient's only point is not positive: no curve (a log axis cannot show it).
+  EXPECT_EQ(plot.script.find("gradient"), std::string::npos);
+  EXPECT_NE(plot.script.find("set output '/d/box.svg.tmp'"), std::string::npos);
+  EXPECT_NE(plot.script.find("set output '/d/box.png.tmp'"), std::string::npos);
+  EXPECT_NE(plot.script.find("set logscale xy"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace prism::client
