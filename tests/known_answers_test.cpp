@@ -25,127 +25,12 @@
 #include "services/scene/scene_loader.h"
 #include "services/spectral/color.h"
 #include "services/spectral/named_spectra.h"
+#include "tests/render_fixture.h"
 
 namespace prism::coordinator {
 namespace {
 
-constexpr worker::IntegratorKind kIntegrators[] = {worker::IntegratorKind::kUniform,
-                                                   worker::IntegratorKind::kHero,
-                                                   worker::IntegratorKind::kGradient};
-
-class KnownAnswerTest : public testing::Test {
- protected:
-  static void SetUpTestSuite() {
-    library_ = new spectral::SpectrumLibrary(*spectral::SpectrumLibrary::load_builtin());
-    device_ = new worker::EmbreeDevice();
-  }
-  static void TearDownTestSuite() {
-    delete device_;
-    delete library_;
-  }
-
-  // The scene `text`, written to a file named `name` and loaded as `prism render` loads it.
-  static absl::StatusOr<scene::SceneDescription> load(const std::string& name,
-                                                      const std::string& text) {
-    const std::filesystem::path file = std::filesystem::path(testing::TempDir()) / name;
-    std::ofstream(file) << text;
-    PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded,
-                           scene::load_scene(file, scene::with_library_names(*library_)));
-    return std::move(loaded.description);
-  }
-
-  // The scene's film resolution and bins, `spp` samples, 2 threads.
-  static absl::StatusOr<LocalRenderResult> render(const scene::SceneDescription& scene,
-                                                  worker::IntegratorKind integrator,
-                                                  std::uint64_t spp, std::uint64_t seed,
-                                                  int max_depth) {
-    LocalRenderOptions o;
-    o.render.integrator = integrator;
-    o.render.bins = scene.film.bins.value_or(16);
-    o.render.max_depth = max_depth;
-    o.render.seed = seed;
-    o.render.gradient_offset_bins = std::max(1, o.render.bins / 8);
-    o.width = scene.film.x_resolution;
-    o.height = scene.film.y_resolution;
-    o.spp = spp;
-    o.threads = 2;
-    PRISM_ASSIGN_OR_RETURN(auto r, LocalRender::create(*device_, scene, *library_, o));
-    return r->render();
-  }
-
-  struct Mean {
-    double mean = 0, standard_error = 0;
-  };
-  // Bin b's mean over the pixels `in` accepts, and its standard error.
-  static Mean pixel_mean(const image::SpectralImage& image, int b,
-                         const std::function<bool(int, int)>& in = nullptr) {
-    double sum = 0, square = 0;
-    int n = 0;
-    for (int y = 0; y < image.height(); ++y) {
-      for (int x = 0; x < image.width(); ++x) {
-        if (in && !in(x, y)) continue;
-        const double v = image.value(x, y, b);
-        sum += v;
-        square += v * v;
-        ++n;
-      }
-    }
-    const double mean = sum / n;
-    return {mean, std::sqrt(std::max(0.0, square / n - mean * mean) / (n - 1))};
-  }
-
-  // Every integrator's image, per bin, against expected(lower, upper nm of the bin).
-  static void expect_every_integrator(const scene::SceneDescription& scene, std::uint64_t spp,
-                                      int max_depth,
-                                      const std::function<double(double, double)>& expected) {
-    for (worker::IntegratorKind integrator : kIntegrators) {
-      SCOPED_TRACE(worker::name(integrator));
-      auto result = render(scene, integrator, spp, 5, max_depth);
-      ASSERT_TRUE(result.ok()) << result.status();
-      const spectral::WavelengthGrid grid = *spectral::WavelengthGrid::create(result->image.bins());
-      for (int b = 0; b < grid.bins(); ++b) {
-        const double want = expected(grid.lower(b), grid.upper(b));
-        const Mean got = pixel_mean(result->image, b);
-        EXPECT_NEAR(got.mean, want, 4 * got.standard_error + 1e-6 * want)
-            << "bin " << b << " (" << grid.lower(b) << "-" << grid.upper(b) << " nm): z "
-            << (got.mean - want) / got.standard_error;
-      }
-    }
-  }
-
-  // A 2 x 2 sheet at distance 5 filling the middle of a 16 x 16, fov 30 film in a constant sky
-  // (box filter): for every integrator and bin, the sheet's pixels (4..11, fully inside: it
-  // covers 2.03..13.97) show `ratio` times the sky's (columns 0 and 15).
-  static void expect_sheet_over_sky(const scene::SceneDescription& scene, double ratio,
-                                    std::uint64_t seed) {
-    for (worker::IntegratorKind integrator : kIntegrators) {
-      SCOPED_TRACE(worker::name(integrator));
-      auto result = render(scene, integrator, 256, seed, 4);
-      ASSERT_TRUE(result.ok()) << result.status();
-      for (int b = 0; b < result->image.bins(); ++b) {
-        const Mean sheet = pixel_mean(
-            result->image, b, [](int x, int y) { return x >= 4 && x <= 11 && y >= 4 && y <= 11; });
-        const Mean sky = pixel_mean(result->image, b, [](int x, int) { return x == 0 || x == 15; });
-        ASSERT_GT(sky.mean, 0.0);
-        EXPECT_NEAR(
-            sheet.mean, ratio * sky.mean,
-            4 * std::hypot(sheet.standard_error, ratio * sky.standard_error) + 1e-6 * sky.mean)
-            << "bin " << b;
-      }
-    }
-  }
-
-  // pbrt-v4's normalisation of a flat emission spectrum: 1 / Σ_1nm ȳ.
-  static double unit_flat_emission() {
-    const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
-    return 1.0 / cmf.photometric_sum(spectral::Spectrum(spectral::ConstantSpectrum{1.0f}));
-  }
-
-  static spectral::SpectrumLibrary* library_;
-  static worker::EmbreeDevice* device_;
-};
-spectral::SpectrumLibrary* KnownAnswerTest::library_ = nullptr;
-worker::EmbreeDevice* KnownAnswerTest::device_ = nullptr;
+class KnownAnswerTest : public RenderFixture {};
 
 // Along the axis of a BK7 slab one unit thick, filled with a dye (piecewise-linear sigma_a,
 // scale 1.5), at a flat emitter behind it: at (near) normal incidence every wavelength crosses
