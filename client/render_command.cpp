@@ -95,6 +95,22 @@ absl::StatusOr<std::pair<int, int>> parse_resolution(const std::string& text) {
   return std::pair<int, int>{w, h};
 }
 
+absl::StatusOr<double> parse_target_error(const std::string& text) {
+  std::string digits = text;
+  const bool percent = !digits.empty() && digits.back() == '%';
+  if (percent) digits.pop_back();
+  double value = 0;
+  auto [end, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), value);
+  if (percent) value /= 100;
+  if (digits.empty() || ec != std::errc() || end != digits.data() + digits.size() ||
+      !(value >= coordinator::kMinTargetError && value <= coordinator::kMaxTargetError)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--target-error '", text, "': want a relative error such as 0.01 or 1% (",
+                     coordinator::kMinTargetError, "..", coordinator::kMaxTargetError, ")"));
+  }
+  return value;
+}
+
 absl::StatusOr<std::uint64_t> parse_seed(const std::string& text) {
   std::uint64_t seed = 0;
   auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), seed);
@@ -179,6 +195,19 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   if (o.prepass_mode != "samples" && o.prepass_mode != "image") {
     return absl::InvalidArgumentError(
         absl::StrCat("--prepass-mode '", o.prepass_mode, "': want samples or image"));
+  }
+  if (o.target_error_scope != "pixel" && o.target_error_scope != "image") {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--target-error-scope '", o.target_error_scope, "': want pixel or image"));
+  }
+  if (!o.target_error.has_value() && (o.max_spp.has_value() || o.target_error_scope != "pixel")) {
+    return absl::InvalidArgumentError("--max-spp and --target-error-scope go with --target-error");
+  }
+  PRISM_RETURN_IF_ERROR(check_range("--max-spp", o.max_spp, 2, kMaxSpp));
+  if (o.target_error.has_value() && o.spp.has_value() && o.max_spp.has_value() &&
+      *o.max_spp < *o.spp) {
+    return absl::InvalidArgumentError(absl::StrCat("--max-spp ", *o.max_spp, " is below --spp ",
+                                                   *o.spp, " (the first round's samples)"));
   }
   const bool prepass_options = has_prepass_options(o);
   if (o.prepass == false && prepass_options) {
@@ -312,6 +341,11 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
   spec.set_name(o.scene.filename().string());
   spec.set_allow_unsupported(o.allow_unsupported);
+  if (o.target_error.has_value()) {
+    spec.set_target_error(static_cast<float>(*o.target_error));
+    spec.set_target_error_image(o.target_error_scope == "image");
+    if (o.max_spp.has_value()) spec.set_max_spp(static_cast<std::uint32_t>(*o.max_spp));
+  }
   // The coordinator applies the same rules; checking here fails before any upload, and
   // to_proto makes every value explicit so the token does not depend on scene defaults.
   PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters parameters,
@@ -344,6 +378,7 @@ absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& option
   local.poisson_norm = job.gradient.norm;
   local.keep_primal_and_gradients = job.outputs.primal_and_gradients;
   local.prepass = job.prepass;
+  local.target_error = job.target_error;
   return prepared;
 }
 
@@ -423,6 +458,10 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
     coordinator::fill_gradient_counters(report.counters, *report.gradient);
     if (report.gradient->tau_pilot.has_value()) report.gradient->tau_pilot->seconds = pilot_seconds;
   }
+  if (result->stats.target_error.has_value()) {
+    report.target_error = result->stats.target_error;
+    report.spp = result->stats.target_error->max_spp;
+  }
   if (report.prepass.has_value()) {
     report.prepass->seconds = result->stats.prepass_seconds;
     report.prepass->final_seconds = result->stats.render_seconds;
@@ -442,6 +481,9 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
       report.gradient.has_value()
           ? absl::StrCat(" (tau ", report.gradient->tau,
                          report.gradient->tau_pilot.has_value() ? " from the pilot" : "", ")")
+          : std::string(),
+      report.target_error.has_value()
+          ? absl::StrCat(" ", coordinator::target_error_summary(*report.target_error))
           : std::string(),
       ", ", report.threads, " threads in ",
       report.prepass.has_value() ? coordinator::prepass_summary(*report.prepass) + " + "

@@ -65,6 +65,11 @@ struct RenderCommandOptions {
   // Render a scene with unsupported input, each refused feature substituted (and listed in
   // the JSON report) instead of refusing the scene.
   bool allow_unsupported = false;
+  // Render to a target error (coordinator/target_error.h): a relative standard error, spp the
+  // first round's; scope "pixel" or "image"; max_spp unset: the job's default.
+  std::optional<double> target_error;
+  std::string target_error_scope = "pixel";
+  std::optional<std::int64_t> max_spp;
   // Where to draw a progress bar (a terminal); null: none.
   std::ostream* progress = nullptr;
   // Where the scene's warnings go (null: nowhere).
@@ -78,6 +83,9 @@ inline constexpr double kMaxExposureStops = 64.0;
 
 // "WxH" with 1 <= W, H <= 16384; INVALID_ARGUMENT quoting the text otherwise.
 absl::StatusOr<std::pair<int, int>> parse_resolution(const std::string& text);
+
+// "0.01" or "1%": a relative error in [1e-4, 1]; INVALID_ARGUMENT quoting the text otherwise.
+absl::StatusOr<double> parse_target_error(const std::string& text);
 
 // A decimal integer in 0..2^64-1 (a negative number is refused, not wrapped around).
 absl::StatusOr<std::uint64_t> parse_seed(const std::string& text);

@@ -31,6 +31,15 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
                  "Base emitter pmf: uniform, power or spatial (default power)");
   cmd.add_flag("--no-spectral-light-selection", f.no_spectral_light_selection,
                "Do not weight emitter selection by the wavelengths' unit emission");
+  f.target_error_opt = cmd.add_option(
+      "--target-error", f.target_error,
+      "Render until each pixel's relative standard error (of its luminance) is at most this, "
+      "e.g. 0.01 or 1%: --spp is the first round's, rounds double it where needed");
+  cmd.add_option("--target-error-scope", o.target_error_scope,
+                 "pixel (every pixel meets the target) or image (the image's mean does); default "
+                 "pixel");
+  f.max_spp_opt = cmd.add_option("--max-spp", f.max_spp,
+                                 "With --target-error: stop at this spp (default 65536)");
   f.max_depth_opt = cmd.add_option("--max-depth", f.max_depth,
                                    "Path vertices after the camera (default: the scene's)");
   cmd.add_option("--exposure", o.exposure, "PNG preview exposure in stops (default 0)");
@@ -112,6 +121,10 @@ absl::Status apply_render_flags(const RenderFlags& f, RenderCommandOptions& o) {
     }
   }
   take(f.alpha_opt, f.alpha, o.alpha);
+  if (f.target_error_opt->count() > 0) {
+    PRISM_ASSIGN_OR_RETURN(o.target_error, parse_target_error(f.target_error));
+  }
+  take(f.max_spp_opt, f.max_spp, o.max_spp);
   take(f.prepass_passes_opt, f.prepass_passes, o.prepass_passes);
   take(f.prepass_spp_opt, f.prepass_spp, o.prepass_spp);
   take(f.prepass_epsilon_opt, f.prepass_epsilon, o.prepass_epsilon);

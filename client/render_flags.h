@@ -21,6 +21,10 @@ struct RenderFlags {
   bool no_spectral_light_selection = false;
   double delta = 0, alpha = 0;
   std::string tau;  // a value >= 0 or "auto"
+  std::string target_error;  // "0.01" or "1%"
+  std::int64_t max_spp = 0;
+  CLI::Option* target_error_opt = nullptr;
+  CLI::Option* max_spp_opt = nullptr;
   std::int64_t prepass_passes = 0, prepass_spp = 0;
   double prepass_epsilon = 0, prepass_fallback = 0, prepass_sigma_s = 0, prepass_sigma_r = 0;
   bool prepass = false, no_prepass = false;

@@ -256,21 +256,41 @@ int FarmCoordinator::stage_of(const ActiveJob& job, int task_index) {
 int FarmCoordinator::tile_of(const ActiveJob& job, int task_index) {
   const int stage = stage_of(job, task_index);
   const int local = task_index - job.stage_first[static_cast<std::size_t>(stage)];
-  return stage == final_stage_of(job) ? local / static_cast<int>(job.plan.ranges.size()) : local;
+  if (stage < first_final_stage(job)) return local;
+  const TilePlan& plan =
+      job.target.has_value()
+          ? job.round_plans[static_cast<std::size_t>(stage - first_final_stage(job))]
+          : job.plan;
+  return local / static_cast<int>(plan.ranges.size());
+}
+
+std::pair<int, int> FarmCoordinator::tile_tasks(const ActiveJob& job, int stage, int tile) {
+  const int first = job.stage_first[static_cast<std::size_t>(stage)];
+  if (stage < first_final_stage(job)) return {first + tile, first + tile + 1};
+  const TilePlan& plan =
+      job.target.has_value()
+          ? job.round_plans[static_cast<std::size_t>(stage - first_final_stage(job))]
+          : job.plan;
+  const int ranges = static_cast<int>(plan.ranges.size());
+  return {first + tile * ranges, first + (tile + 1) * ranges};
 }
 
 std::vector<TaskSpec> FarmCoordinator::stage_specs(const ActiveJob& job, int stage) const {
   std::vector<TaskSpec> tasks;
-  if (stage < final_stage_of(job)) {
+  if (stage < first_final_stage(job)) {
     const int k = stage + 1;
     for (const image::TileRect& tile : job.prepass->plan(k).tiles) {
       tasks.push_back(TaskSpec{Pass::kPrepass, k, tile, {0, job.prepass->pass(k).spp}});
     }
     return tasks;
   }
-  tasks.reserve(job.plan.task_count());
-  for (const image::TileRect& tile : job.plan.tiles) {
-    for (const image::SampleRange& range : job.plan.ranges) {
+  const TilePlan& plan =
+      job.target.has_value()
+          ? job.round_plans[static_cast<std::size_t>(stage - first_final_stage(job))]
+          : job.plan;
+  tasks.reserve(plan.task_count());
+  for (const image::TileRect& tile : plan.tiles) {
+    for (const image::SampleRange& range : plan.ranges) {
       tasks.push_back(TaskSpec{Pass::kFinal, 0, tile, range});
     }
   }
@@ -344,7 +364,29 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
                                  static_cast<int>(job->prepass->plan(k).tiles.size()));
     }
   }
-  job->stage_first.push_back(job->stage_first.back() + static_cast<int>(job->plan.task_count()));
+  if (params.target_error.has_value()) {
+    PRISM_ASSIGN_OR_RETURN(TargetErrorTracker tracker,
+                           TargetErrorTracker::create(*params.target_error, job->plan, params.spp));
+    job->target = std::move(tracker);
+    std::uint64_t s0 = 0;
+    for (std::uint64_t s1 : job->target->rounds()) {
+      job->round_plans.push_back(plan_round(job->plan, s0, s1, params.samples_per_task));
+      s0 = s1;
+      // Called from add, which runs under mutex_.
+      auto on_round_tile = [raw](int tile, const image::TileResult& merged,
+                                 const image::SpectralImage&) {
+        return raw->target->add(tile, merged);
+      };
+      PRISM_ASSIGN_OR_RETURN(std::unique_ptr<TileAssembler> assembler,
+                             TileAssembler::create(job->round_plans.back(), params.render.bins,
+                                                   on_round_tile, mean_finaliser()));
+      job->round_assemblers.push_back(std::move(assembler));
+      job->stage_first.push_back(job->stage_first.back() +
+                                 static_cast<int>(job->round_plans.back().task_count()));
+    }
+  } else {
+    job->stage_first.push_back(job->stage_first.back() + static_cast<int>(job->plan.task_count()));
+  }
   // Called from assembler->add, which runs under mutex_.
   auto on_tile = [this, raw](int tile, const image::TileResult& merged,
                              const image::SpectralImage& finalised) -> absl::Status {
@@ -363,19 +405,40 @@ absl::Status FarmCoordinator::advance_locked(const std::string& job_id) {
     return absl::InternalError(absl::StrCat("job ", job_id, " finished but is not active"));
   }
   ActiveJob& job = *it->second;
-  if (job.stage == final_stage_of(job)) {
+  auto finalise = [&]() -> absl::Status {
     absl::Status finalised = finalise_locked(job_id);
     if (finalised.ok()) return finalised;
     return absl::Status(finalised.code(),
                         absl::StrCat("cannot write the outputs: ", finalised.message()));
+  };
+  if (job.target.has_value() && job.stage >= first_final_stage(job)) {
+    if (!job.target->finished()) PRISM_RETURN_IF_ERROR(finish_round_locked(job));
+    if (!job.target->finished()) {
+      ++job.stage;
+      return hand_round_locked(job, job_id);
+    }
+    // Done before its last planned round: the rounds left keep their task numbers, skipped.
+    for (; job.stage < final_stage_of(job); ++job.stage) {
+      const std::size_t next = static_cast<std::size_t>(job.stage + 1);
+      PRISM_ASSIGN_OR_RETURN(int first,
+                             scheduler_.add_tasks(job_id, stage_specs(job, job.stage + 1), true));
+      if (first != job.stage_first[next]) {
+        return absl::InternalError(absl::StrCat("job ", job_id, ": skipped round starts at task ",
+                                                first, ", the plan says ", job.stage_first[next]));
+      }
+      PRISM_RETURN_IF_ERROR(
+          store_->skip_tasks(job_id, job.stage_first[next], job.stage_first[next + 1]));
+    }
+    return finalise();
   }
+  if (job.stage == final_stage_of(job)) return finalise();
   const int k = job.stage + 1;
   PRISM_RETURN_IF_ERROR(job.prepass_assemblers[static_cast<std::size_t>(k - 1)]->check_complete());
   PRISM_RETURN_IF_ERROR(job.prepass->finish_pass(k));
   ++job.stage;
   // A prepass that stopped early leaves its later passes unrendered: they keep their task
   // numbers, skipped, so the final pass's tasks are numbered as planned.
-  for (; job.prepass->finished() && job.stage < final_stage_of(job); ++job.stage) {
+  for (; job.prepass->finished() && job.stage < first_final_stage(job); ++job.stage) {
     const std::size_t s = static_cast<std::size_t>(job.stage);
     PRISM_ASSIGN_OR_RETURN(int first,
                            scheduler_.add_tasks(job_id, stage_specs(job, job.stage), true));
@@ -386,7 +449,7 @@ absl::Status FarmCoordinator::advance_locked(const std::string& job_id) {
     }
     PRISM_RETURN_IF_ERROR(store_->skip_tasks(job_id, job.stage_first[s], job.stage_first[s + 1]));
   }
-  if (job.stage == final_stage_of(job)) {
+  if (job.stage == first_final_stage(job)) {
     job.prepass_seconds = std::chrono::duration<double>(SteadyClock::now() - job.started).count();
     const PrepassOutcome o = job.prepass->outcome();
     options_.logger->info(
@@ -401,6 +464,45 @@ absl::Status FarmCoordinator::advance_locked(const std::string& job_id) {
     return absl::InternalError(absl::StrCat("job ", job_id, ": stage ", job.stage,
                                             " starts at task ", first, ", the plan says ",
                                             job.stage_first[static_cast<std::size_t>(job.stage)]));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status FarmCoordinator::finish_round_locked(ActiveJob& job) {
+  const std::size_t round = static_cast<std::size_t>(job.stage - first_final_stage(job));
+  PRISM_RETURN_IF_ERROR(job.round_assemblers[round]->check_complete());
+  PRISM_ASSIGN_OR_RETURN(std::vector<int> done, job.target->finish_round());
+  for (int tile : done) {
+    const image::TileResult& merged = job.target->sum(tile);
+    PRISM_ASSIGN_OR_RETURN(image::SpectralImage finalised, job.finalise(merged));
+    if (!job.tiles->has(tile)) PRISM_RETURN_IF_ERROR(job.tiles->put(tile, merged));
+    PRISM_RETURN_IF_ERROR(absorb_tile(job, tile, merged, finalised));
+    job.target->release(tile);
+  }
+  return absl::OkStatus();
+}
+
+absl::Status FarmCoordinator::hand_round_locked(ActiveJob& job, const std::string& job_id) {
+  const int stage = job.stage;
+  const std::size_t round = static_cast<std::size_t>(stage - first_final_stage(job));
+  const std::vector<TaskSpec> specs = stage_specs(job, stage);
+  const int per_tile = static_cast<int>(job.round_plans[round].ranges.size());
+  for (std::size_t t = 0; t < job.round_plans[round].tiles.size(); ++t) {
+    const int tile = static_cast<int>(t);
+    const bool skipped = !job.target->active(tile);
+    const auto [first, last] = tile_tasks(job, stage, tile);
+    const std::vector<TaskSpec> part(specs.begin() + tile * per_tile,
+                                     specs.begin() + (tile + 1) * per_tile);
+    PRISM_ASSIGN_OR_RETURN(int added, scheduler_.add_tasks(job_id, part, skipped));
+    if (added != first) {
+      return absl::InternalError(absl::StrCat("job ", job_id, ": round ", round + 1, " tile ", tile,
+                                              " starts at task ", added, ", the plan says ",
+                                              first));
+    }
+    if (skipped) {
+      PRISM_RETURN_IF_ERROR(store_->skip_tasks(job_id, first, last));
+      PRISM_RETURN_IF_ERROR(job.round_assemblers[round]->mark_finished(tile));
+    }
   }
   return absl::OkStatus();
 }
@@ -555,6 +657,7 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   }
   PRISM_RETURN_IF_ERROR(attach_tiles(*active, record.id));
   const int final_stage = final_stage_of(*active);
+  const int first_final = first_final_stage(*active);
   const int stages = final_stage + 1;
   auto stage_done = [&](int stage) {
     for (int i = active->stage_first[stage]; i < active->stage_first[stage + 1]; ++i) {
@@ -566,7 +669,7 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   // function of them) up to the first that is not complete: that stage runs on.
   std::vector<int> done;
   int stage = 0;
-  for (; stage < final_stage; ++stage) {
+  for (; stage < first_final; ++stage) {
     const bool complete = stage_done(stage);
     TileAssembler& assembler = *active->prepass_assemblers[static_cast<std::size_t>(stage)];
     for (int i = active->stage_first[stage]; i < active->stage_first[stage + 1]; ++i) {
@@ -579,22 +682,70 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
     }
     if (!complete) break;
     PRISM_RETURN_IF_ERROR(active->prepass->finish_pass(stage + 1));
-    if (active->prepass->finished() && stage + 1 < final_stage) {
+    if (active->prepass->finished() && stage + 1 < first_final) {
       // It stopped early (a pure function of the results, so as before the restart): the later
       // passes are skipped.
-      for (int skipped = stage + 1; skipped < final_stage; ++skipped) {
+      for (int skipped = stage + 1; skipped < first_final; ++skipped) {
         for (int i = active->stage_first[skipped]; i < active->stage_first[skipped + 1]; ++i) {
           done.push_back(i);
         }
         PRISM_RETURN_IF_ERROR(store_->skip_tasks(record.id, active->stage_first[skipped],
                                                  active->stage_first[skipped + 1]));
       }
-      stage = final_stage;
+      stage = first_final;
       break;
     }
   }
+  if (stage == first_final && active->target.has_value()) {
+    // Rounds are replayed in order from their stored results, as the prepasses: the tracker's
+    // decisions are a pure function of them, so the same tiles go on as before the restart.
+    // A tile that was done has its round's tasks skipped (again, if the restart came between
+    // the decision and the skip).
+    TargetErrorTracker& tracker = *active->target;
+    for (; stage <= final_stage; ++stage) {
+      const std::size_t round = static_cast<std::size_t>(stage - first_final);
+      TileAssembler& assembler = *active->round_assemblers[round];
+      bool complete = true;
+      for (std::size_t t = 0; t < active->plan.tiles.size(); ++t) {
+        const int tile = static_cast<int>(t);
+        const auto [first, last] = tile_tasks(*active, stage, tile);
+        if (!tracker.finished() && !tracker.active(tile)) {
+          PRISM_RETURN_IF_ERROR(store_->skip_tasks(record.id, first, last));
+          PRISM_RETURN_IF_ERROR(assembler.mark_finished(tile));
+          for (int i = first; i < last; ++i) done.push_back(i);
+          continue;
+        }
+        for (int i = first; i < last; ++i) {
+          const store::TaskRecord& task = tasks[static_cast<std::size_t>(i)];
+          if (task.state != store::TaskState::kDone) {
+            complete = false;
+            continue;
+          }
+          PRISM_ASSIGN_OR_RETURN(std::string bytes, blobs_->get(task.result_hash));
+          PRISM_ASSIGN_OR_RETURN(image::TileResult result, image::parse_tile(bytes));
+          PRISM_RETURN_IF_ERROR(assembler.add(tile, std::move(result)));
+          done.push_back(i);
+        }
+      }
+      if (!complete) break;
+      active->stage = stage;
+      PRISM_RETURN_IF_ERROR(finish_round_locked(*active));
+      if (tracker.finished()) {
+        for (int skipped = stage + 1; skipped <= final_stage; ++skipped) {
+          for (int i = active->stage_first[skipped]; i < active->stage_first[skipped + 1]; ++i) {
+            done.push_back(i);
+          }
+          PRISM_RETURN_IF_ERROR(store_->skip_tasks(record.id, active->stage_first[skipped],
+                                                   active->stage_first[skipped + 1]));
+        }
+        stage = final_stage;
+        break;
+      }
+    }
+    stage = std::min(stage, final_stage);
+  }
   active->stage = stage;
-  if (stage == final_stage) {
+  if (stage == final_stage && !active->target.has_value()) {
     // Tiles finished before the restart come back from their files (their range results are
     // not merged again); a damaged file falls back to the range results, which are kept until
     // the job is over.
@@ -841,7 +992,13 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
     return absl::InternalError(absl::StrCat("job ", job_id, " finished but is not active"));
   }
   ActiveJob& job = *it->second;
-  PRISM_RETURN_IF_ERROR(job.assembler->check_complete());
+  if (job.target.has_value()) {
+    if (!job.target->finished()) {
+      return absl::InternalError(absl::StrCat("job ", job_id, " has rounds left to run"));
+    }
+  } else {
+    PRISM_RETURN_IF_ERROR(job.assembler->check_complete());
+  }
   PRISM_ASSIGN_OR_RETURN(
       store::JobRecord record,
       store_->set_job_state(job_id, store::JobState::kFinalising, now().count()));
@@ -865,6 +1022,11 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   report.render_seconds = job.render_seconds;
   report.samples =
       p.spp * static_cast<std::uint64_t>(p.width) * static_cast<std::uint64_t>(p.height);
+  if (job.target.has_value()) {
+    report.target_error = job.target->outcome();
+    report.spp = report.target_error->max_spp;
+    report.samples = report.target_error->samples;
+  }
   report.rays = job.rays;
   report.peak_memory_bytes = peak_memory_bytes();
   report.statistics = job.statistics->finish();
@@ -1096,13 +1258,17 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
     job.rays += rays;
     const int stage = stage_of(job, task.index);
     const int tile = tile_of(job, task.index);
-    const bool final_stage = stage == final_stage_of(job);
+    const bool final_stage = stage >= first_final_stage(job);
     if (final_stage) {
       for (const auto& [name, value] : counters) job.counters[name] += value;
     }
-    absl::Status added = final_stage ? job.assembler->add(tile, *std::move(parsed))
-                                     : job.prepass_assemblers[static_cast<std::size_t>(stage)]->add(
-                                           tile, *std::move(parsed));
+    absl::Status added =
+        !final_stage
+            ? job.prepass_assemblers[static_cast<std::size_t>(stage)]->add(tile, *std::move(parsed))
+        : job.target.has_value()
+            ? job.round_assemblers[static_cast<std::size_t>(stage - first_final_stage(job))]->add(
+                  tile, *std::move(parsed))
+            : job.assembler->add(tile, *std::move(parsed));
     if (!added.ok()) {
       fail_job_locked(task.job_id,
                       absl::StrCat("merging task ", task.index, ": ", added.message()));

@@ -54,6 +54,7 @@
 #include "coordinator/outputs.h"
 #include "coordinator/prepass_run.h"
 #include "coordinator/scheduler.h"
+#include "coordinator/target_error.h"
 #include "coordinator/tile_merge.h"
 #include "coordinator/tile_plan.h"
 #include "prism/v1/types.pb.h"
@@ -214,6 +215,13 @@ class FarmCoordinator {
     std::chrono::steady_clock::time_point started;
     std::uint64_t samples_at_start = 0;            // done before this incarnation (resumed)
     std::vector<SceneFeatureNote> scene_features;  // for the report
+    // Rendering to a target error: the final pass runs as rounds, the stages after the
+    // prepasses, each with its own plan (every tile, the round's samples) and assembler; the
+    // tracker sums each tile's rounds and decides which tiles go on (target_error.h). A tile
+    // that is done has its later rounds' tasks skipped.
+    std::optional<TargetErrorTracker> target;
+    std::vector<TilePlan> round_plans;
+    std::vector<std::unique_ptr<TileAssembler>> round_assemblers;
   };
 
   explicit FarmCoordinator(FarmOptions options);
@@ -229,10 +237,21 @@ class FarmCoordinator {
   absl::StatusOr<scene::LoadedScene> load_bundle_scene(bool allow_unsupported,
                                                        const std::string& hash,
                                                        const std::string& scene_path) const;
-  // The final pass's stage index (the number of prepasses).
+  // The last stage's index: the final pass's, or with a target error its last round's.
   static int final_stage_of(const ActiveJob& job) {
     return static_cast<int>(job.stage_first.size()) - 2;
   }
+  // The first stage of the final pass (the number of prepasses).
+  static int first_final_stage(const ActiveJob& job) {
+    return static_cast<int>(job.prepass_assemblers.size());
+  }
+  // Target-error jobs: ends the round that stage job.stage ran (its tiles that are done are
+  // stored and absorbed), and hands the next round's tasks to the Scheduler, skipping the tiles
+  // that are done.
+  absl::Status finish_round_locked(ActiveJob& job);
+  absl::Status hand_round_locked(ActiveJob& job, const std::string& job_id);
+  // The task indices [first, last) of tile `tile` in stage `stage`.
+  static std::pair<int, int> tile_tasks(const ActiveJob& job, int stage, int tile);
   // The stage of a task index, and its tile index within the stage's plan.
   static int stage_of(const ActiveJob& job, int task_index);
   static int tile_of(const ActiveJob& job, int task_index);

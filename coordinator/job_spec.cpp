@@ -293,6 +293,31 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
       spec.spp() != 0 ? spec.spp() : static_cast<std::uint64_t>(scene.sampler.samples_per_pixel);
   p.tile_size = spec.tile_size() != 0 ? static_cast<int>(spec.tile_size()) : kDefaultTileSize;
   p.samples_per_task = spec.samples_per_task();
+  if (spec.target_error() != 0.0f) {
+    TargetError t;
+    t.relative = spec.target_error();
+    if (!(t.relative >= kMinTargetError && t.relative <= kMaxTargetError)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("target_error ", t.relative, " is out of range: want ", kMinTargetError,
+                       "..", kMaxTargetError, " (a relative standard error, 0.01 is 1 %)"));
+    }
+    t.image_scope = spec.target_error_image();
+    t.max_spp = spec.max_spp() != 0 ? spec.max_spp()
+                                    : std::max<std::uint64_t>(p.spp, kDefaultTargetErrorMaxSpp);
+    if (t.max_spp < p.spp || t.max_spp > kMaxJobSpp) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("max_spp ", t.max_spp, " is out of range: want ", p.spp, "..", kMaxJobSpp,
+                       " (at least the first round's spp)"));
+    }
+    if (p.spp < 2) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "spp ", p.spp, " is too few for a target error: its first round needs at least 2"));
+    }
+    p.target_error = t;
+  } else if (spec.target_error_image() || spec.max_spp() != 0) {
+    return absl::InvalidArgumentError(
+        "target_error_image or max_spp is set without a target_error");
+  }
 
   if (gradient) PRISM_RETURN_IF_ERROR(gradient_of(spec.gradient(), p.render.bins, p));
   const bool prepass = spec.has_prepass() ? spec.prepass().enabled()
@@ -445,6 +470,11 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   spec.set_light_selection(to_proto(p.render.light_selection));
   spec.set_spectral_light_selection(p.render.spectral_light_selection);
   spec.set_spp(static_cast<std::uint32_t>(p.spp));
+  if (p.target_error.has_value()) {
+    spec.set_target_error(static_cast<float>(p.target_error->relative));
+    spec.set_target_error_image(p.target_error->image_scope);
+    spec.set_max_spp(static_cast<std::uint32_t>(p.target_error->max_spp));
+  }
   spec.set_width(static_cast<std::uint32_t>(p.width));
   spec.set_height(static_cast<std::uint32_t>(p.height));
   spec.set_bins(static_cast<std::uint32_t>(p.render.bins));

@@ -21,6 +21,7 @@
 #include "coordinator/outputs.h"
 #include "coordinator/poisson.h"
 #include "coordinator/prepass.h"
+#include "coordinator/target_error.h"
 #include "prism/v1/types.pb.h"
 #include "services/scene/scene_description.h"
 #include "worker/render_options.h"
@@ -74,7 +75,12 @@ struct JobParameters {
   GradientParameters gradient;               // used by gradient jobs only
   std::optional<PrepassParameters> prepass;  // set when the job runs a prepass
   bool allow_unsupported = false;            // the scene loads with substitutions
+  // Rendering to a target error; `spp` is then the first round's.
+  std::optional<TargetError> target_error;
 };
+
+// The largest spp a target-error job goes to when its spec gives no max_spp.
+inline constexpr std::uint64_t kDefaultTargetErrorMaxSpp = 65536;
 
 // Validates every field of `spec` and fills the unset ones from `scene`. INVALID_ARGUMENT naming
 // the field and the accepted values, e.g. "spp 0 is out of range: want 1..16777216".

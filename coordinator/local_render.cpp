@@ -51,6 +51,17 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
     return absl::InvalidArgumentError(
         absl::StrCat("thread count ", options.threads, " is outside 0..", kMaxThreads));
   }
+  if (options.target_error.has_value()) {
+    if (options.target_error->max_spp > std::numeric_limits<std::uint32_t>::max()) {
+      return absl::InvalidArgumentError(absl::StrCat("max spp ", options.target_error->max_spp,
+                                                     " is outside 1..",
+                                                     std::numeric_limits<std::uint32_t>::max()));
+    }
+    TilePlan one;
+    one.tiles.push_back({0, 0, 1, 1});
+    PRISM_RETURN_IF_ERROR(
+        TargetErrorTracker::create(*options.target_error, one, options.spp).status());
+  }
   std::unique_ptr<LocalRender> render(new LocalRender());
   render->options_ = options;
   // The variance-weighted reconstruction needs the workers' squares of G.
@@ -316,38 +327,101 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   }
 
   const Clock::time_point final_start = Clock::now();
-  if (!shared.stop.load()) {
-    // Tiles are disjoint and each statistics slot is the tile's own, so concurrent callbacks for
-    // different tiles never touch the same memory.
+  // A finished tile of the final pass: its statistics, RGB, standard errors and bins. Tiles are
+  // disjoint and each statistics slot is the tile's own, so concurrent calls for different
+  // tiles never touch the same memory.
+  auto absorb = [&](int tile, const image::TileResult& merged,
+                    const image::SpectralImage& finalised) -> absl::Status {
+    statistics.add_tile(static_cast<std::size_t>(tile), merged);
+    if (keep_raw) {
+      PRISM_RETURN_IF_ERROR(image::paste_tile(image::finalise(merged), merged.rect(), *primal));
+      PRISM_RETURN_IF_ERROR(
+          image::paste_tile(image::finalise_gradients(merged), merged.rect(), *gradient));
+    }
+    PRISM_ASSIGN_OR_RETURN(
+        image::RgbImage tile_colour,
+        tile_rgb(merged, finalised, options_.render.integrator == worker::IntegratorKind::kGradient,
+                 scene_->cmf()));
+    PRISM_RETURN_IF_ERROR(rgb.paste(tile_colour, merged.rect().x0, merged.rect().y0));
+    PRISM_ASSIGN_OR_RETURN(image::RgbImage tile_error, tile_rgb_standard_error(merged));
+    PRISM_RETURN_IF_ERROR(rgb_standard_error.paste(tile_error, merged.rect().x0, merged.rect().y0));
+    return image::paste_tile(finalised, merged.rect(), image);
+  };
+  std::function<absl::StatusOr<std::optional<std::string>>(const image::TileRect&)> final_tables;
+  if (prepass.has_value() && prepass->final_pass_has_tables()) {
+    final_tables = [&](const image::TileRect& rect) -> absl::StatusOr<std::optional<std::string>> {
+      PRISM_ASSIGN_OR_RETURN(std::string bytes, prepass->final_tables(rect));
+      return std::optional<std::string>(std::move(bytes));
+    };
+  }
+  std::size_t tasks_run = plan_.task_count();
+  std::uint64_t samples_taken = final_samples;
+  if (!shared.stop.load() && options_.target_error.has_value()) {
+    // Rounds: each renders the tiles still short of the target over the round's samples; the
+    // tracker sums them in round order and says which tiles are done.
+    absl::StatusOr<TargetErrorTracker> tracker =
+        TargetErrorTracker::create(*options_.target_error, plan_, options_.spp);
+    if (!tracker.ok()) shared.fail(tracker.status());
+    tasks_run = 0;
+    std::mutex tracker_mutex;
+    while (tracker.ok() && !tracker->finished() && !shared.stop.load()) {
+      const image::SampleRange samples = tracker->round_samples();
+      const TilePlan whole = plan_round(plan_, samples.s0, samples.s1, options_.samples_per_task);
+      TilePlan round = whole;
+      round.tiles.clear();
+      std::vector<int> tile_of;
+      for (std::size_t t = 0; t < whole.tiles.size(); ++t) {
+        if (!tracker->active(static_cast<int>(t))) continue;
+        round.tiles.push_back(whole.tiles[t]);
+        tile_of.push_back(static_cast<int>(t));
+      }
+      // Round 1 is already in the total.
+      if (tracker->round() > 0) {
+        for (const image::TileRect& r : round.tiles)
+          total += samples.count() * static_cast<std::uint64_t>(r.width() * r.height());
+      }
+      Stage stage;
+      stage.scene = scene_.get();
+      stage.plan = &round;
+      stage.pass = 0;
+      stage.tables = final_tables;
+      stage.on_tile = [&](int i, const image::TileResult& merged,
+                          const image::SpectralImage&) -> absl::Status {
+        std::lock_guard<std::mutex> lock(tracker_mutex);
+        return tracker->add(tile_of[static_cast<std::size_t>(i)], merged);
+      };
+      stage.finalise = mean_finaliser();
+      stage.counters = &final_counters;
+      run_stage(stage, bins, arena, shared, cancel);
+      tasks_run += round.task_count();
+      if (shared.stop.load()) break;
+      absl::StatusOr<std::vector<int>> done = tracker->finish_round();
+      if (!done.ok()) {
+        shared.fail(done.status());
+        break;
+      }
+      for (int t : *done) {
+        const image::TileResult& merged = tracker->sum(t);
+        absl::StatusOr<image::SpectralImage> finalised = finaliser_(merged);
+        absl::Status absorbed = finalised.ok() ? absorb(t, merged, *finalised) : finalised.status();
+        if (!absorbed.ok()) {
+          shared.fail(absorbed);
+          break;
+        }
+        tracker->release(t);
+      }
+    }
+    if (tracker.ok() && tracker->finished()) {
+      stats.target_error = tracker->outcome();
+      samples_taken = stats.target_error->samples;
+    }
+  } else if (!shared.stop.load()) {
     Stage stage;
     stage.scene = scene_.get();
     stage.plan = &plan_;
     stage.pass = 0;
-    if (prepass.has_value() && prepass->final_pass_has_tables()) {
-      stage.tables =
-          [&](const image::TileRect& rect) -> absl::StatusOr<std::optional<std::string>> {
-        PRISM_ASSIGN_OR_RETURN(std::string bytes, prepass->final_tables(rect));
-        return std::optional<std::string>(std::move(bytes));
-      };
-    }
-    stage.on_tile = [&](int tile, const image::TileResult& merged,
-                        const image::SpectralImage& finalised) -> absl::Status {
-      statistics.add_tile(static_cast<std::size_t>(tile), merged);
-      if (keep_raw) {
-        PRISM_RETURN_IF_ERROR(image::paste_tile(image::finalise(merged), merged.rect(), *primal));
-        PRISM_RETURN_IF_ERROR(
-            image::paste_tile(image::finalise_gradients(merged), merged.rect(), *gradient));
-      }
-      PRISM_ASSIGN_OR_RETURN(
-          image::RgbImage tile_colour,
-          tile_rgb(merged, finalised,
-                   options_.render.integrator == worker::IntegratorKind::kGradient, scene_->cmf()));
-      PRISM_RETURN_IF_ERROR(rgb.paste(tile_colour, merged.rect().x0, merged.rect().y0));
-      PRISM_ASSIGN_OR_RETURN(image::RgbImage tile_error, tile_rgb_standard_error(merged));
-      PRISM_RETURN_IF_ERROR(
-          rgb_standard_error.paste(tile_error, merged.rect().x0, merged.rect().y0));
-      return image::paste_tile(finalised, merged.rect(), image);
-    };
+    stage.tables = final_tables;
+    stage.on_tile = absorb;
     stage.finalise = finaliser_;
     stage.counters = &final_counters;
     run_stage(stage, bins, arena, shared, cancel);
@@ -367,10 +441,10 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
 
   stats.build_seconds = build_seconds_;
   stats.render_seconds = render_seconds;
-  stats.samples = final_samples;
+  stats.samples = samples_taken;
   stats.counters = final_counters;
   stats.threads = threads_;
-  stats.tasks = plan_.task_count();
+  stats.tasks = tasks_run;
   stats.tiles = static_cast<int>(plan_.tiles.size());
   stats.peak_tiles_in_flight = shared.peak_tiles_in_flight;
   LocalRenderResult result{std::move(image),

@@ -23,6 +23,7 @@
 #include "coordinator/poisson.h"
 #include "coordinator/prepass.h"
 #include "coordinator/prepass_run.h"
+#include "coordinator/target_error.h"
 #include "coordinator/tile_finaliser.h"
 #include "coordinator/tile_plan.h"
 #include "services/image/tile.h"
@@ -66,6 +67,9 @@ struct LocalRenderOptions {
   // The multi-pass prepass (algorithms.md §4), when set: its passes run first and the final
   // pass samples each pixel's learned table.
   std::optional<PrepassParameters> prepass;
+  // Rendering to a target error (target_error.h), when set: `spp` is the first round's, and
+  // rounds double it for the tiles short of the target up to target_error->max_spp.
+  std::optional<TargetError> target_error;
 };
 
 struct LocalRenderStats {
@@ -81,6 +85,8 @@ struct LocalRenderStats {
   // filters and tables, and what it did. render_seconds is the final pass alone.
   double prepass_seconds = 0;
   std::optional<PrepassOutcome> prepass;
+  // With a target error: what it reached (samples above counts every round's).
+  std::optional<TargetErrorOutcome> target_error;
 };
 
 struct LocalRenderResult {

@@ -422,6 +422,20 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
     }
   }
   j["scene_features"] = features;
+  if (r.target_error.has_value()) {
+    const TargetErrorOutcome& t = *r.target_error;
+    j["target_error"] = {{"target", t.target},
+                         {"scope", t.image_scope ? "image" : "pixel"},
+                         {"met", t.met},
+                         {"rounds", t.rounds},
+                         {"rounds_planned", t.rounds_planned},
+                         {"reached",
+                          {{"pixel_max", t.pixel_max},
+                           {"pixel_mean", t.pixel_mean},
+                           {"pixel_p99", t.pixel_p99},
+                           {"image", t.image_error}}},
+                         {"spp", {{"min", t.min_spp}, {"mean", t.mean_spp}, {"max", t.max_spp}}}};
+  }
   nlohmann::ordered_json outputs = {{"spectral_exr", paths.spectral_exr.string()},
                                     {"rgb_exr", paths.rgb_exr.string()},
                                     {"png", paths.png.string()},
@@ -488,6 +502,12 @@ image::ExrMetadata output_metadata(const RenderReport& report) {
   }
   if (report.prepass.has_value()) {
     metadata["prepass_passes"] = absl::StrCat(report.prepass->passes);
+  }
+  if (report.target_error.has_value()) {
+    metadata["target_error"] = absl::StrCat(report.target_error->target);
+    metadata["target_error_scope"] = report.target_error->image_scope ? "image" : "pixel";
+    metadata["target_error_met"] = report.target_error->met ? "yes" : "no";
+    metadata["target_error_spp_max"] = absl::StrCat(report.target_error->max_spp);
   }
   return metadata;
 }
@@ -563,6 +583,16 @@ std::uint64_t peak_memory_bytes() {
   rusage usage{};
   if (getrusage(RUSAGE_SELF, &usage) != 0) return 0;
   return static_cast<std::uint64_t>(usage.ru_maxrss) * 1024;  // Linux reports kilobytes
+}
+
+std::string target_error_summary(const TargetErrorOutcome& t) {
+  auto percent = [](double v) { return absl::StrFormat("%.3g %%", 100 * v); };
+  return absl::StrCat("to ", percent(t.target),
+                      t.image_scope ? " of the image's mean: " : " per pixel: ",
+                      t.met ? "met" : "not met (max spp reached)", " in ", t.rounds, " of ",
+                      t.rounds_planned, " rounds (image ", percent(t.image_error), "; pixels max ",
+                      percent(t.pixel_max), ", p99 ", percent(t.pixel_p99), ", mean ",
+                      percent(t.pixel_mean), "), ", t.min_spp, "..", t.max_spp, " spp");
 }
 
 }  // namespace prism::coordinator

@@ -25,6 +25,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "coordinator/prepass_run.h"
+#include "coordinator/target_error.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/tile.h"
 #include "services/spectral/color.h"
@@ -179,10 +180,15 @@ struct RenderReport {
   BinStatistics statistics;
   std::optional<GradientReport> gradient;
   std::optional<PrepassReport> prepass;
+  // A job rendered to a target error: what it reached (target_error.h).
+  std::optional<TargetErrorOutcome> target_error;
   // The scene's features that Prism did not render exactly as pbrt-v4 would
   // (services/scene/scene_features.h): substituted, approximated or ignored, in scene order.
   std::vector<SceneFeatureNote> scene_features;
 };
+
+// "to 1 % per pixel: met in 3 of 7 rounds (max 0.98 %, p99 0.71 %, mean 0.32 %), 16..64 spp"
+std::string target_error_summary(const TargetErrorOutcome& outcome);
 
 // The counters of a gradient job's Table 1, taken from the named counters.
 void fill_gradient_counters(const std::vector<std::pair<std::string, std::uint64_t>>& counters,

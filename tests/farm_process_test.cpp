@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <thread>
 
 #include "prism/v1/farm.grpc.pb.h"
@@ -532,6 +533,61 @@ AttributeEnd
   }
   const std::string report = prepass_job_across_a_restart(128, 20);
   EXPECT_NE(report.find("\"stopped_early\": true"), std::string::npos) << report;
+}
+
+// A job to a target error (5 % per pixel, 4 spp doubling to at most 256): the tiles that see
+// only black background meet it in round 1 and the others run on, so later rounds skip some
+// tiles' tasks. Killing the coordinator mid-job replays the stored rounds and takes the same
+// decisions; the bytes and the report's reached errors are those of `prism render` with the
+// same flags.
+TEST_F(FarmProcessTest, ATargetErrorJobMatchesPrismRenderAcrossACoordinatorRestart) {
+  const int port = free_port();
+  start_coordinator(port);
+  v1::JobSpec s = spec(upload(), 4);
+  s.set_target_error(0.05f);
+  s.set_max_spp(256);
+  const std::string job_id = submit(s);
+  ASSERT_FALSE(job_id.empty());
+  start_worker(0);
+  const v1::JobInfo mid = wait_for(
+      job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 12; }, 30);
+  EXPECT_GE(mid.progress().tasks_done(), 12u);
+  ASSERT_LT(mid.progress().tasks_done(), 63u) << "the job finished before the kill";
+  kill9(coordinator_);
+  start_coordinator(port);
+  start_worker(1);
+  const v1::JobInfo done = wait_for(job_id, terminal, 60);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  // 9 tiles x 7 rounds (4, 8, ..., 256), every task done or skipped.
+  EXPECT_EQ(done.progress().tasks_total(), 63u);
+  EXPECT_EQ(done.progress().tasks_done(), 63u);
+  const std::vector<float> farm = fetch_spectral(job_id);
+  const std::string farm_report = fetch_bytes(job_id, v1::OUTPUT_KIND_REPORT_JSON);
+  kill9(coordinator_);
+  {
+    auto store = store::JobStore::open(root_ / "data" / "jobs.sqlite");
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto tasks = store->tasks_of(job_id);
+    ASSERT_TRUE(tasks.ok()) << tasks.status();
+    int skipped = 0;
+    for (const store::TaskRecord& t : *tasks) skipped += t.state == store::TaskState::kSkipped;
+    EXPECT_GT(skipped, 0) << "no tile met the target before the last round";
+    EXPECT_LT(skipped, 54) << "every tile met the target in round 1";
+  }
+  expect_identical(farm,
+                   cli_render(4, 0, {"--no-prepass", "--target-error", "5%", "--max-spp", "256"}));
+  std::ifstream json(root_ / "cli" / "cli.json");
+  const std::string cli_report((std::istreambuf_iterator<char>(json)),
+                               std::istreambuf_iterator<char>());
+  auto section = [](const std::string& report) {
+    auto j = nlohmann::json::parse(report);
+    EXPECT_TRUE(j.contains("target_error")) << report;
+    return j.value("target_error", nlohmann::json());
+  };
+  EXPECT_EQ(section(farm_report), section(cli_report));
+  EXPECT_EQ(section(cli_report)["rounds"], 7);
+  EXPECT_EQ(section(cli_report)["spp"]["min"], 4);
+  EXPECT_EQ(section(cli_report)["spp"]["max"], 256);
 }
 
 // Tasks of tile x sample range: each tile's four ranges ([0,5), [5,10), [10,15), [15,16)) come

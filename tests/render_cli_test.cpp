@@ -216,6 +216,62 @@ TEST(RenderCliTest, BadScenesFailClearlyAndWriteNothing) {
   expect_failure_writes_nothing("no_scene", {{"render", "no/such/scene.pbrt"}, "does not exist"});
 }
 
+// A render to a target error: rounds of samples until every pixel meets it or max spp is
+// reached. Its bytes do not depend on the threads; the report says what was reached; a looser
+// target stops earlier with fewer samples, and a target met in round 1 is the plain render.
+TEST(RenderCliTest, TargetErrorRendersStopWhereTheErrorIsMetAndDoNotDependOnThreads) {
+  const fs::path dir = fresh_dir("target_error");
+  auto args = [&](const std::string& out, const std::string& threads, const std::string& target) {
+    return std::vector<std::string>{"render",         source(kCornell), "-o",        out,
+                                    "--resolution",   "32x32",          "--spp",     "4",
+                                    "--target-error", target,           "--max-spp", "128",
+                                    "--threads",      threads,          "--tile",    "8"};
+  };
+  CommandRun a = run_prism(dir, args("a.exr", "1", "20%"));
+  ASSERT_EQ(a.exit_code, 0) << a.output;
+  CommandRun b = run_prism(dir, args("b.exr", "2", "20%"));
+  ASSERT_EQ(b.exit_code, 0) << b.output;
+  EXPECT_NE(a.output.find("to 20 % per pixel:"), std::string::npos) << a.output;
+  EXPECT_EQ(*prism::base::read_file(dir / "a.exr"), *prism::base::read_file(dir / "b.exr"));
+  auto report = [&](const std::string& name) {
+    return nlohmann::json::parse(*prism::base::read_file(dir / name))["target_error"];
+  };
+  const auto t = report("a.json");
+  ASSERT_FALSE(t.is_null());
+  EXPECT_EQ(t["scope"], "pixel");
+  EXPECT_DOUBLE_EQ(t["target"].get<double>(), double(0.2f));
+  for (const char* k : {"pixel_max", "pixel_mean", "pixel_p99", "image"}) {
+    EXPECT_TRUE(std::isfinite(t["reached"][k].get<double>())) << k;
+  }
+  if (t["met"].get<bool>()) {
+    EXPECT_LE(t["reached"]["pixel_max"].get<double>(), 0.2 + 1e-9);
+  } else {
+    EXPECT_EQ(t["spp"]["max"], 128);
+  }
+  EXPECT_LE(t["reached"]["pixel_p99"].get<double>(), t["reached"]["pixel_max"].get<double>());
+  EXPECT_LE(t["reached"]["pixel_mean"].get<double>(), t["reached"]["pixel_max"].get<double>());
+  // A looser target takes no more samples.
+  CommandRun loose = run_prism(dir, args("loose.exr", "2", "60%"));
+  ASSERT_EQ(loose.exit_code, 0) << loose.output;
+  EXPECT_LE(report("loose.json")["spp"]["mean"].get<double>(), t["spp"]["mean"].get<double>());
+  // A target the first 4 samples meet (the image's mean to 50 %) stops after round 1: the plain
+  // 4-spp render's bytes.
+  std::vector<std::string> met_args = args("met.exr", "2", "50%");
+  met_args.insert(met_args.end(), {"--target-error-scope", "image"});
+  CommandRun met = run_prism(dir, met_args);
+  ASSERT_EQ(met.exit_code, 0) << met.output;
+  CommandRun plain = run_prism(dir, {"render", source(kCornell), "-o", "plain.exr", "--resolution",
+                                     "32x32", "--spp", "4", "--tile", "8"});
+  ASSERT_EQ(plain.exit_code, 0) << plain.output;
+  const auto m = report("met.json");
+  if (m["rounds"] == 1) {
+    EXPECT_TRUE(same_bits(spectral_pixels(dir / "met.exr", nullptr),
+                          spectral_pixels(dir / "plain.exr", nullptr)));
+  } else {
+    ADD_FAILURE() << "a 50 % target for the image was not met in round 1: " << m.dump();
+  }
+}
+
 TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
   const std::string scene = source(kCornell);
   const std::vector<BadCase> cases = {
@@ -223,7 +279,8 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
       {{"render", scene, "--bins", "257"}, "--bins 257 is out of range"},
       {{"render", scene, "--resolution", "0x5"}, "prism: --resolution '0x5': want WxH"},
       {{"render", scene, "--resolution", "64"}, "--resolution '64': want WxH"},
-      {{"render", scene, "--integrator", "foo"}, "prism: --integrator 'foo': want uniform, hero or gradient"},
+      {{"render", scene, "--integrator", "foo"},
+       "prism: --integrator 'foo': want uniform, hero or gradient"},
       {{"render", scene, "--spp", "0"}, "--spp 0 is out of range"},
       {{"render", scene, "--spp", "-3"}, "--spp -3 is out of range"},
       {{"render", scene, "--threads", "0"}, "--threads 0 is out of range"},
@@ -243,6 +300,16 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
       {{"render", scene, "-o", "a.exr", "--json", "a.png"}, "both be written to 'a.png'"},
       {{"render", scene, "--spp", "many"}, "--spp"},
       {{"render", scene, "--seed", "-1"}, "prism: --seed '-1': want an integer in 0.."},
+      {{"render", scene, "--target-error", "0"}, "--target-error '0': want a relative error"},
+      {{"render", scene, "--target-error", "150%"}, "--target-error '150%'"},
+      {{"render", scene, "--target-error", "lots"}, "--target-error 'lots'"},
+      {{"render", scene, "--max-spp", "64"}, "--max-spp and --target-error-scope go with"},
+      {{"render", scene, "--target-error", "1%", "--target-error-scope", "tile"},
+       "--target-error-scope 'tile': want pixel or image"},
+      {{"render", scene, "--target-error", "1%", "--spp", "64", "--max-spp", "32"},
+       "--max-spp 32 is below --spp 64"},
+      {{"render", scene, "--target-error", "1%", "--spp", "1"},
+       "spp 1 is too few for a target error"},
   };
   for (std::size_t i = 0; i < cases.size(); ++i) {
     SCOPED_TRACE(i);

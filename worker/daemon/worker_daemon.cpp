@@ -89,8 +89,9 @@ absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const coordinator::Jo
 
   // A prepass has its own sample count: at most Ñ, the last prepass's (a job without prepass
   // parameters sending one is held to the job limit only).
-  const std::uint64_t max_spp =
-      !rt.prepass ? p.spp : (p.prepass ? p.prepass->spp : coordinator::kMaxJobSpp);
+  const std::uint64_t max_spp = !rt.prepass
+                                    ? (p.target_error ? p.target_error->max_spp : p.spp)
+                                    : (p.prepass ? p.prepass->spp : coordinator::kMaxJobSpp);
   if (task.samples().begin() >= task.samples().end() || task.samples().end() > max_spp) {
     return absl::InvalidArgumentError(absl::StrCat("sample range ", task.samples().begin(), "-",
                                                    task.samples().end(), " is empty or beyond ",
