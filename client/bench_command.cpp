@@ -23,6 +23,7 @@
 #include "client/compare_command.h"
 #include "client/evaluation.h"
 #include "client/render_command.h"
+#include "coordinator/job_spec.h"
 #include "services/base/atomic_file.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
@@ -515,7 +516,12 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       ref.integrator = "hero";
       ref.prepass = false;
       std::uint64_t spp = 0;
-      if (options.reference_spp.has_value()) {
+      if (options.reference_error.has_value()) {
+        ref.target_error = *options.reference_error;
+        ref.max_spp = options.reference_spp.value_or(
+            static_cast<std::int64_t>(coordinator::kDefaultTargetErrorMaxSpp));
+        spp = 16;
+      } else if (options.reference_spp.has_value()) {
         spp = static_cast<std::uint64_t>(*options.reference_spp);
       } else if (by_time) {
         PRISM_ASSIGN_OR_RETURN(double rate, calibrate(ref));
@@ -523,7 +529,9 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       } else {
         spp = 4 * spps.back();
       }
-      spp = std::clamp<std::uint64_t>(spp + (spp & 1), 2, kMaxReferenceSpp);
+      if (!options.reference_error.has_value()) {
+        spp = std::clamp<std::uint64_t>(spp + (spp & 1), 2, kMaxReferenceSpp);
+      }
       ref.spp = static_cast<std::int64_t>(spp);
       ref.seed = kReferenceSeed;
       PRISM_ASSIGN_OR_RETURN(PreparedRender prepared,
@@ -533,8 +541,12 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
           reference, evaluation::cached_reference(device, scene, prepared.local, cache, "bench"));
       floor_known = true;
       reference_text =
-          absl::StrCat("hero without a prepass, ", reference->spp,
-                       " spp in two independent halves (cached in ", cache.string(), ")");
+          options.reference_error.has_value()
+              ? absl::StrCat("hero without a prepass to ", number(100 * *options.reference_error),
+                             " % per pixel (up to ", reference->spp,
+                             " spp) in two independent halves (cached in ", cache.string(), ")")
+              : absl::StrCat("hero without a prepass, ", reference->spp,
+                             " spp in two independent halves (cached in ", cache.string(), ")");
     }
     absl::StrAppend(&header, "\n", stem, ": ", width, "x", height, ", ", bins,
                     " bins; reference: ", reference_text, ".\n");

@@ -16,7 +16,8 @@
 // Reference: `--reference REF.exr` (its noise is known when a REF.half.exr from an independent
 // half of its samples lies beside it, as the ones prism bench renders have), or one rendered by
 // hero without a prepass, in two independent halves, at `--reference-spp` or at four times the
-// largest budget, and cached by the scene bundle's hash and the render options. MSE and relMSE
+// largest budget, or to `--reference-error` (each half to √2 times it, by the target-error
+// rounds), and cached by the scene bundle's hash and the render options. MSE and relMSE
 // are reported minus the reference's noise floor where it is known (the floor columns say how
 // much), SSIM as measured.
 #pragma once
@@ -42,6 +43,9 @@ struct BenchOptions {
   std::int64_t seeds = 2;
   std::vector<std::filesystem::path> references;  // one per scene, or none
   std::optional<std::int64_t> reference_spp;
+  // Render the reference to this relative standard error per pixel (--target-error) instead of
+  // to a fixed spp; --reference-spp is then its max spp (default 65536).
+  std::optional<double> reference_error;
   std::optional<std::filesystem::path> reference_cache;  // unset: ~/.cache/prism/references
   std::vector<std::string> insets;                       // "x,y,w,h" each
   std::optional<std::string> resolution;

@@ -30,14 +30,18 @@ double mean_of(const std::vector<double>& v) {
 // Everything about the reference render that changes its pixels.
 std::string describe(const coordinator::LocalRenderOptions& o) {
   const worker::RenderOptions& r = o.render;
-  return absl::StrCat(o.width, "x", o.height, "|spp ", o.spp, "|", worker::name(r.integrator), "|",
-                      worker::name(r.spectral_pdf), "|", worker::name(r.emitter_pdf), "|",
-                      worker::name(r.light_selection), "|", r.spectral_light_selection, "|",
-                      static_cast<int>(r.sampler), "|bins ", r.bins, "|depth ", r.max_depth, "|rr ",
-                      r.rr_min_depth, "|seed ", r.seed, "|eps ", r.defensive_epsilon, "|k ",
-                      r.gradient_offset_bins, "|tau ", r.gradient_tau, "|prepass ",
-                      o.prepass.has_value(), "|alpha ", o.poisson_alpha, "|per task ",
-                      o.samples_per_task);
+  return absl::StrCat(
+      o.width, "x", o.height, "|spp ", o.spp, "|", worker::name(r.integrator), "|",
+      worker::name(r.spectral_pdf), "|", worker::name(r.emitter_pdf), "|",
+      worker::name(r.light_selection), "|", r.spectral_light_selection, "|",
+      static_cast<int>(r.sampler), "|bins ", r.bins, "|depth ", r.max_depth, "|rr ", r.rr_min_depth,
+      "|seed ", r.seed, "|eps ", r.defensive_epsilon, "|k ", r.gradient_offset_bins, "|tau ",
+      r.gradient_tau, "|prepass ", o.prepass.has_value(), "|alpha ", o.poisson_alpha, "|per task ",
+      o.samples_per_task, "|target ",
+      o.target_error.has_value() ? absl::StrCat(o.target_error->relative, " ",
+                                                o.target_error->image_scope ? "image" : "pixel",
+                                                " ", o.target_error->max_spp)
+                                 : std::string("none"));
 }
 
 absl::Status write_image(const std::filesystem::path& path, const image::SpectralImage& image,
@@ -115,14 +119,27 @@ absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device, const B
                        std::stod(seconds->second), std::stod(variance->second)};
     }
   }
-  if (options.spp < 2) {
-    return absl::InvalidArgumentError("a reference needs at least 2 spp (two halves)");
-  }
-  std::fprintf(stderr, "%s: rendering the reference of %s, %llu spp in two halves (cached in %s)\n",
-               tag.c_str(), scene.name.c_str(), static_cast<unsigned long long>(options.spp),
-               average_path.c_str());
   coordinator::LocalRenderOptions half_options = options;
-  half_options.spp = options.spp / 2;
+  if (options.target_error.has_value()) {
+    // Each half to √2 times the target, so that their average meets it; the halves may stop
+    // at different rounds per tile, and their average is still unbiased.
+    coordinator::TargetError& t = *half_options.target_error;
+    t.relative = std::min(coordinator::kMaxTargetError, t.relative * std::sqrt(2.0));
+    t.max_spp = std::max(options.spp, t.max_spp / 2);
+    std::fprintf(stderr,
+                 "%s: rendering the reference of %s to %.3g %% in two halves (cached in %s)\n",
+                 tag.c_str(), scene.name.c_str(), 100 * options.target_error->relative,
+                 average_path.c_str());
+  } else {
+    if (options.spp < 2) {
+      return absl::InvalidArgumentError("a reference needs at least 2 spp (two halves)");
+    }
+    half_options.spp = options.spp / 2;
+    std::fprintf(stderr,
+                 "%s: rendering the reference of %s, %llu spp in two halves (cached in %s)\n",
+                 tag.c_str(), scene.name.c_str(), static_cast<unsigned long long>(options.spp),
+                 average_path.c_str());
+  }
   PRISM_ASSIGN_OR_RETURN(TimedRender a, timed_render(device, scene, half_options));
   half_options.render.seed = options.render.seed + 1;
   PRISM_ASSIGN_OR_RETURN(TimedRender b, timed_render(device, scene, half_options));
@@ -134,8 +151,11 @@ absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device, const B
   const double variance = 0.25 * (mean_of(a.result.statistics.variance_of_mean) +
                                   mean_of(b.result.statistics.variance_of_mean));
   const double seconds = a.wall_seconds + b.wall_seconds;
-  Reference reference{std::move(average), std::move(a.result.image), 2 * half_options.spp, seconds,
-                      variance};
+  const std::uint64_t spp =
+      half_options.target_error.has_value()
+          ? a.result.stats.target_error->max_spp + b.result.stats.target_error->max_spp
+          : 2 * half_options.spp;
+  Reference reference{std::move(average), std::move(a.result.image), spp, seconds, variance};
   const image::ExrMetadata metadata{
       {"spp", absl::StrCat(reference.spp)},
       {"reference_seconds", absl::StrFormat("%.17g", seconds)},

@@ -85,7 +85,7 @@ int main(int argc, char** argv) {
 
   prism::client::BenchOptions bench;
   std::int64_t bench_reference_spp = 0, bench_bins = 0, bench_threads = 0;
-  std::string bench_cache, bench_resolution;
+  std::string bench_cache, bench_resolution, bench_reference_error;
   auto* bench_cmd = app.add_subcommand(
       "bench", "Error against time of the rendering methods on scenes (CSV, report, plots)");
   bench_cmd->add_option("scenes", bench.scenes, "pbrt-v4 scene files")->required();
@@ -102,6 +102,9 @@ int main(int argc, char** argv) {
   auto* reference_spp_opt = bench_cmd->add_option(
       "--reference-spp", bench_reference_spp,
       "Samples per pixel of a rendered reference (default: 4x the largest budget)");
+  auto* reference_error_opt = bench_cmd->add_option(
+      "--reference-error", bench_reference_error,
+      "Render the reference to this relative error per pixel, e.g. 0.5% (instead of a spp)");
   bench_cmd->add_option("--reference-cache", bench_cache,
                         "Where rendered references are kept (default ~/.cache/prism/references)");
   bench_cmd->add_option("--inset", bench.insets, "A region x,y,w,h also measured (repeatable)");
@@ -204,6 +207,14 @@ int main(int argc, char** argv) {
   }
   if (bench_cmd->parsed()) {
     if (reference_spp_opt->count() > 0) bench.reference_spp = bench_reference_spp;
+    if (reference_error_opt->count() > 0) {
+      auto parsed = prism::client::parse_target_error(bench_reference_error);
+      if (!parsed.ok()) {
+        std::cerr << "prism: --reference-error: " << parsed.status().message() << "\n";
+        return 1;
+      }
+      bench.reference_error = *parsed;
+    }
     if (!bench_cache.empty()) bench.reference_cache = bench_cache;
     if (!bench_resolution.empty()) bench.resolution = bench_resolution;
     if (bench_bins_opt->count() > 0) bench.bins = bench_bins;

@@ -458,8 +458,25 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
   ASSERT_EQ(again_rows.size(), 2u);
   EXPECT_EQ(again_rows[1][column("mse_floor")], floor);
 
+  // A reference rendered to a target error instead of a spp count (the target-error rounds).
+  CommandRun to_error =
+      run_prism(dir, {"bench", source("scenes/three-emitters.pbrt"), "--resolution", "32x24",
+                      "--methods", "hero", "--spp", "2", "--seeds", "1", "--reference-error", "30%",
+                      "--reference-spp", "64", "--reference-cache", "cache", "-o", "to_error"});
+  ASSERT_EQ(to_error.exit_code, 0) << to_error.output;
+  auto to_error_report = prism::base::read_file(dir / "to_error" / "report.md");
+  ASSERT_TRUE(to_error_report.ok());
+  EXPECT_NE(to_error_report->find("hero without a prepass to 30 % per pixel"), std::string::npos)
+      << *to_error_report;
+  auto to_error_csv = prism::base::read_file(dir / "to_error" / "results.csv");
+  ASSERT_TRUE(to_error_csv.ok());
+  const auto to_error_rows = csv_rows(*to_error_csv);
+  ASSERT_EQ(to_error_rows.size(), 2u);
+  EXPECT_EQ(to_error_rows[1][column("floor_known")], "1");
+
   const std::vector<std::pair<std::vector<std::string>, std::string>> bad = {
       {{"--methods", "hero,nope", "--spp", "2"}, "unknown method 'nope'"},
+      {{"--spp", "2", "--reference-error", "nope"}, "--reference-error: --target-error 'nope'"},
       {{"--budgets", "10s,5s"}, "--budgets '10s,5s': want increasing durations"},
       {{"--spp", "2", "--inset", "30,20,8,8"}, "--inset 30,20,8,8"},
       {{"--spp", "2", "--clock", "sundial"}, "--clock 'sundial'"},
