@@ -152,10 +152,13 @@ absl::StatusOr<RenderCommandOptions> method_options(const std::string& method,
     o.prepass = true;
   } else if (method == "gradient") {
     o.integrator = "gradient";
+  } else if (method == "auto") {
+    o.integrator = "auto";
+    o.prepass.reset();
   } else {
     return absl::InvalidArgumentError(absl::StrCat("--methods: unknown method '", method,
                                                    "' (choose from uniform, hero, hero+prepass, "
-                                                   "gradient)"));
+                                                   "gradient, auto)"));
   }
   return o;
 }
@@ -177,8 +180,13 @@ absl::StatusOr<Timed> timed_method(worker::EmbreeDevice& device,
   const double prepare_cpu = evaluation::process_cpu_seconds() - cpu_start;
   PRISM_ASSIGN_OR_RETURN(evaluation::TimedRender timed,
                          evaluation::timed_render(device, scene, prepared.local));
-  return Timed{std::move(timed.result), timed.wall_seconds + prepared.pilot_seconds.value_or(0.0),
-               timed.cpu_seconds + (prepared.pilot_seconds.has_value() ? prepare_cpu : 0.0)};
+  // The pilots (τ, auto) are part of what the method costs.
+  const bool piloted =
+      prepared.pilot_seconds.has_value() || prepared.auto_pilot_seconds.has_value();
+  return Timed{std::move(timed.result),
+               timed.wall_seconds + prepared.pilot_seconds.value_or(0.0) +
+                   prepared.auto_pilot_seconds.value_or(0.0),
+               timed.cpu_seconds + (piloted ? prepare_cpu : 0.0)};
 }
 
 std::string home_cache() {

@@ -12,6 +12,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "client/auto_integrator.h"
 #include "coordinator/job_spec.h"
 #include "coordinator/outputs.h"
 #include "prism/v1/farm.grpc.pb.h"
@@ -368,13 +369,24 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
                                                      loaded.description.film.filename));
     PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
   }
-  PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec, job_spec_of(options.render, loaded.description,
+  // `auto` and the τ pilot run here, so the job carries their choices and every worker traces
+  // with them.
+  std::optional<worker::EmbreeDevice> device;
+  ResolvedIntegrator resolved{options.render, std::nullopt};
+  if (options.render.integrator == "auto") {
+    device.emplace();
+    PRISM_ASSIGN_OR_RETURN(resolved,
+                           resolve_integrator(options.render, *device, loaded.description, library,
+                                              bundle.content_hash, loaded.scene_relpath));
+  }
+  PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec, job_spec_of(resolved.options, loaded.description,
                                                        bundle.content_hash, loaded.scene_relpath));
-  if (spec.integrator() == v1::INTEGRATOR_GRADIENT && !options.render.tau.has_value()) {
+  if (resolved.report.has_value()) set_auto_choice(*resolved.report, spec);
+  if (spec.integrator() == v1::INTEGRATOR_GRADIENT && !resolved.options.tau.has_value()) {
     // The pilot runs here, so the job carries its τ and every worker traces with it.
-    worker::EmbreeDevice device;
+    if (!device.has_value()) device.emplace();
     PRISM_RETURN_IF_ERROR(
-        choose_tau(options.render, device, loaded.description, library, spec).status());
+        choose_tau(resolved.options, *device, loaded.description, library, spec).status());
   }
   PRISM_RETURN_IF_ERROR(
       upload_if_missing(farm, bundle.content_hash, scene::pack(bundle), options.progress));

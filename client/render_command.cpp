@@ -8,6 +8,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "client/auto_integrator.h"
 #include "coordinator/job_spec.h"
 #include "coordinator/local_render.h"
 #include "coordinator/outputs.h"
@@ -126,7 +127,7 @@ absl::StatusOr<worker::IntegratorKind> parse_integrator(const std::string& name)
   if (name == "hero") return worker::IntegratorKind::kHero;
   if (name == "gradient") return worker::IntegratorKind::kGradient;
   return absl::InvalidArgumentError(
-      absl::StrCat("--integrator '", name, "': want uniform, hero or gradient"));
+      absl::StrCat("--integrator '", name, "': want uniform, hero, gradient or auto"));
 }
 
 absl::StatusOr<worker::SpectralPdfKind> parse_spectral_pdf(const std::string& name) {
@@ -160,11 +161,19 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   PRISM_RETURN_IF_ERROR(check_range("--max-depth", o.max_depth, 0, kMaxDepth));
   PRISM_RETURN_IF_ERROR(check_range("--samples-per-task", o.samples_per_task, 1, kMaxSpp));
   if (o.resolution.has_value()) PRISM_RETURN_IF_ERROR(parse_resolution(*o.resolution).status());
-  PRISM_RETURN_IF_ERROR(parse_integrator(o.integrator).status());
+  const bool automatic = o.integrator == "auto";
+  if (!automatic) PRISM_RETURN_IF_ERROR(parse_integrator(o.integrator).status());
   PRISM_RETURN_IF_ERROR(parse_spectral_pdf(o.spectral_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_emitter_pdf(o.emitter_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_light_selection(o.light_selection).status());
-  const bool gradient = *parse_integrator(o.integrator) == worker::IntegratorKind::kGradient;
+  // With auto, the gradient's flags apply if it chooses gradient.
+  const bool gradient =
+      automatic || *parse_integrator(o.integrator) == worker::IntegratorKind::kGradient;
+  if (automatic && (o.prepass == true || has_prepass_options(o))) {
+    return absl::InvalidArgumentError(
+        "--integrator auto chooses the prepass itself (off: docs/benchmarks.md); drop --prepass "
+        "and the --prepass-* options, or name an integrator");
+  }
   if (!gradient &&
       (o.delta || o.tau || o.tau_auto || o.alpha || !o.poisson.empty() || o.primal_and_gradients)) {
     return absl::InvalidArgumentError(
@@ -360,10 +369,17 @@ absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& option
                                               const std::string& bundle_hash,
                                               const std::string& scene_relpath) {
   PreparedRender prepared;
-  PRISM_ASSIGN_OR_RETURN(prepared.spec,
-                         job_spec_of(options, description, bundle_hash, scene_relpath));
+  PRISM_ASSIGN_OR_RETURN(
+      ResolvedIntegrator resolved,
+      resolve_integrator(options, device, description, library, bundle_hash, scene_relpath));
+  const RenderCommandOptions& o = resolved.options;
+  PRISM_ASSIGN_OR_RETURN(prepared.spec, job_spec_of(o, description, bundle_hash, scene_relpath));
+  if (resolved.report.has_value()) {
+    set_auto_choice(*resolved.report, prepared.spec);
+    prepared.auto_pilot_seconds = resolved.report->seconds;
+  }
   PRISM_ASSIGN_OR_RETURN(prepared.pilot_seconds,
-                         choose_tau(options, device, description, library, prepared.spec));
+                         choose_tau(o, device, description, library, prepared.spec));
   PRISM_ASSIGN_OR_RETURN(prepared.job, coordinator::job_parameters(prepared.spec, description));
   const coordinator::JobParameters& job = prepared.job;
   coordinator::LocalRenderOptions& local = prepared.local;
@@ -373,7 +389,7 @@ absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& option
   local.spp = job.spp;
   local.samples_per_task = job.samples_per_task;
   local.tile_size = job.tile_size;
-  local.threads = options.threads.has_value() ? static_cast<int>(*options.threads) : 0;
+  local.threads = o.threads.has_value() ? static_cast<int>(*o.threads) : 0;
   local.poisson_alpha = job.gradient.alpha;
   local.poisson_norm = job.gradient.norm;
   local.keep_primal_and_gradients = job.outputs.primal_and_gradients;
@@ -478,6 +494,9 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   return absl::StrCat(
       "rendered ", report.scene, ": ", report.width, "x", report.height, ", ", report.spp, " spp, ",
       report.bins, " bins, ", report.integrator,
+      report.auto_choice.has_value()
+          ? absl::StrCat(" (chosen by auto: ", report.auto_choice->reason, ")")
+          : std::string(),
       report.gradient.has_value()
           ? absl::StrCat(" (tau ", report.gradient->tau,
                          report.gradient->tau_pilot.has_value() ? " from the pilot" : "", ")")

@@ -125,11 +125,13 @@ struct PreparedRender {
   prism::v1::JobSpec spec;
   coordinator::JobParameters job;
   coordinator::LocalRenderOptions local;
-  std::optional<double> pilot_seconds;
+  std::optional<double> pilot_seconds;       // the τ pilot's
+  std::optional<double> auto_pilot_seconds;  // `--integrator auto`'s (auto_integrator.h)
 };
 
 // What run_render does before rendering, for callers that run many renders of one loaded scene
-// (prism bench): job_spec_of, choose_tau and the LocalRender options. `bundle_hash` and
+// (prism bench): resolve_integrator (`auto`), job_spec_of, choose_tau and the LocalRender
+// options. `bundle_hash` and
 // `scene_relpath` name the scene's bundle as the farm would.
 absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& options,
                                               worker::EmbreeDevice& device,

@@ -319,6 +319,27 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
         "target_error_image or max_spp is set without a target_error");
   }
 
+  if (spec.has_auto_choice()) {
+    const prism::v1::AutoChoice& a = spec.auto_choice();
+    if (a.candidates_size() > 8 || a.reason().size() > 1024) {
+      return absl::InvalidArgumentError(
+          "auto_choice: want at most 8 candidates and a reason of at most 1024 bytes");
+    }
+    if (a.choice() != worker::name(p.render.integrator)) {
+      return absl::InvalidArgumentError(absl::StrCat("auto_choice says '", a.choice(),
+                                                     "' but the integrator is ",
+                                                     worker::name(p.render.integrator)));
+    }
+    AutoReport r;
+    r.choice = a.choice();
+    r.reason = a.reason();
+    r.seconds = a.seconds();
+    for (const auto& c : a.candidates()) {
+      r.candidates.push_back({c.method(), c.rel_mse_per_sample(), c.cpu_seconds_per_sample(),
+                              c.relative_efficiency()});
+    }
+    p.auto_choice = std::move(r);
+  }
   if (gradient) PRISM_RETURN_IF_ERROR(gradient_of(spec.gradient(), p.render.bins, p));
   const bool prepass = spec.has_prepass() ? spec.prepass().enabled()
                                           : prepass_by_default(p.render.integrator, scene);
@@ -344,6 +365,7 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
 }
 
 void add_job_sections(const JobParameters& p, RenderReport& report) {
+  report.auto_choice = p.auto_choice;
   if (p.render.integrator == worker::IntegratorKind::kGradient) {
     GradientReport g;
     g.offset_bins = p.render.gradient_offset_bins;
@@ -470,6 +492,19 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   spec.set_light_selection(to_proto(p.render.light_selection));
   spec.set_spectral_light_selection(p.render.spectral_light_selection);
   spec.set_spp(static_cast<std::uint32_t>(p.spp));
+  if (p.auto_choice.has_value()) {
+    prism::v1::AutoChoice* a = spec.mutable_auto_choice();
+    a->set_choice(p.auto_choice->choice);
+    a->set_reason(p.auto_choice->reason);
+    a->set_seconds(p.auto_choice->seconds);
+    for (const AutoReport::Candidate& c : p.auto_choice->candidates) {
+      prism::v1::AutoChoice::Candidate* out = a->add_candidates();
+      out->set_method(c.method);
+      out->set_rel_mse_per_sample(c.rel_mse_per_sample);
+      out->set_cpu_seconds_per_sample(c.cpu_seconds_per_sample);
+      out->set_relative_efficiency(c.relative_efficiency);
+    }
+  }
   if (p.target_error.has_value()) {
     spec.set_target_error(static_cast<float>(p.target_error->relative));
     spec.set_target_error_image(p.target_error->image_scope);

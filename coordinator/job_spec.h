@@ -77,6 +77,8 @@ struct JobParameters {
   bool allow_unsupported = false;            // the scene loads with substitutions
   // Rendering to a target error; `spp` is then the first round's.
   std::optional<TargetError> target_error;
+  // How `--integrator auto` chose the integrator, for the report.
+  std::optional<AutoReport> auto_choice;
 };
 
 // The largest spp a target-error job goes to when its spec gives no max_spp.

@@ -422,6 +422,20 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
     }
   }
   j["scene_features"] = features;
+  if (r.auto_choice.has_value()) {
+    const AutoReport& a = *r.auto_choice;
+    nlohmann::ordered_json candidates = nlohmann::ordered_json::array();
+    for (const AutoReport::Candidate& c : a.candidates) {
+      candidates.push_back({{"method", c.method},
+                            {"rel_mse_per_sample", c.rel_mse_per_sample},
+                            {"cpu_seconds_per_sample", c.cpu_seconds_per_sample},
+                            {"relative_efficiency", c.relative_efficiency}});
+    }
+    j["auto"] = {{"choice", a.choice},
+                 {"reason", a.reason},
+                 {"pilot_seconds", a.seconds},
+                 {"candidates", candidates}};
+  }
   if (r.target_error.has_value()) {
     const TargetErrorOutcome& t = *r.target_error;
     j["target_error"] = {{"target", t.target},

@@ -129,6 +129,22 @@ struct GradientReport {
   bool with_primal_and_gradients = false;
 };
 
+// How `--integrator auto` chose (client/auto_integrator.h).
+struct AutoReport {
+  struct Candidate {
+    std::string method;
+    double rel_mse_per_sample = 0;
+    double cpu_seconds_per_sample = 0;
+    double relative_efficiency = 0;
+    friend bool operator==(const Candidate&, const Candidate&) = default;
+  };
+  std::string choice;
+  std::string reason;
+  double seconds = 0;
+  std::vector<Candidate> candidates;  // empty when no pilot ran
+  friend bool operator==(const AutoReport&, const AutoReport&) = default;
+};
+
 // The multi-pass prepass in the report.
 struct PrepassReport {
   int passes = 0;
@@ -182,6 +198,8 @@ struct RenderReport {
   std::optional<PrepassReport> prepass;
   // A job rendered to a target error: what it reached (target_error.h).
   std::optional<TargetErrorOutcome> target_error;
+  // A job whose integrator `auto` chose.
+  std::optional<AutoReport> auto_choice;
   // The scene's features that Prism did not render exactly as pbrt-v4 would
   // (services/scene/scene_features.h): substituted, approximated or ignored, in scene order.
   std::vector<SceneFeatureNote> scene_features;

@@ -1,0 +1,56 @@
+// `--integrator auto`: the rendering method chosen for the scene, before the job is made.
+//
+// A scene in which nothing depends on wavelength (no dispersive dielectric, one emitter
+// spectrum, no medium: scene::analyze_wavelength_dependence) renders with hero and no prepass,
+// the cheapest adequate method (its four lanes all stay live), and no pilot runs.
+//
+// Otherwise a pilot renders each candidate on the job's camera at half the resolution, twice
+// with independent seeds at 2..8 spp (1/64 of the job's spp), and estimates per candidate
+//   - its variance per sample: the relMSE between the two halves (per pixel and bin, over the
+//     square of their mean plus 0.01, as prism bench measures error), halved (E[(A − B)²] is
+//     twice a half's variance) and times the pilot's spp;
+//   - its cost per sample: the process CPU seconds of its two renders per pixel sample;
+// and predicts its error at equal time as their product. Candidates are hero and gradient, and
+// uniform where a dielectric disperses (hero terminates its secondary lanes there, and the
+// single-wavelength tracer is then cheaper per sample). The prepass is not a candidate: at equal
+// time it has not beaten the emitter mixture by more than 8 % on any scene measured
+// (docs/benchmarks.md, issue 11), and it needs the job's own budget to learn anything.
+//
+// The choice is hero unless another candidate is predicted at least 10 % better (a smaller
+// predicted gain is within the pilot's noise). It depends on measured times, so it can differ
+// between machines; it is recorded in the job spec (JobSpec.auto_choice) with every
+// candidate's figures, so a submitted job, and its report, say exactly what ran.
+#pragma once
+
+#include <optional>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "client/render_command.h"
+#include "coordinator/outputs.h"
+#include "services/scene/scene_description.h"
+#include "services/spectral/named_spectra.h"
+#include "worker/embree_device.h"
+
+namespace prism::client {
+
+// Predicted equal-time gain a candidate needs to replace hero.
+inline constexpr double kAutoMinimumGain = 0.10;
+
+struct ResolvedIntegrator {
+  RenderCommandOptions options;                   // with an explicit integrator and prepass
+  std::optional<coordinator::AutoReport> report;  // set when `auto` chose
+};
+
+// `options` as given when its integrator is explicit; otherwise the choice above.
+absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions& options,
+                                                      worker::EmbreeDevice& device,
+                                                      const scene::SceneDescription& description,
+                                                      const spectral::SpectrumLibrary& library,
+                                                      const std::string& bundle_hash,
+                                                      const std::string& scene_relpath);
+
+// Records the choice in the job spec (JobSpec.auto_choice), where the report takes it from.
+void set_auto_choice(const coordinator::AutoReport& report, prism::v1::JobSpec& spec);
+
+}  // namespace prism::client
