@@ -6,9 +6,9 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "client/evaluation.h"
 #include "coordinator/local_render.h"
 #include "services/base/status.h"
+#include "services/image/metrics.h"
 #include "services/scene/wavelength_dependence.h"
 
 namespace prism::client {
@@ -33,6 +33,15 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   RenderCommandOptions& chosen = out.options;
   chosen.prepass = false;
   coordinator::AutoReport report;
+  if (options.prepass == true || has_prepass_options(options)) {
+    // Only hero runs the prepass.
+    chosen.prepass = options.prepass;
+    chosen.integrator = "hero";
+    report.choice = "hero";
+    report.reason = "the prepass was asked for, which hero runs; no pilot";
+    out.report = std::move(report);
+    return out;
+  }
   const scene::WavelengthDependence dependence = scene::analyze_wavelength_dependence(description);
   if (!dependence.needs_spectral_transport()) {
     chosen.integrator = "hero";
@@ -70,7 +79,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   const double pixel_samples = double(width) * double(height) * double(spp);
 
   // Per candidate: the squared difference of its two halves per pixel and bin (twice the
-  // variance of one half, unbiased whatever the method), and its CPU seconds. Every half also
+  // variance of one half, unbiased whatever the method), and the rays it traced. Every half also
   // goes into one estimate of the image, whose square weighs the differences as relMSE weighs
   // errors; the same weights for every candidate keep their ranking fair.
   struct Measured {
@@ -94,16 +103,15 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
                                                                    bundle_hash, scene_relpath));
     Measured m;
-    double cpu = 0;
+    double rays = 0;
     std::optional<image::SpectralImage> first;
     for (int h = 0; h < 2; ++h) {
       coordinator::LocalRenderOptions local = prepared.local;
       local.render.seed = kPilotSeed + static_cast<std::uint64_t>(h);
       PRISM_ASSIGN_OR_RETURN(auto render,
                              coordinator::LocalRender::create(device, description, library, local));
-      const double cpu_start = evaluation::process_cpu_seconds();
       PRISM_ASSIGN_OR_RETURN(coordinator::LocalRenderResult result, render->render());
-      cpu += evaluation::process_cpu_seconds() - cpu_start;
+      rays += double(result.stats.counters.rays);
       const std::span<const float> values = result.image.data();
       if (image_sum.empty()) image_sum.assign(values.size(), 0.0);
       for (std::size_t i = 0; i < values.size(); ++i) {
@@ -120,7 +128,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
         }
       }
     }
-    m.cost = cpu / (2 * pixel_samples);
+    m.cost = rays / (2 * pixel_samples);
     measured.push_back(std::move(m));
   }
   // The weights: 1/(truth² + 0.01), the truth estimated by every render's mean over the pixel
@@ -160,26 +168,17 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     report.candidates.push_back({candidates[c], variance, measured[c].cost, 0.0});
   }
   const double hero =
-      report.candidates[0].rel_mse_per_sample * report.candidates[0].cpu_seconds_per_sample;
+      report.candidates[0].rel_mse_per_sample * report.candidates[0].rays_per_sample;
   std::size_t best = 0;
   for (std::size_t i = 0; i < report.candidates.size(); ++i) {
     coordinator::AutoReport::Candidate& c = report.candidates[i];
-    const double efficiency = c.rel_mse_per_sample * c.cpu_seconds_per_sample;
+    const double efficiency = c.rel_mse_per_sample * c.rays_per_sample;
     c.relative_efficiency = hero > 0 ? efficiency / hero : 1.0;
     if (hero > 0 && c.relative_efficiency < report.candidates[best].relative_efficiency) best = i;
   }
   const double gain = 1.0 - report.candidates[best].relative_efficiency;
   if (best != 0 && gain < kAutoMinimumGain) best = 0;
   chosen.integrator = candidates[best];
-  if (chosen.integrator != "gradient") {
-    // Gradient-only flags given with auto apply only when gradient is chosen.
-    chosen.delta.reset();
-    chosen.tau.reset();
-    chosen.tau_auto = false;
-    chosen.alpha.reset();
-    chosen.poisson.clear();
-    chosen.primal_and_gradients = false;
-  }
   report.choice = chosen.integrator;
   report.reason = best == 0 ? absl::StrCat("no candidate was predicted at least ",
                                            static_cast<int>(100 * kAutoMinimumGain),
@@ -203,7 +202,7 @@ void set_auto_choice(const coordinator::AutoReport& report, prism::v1::JobSpec& 
     prism::v1::AutoChoice::Candidate* out = a->add_candidates();
     out->set_method(c.method);
     out->set_rel_mse_per_sample(c.rel_mse_per_sample);
-    out->set_cpu_seconds_per_sample(c.cpu_seconds_per_sample);
+    out->set_rays_per_sample(c.rays_per_sample);
     out->set_relative_efficiency(c.relative_efficiency);
   }
 }

@@ -1,5 +1,8 @@
 // `--integrator auto`: the rendering method chosen for the scene, before the job is made.
 //
+// Asking for the prepass (--prepass or a --prepass-* option) means hero with the prepass,
+// without a pilot: only hero runs it. The gradient's own flags need --integrator gradient.
+//
 // A scene in which nothing depends on wavelength (no dispersive dielectric, one emitter
 // spectrum, no medium: scene::analyze_wavelength_dependence) renders with hero and no prepass,
 // the cheapest adequate method (its four lanes all stay live), and no pilot runs.
@@ -9,7 +12,10 @@
 //   - its variance per sample: the relMSE between the two halves (per pixel and bin, over the
 //     square of their mean plus 0.01, as prism bench measures error), halved (E[(A − B)²] is
 //     twice a half's variance) and times the pilot's spp;
-//   - its cost per sample: the process CPU seconds of its two renders per pixel sample;
+//   - its cost per sample: the rays its two renders traced per pixel sample, counted, so the
+//     choice is a pure function of the scene and the options (the same spec gives the same
+//     bytes); it leaves out per-ray work, which docs/benchmarks.md measures at about −15 %
+//     (uniform, one lane) to +10 % (gradient, its shifts) of hero's;
 // and predicts its error at equal time as their product. Candidates are hero and gradient, and
 // uniform where a dielectric disperses (hero terminates its secondary lanes there, and the
 // single-wavelength tracer is then cheaper per sample). The prepass is not a candidate: at equal
@@ -17,9 +23,9 @@
 // (docs/benchmarks.md, issue 11), and it needs the job's own budget to learn anything.
 //
 // The choice is hero unless another candidate is predicted at least 10 % better (a smaller
-// predicted gain is within the pilot's noise). It depends on measured times, so it can differ
-// between machines; it is recorded in the job spec (JobSpec.auto_choice) with every
-// candidate's figures, so a submitted job, and its report, say exactly what ran.
+// predicted gain is within the pilot's noise). It is recorded in the job spec
+// (JobSpec.auto_choice) with every candidate's figures, so a submitted job, and its report, say
+// exactly what ran.
 #pragma once
 
 #include <optional>

@@ -166,6 +166,7 @@ absl::StatusOr<RenderCommandOptions> method_options(const std::string& method,
 struct Timed {
   coordinator::LocalRenderResult result;
   double wall = 0, cpu = 0;
+  std::string ran;  // the method that ran (auto's choice)
   double on(const std::string& clock) const { return clock == "cpu" ? cpu : wall; }
 };
 
@@ -186,7 +187,9 @@ absl::StatusOr<Timed> timed_method(worker::EmbreeDevice& device,
   return Timed{std::move(timed.result),
                timed.wall_seconds + prepared.pilot_seconds.value_or(0.0) +
                    prepared.auto_pilot_seconds.value_or(0.0),
-               timed.cpu_seconds + (piloted ? prepare_cpu : 0.0)};
+               timed.cpu_seconds + (piloted ? prepare_cpu : 0.0),
+               absl::StrCat(worker::name(prepared.job.render.integrator),
+                            prepared.job.prepass.has_value() ? "+prepass" : "")};
 }
 
 std::string home_cache() {
@@ -256,7 +259,7 @@ absl::StatusOr<std::vector<double>> parse_budgets(const std::string& text) {
 std::string bench_csv(const std::vector<BenchRow>& rows) {
   std::string out =
       "scene,method,budget,seed,region,spp,seconds,wall_seconds,cpu_seconds,mse,rel_mse,ssim,"
-      "mse_floor,rel_mse_floor,floor_known,nonfinite_fraction\n";
+      "mse_floor,rel_mse_floor,floor_known,nonfinite_fraction,ran\n";
   for (const BenchRow& r : rows) {
     absl::StrAppend(&out, csv_field(r.scene), ",", csv_field(r.method), ",", csv_field(r.budget),
                     ",", r.seed, ",", csv_field(r.region), ",", r.spp, ",",
@@ -264,7 +267,8 @@ std::string bench_csv(const std::vector<BenchRow>& rows) {
                                     r.wall_seconds, r.cpu_seconds, r.metrics.mse, r.metrics.rel_mse,
                                     r.metrics.ssim, r.mse_floor, r.rel_mse_floor),
                     ",", r.floor_known ? 1 : 0, ",",
-                    absl::StrFormat("%.9g", r.metrics.nonfinite_fraction), "\n");
+                    absl::StrFormat("%.9g", r.metrics.nonfinite_fraction), ",",
+                    csv_field(r.ran.empty() ? r.method : r.ran), "\n");
   }
   return out;
 }
@@ -464,6 +468,7 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
 
     // The film this bench renders (the scene's, or --resolution) and its regions.
     RenderCommandOptions probe = scene_base;
+    probe.integrator = "hero";
     probe.spp = 1;
     PRISM_ASSIGN_OR_RETURN(
         v1::JobSpec probe_spec,
@@ -606,6 +611,7 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
             row.budget = budget;
             row.seed = seed;
             row.region = regions[ri].first;
+            row.ran = t.ran;
             row.spp = spp;
             row.seconds = t.on(options.clock);
             row.wall_seconds = t.wall;

@@ -37,7 +37,7 @@ namespace prism::client {
 
 struct BenchOptions {
   std::vector<std::filesystem::path> scenes;
-  std::string methods = "uniform,hero,hero+prepass,gradient";
+  std::string methods = "uniform,hero,hero+prepass,gradient,auto";
   std::string budgets;  // "10s,30s,90s" (s or m suffix; plain numbers are seconds)
   std::string spp;      // "64,256,1024"; exclusive with budgets; neither: budgets 10s,30s
   std::int64_t seeds = 2;
@@ -71,6 +71,7 @@ struct BenchRow {
   std::string budget;  // "10s" or "64spp"
   int seed = 0;
   std::string region;  // "image" or "x,y,w,h"
+  std::string ran;     // the method that ran: auto's choice, else the method
   std::uint64_t spp = 0;
   double seconds = 0;  // on the bench's clock
   double wall_seconds = 0;

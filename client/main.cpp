@@ -89,8 +89,9 @@ int main(int argc, char** argv) {
   auto* bench_cmd = app.add_subcommand(
       "bench", "Error against time of the rendering methods on scenes (CSV, report, plots)");
   bench_cmd->add_option("scenes", bench.scenes, "pbrt-v4 scene files")->required();
-  bench_cmd->add_option("--methods", bench.methods,
-                        "Comma-separated: uniform, hero, hero+prepass, gradient (default all)");
+  bench_cmd->add_option(
+      "--methods", bench.methods,
+      "Comma-separated: uniform, hero, hero+prepass, gradient, auto (default all)");
   auto* budgets_opt = bench_cmd->add_option(
       "--budgets", bench.budgets, "Time budgets per render, e.g. 10s,30s,2m (default 10s,30s)");
   auto* bench_spp_opt =

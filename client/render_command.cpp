@@ -71,12 +71,12 @@ void draw_progress(std::ostream& out, const coordinator::RenderProgress& p) {
       << std::flush;
 }
 
+}  // namespace
+
 bool has_prepass_options(const RenderCommandOptions& o) {
   return o.prepass_passes || o.prepass_spp || o.prepass_mode != "samples" || o.prepass_epsilon ||
          o.prepass_fallback || o.prepass_sigma_s || o.prepass_sigma_r;
 }
-
-}  // namespace
 
 absl::StatusOr<std::pair<int, int>> parse_resolution(const std::string& text) {
   const std::size_t x = text.find('x');
@@ -166,14 +166,8 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   PRISM_RETURN_IF_ERROR(parse_spectral_pdf(o.spectral_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_emitter_pdf(o.emitter_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_light_selection(o.light_selection).status());
-  // With auto, the gradient's flags apply if it chooses gradient.
   const bool gradient =
-      automatic || *parse_integrator(o.integrator) == worker::IntegratorKind::kGradient;
-  if (automatic && (o.prepass == true || has_prepass_options(o))) {
-    return absl::InvalidArgumentError(
-        "--integrator auto chooses the prepass itself (off: docs/benchmarks.md); drop --prepass "
-        "and the --prepass-* options, or name an integrator");
-  }
+      !automatic && *parse_integrator(o.integrator) == worker::IntegratorKind::kGradient;
   if (!gradient &&
       (o.delta || o.tau || o.tau_auto || o.alpha || !o.poisson.empty() || o.primal_and_gradients)) {
     return absl::InvalidArgumentError(
@@ -299,6 +293,9 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
                                         const std::string& bundle_hash,
                                         const std::string& scene_path) {
   PRISM_RETURN_IF_ERROR(validate_render_flags(o));
+  if (o.integrator == "auto") {
+    return absl::InternalError("--integrator auto must be resolved (resolve_integrator) first");
+  }
   v1::JobSpec spec;
   spec.set_bundle_hash(bundle_hash);
   spec.set_scene_path(scene_path);

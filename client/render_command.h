@@ -33,7 +33,7 @@ struct RenderCommandOptions {
   std::optional<std::filesystem::path> output;  // -o
   std::optional<std::filesystem::path> json;    // --json
   std::optional<std::int64_t> spp;
-  std::string integrator = "hero";
+  std::string integrator = "auto";  // or uniform, hero, gradient (auto_integrator.h)
   std::optional<std::int64_t> bins;
   std::optional<std::string> resolution;  // "WxH"
   std::optional<std::int64_t> threads;    // unset: every hardware thread
@@ -95,6 +95,9 @@ absl::StatusOr<worker::IntegratorKind> parse_integrator(const std::string& name)
 absl::StatusOr<worker::SpectralPdfKind> parse_spectral_pdf(const std::string& name);
 absl::StatusOr<worker::EmitterPdfKind> parse_emitter_pdf(const std::string& name);
 absl::StatusOr<worker::LightSelectionKind> parse_light_selection(const std::string& name);
+
+// Whether any --prepass-* option is given (they ask for the prepass).
+bool has_prepass_options(const RenderCommandOptions& options);
 
 // Every check that does not need the scene: ranges of the numbers, the choices of the string
 // flags and the output names. INVALID_ARGUMENT naming the flag and the accepted values.

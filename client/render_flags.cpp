@@ -12,7 +12,9 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   f.output_opt = cmd.add_option("-o,--output", f.output,
                                 "Spectral EXR to write (default: the Film filename's stem, here)");
   f.spp_opt = cmd.add_option("--spp", f.spp, "Samples per pixel (default: the scene's)");
-  cmd.add_option("--integrator", o.integrator, "uniform, hero or gradient (default hero)");
+  cmd.add_option("--integrator", o.integrator,
+                 "auto (a pilot picks hero, gradient or uniform; hero where nothing depends on "
+                 "wavelength), uniform, hero or gradient (default auto)");
   f.bins_opt =
       cmd.add_option("--bins", f.bins, "Spectral bins, 4..256 (default: nbuckets, else 64)");
   f.resolution_opt =

@@ -335,8 +335,8 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
     r.reason = a.reason();
     r.seconds = a.seconds();
     for (const auto& c : a.candidates()) {
-      r.candidates.push_back({c.method(), c.rel_mse_per_sample(), c.cpu_seconds_per_sample(),
-                              c.relative_efficiency()});
+      r.candidates.push_back(
+          {c.method(), c.rel_mse_per_sample(), c.rays_per_sample(), c.relative_efficiency()});
     }
     p.auto_choice = std::move(r);
   }
@@ -501,7 +501,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
       prism::v1::AutoChoice::Candidate* out = a->add_candidates();
       out->set_method(c.method);
       out->set_rel_mse_per_sample(c.rel_mse_per_sample);
-      out->set_cpu_seconds_per_sample(c.cpu_seconds_per_sample);
+      out->set_rays_per_sample(c.rays_per_sample);
       out->set_relative_efficiency(c.relative_efficiency);
     }
   }

@@ -319,6 +319,68 @@ TEST(JobSpecTest, TheTauPilotSurvivesTheExplicitFormAndReachesTheReport) {
   EXPECT_EQ(report.gradient->tau_pilot, p->gradient.tau_pilot);
 }
 
+// How `auto` chose survives the explicit form and reaches the report; a choice that is not the
+// job's integrator is refused. A target error survives with its scope and max spp, and its
+// ranges are checked.
+TEST(JobSpecTest, TheAutoChoiceAndTheTargetErrorSurviveTheExplicitForm) {
+  prism::v1::JobSpec spec = minimal_spec();
+  spec.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+  auto* a = spec.mutable_auto_choice();
+  a->set_choice("gradient");
+  a->set_reason("predicted 0.75 of hero's relMSE at equal time");
+  a->set_seconds(0.25);
+  for (const char* m : {"hero", "gradient"}) {
+    auto* c = a->add_candidates();
+    c->set_method(m);
+    c->set_rel_mse_per_sample(0.02);
+    c->set_rays_per_sample(1e-6);
+    c->set_relative_efficiency(std::string(m) == "hero" ? 1.0 : 0.75);
+  }
+  spec.set_target_error(0.02f);
+  spec.set_target_error_image(true);
+  spec.set_max_spp(512);
+  auto p = job_parameters(spec, test_scene());
+  ASSERT_TRUE(p.ok()) << p.status();
+  ASSERT_TRUE(p->auto_choice.has_value());
+  EXPECT_EQ(p->auto_choice->candidates.size(), 2u);
+  ASSERT_TRUE(p->target_error.has_value());
+  EXPECT_TRUE(p->target_error->image_scope);
+  EXPECT_EQ(p->target_error->max_spp, 512u);
+  EXPECT_EQ(to_proto(*p).auto_choice().SerializeAsString(), a->SerializeAsString());
+  auto again = job_parameters(to_proto(*p), scene::SceneDescription{});
+  ASSERT_TRUE(again.ok()) << again.status();
+  EXPECT_EQ(again->auto_choice, p->auto_choice);
+  EXPECT_EQ(again->target_error->relative, p->target_error->relative);
+  RenderReport report;
+  add_job_sections(*p, report);
+  EXPECT_EQ(report.auto_choice, p->auto_choice);
+
+  prism::v1::JobSpec wrong = spec;
+  wrong.mutable_auto_choice()->set_choice("uniform");
+  EXPECT_NE(job_parameters(wrong, test_scene())
+                .status()
+                .message()
+                .find("auto_choice says 'uniform' but the integrator is gradient"),
+            std::string_view::npos);
+  for (float bad : {1e-5f, 1.5f, -0.1f}) {
+    prism::v1::JobSpec t = minimal_spec();
+    t.set_target_error(bad);
+    EXPECT_NE(job_parameters(t, test_scene()).status().message().find("target_error"),
+              std::string_view::npos)
+        << bad;
+  }
+  prism::v1::JobSpec low = minimal_spec();
+  low.set_spp(64);
+  low.set_target_error(0.01f);
+  low.set_max_spp(32);
+  EXPECT_NE(job_parameters(low, test_scene()).status().message().find("max_spp 32 is out of range"),
+            std::string_view::npos);
+  prism::v1::JobSpec stray = minimal_spec();
+  stray.set_max_spp(32);
+  EXPECT_NE(job_parameters(stray, test_scene()).status().message().find("without a target_error"),
+            std::string_view::npos);
+}
+
 // The variance-weighted norm survives the wire and makes the workers sum the squares of G; the
 // other norms do not ask for them.
 TEST(JobSpecTest, WeightedNormAsksForGradientSquares) {

@@ -428,7 +428,7 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
     for (const AutoReport::Candidate& c : a.candidates) {
       candidates.push_back({{"method", c.method},
                             {"rel_mse_per_sample", c.rel_mse_per_sample},
-                            {"cpu_seconds_per_sample", c.cpu_seconds_per_sample},
+                            {"rays_per_sample", c.rays_per_sample},
                             {"relative_efficiency", c.relative_efficiency}});
     }
     j["auto"] = {{"choice", a.choice},

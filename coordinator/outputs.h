@@ -134,7 +134,7 @@ struct AutoReport {
   struct Candidate {
     std::string method;
     double rel_mse_per_sample = 0;
-    double cpu_seconds_per_sample = 0;
+    double rays_per_sample = 0;
     double relative_efficiency = 0;
     friend bool operator==(const Candidate&, const Candidate&) = default;
   };

@@ -633,7 +633,7 @@ void the_coordinator_keeps_serving_the_other_jobs() {
   const pid_t pid = spawn({PRISM_BINARY, "render", (farm_->root / "good" / "scene.pbrt").string(),
                            "-o", cli_out.string(), "--spp", std::to_string(kGoodSpp), "--seed",
                            std::to_string(kGoodSeed), "--tile", "8", "--threads", "2",
-                           "--no-prepass"});
+                           "--no-prepass", "--integrator", "hero"});
   const int exit_status = reap(pid);
   ASSERT_TRUE(WIFEXITED(exit_status) && WEXITSTATUS(exit_status) == 0) << exit_status;
   const std::vector<float> cli = read_pixels(cli_out);

@@ -309,6 +309,10 @@ class FarmProcessTest : public ::testing::Test {
       args.push_back("--samples-per-task");
       args.push_back(std::to_string(samples_per_task));
     }
+    // The farm's jobs here name no integrator (hero); `prism render` would choose with auto.
+    if (std::find(extra.begin(), extra.end(), "--integrator") == extra.end()) {
+      args.insert(args.end(), {"--integrator", "hero"});
+    }
     args.insert(args.end(), extra.begin(), extra.end());
     const pid_t pid = spawn(args);
     int status = 0;

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
 #include <set>
 #include <string>
@@ -272,6 +273,79 @@ TEST(RenderCliTest, TargetErrorRendersStopWhereTheErrorIsMetAndDoNotDependOnThre
   }
 }
 
+// `--integrator auto`: where nothing depends on wavelength it is hero, with no pilot, and the
+// same bytes; on a spectral scene the report lists the candidates the pilot measured and the
+// image is exactly the chosen method's render.
+TEST(RenderCliTest, AutoChoosesAMethodAndRendersExactlyWhatItChose) {
+  const fs::path dir = fresh_dir("auto");
+  {
+    std::ofstream scene(dir / "grey.pbrt");
+    scene << R"(LookAt 0 3 -6  0 0.6 0  0 1 0
+Camera "perspective" "float fov" 40
+Film "spectral" "integer xresolution" 24 "integer yresolution" 16 "integer nbuckets" 16
+WorldBegin
+LightSource "distant" "blackbody L" 5500 "point3 from" [1 4 -2] "point3 to" [0 0 0]
+Material "diffuse" "rgb reflectance" [0.6 0.3 0.2]
+Shape "trianglemesh" "point3 P" [-4 0 -4  4 0 -4  4 0 4  -4 0 4] "integer indices" [0 1 2 0 2 3]
+Shape "sphere" "float radius" 0.7
+)";
+  }
+  CommandRun grey = run_prism(
+      dir, {"render", "grey.pbrt", "--integrator", "auto", "--spp", "8", "-o", "grey_auto.exr"});
+  ASSERT_EQ(grey.exit_code, 0) << grey.output;
+  EXPECT_NE(grey.output.find("hero (chosen by auto: nothing in the scene depends on wavelength"),
+            std::string::npos)
+      << grey.output;
+  CommandRun grey_hero = run_prism(
+      dir, {"render", "grey.pbrt", "--integrator", "hero", "--spp", "8", "-o", "grey_hero.exr"});
+  ASSERT_EQ(grey_hero.exit_code, 0) << grey_hero.output;
+  EXPECT_EQ(*prism::base::read_file(dir / "grey_auto.exr"),
+            *prism::base::read_file(dir / "grey_hero.exr"));
+  auto grey_report = nlohmann::json::parse(*prism::base::read_file(dir / "grey_auto.json"));
+  EXPECT_EQ(grey_report["auto"]["choice"], "hero");
+  EXPECT_TRUE(grey_report["auto"]["candidates"].empty());
+
+  const std::vector<std::string> common = {
+      "render", source("scenes/three-emitters.pbrt"), "--resolution", "48x36", "--spp", "32"};
+  std::vector<std::string> automatic = common;
+  automatic.insert(automatic.end(), {"--integrator", "auto", "-o", "spectral_auto.exr"});
+  CommandRun spectral = run_prism(dir, automatic);
+  ASSERT_EQ(spectral.exit_code, 0) << spectral.output;
+  EXPECT_NE(spectral.output.find("(chosen by auto: "), std::string::npos) << spectral.output;
+  auto report = nlohmann::json::parse(*prism::base::read_file(dir / "spectral_auto.json"));
+  const auto& a = report["auto"];
+  ASSERT_EQ(a["candidates"].size(), 3u) << a.dump();  // the scene has a dispersive glass
+  std::set<std::string> methods;
+  double chosen_efficiency = -1;
+  for (const auto& c : a["candidates"]) {
+    methods.insert(c["method"].get<std::string>());
+    EXPECT_GT(c["rel_mse_per_sample"].get<double>(), 0) << c.dump();
+    EXPECT_GT(c["rays_per_sample"].get<double>(), 0) << c.dump();
+    if (c["method"] == "hero") EXPECT_DOUBLE_EQ(c["relative_efficiency"].get<double>(), 1.0);
+    if (c["method"] == a["choice"]) chosen_efficiency = c["relative_efficiency"].get<double>();
+  }
+  EXPECT_EQ(methods, (std::set<std::string>{"hero", "gradient", "uniform"}));
+  ASSERT_GT(chosen_efficiency, 0) << "the choice is not a candidate: " << a.dump();
+  if (a["choice"] != "hero") EXPECT_LE(chosen_efficiency, 0.9) << a.dump();
+  EXPECT_EQ(report["integrator"], a["choice"]);
+  std::vector<std::string> explicit_args = common;
+  explicit_args.insert(explicit_args.end(),
+                       {"--integrator", a["choice"].get<std::string>(), "-o", "spectral.exr"});
+  CommandRun chosen = run_prism(dir, explicit_args);
+  ASSERT_EQ(chosen.exit_code, 0) << chosen.output;
+  EXPECT_TRUE(same_bits(spectral_pixels(dir / "spectral_auto.exr", nullptr),
+                        spectral_pixels(dir / "spectral.exr", nullptr)));
+
+  // Asking for the prepass means hero with it, without a pilot.
+  CommandRun prepass =
+      run_prism(dir, {"render", source("scenes/three-emitters.pbrt"), "--resolution", "48x36",
+                      "--spp", "32", "--prepass", "-o", "prepass.exr"});
+  ASSERT_EQ(prepass.exit_code, 0) << prepass.output;
+  EXPECT_NE(prepass.output.find("hero (chosen by auto: the prepass was asked for"),
+            std::string::npos)
+      << prepass.output;
+}
+
 TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
   const std::string scene = source(kCornell);
   const std::vector<BadCase> cases = {
@@ -280,7 +354,7 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
       {{"render", scene, "--resolution", "0x5"}, "prism: --resolution '0x5': want WxH"},
       {{"render", scene, "--resolution", "64"}, "--resolution '64': want WxH"},
       {{"render", scene, "--integrator", "foo"},
-       "prism: --integrator 'foo': want uniform, hero or gradient"},
+       "prism: --integrator 'foo': want uniform, hero, gradient or auto"},
       {{"render", scene, "--spp", "0"}, "--spp 0 is out of range"},
       {{"render", scene, "--spp", "-3"}, "--spp -3 is out of range"},
       {{"render", scene, "--threads", "0"}, "--threads 0 is out of range"},
@@ -410,8 +484,8 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
   auto csv = prism::base::read_file(dir / "out" / "results.csv");
   ASSERT_TRUE(csv.ok()) << csv.status();
   const auto rows = csv_rows(*csv);
-  // A header, then 4 methods x 2 budgets x 2 seeds x 2 regions.
-  ASSERT_EQ(rows.size(), 33u) << *csv;
+  // A header, then 5 methods x 2 budgets x 2 seeds x 2 regions.
+  ASSERT_EQ(rows.size(), 41u) << *csv;
   const std::vector<std::string>& header = rows[0];
   auto column = [&](const std::string& name) {
     return std::find(header.begin(), header.end(), name) - header.begin();
@@ -427,7 +501,8 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
     EXPECT_GT(std::stod(rows[i][column("seconds")]), 0);
     if (rows[i][column("region")] == "image") floor = rows[i][column("mse_floor")];
   }
-  EXPECT_EQ(methods, (std::set<std::string>{"uniform", "hero", "hero+prepass", "gradient"}));
+  EXPECT_EQ(methods,
+            (std::set<std::string>{"uniform", "hero", "hero+prepass", "gradient", "auto"}));
   EXPECT_EQ(regions, (std::set<std::string>{"image", "4,4,8,8"}));
   auto report = prism::base::read_file(dir / "out" / "report.md");
   ASSERT_TRUE(report.ok());
