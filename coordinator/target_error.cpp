@@ -129,6 +129,21 @@ absl::Status TargetErrorTracker::measure(int tile) {
   return absl::OkStatus();
 }
 
+TargetErrorTracker::ImageTotals TargetErrorTracker::image_totals() const {
+  // Over every pixel, tiles in plan order.
+  ImageTotals totals;
+  for (std::size_t t = 0; t < luminance_.size(); ++t) {
+    for (std::size_t p = 0; p < luminance_[t].size(); ++p) {
+      totals.y_sum += luminance_[t][p];
+      totals.se_squares += error_[t][p] * error_[t][p];
+    }
+    totals.pixels += luminance_[t].size();
+  }
+  totals.floor =
+      kTargetErrorDarkShare * totals.y_sum / double(std::max<std::size_t>(1, totals.pixels));
+  return totals;
+}
+
 absl::StatusOr<std::vector<int>> TargetErrorTracker::finish_round() {
   if (finished_) return absl::FailedPreconditionError("every round has run");
   for (std::size_t t = 0; t < active_.size(); ++t) {
@@ -137,17 +152,8 @@ absl::StatusOr<std::vector<int>> TargetErrorTracker::finish_round() {
           absl::StrCat("tile ", t, " has not reported round ", round_ + 1));
     }
   }
-  // The image's mean luminance over every pixel (tiles in plan order): the dark pixels' scale.
-  double y_sum = 0, se_squares = 0;
-  std::size_t pixels = 0;
-  for (std::size_t t = 0; t < active_.size(); ++t) {
-    for (std::size_t p = 0; p < luminance_[t].size(); ++p) {
-      y_sum += luminance_[t][p];
-      se_squares += error_[t][p] * error_[t][p];
-    }
-    pixels += luminance_[t].size();
-  }
-  const double floor = kTargetErrorDarkShare * y_sum / double(std::max<std::size_t>(1, pixels));
+  const ImageTotals totals = image_totals();
+  const double y_sum = totals.y_sum, se_squares = totals.se_squares, floor = totals.floor;
   const bool last = static_cast<std::size_t>(round_) + 1 == rounds_.size();
   bool image_met = false;
   if (target_.image_scope) {
@@ -199,16 +205,9 @@ TargetErrorOutcome TargetErrorTracker::outcome() const {
   o.met = met_;
   o.rounds = round_;
   o.rounds_planned = static_cast<int>(rounds_.size());
-  double y_sum = 0, se_squares = 0;
-  std::size_t pixels = 0;
-  for (std::size_t t = 0; t < luminance_.size(); ++t) {
-    for (std::size_t p = 0; p < luminance_[t].size(); ++p) {
-      y_sum += luminance_[t][p];
-      se_squares += error_[t][p] * error_[t][p];
-    }
-    pixels += luminance_[t].size();
-  }
-  const double floor = kTargetErrorDarkShare * y_sum / double(std::max<std::size_t>(1, pixels));
+  const ImageTotals totals = image_totals();
+  const double y_sum = totals.y_sum, se_squares = totals.se_squares, floor = totals.floor;
+  const std::size_t pixels = totals.pixels;
   std::vector<double> relative;
   relative.reserve(pixels);
   o.min_spp = pixels > 0 ? std::numeric_limits<std::uint64_t>::max() : 0;

@@ -92,6 +92,13 @@ class TargetErrorTracker {
   TargetErrorTracker() = default;
   // Every pixel's luminance and its standard error's bound, for tile t's sums.
   absl::Status measure(int tile);
+  // The sums over every pixel of Y and of its standard error's square, the pixel count, and
+  // the dark pixels' scale (kTargetErrorDarkShare of the mean Y).
+  struct ImageTotals {
+    double y_sum = 0, se_squares = 0, floor = 0;
+    std::size_t pixels = 0;
+  };
+  ImageTotals image_totals() const;
 
   TargetError target_;
   TilePlan plan_;
