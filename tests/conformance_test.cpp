@@ -26,6 +26,7 @@
 #include "services/image/png.h"
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
+#include "tests/render_fixture.h"
 
 namespace prism {
 namespace {
@@ -40,21 +41,7 @@ struct Case {
   std::uint64_t spp;
 };
 
-class ConformanceTest : public ::testing::TestWithParam<Case> {
- protected:
-  static void SetUpTestSuite() {
-    library_ = new spectral::SpectrumLibrary(*spectral::SpectrumLibrary::load_builtin());
-    device_ = new worker::EmbreeDevice();
-  }
-  static void TearDownTestSuite() {
-    delete device_;
-    delete library_;
-  }
-  static spectral::SpectrumLibrary* library_;
-  static worker::EmbreeDevice* device_;
-};
-spectral::SpectrumLibrary* ConformanceTest::library_ = nullptr;
-worker::EmbreeDevice* ConformanceTest::device_ = nullptr;
+class ConformanceTest : public coordinator::RenderFixtureBase<::testing::TestWithParam<Case>> {};
 
 TEST_P(ConformanceTest, AgreesWithPbrtV4WithinNoise) {
   const Case& c = GetParam();

@@ -25,7 +25,9 @@ inline constexpr worker::IntegratorKind kIntegrators[] = {worker::IntegratorKind
                                                           worker::IntegratorKind::kHero,
                                                           worker::IntegratorKind::kGradient};
 
-class RenderFixture : public testing::Test {
+// `Base`: testing::Test, or testing::TestWithParam<...> for parameterised suites.
+template <typename Base = testing::Test>
+class RenderFixtureBase : public Base {
  protected:
   static void SetUpTestSuite() {
     library_ = new spectral::SpectrumLibrary(*spectral::SpectrumLibrary::load_builtin());
@@ -138,4 +140,6 @@ class RenderFixture : public testing::Test {
   static inline spectral::SpectrumLibrary* library_ = nullptr;
   static inline worker::EmbreeDevice* device_ = nullptr;
 };
+
+using RenderFixture = RenderFixtureBase<>;
 }  // namespace prism::coordinator
