@@ -72,6 +72,7 @@ struct Cell {
   std::uint64_t spp = 0;
   double seconds = 0, mse = 0, rel_mse = 0, ssim = 0;
   int count = 0;
+  std::string ran;  // the method that ran, when it is not the method's name (auto's choice)
 };
 
 // Keys in the order they first appear.
@@ -112,6 +113,7 @@ Grouped group(const std::vector<BenchRow>& rows) {
     remember(g.budgets, r.budget);
     Cell& c = g.cells[{r.scene, r.region, r.method, r.budget}];
     c.spp = r.spp;
+    if (!r.ran.empty() && r.ran != r.method) c.ran = r.ran;
     c.seconds += r.seconds;
     c.mse += r.metrics.mse;
     c.rel_mse += r.metrics.rel_mse;
@@ -301,9 +303,10 @@ std::string bench_report(const std::vector<BenchRow>& rows, const std::string& b
         for (const std::string& b : g.budgets) {
           const Cell* c = g.find(scene, region, m, b);
           if (c == nullptr) continue;
-          absl::StrAppend(&out, "| ", m, " | ", b, " | ", c->spp, " | ",
-                          absl::StrFormat("%.2f", c->seconds), " | ", number(c->mse), " | ",
-                          number(c->rel_mse), " | ", absl::StrFormat("%.4f", c->ssim), " |");
+          absl::StrAppend(&out, "| ", m, c->ran.empty() ? "" : absl::StrCat(" (", c->ran, ")"),
+                          " | ", b, " | ", c->spp, " | ", absl::StrFormat("%.2f", c->seconds),
+                          " | ", number(c->mse), " | ", number(c->rel_mse), " | ",
+                          absl::StrFormat("%.4f", c->ssim), " |");
           if (has_baseline) {
             bool extrapolated = false;
             const std::optional<double> base =

@@ -80,6 +80,11 @@ TEST(BenchCommandTest, ReportGivesEqualTimeRatiosAgainstTheBaseline) {
   EXPECT_NE(report.find("| hero | a | 16 | 1.00 | 0.01 | 0.1 | 0.9000 | 1.000 |"),
             std::string::npos)
       << report;
+  // Auto's rows name the method that ran.
+  BenchRow chose = row("auto", "a", 2, 0.02);
+  chose.ran = "gradient";
+  const std::string with_auto = bench_report({rows[0], chose}, "hero", "");
+  EXPECT_NE(with_auto.find("| auto (gradient) | a | 16 |"), std::string::npos) << with_auto;
   const std::string without = bench_report(rows, "uniform", "");
   EXPECT_NE(without.find("'uniform' was not among the methods"), std::string::npos);
 }
