@@ -55,22 +55,17 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   std::vector<std::string> candidates = {"hero", "gradient"};
   if (!dependence.dispersive_materials.empty()) candidates.push_back("uniform");
 
-  // The job's film and spp, as hero would render it.
+  // The job's film and spp, as hero would render it. (The gradient's own flags need
+  // --integrator gradient, so `options` holds none.)
   RenderCommandOptions probe = options;
   probe.integrator = "hero";
   probe.prepass = false;
   probe.target_error.reset();
   probe.max_spp.reset();
   probe.target_error_scope = "pixel";
-  probe.delta.reset();
-  probe.tau.reset();
-  probe.tau_auto = false;
-  probe.alpha.reset();
-  probe.poisson.clear();
-  probe.primal_and_gradients = false;
   PRISM_ASSIGN_OR_RETURN(v1::JobSpec job,
                          job_spec_of(probe, description, bundle_hash, scene_relpath));
-  // Half the film's side, and at most about kPilotPixels pixels (the camera is the job's).
+  // A quarter of the film's side, and at most about kPilotPixels pixels (the job's camera).
   const double scale =
       std::min(0.25, std::sqrt(kPilotPixels / (double(job.width()) * double(job.height()))));
   const int width = std::max(1, static_cast<int>(std::lround(job.width() * scale)));
@@ -89,14 +84,8 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   std::vector<Measured> measured;
   std::vector<double> image_sum;
   for (const std::string& method : candidates) {
-    RenderCommandOptions o = method == "gradient" ? options : probe;
+    RenderCommandOptions o = probe;
     o.integrator = method;
-    o.prepass = false;
-    o.target_error.reset();
-    o.max_spp.reset();
-    o.target_error_scope = "pixel";
-    o.primal_and_gradients = false;
-    o.tau_auto = false;
     o.resolution = absl::StrCat(width, "x", height);
     o.spp = static_cast<std::int64_t>(spp);
     o.seed = kPilotSeed;

@@ -7,15 +7,17 @@
 // spectrum, no medium: scene::analyze_wavelength_dependence) renders with hero and no prepass,
 // the cheapest adequate method (its four lanes all stay live), and no pilot runs.
 //
-// Otherwise a pilot renders each candidate on the job's camera at half the resolution, twice
-// with independent seeds at 2..8 spp (1/64 of the job's spp), and estimates per candidate
-//   - its variance per sample: the relMSE between the two halves (per pixel and bin, over the
-//     square of their mean plus 0.01, as prism bench measures error), halved (E[(A − B)²] is
-//     twice a half's variance) and times the pilot's spp;
+// Otherwise a pilot renders each candidate on the job's camera at a quarter of the film's side
+// (at most about 10,000 pixels), twice with independent seeds at 4..16 spp (1/16 of the job's),
+// and estimates per candidate
+//   - its variance per sample: half the squared difference of its two renders per pixel and
+//     bin (E[(A − B)²] is twice one render's variance), weighted as relMSE weighs errors, by
+//     1/(m² + 0.01) with m every candidate's renders averaged over the pixel and its 3 x 3
+//     neighbours, and times the pilot's spp;
 //   - its cost per sample: the rays its two renders traced per pixel sample, counted, so the
 //     choice is a pure function of the scene and the options (the same spec gives the same
-//     bytes); it leaves out per-ray work, which docs/benchmarks.md measures at about −15 %
-//     (uniform, one lane) to +10 % (gradient, its shifts) of hero's;
+//     bytes); it leaves out per-ray work (`prism render` at 64 spp on four evaluation scenes:
+//     uniform 5.7–6.2 M rays/s, hero 4.3–5.3, gradient 3.6–5.4);
 // and predicts its error at equal time as their product. Candidates are hero and gradient, and
 // uniform where a dielectric disperses (hero terminates its secondary lanes there, and the
 // single-wavelength tracer is then cheaper per sample). The prepass is not a candidate: at equal

@@ -58,9 +58,6 @@ struct BenchOptions {
   std::ostream* log = nullptr;  // one line per render; null: quiet
 };
 
-inline constexpr const char* kBenchMethods[] = {"uniform", "hero", "hero+prepass", "gradient",
-                                                "auto"};
-
 // "10s,30s,1.5m,90" -> seconds, strictly increasing and positive; INVALID_ARGUMENT otherwise.
 absl::StatusOr<std::vector<double>> parse_budgets(const std::string& text);
 
