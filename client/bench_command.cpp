@@ -25,6 +25,7 @@
 #include "client/render_command.h"
 #include "coordinator/job_spec.h"
 #include "services/base/atomic_file.h"
+#include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
 
@@ -192,6 +193,83 @@ absl::StatusOr<Timed> timed_method(worker::EmbreeDevice& device,
                timed.cpu_seconds + (piloted ? prepare_cpu : 0.0),
                absl::StrCat(worker::name(prepared.job.render.integrator),
                             prepared.job.prepass.has_value() ? "+prepass" : "")};
+}
+
+// The seconds a method takes at a given spp, from its renders so far: seconds = fixed + spp·rate,
+// fitted through the two latest renders at different spp (the fixed part is what a farm job
+// spends in scheduling and transfers, or a pilot), or proportional through the latest one.
+class CostModel {
+ public:
+  void add(std::uint64_t spp, double seconds) {
+    if (!points_.empty() && points_.back().first == spp) points_.pop_back();
+    points_.emplace_back(spp, std::max(seconds, 1e-6));
+    if (points_.size() > 2) points_.erase(points_.begin());
+  }
+  // The spp expected to take `seconds` (at least 1).
+  std::uint64_t spp_for(double seconds) const {
+    const auto [spp, t] = points_.back();
+    double rate = t / double(spp), fixed = 0;
+    if (points_.size() == 2) {
+      const auto [spp0, t0] = points_.front();
+      const double slope = (t - t0) / (double(spp) - double(spp0));
+      if (slope > 0) {
+        rate = slope;
+        fixed = std::clamp(t - slope * double(spp), 0.0, std::min(t, t0));
+      }
+    }
+    const double n = (seconds - fixed) / rate;
+    return n < 1 ? 1 : static_cast<std::uint64_t>(std::min(n, 1e12));
+  }
+
+ private:
+  std::vector<std::pair<std::uint64_t, double>> points_;
+};
+
+// One render of the method as a farm job (see the header), in `scratch`, which it empties.
+absl::StatusOr<Timed> farm_method(const FarmConnection& farm, const fs::path& scratch,
+                                  const std::string& client_token,
+                                  const RenderCommandOptions& options) {
+  SubmitOptions submit;
+  submit.render = options;
+  submit.render.threads.reset();
+  submit.render.json.reset();
+  submit.render.progress = nullptr;
+  submit.render.warnings = nullptr;
+  submit.render.output = scratch / "render.exr";
+  submit.client_token = client_token;
+  submit.wait = true;
+  std::error_code ec;
+  fs::remove_all(scratch, ec);
+  fs::create_directories(scratch, ec);
+  if (ec) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("cannot create ", scratch.string(), ": ", ec.message()));
+  }
+  const auto start = Clock::now();
+  PRISM_RETURN_IF_ERROR(run_submit(farm, submit).status());
+  const double wall = std::chrono::duration<double>(Clock::now() - start).count();
+  PRISM_ASSIGN_OR_RETURN(image::SpectralExr exr, image::read_spectral_exr(scratch / "render.exr"));
+  fs::remove_all(scratch, ec);
+  const auto meta = [&](std::string_view key) -> std::string {
+    auto it = exr.metadata.find(std::string(key));
+    return it == exr.metadata.end() ? std::string() : it->second;
+  };
+  std::optional<coordinator::TargetErrorOutcome> target;
+  if (const std::string spp = meta("target_error_spp_max"); !spp.empty()) {
+    target.emplace();
+    const auto [end, parse] = std::from_chars(spp.data(), spp.data() + spp.size(), target->max_spp);
+    if (parse != std::errc() || end != spp.data() + spp.size()) {
+      return absl::InternalError(
+          absl::StrCat("the farm's output has a bad target_error_spp_max '", spp, "'"));
+    }
+  }
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage no_rgb, image::RgbImage::create(1, 1));
+  coordinator::LocalRenderResult result{
+      std::move(exr.spectral), no_rgb, no_rgb, {}, {}, {}, {}, {}};
+  result.stats.target_error = target;
+  return Timed{
+      std::move(result), wall, 0.0,
+      absl::StrCat(meta(image::kMetaIntegrator), meta("prepass_passes").empty() ? "" : "+prepass")};
 }
 
 std::string home_cache() {
@@ -408,6 +486,17 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
     return absl::InvalidArgumentError(
         absl::StrCat("--clock '", options.clock, "': choose wall or cpu"));
   }
+  if (options.farm.has_value()) {
+    if (options.clock != "wall") {
+      return absl::InvalidArgumentError(
+          "--clock cpu measures this process; on the farm (--coordinator) renders are timed on "
+          "the wall clock, from the submission to the fetched outputs");
+    }
+    if (options.threads.has_value()) {
+      return absl::InvalidArgumentError(
+          "--threads: on the farm (--coordinator) the workers render with their own threads");
+    }
+  }
   if (!options.references.empty() && options.references.size() != options.scenes.size()) {
     return absl::InvalidArgumentError(absl::StrCat("give one --reference per scene (",
                                                    options.scenes.size(), " scenes, ",
@@ -442,8 +531,35 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
     return absl::InternalError(
         absl::StrCat("could not create the Embree device: ", device.take_error().message()));
   }
+  if (options.farm.has_value()) {
+    // Asked first, so an unreachable farm, or one whose jobs no worker would take, costs nothing.
+    FarmConnection probe = *options.farm;
+    probe.deadline = std::min(probe.deadline, std::chrono::milliseconds(10000));
+    PRISM_ASSIGN_OR_RETURN(int live, live_workers(probe));
+    if (live == 0) {
+      return absl::FailedPreconditionError(
+          absl::StrCat("the farm at ", options.farm->address,
+                       " has no idle or busy worker to render the bench's jobs; start one with "
+                       "prism-worker --coordinator ",
+                       options.farm->address));
+    }
+  }
   auto log = [&](const std::string& line) {
     if (options.log != nullptr) *options.log << "bench: " << line << "\n" << std::flush;
+  };
+  // Every render of this run is a job of its own on the farm: a client token from the run's
+  // nonce and a counter, so neither a rerun of the bench nor a repeated configuration is
+  // answered with an earlier job's outputs (and time).
+  const fs::path scratch = options.output / ".farm";
+  const std::string nonce = base::sha256_hex(
+      absl::StrCat("prism bench ", std::chrono::system_clock::now().time_since_epoch().count(), " ",
+                   ::getpid(), " ", fs::absolute(options.output).string()));
+  std::uint64_t submissions = 0;
+  auto render_method = [&](const evaluation::BenchScene& scene,
+                           const RenderCommandOptions& o) -> absl::StatusOr<Timed> {
+    if (!options.farm.has_value()) return timed_method(device, scene, o);
+    return farm_method(*options.farm, scratch,
+                       base::sha256_hex(absl::StrCat(nonce, " ", submissions++)), o);
   };
 
   std::vector<BenchRow> rows;
@@ -451,8 +567,12 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
   std::string header = absl::StrCat(
       "# prism bench\n\nClock: ", options.clock, "; ", options.seeds,
       " seed(s); threads: ", options.threads.has_value() ? absl::StrCat(*options.threads) : "all",
-      " (", std::thread::hardware_concurrency(),
-      " hardware). Seconds include the τ pilot, the "
+      " (", std::thread::hardware_concurrency(), " hardware)",
+      options.farm.has_value()
+          ? absl::StrCat("; on the farm at ", options.farm->address,
+                         " (the workers' threads; seconds from submission to fetched outputs)")
+          : std::string(),
+      ". Seconds include the τ pilot, the "
       "prepass and the reconstruction, not the scene build. Errors are over spectral bins, mean "
       "over seeds; MSE and relMSE are minus the reference's noise floor where it is known.\n");
   std::string summary;
@@ -490,12 +610,25 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
     }
 
     // Calibration: the clock's seconds per sample of a method, from a short render.
-    auto calibrate = [&](const RenderCommandOptions& o) -> absl::StatusOr<double> {
+    // Calibration: a method's cost model, from renders of 4 spp and up (each at least four
+    // times the last) until one after the first takes an eighth of the first budget, so that the
+    // fixed part of its time (a pilot, a farm job's scheduling) is seen apart from the per-sample
+    // part.
+    auto calibrate = [&](const RenderCommandOptions& o) -> absl::StatusOr<CostModel> {
       RenderCommandOptions c = o;
-      c.spp = 4;
       c.seed = kCalibrationSeed;
-      PRISM_ASSIGN_OR_RETURN(Timed t, timed_method(device, scene, c));
-      return std::max(1e-6, t.on(options.clock) / 4.0);
+      CostModel model;
+      std::uint64_t spp = 4;
+      for (int step = 0; step < 5; ++step) {
+        c.spp = static_cast<std::int64_t>(spp);
+        PRISM_ASSIGN_OR_RETURN(Timed t, render_method(scene, c));
+        model.add(spp, t.on(options.clock));
+        // Two renders at least: a first one may carry one-off costs (the farm fetching the
+        // bundle), which would otherwise pass for the per-sample part.
+        if (step > 0 && t.on(options.clock) >= budgets.front() / 8) break;
+        spp = std::max(4 * spp, model.spp_for(budgets.front() / 4));
+      }
+      return model;
     };
 
     // ---- The reference.
@@ -540,8 +673,11 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       } else if (options.reference_spp.has_value()) {
         spp = static_cast<std::uint64_t>(*options.reference_spp);
       } else if (by_time) {
-        PRISM_ASSIGN_OR_RETURN(double rate, calibrate(ref));
-        spp = static_cast<std::uint64_t>(4 * budgets.back() / rate);
+        PRISM_ASSIGN_OR_RETURN(CostModel cost, calibrate(ref));
+        // About four times the largest budget, at the nearest power of two, so that a rerun
+        // whose calibration measures a little differently finds the cached reference.
+        const double wanted = double(cost.spp_for(4 * budgets.back()));
+        spp = std::uint64_t{1} << std::clamp(int(std::lround(std::log2(wanted))), 1, 20);
       } else {
         spp = 4 * spps.back();
       }
@@ -553,8 +689,23 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       PRISM_ASSIGN_OR_RETURN(PreparedRender prepared,
                              prepare_render(ref, device, scene.description, *scene.library,
                                             scene.bundle_hash, scene.scene_relpath));
-      PRISM_ASSIGN_OR_RETURN(
-          reference, evaluation::cached_reference(device, scene, prepared.local, cache, "bench"));
+      evaluation::HalfRenderer on_farm;
+      if (options.farm.has_value()) {
+        on_farm = [&, ref](const coordinator::LocalRenderOptions& half)
+            -> absl::StatusOr<evaluation::TimedRender> {
+          RenderCommandOptions o = ref;
+          o.seed = half.render.seed;
+          o.spp = static_cast<std::int64_t>(half.spp);
+          if (half.target_error.has_value()) {
+            o.target_error = half.target_error->relative;
+            o.max_spp = static_cast<std::int64_t>(half.target_error->max_spp);
+          }
+          PRISM_ASSIGN_OR_RETURN(Timed t, render_method(scene, o));
+          return evaluation::TimedRender{std::move(t.result), t.wall, t.cpu};
+        };
+      }
+      PRISM_ASSIGN_OR_RETURN(reference, evaluation::cached_reference(device, scene, prepared.local,
+                                                                     cache, "bench", on_farm));
       floor_known = true;
       reference_text =
           options.reference_error.has_value()
@@ -579,30 +730,34 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
     // ---- The methods.
     for (const std::string& method : methods) {
       PRISM_ASSIGN_OR_RETURN(RenderCommandOptions mo, method_options(method, scene_base));
-      double rate = 0;
+      CostModel cost;
       if (by_time) {
-        PRISM_ASSIGN_OR_RETURN(rate, calibrate(mo));
+        PRISM_ASSIGN_OR_RETURN(cost, calibrate(mo));
       }
       const std::size_t count = by_time ? budgets.size() : spps.size();
       for (std::size_t bi = 0; bi < count; ++bi) {
         const std::string budget =
             by_time ? absl::StrCat(number(budgets[bi]), "s") : absl::StrCat(spps[bi], "spp");
-        std::uint64_t spp =
-            by_time ? std::max<std::uint64_t>(1, std::uint64_t(budgets[bi] / rate)) : spps[bi];
+        std::uint64_t spp = by_time ? cost.spp_for(budgets[bi]) : spps[bi];
         for (int seed = 1; seed <= options.seeds; ++seed) {
           RenderCommandOptions o = mo;
           o.seed = static_cast<std::uint64_t>(seed);
           o.spp = static_cast<std::int64_t>(spp);
-          PRISM_ASSIGN_OR_RETURN(Timed t, timed_method(device, scene, o));
+          PRISM_ASSIGN_OR_RETURN(Timed t, render_method(scene, o));
           if (by_time && seed == 1) {
-            // One correction when the calibration missed the budget by more than a quarter.
-            const double spent = t.on(options.clock);
-            if (std::abs(spent - budgets[bi]) > 0.25 * budgets[bi] && spent > 0) {
-              spp = std::max<std::uint64_t>(1, std::uint64_t(double(spp) * budgets[bi] / spent));
+            // Up to two corrections while the render misses the budget by more than a quarter;
+            // the other seeds then render at the spp found.
+            cost.add(spp, t.on(options.clock));
+            for (int retry = 0;
+                 retry < 2 && std::abs(t.on(options.clock) - budgets[bi]) > 0.25 * budgets[bi];
+                 ++retry) {
+              const std::uint64_t next = cost.spp_for(budgets[bi]);
+              if (next == spp) break;
+              spp = next;
               o.spp = static_cast<std::int64_t>(spp);
-              PRISM_ASSIGN_OR_RETURN(t, timed_method(device, scene, o));
+              PRISM_ASSIGN_OR_RETURN(t, render_method(scene, o));
+              cost.add(spp, t.on(options.clock));
             }
-            rate = t.on(options.clock) / double(spp);
           }
           for (std::size_t ri = 0; ri < regions.size(); ++ri) {
             PRISM_ASSIGN_OR_RETURN(

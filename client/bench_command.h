@@ -13,13 +13,20 @@
 // record the seconds actually spent, and the equal-time ratios interpolate the baseline's curve
 // at them (client/evaluation.h).
 //
+// On the farm (`--coordinator`): every render, the reference's halves included, is a farm job
+// submitted as `prism submit --wait` submits it (auto and the τ pilot run in this process first,
+// as there), with a client token of its own so that no earlier job is reused, and timed on the
+// wall clock from the submission to the fetched outputs: what the farm costs a user, scheduling
+// and transfers included. The farm's outputs are byte for byte the local ones, so the errors
+// are those a local bench measures and the reference cache is shared.
+//
 // Reference: `--reference REF.exr` (its noise is known when a REF.half.exr from an independent
 // half of its samples lies beside it, as the ones prism bench renders have), or one rendered by
-// hero without a prepass, in two independent halves, at `--reference-spp` or at four times the
-// largest budget, or to `--reference-error` (each half to √2 times it, by the target-error
-// rounds), and cached by the scene bundle's hash and the render options. MSE and relMSE
-// are reported minus the reference's noise floor where it is known (the floor columns say how
-// much), SSIM as measured.
+// hero without a prepass, in two independent halves, at `--reference-spp` or at about four times
+// the largest budget (the power of two nearest to it, so reruns share it), or to
+// `--reference-error` (each half to √2 times it, by the target-error rounds), and cached by the
+// scene bundle's hash and the render options. MSE and relMSE are reported minus the reference's
+// noise floor where it is known (the floor columns say how much), SSIM as measured.
 #pragma once
 
 #include <cstdint>
@@ -30,6 +37,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "client/farm_commands.h"
 #include "services/image/metrics.h"
 #include "worker/embree_device.h"
 
@@ -55,6 +63,8 @@ struct BenchOptions {
   std::string baseline = "hero";
   std::filesystem::path output = "bench";
   bool allow_unsupported = false;
+  // Render on the farm instead of in this process (wall clock only; the workers' threads).
+  std::optional<FarmConnection> farm;
   std::ostream* log = nullptr;  // one line per render; null: quiet
 };
 

@@ -99,7 +99,8 @@ absl::StatusOr<image::ErrorMetrics> Reference::floor(const std::optional<image::
 absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device, const BenchScene& scene,
                                            const coordinator::LocalRenderOptions& options,
                                            const std::filesystem::path& cache_dir,
-                                           const std::string& tag) {
+                                           const std::string& tag,
+                                           const HalfRenderer& render_half) {
   const std::string key = base::sha256_hex(absl::StrCat(scene.bundle_hash, "|", scene.scene_relpath,
                                                         "|", describe(options)))
                               .substr(0, 16);
@@ -140,9 +141,20 @@ absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device, const B
                  tag.c_str(), scene.name.c_str(), static_cast<unsigned long long>(options.spp),
                  average_path.c_str());
   }
-  PRISM_ASSIGN_OR_RETURN(TimedRender a, timed_render(device, scene, half_options));
+  auto render = [&](const coordinator::LocalRenderOptions& o) -> absl::StatusOr<TimedRender> {
+    if (render_half) return render_half(o);
+    return timed_render(device, scene, o);
+  };
+  PRISM_ASSIGN_OR_RETURN(TimedRender a, render(half_options));
   half_options.render.seed = options.render.seed + 1;
-  PRISM_ASSIGN_OR_RETURN(TimedRender b, timed_render(device, scene, half_options));
+  PRISM_ASSIGN_OR_RETURN(TimedRender b, render(half_options));
+  if (a.result.image.data().size() != b.result.image.data().size()) {
+    return absl::InternalError("the reference's two halves differ in size");
+  }
+  if (half_options.target_error.has_value() &&
+      (!a.result.stats.target_error.has_value() || !b.result.stats.target_error.has_value())) {
+    return absl::InternalError("a target-error half of the reference did not report its spp");
+  }
 
   image::SpectralImage average = a.result.image;
   std::span<float> out = average.data();

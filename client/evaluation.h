@@ -14,6 +14,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <span>
@@ -69,16 +70,25 @@ struct Reference {
       const std::optional<image::Crop>& crop = std::nullopt) const;
 };
 
+// Renders one half of a reference: `half` is the reference's options with the half's seed and
+// spp (or target error). The image is what matters; statistics.variance_of_mean may be left
+// empty (the s²/n check is then 0) and stats.target_error must be set for a target-error half.
+using HalfRenderer =
+    std::function<absl::StatusOr<TimedRender>(const coordinator::LocalRenderOptions& half)>;
+
 // The reference for `options` (options.spp is the total, split in two halves of spp/2 with seeds
 // options.render.seed and options.render.seed + 1), loaded from `cache_dir` when a file for the
 // same bundle (the scene and every file it reads) and options is there, else rendered and
-// written there (atomically). `tag` names the benchmark in the file name and in progress lines
-// on stderr. Errors from rendering, reading or writing are passed on; the cache directory is
-// created when missing.
+// written there (atomically). The halves are rendered by `render_half` when given (prism bench
+// on the farm, whose output is byte for byte the local render's, so the cache is shared), else
+// by timed_render in this process. `tag` names the benchmark in the file name and in progress
+// lines on stderr. Errors from rendering, reading or writing are passed on; the cache directory
+// is created when missing.
 absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device, const BenchScene& scene,
                                            const coordinator::LocalRenderOptions& options,
                                            const std::filesystem::path& cache_dir,
-                                           const std::string& tag);
+                                           const std::string& tag,
+                                           const HalfRenderer& render_half = nullptr);
 
 // One measurement of a convergence curve.
 struct ConvergencePoint {

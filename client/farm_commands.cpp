@@ -486,4 +486,18 @@ absl::StatusOr<std::string> run_workers(const FarmConnection& c) {
   return text;
 }
 
+absl::StatusOr<int> live_workers(const FarmConnection& c) {
+  PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
+  v1::ListWorkersRequest request;
+  v1::ListWorkersResponse response;
+  if (grpc::Status s = farm.stub().ListWorkers(farm.call().get(), request, &response); !s.ok()) {
+    return rpc_error(s);
+  }
+  int live = 0;
+  for (const v1::WorkerInfo& w : response.workers()) {
+    live += w.state() == "idle" || w.state() == "busy" ? 1 : 0;
+  }
+  return live;
+}
+
 }  // namespace prism::client

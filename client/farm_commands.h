@@ -53,5 +53,7 @@ absl::StatusOr<std::string> run_cancel(const FarmConnection& c, const std::strin
 absl::StatusOr<std::string> run_fetch(const FarmConnection& c, const std::string& job_id,
                                       const std::optional<std::filesystem::path>& output);
 absl::StatusOr<std::string> run_workers(const FarmConnection& c);
+// How many of the farm's workers can take tasks (idle or busy; not draining or lost).
+absl::StatusOr<int> live_workers(const FarmConnection& c);
 
 }  // namespace prism::client

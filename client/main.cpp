@@ -128,6 +128,8 @@ int main(int argc, char** argv) {
     cmd->add_option("--tls-ca", farm.tls_ca, "PEM roots to verify the coordinator (TLS)");
   };
 
+  add_connection(bench_cmd);
+
   prism::client::SubmitOptions submit;
   prism::client::RenderFlags submit_flags;
   auto* submit_cmd = app.add_subcommand("submit", "Submit a scene to the farm");
@@ -220,6 +222,13 @@ int main(int argc, char** argv) {
     if (!bench_resolution.empty()) bench.resolution = bench_resolution;
     if (bench_bins_opt->count() > 0) bench.bins = bench_bins;
     if (bench_threads_opt->count() > 0) bench.threads = bench_threads;
+    if (!farm.address.empty()) {
+      // --coordinator sends every render to the farm; the token may come from the environment.
+      if (absl::Status resolved = prism::client::resolve_connection(farm); !resolved.ok()) {
+        return report(resolved);
+      }
+      bench.farm = farm;
+    }
     bench.log = &std::cerr;
     prism::worker::EmbreeDevice device;
     return report(prism::client::run_bench(bench, device));

@@ -608,6 +608,92 @@ TEST_F(FarmProcessTest, SampleRangeTasksMatchPrismRenderByteForByte) {
   expect_identical(fetch_spectral(job_id), cli_render(kSpp, 5));
 }
 
+// `prism bench --coordinator`: every render (the reference's two halves included) is a job of
+// its own on the farm, and since the farm's bytes are `prism render`'s, the errors are exactly
+// those of the same bench run in process, each with a reference cache of its own. A rerun submits
+// new jobs (its own client tokens) and takes the reference from the cache the first run filled.
+TEST_F(FarmProcessTest, BenchOnTheFarmMeasuresExactlyWhatALocalBenchMeasures) {
+  start_coordinator();
+  start_worker(0);
+  start_worker(1);
+  auto run = [&](const std::string& out, const std::string& cache, bool farm) {
+    std::vector<std::string> args = {PRISM_BINARY,
+                                     "bench",
+                                     (root_ / "scene" / "scene.pbrt").string(),
+                                     "--spp",
+                                     "4,8",
+                                     "--seeds",
+                                     "1",
+                                     "--methods",
+                                     "uniform,hero",
+                                     "--reference-spp",
+                                     "32",
+                                     "--inset",
+                                     "4,4,8,8",
+                                     "--reference-cache",
+                                     (root_ / cache).string(),
+                                     "-o",
+                                     (root_ / out).string()};
+    if (farm) {
+      args.insert(args.end(),
+                  {"--coordinator", "127.0.0.1:" + std::to_string(port_), "--token", kToken});
+    }
+    const pid_t pid = spawn(args);
+    int status = 0;
+    ::waitpid(pid, &status, 0);
+    std::erase(children_, pid);
+    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << out;
+  };
+  auto jobs = [&] {
+    v1::ListJobsRequest request;
+    v1::ListJobsResponse response;
+    auto context = client();
+    EXPECT_TRUE(stub_->ListJobs(context.get(), request, &response).ok());
+    int done = 0;
+    for (const auto& job : response.jobs()) done += job.state() == v1::JOB_STATE_DONE ? 1 : 0;
+    EXPECT_EQ(done, response.jobs_size());
+    return response.jobs_size();
+  };
+  // The CSV without its timing columns (seconds, wall_seconds, cpu_seconds).
+  auto measured = [&](const std::string& out) {
+    std::ifstream in(root_ / out / "results.csv");
+    std::vector<std::string> rows;
+    for (std::string line; std::getline(in, line);) {
+      std::vector<std::string> fields(1);  // split at commas outside quotes
+      bool quoted = false;
+      for (char c : line) {
+        if (c == '"') quoted = !quoted;
+        if (c == ',' && !quoted) {
+          fields.emplace_back();
+        } else {
+          fields.back().push_back(c);
+        }
+      }
+      EXPECT_EQ(fields.size(), 17u) << line;
+      if (fields.size() == 17) fields.erase(fields.begin() + 6, fields.begin() + 9);
+      std::string kept;
+      for (const std::string& f : fields) kept += f + ",";
+      rows.push_back(kept);
+    }
+    return rows;
+  };
+
+  run("farm", "farm-cache", true);
+  EXPECT_EQ(jobs(), 2 + 2 * 2);  // the reference's halves, then 2 methods x 2 spp
+  run("local", "local-cache", false);
+  EXPECT_EQ(jobs(), 6);
+  const std::vector<std::string> farm = measured("farm"), local = measured("local");
+  ASSERT_EQ(farm.size(), 1u + 2 * 2 * 2);  // the header, then two regions per render
+  EXPECT_EQ(farm, local);
+  EXPECT_NE(farm[1].find(",uniform,4spp,1,image,4,"), std::string::npos) << farm[1];
+  EXPECT_TRUE(fs::exists(root_ / "farm" / "scene.png"));
+  EXPECT_FALSE(fs::exists(root_ / "farm" / ".farm"));  // the fetched outputs are gone
+
+  run("again", "farm-cache", true);
+  EXPECT_EQ(jobs(), 6 + 4);  // new jobs, the cached reference
+  EXPECT_EQ(measured("again"), farm);
+}
+
 TEST_F(FarmProcessTest, AWorkerKilledMidJobLeavesTheBytesUnchanged) {
   start_coordinator();
   const std::string job_id = submit(spec(upload(), kSlowSpp));
