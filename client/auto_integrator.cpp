@@ -32,7 +32,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   const Clock::time_point start = Clock::now();
   RenderCommandOptions& chosen = out.options;
   chosen.prepass = false;
-  coordinator::AutoReport report;
+  job::AutoReport report;
   if (options.prepass == true || has_prepass_options(options)) {
     // Only hero runs the prepass.
     chosen.prepass = options.prepass;
@@ -160,7 +160,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
       report.candidates[0].rel_mse_per_sample * report.candidates[0].rays_per_sample;
   std::size_t best = 0;
   for (std::size_t i = 0; i < report.candidates.size(); ++i) {
-    coordinator::AutoReport::Candidate& c = report.candidates[i];
+    job::AutoReport::Candidate& c = report.candidates[i];
     const double efficiency = c.rel_mse_per_sample * c.rays_per_sample;
     c.relative_efficiency = hero > 0 ? efficiency / hero : 1.0;
     if (hero > 0 && c.relative_efficiency < report.candidates[best].relative_efficiency) best = i;
@@ -181,13 +181,13 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   return out;
 }
 
-void set_auto_choice(const coordinator::AutoReport& report, prism::v1::JobSpec& spec) {
+void set_auto_choice(const job::AutoReport& report, prism::v1::JobSpec& spec) {
   prism::v1::AutoChoice* a = spec.mutable_auto_choice();
   a->Clear();
   a->set_choice(report.choice);
   a->set_reason(report.reason);
   a->set_seconds(report.seconds);
-  for (const coordinator::AutoReport::Candidate& c : report.candidates) {
+  for (const job::AutoReport::Candidate& c : report.candidates) {
     prism::v1::AutoChoice::Candidate* out = a->add_candidates();
     out->set_method(c.method);
     out->set_rel_mse_per_sample(c.rel_mse_per_sample);

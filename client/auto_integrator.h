@@ -46,8 +46,8 @@ namespace prism::client {
 inline constexpr double kAutoMinimumGain = 0.10;
 
 struct ResolvedIntegrator {
-  RenderCommandOptions options;                   // with an explicit integrator and prepass
-  std::optional<coordinator::AutoReport> report;  // set when `auto` chose
+  RenderCommandOptions options;           // with an explicit integrator and prepass
+  std::optional<job::AutoReport> report;  // set when `auto` chose
 };
 
 // `options` as given when its integrator is explicit; otherwise the choice above.
@@ -59,6 +59,6 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
                                                       const std::string& scene_relpath);
 
 // Records the choice in the job spec (JobSpec.auto_choice), where the report takes it from.
-void set_auto_choice(const coordinator::AutoReport& report, prism::v1::JobSpec& spec);
+void set_auto_choice(const job::AutoReport& report, prism::v1::JobSpec& spec);
 
 }  // namespace prism::client

@@ -23,11 +23,11 @@
 #include "client/compare_command.h"
 #include "client/evaluation.h"
 #include "client/render_command.h"
-#include "coordinator/job_spec.h"
 #include "services/base/atomic_file.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
+#include "services/job/job_spec.h"
 
 extern char** environ;
 
@@ -191,7 +191,7 @@ absl::StatusOr<Timed> timed_method(worker::EmbreeDevice& device,
                timed.wall_seconds + prepared.pilot_seconds.value_or(0.0) +
                    prepared.auto_pilot_seconds.value_or(0.0),
                timed.cpu_seconds + (piloted ? prepare_cpu : 0.0),
-               absl::StrCat(worker::name(prepared.job.render.integrator),
+               absl::StrCat(job::name(prepared.job.render.integrator),
                             prepared.job.prepass.has_value() ? "+prepass" : "")};
 }
 
@@ -668,7 +668,7 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       if (options.reference_error.has_value()) {
         ref.target_error = *options.reference_error;
         ref.max_spp = options.reference_spp.value_or(
-            static_cast<std::int64_t>(coordinator::kDefaultTargetErrorMaxSpp));
+            static_cast<std::int64_t>(job::kDefaultTargetErrorMaxSpp));
         spp = 16;
       } else if (options.reference_spp.has_value()) {
         spp = static_cast<std::uint64_t>(*options.reference_spp);

@@ -29,15 +29,15 @@ double mean_of(const std::vector<double>& v) {
 
 // Everything about the reference render that changes its pixels.
 std::string describe(const coordinator::LocalRenderOptions& o) {
-  const worker::RenderOptions& r = o.render;
+  const job::RenderOptions& r = o.render;
   return absl::StrCat(
-      o.width, "x", o.height, "|spp ", o.spp, "|", worker::name(r.integrator), "|",
-      worker::name(r.spectral_pdf), "|", worker::name(r.emitter_pdf), "|",
-      worker::name(r.light_selection), "|", r.spectral_light_selection, "|",
-      static_cast<int>(r.sampler), "|bins ", r.bins, "|depth ", r.max_depth, "|rr ", r.rr_min_depth,
-      "|seed ", r.seed, "|eps ", r.defensive_epsilon, "|k ", r.gradient_offset_bins, "|tau ",
-      r.gradient_tau, "|prepass ", o.prepass.has_value(), "|alpha ", o.poisson_alpha, "|per task ",
-      o.samples_per_task, "|target ",
+      o.width, "x", o.height, "|spp ", o.spp, "|", job::name(r.integrator), "|",
+      job::name(r.spectral_pdf), "|", job::name(r.emitter_pdf), "|", job::name(r.light_selection),
+      "|", r.spectral_light_selection, "|", static_cast<int>(r.sampler), "|bins ", r.bins,
+      "|depth ", r.max_depth, "|rr ", r.rr_min_depth, "|seed ", r.seed, "|eps ",
+      r.defensive_epsilon, "|k ", r.gradient_offset_bins, "|tau ", r.gradient_tau, "|prepass ",
+      o.prepass.has_value(), "|alpha ", o.poisson_alpha, "|per task ", o.samples_per_task,
+      "|target ",
       o.target_error.has_value() ? absl::StrCat(o.target_error->relative, " ",
                                                 o.target_error->image_scope ? "image" : "pixel",
                                                 " ", o.target_error->max_spp)
@@ -124,8 +124,8 @@ absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device, const B
   if (options.target_error.has_value()) {
     // Each half to √2 times the target, so that their average meets it; the halves may stop
     // at different rounds per tile, and their average is still unbiased.
-    coordinator::TargetError& t = *half_options.target_error;
-    t.relative = std::min(coordinator::kMaxTargetError, t.relative * std::sqrt(2.0));
+    job::TargetError& t = *half_options.target_error;
+    t.relative = std::min(job::kMaxTargetError, t.relative * std::sqrt(2.0));
     t.max_spp = std::max(options.spp, t.max_spp / 2);
     std::fprintf(stderr,
                  "%s: rendering the reference of %s to %.3g %% in two halves (cached in %s)\n",

@@ -79,12 +79,12 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
     return absl::InvalidArgumentError(
         absl::StrCat("Poisson norm '", options.poisson, "': want l2 or l1"));
   }
-  const coordinator::PoissonNorm norm = *coordinator::parse_poisson_norm(options.poisson);
-  if (!std::isfinite(options.alpha) || options.alpha < coordinator::kMinPoissonAlpha ||
-      options.alpha > coordinator::kMaxPoissonAlpha) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "--alpha ", options.alpha, ": want a finite value in [", coordinator::kMinPoissonAlpha,
-        ", ", coordinator::kMaxPoissonAlpha, "] (alpha must be > 0)"));
+  const job::PoissonNorm norm = *job::parse_poisson_norm(options.poisson);
+  if (!std::isfinite(options.alpha) || options.alpha < job::kMinPoissonAlpha ||
+      options.alpha > job::kMaxPoissonAlpha) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--alpha ", options.alpha, ": want a finite value in [", job::kMinPoissonAlpha,
+                     ", ", job::kMaxPoissonAlpha, "] (alpha must be > 0)"));
   }
   if (options.output.empty() || options.output.extension() != ".exr") {
     return absl::InvalidArgumentError(
@@ -146,7 +146,7 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
 
   image::ExrMetadata metadata = primal->metadata;
   metadata[std::string(image::kMetaPoissonAlpha)] = exact_decimal(options.alpha);
-  metadata[std::string(image::kMetaPoissonNorm)] = std::string(coordinator::to_string(norm));
+  metadata[std::string(image::kMetaPoissonNorm)] = std::string(job::to_string(norm));
   metadata[std::string(image::kMetaGradientOffsetBins)] = absl::StrCat(k);
   const auto delta = gradient->metadata.find(std::string(image::kMetaGradientDelta));
   if (delta != gradient->metadata.end()) {
@@ -156,7 +156,7 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   PRISM_RETURN_IF_ERROR(image::write_spectral_exr(options.output, *result, *rgb, metadata));
   return absl::StrCat("wrote ", options.output.string(), ": ", pi.width(), "x", pi.height(), ", ",
                       pi.bins(), " bins, k ", k, ", alpha ", exact_decimal(options.alpha), ", ",
-                      std::string(coordinator::to_string(norm)), "\n");
+                      std::string(job::to_string(norm)), "\n");
 }
 
 }  // namespace prism::client

@@ -9,12 +9,13 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/auto_integrator.h"
-#include "coordinator/job_spec.h"
+#include "coordinator/job_report.h"
 #include "coordinator/local_render.h"
 #include "coordinator/outputs.h"
 #include "coordinator/poisson.h"
 #include "coordinator/prepass.h"
 #include "services/base/status.h"
+#include "services/job/job_spec.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
@@ -104,10 +105,10 @@ absl::StatusOr<double> parse_target_error(const std::string& text) {
   auto [end, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), value);
   if (percent) value /= 100;
   if (digits.empty() || ec != std::errc() || end != digits.data() + digits.size() ||
-      !(value >= coordinator::kMinTargetError && value <= coordinator::kMaxTargetError)) {
+      !(value >= job::kMinTargetError && value <= job::kMaxTargetError)) {
     return absl::InvalidArgumentError(
         absl::StrCat("--target-error '", text, "': want a relative error such as 0.01 or 1% (",
-                     coordinator::kMinTargetError, "..", coordinator::kMaxTargetError, ")"));
+                     job::kMinTargetError, "..", job::kMaxTargetError, ")"));
   }
   return value;
 }
@@ -122,44 +123,45 @@ absl::StatusOr<std::uint64_t> parse_seed(const std::string& text) {
   return seed;
 }
 
-absl::StatusOr<worker::IntegratorKind> parse_integrator(const std::string& name) {
-  if (name == "uniform") return worker::IntegratorKind::kUniform;
-  if (name == "hero") return worker::IntegratorKind::kHero;
-  if (name == "gradient") return worker::IntegratorKind::kGradient;
+absl::StatusOr<job::IntegratorKind> parse_integrator(const std::string& name) {
+  if (name == "uniform") return job::IntegratorKind::kUniform;
+  if (name == "hero") return job::IntegratorKind::kHero;
+  if (name == "gradient") return job::IntegratorKind::kGradient;
   return absl::InvalidArgumentError(
       absl::StrCat("--integrator '", name, "': want uniform, hero, gradient or auto"));
 }
 
-absl::StatusOr<worker::SpectralPdfKind> parse_spectral_pdf(const std::string& name) {
-  if (name == "flat") return worker::SpectralPdfKind::kFlat;
-  if (name == "visible") return worker::SpectralPdfKind::kVisible;
+absl::StatusOr<job::SpectralPdfKind> parse_spectral_pdf(const std::string& name) {
+  if (name == "flat") return job::SpectralPdfKind::kFlat;
+  if (name == "visible") return job::SpectralPdfKind::kVisible;
   return absl::InvalidArgumentError(
       absl::StrCat("--spectral-pdf '", name, "': want flat or visible"));
 }
 
-absl::StatusOr<worker::EmitterPdfKind> parse_emitter_pdf(const std::string& name) {
-  if (name == "uniform") return worker::EmitterPdfKind::kUniform;
-  if (name == "emitters") return worker::EmitterPdfKind::kEmitters;
+absl::StatusOr<job::EmitterPdfKind> parse_emitter_pdf(const std::string& name) {
+  if (name == "uniform") return job::EmitterPdfKind::kUniform;
+  if (name == "emitters") return job::EmitterPdfKind::kEmitters;
   return absl::InvalidArgumentError(
       absl::StrCat("--emitter-pdf '", name, "': want uniform or emitters"));
 }
 
-absl::StatusOr<worker::LightSelectionKind> parse_light_selection(const std::string& name) {
-  if (name == "uniform") return worker::LightSelectionKind::kUniform;
-  if (name == "power") return worker::LightSelectionKind::kPower;
-  if (name == "spatial") return worker::LightSelectionKind::kSpatial;
+absl::StatusOr<job::LightSelectionKind> parse_light_selection(const std::string& name) {
+  if (name == "uniform") return job::LightSelectionKind::kUniform;
+  if (name == "power") return job::LightSelectionKind::kPower;
+  if (name == "spatial") return job::LightSelectionKind::kSpatial;
   return absl::InvalidArgumentError(
       absl::StrCat("--light-selection '", name, "': want uniform, power or spatial"));
 }
 
 absl::Status validate_render_flags(const RenderCommandOptions& o) {
-  PRISM_RETURN_IF_ERROR(check_range("--spp", o.spp, 1, kMaxSpp));
+  PRISM_RETURN_IF_ERROR(check_range("--spp", o.spp, 1, std::int64_t(job::kMaxJobSpp)));
   PRISM_RETURN_IF_ERROR(check_range("--bins", o.bins, spectral::WavelengthGrid::kMinBins,
                                     spectral::WavelengthGrid::kMaxBins));
-  PRISM_RETURN_IF_ERROR(check_range("--threads", o.threads, 1, kMaxThreads));
+  PRISM_RETURN_IF_ERROR(check_range("--threads", o.threads, 1, job::kMaxThreads));
   PRISM_RETURN_IF_ERROR(check_range("--tile", o.tile, 4, 1024));
-  PRISM_RETURN_IF_ERROR(check_range("--max-depth", o.max_depth, 0, kMaxDepth));
-  PRISM_RETURN_IF_ERROR(check_range("--samples-per-task", o.samples_per_task, 1, kMaxSpp));
+  PRISM_RETURN_IF_ERROR(check_range("--max-depth", o.max_depth, 0, job::kMaxJobDepth));
+  PRISM_RETURN_IF_ERROR(
+      check_range("--samples-per-task", o.samples_per_task, 1, std::int64_t(job::kMaxJobSpp)));
   if (o.resolution.has_value()) PRISM_RETURN_IF_ERROR(parse_resolution(*o.resolution).status());
   const bool automatic = o.integrator == "auto";
   if (!automatic) PRISM_RETURN_IF_ERROR(parse_integrator(o.integrator).status());
@@ -167,7 +169,7 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   PRISM_RETURN_IF_ERROR(parse_emitter_pdf(o.emitter_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_light_selection(o.light_selection).status());
   const bool gradient =
-      !automatic && *parse_integrator(o.integrator) == worker::IntegratorKind::kGradient;
+      !automatic && *parse_integrator(o.integrator) == job::IntegratorKind::kGradient;
   if (!gradient &&
       (o.delta || o.tau || o.tau_auto || o.alpha || !o.poisson.empty() || o.primal_and_gradients)) {
     return absl::InvalidArgumentError(
@@ -181,14 +183,14 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
     return absl::InvalidArgumentError(
         absl::StrCat("--tau ", *o.tau, " is out of range: want a finite value >= 0"));
   }
-  if (o.alpha && !(std::isfinite(*o.alpha) && *o.alpha >= coordinator::kMinPoissonAlpha &&
-                   *o.alpha <= coordinator::kMaxPoissonAlpha)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("--alpha ", *o.alpha, " is out of range: want ", coordinator::kMinPoissonAlpha,
-                     "..", coordinator::kMaxPoissonAlpha, " (alpha must be > 0)"));
+  if (o.alpha && !(std::isfinite(*o.alpha) && *o.alpha >= job::kMinPoissonAlpha &&
+                   *o.alpha <= job::kMaxPoissonAlpha)) {
+    return absl::InvalidArgumentError(absl::StrCat("--alpha ", *o.alpha, " is out of range: want ",
+                                                   job::kMinPoissonAlpha, "..",
+                                                   job::kMaxPoissonAlpha, " (alpha must be > 0)"));
   }
   if (!o.poisson.empty()) {
-    PRISM_RETURN_IF_ERROR(coordinator::parse_poisson_norm(o.poisson).status());
+    PRISM_RETURN_IF_ERROR(job::parse_poisson_norm(o.poisson).status());
   }
   if (gradient && o.alpha && o.poisson == "weighted") {
     return absl::InvalidArgumentError(
@@ -206,7 +208,7 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   if (!o.target_error.has_value() && (o.max_spp.has_value() || o.target_error_scope != "pixel")) {
     return absl::InvalidArgumentError("--max-spp and --target-error-scope go with --target-error");
   }
-  PRISM_RETURN_IF_ERROR(check_range("--max-spp", o.max_spp, 2, kMaxSpp));
+  PRISM_RETURN_IF_ERROR(check_range("--max-spp", o.max_spp, 2, std::int64_t(job::kMaxJobSpp)));
   if (o.target_error.has_value() && o.spp.has_value() && o.max_spp.has_value() &&
       *o.max_spp < *o.spp) {
     return absl::InvalidArgumentError(absl::StrCat("--max-spp ", *o.max_spp, " is below --spp ",
@@ -216,12 +218,13 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   if (o.prepass == false && prepass_options) {
     return absl::InvalidArgumentError("--prepass-* options are given with --no-prepass");
   }
-  PRISM_RETURN_IF_ERROR(check_range("--prepass-passes", o.prepass_passes, 1,
-                                    coordinator::PrepassParameters::kMaxPasses));
-  PRISM_RETURN_IF_ERROR(check_range("--prepass-spp", o.prepass_spp, 1, kMaxSpp));
+  PRISM_RETURN_IF_ERROR(
+      check_range("--prepass-passes", o.prepass_passes, 1, job::PrepassParameters::kMaxPasses));
+  PRISM_RETURN_IF_ERROR(
+      check_range("--prepass-spp", o.prepass_spp, 1, std::int64_t(job::kMaxJobSpp)));
   {
     // The float options through the coordinator's own rules (names mapped back to the flags).
-    coordinator::PrepassParameters p;
+    job::PrepassParameters p;
     if (o.prepass_epsilon) p.epsilon = *o.prepass_epsilon;
     if (o.prepass_fallback) p.fallback = *o.prepass_fallback;
     if (o.prepass_sigma_s) p.sigma_s = *o.prepass_sigma_s;
@@ -240,10 +243,10 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
       }
     }
   }
-  if (!std::isfinite(o.exposure) || std::fabs(o.exposure) > kMaxExposureStops) {
-    return absl::InvalidArgumentError(absl::StrCat("--exposure ", o.exposure,
-                                                   " is out of range: want stops in -",
-                                                   kMaxExposureStops, "..", kMaxExposureStops));
+  if (!std::isfinite(o.exposure) || std::fabs(o.exposure) > job::kMaxJobExposureStops) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--exposure ", o.exposure, " is out of range: want stops in -",
+                     job::kMaxJobExposureStops, "..", job::kMaxJobExposureStops));
   }
   // The names alone (the film's filename is not needed to check -o and --json).
   return coordinator::output_paths(o.output, o.json, "render.exr").status();
@@ -254,16 +257,15 @@ absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& o,
                                                  const scene::SceneDescription& description,
                                                  const spectral::SpectrumLibrary& library,
                                                  v1::JobSpec& spec) {
-  PRISM_ASSIGN_OR_RETURN(worker::IntegratorKind integrator, parse_integrator(o.integrator));
-  if (integrator != worker::IntegratorKind::kGradient || o.tau.has_value()) return std::nullopt;
+  PRISM_ASSIGN_OR_RETURN(job::IntegratorKind integrator, parse_integrator(o.integrator));
+  if (integrator != job::IntegratorKind::kGradient || o.tau.has_value()) return std::nullopt;
   if (!device.valid()) {
     return absl::InternalError(
         absl::StrCat("could not create the Embree device: ", device.take_error().message()));
   }
   spec.mutable_gradient()->set_tau(0.0f);
   spec.mutable_gradient()->clear_tau_pilot();
-  PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters job,
-                         coordinator::job_parameters(spec, description));
+  PRISM_ASSIGN_OR_RETURN(job::JobParameters job, job::job_parameters(spec, description));
   PRISM_ASSIGN_OR_RETURN(
       std::unique_ptr<worker::RenderScene> scene,
       worker::RenderScene::build(device, description, library, job.render, job.width, job.height));
@@ -299,16 +301,15 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   v1::JobSpec spec;
   spec.set_bundle_hash(bundle_hash);
   spec.set_scene_path(scene_path);
-  const worker::IntegratorKind integrator = *parse_integrator(o.integrator);
-  spec.set_integrator(coordinator::to_proto(integrator));
-  if (integrator == worker::IntegratorKind::kGradient) {
+  const job::IntegratorKind integrator = *parse_integrator(o.integrator);
+  spec.set_integrator(job::to_proto(integrator));
+  if (integrator == job::IntegratorKind::kGradient) {
     auto* g = spec.mutable_gradient();
     if (o.delta) g->set_delta(static_cast<float>(*o.delta));
     if (o.tau) g->set_tau(static_cast<float>(*o.tau));
     if (o.alpha) g->set_alpha(static_cast<float>(*o.alpha));
-    g->set_norm(coordinator::to_proto(o.poisson.empty()
-                                          ? coordinator::PoissonNorm::kL2
-                                          : *coordinator::parse_poisson_norm(o.poisson)));
+    g->set_norm(job::to_proto(o.poisson.empty() ? job::PoissonNorm::kL2
+                                                : *job::parse_poisson_norm(o.poisson)));
     spec.mutable_outputs()->set_primal_and_gradients(o.primal_and_gradients);
   }
   const bool prepass_options = has_prepass_options(o);
@@ -336,13 +337,13 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   if (o.max_depth) spec.set_max_depth(static_cast<std::uint32_t>(*o.max_depth));
   if (o.samples_per_task)
     spec.set_samples_per_task(static_cast<std::uint32_t>(*o.samples_per_task));
-  spec.set_spectral_pdf(*parse_spectral_pdf(o.spectral_pdf) == worker::SpectralPdfKind::kVisible
+  spec.set_spectral_pdf(*parse_spectral_pdf(o.spectral_pdf) == job::SpectralPdfKind::kVisible
                             ? v1::SPECTRAL_PDF_VISIBLE
                             : v1::SPECTRAL_PDF_FLAT);
-  spec.set_emitter_pdf(*parse_emitter_pdf(o.emitter_pdf) == worker::EmitterPdfKind::kUniform
+  spec.set_emitter_pdf(*parse_emitter_pdf(o.emitter_pdf) == job::EmitterPdfKind::kUniform
                            ? v1::EMITTER_PDF_UNIFORM
                            : v1::EMITTER_PDF_EMITTERS);
-  spec.set_light_selection(coordinator::to_proto(*parse_light_selection(o.light_selection)));
+  spec.set_light_selection(job::to_proto(*parse_light_selection(o.light_selection)));
   spec.set_spectral_light_selection(o.spectral_light_selection);
   spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
   spec.set_name(o.scene.filename().string());
@@ -354,9 +355,8 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   }
   // The coordinator applies the same rules; checking here fails before any upload, and
   // to_proto makes every value explicit so the token does not depend on scene defaults.
-  PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters parameters,
-                         coordinator::job_parameters(spec, description));
-  return coordinator::to_proto(parameters);
+  PRISM_ASSIGN_OR_RETURN(job::JobParameters parameters, job::job_parameters(spec, description));
+  return job::to_proto(parameters);
 }
 
 absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& options,
@@ -377,8 +377,8 @@ absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& option
   }
   PRISM_ASSIGN_OR_RETURN(prepared.pilot_seconds,
                          choose_tau(o, device, description, library, prepared.spec));
-  PRISM_ASSIGN_OR_RETURN(prepared.job, coordinator::job_parameters(prepared.spec, description));
-  const coordinator::JobParameters& job = prepared.job;
+  PRISM_ASSIGN_OR_RETURN(prepared.job, job::job_parameters(prepared.spec, description));
+  const job::JobParameters& job = prepared.job;
   coordinator::LocalRenderOptions& local = prepared.local;
   local.render = job.render;
   local.width = job.width;
@@ -427,10 +427,10 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   PRISM_ASSIGN_OR_RETURN(PreparedRender prepared,
                          prepare_render(options, device, description, library, bundle.content_hash,
                                         loaded.scene_relpath));
-  const coordinator::JobParameters& job = prepared.job;
+  const job::JobParameters& job = prepared.job;
   const std::optional<double> pilot_seconds = prepared.pilot_seconds;
   coordinator::LocalRenderOptions& local = prepared.local;
-  const worker::RenderOptions& render = local.render;
+  const job::RenderOptions& render = local.render;
   if (options.progress != nullptr) {
     std::ostream* out = options.progress;
     local.progress = [out](const coordinator::RenderProgress& p) { draw_progress(*out, p); };
@@ -449,10 +449,10 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   report.height = local.height;
   report.spp = local.spp;
   report.bins = render.bins;
-  report.integrator = worker::name(render.integrator);
-  report.spectral_pdf = worker::name(render.spectral_pdf);
-  report.emitter_pdf = worker::name(render.emitter_pdf);
-  report.light_selection = worker::name(render.light_selection);
+  report.integrator = job::name(render.integrator);
+  report.spectral_pdf = job::name(render.spectral_pdf);
+  report.emitter_pdf = job::name(render.emitter_pdf);
+  report.light_selection = job::name(render.light_selection);
   report.spectral_light_selection = render.spectral_light_selection;
   report.max_depth = render.max_depth;
   report.threads = result->stats.threads;
@@ -485,8 +485,8 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
     PRISM_RETURN_IF_ERROR(coordinator::write_primal_and_gradient(
         *result->primal, *result->gradient, renderer->scene().cmf(), report, paths));
   }
-  PRISM_RETURN_IF_ERROR(coordinator::write_outputs(result->image, result->rgb, report,
-                                                   paths, {static_cast<float>(options.exposure)}));
+  PRISM_RETURN_IF_ERROR(coordinator::write_outputs(result->image, result->rgb, report, paths,
+                                                   {static_cast<float>(options.exposure)}));
   const double seconds = report.render_seconds;
   return absl::StrCat(
       "rendered ", report.scene, ": ", report.width, "x", report.height, ", ", report.spp, " spp, ",

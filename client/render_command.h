@@ -17,13 +17,13 @@
 #include <string>
 
 #include "absl/status/statusor.h"
-#include "coordinator/job_spec.h"
 #include "coordinator/local_render.h"
 #include "prism/v1/types.pb.h"
+#include "services/job/job_spec.h"
+#include "services/job/render_options.h"
 #include "services/scene/scene_description.h"
 #include "services/spectral/named_spectra.h"
 #include "worker/embree_device.h"
-#include "worker/render_options.h"
 
 namespace prism::client {
 
@@ -76,11 +76,6 @@ struct RenderCommandOptions {
   std::ostream* warnings = nullptr;
 };
 
-inline constexpr std::int64_t kMaxSpp = std::int64_t{1} << 24;
-inline constexpr std::int64_t kMaxDepth = 1000;
-inline constexpr std::int64_t kMaxThreads = 4096;
-inline constexpr double kMaxExposureStops = 64.0;
-
 // "WxH" with 1 <= W, H <= 16384; INVALID_ARGUMENT quoting the text otherwise.
 absl::StatusOr<std::pair<int, int>> parse_resolution(const std::string& text);
 
@@ -91,10 +86,10 @@ absl::StatusOr<double> parse_target_error(const std::string& text);
 absl::StatusOr<std::uint64_t> parse_seed(const std::string& text);
 
 // The typed enum values of the string flags; INVALID_ARGUMENT listing the choices.
-absl::StatusOr<worker::IntegratorKind> parse_integrator(const std::string& name);
-absl::StatusOr<worker::SpectralPdfKind> parse_spectral_pdf(const std::string& name);
-absl::StatusOr<worker::EmitterPdfKind> parse_emitter_pdf(const std::string& name);
-absl::StatusOr<worker::LightSelectionKind> parse_light_selection(const std::string& name);
+absl::StatusOr<job::IntegratorKind> parse_integrator(const std::string& name);
+absl::StatusOr<job::SpectralPdfKind> parse_spectral_pdf(const std::string& name);
+absl::StatusOr<job::EmitterPdfKind> parse_emitter_pdf(const std::string& name);
+absl::StatusOr<job::LightSelectionKind> parse_light_selection(const std::string& name);
 
 // Whether any --prepass-* option is given (they ask for the prepass).
 bool has_prepass_options(const RenderCommandOptions& options);
@@ -104,7 +99,7 @@ bool has_prepass_options(const RenderCommandOptions& options);
 absl::Status validate_render_flags(const RenderCommandOptions& options);
 
 // The job these flags describe, for the scene `description` whose bundle has `bundle_hash` and
-// whose file is `scene_path` inside it: validated by coordinator::job_parameters (the farm's own
+// whose file is `scene_path` inside it: validated by job::job_parameters (the farm's own
 // rules, which fill the scene's defaults) and returned with every value explicit, so the farm and
 // the embedded render run exactly the same job. INVALID_ARGUMENT naming the flag or field.
 absl::StatusOr<prism::v1::JobSpec> job_spec_of(const RenderCommandOptions& options,
@@ -126,7 +121,7 @@ absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& opt
 // LocalRender's options and the τ pilot's wall seconds when one ran.
 struct PreparedRender {
   prism::v1::JobSpec spec;
-  coordinator::JobParameters job;
+  job::JobParameters job;
   coordinator::LocalRenderOptions local;
   std::optional<double> pilot_seconds;       // the τ pilot's
   std::optional<double> auto_pilot_seconds;  // `--integrator auto`'s (auto_integrator.h)

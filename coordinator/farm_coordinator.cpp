@@ -7,15 +7,16 @@
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
+#include "coordinator/job_report.h"
 #include "services/base/atomic_file.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/png.h"
 #include "services/image/tile_codec.h"
+#include "services/job/scene_spectra.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
-#include "worker/render_scene.h"
 
 namespace prism::coordinator {
 namespace {
@@ -314,7 +315,7 @@ absl::StatusOr<scene::LoadedScene> FarmCoordinator::load_bundle_scene(
 }
 
 absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::make_active(
-    const JobParameters& params, const prism::v1::JobSpec& spec,
+    const job::JobParameters& params, const prism::v1::JobSpec& spec,
     const scene::SceneDescription& scene) {
   auto job = std::make_unique<ActiveJob>();
   job->params = params;
@@ -327,7 +328,7 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
   job->statistics =
       std::make_unique<BinStatisticsAccumulator>(job->plan.tiles.size(), params.render.bins);
   job->started = SteadyClock::now();
-  if (params.render.integrator == worker::IntegratorKind::kGradient) {
+  if (params.render.integrator == job::IntegratorKind::kGradient) {
     PRISM_ASSIGN_OR_RETURN(
         PoissonSolver solver,
         PoissonSolver::create(params.render.bins, params.render.gradient_offset_bins,
@@ -341,8 +342,8 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator::ActiveJob>> FarmCoordinator::mak
   job->stage_first.push_back(0);
   if (params.prepass.has_value()) {
     PRISM_ASSIGN_OR_RETURN(
-        worker::PrepassDistributions distributions,
-        worker::prepass_distributions(scene, params.render, library_, params.render.bins));
+        job::PrepassDistributions distributions,
+        job::prepass_distributions(scene, params.render, library_, params.render.bins));
     PRISM_ASSIGN_OR_RETURN(
         PrepassRun run,
         PrepassRun::create(*params.prepass, params.width, params.height, params.tile_size,
@@ -520,7 +521,7 @@ absl::Status FarmCoordinator::absorb_tile(ActiveJob& job, int tile, const image:
   job.statistics->add_tile(static_cast<std::size_t>(tile), merged);
   PRISM_ASSIGN_OR_RETURN(
       image::RgbImage rgb,
-      tile_rgb(merged, finalised, job.params.render.integrator == worker::IntegratorKind::kGradient,
+      tile_rgb(merged, finalised, job.params.render.integrator == job::IntegratorKind::kGradient,
                cmf_));
   PRISM_RETURN_IF_ERROR(job.rgb->paste(rgb, merged.rect().x0, merged.rect().y0));
   ++job.tiles_finalised;
@@ -584,7 +585,7 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
   load.allow_unsupported = spec.allow_unsupported();
   PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded,
                          scene::load_scene(scene_dir(spec.bundle_hash()) / bundle_scene, load));
-  PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, loaded.description));
+  PRISM_ASSIGN_OR_RETURN(job::JobParameters params, job::job_parameters(spec, loaded.description));
   const prism::v1::JobSpec explicit_spec = to_proto(params);
   PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active,
                          make_active(params, explicit_spec, loaded.description));
@@ -621,7 +622,7 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
   active_[id] = std::move(active);
   options_.logger->info("[job {}] submitted: {}x{}, {} spp, {} bins, {}, {} tasks{}, bundle {}", id,
                         params.width, params.height, params.spp, params.render.bins,
-                        worker::name(params.render.integrator), specs.size(),
+                        job::name(params.render.integrator), specs.size(),
                         params.prepass.has_value() ? " (with a prepass)" : "", params.bundle_hash);
   process_events_locked();
   changed_locked();
@@ -636,7 +637,8 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   }
   // The stored spec is explicit, so the scene's defaults are not needed to decode it; a prepass
   // needs the scene's emitter spectra, and the report its features.
-  PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, scene::SceneDescription{}));
+  PRISM_ASSIGN_OR_RETURN(job::JobParameters params,
+                         job::job_parameters(spec, scene::SceneDescription{}));
   PRISM_ASSIGN_OR_RETURN(
       scene::LoadedScene loaded,
       load_bundle_scene(params.allow_unsupported, params.bundle_hash, params.scene_path));
@@ -814,7 +816,8 @@ JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) const {
   } else if (record.state == store::JobState::kDone) {
     prism::v1::JobSpec spec;
     if (spec.ParseFromString(record.spec)) {
-      absl::StatusOr<JobParameters> params = job_parameters(spec, scene::SceneDescription{});
+      absl::StatusOr<job::JobParameters> params =
+          job::job_parameters(spec, scene::SceneDescription{});
       if (params.ok()) {
         const int tile = params->tile_size;
         status.tiles_total =
@@ -886,7 +889,8 @@ absl::StatusOr<std::vector<OutputFile>> FarmCoordinator::result_files(
   if (!spec.ParseFromString(record.spec)) {
     return absl::DataLossError(absl::StrCat("job ", job_id, ": the stored spec does not parse"));
   }
-  PRISM_ASSIGN_OR_RETURN(JobParameters params, job_parameters(spec, scene::SceneDescription{}));
+  PRISM_ASSIGN_OR_RETURN(job::JobParameters params,
+                         job::job_parameters(spec, scene::SceneDescription{}));
   const OutputPaths paths = output_paths_of(job_id);
   std::vector<OutputFile> all;
   if (params.outputs.spectral_exr)
@@ -913,10 +917,10 @@ absl::StatusOr<std::vector<OutputFile>> FarmCoordinator::result_files(
 
 absl::StatusOr<std::string> FarmCoordinator::preview_png(const std::string& job_id,
                                                          float exposure_stops) {
-  if (!std::isfinite(exposure_stops) || std::fabs(exposure_stops) > kMaxJobExposureStops) {
+  if (!std::isfinite(exposure_stops) || std::fabs(exposure_stops) > job::kMaxJobExposureStops) {
     return absl::InvalidArgumentError(
         absl::StrCat("exposure ", exposure_stops, " is out of range: want stops in -",
-                     kMaxJobExposureStops, "..", kMaxJobExposureStops));
+                     job::kMaxJobExposureStops, "..", job::kMaxJobExposureStops));
   }
   std::optional<image::RgbImage> rgb;
   std::uint64_t serial = 0;
@@ -1002,17 +1006,17 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   PRISM_ASSIGN_OR_RETURN(
       store::JobRecord record,
       store_->set_job_state(job_id, store::JobState::kFinalising, now().count()));
-  const JobParameters& p = job.params;
+  const job::JobParameters& p = job.params;
   RenderReport report;
   report.scene = p.scene_path;
   report.width = p.width;
   report.height = p.height;
   report.spp = p.spp;
   report.bins = p.render.bins;
-  report.integrator = worker::name(p.render.integrator);
-  report.spectral_pdf = worker::name(p.render.spectral_pdf);
-  report.emitter_pdf = worker::name(p.render.emitter_pdf);
-  report.light_selection = worker::name(p.render.light_selection);
+  report.integrator = job::name(p.render.integrator);
+  report.spectral_pdf = job::name(p.render.spectral_pdf);
+  report.emitter_pdf = job::name(p.render.emitter_pdf);
+  report.light_selection = job::name(p.render.light_selection);
   report.spectral_light_selection = p.render.spectral_light_selection;
   report.max_depth = p.render.max_depth;
   report.threads = 0;  // spread over the farm's workers
@@ -1197,8 +1201,7 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
       // The buffers the task's stage merges: a prepass needs guides, a gradient job's final
       // pass its gradients. Refused here as the worker's fault, before they could fail the job.
       const bool prepass = lease->task.spec.pass == Pass::kPrepass;
-      const bool gradient =
-          it->second->params.render.integrator == worker::IntegratorKind::kGradient;
+      const bool gradient = it->second->params.render.integrator == job::IntegratorKind::kGradient;
       if (prepass && !parsed->has_guides()) {
         problem = "a prepass result without guide buffers";
       } else if (!prepass && !parsed->has_rgb()) {

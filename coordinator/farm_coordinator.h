@@ -50,7 +50,6 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "coordinator/finished_tiles.h"
-#include "coordinator/job_spec.h"
 #include "coordinator/outputs.h"
 #include "coordinator/prepass_run.h"
 #include "coordinator/scheduler.h"
@@ -59,6 +58,7 @@
 #include "coordinator/tile_plan.h"
 #include "prism/v1/types.pb.h"
 #include "services/image/tile.h"
+#include "services/job/job_spec.h"
 #include "services/scene/scene_loader.h"
 #include "services/spectral/color.h"
 #include "services/spectral/named_spectra.h"
@@ -195,7 +195,7 @@ class FarmCoordinator {
   // Task indices are global over the stages; the Scheduler is given a stage's tasks once the
   // stage before it is merged and reconstructed (Scheduler::add_tasks), the store has them all.
   struct ActiveJob {
-    JobParameters params;
+    job::JobParameters params;
     prism::v1::JobSpec spec;
     TilePlan plan;                             // the final pass
     std::unique_ptr<TileAssembler> assembler;  // the final pass
@@ -230,7 +230,7 @@ class FarmCoordinator {
   absl::Status resume_locked(const store::JobRecord& record);
   // Builds the in-memory job (plans, assemblers, image) from explicit parameters; `scene` gives
   // a prepass its emitter spectra.
-  absl::StatusOr<std::unique_ptr<ActiveJob>> make_active(const JobParameters& params,
+  absl::StatusOr<std::unique_ptr<ActiveJob>> make_active(const job::JobParameters& params,
                                                          const prism::v1::JobSpec& spec,
                                                          const scene::SceneDescription& scene);
   // Loads the checked scene of a stored bundle.

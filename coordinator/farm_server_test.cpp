@@ -15,7 +15,6 @@
 
 #include "absl/strings/str_cat.h"
 #include "coordinator/farm_coordinator.h"
-#include "coordinator/job_spec.h"
 #include "coordinator/local_render.h"
 #include "coordinator/rpc/coordinator_server.h"
 #include "coordinator/testing/in_process_farm.h"
@@ -25,6 +24,7 @@
 #include "services/base/sha256.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/tile_codec.h"
+#include "services/job/job_spec.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
 #include "services/scene/bundle.h"
@@ -161,7 +161,7 @@ class FarmServerTest : public ::testing::Test {
   std::string render(const v1::Lease& lease) {
     auto loaded = scene::load_scene(scene_root_ / "scene.pbrt", {});
     EXPECT_TRUE(loaded.ok()) << loaded.status();
-    auto params = job_parameters(lease.task().spec(), loaded->description);
+    auto params = job::job_parameters(lease.task().spec(), loaded->description);
     EXPECT_TRUE(params.ok()) << params.status();
     auto scene = worker::RenderScene::build(device_, loaded->description, library_, params->render,
                                             params->width, params->height);
@@ -239,7 +239,7 @@ class FarmServerTest : public ::testing::Test {
   // The embedded render of the same job, through the same output writer.
   image::SpectralExr oracle(const v1::JobSpec& spec) {
     auto loaded = scene::load_scene(scene_root_ / "scene.pbrt", {});
-    auto params = job_parameters(spec, loaded->description);
+    auto params = job::job_parameters(spec, loaded->description);
     EXPECT_TRUE(params.ok()) << params.status();
     LocalRenderOptions options;
     options.render = params->render;

@@ -18,6 +18,7 @@
 #include "coordinator/outputs.h"
 #include "coordinator/tile_merge.h"
 #include "services/base/status.h"
+#include "services/job/scene_spectra.h"
 #include "services/spectral/pixel_tables.h"
 #include "worker/tile_renderer.h"
 
@@ -29,8 +30,6 @@ using Clock = std::chrono::steady_clock;
 double seconds_since(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }
-
-constexpr int kMaxThreads = 4096;
 
 }  // namespace
 
@@ -47,9 +46,9 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
     return absl::InvalidArgumentError(absl::StrCat("spp ", options.spp, " is outside 1..",
                                                    std::numeric_limits<std::uint32_t>::max()));
   }
-  if (options.threads < 0 || options.threads > kMaxThreads) {
+  if (options.threads < 0 || options.threads > job::kMaxThreads) {
     return absl::InvalidArgumentError(
-        absl::StrCat("thread count ", options.threads, " is outside 0..", kMaxThreads));
+        absl::StrCat("thread count ", options.threads, " is outside 0..", job::kMaxThreads));
   }
   if (options.target_error.has_value()) {
     if (options.target_error->max_spp > std::numeric_limits<std::uint32_t>::max()) {
@@ -65,7 +64,7 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
   std::unique_ptr<LocalRender> render(new LocalRender());
   render->options_ = options;
   // The variance-weighted reconstruction needs the workers' squares of G.
-  render->options_.render.gradient_variances = options.poisson_norm == PoissonNorm::kWeighted;
+  render->options_.render.gradient_variances = options.poisson_norm == job::PoissonNorm::kWeighted;
   PRISM_ASSIGN_OR_RETURN(render->plan_,
                          plan_tiles({options.width, options.height, options.tile_size, options.spp,
                                      options.samples_per_task}));
@@ -74,7 +73,7 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
   PRISM_ASSIGN_OR_RETURN(render->scene_,
                          worker::RenderScene::build(device, scene, library, render->options_.render,
                                                     options.width, options.height));
-  if (options.render.integrator == worker::IntegratorKind::kGradient) {
+  if (options.render.integrator == job::IntegratorKind::kGradient) {
     PRISM_ASSIGN_OR_RETURN(
         PoissonSolver solver,
         PoissonSolver::create(options.render.bins, options.render.gradient_offset_bins,
@@ -85,9 +84,9 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
     render->finaliser_ = mean_finaliser();
   }
   if (options.prepass.has_value()) {
-    PRISM_ASSIGN_OR_RETURN(worker::PrepassDistributions distributions,
-                           worker::prepass_distributions(scene, render->options_.render, library,
-                                                         render->options_.render.bins));
+    PRISM_ASSIGN_OR_RETURN(job::PrepassDistributions distributions,
+                           job::prepass_distributions(scene, render->options_.render, library,
+                                                      render->options_.render.bins));
     PRISM_ASSIGN_OR_RETURN(
         PrepassRun run,
         PrepassRun::create(*options.prepass, options.width, options.height, options.tile_size,
@@ -238,7 +237,7 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
                          image::RgbImage::create(options_.width, options_.height));
   std::optional<image::SpectralImage> primal, gradient;
   const bool keep_raw = options_.keep_primal_and_gradients &&
-                        options_.render.integrator == worker::IntegratorKind::kGradient;
+                        options_.render.integrator == job::IntegratorKind::kGradient;
   if (keep_raw) {
     PRISM_ASSIGN_OR_RETURN(primal,
                            image::SpectralImage::create(options_.width, options_.height, bins));
@@ -340,7 +339,7 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
     }
     PRISM_ASSIGN_OR_RETURN(
         image::RgbImage tile_colour,
-        tile_rgb(merged, finalised, options_.render.integrator == worker::IntegratorKind::kGradient,
+        tile_rgb(merged, finalised, options_.render.integrator == job::IntegratorKind::kGradient,
                  scene_->cmf()));
     PRISM_RETURN_IF_ERROR(rgb.paste(tile_colour, merged.rect().x0, merged.rect().y0));
     PRISM_ASSIGN_OR_RETURN(image::RgbImage tile_error, tile_rgb_standard_error(merged));

@@ -27,11 +27,11 @@
 #include "coordinator/tile_finaliser.h"
 #include "coordinator/tile_plan.h"
 #include "services/image/tile.h"
+#include "services/job/render_options.h"
 #include "services/scene/scene_description.h"
 #include "services/spectral/named_spectra.h"
 #include "worker/embree_device.h"
 #include "worker/integrator.h"
-#include "worker/render_options.h"
 #include "worker/render_scene.h"
 
 namespace prism::coordinator {
@@ -43,8 +43,8 @@ struct RenderProgress {
 };
 
 struct LocalRenderOptions {
-  worker::RenderOptions render;  // validated by the caller (bins, depth, seed, ...)
-  int width = 0;                 // the film resolution; must be >= 1
+  job::RenderOptions render;  // validated by the caller (bins, depth, seed, ...)
+  int width = 0;              // the film resolution; must be >= 1
   int height = 0;
   std::uint64_t spp = 1;
   int tile_size = 32;  // 4..1024; does not change the output bytes
@@ -58,18 +58,18 @@ struct LocalRenderOptions {
   double progress_interval_seconds = 0.25;
   // Gradient jobs (render.integrator == kGradient): every finished tile's pixels are
   // reconstructed by the screened Poisson solve (poisson.h) with these settings.
-  double poisson_alpha = kDefaultPoissonAlpha;
-  PoissonNorm poisson_norm = PoissonNorm::kL2;
+  double poisson_alpha = job::kDefaultPoissonAlpha;
+  job::PoissonNorm poisson_norm = job::PoissonNorm::kL2;
   // Gradient jobs: also return the raw primal I and gradient G images.
   bool keep_primal_and_gradients = false;
   // With a prepass: keep the final pass's per-pixel tables in the result (reports, dumps).
   bool keep_prepass_tables = false;
   // The multi-pass prepass (algorithms.md §4), when set: its passes run first and the final
   // pass samples each pixel's learned table.
-  std::optional<PrepassParameters> prepass;
+  std::optional<job::PrepassParameters> prepass;
   // Rendering to a target error (target_error.h), when set: `spp` is the first round's, and
   // rounds double it for the tiles short of the target up to target_error->max_spp.
-  std::optional<TargetError> target_error;
+  std::optional<job::TargetError> target_error;
 };
 
 struct LocalRenderStats {

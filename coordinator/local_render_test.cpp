@@ -167,16 +167,15 @@ class RgbOutputTest : public testing::Test {
     scene_ = std::make_unique<scene::SceneDescription>(std::move(loaded->description));
   }
 
-  absl::StatusOr<LocalRenderResult> render(worker::IntegratorKind integrator, int bins,
+  absl::StatusOr<LocalRenderResult> render(job::IntegratorKind integrator, int bins,
                                            std::uint64_t seed, std::uint64_t spp) {
     LocalRenderOptions o;
     o.render.integrator = integrator;
     o.render.bins = bins;
     o.render.max_depth = 5;
     o.render.seed = seed;
-    if (integrator == worker::IntegratorKind::kGradient) {
-      PRISM_ASSIGN_OR_RETURN(o.render.gradient_offset_bins,
-                             worker::gradient_offset_bins(0.15, bins));
+    if (integrator == job::IntegratorKind::kGradient) {
+      PRISM_ASSIGN_OR_RETURN(o.render.gradient_offset_bins, job::gradient_offset_bins(0.15, bins));
     }
     o.width = 24;
     o.height = 18;
@@ -207,7 +206,7 @@ class RgbOutputTest : public testing::Test {
 // the bins, so hero's and uniform's RGB are the same bits at 4, 16, 64 and 256 bins, while the
 // RGB of the bin averages is not (at 4 bins the line's 2.6 nm sit in a 117 nm bin taken as flat).
 TEST_F(RgbOutputTest, HeroAndUniformRgbDoNotDependOnTheBins) {
-  for (auto integrator : {worker::IntegratorKind::kHero, worker::IntegratorKind::kUniform}) {
+  for (auto integrator : {job::IntegratorKind::kHero, job::IntegratorKind::kUniform}) {
     auto reference = render(integrator, 256, 3, 16);
     ASSERT_TRUE(reference.ok()) << reference.status();
     const std::array<double, 3> mean = mean_rgb(reference->rgb);
@@ -243,7 +242,7 @@ TEST_F(RgbOutputTest, GradientRgbAgreesAcrossBinsWithinNoise) {
   const int bins[2] = {4, 256};
   for (int i = 0; i < 2; ++i) {
     for (int seed = 0; seed < kSeeds; ++seed) {
-      auto r = render(worker::IntegratorKind::kGradient, bins[i], 100 + seed, 32);
+      auto r = render(job::IntegratorKind::kGradient, bins[i], 100 + seed, 32);
       ASSERT_TRUE(r.ok()) << r.status();
       const std::array<double, 3> m = mean_rgb(r->rgb);
       for (int c = 0; c < 3; ++c) {

@@ -360,7 +360,7 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
                      {"wasted_shifts", g.wasted_shifts}};
     j["gradient"]["tau_source"] = g.tau_pilot.has_value() ? "pilot" : "given";
     if (g.tau_pilot.has_value()) {
-      const TauPilotReport& t = *g.tau_pilot;
+      const job::TauPilotReport& t = *g.tau_pilot;
       nlohmann::ordered_json pilot = {
           {"epsilon", shortest(t.epsilon)},
           {"pixels", t.pixels},
@@ -423,9 +423,9 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
   }
   j["scene_features"] = features;
   if (r.auto_choice.has_value()) {
-    const AutoReport& a = *r.auto_choice;
+    const job::AutoReport& a = *r.auto_choice;
     nlohmann::ordered_json candidates = nlohmann::ordered_json::array();
-    for (const AutoReport::Candidate& c : a.candidates) {
+    for (const job::AutoReport::Candidate& c : a.candidates) {
       candidates.push_back({{"method", c.method},
                             {"rel_mse_per_sample", c.rel_mse_per_sample},
                             {"rays_per_sample", c.rays_per_sample},

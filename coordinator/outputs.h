@@ -28,6 +28,7 @@
 #include "coordinator/target_error.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/tile.h"
+#include "services/job/job_parameters.h"
 #include "services/spectral/color.h"
 
 namespace prism::coordinator {
@@ -95,30 +96,13 @@ class BinStatisticsAccumulator {
 absl::StatusOr<image::RgbImage> to_linear_srgb(const image::SpectralImage& spectral,
                                                const spectral::ColorMatching& cmf);
 
-// The automatic τ's pilot (worker/gradient_pilot.h, the job spec's gradient.tau_pilot): float,
-// as the job spec keeps them.
-struct TauPilotReport {
-  float epsilon = 0;
-  std::uint32_t pixels = 0;
-  std::uint32_t spp = 0;
-  std::uint64_t events = 0;
-  float shifted_event_fraction = 0;
-  float shifted_square_fraction = 0;
-  float lost_benefit_fraction = 0;
-  float offset_vertex_fraction = 0;
-  float second_moment_rise = 0;
-  std::optional<double> seconds;  // where the pilot ran in this process (`prism render`)
-
-  bool operator==(const TauPilotReport&) const = default;
-};
-
 // Spectral gradient sampling in the report: the job's settings and the paper's Table 1
 // statistics from the workers' counters (worker::TraceCounters).
 struct GradientReport {
   int offset_bins = 0;
   float delta = 0;  // float, as the job spec keeps them
   float tau = 0;
-  std::optional<TauPilotReport> tau_pilot;  // τ was chosen by the pilot
+  std::optional<job::TauPilotReport> tau_pilot;  // τ was chosen by the pilot
   float alpha = 0;
   std::string norm;
   std::uint64_t base_paths = 0;     // camera samples
@@ -127,22 +111,6 @@ struct GradientReport {
   std::uint64_t failed_shifts = 0;  // of those, no valid offset path
   std::uint64_t wasted_shifts = 0;  // of those, the offset's own contribution was <= τ
   bool with_primal_and_gradients = false;
-};
-
-// How `--integrator auto` chose (client/auto_integrator.h).
-struct AutoReport {
-  struct Candidate {
-    std::string method;
-    double rel_mse_per_sample = 0;
-    double rays_per_sample = 0;
-    double relative_efficiency = 0;
-    friend bool operator==(const Candidate&, const Candidate&) = default;
-  };
-  std::string choice;
-  std::string reason;
-  double seconds = 0;
-  std::vector<Candidate> candidates;  // empty when no pilot ran
-  friend bool operator==(const AutoReport&, const AutoReport&) = default;
 };
 
 // The multi-pass prepass in the report.
@@ -199,7 +167,7 @@ struct RenderReport {
   // A job rendered to a target error: what it reached (target_error.h).
   std::optional<TargetErrorOutcome> target_error;
   // A job whose integrator `auto` chose.
-  std::optional<AutoReport> auto_choice;
+  std::optional<job::AutoReport> auto_choice;
   // The scene's features that Prism did not render exactly as pbrt-v4 would
   // (services/scene/scene_features.h): substituted, approximated or ignored, in scene order.
   std::vector<SceneFeatureNote> scene_features;

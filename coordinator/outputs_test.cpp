@@ -274,7 +274,7 @@ TEST(WriteOutputsTest, TheJsonSaysHowTauWasChosen) {
   EXPECT_FALSE(given["gradient"].contains("tau_pilot"));
 
   report.gradient->tau_pilot =
-      TauPilotReport{0.1f, 1200, 8, 5000, 0.25f, 0.5f, 0.0625f, 0.125f, 0.75f, 0.02};
+      job::TauPilotReport{0.1f, 1200, 8, 5000, 0.25f, 0.5f, 0.0625f, 0.125f, 0.75f, 0.02};
   ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {0.0f}).ok());
   nlohmann::json pilot = nlohmann::json::parse(*base::read_file(paths->json));
   EXPECT_EQ(pilot["gradient"]["tau_source"], "pilot");

@@ -290,18 +290,6 @@ std::string_view to_string(PoissonKernel kernel) {
   return "?";
 }
 
-std::string_view to_string(PoissonNorm norm) {
-  return norm == PoissonNorm::kL1 ? "l1" : norm == PoissonNorm::kWeighted ? "weighted" : "l2";
-}
-
-absl::StatusOr<PoissonNorm> parse_poisson_norm(const std::string& text) {
-  if (text == "l2") return PoissonNorm::kL2;
-  if (text == "l1") return PoissonNorm::kL1;
-  if (text == "weighted") return PoissonNorm::kWeighted;
-  return absl::InvalidArgumentError(
-      absl::StrCat("Poisson norm '", text, "': want l2, l1 or weighted"));
-}
-
 // The L2 factorisation. Along a chain (x_j = Î[b_j], b_j = c + j·k mod B) the system is
 //   (α + 2)·x_j − x_{j−1} − x_{j+1} = r_j,   r_j = α·I[b_j] + G[b_{j−1}] − G[b_j],
 // i.e. A = (α + 2)·Id − S − S⁻¹ with the cyclic shift (Sx)_j = x_{j−1}. With ρ the root in
@@ -330,10 +318,10 @@ absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, d
         absl::StrCat("Poisson reconstruction: gradient offset k = ", offset_bins,
                      " bins; want 1 <= k < ", bins, " (the number of bins)"));
   }
-  if (!std::isfinite(alpha) || alpha < kMinPoissonAlpha || alpha > kMaxPoissonAlpha) {
+  if (!std::isfinite(alpha) || alpha < job::kMinPoissonAlpha || alpha > job::kMaxPoissonAlpha) {
     return absl::InvalidArgumentError(
         absl::StrCat("Poisson reconstruction: alpha = ", alpha, "; want a finite value in [",
-                     kMinPoissonAlpha, ", ", kMaxPoissonAlpha, "] (alpha must be > 0)"));
+                     job::kMinPoissonAlpha, ", ", job::kMaxPoissonAlpha, "] (alpha must be > 0)"));
   }
   PoissonSolver s;
   s.bins_ = bins;
@@ -683,10 +671,10 @@ absl::Status PoissonSolver::solve_weighted(std::span<const float> primal,
 absl::Status PoissonSolver::solve_l1(std::span<const float> primal, std::span<const float> gradient,
                                      std::span<float> out) const {
   PRISM_RETURN_IF_ERROR(check_one_pixel(bins_, primal, gradient, out));
-  return solve_pixels(PoissonNorm::kL1, primal, gradient, out);
+  return solve_pixels(job::PoissonNorm::kL1, primal, gradient, out);
 }
 
-absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float> primal,
+absl::Status PoissonSolver::solve_pixels(job::PoissonNorm norm, std::span<const float> primal,
                                          std::span<const float> gradient, std::span<float> out,
                                          int image_row) const {
   const std::size_t B = static_cast<std::size_t>(bins_);
@@ -696,13 +684,15 @@ absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float
                      ", ", gradient.size(), " and ", out.size(),
                      " values; want the same multiple of ", bins_, " (the bins)"));
   }
-  if (norm == PoissonNorm::kWeighted) {
+  if (norm == job::PoissonNorm::kWeighted) {
     return absl::InvalidArgumentError(
         "the variance-weighted reconstruction needs each pixel's variances: use solve_weighted");
   }
   const std::int64_t pixels = static_cast<std::int64_t>(primal.size() / B);
-  std::vector<double> scratch(norm == PoissonNorm::kL2 ? std::size_t(kBatch) * length_ + B : 8 * B);
-  std::vector<float> t_buffer(norm == PoissonNorm::kL2 ? 3 * (std::size_t(kBatch) * B + kPad) : 0);
+  std::vector<double> scratch(norm == job::PoissonNorm::kL2 ? std::size_t(kBatch) * length_ + B
+                                                            : 8 * B);
+  std::vector<float> t_buffer(norm == job::PoissonNorm::kL2 ? 3 * (std::size_t(kBatch) * B + kPad)
+                                                            : 0);
   std::int64_t p = 0;
   auto fail = [&](std::int64_t count) {
     const Fault fault = locate_fault(primal, gradient, out, bins_, p, count);
@@ -710,7 +700,7 @@ absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float
                                    ? absl::StrCat(fault.pixel)
                                    : absl::StrCat("(", fault.pixel, ", ", image_row, ")"));
   };
-  if (norm == PoissonNorm::kL2) {
+  if (norm == job::PoissonNorm::kL2) {
     for (; p + kBatch <= pixels; p += kBatch) {
       const std::size_t o = static_cast<std::size_t>(p) * B;
       if (!solve_l2_batch(primal.data() + o, gradient.data() + o, out.data() + o, scratch.data(),
@@ -741,7 +731,7 @@ absl::Status PoissonSolver::solve_pixels(PoissonNorm norm, std::span<const float
 }
 
 absl::StatusOr<image::SpectralImage> reconstruct_image(const PoissonSolver& solver,
-                                                       PoissonNorm norm,
+                                                       job::PoissonNorm norm,
                                                        const image::SpectralImage& primal,
                                                        const image::SpectralImage& gradient) {
   if (primal.width() != gradient.width() || primal.height() != gradient.height() ||

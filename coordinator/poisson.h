@@ -34,24 +34,10 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "services/image/tile.h"
+#include "services/job/job_parameters.h"
 
 namespace prism::coordinator {
 
-// kWeighted: the variance-weighted L2 reconstruction (PoissonSolver::solve_weighted).
-enum class PoissonNorm { kL2, kL1, kWeighted };
-
-// "l2" / "l1" / "weighted".
-std::string_view to_string(PoissonNorm norm);
-// INVALID_ARGUMENT naming the text unless it is "l2", "l1" or "weighted".
-absl::StatusOr<PoissonNorm> parse_poisson_norm(const std::string& text);
-
-// The screening weight α's accepted range. It bounds the condition number (α + 4)/α of the
-// system by 4e6, so the double solve's error (about κ·B·2⁻⁵³ relative) stays far below float
-// rounding and its intermediates (up to |r|/α) far from overflow. Beyond 1e6 the result is I to
-// within |G|/α; below 1e-6 only α holds the chain means and the system is nearly singular.
-inline constexpr double kMinPoissonAlpha = 1e-6;
-inline constexpr double kMaxPoissonAlpha = 1e6;
-inline constexpr double kDefaultPoissonAlpha = 0.2;
 // Fixed IRLS iteration count of the L1 solve (after the L2 start).
 inline constexpr int kIrlsIterations = 12;
 
@@ -66,7 +52,7 @@ std::string_view to_string(PoissonKernel kernel);
 class PoissonSolver {
  public:
   // INVALID_ARGUMENT naming the value unless 4 <= bins <= image::kMaxBins,
-  // 1 <= offset_bins < bins and α is finite and in [kMinPoissonAlpha, kMaxPoissonAlpha].
+  // 1 <= offset_bins < bins and α is finite and in [job::kMinPoissonAlpha, job::kMaxPoissonAlpha].
   static absl::StatusOr<PoissonSolver> create(int bins, int offset_bins, double alpha,
                                               PoissonKernel kernel = PoissonKernel::kAuto);
 
@@ -109,7 +95,7 @@ class PoissonSolver {
   // All three spans have the same size, a multiple of bins(). Errors name the pixel's index in
   // the spans, or (index, image_row) when image_row >= 0 (the spans are that row of an image).
   // Allocates one scratch buffer per call, none per pixel.
-  absl::Status solve_pixels(PoissonNorm norm, std::span<const float> primal,
+  absl::Status solve_pixels(job::PoissonNorm norm, std::span<const float> primal,
                             std::span<const float> gradient, std::span<float> out,
                             int image_row = -1) const;
 
@@ -143,7 +129,7 @@ class PoissonSolver {
 // are solved in parallel in the calling TBB arena; the result does not depend on the number
 // of threads. Errors name the pixel (x, y) and bin.
 absl::StatusOr<image::SpectralImage> reconstruct_image(const PoissonSolver& solver,
-                                                       PoissonNorm norm,
+                                                       job::PoissonNorm norm,
                                                        const image::SpectralImage& primal,
                                                        const image::SpectralImage& gradient);
 

@@ -148,15 +148,16 @@ TEST(PoissonSolver, BatchedEqualsPerPixel) {
     const int pixels = 35;  // two batches and a tail of three
     const std::vector<float> primal = random_values(rng, pixels * bins, 0.0f, 4.0f);
     const std::vector<float> gradient = random_values(rng, pixels * bins, -2.0f, 2.0f);
-    for (PoissonNorm norm : {PoissonNorm::kL2, PoissonNorm::kL1}) {
+    for (job::PoissonNorm norm : {job::PoissonNorm::kL2, job::PoissonNorm::kL1}) {
       std::vector<float> batched(primal.size());
       ASSERT_TRUE(solver->solve_pixels(norm, primal, gradient, batched).ok());
       for (int p = 0; p < pixels; ++p) {
         std::vector<float> single(bins);
         const auto in = std::span(primal).subspan(p * bins, bins);
         const auto grad = std::span(gradient).subspan(p * bins, bins);
-        const absl::Status status = norm == PoissonNorm::kL2 ? solver->solve_l2(in, grad, single)
-                                                             : solver->solve_l1(in, grad, single);
+        const absl::Status status = norm == job::PoissonNorm::kL2
+                                        ? solver->solve_l2(in, grad, single)
+                                        : solver->solve_l1(in, grad, single);
         ASSERT_TRUE(status.ok());
         for (int b = 0; b < bins; ++b) {
           EXPECT_EQ(batched[p * bins + b], single[b]) << "pixel " << p << " bin " << b;
@@ -235,7 +236,7 @@ TEST(PoissonSolver, ScalesWithTheInput) {
     p2[b] = std::ldexp(primal[b], 10);
     g2[b] = std::ldexp(gradient[b], 10);
   }
-  for (PoissonNorm norm : {PoissonNorm::kL2, PoissonNorm::kL1}) {
+  for (job::PoissonNorm norm : {job::PoissonNorm::kL2, job::PoissonNorm::kL1}) {
     std::vector<float> a(64), b(64);
     ASSERT_TRUE(solver->solve_pixels(norm, primal, gradient, a).ok());
     ASSERT_TRUE(solver->solve_pixels(norm, p2, g2, b).ok());
@@ -302,8 +303,8 @@ TEST(PoissonSolver, RefusesBadParameters) {
     EXPECT_NE(solver.status().message().find(b.message), std::string::npos)
         << solver.status().message();
   }
-  EXPECT_TRUE(PoissonSolver::create(4, 3, kMinPoissonAlpha).ok());
-  EXPECT_TRUE(PoissonSolver::create(4096, 1, kMaxPoissonAlpha).ok());
+  EXPECT_TRUE(PoissonSolver::create(4, 3, job::kMinPoissonAlpha).ok());
+  EXPECT_TRUE(PoissonSolver::create(4096, 1, job::kMaxPoissonAlpha).ok());
 }
 
 TEST(PoissonSolver, RefusesBadInput) {
@@ -317,10 +318,10 @@ TEST(PoissonSolver, RefusesBadInput) {
   EXPECT_EQ(solver->solve_l1(primal, gradient, short_out).code(),
             absl::StatusCode::kInvalidArgument);
   std::vector<float> two(32);
-  EXPECT_EQ(solver->solve_pixels(PoissonNorm::kL2, two, two, out).code(),
+  EXPECT_EQ(solver->solve_pixels(job::PoissonNorm::kL2, two, two, out).code(),
             absl::StatusCode::kInvalidArgument);
 
-  for (PoissonNorm norm : {PoissonNorm::kL2, PoissonNorm::kL1}) {
+  for (job::PoissonNorm norm : {job::PoissonNorm::kL2, job::PoissonNorm::kL1}) {
     std::vector<float> bad_primal = primal;
     bad_primal[5] = std::nanf("");
     absl::Status s = solver->solve_pixels(norm, bad_primal, gradient, out);
@@ -359,7 +360,7 @@ TEST(PoissonImage, MatchesPerPixelAndNamesBadPixels) {
   auto gradient =
       image::SpectralImage::from_data(w, h, bins, random_values(rng, w * h * bins, -1, 1));
   ASSERT_TRUE(primal.ok() && gradient.ok());
-  for (PoissonNorm norm : {PoissonNorm::kL2, PoissonNorm::kL1}) {
+  for (job::PoissonNorm norm : {job::PoissonNorm::kL2, job::PoissonNorm::kL1}) {
     auto out = reconstruct_image(*solver, norm, *primal, *gradient);
     ASSERT_TRUE(out.ok()) << out.status();
     for (int y = 0; y < h; ++y) {
@@ -373,19 +374,19 @@ TEST(PoissonImage, MatchesPerPixelAndNamesBadPixels) {
   }
   image::SpectralImage bad = *gradient;
   bad.value(2, 3, 4) = std::nanf("");
-  auto refused = reconstruct_image(*solver, PoissonNorm::kL2, *primal, bad);
+  auto refused = reconstruct_image(*solver, job::PoissonNorm::kL2, *primal, bad);
   ASSERT_FALSE(refused.ok());
   EXPECT_NE(refused.status().message().find("pixel (2, 3) gradient[4] = nan"), std::string::npos)
       << refused.status();
 
   auto other = image::SpectralImage::create(w, h + 1, bins);
-  auto mismatch = reconstruct_image(*solver, PoissonNorm::kL2, *primal, *other);
+  auto mismatch = reconstruct_image(*solver, job::PoissonNorm::kL2, *primal, *other);
   EXPECT_EQ(mismatch.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_NE(mismatch.status().message().find("13x5 with 16 bins but gradient is 13x6"),
             std::string::npos)
       << mismatch.status();
   auto wrong_bins = image::SpectralImage::create(w, h, 15);
-  auto bins_refused = reconstruct_image(*solver, PoissonNorm::kL2, *wrong_bins, *wrong_bins);
+  auto bins_refused = reconstruct_image(*solver, job::PoissonNorm::kL2, *wrong_bins, *wrong_bins);
   EXPECT_NE(bins_refused.status().message().find("15 bins but the solver was built for 16"),
             std::string::npos)
       << bins_refused.status();
@@ -560,20 +561,9 @@ TEST(PoissonSolver, WeightedRefusesBadInput) {
   EXPECT_NE(s.message().find("primal[2] = inf"), std::string::npos) << s;
 
   std::vector<float> all(16 * 4, 1.0f), all_out(16 * 4);
-  s = solver->solve_pixels(PoissonNorm::kWeighted, all, all, all_out);
+  s = solver->solve_pixels(job::PoissonNorm::kWeighted, all, all, all_out);
   EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
   EXPECT_NE(s.message().find("use solve_weighted"), std::string::npos) << s;
-}
-
-TEST(PoissonNorm, Parses) {
-  EXPECT_EQ(*parse_poisson_norm("l2"), PoissonNorm::kL2);
-  EXPECT_EQ(*parse_poisson_norm("l1"), PoissonNorm::kL1);
-  EXPECT_EQ(*parse_poisson_norm("weighted"), PoissonNorm::kWeighted);
-  EXPECT_EQ(to_string(PoissonNorm::kWeighted), "weighted");
-  auto bad = parse_poisson_norm("L3");
-  EXPECT_EQ(bad.status().code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_NE(bad.status().message().find("'L3'"), std::string::npos);
-  EXPECT_EQ(to_string(PoissonNorm::kL1), "l1");
 }
 
 }  // namespace

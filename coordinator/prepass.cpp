@@ -17,10 +17,6 @@
 namespace prism::coordinator {
 namespace {
 
-// Large enough for any sensible filter (the paper uses 1–2 px), small enough that a job cannot
-// ask the coordinator for a window of millions of pixels per pixel.
-constexpr double kMaxSigmaS = 64.0;
-
 absl::Status bad_field(const std::string& field, double value, const std::string& allowed) {
   return absl::InvalidArgumentError(
       absl::StrCat("prepass ", field, " is ", value, "; it must be ", allowed));
@@ -50,36 +46,7 @@ double squared_distance(const GuideFeatures& a, const GuideFeatures& b) {
 
 }  // namespace
 
-absl::Status PrepassParameters::validate() const {
-  if (passes < 1 || passes > kMaxPasses) {
-    return bad_field("passes", passes, absl::StrCat("1 to ", kMaxPasses));
-  }
-  if (spp < 1) return bad_field("spp", spp, "at least 1");
-  if (!(std::isfinite(epsilon) && epsilon > 0.0 && epsilon < 1.0)) {
-    return bad_field("epsilon", epsilon, "in (0, 1)");
-  }
-  if (!(std::isfinite(fallback) && fallback >= 0.0 && fallback < 1.0)) {
-    return bad_field("fallback", fallback, "in [0, 1)");
-  }
-  if (!(std::isfinite(sigma_s) && sigma_s > 0.0 && sigma_s <= kMaxSigmaS)) {
-    return bad_field("sigma_s", sigma_s, absl::StrCat("in (0, ", kMaxSigmaS, "] pixels"));
-  }
-  if (!(std::isfinite(sigma_r) && sigma_r > 0.0)) {
-    return bad_field("sigma_r", sigma_r, "finite and > 0");
-  }
-  return absl::OkStatus();
-}
-
-std::uint32_t budgeted_prepass_spp(std::uint64_t spp, int passes, bool image_scaled) {
-  const int shift = image_scaled ? 2 : 3;  // a pass costs 4^−(K−k) or 8^−(K−k) of the last
-  double share = 0.0;
-  for (int k = 1; k <= std::max(1, passes); ++k) share += std::ldexp(1.0, -shift * (passes - k));
-  const double n = std::floor(kBudgetShare * double(spp) / share);
-  if (n < kMinBudgetedSpp) return 0;
-  return std::uint32_t(std::min<double>(n, kMaxBudgetedSpp));
-}
-
-absl::StatusOr<std::vector<PrepassPass>> prepass_schedule(const PrepassParameters& params,
+absl::StatusOr<std::vector<PrepassPass>> prepass_schedule(const job::PrepassParameters& params,
                                                           int width, int height) {
   if (absl::Status s = params.validate(); !s.ok()) return s;
   if (absl::Status s = check_size(width, height, "the prepass film"); !s.ok()) return s;
@@ -291,8 +258,9 @@ absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage&
                                                    " but the previous pass's tables ",
                                                    previous->width(), "x", previous->height()));
   }
-  if (!(std::isfinite(sigma_s) && sigma_s > 0.0 && sigma_s <= kMaxSigmaS)) {
-    return bad_field("sigma_s", sigma_s, absl::StrCat("in (0, ", kMaxSigmaS, "] pixels"));
+  if (!(std::isfinite(sigma_s) && sigma_s > 0.0 && sigma_s <= job::PrepassParameters::kMaxSigmaS)) {
+    return bad_field("sigma_s", sigma_s,
+                     absl::StrCat("in (0, ", job::PrepassParameters::kMaxSigmaS, "] pixels"));
   }
   if (!(std::isfinite(sigma_r) && sigma_r > 0.0)) {
     return bad_field("sigma_r", sigma_r, "finite and > 0");
@@ -511,10 +479,13 @@ double pixel_variance(const std::vector<double>& k, const std::vector<double>& u
 
 }  // namespace
 
-absl::StatusOr<PixelTableImage> build_tables(
-    const image::SpectralImage& moments, const GuideImage& guides, const PrepassParameters& params,
-    std::span<const double> default_masses, std::span<const double> sensor_weights,
-    const VarianceModel& model, const PixelTableImage* previous) {
+absl::StatusOr<PixelTableImage> build_tables(const image::SpectralImage& moments,
+                                             const GuideImage& guides,
+                                             const job::PrepassParameters& params,
+                                             std::span<const double> default_masses,
+                                             std::span<const double> sensor_weights,
+                                             const VarianceModel& model,
+                                             const PixelTableImage* previous) {
   if (absl::Status s = params.validate(); !s.ok()) return s;
   const int w = moments.width(), h = moments.height(), bins = moments.bins() / 2;
   if (moments.bins() % 2 != 0) {

@@ -32,52 +32,10 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "services/image/tile.h"
+#include "services/job/job_parameters.h"
 #include "services/spectral/wavelength_distribution.h"
 
 namespace prism::coordinator {
-
-// The job's prepass options (wire: PrepassOptions; CLI: --prepass-*).
-struct PrepassParameters {
-  int passes = 2;             // K, 1..kMaxPasses
-  std::uint32_t spp = 128;    // Ñ, samples per pixel of the last prepass, >= 1
-  bool image_scaled = false;  // earlier passes lower the resolution instead of the sample count
-  double epsilon = 0.05;   // least share ε of the default in a table (α <= 1 − ε), in (0, 1)
-  double fallback = 0.05;  // least predicted variance reduction for a pixel to leave the
-                           // default distribution, in [0, 1)
-  double sigma_s = 1.75;   // spatial σ of the bilateral filter, pixels, > 0
-  double sigma_r = 0.015;  // range σ on guide feature distances, > 0
-
-  static constexpr int kMaxPasses = 8;
-  // After pass 1 of several, a job whose tables are predicted (PixelTableImage::decision_gain)
-  // to remove less than kMinImageGain of the image's variance per sample stops the prepass and
-  // renders with the default; after the last pass, tables predicted to remove less than
-  // kMinFinalGain are dropped (every pixel on the default, so the final pass pays nothing for
-  // them). The margins are measured
-  // (docs/benchmarks.md): going on costs about 9 % of the job (the rest of the prepass and a
-  // table lane's extra cost), the tables alone about 3 %, and under the Sobol sampler the realised
-  // gain is about half the predicted one.
-  static constexpr double kMinImageGain = 0.2;
-  static constexpr double kMinFinalGain = 0.1;
-  // The two margins a run uses. Not on the wire (a job always has the constants); tests and
-  // benchmarks set them to see tables that the margins would drop.
-  double min_image_gain = kMinImageGain;
-  double min_final_gain = kMinFinalGain;
-
-  // INVALID_ARGUMENT naming the first bad field (and its allowed range) when a value is out of
-  // range or not finite.
-  absl::Status validate() const;
-};
-
-// The prepass's Ñ for a job of `spp` final samples per pixel when the job does not set it: the K
-// passes' samples per pixel-equivalent (Ñ·Σ_k 8^−(K−k) sample-scaled, Ñ·Σ_k 4^−(K−k) image-scaled,
-// prepass_schedule) are at most kBudgetShare of the final pass's, so with the coordinator's
-// reconstruction the prepass stays under a tenth of the job's time; at most kMaxBudgetedSpp. 0
-// when that is under kMinBudgetedSpp: too few samples to learn a distribution from, and the job
-// runs without a prepass.
-inline constexpr double kBudgetShare = 0.08;
-inline constexpr std::uint32_t kMaxBudgetedSpp = 128;
-inline constexpr std::uint32_t kMinBudgetedSpp = 16;
-std::uint32_t budgeted_prepass_spp(std::uint64_t spp, int passes, bool image_scaled = false);
 
 // One prepass as the coordinator runs it.
 struct PrepassPass {
@@ -100,7 +58,7 @@ struct PrepassPass {
 // need the larger pass's guides before it is rendered). The worker must be able to render the
 // job's camera at a scaled resolution for image-scaled passes. INVALID_ARGUMENT for invalid
 // parameters or a width or height < 1.
-absl::StatusOr<std::vector<PrepassPass>> prepass_schedule(const PrepassParameters& params,
+absl::StatusOr<std::vector<PrepassPass>> prepass_schedule(const job::PrepassParameters& params,
                                                           int width, int height);
 
 // A pixel's guide features (from one primary ray per sample, averaged): depth normalised to
@@ -237,7 +195,8 @@ class PixelTableImage {
 
  private:
   friend absl::StatusOr<PixelTableImage> build_tables(const image::SpectralImage&,
-                                                      const GuideImage&, const PrepassParameters&,
+                                                      const GuideImage&,
+                                                      const job::PrepassParameters&,
                                                       std::span<const double>,
                                                       std::span<const double>, const VarianceModel&,
                                                       const PixelTableImage*);
@@ -341,10 +300,13 @@ absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage&
 // `sensor_weights` s_b (bins values, mean 1) or empty for a flat sensor. INVALID_ARGUMENT when
 // params are invalid, the spans, guides or previous do not match the moments' size, or the
 // default masses are negative, not finite or all zero.
-absl::StatusOr<PixelTableImage> build_tables(
-    const image::SpectralImage& moments, const GuideImage& guides, const PrepassParameters& params,
-    std::span<const double> default_masses, std::span<const double> sensor_weights,
-    const VarianceModel& model, const PixelTableImage* previous = nullptr);
+absl::StatusOr<PixelTableImage> build_tables(const image::SpectralImage& moments,
+                                             const GuideImage& guides,
+                                             const job::PrepassParameters& params,
+                                             std::span<const double> default_masses,
+                                             std::span<const double> sensor_weights,
+                                             const VarianceModel& model,
+                                             const PixelTableImage* previous = nullptr);
 
 // The tables of a smaller image-scaled pass carried to a width × height film: each pixel takes
 // the table and source of the pixel whose area holds its centre, (⌊(x + ½)·w/W⌋, ⌊(y + ½)·h/H⌋).

@@ -18,12 +18,12 @@ double seconds_since(std::chrono::steady_clock::time_point start) {
 
 }  // namespace
 
-VarianceModel prepass_variance_model(const worker::RenderOptions& render) {
-  return VarianceModel{worker::kPrepassLanes, render.lanes(),
-                       render.sampler == worker::SamplerKind::kSobol};
+VarianceModel prepass_variance_model(const job::RenderOptions& render) {
+  return VarianceModel{job::kPrepassLanes, render.lanes(),
+                       render.sampler == job::SamplerKind::kSobol};
 }
 
-absl::StatusOr<PrepassRun> PrepassRun::create(const PrepassParameters& params, int width,
+absl::StatusOr<PrepassRun> PrepassRun::create(const job::PrepassParameters& params, int width,
                                               int height, int tile_size, int bins,
                                               const spectral::WavelengthDistribution& job_default,
                                               const spectral::WavelengthDistribution* sensor,

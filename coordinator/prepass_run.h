@@ -9,7 +9,7 @@
 // Sequence: for k = 1..passes(): render every tile of plan(k) (one task per tile, samples
 // [0, pass(k).spp), guides on, early stop on) with tables_for_pass(k, rect); add_tile(k, merged)
 // for each; finish_pass(k); stop as soon as finished() (after pass 1 of several, a prepass whose
-// tables are predicted to remove less than PrepassParameters::min_image_gain of the image's
+// tables are predicted to remove less than job::PrepassParameters::min_image_gain of the image's
 // variance stops there: every pixel goes back to the default and the later passes are not
 // rendered; after the last, tables predicted under min_final_gain are dropped). Then the final
 // pass's tiles take final_tables(rect).
@@ -37,14 +37,14 @@
 #include "coordinator/prepass.h"
 #include "coordinator/tile_plan.h"
 #include "services/image/tile.h"
+#include "services/job/render_options.h"
 #include "services/spectral/wavelength_distribution.h"
-#include "worker/render_options.h"
 
 namespace prism::coordinator {
 
 // How a job's final-pass variance depends on its prepass tables: the prepass's and the job's lanes,
 // and stratified wavelengths under the Sobol sampler (prepass.h VarianceModel).
-VarianceModel prepass_variance_model(const worker::RenderOptions& render);
+VarianceModel prepass_variance_model(const job::RenderOptions& render);
 
 // What a finished prepass did, for reports and summary lines.
 struct PrepassOutcome {
@@ -69,8 +69,8 @@ class PrepassRun {
   // `bins` cells when it is not flat (its masses weight each bin's error as the default does).
   // `model`: how the final pass's variance depends on the tables (VarianceModel::of the prepass's
   // and the final pass's lanes and sampler). INVALID_ARGUMENT for invalid parameters or sizes.
-  static absl::StatusOr<PrepassRun> create(const PrepassParameters& params, int width, int height,
-                                           int tile_size, int bins,
+  static absl::StatusOr<PrepassRun> create(const job::PrepassParameters& params, int width,
+                                           int height, int tile_size, int bins,
                                            const spectral::WavelengthDistribution& job_default,
                                            const spectral::WavelengthDistribution* sensor,
                                            const VarianceModel& model);
@@ -79,7 +79,7 @@ class PrepassRun {
   // k in 1..passes() (PRISM_CHECK).
   const PrepassPass& pass(int k) const;
   const TilePlan& plan(int k) const;
-  const PrepassParameters& parameters() const { return params_; }
+  const job::PrepassParameters& parameters() const { return params_; }
 
   // The tables of a pass-k tile in the PdfTable wire layout (services/spectral/pixel_tables.h),
   // or nothing for pass 1 (every pixel samples the default distribution). Needs passes < k
@@ -124,7 +124,7 @@ class PrepassRun {
  private:
   PrepassRun() = default;
 
-  PrepassParameters params_;
+  job::PrepassParameters params_;
   int width_ = 0;
   int height_ = 0;
   int bins_ = 0;

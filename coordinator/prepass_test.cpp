@@ -34,46 +34,8 @@ std::int64_t ulps(float a, float b) {
   return std::abs(std::int64_t{ia} - std::int64_t{ib});
 }
 
-TEST(PrepassParametersTest, ValidateNamesTheBadField) {
-  EXPECT_TRUE(PrepassParameters{}.validate().ok());
-  const double nan = std::numeric_limits<double>::quiet_NaN();
-  const double inf = std::numeric_limits<double>::infinity();
-  struct Case {
-    PrepassParameters p;
-    const char* field;
-  };
-  std::vector<Case> cases;
-  auto with = [](auto edit) {
-    PrepassParameters p;
-    edit(p);
-    return p;
-  };
-  cases.push_back({with([](auto& p) { p.passes = 0; }), "passes"});
-  cases.push_back({with([](auto& p) { p.passes = 9; }), "passes"});
-  cases.push_back({with([](auto& p) { p.spp = 0; }), "spp"});
-  cases.push_back({with([](auto& p) { p.epsilon = 0.0; }), "epsilon"});
-  cases.push_back({with([](auto& p) { p.epsilon = 1.0; }), "epsilon"});
-  cases.push_back({with([=](auto& p) { p.epsilon = nan; }), "epsilon"});
-  cases.push_back({with([](auto& p) { p.fallback = -1e-9; }), "fallback"});
-  cases.push_back({with([=](auto& p) { p.fallback = inf; }), "fallback"});
-  cases.push_back({with([](auto& p) { p.fallback = 1.0; }), "fallback"});
-  cases.push_back({with([](auto& p) { p.sigma_s = 0.0; }), "sigma_s"});
-  cases.push_back({with([=](auto& p) { p.sigma_s = inf; }), "sigma_s"});
-  cases.push_back({with([](auto& p) { p.sigma_s = 1000.0; }), "sigma_s"});
-  cases.push_back({with([](auto& p) { p.sigma_r = -0.015; }), "sigma_r"});
-  cases.push_back({with([=](auto& p) { p.sigma_r = nan; }), "sigma_r"});
-  for (const Case& c : cases) {
-    const absl::Status s = c.p.validate();
-    EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << c.field;
-    EXPECT_TRUE(has(s, std::string("prepass ") + c.field + " is")) << s;
-  }
-  // Edges that are allowed.
-  EXPECT_TRUE(with([](auto& p) { p.fallback = 0.0; }).validate().ok());
-  EXPECT_TRUE(with([](auto& p) { p.passes = 8; }).validate().ok());
-}
-
 TEST(PrepassScheduleTest, SampleScaledDividesTheSamplesOfEarlierPassesByEight) {
-  auto s = prepass_schedule(PrepassParameters{}, 320, 200);
+  auto s = prepass_schedule(job::PrepassParameters{}, 320, 200);
   ASSERT_TRUE(s.ok()) << s.status();
   ASSERT_EQ(s->size(), 2u);
   EXPECT_EQ((*s)[0].index, 1);
@@ -84,7 +46,7 @@ TEST(PrepassScheduleTest, SampleScaledDividesTheSamplesOfEarlierPassesByEight) {
     EXPECT_EQ(p.height, 200);
     EXPECT_EQ(p.scale, 1.0);
   }
-  PrepassParameters four;
+  job::PrepassParameters four;
   four.passes = 4;
   s = prepass_schedule(four, 8, 8);
   ASSERT_TRUE(s.ok());
@@ -96,14 +58,14 @@ TEST(PrepassScheduleTest, SampleScaledDividesTheSamplesOfEarlierPassesByEight) {
   ASSERT_TRUE(s.ok());
   EXPECT_EQ((*s)[0].spp, 1u);
   EXPECT_EQ((*s)[7].spp, 128u);
-  EXPECT_FALSE(prepass_schedule(PrepassParameters{}, 0, 8).ok());
-  PrepassParameters bad;
+  EXPECT_FALSE(prepass_schedule(job::PrepassParameters{}, 0, 8).ok());
+  job::PrepassParameters bad;
   bad.passes = 0;
   EXPECT_FALSE(prepass_schedule(bad, 8, 8).ok());
 }
 
 TEST(PrepassScheduleTest, ImageScaledQuartersThePixelsOfEarlierPasses) {
-  PrepassParameters p;
+  job::PrepassParameters p;
   p.image_scaled = true;
   p.passes = 3;
   auto s = prepass_schedule(p, 101, 50);
@@ -367,7 +329,7 @@ struct Choice {
   double v0 = 0, v = 0;
 };
 Choice choose(const Moments& m, const std::vector<double>& d, const std::vector<double>& sensor,
-              const VarianceModel& model, const PrepassParameters& params) {
+              const VarianceModel& model, const job::PrepassParameters& params) {
   const std::size_t n = d.size();
   std::vector<double> k(n), u(n);
   for (std::size_t b = 0; b < n; ++b) {
@@ -507,7 +469,7 @@ TEST(PrepassTablesTest, AgreeingPixelsTakeTheCandidateOfLeastPredictedVariance) 
   }
   const SpectralImage img = moments_image(kW, rows);
   const GuideImage guides = row_guides(kW, int(rows.size()));
-  PrepassParameters params;
+  job::PrepassParameters params;
   int learned = 0, shapes[2] = {0, 0};
   for (bool stratified : {false, true}) {
     for (const std::vector<double>& weights : {std::vector<double>{}, sensor}) {
@@ -598,7 +560,7 @@ TEST(PrepassTablesTest, DefaultWhereNothingIsLearnedOrTheGainIsSmall) {
   for (int b = 0; b < kBins; ++b) rows[4].k[b] = -1.0;
   const SpectralImage img = moments_image(kW, rows);
   const GuideImage guides = row_guides(kW, 5);
-  PrepassParameters params;
+  job::PrepassParameters params;
   auto tables = build_tables(img, guides, params, d, {}, model);
   ASSERT_TRUE(tables.ok()) << tables.status();
   EXPECT_EQ(tables->source(1, 0), PixelSource::kNoEstimate);
@@ -608,7 +570,7 @@ TEST(PrepassTablesTest, DefaultWhereNothingIsLearnedOrTheGainIsSmall) {
   EXPECT_EQ(tables->source(1, 3), PixelSource::kMatchesDefault);
   EXPECT_EQ(tables->source(1, 4), PixelSource::kNoEstimate);
   const Choice slight = choose(rows[3], d, {}, model, [] {
-    PrepassParameters p;
+    job::PrepassParameters p;
     p.fallback = 0.0;
     return p;
   }());
@@ -624,7 +586,7 @@ TEST(PrepassTablesTest, DefaultWhereNothingIsLearnedOrTheGainIsSmall) {
   std::vector<Moments> later_rows(
       5, Moments{std::vector<double>(kBins, 0.0), std::vector<double>(kBins, 0.0)});
   for (Moments& m : later_rows) m.k[7] = 1.0;
-  auto later = build_tables(moments_image(kW, later_rows), guides, PrepassParameters{}, d, {},
+  auto later = build_tables(moments_image(kW, later_rows), guides, job::PrepassParameters{}, d, {},
                             model, &*tables);
   ASSERT_TRUE(later.ok());
   EXPECT_EQ(later->source(0, 0), PixelSource::kNoEstimate);
@@ -652,7 +614,7 @@ TEST(PrepassTablesTest, RefusesMismatchedInputs) {
   std::vector<double> negative = d16;
   negative[3] = -0.1;
   EXPECT_FALSE(build_tables(img, guides, {}, negative, {}, model).ok());
-  PrepassParameters bad;
+  job::PrepassParameters bad;
   bad.epsilon = 2.0;
   EXPECT_TRUE(has(build_tables(img, guides, bad, d16, {}, model).status(), "epsilon"));
   EXPECT_FALSE(build_tables(*SpectralImage::create(2, 2, 31), guides, {}, d16, {}, model).ok());
@@ -696,7 +658,7 @@ TEST(MomentImageTest, MomentsAreSampleMassTimesMeanSquareAveragedOverPasses) {
   for (int c = 0; c < 2 * kBins; ++c) EXPECT_EQ(m->moments().value(1, 0, c), 0.0f);
 
   // A second pass of 12 samples at a one-pixel image, sampled with a table: w its masses.
-  PrepassParameters p;
+  job::PrepassParameters p;
   p.fallback = 0.0;
   Moments strong{{1.0, 4.0, 1.0, 1.0}, {0, 0, 0, 0}};
   // Three agreeing pixels (a lone pixel has no neighbours to learn from).

@@ -39,12 +39,13 @@ TilePlan plan_round(const TilePlan& plan, std::uint64_t s0, std::uint64_t s1,
   return out;
 }
 
-absl::StatusOr<TargetErrorTracker> TargetErrorTracker::create(const TargetError& target,
+absl::StatusOr<TargetErrorTracker> TargetErrorTracker::create(const job::TargetError& target,
                                                               const TilePlan& plan,
                                                               std::uint64_t first_spp) {
-  if (!(target.relative >= kMinTargetError && target.relative <= kMaxTargetError)) {
+  if (!(target.relative >= job::kMinTargetError && target.relative <= job::kMaxTargetError)) {
     return absl::InvalidArgumentError(absl::StrCat("target error ", target.relative, " is outside ",
-                                                   kMinTargetError, "..", kMaxTargetError));
+                                                   job::kMinTargetError, "..",
+                                                   job::kMaxTargetError));
   }
   // Two samples at least, so that every pixel's standard error is estimated from the start.
   if (first_spp < 2) {

@@ -24,19 +24,12 @@
 #include "absl/status/statusor.h"
 #include "coordinator/tile_plan.h"
 #include "services/image/tile.h"
+#include "services/job/job_parameters.h"
 
 namespace prism::coordinator {
 
-inline constexpr double kMinTargetError = 1e-4;
-inline constexpr double kMaxTargetError = 1.0;
 // Pixels darker than this share of the image's mean luminance are measured against it.
 inline constexpr double kTargetErrorDarkShare = 0.1;
-
-struct TargetError {
-  double relative = 0.01;  // E in [kMinTargetError, kMaxTargetError]
-  bool image_scope = false;
-  std::uint64_t max_spp = 0;  // >= the job's spp
-};
 
 // The cumulative spp at the end of each round: first, 2·first, 4·first, ..., max_spp.
 std::vector<std::uint64_t> target_error_rounds(std::uint64_t first_spp, std::uint64_t max_spp);
@@ -64,8 +57,8 @@ class TargetErrorTracker {
  public:
   // `plan`: the final pass's tiles (its ranges are ignored); `first_spp`: round 1's end.
   // INVALID_ARGUMENT for a target or max_spp out of range.
-  static absl::StatusOr<TargetErrorTracker> create(const TargetError& target, const TilePlan& plan,
-                                                   std::uint64_t first_spp);
+  static absl::StatusOr<TargetErrorTracker> create(const job::TargetError& target,
+                                                   const TilePlan& plan, std::uint64_t first_spp);
 
   const std::vector<std::uint64_t>& rounds() const { return rounds_; }
   // The round now running (0-based) and whether tile t takes part in it.
@@ -100,7 +93,7 @@ class TargetErrorTracker {
   };
   ImageTotals image_totals() const;
 
-  TargetError target_;
+  job::TargetError target_;
   TilePlan plan_;
   std::vector<std::uint64_t> rounds_;
   int round_ = 0;

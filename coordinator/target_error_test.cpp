@@ -106,7 +106,7 @@ TEST(TargetErrorTest, EachTileStopsWhenEveryPixelMeetsTheTarget) {
 // max_spp stops an unmet target, and says so; the image scope stops every tile together.
 TEST(TargetErrorTest, MaxSppStopsAndTheImageScopeStopsTogether) {
   const TilePlan plan = two_tiles();
-  auto run = [&](TargetError target) {
+  auto run = [&](job::TargetError target) {
     auto tracker = TargetErrorTracker::create(target, plan, 8);
     EXPECT_TRUE(tracker.ok()) << tracker.status();
     std::vector<std::vector<int>> rounds;

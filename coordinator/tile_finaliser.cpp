@@ -143,7 +143,7 @@ TileFinaliser mean_finaliser() {
 }
 
 TileFinaliser reconstructing_finaliser(std::shared_ptr<const PoissonSolver> solver,
-                                       PoissonNorm norm) {
+                                       job::PoissonNorm norm) {
   PRISM_CHECK(solver != nullptr);
   return [solver = std::move(solver),
           norm](const image::TileResult& merged) -> absl::StatusOr<image::SpectralImage> {
@@ -160,7 +160,7 @@ TileFinaliser reconstructing_finaliser(std::shared_ptr<const PoissonSolver> solv
     PRISM_ASSIGN_OR_RETURN(
         image::SpectralImage out,
         image::SpectralImage::create(rect.width(), rect.height(), merged.bins()));
-    if (norm == PoissonNorm::kWeighted) {
+    if (norm == job::PoissonNorm::kWeighted) {
       PRISM_RETURN_IF_ERROR(reconstruct_weighted(*solver, merged, out));
       return out;
     }

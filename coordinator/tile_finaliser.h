@@ -25,10 +25,11 @@ using TileFinaliser = std::function<absl::StatusOr<image::SpectralImage>(const i
 TileFinaliser mean_finaliser();
 // Means of I and G, then the reconstruction of every pixel with `solver` (whose bins must be
 // the tiles'; INVALID_ARGUMENT otherwise) in `norm`. A tile without gradients is refused with
-// INVALID_ARGUMENT, and so is one without halves for PoissonNorm::kWeighted, which reconstructs
-// each pixel's even and odd samples apart, each with per-sample variances from the other half
-// and the 3×3 block around it, so that no weight depends on the values it weighs (unbiased).
+// INVALID_ARGUMENT, and so is one without halves for job::PoissonNorm::kWeighted, which
+// reconstructs each pixel's even and odd samples apart, each with per-sample variances from the
+// other half and the 3×3 block around it, so that no weight depends on the values it weighs
+// (unbiased).
 TileFinaliser reconstructing_finaliser(std::shared_ptr<const PoissonSolver> solver,
-                                       PoissonNorm norm);
+                                       job::PoissonNorm norm);
 
 }  // namespace prism::coordinator

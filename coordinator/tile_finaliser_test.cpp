@@ -67,10 +67,10 @@ image::TileResult synthetic_tile(std::uint64_t n, double gradient_noise, std::ui
 }
 
 TileFinaliser weighted() {
-  auto solver = PoissonSolver::create(kBins, kOffset, kDefaultPoissonAlpha);
+  auto solver = PoissonSolver::create(kBins, kOffset, job::kDefaultPoissonAlpha);
   PRISM_CHECK(solver.ok());
   return reconstructing_finaliser(std::make_shared<const PoissonSolver>(std::move(*solver)),
-                                  PoissonNorm::kWeighted);
+                                  job::PoissonNorm::kWeighted);
 }
 
 // Samples whose gradients are exactly the differences of their primals have consistent means,

@@ -57,7 +57,7 @@ TEST_P(ConformanceTest, AgreesWithPbrtV4WithinNoise) {
 
   // `prism render`'s defaults: hero, no prepass, 64 bins, the scene's depth.
   coordinator::LocalRenderOptions o;
-  o.render.integrator = worker::IntegratorKind::kHero;
+  o.render.integrator = job::IntegratorKind::kHero;
   o.render.bins = 64;
   o.render.max_depth = scene.integrator.max_depth;
   o.render.seed = 1;

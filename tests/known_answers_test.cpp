@@ -133,8 +133,7 @@ WorldBegin
 Rotate -90 1 0 0
 )";
   const spectral::Spectrum& d65 = *library_->find_spectrum("stdillum-D65");
-  const double y_d65 =
-      spectral::ColorMatching::cie1931().photometric_sum(spectral::Spectrum(d65));
+  const double y_d65 = spectral::ColorMatching::cie1931().photometric_sum(spectral::Spectrum(d65));
   auto expected = [&](double lo, double hi) {
     return 0.5 * 2.0 / M_PI * spectral::integrate(d65, lo, hi) / (hi - lo) / y_d65;
   };
@@ -191,7 +190,7 @@ Material "diffuse" "rgb reflectance" [0.5 0.5 0.5]
 Shape "trianglemesh" "point3 P" [-5 -1 -5  5 -1 -5  5 -1 5  -5 -1 5] "integer indices" [0 1 2 0 2 3]
 )");
   ASSERT_TRUE(scene.ok()) << scene.status();
-  auto result = render(*scene, worker::IntegratorKind::kGradient, 64, 1, 8);
+  auto result = render(*scene, job::IntegratorKind::kGradient, 64, 1, 8);
   ASSERT_TRUE(result.ok()) << result.status();
   for (float v : result->image.data()) ASSERT_TRUE(std::isfinite(v));
   EXPECT_EQ(result->stats.counters.non_finite, 0u);

@@ -64,12 +64,12 @@ class NumericsTest : public RenderFixture {
   static void expect_answer(const scene::SceneDescription& scene, std::uint64_t spp, int max_depth,
                             double relative, const std::function<double(double, double)>& expected,
                             const std::function<void(LocalRenderOptions&)>& adjust = nullptr,
-                            std::span<const worker::IntegratorKind> integrators = kIntegrators) {
-    for (worker::IntegratorKind integrator : integrators) {
-      SCOPED_TRACE(worker::name(integrator));
+                            std::span<const job::IntegratorKind> integrators = kIntegrators) {
+    for (job::IntegratorKind integrator : integrators) {
+      SCOPED_TRACE(job::name(integrator));
       auto result = render(scene, integrator, spp, 11, max_depth, adjust);
       ASSERT_TRUE(result.ok()) << result.status();
-      expect_finite(*result, worker::name(integrator));
+      expect_finite(*result, job::name(integrator));
       const spectral::WavelengthGrid grid = *spectral::WavelengthGrid::create(result->image.bins());
       double largest = 0;
       for (int b = 0; b < grid.bins(); ++b) {
@@ -152,8 +152,8 @@ TEST_F(NumericsTest, ALineOnlyEmitterFillsOneBinAtFourAndAt256Bins) {
   const spectral::PiecewiseLinearSpectrum sodium =
       *spectral::PiecewiseLinearSpectrum::create(line_nm, line_v, "sodium");
   const double y_sum = cmf.photometric_sum(spectral::Spectrum(sodium));
-  constexpr worker::IntegratorKind kSpectral[] = {worker::IntegratorKind::kHero,
-                                                  worker::IntegratorKind::kGradient};
+  constexpr job::IntegratorKind kSpectral[] = {job::IntegratorKind::kHero,
+                                               job::IntegratorKind::kGradient};
   for (int bins : {4, 256}) {
     SCOPED_TRACE(absl::StrCat(bins, " bins"));
     auto scene = load("sodium.pbrt", floor_scene(1, line, "[360 0.5 830 0.5]", bins));
@@ -188,15 +188,15 @@ Shape "trianglemesh" "point3 P" [-10 0 -10  10 0 -10  10 0 10  -10 0 10] "intege
     expect_answer(
         *scene, 64, 5, 0, [](double, double) { return 0.0; },
         [&](LocalRenderOptions& o) {
-          if (prepass && o.render.integrator == worker::IntegratorKind::kHero) {
-            PrepassParameters p;
+          if (prepass && o.render.integrator == job::IntegratorKind::kHero) {
+            job::PrepassParameters p;
             p.spp = 16;
             o.prepass = p;
           }
         });
   }
-  auto result = render(*scene, worker::IntegratorKind::kHero, 64, 3, 5, [](LocalRenderOptions& o) {
-    PrepassParameters p;
+  auto result = render(*scene, job::IntegratorKind::kHero, 64, 3, 5, [](LocalRenderOptions& o) {
+    job::PrepassParameters p;
     p.spp = 16;
     o.prepass = p;
   });
@@ -231,8 +231,8 @@ AttributeEnd
 )");
   ASSERT_TRUE(clean.ok()) << clean.status();
   ASSERT_TRUE(broken.ok()) << broken.status();
-  for (worker::IntegratorKind integrator : kIntegrators) {
-    SCOPED_TRACE(worker::name(integrator));
+  for (job::IntegratorKind integrator : kIntegrators) {
+    SCOPED_TRACE(job::name(integrator));
     auto a = render(*clean, integrator, 256, 21, 3);
     auto b = render(*broken, integrator, 256, 22, 3);
     ASSERT_TRUE(a.ok()) << a.status();
@@ -260,7 +260,7 @@ TEST_F(NumericsTest, GradientOffsetsThatWrapTheSpectrumReconstructExactly) {
   const double scale = 3.0 * unit_flat_emission() * std::cos(M_PI / 6) / M_PI;
   for (int k : {8, 15}) {
     SCOPED_TRACE(absl::StrCat("k ", k));
-    constexpr worker::IntegratorKind kGradient[] = {worker::IntegratorKind::kGradient};
+    constexpr job::IntegratorKind kGradient[] = {job::IntegratorKind::kGradient};
     expect_answer(
         *scene, 16, 3, 2e-4, [&](double lo, double hi) { return scale * rho.bin_average(lo, hi); },
         [&](LocalRenderOptions& o) {
@@ -287,7 +287,7 @@ TEST_F(NumericsTest, PoissonAtItsAlphaBoundsOnASpike) {
       consistent[b] = primal[(b + k) % kBins] - primal[b];
       random[b] = noise(rng);
     }
-    for (double alpha : {kMinPoissonAlpha, 1.0, kMaxPoissonAlpha}) {
+    for (double alpha : {job::kMinPoissonAlpha, 1.0, job::kMaxPoissonAlpha}) {
       SCOPED_TRACE(absl::StrCat("k ", k, " alpha ", alpha));
       auto solver = PoissonSolver::create(kBins, k, alpha);
       ASSERT_TRUE(solver.ok()) << solver.status();
@@ -305,7 +305,7 @@ TEST_F(NumericsTest, PoissonAtItsAlphaBoundsOnASpike) {
         sum += out[b];
       }
       EXPECT_NEAR(sum, 4096.0, 0.05);
-      if (alpha == kMaxPoissonAlpha) {
+      if (alpha == job::kMaxPoissonAlpha) {
         for (int b = 0; b < kBins; ++b) EXPECT_NEAR(out[b], primal[b], 0.05f) << "bin " << b;
       }
     }
@@ -351,10 +351,10 @@ TEST_F(NumericsTest, StressSceneGivesFiniteOutputsEverywhere) {
   ASSERT_TRUE(loaded.ok()) << loaded.status();
   const scene::SceneDescription& scene = loaded->description;
   for (float tau : {0.0f, 1.0f}) {
-    for (auto norm : {PoissonNorm::kL2, PoissonNorm::kL1, PoissonNorm::kWeighted}) {
+    for (auto norm : {job::PoissonNorm::kL2, job::PoissonNorm::kL1, job::PoissonNorm::kWeighted}) {
       auto result =
-          render(scene, worker::IntegratorKind::kGradient, 64, 7, 8, [&](LocalRenderOptions& o) {
-            o.render.gradient_offset_bins = *worker::gradient_offset_bins(0.15, o.render.bins);
+          render(scene, job::IntegratorKind::kGradient, 64, 7, 8, [&](LocalRenderOptions& o) {
+            o.render.gradient_offset_bins = *job::gradient_offset_bins(0.15, o.render.bins);
             o.render.gradient_tau = tau;
             o.keep_primal_and_gradients = true;
             o.poisson_norm = norm;
@@ -364,16 +364,16 @@ TEST_F(NumericsTest, StressSceneGivesFiniteOutputsEverywhere) {
       EXPECT_GT(result->stats.counters.gradient_shifts_failed, 0u);
     }
   }
-  for (worker::IntegratorKind integrator : kIntegrators) {
+  for (job::IntegratorKind integrator : kIntegrators) {
     auto result = render(scene, integrator, 64, 8, 8, [&](LocalRenderOptions& o) {
-      if (integrator == worker::IntegratorKind::kHero) {
-        PrepassParameters p;
+      if (integrator == job::IntegratorKind::kHero) {
+        job::PrepassParameters p;
         p.spp = 32;
         o.prepass = p;
       }
     });
     ASSERT_TRUE(result.ok()) << result.status();
-    expect_finite(*result, worker::name(integrator));
+    expect_finite(*result, job::name(integrator));
   }
 }
 
@@ -392,7 +392,7 @@ TEST_F(NumericsTest, MalformedNumbersAreRefusedWithTheirPlace) {
     auto scene = load("bad.pbrt", text);
     if (scene.ok()) {
       // Some are caught when the render is built (the worker's own checks).
-      auto result = render(*scene, worker::IntegratorKind::kHero, 1, 1, 1);
+      auto result = render(*scene, job::IntegratorKind::kHero, 1, 1, 1);
       ASSERT_FALSE(result.ok()) << text;
       EXPECT_NE(result.status().message().find(where), std::string_view::npos)
           << text << ": " << result.status();

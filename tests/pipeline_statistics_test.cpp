@@ -134,7 +134,7 @@ class PipelineStatisticsTest : public testing::Test {
 struct GradientCase {
   const char* scene;
   float tau;
-  coordinator::PoissonNorm norm = coordinator::PoissonNorm::kL2;
+  job::PoissonNorm norm = job::PoissonNorm::kL2;
 };
 
 class GradientPipelineTest : public PipelineStatisticsTest,
@@ -148,10 +148,10 @@ TEST_P(GradientPipelineTest, ReconstructionAgreesWithUniformPerBin) {
   ASSERT_TRUE(scene.ok()) << scene.status();
   constexpr int kSeeds = 24;
   LocalRenderOptions uniform = base_options(12, 12, 512);
-  uniform.render.integrator = worker::IntegratorKind::kUniform;
+  uniform.render.integrator = job::IntegratorKind::kUniform;
   LocalRenderOptions gradient = uniform;
-  gradient.render.integrator = worker::IntegratorKind::kGradient;
-  gradient.render.gradient_offset_bins = *worker::gradient_offset_bins(0.15, uniform.render.bins);
+  gradient.render.integrator = job::IntegratorKind::kGradient;
+  gradient.render.gradient_offset_bins = *job::gradient_offset_bins(0.15, uniform.render.bins);
   gradient.render.gradient_tau = c.tau;
   gradient.poisson_norm = c.norm;
   const SeedStats u = over_seeds(*scene, uniform, kSeeds);
@@ -159,7 +159,7 @@ TEST_P(GradientPipelineTest, ReconstructionAgreesWithUniformPerBin) {
   ASSERT_EQ(u.mean.size(), g.mean.size());
   std::string detail;
   EXPECT_LT(max_z(g, u, &detail), 5.0)
-      << c.scene << " tau " << c.tau << " " << coordinator::to_string(c.norm) << "\n"
+      << c.scene << " tau " << c.tau << " " << job::to_string(c.norm) << "\n"
       << detail;
 }
 
@@ -172,23 +172,23 @@ INSTANTIATE_TEST_SUITE_P(
                     GradientCase{"worker/testdata/gradient_rough_glass.pbrt", 0.0f},
                     GradientCase{"worker/testdata/gradient_rough_glass.pbrt", 1.0f},
                     GradientCase{"worker/testdata/gradient_prism.pbrt", 0.0f,
-                                 coordinator::PoissonNorm::kWeighted},
+                                 job::PoissonNorm::kWeighted},
                     GradientCase{"worker/testdata/gradient_glass_diffuse.pbrt", 0.0f,
-                                 coordinator::PoissonNorm::kWeighted},
+                                 job::PoissonNorm::kWeighted},
                     GradientCase{"worker/testdata/gradient_rough_glass.pbrt", 1.0f,
-                                 coordinator::PoissonNorm::kWeighted}),
+                                 job::PoissonNorm::kWeighted}),
     [](const testing::TestParamInfo<GradientCase>& info) {
       std::string name = std::filesystem::path(info.param.scene).stem().string();
       for (char& ch : name) {
         if (ch == '-') ch = '_';
       }
       return name + (info.param.tau > 0 ? "_tau" : "_tau0") +
-             (info.param.norm == coordinator::PoissonNorm::kWeighted ? "_weighted" : "");
+             (info.param.norm == job::PoissonNorm::kWeighted ? "_weighted" : "");
     });
 
 struct PrepassCase {
   const char* name;
-  worker::IntegratorKind integrator;
+  job::IntegratorKind integrator;
   bool image_scaled;
 };
 
@@ -205,13 +205,13 @@ TEST_P(PrepassPipelineTest, FinalPassWithLearnedTablesAgreesWithUniformPerBin) {
   ASSERT_TRUE(scene.ok()) << scene.status();
   constexpr int kSeeds = 24;
   LocalRenderOptions uniform = base_options(24, 24, 64);
-  uniform.render.integrator = worker::IntegratorKind::kUniform;
+  uniform.render.integrator = job::IntegratorKind::kUniform;
   LocalRenderOptions prepass = uniform;
   prepass.render.integrator = c.integrator;
-  prepass.render.gradient_offset_bins = *worker::gradient_offset_bins(0.15, uniform.render.bins);
+  prepass.render.gradient_offset_bins = *job::gradient_offset_bins(0.15, uniform.render.bins);
   // The unbiased reconstruction: what is tested is the sampling of the tables.
-  prepass.poisson_norm = coordinator::PoissonNorm::kL2;
-  coordinator::PrepassParameters params;
+  prepass.poisson_norm = job::PoissonNorm::kL2;
+  job::PrepassParameters params;
   params.spp = 16;
   params.image_scaled = c.image_scaled;
   // Whatever gain they predict, the tables are used: they are what is tested.
@@ -237,9 +237,9 @@ TEST_P(PrepassPipelineTest, FinalPassWithLearnedTablesAgreesWithUniformPerBin) {
 
 INSTANTIATE_TEST_SUITE_P(
     Modes, PrepassPipelineTest,
-    testing::Values(PrepassCase{"hero", worker::IntegratorKind::kHero, false},
-                    PrepassCase{"hero_image_scaled", worker::IntegratorKind::kHero, true},
-                    PrepassCase{"gradient", worker::IntegratorKind::kGradient, false}),
+    testing::Values(PrepassCase{"hero", job::IntegratorKind::kHero, false},
+                    PrepassCase{"hero_image_scaled", job::IntegratorKind::kHero, true},
+                    PrepassCase{"gradient", job::IntegratorKind::kGradient, false}),
     [](const testing::TestParamInfo<PrepassCase>& info) { return std::string(info.param.name); });
 
 // Coats whose index varies with wavelength: hero makes the BSDF at the hero wavelength and
@@ -251,9 +251,9 @@ TEST_F(PipelineStatisticsTest, HeroWithADispersiveCoatAgreesWithUniformPerBin) {
   ASSERT_TRUE(scene.ok()) << scene.status();
   constexpr int kSeeds = 16;
   LocalRenderOptions uniform = base_options(24, 24, 256);
-  uniform.render.integrator = worker::IntegratorKind::kUniform;
+  uniform.render.integrator = job::IntegratorKind::kUniform;
   LocalRenderOptions hero = uniform;
-  hero.render.integrator = worker::IntegratorKind::kHero;
+  hero.render.integrator = job::IntegratorKind::kHero;
   const SeedStats u = over_seeds(*scene, uniform, kSeeds);
   const SeedStats h = over_seeds(*scene, hero, kSeeds);
   std::string detail;
@@ -275,9 +275,9 @@ TEST_F(PipelineStatisticsTest, APortalChangesSamplingNotTheImage) {
   }
   constexpr int kSeeds = 12;
   LocalRenderOptions hero = base_options(24, 24, 64);
-  hero.render.integrator = worker::IntegratorKind::kHero;
+  hero.render.integrator = job::IntegratorKind::kHero;
   LocalRenderOptions gradient = hero;
-  gradient.render.integrator = worker::IntegratorKind::kGradient;
+  gradient.render.integrator = job::IntegratorKind::kGradient;
   const SeedStats plain = over_seeds(without_portal, hero, kSeeds);
   const SeedStats portal_hero = over_seeds(*with_portal, hero, kSeeds);
   const SeedStats portal_gradient = over_seeds(*with_portal, gradient, kSeeds);

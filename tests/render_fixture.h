@@ -21,9 +21,8 @@
 
 namespace prism::coordinator {
 
-inline constexpr worker::IntegratorKind kIntegrators[] = {worker::IntegratorKind::kUniform,
-                                                          worker::IntegratorKind::kHero,
-                                                          worker::IntegratorKind::kGradient};
+inline constexpr job::IntegratorKind kIntegrators[] = {
+    job::IntegratorKind::kUniform, job::IntegratorKind::kHero, job::IntegratorKind::kGradient};
 
 // `Base`: testing::Test, or testing::TestWithParam<...> for parameterised suites.
 template <typename Base = testing::Test>
@@ -51,7 +50,7 @@ class RenderFixtureBase : public Base {
   // The scene's film resolution and bins, `spp` samples, 2 threads; `adjust` may change the
   // options before the render is built.
   static absl::StatusOr<LocalRenderResult> render(
-      const scene::SceneDescription& scene, worker::IntegratorKind integrator, std::uint64_t spp,
+      const scene::SceneDescription& scene, job::IntegratorKind integrator, std::uint64_t spp,
       std::uint64_t seed, int max_depth,
       const std::function<void(LocalRenderOptions&)>& adjust = nullptr) {
     LocalRenderOptions o;
@@ -94,8 +93,8 @@ class RenderFixtureBase : public Base {
   static void expect_every_integrator(const scene::SceneDescription& scene, std::uint64_t spp,
                                       int max_depth,
                                       const std::function<double(double, double)>& expected) {
-    for (worker::IntegratorKind integrator : kIntegrators) {
-      SCOPED_TRACE(worker::name(integrator));
+    for (job::IntegratorKind integrator : kIntegrators) {
+      SCOPED_TRACE(job::name(integrator));
       auto result = render(scene, integrator, spp, 5, max_depth);
       ASSERT_TRUE(result.ok()) << result.status();
       const spectral::WavelengthGrid grid = *spectral::WavelengthGrid::create(result->image.bins());
@@ -114,8 +113,8 @@ class RenderFixtureBase : public Base {
   // covers 2.03..13.97) show `ratio` times the sky's (columns 0 and 15).
   static void expect_sheet_over_sky(const scene::SceneDescription& scene, double ratio,
                                     std::uint64_t seed) {
-    for (worker::IntegratorKind integrator : kIntegrators) {
-      SCOPED_TRACE(worker::name(integrator));
+    for (job::IntegratorKind integrator : kIntegrators) {
+      SCOPED_TRACE(job::name(integrator));
       auto result = render(scene, integrator, 256, seed, 4);
       ASSERT_TRUE(result.ok()) << result.status();
       for (int b = 0; b < result->image.bins(); ++b) {

@@ -97,7 +97,7 @@ TEST_P(BsdfSamplingTest, MatchesPdfPerLane) {
       Bsdf hero = c.with_lane_as_hero(lane);
       std::vector<double> observed(kCells, 0.0);
       for (std::uint32_t i = 0; i < kSamplesPerTest; ++i) {
-        Sampler s(SamplerKind::kIndependent, SampleKey{99, 0, std::uint32_t(lane), 0, i});
+        Sampler s(job::SamplerKind::kIndependent, SampleKey{99, 0, std::uint32_t(lane), 0, i});
         float uc = s.get1d();
         Point2f u;
         s.get2d(u.x, u.y);
@@ -123,7 +123,7 @@ TEST(BsdfTest, NearlyIndexMatchedRoughGlassStaysFinite) {
     for (float theta : {0.0f, 30.0f, 89.9f, 120.0f}) {
       Vec3f wo = direction(theta, 0);
       for (std::uint32_t i = 0; i < 20000; ++i) {
-        Sampler s(SamplerKind::kIndependent, SampleKey{8, 0, 0, 0, i});
+        Sampler s(job::SamplerKind::kIndependent, SampleKey{8, 0, 0, 0, i});
         float uc = s.get1d();
         Point2f u;
         s.get2d(u.x, u.y);
@@ -143,7 +143,7 @@ TEST(BsdfTest, SampleAgreesWithEvalAndPdf) {
   for (const Case& c : rough_cases()) {
     Vec3f wo = direction(60, 10);
     for (std::uint32_t i = 0; i < 2000; ++i) {
-      Sampler s(SamplerKind::kIndependent, SampleKey{5, 0, 0, 0, i});
+      Sampler s(job::SamplerKind::kIndependent, SampleKey{5, 0, 0, 0, i});
       float uc = s.get1d();
       Point2f u;
       s.get2d(u.x, u.y);
@@ -203,7 +203,7 @@ TEST(BsdfTest, AlbedoNeverExceedsOne) {
       double sum[kLanes] = {};
       constexpr int kN = 100000;
       for (std::uint32_t i = 0; i < kN; ++i) {
-        Sampler s(SamplerKind::kSobol, SampleKey{1, 0, 0, 0, i});
+        Sampler s(job::SamplerKind::kSobol, SampleKey{1, 0, 0, 0, i});
         float uc = s.get1d();
         Point2f u;
         s.get2d(u.x, u.y);
@@ -228,7 +228,7 @@ TEST(BsdfTest, DiffuseTransmissionAlbedoIsReflectancePlusTransmittance) {
     int transmitted = 0;
     constexpr int kN = 20000;
     for (std::uint32_t i = 0; i < kN; ++i) {
-      Sampler s(SamplerKind::kIndependent, SampleKey{4, 0, 0, 0, i});
+      Sampler s(job::SamplerKind::kIndependent, SampleKey{4, 0, 0, 0, i});
       const float uc = s.get1d();
       Point2f u;
       s.get2d(u.x, u.y);
@@ -283,7 +283,7 @@ TEST(BsdfTest, DiffuseAlbedoIsReflectance) {
   double sum[kLanes] = {};
   constexpr int kN = 4096;
   for (std::uint32_t i = 0; i < kN; ++i) {
-    Sampler s(SamplerKind::kSobol, SampleKey{3, 0, 0, 0, i});
+    Sampler s(job::SamplerKind::kSobol, SampleKey{3, 0, 0, 0, i});
     Point2f u;
     s.get2d(u.x, u.y);
     auto bs = bsdf.sample(wo, 0, u);

@@ -135,7 +135,7 @@ TEST(CameraTest, ThinLensRaysConvergeOnTheFocalPlane) {
     Vec3f focus = p.origin + p.direction * tp;
     double max_lens_offset = 0;
     for (std::uint32_t i = 0; i < 64; ++i) {
-      Sampler s(SamplerKind::kSobol, SampleKey{3, 0, 0, 0, i});
+      Sampler s(job::SamplerKind::kSobol, SampleKey{3, 0, 0, 0, i});
       Point2f u;
       s.get2d(u.x, u.y);
       Ray r = lens->generate_ray(film, u);
@@ -164,7 +164,7 @@ TEST(CameraTest, RaysArePureFunctions) {
   auto b = Camera::create(c, 320, 240);
   ASSERT_TRUE(a.ok() && b.ok());
   for (std::uint32_t i = 0; i < 256; ++i) {
-    Sampler s(SamplerKind::kIndependent, SampleKey{1, 0, i, 0, 0});
+    Sampler s(job::SamplerKind::kIndependent, SampleKey{1, 0, i, 0, 0});
     Point2f film{s.get1d() * 320, s.get1d() * 240}, u{s.get1d(), s.get1d()};
     Ray r1 = a->generate_ray(film, u), r2 = a->generate_ray(film, u), r3 = b->generate_ray(film, u);
     EXPECT_EQ(std::memcmp(&r1, &r2, sizeof(Ray)), 0);

@@ -71,7 +71,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                                          spectral::WavelengthPdfView lambda_pdf,
                                          TraceCounters& counters, GuideValues* guides,
                                          GradientEventSink* events) const {
-  const RenderOptions& options = scene_.options();
+  const job::RenderOptions& options = scene_.options();
   const Geometry& geometry = scene_.geometry();
   const spectral::WavelengthGrid& grid = scene_.grid();
   Sampler sampler(options.sampler, SampleKey{options.seed, pass, std::uint32_t(px),

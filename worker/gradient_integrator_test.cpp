@@ -348,17 +348,17 @@ class GradientIntegratorTest : public ::testing::Test {
   }
 
   static std::unique_ptr<RenderScene> build(const scene::SceneDescription& desc,
-                                            const RenderOptions& options) {
+                                            const job::RenderOptions& options) {
     auto built = RenderScene::build(*device_, desc, *library_, options, desc.film.x_resolution,
                                     desc.film.y_resolution);
     EXPECT_TRUE(built.ok()) << built.status();
     return built.ok() ? std::move(*built) : nullptr;
   }
 
-  static RenderOptions gradient_options(std::uint64_t seed, float tau = 0) {
-    RenderOptions options;
-    options.integrator = IntegratorKind::kGradient;
-    options.sampler = SamplerKind::kIndependent;
+  static job::RenderOptions gradient_options(std::uint64_t seed, float tau = 0) {
+    job::RenderOptions options;
+    options.integrator = job::IntegratorKind::kGradient;
+    options.sampler = job::SamplerKind::kIndependent;
     options.bins = 16;
     options.gradient_offset_bins = 4;
     options.gradient_tau = tau;
@@ -495,7 +495,7 @@ TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes)
         "unbiased.pbrt", "gradient_coated.pbrt"}) {
     auto desc = load(name);
     for (float tau : {0.0f, 0.5f}) {
-      RenderOptions options = gradient_options(seed++, tau);
+      job::RenderOptions options = gradient_options(seed++, tau);
       options.max_depth = desc.integrator.max_depth;
       auto scene = build(desc, options);
       ASSERT_TRUE(scene);
@@ -540,8 +540,8 @@ TEST_F(GradientIntegratorTest, PrimalAgreesWithUniformPerBin) {
   for (const char* name :
        {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt", "gradient_rough_glass.pbrt"}) {
     auto desc = load(name);
-    RenderOptions uniform = gradient_options(seed++);
-    uniform.integrator = IntegratorKind::kUniform;
+    job::RenderOptions uniform = gradient_options(seed++);
+    uniform.integrator = job::IntegratorKind::kUniform;
     BinStats reference = bin_stats(render(*build(desc, uniform), 1024));
     image::TileResult tau_zero = render(*build(desc, gradient_options(seed, 0.0f)), 512);
     image::TileResult tau_positive = render(*build(desc, gradient_options(seed++, 0.5f)), 512);
@@ -577,8 +577,8 @@ TEST_F(GradientIntegratorTest, PerPixelTablesKeepPrimalAndGradientUnbiased) {
     const int width = desc.film.x_resolution, height = desc.film.y_resolution;
     const spectral::PixelTables tables = testing::skewed_tables(
         width, height, 16, [](int x, int y) { return (x + 3 * y) % 5 == 0; });
-    RenderOptions uniform = gradient_options(seed++);
-    uniform.integrator = IntegratorKind::kUniform;
+    job::RenderOptions uniform = gradient_options(seed++);
+    uniform.integrator = job::IntegratorKind::kUniform;
     BinStats reference = bin_stats(render(*build(desc, uniform), 1024));
     auto scene = build(desc, gradient_options(seed++));
     ASSERT_TRUE(scene);
@@ -600,10 +600,10 @@ TEST_F(GradientIntegratorTest, PerPixelTablesKeepPrimalAndGradientUnbiased) {
 // layout), so per pixel and bin the sums agree up to float rounding of the event weights.
 TEST_F(GradientIntegratorTest, PrimalIsTheUniformEstimatorSampleForSample) {
   auto desc = load("unbiased.pbrt");
-  RenderOptions options = gradient_options(77);
+  job::RenderOptions options = gradient_options(77);
   options.max_depth = 8;
   auto gradient = build(desc, options);
-  options.integrator = IntegratorKind::kUniform;
+  options.integrator = job::IntegratorKind::kUniform;
   auto uniform = build(desc, options);
   image::TileResult a = render(*gradient, 16), b = render(*uniform, 16);
   double total = 0;
@@ -632,9 +632,9 @@ AttributeEnd
 
 TEST_F(GradientIntegratorTest, DirectlySeenEmitterGivesExactGradients) {
   auto desc = load_text("emitter_in_view.pbrt", kEmitterInView);
-  RenderOptions options = gradient_options(5);
+  job::RenderOptions options = gradient_options(5);
   options.max_depth = 0;
-  options.emitter_pdf = EmitterPdfKind::kUniform;
+  options.emitter_pdf = job::EmitterPdfKind::kUniform;
   auto scene = build(desc, options);
   ASSERT_TRUE(scene);
   ASSERT_EQ(scene->lights().size(), 1u);
@@ -686,7 +686,7 @@ TEST_F(GradientIntegratorTest, DirectlySeenEmitterGivesExactGradients) {
 //   G[i] = (c₊ − c) / (1 + p_T(λ+δ)/p_T(λ)),   G[i−k] = (c − c₋) / (1 + p_T(λ−δ)/p_T(λ)).
 TEST_F(GradientIntegratorTest, DirectlySeenEmitterWeighsOffsetsByThePixelsTable) {
   auto desc = load_text("emitter_in_view_table.pbrt", kEmitterInView);
-  RenderOptions options = gradient_options(6);
+  job::RenderOptions options = gradient_options(6);
   options.max_depth = 0;
   auto scene = build(desc, options);
   ASSERT_TRUE(scene);
@@ -759,8 +759,8 @@ AttributeEnd
 
 TEST_F(GradientIntegratorTest, WithoutWavelengthDependentGeometryOffsetsAreTheBasePath) {
   auto desc = load_text("no_dispersion.pbrt", kNoDispersion);
-  RenderOptions options = gradient_options(9);
-  options.emitter_pdf = EmitterPdfKind::kUniform;
+  job::RenderOptions options = gradient_options(9);
+  options.emitter_pdf = job::EmitterPdfKind::kUniform;
   auto scene = build(desc, options);
   ASSERT_TRUE(scene);
   GradientIntegrator integrator(*scene);
@@ -883,21 +883,21 @@ TEST_F(GradientIntegratorTest, TileBytesDoNotDependOnThreadsOrTiles) {
       }
     }
   }
-  RenderOptions uniform = gradient_options(1);
-  uniform.integrator = IntegratorKind::kUniform;
+  job::RenderOptions uniform = gradient_options(1);
+  uniform.integrator = job::IntegratorKind::kUniform;
   auto uniform_scene = build(desc, uniform);
   EXPECT_FALSE(TileRenderer(*uniform_scene).render(whole, nullptr)->has_gradients());
 }
 
 TEST(GradientOffsetBinsTest, SnapsAndValidates) {
-  EXPECT_EQ(*gradient_offset_bins(0.15, 64), 10);
-  EXPECT_EQ(*gradient_offset_bins(0.15, 16), 2);
-  EXPECT_EQ(*gradient_offset_bins(0.5, 4), 2);
-  EXPECT_EQ(gradient_offset_bins(0.1, 4).status().code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_FALSE(gradient_offset_bins(0.0, 64).ok());
-  EXPECT_FALSE(gradient_offset_bins(-0.1, 64).ok());
-  EXPECT_FALSE(gradient_offset_bins(0.6, 64).ok());
-  EXPECT_FALSE(gradient_offset_bins(std::nan(""), 64).ok());
+  EXPECT_EQ(*job::gradient_offset_bins(0.15, 64), 10);
+  EXPECT_EQ(*job::gradient_offset_bins(0.15, 16), 2);
+  EXPECT_EQ(*job::gradient_offset_bins(0.5, 4), 2);
+  EXPECT_EQ(job::gradient_offset_bins(0.1, 4).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_FALSE(job::gradient_offset_bins(0.0, 64).ok());
+  EXPECT_FALSE(job::gradient_offset_bins(-0.1, 64).ok());
+  EXPECT_FALSE(job::gradient_offset_bins(0.6, 64).ok());
+  EXPECT_FALSE(job::gradient_offset_bins(std::nan(""), 64).ok());
 }
 
 }  // namespace

@@ -130,7 +130,7 @@ absl::StatusOr<GradientPilot> run_gradient_pilot(const RenderScene& scene, int w
         " pixels, epsilon ", options.epsilon, " on ", width, "x", height,
         "; want >= 1 pixel, 1..2^24 samples, epsilon in (0, 1], a non-empty image"));
   }
-  if (scene.options().integrator != IntegratorKind::kGradient ||
+  if (scene.options().integrator != job::IntegratorKind::kGradient ||
       scene.options().gradient_tau != 0.0f) {
     return absl::InvalidArgumentError(
         "gradient pilot: the scene must be built for the gradient integrator with tau 0");

@@ -97,9 +97,10 @@ class GradientPilotTest : public ::testing::Test {
     return loaded.ok() ? loaded->description : scene::SceneDescription();
   }
 
-  static std::unique_ptr<RenderScene> build(const scene::SceneDescription& desc, float tau,
-                                            IntegratorKind integrator = IntegratorKind::kGradient) {
-    RenderOptions options;
+  static std::unique_ptr<RenderScene> build(
+      const scene::SceneDescription& desc, float tau,
+      job::IntegratorKind integrator = job::IntegratorKind::kGradient) {
+    job::RenderOptions options;
     options.integrator = integrator;
     options.bins = 16;
     options.gradient_offset_bins = 4;
@@ -216,7 +217,7 @@ TEST_F(GradientPilotTest, ChoosesTheSameTauOnAnyThreadCount) {
 TEST_F(GradientPilotTest, RefusesScenesAndOptionsItCannotUse) {
   const scene::SceneDescription desc = load("gradient_prism.pbrt");
   auto with_tau = build(desc, 0.5f);
-  auto hero = build(desc, 0, IntegratorKind::kHero);
+  auto hero = build(desc, 0, job::IntegratorKind::kHero);
   auto good = build(desc, 0);
   ASSERT_TRUE(with_tau && hero && good);
   EXPECT_EQ(run_gradient_pilot(*with_tau, 12, 12, {}).status().code(),

@@ -97,7 +97,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
                                          spectral::WavelengthPdfView lambda_pdf,
                                          TraceCounters& counters, GuideValues* guides,
                                          TraceOptions trace) const {
-  const RenderOptions& options = scene_.options();
+  const job::RenderOptions& options = scene_.options();
   const Geometry& geometry = scene_.geometry();
   PRISM_CHECK(trace.lanes >= 0 && trace.lanes <= spectral::kMaxLanes);
   const int lanes = trace.lanes > 0 ? trace.lanes : options.lanes();

@@ -113,7 +113,7 @@ inline constexpr int kEarlyStopBounces = 3;
 // How one trace differs from the job's options (prepass tasks); the defaults trace exactly as
 // the job says.
 struct TraceOptions {
-  int lanes = 0;            // C in 1..kMaxLanes; 0: the job's (RenderOptions::lanes())
+  int lanes = 0;            // C in 1..kMaxLanes; 0: the job's (job::RenderOptions::lanes())
   bool early_stop = false;  // stop paths without wavelength-dependent events (header comment)
 };
 

@@ -44,7 +44,7 @@ class IntegratorTest : public ::testing::Test {
   }
 
   static std::unique_ptr<RenderScene> build(const scene::SceneDescription& desc,
-                                            const RenderOptions& options) {
+                                            const job::RenderOptions& options) {
     auto built = RenderScene::build(*device_, desc, *library_, options, desc.film.x_resolution,
                                     desc.film.y_resolution);
     EXPECT_TRUE(built.ok()) << built.status();
@@ -103,15 +103,15 @@ void expect_agreement(const BinStats& a, const BinStats& b, const std::string& w
 
 TEST_F(IntegratorTest, WhiteFurnaceReturnsTheEnvironment) {
   auto desc = load("furnace.pbrt");
-  for (IntegratorKind kind : {IntegratorKind::kUniform, IntegratorKind::kHero}) {
-    RenderOptions options;
+  for (job::IntegratorKind kind : {job::IntegratorKind::kUniform, job::IntegratorKind::kHero}) {
+    job::RenderOptions options;
     options.integrator = kind;
     options.bins = 8;
     options.max_depth = 100;
     options.seed = 11;
     auto scene = build(desc, options);
     ASSERT_TRUE(scene);
-    auto stats = bin_stats(render(*scene, kind == IntegratorKind::kUniform ? 1024 : 256));
+    auto stats = bin_stats(render(*scene, kind == job::IntegratorKind::kUniform ? 1024 : 256));
     for (int b = 0; b < 8; ++b) {
       EXPECT_LT(std::abs(stats.mean[b] - 1.0), kZ * stats.standard_error[b] + 1e-3)
           << "bin " << b << " mean " << stats.mean[b] << " se " << stats.standard_error[b];
@@ -124,8 +124,8 @@ class AgreementTest : public IntegratorTest {
  protected:
   static const BinStats& reference() {
     static const BinStats stats = [] {
-      RenderOptions options;
-      options.integrator = IntegratorKind::kUniform;
+      job::RenderOptions options;
+      options.integrator = job::IntegratorKind::kUniform;
       options.bins = 16;
       options.max_depth = 8;
       options.seed = 1;
@@ -134,8 +134,8 @@ class AgreementTest : public IntegratorTest {
     }();
     return stats;
   }
-  static BinStats run(const RenderOptions& overrides) {
-    RenderOptions options = overrides;
+  static BinStats run(const job::RenderOptions& overrides) {
+    job::RenderOptions options = overrides;
     options.bins = 16;
     options.max_depth = 8;
     auto scene = build(load("unbiased.pbrt"), options);
@@ -143,8 +143,8 @@ class AgreementTest : public IntegratorTest {
   }
   // Like run(), the whole image as one task shaped by `shape` (tables, prepass).
   template <typename Shape>
-  static BinStats run_task(const RenderOptions& overrides, Shape&& shape) {
-    RenderOptions options = overrides;
+  static BinStats run_task(const job::RenderOptions& overrides, Shape&& shape) {
+    job::RenderOptions options = overrides;
     options.bins = 16;
     options.max_depth = 8;
     auto scene = build(load("unbiased.pbrt"), options);
@@ -160,10 +160,12 @@ class AgreementTest : public IntegratorTest {
 TEST_F(AgreementTest, HeroAgreesWithUniformForEveryWavelengthPdf) {
   const BinStats& ref = reference();
   std::uint64_t seed = 100;
-  for (SpectralPdfKind sensor : {SpectralPdfKind::kFlat, SpectralPdfKind::kVisible}) {
-    for (EmitterPdfKind emitter : {EmitterPdfKind::kUniform, EmitterPdfKind::kEmitters}) {
-      RenderOptions options;
-      options.integrator = IntegratorKind::kHero;
+  for (job::SpectralPdfKind sensor :
+       {job::SpectralPdfKind::kFlat, job::SpectralPdfKind::kVisible}) {
+    for (job::EmitterPdfKind emitter :
+         {job::EmitterPdfKind::kUniform, job::EmitterPdfKind::kEmitters}) {
+      job::RenderOptions options;
+      options.integrator = job::IntegratorKind::kHero;
       options.spectral_pdf = sensor;
       options.emitter_pdf = emitter;
       options.seed = seed++;
@@ -180,11 +182,12 @@ TEST_F(AgreementTest, HeroAgreesWithUniformForEveryWavelengthPdf) {
 TEST_F(AgreementTest, EmitterSelectionVariantsAgreeWithUniform) {
   const BinStats& ref = reference();
   std::uint64_t seed = 200;
-  for (LightSelectionKind base :
-       {LightSelectionKind::kUniform, LightSelectionKind::kPower, LightSelectionKind::kSpatial}) {
+  for (job::LightSelectionKind base :
+       {job::LightSelectionKind::kUniform, job::LightSelectionKind::kPower,
+        job::LightSelectionKind::kSpatial}) {
     for (bool spectral_factor : {true, false}) {
-      RenderOptions options;
-      options.integrator = IntegratorKind::kHero;
+      job::RenderOptions options;
+      options.integrator = job::IntegratorKind::kHero;
       options.light_selection = base;
       options.spectral_light_selection = spectral_factor;
       options.seed = seed++;
@@ -203,8 +206,8 @@ TEST_F(AgreementTest, HeroWithPerPixelTablesAgreesWithUniform) {
   const spectral::PixelTables tables =
       testing::skewed_tables(24, 24, 16, [](int x, int y) { return (x * 7 + y) % 11 == 0; });
   ASSERT_GT(tables.default_pixels(), 0);
-  RenderOptions options;
-  options.integrator = IntegratorKind::kHero;
+  job::RenderOptions options;
+  options.integrator = job::IntegratorKind::kHero;
   options.seed = 150;
   expect_agreement(run_task(options, [&](RenderTask& task) { task.tables = &tables; }), reference(),
                    "hero with per-pixel tables");
@@ -214,8 +217,8 @@ TEST_F(AgreementTest, HeroWithPerPixelTablesAgreesWithUniform) {
 // render), with tables too.
 TEST_F(AgreementTest, PrepassTasksOfAUniformJobAreUnbiasedHeroRenders) {
   const spectral::PixelTables tables = testing::skewed_tables(24, 24, 16);
-  RenderOptions options;
-  options.integrator = IntegratorKind::kUniform;
+  job::RenderOptions options;
+  options.integrator = job::IntegratorKind::kUniform;
   options.seed = 160;
   expect_agreement(run_task(options,
                             [&](RenderTask& task) {
@@ -236,17 +239,17 @@ TEST_F(AgreementTest, PrepassTasksOfAUniformJobAreUnbiasedHeroRenders) {
 // The uniform tracer with a non-uniform wavelength pdf and independent samples also agrees
 // (checks the 1/p(λ) weighting and the sampler choice).
 TEST_F(AgreementTest, UniformWithVisiblePdfAndIndependentSamplerAgrees) {
-  RenderOptions options;
-  options.integrator = IntegratorKind::kUniform;
-  options.spectral_pdf = SpectralPdfKind::kVisible;
-  options.sampler = SamplerKind::kIndependent;
+  job::RenderOptions options;
+  options.integrator = job::IntegratorKind::kUniform;
+  options.spectral_pdf = job::SpectralPdfKind::kVisible;
+  options.sampler = job::SamplerKind::kIndependent;
   options.seed = 300;
   expect_agreement(run(options), reference(), "uniform, visible pdf, independent sampler");
 }
 
 TEST_F(IntegratorTest, OutputDoesNotDependOnThreadsOrTiles) {
   auto desc = load("unbiased.pbrt");
-  RenderOptions options;
+  job::RenderOptions options;
   options.bins = 16;
   auto scene = build(desc, options);
   TileRenderer renderer(*scene);
@@ -300,10 +303,10 @@ scene::SceneDescription load_text(const std::string& name, const std::string& te
   return loaded.ok() ? loaded->description : scene::SceneDescription();
 }
 
-RenderOptions direct_light_options(std::uint64_t seed) {
-  RenderOptions options;
-  options.integrator = IntegratorKind::kUniform;
-  options.sampler = SamplerKind::kIndependent;
+job::RenderOptions direct_light_options(std::uint64_t seed) {
+  job::RenderOptions options;
+  options.integrator = job::IntegratorKind::kUniform;
+  options.sampler = job::SamplerKind::kIndependent;
   options.spectral_light_selection = false;
   options.bins = 4;
   options.max_depth = 1;  // direct light on the floor: NEE and BSDF sampling, nothing else
@@ -360,22 +363,22 @@ AttributeBegin
     "integer indices" [0 1 2 0 2 3]
 AttributeEnd
 )");
-  auto run = [&](LightSelectionKind base, std::uint64_t seed) {
-    RenderOptions options = direct_light_options(seed);
+  auto run = [&](job::LightSelectionKind base, std::uint64_t seed) {
+    job::RenderOptions options = direct_light_options(seed);
     options.light_selection = base;
     auto scene = build(desc, options);
     return bin_stats(render(*scene, 1024));
   };
-  BinStats uniform = run(LightSelectionKind::kUniform, 400);
-  BinStats power = run(LightSelectionKind::kPower, 401);
+  BinStats uniform = run(job::LightSelectionKind::kUniform, 400);
+  BinStats power = run(job::LightSelectionKind::kPower, 401);
   expect_agreement(uniform, power, "sphere light on a floor, uniform vs power selection");
   for (double m : uniform.mean) EXPECT_GT(m, 0.0);
 }
 
 // TraceOptions::lanes overrides the job's C (prepass tasks trace 4 lanes for any job).
 TEST_F(IntegratorTest, TraceOptionsForceTheLaneCount) {
-  RenderOptions options;
-  options.integrator = IntegratorKind::kUniform;
+  job::RenderOptions options;
+  options.integrator = job::IntegratorKind::kUniform;
   options.bins = 16;
   auto scene = build(load("unbiased.pbrt"), options);
   ASSERT_TRUE(scene);
@@ -408,9 +411,9 @@ AttributeBegin
 AttributeEnd
 )";
 
-RenderOptions early_stop_options() {
-  RenderOptions options;
-  options.integrator = IntegratorKind::kHero;
+job::RenderOptions early_stop_options() {
+  job::RenderOptions options;
+  options.integrator = job::IntegratorKind::kHero;
   options.bins = 8;
   options.max_depth = 12;
   options.rr_min_depth = 6;  // roulette would end many paths before the stop otherwise
@@ -438,7 +441,7 @@ PrepassRender render_prepass(const RenderScene& scene, bool early_stop) {
 // sample, and traces far fewer rays than the full-depth prepass.
 TEST_F(IntegratorTest, EarlyStopEndsGreyPathsAfterThreeBounces) {
   auto desc = load_text("grey_box.pbrt", kGreyBox);
-  RenderOptions options = early_stop_options();
+  job::RenderOptions options = early_stop_options();
   auto scene = build(desc, options);
   ASSERT_TRUE(scene);
   for (const ShapeInfo* info : {&scene->shape(0), &scene->shape(5)}) {

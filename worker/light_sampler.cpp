@@ -76,7 +76,8 @@ double probe(const Light& light, const Vec3f& x, float min_distance) {
 absl::StatusOr<LightSampler> LightSampler::create(const std::vector<Light>& lights,
                                                   const Geometry& geometry,
                                                   const spectral::WavelengthGrid& grid,
-                                                  LightSelectionKind base, bool spectral_factor) {
+                                                  job::LightSelectionKind base,
+                                                  bool spectral_factor) {
   LightSampler s;
   s.lights_ = &lights;
   s.grid_ = grid;
@@ -121,15 +122,15 @@ absl::StatusOr<LightSampler> LightSampler::create(const std::vector<Light>& ligh
   // Base weights per cell, before normalisation.
   std::vector<std::vector<double>> weights;
   s.bounds_ = geometry.bounds();
-  if (base == LightSelectionKind::kSpatial && n > 0) {
+  if (base == job::LightSelectionKind::kSpatial && n > 0) {
     double per_cell = double(bins + 1) * (n + 1);
     int res = int(std::cbrt(kMaxPrefixEntries / per_cell));
     s.resolution_ = std::clamp(res, 1, kMaxSpatialResolution);
   }
   const int res = s.resolution_;
-  if (base != LightSelectionKind::kSpatial || n == 0) {
+  if (base != job::LightSelectionKind::kSpatial || n == 0) {
     std::vector<double> w(static_cast<std::size_t>(n));
-    for (int e = 0; e < n; ++e) w[e] = base == LightSelectionKind::kUniform ? 1.0 : power[e];
+    for (int e = 0; e < n; ++e) w[e] = base == job::LightSelectionKind::kUniform ? 1.0 : power[e];
     weights.push_back(std::move(w));
   } else {
     const Vec3f lo = s.bounds_.lo;

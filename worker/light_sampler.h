@@ -19,10 +19,10 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "services/job/render_options.h"
 #include "services/spectral/sampled.h"
 #include "services/spectral/wavelength_grid.h"
 #include "worker/light.h"
-#include "worker/render_options.h"
 
 namespace prism::worker {
 
@@ -43,7 +43,7 @@ class LightSampler {
   static absl::StatusOr<LightSampler> create(const std::vector<Light>& lights,
                                              const Geometry& geometry,
                                              const spectral::WavelengthGrid& grid,
-                                             LightSelectionKind base, bool spectral_factor);
+                                             job::LightSelectionKind base, bool spectral_factor);
 
   // Picks an emitter for shading point p; nullopt when the scene has no lights or every pmf is
   // zero for these lanes.
@@ -60,7 +60,7 @@ class LightSampler {
 
   const std::vector<Light>* lights_ = nullptr;
   spectral::WavelengthGrid grid_;
-  LightSelectionKind base_ = LightSelectionKind::kPower;
+  job::LightSelectionKind base_ = job::LightSelectionKind::kPower;
   bool spectral_factor_ = true;
   std::vector<std::vector<float>> unit_emission_;  // [light][bin]
   // Per cell (one cell unless spatial): q_base per light, and per bin the prefix sums of

@@ -919,19 +919,21 @@ spectral::WavelengthGrid grid16() {
   return *spectral::WavelengthGrid::create(16);
 }
 
-LightSampler make_sampler(const SamplerScene& s, LightSelectionKind base, bool spectral_factor) {
+LightSampler make_sampler(const SamplerScene& s, job::LightSelectionKind base,
+                          bool spectral_factor) {
   auto sampler =
       LightSampler::create(s.lights, *s.world->geometry, grid16(), base, spectral_factor);
   PRISM_CHECK(sampler.ok());
   return *sampler;
 }
 
-constexpr LightSelectionKind kBases[] = {LightSelectionKind::kUniform, LightSelectionKind::kPower,
-                                         LightSelectionKind::kSpatial};
+constexpr job::LightSelectionKind kBases[] = {job::LightSelectionKind::kUniform,
+                                              job::LightSelectionKind::kPower,
+                                              job::LightSelectionKind::kSpatial};
 
 TEST(LightSamplerTest, UnitEmissionRowsSumToOne) {
   SamplerScene s = sampler_scene();
-  LightSampler sampler = make_sampler(s, LightSelectionKind::kPower, true);
+  LightSampler sampler = make_sampler(s, job::LightSelectionKind::kPower, true);
   const auto& e = sampler.unit_emission();
   ASSERT_EQ(e.size(), s.lights.size());
   auto grid = grid16();
@@ -962,7 +964,7 @@ TEST(LightSamplerTest, PmfIsNormalisedForEveryBaseAndLaneSet) {
   SamplerScene s = sampler_scene();
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> pos(-6.0f, 6.0f);
-  for (LightSelectionKind base : kBases) {
+  for (job::LightSelectionKind base : kBases) {
     for (bool factor : {true, false}) {
       LightSampler sampler = make_sampler(s, base, factor);
       for (int trial = 0; trial < 300; ++trial) {
@@ -983,7 +985,7 @@ TEST(LightSamplerTest, PmfIsNormalisedForEveryBaseAndLaneSet) {
 TEST(LightSamplerTest, SampleFrequenciesMatchPmf) {
   SamplerScene s = sampler_scene();
   int tests = 0;
-  for (LightSelectionKind base : kBases) {
+  for (job::LightSelectionKind base : kBases) {
     for (bool factor : {true, false}) {
       LightSampler sampler = make_sampler(s, base, factor);
       for (Vec3f p : {Vec3f(0, 0, 3.5f), Vec3f(2.5f, 0.3f, -0.2f)}) {
@@ -1013,8 +1015,8 @@ TEST(LightSamplerTest, SampleFrequenciesMatchPmf) {
 
 TEST(LightSamplerTest, SpectralFactorFollowsUnitEmission) {
   SamplerScene s = sampler_scene();
-  LightSampler on = make_sampler(s, LightSelectionKind::kUniform, true);
-  LightSampler off = make_sampler(s, LightSelectionKind::kUniform, false);
+  LightSampler on = make_sampler(s, job::LightSelectionKind::kUniform, true);
+  LightSampler off = make_sampler(s, job::LightSelectionKind::kUniform, false);
   const auto& e = on.unit_emission();
   auto grid = grid16();
   Vec3f p(0.1f, 0.2f, 0.3f);
@@ -1040,7 +1042,7 @@ TEST(LightSamplerTest, SpectralFactorFollowsUnitEmission) {
 
 TEST(LightSamplerTest, TerminatedLanesDropOut) {
   SamplerScene s = sampler_scene();
-  for (LightSelectionKind base : kBases) {
+  for (job::LightSelectionKind base : kBases) {
     LightSampler sampler = make_sampler(s, base, true);
     Vec3f p(0.5f, -0.5f, 1.0f);
     SampledWavelengths all = lanes({650, 450, 530, 700});
@@ -1080,7 +1082,7 @@ TEST(LightSamplerTest, PowerBaseIsProportionalToPower) {
     EXPECT_NEAR(light_power(s.lights[i]), expected[i], 1e-4 * expected[i]) << i;
     total += expected[i];
   }
-  LightSampler sampler = make_sampler(s, LightSelectionKind::kPower, false);
+  LightSampler sampler = make_sampler(s, job::LightSelectionKind::kPower, false);
   for (int i = 0; i < 6; ++i) {
     EXPECT_NEAR(sampler.pmf({1, 1, 1}, lanes({500}), i), expected[i] / total, 1e-5) << i;
   }
@@ -1088,9 +1090,9 @@ TEST(LightSamplerTest, PowerBaseIsProportionalToPower) {
 
 TEST(LightSamplerTest, SpatialNeverStarvesAnEmitterAndPrefersNearOnes) {
   SamplerScene s = sampler_scene();
-  LightSampler spatial = make_sampler(s, LightSelectionKind::kSpatial, false);
-  LightSampler again = make_sampler(s, LightSelectionKind::kSpatial, false);
-  LightSampler spectral_on = make_sampler(s, LightSelectionKind::kSpatial, true);
+  LightSampler spatial = make_sampler(s, job::LightSelectionKind::kSpatial, false);
+  LightSampler again = make_sampler(s, job::LightSelectionKind::kSpatial, false);
+  LightSampler spectral_on = make_sampler(s, job::LightSelectionKind::kSpatial, true);
   SampledWavelengths white = lanes({450, 530, 650, 700});
   for (float x = -7; x <= 7; x += 0.9f) {
     for (float y = -7; y <= 7; y += 0.9f) {
@@ -1116,7 +1118,7 @@ TEST(LightSamplerTest, EmitterWithoutVisiblePowerIsAnError) {
   scene::Light ir = point_desc({0, 0, 0}, 44);
   s.lights.push_back(*PointLight::create(ir, band(900, 1000), 1.0));
   auto sampler = LightSampler::create(s.lights, *s.world->geometry, grid16(),
-                                      LightSelectionKind::kPower, true);
+                                      job::LightSelectionKind::kPower, true);
   ASSERT_FALSE(sampler.ok());
   EXPECT_EQ(sampler.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_NE(std::string(sampler.status().message()).find("test.pbrt:44:3"), std::string::npos)
@@ -1126,7 +1128,7 @@ TEST(LightSamplerTest, EmitterWithoutVisiblePowerIsAnError) {
 TEST(LightSamplerTest, NoLightsSamplesNothing) {
   auto w = build({square(1, 0, false)});
   std::vector<Light> none;
-  for (LightSelectionKind base : kBases) {
+  for (job::LightSelectionKind base : kBases) {
     auto sampler = LightSampler::create(none, *w->geometry, grid16(), base, true);
     ASSERT_TRUE(sampler.ok());
     EXPECT_FALSE(sampler->sample({0, 0, 0}, lanes({500}), 0.5f));

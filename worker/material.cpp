@@ -24,19 +24,6 @@ absl::Status at(const scene::SourceLocation& where, const std::string& parameter
   return scene::location_error(where, absl::StrCat(parameter, ": ", status.message()));
 }
 
-absl::Status check_range(const spectral::Spectrum& s, SpectrumRole role, float min_value) {
-  if (min_value < 0.0f) {
-    return invalid(absl::StrCat("negative value ", min_value,
-                                "; spectra of reflectance, emission and media are >= 0"));
-  }
-  const float max = spectral::max_value(s);
-  if (role == SpectrumRole::kReflectance && max > 1.0f) {
-    return invalid(absl::StrCat("reflectance reaches ", max,
-                                " but must stay within [0, 1] (a value above 1 creates energy)"));
-  }
-  return absl::OkStatus();
-}
-
 float remap(double roughness, bool remap_roughness) {
   const float r = float(roughness);
   return remap_roughness ? TrowbridgeReitz::roughness_to_alpha(r) : r;
@@ -82,8 +69,9 @@ absl::StatusOr<SpectrumSlot> resolve_slot(const scene::SpectrumParam& param, int
     slot.texture = textures[size_t(texture)];
     return slot;
   }
-  PRISM_ASSIGN_OR_RETURN(slot.constant,
-                         resolve_spectrum(param, SpectrumRole::kReflectance, library, uplift));
+  PRISM_ASSIGN_OR_RETURN(
+      slot.constant,
+      job::resolve_spectrum(param, job::SpectrumRole::kReflectance, library, uplift));
   return slot;
 }
 
@@ -111,7 +99,7 @@ struct CoatEta {
 
 absl::StatusOr<CoatEta> coat_eta(const scene::IorParam& param,
                                  const spectral::SpectrumLibrary& library) {
-  PRISM_ASSIGN_OR_RETURN(spectral::Ior ior, resolve_ior(param, library));
+  PRISM_ASSIGN_OR_RETURN(spectral::Ior ior, job::resolve_ior(param, library));
   CoatEta out;
   out.constant = float(spectral::eta(ior, 550.0));
   if (spectral::is_dispersive(ior)) out.dispersive = std::move(ior);
@@ -121,7 +109,7 @@ absl::StatusOr<CoatEta> coat_eta(const scene::IorParam& param,
 absl::StatusOr<Material> resolve_dielectric(const scene::DielectricMaterial& m,
                                             const spectral::SpectrumLibrary& library) {
   PRISM_RETURN_IF_ERROR(check_roughness(m.roughness));
-  PRISM_ASSIGN_OR_RETURN(spectral::Ior eta, resolve_ior(m.eta, library));
+  PRISM_ASSIGN_OR_RETURN(spectral::Ior eta, job::resolve_ior(m.eta, library));
   DielectricMaterial out{std::move(eta), false, remap(m.roughness.u, m.roughness.remap),
                          remap(m.roughness.v, m.roughness.remap)};
   out.dispersive = spectral::is_dispersive(out.eta);
@@ -135,7 +123,8 @@ absl::StatusOr<Material> resolve_conductor(const scene::ConductorMaterial& m,
   const float ax = remap(m.roughness.u, m.roughness.remap);
   const float ay = remap(m.roughness.v, m.roughness.remap);
   if (m.reflectance) {
-    auto resolved = resolve_spectrum(*m.reflectance, SpectrumRole::kReflectance, library, uplift);
+    auto resolved =
+        job::resolve_spectrum(*m.reflectance, job::SpectrumRole::kReflectance, library, uplift);
     if (!resolved.ok()) {
       return invalid(absl::StrCat("reflectance: ", resolved.status().message()));
     }
@@ -152,94 +141,14 @@ absl::StatusOr<Material> resolve_conductor(const scene::ConductorMaterial& m,
                           std::move(r)};
     return out;
   }
-  auto eta = resolve_spectrum(m.eta, SpectrumRole::kUnbounded, library, uplift);
+  auto eta = job::resolve_spectrum(m.eta, job::SpectrumRole::kUnbounded, library, uplift);
   if (!eta.ok()) return invalid(absl::StrCat("eta: ", eta.status().message()));
-  auto k = resolve_spectrum(m.k, SpectrumRole::kUnbounded, library, uplift);
+  auto k = job::resolve_spectrum(m.k, job::SpectrumRole::kUnbounded, library, uplift);
   if (!k.ok()) return invalid(absl::StrCat("k: ", k.status().message()));
   return ConductorMaterial{std::move(*eta), std::move(*k), ax, ay, std::nullopt};
 }
 
 }  // namespace
-
-absl::StatusOr<spectral::Spectrum> resolve_spectrum(const scene::SpectrumParam& param,
-                                                    SpectrumRole role,
-                                                    const spectral::SpectrumLibrary& library,
-                                                    const spectral::RgbUplift& uplift) {
-  if (const auto* c = std::get_if<scene::SpectrumConstant>(&param)) {
-    spectral::Spectrum s = spectral::ConstantSpectrum{float(c->value)};
-    PRISM_RETURN_IF_ERROR(check_range(s, role, float(c->value)));
-    return s;
-  }
-  if (const auto* rgb = std::get_if<scene::SpectrumRgb>(&param)) {
-    const spectral::Rgb v{rgb->r, rgb->g, rgb->b};
-    if (role == SpectrumRole::kReflectance) {
-      if (std::max({v.r, v.g, v.b}) > 1.0) {
-        return invalid(absl::StrCat("rgb reflectance (", v.r, ", ", v.g, ", ", v.b,
-                                    ") must stay within [0, 1] (a value above 1 creates "
-                                    "energy)"));
-      }
-      PRISM_ASSIGN_OR_RETURN(auto s, uplift.albedo(v));
-      return spectral::Spectrum(s);
-    }
-    if (role == SpectrumRole::kUnbounded) {
-      PRISM_ASSIGN_OR_RETURN(auto s, uplift.unbounded(v));
-      return spectral::Spectrum(s);
-    }
-    PRISM_ASSIGN_OR_RETURN(auto s, uplift.illuminant(v));
-    return spectral::Spectrum(s);
-  }
-  if (const auto* t = std::get_if<scene::SpectrumTabulated>(&param)) {
-    PRISM_ASSIGN_OR_RETURN(auto table, spectral::PiecewiseLinearSpectrum::create(
-                                           t->wavelengths_nm, t->values, t->source));
-    const float min = table.min_value();
-    spectral::Spectrum s = std::move(table);
-    PRISM_RETURN_IF_ERROR(check_range(s, role, min));
-    return s;
-  }
-  if (const auto* n = std::get_if<scene::SpectrumNamed>(&param)) {
-    const spectral::Spectrum* s = library.find_spectrum(n->name);
-    if (s == nullptr) return invalid(absl::StrCat("unknown named spectrum \"", n->name, "\""));
-    const auto* table = std::get_if<spectral::PiecewiseLinearSpectrum>(s);
-    PRISM_RETURN_IF_ERROR(check_range(*s, role, table ? table->min_value() : 0.0f));
-    return *s;
-  }
-  const auto& b = std::get<scene::SpectrumBlackbody>(param);
-  PRISM_ASSIGN_OR_RETURN(auto bb, spectral::BlackbodySpectrum::create(b.kelvin));
-  return spectral::Spectrum(bb);
-}
-
-absl::StatusOr<spectral::Ior> resolve_ior(const scene::IorParam& param,
-                                          const spectral::SpectrumLibrary& library) {
-  if (const auto* c = std::get_if<scene::IorConstant>(&param)) {
-    if (!(c->eta > 0.0) || !std::isfinite(c->eta)) {
-      return invalid(absl::StrCat("index of refraction ", c->eta, " must be > 0"));
-    }
-    return spectral::ConstantIor{c->eta};
-  }
-  if (const auto* n = std::get_if<scene::IorNamed>(&param)) {
-    const spectral::Ior* ior = library.find_ior(n->name);
-    if (ior == nullptr) {
-      return invalid(absl::StrCat("unknown index of refraction \"", n->name,
-                                  "\" (glass-*, water, diamond and tabulated *-eta names are "
-                                  "known)"));
-    }
-    return *ior;
-  }
-  if (const auto* t = std::get_if<scene::IorTabulated>(&param)) {
-    PRISM_ASSIGN_OR_RETURN(
-        auto table, spectral::PiecewiseLinearSpectrum::create(t->table.wavelengths_nm,
-                                                              t->table.values, t->table.source));
-    PRISM_ASSIGN_OR_RETURN(auto ior, spectral::TabulatedIor::create(std::move(table)));
-    return spectral::Ior(std::move(ior));
-  }
-  if (const auto* c = std::get_if<scene::IorCauchy>(&param)) {
-    PRISM_ASSIGN_OR_RETURN(auto ior, spectral::CauchyIor::create(c->coefficients));
-    return spectral::Ior(std::move(ior));
-  }
-  const auto& s = std::get<scene::IorSellmeier>(param);
-  PRISM_ASSIGN_OR_RETURN(auto ior, spectral::SellmeierIor::create(0.0, s.b, s.c));
-  return spectral::Ior(std::move(ior));
-}
 
 absl::StatusOr<Material> resolve_material(const scene::Material& material,
                                           const spectral::SpectrumLibrary& library,
@@ -329,7 +238,7 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
       return Material(std::move(out));
     }
     absl::StatusOr<Material> operator()(const scene::ThinDielectricMaterial& m) const {
-      auto eta = resolve_ior(m.eta, library);
+      auto eta = job::resolve_ior(m.eta, library);
       if (!eta.ok()) return invalid(absl::StrCat("thindielectric: ", eta.status().message()));
       ThinDielectricMaterial out{*std::move(eta), false};
       out.dispersive = spectral::is_dispersive(out.eta);

@@ -9,6 +9,7 @@
 #include <variant>
 
 #include "absl/status/statusor.h"
+#include "services/job/scene_spectra.h"
 #include "services/scene/scene_description.h"
 #include "services/spectral/ior.h"
 #include "services/spectral/named_spectra.h"
@@ -137,19 +138,6 @@ absl::StatusOr<Material> resolve_material(const scene::Material& material,
                                           const spectral::SpectrumLibrary& library,
                                           const spectral::RgbUplift& uplift,
                                           const std::vector<TexturePtr>& textures);
-
-// Resolves a spectrum parameter in a given role. Reflectances are bounded to [0,1] (RGB via the
-// albedo uplift); unbounded values (media coefficients) use the unbounded uplift; illuminants
-// (emission) use the RGB illuminant uplift (colour × D65), as pbrt-v4 does. INVALID_ARGUMENT
-// (without a location: callers add the scene object's) for an unknown name, a negative value,
-// or a reflectance above 1. resolve_ior likewise refuses unknown names and indices <= 0.
-enum class SpectrumRole { kReflectance, kUnbounded, kIlluminant };
-absl::StatusOr<spectral::Spectrum> resolve_spectrum(const scene::SpectrumParam& param,
-                                                    SpectrumRole role,
-                                                    const spectral::SpectrumLibrary& library,
-                                                    const spectral::RgbUplift& uplift);
-absl::StatusOr<spectral::Ior> resolve_ior(const scene::IorParam& param,
-                                          const spectral::SpectrumLibrary& library);
 
 // The BSDF at a hit for the given lanes; nullopt for the interface material. `lanes` is the
 // path's C; `ctx` is where textures are looked up. Never allocates.

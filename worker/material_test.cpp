@@ -339,18 +339,19 @@ TEST_F(MaterialTest, TexturedLayerThicknessAndGAreEvaluatedAtTheHit) {
 
 TEST_F(MaterialTest, SpectrumRolesPickTheUplift) {
   scene::SpectrumParam rgb = scene::SpectrumRgb{2.0, 1.0, 0.5};
-  EXPECT_FALSE(resolve_spectrum(rgb, SpectrumRole::kReflectance, *library_, *uplift_).ok());
-  auto unbounded = resolve_spectrum(rgb, SpectrumRole::kUnbounded, *library_, *uplift_);
+  EXPECT_FALSE(
+      job::resolve_spectrum(rgb, job::SpectrumRole::kReflectance, *library_, *uplift_).ok());
+  auto unbounded = job::resolve_spectrum(rgb, job::SpectrumRole::kUnbounded, *library_, *uplift_);
   ASSERT_TRUE(unbounded.ok()) << unbounded.status();
   EXPECT_TRUE(std::holds_alternative<spectral::RgbUnboundedSpectrum>(*unbounded));
-  auto illum = resolve_spectrum(rgb, SpectrumRole::kIlluminant, *library_, *uplift_);
+  auto illum = job::resolve_spectrum(rgb, job::SpectrumRole::kIlluminant, *library_, *uplift_);
   ASSERT_TRUE(illum.ok()) << illum.status();
   EXPECT_TRUE(std::holds_alternative<spectral::RgbIlluminantSpectrum>(*illum));
-  EXPECT_FALSE(
-      resolve_spectrum(scene::SpectrumConstant{-1}, SpectrumRole::kUnbounded, *library_, *uplift_)
-          .ok());
-  auto unknown = resolve_spectrum(scene::SpectrumNamed{"stdillum-Z9"}, SpectrumRole::kIlluminant,
-                                  *library_, *uplift_);
+  EXPECT_FALSE(job::resolve_spectrum(scene::SpectrumConstant{-1}, job::SpectrumRole::kUnbounded,
+                                     *library_, *uplift_)
+                   .ok());
+  auto unknown = job::resolve_spectrum(scene::SpectrumNamed{"stdillum-Z9"},
+                                       job::SpectrumRole::kIlluminant, *library_, *uplift_);
   ASSERT_FALSE(unknown.ok());
   EXPECT_TRUE(absl::StrContains(unknown.status().message(), "stdillum-Z9"));
 }

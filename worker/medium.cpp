@@ -66,9 +66,9 @@ absl::StatusOr<HomogeneousMedium> HomogeneousMedium::create(
   if (!(m.scale >= 0.0) || !std::isfinite(m.scale)) {
     return fail(absl::StrCat("scale = ", m.scale, " must be finite and >= 0"));
   }
-  auto sigma_a = resolve_spectrum(m.sigma_a, SpectrumRole::kUnbounded, library, uplift);
+  auto sigma_a = job::resolve_spectrum(m.sigma_a, job::SpectrumRole::kUnbounded, library, uplift);
   if (!sigma_a.ok()) return fail(absl::StrCat("sigma_a: ", sigma_a.status().message()));
-  auto sigma_s = resolve_spectrum(m.sigma_s, SpectrumRole::kUnbounded, library, uplift);
+  auto sigma_s = job::resolve_spectrum(m.sigma_s, job::SpectrumRole::kUnbounded, library, uplift);
   if (!sigma_s.ok()) return fail(absl::StrCat("sigma_s: ", sigma_s.status().message()));
 
   HomogeneousMedium out;

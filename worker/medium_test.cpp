@@ -29,7 +29,7 @@ TEST_P(PhaseFunctionTest, SamplingMatchesTheDensity) {
       expected_counts([&](const Vec3f& wi) { return double(hg.p(wo, wi)); }, kSamplesPerTest);
   std::vector<double> observed(expected.size(), 0.0);
   for (std::uint32_t i = 0; i < kSamplesPerTest; ++i) {
-    Sampler s(SamplerKind::kIndependent, SampleKey{17, 0, 0, 0, i});
+    Sampler s(job::SamplerKind::kIndependent, SampleKey{17, 0, 0, 0, i});
     Point2f u;
     s.get2d(u.x, u.y);
     float pdf = 0;
@@ -68,7 +68,7 @@ TEST(PhaseFunctionConventionTest, ForwardScatteringContinuesTheRay) {
   double mean_cos = 0;
   constexpr int kN = 100000;
   for (std::uint32_t i = 0; i < kN; ++i) {
-    Sampler s(SamplerKind::kSobol, SampleKey{2, 0, 0, 0, i});
+    Sampler s(job::SamplerKind::kSobol, SampleKey{2, 0, 0, 0, i});
     Point2f u;
     s.get2d(u.x, u.y);
     float pdf;
@@ -94,7 +94,7 @@ TEST(FreeFlightTest, HeroDistanceDistribution) {
   sigma_t[0] = sigma;
   sigma_t[1] = 0.3f;
   for (std::uint32_t i = 0; i < kN; ++i) {
-    Sampler s(SamplerKind::kIndependent, SampleKey{5, 0, 0, 0, i});
+    Sampler s(job::SamplerKind::kIndependent, SampleKey{5, 0, 0, 0, i});
     FreeFlight ff = sample_free_flight(sigma_t, t_max, s.get1d(), 2);
     if (ff.scattered) {
       ASSERT_GE(ff.t, 0.0f);

@@ -207,8 +207,8 @@ TEST(PixelFilterTest, AnEdgeRendersAsTheFilterSaysWithinNoise) {
            "\"integer indices\" [0 1 2 0 2 3]\n";
     auto loaded = scene::load_scene(file, scene::with_library_names(*library));
     ASSERT_TRUE(loaded.ok()) << loaded.status();
-    RenderOptions options;
-    options.integrator = IntegratorKind::kUniform;
+    job::RenderOptions options;
+    options.integrator = job::IntegratorKind::kUniform;
     options.bins = 4;
     options.max_depth = 0;
     auto rs = RenderScene::build(device, loaded->description, *library, options, 16, 8);

@@ -37,7 +37,7 @@ absl::StatusOr<Emission> emission(const scene::SpectrumParam& param, double scen
                                   const spectral::SpectrumLibrary& library,
                                   const spectral::RgbUplift& uplift,
                                   const spectral::ColorMatching& cmf) {
-  auto spectrum = resolve_spectrum(param, SpectrumRole::kIlluminant, library, uplift);
+  auto spectrum = job::resolve_spectrum(param, job::SpectrumRole::kIlluminant, library, uplift);
   if (!spectrum.ok()) {
     return scene::location_error(where, absl::StrCat(what, ": ", spectrum.status().message()));
   }
@@ -204,75 +204,12 @@ absl::StatusOr<AreaLight> make_area_light(const scene::Shape& shape, int index,
   return AreaLight::create(shape, index, geometry, std::move(e.spectrum), e.scale * *a.power / k_e);
 }
 
-// The scene's distinct emitter spectra (as written), resolved.
-absl::StatusOr<std::vector<spectral::Spectrum>> emitter_spectra(
-    const scene::SceneDescription& scene, const spectral::SpectrumLibrary& library,
-    const spectral::RgbUplift& uplift) {
-  std::vector<spectral::Spectrum> spectra;
-  // Distinct as written, the same notion of "distinct emitter spectra" as the job analysis.
-  for (const scene::SpectrumParam& p :
-       scene::analyze_wavelength_dependence(scene).emitter_spectra) {
-    PRISM_ASSIGN_OR_RETURN(spectral::Spectrum s,
-                           resolve_spectrum(p, SpectrumRole::kIlluminant, library, uplift));
-    spectra.push_back(std::move(s));
-  }
-  return spectra;
-}
-
-// p_s · p_e mixed defensively with the emitters' support (algorithms.md §1).
-absl::StatusOr<spectral::WavelengthDistribution> default_wavelength_pdf(
-    const scene::SceneDescription& scene, bool has_lights, const RenderOptions& options,
-    const spectral::SpectrumLibrary& library, const spectral::RgbUplift& uplift) {
-  using spectral::WavelengthDistribution;
-  constexpr int kCells = WavelengthDistribution::kDefaultCells;
-  if (!has_lights) return WavelengthDistribution::flat(kCells);
-  PRISM_ASSIGN_OR_RETURN(std::vector<spectral::Spectrum> spectra,
-                         emitter_spectra(scene, library, uplift));
-  PRISM_ASSIGN_OR_RETURN(WavelengthDistribution emitters,
-                         WavelengthDistribution::emitters(spectra, kCells));
-  PRISM_ASSIGN_OR_RETURN(WavelengthDistribution sensor,
-                         options.spectral_pdf == SpectralPdfKind::kVisible
-                             ? WavelengthDistribution::visible(kCells)
-                             : WavelengthDistribution::flat(kCells));
-  if (options.emitter_pdf == EmitterPdfKind::kUniform) {
-    return sensor.mix_defensive(options.defensive_epsilon, emitters);
-  }
-  PRISM_ASSIGN_OR_RETURN(WavelengthDistribution product,
-                         WavelengthDistribution::product(sensor, emitters));
-  return product.mix_defensive(options.defensive_epsilon, emitters);
-}
-
 }  // namespace
-
-absl::StatusOr<PrepassDistributions> prepass_distributions(const scene::SceneDescription& scene,
-                                                           const RenderOptions& options,
-                                                           const spectral::SpectrumLibrary& library,
-                                                           int bins) {
-  using spectral::WavelengthDistribution;
-  if (absl::StatusOr<spectral::WavelengthGrid> grid = spectral::WavelengthGrid::create(bins);
-      !grid.ok()) {
-    return grid.status();
-  }
-  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
-  const spectral::RgbUplift uplift(cmf);
-  PRISM_ASSIGN_OR_RETURN(std::vector<spectral::Spectrum> spectra,
-                         emitter_spectra(scene, library, uplift));
-  if (spectra.empty()) {
-    return absl::FailedPreconditionError(
-        "the prepass learns from the scene's emitters, and this scene has none");
-  }
-  PRISM_ASSIGN_OR_RETURN(WavelengthDistribution job_default,
-                         default_wavelength_pdf(scene, true, options, library, uplift));
-  std::optional<WavelengthDistribution> sensor;
-  if (options.spectral_pdf == SpectralPdfKind::kVisible) {
-    PRISM_ASSIGN_OR_RETURN(sensor, WavelengthDistribution::visible(bins));
-  }
-  return PrepassDistributions{std::move(job_default), std::move(sensor)};
-}
 
 absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
     EmbreeDevice& device, const scene::SceneDescription& scene,
-    const spectral::SpectrumLibrary& library, const RenderOptions& options, int width, int height) {
+    const spectral::SpectrumLibrary& library, const job::RenderOptions& options, int width,
+    int height) {
   std::unique_ptr<RenderScene> rs(new RenderScene());
   rs->options_ = options;
   auto grid = spectral::WavelengthGrid::create(options.bins);
@@ -369,7 +306,7 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
                            options.spectral_light_selection));
   rs->light_sampler_ = std::make_unique<LightSampler>(std::move(sampler));
 
-  auto pdf = default_wavelength_pdf(scene, !rs->lights_.empty(), options, library, uplift);
+  auto pdf = job::default_wavelength_pdf(scene, !rs->lights_.empty(), options, library, uplift);
   if (!pdf.ok()) {
     return absl::Status(pdf.status().code(),
                         absl::StrCat("wavelength pdf: ", pdf.status().message()));

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "services/job/render_options.h"
 #include "services/scene/scene_description.h"
 #include "services/spectral/binned_shape.h"
 #include "services/spectral/color.h"
@@ -34,7 +35,6 @@
 #include "worker/material.h"
 #include "worker/medium.h"
 #include "worker/pixel_filter.h"
-#include "worker/render_options.h"
 
 namespace prism::worker {
 
@@ -48,27 +48,13 @@ struct ShapeInfo {
   bool wavelength_dependent = false;
 };
 
-// What the coordinator's prepass needs of the job's wavelength sampling (coordinator/prepass.h):
-// the job's default distribution exactly as RenderScene::wavelength_pdf builds it (its bin masses
-// weigh the learned tables, and workers sample inside each bin with its shape), and the sensor
-// term over `bins` cells when it is not flat. FAILED_PRECONDITION when the scene has no emitters
-// (there is nothing to learn a wavelength pdf from).
-struct PrepassDistributions {
-  spectral::WavelengthDistribution job_default;
-  std::optional<spectral::WavelengthDistribution> sensor;
-};
-absl::StatusOr<PrepassDistributions> prepass_distributions(const scene::SceneDescription& scene,
-                                                           const RenderOptions& options,
-                                                           const spectral::SpectrumLibrary& library,
-                                                           int bins);
-
 class RenderScene {
  public:
   // Resolves every spectrum with `library` (which must outlive nothing: values are copied).
   // width/height: the job's film resolution. Errors carry the scene position where one exists.
   static absl::StatusOr<std::unique_ptr<RenderScene>> build(
       EmbreeDevice& device, const scene::SceneDescription& scene,
-      const spectral::SpectrumLibrary& library, const RenderOptions& options, int width,
+      const spectral::SpectrumLibrary& library, const job::RenderOptions& options, int width,
       int height);
 
   const Geometry& geometry() const { return *geometry_; }
@@ -93,11 +79,11 @@ class RenderScene {
   // wavelength_pdf() cut at the job's bins: how a pixel table's bin masses are sampled.
   const spectral::BinnedShape& binned_shape() const { return *binned_shape_; }
   const spectral::ColorMatching& cmf() const { return *cmf_; }
-  const RenderOptions& options() const { return options_; }
+  const job::RenderOptions& options() const { return options_; }
 
  private:
   RenderScene() = default;
-  RenderOptions options_;
+  job::RenderOptions options_;
   std::unique_ptr<Geometry> geometry_;
   Camera camera_;
   std::unique_ptr<PixelFilter> pixel_filter_;

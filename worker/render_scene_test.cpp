@@ -48,7 +48,7 @@ class RenderSceneTest : public ::testing::Test {
     return scene::parse_scene(text, "inline.pbrt", load_options(), files);
   }
   static absl::StatusOr<std::unique_ptr<RenderScene>> build(const scene::SceneDescription& s,
-                                                            RenderOptions options = {}) {
+                                                            job::RenderOptions options = {}) {
     return RenderScene::build(*device_, s, *library_, options, 32, 24);
   }
 
@@ -177,9 +177,9 @@ TEST_F(RenderSceneTest, PrismScene) {
 
 TEST_F(RenderSceneTest, CornellTwoLights) {
   scene::SceneDescription desc = load("scenes/cornell-two-lights.pbrt");
-  RenderOptions options;
+  job::RenderOptions options;
   options.bins = 32;
-  options.spectral_pdf = SpectralPdfKind::kVisible;
+  options.spectral_pdf = job::SpectralPdfKind::kVisible;
   auto rs = build(desc, options);
   ASSERT_TRUE(rs.ok()) << rs.status();
   const RenderScene& s = **rs;
@@ -221,16 +221,16 @@ Shape "sphere")");
       *spectral::WavelengthDistribution::emitters(std::span<const spectral::Spectrum>(&f11, 1));
   auto flat = *spectral::WavelengthDistribution::flat();
   auto visible = *spectral::WavelengthDistribution::visible();
-  for (auto sensor : {SpectralPdfKind::kFlat, SpectralPdfKind::kVisible}) {
-    for (auto emitter : {EmitterPdfKind::kUniform, EmitterPdfKind::kEmitters}) {
-      RenderOptions o;
+  for (auto sensor : {job::SpectralPdfKind::kFlat, job::SpectralPdfKind::kVisible}) {
+    for (auto emitter : {job::EmitterPdfKind::kUniform, job::EmitterPdfKind::kEmitters}) {
+      job::RenderOptions o;
       o.spectral_pdf = sensor;
       o.emitter_pdf = emitter;
       o.defensive_epsilon = 0.1;
       auto rs = build(*desc, o);
       ASSERT_TRUE(rs.ok()) << rs.status();
-      const auto& ps = sensor == SpectralPdfKind::kFlat ? flat : visible;
-      auto expected = emitter == EmitterPdfKind::kEmitters
+      const auto& ps = sensor == job::SpectralPdfKind::kFlat ? flat : visible;
+      auto expected = emitter == job::EmitterPdfKind::kEmitters
                           ? *spectral::WavelengthDistribution::product(ps, emitters)
                           : ps;
       expected = *expected.mix_defensive(0.1, emitters);
@@ -256,11 +256,11 @@ AttributeBegin
 AttributeEnd)");
   ASSERT_TRUE(desc.ok()) << desc.status();
   for (int bins : {16, 64}) {
-    for (auto sensor : {SpectralPdfKind::kFlat, SpectralPdfKind::kVisible}) {
-      RenderOptions o;
+    for (auto sensor : {job::SpectralPdfKind::kFlat, job::SpectralPdfKind::kVisible}) {
+      job::RenderOptions o;
       o.bins = bins;
       o.spectral_pdf = sensor;
-      auto got = prepass_distributions(*desc, o, *library_, bins);
+      auto got = job::prepass_distributions(*desc, o, *library_, bins);
       ASSERT_TRUE(got.ok()) << got.status();
       // The job's default distribution, exactly as the scene the workers build has it.
       auto scene = RenderScene::build(*device_, *desc, *library_, o, 8, 8);
@@ -270,7 +270,7 @@ AttributeEnd)");
       for (int c = 0; c < want.cells(); ++c) {
         ASSERT_EQ(got->job_default.cell_mass(c), want.cell_mass(c)) << c;
       }
-      EXPECT_EQ(got->sensor.has_value(), sensor == SpectralPdfKind::kVisible);
+      EXPECT_EQ(got->sensor.has_value(), sensor == job::SpectralPdfKind::kVisible);
       if (got->sensor) {
         const auto visible = *spectral::WavelengthDistribution::visible(bins);
         ASSERT_EQ(got->sensor->cells(), bins);
@@ -283,9 +283,9 @@ AttributeEnd)");
   auto dark = parse(R"(WorldBegin
 Shape "sphere")");
   ASSERT_TRUE(dark.ok()) << dark.status();
-  EXPECT_EQ(prepass_distributions(*dark, {}, *library_, 16).status().code(),
+  EXPECT_EQ(job::prepass_distributions(*dark, {}, *library_, 16).status().code(),
             absl::StatusCode::kFailedPrecondition);
-  EXPECT_EQ(prepass_distributions(*desc, {}, *library_, 0).status().code(),
+  EXPECT_EQ(job::prepass_distributions(*desc, {}, *library_, 0).status().code(),
             absl::StatusCode::kInvalidArgument);
 }
 

@@ -56,7 +56,9 @@ std::uint32_t reverse_bits(std::uint32_t x) {
   return (x >> 16) | (x << 16);
 }
 
-std::uint32_t sobol_dimension0(std::uint32_t index) { return reverse_bits(index); }
+std::uint32_t sobol_dimension0(std::uint32_t index) {
+  return reverse_bits(index);
+}
 
 namespace {
 
@@ -128,8 +130,8 @@ Point2 SobolSampler::sample_pair(std::uint32_t pair) const {
   return {scrambled(seeds, 0), scrambled(seeds, 1)};
 }
 
-Sampler::Sampler(SamplerKind kind, const SampleKey& key)
-    : generator_(kind == SamplerKind::kSobol
+Sampler::Sampler(job::SamplerKind kind, const SampleKey& key)
+    : generator_(kind == job::SamplerKind::kSobol
                      ? std::variant<IndependentSampler, SobolSampler>(SobolSampler(key))
                      : std::variant<IndependentSampler, SobolSampler>(IndependentSampler(key))) {}
 

@@ -15,6 +15,8 @@
 #include <cstdint>
 #include <variant>
 
+#include "services/job/render_options.h"
+
 namespace prism::worker {
 
 struct Point2 {
@@ -43,9 +45,7 @@ class IndependentSampler {
  public:
   explicit IndependentSampler(const SampleKey& key) : base_(hash_key(key)) {}
   float sample(std::uint32_t dimension) const;
-  Point2 sample_pair(std::uint32_t pair) const {
-    return {sample(2 * pair), sample(2 * pair + 1)};
-  }
+  Point2 sample_pair(std::uint32_t pair) const { return {sample(2 * pair), sample(2 * pair + 1)}; }
 
  private:
   std::uint64_t base_;
@@ -65,12 +65,10 @@ class SobolSampler {
   std::uint32_t index_;
 };
 
-enum class SamplerKind { kIndependent, kSobol };
-
 // A pixel sample's stream of numbers: get1d/get2d consume dimensions in order. Cheap to copy.
 class Sampler {
  public:
-  Sampler(SamplerKind kind, const SampleKey& key);
+  Sampler(job::SamplerKind kind, const SampleKey& key);
 
   float get1d() { return at(dimension_++); }
   void get2d(float& u0, float& u1) {

@@ -15,7 +15,7 @@ SampleKey key(std::uint32_t sample, std::uint32_t px = 3, std::uint32_t py = 5,
 }
 
 TEST(SamplerTest, PureFunctionOfKeyAndDimension) {
-  for (SamplerKind kind : {SamplerKind::kIndependent, SamplerKind::kSobol}) {
+  for (job::SamplerKind kind : {job::SamplerKind::kIndependent, job::SamplerKind::kSobol}) {
     Sampler a(kind, key(11));
     Sampler b(kind, key(11));
     b.set_dimension(40);
@@ -36,7 +36,7 @@ TEST(SamplerTest, PureFunctionOfKeyAndDimension) {
 TEST(SamplerTest, ValuesInUnitInterval) {
   EXPECT_EQ(bits_to_unit_float(0), 0.0f);
   EXPECT_LT(bits_to_unit_float(0xffffffffu), 1.0f);
-  for (SamplerKind kind : {SamplerKind::kIndependent, SamplerKind::kSobol}) {
+  for (job::SamplerKind kind : {job::SamplerKind::kIndependent, job::SamplerKind::kSobol}) {
     for (std::uint32_t s = 0; s < 256; ++s) {
       Sampler sampler(kind, key(s));
       for (int d = 0; d < 64; ++d) {
@@ -50,7 +50,7 @@ TEST(SamplerTest, ValuesInUnitInterval) {
 
 TEST(SamplerTest, SobolGeneratorMatchesKnownPoints) {
   // The first points of the Sobol (0,2)-sequence: (0,0), (.5,.5), (.75,.25), (.25,.75), ...
-  const double expected[][2] = {{0, 0}, {0.5, 0.5}, {0.25, 0.75}, {0.75, 0.25},
+  const double expected[][2] = {{0, 0},         {0.5, 0.5},     {0.25, 0.75},   {0.75, 0.25},
                                 {0.125, 0.625}, {0.625, 0.125}, {0.375, 0.375}, {0.875, 0.875}};
   for (std::uint32_t i = 0; i < 8; ++i) {
     EXPECT_DOUBLE_EQ(sobol_dimension0(i) * 0x1p-32, expected[i][0]) << i;
@@ -82,7 +82,7 @@ TEST(SamplerTest, SobolPairsAreNetsInEveryPixel) {
     for (std::uint32_t pair : {0u, 1u, 9u}) {
       std::vector<std::pair<float, float>> points;
       for (std::uint32_t s = 0; s < kN; ++s) {
-        Sampler sampler(SamplerKind::kSobol, key(s, px));
+        Sampler sampler(job::SamplerKind::kSobol, key(s, px));
         points.emplace_back(sampler.at(2 * pair), sampler.at(2 * pair + 1));
       }
       for (int a = 0; a <= kM; ++a) {
@@ -104,7 +104,7 @@ TEST(SamplerTest, IndependentMarginalsAreUniform) {
   for (std::uint32_t dim : {0u, 1u, 7u, 100u}) {
     std::vector<int> counts(kCells, 0);
     for (int s = 0; s < kDraws; ++s) {
-      Sampler sampler(SamplerKind::kIndependent, key(s, s % 13, s % 7));
+      Sampler sampler(job::SamplerKind::kIndependent, key(s, s % 13, s % 7));
       ++counts[static_cast<int>(sampler.at(dim) * kCells)];
     }
     double chi2 = 0;
@@ -120,7 +120,7 @@ TEST(SamplerTest, SobolPairsAreDecorrelated) {
   constexpr int kN = 1 << 14;
   double su = 0, sv = 0, suu = 0, svv = 0, suv = 0;
   for (int i = 0; i < kN; ++i) {
-    Sampler sampler(SamplerKind::kSobol, key(i % 64, i / 64, 0));
+    Sampler sampler(job::SamplerKind::kSobol, key(i % 64, i / 64, 0));
     double u = sampler.at(0), v = sampler.at(2);
     su += u, sv += v, suu += u * u, svv += v * v, suv += u * v;
   }
@@ -134,7 +134,7 @@ TEST(SamplerTest, SobolPairsAreDecorrelated) {
 TEST(SamplerTest, SobolConvergesFasterThanIndependent) {
   auto f = [](double u, double v) { return std::sin(3 * u) * std::exp(v); };
   const double exact = (1 - std::cos(3.0)) / 3 * (std::exp(1.0) - 1);
-  auto rmse = [&](SamplerKind kind) {
+  auto rmse = [&](job::SamplerKind kind) {
     double sq = 0;
     for (std::uint32_t px = 0; px < 64; ++px) {
       double sum = 0;
@@ -146,7 +146,7 @@ TEST(SamplerTest, SobolConvergesFasterThanIndependent) {
     }
     return std::sqrt(sq / 64);
   };
-  EXPECT_LT(rmse(SamplerKind::kSobol), 0.2 * rmse(SamplerKind::kIndependent));
+  EXPECT_LT(rmse(job::SamplerKind::kSobol), 0.2 * rmse(job::SamplerKind::kIndependent));
 }
 
 }  // namespace
@@ -179,7 +179,7 @@ namespace prism::worker {
 namespace {
 
 TEST(SamplerTest, PairsEqualTwoSingleDimensions) {
-  for (SamplerKind kind : {SamplerKind::kIndependent, SamplerKind::kSobol}) {
+  for (job::SamplerKind kind : {job::SamplerKind::kIndependent, job::SamplerKind::kSobol}) {
     for (std::uint32_t s = 0; s < 64; ++s) {
       Sampler sampler(kind, key(s));
       for (std::uint32_t d = 0; d < 40; d += 2) {

@@ -110,12 +110,13 @@ class Resolver {
     }
     out.value = float(in.value);
     if (spectrum) {
-      SpectrumRole role = SpectrumRole::kUnbounded;
+      job::SpectrumRole role = job::SpectrumRole::kUnbounded;
       if (const auto* rgb = std::get_if<scene::SpectrumRgb>(&in.spectrum);
           rgb != nullptr && rgb->r <= 1 && rgb->g <= 1 && rgb->b <= 1) {
-        role = SpectrumRole::kReflectance;
+        role = job::SpectrumRole::kReflectance;
       }
-      PRISM_ASSIGN_OR_RETURN(out.spectrum, resolve_spectrum(in.spectrum, role, library_, uplift_));
+      PRISM_ASSIGN_OR_RETURN(out.spectrum,
+                             job::resolve_spectrum(in.spectrum, role, library_, uplift_));
       *varies = *varies || !spectral::is_constant(out.spectrum);
     }
     return out;

@@ -13,7 +13,7 @@
 namespace prism::worker {
 
 TileRenderer::TileRenderer(const RenderScene& scene) : scene_(scene), integrator_(scene) {
-  if (scene.options().integrator == IntegratorKind::kGradient) gradient_.emplace(scene);
+  if (scene.options().integrator == job::IntegratorKind::kGradient) gradient_.emplace(scene);
 }
 
 absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, TileStats* stats,
@@ -41,7 +41,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
   // job's prepass has no gradients.
   const GradientIntegrator* gradient =
       gradient_.has_value() && !task.prepass ? &*gradient_ : nullptr;
-  const TraceOptions trace_options{task.prepass ? kPrepassLanes : 0, task.early_stop};
+  const TraceOptions trace_options{task.prepass ? job::kPrepassLanes : 0, task.early_stop};
   image::TileBuffers buffers;
   buffers.guides = task.want_guides;
   buffers.gradients = gradient != nullptr;

@@ -58,7 +58,7 @@ class TileRenderer {
  private:
   const RenderScene& scene_;
   PathIntegrator integrator_;
-  std::optional<GradientIntegrator> gradient_;  // set for IntegratorKind::kGradient
+  std::optional<GradientIntegrator> gradient_;  // set for job::IntegratorKind::kGradient
 };
 
 }  // namespace prism::worker

@@ -26,12 +26,12 @@ class TileRendererTest : public ::testing::Test {
                                     scene::LoadOptions{});
     ASSERT_TRUE(loaded.ok()) << loaded.status();
     description_ = loaded->description;
-    RenderOptions options;
+    job::RenderOptions options;
     options.bins = 8;
     scene_ = build(options);
     ASSERT_TRUE(scene_);
   }
-  std::unique_ptr<RenderScene> build(const RenderOptions& options) {
+  std::unique_ptr<RenderScene> build(const job::RenderOptions& options) {
     auto built = RenderScene::build(device_, description_, *library_, options, 16, 16);
     EXPECT_TRUE(built.ok()) << built.status();
     return built.ok() ? std::move(*built) : nullptr;
@@ -203,12 +203,12 @@ TEST_F(TileRendererTest, RefusesTablesOfAnotherSizeAndEarlyStopOutsideAPrepass) 
 // gradients buffer, and the same bytes as the same pass of a `hero` job. Its final-pass tasks
 // still carry gradients.
 TEST_F(TileRendererTest, APrepassOfAGradientJobIsAFourLaneHeroRenderWithoutGradients) {
-  RenderOptions options;
+  job::RenderOptions options;
   options.bins = 8;
-  options.integrator = IntegratorKind::kGradient;
+  options.integrator = job::IntegratorKind::kGradient;
   options.gradient_offset_bins = 2;
   auto gradient = build(options);
-  options.integrator = IntegratorKind::kHero;
+  options.integrator = job::IntegratorKind::kHero;
   auto hero = build(options);
   ASSERT_TRUE(gradient && hero);
   const spectral::PixelTables tables = testing::skewed_tables(16, 16, 8);
@@ -249,9 +249,9 @@ TEST_F(TileRendererTest, APrepassOfAGradientJobIsAFourLaneHeroRenderWithoutGradi
 // square exactly the gradient's square; n samples bound it below by Cauchy–Schwarz,
 // Σ G² >= (Σ G)²/n. The halves of [0, 4) are the totals of samples 0 and 2, rendered alone.
 TEST_F(TileRendererTest, GradientVariancesAddSquaresAndHalves) {
-  RenderOptions options;
+  job::RenderOptions options;
   options.bins = 8;
-  options.integrator = IntegratorKind::kGradient;
+  options.integrator = job::IntegratorKind::kGradient;
   options.gradient_offset_bins = 3;
   auto plain = build(options);
   options.gradient_variances = true;

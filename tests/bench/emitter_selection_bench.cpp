@@ -53,13 +53,13 @@ struct Setup {
   int max_depth = 5;
 };
 
-coordinator::LocalRenderOptions options_for(
-    const Setup& setup, bool spectral_factor, std::uint64_t spp, std::uint64_t seed,
-    worker::SamplerKind sampler = worker::SamplerKind::kSobol) {
+coordinator::LocalRenderOptions options_for(const Setup& setup, bool spectral_factor,
+                                            std::uint64_t spp, std::uint64_t seed,
+                                            job::SamplerKind sampler = job::SamplerKind::kSobol) {
   coordinator::LocalRenderOptions o;
   o.render.sampler = sampler;
-  o.render.integrator = worker::IntegratorKind::kHero;
-  o.render.light_selection = worker::LightSelectionKind::kPower;
+  o.render.integrator = job::IntegratorKind::kHero;
+  o.render.light_selection = job::LightSelectionKind::kPower;
   o.render.spectral_light_selection = spectral_factor;
   o.render.bins = setup.scene.description.film.bins.value_or(64);
   o.render.max_depth = setup.max_depth;
@@ -111,9 +111,9 @@ absl::StatusOr<Reference> reference(worker::EmbreeDevice& device, const Setup& s
   std::fprintf(stderr, "reference: rendering %llu spp (cached afterwards in %s) ...\n",
                static_cast<unsigned long long>(spp), cached.c_str());
   // The reference uses the power-only pmf, its own seed and independent samples (see above).
-  PRISM_ASSIGN_OR_RETURN(Timed timed, render(device, setup,
-                                             options_for(setup, false, spp, 0x5eed,
-                                                         worker::SamplerKind::kIndependent)));
+  PRISM_ASSIGN_OR_RETURN(
+      Timed timed, render(device, setup,
+                          options_for(setup, false, spp, 0x5eed, job::SamplerKind::kIndependent)));
   coordinator::LocalRenderResult& result = timed.result;
   const auto& v = result.statistics.variance_of_mean;
   const double noise = std::accumulate(v.begin(), v.end(), 0.0) / double(v.size());

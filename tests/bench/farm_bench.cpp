@@ -44,11 +44,11 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
-#include <chrono>
-#include <ctime>
-#include <cstdio>
 #include <cerrno>
+#include <chrono>
+#include <cstdio>
 #include <cstring>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -353,11 +353,17 @@ struct Coordinator {
 
 absl::StatusOr<Coordinator> start_coordinator(Children& children, const fs::path& root,
                                               std::vector<std::string> extra = {}) {
-  std::vector<std::string> argv = {PRISM_COORDINATOR_BINARY, "--listen",      "127.0.0.1:0",
-                                   "--data-dir",             (root / "data").string(),
-                                   "--worker-secret",        kSecret,
-                                   "--api-token",            kToken,
-                                   "--log-level",            "warn"};
+  std::vector<std::string> argv = {PRISM_COORDINATOR_BINARY,
+                                   "--listen",
+                                   "127.0.0.1:0",
+                                   "--data-dir",
+                                   (root / "data").string(),
+                                   "--worker-secret",
+                                   kSecret,
+                                   "--api-token",
+                                   kToken,
+                                   "--log-level",
+                                   "warn"};
   argv.insert(argv.end(), extra.begin(), extra.end());
   FILE* out = nullptr;
   Coordinator c;
@@ -379,8 +385,8 @@ absl::StatusOr<Coordinator> start_coordinator(Children& children, const fs::path
                                             (root / "coordinator.log").string()));
   }
   c.address = "127.0.0.1:" + std::to_string(c.port);
-  c.farm = v1::FarmService::NewStub(
-      grpc::CreateChannel(c.address, grpc::InsecureChannelCredentials()));
+  c.farm =
+      v1::FarmService::NewStub(grpc::CreateChannel(c.address, grpc::InsecureChannelCredentials()));
   return c;
 }
 
@@ -508,11 +514,11 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
   PRISM_ASSIGN_OR_RETURN(Coordinator coordinator, start_coordinator(children, root));
   std::vector<pid_t> workers;
   for (int i = 0; i < 2; ++i) {
-    workers.push_back(children.spawn(
-        {PRISM_WORKER_BINARY, "--coordinator", coordinator.address, "--threads", "1", "--secret",
-         kSecret, "--host", absl::StrCat("bench-", i), "--cache-dir",
-         (root / absl::StrCat("cache-", i)).string(), "--log-level", "debug"},
-        root / absl::StrCat("worker-", i, ".log")));
+    workers.push_back(
+        children.spawn({PRISM_WORKER_BINARY, "--coordinator", coordinator.address, "--threads", "1",
+                        "--secret", kSecret, "--host", absl::StrCat("bench-", i), "--cache-dir",
+                        (root / absl::StrCat("cache-", i)).string(), "--log-level", "debug"},
+                       root / absl::StrCat("worker-", i, ".log")));
   }
   const Clock::time_point registering = Clock::now();
   while (true) {
@@ -528,7 +534,7 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
     double render_s = 0, farm_s = 0;
     double render_cpu = 0, coordinator_cpu = 0, worker_cpu = 0, client_cpu = 0;
     double render_wait = 0, worker_wait = 0;  // runqueue waits: time others took from us
-    double load = 0;  // 1-minute load average after the run
+    double load = 0;                          // 1-minute load average after the run
     bool identical = false;
     Breakdown breakdown;
     double farm_cpu() const { return coordinator_cpu + worker_cpu + client_cpu; }
@@ -539,8 +545,8 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
     const fs::path render_out = root / absl::StrCat("render-", r, ".exr");
     const fs::path farm_out = root / absl::StrCat("farm-", r, ".exr");
     auto render = [&]() -> absl::Status {
-      std::vector<std::string> argv = {PRISM_BINARY, "render", scene, "-o", render_out.string(),
-                                       "--threads", "2"};
+      std::vector<std::string> argv = {PRISM_BINARY,        "render",    scene, "-o",
+                                       render_out.string(), "--threads", "2"};
       argv.insert(argv.end(), render_flags.begin(), render_flags.end());
       const Clock::time_point start = Clock::now();
       const pid_t pid = children.spawn(argv, root / "render.log");
@@ -553,12 +559,18 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
     };
     auto farm = [&]() -> absl::Status {
       // A fresh client token per run: the same token would return the finished job at once.
-      std::vector<std::string> argv = {PRISM_BINARY,  "submit",
-                                       scene,         "--coordinator",
-                                       coordinator.address, "--token",
-                                       kToken,        "--wait",
-                                       "-o",          farm_out.string(),
-                                       "--client-token", absl::StrCat("bench-", ::getpid(), "-", r)};
+      std::vector<std::string> argv = {PRISM_BINARY,
+                                       "submit",
+                                       scene,
+                                       "--coordinator",
+                                       coordinator.address,
+                                       "--token",
+                                       kToken,
+                                       "--wait",
+                                       "-o",
+                                       farm_out.string(),
+                                       "--client-token",
+                                       absl::StrCat("bench-", ::getpid(), "-", r)};
       argv.insert(argv.end(), render_flags.begin(), render_flags.end());
       const double coordinator_cpu = cpu_seconds(coordinator.pid);
       double worker_cpu = 0, worker_wait = 0;
@@ -617,29 +629,33 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
       std::all_of(runs.begin(), runs.end(), [](const Run& r) { return r.identical; });
   const int tiles_x = (size.first + int(tile) - 1) / int(tile);
   const int tiles_y = (size.second + int(tile) - 1) / int(tile);
-  std::printf("\n### Farm overhead: cornell-two-lights.pbrt, %s, %d spp, %d px tiles (%d tasks), "
-              "seed 7\n\n",
-              resolution.c_str(), int(spp), int(tile), tiles_x * tiles_y);
-  std::printf("| run | render s | farm s | ratio render/farm | render CPU s | farm CPU s "
-              "(coordinator + workers + client) | CPU ratio render/farm | render threads' "
-              "runqueue wait s | workers' runqueue wait s | load avg | pixels identical |\n");
+  std::printf(
+      "\n### Farm overhead: cornell-two-lights.pbrt, %s, %d spp, %d px tiles (%d tasks), "
+      "seed 7\n\n",
+      resolution.c_str(), int(spp), int(tile), tiles_x * tiles_y);
+  std::printf(
+      "| run | render s | farm s | ratio render/farm | render CPU s | farm CPU s "
+      "(coordinator + workers + client) | CPU ratio render/farm | render threads' "
+      "runqueue wait s | workers' runqueue wait s | load avg | pixels identical |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
   for (std::size_t r = 0; r < runs.size(); ++r) {
     const Run& run = runs[r];
-    std::printf("| %zu | %.2f | %.2f | %.3f | %.2f | %.2f (%.2f + %.2f + %.2f) | %.3f | %.2f | "
-                "%.2f | %.2f | %s |\n",
-                r + 1, run.render_s, run.farm_s, run.render_s / run.farm_s, run.render_cpu,
-                run.farm_cpu(), run.coordinator_cpu, run.worker_cpu, run.client_cpu,
-                run.render_cpu / run.farm_cpu(), run.render_wait, run.worker_wait, run.load,
-                run.identical ? "yes" : "NO");
+    std::printf(
+        "| %zu | %.2f | %.2f | %.3f | %.2f | %.2f (%.2f + %.2f + %.2f) | %.3f | %.2f | "
+        "%.2f | %.2f | %s |\n",
+        r + 1, run.render_s, run.farm_s, run.render_s / run.farm_s, run.render_cpu, run.farm_cpu(),
+        run.coordinator_cpu, run.worker_cpu, run.client_cpu, run.render_cpu / run.farm_cpu(),
+        run.render_wait, run.worker_wait, run.load, run.identical ? "yes" : "NO");
   }
   std::printf("| best | %.2f | %.2f | **%.3f** | | | | | | | %s |\n", best_render->render_s,
               best_farm->farm_s, best_render->render_s / best_farm->farm_s,
               identical ? "yes" : "NO");
-  std::printf("\nWhere the farm runs' worker time went (seconds summed over the 2 workers; the "
-              "total is 2 x farm s):\n\n");
-  std::printf("| run | tasks | rendering | per task: scene, encode, upload | between tasks | "
-              "submit to first lease | last result to outputs written |\n");
+  std::printf(
+      "\nWhere the farm runs' worker time went (seconds summed over the 2 workers; the "
+      "total is 2 x farm s):\n\n");
+  std::printf(
+      "| run | tasks | rendering | per task: scene, encode, upload | between tasks | "
+      "submit to first lease | last result to outputs written |\n");
   std::printf("|---|---|---|---|---|---|---|\n");
   for (std::size_t r = 0; r < runs.size(); ++r) {
     const Breakdown& b = runs[r].breakdown;
@@ -647,10 +663,11 @@ absl::Status run_overhead(const Flags& flags, const fs::path& root) {
                 b.render / 1000, b.per_task / 1000, b.between / 1000, b.before / 1000,
                 b.after / 1000);
   }
-  std::printf("\nrender: `prism render --threads 2`; farm: prism-coordinator + 2 x prism-worker "
-              "--threads 1 + `prism submit --wait` (bundle upload to outputs written). Runs "
-              "alternate which goes first; the load average shows how busy the shared machine "
-              "was.\n");
+  std::printf(
+      "\nrender: `prism render --threads 2`; farm: prism-coordinator + 2 x prism-worker "
+      "--threads 1 + `prism submit --wait` (bundle upload to outputs written). Runs "
+      "alternate which goes first; the load average shows how busy the shared machine "
+      "was.\n");
   std::fflush(stdout);
   for (pid_t w : workers) children.stop(w);
   children.stop(coordinator.pid);
@@ -688,7 +705,8 @@ class ResultFactory {
   explicit ResultFactory(int bins) : bins_(bins) {}
 
   // The bytes for `rect` x `samples` (the template of the rect's shape, patched).
-  absl::StatusOr<std::string> bytes(const image::TileRect& rect, const image::SampleRange& samples) {
+  absl::StatusOr<std::string> bytes(const image::TileRect& rect,
+                                    const image::SampleRange& samples) {
     const std::pair<int, int> shape{rect.width(), rect.height()};
     auto it = templates_.find(shape);
     if (it == templates_.end()) {
@@ -835,12 +853,11 @@ void synthetic_worker(int index, std::shared_ptr<grpc::Channel> channel, Capacit
     const v1::Lease& lease = response.lease();
     const v1::TileRect& t = lease.task().tile();
     const image::TileRect rect{t.x0(), t.y0(), t.x1(), t.y1()};
-    const image::SampleRange samples{lease.task().samples().begin(),
-                                     lease.task().samples().end()};
+    const image::SampleRange samples{lease.task().samples().begin(), lease.task().samples().end()};
     auto it = shared.templates.find({rect.width(), rect.height()});
     if (it == shared.templates.end()) {
-      note_error(shared, absl::StrCat("no template for a ", rect.width(), "x", rect.height(),
-                                      " tile"));
+      note_error(shared,
+                 absl::StrCat("no template for a ", rect.width(), "x", rect.height(), " tile"));
       continue;
     }
     bytes = it->second;
@@ -861,8 +878,8 @@ void synthetic_worker(int index, std::shared_ptr<grpc::Channel> channel, Capacit
     const grpc::Status status =
         send_result(*stub, worker_id, lease.lease_id(), bytes, sha, &accepted);
     if (!status.ok() || !accepted) {
-      note_error(shared, absl::StrCat("CompleteTask: ", status.ok() ? "not accepted"
-                                                                     : status.error_message()));
+      note_error(shared, absl::StrCat("CompleteTask: ",
+                                      status.ok() ? "not accepted" : status.error_message()));
       continue;
     }
     const int n = ++shared.completed;
@@ -895,7 +912,8 @@ absl::Status run_capacity(const Flags& flags, const fs::path& root) {
   PRISM_ASSIGN_OR_RETURN(const double bins, flags.number("--capacity-bins", 16, 4, 256));
   fs::create_directories(root / "scene");
   std::ofstream(root / "scene" / "scene.pbrt", std::ios::binary) << kCapacityScene;
-  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle, scene::make_bundle(root / "scene", "scene.pbrt", {}));
+  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
+                         scene::make_bundle(root / "scene", "scene.pbrt", {}));
   const std::string packed = scene::pack(bundle);
 
   Children children;
@@ -933,8 +951,8 @@ absl::Status run_capacity(const Flags& flags, const fs::path& root) {
   for (int i = 0; i < int(channels); ++i) {
     grpc::ChannelArguments args;
     args.SetInt("bench.channel", i);  // distinct arguments: a connection per channel
-    pool.push_back(grpc::CreateCustomChannel(coordinator.address,
-                                             grpc::InsecureChannelCredentials(), args));
+    pool.push_back(
+        grpc::CreateCustomChannel(coordinator.address, grpc::InsecureChannelCredentials(), args));
   }
   std::vector<std::thread> threads;
   for (int i = 0; i < int(workers); ++i) {
@@ -971,7 +989,8 @@ absl::Status run_capacity(const Flags& flags, const fs::path& root) {
     if (response.job().progress().tasks_total() != std::uint64_t(shared.total_tasks)) {
       shared.stop = true;
       for (std::thread& th : threads) th.join();
-      return absl::InternalError(absl::StrCat("the job has ", response.job().progress().tasks_total(),
+      return absl::InternalError(absl::StrCat("the job has ",
+                                              response.job().progress().tasks_total(),
                                               " tasks, the bench planned ", shared.total_tasks));
     }
   }
@@ -1021,12 +1040,13 @@ absl::Status run_capacity(const Flags& flags, const fs::path& root) {
       submit_s, done_s - std::chrono::duration<double>(shared.last - submitted).count(), hwm,
       rss_idle, self_cpu, static_cast<unsigned long long>(shared.heartbeats.load()),
       static_cast<unsigned long long>(shared.errors.load()));
-  std::printf("\ncoordinator CPU: utime+stime from /proc/<pid>/stat; peak RSS: VmHWM; DONE is "
-              "polled every 20 ms. bench CPU: "
-              "the synthetic workers' own cost, on the same 2 cores. %llu AcquireTask calls, %llu "
-              "hashes computed after the clock started.\n",
-              static_cast<unsigned long long>(shared.acquires.load()),
-              static_cast<unsigned long long>(shared.hash_misses.load()));
+  std::printf(
+      "\ncoordinator CPU: utime+stime from /proc/<pid>/stat; peak RSS: VmHWM; DONE is "
+      "polled every 20 ms. bench CPU: "
+      "the synthetic workers' own cost, on the same 2 cores. %llu AcquireTask calls, %llu "
+      "hashes computed after the clock started.\n",
+      static_cast<unsigned long long>(shared.acquires.load()),
+      static_cast<unsigned long long>(shared.hash_misses.load()));
   if (shared.errors.load() > 0) {
     std::printf("first error: %s\n", shared.first_error.c_str());
   }
@@ -1077,7 +1097,8 @@ WireSize wire_size(const std::string& bytes) {
 absl::Status measure_wire(int tile, const fs::path& root) {
   fs::create_directories(root / "scene");
   std::ofstream(root / "scene" / "scene.pbrt", std::ios::binary) << kCapacityScene;
-  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle, scene::make_bundle(root / "scene", "scene.pbrt", {}));
+  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
+                         scene::make_bundle(root / "scene", "scene.pbrt", {}));
   Children children;
   PRISM_ASSIGN_OR_RETURN(Coordinator coordinator, start_coordinator(children, root));
   PRISM_RETURN_IF_ERROR(upload_bundle(coordinator, scene::pack(bundle)));
@@ -1127,17 +1148,15 @@ absl::Status measure_wire(int tile, const fs::path& root) {
         const grpc::Status status = stub->AcquireTask(context.get(), request, &response);
         if (!status.ok()) return grpc_error("AcquireTask", status);
       }
-      if (!response.has_lease() ||
-          response.lease().task().job_id() != submitted.job().job_id()) {
+      if (!response.has_lease() || response.lease().task().job_id() != submitted.job().job_id()) {
         return absl::InternalError("the wire job's task was not leased to the measuring worker");
       }
       const v1::Lease& lease = response.lease();
       const v1::TileRect& t = lease.task().tile();
       ResultFactory factory{bins};
-      PRISM_ASSIGN_OR_RETURN(
-          std::string bytes,
-          factory.bytes({t.x0(), t.y0(), t.x1(), t.y1()},
-                        {lease.task().samples().begin(), lease.task().samples().end()}));
+      PRISM_ASSIGN_OR_RETURN(std::string bytes, factory.bytes({t.x0(), t.y0(), t.x1(), t.y1()},
+                                                              {lease.task().samples().begin(),
+                                                               lease.task().samples().end()}));
       const std::string sha = base::sha256_hex(bytes);
       const std::uint64_t before = proxy->upstream();
       bool accepted = false;
@@ -1151,11 +1170,13 @@ absl::Status measure_wire(int tile, const fs::path& root) {
     }
   }
   const double pixels = double(tile) * tile;
-  std::printf("\nMeasured on the wire: TCP bytes from the worker to the coordinator during one "
-              "CompleteTask call (through a counting loopback relay), one %dx%d task:\n\n",
-              tile, tile);
-  std::printf("| bins | codec bytes | gRPC bytes (computed) | TCP bytes (measured) | TCP B/px/bin | "
-              "TCP over codec |\n");
+  std::printf(
+      "\nMeasured on the wire: TCP bytes from the worker to the coordinator during one "
+      "CompleteTask call (through a counting loopback relay), one %dx%d task:\n\n",
+      tile, tile);
+  std::printf(
+      "| bins | codec bytes | gRPC bytes (computed) | TCP bytes (measured) | TCP B/px/bin | "
+      "TCP over codec |\n");
   std::printf("|---|---|---|---|---|---|\n");
   for (const Row& r : rows) {
     std::printf("| %d | %llu | %llu | %llu | %.3f | +%.3f %% |\n", r.bins,
@@ -1202,13 +1223,13 @@ absl::Status run_wire(const Flags& flags, const fs::path& root) {
   PRISM_ASSIGN_OR_RETURN(LoadedBenchScene scene,
                          load_bench_scene(source_path("scenes/cornell-two-lights.pbrt")));
   worker::EmbreeDevice device;
-  worker::RenderOptions options;
+  job::RenderOptions options;
   options.bins = 64;
   options.max_depth = scene.description.integrator.max_depth;
   options.seed = 7;
-  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<worker::RenderScene> render_scene,
-                         worker::RenderScene::build(device, scene.description, *scene.library,
-                                                    options, 256, 256));
+  PRISM_ASSIGN_OR_RETURN(
+      std::unique_ptr<worker::RenderScene> render_scene,
+      worker::RenderScene::build(device, scene.description, *scene.library, options, 256, 256));
   worker::TileRenderer renderer(*render_scene);
   worker::RenderTask task;
   task.tile = rect;
@@ -1217,23 +1238,23 @@ absl::Status run_wire(const Flags& flags, const fs::path& root) {
   PRISM_ASSIGN_OR_RETURN(image::TileResult real, renderer.render(task, &stats));
   const std::string real_bytes = image::serialise_tile(real);
   const WireSize real_size = wire_size(real_bytes);
-  std::printf("\nA real rendered task (cornell-two-lights, %dx%d tile, 64 bins, 4 spp): %llu codec "
-              "bytes (%.2f B/px/bin), %llu gRPC bytes; the synthetic 64-bin row: %llu codec bytes "
-              "(%s: the codec does not compress, so the size is a function of the shape).\n",
-              tile, tile, static_cast<unsigned long long>(real_size.codec),
-              double(real_size.codec) / (pixels * 64),
-              static_cast<unsigned long long>(real_size.grpc),
-              static_cast<unsigned long long>(synthetic_64),
-              real_size.codec == synthetic_64 ? "the same" : "DIFFERENT");
+  std::printf(
+      "\nA real rendered task (cornell-two-lights, %dx%d tile, 64 bins, 4 spp): %llu codec "
+      "bytes (%.2f B/px/bin), %llu gRPC bytes; the synthetic 64-bin row: %llu codec bytes "
+      "(%s: the codec does not compress, so the size is a function of the shape).\n",
+      tile, tile, static_cast<unsigned long long>(real_size.codec),
+      double(real_size.codec) / (pixels * 64), static_cast<unsigned long long>(real_size.grpc),
+      static_cast<unsigned long long>(synthetic_64),
+      real_size.codec == synthetic_64 ? "the same" : "DIFFERENT");
   std::fflush(stdout);
   return measure_wire(tile, root);
 }
 
 int run(int argc, char** argv) {
-  auto flags = parse_flags(argc, argv,
-                           {"--resolution", "--spp", "--tile", "--repeats", "--workers",
-                            "--channels", "--capacity-resolution", "--capacity-tile",
-                            "--capacity-bins", "--wire-tile"});
+  auto flags =
+      parse_flags(argc, argv,
+                  {"--resolution", "--spp", "--tile", "--repeats", "--workers", "--channels",
+                   "--capacity-resolution", "--capacity-tile", "--capacity-bins", "--wire-tile"});
   if (!flags.ok()) {
     std::cerr << kProgram << ": " << flags.status().message() << "\n";
     return 2;
@@ -1249,8 +1270,7 @@ int run(int argc, char** argv) {
   }
   // Children get SIGKILL from the Children destructor; SIGPIPE must not end the bench.
   ::signal(SIGPIPE, SIG_IGN);
-  const fs::path root =
-      fs::temp_directory_path() / absl::StrCat("prism-bench-farm-", ::getpid());
+  const fs::path root = fs::temp_directory_path() / absl::StrCat("prism-bench-farm-", ::getpid());
   fs::remove_all(root);
   int exit_code = 0;
   for (const std::string& w : which) {

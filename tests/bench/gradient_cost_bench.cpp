@@ -37,7 +37,7 @@ struct Timed {
 };
 
 absl::StatusOr<Timed> render(worker::EmbreeDevice& device, const LoadedBenchScene& scene,
-                             const worker::RenderOptions& options, int width, int height,
+                             const job::RenderOptions& options, int width, int height,
                              std::uint64_t spp, int threads) {
   auto built =
       worker::RenderScene::build(device, scene.description, *scene.library, options, width, height);
@@ -77,7 +77,7 @@ int run(int argc, char** argv) {
       return 2;
     }
   }
-  auto k = worker::gradient_offset_bins(*delta, int(*bins));
+  auto k = job::gradient_offset_bins(*delta, int(*bins));
   if (!k.ok()) {
     std::cerr << "prism-bench-gradient-cost: " << k.status().message() << "\n";
     return 2;
@@ -101,14 +101,14 @@ int run(int argc, char** argv) {
       std::cerr << "prism-bench-gradient-cost: " << scene.status().message() << "\n";
       return 1;
     }
-    worker::RenderOptions options;
+    job::RenderOptions options;
     options.bins = int(*bins);
     options.max_depth = scene->description.integrator.max_depth;
     options.gradient_offset_bins = *k;
     options.gradient_tau = float(*tau);
     double pilot_seconds = 0;
     if (tau_auto) {
-      options.integrator = worker::IntegratorKind::kGradient;
+      options.integrator = job::IntegratorKind::kGradient;
       auto built = worker::RenderScene::build(device, scene->description, *scene->library, options,
                                               size->first, size->second);
       if (!built.ok()) {
@@ -128,9 +128,9 @@ int run(int argc, char** argv) {
     // Interleaved repeats, the fastest of each kept: load on a shared machine only slows.
     absl::StatusOr<Timed> uniform, hero, gradient;
     for (int r = 0; r < int(*repeats); ++r) {
-      for (auto [kind, best] : {std::pair{worker::IntegratorKind::kUniform, &uniform},
-                                std::pair{worker::IntegratorKind::kHero, &hero},
-                                std::pair{worker::IntegratorKind::kGradient, &gradient}}) {
+      for (auto [kind, best] : {std::pair{job::IntegratorKind::kUniform, &uniform},
+                                std::pair{job::IntegratorKind::kHero, &hero},
+                                std::pair{job::IntegratorKind::kGradient, &gradient}}) {
         options.integrator = kind;
         auto timed = render(device, *scene, options, size->first, size->second, std::uint64_t(*spp),
                             int(*threads));

@@ -49,21 +49,21 @@ struct Setup {
   int bins = -1;       // -1: the scene's
   int max_depth = -1;  // -1: the scene's
   double delta = 0.15;
-  double alpha = coordinator::kDefaultPoissonAlpha;
-  coordinator::PoissonNorm norm = coordinator::PoissonNorm::kL2;
+  double alpha = job::kDefaultPoissonAlpha;
+  job::PoissonNorm norm = job::PoissonNorm::kL2;
   bool cpu_clock = false;
 };
 
 struct Method {
   std::string name;
-  worker::IntegratorKind integrator;
+  job::IntegratorKind integrator;
   double tau = 0;
   std::optional<double> pilot_epsilon;  // --tau auto: the pilot chooses τ
 };
 
 // "0.05", "auto" or "auto:0.2".
 absl::StatusOr<Method> gradient_method(const std::string& entry, bool only) {
-  Method m{"gradient", worker::IntegratorKind::kGradient, 0, std::nullopt};
+  Method m{"gradient", job::IntegratorKind::kGradient, 0, std::nullopt};
   if (entry == "auto" || entry.starts_with("auto:")) {
     m.pilot_epsilon = worker::GradientPilotOptions{}.epsilon;
     if (entry.size() > 4) {
@@ -87,7 +87,7 @@ absl::StatusOr<Method> gradient_method(const std::string& entry, bool only) {
 
 absl::StatusOr<coordinator::LocalRenderOptions> options_for(const Setup& setup,
                                                             const LoadedBenchScene& scene,
-                                                            worker::IntegratorKind integrator,
+                                                            job::IntegratorKind integrator,
                                                             std::uint64_t spp, std::uint64_t seed,
                                                             double tau = 0) {
   coordinator::LocalRenderOptions o;
@@ -97,7 +97,7 @@ absl::StatusOr<coordinator::LocalRenderOptions> options_for(const Setup& setup,
       setup.max_depth >= 0 ? setup.max_depth : scene.description.integrator.max_depth;
   o.render.seed = seed;
   PRISM_ASSIGN_OR_RETURN(o.render.gradient_offset_bins,
-                         worker::gradient_offset_bins(setup.delta, o.render.bins));
+                         job::gradient_offset_bins(setup.delta, o.render.bins));
   o.render.gradient_tau = float(tau);
   o.poisson_alpha = setup.alpha;
   o.poisson_norm = setup.norm;
@@ -137,9 +137,8 @@ struct TimedPilot {
 absl::StatusOr<TimedPilot> run_pilot(worker::EmbreeDevice& device, const Setup& setup,
                                      const LoadedBenchScene& scene, double epsilon,
                                      std::uint64_t seed) {
-  PRISM_ASSIGN_OR_RETURN(
-      coordinator::LocalRenderOptions o,
-      options_for(setup, scene, worker::IntegratorKind::kGradient, 1, seed, 0.0));
+  PRISM_ASSIGN_OR_RETURN(coordinator::LocalRenderOptions o,
+                         options_for(setup, scene, job::IntegratorKind::kGradient, 1, seed, 0.0));
   PRISM_ASSIGN_OR_RETURN(
       auto built, worker::RenderScene::build(device, scene.description, *scene.library, o.render,
                                              setup.width, setup.height));
@@ -178,14 +177,14 @@ int run(int argc, char** argv) {
   auto bins = flags->number("--bins", -1, -1, 256);
   auto max_depth = flags->number("--max-depth", -1, -1, 1000);
   auto delta = flags->number("--delta", 0.15, 0, 0.5);
-  auto alpha = flags->number("--alpha", coordinator::kDefaultPoissonAlpha, 1e-9, 1e9);
+  auto alpha = flags->number("--alpha", job::kDefaultPoissonAlpha, 1e-9, 1e9);
   auto seed = flags->number("--seed", 1, 1, 1e9);
   for (const absl::Status& s :
        {size.status(), spp_list.status(), reference_spp.status(), threads.status(), bins.status(),
         max_depth.status(), delta.status(), alpha.status(), seed.status()}) {
     if (!s.ok()) return fail(s);
   }
-  auto norm = coordinator::parse_poisson_norm(flags->get("--poisson", "l2"));
+  auto norm = job::parse_poisson_norm(flags->get("--poisson", "l2"));
   if (!norm.ok()) return fail(norm.status());
   const std::string clock = flags->get("--clock", "wall");
   if (clock != "wall" && clock != "cpu") {
@@ -199,8 +198,8 @@ int run(int argc, char** argv) {
   setup.max_depth = int(*max_depth);
   setup.delta = *delta;
   setup.norm = *norm;
-  std::vector<Method> methods = {{"uniform", worker::IntegratorKind::kUniform, 0, std::nullopt},
-                                 {"hero", worker::IntegratorKind::kHero, 0, std::nullopt}};
+  std::vector<Method> methods = {{"uniform", job::IntegratorKind::kUniform, 0, std::nullopt},
+                                 {"hero", job::IntegratorKind::kHero, 0, std::nullopt}};
   const std::vector<std::string> taus = absl::StrSplit(flags->get("--tau", "0"), ',');
   for (const std::string& entry : taus) {
     auto m = gradient_method(entry, taus.size() == 1);
@@ -239,14 +238,14 @@ int run(int argc, char** argv) {
       "gradient delta %.3g tau %s alpha %.3g %s, %s clock\n",
       setup.width, setup.height, setup.threads, flags->get("--spp", "16,32,64,128,256").c_str(),
       *reference_spp, setup.delta, flags->get("--tau", "0").c_str(), setup.alpha,
-      std::string(coordinator::to_string(setup.norm)).c_str(), clock.c_str());
+      std::string(job::to_string(setup.norm)).c_str(), clock.c_str());
   for (const std::string& path : scenes) {
     auto scene = load_bench_scene(path);
     if (!scene.ok()) return fail(scene.status());
-    auto reference_options = options_for(setup, *scene, worker::IntegratorKind::kUniform,
+    auto reference_options = options_for(setup, *scene, job::IntegratorKind::kUniform,
                                          std::uint64_t(*reference_spp), 0x5eed);
     if (!reference_options.ok()) return fail(reference_options.status());
-    reference_options->render.sampler = worker::SamplerKind::kIndependent;
+    reference_options->render.sampler = job::SamplerKind::kIndependent;
     auto reference =
         cached_reference(device, *scene, *reference_options, cache_dir, "gradient-equal-time");
     if (!reference.ok()) return fail(reference.status());

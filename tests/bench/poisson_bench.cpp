@@ -72,8 +72,7 @@ int run(int argc, char** argv) {
   }
   auto size = parse_size(flags->get("--resolution", "1024x1024"));
   auto repeats = flags->number("--repeats", 5, 1, 100);
-  auto alpha =
-      flags->number("--alpha", 0.2, coordinator::kMinPoissonAlpha, coordinator::kMaxPoissonAlpha);
+  auto alpha = flags->number("--alpha", 0.2, job::kMinPoissonAlpha, job::kMaxPoissonAlpha);
   auto threads = flags->number("--threads", tbb::info::default_concurrency(), 1, 1024);
   const bool time_l1 = flags->get("--l1", "on") != "off";
   const std::string kernel_name = flags->get("--kernel", "auto");
@@ -126,7 +125,7 @@ int run(int argc, char** argv) {
         for (int y = r.begin(); y < r.end(); ++y) {
           const std::size_t o = static_cast<std::size_t>(y) * row;
           const absl::Status s = solver->solve_pixels(
-              coordinator::PoissonNorm::kL2, std::span(primal).subspan(o, row),
+              job::PoissonNorm::kL2, std::span(primal).subspan(o, row),
               std::span(gradient).subspan(o, row), std::span(out).subspan(o, row));
           PRISM_CHECK(s.ok());
         }
@@ -155,7 +154,7 @@ int run(int argc, char** argv) {
                       for (int y = r.begin(); y < r.end(); ++y) {
                         const std::size_t o = static_cast<std::size_t>(y) * row;
                         PRISM_CHECK(solver
-                                        ->solve_pixels(coordinator::PoissonNorm::kL1,
+                                        ->solve_pixels(job::PoissonNorm::kL1,
                                                        std::span(primal).subspan(o, row),
                                                        std::span(gradient).subspan(o, row),
                                                        std::span(out).subspan(o, row))

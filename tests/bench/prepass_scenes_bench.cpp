@@ -139,10 +139,9 @@ int run(int argc, char** argv) {
   auto threads = flags->number("--threads", tbb::info::default_concurrency(), 1, 4096);
   auto spp_flag = flags->number("--spp", 0, 0, 1 << 24);
   auto prepass_spp = flags->number("--prepass-spp", 0, 0, 1 << 20);
-  auto passes = flags->number("--prepass-passes", 2, 1, coordinator::PrepassParameters::kMaxPasses);
+  auto passes = flags->number("--prepass-passes", 2, 1, job::PrepassParameters::kMaxPasses);
   auto epsilon = flags->number("--prepass-epsilon", 0.05, 1e-6, 1 - 1e-6);
-  auto fallback =
-      flags->number("--prepass-fallback", coordinator::PrepassParameters{}.fallback, 0, 0.999);
+  auto fallback = flags->number("--prepass-fallback", job::PrepassParameters{}.fallback, 0, 0.999);
   auto sigma_s = flags->number("--prepass-sigma-s", 1.75, 0.1, 64);
   for (const absl::Status& s : {seeds.status(), reference_spp.status(), threads.status(),
                                 spp_flag.status(), prepass_spp.status(), passes.status(),
@@ -184,7 +183,7 @@ int run(int argc, char** argv) {
     const scene::SceneDescription& d = scene->description;
     const std::string name = scene_path.filename().string();
     coordinator::LocalRenderOptions base;
-    base.render.integrator = worker::IntegratorKind::kHero;
+    base.render.integrator = job::IntegratorKind::kHero;
     base.render.bins = d.film.bins.value_or(64);
     base.render.max_depth = d.integrator.max_depth;
     base.width = d.film.x_resolution;
@@ -193,13 +192,13 @@ int run(int argc, char** argv) {
         *spp_flag > 0 ? std::uint64_t(*spp_flag) : std::uint64_t(d.sampler.samples_per_pixel);
     base.threads = int(*threads);
     if (flags->get("--sampler", "sobol") == "independent") {
-      base.render.sampler = worker::SamplerKind::kIndependent;
+      base.render.sampler = job::SamplerKind::kIndependent;
     }
 
     coordinator::LocalRenderOptions reference_options = base;
     reference_options.spp = std::uint64_t(*reference_spp);
     reference_options.render.seed = 0x5eed;
-    reference_options.render.sampler = worker::SamplerKind::kIndependent;
+    reference_options.render.sampler = job::SamplerKind::kIndependent;
     auto reference =
         cached_reference(device, *scene, reference_options, cache_dir, "prepass-scenes");
     if (!reference.ok()) return fail(reference.status());
@@ -216,18 +215,18 @@ int run(int argc, char** argv) {
       r.rgb_floor = rgb_floor->mse;
     }
 
-    coordinator::PrepassParameters params;
+    job::PrepassParameters params;
     params.passes = int(*passes);
     params.epsilon = *epsilon;
     params.fallback = *fallback;
     params.sigma_s = *sigma_s;
-    params.spp = *prepass_spp > 0 ? std::uint32_t(*prepass_spp)
-                                  : coordinator::budgeted_prepass_spp(base.spp, params.passes,
-                                                                      params.image_scaled);
+    params.spp = *prepass_spp > 0
+                     ? std::uint32_t(*prepass_spp)
+                     : job::budgeted_prepass_spp(base.spp, params.passes, params.image_scaled);
     if (params.spp == 0) {
       std::printf(
           "| %s | – | %llu | – | no prepass: the budget is under %u spp | | | | | | | | |\n",
-          name.c_str(), (unsigned long long)base.spp, coordinator::kMinBudgetedSpp);
+          name.c_str(), (unsigned long long)base.spp, job::kMinBudgetedSpp);
       continue;
     }
     std::vector<Run> runs[2];  // 0: default, 1: prepass

@@ -105,7 +105,7 @@ int run(int argc, char** argv) {
       return 1;
     }
     coordinator::LocalRenderOptions options;
-    options.render.integrator = worker::IntegratorKind::kHero;
+    options.render.integrator = job::IntegratorKind::kHero;
     options.render.bins = scene->description.film.bins.value_or(64);
     options.render.max_depth = scene->description.integrator.max_depth;
     options.width = size->first;

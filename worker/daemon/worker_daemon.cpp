@@ -5,9 +5,9 @@
 #include <utility>
 
 #include "absl/strings/str_cat.h"
-#include "coordinator/job_spec.h"
 #include "services/base/status.h"
 #include "services/image/tile_codec.h"
+#include "services/job/job_spec.h"
 #include "services/scene/path_guard.h"
 #include "services/scene/scene_loader.h"
 #include "services/spectral/pixel_tables.h"
@@ -28,9 +28,9 @@ std::string lease_context(const v1::Lease& lease) {
 
 // Everything that changes a RenderScene, as one comparable string: the film is the task's
 // (an image-scaled prepass renders the job's camera on a smaller one).
-std::string scene_key(const std::string& hash, const coordinator::JobParameters& p, int film_width,
+std::string scene_key(const std::string& hash, const job::JobParameters& p, int film_width,
                       int film_height) {
-  const RenderOptions& o = p.render;
+  const job::RenderOptions& o = p.render;
   return absl::StrCat(hash, "|", p.scene_path, "|", film_width, "x", film_height, "|",
                       static_cast<int>(o.integrator), ",", static_cast<int>(o.spectral_pdf), ",",
                       static_cast<int>(o.emitter_pdf), ",", o.defensive_epsilon, ",",
@@ -50,7 +50,7 @@ struct TaskSetup {
 };
 
 // INVALID_ARGUMENT, saying what is wrong with the task, when it is not one this worker can run.
-absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const coordinator::JobParameters& p) {
+absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const job::JobParameters& p) {
   TaskSetup setup;
   RenderTask& rt = setup.render_task;
   if (task.pass() == v1::PASS_FINAL && task.pass_index() == 0) {
@@ -89,9 +89,8 @@ absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const coordinator::Jo
 
   // A prepass has its own sample count: at most Ñ, the last prepass's (a job without prepass
   // parameters sending one is held to the job limit only).
-  const std::uint64_t max_spp = !rt.prepass
-                                    ? (p.target_error ? p.target_error->max_spp : p.spp)
-                                    : (p.prepass ? p.prepass->spp : coordinator::kMaxJobSpp);
+  const std::uint64_t max_spp = !rt.prepass ? (p.target_error ? p.target_error->max_spp : p.spp)
+                                            : (p.prepass ? p.prepass->spp : job::kMaxJobSpp);
   if (task.samples().begin() >= task.samples().end() || task.samples().end() > max_spp) {
     return absl::InvalidArgumentError(absl::StrCat("sample range ", task.samples().begin(), "-",
                                                    task.samples().end(), " is empty or beyond ",
@@ -448,8 +447,8 @@ absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
     PRISM_ASSIGN_OR_RETURN(cached.loaded, scene::load_scene(scene_file, load));
     cached.description_key = description_key;
   }
-  PRISM_ASSIGN_OR_RETURN(coordinator::JobParameters params,
-                         coordinator::job_parameters(task.spec(), cached.loaded.description));
+  PRISM_ASSIGN_OR_RETURN(job::JobParameters params,
+                         job::job_parameters(task.spec(), cached.loaded.description));
 
   // The task itself comes from the coordinator: a task this worker cannot run is its own
   // failure, not the scene's.

@@ -3,7 +3,7 @@
 // Embree device, the TBB arena, the spectrum library, the client, the logger) and passes it in.
 //
 // Per task: fetch the bundle by hash unless it is cached on disk, load the scene (named spectra
-// checked against the library), turn the task's JobSpec into RenderOptions (job_spec.h), build
+// checked against the library), turn the task's JobSpec into job::RenderOptions (job_spec.h), build
 // the RenderScene at the film the task's pass renders (the job's resolution, or the smaller film
 // of an image-scaled prepass; the last scene is kept for the next task of the same job and
 // film), render the tile and sample range inside the arena, serialise it with the tile codec and

@@ -21,9 +21,9 @@
 #include <optional>
 #include <thread>
 
-#include "coordinator/job_spec.h"
 #include "services/base/sha256.h"
 #include "services/image/tile_codec.h"
+#include "services/job/job_spec.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/status_mapping.h"
 #include "services/scene/bundle.h"
@@ -322,7 +322,7 @@ class WorkerDaemonTest : public ::testing::Test {
     auto loaded =
         scene::load_scene(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/furnace.pbrt", load);
     EXPECT_TRUE(loaded.ok()) << loaded.status();
-    auto params = coordinator::job_parameters(lease.task().spec(), loaded->description);
+    auto params = job::job_parameters(lease.task().spec(), loaded->description);
     EXPECT_TRUE(params.ok()) << params.status();
     const v1::Task& t = lease.task();
     const int film_width = t.film_width() != 0 ? int(t.film_width()) : params->width;

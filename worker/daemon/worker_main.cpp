@@ -18,6 +18,7 @@
 #include <iostream>
 #include <thread>
 
+#include "services/job/job_parameters.h"
 #include "services/rpc/credentials.h"
 #include "services/spectral/named_spectra.h"
 #include "worker/daemon/worker_client.h"
@@ -29,8 +30,6 @@
 #endif
 
 namespace {
-
-constexpr int kMaxThreads = 4096;
 
 std::string default_host() {
   char name[256] = {};
@@ -64,7 +63,7 @@ int main(int argc, char** argv) {
   std::string log_level = "info";
   app.add_option("--coordinator", coordinator, "coordinator address, host:port")->required();
   app.add_option("--threads", threads, "render threads (0: all hardware threads)")
-      ->check(CLI::Range(0, kMaxThreads));
+      ->check(CLI::Range(0, prism::job::kMaxThreads));
   app.add_option("--cache-dir", cache_dir, "scene bundle cache (default: $TMPDIR/prism-worker)");
   app.add_option("--secret", secret, "worker secret")->envname("PRISM_WORKER_SECRET");
   app.add_option("--tls-ca", tls_ca, "PEM CA bundle to verify the coordinator (enables TLS)");

@@ -1,6 +1,7 @@
 // Options that decide what a worker computes for a job, besides the scene: one typed struct,
 // validated once where it is built (the CLI or the job spec) and passed down as const&. Every
-// field that changes output bytes is part of the job spec (proto/prism/v1/types.proto).
+// field that changes output bytes is part of the job spec (proto/prism/v1/types.proto). Part of
+// the job layer (services/job): the worker traces with them, the coordinator plans with them.
 #pragma once
 
 #include <cmath>
@@ -9,9 +10,8 @@
 
 #include "absl/status/statusor.h"
 #include "absl/strings/str_cat.h"
-#include "worker/sampler.h"
 
-namespace prism::worker {
+namespace prism::job {
 
 enum class IntegratorKind {
   kUniform,   // one wavelength per path (C = 1): the unbiased baseline
@@ -22,6 +22,9 @@ enum class IntegratorKind {
 enum class SpectralPdfKind { kFlat, kVisible };                // sensor term p_s (§1)
 enum class EmitterPdfKind { kUniform, kEmitters };             // emitter term p_e (§1)
 enum class LightSelectionKind { kUniform, kPower, kSpatial };  // base pmf q_base (§3)
+// Which sample sequence a worker draws from (worker/sampler.h): independent per-dimension hashes,
+// or the Owen-scrambled Sobol sequence.
+enum class SamplerKind { kIndependent, kSobol };
 
 // The names the CLI flags, job specs and reports use for the option values.
 inline const char* name(IntegratorKind kind) {
@@ -99,4 +102,4 @@ inline absl::StatusOr<int> gradient_offset_bins(double delta_frac, int bins) {
   return k;
 }
 
-}  // namespace prism::worker
+}  // namespace prism::job

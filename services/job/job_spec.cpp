@@ -1,4 +1,4 @@
-#include "coordinator/job_spec.h"
+#include "services/job/job_spec.h"
 
 #include <algorithm>
 #include <cmath>
@@ -9,7 +9,7 @@
 #include "services/scene/wavelength_dependence.h"
 #include "services/spectral/wavelength_grid.h"
 
-namespace prism::coordinator {
+namespace prism::job {
 namespace {
 
 absl::Status out_of_range(const char* field, std::int64_t value, std::int64_t lo, std::int64_t hi) {
@@ -17,15 +17,15 @@ absl::Status out_of_range(const char* field, std::int64_t value, std::int64_t lo
       absl::StrCat(field, " ", value, " is out of range: want ", lo, "..", hi));
 }
 
-absl::StatusOr<worker::IntegratorKind> integrator_of(prism::v1::Integrator value) {
+absl::StatusOr<IntegratorKind> integrator_of(prism::v1::Integrator value) {
   switch (value) {
     case prism::v1::INTEGRATOR_UNSPECIFIED:
     case prism::v1::INTEGRATOR_HERO:
-      return worker::IntegratorKind::kHero;
+      return IntegratorKind::kHero;
     case prism::v1::INTEGRATOR_UNIFORM:
-      return worker::IntegratorKind::kUniform;
+      return IntegratorKind::kUniform;
     case prism::v1::INTEGRATOR_GRADIENT:
-      return worker::IntegratorKind::kGradient;
+      return IntegratorKind::kGradient;
     default:
       break;
   }
@@ -33,13 +33,13 @@ absl::StatusOr<worker::IntegratorKind> integrator_of(prism::v1::Integrator value
       absl::StrCat("integrator ", static_cast<int>(value), ": want uniform, hero or gradient"));
 }
 
-absl::StatusOr<worker::SpectralPdfKind> spectral_pdf_of(prism::v1::SpectralPdf value) {
+absl::StatusOr<SpectralPdfKind> spectral_pdf_of(prism::v1::SpectralPdf value) {
   switch (value) {
     case prism::v1::SPECTRAL_PDF_UNSPECIFIED:
     case prism::v1::SPECTRAL_PDF_FLAT:
-      return worker::SpectralPdfKind::kFlat;
+      return SpectralPdfKind::kFlat;
     case prism::v1::SPECTRAL_PDF_VISIBLE:
-      return worker::SpectralPdfKind::kVisible;
+      return SpectralPdfKind::kVisible;
     default:
       break;
   }
@@ -47,13 +47,13 @@ absl::StatusOr<worker::SpectralPdfKind> spectral_pdf_of(prism::v1::SpectralPdf v
       absl::StrCat("spectral_pdf ", static_cast<int>(value), ": want flat or visible"));
 }
 
-absl::StatusOr<worker::EmitterPdfKind> emitter_pdf_of(prism::v1::EmitterPdf value) {
+absl::StatusOr<EmitterPdfKind> emitter_pdf_of(prism::v1::EmitterPdf value) {
   switch (value) {
     case prism::v1::EMITTER_PDF_UNSPECIFIED:
     case prism::v1::EMITTER_PDF_EMITTERS:
-      return worker::EmitterPdfKind::kEmitters;
+      return EmitterPdfKind::kEmitters;
     case prism::v1::EMITTER_PDF_UNIFORM:
-      return worker::EmitterPdfKind::kUniform;
+      return EmitterPdfKind::kUniform;
     default:
       break;
   }
@@ -61,15 +61,15 @@ absl::StatusOr<worker::EmitterPdfKind> emitter_pdf_of(prism::v1::EmitterPdf valu
       absl::StrCat("emitter_pdf ", static_cast<int>(value), ": want uniform or emitters"));
 }
 
-absl::StatusOr<worker::LightSelectionKind> light_selection_of(prism::v1::LightSelection value) {
+absl::StatusOr<LightSelectionKind> light_selection_of(prism::v1::LightSelection value) {
   switch (value) {
     case prism::v1::LIGHT_SELECTION_UNSPECIFIED:
     case prism::v1::LIGHT_SELECTION_POWER:
-      return worker::LightSelectionKind::kPower;
+      return LightSelectionKind::kPower;
     case prism::v1::LIGHT_SELECTION_UNIFORM:
-      return worker::LightSelectionKind::kUniform;
+      return LightSelectionKind::kUniform;
     case prism::v1::LIGHT_SELECTION_SPATIAL:
-      return worker::LightSelectionKind::kSpatial;
+      return LightSelectionKind::kSpatial;
     default:
       break;
   }
@@ -100,7 +100,7 @@ absl::Status gradient_of(const prism::v1::GradientOptions& g, int bins, JobParam
   PRISM_ASSIGN_OR_RETURN(p.gradient.delta, float_field("gradient.delta", g.delta(),
                                                        kDefaultGradientDelta, 0.0, true, 0.5));
   PRISM_ASSIGN_OR_RETURN(p.render.gradient_offset_bins,
-                         worker::gradient_offset_bins(p.gradient.delta, bins));
+                         gradient_offset_bins(p.gradient.delta, bins));
   if (!std::isfinite(g.tau()) || g.tau() < 0.0f) {
     return absl::InvalidArgumentError(
         absl::StrCat("gradient.tau ", g.tau(), " is out of range: want a finite value >= 0"));
@@ -199,7 +199,7 @@ absl::StatusOr<std::optional<PrepassParameters>> prepass_of(const prism::v1::Pre
 
 }  // namespace
 
-bool prepass_by_default(worker::IntegratorKind, const scene::SceneDescription&) {
+bool prepass_by_default(IntegratorKind, const scene::SceneDescription&) {
   // Off until it never costs error at equal time: measured on single-lamp scenes the prepass of
   // algorithms.md §4 (bin-constant, mean-proportional tables) was up to 4.2x worse than the
   // emitter mixture (issue 11, docs/benchmarks.md).
@@ -260,7 +260,7 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
         absl::StrCat("outputs.png_exposure ", exposure, " is out of range: want stops in -",
                      kMaxJobExposureStops, "..", kMaxJobExposureStops));
   }
-  const bool gradient = p.render.integrator == worker::IntegratorKind::kGradient;
+  const bool gradient = p.render.integrator == IntegratorKind::kGradient;
   if (spec.outputs().primal_and_gradients() && !gradient) {
     return absl::InvalidArgumentError("outputs.primal_and_gradients needs the gradient integrator");
   }
@@ -271,7 +271,7 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
     return absl::InvalidArgumentError(
         absl::StrCat("gradient options (delta, tau, alpha, norm) need the gradient integrator, "
                      "not ",
-                     worker::name(p.render.integrator)));
+                     name(p.render.integrator)));
   }
 
   p.render.spectral_light_selection =
@@ -325,10 +325,9 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
       return absl::InvalidArgumentError(
           "auto_choice: want at most 8 candidates and a reason of at most 1024 bytes");
     }
-    if (a.choice() != worker::name(p.render.integrator)) {
-      return absl::InvalidArgumentError(absl::StrCat("auto_choice says '", a.choice(),
-                                                     "' but the integrator is ",
-                                                     worker::name(p.render.integrator)));
+    if (a.choice() != name(p.render.integrator)) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "auto_choice says '", a.choice(), "' but the integrator is ", name(p.render.integrator)));
     }
     AutoReport r;
     r.choice = a.choice();
@@ -364,58 +363,25 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   return p;
 }
 
-void add_job_sections(const JobParameters& p, RenderReport& report) {
-  report.auto_choice = p.auto_choice;
-  if (p.render.integrator == worker::IntegratorKind::kGradient) {
-    GradientReport g;
-    g.offset_bins = p.render.gradient_offset_bins;
-    g.delta = static_cast<float>(p.gradient.delta);
-    g.tau = p.render.gradient_tau;
-    g.tau_pilot = p.gradient.tau_pilot;
-    g.alpha = static_cast<float>(p.gradient.alpha);
-    g.norm = std::string(to_string(p.gradient.norm));
-    g.with_primal_and_gradients = p.outputs.primal_and_gradients;
-    report.gradient = g;
-  }
-  if (p.prepass.has_value()) {
-    PrepassReport r;
-    r.passes = p.prepass->passes;
-    absl::StatusOr<std::vector<PrepassPass>> schedule =
-        prepass_schedule(*p.prepass, p.width, p.height);
-    if (schedule.ok()) {
-      for (const PrepassPass& pass : *schedule) {
-        r.pass_spp.push_back(pass.spp);
-        r.pass_resolution.push_back(absl::StrCat(pass.width, "x", pass.height));
-      }
-    }
-    r.image_scaled = p.prepass->image_scaled;
-    r.epsilon = static_cast<float>(p.prepass->epsilon);
-    r.fallback = static_cast<float>(p.prepass->fallback);
-    r.sigma_s = static_cast<float>(p.prepass->sigma_s);
-    r.sigma_r = static_cast<float>(p.prepass->sigma_r);
-    report.prepass = r;
-  }
-}
-
-prism::v1::Integrator to_proto(worker::IntegratorKind kind) {
+prism::v1::Integrator to_proto(IntegratorKind kind) {
   switch (kind) {
-    case worker::IntegratorKind::kUniform:
+    case IntegratorKind::kUniform:
       return prism::v1::INTEGRATOR_UNIFORM;
-    case worker::IntegratorKind::kHero:
+    case IntegratorKind::kHero:
       return prism::v1::INTEGRATOR_HERO;
-    case worker::IntegratorKind::kGradient:
+    case IntegratorKind::kGradient:
       return prism::v1::INTEGRATOR_GRADIENT;
   }
   return prism::v1::INTEGRATOR_UNSPECIFIED;
 }
 
-prism::v1::LightSelection to_proto(worker::LightSelectionKind kind) {
+prism::v1::LightSelection to_proto(LightSelectionKind kind) {
   switch (kind) {
-    case worker::LightSelectionKind::kUniform:
+    case LightSelectionKind::kUniform:
       return prism::v1::LIGHT_SELECTION_UNIFORM;
-    case worker::LightSelectionKind::kPower:
+    case LightSelectionKind::kPower:
       return prism::v1::LIGHT_SELECTION_POWER;
-    case worker::LightSelectionKind::kSpatial:
+    case LightSelectionKind::kSpatial:
       return prism::v1::LIGHT_SELECTION_SPATIAL;
   }
   return prism::v1::LIGHT_SELECTION_UNSPECIFIED;
@@ -447,16 +413,6 @@ prism::v1::GradientTauPilot to_proto(const TauPilotReport& r) {
   return t;
 }
 
-std::vector<SceneFeatureNote> reported_features(const scene::SceneDescription& scene) {
-  std::vector<SceneFeatureNote> out;
-  for (const scene::FeatureUse& f : scene.features) {
-    if (f.status == scene::FeatureStatus::kSupported) continue;
-    out.push_back(SceneFeatureNote{scene::feature_status_name(f.status), f.feature,
-                                   f.where.to_string(), f.uses, f.note, f.substitution});
-  }
-  return out;
-}
-
 prism::v1::JobSpec to_proto(const JobParameters& p) {
   prism::v1::JobSpec spec;
   spec.set_bundle_hash(p.bundle_hash);
@@ -464,7 +420,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   spec.set_name(p.name);
   spec.set_allow_unsupported(p.allow_unsupported);
   spec.set_integrator(to_proto(p.render.integrator));
-  if (p.render.integrator == worker::IntegratorKind::kGradient) {
+  if (p.render.integrator == IntegratorKind::kGradient) {
     auto* g = spec.mutable_gradient();
     g->set_delta(static_cast<float>(p.gradient.delta));
     g->set_tau(p.render.gradient_tau);
@@ -483,10 +439,10 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
     prepass->set_sigma_s(static_cast<float>(p.prepass->sigma_s));
     prepass->set_sigma_r(static_cast<float>(p.prepass->sigma_r));
   }
-  spec.set_spectral_pdf(p.render.spectral_pdf == worker::SpectralPdfKind::kFlat
+  spec.set_spectral_pdf(p.render.spectral_pdf == SpectralPdfKind::kFlat
                             ? prism::v1::SPECTRAL_PDF_FLAT
                             : prism::v1::SPECTRAL_PDF_VISIBLE);
-  spec.set_emitter_pdf(p.render.emitter_pdf == worker::EmitterPdfKind::kUniform
+  spec.set_emitter_pdf(p.render.emitter_pdf == EmitterPdfKind::kUniform
                            ? prism::v1::EMITTER_PDF_UNIFORM
                            : prism::v1::EMITTER_PDF_EMITTERS);
   spec.set_light_selection(to_proto(p.render.light_selection));
@@ -526,4 +482,4 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   return spec;
 }
 
-}  // namespace prism::coordinator
+}  // namespace prism::job

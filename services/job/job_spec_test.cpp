@@ -1,4 +1,4 @@
-#include "coordinator/job_spec.h"
+#include "services/job/job_spec.h"
 
 #include <gtest/gtest.h>
 
@@ -7,7 +7,7 @@
 
 #include "google/protobuf/util/message_differencer.h"
 
-namespace prism::coordinator {
+namespace prism::job {
 namespace {
 
 const std::string kHash(64, 'a');
@@ -39,10 +39,10 @@ TEST(JobSpecTest, DefaultsComeFromTheSceneAsPrismRenderTakesThem) {
   EXPECT_EQ(p->render.max_depth, 7);
   EXPECT_EQ(p->tile_size, kDefaultTileSize);
   EXPECT_EQ(p->samples_per_task, 0u);
-  EXPECT_EQ(p->render.integrator, worker::IntegratorKind::kHero);
-  EXPECT_EQ(p->render.spectral_pdf, worker::SpectralPdfKind::kFlat);
-  EXPECT_EQ(p->render.emitter_pdf, worker::EmitterPdfKind::kEmitters);
-  EXPECT_EQ(p->render.light_selection, worker::LightSelectionKind::kPower);
+  EXPECT_EQ(p->render.integrator, IntegratorKind::kHero);
+  EXPECT_EQ(p->render.spectral_pdf, SpectralPdfKind::kFlat);
+  EXPECT_EQ(p->render.emitter_pdf, EmitterPdfKind::kEmitters);
+  EXPECT_EQ(p->render.light_selection, LightSelectionKind::kPower);
   EXPECT_TRUE(p->render.spectral_light_selection);
   EXPECT_TRUE(p->outputs.spectral_exr && p->outputs.rgb_exr && p->outputs.png);
 
@@ -95,10 +95,10 @@ TEST(JobSpecTest, ExplicitValuesRoundTripIndependentlyOfTheScene) {
   EXPECT_EQ(again->render.max_depth, 0);
   EXPECT_EQ(again->tile_size, 8);
   EXPECT_EQ(again->samples_per_task, 3u);
-  EXPECT_EQ(again->render.integrator, worker::IntegratorKind::kUniform);
-  EXPECT_EQ(again->render.spectral_pdf, worker::SpectralPdfKind::kVisible);
-  EXPECT_EQ(again->render.emitter_pdf, worker::EmitterPdfKind::kUniform);
-  EXPECT_EQ(again->render.light_selection, worker::LightSelectionKind::kSpatial);
+  EXPECT_EQ(again->render.integrator, IntegratorKind::kUniform);
+  EXPECT_EQ(again->render.spectral_pdf, SpectralPdfKind::kVisible);
+  EXPECT_EQ(again->render.emitter_pdf, EmitterPdfKind::kUniform);
+  EXPECT_EQ(again->render.light_selection, LightSelectionKind::kSpatial);
   EXPECT_FALSE(again->render.spectral_light_selection);
   EXPECT_EQ(again->outputs, p->outputs);
   EXPECT_EQ(again->name, "cornell");
@@ -289,8 +289,8 @@ TEST(JobSpecTest, GradientAndPrepassDefaultsSurviveTheExplicitForm) {
   EXPECT_EQ(again->prepass->sigma_r, p->prepass->sigma_r);
 }
 
-// The pilot's figures ride with the τ it chose, through the explicit form, into the report.
-TEST(JobSpecTest, TheTauPilotSurvivesTheExplicitFormAndReachesTheReport) {
+// The pilot's figures ride with the τ it chose through the explicit form.
+TEST(JobSpecTest, TheTauPilotSurvivesTheExplicitForm) {
   prism::v1::JobSpec spec = minimal_spec();
   spec.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
   spec.mutable_gradient()->set_tau(0.125f);
@@ -313,13 +313,9 @@ TEST(JobSpecTest, TheTauPilotSurvivesTheExplicitFormAndReachesTheReport) {
   auto again = job_parameters(to_proto(*p), scene::SceneDescription{});
   ASSERT_TRUE(again.ok()) << again.status();
   EXPECT_EQ(again->gradient, p->gradient);
-  RenderReport report;
-  add_job_sections(*p, report);
-  ASSERT_TRUE(report.gradient.has_value());
-  EXPECT_EQ(report.gradient->tau_pilot, p->gradient.tau_pilot);
 }
 
-// How `auto` chose survives the explicit form and reaches the report; a choice that is not the
+// How `auto` chose survives the explicit form; a choice that is not the
 // job's integrator is refused. A target error survives with its scope and max spp, and its
 // ranges are checked.
 TEST(JobSpecTest, TheAutoChoiceAndTheTargetErrorSurviveTheExplicitForm) {
@@ -351,9 +347,6 @@ TEST(JobSpecTest, TheAutoChoiceAndTheTargetErrorSurviveTheExplicitForm) {
   ASSERT_TRUE(again.ok()) << again.status();
   EXPECT_EQ(again->auto_choice, p->auto_choice);
   EXPECT_EQ(again->target_error->relative, p->target_error->relative);
-  RenderReport report;
-  add_job_sections(*p, report);
-  EXPECT_EQ(report.auto_choice, p->auto_choice);
 
   prism::v1::JobSpec wrong = spec;
   wrong.mutable_auto_choice()->set_choice("uniform");
@@ -416,7 +409,7 @@ TEST(JobSpecTest, PrepassDefaultFollowsTheScene) {
   scene::SceneDescription fog = plain;
   fog.media.push_back(scene::Medium{"fog", scene::HomogeneousMedium{}, {}});
   fog.camera.medium = 0;
-  EXPECT_FALSE(prepass_by_default(worker::IntegratorKind::kHero, fog));
+  EXPECT_FALSE(prepass_by_default(IntegratorKind::kHero, fog));
   auto f = job_parameters(minimal_spec(), fog);
   ASSERT_TRUE(f.ok()) << f.status();
   EXPECT_FALSE(f->prepass.has_value());
@@ -472,4 +465,4 @@ TEST(JobSpecTest, PrepassSamplesFollowTheBudget) {
 }
 
 }  // namespace
-}  // namespace prism::coordinator
+}  // namespace prism::job
