@@ -616,6 +616,16 @@ TEST_F(FarmProcessTest, BenchOnTheFarmMeasuresExactlyWhatALocalBenchMeasures) {
   start_coordinator();
   start_worker(0);
   start_worker(1);
+  // prism bench refuses a farm with no worker to take its jobs: wait for both to register.
+  const auto registered = Clock::now() + std::chrono::seconds(20);
+  for (int workers = 0; workers < 2 && Clock::now() < registered;) {
+    v1::ListWorkersRequest request;
+    v1::ListWorkersResponse response;
+    auto context = client();
+    workers =
+        stub_->ListWorkers(context.get(), request, &response).ok() ? response.workers_size() : 0;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
   auto run = [&](const std::string& out, const std::string& cache, bool farm) {
     std::vector<std::string> args = {PRISM_BINARY,
                                      "bench",
@@ -692,6 +702,33 @@ TEST_F(FarmProcessTest, BenchOnTheFarmMeasuresExactlyWhatALocalBenchMeasures) {
   run("again", "farm-cache", true);
   EXPECT_EQ(jobs(), 6 + 4);  // new jobs, the cached reference
   EXPECT_EQ(measured("again"), farm);
+}
+
+// With no worker to take its jobs, prism bench stops before it renders or submits anything
+// (instead of waiting for ever on its first job).
+TEST_F(FarmProcessTest, BenchOnAFarmWithoutWorkersStopsBeforeSubmittingAnything) {
+  start_coordinator();
+  const std::string command =
+      std::string(PRISM_BINARY) + " bench " + (root_ / "scene" / "scene.pbrt").string() +
+      " --spp 4 --seeds 1 --reference-spp 8 --reference-cache " + (root_ / "cache").string() +
+      " -o " + (root_ / "out").string() + " --coordinator 127.0.0.1:" + std::to_string(port_) +
+      " --token " + kToken + " 2>" + (root_ / "stderr.txt").string();
+  const pid_t pid = spawn({"/bin/sh", "-c", command});
+  int status = 0;
+  ::waitpid(pid, &status, 0);
+  std::erase(children_, pid);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 1);
+  std::ifstream err(root_ / "stderr.txt");
+  const std::string message((std::istreambuf_iterator<char>(err)),
+                            std::istreambuf_iterator<char>());
+  EXPECT_NE(message.find("has no idle or busy worker"), std::string::npos) << message;
+  EXPECT_FALSE(fs::exists(root_ / "out" / "results.csv"));
+  EXPECT_FALSE(fs::exists(root_ / "cache"));
+  v1::ListJobsRequest request;
+  v1::ListJobsResponse response;
+  auto context = client();
+  ASSERT_TRUE(stub_->ListJobs(context.get(), request, &response).ok());
+  EXPECT_EQ(response.jobs_size(), 0);
 }
 
 TEST_F(FarmProcessTest, AWorkerKilledMidJobLeavesTheBytesUnchanged) {
