@@ -27,10 +27,12 @@
 #include "services/job/job_spec.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
+#include "services/rpc/result_upload.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
 #include "services/store/blob_store.h"
 #include "services/store/job_store.h"
+#include "tests/testing/child_process.h"
 #include "worker/render_scene.h"
 #include "worker/tile_renderer.h"
 
@@ -182,24 +184,10 @@ class FarmServerTest : public ::testing::Test {
     auto context = worker_call();
     v1::CompleteTaskResponse response;
     auto writer = worker_stub_->CompleteTask(context.get(), &response);
-    std::uint64_t offset = 0;
-    const auto pieces = prism::rpc::split_chunks(bytes, 4096);
-    for (std::size_t i = 0; i < pieces.size(); ++i) {
-      v1::ResultUpload chunk;
-      chunk.set_worker_id(worker_id);
-      chunk.set_lease_id(lease_id);
-      chunk.set_offset(offset);
-      chunk.set_total_bytes(bytes.size());
-      chunk.set_data(std::string(pieces[i]));
-      offset += pieces[i].size();
-      if (i + 1 == pieces.size()) {
-        chunk.set_last(true);
-        chunk.set_sha256(base::sha256_hex(bytes));
-      }
-      if (!writer->Write(chunk)) break;
-    }
-    writer->WritesDone();
-    grpc::Status status = writer->Finish();
+    prism::rpc::ResultUploadHeader header;
+    header.worker_id = worker_id;
+    header.lease_id = lease_id;
+    grpc::Status status = prism::rpc::upload_result(*writer, header, bytes, 4096);
     if (accepted != nullptr) *accepted = response.accepted();
     return status;
   }
@@ -779,24 +767,18 @@ TEST_F(FarmServerTest, RealWorkerProcessesRenderTheSameBytes) {
   ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
   const v1::JobSpec spec = small_spec(hash);
   const std::string job_id = submit(spec).job_id();
-  std::vector<pid_t> workers;
+  std::vector<std::unique_ptr<prism::testing::ChildProcess>> workers;
   for (int i = 0; i < 2; ++i) {
-    const std::string address = farm_->address();
     const std::string cache = (root_ / ("cache" + std::to_string(i))).string();
-    const pid_t pid = fork();
-    ASSERT_GE(pid, 0);
-    if (pid == 0) {
-      execl(binary, binary, "--coordinator", address.c_str(), "--threads", "1", "--secret", kSecret,
-            "--cache-dir", cache.c_str(), "--log-level", "warn", nullptr);
-      _exit(127);
-    }
-    workers.push_back(pid);
+    workers.push_back(prism::testing::ChildProcess::start(
+        {binary, "--coordinator", farm_->address(), "--threads", "1", "--secret", kSecret,
+         "--cache-dir", cache, "--log-level", "warn"}));
+    ASSERT_NE(workers.back(), nullptr);
   }
   const v1::JobInfo done = wait_done(job_id, 1500);
-  for (pid_t pid : workers) {
-    kill(pid, SIGTERM);
-    int status = 0;
-    waitpid(pid, &status, 0);
+  for (auto& worker : workers) {
+    worker->signal(SIGTERM);
+    worker->wait();
   }
   ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
   expect_identical(fetch_spectral_exr(job_id), spec);

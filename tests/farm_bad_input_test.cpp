@@ -38,7 +38,9 @@
 #include "services/image/tile_codec.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
+#include "services/rpc/result_upload.h"
 #include "services/scene/bundle.h"
+#include "tests/testing/child_process.h"
 
 namespace prism {
 namespace {
@@ -69,7 +71,7 @@ constexpr std::uint64_t kGoodSeed = 11;
 // The processes and ids the tests share: started by SetUpTestSuite, killed by TearDownTestSuite.
 struct Farm {
   fs::path root;
-  std::vector<pid_t> children;
+  std::vector<std::unique_ptr<testing::ChildProcess>> children;
   int port = 0;
   std::shared_ptr<grpc::Channel> channel;
   std::unique_ptr<v1::FarmService::Stub> farm;
@@ -82,44 +84,10 @@ struct Farm {
 };
 Farm* farm_ = nullptr;
 
-// Starts `argv`; with `out`/`err` set, the child's stdout/stderr is a pipe returned there.
-pid_t spawn(std::vector<std::string> argv, FILE** out = nullptr, FILE** err = nullptr) {
-  int out_fds[2] = {-1, -1}, err_fds[2] = {-1, -1};
-  if (out != nullptr) {
-    EXPECT_EQ(::pipe2(out_fds, O_CLOEXEC), 0);
-  }
-  if (err != nullptr) {
-    EXPECT_EQ(::pipe2(err_fds, O_CLOEXEC), 0);
-  }
-  const pid_t pid = ::fork();
-  if (pid == 0) {
-    if (out != nullptr) ::dup2(out_fds[1], STDOUT_FILENO);
-    if (err != nullptr) ::dup2(err_fds[1], STDERR_FILENO);
-    std::vector<char*> args;
-    for (std::string& a : argv) args.push_back(a.data());
-    args.push_back(nullptr);
-    ::execv(args[0], args.data());
-    ::_exit(127);
-  }
-  EXPECT_GT(pid, 0);
-  farm_->children.push_back(pid);
-  if (out != nullptr) {
-    ::close(out_fds[1]);
-    *out = ::fdopen(out_fds[0], "r");
-  }
-  if (err != nullptr) {
-    ::close(err_fds[1]);
-    *err = ::fdopen(err_fds[0], "r");
-  }
-  return pid;
-}
-
-// Waits for a child started by spawn(); its exit status.
-int reap(pid_t pid) {
-  int status = 0;
-  ::waitpid(pid, &status, 0);
-  std::erase(farm_->children, pid);
-  return status;
+// Starts `argv`; the suite owns it until TearDownTestSuite.
+testing::ChildProcess* spawn(std::vector<std::string> argv) {
+  farm_->children.push_back(testing::ChildProcess::start(std::move(argv)));
+  return farm_->children.back().get();
 }
 
 std::unique_ptr<grpc::ClientContext> call(const std::string& token) {
@@ -249,24 +217,10 @@ grpc::Status complete(const std::string& token, const std::string& worker_id,
   auto context = call(token);
   v1::CompleteTaskResponse response;
   auto writer = farm_->worker->CompleteTask(context.get(), &response);
-  std::uint64_t offset = 0;
-  const auto pieces = prism::rpc::split_chunks(bytes, 64 << 10);
-  for (std::size_t i = 0; i < pieces.size(); ++i) {
-    v1::ResultUpload chunk;
-    chunk.set_worker_id(worker_id);
-    chunk.set_lease_id(lease_id);
-    chunk.set_offset(offset);
-    chunk.set_total_bytes(bytes.size());
-    chunk.set_data(std::string(pieces[i]));
-    offset += pieces[i].size();
-    if (i + 1 == pieces.size()) {
-      chunk.set_last(true);
-      chunk.set_sha256(base::sha256_hex(bytes));
-    }
-    if (!writer->Write(chunk)) break;
-  }
-  writer->WritesDone();
-  grpc::Status status = writer->Finish();
+  prism::rpc::ResultUploadHeader header;
+  header.worker_id = worker_id;
+  header.lease_id = lease_id;
+  grpc::Status status = prism::rpc::upload_result(*writer, header, bytes, 64 << 10);
   if (accepted != nullptr) *accepted = response.accepted();
   return status;
 }
@@ -283,30 +237,18 @@ class FarmBadInputTest : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
     farm_ = new Farm;
-    farm_->root = fs::path(::testing::TempDir()) /
-                  ("farm_bad_input_" + std::to_string(::getpid()));
-    fs::remove_all(farm_->root);
-    fs::create_directories(farm_->root);
+    farm_->root = testing::fresh_dir("farm_bad_input");
 
-    FILE* out = nullptr;
-    spawn({PRISM_COORDINATOR_BINARY, "--listen", "127.0.0.1:0", "--data-dir",
-           (farm_->root / "data").string(), "--worker-secret", kSecret, "--api-token", kToken,
-           "--max-bundle-bytes", std::to_string(kMaxBundleBytes), "--heartbeat-ms",
-           std::to_string(kHeartbeatMs), "--lease-ms", std::to_string(kLeaseMs), "--log-level",
-           "error"},
-          &out);
-    ASSERT_NE(out, nullptr);
-    char line[512];
-    while (std::fgets(line, sizeof(line), out) != nullptr) {
-      if (std::sscanf(line, "listening on port %d", &farm_->port) == 1) break;
-    }
-    // Keep draining so the coordinator never blocks on a full pipe.
-    std::thread([out] {
-      char sink[512];
-      while (std::fgets(sink, sizeof(sink), out) != nullptr) {
-      }
-      std::fclose(out);
-    }).detach();
+    testing::ChildProcess* coordinator =
+        spawn({PRISM_COORDINATOR_BINARY, "--listen", "127.0.0.1:0", "--data-dir",
+               (farm_->root / "data").string(), "--worker-secret", kSecret, "--api-token", kToken,
+               "--max-bundle-bytes", std::to_string(kMaxBundleBytes), "--heartbeat-ms",
+               std::to_string(kHeartbeatMs), "--lease-ms", std::to_string(kLeaseMs), "--log-level",
+               "error"});
+    ASSERT_NE(coordinator, nullptr);
+    const std::optional<std::string> line =
+        coordinator->wait_for_line("listening on port", std::chrono::seconds(20));
+    if (line.has_value()) std::sscanf(line->c_str(), "listening on port %d", &farm_->port);
     ASSERT_GT(farm_->port, 0) << "the coordinator did not print its port";
     farm_->channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(farm_->port),
                                          grpc::InsecureChannelCredentials());
@@ -338,11 +280,7 @@ class FarmBadInputTest : public ::testing::Test {
   }
 
   static void TearDownTestSuite() {
-    for (pid_t pid : farm_->children) {
-      ::kill(pid, SIGKILL);
-      int status = 0;
-      ::waitpid(pid, &status, 0);
-    }
+    farm_->children.clear();  // killed and reaped
     std::error_code ec;
     fs::remove_all(farm_->root, ec);
     delete farm_;
@@ -411,19 +349,12 @@ void wrong_worker_secrets_are_unauthenticated() {
   EXPECT_TRUE(says(status, "invalid token"));
 
   // A real prism-worker with the wrong secret gives up with the server's message, exit 1.
-  FILE* err = nullptr;
-  const pid_t pid =
-      spawn({PRISM_WORKER_BINARY, "--coordinator", "127.0.0.1:" + std::to_string(farm_->port),
-             "--threads", "1", "--secret", "not-the-secret", "--host", "intruder", "--cache-dir",
-             (farm_->root / "intruder-cache").string(), "--log-level", "error"},
-            nullptr, &err);
-  ASSERT_NE(err, nullptr);
-  std::string messages;
-  char line[1024];
-  while (std::fgets(line, sizeof(line), err) != nullptr) messages += line;
-  std::fclose(err);
-  const int exit_status = reap(pid);
-  EXPECT_TRUE(WIFEXITED(exit_status) && WEXITSTATUS(exit_status) == 1) << exit_status;
+  const testing::RunResult intruder = testing::run(
+      {PRISM_WORKER_BINARY, "--coordinator", "127.0.0.1:" + std::to_string(farm_->port),
+       "--threads", "1", "--secret", "not-the-secret", "--host", "intruder", "--cache-dir",
+       (farm_->root / "intruder-cache").string(), "--log-level", "error"});
+  const std::string& messages = intruder.err;
+  EXPECT_EQ(intruder.exit_code, 1);
   EXPECT_NE(messages.find("invalid token"), std::string::npos) << messages;
 }
 
@@ -630,12 +561,11 @@ void the_coordinator_keeps_serving_the_other_jobs() {
 
   const fs::path cli_out = farm_->root / "cli" / "cli.exr";
   fs::create_directories(cli_out.parent_path());
-  const pid_t pid = spawn({PRISM_BINARY, "render", (farm_->root / "good" / "scene.pbrt").string(),
-                           "-o", cli_out.string(), "--spp", std::to_string(kGoodSpp), "--seed",
-                           std::to_string(kGoodSeed), "--tile", "8", "--threads", "2",
-                           "--no-prepass", "--integrator", "hero"});
-  const int exit_status = reap(pid);
-  ASSERT_TRUE(WIFEXITED(exit_status) && WEXITSTATUS(exit_status) == 0) << exit_status;
+  const testing::RunResult render = testing::run(
+      {PRISM_BINARY, "render", (farm_->root / "good" / "scene.pbrt").string(), "-o",
+       cli_out.string(), "--spp", std::to_string(kGoodSpp), "--seed", std::to_string(kGoodSeed),
+       "--tile", "8", "--threads", "2", "--no-prepass", "--integrator", "hero"});
+  ASSERT_EQ(render.exit_code, 0) << render.out << render.err;
   const std::vector<float> cli = read_pixels(cli_out);
   ASSERT_EQ(farm.size(), cli.size());
   ASSERT_EQ(farm.size(), 24u * 24u * 16u);

@@ -28,6 +28,7 @@
 #include "services/rpc/chunks.h"
 #include "services/scene/bundle.h"
 #include "services/store/job_store.h"
+#include "tests/testing/child_process.h"
 
 namespace prism {
 namespace {
@@ -44,106 +45,52 @@ fs::path source_scene() {
   return fs::path(PRISM_SOURCE_DIR) / "worker/testdata/unbiased.pbrt";
 }
 
-// A port that was free a moment ago (for a coordinator restarted on the same address).
-int free_port() {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  addr.sin_port = 0;
-  EXPECT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)), 0);
-  socklen_t len = sizeof(addr);
-  ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
-  ::close(fd);
-  return ntohs(addr.sin_port);
-}
-
 constexpr int kSpp = 16;
 
 class FarmProcessTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    root_ = fs::path(::testing::TempDir()) /
-            ("farm_process_" +
-             std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) + "_" +
-             std::to_string(::getpid()));
-    fs::remove_all(root_);
+    root_ = testing::fresh_dir();
     fs::create_directories(root_ / "scene");
     fs::copy_file(source_scene(), root_ / "scene" / "scene.pbrt");
   }
   void TearDown() override {
-    for (pid_t pid : children_) {
-      ::kill(pid, SIGKILL);
-      int status = 0;
-      ::waitpid(pid, &status, 0);
-    }
-    children_.clear();
+    children_.clear();  // each is killed and reaped; its output printed when the test failed
     fs::remove_all(root_);
   }
 
-  // Starts `argv`; with `out` set, the child's stdout is a pipe returned there.
-  pid_t spawn(std::vector<std::string> argv, FILE** out = nullptr) {
-    int fds[2] = {-1, -1};
-    if (out != nullptr) {
-      EXPECT_EQ(::pipe2(fds, O_CLOEXEC), 0);  // later children must not hold it open
-    }
-    const pid_t pid = ::fork();
-    if (pid == 0) {
-      if (out != nullptr) {
-        ::dup2(fds[1], STDOUT_FILENO);
-        ::close(fds[0]);
-        ::close(fds[1]);
-      }
-      std::vector<char*> args;
-      for (std::string& a : argv) args.push_back(a.data());
-      args.push_back(nullptr);
-      ::execv(args[0], args.data());
-      ::_exit(127);
-    }
-    EXPECT_GT(pid, 0);
-    children_.push_back(pid);
-    if (out != nullptr) {
-      ::close(fds[1]);
-      *out = ::fdopen(fds[0], "r");
-    }
-    return pid;
+  // Starts `argv`; the fixture owns it until the test ends.
+  testing::ChildProcess* spawn(std::vector<std::string> argv) {
+    children_.push_back(testing::ChildProcess::start(std::move(argv)));
+    return children_.back().get();
   }
 
-  void kill9(pid_t pid) {
-    ::kill(pid, SIGKILL);
-    int status = 0;
-    ::waitpid(pid, &status, 0);
-    std::erase(children_, pid);
+  // `prism` with `args` to the end; fails the test unless it exits with `want`.
+  testing::RunResult run_prism(std::vector<std::string> args, int want = 0) {
+    args.insert(args.begin(), PRISM_BINARY);
+    testing::RunResult r = testing::run(std::move(args));
+    EXPECT_EQ(r.exit_code, want) << r.out << r.err;
+    return r;
   }
 
   // Starts the coordinator on `port` (0: any) and connects the stubs to it.
   void start_coordinator(int port = 0) {
-    FILE* out = nullptr;
     coordinator_ = spawn({PRISM_COORDINATOR_BINARY, "--listen", "127.0.0.1:" + std::to_string(port),
                           "--data-dir", (root_ / "data").string(), "--worker-secret", kSecret,
                           "--api-token", kToken, "--heartbeat-ms", std::to_string(kHeartbeatMs),
-                          "--lease-ms", "1000", "--log-level", "warn"},
-                         &out);
-    ASSERT_NE(out, nullptr);
-    char line[512];
+                          "--lease-ms", "1000", "--log-level", "warn"});
+    ASSERT_NE(coordinator_, nullptr);
+    const std::optional<std::string> line =
+        coordinator_->wait_for_line("listening on port", std::chrono::seconds(20));
     port_ = 0;
-    while (std::fgets(line, sizeof(line), out) != nullptr) {
-      if (std::sscanf(line, "listening on port %d", &port_) == 1) break;
-    }
-    // Keep draining so the coordinator never blocks on a full pipe.
-    std::thread([out] {
-      char sink[512];
-      while (std::fgets(sink, sizeof(sink), out) != nullptr) {
-      }
-      std::fclose(out);
-    }).detach();
+    if (line.has_value()) std::sscanf(line->c_str(), "listening on port %d", &port_);
     ASSERT_GT(port_, 0) << "the coordinator did not print its port";
     auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(port_),
                                        grpc::InsecureChannelCredentials());
     stub_ = v1::FarmService::NewStub(channel);
   }
 
-  pid_t start_worker(int i) {
+  testing::ChildProcess* start_worker(int i) {
     std::string host = "w";
     host += std::to_string(i);
     return spawn({PRISM_WORKER_BINARY, "--coordinator", "127.0.0.1:" + std::to_string(port_),
@@ -314,11 +261,8 @@ class FarmProcessTest : public ::testing::Test {
       args.insert(args.end(), {"--integrator", "hero"});
     }
     args.insert(args.end(), extra.begin(), extra.end());
-    const pid_t pid = spawn(args);
-    int status = 0;
-    ::waitpid(pid, &status, 0);
-    std::erase(children_, pid);
-    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    const testing::RunResult run = testing::run(args);
+    EXPECT_EQ(run.exit_code, 0) << run.out << run.err;
     return read_pixels(out.parent_path() / read);
   }
 
@@ -326,7 +270,7 @@ class FarmProcessTest : public ::testing::Test {
   // final pass) through a coordinator killed (-9) and restarted once `kill_after` tasks are done,
   // compared byte for byte with `prism render` of the same job. Returns that render's JSON report.
   std::string prepass_job_across_a_restart(int prepass_spp, int kill_after) {
-    const int port = free_port();
+    const int port = testing::free_port();
     start_coordinator(port);
     v1::JobSpec s = spec(upload(), kSpp);
     s.mutable_prepass()->set_enabled(true);
@@ -341,7 +285,7 @@ class FarmProcessTest : public ::testing::Test {
         },
         30);
     EXPECT_GE(mid.progress().tasks_done(), std::uint64_t(kill_after));
-    kill9(coordinator_);
+    coordinator_->kill();
     start_coordinator(port);
     start_worker(1);
     const v1::JobInfo done = wait_for(job_id, terminal, 60);
@@ -365,8 +309,8 @@ class FarmProcessTest : public ::testing::Test {
   }
 
   fs::path root_;
-  std::vector<pid_t> children_;
-  pid_t coordinator_ = -1;
+  std::vector<std::unique_ptr<testing::ChildProcess>> children_;
+  testing::ChildProcess* coordinator_ = nullptr;
   int port_ = 0;
   std::unique_ptr<v1::FarmService::Stub> stub_;
 };
@@ -545,7 +489,7 @@ AttributeEnd
 // decisions; the bytes and the report's reached errors are those of `prism render` with the
 // same flags.
 TEST_F(FarmProcessTest, ATargetErrorJobMatchesPrismRenderAcrossACoordinatorRestart) {
-  const int port = free_port();
+  const int port = testing::free_port();
   start_coordinator(port);
   v1::JobSpec s = spec(upload(), 4);
   s.set_target_error(0.05f);
@@ -557,7 +501,7 @@ TEST_F(FarmProcessTest, ATargetErrorJobMatchesPrismRenderAcrossACoordinatorResta
       job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 12; }, 30);
   EXPECT_GE(mid.progress().tasks_done(), 12u);
   ASSERT_LT(mid.progress().tasks_done(), 63u) << "the job finished before the kill";
-  kill9(coordinator_);
+  coordinator_->kill();
   start_coordinator(port);
   start_worker(1);
   const v1::JobInfo done = wait_for(job_id, terminal, 60);
@@ -567,7 +511,7 @@ TEST_F(FarmProcessTest, ATargetErrorJobMatchesPrismRenderAcrossACoordinatorResta
   EXPECT_EQ(done.progress().tasks_done(), 63u);
   const std::vector<float> farm = fetch_spectral(job_id);
   const std::string farm_report = fetch_bytes(job_id, v1::OUTPUT_KIND_REPORT_JSON);
-  kill9(coordinator_);
+  coordinator_->kill();
   {
     auto store = store::JobStore::open(root_ / "data" / "jobs.sqlite");
     ASSERT_TRUE(store.ok()) << store.status();
@@ -648,11 +592,8 @@ TEST_F(FarmProcessTest, BenchOnTheFarmMeasuresExactlyWhatALocalBenchMeasures) {
       args.insert(args.end(),
                   {"--coordinator", "127.0.0.1:" + std::to_string(port_), "--token", kToken});
     }
-    const pid_t pid = spawn(args);
-    int status = 0;
-    ::waitpid(pid, &status, 0);
-    std::erase(children_, pid);
-    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << out;
+    const testing::RunResult r = testing::run(args);
+    EXPECT_EQ(r.exit_code, 0) << out << ": " << r.err;
   };
   auto jobs = [&] {
     v1::ListJobsRequest request;
@@ -708,19 +649,13 @@ TEST_F(FarmProcessTest, BenchOnTheFarmMeasuresExactlyWhatALocalBenchMeasures) {
 // (instead of waiting for ever on its first job).
 TEST_F(FarmProcessTest, BenchOnAFarmWithoutWorkersStopsBeforeSubmittingAnything) {
   start_coordinator();
-  const std::string command =
-      std::string(PRISM_BINARY) + " bench " + (root_ / "scene" / "scene.pbrt").string() +
-      " --spp 4 --seeds 1 --reference-spp 8 --reference-cache " + (root_ / "cache").string() +
-      " -o " + (root_ / "out").string() + " --coordinator 127.0.0.1:" + std::to_string(port_) +
-      " --token " + kToken + " 2>" + (root_ / "stderr.txt").string();
-  const pid_t pid = spawn({"/bin/sh", "-c", command});
-  int status = 0;
-  ::waitpid(pid, &status, 0);
-  std::erase(children_, pid);
-  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 1);
-  std::ifstream err(root_ / "stderr.txt");
-  const std::string message((std::istreambuf_iterator<char>(err)),
-                            std::istreambuf_iterator<char>());
+  const testing::RunResult r =
+      run_prism({"bench", (root_ / "scene" / "scene.pbrt").string(), "--spp", "4", "--seeds", "1",
+                 "--reference-spp", "8", "--reference-cache", (root_ / "cache").string(), "-o",
+                 (root_ / "out").string(), "--coordinator", "127.0.0.1:" + std::to_string(port_),
+                 "--token", kToken},
+                1);
+  const std::string& message = r.err;
   EXPECT_NE(message.find("has no idle or busy worker"), std::string::npos) << message;
   EXPECT_FALSE(fs::exists(root_ / "out" / "results.csv"));
   EXPECT_FALSE(fs::exists(root_ / "cache"));
@@ -734,21 +669,21 @@ TEST_F(FarmProcessTest, BenchOnAFarmWithoutWorkersStopsBeforeSubmittingAnything)
 TEST_F(FarmProcessTest, AWorkerKilledMidJobLeavesTheBytesUnchanged) {
   start_coordinator();
   const std::string job_id = submit(spec(upload(), kSlowSpp));
-  const pid_t doomed = start_worker(0);
+  testing::ChildProcess* doomed = start_worker(0);
   start_worker(1);
   // Kill worker 0 while it holds a lease, after at least one task is done.
   wait_for(
       job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 1; }, 20);
   ASSERT_TRUE(wait_busy("w0", 10));
   ASSERT_LT(get_job(job_id).progress().tasks_done(), 9u) << "the job finished before the kill";
-  kill9(doomed);
+  doomed->kill();
   const v1::JobInfo done = wait_for(job_id, terminal, 30);
   ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
   expect_identical(fetch_spectral(job_id), cli_render(kSlowSpp));
 }
 
 TEST_F(FarmProcessTest, ACoordinatorKilledMidJobResumesWithoutRerenderingFinishedTasks) {
-  const int port = free_port();
+  const int port = testing::free_port();
   start_coordinator(port);
   const std::string job_id = submit(spec(upload(), kSlowSpp));
   start_worker(0);
@@ -756,7 +691,7 @@ TEST_F(FarmProcessTest, ACoordinatorKilledMidJobResumesWithoutRerenderingFinishe
   const v1::JobInfo mid = wait_for(
       job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 3; }, 20);
   ASSERT_LT(mid.progress().tasks_done(), 9u) << "the job finished before the kill";
-  kill9(coordinator_);
+  coordinator_->kill();
   std::map<int, store::TaskRecord> before;
   {
     auto store = store::JobStore::open(root_ / "data" / "jobs.sqlite");
@@ -773,7 +708,7 @@ TEST_F(FarmProcessTest, ACoordinatorKilledMidJobResumesWithoutRerenderingFinishe
   const v1::JobInfo done = wait_for(job_id, terminal, 30);
   ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
   const std::vector<float> farm = fetch_spectral(job_id);
-  kill9(coordinator_);
+  coordinator_->kill();
   {
     auto store = store::JobStore::open(root_ / "data" / "jobs.sqlite");
     ASSERT_TRUE(store.ok()) << store.status();

@@ -2,7 +2,6 @@
 // directory: output bytes do not depend on thread count or tile size, and bad scenes or flags
 // fail with a clear message, a non-zero exit and no file written.
 #include <gtest/gtest.h>
-#include <sys/wait.h>
 
 #include <array>
 #include <cmath>
@@ -18,6 +17,7 @@
 #include "services/base/atomic_file.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/png.h"
+#include "tests/testing/child_process.h"
 
 namespace {
 namespace fs = std::filesystem;
@@ -27,36 +27,15 @@ struct CommandRun {
   std::string output;  // stdout and stderr
 };
 
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) {
-    if (c == '\'') {
-      q.append("'\\''");
-    } else {
-      q.push_back(c);
-    }
-  }
-  q.push_back('\'');
-  return q;
-}
-
-// Runs `prism <args>` with `dir` as the working directory.
+// Runs `prism <args>` with `dir` as the working directory; stdout and stderr in order.
 CommandRun run_prism(const fs::path& dir, const std::vector<std::string>& args) {
-  std::string command = "cd ";
-  command.append(quote(dir.string())).append(" && ").append(quote(PRISM_BINARY));
-  for (const std::string& a : args) command.append(" ").append(quote(a));
-  command.append(" 2>&1");
-  CommandRun run;
-  FILE* pipe = popen(command.c_str(), "r");
-  EXPECT_NE(pipe, nullptr);
-  if (pipe == nullptr) return run;
-  std::array<char, 4096> buffer;
-  std::size_t n;
-  while ((n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0)
-    run.output.append(buffer.data(), n);
-  const int status = pclose(pipe);
-  run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return run;
+  std::vector<std::string> argv = {PRISM_BINARY};
+  argv.insert(argv.end(), args.begin(), args.end());
+  prism::testing::ChildOptions options;
+  options.working_dir = dir;
+  options.merge_stderr = true;
+  const prism::testing::RunResult run = prism::testing::run(std::move(argv), options);
+  return CommandRun{run.exit_code, run.out};
 }
 
 fs::path fresh_dir(const std::string& name) {

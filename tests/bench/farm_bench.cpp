@@ -71,6 +71,7 @@
 #include "services/image/tile_codec.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
+#include "services/rpc/result_upload.h"
 #include "services/scene/bundle.h"
 #include "tests/bench/bench_common.h"
 #include "worker/embree_device.h"
@@ -772,28 +773,13 @@ grpc::Status send_result(v1::WorkerService::Stub& stub, const std::string& worke
   auto context = call(kSecret);
   v1::CompleteTaskResponse done;
   auto writer = stub.CompleteTask(context.get(), &done);
-  const std::vector<std::string_view> chunks = prism::rpc::split_chunks(bytes);
-  std::uint64_t offset = 0;
-  for (std::size_t i = 0; i < chunks.size(); ++i) {
-    v1::ResultUpload upload;
-    if (i == 0) {
-      upload.set_worker_id(worker_id);
-      upload.set_lease_id(lease_id);
-    }
-    upload.set_offset(offset);
-    upload.set_data(std::string(chunks[i]));
-    upload.set_total_bytes(bytes.size());
-    if (i + 1 == chunks.size()) {
-      upload.set_last(true);
-      upload.set_sha256(sha);
-      upload.set_render_seconds(0.5);  // the real worker's statistics, for the same size
-      upload.set_rays(1000000);
-    }
-    offset += chunks[i].size();
-    if (!writer->Write(upload)) break;
-  }
-  writer->WritesDone();
-  grpc::Status status = writer->Finish();
+  prism::rpc::ResultUploadHeader header;
+  header.worker_id = worker_id;
+  header.lease_id = lease_id;
+  header.render_seconds = 0.5;  // the real worker's statistics, for the same size
+  header.rays = 1000000;
+  header.sha256 = sha;
+  grpc::Status status = prism::rpc::upload_result(*writer, header, bytes);
   *accepted = done.accepted();
   return status;
 }

@@ -10,6 +10,7 @@
 #include "services/base/sha256.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
+#include "services/rpc/result_upload.h"
 #include "services/rpc/status_mapping.h"
 
 namespace prism::worker {
@@ -172,33 +173,8 @@ absl::StatusOr<v1::CompleteTaskResponse> WorkerClient::complete_task(
   v1::CompleteTaskResponse response;
   std::unique_ptr<grpc::ClientWriter<v1::ResultUpload>> writer =
       stub_->CompleteTask(&context, &response);
-  const std::vector<std::string_view> chunks = rpc::split_chunks(bytes);
-  std::uint64_t offset = 0;
-  for (std::size_t i = 0; i < chunks.size(); ++i) {
-    v1::ResultUpload upload;
-    if (i == 0) {
-      upload.set_worker_id(worker_id);
-      upload.set_lease_id(lease_id);
-    }
-    upload.set_offset(offset);
-    upload.set_data(std::string(chunks[i]));
-    upload.set_total_bytes(bytes.size());
-    if (i + 1 == chunks.size()) {
-      upload.set_last(true);
-      upload.set_sha256(base::sha256_hex(bytes));
-      upload.set_render_seconds(render_seconds);
-      upload.set_rays(rays);
-      // Most counters are zero for most integrators; an absent key reads as 0.
-      for (const auto& [name, value] : counters) {
-        if (value != 0) (*upload.mutable_counters())[name] = value;
-      }
-    }
-    offset += chunks[i].size();
-    // A failed write means the stream is broken; Finish() says why.
-    if (!writer->Write(upload)) break;
-  }
-  writer->WritesDone();
-  const grpc::Status status = writer->Finish();
+  const grpc::Status status =
+      rpc::upload_result(*writer, {worker_id, lease_id, render_seconds, rays, counters, ""}, bytes);
   if (!status.ok()) return named("CompleteTask", status);
   return response;
 }

@@ -28,6 +28,7 @@
 #include "services/rpc/status_mapping.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
+#include "tests/testing/child_process.h"
 #include "worker/testing/skewed_tables.h"
 #include "worker/tile_renderer.h"
 
@@ -689,32 +690,22 @@ TEST_F(WorkerDaemonTest, APrepassTaskWithIndexZeroFailsTheTaskAsAWorkerFault) {
 // The prism-worker process itself: flags, the secret from the environment, SIGTERM.
 class WorkerProcessTest : public WorkerDaemonTest {
  protected:
-  pid_t spawn(const std::string& address, const std::string& secret) {
-    std::vector<std::string> args = {
-        PRISM_WORKER_BINARY, "--coordinator",     address,  "--threads", "1",
-        "--cache-dir",       cache_dir_.string(), "--host", "proc-host"};
-    std::vector<char*> argv;
-    for (std::string& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    std::string env_secret = "PRISM_WORKER_SECRET=" + secret;
-    std::vector<char*> envp = {env_secret.data(), nullptr};
-    pid_t pid = 0;
-    EXPECT_EQ(posix_spawn(&pid, PRISM_WORKER_BINARY, nullptr, nullptr, argv.data(), envp.data()),
-              0);
-    return pid;
+  // prism-worker against the fake coordinator, its secret from the environment only.
+  std::unique_ptr<prism::testing::ChildProcess> spawn(const std::string& address,
+                                                      const std::string& secret) {
+    prism::testing::ChildOptions options;
+    options.clear_environment = true;
+    options.env = {"PRISM_WORKER_SECRET=" + secret};
+    return prism::testing::ChildProcess::start(
+        {PRISM_WORKER_BINARY, "--coordinator", address, "--threads", "1", "--cache-dir",
+         cache_dir_.string(), "--host", "proc-host"},
+        options);
   }
 
   // The exit status, or -1 if the process did not end within the timeout (it is killed then).
-  static int wait_exit(pid_t pid, std::chrono::milliseconds timeout) {
-    const auto until = Clock::now() + timeout;
-    int status = 0;
-    while (Clock::now() < until) {
-      if (waitpid(pid, &status, WNOHANG) == pid)
-        return WIFEXITED(status) ? WEXITSTATUS(status) : 128;
-      std::this_thread::sleep_for(10ms);
-    }
-    kill(pid, SIGKILL);
-    waitpid(pid, &status, 0);
+  static int wait_exit(prism::testing::ChildProcess& child, std::chrono::milliseconds timeout) {
+    if (std::optional<int> code = child.wait(timeout)) return *code;
+    child.kill();
     return -1;
   }
 };
@@ -722,11 +713,12 @@ class WorkerProcessTest : public WorkerDaemonTest {
 TEST_F(WorkerProcessTest, RendersTheLeaseAndExitsZeroOnSigterm) {
   fake_.lease = make_lease(rect(8, 8, 16, 16), 0, 8, 5);
   fake_.secret = "from-the-environment";
-  const pid_t pid = spawn(start_server(), "from-the-environment");
-  ASSERT_GT(pid, 0);
+  const std::unique_ptr<prism::testing::ChildProcess> worker =
+      spawn(start_server(), "from-the-environment");
+  ASSERT_NE(worker, nullptr);
   const bool uploaded = fake_.wait([&] { return !fake_.uploads.empty(); }, 30s);
-  kill(pid, SIGTERM);
-  EXPECT_EQ(wait_exit(pid, 10s), 0);
+  worker->signal(SIGTERM);
+  EXPECT_EQ(wait_exit(*worker, 10s), 0);
   ASSERT_TRUE(uploaded);
   std::lock_guard<std::mutex> lock(fake_.mutex);
   EXPECT_EQ(fake_.registrations.at(0).host(), "proc-host");
@@ -737,9 +729,9 @@ TEST_F(WorkerProcessTest, RendersTheLeaseAndExitsZeroOnSigterm) {
 
 TEST_F(WorkerProcessTest, ExitsNonZeroWhenTheCoordinatorRefusesItsSecret) {
   fake_.secret = "from-the-environment";
-  const pid_t pid = spawn(start_server(), "wrong");
-  ASSERT_GT(pid, 0);
-  EXPECT_EQ(wait_exit(pid, 20s), 1);
+  const std::unique_ptr<prism::testing::ChildProcess> worker = spawn(start_server(), "wrong");
+  ASSERT_NE(worker, nullptr);
+  EXPECT_EQ(wait_exit(*worker, 20s), 1);
 }
 #endif
 

@@ -1,0 +1,93 @@
+// Test support: child processes for the tests that run Prism's real binaries (the CLI, the
+// coordinator, the worker). One way to start them, wait for them to be ready, read what they
+// print, and never leave one behind: a ChildProcess still running when it goes out of scope is
+// killed and reaped, and when the test has failed its output is printed so the failure can be
+// read from ctest's log. Also a free loopback port and a fresh directory per test.
+#pragma once
+
+#include <sys/types.h>
+
+#include <chrono>
+#include <condition_variable>
+#include <filesystem>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <thread>
+#include <vector>
+
+namespace prism::testing {
+
+struct ChildOptions {
+  std::vector<std::string> env;    // NAME=value entries added to (or replacing in) the test's own
+  bool clear_environment = false;  // start from an empty environment instead of the test's
+  std::filesystem::path working_dir;  // empty: the test's
+  bool merge_stderr = false;          // stderr into the stdout pipe (as `2>&1`), in order
+};
+
+class ChildProcess {
+ public:
+  // Starts the child with its stdout and stderr on pipes that threads drain into memory, so a
+  // chatty child never blocks. Fails the current test (and returns null) when it cannot start.
+  // argv[0] is the binary's path.
+  static std::unique_ptr<ChildProcess> start(std::vector<std::string> argv,
+                                             const ChildOptions& options = {});
+  ~ChildProcess();
+  ChildProcess(const ChildProcess&) = delete;
+  ChildProcess& operator=(const ChildProcess&) = delete;
+
+  pid_t pid() const { return pid_; }
+
+  // The first stdout line containing `needle` (whole, without its newline), waiting up to
+  // `timeout` for it; nullopt when the child closed its stdout or the time ran out first.
+  std::optional<std::string> wait_for_line(std::string_view needle,
+                                           std::chrono::milliseconds timeout);
+
+  // Waits for the child to end: its exit code, or 128 + the signal that ended it; nullopt when it
+  // is still running after `timeout` (it is left running). Once it has ended, out() and err()
+  // hold all it wrote.
+  std::optional<int> wait(std::chrono::milliseconds timeout);
+  int wait();  // without a time limit
+
+  void signal(int sig);  // e.g. SIGTERM to ask for a clean exit
+  void kill();           // SIGKILL and reap (a crash, as kill -9 gives it)
+  bool running();
+
+  std::string out() const;  // stdout so far (with stderr when merged)
+  std::string err() const;  // stderr so far
+
+ private:
+  ChildProcess() = default;
+  void drain(int fd, std::string* into);
+  std::optional<int> reap(bool block);
+
+  std::string name_;  // argv[0], for the failure log
+  pid_t pid_ = -1;
+  std::optional<int> status_;  // once reaped
+  mutable std::mutex mutex_;
+  std::condition_variable changed_;
+  std::string out_, err_;
+  int open_streams_ = 0;
+  std::vector<std::thread> drains_;
+};
+
+// Runs a child to the end: its exit code (128 + signal), stdout and stderr. A child still running
+// after `timeout` is killed and the test fails.
+struct RunResult {
+  int exit_code = -1;
+  std::string out, err;
+};
+RunResult run(std::vector<std::string> argv, const ChildOptions& options = {},
+              std::chrono::milliseconds timeout = std::chrono::minutes(10));
+
+// A loopback TCP port that was free a moment ago (for a server that must be restarted on the
+// same address; servers that can should bind port 0 and print the port they got).
+int free_port();
+
+// A fresh, empty directory under the test temp dir, named after the running test, `name` and
+// the process id.
+std::filesystem::path fresh_dir(const std::string& name = "");
+
+}  // namespace prism::testing
