@@ -53,7 +53,7 @@ struct RenderCommandOptions {
   std::optional<double> alpha;
   std::string poisson;                // empty: the job's default, l2
   bool primal_and_gradients = false;  // also write <stem>.primal.exr and <stem>.gradient.exr
-  // The multi-pass prepass; unset: on for hero when the scene depends on wavelength.
+  // The multi-pass prepass; unset: off (job::prepass_by_default), unless auto asks for it.
   std::optional<bool> prepass;
   std::optional<std::int64_t> prepass_passes;
   std::optional<std::int64_t> prepass_spp;

@@ -64,7 +64,7 @@ struct LocalRenderOptions {
   bool keep_primal_and_gradients = false;
   // With a prepass: keep the final pass's per-pixel tables in the result (reports, dumps).
   bool keep_prepass_tables = false;
-  // The multi-pass prepass (algorithms.md §4), when set: its passes run first and the final
+  // The multi-pass prepass (docs/estimators.md §4), when set: its passes run first and the final
   // pass samples each pixel's learned table.
   std::optional<job::PrepassParameters> prepass;
   // Rendering to a target error (target_error.h), when set: `spp` is the first round's, and

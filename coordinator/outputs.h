@@ -1,7 +1,8 @@
 // A finished render's outputs: the spectral EXR (OpenEXR spectral layout plus R, G, B), an RGB
-// EXR (float32), an 8-bit PNG preview and a JSON report. Colour follows algorithms.md §9: XYZ
-// from the bin averages with the CIE 1931 bin weights (divided by the CIE Y integral), then
-// linear sRGB (D65, no white balance).
+// EXR (float32), an 8-bit PNG preview and a JSON report. Colour follows docs/estimators.md §9:
+// CIE 1931 XYZ as pbrt-v4's `cie1931` sensor records it (∫ CMF·L dλ, no division by the CIE Y
+// integral), then linear sRGB (D65, no white balance). Renders take it from each sample's exact
+// wavelengths (tile_rgb); to_linear_srgb converts bin averages (a reconstructed or loaded image).
 //
 // Naming: the spectral EXR is PATH (`-o`, else the scene Film's filename stem in the current
 // directory, with `.exr`); the others sit beside it as <stem>.rgb.exr, <stem>.png and

@@ -1,4 +1,5 @@
-// Per-pixel 1D screened Poisson reconstruction of spectral gradient sampling (algorithms.md §5).
+// Per-pixel 1D screened Poisson reconstruction of spectral gradient sampling
+// (docs/estimators.md §5).
 //
 // For one pixel with B bins, primal estimate I and gradient estimate G (G[b] estimates
 // I[b+k] − I[b], bins cyclic), the L2 reconstruction is

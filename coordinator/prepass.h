@@ -1,5 +1,5 @@
-// The coordinator's half of the multi-pass prepass (algorithms.md §4, multi-pass paper §4, with
-// the changes of issue 11): after prepass k the coordinator holds the whole image's per-pixel
+// The coordinator's half of the multi-pass prepass (docs/estimators.md §4, multi-pass paper §4,
+// with the changes of issue 11): after prepass k the coordinator holds the whole image's per-pixel
 // second moments and guides, filters them with a joint bilateral filter (no apron needed: every
 // neighbour is there), and gives each pixel the table of bin masses that its predicted variance
 // per sample says is best: a mixture α·learned + (1 − α)·default, α = 0 (the job's default
@@ -14,10 +14,10 @@
 // not for masses proportional to the mean spectrum.
 //
 // Pipeline, per prepass k = 1..K (schedule from prepass_schedule):
-//   render pass k (pass 1 with the job's default distribution, pass k > 1 with the tables of
-//   pass k − 1; pixels without a table are skipped) → add every merged tile's moments to a
-//   MomentImage and its guides to a GuideImage → build_tables (filter, learn, validate, choose)
-//   → encode_tile for the next pass's (or the final pass's) tasks.
+//   render pass k with the job's default distribution (every pass: tables learned from samples
+//   drawn with earlier tables had heavy-tailed moments, docs/benchmarks.md) → add every merged
+//   tile's moments to a MomentImage and its guides to a GuideImage → build_tables (filter,
+//   learn, validate, choose) → after the last pass, encode_tile for the final pass's tasks.
 //
 // Everything here is a pure function of its inputs: rows run in parallel but each output value
 // is computed by one thread in a fixed order, so the bytes do not depend on the thread count.
@@ -62,7 +62,8 @@ absl::StatusOr<std::vector<PrepassPass>> prepass_schedule(const job::PrepassPara
                                                           int width, int height);
 
 // A pixel's guide features (from one primary ray per sample, averaged): depth normalised to
-// [0, 1], shading normal, albedo (luminance of the reflectance).
+// [0, 1] by the far side of the scene's bounding sphere, shading normal, albedo (a diffuse
+// surface's reflectance averaged over the lanes, 1 for every other material).
 struct GuideFeatures {
   float depth = 0.0f;
   float nx = 0.0f, ny = 0.0f, nz = 0.0f;

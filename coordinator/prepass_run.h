@@ -1,5 +1,5 @@
-// One job's prepass as the coordinator drives it (algorithms.md §4 with issue 11's changes): the
-// passes' task plans, the tables each pass's tiles are shipped with, the accumulation of every
+// One job's prepass as the coordinator drives it (docs/estimators.md §4 with issue 11's changes):
+// the passes' task plans, the tables each pass's tiles are shipped with, the accumulation of every
 // pass's merged tiles into the whole-image second moments and guides, and after each pass the
 // reconstruction (prepass.h: joint bilateral filter, second-moment tables with a per-pixel
 // mixture weight) that the next pass (or the final pass) samples. LocalRender and the farm's

@@ -1,7 +1,7 @@
 // How a finished tile's merged sums become its output values. Every job divides the sums by the
-// sample counts (image::finalise); a gradient job (algorithms.md §5) then reconstructs each pixel
-// from its mean primal I and mean gradient G with the screened Poisson solve (poisson.h). Pixels
-// are independent, so a tile is finalised as soon as its last sample range is merged, in the
+// sample counts (image::finalise); a gradient job (docs/estimators.md §5) then reconstructs each
+// pixel from its mean primal I and mean gradient G with the screened Poisson solve (poisson.h).
+// Pixels are independent, so a tile is finalised as soon as its last sample range is merged, in the
 // farm and in `prism render` alike, and the result does not depend on the tiling, except with
 // the variance-weighted norm: its variances are pooled over each pixel's 3×3 block within the
 // tile, so pixels on a tile's edge pool fewer (the tile size is part of the job, so the same

@@ -2,9 +2,9 @@
 // the same sample ranges; results arrive in any order, from any thread or worker, possibly
 // more than once (retries, duplicated leases). The TileAssembler keeps a tile's partial results
 // until every range of that tile is in, then adds them in range order: the merged doubles are
-// therefore bit-identical whatever the arrival order (algorithms.md §7). The finished tile goes
-// to a callback and its partial results are freed, so memory is bounded by the tiles in flight,
-// not by the image.
+// therefore bit-identical whatever the arrival order (docs/estimators.md §7). The finished tile
+// goes to a callback and its partial results are freed, so memory is bounded by the tiles in
+// flight, not by the image.
 //
 // Duplicates are checked by content: every accepted (tile, range) keeps a SHA-256 of its
 // result, also after the tile is finished, so a repeat with identical bytes is accepted and

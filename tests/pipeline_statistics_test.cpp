@@ -1,5 +1,5 @@
 // Unbiasedness of the whole pipelines against the single-wavelength `uniform` path tracer
-// (algorithms.md §8), through coordinator::LocalRender exactly as `prism render` runs them:
+// (docs/estimators.md §8), through coordinator::LocalRender exactly as `prism render` runs them:
 //  - spectral gradient sampling: the workers' I and G, merged, then the per-pixel L2 screened
 //    Poisson reconstruction, with τ = 0 and τ = 1 (which skips the shifts of about a fifth of
 //    the base paths in these scenes), on a prism casting a dispersive caustic, a

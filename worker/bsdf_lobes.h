@@ -2,7 +2,7 @@
 // hit from its material with every spectral parameter already evaluated at the path's
 // wavelength lanes (SampledSpectrum), and works in the local shading frame (z = shading normal).
 //
-// Hero-wavelength sampling (algorithms.md §2): sample() draws a direction with lane 0's (the
+// Hero-wavelength sampling (docs/estimators.md §2): sample() draws a direction with lane 0's (the
 // hero's) parameters and returns, for every lane s, f(wo, wi, λ_s) and the density
 // p(wi | wo, λ_s) with which lane s would have drawn the same direction. The integrator sums
 // those densities over lanes for the CMIS weight. Where a lane cannot produce the direction at all

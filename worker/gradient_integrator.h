@@ -1,4 +1,4 @@
-// Spectral gradient sampling on the worker (algorithms.md §5, spectral gradient paper §3): a
+// Spectral gradient sampling on the worker (docs/estimators.md §5, spectral gradient paper §3): a
 // single-wavelength (C = 1) path tracer whose every base path x̄ at λ (bin i) is shifted to
 // offset paths y₊ at λ + δ and y₋ at λ − δ (δ = k bin widths, cyclic), returning the primal
 // contribution to I[i] and the gradient contributions to G[i] and G[i − k], with

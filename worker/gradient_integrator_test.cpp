@@ -1,4 +1,4 @@
-// Tests of spectral gradient sampling on the worker (algorithms.md §5): the local shift
+// Tests of spectral gradient sampling on the worker (docs/estimators.md §5): the local shift
 // (Jacobians against finite differences of the mapping, invertibility of vertex and whole-path
 // shifts, failure at TIR and grazing angles), and the integrator: E[G[b]] = E[I[b+k]] − E[I[b]]
 // per bin on dispersive scenes with τ = 0 and τ > 0, I identical to `uniform`, exact gradients

@@ -1,4 +1,4 @@
-// The local pieces of the spectral shift mapping (algorithms.md §5, spectral gradient paper
+// The local pieces of the spectral shift mapping (docs/estimators.md §5, spectral gradient paper
 // §3.1): how an offset path at λ' chooses its next direction at one vertex given what the base
 // path did there at λ, and the Jacobian of that choice. Everything is in a vertex's local
 // shading frame (z = shading normal) except the reconnection, which is in world space.

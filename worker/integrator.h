@@ -1,7 +1,7 @@
 // The spectral path tracers: `uniform` (one wavelength per path, C = 1, the unbiased baseline)
 // and `hero` (C = 4 lanes with CMIS rotation), both with next-event estimation, multiple
 // importance sampling over (technique, lane), Russian roulette and homogeneous media
-// (algorithms.md §2–§3).
+// (docs/estimators.md §2–§3).
 //
 // Estimator. A pixel sample draws u and lanes λ_s = P⁻¹((u + s/C) mod 1) from the wavelength
 // distribution; the path is sampled with the hero λ_0. Lane s adds to bin(λ_s)
@@ -11,9 +11,9 @@
 // carries, per lane, β_s = f_s / p_0 and r_k = p_k / p_0 (ratios to the hero's density), which
 // stay finite over long paths. Contributions are per-bin radiance averages (W·m⁻²·sr⁻¹·nm⁻¹).
 //
-// Prepass tracing (algorithms.md §4): a trace can force the lane count (prepass tasks use C = 4
-// whatever the job's integrator) and stop early. A *wavelength-dependent event* is a point of
-// the path where what is evaluated or sampled differs between wavelengths, decided from flags
+// Prepass tracing (docs/estimators.md §4): a trace can force the lane count (prepass tasks use C =
+// 4 whatever the job's integrator) and stop early. A *wavelength-dependent event* is a point of the
+// path where what is evaluated or sampled differs between wavelengths, decided from flags
 // precomputed when the RenderScene is built (one load per vertex, no spectrum evaluated):
 //  - a surface vertex whose material depends_on_wavelength (material.h): a dispersive
 //    dielectric, a diffuse reflectance or a conductor η/k that is not constant;

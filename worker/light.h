@@ -1,5 +1,5 @@
 // Emitters, resolved: spectra evaluated through services/spectral. The `scale` a light is
-// created with is final: RenderScene applies pbrt-v4's rule before (algorithms.md §9: the
+// created with is final: RenderScene applies pbrt-v4's rule before (docs/estimators.md §9: the
 // spectrum is divided by ColorMatching::photometric_sum before the scene's `scale`, and
 // `power` then rescales to a total power).
 // Closed set as a std::variant:

@@ -1,4 +1,4 @@
-// Emitter selection for next-event estimation (algorithms.md §3). An "emitter" is one light
+// Emitter selection for next-event estimation (docs/estimators.md §3). An "emitter" is one light
 // object (an area light over a whole shape, a point, a spot, the environment). The pmf of
 // choosing emitter e at a shading point x for the path's live lanes is
 //

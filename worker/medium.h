@@ -1,7 +1,7 @@
 // Homogeneous participating media with spectral coefficients, and the Henyey–Greenstein phase
 // function. Distance sampling uses the hero lane's extinction, σ_t(λ_0); with C lanes the
 // transmittance and the distance pdf differ per lane, so the integrator weights lane s with
-// the spectral MIS (hero) rule, dividing by Σ_k p_k(t) (algorithms.md §2), which keeps
+// the spectral MIS (hero) rule, dividing by Σ_k p_k(t) (docs/estimators.md §2), which keeps
 // chromatic media unbiased. All values are per lane (SampledSpectrum).
 #pragma once
 

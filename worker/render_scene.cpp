@@ -26,8 +26,8 @@ double photometric_sum(const spectral::Spectrum& s, const spectral::ColorMatchin
 }
 
 // The emission spectrum in its illuminant role and pbrt-v4's scale for it: the scene's `scale`
-// divided by the spectrum's photometric sum, so that `scale` is in units of nits (algorithms.md
-// §9). `what` names the light for messages.
+// divided by the spectrum's photometric sum, so that `scale` is in units of nits
+// (docs/estimators.md §9). `what` names the light for messages.
 struct Emission {
   spectral::Spectrum spectrum;
   double scale = 1;

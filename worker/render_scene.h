@@ -5,7 +5,7 @@
 // Immutable after build(); shared by all render threads.
 //
 // Lights: one AreaLight per shape with an area light (in shape order), then the scene's point,
-// spot and infinite lights (in file order). Emission follows pbrt-v4 (algorithms.md §9): the
+// spot and infinite lights (in file order). Emission follows pbrt-v4 (docs/estimators.md §9): the
 // scale is the scene's `scale` divided by the spectrum's photometric sum (the colour space's
 // illuminant alone for RGB emission); `power` / `illuminance` then multiply it by target / k_e
 // with pbrt-v4's geometric factors (π·area·sides, 4π, the spot's cone integral, π), so that
@@ -74,7 +74,7 @@ class RenderScene {
   int infinite_light() const { return infinite_light_; }  // index into lights(), or -1
   const LightSampler& light_sampler() const { return *light_sampler_; }
   const spectral::WavelengthGrid& grid() const { return grid_; }
-  // p(λ) ∝ p_s · p_e mixed defensively (algorithms.md §1), per the options.
+  // p(λ) ∝ p_s · p_e mixed defensively (docs/estimators.md §1), per the options.
   const spectral::WavelengthDistribution& wavelength_pdf() const { return *wavelength_pdf_; }
   // wavelength_pdf() cut at the job's bins: how a pixel table's bin masses are sampled.
   const spectral::BinnedShape& binned_shape() const { return *binned_shape_; }

@@ -210,7 +210,7 @@ TEST_F(RenderSceneTest, CornellTwoLights) {
 }
 
 // The wavelength pdf follows the options: p_s · p_e, then ε of uniform-over-the-emission mixed
-// in (algorithms.md §1).
+// in (docs/estimators.md §1).
 TEST_F(RenderSceneTest, WavelengthPdfFollowsTheOptions) {
   auto desc = parse(R"(WorldBegin
 LightSource "point" "spectrum I" "stdillum-F11" "point3 from" [0 1 0]

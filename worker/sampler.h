@@ -1,4 +1,4 @@
-// Sample generators (algorithms.md §7). Every number is a pure function of
+// Sample generators (docs/estimators.md §7). Every number is a pure function of
 // (job seed, pass, pixel, sample index, dimension): no state is shared between pixels, threads or
 // tiles, so a tile rendered by any worker, in any order, with any thread count, sees the same
 // numbers and produces the same bytes.

@@ -89,7 +89,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
           const int x = rect.x0 + int(index % width);
           const int y = rect.y0 + int(index / width);
           // A prepass skips the pixels that fell back to the default distribution in an earlier
-          // pass (algorithms.md §4): their all-zero row says so; they keep no samples.
+          // pass (docs/estimators.md §4): their all-zero row says so; they keep no samples.
           if (task.prepass && task.tables != nullptr &&
               task.tables->uses_default(x - rect.x0, y - rect.y0)) {
             if (progress != nullptr) {

@@ -25,8 +25,8 @@ struct RenderTask {
   image::SampleRange samples;
   std::uint32_t pass = 0;  // 0: the final pass; k: prepass k (its own sample streams)
   bool want_guides = false;
-  // A prepass task (algorithms.md §4): traced by the hero path tracer (C = 4 lanes) whatever the
-  // job's integrator, and with `early_stop` paths that have met no wavelength-dependent event
+  // A prepass task (docs/estimators.md §4): traced by the hero path tracer (C = 4 lanes) whatever
+  // the job's integrator, and with `early_stop` paths that have met no wavelength-dependent event
   // after 3 bounces stop (they only shape a pdf).
   bool prepass = false;
   bool early_stop = false;

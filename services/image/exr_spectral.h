@@ -44,7 +44,7 @@ inline constexpr std::string_view kMetaIntegrator = "integrator";
 inline constexpr std::string_view kMetaSeed = "seed";
 inline constexpr std::string_view kMetaJobId = "job_id";
 
-// Spectral gradient sampling (algorithms.md §5). A gradient file is a spectral EXR on Prism's
+// Spectral gradient sampling (docs/estimators.md §5). A gradient file is a spectral EXR on Prism's
 // grid whose `S0.<λ>nm` channel for bin b holds G[b], the estimate of I[b+k] − I[b] (bin indices
 // cyclic mod B) for the primal I of the same render, with these keys:
 //   gradient_offset_bins  k, the offset in bins, a decimal integer with 1 <= k < B;

@@ -200,9 +200,10 @@ absl::StatusOr<std::optional<PrepassParameters>> prepass_of(const prism::v1::Pre
 }  // namespace
 
 bool prepass_by_default(IntegratorKind, const scene::SceneDescription&) {
-  // Off until it never costs error at equal time: measured on single-lamp scenes the prepass of
-  // algorithms.md §4 (bin-constant, mean-proportional tables) was up to 4.2x worse than the
-  // emitter mixture (issue 11, docs/benchmarks.md).
+  // Off until it never costs error at equal time: measured on single-lamp scenes the prepass as
+  // first specified (bin-constant, mean-proportional tables) was up to 4.2x worse than the
+  // emitter mixture, and the second-moment tables of docs/estimators.md §4 still miss some of
+  // issue 11's goals (docs/benchmarks.md).
   return false;
 }
 

@@ -9,7 +9,7 @@
 // job_parameters(to_proto(p), any scene) == p: to_proto() writes every value explicitly, so
 // the result no longer depends on the scene's defaults.
 //
-// The prepass (algorithms.md §4) is off unless a spec's PrepassOptions turns it on
+// The prepass (docs/estimators.md §4) is off unless a spec's PrepassOptions turns it on
 // (prepass_by_default says why).
 #pragma once
 

@@ -15,7 +15,7 @@ namespace prism::job {
 
 enum class IntegratorKind {
   kUniform,   // one wavelength per path (C = 1): the unbiased baseline
-  kHero,      // C = 4 lanes with CMIS rotation (algorithms.md §2)
+  kHero,      // C = 4 lanes with CMIS rotation (docs/estimators.md §2)
   kGradient,  // spectral gradient sampling (§5): C = 1 base paths with offsets at λ ± δ
 };
 
@@ -81,8 +81,8 @@ struct RenderOptions {
   int lanes() const { return integrator == IntegratorKind::kHero ? 4 : 1; }
 };
 
-// The lanes C of a prepass task: the hero path tracer with its default C (algorithms.md §2, §4),
-// whatever the job's integrator.
+// The lanes C of a prepass task: the hero path tracer with its default C (docs/estimators.md §2,
+// §4), whatever the job's integrator.
 inline constexpr int kPrepassLanes = 4;
 
 // k = round(δ_frac · bins): the offset δ = k·w snapped to whole bins so that λ ± δ falls in bin

@@ -1,7 +1,8 @@
 // A scene's spectra as a job resolves them, the same for the worker that traces it and the
 // coordinator that plans its prepass: spectrum and index-of-refraction parameters resolved with
 // the spectrum library in their role, the scene's emitter spectra, and the job's default
-// wavelength distribution (algorithms.md §1) built from them. Job layer: scene and spectral only.
+// wavelength distribution (docs/estimators.md §1) built from them. Job layer: scene and spectral
+// only.
 #pragma once
 
 #include <optional>
@@ -38,7 +39,7 @@ absl::StatusOr<std::vector<spectral::Spectrum>> emitter_spectra(
     const spectral::RgbUplift& uplift);
 
 // The job's default wavelength distribution: p_s · p_e mixed defensively with the emitters'
-// support (algorithms.md §1), or flat when the scene has no lights (`has_lights`).
+// support (docs/estimators.md §1), or flat when the scene has no lights (`has_lights`).
 absl::StatusOr<spectral::WavelengthDistribution> default_wavelength_pdf(
     const scene::SceneDescription& scene, bool has_lights, const RenderOptions& options,
     const spectral::SpectrumLibrary& library, const spectral::RgbUplift& uplift);

@@ -47,6 +47,7 @@ endif()
 if(PRISM_BUILD_TESTS)
   add_test(NAME scene_parser_fuzz_corpus
            COMMAND scene_parser_fuzz_driver ${CMAKE_CURRENT_LIST_DIR}/testdata/parser/fuzz_corpus)
+  set_tests_properties(scene_parser_fuzz_corpus PROPERTIES LABELS unit)
 endif()
 
 prism_test(NAME scene_parser_test

@@ -2,7 +2,7 @@
 // for a spectral path tracer and for the "what depends on wavelength" analysis. Nothing here
 // is evaluated: spectra stay as written (spectrum_param.h), meshes stay in object space.
 //
-// Coordinate conventions (pbrt-v4; see docs/algorithms.md §9):
+// Coordinate conventions (pbrt-v4; see docs/estimators.md §9):
 // - The world is left-handed. Camera space: +z is the viewing direction, +y up, +x to the
 //   right of the image. Raster x grows with camera +x, raster y grows with camera −y (down).
 //   LookAt eye=(0,0,0) look=(0,0,1) up=(0,1,0) makes camera space equal world space, so world
@@ -19,7 +19,7 @@
 //   (pbrt-v4 Triangle::InteractionFromIntersection). Sphere normals point outward in object
 //   space and are flipped under the same XOR rule.
 // - Area lights emit on the side the (final) geometric normal points to, unless two_sided.
-// - Light spectra are normalised by pbrt-v4's rule before `scale` (algorithms.md §9); `power`
+// - Light spectra are normalised by pbrt-v4's rule before `scale` (docs/estimators.md §9); `power`
 //   (or `illuminance`) then rescales to that target. The parser stores the inputs only.
 // - Media: MediumInterface names are resolved when the directive is read; index -1 is vacuum.
 //   A shape whose inside and outside media are equal is not a medium boundary (the ray keeps

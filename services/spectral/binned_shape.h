@@ -1,6 +1,6 @@
 // The job's default wavelength distribution cut at the output bins, so that a per-pixel table of
-// bin masses (the prepass's learned tables, algorithms.md §4) can be sampled with the default's
-// own shape inside each bin:
+// bin masses (the prepass's learned tables, docs/estimators.md §4) can be sampled with the
+// default's own shape inside each bin:
 //
 //   q(λ) = m_b · d(λ) / D_b   for λ in bin b,
 //
@@ -46,7 +46,7 @@ class BinnedShape {
                           const std::uint16_t* guide = nullptr) const;
   float pdf(const QuantisedWavelengthCdf& table, float lambda_nm) const;
   double cdf(const QuantisedWavelengthCdf& table, float lambda_nm) const;
-  // CMIS lanes (algorithms.md §2): lane s at Q⁻¹((u + s/C) mod 1).
+  // CMIS lanes (docs/estimators.md §2): lane s at Q⁻¹((u + s/C) mod 1).
   SampledWavelengths sample_lanes(const QuantisedWavelengthCdf& table, double u, int lanes,
                                   const std::uint16_t* guide = nullptr) const;
 

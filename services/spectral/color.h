@@ -1,10 +1,11 @@
 // Colorimetry for spectral output: the CIE 1931 2° colour-matching functions (1 nm table over
 // 360–830 nm, embedded), spectrum → XYZ, binned spectrum → XYZ, and XYZ → linear sRGB / ACEScg.
 //
-// Conventions (pbrt-v4, algorithms.md §9): XYZ = Σ_{λ=360..830, 1 nm} CMF(λ)·S(λ) / kCieYIntegral,
-// so a spectrum whose photometric sum Σ ȳ·S equals kCieYIntegral has Y = 1. Consequently the
-// CIE D65 spectrum scaled to Y = 1 maps to linear sRGB ≈ (1, 1, 1), and a reflectance seen
-// under such a D65 has the sRGB colour of the reflectance itself (no adaptation needed).
+// Conventions (pbrt-v4, docs/estimators.md §9): XYZ = Σ_{λ=360..830, 1 nm} CMF(λ)·S(λ) /
+// kCieYIntegral, so a spectrum whose photometric sum Σ ȳ·S equals kCieYIntegral has Y = 1.
+// Consequently the CIE D65 spectrum scaled to Y = 1 maps to linear sRGB ≈ (1, 1, 1), and a
+// reflectance seen under such a D65 has the sRGB colour of the reflectance itself (no adaptation
+// needed).
 //
 // White points: sRGB is defined for D65, so XYZ → sRGB needs no adaptation. ACEScg (AP1
 // primaries) uses the ACES white (x, y) = (0.32168, 0.33767), about D60; xyz_to_acescg first

@@ -1,7 +1,7 @@
 // Real index of refraction n(λ) as a closed set of value types (std::variant). Wavelengths are
 // vacuum wavelengths in nm at the interface; the dispersion formulas use µm internally, as their
 // coefficient tables do. Every kind gives n(λ) and its exact derivative dn/dλ per nm (needed by
-// spectral ray differentials and gradient shifts, algorithms.md §5–6). Evaluation is double
+// spectral ray differentials and gradient shifts, docs/estimators.md §5–6). Evaluation is double
 // precision so finite differences and Jacobians are meaningful, and never allocates.
 //   ConstantIor   n fixed; dn/dλ = 0.
 //   CauchyIor     n = Σ_k a_k / λ^(2k), λ in µm (a_0 = A, a_1 = B in µm², …), any term count.

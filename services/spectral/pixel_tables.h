@@ -1,5 +1,5 @@
-// Per-pixel wavelength tables of one tile (algorithms.md §4): what a prepass or final-pass task
-// carries in PdfTable.quantised_cdf, and the worker's decoded, read-only form of it.
+// Per-pixel wavelength tables of one tile (docs/estimators.md §4): what a prepass or final-pass
+// task carries in PdfTable.quantised_cdf, and the worker's decoded, read-only form of it.
 //
 // Wire layout (specified here; types.proto's PdfTable points here): pixels in row-major
 // order over the tile, tile-local index p = y·width + x. Pixel p occupies the bytes
@@ -64,7 +64,7 @@ class WavelengthPdfView {
   double cdf(float lambda_nm) const {
     return table_ != nullptr ? shape_->cdf(*table_, lambda_nm) : distribution_->cdf(lambda_nm);
   }
-  // CMIS lanes (algorithms.md §2), exactly as the underlying density's sample_lanes.
+  // CMIS lanes (docs/estimators.md §2), exactly as the underlying density's sample_lanes.
   SampledWavelengths sample_lanes(double u, int lanes) const {
     return table_ != nullptr ? shape_->sample_lanes(*table_, u, lanes, guide_)
                              : distribution_->sample_lanes(u, lanes);

@@ -1,6 +1,6 @@
 // Per-path wavelength samples and the spectral values that travel with them (pbrt-v4's
 // SampledWavelengths / SampledSpectrum). A path carries C lanes (1..kMaxLanes): lane 0 is the
-// hero wavelength that drives path sampling (algorithms.md §2), each lane has a wavelength in
+// hero wavelength that drives path sampling (docs/estimators.md §2), each lane has a wavelength in
 // nm, the density p(λ) it was drawn with (per nm) and a live flag. A SampledSpectrum is a plain
 // fixed-size array of kMaxLanes floats with elementwise arithmetic over all of them; lanes at
 // or beyond C are ignored by readers (sample() and pdf_spectrum() leave them 0). Both are
@@ -187,7 +187,7 @@ class SampledWavelengths {
   bool secondary_terminated() const { return live_count() == 1; }
 
   // Keeps only the hero lane live: used at a specular dispersive event, where the other lanes'
-  // path densities are zero (algorithms.md §2). Lane pdfs are left as they are, because the
+  // path densities are zero (docs/estimators.md §2). Lane pdfs are left as they are, because the
   // estimator's Σ_k p(x̄|λ_k) already drops the terminated lanes' terms.
   void terminate_secondary() {
     for (int i = 1; i < kMaxLanes; ++i) live_[i] = false;

@@ -1,7 +1,7 @@
-// The wavelength density p(λ) used to draw path wavelengths (algorithms.md §1–2, §4): piecewise
-// constant on N uniform cells over Λ = [360, 830] nm. Cell i covers [360 + i·w, 360 + (i+1)·w),
-// w = 470/N nm (λ = 830 belongs to the last cell), and has probability mass m_i (Σ m_i = 1) and
-// density m_i / w per nm.
+// The wavelength density p(λ) used to draw path wavelengths (docs/estimators.md §1–2, §4):
+// piecewise constant on N uniform cells over Λ = [360, 830] nm. Cell i covers [360 + i·w, 360 +
+// (i+1)·w), w = 470/N nm (λ = 830 belongs to the last cell), and has probability mass m_i (Σ m_i =
+// 1) and density m_i / w per nm.
 //
 // Invariants: sample() returns exactly pdf(λ) for the λ it returns (same stored table, same cell
 // lookup), never returns a λ in a zero-mass cell, and inverts the cdf continuously inside a cell.
@@ -71,7 +71,7 @@ class WavelengthDistribution {
   float pdf(float lambda_nm) const;
   // P(Λ' <= λ), continuous and piecewise linear, 0 below Λ and 1 above.
   double cdf(float lambda_nm) const;
-  // CMIS lane rotation (algorithms.md §2): lane s gets λ_s = P⁻¹((u + s/C) mod 1) and
+  // CMIS lane rotation (docs/estimators.md §2): lane s gets λ_s = P⁻¹((u + s/C) mod 1) and
   // pdf p(λ_s); lane 0 is the hero. lanes in 1..kMaxLanes.
   SampledWavelengths sample_lanes(double u, int lanes) const;
 

@@ -1,5 +1,5 @@
 // The spectral domain Λ = [kLambdaMin, kLambdaMax] nm and its uniform output binning
-// (algorithms.md §1). A WavelengthGrid of B bins (kMinBins..kMaxBins) has width w = 470/B nm;
+// (docs/estimators.md §1). A WavelengthGrid of B bins (kMinBins..kMaxBins) has width w = 470/B nm;
 // bin b covers the half-open interval [360 + b·w, 360 + (b+1)·w), except that λ = 830 belongs
 // to the last bin so the whole closed domain is covered. A grid is an immutable value.
 #pragma once
@@ -15,7 +15,7 @@ inline constexpr float kLambdaMax = 830.0f;  // nm
 inline constexpr float kLambdaRange = kLambdaMax - kLambdaMin;
 
 // λ wrapped into [360, 830) cyclically (period 470 nm), for wavelength shifts of gradient
-// sampling (algorithms.md §5: the spectrum is cyclic). NaN stays NaN.
+// sampling (docs/estimators.md §5: the spectrum is cyclic). NaN stays NaN.
 inline float wrap_wavelength(float lambda_nm) {
   float r = std::fmod(lambda_nm - kLambdaMin, kLambdaRange);
   if (r < 0.0f) r += kLambdaRange;
@@ -48,7 +48,7 @@ class WavelengthGrid {
   int bin_of(float lambda_nm) const;
 
   // Bin index modulo bins(), for any integer (negative too): the spectrum is cyclic for
-  // gradient sampling (algorithms.md §5), so b + k and b − k wrap around.
+  // gradient sampling (docs/estimators.md §5), so b + k and b − k wrap around.
   int wrap(int b) const {
     const int r = b % bins_;
     return r < 0 ? r + bins_ : r;

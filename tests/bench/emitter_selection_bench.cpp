@@ -1,4 +1,4 @@
-// prism-bench-emitter-selection: spectral emitter selection (algorithms.md §3) against the
+// prism-bench-emitter-selection: spectral emitter selection (docs/estimators.md §3) against the
 // power-only pmf at equal time, on the two-emitter Cornell box. Both renders use `hero` with
 // the `power` base pmf; one multiplies it by the lanes' unit-emission factor, the other not.
 //

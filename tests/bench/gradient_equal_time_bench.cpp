@@ -1,4 +1,4 @@
-// prism-bench-gradient-equal-time: spectral gradient sampling (algorithms.md §5) against the
+// prism-bench-gradient-equal-time: spectral gradient sampling (docs/estimators.md §5) against the
 // `uniform` and `hero` integrators at equal time, on the three gradient evaluation scenes
 // (scenes/README.md): a smooth dispersive caustic, a diffuse object inside smooth dispersive
 // glass, and rough dispersive glass under coloured lamps. The gradient paper reports clear gains
