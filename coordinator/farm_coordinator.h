@@ -21,13 +21,18 @@
 // When a job is over (done, failed or cancelled) its tile files and the result blobs no other
 // unfinished job shares are deleted, so the data directory keeps only bundles and outputs.
 //
-// Bundles are checked before anything else uses them: unpack() validates the packed form, then
-// the files are extracted to a fresh directory under the data directory and the scene loader
-// (whose PathGuard refuses anything that escapes the scene's directory) loads it; only a bundle
-// that loads is kept.
+// Bundles are checked before anything else uses them (bundle_store.h).
+//
+// Composition: FarmCoordinator holds the parts and the one locking story. BundleStore
+// (bundle_store.h) keeps the bundles; an ActiveJob (active_job.h) per running job its stages,
+// assemblers and image; the Scheduler (scheduler.h) the leases; JobStore and BlobStore what
+// survives a restart. Its definitions are split by concern: farm_coordinator.cpp (lifecycle,
+// submit, resume, job queries), farm_stages.cpp (stages handed on, events), farm_outputs.cpp
+// (outputs, previews) and farm_workers.cpp (registration, leases, results).
 //
 // Threading: one mutex guards all state; a background thread calls Scheduler::tick(). Long
-// polls (acquire) and watches wait on a condition variable signalled on every change.
+// polls (acquire) and watches wait on a condition variable signalled on every change. The
+// bundle store needs no lock (its state is files, published atomically).
 #pragma once
 
 #include <spdlog/spdlog.h>
@@ -49,6 +54,8 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "coordinator/active_job.h"
+#include "coordinator/bundle_store.h"
 #include "coordinator/finished_tiles.h"
 #include "coordinator/outputs.h"
 #include "coordinator/prepass_run.h"
@@ -191,92 +198,25 @@ class FarmCoordinator {
   void shutdown();
 
  private:
-  // A job's stages in task order: prepass 1..K (when it has a prepass), then the final pass.
-  // Task indices are global over the stages; the Scheduler is given a stage's tasks once the
-  // stage before it is merged and reconstructed (Scheduler::add_tasks), the store has them all.
-  struct ActiveJob {
-    job::JobParameters params;
-    prism::v1::JobSpec spec;
-    TilePlan plan;                             // the final pass
-    std::unique_ptr<TileAssembler> assembler;  // the final pass
-    TileFinaliser finalise;
-    std::optional<PrepassRun> prepass;
-    std::vector<std::unique_ptr<TileAssembler>> prepass_assemblers;  // per prepass
-    std::vector<int> stage_first;  // first task index of each stage, then the task count
-    int stage = 0;                 // the last stage handed to the Scheduler
-    std::map<std::string, std::uint64_t> counters;  // the final pass's, summed
-    double prepass_seconds = 0;  // submit (or resume) to the final pass's start, wall clock
-    std::unique_ptr<FinishedTiles> tiles;  // set by attach_tiles before any result is added
-    std::unique_ptr<image::RgbImage> rgb;  // finished tiles' linear sRGB
-    std::unique_ptr<BinStatisticsAccumulator> statistics;
-    int tiles_finalised = 0;
-    double render_seconds = 0;  // summed over workers
-    std::uint64_t rays = 0;
-    std::chrono::steady_clock::time_point started;
-    std::uint64_t samples_at_start = 0;            // done before this incarnation (resumed)
-    std::vector<SceneFeatureNote> scene_features;  // for the report
-    // Rendering to a target error: the final pass runs as rounds, the stages after the
-    // prepasses, each with its own plan (every tile, the round's samples) and assembler; the
-    // tracker sums each tile's rounds and decides which tiles go on (target_error.h). A tile
-    // that is done has its later rounds' tasks skipped.
-    std::optional<TargetErrorTracker> target;
-    std::vector<TilePlan> round_plans;
-    std::vector<std::unique_ptr<TileAssembler>> round_assemblers;
-  };
-
   explicit FarmCoordinator(FarmOptions options);
   Millis now() const { return options_.clock(); }
   absl::Status start();
   absl::Status resume_locked(const store::JobRecord& record);
-  // Builds the in-memory job (plans, assemblers, image) from explicit parameters; `scene` gives
-  // a prepass its emitter spectra.
-  absl::StatusOr<std::unique_ptr<ActiveJob>> make_active(const job::JobParameters& params,
-                                                         const prism::v1::JobSpec& spec,
-                                                         const scene::SceneDescription& scene);
-  // Loads the checked scene of a stored bundle.
-  absl::StatusOr<scene::LoadedScene> load_bundle_scene(bool allow_unsupported,
-                                                       const std::string& hash,
-                                                       const std::string& scene_path) const;
-  // The last stage's index: the final pass's, or with a target error its last round's.
-  static int final_stage_of(const ActiveJob& job) {
-    return static_cast<int>(job.stage_first.size()) - 2;
-  }
-  // The first stage of the final pass (the number of prepasses).
-  static int first_final_stage(const ActiveJob& job) {
-    return static_cast<int>(job.prepass_assemblers.size());
-  }
-  // Target-error jobs: ends the round that stage job.stage ran (its tiles that are done are
-  // stored and absorbed), and hands the next round's tasks to the Scheduler, skipping the tiles
-  // that are done.
-  absl::Status finish_round_locked(ActiveJob& job);
+  // Target-error jobs: hands the round of stage job.stage to the Scheduler, skipping the tiles
+  // that are done (ActiveJob::finish_round ended the round before).
   absl::Status hand_round_locked(ActiveJob& job, const std::string& job_id);
-  // The task indices [first, last) of tile `tile` in stage `stage`.
-  static std::pair<int, int> tile_tasks(const ActiveJob& job, int stage, int tile);
-  // The stage of a task index, and its tile index within the stage's plan.
-  static int stage_of(const ActiveJob& job, int task_index);
-  static int tile_of(const ActiveJob& job, int task_index);
-  // The tasks of one stage (0-based: prepass k is stage k − 1, the final pass is the last).
-  std::vector<TaskSpec> stage_specs(const ActiveJob& job, int stage) const;
   // A stage's tasks are all done: a prepass is reconstructed and the next stage's tasks go to
   // the Scheduler; after the final pass the job is finalised.
   absl::Status advance_locked(const std::string& job_id);
-  // Opens the job's finished-tile directory.
-  absl::Status attach_tiles(ActiveJob& job, const std::string& job_id) const;
-  // A finished tile's contribution to the job's statistics, RGB image and progress.
-  absl::Status absorb_tile(ActiveJob& job, int tile, const image::TileResult& merged,
-                           const image::SpectralImage& finalised) const;
   // Deletes what a job that is over no longer needs: its tile files and unshared result blobs.
   void clean_up_locked(const std::string& job_id);
   std::filesystem::path tiles_dir(const std::string& job_id) const;
-  std::vector<TaskSpec> task_specs(const ActiveJob& job) const;
   void process_events_locked();
   absl::Status finalise_locked(const std::string& job_id);
   void fail_job_locked(const std::string& job_id, const std::string& message);
   JobStatus status_locked(const store::JobRecord& record) const;
   std::filesystem::path output_dir(const std::string& job_id) const;
   OutputPaths output_paths_of(const std::string& job_id) const;
-  std::filesystem::path bundle_path(const std::string& hash) const;
-  std::filesystem::path scene_dir(const std::string& hash) const;
   void changed_locked();
   void tick_loop();
 
@@ -288,6 +228,7 @@ class FarmCoordinator {
   std::uint64_t change_counter_ = 0;
   std::optional<store::JobStore> store_;
   std::optional<store::BlobStore> blobs_;
+  std::optional<BundleStore> bundles_;
   Scheduler scheduler_;
   std::map<std::string, std::unique_ptr<ActiveJob>> active_;
   std::map<std::string, std::uint64_t> tasks_completed_;  // by worker

@@ -85,4 +85,14 @@ absl::Status write_file_atomic(const std::filesystem::path& path, std::span<cons
   });
 }
 
+absl::Status make_directories(const std::filesystem::path& dir) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) {
+    return absl::InternalError(
+        absl::StrCat("cannot create directory ", dir.string(), ": ", ec.message()));
+  }
+  return absl::OkStatus();
+}
+
 }  // namespace prism::base

@@ -28,4 +28,7 @@ absl::Status write_file_atomic(const std::filesystem::path& path, std::span<cons
 absl::Status write_via_temp(const std::filesystem::path& path,
                             const std::function<absl::Status(const std::filesystem::path&)>& writer);
 
+// Creates `dir` and its parents when missing; INTERNAL naming the directory otherwise.
+absl::Status make_directories(const std::filesystem::path& dir);
+
 }  // namespace prism::base

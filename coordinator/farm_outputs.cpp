@@ -1,0 +1,203 @@
+// FarmCoordinator's outputs (farm_coordinator.h): a finished job's files written atomically from
+// its finished tiles, the files a client fetches, and previews of a running job.
+#include "absl/strings/str_cat.h"
+#include "coordinator/farm_coordinator.h"
+#include "coordinator/job_report.h"
+#include "services/base/atomic_file.h"
+#include "services/base/status.h"
+#include "services/image/exr_spectral.h"
+#include "services/image/png.h"
+
+namespace prism::coordinator {
+
+namespace fs = std::filesystem;
+using SteadyClock = std::chrono::steady_clock;
+
+fs::path FarmCoordinator::output_dir(const std::string& job_id) const {
+  return options_.data_dir / "outputs" / job_id;
+}
+
+OutputPaths FarmCoordinator::output_paths_of(const std::string& job_id) const {
+  const fs::path dir = output_dir(job_id);
+  return OutputPaths{dir / (job_id + ".exr"),        dir / (job_id + ".rgb.exr"),
+                     dir / (job_id + ".png"),        dir / (job_id + ".json"),
+                     dir / (job_id + ".primal.exr"), dir / (job_id + ".gradient.exr")};
+}
+
+absl::StatusOr<std::vector<OutputFile>> FarmCoordinator::result_files(
+    const std::string& job_id, const std::vector<OutputKind>& kinds) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_ASSIGN_OR_RETURN(store::JobRecord record, store_->get_job(job_id));
+  if (record.state != store::JobState::kDone) {
+    return absl::FailedPreconditionError(absl::StrCat("job ", job_id, " is ",
+                                                      store::to_string(record.state),
+                                                      ": its outputs exist once it is DONE"));
+  }
+  prism::v1::JobSpec spec;
+  if (!spec.ParseFromString(record.spec)) {
+    return absl::DataLossError(absl::StrCat("job ", job_id, ": the stored spec does not parse"));
+  }
+  PRISM_ASSIGN_OR_RETURN(job::JobParameters params,
+                         job::job_parameters(spec, scene::SceneDescription{}));
+  const OutputPaths paths = output_paths_of(job_id);
+  std::vector<OutputFile> all;
+  if (params.outputs.spectral_exr)
+    all.push_back({OutputKind::kSpectralExr, paths.spectral_exr, ""});
+  if (params.outputs.rgb_exr) all.push_back({OutputKind::kRgbExr, paths.rgb_exr, ""});
+  if (params.outputs.png) all.push_back({OutputKind::kPng, paths.png, ""});
+  all.push_back({OutputKind::kReportJson, paths.json, ""});
+  if (params.outputs.primal_and_gradients) {
+    all.push_back({OutputKind::kPrimalExr, paths.primal_exr, ""});
+    all.push_back({OutputKind::kGradientExr, paths.gradient_exr, ""});
+  }
+  std::vector<OutputFile> out;
+  for (OutputFile& file : all) {
+    file.file_name = file.path.filename().string();
+    if (kinds.empty() || std::find(kinds.begin(), kinds.end(), file.kind) != kinds.end()) {
+      out.push_back(file);
+    }
+  }
+  if (out.empty()) {
+    return absl::NotFoundError(absl::StrCat("job ", job_id, " has none of the requested outputs"));
+  }
+  return out;
+}
+
+absl::StatusOr<std::string> FarmCoordinator::preview_png(const std::string& job_id,
+                                                         float exposure_stops) {
+  if (!std::isfinite(exposure_stops) || std::fabs(exposure_stops) > job::kMaxJobExposureStops) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("exposure ", exposure_stops, " is out of range: want stops in -",
+                     job::kMaxJobExposureStops, "..", job::kMaxJobExposureStops));
+  }
+  std::optional<image::RgbImage> rgb;
+  std::uint64_t serial = 0;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    PRISM_ASSIGN_OR_RETURN(store::JobRecord record, store_->get_job(job_id));
+    auto it = active_.find(job_id);
+    if (it != active_.end()) {
+      if (it->second->tiles_finalised == 0) {
+        return absl::FailedPreconditionError(
+            absl::StrCat("job ", job_id, " has no finished tile yet"));
+      }
+      rgb = *it->second->rgb;
+    } else if (record.state != store::JobState::kDone) {
+      return absl::FailedPreconditionError(absl::StrCat(
+          "job ", job_id, " is ", store::to_string(record.state), ": it has no image"));
+    }
+    serial = ++temp_counter_;
+  }
+  if (!rgb.has_value()) {
+    PRISM_ASSIGN_OR_RETURN(image::RgbExr exr, image::read_rgb_exr(output_paths_of(job_id).rgb_exr));
+    rgb = std::move(exr.rgb);
+  }
+  const fs::path tmp = options_.data_dir / "tmp" / absl::StrCat("preview-", serial, ".png");
+  PRISM_RETURN_IF_ERROR(image::write_png_preview(tmp, *rgb, exposure_stops));
+  absl::StatusOr<std::string> bytes = base::read_file(tmp);
+  std::error_code ec;
+  fs::remove(tmp, ec);
+  return bytes;
+}
+
+absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
+  auto it = active_.find(job_id);
+  if (it == active_.end()) {
+    return absl::InternalError(absl::StrCat("job ", job_id, " finished but is not active"));
+  }
+  ActiveJob& job = *it->second;
+  if (job.target.has_value()) {
+    if (!job.target->finished()) {
+      return absl::InternalError(absl::StrCat("job ", job_id, " has rounds left to run"));
+    }
+  } else {
+    PRISM_RETURN_IF_ERROR(job.assembler->check_complete());
+  }
+  PRISM_ASSIGN_OR_RETURN(
+      store::JobRecord record,
+      store_->set_job_state(job_id, store::JobState::kFinalising, now().count()));
+  const job::JobParameters& p = job.params;
+  RenderReport report;
+  report.scene = p.scene_path;
+  report.width = p.width;
+  report.height = p.height;
+  report.spp = p.spp;
+  report.bins = p.render.bins;
+  report.integrator = job::name(p.render.integrator);
+  report.spectral_pdf = job::name(p.render.spectral_pdf);
+  report.emitter_pdf = job::name(p.render.emitter_pdf);
+  report.light_selection = job::name(p.render.light_selection);
+  report.spectral_light_selection = p.render.spectral_light_selection;
+  report.max_depth = p.render.max_depth;
+  report.threads = 0;  // spread over the farm's workers
+  report.tile_size = p.tile_size;
+  report.seed = p.render.seed;
+  report.wall_seconds = double(now().count() - record.submitted_ms) / 1000.0;
+  report.render_seconds = job.render_seconds;
+  report.samples =
+      p.spp * static_cast<std::uint64_t>(p.width) * static_cast<std::uint64_t>(p.height);
+  if (job.target.has_value()) {
+    report.target_error = job.target->outcome();
+    report.spp = report.target_error->max_spp;
+    report.samples = report.target_error->samples;
+  }
+  report.rays = job.rays;
+  report.peak_memory_bytes = peak_memory_bytes();
+  report.statistics = job.statistics->finish();
+  report.counters.assign(job.counters.begin(), job.counters.end());
+  report.scene_features = job.scene_features;
+  add_job_sections(p, report);
+  if (report.gradient.has_value()) fill_gradient_counters(report.counters, *report.gradient);
+  if (report.prepass.has_value()) {
+    report.prepass->seconds = job.prepass_seconds;
+    report.prepass->final_seconds =
+        std::chrono::duration<double>(SteadyClock::now() - job.started).count() -
+        job.prepass_seconds;
+    report.prepass->outcome = job.prepass->outcome();
+  }
+
+  const OutputPaths paths = output_paths_of(job_id);
+  PRISM_RETURN_IF_ERROR(base::make_directories(output_dir(job_id)));
+  std::vector<float> band;
+  if (p.outputs.primal_and_gradients) {
+    // The raw I and G with the R, G, B of their own values, made tile by tile from the files.
+    PRISM_ASSIGN_OR_RETURN(image::RgbImage primal_rgb, image::RgbImage::create(p.width, p.height));
+    PRISM_ASSIGN_OR_RETURN(image::RgbImage gradient_rgb,
+                           image::RgbImage::create(p.width, p.height));
+    for (std::size_t t = 0; t < job.plan.tiles.size(); ++t) {
+      PRISM_ASSIGN_OR_RETURN(image::TileResult merged, job.tiles->get(static_cast<int>(t)));
+      PRISM_ASSIGN_OR_RETURN(image::RgbImage a, to_linear_srgb(image::finalise(merged), cmf_));
+      PRISM_ASSIGN_OR_RETURN(image::RgbImage b,
+                             to_linear_srgb(image::finalise_gradients(merged), cmf_));
+      PRISM_RETURN_IF_ERROR(primal_rgb.paste(a, merged.rect().x0, merged.rect().y0));
+      PRISM_RETURN_IF_ERROR(gradient_rgb.paste(b, merged.rect().x0, merged.rect().y0));
+    }
+    std::vector<float> gradient_band;
+    PRISM_RETURN_IF_ERROR(write_primal_and_gradient(
+        p.render.bins, job.tiles->band_rows(), job.tiles->rows(mean_finaliser(), &band), primal_rgb,
+        job.tiles->rows(
+            [](const image::TileResult& merged) -> absl::StatusOr<image::SpectralImage> {
+              return image::finalise_gradients(merged);
+            },
+            &gradient_band),
+        gradient_rgb, report, paths));
+  }
+  PRISM_RETURN_IF_ERROR(write_outputs(p.render.bins, job.tiles->band_rows(),
+                                      job.tiles->rows(job.finalise, &band), *job.rgb, report, paths,
+                                      {p.outputs.png_exposure}));
+  // write_outputs writes every kind; keep what the job asked for, the report, and the RGB EXR
+  // (previews of a finished job are made from it; GetResult serves it only when asked for).
+  std::error_code ec;
+  if (!p.outputs.spectral_exr) fs::remove(paths.spectral_exr, ec);
+  if (!p.outputs.png) fs::remove(paths.png, ec);
+  PRISM_RETURN_IF_ERROR(store_->set_report(job_id, format_report_json(report, paths)));
+  PRISM_RETURN_IF_ERROR(
+      store_->set_job_state(job_id, store::JobState::kDone, now().count()).status());
+  active_.erase(it);
+  (void)scheduler_.remove_job(job_id);
+  clean_up_locked(job_id);
+  options_.logger->info("[job {}] done: wrote {}", job_id, paths.spectral_exr.string());
+  return absl::OkStatus();
+}
+
+}  // namespace prism::coordinator

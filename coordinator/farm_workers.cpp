@@ -1,0 +1,242 @@
+// FarmCoordinator's workers and leases (farm_coordinator.h): registration, lease grants with
+// what a task needs, heartbeats, results checked and merged, failures.
+#include "absl/strings/str_cat.h"
+#include "coordinator/farm_coordinator.h"
+#include "services/base/status.h"
+#include "services/image/tile_codec.h"
+
+namespace prism::coordinator {
+
+namespace fs = std::filesystem;
+using SteadyClock = std::chrono::steady_clock;
+
+absl::StatusOr<store::WorkerRecord> FarmCoordinator::register_worker(
+    store::WorkerRecord record, const std::string& previous_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  record.id.clear();
+  if (!previous_id.empty() && store_->get_worker(previous_id).ok()) record.id = previous_id;
+  record.last_seen_ms = now().count();
+  PRISM_ASSIGN_OR_RETURN(store::WorkerRecord stored, store_->register_worker(std::move(record)));
+  scheduler_.register_worker(stored.id, stored.threads, now());
+  options_.logger->info("[worker {}] registered: host {}, version {}, {} threads", stored.id,
+                        stored.host, stored.version, stored.threads);
+  changed_locked();
+  return stored;
+}
+
+absl::StatusOr<std::optional<LeaseGrant>> FarmCoordinator::acquire(const std::string& worker_id,
+                                                                   Millis wait) {
+  const SteadyClock::time_point deadline = SteadyClock::now() + wait;
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (!stopping_ && scheduler_.knows_worker(worker_id)) {
+    std::optional<Lease> lease = scheduler_.acquire(worker_id, now());
+    if (lease.has_value()) {
+      auto it = active_.find(lease->task.job_id);
+      if (it == active_.end()) {
+        // Cannot happen: the Scheduler only serves running jobs, which are all active.
+        (void)scheduler_.fail(worker_id, lease->id, FailureClass::kInfrastructure,
+                              "the job is not active on the coordinator", now());
+        continue;
+      }
+      absl::StatusOr<int> attempt = store_->record_attempt(lease->task.job_id, lease->task.index);
+      if (!attempt.ok()) {
+        options_.logger->warn("[job {}] cannot record an attempt: {}", lease->task.job_id,
+                              attempt.status().ToString());
+      }
+      options_.logger->debug("[job {} task {}] leased to {} as {}", lease->task.job_id,
+                             lease->task.index, worker_id, lease->id);
+      ActiveJob& job = *it->second;
+      LeaseGrant grant{*lease, job.spec, job.params.bundle_hash};
+      if (job.prepass.has_value()) {
+        const TaskSpec& spec = lease->task.spec;
+        absl::StatusOr<std::optional<std::string>> tables = std::optional<std::string>();
+        if (spec.pass == Pass::kPrepass) {
+          const PrepassPass& pass = job.prepass->pass(spec.pass_index);
+          tables = job.prepass->tables_for_pass(spec.pass_index, spec.tile);
+          grant.want_guides = true;
+          grant.early_stop = true;
+          if (pass.width != job.params.width || pass.height != job.params.height) {
+            grant.film_width = pass.width;
+            grant.film_height = pass.height;
+          }
+        } else if (job.prepass->final_pass_has_tables()) {
+          absl::StatusOr<std::string> final_tables = job.prepass->final_tables(spec.tile);
+          if (final_tables.ok()) {
+            tables = std::optional<std::string>(*std::move(final_tables));
+          } else {
+            tables = final_tables.status();
+          }
+        }
+        if (!tables.ok()) {
+          // Cannot happen: a stage's tasks are handed out only once its tables exist.
+          (void)scheduler_.fail(worker_id, lease->id, FailureClass::kInfrastructure,
+                                std::string(tables.status().message()), now());
+          continue;
+        }
+        grant.pdf_table = *std::move(tables);
+        grant.table_cells = job.prepass->table_cells();
+      }
+      changed_locked();
+      return std::optional<LeaseGrant>(std::move(grant));
+    }
+    const SteadyClock::time_point current = SteadyClock::now();
+    if (current >= deadline) break;
+    // Woken by any change; the short cap also covers leases requeued by tick().
+    changed_.wait_until(lock, std::min(deadline, current + Millis(100)));
+  }
+  return std::optional<LeaseGrant>();
+}
+
+HeartbeatReply FarmCoordinator::heartbeat(const std::string& worker_id,
+                                          const std::vector<std::string>& lease_ids) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  HeartbeatReply reply = scheduler_.heartbeat(worker_id, lease_ids, now());
+  if (scheduler_.knows_worker(worker_id)) (void)store_->touch_worker(worker_id, now().count());
+  process_events_locked();
+  return reply;
+}
+
+absl::StatusOr<CompleteResult> FarmCoordinator::complete(
+    const std::string& worker_id, const std::string& lease_id, std::string bytes,
+    const std::string& sha256, double render_seconds, std::uint64_t rays,
+    const std::vector<std::pair<std::string, std::uint64_t>>& counters) {
+  // Parsing is the expensive part and needs no state.
+  absl::StatusOr<image::TileResult> parsed = image::parse_tile(bytes);
+  std::unique_lock<std::mutex> lock(mutex_);
+  const std::optional<Lease> lease = scheduler_.lease(lease_id);
+  if (lease.has_value() && lease->worker_id == worker_id) {
+    auto it = active_.find(lease->task.job_id);
+    std::string problem;
+    if (!parsed.ok()) {
+      problem = std::string(parsed.status().message());
+    } else if (!(parsed->rect() == lease->task.spec.tile) ||
+               !(parsed->samples() == lease->task.spec.samples)) {
+      problem = "the result's tile or sample range is not the task's";
+    } else if (it != active_.end() && parsed->bins() != it->second->params.render.bins) {
+      problem = absl::StrCat("the result has ", parsed->bins(), " bins, the job ",
+                             it->second->params.render.bins);
+    } else if (it != active_.end()) {
+      // The buffers the task's stage merges: a prepass needs guides, a gradient job's final
+      // pass its gradients. Refused here as the worker's fault, before they could fail the job.
+      const bool prepass = lease->task.spec.pass == Pass::kPrepass;
+      const bool gradient = it->second->params.render.integrator == job::IntegratorKind::kGradient;
+      if (prepass && !parsed->has_guides()) {
+        problem = "a prepass result without guide buffers";
+      } else if (!prepass && !parsed->has_rgb()) {
+        problem = "a final-pass result without RGB buffers (the RGB outputs need them)";
+      } else if (!prepass && gradient && !parsed->has_gradients()) {
+        problem = "a gradient job's result without gradients";
+      } else if (!prepass && gradient &&
+                 it->second->params.render.gradient_variances != parsed->has_halves()) {
+        problem = parsed->has_halves()
+                      ? "a gradient job's result with halves its reconstruction does not use"
+                      : "a variance-weighted gradient job's result without halves";
+      }
+    }
+    if (!problem.empty()) {
+      const std::string message = absl::StrCat("result for lease ", lease_id, ": ", problem);
+      PRISM_RETURN_IF_ERROR(
+          scheduler_.fail(worker_id, lease_id, FailureClass::kWorker, message, now()));
+      process_events_locked();
+      return absl::InvalidArgumentError(message);
+    }
+  }
+  // Stale leases are refused by the Scheduler before anything is stored.
+  std::optional<CompleteReply> reply;
+  if (!lease.has_value() || lease->worker_id != worker_id) {
+    reply = scheduler_.complete(worker_id, lease_id, sha256, now());
+  } else {
+    // Store the bytes first: a task is only marked done once its result is durable. The blob
+    // store is thread-safe, so the (synced) write does not hold up other calls; a lease that
+    // goes stale meanwhile leaves only an unreferenced blob.
+    lock.unlock();
+    absl::Status stored = blobs_->put_verified(sha256, bytes);
+    lock.lock();
+    PRISM_RETURN_IF_ERROR(stored);
+    reply = scheduler_.complete(worker_id, lease_id, sha256, now());
+  }
+  switch (reply->outcome) {
+    case CompleteOutcome::kStale:
+      return absl::FailedPreconditionError(reply->reason);
+    case CompleteOutcome::kDuplicate:
+      return CompleteResult::kDuplicate;
+    case CompleteOutcome::kAccepted:
+      break;
+  }
+  PRISM_CHECK(reply->task.has_value());
+  const Task& task = *reply->task;
+  ++tasks_completed_[worker_id];
+  absl::StatusOr<bool> marked = store_->mark_task_done(task.job_id, task.index, sha256);
+  if (!marked.ok()) {
+    fail_job_locked(task.job_id, absl::StrCat("cannot record task ", task.index, ": ",
+                                              marked.status().message()));
+    return marked.status();
+  }
+  auto it = active_.find(task.job_id);
+  if (it != active_.end()) {
+    ActiveJob& job = *it->second;
+    job.render_seconds += render_seconds;
+    job.rays += rays;
+    const int stage = job.stage_of(task.index);
+    const int tile = job.tile_of(task.index);
+    const bool final_stage = stage >= job.first_final_stage();
+    if (final_stage) {
+      for (const auto& [name, value] : counters) job.counters[name] += value;
+    }
+    absl::Status added =
+        !final_stage
+            ? job.prepass_assemblers[static_cast<std::size_t>(stage)]->add(tile, *std::move(parsed))
+        : job.target.has_value()
+            ? job.round_assemblers[static_cast<std::size_t>(stage - job.first_final_stage())]->add(
+                  tile, *std::move(parsed))
+            : job.assembler->add(tile, *std::move(parsed));
+    if (!added.ok()) {
+      fail_job_locked(task.job_id,
+                      absl::StrCat("merging task ", task.index, ": ", added.message()));
+      return added;
+    }
+    options_.logger->debug("[job {} task {}] accepted from {}", task.job_id, task.index, worker_id);
+  }
+  process_events_locked();
+  changed_locked();
+  return CompleteResult::kAccepted;
+}
+
+absl::Status FarmCoordinator::fail(const std::string& worker_id, const std::string& lease_id,
+                                   FailureClass failure_class, const std::string& message) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_RETURN_IF_ERROR(scheduler_.fail(worker_id, lease_id, failure_class, message, now()));
+  options_.logger->info("[worker {}] lease {} failed ({}): {}", worker_id, lease_id,
+                        to_string(failure_class), message);
+  process_events_locked();
+  changed_locked();
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::vector<WorkerStatus>> FarmCoordinator::workers() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_ASSIGN_OR_RETURN(std::vector<store::WorkerRecord> records, store_->list_workers());
+  std::map<std::string, WorkerInfo> live;
+  for (const WorkerInfo& info : scheduler_.workers()) live[info.id] = info;
+  std::vector<WorkerStatus> out;
+  for (const store::WorkerRecord& record : records) {
+    WorkerStatus status;
+    status.record = record;
+    status.last_seen_ms = record.last_seen_ms;
+    auto it = live.find(record.id);
+    if (it == live.end()) {
+      status.state = "lost";
+    } else {
+      status.leases = it->second.leases;
+      status.current = it->second.current;
+      status.state = it->second.leases > 0 ? "busy" : "idle";
+      status.last_seen_ms = it->second.last_seen.count();
+    }
+    auto done = tasks_completed_.find(record.id);
+    if (done != tasks_completed_.end()) status.tasks_completed = done->second;
+    out.push_back(std::move(status));
+  }
+  return out;
+}
+
+}  // namespace prism::coordinator
