@@ -13,33 +13,20 @@
 #include "worker/light.h"
 #include "worker/material.h"
 #include "worker/medium.h"
+#include "worker/sample_layout.h"
 
 namespace prism::worker {
 namespace {
 
-constexpr float kInfinity = std::numeric_limits<float>::infinity();
-
-// The sample-dimension layout of PathIntegrator (integrator.cpp), so that the base path is drawn
-// exactly like a `uniform` path: offsets consume no numbers of their own.
-constexpr std::uint32_t kDimFilm = 0;
-constexpr std::uint32_t kDimLens = 2;
-constexpr std::uint32_t kDimWavelength = 4;
-constexpr std::uint32_t kDimBounce = 6;
-constexpr std::uint32_t kDimsPerBounce = 12;
-constexpr std::uint32_t kLightPosition = 0;
-constexpr std::uint32_t kLightChoice = 2;
-constexpr std::uint32_t kScatterDirection = 4;
-constexpr std::uint32_t kScatterLobe = 6;
-constexpr std::uint32_t kFreeFlight = 8;
-constexpr std::uint32_t kDimCrossings = 1u << 16;
-constexpr std::uint32_t kCrossingsPerBounce = 64;
+// The base path reads PathIntegrator's sample dimensions (sample_layout.h), so it is drawn
+// exactly like a `uniform` path.
+using namespace layout;
 
 using gradient::BaseEvent;
 using gradient::DivergedNee;
 using gradient::EventValue;
 using gradient::Offset;
 using gradient::OffsetState;
-using gradient::Shadow;
 using gradient::VertexKind;
 
 // Lanes of the shared evaluations: the base and the two offsets.
@@ -282,8 +269,8 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
             auto ls = sample_light(light, ctx, to_point(light_u), choice_u.u1, base_lambda);
             if (ls && ls->pdf > 0 && ls->radiance[0] > 0) {
               const float f = phase.p(wo, ls->wi);
-              Shadow s = tracer.shadow_ray(p, ls->wi, ls->p_light, std::isinf(ls->distance), medium,
-                                           shared, kLanes);
+              Shadow s = trace_shadow(scene_, p, ls->wi, ls->p_light, std::isinf(ls->distance),
+                                      medium, shared, kLanes, counters);
               const float p_light_x = choice->pmf * ls->pdf;
               const float denominator_x = p_light_x + (ls->delta ? 0.0f : f * s.pass[kBase]);
               const float c =
@@ -472,8 +459,9 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
           const Vec3f target = ls->n_light == Vec3f()
                                    ? ls->p_light
                                    : geometry.offset_origin(ls->p_light, ls->n_light, -ls->wi);
-          Shadow s = tracer.shadow_ray(geometry.offset_origin(ctx.p, hit->ng, ls->wi), ls->wi,
-                                       target, std::isinf(ls->distance), medium, shared, kLanes);
+          Shadow s =
+              trace_shadow(scene_, geometry.offset_origin(ctx.p, hit->ng, ls->wi), ls->wi, target,
+                           std::isinf(ls->distance), medium, shared, kLanes, counters);
           const float p_light_x = choice->pmf * ls->pdf;
           const float denominator_x = p_light_x + (ls->delta ? 0.0f : bsdf_pdf_x * s.pass[kBase]);
           const float c =

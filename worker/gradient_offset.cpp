@@ -9,11 +9,6 @@
 #include "worker/medium.h"
 
 namespace prism::worker::gradient {
-namespace {
-
-constexpr float kInfinity = std::numeric_limits<float>::infinity();
-
-}  // namespace
 
 VertexKind kind_of(const Bsdf& bsdf) {
   return {bsdf.index(), is_specular(bsdf), is_dispersive(bsdf),
@@ -52,53 +47,6 @@ void take_step(Offset& o, const EventValue& v, float jacobian, float p_x, const 
   o.pdf_since_prev = v.pdf;
   o.jacobian_last = jacobian;
   o.prev_ctx = ctx;
-}
-
-Shadow OffsetTracer::shadow_ray(Vec3f origin, Vec3f direction, const Vec3f& target,
-                                bool to_infinity, int medium, const SampledWavelengths& lambdas,
-                                int lanes) const {
-  const Geometry& geometry = scene_.geometry();
-  int medium_index = medium;
-  Shadow shadow;
-  for (int i = 0; i < lanes; ++i) shadow.transmittance[i] = shadow.pass[i] = 1.0f;
-  for (int crossings = 0; crossings < 64; ++crossings) {
-    float distance = kInfinity;
-    if (!to_infinity) {
-      Vec3f to_target = target - origin;
-      float length_to_target = length(to_target);
-      if (!(length_to_target > 0) || dot(to_target, direction) <= 0) return shadow;
-      direction = to_target / length_to_target;
-      distance = length_to_target * (1.0f - 1e-4f);
-    }
-    ++counters_.rays;
-    auto hit = geometry.intersect({origin, direction}, distance);
-    float segment = hit ? hit->t : distance;
-    if (medium_index >= 0) {
-      const HomogeneousMedium& m = scene_.media()[medium_index];
-      SampledSpectrum sigma_t = m.sigma_a(lambdas) + m.sigma_s(lambdas);
-      SampledSpectrum t;
-      for (int i = 0; i < lanes; ++i) {
-        t[i] =
-            std::isinf(segment) ? (sigma_t[i] > 0 ? 0.0f : 1.0f) : std::exp(-sigma_t[i] * segment);
-      }
-      shadow.transmittance *= t;
-      if (m.scattering()) {
-        shadow.pass *= t;
-        shadow.scattering = true;
-      }
-    }
-    if (!hit) return shadow;
-    const ShapeInfo& info = scene_.shape(hit->shape);
-    if (!std::holds_alternative<InterfaceMaterial>(
-            scene_.material_at(info.material, *hit, -direction))) {
-      return Shadow{};
-    }
-    if (info.medium_transition) {
-      medium_index = dot(direction, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
-    }
-    origin = geometry.offset_origin(hit->p, hit->ng, direction);
-  }
-  return Shadow{};
 }
 
 void OffsetTracer::trace_own(Offset& o, Ray own) const {
@@ -171,8 +119,9 @@ void OffsetTracer::resolve_pending(Offset& o, const BaseEvent& base, const Surfa
       own_medium = dot(dir, o.hit.ng) < 0 ? info_y.medium_inside : info_y.medium_outside;
     }
     Shadow s =
-        shadow_ray(geometry.offset_origin(o.hit.p, o.hit.ng, dir), dir,
-                   geometry.offset_origin(next->p, next->ng, -dir), false, own_medium, o.lambda, 1);
+        trace_shadow(scene_, geometry.offset_origin(o.hit.p, o.hit.ng, dir), dir,
+                   geometry.offset_origin(next->p, next->ng, -dir), false, own_medium, o.lambda, 1,
+                   counters_);
     if (s.scattering || !(s.transmittance[0] > 0)) return o.fail();
     const float jacobian = reconnection_jacobian(base.position, o.hit.p, next->p, next->ng);
     if (!(jacobian > 0)) return o.fail();
@@ -326,8 +275,8 @@ DivergedNee OffsetTracer::diverged_nee(const Offset& o, const Bsdf& b, const Fra
   out.f = eval(b, wo, wi_y_local)[0] * abs_cos_theta(wi_y_local);
   if (!(out.f > 0) || !(out.le > 0)) return out;
   out.p_bsdf = pdf(b, wo, wi_y_local)[0];
-  Shadow s = shadow_ray(geometry.offset_origin(o.hit.p, o.hit.ng, wi_y), wi_y, target_y,
-                        to_infinity, o.medium, o.lambda, 1);
+  Shadow s = trace_shadow(scene_, geometry.offset_origin(o.hit.p, o.hit.ng, wi_y), wi_y, target_y,
+                        to_infinity, o.medium, o.lambda, 1, counters_);
   out.transmittance = s.transmittance[0];
   out.pass = s.pass[0];
   out.p_light = scene_.light_sampler().pmf(o.hit.p, o.lambda, light_index) * solid_angle_pdf_y;

@@ -14,6 +14,7 @@
 #include "worker/light.h"
 #include "worker/material.h"
 #include "worker/render_scene.h"
+#include "worker/shadow_ray.h"
 
 namespace prism::worker::gradient {
 
@@ -85,15 +86,6 @@ struct BaseEvent {
   float pdf = 0;
 };
 
-// Transmittance along a shadow segment for up to 3 lanes (as PathIntegrator's shadow rays): the
-// transmittance, the probability that free flights would pass, and whether any part ran through
-// a scattering medium. Both spectra are 0 when something opaque blocks the segment.
-struct Shadow {
-  SampledSpectrum transmittance;
-  SampledSpectrum pass;
-  bool scattering = false;
-};
-
 // The factors of a diverged offset's NEE to the base's light sample, in its own measure: BSDF
 // value·|cos|, emitted radiance, transmittance, Jacobian to the base's measure, and the light
 // and BSDF densities of the connection (pass: free-flight pass probability). `valid` false when
@@ -154,9 +146,6 @@ class OffsetTracer {
   // Rays are counted in `counters`.
   OffsetTracer(const RenderScene& scene, TraceCounters& counters)
       : scene_(scene), counters_(counters) {}
-
-  Shadow shadow_ray(Vec3f origin, Vec3f direction, const Vec3f& target, bool to_infinity,
-                    int medium, const SampledWavelengths& lambdas, int lanes) const;
 
   // A diverged offset's own ray: crosses interfaces (absorbing media on the way), stops at its
   // next scattering surface or escapes. A scattering medium, or an emitter on an interface

@@ -9,29 +9,13 @@
 #include "worker/light.h"
 #include "worker/material.h"
 #include "worker/medium.h"
+#include "worker/sample_layout.h"
+#include "worker/shadow_ray.h"
 
 namespace prism::worker {
 namespace {
 
-constexpr float kInfinity = std::numeric_limits<float>::infinity();
-
-// Sample dimensions: a fixed layout so each decision of each bounce always reads the same
-// dimensions (pairs start on even dimensions, where the padded Sobol sampler is a 2D net).
-constexpr std::uint32_t kDimFilm = 0;  // 2D
-constexpr std::uint32_t kDimLens = 2;  // 2D
-constexpr std::uint32_t kDimWavelength = 4;
-constexpr std::uint32_t kDimBounce = 6;  // first dimension of bounce 0
-constexpr std::uint32_t kDimsPerBounce = 12;
-constexpr std::uint32_t kLightPosition = 0;  // 2D
-constexpr std::uint32_t kLightChoice = 2;
-constexpr std::uint32_t kLightExtra = 3;        // read with kLightChoice as one pair
-constexpr std::uint32_t kScatterDirection = 4;  // 2D
-constexpr std::uint32_t kScatterLobe = 6;
-constexpr std::uint32_t kRoulette = 7;  // read with kScatterLobe as one pair
-constexpr std::uint32_t kFreeFlight = 8;
-// Free flights after crossing medium boundaries within one bounce each need fresh numbers.
-constexpr std::uint32_t kDimCrossings = 1u << 16;
-constexpr std::uint32_t kCrossingsPerBounce = 64;
+using namespace layout;  // the sample dimensions (sample_layout.h)
 
 Point2f to_point(const Point2& p) {
   return {p.u0, p.u1};
@@ -139,60 +123,6 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     if (denominator > 0) path.radiance += path.beta * le / denominator;
   };
 
-  // Along a shadow ray to a point (or to infinity for the environment), crossing `interface`
-  // boundaries and media: the transmittance per lane, and the probability that the
-  // unidirectional technique's free flights would have passed the same segments (equal to the
-  // transmittance in scattering media, 1 in purely absorbing ones, which are not sampled).
-  // Both are 0 when anything else blocks the ray.
-  // A finite target is joined by the segment from each (offset) origin to it, not by the
-  // sampled direction: that direction was computed from the un-offset point, and its parallel
-  // line, shifted by the offset, can enter the light's own surface before the target (the
-  // floor-facing half of a sphere resting on the floor occluded itself for most samples).
-  struct Shadow {
-    SampledSpectrum transmittance;
-    SampledSpectrum pass;
-  };
-  auto shadow_ray = [&](Vec3f origin, Vec3f direction, const Vec3f& target, bool to_infinity,
-                        int medium) -> Shadow {
-    Shadow shadow{ones(lanes), ones(lanes)};
-    for (int crossings = 0; crossings < 64; ++crossings) {
-      float distance = kInfinity;
-      if (!to_infinity) {
-        Vec3f to_target = target - origin;
-        float length_to_target = length(to_target);
-        // An interface crossed within the offset of the target: nothing is left to test.
-        if (!(length_to_target > 0) || dot(to_target, direction) <= 0) return shadow;
-        direction = to_target / length_to_target;
-        distance = length_to_target * (1.0f - 1e-4f);
-      }
-      ++counters.rays;
-      auto hit = geometry.intersect({origin, direction}, distance);
-      float segment = hit ? hit->t : distance;
-      if (medium >= 0) {
-        const HomogeneousMedium& m = scene_.media()[medium];
-        SampledSpectrum sigma_t = m.sigma_a(path.lambda) + m.sigma_s(path.lambda);
-        SampledSpectrum t;
-        for (int i = 0; i < lanes; ++i) {
-          t[i] = std::isinf(segment) ? (sigma_t[i] > 0 ? 0.0f : 1.0f)
-                                     : std::exp(-sigma_t[i] * segment);
-        }
-        shadow.transmittance *= t;
-        if (m.scattering()) shadow.pass *= t;
-      }
-      if (!hit) return shadow;
-      const ShapeInfo& info = scene_.shape(hit->shape);
-      if (!std::holds_alternative<InterfaceMaterial>(
-              scene_.material_at(info.material, *hit, -direction))) {
-        return Shadow{};
-      }
-      if (info.medium_transition) {
-        medium = dot(direction, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
-      }
-      origin = geometry.offset_origin(hit->p, hit->ng, direction);
-    }
-    return Shadow{};
-  };
-
   // Next-event estimation from a scattering vertex: `f` gives the per-lane scattering value
   // (BSDF·|cos| or phase) and `pdf` its per-lane density for a direction.
   auto sample_direct = [&](const LightContext& ctx, const Vec3f& origin_normal, std::uint32_t dim,
@@ -214,7 +144,8 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     Vec3f target = ls->n_light == Vec3f()
                        ? ls->p_light
                        : geometry.offset_origin(ls->p_light, ls->n_light, -ls->wi);
-    Shadow shadow = shadow_ray(origin, ls->wi, target, std::isinf(ls->distance), path.medium);
+    const Shadow shadow = trace_shadow(scene_, origin, ls->wi, target, std::isinf(ls->distance),
+                                       path.medium, path.lambda, lanes, counters);
     if (shadow.transmittance.is_zero()) return;
     float p_light = choice->pmf * ls->pdf;
     float denominator = 0;

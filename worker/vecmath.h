@@ -5,11 +5,14 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace prism::worker {
 
 inline constexpr float kPi = 3.14159265358979323846f;
 inline constexpr float kInvPi = 0.31830988618379067154f;
+// The distance of a ray that has no end (to the environment).
+inline constexpr float kInfinity = std::numeric_limits<float>::infinity();
 
 struct Vec3f {
   float x = 0, y = 0, z = 0;
