@@ -20,7 +20,7 @@
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/wavelength_grid.h"
-#include "worker/gradient_pilot.h"
+#include "worker/gradient/pilot.h"
 #include "worker/render_scene.h"
 
 namespace prism::client {

@@ -108,7 +108,7 @@ absl::StatusOr<prism::v1::JobSpec> job_spec_of(const RenderCommandOptions& optio
                                                const std::string& scene_path);
 
 // The gradient integrator's τ when the flags give no number (`--tau auto`, or no --tau): runs the
-// pilot (worker/gradient_pilot.h) on the job `spec` describes, on --threads threads, and writes
+// pilot (worker/gradient/pilot.h) on the job `spec` describes, on --threads threads, and writes
 // its τ and figures into spec.gradient, so the farm and `prism render` trace with the same τ.
 // Returns the pilot's wall seconds, or nothing when no pilot ran (not a gradient job, or τ given).
 absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& options,

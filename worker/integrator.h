@@ -60,7 +60,7 @@ struct TraceCounters {
   std::uint64_t lane_splits = 0;  // paths whose secondary lanes were terminated
   std::uint64_t non_finite = 0;   // contributions dropped because they were NaN or infinite
   std::uint64_t early_stops = 0;  // prepass paths ended by early stop (see the header comment)
-  // Gradient sampling (gradient_integrator.h; the paper's Table 1): base events whose
+  // Gradient sampling (gradient/integrator.h; the paper's Table 1): base events whose
   // contribution passed c > τ, base paths with at least one shifted event, offsets evaluated
   // (one per side of such an event), and of those the shifts that failed (no valid offset path)
   // and the ones wasted because the offset's own contribution was <= τ.

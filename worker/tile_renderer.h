@@ -14,7 +14,7 @@
 #include "absl/status/statusor.h"
 #include "services/image/tile.h"
 #include "services/spectral/pixel_tables.h"
-#include "worker/gradient_integrator.h"
+#include "worker/gradient/integrator.h"
 #include "worker/integrator.h"
 #include "worker/render_scene.h"
 

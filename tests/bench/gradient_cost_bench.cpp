@@ -10,7 +10,7 @@
 // threshold τ (and the fraction whose shift failed).
 //
 // With --tau auto (the default) τ is the one the pilot of `prism render` picks
-// (worker/gradient_pilot.h); its time is printed beside the ratios, not added to them.
+// (worker/gradient/pilot.h); its time is printed beside the ratios, not added to them.
 //
 // Usage: prism-bench-gradient-cost [scene.pbrt ...] [--resolution 160x120] [--spp 16]
 //        [--threads N] [--bins 64] [--delta 0.15] [--tau auto|T] [--repeats 3]
@@ -24,7 +24,7 @@
 
 #include "tests/bench/bench_common.h"
 #include "worker/embree_device.h"
-#include "worker/gradient_pilot.h"
+#include "worker/gradient/pilot.h"
 #include "worker/render_scene.h"
 #include "worker/tile_renderer.h"
 

@@ -15,7 +15,7 @@
 // row's time, and a summary per scene compares the three curves at the time of uniform's
 // longest run. With --inset, the same figures over that rect too (one rect for every scene
 // given, so it is meant for one scene at a time, e.g. the caustic). With --tau auto the pilot
-// (worker/gradient_pilot.h) runs once per job, as `prism render` runs it, and its time is added
+// (worker/gradient/pilot.h) runs once per job, as `prism render` runs it, and its time is added
 // to every run of that curve. Nothing is asserted.
 //
 // Usage: prism-bench-gradient-equal-time [scene.pbrt ...] [--resolution 80x60]
@@ -38,7 +38,7 @@
 #include "services/base/status.h"
 #include "tests/bench/bench_common.h"
 #include "tests/bench/equal_time.h"
-#include "worker/gradient_pilot.h"
+#include "worker/gradient/pilot.h"
 
 namespace prism::bench {
 namespace {

@@ -1,4 +1,4 @@
-#include "worker/gradient_shift.h"
+#include "worker/gradient/shift.h"
 
 #include <cmath>
 

@@ -1,4 +1,4 @@
-#include "worker/gradient_offset.h"
+#include "worker/gradient/offset.h"
 
 #include <cmath>
 #include <limits>
@@ -154,7 +154,7 @@ void OffsetTracer::apply(Offset& o, const OffsetStep& step) const {
       if (!step.scattering) {
         if (o.state == OffsetState::kSame) o.beta *= step.factor[side];
       } else if (o.state == OffsetState::kDiverged) {
-        o.fail();  // no base distance to copy (gradient_integrator.h)
+        o.fail();  // no base distance to copy (integrator.h)
       } else if (o.state == OffsetState::kSame) {
         o.beta *= step.factor[side] / step.p_x;
         o.rho *= step.pdf[side] / step.p_x;

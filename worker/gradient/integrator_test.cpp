@@ -3,7 +3,7 @@
 // shifts, failure at TIR and grazing angles), and the integrator: E[G[b]] = E[I[b+k]] − E[I[b]]
 // per bin on dispersive scenes with τ = 0 and τ > 0, I identical to `uniform`, exact gradients
 // where nothing wavelength-dependent bends paths, numerical corners, deterministic tile bytes.
-#include "worker/gradient_integrator.h"
+#include "worker/gradient/integrator.h"
 
 #include <gtest/gtest.h>
 #include <tbb/parallel_for.h>
@@ -23,7 +23,7 @@
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/testing/chi_square.h"
 #include "worker/fresnel.h"
-#include "worker/gradient_shift.h"
+#include "worker/gradient/shift.h"
 #include "worker/testing/bin_stats.h"
 #include "worker/testing/skewed_tables.h"
 #include "worker/tile_renderer.h"

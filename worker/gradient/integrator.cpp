@@ -1,4 +1,4 @@
-#include "worker/gradient_integrator.h"
+#include "worker/gradient/integrator.h"
 
 #include <cmath>
 #include <limits>
@@ -8,8 +8,8 @@
 #include "services/base/check.h"
 #include "services/spectral/color.h"
 #include "worker/bsdf.h"
-#include "worker/gradient_offset.h"
-#include "worker/gradient_shift.h"
+#include "worker/gradient/offset.h"
+#include "worker/gradient/shift.h"
 #include "worker/light.h"
 #include "worker/material.h"
 #include "worker/medium.h"

@@ -28,7 +28,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "worker/gradient_integrator.h"
+#include "worker/gradient/integrator.h"
 #include "worker/render_scene.h"
 
 namespace prism::worker {

@@ -1,4 +1,4 @@
-#include "worker/gradient_pilot.h"
+#include "worker/gradient/pilot.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>

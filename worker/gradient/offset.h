@@ -1,4 +1,4 @@
-// The offset paths of spectral gradient sampling (gradient_integrator.h describes the shift):
+// The offset paths of spectral gradient sampling (integrator.h describes the shift):
 // an offset's state relative to the base path, and the steps that move a diverged offset on its
 // own: its own rays, the decision at its vertex between reconnecting to the base's next vertex
 // and copying the base's half-vector, and next-event estimation to the base's light point.
@@ -9,7 +9,7 @@
 
 #include "services/spectral/sampled.h"
 #include "worker/bsdf.h"
-#include "worker/gradient_shift.h"
+#include "worker/gradient/shift.h"
 #include "worker/integrator.h"
 #include "worker/light.h"
 #include "worker/material.h"

@@ -32,7 +32,7 @@
 // pair compute identically gives weights that sum to 1, and the offset's own roulette would
 // depend on a throughput the base cannot know.
 //
-// The shift (gradient_shift.h: the local mappings; gradient_offset.h: the offsets' own
+// The shift (shift.h: the local mappings; offset.h: the offsets' own
 // steps), per offset state:
 //  - same: the offset is at the base's vertex with the base's incoming direction. It copies the
 //    sampled direction (J = 1) at every vertex whose sampling does not depend on λ (diffuse,
@@ -87,7 +87,7 @@ struct GradientSample {
   double rgb[3] = {0, 0, 0};
 };
 
-// One base event of a traced sample, for the τ pilot (gradient_pilot.h): the roulette-free value
+// One base event of a traced sample, for the τ pilot (pilot.h): the roulette-free value
 // c the threshold compares, the square c² each side adds unshifted (G[i] −= c, G[i−k] += c), the
 // squares the sides added as traced (up to G[i], down to G[i−k]), the offsets' own roulette-free
 // values (0 where the shift failed or was not tried; a side is shifted at τ when c > τ and its

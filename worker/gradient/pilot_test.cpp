@@ -1,7 +1,7 @@
-// Tests of the automatic τ's pilot (gradient_pilot.h): the choice against hand-computed events,
+// Tests of the automatic τ's pilot (pilot.h): the choice against hand-computed events,
 // the prediction against a trace at the chosen τ on the same samples (it must be exact), the
 // same choice on any thread count, and the refusals.
-#include "worker/gradient_pilot.h"
+#include "worker/gradient/pilot.h"
 
 #include <gtest/gtest.h>
 
