@@ -58,6 +58,283 @@ struct PathState {
   explicit PathState(const SampledWavelengths& l) : lambda(l), lambda_prev(l) {}
 };
 
+// One camera path of PathIntegrator::trace, its state and the estimator's steps by name
+// (docs/estimators.md §2–3): the emission a vertex finds, next-event estimation, a flight
+// through a medium, a scattering at a surface, Russian roulette, and the sample's contribution
+// per lane. It lives for one sample; every step reads its numbers from the sample layout.
+class CameraPath {
+ public:
+  CameraPath(const RenderScene& scene, TraceCounters& counters, const Sampler& sampler,
+             const SampledWavelengths& lambda, int lanes, bool early_stop)
+      : scene_(scene),
+        counters_(counters),
+        sampler_(sampler),
+        lanes_(lanes),
+        early_stop_(early_stop),
+        state(lambda) {
+    state.beta = ones(lanes);
+    state.r = ones(lanes);
+    state.r_prev = state.r;
+    state.medium = scene.camera_medium();
+  }
+
+  // Adds an emitter's radiance found by the unidirectional technique (camera or sampled
+  // direction), weighted against NEE having produced the same vertex.
+  void add_emission(const SampledSpectrum& le, int light, const SurfaceHit* hit,
+                    const Vec3f& direction) {
+    if (le.is_zero()) return;
+    float denominator = lane_sum(state.r, lanes_);
+    if (!state.prev_specular) {
+      float p_light = scene_.light_sampler().pmf(state.prev_ctx.p, state.lambda_prev, light);
+      const Light& l = scene_.lights()[light];
+      if (const auto* area = std::get_if<AreaLight>(&l)) {
+        p_light *= area->pdf(state.prev_ctx, direction, *hit);
+      } else if (const auto* inf = std::get_if<InfiniteLight>(&l)) {
+        p_light *= inf->pdf(state.prev_ctx.p, direction);
+      }
+      for (int k = 0; k < lanes_; ++k) {
+        denominator += state.r_prev[k] * p_light / state.pdf_since_prev;
+      }
+    }
+    if (denominator > 0) state.radiance += state.beta * le / denominator;
+  }
+
+  // The environment seen along an escaping ray.
+  void add_environment(const Ray& ray) {
+    const int infinite = scene_.infinite_light();
+    if (infinite < 0) return;
+    const auto& inf = std::get<InfiniteLight>(scene_.lights()[infinite]);
+    add_emission(inf.radiance(ray.origin, ray.direction, state.lambda), infinite, nullptr,
+                 ray.direction);
+  }
+
+  // Next-event estimation from a scattering vertex: `f_and_pdf` gives the per-lane scattering
+  // value (BSDF·|cos| or phase) and its per-lane density for a direction.
+  template <typename FAndPdf>
+  void sample_direct(const LightContext& ctx, const Vec3f& origin_normal, std::uint32_t dim,
+                     FAndPdf&& f_and_pdf) {
+    const Geometry& geometry = scene_.geometry();
+    const Point2 choice_u = sampler_.at2(dim + kLightChoice);  // choice and extra: one pair
+    auto choice = scene_.light_sampler().sample(ctx.p, state.lambda, choice_u.u0);
+    if (!choice) return;
+    const Light& light = scene_.lights()[choice->light];
+    auto ls = sample_light(light, ctx, to_point(sampler_.at2(dim + kLightPosition)), choice_u.u1,
+                           state.lambda);
+    if (!ls || !(ls->pdf > 0) || ls->radiance.is_zero()) return;
+    SampledSpectrum f, scatter_pdf;
+    f_and_pdf(ls->wi, &f, &scatter_pdf);
+    if (f.is_zero()) return;
+    Vec3f origin =
+        origin_normal == Vec3f() ? ctx.p : geometry.offset_origin(ctx.p, origin_normal, ls->wi);
+    // Both ends leave their surfaces (pbrt-v4's SpawnRayTo): the segment stops just in front of
+    // an area light, on the side facing the shading point, so the light cannot occlude itself.
+    Vec3f target = ls->n_light == Vec3f()
+                       ? ls->p_light
+                       : geometry.offset_origin(ls->p_light, ls->n_light, -ls->wi);
+    const Shadow shadow = trace_shadow(scene_, origin, ls->wi, target, std::isinf(ls->distance),
+                                       state.medium, state.lambda, lanes_, counters_);
+    if (shadow.transmittance.is_zero()) return;
+    float p_light = choice->pmf * ls->pdf;
+    float denominator = 0;
+    for (int k = 0; k < lanes_; ++k) {
+      float p_unidirectional = ls->delta ? 0.0f : scatter_pdf[k] * shadow.pass[k];
+      denominator += state.r[k] * (p_light + p_unidirectional);
+    }
+    if (denominator > 0) {
+      state.radiance += state.beta * f * ls->radiance * shadow.transmittance / denominator;
+    }
+  }
+
+  // Early stop (integrator.h): whether a path without a wavelength-dependent event so far ends
+  // at the vertex from which it would scatter at `depth`.
+  bool stops_early(int depth) {
+    if (!early_stop_ || spectral_event || depth < kEarlyStopBounces) return false;
+    ++counters_.early_stops;
+    return true;
+  }
+
+  // The lanes other than the hero end here (an event only the hero wavelength follows).
+  void terminate_secondary() {
+    if (state.lambda.live_count() <= 1) return;
+    state.lambda.terminate_secondary();
+    for (int k = 1; k < spectral::kMaxLanes; ++k) state.beta[k] = state.r[k] = 0;
+    ++counters_.lane_splits;
+  }
+
+  // The segment of `ray` up to `hit` (or infinity) through the current medium: passed (go on to
+  // the surface), scattered inside the medium (NEE done, `ray` is the new direction from the
+  // medium vertex), or ended.
+  enum class Flight { kPassed, kScattered, kEnded };
+  Flight fly_through_medium(Ray& ray, const std::optional<SurfaceHit>& hit, int depth,
+                            std::uint32_t dim, std::uint32_t flight_dim) {
+    if (state.medium < 0) return Flight::kPassed;
+    const HomogeneousMedium& m = scene_.media()[state.medium];
+    if (m.chromatic()) spectral_event = true;
+    if (!m.scattering()) {
+      // A purely absorbing medium: nothing to sample, the segment's transmittance is the
+      // weight (the same density, 1, for every lane).
+      SampledSpectrum sigma_a = m.sigma_a(state.lambda);
+      if (hit) {
+        state.beta *= spectral::exp(-sigma_a * hit->t);
+      } else {
+        for (int i = 0; i < lanes_; ++i) {
+          if (sigma_a[i] > 0) state.beta[i] = 0;
+        }
+      }
+      return state.beta.is_zero() ? Flight::kEnded : Flight::kPassed;
+    }
+    SampledSpectrum sigma_s = m.sigma_s(state.lambda);
+    SampledSpectrum sigma_t = m.sigma_a(state.lambda) + sigma_s;
+    FreeFlight flight =
+        sample_free_flight(sigma_t, hit ? hit->t : kInfinity, sampler_.at(flight_dim), lanes_);
+    if (!(flight.pdf[0] > 0)) return Flight::kEnded;
+    if (!flight.scattered) {
+      state.beta *= flight.transmittance / flight.pdf[0];
+      state.r *= over_hero(flight.pdf);
+      state.pdf_since_prev *= flight.pdf[0];
+      return state.beta.is_zero() ? Flight::kEnded : Flight::kPassed;
+    }
+    state.beta *= flight.transmittance * sigma_s / flight.pdf[0];
+    state.r *= over_hero(flight.pdf);
+    if (state.beta.is_zero() || depth == scene_.options().max_depth || stops_early(depth)) {
+      return Flight::kEnded;
+    }
+    // A real scattering event inside the medium.
+    Vec3f p = ray.origin + ray.direction * flight.t;
+    Vec3f wo = -ray.direction;
+    const HenyeyGreenstein& phase = m.phase();
+    LightContext ctx{p, Vec3f()};
+    sample_direct(ctx, Vec3f(), dim,
+                  [&](const Vec3f& wi, SampledSpectrum* f, SampledSpectrum* pdf) {
+                    float value = phase.p(wo, wi);
+                    *f = ones(lanes_) * value * state.lambda.live_mask();
+                    *pdf = *f;
+                  });
+    float phase_pdf = 0;
+    Vec3f wi = phase.sample(wo, to_point(sampler_.at2(dim + kScatterDirection)), &phase_pdf);
+    if (!(phase_pdf > 0)) return Flight::kEnded;
+    state.r_prev = state.r;
+    state.lambda_prev = state.lambda;
+    state.prev_ctx = ctx;
+    state.prev_specular = false;
+    state.pdf_since_prev = phase_pdf;
+    ray = {p, wi};
+    return Flight::kScattered;
+  }
+
+  // Scattering at a surface vertex: NEE (unless the BSDF is specular), then the BSDF's sampled
+  // direction becomes `ray`. False when the path ends here. `roulette_u` receives the number
+  // Russian roulette reads after this vertex (it shares its pair with the lobe choice).
+  bool scatter_at_surface(const Bsdf& bsdf, const SurfaceHit& hit, const ShapeInfo& info,
+                          std::uint32_t dim, Ray& ray, float* roulette_u) {
+    const Geometry& geometry = scene_.geometry();
+    Frame frame = Frame::from_xz(hit.dpdu, hit.ns);
+    Vec3f wo = frame.to_local(-ray.direction);
+    LightContext ctx{hit.p, hit.ns};
+    if (!is_specular(bsdf)) {
+      sample_direct(ctx, hit.ng, dim,
+                    [&](const Vec3f& wi, SampledSpectrum* f, SampledSpectrum* pdf) {
+                      Vec3f wi_local = frame.to_local(wi);
+                      *f = eval(bsdf, wo, wi_local) * abs_cos_theta(wi_local);
+                      *pdf = worker::pdf(bsdf, wo, wi_local);
+                    });
+    }
+    const Point2 lobe_and_roulette = sampler_.at2(dim + kScatterLobe);
+    *roulette_u = lobe_and_roulette.u1;
+    auto bs =
+        sample(bsdf, wo, lobe_and_roulette.u0, to_point(sampler_.at2(dim + kScatterDirection)));
+    if (!bs || !(bs->pdf[0] > 0)) return false;
+    state.r_prev = state.r;
+    state.lambda_prev = state.lambda;
+    state.prev_ctx = ctx;
+    state.prev_specular = bs->specular;
+    state.pdf_since_prev = bs->pdf[0];
+    state.beta *= bs->f * (abs_cos_theta(bs->wi) / bs->pdf[0]);
+    state.r *= over_hero(bs->pdf);
+    if (bs->hero_only) terminate_secondary();
+    if (state.beta.is_zero()) return false;
+    Vec3f wi = frame.from_local(bs->wi);
+    if (bs->transmission) {
+      state.eta_scale *= bs->etap * bs->etap;
+      if (info.medium_transition) {
+        state.medium = dot(wi, hit.ng) < 0 ? info.medium_inside : info.medium_outside;
+      }
+    }
+    ray = {geometry.offset_origin(hit.p, hit.ng, wi), wi};
+    return true;
+  }
+
+  // Russian roulette on the path's throughput: false when it ends. The roulette weight
+  // f_s / Σ_k p_k is the same whichever lane is the hero, so the survival probability is too,
+  // and the lane MIS stays consistent.
+  bool survives_roulette(float u) {
+    float r_sum = lane_sum(state.r, lanes_);
+    float weight =
+        r_sum > 0 ? state.beta.max_value(lanes_) * float(state.lambda.live_count()) / r_sum : 0;
+    weight *= state.eta_scale;
+    if (weight < 1.0f) {
+      float q = std::max(0.0f, 1.0f - weight);
+      if (u < q) return false;
+      state.beta /= 1.0f - q;
+    }
+    return true;
+  }
+
+  // The first vertex's guide features (prepass tasks), normalised so that every point of the
+  // scene's bounding sphere lies in [0, 1] and a miss (1) is never nearer than a hit.
+  GuideValues guides_at(const SurfaceHit& hit, const Material& material) const {
+    const Bounds3f& b = scene_.geometry().bounds();
+    const float far = length(scene_.camera().position() - b.centre()) + b.radius();
+    GuideValues g;
+    g.depth = std::min(1.0f, hit.t / std::max(1e-6f, far));
+    g.normal = hit.ns;
+    if (const auto* diffuse = std::get_if<DiffuseMaterial>(&material)) {
+      g.albedo = diffuse->reflectance.at(texture_context(hit), state.lambda).average(lanes_);
+    } else {
+      g.albedo = 1.0f;
+    }
+    return g;
+  }
+
+  // The sample's value per lane: its bin and radiance / (p(λ)·bin width), times the pixel
+  // filter's weight, and its exact-wavelength linear sRGB; nothing for a non-finite radiance.
+  SampleContribution contribution(float filter_weight) {
+    SampleContribution out;
+    out.lanes = lanes_;
+    const spectral::WavelengthGrid& grid = scene_.grid();
+    const float inverse_width = 1.0f / float(grid.bin_width());
+    bool finite = !state.radiance.has_non_finite();
+    const spectral::ColorMatching& cmf = scene_.cmf();
+    for (int s = 0; s < lanes_; ++s) {
+      float pdf = state.lambda.pdf(s);
+      out.bin[s] = grid.bin_of(state.lambda.lambda(s));
+      const bool counted = finite && pdf > 0 && out.bin[s] >= 0;
+      out.value[s] = counted ? state.radiance[s] / pdf * inverse_width * filter_weight : 0.0f;
+      if (counted && state.radiance[s] != 0.0f) {
+        const double estimate = double(state.radiance[s]) / pdf * filter_weight;
+        const spectral::Rgb bar = cmf.srgb(state.lambda.lambda(s));
+        out.rgb[0] += bar.r * estimate;
+        out.rgb[1] += bar.g * estimate;
+        out.rgb[2] += bar.b * estimate;
+      }
+      if (out.bin[s] < 0) out.bin[s] = 0;
+    }
+    if (!finite) ++counters_.non_finite;
+    return out;
+  }
+
+ private:
+  const RenderScene& scene_;
+  TraceCounters& counters_;
+  const Sampler& sampler_;
+  const int lanes_;
+  const bool early_stop_;
+
+ public:
+  PathState state;
+  bool spectral_event = false;  // the path has met a wavelength-dependent event
+};
+
 }  // namespace
 
 std::vector<std::pair<std::string, std::uint64_t>> counter_list(const TraceCounters& c) {
@@ -87,12 +364,9 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
   const int lanes = trace.lanes > 0 ? trace.lanes : options.lanes();
   Sampler sampler(options.sampler, SampleKey{options.seed, pass, std::uint32_t(px),
                                              std::uint32_t(py), sample_index});
-
-  PathState path(lambda_pdf.sample_lanes(sampler.at(kDimWavelength), lanes));
-  path.beta = ones(lanes);
-  path.r = ones(lanes);
-  path.r_prev = path.r;
-  path.medium = scene_.camera_medium();
+  CameraPath path(scene_, counters, sampler,
+                  lambda_pdf.sample_lanes(sampler.at(kDimWavelength), lanes), lanes,
+                  trace.early_stop);
 
   const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
   // The film position from the pixel filter; the sample's value carries the filter's weight.
@@ -101,73 +375,6 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
                                          {lens.u0, lens.u1});
   ++counters.camera_rays;
   if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
-
-  // Adds an emitter's radiance found by the unidirectional technique (camera or sampled
-  // direction), weighted against NEE having produced the same vertex.
-  auto add_emission = [&](const SampledSpectrum& le, int light, const SurfaceHit* hit,
-                          const Vec3f& direction) {
-    if (le.is_zero()) return;
-    float denominator = lane_sum(path.r, lanes);
-    if (!path.prev_specular) {
-      float p_light = scene_.light_sampler().pmf(path.prev_ctx.p, path.lambda_prev, light);
-      const Light& l = scene_.lights()[light];
-      if (const auto* area = std::get_if<AreaLight>(&l)) {
-        p_light *= area->pdf(path.prev_ctx, direction, *hit);
-      } else if (const auto* inf = std::get_if<InfiniteLight>(&l)) {
-        p_light *= inf->pdf(path.prev_ctx.p, direction);
-      }
-      for (int k = 0; k < lanes; ++k) {
-        denominator += path.r_prev[k] * p_light / path.pdf_since_prev;
-      }
-    }
-    if (denominator > 0) path.radiance += path.beta * le / denominator;
-  };
-
-  // Next-event estimation from a scattering vertex: `f` gives the per-lane scattering value
-  // (BSDF·|cos| or phase) and `pdf` its per-lane density for a direction.
-  auto sample_direct = [&](const LightContext& ctx, const Vec3f& origin_normal, std::uint32_t dim,
-                           auto&& f_and_pdf) {
-    const Point2 choice_u = sampler.at2(dim + kLightChoice);  // choice and extra: one pair
-    auto choice = scene_.light_sampler().sample(ctx.p, path.lambda, choice_u.u0);
-    if (!choice) return;
-    const Light& light = scene_.lights()[choice->light];
-    auto ls = sample_light(light, ctx, to_point(sampler.at2(dim + kLightPosition)), choice_u.u1,
-                           path.lambda);
-    if (!ls || !(ls->pdf > 0) || ls->radiance.is_zero()) return;
-    SampledSpectrum f, scatter_pdf;
-    f_and_pdf(ls->wi, &f, &scatter_pdf);
-    if (f.is_zero()) return;
-    Vec3f origin =
-        origin_normal == Vec3f() ? ctx.p : geometry.offset_origin(ctx.p, origin_normal, ls->wi);
-    // Both ends leave their surfaces (pbrt-v4's SpawnRayTo): the segment stops just in front of
-    // an area light, on the side facing the shading point, so the light cannot occlude itself.
-    Vec3f target = ls->n_light == Vec3f()
-                       ? ls->p_light
-                       : geometry.offset_origin(ls->p_light, ls->n_light, -ls->wi);
-    const Shadow shadow = trace_shadow(scene_, origin, ls->wi, target, std::isinf(ls->distance),
-                                       path.medium, path.lambda, lanes, counters);
-    if (shadow.transmittance.is_zero()) return;
-    float p_light = choice->pmf * ls->pdf;
-    float denominator = 0;
-    for (int k = 0; k < lanes; ++k) {
-      float p_unidirectional = ls->delta ? 0.0f : scatter_pdf[k] * shadow.pass[k];
-      denominator += path.r[k] * (p_light + p_unidirectional);
-    }
-    if (denominator > 0) {
-      path.radiance += path.beta * f * ls->radiance * shadow.transmittance / denominator;
-    }
-  };
-
-  auto live_lanes = [&] { return path.lambda.live_count(); };
-
-  // Early stop (integrator.h): whether the path has met a wavelength-dependent event, and the
-  // test at each vertex from which it would scatter at `depth`.
-  bool spectral_event = false;
-  auto stops_early = [&](int depth) {
-    if (!trace.early_stop || spectral_event || depth < kEarlyStopBounces) return false;
-    ++counters.early_stops;
-    return true;
-  };
 
   std::uint32_t crossings = 0;  // medium boundaries crossed since the last scattering vertex
   for (int depth = 0;;) {
@@ -178,187 +385,53 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     ++counters.rays;
     auto hit = geometry.intersect(ray, kInfinity);
 
-    if (path.medium >= 0 && scene_.media()[path.medium].chromatic()) spectral_event = true;
-    if (path.medium >= 0 && !scene_.media()[path.medium].scattering()) {
-      // A purely absorbing medium: nothing to sample, the segment's transmittance is the
-      // weight (the same density, 1, for every lane).
-      SampledSpectrum sigma_a = scene_.media()[path.medium].sigma_a(path.lambda);
-      if (hit) {
-        path.beta *= spectral::exp(-sigma_a * hit->t);
-      } else {
-        for (int i = 0; i < lanes; ++i) {
-          if (sigma_a[i] > 0) path.beta[i] = 0;
-        }
-      }
-      if (path.beta.is_zero()) break;
-    } else if (path.medium >= 0) {
-      const HomogeneousMedium& m = scene_.media()[path.medium];
-      SampledSpectrum sigma_s = m.sigma_s(path.lambda);
-      SampledSpectrum sigma_t = m.sigma_a(path.lambda) + sigma_s;
-      FreeFlight flight =
-          sample_free_flight(sigma_t, hit ? hit->t : kInfinity, sampler.at(flight_dim), lanes);
-      if (!(flight.pdf[0] > 0)) break;
-      if (flight.scattered) {
-        path.beta *= flight.transmittance * sigma_s / flight.pdf[0];
-        path.r *= over_hero(flight.pdf);
-        if (path.beta.is_zero() || depth == options.max_depth || stops_early(depth)) break;
-        // A real scattering event inside the medium.
-        Vec3f p = ray.origin + ray.direction * flight.t;
-        Vec3f wo = -ray.direction;
-        const HenyeyGreenstein& phase = m.phase();
-        LightContext ctx{p, Vec3f()};
-        sample_direct(ctx, Vec3f(), dim,
-                      [&](const Vec3f& wi, SampledSpectrum* f, SampledSpectrum* pdf) {
-                        float value = phase.p(wo, wi);
-                        *f = ones(lanes) * value * path.lambda.live_mask();
-                        *pdf = *f;
-                      });
-        float phase_pdf = 0;
-        Vec3f wi = phase.sample(wo, to_point(sampler.at2(dim + kScatterDirection)), &phase_pdf);
-        if (!(phase_pdf > 0)) break;
-        path.r_prev = path.r;
-        path.lambda_prev = path.lambda;
-        path.prev_ctx = ctx;
-        path.prev_specular = false;
-        path.pdf_since_prev = phase_pdf;
-        ray = {p, wi};
-        ++depth;
-        crossings = 0;
-        continue;
-      }
-      path.beta *= flight.transmittance / flight.pdf[0];
-      path.r *= over_hero(flight.pdf);
-      path.pdf_since_prev *= flight.pdf[0];
-      if (path.beta.is_zero()) break;
+    const CameraPath::Flight flight = path.fly_through_medium(ray, hit, depth, dim, flight_dim);
+    if (flight == CameraPath::Flight::kEnded) break;
+    if (flight == CameraPath::Flight::kScattered) {
+      ++depth;
+      crossings = 0;
+      continue;
     }
 
     if (!hit) {
-      int infinite = scene_.infinite_light();
-      if (infinite >= 0) {
-        const auto& inf = std::get<InfiniteLight>(scene_.lights()[infinite]);
-        add_emission(inf.radiance(ray.origin, ray.direction, path.lambda), infinite, nullptr,
-                     ray.direction);
-      }
+      path.add_environment(ray);
       break;
     }
 
     const ShapeInfo& info = scene_.shape(hit->shape);
     const Material& material = scene_.material_at(info.material, *hit, -ray.direction);
-    if (info.wavelength_dependent) spectral_event = true;
+    if (info.wavelength_dependent) path.spectral_event = true;
     if (depth == 0 && guides && !std::holds_alternative<InterfaceMaterial>(material)) {
-      // Normalised so that every point of the scene's bounding sphere lies in [0, 1] and a miss
-      // (1) is never nearer than a hit.
-      const Bounds3f& b = geometry.bounds();
-      float far = length(scene_.camera().position() - b.centre()) + b.radius();
-      guides->depth = std::min(1.0f, hit->t / std::max(1e-6f, far));
-      guides->normal = hit->ns;
-      if (const auto* diffuse = std::get_if<DiffuseMaterial>(&material)) {
-        guides->albedo = diffuse->reflectance.at(texture_context(*hit), path.lambda).average(lanes);
-      } else {
-        guides->albedo = 1.0f;
-      }
+      *guides = path.guides_at(*hit, material);
     }
     if (info.area_light >= 0) {
       const auto& area = std::get<AreaLight>(scene_.lights()[info.area_light]);
-      add_emission(area.radiance(hit->ng, -ray.direction, path.lambda), info.area_light, &*hit,
-                   ray.direction);
+      path.add_emission(area.radiance(hit->ng, -ray.direction, path.state.lambda), info.area_light,
+                        &*hit, ray.direction);
     }
 
-    auto bsdf = make_bsdf(material, path.lambda, texture_context(*hit));
+    auto bsdf = make_bsdf(material, path.state.lambda, texture_context(*hit));
     if (!bsdf) {
       // A pure medium boundary: continue in the medium on the other side, same path vertex.
       if (info.medium_transition) {
-        path.medium = dot(ray.direction, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
+        path.state.medium =
+            dot(ray.direction, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
       }
       ray.origin = geometry.offset_origin(hit->p, hit->ng, ray.direction);
       if (++crossings == kCrossingsPerBounce) break;
       continue;
     }
-    if (depth == options.max_depth || stops_early(depth)) break;
+    if (depth == options.max_depth || path.stops_early(depth)) break;
     // A coat of wavelength-dependent index was made for the hero wavelength alone (pbrt-v4
     // terminates the others when it makes the BSDF, before next-event estimation).
-    if (terminates_secondary(material) && live_lanes() > 1) {
-      path.lambda.terminate_secondary();
-      for (int k = 1; k < spectral::kMaxLanes; ++k) path.beta[k] = path.r[k] = 0;
-      ++counters.lane_splits;
-    }
-
-    Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
-    Vec3f wo = frame.to_local(-ray.direction);
-    LightContext ctx{hit->p, hit->ns};
-    if (!is_specular(*bsdf)) {
-      sample_direct(ctx, hit->ng, dim,
-                    [&](const Vec3f& wi, SampledSpectrum* f, SampledSpectrum* pdf) {
-                      Vec3f wi_local = frame.to_local(wi);
-                      *f = eval(*bsdf, wo, wi_local) * abs_cos_theta(wi_local);
-                      *pdf = worker::pdf(*bsdf, wo, wi_local);
-                    });
-    }
-
-    const Point2 lobe_and_roulette = sampler.at2(dim + kScatterLobe);
-    auto bs =
-        sample(*bsdf, wo, lobe_and_roulette.u0, to_point(sampler.at2(dim + kScatterDirection)));
-    if (!bs || !(bs->pdf[0] > 0)) break;
-    path.r_prev = path.r;
-    path.lambda_prev = path.lambda;
-    path.prev_ctx = ctx;
-    path.prev_specular = bs->specular;
-    path.pdf_since_prev = bs->pdf[0];
-    path.beta *= bs->f * (abs_cos_theta(bs->wi) / bs->pdf[0]);
-    path.r *= over_hero(bs->pdf);
-    if (bs->hero_only && live_lanes() > 1) {
-      path.lambda.terminate_secondary();
-      for (int k = 1; k < spectral::kMaxLanes; ++k) path.beta[k] = path.r[k] = 0;
-      ++counters.lane_splits;
-    }
-    if (path.beta.is_zero()) break;
-    Vec3f wi = frame.from_local(bs->wi);
-    if (bs->transmission) {
-      path.eta_scale *= bs->etap * bs->etap;
-      if (info.medium_transition) {
-        path.medium = dot(wi, hit->ng) < 0 ? info.medium_inside : info.medium_outside;
-      }
-    }
-    ray = {geometry.offset_origin(hit->p, hit->ng, wi), wi};
+    if (terminates_secondary(material)) path.terminate_secondary();
+    float roulette_u = 0;
+    if (!path.scatter_at_surface(*bsdf, *hit, info, dim, ray, &roulette_u)) break;
     ++depth;
     crossings = 0;
-
-    if (depth >= options.rr_min_depth) {
-      // The roulette weight f_s / Σ_k p_k is the same whichever lane is the hero, so the
-      // survival probability is too, and the lane MIS stays consistent.
-      float r_sum = lane_sum(path.r, lanes);
-      float weight = r_sum > 0 ? path.beta.max_value(lanes) * float(live_lanes()) / r_sum : 0;
-      weight *= path.eta_scale;
-      if (weight < 1.0f) {
-        float q = std::max(0.0f, 1.0f - weight);
-        if (lobe_and_roulette.u1 < q) break;
-        path.beta /= 1.0f - q;
-      }
-    }
+    if (depth >= options.rr_min_depth && !path.survives_roulette(roulette_u)) break;
   }
-
-  SampleContribution out;
-  out.lanes = lanes;
-  const spectral::WavelengthGrid& grid = scene_.grid();
-  const float inverse_width = 1.0f / float(grid.bin_width());
-  bool finite = !path.radiance.has_non_finite();
-  const spectral::ColorMatching& cmf = scene_.cmf();
-  for (int s = 0; s < lanes; ++s) {
-    float pdf = path.lambda.pdf(s);
-    out.bin[s] = grid.bin_of(path.lambda.lambda(s));
-    const bool counted = finite && pdf > 0 && out.bin[s] >= 0;
-    out.value[s] = counted ? path.radiance[s] / pdf * inverse_width * filtered.weight : 0.0f;
-    if (counted && path.radiance[s] != 0.0f) {
-      const double estimate = double(path.radiance[s]) / pdf * filtered.weight;
-      const spectral::Rgb bar = cmf.srgb(path.lambda.lambda(s));
-      out.rgb[0] += bar.r * estimate;
-      out.rgb[1] += bar.g * estimate;
-      out.rgb[2] += bar.b * estimate;
-    }
-    if (out.bin[s] < 0) out.bin[s] = 0;
-  }
-  if (!finite) ++counters.non_finite;
-  return out;
+  return path.contribution(filtered.weight);
 }
 
 }  // namespace prism::worker
