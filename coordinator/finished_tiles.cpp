@@ -15,7 +15,7 @@ namespace fs = std::filesystem;
 
 absl::StatusOr<FinishedTiles> FinishedTiles::open(fs::path dir, TilePlan plan, int width,
                                                   int bins) {
-  if (plan.tiles.empty() || width < 1 || bins < 1 || bins > image::kMaxBins) {
+  if (plan.tiles.empty() || width < 1 || bins < 1 || bins > image::kMaxChannels) {
     return absl::InvalidArgumentError(
         absl::StrCat("finished tiles need a plan with tiles, width ", width, " and bins ", bins));
   }

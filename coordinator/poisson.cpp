@@ -309,9 +309,9 @@ std::string_view to_string(PoissonKernel kernel) {
 // both tiny and large α.
 absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, double alpha,
                                                     PoissonKernel kernel) {
-  if (bins < 4 || bins > image::kMaxBins) {
+  if (bins < 4 || bins > image::kMaxChannels) {
     return absl::InvalidArgumentError(
-        absl::StrCat("Poisson reconstruction: bins = ", bins, "; want 4..", image::kMaxBins));
+        absl::StrCat("Poisson reconstruction: bins = ", bins, "; want 4..", image::kMaxChannels));
   }
   if (offset_bins < 1 || offset_bins >= bins) {
     return absl::InvalidArgumentError(
@@ -597,8 +597,8 @@ void PoissonSolver::solve_l1_pixel(const float* primal, const float* gradient, f
 absl::Status PoissonSolver::solve_l2(std::span<const float> primal, std::span<const float> gradient,
                                      std::span<float> out) const {
   PRISM_RETURN_IF_ERROR(check_one_pixel(bins_, primal, gradient, out));
-  // 2·kMaxBins doubles at most (64 KiB); this path allocates nothing.
-  double scratch[2 * image::kMaxBins];
+  // 2·image::kMaxChannels doubles at most (64 KiB); this path allocates nothing.
+  double scratch[2 * image::kMaxChannels];
   if (solve_l2_one(primal.data(), gradient.data(), out.data(), scratch)) {
     return absl::OkStatus();
   }
@@ -639,14 +639,15 @@ absl::Status PoissonSolver::solve_weighted(std::span<const float> primal,
   }
   // Weights scaled by the mean primal variance (the solution does not change), so they are of
   // order 1 and bounded by 1/kVarianceFloor relative to each other within each term.
-  double a[image::kMaxBins], w_all[image::kMaxBins];
+  double a[image::kMaxChannels], w_all[image::kMaxChannels];
   for (std::size_t b = 0; b < B; ++b) {
     a[b] = mean_i / std::max(double(primal_variance[b]), kVarianceFloor * mean_i);
     w_all[b] = mean_i / std::max(double(gradient_variance[b]), kVarianceFloor * mean_g);
   }
   const int L = length_;
-  double chain_a[image::kMaxBins], w[image::kMaxBins], rhs[image::kMaxBins], x[image::kMaxBins];
-  double cp[image::kMaxBins], dp[image::kMaxBins], dz[image::kMaxBins];
+  double chain_a[image::kMaxChannels], w[image::kMaxChannels], rhs[image::kMaxChannels],
+      x[image::kMaxChannels];
+  double cp[image::kMaxChannels], dp[image::kMaxChannels], dz[image::kMaxChannels];
   for (int c = 0; c < chains_; ++c) {
     const int* order = order_.data() + c * L;
     for (int j = 0; j < L; ++j) {

@@ -52,7 +52,7 @@ std::string_view to_string(PoissonKernel kernel);
 // The solver for one (B, k, α): immutable once built, shared freely between threads.
 class PoissonSolver {
  public:
-  // INVALID_ARGUMENT naming the value unless 4 <= bins <= image::kMaxBins,
+  // INVALID_ARGUMENT naming the value unless 4 <= bins <= image::kMaxChannels,
   // 1 <= offset_bins < bins and α is finite and in [job::kMinPoissonAlpha, job::kMaxPoissonAlpha].
   static absl::StatusOr<PoissonSolver> create(int bins, int offset_bins, double alpha,
                                               PoissonKernel kernel = PoissonKernel::kAuto);
@@ -85,8 +85,8 @@ class PoissonSolver {
   // weights, so with weights independent of I and G the result is unbiased, and with weights
   // estimated from the same samples it is consistent. A pixel whose mean v_I or v_G is 0
   // (nothing varies, or no gradient was measured) returns I. Errors as solve_l2, and
-  // INVALID_ARGUMENT for a negative or non-finite variance. Allocates nothing (at most 8·kMaxBins
-  // doubles of stack).
+  // INVALID_ARGUMENT for a negative or non-finite variance. Allocates nothing (at most
+  // 8·image::kMaxChannels doubles of stack).
   absl::Status solve_weighted(std::span<const float> primal, std::span<const float> gradient,
                               std::span<const float> primal_variance,
                               std::span<const float> gradient_variance, std::span<float> out) const;

@@ -341,9 +341,9 @@ MomentImage::MomentImage(image::SpectralImage moments)
       samples_(std::size_t(moments_.width()) * std::size_t(moments_.height()), 0.0) {}
 
 absl::StatusOr<MomentImage> MomentImage::create(int width, int height, int bins) {
-  if (bins < 1 || 2 * bins > image::kMaxBins) {
+  if (bins < 1 || 2 * bins > image::kMaxChannels) {
     return absl::InvalidArgumentError(
-        absl::StrCat("prepass moments need 1 to ", image::kMaxBins / 2, " bins, got ", bins));
+        absl::StrCat("prepass moments need 1 to ", image::kMaxChannels / 2, " bins, got ", bins));
   }
   PRISM_ASSIGN_OR_RETURN(image::SpectralImage moments,
                          image::SpectralImage::create(width, height, 2 * bins));

@@ -102,7 +102,7 @@ absl::Status reconstruct_weighted(const PoissonSolver& solver, const image::Tile
       std::span<float> pixel = out.data().subspan(o, B);
       std::fill(pixel.begin(), pixel.end(), 0.0f);
       if (n == 0) continue;
-      double combined[image::kMaxBins] = {};
+      double combined[image::kMaxChannels] = {};
       for (int h = 0; h < 2; ++h) {
         if (n_half[h] == 0) continue;
         const Half& other = halves[1 - h];

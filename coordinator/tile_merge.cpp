@@ -73,7 +73,7 @@ absl::StatusOr<std::unique_ptr<TileAssembler>> TileAssembler::create(TilePlan pl
   if (plan.tiles.empty() || plan.ranges.empty()) {
     return absl::InvalidArgumentError("cannot assemble a plan without tiles or sample ranges");
   }
-  if (bins < 1 || bins > image::kMaxBins) {
+  if (bins < 1 || bins > image::kMaxChannels) {
     return absl::InvalidArgumentError(absl::StrCat("bins ", bins, " is out of range"));
   }
   for (std::size_t i = 1; i < plan.ranges.size(); ++i) {

@@ -39,9 +39,10 @@ using TileCallback = std::function<absl::Status(int tile_index, const image::Til
 
 class TileAssembler {
  public:
-  // INVALID_ARGUMENT when the plan has no tiles or ranges, or bins is outside [1, kMaxBins].
-  // `finalise` (default: mean_finaliser()) runs on each finished tile before the callback; its
-  // error is returned by the add() that completed the tile, and the tile counts as finished.
+  // INVALID_ARGUMENT when the plan has no tiles or ranges, or bins is outside [1,
+  // image::kMaxChannels]. `finalise` (default: mean_finaliser()) runs on each finished tile before
+  // the callback; its error is returned by the add() that completed the tile, and the tile counts
+  // as finished.
   static absl::StatusOr<std::unique_ptr<TileAssembler>> create(TilePlan plan, int bins,
                                                                TileCallback on_tile,
                                                                TileFinaliser finalise = nullptr);

@@ -223,10 +223,10 @@ absl::StatusOr<ExrImage> read_exr_channels(const std::filesystem::path& path, Re
                            spectral_channels[i].second, " name the same wavelength"));
         }
       }
-      if (spectral_channels.size() > std::size_t(kMaxBins)) {
+      if (spectral_channels.size() > std::size_t(kMaxChannels)) {
         return absl::InvalidArgumentError(
             absl::StrCat(path.string(), " has ", spectral_channels.size(),
-                         " spectral channels; at most ", kMaxBins, " are supported"));
+                         " spectral channels; at most ", kMaxChannels, " are supported"));
       }
     } else if (!has_rgb) {
       return absl::InvalidArgumentError(
@@ -356,7 +356,8 @@ absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
         absl::StrCat("cannot write ", path.string(), ": RGB image is ", rgb.width(), "x",
                      rgb.height(), " but the spectral image is ", width, "x", height));
   }
-  if (wavelengths_nm.empty() || wavelengths_nm.size() > std::size_t(kMaxBins) || band_rows < 1) {
+  if (wavelengths_nm.empty() || wavelengths_nm.size() > std::size_t(kMaxChannels) ||
+      band_rows < 1) {
     return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(), ": ",
                                                    wavelengths_nm.size(), " wavelengths and ",
                                                    band_rows, " rows per band"));

@@ -14,9 +14,9 @@ absl::Status validate_image_size(int width, int height, int channels, const char
                                                    " is out of range: each side must be in [1, ",
                                                    kMaxImageSide, "]"));
   }
-  if (channels < 1 || channels > kMaxBins) {
+  if (channels < 1 || channels > kMaxChannels) {
     return absl::InvalidArgumentError(
-        absl::StrCat(what, " has ", channels, " bins; allowed are 1..", kMaxBins));
+        absl::StrCat(what, " has ", channels, " bins; allowed are 1..", kMaxChannels));
   }
   std::uint64_t values = std::uint64_t(width) * std::uint64_t(height) * std::uint64_t(channels);
   if (values > kMaxImageValues) {
@@ -158,9 +158,9 @@ absl::Status TileResult::validate(const TileRect& rect, const SampleRange& sampl
     return absl::InvalidArgumentError(
         absl::StrCat("sample range [", samples.s0, ",", samples.s1, ") is reversed"));
   }
-  if (bins < 1 || bins > kMaxBins) {
+  if (bins < 1 || bins > kMaxChannels) {
     return absl::InvalidArgumentError(
-        absl::StrCat("tile has ", bins, " bins; allowed are 1..", kMaxBins));
+        absl::StrCat("tile has ", bins, " bins; allowed are 1..", kMaxChannels));
   }
   if (buffers.halves && !buffers.gradients) {
     return absl::InvalidArgumentError("tile has halves (variance buffers) but no gradients");

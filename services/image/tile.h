@@ -46,8 +46,9 @@
 
 namespace prism::image {
 
-// Largest number of bins (or other per-pixel channels) an image or tile may carry.
-inline constexpr int kMaxBins = 4096;
+// Largest number of channels per pixel an image or tile may carry: spectral bins (at most
+// spectral::WavelengthGrid::kMaxBins, 256) or derived channels such as the prepass's moments.
+inline constexpr int kMaxChannels = 4096;
 // Largest width or height of an image.
 inline constexpr int kMaxImageSide = 1 << 16;
 // Largest number of float values in one image (16 GiB of float32 is far beyond any job).
@@ -86,7 +87,7 @@ struct SampleRange {
 };
 
 // A dense float32 spectral image (layout above). Construction validates the sizes, so every
-// SpectralImage in existence has width, height >= 1, 1 <= bins <= kMaxBins and
+// SpectralImage in existence has width, height >= 1, 1 <= bins <= kMaxChannels and
 // data().size() == width*height*bins.
 class SpectralImage {
  public:
@@ -181,7 +182,7 @@ inline constexpr std::int64_t kMaxTileArea = std::int64_t{1} << 22;
 class TileResult {
  public:
   // INVALID_ARGUMENT when the rect is empty, invalid or larger than kMaxTileArea, the sample
-  // range is reversed, bins is outside [1, kMaxBins], or a counter name is malformed/repeated.
+  // range is reversed, bins is outside [1, kMaxChannels], or a counter name is malformed/repeated.
   static absl::StatusOr<TileResult> create(const TileRect& rect, const SampleRange& samples,
                                            int bins, const TileBuffers& buffers = {});
   // The checks of create without allocating anything.

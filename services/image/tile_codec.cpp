@@ -168,9 +168,9 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   if (!s1.ok()) return s1.status();
   auto bins = r.uint(4, "bins");
   if (!bins.ok()) return bins.status();
-  if (*bins < 1 || *bins > std::uint64_t(kMaxBins)) {
+  if (*bins < 1 || *bins > std::uint64_t(kMaxChannels)) {
     return absl::InvalidArgumentError(
-        absl::StrCat("tile result has ", *bins, " bins; allowed are 1..", kMaxBins));
+        absl::StrCat("tile result has ", *bins, " bins; allowed are 1..", kMaxChannels));
   }
   auto counter_count = r.uint(4, "counter count");
   if (!counter_count.ok()) return counter_count.status();

@@ -39,7 +39,7 @@ TEST(SpectralImage, ConstructionValidatesSizes) {
   EXPECT_FALSE(SpectralImage::create(0, 2, 4).ok());
   EXPECT_FALSE(SpectralImage::create(2, -1, 4).ok());
   EXPECT_FALSE(SpectralImage::create(2, 2, 0).ok());
-  EXPECT_FALSE(SpectralImage::create(2, 2, kMaxBins + 1).ok());
+  EXPECT_FALSE(SpectralImage::create(2, 2, kMaxChannels + 1).ok());
   EXPECT_FALSE(SpectralImage::from_data(2, 2, 4, std::vector<float>(15)).ok());
   EXPECT_TRUE(SpectralImage::from_data(2, 2, 4, std::vector<float>(16)).ok());
   EXPECT_FALSE(RgbImage::from_data(2, 2, std::vector<float>(11)).ok());

@@ -113,7 +113,7 @@ struct TargetError {
 
 // ---- What the client's pilots chose, carried by the job for its report
 
-// The automatic τ's pilot (worker/gradient_pilot.h, the job spec's gradient.tau_pilot): float,
+// The automatic τ's pilot (worker/gradient/pilot.h, the job spec's gradient.tau_pilot): float,
 // as the job spec keeps them.
 struct TauPilotReport {
   float epsilon = 0;
