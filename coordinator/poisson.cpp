@@ -10,155 +10,23 @@
 #include <numeric>
 
 #include "absl/strings/str_cat.h"
+#include "coordinator/poisson_batch.h"
 #include "services/base/check.h"
 #include "services/base/status.h"
 
 namespace prism::coordinator {
 namespace {
 
-// Pixels solved together by the L2 fast path (solve_l2_batch): their recurrences are
-// independent, so they run in SIMD lanes, and enough of them (4 AVX2 registers) are in flight
-// that the lanes do not wait on one recurrence's add-multiply latency.
-constexpr int kBatch = 16;
-
-// Floats between the batch's three bin-major buffers. Without it, for B = 64 they sit exactly
-// 4 KiB apart, and the loads of one row alias the stores of another in the CPU's 4K-address
-// disambiguation, stalling on false dependencies; 24 floats shift them by 96 bytes.
-constexpr int kPad = 24;
+using poisson_batch::kBatch;
+using poisson_batch::kPad;
 
 // IRLS weight floor: a residual below kIrlsFloor·σ weighs as one of size kIrlsFloor·σ, so the
 // weights stay within [0, 1/kIrlsFloor] and every reweighted system stays well conditioned.
 constexpr double kIrlsFloor = 1e-3;
 
-template <typename V, typename T>
-V load(const T* p) {
-  V v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-template <typename T, typename V>
-void store(T* p, const V& v) {
-  std::memcpy(p, &v, sizeof v);
-}
-
-// A batch's lanes, as compiler vector types (GCC/Clang): the compiler maps them onto
-// whatever SIMD the target has, and every lane is plain IEEE arithmetic, so the results
-// are the same bits as the scalar path's.
-using F4 = float __attribute__((vector_size(16)));
-
-// W doubles per SIMD register: 2 for SSE2 (every x86-64), 4 for AVX2, 8 for AVX-512. The
-// kBatch lanes of a batch are N = kBatch/W registers. (GCC ignores vector_size on a dependent type,
-// hence the explicit types.)
-using F2 = float __attribute__((vector_size(8)));
-using D2 = double __attribute__((vector_size(16)));
-using D4 = double __attribute__((vector_size(32)));
-template <int W>
-struct LaneTypes;
-template <>
-struct LaneTypes<2> {
-  using D = D2;
-  using F = F2;
-};
-template <>
-struct LaneTypes<4> {
-  using D = D4;
-  using F = F4;
-};
-
-using F8 = float __attribute__((vector_size(32)));
-using D8 = double __attribute__((vector_size(64)));
-template <>
-struct LaneTypes<8> {
-  using D = D8;
-  using F = F8;
-};
-
-template <int W>
-struct Lanes {
-  using D = typename LaneTypes<W>::D;
-  using F = typename LaneTypes<W>::F;
-  static constexpr int N = kBatch / W;
-
-  // kBatch floats at p, widened.
-  [[gnu::always_inline]] static void widen(const float* p, D (&d)[N]) {
-    for (int q = 0; q < N; ++q) {
-      F f;
-      std::memcpy(&f, p + W * q, sizeof f);
-      d[q] = __builtin_convertvector(f, D);
-    }
-  }
-  // kBatch doubles rounded to floats at p; adds f − f to `check` (0 for finite f, NaN else).
-  [[gnu::always_inline]] static void narrow(const D (&d)[N], float* p, F (&check)[N]) {
-    for (int q = 0; q < N; ++q) {
-      const F f = __builtin_convertvector(d[q], F);
-      check[q] += f - f;
-      std::memcpy(p + W * q, &f, sizeof f);
-    }
-  }
-};
-
-[[gnu::always_inline]] inline void transpose4(F4& r0, F4& r1, F4& r2, F4& r3) {
-  const F4 t0 = __builtin_shufflevector(r0, r1, 0, 4, 1, 5);
-  const F4 t1 = __builtin_shufflevector(r0, r1, 2, 6, 3, 7);
-  const F4 t2 = __builtin_shufflevector(r2, r3, 0, 4, 1, 5);
-  const F4 t3 = __builtin_shufflevector(r2, r3, 2, 6, 3, 7);
-  r0 = __builtin_shufflevector(t0, t2, 0, 1, 4, 5);
-  r1 = __builtin_shufflevector(t0, t2, 2, 3, 6, 7);
-  r2 = __builtin_shufflevector(t1, t3, 0, 1, 4, 5);
-  r3 = __builtin_shufflevector(t1, t3, 2, 3, 6, 7);
-}
-
-// kBatch pixels of B values, pixel-major (in[p·B + b]), to bin-major t[b·kBatch + p], by
-// 4x4 blocks.
-[[gnu::always_inline]] inline void to_bin_major(const float* in, int B, float* t) {
-  const int B4 = B & ~3;
-  // One group of four pixels at a time, so the loads walk four contiguous rows (prefetch
-  // friendly) rather than all kBatch rows at once.
-  for (int g = 0; g < kBatch; g += 4) {
-    for (int b = 0; b < B4; b += 4) {
-      F4 r0 = load<F4>(in + (g + 0) * B + b);
-      F4 r1 = load<F4>(in + (g + 1) * B + b);
-      F4 r2 = load<F4>(in + (g + 2) * B + b);
-      F4 r3 = load<F4>(in + (g + 3) * B + b);
-      transpose4(r0, r1, r2, r3);
-      store(t + (b + 0) * kBatch + g, r0);
-      store(t + (b + 1) * kBatch + g, r1);
-      store(t + (b + 2) * kBatch + g, r2);
-      store(t + (b + 3) * kBatch + g, r3);
-    }
-  }
-  for (int b = B4; b < B; ++b) {
-    for (int p = 0; p < kBatch; ++p) t[b * kBatch + p] = in[p * B + b];
-  }
-}
-
-// The inverse of to_bin_major.
-[[gnu::always_inline]] inline void to_pixel_major(const float* t, int B, float* out) {
-  const int B4 = B & ~3;
-  for (int g = 0; g < kBatch; g += 4) {
-    for (int b = 0; b < B4; b += 4) {
-      F4 r0 = load<F4>(t + (b + 0) * kBatch + g);
-      F4 r1 = load<F4>(t + (b + 1) * kBatch + g);
-      F4 r2 = load<F4>(t + (b + 2) * kBatch + g);
-      F4 r3 = load<F4>(t + (b + 3) * kBatch + g);
-      transpose4(r0, r1, r2, r3);
-      store(out + (g + 0) * B + b, r0);
-      store(out + (g + 1) * B + b, r1);
-      store(out + (g + 2) * B + b, r2);
-      store(out + (g + 3) * B + b, r3);
-    }
-  }
-  for (int b = B4; b < B; ++b) {
-    for (int p = 0; p < kBatch; ++p) out[p * B + b] = t[b * kBatch + p];
-  }
-}
-
 bool finite(float v) {
   return std::isfinite(v);
 }
-
-// Defined with the batch kernels below.
-bool cpu_supports(PoissonKernel kernel);
 
 std::string describe(float v) {
   if (std::isnan(v)) return "nan";
@@ -351,7 +219,7 @@ absl::StatusOr<PoissonSolver> PoissonSolver::create(int bins, int offset_bins, d
   s.q_ = q;
   s.kernel_ = PoissonKernel::kSse2;
   for (PoissonKernel k : {PoissonKernel::kAvx512, PoissonKernel::kAvx2}) {
-    if ((kernel == PoissonKernel::kAuto || kernel == k) && cpu_supports(k)) {
+    if ((kernel == PoissonKernel::kAuto || kernel == k) && poisson_batch::cpu_supports(k)) {
       s.kernel_ = k;
       break;
     }
@@ -407,131 +275,11 @@ bool PoissonSolver::solve_l2_one(const float* primal, const float* gradient, flo
   return check == 0;
 }
 
-// kBatch pixels (kBatch·B consecutive values of each array) side by side in SIMD lanes. The
-// lanes need the pixels bin-major, so I and G are transposed into t[b·kBatch + p] (4x4 blocks),
-// the recurrences run one bin row of kBatch lanes at a time (r is formed on the way: G[b − k]
-// is the previous chain element's G), and the bin-major result is transposed back. `z` holds
-// kBatch·L doubles, `t` 3·(kBatch·B + kPad) floats.
-namespace {
-
-// The body of solve_l2_batch for W doubles per register (see there). Inlined into each
-// caller, so the AVX2 caller compiles it with 256-bit registers.
-template <int W>
-[[gnu::always_inline]] inline bool batch_kernel(const int* order_all, const double* pw, int chains,
-                                                int B, int L, double a, double rho, double inv,
-                                                double q, const float* primal,
-                                                const float* gradient, float* out, double* z,
-                                                float* t) {
-  using V = Lanes<W>;
-  using D = typename V::D;
-  using F = typename V::F;
-  constexpr int N = V::N;
-  float* ti = t;
-  float* tg = t + kBatch * B + kPad;
-  float* to = tg + kBatch * B + kPad;
-  to_bin_major(primal, B, ti);
-  to_bin_major(gradient, B, tg);
-  F check[N] = {};
-  for (int c = 0; c < chains; ++c) {
-    const int* order = order_all + c * L;
-    D zl[N] = {};
-    D sz[N] = {};
-    D g_prev[N];
-    V::widen(tg + order[L - 1] * kBatch, g_prev);
-    for (int j = 0; j < L; ++j) {
-      const int b = order[j];
-      D iv[N], gv[N];
-      V::widen(ti + b * kBatch, iv);
-      V::widen(tg + b * kBatch, gv);
-      const double wj = pw[j];
-      for (int k = 0; k < N; ++k) {
-        const D r = a * iv[k] + g_prev[k] - gv[k];
-        g_prev[k] = gv[k];
-        zl[k] = rho * (r + zl[k]);
-        std::memcpy(z + j * kBatch + W * k, &zl[k], sizeof(D));
-        sz[k] += wj * zl[k];
-      }
-    }
-    D u_last[N], x[N];
-    for (int k = 0; k < N; ++k) {
-      u_last[k] = zl[k] * inv;
-      x[k] = (sz[k] + u_last[k] * q) * inv;
-    }
-    V::narrow(x, to + order[0] * kBatch, check);
-    for (int j = L - 1; j >= 1; --j) {
-      const double corr = pw[j + 1];
-      for (int k = 0; k < N; ++k) {
-        D zj;
-        std::memcpy(&zj, z + j * kBatch + W * k, sizeof(D));
-        x[k] = zj + corr * u_last[k] + rho * x[k];
-      }
-      V::narrow(x, to + order[j] * kBatch, check);
-    }
-  }
-  to_pixel_major(to, B, out);
-  float all = 0;
-  for (int k = 0; k < N; ++k) {
-    for (int p = 0; p < W; ++p) all += check[k][p];
-  }
-  return all == 0;
-}
-
-bool batch_sse2(const int* order, const double* pw, int chains, int B, int L, double a, double rho,
-                double inv, double q, const float* primal, const float* gradient, float* out,
-                double* z, float* t) {
-  return batch_kernel<2>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
-}
-
-#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
-// AVX2 without FMA: the same IEEE operations in the same order, four lanes per register, so
-// the bits do not depend on which version runs (no fused multiply-add is available to it).
-[[gnu::target("avx2")]] bool batch_avx2(const int* order, const double* pw, int chains, int B,
-                                        int L, double a, double rho, double inv, double q,
-                                        const float* primal, const float* gradient, float* out,
-                                        double* z, float* t) {
-  return batch_kernel<4>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
-}
-bool cpu_supports(PoissonKernel kernel) {
-  switch (kernel) {
-    case PoissonKernel::kAvx512:
-      return __builtin_cpu_supports("avx512f");
-    case PoissonKernel::kAvx2:
-      return __builtin_cpu_supports("avx2");
-    default:
-      return kernel == PoissonKernel::kSse2;
-  }
-}
-// AVX-512F, eight lanes per register; as for AVX2, poisson.cpp is compiled with
-// -ffp-contract=off, so the FMA instructions AVX-512F brings are never used.
-[[gnu::target("avx512f")]] bool batch_avx512(const int* order, const double* pw, int chains, int B,
-                                             int L, double a, double rho, double inv, double q,
-                                             const float* primal, const float* gradient, float* out,
-                                             double* z, float* t) {
-  return batch_kernel<8>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
-}
-#else
-bool batch_avx2(const int* order, const double* pw, int chains, int B, int L, double a, double rho,
-                double inv, double q, const float* primal, const float* gradient, float* out,
-                double* z, float* t) {
-  return batch_kernel<2>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
-}
-bool batch_avx512(const int* order, const double* pw, int chains, int B, int L, double a,
-                  double rho, double inv, double q, const float* primal, const float* gradient,
-                  float* out, double* z, float* t) {
-  return batch_kernel<2>(order, pw, chains, B, L, a, rho, inv, q, primal, gradient, out, z, t);
-}
-bool cpu_supports(PoissonKernel kernel) {
-  return kernel == PoissonKernel::kSse2;
-}
-#endif
-
-}  // namespace
-
 bool PoissonSolver::solve_l2_batch(const float* primal, const float* gradient, float* out,
                                    double* z, float* t) const {
-  auto* run = kernel_ == PoissonKernel::kAvx512 ? batch_avx512
-              : kernel_ == PoissonKernel::kAvx2 ? batch_avx2
-                                                : batch_sse2;
+  auto* run = kernel_ == PoissonKernel::kAvx512 ? poisson_batch::batch_avx512
+              : kernel_ == PoissonKernel::kAvx2 ? poisson_batch::batch_avx2
+                                                : poisson_batch::batch_sse2;
   return run(order_.data(), rho_pow_.data(), chains_, bins_, length_, alpha_, rho_,
              inv_one_minus_rho_l_, q_, primal, gradient, out, z, t);
 }
