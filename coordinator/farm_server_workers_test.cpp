@@ -1,0 +1,440 @@
+// The coordinator's WorkerService and its leases through gRPC: stale leases and duplicates,
+// malformed results, busy and lost workers, restarts, cancels and scene faults reaching workers,
+// real worker processes, health.
+#include "coordinator/farm_server_fixture.h"
+
+namespace prism::coordinator {
+namespace {
+
+using namespace farm_server_testing;
+namespace fs = std::filesystem;
+namespace v1 = prism::v1;
+
+TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  submit(small_spec(hash));
+  const std::string worker_id = register_worker();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  const std::string bytes = render(*lease);
+  // The worker hands the lease back, then sends a result for it anyway.
+  {
+    v1::FailTaskRequest request;
+    request.set_worker_id(worker_id);
+    request.set_lease_id(lease->lease_id());
+    request.set_failure_class(v1::FAILURE_CLASS_RETURNED);
+    v1::FailTaskResponse response;
+    auto context = worker_call();
+    ASSERT_TRUE(worker_stub_->FailTask(context.get(), request, &response).ok());
+  }
+  grpc::Status stale = complete(worker_id, lease->lease_id(), bytes);
+  EXPECT_EQ(stale.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_FALSE(stale.error_message().empty());
+  EXPECT_NE(stale.error_message().find(lease->lease_id()), std::string::npos)
+      << stale.error_message();
+
+  // The requeued task under a fresh lease: accepted once, then a harmless duplicate.
+  std::optional<v1::Lease> again = acquire(worker_id);
+  ASSERT_TRUE(again.has_value());
+  EXPECT_EQ(again->task().tile().x0(), lease->task().tile().x0());
+  bool accepted = false;
+  ASSERT_TRUE(complete(worker_id, again->lease_id(), bytes, &accepted).ok());
+  EXPECT_TRUE(accepted);
+  grpc::Status duplicate = complete(worker_id, again->lease_id(), bytes, &accepted);
+  EXPECT_TRUE(duplicate.ok()) << duplicate.error_message();
+  EXPECT_FALSE(accepted);
+}
+
+// A gradient job's result must carry gradients: one without is the worker's fault (refused,
+// the task requeued), not a reason to fail the job.
+TEST_F(FarmServerTest, AGradientResultWithoutGradientsIsTheWorkersFault) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  v1::JobSpec spec = small_spec(hash);
+  spec.set_integrator(v1::INTEGRATOR_GRADIENT);
+  spec.set_bins(16);
+  const v1::JobInfo job = submit(spec);
+  ASSERT_FALSE(job.job_id().empty());
+  const std::string worker_id = register_worker();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  const auto& t = lease->task().tile();
+  image::TileBuffers buffers;
+  buffers.rgb = true;  // what a final-pass result has, all but the gradients
+  auto plain = image::TileResult::create(
+      {t.x0(), t.y0(), t.x1(), t.y1()},
+      {lease->task().samples().begin(), lease->task().samples().end()}, 16, buffers);
+  ASSERT_TRUE(plain.ok()) << plain.status();
+  const grpc::Status refused =
+      complete(worker_id, lease->lease_id(), image::serialise_tile(*plain));
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(refused.error_message().find("without gradients"), std::string::npos)
+      << refused.error_message();
+  v1::GetJobRequest request;
+  request.set_job_id(job.job_id());
+  v1::JobInfo info;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->GetJob(context.get(), request, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_RENDERING);
+  // The real render of the same task is accepted.
+  std::optional<v1::Lease> again = acquire(worker_id);
+  ASSERT_TRUE(again.has_value());
+  EXPECT_TRUE(complete(worker_id, again->lease_id(), render(*again)).ok());
+}
+
+// A variance-weighted gradient job needs the halves (squares of G, the even samples' sums) in
+// every result; a result with gradients only is the worker's fault too, and the real render of
+// the task, which carries them, is accepted.
+TEST_F(FarmServerTest, AWeightedGradientResultWithoutHalvesIsTheWorkersFault) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  v1::JobSpec spec = small_spec(hash);
+  spec.set_integrator(v1::INTEGRATOR_GRADIENT);
+  spec.set_bins(16);
+  spec.mutable_gradient()->set_norm(v1::POISSON_NORM_WEIGHTED);
+  ASSERT_FALSE(submit(spec).job_id().empty());
+  const std::string worker_id = register_worker();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  // A final-pass result needs each sample's RGB (the RGB outputs), and this job the halves.
+  auto empty_result = [](const v1::Lease& l, bool xyz) {
+    const auto& t = l.task().tile();
+    image::TileBuffers buffers;
+    buffers.gradients = true;
+    buffers.rgb = xyz;
+    auto r = image::TileResult::create({t.x0(), t.y0(), t.x1(), t.y1()},
+                                       {l.task().samples().begin(), l.task().samples().end()}, 16,
+                                       buffers);
+    PRISM_CHECK(r.ok());
+    return image::serialise_tile(*r);
+  };
+  const grpc::Status refused_xyz =
+      complete(worker_id, lease->lease_id(), empty_result(*lease, false));
+  EXPECT_EQ(refused_xyz.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(refused_xyz.error_message().find("without RGB buffers"), std::string::npos)
+      << refused_xyz.error_message();
+  lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  const grpc::Status refused = complete(worker_id, lease->lease_id(), empty_result(*lease, true));
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(refused.error_message().find("without halves"), std::string::npos)
+      << refused.error_message();
+  std::optional<v1::Lease> again = acquire(worker_id);
+  ASSERT_TRUE(again.has_value());
+  const std::string bytes = render(*again);
+  auto parsed = image::parse_tile(bytes);
+  ASSERT_TRUE(parsed.ok()) << parsed.status();
+  EXPECT_TRUE(parsed->has_halves());
+  EXPECT_TRUE(complete(worker_id, again->lease_id(), bytes).ok());
+}
+
+TEST_F(FarmServerTest, ListWorkersShowsWhatABusyWorkerRenders) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string job_id = submit(small_spec(hash)).job_id();
+  const std::string worker_id = register_worker();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  v1::ListWorkersRequest request;
+  v1::ListWorkersResponse response;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->ListWorkers(context.get(), request, &response).ok());
+  ASSERT_EQ(response.workers_size(), 1);
+  const v1::WorkerInfo& info = response.workers(0);
+  EXPECT_EQ(info.state(), "busy");
+  EXPECT_EQ(info.leases(), 1u);
+  EXPECT_EQ(info.current_lease(), lease->lease_id());
+  const auto& t = lease->task();
+  EXPECT_EQ(info.current_task(),
+            absl::StrCat("job ", job_id, " final tile (", t.tile().x0(), ",", t.tile().y0(), ")-(",
+                         t.tile().x1(), ",", t.tile().y1(), ") samples [", t.samples().begin(), ",",
+                         t.samples().end(), ")"));
+}
+
+TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const v1::JobInfo a = submit(small_spec(hash), "token-1");
+  const v1::JobInfo b = submit(small_spec(hash), "token-1");
+  const v1::JobInfo c = submit(small_spec(hash), "token-2");
+  EXPECT_EQ(a.job_id(), b.job_id());
+  EXPECT_NE(a.job_id(), c.job_id());
+  v1::ListJobsRequest request;
+  v1::ListJobsResponse response;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->ListJobs(context.get(), request, &response).ok());
+  EXPECT_EQ(response.jobs_size(), 2);
+}
+
+TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const v1::JobSpec spec = small_spec(hash);
+  const std::string job_id = submit(spec).job_id();
+  const auto first = run_worker(register_worker(), 7);
+  ASSERT_EQ(first.size(), 7u);
+  stop();
+
+  // Tiles 0-2 (tasks 0-5) finished and went to disk; tile 3 has one of its two ranges. Their
+  // range results are deleted here, so the restart can only take tiles 0-2 from their files.
+  const fs::path data = root_ / "data";
+  EXPECT_EQ(count_files(data / "jobs" / job_id / "tiles"), 3u);
+  {
+    auto store = store::JobStore::open(data / "jobs.sqlite");
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto blobs = store::BlobStore::open(data / "blobs");
+    ASSERT_TRUE(blobs.ok());
+    auto tasks = store->tasks_of(job_id);
+    ASSERT_TRUE(tasks.ok()) << tasks.status();
+    for (const store::TaskRecord& task : *tasks) {
+      if (task.tile_index >= 3) continue;
+      ASSERT_EQ(task.state, store::TaskState::kDone) << "task " << task.index;
+      ASSERT_TRUE(blobs->remove(task.result_hash).ok()) << task.result_hash;
+    }
+  }
+
+  start();
+  const auto second = run_worker(register_worker());
+  EXPECT_EQ(second.size(), 11u);
+  std::set<std::pair<int, int>> all(first.begin(), first.end());
+  for (const auto& task : second) EXPECT_FALSE(all.contains(task)) << "re-rendered a finished task";
+  all.insert(second.begin(), second.end());
+  EXPECT_EQ(all.size(), 18u);
+  const v1::JobInfo done = wait_done(job_id);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral_exr(job_id), spec);
+  stop();
+
+  // From the store: every task was leased exactly once across both incarnations.
+  auto store = store::JobStore::open(root_ / "data" / "jobs.sqlite");
+  ASSERT_TRUE(store.ok()) << store.status();
+  auto tasks = store->tasks_of(job_id);
+  ASSERT_TRUE(tasks.ok());
+  for (const store::TaskRecord& task : *tasks) {
+    EXPECT_EQ(task.attempts, 1) << "task " << task.index;
+    EXPECT_EQ(task.state, store::TaskState::kDone);
+  }
+  // The finished job keeps its outputs and nothing else.
+  EXPECT_EQ(count_files(data / "blobs"), 0u);
+  EXPECT_FALSE(fs::exists(data / "jobs" / job_id));
+  EXPECT_EQ(count_files(data / "outputs" / job_id), 4u);
+}
+
+TEST_F(FarmServerTest, CancelReachesTheWorkerAtItsNextHeartbeat) {
+  scene_root_ = root_ / "scene";
+  const std::string packed = packed_bundle(scene_root_, kScene);
+  std::string hash;
+  ASSERT_TRUE(upload(packed, &hash).ok());
+  const std::string job_id = submit(small_spec(hash)).job_id();
+  const std::string worker_id = register_worker();
+
+  // The worker fetches the bundle by hash: the same bytes as uploaded.
+  {
+    v1::FetchBundleRequest request;
+    request.set_bundle_hash(hash);
+    auto context = worker_call();
+    auto reader = worker_stub_->FetchBundle(context.get(), request);
+    std::string bytes;
+    v1::BundleData data;
+    while (reader->Read(&data)) {
+      EXPECT_EQ(data.offset(), bytes.size());
+      EXPECT_EQ(data.total_bytes(), packed.size());
+      bytes += data.data();
+    }
+    ASSERT_TRUE(reader->Finish().ok());
+    EXPECT_EQ(bytes, packed);
+  }
+
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  EXPECT_EQ(lease->bundle_hash(), hash);
+  EXPECT_EQ(lease->attempt(), 1u);
+  {
+    v1::CancelJobRequest request;
+    request.set_job_id(job_id);
+    v1::JobInfo info;
+    auto context = client();
+    ASSERT_TRUE(farm_stub_->CancelJob(context.get(), request, &info).ok());
+    EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
+  }
+  v1::HeartbeatRequest beat;
+  beat.set_worker_id(worker_id);
+  beat.add_lease_ids(lease->lease_id());
+  v1::HeartbeatResponse reply;
+  auto context = worker_call();
+  ASSERT_TRUE(worker_stub_->Heartbeat(context.get(), beat, &reply).ok());
+  ASSERT_EQ(reply.directives_size(), 1);
+  EXPECT_EQ(reply.directives(0).kind(), v1::Directive::KIND_CANCEL_TASK);
+  EXPECT_EQ(reply.directives(0).lease_id(), lease->lease_id());
+  EXPECT_FALSE(acquire(worker_id).has_value());
+  EXPECT_EQ(complete(worker_id, lease->lease_id(), render(*lease)).error_code(),
+            grpc::StatusCode::FAILED_PRECONDITION);
+
+  // No outputs for a cancelled job.
+  v1::GetResultRequest request;
+  request.set_job_id(job_id);
+  auto result_context = client();
+  auto reader = farm_stub_->GetResult(result_context.get(), request);
+  v1::ResultChunk chunk;
+  EXPECT_FALSE(reader->Read(&chunk));
+  EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+}
+
+TEST_F(FarmServerTest, ASceneFaultFailsTheJobWithTheWorkersMessage) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string job_id = submit(small_spec(hash)).job_id();
+  const std::string worker_id = register_worker();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  v1::FailTaskRequest request;
+  request.set_worker_id(worker_id);
+  request.set_lease_id(lease->lease_id());
+  request.set_failure_class(v1::FAILURE_CLASS_SCENE);
+  request.set_message("scene.pbrt:9:3: the sphere is made of cheese");
+  v1::FailTaskResponse response;
+  auto context = worker_call();
+  ASSERT_TRUE(worker_stub_->FailTask(context.get(), request, &response).ok());
+  const v1::JobInfo info = wait_done(job_id);
+  EXPECT_EQ(info.state(), v1::JOB_STATE_FAILED);
+  EXPECT_NE(info.error().find("the sphere is made of cheese"), std::string::npos) << info.error();
+  EXPECT_FALSE(acquire(worker_id).has_value());
+}
+
+TEST_F(FarmServerTest, ALostWorkersLeaseGoesToAnotherWorker) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  submit(small_spec(hash));
+  const std::string silent = register_worker();
+  std::optional<v1::Lease> lease = acquire(silent);
+  ASSERT_TRUE(lease.has_value());
+  // The silent worker never calls again: after 3 missed 200 ms beats it is lost and its task
+  // is requeued (the fresh worker keeps calling, so it stays alive).
+  const std::string live = register_worker();
+  bool requeued = false;
+  for (int i = 0; i < 40 && !requeued; ++i) {
+    std::optional<v1::Lease> next = acquire(live);
+    if (!next.has_value()) continue;  // every other task is done; the lease is not yet requeued
+    if (next->task().tile().x0() == lease->task().tile().x0() &&
+        next->task().tile().y0() == lease->task().tile().y0() &&
+        next->task().samples().begin() == lease->task().samples().begin()) {
+      requeued = true;
+      EXPECT_EQ(next->attempt(), 2u);
+    }
+    ASSERT_TRUE(complete(live, next->lease_id(), render(*next)).ok());
+  }
+  EXPECT_TRUE(requeued);
+  EXPECT_EQ(complete(silent, lease->lease_id(), render(*lease)).error_code(),
+            grpc::StatusCode::FAILED_PRECONDITION);
+}
+
+TEST_F(FarmServerTest, SubmissionsBeyondTheQueueLimitAreResourceExhausted) {
+  stop();
+  max_queued_jobs_ = 1;
+  start();
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  submit(small_spec(hash), "first");
+  v1::SubmitJobRequest request;
+  *request.mutable_spec() = small_spec(hash);
+  request.set_client_token("second");
+  v1::SubmitJobResponse response;
+  auto context = client();
+  grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(status.error_message().find("--max-queued-jobs 1"), std::string::npos)
+      << status.error_message();
+  // A repeat of the accepted submission is still answered.
+  EXPECT_FALSE(submit(small_spec(hash), "first").job_id().empty());
+}
+
+TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  v1::SubmitJobRequest request;
+  *request.mutable_spec() = small_spec(hash);
+  request.mutable_spec()->set_bins(1000);
+  v1::SubmitJobResponse response;
+  auto context = client();
+  grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(status.error_message(), "bins 1000 is out of range: want 4..256");
+}
+
+// Two real prism-worker processes (the build's, or PRISM_WORKER_BIN) render a job through the
+// in-process coordinator, bit-identical to the embedded render.
+TEST_F(FarmServerTest, RealWorkerProcessesRenderTheSameBytes) {
+  const char* binary = std::getenv("PRISM_WORKER_BIN");
+  if (binary == nullptr || *binary == '\0') binary = PRISM_WORKER_BINARY;
+  scene_root_ = root_ / "scene";
+  std::string hash;
+  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const v1::JobSpec spec = small_spec(hash);
+  const std::string job_id = submit(spec).job_id();
+  std::vector<std::unique_ptr<prism::testing::ChildProcess>> workers;
+  for (int i = 0; i < 2; ++i) {
+    const std::string cache = (root_ / ("cache" + std::to_string(i))).string();
+    workers.push_back(prism::testing::ChildProcess::start(
+        {binary, "--coordinator", farm_->address(), "--threads", "1", "--secret", kSecret,
+         "--cache-dir", cache, "--log-level", "warn"}));
+    ASSERT_NE(workers.back(), nullptr);
+  }
+  const v1::JobInfo done = wait_done(job_id, 1500);
+  for (auto& worker : workers) {
+    worker->signal(SIGTERM);
+    worker->wait();
+  }
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral_exr(job_id), spec);
+  v1::ListWorkersRequest request;
+  v1::ListWorkersResponse response;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->ListWorkers(context.get(), request, &response).ok());
+  EXPECT_EQ(response.workers_size(), 2);
+}
+
+TEST_F(FarmServerTest, TheStandardHealthServiceReportsServing) {
+  auto channel = grpc::CreateChannel(farm_->address(), grpc::InsecureChannelCredentials());
+  grpc::GenericStub stub(channel);
+  grpc::ClientContext context;
+  context.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
+  grpc::Slice empty("");
+  grpc::ByteBuffer request(&empty, 1);  // HealthCheckRequest{service: ""}
+  grpc::ByteBuffer response;
+  std::promise<grpc::Status> done;
+  stub.UnaryCall(&context, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
+                 [&](grpc::Status status) { done.set_value(status); });
+  const grpc::Status status = done.get_future().get();
+  ASSERT_TRUE(status.ok()) << status.error_message();
+  std::vector<grpc::Slice> slices;
+  ASSERT_TRUE(response.Dump(&slices).ok());
+  std::string bytes;
+  for (const grpc::Slice& slice : slices) {
+    bytes.append(reinterpret_cast<const char*>(slice.begin()), slice.size());
+  }
+  EXPECT_EQ(bytes, std::string("\x08\x01", 2));  // HealthCheckResponse{status: SERVING}
+}
+
+TEST_F(FarmServerTest, AnUnknownWorkerIsToldToRegisterAgain) {
+  v1::HeartbeatRequest beat;
+  beat.set_worker_id("w-424242");
+  v1::HeartbeatResponse reply;
+  auto context = worker_call();
+  ASSERT_TRUE(worker_stub_->Heartbeat(context.get(), beat, &reply).ok());
+  ASSERT_EQ(reply.directives_size(), 1);
+  EXPECT_EQ(reply.directives(0).kind(), v1::Directive::KIND_REREGISTER);
+}
+
+}  // namespace
+}  // namespace prism::coordinator
