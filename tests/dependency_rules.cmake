@@ -2,7 +2,7 @@
 #   services/ includes nothing from worker/, coordinator/ or client/;
 #   worker/ includes nothing from coordinator/ or client/;
 #   coordinator/ includes nothing from client/, and from worker/ only in the in-process
-#   LocalRender (local_render.*) and the tests that compare with it.
+#   LocalRender (local_render.*) and the tests (and test fixtures) that compare with it.
 # Run as: cmake -DSOURCE_DIR=<repo> -P tests/dependency_rules.cmake (ctest: dependency_rules).
 if(NOT SOURCE_DIR)
   message(FATAL_ERROR "pass -DSOURCE_DIR=<the repository>")
@@ -29,7 +29,7 @@ endfunction()
 check(services "(worker|coordinator|client)/" "")
 check(worker "(coordinator|client)/" "")
 check(coordinator "client/" "")
-check(coordinator "worker/" "(^coordinator/local_render|_test\\.cpp$)")
+check(coordinator "worker/" "(^coordinator/local_render|_test\\.cpp$|_fixture\\.h$)")
 
 if(violations)
   message(FATAL_ERROR "includes against the layering (tests/dependency_rules.cmake):${violations}")

@@ -43,114 +43,86 @@ SampledWavelengths single(float lambda, float pdf) {
   return w;
 }
 
-}  // namespace
+// One gradient sample's base path and its two offsets (docs/estimators.md §5), the estimator's
+// steps by name: the events' accumulation with their shifts, emission found by the sampled
+// direction, a flight through a medium, next-event estimation at a surface, scattering and
+// roulette, and the final values. The offsets follow the base lazily through a log of its steps
+// (record, catch_up). It lives for one sample.
+class BasePath {
+ public:
+  BasePath(const RenderScene& scene, const Sampler& sampler, TraceCounters& counters,
+           GradientEventSink* events, float tau, const SampledWavelengths& base)
+      : scene_(scene),
+        sampler(sampler),
+        counters(counters),
+        events(events),
+        tau_(tau),
+        base_lambda(base),
+        shared(kLanes),
+        tracer(scene, counters) {}
 
-GradientIntegrator::GradientIntegrator(const RenderScene& scene)
-    : scene_(scene),
-      offset_bins_(scene.options().gradient_offset_bins),
-      tau_(scene.options().gradient_tau) {
-  PRISM_CHECK(offset_bins_ >= 1 && offset_bins_ < scene.grid().bins());
-  PRISM_CHECK(tau_ >= 0.0f);
-}
+  // Places the base wavelength and the offsets at λ ± δ (δ = `offset_bins` bins); false when the
+  // base's λ falls in no bin or has no density.
+  bool start(spectral::WavelengthPdfView lambda_pdf, int offset_bins) {
+    const spectral::WavelengthGrid& grid = scene_.grid();
+    lambda = base_lambda.lambda(0);
+    const float lambda_density = base_lambda.pdf(0);
+    const int bin = grid.bin_of(lambda);
+    if (bin < 0 || !(lambda_density > 0)) return false;
+    out.lambda = lambda;
+    out.bin = bin;
+    out.bin_below = grid.wrap(bin - offset_bins);
 
-GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
-                                         std::uint32_t sample_index,
-                                         spectral::WavelengthPdfView lambda_pdf,
-                                         TraceCounters& counters, GuideValues* guides,
-                                         GradientEventSink* events) const {
-  const job::RenderOptions& options = scene_.options();
-  const Geometry& geometry = scene_.geometry();
-  const spectral::WavelengthGrid& grid = scene_.grid();
-  Sampler sampler(options.sampler, SampleKey{options.seed, pass, std::uint32_t(px),
-                                             std::uint32_t(py), sample_index});
+    // Offsets at λ ± δ, placed from the base's position inside its bin so that they land in bins
+    // i ± k exactly (λ ± k·w wrapped can round into a neighbouring bin).
+    shared.set(kBase, lambda, lambda_density);
+    for (int side = 0; side < 2; ++side) {
+      const int target = grid.wrap(bin + (side == 0 ? offset_bins : -offset_bins));
+      float l = grid.lower(target) + (lambda - grid.lower(bin));
+      l = std::clamp(l, grid.lower(target), std::nextafter(grid.upper(target), 0.0f));
+      const float density = lambda_pdf.pdf(l);
+      Offset& o = offsets[side];
+      o.lane = 1 + side;
+      o.lambda = single(l, density);
+      o.rho = density / lambda_density;
+      o.rho_prev = o.rho;
+      shared.set(o.lane, l, density);
+    }
+    // Contributions are per-bin averages: f / (p(λ) p(x̄|λ)) / w.
+    scale = 1.0f / (lambda_density * grid.bin_width());
 
-  GradientSample out;
-  const SampledWavelengths base_lambda = lambda_pdf.sample_lanes(sampler.at(kDimWavelength), 1);
-  const float lambda = base_lambda.lambda(0);
-  const float lambda_density = base_lambda.pdf(0);
-  const int bin = grid.bin_of(lambda);
-  if (bin < 0 || !(lambda_density > 0)) return out;
-  out.lambda = lambda;
-  out.bin = bin;
-  out.bin_below = grid.wrap(bin - offset_bins_);
-
-  // Offsets at λ ± δ, placed from the base's position inside its bin so that they land in bins
-  // i ± k exactly (λ ± k·w wrapped can round into a neighbouring bin).
-  Offset offsets[2];
-  SampledWavelengths shared(kLanes);
-  shared.set(kBase, lambda, lambda_density);
-  for (int side = 0; side < 2; ++side) {
-    const int target = grid.wrap(bin + (side == 0 ? offset_bins_ : -offset_bins_));
-    float l = grid.lower(target) + (lambda - grid.lower(bin));
-    l = std::clamp(l, grid.lower(target), std::nextafter(grid.upper(target), 0.0f));
-    const float density = lambda_pdf.pdf(l);
-    Offset& o = offsets[side];
-    o.lane = 1 + side;
-    o.lambda = single(l, density);
-    o.rho = density / lambda_density;
-    o.rho_prev = o.rho;
-    shared.set(o.lane, l, density);
+    medium = scene_.camera_medium();
+    for (Offset& o : offsets) o.medium = medium;
+    return true;
   }
-  // Contributions are per-bin averages: f / (p(λ) p(x̄|λ)) / w.
-  const float scale = 1.0f / (lambda_density * grid.bin_width());
 
-  float beta = 1;      // f / p(x̄|λ) of the base prefix, with roulette
-  float survival = 1;  // product of the roulette survival probabilities
-  float pdf_since_prev = 1;
-  LightContext prev_ctx;
-  bool prev_specular = true;
-  float eta_scale = 1;
-  int medium = scene_.camera_medium();
-  bool any_shifted = false;
-  for (Offset& o : offsets) o.medium = medium;
+  // The base reached its next vertex (or escaped) after scattering at a surface: the offsets
+  // resolve theirs when they catch up.
+  void resolve_arrival(const Ray& ray, const std::optional<SurfaceHit>& hit) {
+    gradient::OffsetStep& step = record();
+    step.kind = StepKind::kResolve;
+    step.has_next = hit.has_value();
+    if (hit) step.hit = *hit;
+    step.direction = ray.direction;
+    step.base = base_event;
+    resolve_due = false;
+  }
 
-  const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
-  // The film position from the pixel filter; the sample's value carries the filter's weight.
-  const FilterSample filtered = scene_.pixel_filter().sample(film.u0, film.u1);
-  Ray ray = scene_.camera().generate_ray({float(px) + filtered.x, float(py) + filtered.y},
-                                         {lens.u0, lens.u1});
-  ++counters.camera_rays;
-  if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
-
-  const gradient::OffsetTracer tracer(scene_, counters);
-  BaseEvent base_event;
-  // The base's steps the offsets have not followed yet; they catch up when an event needs them
-  // (or when the log is full), so τ > 0 saves the offsets' rays as well as their events. A
-  // surface vertex records about four steps; 64 hold a path of depth 15 without a forced catch-up
-  // (at 24, the offsets of deep paths traced rays no event used). The slots are left
-  // uninitialised (zeroing 24 steps of 288 bytes per sample cost a tenth of a sample's time) and
-  // each step is constructed when it is recorded.
-  constexpr int kMaxSteps = 64;
-  union StepSlot {
-    StepSlot() {}
-    gradient::OffsetStep step;
-  };
-  static_assert(std::is_trivially_destructible_v<gradient::OffsetStep>);
-  StepSlot steps[kMaxSteps];
-  int step_count = 0;
-  auto catch_up = [&] {
+  void catch_up() {
     for (int i = 0; i < step_count; ++i) {
       for (Offset& o : offsets) {
         if (o.live()) tracer.apply(o, steps[i].step);
       }
     }
     step_count = 0;
-  };
-  auto record = [&]() -> gradient::OffsetStep& {
+  }
+  gradient::OffsetStep& record() {
     if (step_count == kMaxSteps) catch_up();
     return *new (&steps[step_count++].step) gradient::OffsetStep();
-  };
-  using StepKind = gradient::OffsetStep::Kind;
+  }
 
-  // Accumulates one base event of value c (output units) whose offsets `offset_event(o)`
-  // evaluates on demand as {valid, c_y = f(y)|J|/Σp(x̄), ratio = Σp(y)|J| / Σp(x̄)}.
-  struct OffsetEvent {
-    bool valid = false;
-    float contribution = 0;
-    float ratio = 0;
-  };
-  int depth = 0;
-  auto accumulate = [&](float c, auto&& offset_event) {
+  template <typename OffsetEventFn>
+  void accumulate(float c, OffsetEventFn&& offset_event) {
     if (c == 0.0f) return;
     out.primal += c;
     // Roulette-free values for the threshold (both sides of a pair compute the same numbers).
@@ -191,13 +163,10 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       events->record(
           {c_free, c * c, {up * up, down * down}, {own_values[0], own_values[1]}, depth + 1});
     }
-  };
+  }
 
-  // An emitter found by the sampled direction: the base's event, with the offsets' emitters
-  // found by their own rays (or the same one). `offset_emission` gives an offset's emitted
-  // radiance and its light-sampling density from its previous vertex, or nullopt when the
-  // offset has no vertex to compare.
-  auto emission_event = [&](float le_x, float p_light_x, auto&& offset_emission) {
+  template <typename OffsetEmissionFn>
+  void emission_event(float le_x, float p_light_x, OffsetEmissionFn&& offset_emission) {
     if (!(le_x > 0)) return;
     const float denominator_x = prev_specular ? pdf_since_prev : pdf_since_prev + p_light_x;
     const float c = scale * beta * le_x * pdf_since_prev / denominator_x;
@@ -210,18 +179,14 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
       return {true, scale * o.beta * le_y * pdf_since_prev / denominator_x,
               o.rho_prev * o.jacobian_last * denominator_y / denominator_x};
     });
-  };
+  }
 
-  std::uint32_t crossings = 0;
-  bool resolve_due = false;  // the base scattered at a surface and has not reached its next vertex
-  for (;;) {
-    const std::uint32_t dim = kDimBounce + kDimsPerBounce * std::uint32_t(depth);
-    const std::uint32_t flight_dim =
-        crossings == 0 ? dim + kFreeFlight
-                       : kDimCrossings + kCrossingsPerBounce * std::uint32_t(depth) + crossings;
-    ++counters.rays;
-    auto hit = geometry.intersect(ray, kInfinity);
-
+  // The segment of `ray` up to `hit` (or infinity) through the base's medium, recorded for the
+  // offsets: passed (go on to the surface), scattered inside the medium (NEE with the offsets
+  // done, `ray` is the new direction from the medium vertex, depth counted), or ended.
+  enum class Flight { kPassed, kScattered, kEnded };
+  Flight fly_through_medium(Ray& ray, const std::optional<SurfaceHit>& hit, std::uint32_t dim,
+                            std::uint32_t flight_dim) {
     if (medium >= 0) {
       const HomogeneousMedium& m = scene_.media()[medium];
       if (!m.scattering()) {
@@ -233,14 +198,14 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         gradient::OffsetStep& step = record();
         step.kind = StepKind::kSegment;
         for (const Offset& o : offsets) step.factor[o.lane - 1] = absorb(sigma_a[o.lane]);
-        if (beta == 0.0f) break;
+        if (beta == 0.0f) return Flight::kEnded;
       } else {
         SampledSpectrum sigma_s = m.sigma_s(shared);
         SampledSpectrum sigma_t = m.sigma_a(shared) + sigma_s;
         FreeFlight flight =
             sample_free_flight(sigma_t, hit ? hit->t : kInfinity, sampler.at(flight_dim), kLanes);
         const float p_x = flight.pdf[kBase];
-        if (!(p_x > 0)) break;
+        if (!(p_x > 0)) return Flight::kEnded;
         {
           gradient::OffsetStep& step = record();
           step.kind = StepKind::kSegment;
@@ -254,7 +219,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         }
         if (flight.scattered) {
           beta *= flight.transmittance[kBase] * sigma_s[kBase] / p_x;
-          if (beta == 0.0f || depth == options.max_depth) break;
+          if (beta == 0.0f || depth == scene_.options().max_depth) return Flight::kEnded;
           const Vec3f p = ray.origin + ray.direction * flight.t;
           const Vec3f wo = -ray.direction;
           const HenyeyGreenstein& phase = m.phase();
@@ -292,7 +257,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
           float phase_pdf = 0;
           const Vec3f wi =
               phase.sample(wo, to_point(sampler.at2(dim + kScatterDirection)), &phase_pdf);
-          if (!(phase_pdf > 0)) break;
+          if (!(phase_pdf > 0)) return Flight::kEnded;
           gradient::OffsetStep& step = record();
           step.kind = StepKind::kMediumVertex;
           step.phase_pdf = phase_pdf;
@@ -302,67 +267,60 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
           pdf_since_prev = phase_pdf;
           ray = {p, wi};
           ++depth;
-          crossings = 0;
-          continue;
+          return Flight::kScattered;
         }
         beta *= flight.transmittance[kBase] / p_x;
         pdf_since_prev *= p_x;
-        if (beta == 0.0f) break;
+        if (beta == 0.0f) return Flight::kEnded;
       }
     }
+    return Flight::kPassed;
+  }
 
-    const ShapeInfo* info = hit ? &scene_.shape(hit->shape) : nullptr;
-    const Material* material =
-        hit ? &scene_.material_at(info->material, *hit, -ray.direction) : nullptr;
-    const bool at_vertex = !hit || !std::holds_alternative<InterfaceMaterial>(*material);
-    if (resolve_due && at_vertex) {
-      gradient::OffsetStep& step = record();
-      step.kind = StepKind::kResolve;
-      step.has_next = hit.has_value();
-      if (hit) step.hit = *hit;
-      step.direction = ray.direction;
-      step.base = base_event;
-      resolve_due = false;
+  // The environment seen along an escaping ray, with what each offset's own ray sees.
+  void add_environment(const Ray& ray) {
+    const int infinite = scene_.infinite_light();
+    if (infinite >= 0) {
+      const auto& inf = std::get<InfiniteLight>(scene_.lights()[infinite]);
+      auto light_density = [&](const LightContext& ctx, const SampledWavelengths& l,
+                               const Vec3f& dir) {
+        return scene_.light_sampler().pmf(ctx.p, l, infinite) * inf.pdf(ctx.p, dir);
+      };
+      const float p_light_x =
+          prev_specular ? 0.0f : light_density(prev_ctx, base_lambda, ray.direction);
+      emission_event(inf.radiance(ray.origin, ray.direction, base_lambda)[0], p_light_x,
+                     [&](Offset& o) -> std::optional<std::pair<float, float>> {
+                       Vec3f origin = ray.origin, dir = ray.direction;
+                       if (o.state == OffsetState::kDiverged) {
+                         if (o.has_hit) return std::pair{0.0f, 0.0f};
+                         origin = o.prev_ctx.p;
+                         dir = o.direction;
+                       }
+                       return std::pair{
+                           inf.radiance(origin, dir, o.lambda)[0],
+                           prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, dir)};
+                     });
     }
+  }
 
-    if (!hit) {
-      const int infinite = scene_.infinite_light();
-      if (infinite >= 0) {
-        const auto& inf = std::get<InfiniteLight>(scene_.lights()[infinite]);
-        auto light_density = [&](const LightContext& ctx, const SampledWavelengths& l,
-                                 const Vec3f& dir) {
-          return scene_.light_sampler().pmf(ctx.p, l, infinite) * inf.pdf(ctx.p, dir);
-        };
-        const float p_light_x =
-            prev_specular ? 0.0f : light_density(prev_ctx, base_lambda, ray.direction);
-        emission_event(inf.radiance(ray.origin, ray.direction, base_lambda)[0], p_light_x,
-                       [&](Offset& o) -> std::optional<std::pair<float, float>> {
-                         Vec3f origin = ray.origin, dir = ray.direction;
-                         if (o.state == OffsetState::kDiverged) {
-                           if (o.has_hit) return std::pair{0.0f, 0.0f};
-                           origin = o.prev_ctx.p;
-                           dir = o.direction;
-                         }
-                         return std::pair{
-                             inf.radiance(origin, dir, o.lambda)[0],
-                             prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, dir)};
-                       });
-      }
-      break;
+  // The first vertex's guide features (prepass tasks).
+  void record_guides(const std::optional<SurfaceHit>& hit, const Material* material,
+                     GuideValues* guides) const {
+    const Geometry& geometry = scene_.geometry();
+    const Bounds3f& b = geometry.bounds();
+    float far = length(scene_.camera().position() - b.centre()) + b.radius();
+    guides->depth = std::min(1.0f, hit->t / std::max(1e-6f, far));
+    guides->normal = hit->ns;
+    if (const auto* diffuse = std::get_if<DiffuseMaterial>(material)) {
+      guides->albedo = diffuse->reflectance.at(texture_context(*hit), base_lambda)[0];
+    } else {
+      guides->albedo = 1.0f;
     }
+  }
 
-    if (depth == 0 && guides && at_vertex) {
-      const Bounds3f& b = geometry.bounds();
-      float far = length(scene_.camera().position() - b.centre()) + b.radius();
-      guides->depth = std::min(1.0f, hit->t / std::max(1e-6f, far));
-      guides->normal = hit->ns;
-      if (const auto* diffuse = std::get_if<DiffuseMaterial>(material)) {
-        guides->albedo = diffuse->reflectance.at(texture_context(*hit), base_lambda)[0];
-      } else {
-        guides->albedo = 1.0f;
-      }
-    }
-
+  // An area emitter the base hit, with what each offset hits or sees there.
+  void add_area_emission(const Ray& ray, const std::optional<SurfaceHit>& hit,
+                         const ShapeInfo* info, bool at_vertex) {
     if (info->area_light >= 0) {
       const auto& area = std::get<AreaLight>(scene_.lights()[info->area_light]);
       auto light_density = [&](const LightContext& ctx, const SampledWavelengths& l, int light,
@@ -392,20 +350,21 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                 prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, light, a, dir, *h)};
           });
     }
+  }
 
-    if (!at_vertex) {
-      // A pure medium boundary: the base continues on the other side, same path vertex; a
-      // diverged offset met an emitter the base counted without a vertex of its own.
-      if (info->area_light >= 0) record().kind = StepKind::kInterfaceEmitter;
-      if (info->medium_transition) {
-        medium = dot(ray.direction, hit->ng) < 0 ? info->medium_inside : info->medium_outside;
-      }
-      ray.origin = geometry.offset_origin(hit->p, hit->ng, ray.direction);
-      if (++crossings == kCrossingsPerBounce) break;
-      continue;
-    }
-    if (depth == options.max_depth) break;
-
+  // Arriving at a surface vertex: the offsets' arrival is recorded, and next-event estimation
+  // from the base's vertex is weighed against the offsets' (at the base's vertex, or from their
+  // own vertices to the base's light point). Returns what scattering there needs.
+  struct SurfaceVertex {
+    std::optional<Bsdf> bsdf;
+    VertexKind kind;
+    Frame frame;
+    Vec3f wo;
+    LightContext ctx;
+  };
+  SurfaceVertex direct_at_surface(const Ray& ray, const std::optional<SurfaceHit>& hit,
+                                  const Material* material, std::uint32_t dim) {
+    const Geometry& geometry = scene_.geometry();
     auto bsdf = make_bsdf(*material, base_lambda, texture_context(*hit));
     const VertexKind kind = gradient::kind_of(*bsdf);
     const Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
@@ -496,11 +455,24 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         }
       }
     }
+    return SurfaceVertex{std::move(bsdf), kind, frame, wo, ctx};
+  }
 
+  // The base scatters at its surface vertex (recorded for the offsets, which follow when they
+  // catch up; depth counted), then Russian roulette on its throughput. False when the path ends.
+  bool scatter_at_surface(Ray& ray, const std::optional<SurfaceHit>& hit, const ShapeInfo* info,
+                          const Material* material, const SurfaceVertex& vertex,
+                          std::uint32_t dim) {
+    const Geometry& geometry = scene_.geometry();
+    const std::optional<Bsdf>& bsdf = vertex.bsdf;
+    const VertexKind kind = vertex.kind;
+    const Frame& frame = vertex.frame;
+    const Vec3f wo = vertex.wo;
+    const LightContext ctx = vertex.ctx;
     const Point2 lobe_and_roulette = sampler.at2(dim + kScatterLobe);
     auto bs =
         sample(*bsdf, wo, lobe_and_roulette.u0, to_point(sampler.at2(dim + kScatterDirection)));
-    if (!bs || !(bs->pdf[0] > 0)) break;
+    if (!bs || !(bs->pdf[0] > 0)) return false;
     const float p_x = bs->pdf[0];
     const Vec3f wi = frame.from_local(bs->wi);
     const int medium_before = medium;
@@ -530,7 +502,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     prev_specular = bs->specular;
     pdf_since_prev = p_x;
     beta *= bs->f[0] * abs_cos_theta(bs->wi) / p_x;
-    if (beta == 0.0f) break;
+    if (beta == 0.0f) return false;
     if (bs->transmission) {
       eta_scale *= bs->etap * bs->etap;
       if (info->medium_transition) {
@@ -539,13 +511,12 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     }
     ray = {geometry.offset_origin(hit->p, hit->ng, wi), wi};
     ++depth;
-    crossings = 0;
 
-    if (depth >= options.rr_min_depth) {
+    if (depth >= scene_.options().rr_min_depth) {
       const float weight = beta * eta_scale;
       if (weight < 1.0f) {
         const float q = std::max(0.0f, 1.0f - weight);
-        if (lobe_and_roulette.u1 < q) break;
+        if (lobe_and_roulette.u1 < q) return false;
         beta /= 1.0f - q;
         survival *= 1.0f - q;
         gradient::OffsetStep& step = record();
@@ -553,27 +524,164 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
         step.survival = 1.0f - q;
       }
     }
+    return true;
   }
 
-  if (any_shifted) ++counters.gradient_shifted_paths;
-  if (!std::isfinite(out.primal) || !std::isfinite(out.gradient) ||
-      !std::isfinite(out.gradient_below)) {
-    ++counters.non_finite;
-    out.primal = out.gradient = out.gradient_below = 0;
-  } else if (filtered.weight != 1.0f) {
-    out.primal *= filtered.weight;
-    out.gradient *= filtered.weight;
-    out.gradient_below *= filtered.weight;
+  // The sample's primal and gradient values times the pixel filter's weight (nothing for a
+  // non-finite one), and the primal's exact-wavelength linear sRGB.
+  GradientSample finish(float filter_weight) {
+    const spectral::WavelengthGrid& grid = scene_.grid();
+    if (any_shifted) ++counters.gradient_shifted_paths;
+    if (!std::isfinite(out.primal) || !std::isfinite(out.gradient) ||
+        !std::isfinite(out.gradient_below)) {
+      ++counters.non_finite;
+      out.primal = out.gradient = out.gradient_below = 0;
+    } else if (filter_weight != 1.0f) {
+      out.primal *= filter_weight;
+      out.gradient *= filter_weight;
+      out.gradient_below *= filter_weight;
+    }
+    if (out.primal != 0.0f) {
+      // primal is a per-bin average: times the bin width it is f/p at λ.
+      const double estimate = double(out.primal) * grid.bin_width();
+      const spectral::Rgb bar = scene_.cmf().srgb(lambda);
+      out.rgb[0] = bar.r * estimate;
+      out.rgb[1] = bar.g * estimate;
+      out.rgb[2] = bar.b * estimate;
+    }
+    return out;
   }
-  if (out.primal != 0.0f) {
-    // primal is a per-bin average: times the bin width it is f/p at λ.
-    const double estimate = double(out.primal) * grid.bin_width();
-    const spectral::Rgb bar = scene_.cmf().srgb(lambda);
-    out.rgb[0] = bar.r * estimate;
-    out.rgb[1] = bar.g * estimate;
-    out.rgb[2] = bar.b * estimate;
+
+ private:
+  using StepKind = gradient::OffsetStep::Kind;
+  // An offset's value for one base event: {valid, c_y = f(y)|J|/Σp(x̄), ratio = Σp(y)|J| / Σp(x̄)}.
+  struct OffsetEvent {
+    bool valid = false;
+    float contribution = 0;
+    float ratio = 0;
+  };
+
+  const RenderScene& scene_;
+  const Sampler& sampler;
+  TraceCounters& counters;
+  GradientEventSink* events;
+  const float tau_;
+
+ public:
+  const SampledWavelengths base_lambda;
+  float lambda = 0;
+  GradientSample out;
+  Offset offsets[2];
+  SampledWavelengths shared;  // the base and the offsets, for the shared evaluations
+  float scale = 0;            // contributions are per-bin averages: f / (p(λ) p(x̄|λ)) / w
+  float beta = 1;             // f / p(x̄|λ) of the base prefix, with roulette
+  float survival = 1;         // product of the roulette survival probabilities
+  float pdf_since_prev = 1;
+  LightContext prev_ctx;
+  bool prev_specular = true;
+  float eta_scale = 1;
+  int medium = -1;
+  bool any_shifted = false;
+  int depth = 0;
+  bool resolve_due = false;  // the base scattered at a surface and has not reached its next vertex
+
+ private:
+  const gradient::OffsetTracer tracer;
+  BaseEvent base_event;
+  // The base's steps the offsets have not followed yet; they catch up when an event needs them
+  // (or when the log is full), so τ > 0 saves the offsets' rays as well as their events. A
+  // surface vertex records about four steps; 64 hold a path of depth 15 without a forced catch-up
+  // (at 24, the offsets of deep paths traced rays no event used). The slots are left
+  // uninitialised (zeroing 24 steps of 288 bytes per sample cost a tenth of a sample's time) and
+  // each step is constructed when it is recorded.
+  static constexpr int kMaxSteps = 64;
+  union StepSlot {
+    StepSlot() {}
+    gradient::OffsetStep step;
+  };
+  static_assert(std::is_trivially_destructible_v<gradient::OffsetStep>);
+  StepSlot steps[kMaxSteps];
+  int step_count = 0;
+};
+
+}  // namespace
+
+GradientIntegrator::GradientIntegrator(const RenderScene& scene)
+    : scene_(scene),
+      offset_bins_(scene.options().gradient_offset_bins),
+      tau_(scene.options().gradient_tau) {
+  PRISM_CHECK(offset_bins_ >= 1 && offset_bins_ < scene.grid().bins());
+  PRISM_CHECK(tau_ >= 0.0f);
+}
+
+GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
+                                         std::uint32_t sample_index,
+                                         spectral::WavelengthPdfView lambda_pdf,
+                                         TraceCounters& counters, GuideValues* guides,
+                                         GradientEventSink* events) const {
+  const job::RenderOptions& options = scene_.options();
+  const Geometry& geometry = scene_.geometry();
+  Sampler sampler(options.sampler, SampleKey{options.seed, pass, std::uint32_t(px),
+                                             std::uint32_t(py), sample_index});
+  BasePath path(scene_, sampler, counters, events, tau_,
+                lambda_pdf.sample_lanes(sampler.at(kDimWavelength), 1));
+  if (!path.start(lambda_pdf, offset_bins_)) return path.out;
+
+  const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
+  // The film position from the pixel filter; the sample's value carries the filter's weight.
+  const FilterSample filtered = scene_.pixel_filter().sample(film.u0, film.u1);
+  Ray ray = scene_.camera().generate_ray({float(px) + filtered.x, float(py) + filtered.y},
+                                         {lens.u0, lens.u1});
+  ++counters.camera_rays;
+  if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
+
+  std::uint32_t crossings = 0;
+  for (;;) {
+    const std::uint32_t dim = kDimBounce + kDimsPerBounce * std::uint32_t(path.depth);
+    const std::uint32_t flight_dim =
+        crossings == 0
+            ? dim + kFreeFlight
+            : kDimCrossings + kCrossingsPerBounce * std::uint32_t(path.depth) + crossings;
+    ++counters.rays;
+    auto hit = geometry.intersect(ray, kInfinity);
+
+    const BasePath::Flight flight = path.fly_through_medium(ray, hit, dim, flight_dim);
+    if (flight == BasePath::Flight::kEnded) break;
+    if (flight == BasePath::Flight::kScattered) {
+      crossings = 0;
+      continue;
+    }
+
+    const ShapeInfo* info = hit ? &scene_.shape(hit->shape) : nullptr;
+    const Material* material =
+        hit ? &scene_.material_at(info->material, *hit, -ray.direction) : nullptr;
+    const bool at_vertex = !hit || !std::holds_alternative<InterfaceMaterial>(*material);
+    if (path.resolve_due && at_vertex) path.resolve_arrival(ray, hit);
+    if (!hit) {
+      path.add_environment(ray);
+      break;
+    }
+    if (path.depth == 0 && guides && at_vertex) path.record_guides(hit, material, guides);
+    path.add_area_emission(ray, hit, info, at_vertex);
+
+    if (!at_vertex) {
+      // A pure medium boundary: the base continues on the other side, same path vertex; a
+      // diverged offset met an emitter the base counted without a vertex of its own.
+      if (info->area_light >= 0) path.record().kind = gradient::OffsetStep::Kind::kInterfaceEmitter;
+      if (info->medium_transition) {
+        path.medium = dot(ray.direction, hit->ng) < 0 ? info->medium_inside : info->medium_outside;
+      }
+      ray.origin = geometry.offset_origin(hit->p, hit->ng, ray.direction);
+      if (++crossings == kCrossingsPerBounce) break;
+      continue;
+    }
+    if (path.depth == options.max_depth) break;
+
+    const BasePath::SurfaceVertex vertex = path.direct_at_surface(ray, hit, material, dim);
+    if (!path.scatter_at_surface(ray, hit, info, material, vertex, dim)) break;
+    crossings = 0;
   }
-  return out;
+  return path.finish(filtered.weight);
 }
 
 }  // namespace prism::worker
