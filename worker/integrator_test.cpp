@@ -16,6 +16,7 @@
 #include "services/spectral/testing/chi_square.h"
 #include "worker/testing/bin_stats.h"
 #include "worker/testing/skewed_tables.h"
+#include "worker/testing/tracer_test.h"
 #include "worker/tile_renderer.h"
 
 namespace prism::worker {
@@ -25,17 +26,8 @@ namespace fs = std::filesystem;
 
 const fs::path kTestData = fs::path(PRISM_SOURCE_DIR) / "worker" / "testdata";
 
-class IntegratorTest : public ::testing::Test {
+class IntegratorTest : public testing::TracerTest {
  protected:
-  static void SetUpTestSuite() {
-    library_ = new spectral::SpectrumLibrary(*spectral::SpectrumLibrary::load_builtin());
-    device_ = new EmbreeDevice();
-  }
-  static void TearDownTestSuite() {
-    delete device_;
-    delete library_;
-  }
-
   static scene::SceneDescription load(const std::string& name) {
     scene::LoadOptions options;
     auto loaded = scene::load_scene(kTestData / name, options);
@@ -59,13 +51,7 @@ class IntegratorTest : public ::testing::Test {
     EXPECT_TRUE(result.ok()) << result.status();
     return std::move(*result);
   }
-
-  static spectral::SpectrumLibrary* library_;
-  static EmbreeDevice* device_;
 };
-
-spectral::SpectrumLibrary* IntegratorTest::library_ = nullptr;
-EmbreeDevice* IntegratorTest::device_ = nullptr;
 
 using testing::bin_stats;
 using testing::BinStats;

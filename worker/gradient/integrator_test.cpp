@@ -26,6 +26,7 @@
 #include "worker/gradient/shift.h"
 #include "worker/testing/bin_stats.h"
 #include "worker/testing/skewed_tables.h"
+#include "worker/testing/tracer_test.h"
 #include "worker/tile_renderer.h"
 
 namespace prism::worker {
@@ -321,17 +322,8 @@ TEST(GradientShiftTest, FailsCleanlyAtTotalInternalReflectionAndGrazingAngles) {
 // ---------------------------------------------------------------------------------------------
 // The integrator on scenes.
 
-class GradientIntegratorTest : public ::testing::Test {
+class GradientIntegratorTest : public testing::TracerTest {
  protected:
-  static void SetUpTestSuite() {
-    library_ = new spectral::SpectrumLibrary(*spectral::SpectrumLibrary::load_builtin());
-    device_ = new EmbreeDevice();
-  }
-  static void TearDownTestSuite() {
-    delete device_;
-    delete library_;
-  }
-
   static scene::SceneDescription load_file(const fs::path& file) {
     scene::LoadOptions options;
     auto loaded = scene::load_scene(file, options);
@@ -366,13 +358,7 @@ class GradientIntegratorTest : public ::testing::Test {
     options.seed = seed;
     return options;
   }
-
-  static spectral::SpectrumLibrary* library_;
-  static EmbreeDevice* device_;
 };
-
-spectral::SpectrumLibrary* GradientIntegratorTest::library_ = nullptr;
-EmbreeDevice* GradientIntegratorTest::device_ = nullptr;
 
 // Per-sample statistics of d[b] = G[b] − (I[b+k] − I[b]) (expected 0 for every bin) and of G.
 struct Consistency {

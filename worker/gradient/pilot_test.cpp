@@ -10,6 +10,7 @@
 
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
+#include "worker/testing/tracer_test.h"
 
 namespace prism::worker {
 namespace {
@@ -80,17 +81,8 @@ TEST(GradientPilotEvents, NoLightMeansNoThreshold) {
   EXPECT_EQ(useless.choose_tau(0.1), 3.0f);
 }
 
-class GradientPilotTest : public ::testing::Test {
+class GradientPilotTest : public testing::TracerTest {
  protected:
-  static void SetUpTestSuite() {
-    library_ = new spectral::SpectrumLibrary(*spectral::SpectrumLibrary::load_builtin());
-    device_ = new EmbreeDevice();
-  }
-  static void TearDownTestSuite() {
-    delete device_;
-    delete library_;
-  }
-
   static scene::SceneDescription load(const std::string& name) {
     auto loaded = scene::load_scene(kTestData / name, {});
     EXPECT_TRUE(loaded.ok()) << loaded.status();
@@ -145,13 +137,7 @@ class GradientPilotTest : public ::testing::Test {
     for (const GradientEvent& e : events) m += double(e.side_square[0]) + e.side_square[1];
     return m;
   }
-
-  static spectral::SpectrumLibrary* library_;
-  static EmbreeDevice* device_;
 };
-
-spectral::SpectrumLibrary* GradientPilotTest::library_ = nullptr;
-EmbreeDevice* GradientPilotTest::device_ = nullptr;
 
 // The base paths do not depend on τ, so tracing the pilot's samples at any τ must give exactly
 // the predicted second moment: the prediction holds no model, only bookkeeping.
