@@ -246,10 +246,15 @@ absl::StatusOr<Timed> farm_method(const FarmConnection& farm, const fs::path& sc
         absl::StrCat("cannot create ", scratch.string(), ": ", ec.message()));
   }
   const auto start = Clock::now();
-  PRISM_RETURN_IF_ERROR(run_submit(farm, submit).status());
+  const absl::Status submitted = run_submit(farm, submit).status();
   const double wall = std::chrono::duration<double>(Clock::now() - start).count();
-  PRISM_ASSIGN_OR_RETURN(image::SpectralExr exr, image::read_spectral_exr(scratch / "render.exr"));
+  absl::StatusOr<image::SpectralExr> read = submitted.ok()
+                                                ? image::read_spectral_exr(scratch / "render.exr")
+                                                : absl::StatusOr<image::SpectralExr>(submitted);
+  // The fetched outputs are only read here: nothing of them stays behind, even on an error.
   fs::remove_all(scratch, ec);
+  if (!read.ok()) return read.status();
+  image::SpectralExr exr = *std::move(read);
   const auto meta = [&](std::string_view key) -> std::string {
     auto it = exr.metadata.find(std::string(key));
     return it == exr.metadata.end() ? std::string() : it->second;
