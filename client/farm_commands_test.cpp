@@ -14,6 +14,7 @@
 #include "coordinator/testing/in_process_farm.h"
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
+#include "tests/testing/test_dir.h"
 
 namespace prism::client {
 namespace {
@@ -32,11 +33,7 @@ int count(const std::string& text, const std::string& needle) {
 class FarmCommandsTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    root_ = fs::path(::testing::TempDir()) /
-            ("farm_cli_" +
-             std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()) + "_" +
-             std::to_string(::getpid()));
-    fs::remove_all(root_);
+    root_ = prism::testing::fresh_dir();
     fs::create_directories(root_ / "scene");
     std::ofstream(root_ / "scene" / "scene.pbrt") << kSmallScene;
     farm_ = coordinator::testing::InProcessFarm::start(root_ / "data");

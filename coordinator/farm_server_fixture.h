@@ -55,7 +55,7 @@ inline std::size_t count_files(const fs::path& dir) {
   return n;
 }
 
-using testing::fresh_dir;
+using prism::testing::fresh_dir;
 
 inline void write(const fs::path& path, const std::string& text) {
   fs::create_directories(path.parent_path());

@@ -10,11 +10,12 @@
 #include "coordinator/outputs.h"
 #include "services/base/status.h"
 #include "services/scene/scene_loader.h"
+#include "tests/testing/test_dir.h"
 
 namespace prism::coordinator {
 namespace {
 
-class LocalRenderTest : public testing::Test {
+class LocalRenderTest : public ::testing::Test {
  protected:
   void SetUp() override {
     auto library = spectral::SpectrumLibrary::load_builtin();
@@ -154,13 +155,13 @@ Translate 0 0.8 0
 Shape "sphere" "float radius" 0.8
 )";
 
-class RgbOutputTest : public testing::Test {
+class RgbOutputTest : public ::testing::Test {
  protected:
   void SetUp() override {
     auto library = spectral::SpectrumLibrary::load_builtin();
     ASSERT_TRUE(library.ok()) << library.status();
     library_ = std::make_unique<spectral::SpectrumLibrary>(*std::move(library));
-    const std::filesystem::path file = std::filesystem::path(testing::TempDir()) / "line_lamp.pbrt";
+    const std::filesystem::path file = prism::testing::test_dir() / "line_lamp.pbrt";
     std::ofstream(file) << kLineLamp;
     auto loaded = scene::load_scene(file, scene::with_library_names(*library_));
     ASSERT_TRUE(loaded.ok()) << loaded.status();

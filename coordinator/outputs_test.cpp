@@ -11,17 +11,12 @@
 #include "services/image/exr_spectral.h"
 #include "services/image/png.h"
 #include "services/spectral/wavelength_grid.h"
+#include "tests/testing/test_dir.h"
 
 namespace prism::coordinator {
 namespace {
 namespace fs = std::filesystem;
-
-fs::path fresh_dir(const std::string& name) {
-  fs::path dir = fs::path(testing::TempDir()) / ("prism_outputs_test_" + name);
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+using prism::testing::fresh_dir;
 
 std::vector<fs::path> listing(const fs::path& dir) {
   std::vector<fs::path> files;

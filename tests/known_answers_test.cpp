@@ -26,6 +26,7 @@
 #include "services/spectral/color.h"
 #include "services/spectral/named_spectra.h"
 #include "tests/render_fixture.h"
+#include "tests/testing/test_dir.h"
 
 namespace prism::coordinator {
 namespace {
@@ -117,7 +118,7 @@ Shape "trianglemesh" "point3 P" [-10 0 -10  10 0 -10  10 0 10  -10 0 10]
 // with that illuminance. pbrt-v4 weighs the texels by 2π/N instead of 4π/N and would light
 // this floor twice as brightly as its own uniform sky (docs/conformance.md).
 TEST_F(KnownAnswerTest, AnEnvironmentImageLightsAFloorAsItsIlluminanceSays) {
-  const std::filesystem::path dir = std::filesystem::path(testing::TempDir());
+  const std::filesystem::path dir = prism::testing::test_dir();
   auto white = image::RgbImage::create(16, 16);
   ASSERT_TRUE(white.ok());
   for (float& v : white->data()) v = 1.0f;

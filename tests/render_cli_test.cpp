@@ -18,9 +18,11 @@
 #include "services/image/exr_spectral.h"
 #include "services/image/png.h"
 #include "tests/testing/child_process.h"
+#include "tests/testing/test_dir.h"
 
 namespace {
 namespace fs = std::filesystem;
+using prism::testing::fresh_dir;
 
 struct CommandRun {
   int exit_code = -1;
@@ -36,13 +38,6 @@ CommandRun run_prism(const fs::path& dir, const std::vector<std::string>& args) 
   options.merge_stderr = true;
   const prism::testing::RunResult run = prism::testing::run(std::move(argv), options);
   return CommandRun{run.exit_code, run.out};
-}
-
-fs::path fresh_dir(const std::string& name) {
-  fs::path dir = fs::path(testing::TempDir()) / ("prism_render_cli_test_" + name);
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
 }
 
 std::vector<std::string> listing(const fs::path& dir) {

@@ -18,14 +18,15 @@
 #include "services/spectral/color.h"
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/wavelength_grid.h"
+#include "tests/testing/test_dir.h"
 
 namespace prism::coordinator {
 
 inline constexpr job::IntegratorKind kIntegrators[] = {
     job::IntegratorKind::kUniform, job::IntegratorKind::kHero, job::IntegratorKind::kGradient};
 
-// `Base`: testing::Test, or testing::TestWithParam<...> for parameterised suites.
-template <typename Base = testing::Test>
+// `Base`: ::testing::Test, or ::testing::TestWithParam<...> for parameterised suites.
+template <typename Base = ::testing::Test>
 class RenderFixtureBase : public Base {
  protected:
   static void SetUpTestSuite() {
@@ -40,7 +41,7 @@ class RenderFixtureBase : public Base {
   // The scene `text`, written to a file named `name` and loaded as `prism render` loads it.
   static absl::StatusOr<scene::SceneDescription> load(const std::string& name,
                                                       const std::string& text) {
-    const std::filesystem::path file = std::filesystem::path(testing::TempDir()) / name;
+    const std::filesystem::path file = prism::testing::test_dir() / name;
     std::ofstream(file) << text;
     PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded,
                            scene::load_scene(file, scene::with_library_names(*library_)));

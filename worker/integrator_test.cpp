@@ -14,6 +14,7 @@
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/testing/chi_square.h"
+#include "tests/testing/test_dir.h"
 #include "worker/testing/bin_stats.h"
 #include "worker/testing/skewed_tables.h"
 #include "worker/testing/tracer_test.h"
@@ -281,7 +282,7 @@ AttributeEnd
 )";
 
 scene::SceneDescription load_text(const std::string& name, const std::string& text) {
-  const fs::path file = fs::path(::testing::TempDir()) / name;
+  const fs::path file = prism::testing::test_dir() / name;
   std::ofstream(file) << text;
   scene::LoadOptions options;
   auto loaded = scene::load_scene(file, options);

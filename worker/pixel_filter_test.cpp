@@ -14,6 +14,7 @@
 
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
+#include "tests/testing/test_dir.h"
 #include "worker/render_scene.h"
 #include "worker/tile_renderer.h"
 
@@ -196,7 +197,7 @@ TEST(PixelFilterTest, AnEdgeRendersAsTheFilterSaysWithinNoise) {
   for (const Case& c : {Case{"PixelFilter \"gaussian\"", gaussian, 1.5},
                         Case{"PixelFilter \"mitchell\"", mitchell, 2.0}}) {
     SCOPED_TRACE(c.directive);
-    const std::filesystem::path file = std::filesystem::path(::testing::TempDir()) / "edge.pbrt";
+    const std::filesystem::path file = prism::testing::test_dir() / "edge.pbrt";
     std::ofstream(file)
         << "LookAt 0 0 -10  0 0 0  0 1 0\nCamera \"perspective\" \"float fov\" 10\n"
         << "Film \"spectral\" \"integer xresolution\" 16 \"integer yresolution\" 8 "

@@ -24,14 +24,6 @@ AttributeBegin
 AttributeEnd
 )";
 
-fs::path fresh_dir(const std::string& name) {
-  const fs::path dir =
-      fs::path(::testing::TempDir()) / ("farm_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
-
 std::string packed_bundle(const fs::path& root, const std::string& text) {
   fs::create_directories(root);
   std::ofstream(root / "scene.pbrt", std::ios::binary) << text;

@@ -19,9 +19,6 @@ inline constexpr char kWorkerSecret[] = "worker-secret";
 // A 16x16, 8-bin, 4 spp diffuse sphere under a constant environment: fast to render.
 extern const char kSmallScene[];
 
-// A fresh empty directory under the test temp dir, named after `name` and the process.
-std::filesystem::path fresh_dir(const std::string& name);
-
 // Writes `text` to root/scene.pbrt and returns the packed bundle of that scene.
 std::string packed_bundle(const std::filesystem::path& root, const std::string& text);
 

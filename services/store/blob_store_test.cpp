@@ -5,17 +5,13 @@
 #include <fstream>
 
 #include "services/base/sha256.h"
+#include "tests/testing/test_dir.h"
 
 namespace prism::store {
 namespace {
 
 namespace fs = std::filesystem;
-
-fs::path fresh_dir(const std::string& name) {
-  auto dir = fs::temp_directory_path() / ("prism_store_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  return dir;
-}
+using prism::testing::fresh_dir;
 
 TEST(BlobStoreTest, PutGetByHash) {
   auto dir = fresh_dir("putget");

@@ -223,18 +223,4 @@ int free_port() {
   return ntohs(addr.sin_port);
 }
 
-std::filesystem::path fresh_dir(const std::string& name) {
-  const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  std::string leaf = "prism_test";
-  if (info != nullptr) {
-    leaf.assign(info->test_suite_name()).append("_").append(info->name());
-  }
-  if (!name.empty()) leaf.append("_").append(name);
-  leaf.append("_").append(std::to_string(::getpid()));
-  const std::filesystem::path dir = std::filesystem::path(::testing::TempDir()) / leaf;
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
-  return dir;
-}
-
 }  // namespace prism::testing

@@ -2,7 +2,7 @@
 // coordinator, the worker). One way to start them, wait for them to be ready, read what they
 // print, and never leave one behind: a ChildProcess still running when it goes out of scope is
 // killed and reaped, and when the test has failed its output is printed so the failure can be
-// read from ctest's log. Also a free loopback port and a fresh directory per test.
+// read from ctest's log. Also a free loopback port (and, from test_dir.h, a directory per test).
 #pragma once
 
 #include <sys/types.h>
@@ -17,6 +17,8 @@
 #include <string_view>
 #include <thread>
 #include <vector>
+
+#include "tests/testing/test_dir.h"
 
 namespace prism::testing {
 
@@ -85,9 +87,5 @@ RunResult run(std::vector<std::string> argv, const ChildOptions& options = {},
 // A loopback TCP port that was free a moment ago (for a server that must be restarted on the
 // same address; servers that can should bind port 0 and print the port they got).
 int free_port();
-
-// A fresh, empty directory under the test temp dir, named after the running test, `name` and
-// the process id.
-std::filesystem::path fresh_dir(const std::string& name = "");
 
 }  // namespace prism::testing

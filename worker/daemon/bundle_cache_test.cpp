@@ -6,17 +6,13 @@
 
 #include "services/base/atomic_file.h"
 #include "services/scene/bundle.h"
+#include "tests/testing/test_dir.h"
 
 namespace prism::worker {
 namespace {
 
 namespace fs = std::filesystem;
-
-fs::path fresh_dir(const std::string& name) {
-  const fs::path dir = fs::path(::testing::TempDir()) / ("bundle_cache_" + name);
-  fs::remove_all(dir);
-  return dir;
-}
+using prism::testing::fresh_dir;
 
 std::string furnace_blob(scene::Bundle* out = nullptr) {
   auto bundle =

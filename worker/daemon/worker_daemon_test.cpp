@@ -213,10 +213,7 @@ class WorkerDaemonTest : public ::testing::Test {
     ASSERT_TRUE(bundle.ok()) << bundle.status();
     bundle_ = *bundle;
     fake_.blob = scene::pack(bundle_);
-    cache_dir_ = fs::path(::testing::TempDir()) /
-                 ("worker_daemon_" +
-                  std::string(::testing::UnitTest::GetInstance()->current_test_info()->name()));
-    fs::remove_all(cache_dir_);
+    cache_dir_ = prism::testing::fresh_dir();
     logger_ = spdlog::get("worker");
     if (!logger_) logger_ = spdlog::stderr_color_mt("worker");
     logger_->set_level(spdlog::level::debug);

@@ -22,6 +22,7 @@
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/testing/chi_square.h"
+#include "tests/testing/test_dir.h"
 #include "worker/fresnel.h"
 #include "worker/gradient/shift.h"
 #include "worker/testing/bin_stats.h"
@@ -334,7 +335,7 @@ class GradientIntegratorTest : public testing::TracerTest {
     return load_file(kTestData / name);
   }
   static scene::SceneDescription load_text(const std::string& name, const std::string& text) {
-    const fs::path file = fs::path(::testing::TempDir()) / name;
+    const fs::path file = prism::testing::test_dir() / name;
     std::ofstream(file) << text;
     return load_file(file);
   }
