@@ -570,6 +570,61 @@ SurfaceHit Geometry::finish_quadric_hit(int shape, const Ray& ray, float t) cons
   return hit;
 }
 
+namespace {
+
+// d(N/|N|) for the unnormalised normal N changing by dN: the part of dN/|N| across n = N/|N|.
+Vec3f normalized_differential(const Vec3f& n, float length_n, const Vec3f& dN) {
+  return (dN - n * dot(n, dN)) / length_n;
+}
+
+}  // namespace
+
+Vec3f Geometry::normal_differential(const SurfaceHit& hit, const Vec3f& dp) const {
+  const auto shape = size_t(hit.shape);
+  // N(p) = A·(B·p + c) for an affine world-to-object B and a linear normal map A: dN = A·B·dp.
+  // The sign of `flip` multiplies N and dN alike, so ns = ±N/|N| and dns = ±d(N/|N|) agree.
+  auto affine_normal = [&](const scene::Transform& object_to_world,
+                           const scene::Transform& world_to_object, bool flip, bool drop_z) {
+    scene::Vec3 po = world_to_object.apply_point(to_double(hit.p));
+    scene::Vec3 dpo = world_to_object.apply_vector(to_double(dp));
+    if (drop_z) po[2] = dpo[2] = 0;  // a cylinder's normal is (x, y, 0)
+    const Vec3f N = to_vec(object_to_world.apply_normal(po));
+    const Vec3f dN = to_vec(object_to_world.apply_normal(dpo));
+    const float len = length(N);
+    if (!(len > 0)) return Vec3f{};
+    const Vec3f d = normalized_differential(N / len, len, dN);
+    return flip ? -d : d;
+  };
+  if (shape < spheres_.size() && spheres_[shape]) {
+    const SphereShape& s = *spheres_[shape];
+    return affine_normal(s.object_to_world, s.world_to_object, s.flip, false);
+  }
+  if (shape < quadrics_.size() && quadrics_[shape]) {
+    const QuadricShape& q = *quadrics_[shape];
+    if (!q.cylinder) return {};
+    return affine_normal(q.object_to_world, q.world_to_object, q.flip, true);
+  }
+  const WorldTriangle w = triangle(hit.shape, hit.primitive);
+  if (!w.has_normals) return {};
+  // p = p0 + e1·u + e2·v on the triangle's plane: (du, dv) from dp by the dual basis.
+  const Vec3f e1 = w.p1 - w.p0, e2 = w.p2 - w.p0;
+  const float a = dot(e1, e1), b = dot(e1, e2), c = dot(e2, e2);
+  const float det = a * c - b * b;
+  if (!(std::abs(det) > 0)) return {};
+  auto barycentrics = [&](const Vec3f& v) {
+    const float r1 = dot(e1, v), r2 = dot(e2, v);
+    return Point2f{(c * r1 - b * r2) / det, (a * r2 - b * r1) / det};
+  };
+  const Point2f uv = barycentrics(hit.p - w.p0);
+  const Point2f duv = barycentrics(dp);
+  const Vec3f N = w.n0 * (1 - uv.x - uv.y) + w.n1 * uv.x + w.n2 * uv.y;
+  const Vec3f dN = (w.n1 - w.n0) * duv.x + (w.n2 - w.n0) * duv.y;
+  const float len = length(N);
+  if (!(len > 0)) return {};
+  // ns is N/|N| (finish_triangle_hit), whatever the orientation flags.
+  return normalized_differential(N / len, len, dN);
+}
+
 std::optional<SurfaceHit> Geometry::intersect(const Ray& ray, float t_max) const {
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);

@@ -73,6 +73,11 @@ class Geometry {
 
   // Closest hit with t in (0, t_max).
   std::optional<SurfaceHit> intersect(const Ray& ray, float t_max) const;
+  // How the hit's unit shading normal ns changes when its point moves by the tangent vector dp
+  // (first order, world space): Igehy's normal differential, used by spectral ray differentials
+  // (spectral_differential.h). Exact for the shape's own normal field: a sphere's (under any
+  // affine transform), a cylinder's, interpolated vertex normals; 0 on flat triangles and disks.
+  Vec3f normal_differential(const SurfaceHit& hit, const Vec3f& dp) const;
   // True when anything blocks the segment origin + t·direction, t in (0, t_max).
   bool occluded(const Ray& ray, float t_max) const;
 
