@@ -85,7 +85,40 @@ absl::StatusOr<Camera> Camera::create(const scene::Camera& camera, int width, in
   c.lens_radius_ = camera.lens_radius;
   c.focal_distance_ = camera.focal_distance;
   c.world_from_camera_ = camera.world_from_camera;
+  c.camera_from_world_ = camera.world_from_camera.inverse();
   return c;
+}
+
+std::optional<CameraConnection> Camera::connect(const Vec3f& p, float margin) const {
+  const scene::Vec3 q = camera_from_world_.apply_point({p.x, p.y, p.z});
+  if (!(q[2] > 0.0)) return std::nullopt;
+  const double sx = q[0] / q[2], sy = q[1] / q[2];
+  const double rx = (sx - screen_x0_) / screen_dx_, ry = (sy - screen_y0_) / screen_dy_;
+  if (!(rx >= -margin && rx < width_ + margin && ry >= -margin && ry < height_ + margin)) {
+    return std::nullopt;
+  }
+  // cos θ in camera space (angles survive a similarity world_from_camera).
+  const double cos_theta = q[2] / std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+  const scene::Vec3 o = world_from_camera_.apply_point({0.0, 0.0, 0.0});
+  const double dx = o[0] - p.x, dy = o[1] - p.y, dz = o[2] - p.z;
+  const double distance = std::sqrt(dx * dx + dy * dy + dz * dz);
+  if (!(distance > 0.0)) return std::nullopt;
+  CameraConnection c;
+  c.raster = {float(rx), float(ry)};
+  c.to_camera = {float(dx / distance), float(dy / distance), float(dz / distance)};
+  c.distance = float(distance);
+  c.importance = float(1.0 / (std::abs(screen_dx_ * screen_dy_) * cos_theta * cos_theta * cos_theta));
+  return c;
+}
+
+Point2f Camera::raster_differential(const Vec3f& p, const Vec3f& dp) const {
+  const scene::Vec3 q = camera_from_world_.apply_point({p.x, p.y, p.z});
+  const scene::Vec3 dq = camera_from_world_.apply_vector({dp.x, dp.y, dp.z});
+  if (!(q[2] > 0.0)) return {};
+  // raster = ((q_x/q_z − x0)/dx, (q_y/q_z − y0)/dy): the quotient rule.
+  const double inv = 1.0 / (q[2] * q[2]);
+  return {float((dq[0] * q[2] - q[0] * dq[2]) * inv / screen_dx_),
+          float((dq[1] * q[2] - q[1] * dq[2]) * inv / screen_dy_)};
 }
 
 Ray Camera::generate_ray(Point2f film, Point2f lens) const {

@@ -8,6 +8,8 @@
 // pinhole ray meets at depth f (pbrt-v4 PerspectiveCamera::GenerateRay).
 #pragma once
 
+#include <optional>
+
 #include "absl/status/statusor.h"
 #include "services/scene/scene_description.h"
 #include "worker/equal_area.h"
@@ -15,6 +17,19 @@
 #include "worker/vecmath.h"
 
 namespace prism::worker {
+
+// Where a world point lands on a pinhole camera's film, for light paths that connect to the
+// camera (light_tracer.h): the raster position, the unit direction from the point to the pinhole,
+// their distance, and the importance W per unit raster area, 1 / (|dx|·|dy|·cos³θ) with dx, dy
+// one pixel's size on the z = 1 plane and θ the angle to the optical axis. An eye sample measures
+// a pixel as ∫ L(x) dx over raster positions; dx = W dω, so a light path's vertex y adds
+// L(y → camera)·W·|cos θ_y|/d² per unit area of y.
+struct CameraConnection {
+  Point2f raster;
+  Vec3f to_camera;
+  float distance = 0;
+  float importance = 0;
+};
 
 class Camera {
  public:
@@ -30,6 +45,14 @@ class Camera {
   int width() const { return width_; }
   int height() const { return height_; }
   Vec3f position() const;  // the pinhole (lens centre) in world space
+  // Whether connect() is defined: a perspective camera without a lens (a pinhole).
+  bool is_pinhole() const { return !orthographic_ && spherical_ == 0 && !(lens_radius_ > 0); }
+  // The pinhole connection to world point p (is_pinhole() must hold), or nullopt when p is behind
+  // the camera or its raster position is farther than `margin` pixels outside the film (a pixel
+  // filter of radius r reaches r − 0.5 beyond the film's edge).
+  std::optional<CameraConnection> connect(const Vec3f& p, float margin) const;
+  // How p's raster position moves when p moves by dp (first order; p in front of the camera).
+  Point2f raster_differential(const Vec3f& p, const Vec3f& dp) const;
 
  private:
   int width_ = 0, height_ = 0;
@@ -39,6 +62,7 @@ class Camera {
   bool orthographic_ = false;
   int spherical_ = 0;  // 0: not spherical; 1: equal-area; 2: equirectangular
   scene::Transform world_from_camera_;
+  scene::Transform camera_from_world_;
 };
 
 }  // namespace prism::worker

@@ -181,6 +181,12 @@ std::optional<LightSample> AreaLight::sample(const LightContext& ctx, Point2f u,
 
 std::optional<LightSample> AreaLight::sample_disk(const LightContext& ctx, Point2f u,
                                                   const SampledWavelengths& lambda) const {
+  auto point = point_on_disk(u);
+  if (!point) return std::nullopt;
+  return uniform_area_sample(ctx, point->p, point->n, lambda);
+}
+
+std::optional<AreaPoint> AreaLight::point_on_disk(Point2f u) const {
   const double ri2 = disk_.inner_radius * disk_.inner_radius;
   const double r = std::sqrt(ri2 + double(u.x) * (disk_.radius * disk_.radius - ri2));
   const double phi = 2 * M_PI * double(u.y);
@@ -188,11 +194,17 @@ std::optional<LightSample> AreaLight::sample_disk(const LightContext& ctx, Point
       to_vec(disk_to_world_.apply_point({r * std::cos(phi), r * std::sin(phi), disk_.height}));
   if (has_alpha_ && masked(geometry_->alpha_at_point(shape_, p, disk_normal_), p))
     return std::nullopt;
-  return uniform_area_sample(ctx, p, disk_normal_, lambda);
+  return AreaPoint{p, disk_normal_};
 }
 
 std::optional<LightSample> AreaLight::sample_cylinder(const LightContext& ctx, Point2f u,
                                                       const SampledWavelengths& lambda) const {
+  auto point = point_on_cylinder(u);
+  if (!point) return std::nullopt;
+  return uniform_area_sample(ctx, point->p, point->n, lambda);
+}
+
+std::optional<AreaPoint> AreaLight::point_on_cylinder(Point2f u) const {
   const double z = cylinder_.z_min + double(u.x) * (cylinder_.z_max - cylinder_.z_min);
   const double phi = 2 * M_PI * double(u.y);
   const scene::Vec3 po{cylinder_.radius * std::cos(phi), cylinder_.radius * std::sin(phi), z};
@@ -201,7 +213,21 @@ std::optional<LightSample> AreaLight::sample_cylinder(const LightContext& ctx, P
   Vec3f n = normalize(to_vec(cylinder_to_world_.apply_normal({po[0], po[1], 0})));
   if (cylinder_flip_) n = -n;
   if (has_alpha_ && masked(geometry_->alpha_at_point(shape_, p, n), p)) return std::nullopt;
-  return uniform_area_sample(ctx, p, n, lambda);
+  return AreaPoint{p, n};
+}
+
+std::optional<AreaPoint> AreaLight::point_on_sphere(Point2f u) const {
+  const Vec3f n = sample_uniform_sphere(u);
+  const Vec3f p = sphere_centre_ + n * sphere_radius_;
+  const Vec3f ng = sphere_flip_ ? -n : n;
+  if (has_alpha_ && masked(geometry_->alpha_at_point(shape_, p, ng), p)) return std::nullopt;
+  return AreaPoint{p, ng};
+}
+
+std::optional<AreaPoint> AreaLight::sample_point(Point2f u, float u_tri) const {
+  if (is_disk_) return point_on_disk(u);
+  if (is_cylinder_) return point_on_cylinder(u);
+  return is_sphere_ ? point_on_sphere(u) : point_on_triangles(u, u_tri);
 }
 
 bool AreaLight::masked(float alpha, const Vec3f& p) {
@@ -240,6 +266,12 @@ LightSample AreaLight::area_sample(const Vec3f& wi, float dist, const Vec3f& p, 
 std::optional<LightSample> AreaLight::sample_triangles(const LightContext& ctx, Point2f u,
                                                        float u_tri,
                                                        const SampledWavelengths& lambda) const {
+  auto point = point_on_triangles(u, u_tri);
+  if (!point) return std::nullopt;
+  return uniform_area_sample(ctx, point->p, point->n, lambda);
+}
+
+std::optional<AreaPoint> AreaLight::point_on_triangles(Point2f u, float u_tri) const {
   // The first triangle whose cumulative area exceeds u_tri: zero-area triangles are never chosen.
   auto it = std::upper_bound(triangle_cdf_.begin(), triangle_cdf_.end(), u_tri);
   auto index = std::uint32_t(std::min<std::ptrdiff_t>(it - triangle_cdf_.begin(),
@@ -268,16 +300,7 @@ std::optional<LightSample> AreaLight::sample_triangles(const LightContext& ctx, 
   }
   if (has_alpha_ && masked(geometry_->alpha_on_triangle(shape_, index, b1, b2, n), p))
     return std::nullopt;
-  Vec3f d = p - ctx.p;
-  float dist2 = length_squared(d);
-  if (!(dist2 > 0)) return std::nullopt;
-  float dist = std::sqrt(dist2);
-  Vec3f wi = d / dist;
-  float cos_light = dot(n, -wi);
-  if (!two_sided_ && cos_light <= 0) return std::nullopt;
-  float pdf = dist2 / (std::abs(cos_light) * float(area_));
-  if (!std::isfinite(pdf) || !(pdf > 0)) return std::nullopt;
-  return area_sample(wi, dist, p, n, pdf, lambda);
+  return AreaPoint{p, n};
 }
 
 std::optional<LightSample> AreaLight::sample_sphere(const LightContext& ctx, Point2f u,

@@ -54,6 +54,13 @@ struct LightSample {
   bool delta = false;        // point, spot and distant lights: not reachable by BSDF sampling
 };
 
+// A point on an emitting surface and its geometric normal (the emitting side of a one-sided
+// light).
+struct AreaPoint {
+  Vec3f p;
+  Vec3f n;
+};
+
 class AreaLight {
  public:
   // `shape` indexes the scene's shapes and the Geometry built from it.
@@ -62,6 +69,9 @@ class AreaLight {
                                           double scale);
   std::optional<LightSample> sample(const LightContext& ctx, Point2f u, float u_tri,
                                     const SampledWavelengths& lambda) const;
+  // A point uniform by area (density 1/area()), for emitting light paths; nullopt where the
+  // shape's alpha masks it (the point does not emit).
+  std::optional<AreaPoint> sample_point(Point2f u, float u_tri) const;
   // Solid-angle pdf of reaching `hit` (a point on this light) from ctx along wi.
   float pdf(const LightContext& ctx, const Vec3f& wi, const SurfaceHit& hit) const;
   // Emitted radiance leaving the light at a point with geometric normal n towards w.
@@ -87,6 +97,10 @@ class AreaLight {
                                          const SampledWavelengths& lambda) const;
   std::optional<LightSample> sample_cylinder(const LightContext& ctx, Point2f u,
                                              const SampledWavelengths& lambda) const;
+  std::optional<AreaPoint> point_on_triangles(Point2f u, float u_tri) const;
+  std::optional<AreaPoint> point_on_disk(Point2f u) const;
+  std::optional<AreaPoint> point_on_cylinder(Point2f u) const;
+  std::optional<AreaPoint> point_on_sphere(Point2f u) const;
   // A sampled point p with unit normal n (its emitting side) seen from ctx, or nullopt.
   std::optional<LightSample> uniform_area_sample(const LightContext& ctx, const Vec3f& p,
                                                  const Vec3f& n,

@@ -40,6 +40,8 @@ class PixelFilter {
   // ∫∫ f over its support.
   double integral() const { return axes_[0].integral * axes_[1].integral; }
   bool unit_box() const { return unit_box_; }
+  // The support's half-width along an axis (0: x, 1: y), in pixels.
+  double radius(int axis) const { return axes_[axis].radius; }
   // One axis (0: x, 1: y) of sample(): the offset from the centre and its weight factor.
   void sample_axis(int axis, double u, double* offset, double* weight) const {
     axes_[axis].sample(u, offset, weight);
