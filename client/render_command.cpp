@@ -127,8 +127,9 @@ absl::StatusOr<job::IntegratorKind> parse_integrator(const std::string& name) {
   if (name == "uniform") return job::IntegratorKind::kUniform;
   if (name == "hero") return job::IntegratorKind::kHero;
   if (name == "gradient") return job::IntegratorKind::kGradient;
+  if (name == "light") return job::IntegratorKind::kLight;
   return absl::InvalidArgumentError(
-      absl::StrCat("--integrator '", name, "': want uniform, hero, gradient or auto"));
+      absl::StrCat("--integrator '", name, "': want uniform, hero, gradient, light or auto"));
 }
 
 absl::StatusOr<job::SpectralPdfKind> parse_spectral_pdf(const std::string& name) {

@@ -14,7 +14,8 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   f.spp_opt = cmd.add_option("--spp", f.spp, "Samples per pixel (default: the scene's)");
   cmd.add_option("--integrator", o.integrator,
                  "auto (a pilot picks hero, gradient or uniform; hero where nothing depends on "
-                 "wavelength), uniform, hero or gradient (default auto)");
+                 "wavelength), uniform, hero, gradient or light (light paths to a pinhole "
+                 "camera; --spp counts batches of one path per pixel) (default auto)");
   f.bins_opt =
       cmd.add_option("--bins", f.bins, "Spectral bins, 4..256 (default: nbuckets, else 64)");
   f.resolution_opt =

@@ -288,6 +288,40 @@ class FarmServerTest : public ::testing::Test {
     EXPECT_GT(sum, 0.0);  // not a black image
   }
 
+#ifdef PRISM_WORKER_BINARY
+  // Two real prism-worker processes render `spec` (its bundle_hash is set here from kScene); the
+  // fetched spectral EXR must be the embedded render's bytes.
+  void render_with_real_workers(v1::JobSpec spec) {
+    const char* binary = std::getenv("PRISM_WORKER_BIN");
+    if (binary == nullptr || *binary == '\0') binary = PRISM_WORKER_BINARY;
+    scene_root_ = root_ / "scene";
+    std::string hash;
+    ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+    spec.set_bundle_hash(hash);
+    const std::string job_id = submit(spec).job_id();
+    std::vector<std::unique_ptr<prism::testing::ChildProcess>> workers;
+    for (int i = 0; i < 2; ++i) {
+      const std::string cache = (root_ / ("cache" + std::to_string(i))).string();
+      workers.push_back(prism::testing::ChildProcess::start(
+          {binary, "--coordinator", farm_->address(), "--threads", "1", "--secret", kSecret,
+           "--cache-dir", cache, "--log-level", "warn"}));
+      ASSERT_NE(workers.back(), nullptr);
+    }
+    const v1::JobInfo done = wait_done(job_id, 1500);
+    for (auto& worker : workers) {
+      worker->signal(SIGTERM);
+      worker->wait();
+    }
+    ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+    expect_identical(fetch_spectral_exr(job_id), spec);
+    v1::ListWorkersRequest request;
+    v1::ListWorkersResponse response;
+    auto context = client();
+    ASSERT_TRUE(farm_stub_->ListWorkers(context.get(), request, &response).ok());
+    EXPECT_EQ(response.workers_size(), 2);
+  }
+#endif
+
   std::size_t max_queued_jobs_ = 1000;
   fs::path root_;
   fs::path scene_root_;

@@ -375,33 +375,16 @@ TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {
 // Two real prism-worker processes (the build's, or PRISM_WORKER_BIN) render a job through the
 // in-process coordinator, bit-identical to the embedded render.
 TEST_F(FarmServerTest, RealWorkerProcessesRenderTheSameBytes) {
-  const char* binary = std::getenv("PRISM_WORKER_BIN");
-  if (binary == nullptr || *binary == '\0') binary = PRISM_WORKER_BINARY;
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
-  const v1::JobSpec spec = small_spec(hash);
-  const std::string job_id = submit(spec).job_id();
-  std::vector<std::unique_ptr<prism::testing::ChildProcess>> workers;
-  for (int i = 0; i < 2; ++i) {
-    const std::string cache = (root_ / ("cache" + std::to_string(i))).string();
-    workers.push_back(prism::testing::ChildProcess::start(
-        {binary, "--coordinator", farm_->address(), "--threads", "1", "--secret", kSecret,
-         "--cache-dir", cache, "--log-level", "warn"}));
-    ASSERT_NE(workers.back(), nullptr);
-  }
-  const v1::JobInfo done = wait_done(job_id, 1500);
-  for (auto& worker : workers) {
-    worker->signal(SIGTERM);
-    worker->wait();
-  }
-  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
-  expect_identical(fetch_spectral_exr(job_id), spec);
-  v1::ListWorkersRequest request;
-  v1::ListWorkersResponse response;
-  auto context = client();
-  ASSERT_TRUE(farm_stub_->ListWorkers(context.get(), request, &response).ok());
-  EXPECT_EQ(response.workers_size(), 2);
+  render_with_real_workers(small_spec(""));
+}
+
+// A light-tracing job: one whole-image task per range of light-path batches, split over the two
+// workers, merged in range order.
+TEST_F(FarmServerTest, RealWorkerProcessesRenderALightTracingJobTheSameBytes) {
+  v1::JobSpec spec = small_spec("");
+  spec.set_integrator(v1::INTEGRATOR_LIGHT);
+  spec.set_spp(8);
+  render_with_real_workers(spec);
 }
 
 TEST_F(FarmServerTest, TheStandardHealthServiceReportsServing) {

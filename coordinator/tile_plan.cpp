@@ -5,6 +5,23 @@
 #include "absl/strings/str_cat.h"
 
 namespace prism::coordinator {
+namespace {
+
+// Tiles of tile_size in raster order, the last row and column cut at the image's edge.
+void plan_grid(const TilePlanOptions& options, TilePlan& plan) {
+  plan.tiles_x = (options.width + options.tile_size - 1) / options.tile_size;
+  plan.tiles_y = (options.height + options.tile_size - 1) / options.tile_size;
+  plan.tiles.reserve(static_cast<std::size_t>(plan.tiles_x) * plan.tiles_y);
+  for (int ty = 0; ty < plan.tiles_y; ++ty) {
+    for (int tx = 0; tx < plan.tiles_x; ++tx) {
+      int x0 = tx * options.tile_size, y0 = ty * options.tile_size;
+      plan.tiles.push_back({x0, y0, std::min(x0 + options.tile_size, options.width),
+                            std::min(y0 + options.tile_size, options.height)});
+    }
+  }
+}
+
+}  // namespace
 
 absl::StatusOr<TilePlan> plan_tiles(const TilePlanOptions& options) {
   if (options.width < 1 || options.height < 1 || options.width > image::kMaxImageSide ||
@@ -18,15 +35,11 @@ absl::StatusOr<TilePlan> plan_tiles(const TilePlanOptions& options) {
   }
   if (options.spp < 1) return absl::InvalidArgumentError("spp must be at least 1");
   TilePlan plan;
-  plan.tiles_x = (options.width + options.tile_size - 1) / options.tile_size;
-  plan.tiles_y = (options.height + options.tile_size - 1) / options.tile_size;
-  plan.tiles.reserve(static_cast<std::size_t>(plan.tiles_x) * plan.tiles_y);
-  for (int ty = 0; ty < plan.tiles_y; ++ty) {
-    for (int tx = 0; tx < plan.tiles_x; ++tx) {
-      int x0 = tx * options.tile_size, y0 = ty * options.tile_size;
-      plan.tiles.push_back({x0, y0, std::min(x0 + options.tile_size, options.width),
-                            std::min(y0 + options.tile_size, options.height)});
-    }
+  if (options.whole_image) {
+    plan.tiles_x = plan.tiles_y = 1;
+    plan.tiles.push_back({0, 0, options.width, options.height});
+  } else {
+    plan_grid(options, plan);
   }
   std::uint64_t per_task = options.samples_per_task == 0 ? options.spp : options.samples_per_task;
   for (std::uint64_t s0 = 0; s0 < options.spp; s0 += per_task) {

@@ -19,6 +19,9 @@ struct TilePlanOptions {
   int tile_size = 32;                  // 4..1024
   std::uint64_t spp = 0;               // >= 1
   std::uint64_t samples_per_task = 0;  // 0: all of a pixel's samples in one task
+  // One tile, the whole image, whatever tile_size says: a light-tracing job's task splats over
+  // the whole film (worker/light_tracer.h), so its unit is a range of light-path batches.
+  bool whole_image = false;
 };
 
 struct TilePlan {

@@ -328,7 +328,7 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
       {{"render", scene, "--resolution", "0x5"}, "prism: --resolution '0x5': want WxH"},
       {{"render", scene, "--resolution", "64"}, "--resolution '64': want WxH"},
       {{"render", scene, "--integrator", "foo"},
-       "prism: --integrator 'foo': want uniform, hero, gradient or auto"},
+       "prism: --integrator 'foo': want uniform, hero, gradient, light or auto"},
       {{"render", scene, "--spp", "0"}, "--spp 0 is out of range"},
       {{"render", scene, "--spp", "-3"}, "--spp -3 is out of range"},
       {{"render", scene, "--threads", "0"}, "--threads 0 is out of range"},

@@ -26,4 +26,17 @@ inline constexpr std::uint32_t kFreeFlight = 8;
 inline constexpr std::uint32_t kDimCrossings = 1u << 16;
 inline constexpr std::uint32_t kCrossingsPerBounce = 64;
 
+// Light paths (light_tracer.h), from their own stream (pass kLightPathPass):
+namespace light {
+inline constexpr std::uint32_t kWavelength = 0;
+inline constexpr std::uint32_t kChoice = 1;    // which light
+inline constexpr std::uint32_t kPosition = 2;  // 2D: the point on it
+inline constexpr std::uint32_t kTriangle = 4;  // an area light's triangle
+inline constexpr std::uint32_t kSide = 5;      // a two-sided light's side
+inline constexpr std::uint32_t kEmission = 6;  // 2D: the emitted direction
+inline constexpr std::uint32_t kBounce = 8;    // first dimension of bounce 0
+inline constexpr std::uint32_t kDimsPerBounce = 4;
+// Within a bounce: the scattered direction (2D) at 0, the lobe at 2, Russian roulette at 3.
+}  // namespace light
+
 }  // namespace prism::worker::layout

@@ -14,11 +14,13 @@ namespace prism::worker {
 
 TileRenderer::TileRenderer(const RenderScene& scene) : scene_(scene), integrator_(scene) {
   if (scene.options().integrator == job::IntegratorKind::kGradient) gradient_.emplace(scene);
+  if (scene.options().integrator == job::IntegratorKind::kLight) light_.emplace(scene);
 }
 
 absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, TileStats* stats,
                                                        const std::atomic<bool>* cancel,
                                                        std::atomic<std::uint64_t>* progress) const {
+  if (light_.has_value() && !task.prepass) return render_light(task, stats, cancel, progress);
   const int bins = scene_.grid().bins();
   const image::TileRect& rect = task.tile;
   if (task.early_stop && !task.prepass) {

@@ -1,4 +1,6 @@
-// Renders one task (tile rect x sample range) into a TileResult, on a TBB thread pool. Pixels
+// Renders one task (tile rect x sample range) into a TileResult, on a TBB thread pool. (A
+// light-tracing job's task is the whole image and a range of light-path batches instead; see
+// render_light.) Pixels
 // are independent and every random number is a pure function of (seed, pass, pixel, sample,
 // dimension), and each pixel's samples are accumulated in index order into doubles, so the
 // result's bytes are identical for any thread count, tile size or task split. With the
@@ -16,6 +18,7 @@
 #include "services/spectral/pixel_tables.h"
 #include "worker/gradient/integrator.h"
 #include "worker/integrator.h"
+#include "worker/light_tracer.h"
 #include "worker/render_scene.h"
 
 namespace prism::worker {
@@ -56,9 +59,15 @@ class TileRenderer {
                                            std::atomic<std::uint64_t>* progress = nullptr) const;
 
  private:
+  // A light-tracing task (light_task.cpp): the whole image, a range of batches of W·H paths.
+  absl::StatusOr<image::TileResult> render_light(const RenderTask& task, TileStats* stats,
+                                                 const std::atomic<bool>* cancel,
+                                                 std::atomic<std::uint64_t>* progress) const;
+
   const RenderScene& scene_;
   PathIntegrator integrator_;
   std::optional<GradientIntegrator> gradient_;  // set for job::IntegratorKind::kGradient
+  std::optional<LightTracer> light_;            // set for job::IntegratorKind::kLight
 };
 
 }  // namespace prism::worker

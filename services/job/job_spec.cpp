@@ -26,11 +26,13 @@ absl::StatusOr<IntegratorKind> integrator_of(prism::v1::Integrator value) {
       return IntegratorKind::kUniform;
     case prism::v1::INTEGRATOR_GRADIENT:
       return IntegratorKind::kGradient;
+    case prism::v1::INTEGRATOR_LIGHT:
+      return IntegratorKind::kLight;
     default:
       break;
   }
   return absl::InvalidArgumentError(
-      absl::StrCat("integrator ", static_cast<int>(value), ": want uniform, hero or gradient"));
+      absl::StrCat("integrator ", static_cast<int>(value), ": want uniform, hero, gradient or light"));
 }
 
 absl::StatusOr<SpectralPdfKind> spectral_pdf_of(prism::v1::SpectralPdf value) {
@@ -353,6 +355,19 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
     return absl::InvalidArgumentError("prepass options are set but the prepass is off");
   }
 
+  if (p.render.integrator == IntegratorKind::kLight) {
+    if (prepass) {
+      return absl::InvalidArgumentError(
+          "the prepass learns eye paths' wavelength distributions; the light integrator has no "
+          "use for it");
+    }
+    if (p.target_error) {
+      return absl::InvalidArgumentError(
+          "target_error is not available with the light integrator yet (its task is the whole "
+          "image, and rounds are planned per tile)");
+    }
+  }
+
   const auto& out = spec.outputs();
   if (out.spectral_exr() || out.rgb_exr() || out.png()) {
     p.outputs.spectral_exr = out.spectral_exr();
@@ -372,6 +387,8 @@ prism::v1::Integrator to_proto(IntegratorKind kind) {
       return prism::v1::INTEGRATOR_HERO;
     case IntegratorKind::kGradient:
       return prism::v1::INTEGRATOR_GRADIENT;
+    case IntegratorKind::kLight:
+      return prism::v1::INTEGRATOR_LIGHT;
   }
   return prism::v1::INTEGRATOR_UNSPECIFIED;
 }

@@ -210,7 +210,19 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
        "outputs.primal_and_gradients needs the gradient integrator"},
       {"integrator_enum",
        [](prism::v1::JobSpec& s) { s.set_integrator(static_cast<prism::v1::Integrator>(42)); },
-       "integrator 42: want uniform, hero or gradient"},
+       "integrator 42: want uniform, hero, gradient or light"},
+      {"light_with_prepass",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_LIGHT);
+         s.mutable_prepass()->set_enabled(true);
+       },
+       "the light integrator has no use for it"},
+      {"light_with_target_error",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_LIGHT);
+         s.set_target_error(0.05f);
+       },
+       "target_error is not available with the light integrator yet"},
       {"spectral_pdf",
        [](prism::v1::JobSpec& s) { s.set_spectral_pdf(static_cast<prism::v1::SpectralPdf>(9)); },
        "spectral_pdf 9: want flat or visible"},

@@ -17,6 +17,7 @@ enum class IntegratorKind {
   kUniform,   // one wavelength per path (C = 1): the unbiased baseline
   kHero,      // C = 4 lanes with CMIS rotation (docs/estimators.md §2)
   kGradient,  // spectral gradient sampling (§5): C = 1 base paths with offsets at λ ± δ
+  kLight,     // light tracing (§6): C = 1 light paths connected to a pinhole camera
 };
 
 enum class SpectralPdfKind { kFlat, kVisible };                // sensor term p_s (§1)
@@ -35,6 +36,8 @@ inline const char* name(IntegratorKind kind) {
       return "hero";
     case IntegratorKind::kGradient:
       return "gradient";
+    case IntegratorKind::kLight:
+      return "light";
   }
   return "?";
 }

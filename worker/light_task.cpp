@@ -1,0 +1,167 @@
+// TileRenderer::render_light: a light-tracing task (light_tracer.h). Sample s of the task is a
+// batch of W·H light paths, path (x, y) of batch s drawing from pixel (x, y)'s stream of sample
+// s, and the batch's splats, divided by W·H, are its one sample for every pixel: the pixel's
+// sums, squares and counts then mean what an eye tracer's do, so merging, statistics and outputs
+// need nothing new. Paths run in parallel in fixed chunks, each chunk keeps its splats in path
+// order, and the chunks are added in chunk order, so the bytes do not depend on the threads.
+#include <tbb/blocked_range.h>
+#include <tbb/combinable.h>
+#include <tbb/parallel_for.h>
+
+#include <chrono>
+#include <cmath>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/status.h"
+#include "worker/tile_renderer.h"
+
+namespace prism::worker {
+namespace {
+
+constexpr std::int64_t kPathsPerChunk = 1024;
+
+// One batch's per-pixel values before they become a sample: the bins and R, G, B, and the
+// pixels touched in first-touch order (so only they are folded and cleared).
+struct BatchImage {
+  int width = 0, height = 0, bins = 0;
+  std::vector<double> values, rgb;
+  std::vector<std::uint8_t> touched;
+  std::vector<std::int64_t> order;
+
+  BatchImage(int w, int h, int b)
+      : width(w),
+        height(h),
+        bins(b),
+        values(std::size_t(w) * h * b, 0.0),
+        rgb(std::size_t(w) * h * 3, 0.0),
+        touched(std::size_t(w) * h, 0) {}
+
+  void add(int x, int y, const LightSplat& s, double weight) {
+    const std::int64_t p = std::int64_t(y) * width + x;
+    if (!touched[std::size_t(p)]) {
+      touched[std::size_t(p)] = 1;
+      order.push_back(p);
+    }
+    values[std::size_t(p) * bins + s.bin] += s.value * weight;
+    for (int c = 0; c < 3; ++c) rgb[std::size_t(p) * 3 + c] += s.rgb[c] * weight;
+  }
+};
+
+// A splat into the pixels whose filter reaches it: weight f(offset from the centre) / ∫f, so that
+// its share in each pixel is what an eye sample of that pixel at the same film position carries
+// on average (pixel_filter.h).
+void splat(const PixelFilter& filter, const LightSplat& s, double scale, BatchImage& batch) {
+  if (filter.unit_box()) {
+    const int x = int(std::floor(s.raster.x)), y = int(std::floor(s.raster.y));
+    if (x >= 0 && x < batch.width && y >= 0 && y < batch.height) batch.add(x, y, s, scale);
+    return;
+  }
+  const double rx = filter.radius(0), ry = filter.radius(1);
+  const double inverse_integral = scale / filter.integral();
+  const int x0 = std::max(0, int(std::ceil(s.raster.x - rx - 0.5)));
+  const int x1 = std::min(batch.width - 1, int(std::floor(s.raster.x + rx - 0.5)));
+  const int y0 = std::max(0, int(std::ceil(s.raster.y - ry - 0.5)));
+  const int y1 = std::min(batch.height - 1, int(std::floor(s.raster.y + ry - 0.5)));
+  for (int y = y0; y <= y1; ++y) {
+    for (int x = x0; x <= x1; ++x) {
+      const double f = filter.evaluate(s.raster.x - (x + 0.5), s.raster.y - (y + 0.5));
+      if (f != 0.0) batch.add(x, y, s, f * inverse_integral);
+    }
+  }
+}
+
+}  // namespace
+
+absl::StatusOr<image::TileResult> TileRenderer::render_light(
+    const RenderTask& task, TileStats* stats, const std::atomic<bool>* cancel,
+    std::atomic<std::uint64_t>* progress) const {
+  const int width = scene_.camera().width(), height = scene_.camera().height();
+  const int bins = scene_.grid().bins();
+  if (task.tile != image::TileRect{0, 0, width, height}) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("a light-tracing task covers the whole image (0,0)-(", width, ",", height,
+                     "), not the tile ", image::to_string(task.tile)));
+  }
+  if (task.tables != nullptr || task.want_guides) {
+    return absl::InvalidArgumentError(
+        "a light-tracing task takes no wavelength tables and records no guides");
+  }
+  if (task.samples.s1 > std::uint64_t{1} << 32) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("sample range ends at ", task.samples.s1, ", beyond 2^32 samples per pixel"));
+  }
+  image::TileBuffers buffers;
+  buffers.rgb = true;
+  PRISM_ASSIGN_OR_RETURN(image::TileResult result,
+                         image::TileResult::create(task.tile, task.samples, bins, buffers));
+  const auto start = std::chrono::steady_clock::now();
+  const std::int64_t paths = std::int64_t(width) * height;
+  const std::int64_t chunks = (paths + kPathsPerChunk - 1) / kPathsPerChunk;
+  std::vector<std::vector<LightSplat>> chunk_splats(static_cast<std::size_t>(chunks));
+  BatchImage batch(width, height, bins);
+  const double scale = 1.0 / double(paths);
+  auto sums = result.mutable_sums();
+  auto squares = result.mutable_sum_squares();
+  auto rgb_sums = result.mutable_rgb_sums();
+  auto rgb_squares = result.mutable_rgb_squares();
+  tbb::combinable<TraceCounters> counters;
+  std::atomic<bool> cancelled{false};
+  for (std::uint64_t s = task.samples.s0; s < task.samples.s1; ++s) {
+    tbb::parallel_for(
+        tbb::blocked_range<std::int64_t>(0, chunks, 1),
+        [&](const tbb::blocked_range<std::int64_t>& range) {
+          TraceCounters& local = counters.local();
+          for (std::int64_t c = range.begin(); c != range.end(); ++c) {
+            if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) {
+              cancelled.store(true, std::memory_order_relaxed);
+              return;
+            }
+            std::vector<LightSplat>& out = chunk_splats[std::size_t(c)];
+            out.clear();
+            const std::int64_t end = std::min(paths, (c + 1) * kPathsPerChunk);
+            for (std::int64_t k = c * kPathsPerChunk; k < end; ++k) {
+              light_->trace(int(k % width), int(k / width), std::uint32_t(s), out, local);
+            }
+          }
+        },
+        tbb::simple_partitioner());
+    if (cancelled.load()) return absl::CancelledError("task cancelled");
+    for (const std::vector<LightSplat>& out : chunk_splats) {
+      for (const LightSplat& splat_value : out) {
+        splat(scene_.pixel_filter(), splat_value, scale, batch);
+      }
+    }
+    // The batch is one sample of every pixel: its sums and squares (untouched pixels add 0).
+    for (std::int64_t p : batch.order) {
+      for (int b = 0; b < bins; ++b) {
+        double& v = batch.values[std::size_t(p) * bins + b];
+        if (v != 0.0) {
+          sums[std::size_t(p) * bins + b] += v;
+          squares[std::size_t(p) * bins + b] += v * v;
+          v = 0.0;
+        }
+      }
+      for (int c = 0; c < 3; ++c) {
+        double& v = batch.rgb[std::size_t(p) * 3 + c];
+        rgb_sums[std::size_t(p) * 3 + c] += v;
+        rgb_squares[std::size_t(p) * 3 + c] += v * v;
+        v = 0.0;
+      }
+      batch.touched[std::size_t(p)] = 0;
+    }
+    batch.order.clear();
+    if (progress != nullptr) progress->fetch_add(std::uint64_t(paths), std::memory_order_relaxed);
+  }
+  auto counts = result.mutable_counts();
+  std::fill(counts.begin(), counts.end(), task.samples.count());
+  if (stats != nullptr) {
+    stats->counters = TraceCounters();
+    counters.combine_each([&](const TraceCounters& c) { stats->counters += c; });
+    stats->seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+  return result;
+}
+
+}  // namespace prism::worker

@@ -1,0 +1,340 @@
+#include "worker/light_tracer.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "services/scene/source_location.h"
+#include "services/spectral/color.h"
+#include "worker/bsdf.h"
+#include "worker/light.h"
+#include "worker/material.h"
+#include "worker/sample_layout.h"
+#include "worker/shadow_ray.h"
+#include "worker/spectral_differential.h"
+
+namespace prism::worker {
+namespace {
+
+using namespace layout::light;  // the light path's sample dimensions (sample_layout.h)
+
+// Share of a light's selection weight that ignores its spectrum, so that a light whose spectrum
+// is only a mean (an image's, a projection's) keeps a positive probability at every λ.
+constexpr double kDefensiveShare = 0.1;
+constexpr int kMaxPassthroughs = 64;
+
+Point2f to_point(const Point2& p) {
+  return {p.u0, p.u1};
+}
+
+}  // namespace
+
+absl::Status check_light_tracing(const RenderScene& scene) {
+  if (!scene.camera().is_pinhole()) {
+    return absl::InvalidArgumentError(
+        "the light tracer connects paths to a pinhole camera: use a \"perspective\" camera "
+        "without \"lensradius\" (or another integrator)");
+  }
+  if (!scene.media().empty()) {
+    return absl::InvalidArgumentError(
+        "the light tracer does not trace participating media yet; render this scene with "
+        "--integrator uniform, hero or gradient");
+  }
+  if (scene.infinite_light() >= 0) {
+    const auto& inf = std::get<InfiniteLight>(scene.lights()[scene.infinite_light()]);
+    if (inf.portal()) {
+      return scene::location_error(
+          inf.where(),
+          "the light tracer cannot emit through an environment light's portal; render this "
+          "scene with --integrator uniform, hero or gradient");
+    }
+  }
+  if (scene.lights().empty()) {
+    return absl::InvalidArgumentError("the light tracer needs at least one light in the scene");
+  }
+  return absl::OkStatus();
+}
+
+LightTracer::LightTracer(const RenderScene& scene) : scene_(scene) {
+  for (const Light& light : scene.lights()) {
+    power_.push_back(light_power(light));
+    mean_value_.push_back(
+        spectral::integrate(light_spectrum(light), spectral::kLambdaMin, spectral::kLambdaMax) /
+        (spectral::kLambdaMax - spectral::kLambdaMin));
+  }
+  const PixelFilter& filter = scene.pixel_filter();
+  filter_radius_ = float(std::max(filter.radius(0), filter.radius(1)));
+}
+
+namespace {
+
+// One light path: the emission, the walk, and the splats.
+class LightPath {
+ public:
+  LightPath(const RenderScene& scene, const Sampler& sampler, std::vector<LightSplat>& out,
+            TraceCounters& counters, float filter_radius)
+      : scene_(scene),
+        sampler_(sampler),
+        out_(out),
+        counters_(counters),
+        margin_(std::max(0.0f, filter_radius - 0.5f)) {}
+
+  SampledWavelengths lambda;
+  float beta = 0;  // the path's weight: f / p of everything sampled so far, importance-mode
+  SpectralDifferential diff;
+
+  // The contribution C of a vertex at p (geometric normal ng) that sends
+  // `value_towards(to_camera)` towards the camera, per unit area of p: value · |ng·ω|/d² · W.
+  template <typename ValueTowards>
+  void connect(const Vec3f& p, const Vec3f& ng, ValueTowards&& value_towards) {
+    const Camera& camera = scene_.camera();
+    auto c = camera.connect(p, margin_);
+    if (!c) return;
+    const float cos_p = std::abs(dot(ng, c->to_camera));
+    const float value = value_towards(c->to_camera);
+    if (!(value > 0.0f) || !(cos_p > 0.0f)) return;
+    const float contribution = value * cos_p * c->importance / (c->distance * c->distance);
+    if (!std::isfinite(contribution)) {
+      ++counters_.non_finite;
+      return;
+    }
+    const Vec3f origin = ng == Vec3f() ? p : scene_.geometry().offset_origin(p, ng, c->to_camera);
+    const Shadow shadow = trace_shadow(scene_, origin, c->to_camera, camera.position(), false, -1,
+                                       lambda, 1, counters_);
+    if (!(shadow.transmittance[0] > 0.0f)) return;
+    const float visible = contribution * shadow.transmittance[0];
+    const spectral::WavelengthGrid& grid = scene_.grid();
+    const int bin = grid.bin_of(lambda.lambda(0));
+    if (bin < 0) return;
+    LightSplat s;
+    s.raster = c->raster;
+    s.bin = bin;
+    s.lambda = lambda.lambda(0);
+    s.value = visible / float(grid.bin_width());
+    const spectral::Rgb bar = scene_.cmf().srgb(lambda.lambda(0));
+    s.rgb[0] = float(bar.r * visible);
+    s.rgb[1] = float(bar.g * visible);
+    s.rgb[2] = float(bar.b * visible);
+    if (diff.tracked) {
+      s.has_differential = true;
+      s.raster_per_nm = camera.raster_differential(p, diff.dp);
+    }
+    out_.push_back(s);
+  }
+
+  // The emitted ray, with beta set; false when this light emits nothing here.
+  bool emit(const Light& light, float selection, Ray* ray) {
+    const float density = selection * lambda.pdf(0);
+    if (!(density > 0.0f)) return false;
+    const Bounds3f& bounds = scene_.geometry().bounds();
+    if (const auto* area = std::get_if<AreaLight>(&light)) {
+      auto point = area->sample_point(to_point(sampler_.at2(kPosition)), sampler_.at(kTriangle));
+      if (!point) return false;
+      const float pdf_area = 1.0f / float(area->area());
+      // The emitter seen by the camera: L_e · |n·ω|/d² · W / (p_A · p(e, λ)).
+      connect(point->p, point->n, [&](const Vec3f& to_camera) {
+        return area->radiance(point->n, to_camera, lambda)[0] / (pdf_area * density);
+      });
+      Vec3f n = point->n;
+      float side = 1.0f;
+      if (area->two_sided()) {
+        if (sampler_.at(kSide) < 0.5f) n = -n;
+        side = 0.5f;
+      }
+      const Vec3f local = sample_cosine_hemisphere(to_point(sampler_.at2(kEmission)));
+      if (!(local.z > 0.0f)) return false;
+      const Vec3f w = Frame::from_z(n).from_local(local);
+      const float le = area->radiance(point->n, w, lambda)[0];
+      // L_e·|cos| / (p_A · side · cos/π · p(e, λ)).
+      beta = le * kPi / (pdf_area * side * density);
+      *ray = {scene_.geometry().offset_origin(point->p, point->n, w), w};
+      return beta > 0.0f;
+    }
+    if (std::holds_alternative<PointLight>(light) || std::holds_alternative<SpotLight>(light)) {
+      const Vec3f position = std::holds_alternative<PointLight>(light)
+                                 ? std::get<PointLight>(light).position()
+                                 : std::get<SpotLight>(light).position();
+      // The intensity towards w: the light's own sample from one unit away along w.
+      auto intensity = [&](const Vec3f& w) {
+        auto s = sample_light(light, LightContext{position + w, Vec3f()}, {}, 0.0f, lambda);
+        return s ? s->radiance[0] : 0.0f;
+      };
+      // No connection of the light itself: a point has no area for a camera ray to hit, and an
+      // eye tracer (pbrt-v4's too) never sees one; the image would differ at one pixel.
+      const Vec3f w = sample_uniform_sphere(to_point(sampler_.at2(kEmission)));
+      beta = intensity(w) * (4.0f * kPi) / density;
+      *ray = {position, w};
+      return beta > 0.0f;
+    }
+    // Light from infinitely far: a direction, then a point on the disk of the scene's bounding
+    // sphere across it, from outside the sphere (density 1/πR²).
+    const float radius = bounds.radius() * 1.01f + 1e-3f;
+    Vec3f w;
+    float value = 0.0f;
+    if (const auto* distant = std::get_if<DistantLight>(&light)) {
+      w = -distant->direction();
+      auto s = sample_light(light, LightContext{bounds.centre(), Vec3f()}, {}, 0.0f, lambda);
+      value = s ? s->radiance[0] : 0.0f;  // irradiance across the beam
+    } else {
+      const auto& inf = std::get<InfiniteLight>(light);
+      w = sample_uniform_sphere(to_point(sampler_.at2(kEmission)));
+      value = inf.radiance(bounds.centre(), -w, lambda)[0] * (4.0f * kPi);
+    }
+    const Point2f d = sample_uniform_disk_concentric(to_point(sampler_.at2(kPosition)));
+    const Frame frame = Frame::from_z(w);
+    const Vec3f origin = bounds.centre() - w * radius + (frame.s * d.x + frame.t * d.y) * radius;
+    beta = value * (kPi * radius * radius) / density;
+    *ray = {origin, w};
+    return beta > 0.0f;
+  }
+
+  // Follows the path from the emitted ray: connects every non-delta vertex to the camera and
+  // scatters by the adjoint BSDF.
+  void walk(Ray ray) {
+    const job::RenderOptions& options = scene_.options();
+    const Geometry& geometry = scene_.geometry();
+    const float beta_emitted = beta;
+    int passthroughs = 0;
+    for (int depth = 0;;) {
+      ++counters_.rays;
+      auto hit = geometry.intersect(ray, kInfinity);
+      if (!hit) return;
+      transfer(diff, ray.direction, hit->t, hit->ng);
+      const ShapeInfo& info = scene_.shape(hit->shape);
+      const Material& material = scene_.material_at(info.material, *hit, -ray.direction);
+      auto bsdf = make_bsdf(material, lambda, texture_context(*hit));
+      if (!bsdf) {
+        // An interface without media (check_light_tracing refuses media): pass through.
+        ray.origin = geometry.offset_origin(hit->p, hit->ng, ray.direction);
+        if (++passthroughs == kMaxPassthroughs) return;
+        continue;
+      }
+      passthroughs = 0;
+      const Vec3f back = -ray.direction;
+      const float cos_geometric = std::abs(dot(hit->ng, back));
+      if (!(cos_geometric > 1e-7f)) return;
+      // pbrt-v4's shading-normal correction for importance, the arrival half of it.
+      beta *= std::abs(dot(hit->ns, back)) / cos_geometric;
+      const Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
+      const Vec3f back_local = frame.to_local(back);
+      ++depth;
+      if (!is_specular(*bsdf)) {
+        connect(hit->p, hit->ng, [&](const Vec3f& to_camera) {
+          return beta * eval(*bsdf, frame.to_local(to_camera), back_local)[0];
+        });
+      }
+      if (depth >= options.max_depth) return;
+      const std::uint32_t dim = kBounce + kDimsPerBounce * std::uint32_t(depth - 1);
+      const Point2 lobe_and_roulette = sampler_.at2(dim + 2);
+      auto bs = sample(*bsdf, back_local, lobe_and_roulette.u0, to_point(sampler_.at2(dim)));
+      if (!bs || !(bs->pdf[0] > 0.0f)) return;
+      const Vec3f next = frame.from_local(bs->wi);
+      const float cos_next_geometric = std::abs(dot(hit->ng, next));
+      float ratio;
+      if (bs->specular) {
+        // The radiance-mode ratio f·|cos|/p, without its 1/η'² (importance is not compressed
+        // by a refraction), and the departure half of the shading-normal correction.
+        ratio = bs->f[0] * abs_cos_theta(bs->wi) / bs->pdf[0];
+        if (bs->transmission) ratio *= bs->etap * bs->etap;
+        const float cos_next_shading = abs_cos_theta(bs->wi);
+        ratio = cos_next_shading > 0.0f ? ratio * cos_next_geometric / cos_next_shading : 0.0f;
+      } else {
+        ratio = eval(*bsdf, bs->wi, back_local)[0] * cos_next_geometric / bs->pdf[0];
+      }
+      beta *= ratio;
+      if (!(beta > 0.0f) || !std::isfinite(beta)) return;
+      follow_differential(material, *hit, ray.direction, next, *bs);
+      if (depth >= options.rr_min_depth) {
+        // Russian roulette on the weight relative to the emitted one.
+        const float survive = std::min(1.0f, beta / beta_emitted);
+        if (lobe_and_roulette.u1 >= survive) return;
+        beta /= survive;
+      }
+      ray = {geometry.offset_origin(hit->p, hit->ng, next), next};
+    }
+  }
+
+ private:
+  // The spectral differential through the scattering from direction `in` to `out` at `hit`.
+  void follow_differential(const Material& material, const SurfaceHit& hit, const Vec3f& in,
+                           const Vec3f& out, const BsdfSample& bs) {
+    const auto* dielectric = std::get_if<DielectricMaterial>(&material);
+    if (!bs.specular && dielectric == nullptr) {
+      diff.tracked = false;  // a diffuse receiver, a rough conductor, a layer: it ends here
+      return;
+    }
+    if (!diff.tracked && (dielectric == nullptr || !dielectric->dispersive || !bs.transmission)) {
+      return;  // nothing to carry, nothing to start
+    }
+    if (std::holds_alternative<ThinDielectricMaterial>(material) && bs.transmission) return;
+    const Vec3f dn = diff.tracked ? scene_.geometry().normal_differential(hit, diff.dp) : Vec3f();
+    // The interface's normal: the shading normal, or the sampled microfacet normal held fixed
+    // in the shading frame (rough dielectrics).
+    Vec3f m = hit.ns, dm = dn;
+    RelativeEta eta;
+    if (bs.transmission && dielectric != nullptr) {
+      const double l = lambda.lambda(0);
+      const double n = spectral::eta(dielectric->eta, l),
+                   dn_dl = spectral::deta_dlambda(dielectric->eta, l);
+      const bool entering = dot(in, hit.ng) < 0;
+      eta = entering ? relative_eta(1, 0, n, dn_dl) : relative_eta(n, dn_dl, 1, 0);
+      if (!bs.specular) m = normalize(in * eta.eta - out);  // n_i·in − n_t·out, over n_t
+    } else if (!bs.specular) {
+      m = normalize(out - in);
+    }
+    if (!bs.specular) dm = microfacet_normal_differential(hit.ns, dn, m);
+    if (bs.transmission) {
+      refract(diff, in, m, dm, eta);
+    } else {
+      reflect(diff, in, m, dm);
+    }
+  }
+
+  const RenderScene& scene_;
+  const Sampler& sampler_;
+  std::vector<LightSplat>& out_;
+  TraceCounters& counters_;
+  const float margin_;
+};
+
+}  // namespace
+
+void LightTracer::trace(int x, int y, std::uint32_t sample_index, std::vector<LightSplat>& out,
+                        TraceCounters& counters) const {
+  const job::RenderOptions& options = scene_.options();
+  Sampler sampler(options.sampler, SampleKey{options.seed, kLightPathPass, std::uint32_t(x),
+                                             std::uint32_t(y), sample_index});
+  LightPath path(scene_, sampler, out, counters, filter_radius_);
+  path.lambda =
+      spectral::WavelengthPdfView(scene_.wavelength_pdf()).sample_lanes(sampler.at(kWavelength), 1);
+  if (!(path.lambda.pdf(0) > 0.0f)) return;
+  // A light with probability ∝ its spectral power at λ (mixed with its total power).
+  const float l = path.lambda.lambda(0);
+  const auto& lights = scene_.lights();
+  auto weight = [&](std::size_t i) {
+    if (!(mean_value_[i] > 0.0)) return 0.0;
+    const double shape =
+        std::max(0.0f, spectral::eval(light_spectrum(lights[i]), l)) / mean_value_[i];
+    return power_[i] * ((1.0 - kDefensiveShare) * shape + kDefensiveShare);
+  };
+  double total = 0.0;
+  for (std::size_t i = 0; i < lights.size(); ++i) total += weight(i);
+  if (!(total > 0.0)) return;
+  const double target = double(sampler.at(kChoice)) * total;
+  double cumulative = 0.0;
+  std::size_t chosen = lights.size() - 1;
+  for (std::size_t i = 0; i < lights.size(); ++i) {
+    cumulative += weight(i);
+    if (target < cumulative) {
+      chosen = i;
+      break;
+    }
+  }
+  const double selection = weight(chosen) / total;
+  if (!(selection > 0.0)) return;
+  Ray ray;
+  if (!path.emit(lights[chosen], float(selection), &ray)) return;
+  path.walk(ray);
+}
+
+}  // namespace prism::worker

@@ -1,0 +1,73 @@
+// `--integrator light`: an unbiased spectral light tracer (docs/estimators.md §6). A light path
+// picks a wavelength λ from the scene's distribution p(λ) and a light with probability
+// proportional to its spectral power at λ, emits from a point on it, and at every vertex
+// whose BSDF is not a delta connects to the camera through a shadow ray: each connection is a
+// splat at the raster position where the vertex projects. An area light's own point connects
+// too (a point or spot light's does not: no camera ray can hit a point, so no eye tracer shows
+// one). The path continues by sampling the adjoint BSDF: the value of a
+// scattering is f(towards the camera side, towards the light side), with pbrt-v4's
+// shading-normal correction and no 1/η² at refractions (importance, not radiance, is carried).
+//
+// What one path of index (x, y) in batch s (a "sample") contributes, summed over its splats,
+// estimates W·H times the eye tracer's per-pixel radiance at the pixels it lands in, so a batch
+// of W·H paths is worth one sample per pixel (LightTaskRenderer divides by W·H).
+//
+// Limits, refused by check_light_tracing with the reason: a pinhole perspective camera only
+// (the connection needs a point camera; a thin lens would need its own lens sample), no
+// participating media, no portal on the environment. What a light tracer cannot render at all
+// and an eye tracer can: whatever the camera sees through a delta BSDF (a mirror, smooth glass)
+// and the environment seen directly, since no light path can hit a pinhole. Those pixels stay
+// dark; `--caustics light` (hero plus light paths) is the combination that renders everything.
+//
+// Spectral ray differentials (spectral_differential.h) are carried from the first dispersive
+// refraction to the first non-delta vertex, the receiver; each splat records its raster
+// position's derivative per nm, for differential splatting.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "worker/integrator.h"
+#include "worker/render_scene.h"
+
+namespace prism::worker {
+
+// The sample stream of light paths: its own pass, apart from every eye path's.
+inline constexpr std::uint32_t kLightPathPass = 1u << 20;
+
+struct LightSplat {
+  Point2f raster;         // film position (pixel x + offset)
+  int bin = 0;            // the wavelength's bin
+  float value = 0;        // per-bin radiance estimate: contribution / (p(λ)·bin width)
+  float rgb[3] = {};      // its linear sRGB from the exact wavelength (contribution·r̄(λ)/p(λ))
+  float lambda = 0;       // nm
+  Point2f raster_per_nm;  // d(raster)/dλ (0 unless the path met a dispersive refraction)
+  bool has_differential = false;
+};
+
+// OK when the scene can be light traced; otherwise INVALID_ARGUMENT saying what stands in the
+// way (with the scene position where there is one).
+absl::Status check_light_tracing(const RenderScene& scene);
+
+class LightTracer {
+ public:
+  // The scene must pass check_light_tracing.
+  explicit LightTracer(const RenderScene& scene);
+
+  // Traces light path (x, y) of batch `sample_index`, appending its splats to `out`. Pure
+  // function of its arguments.
+  void trace(int x, int y, std::uint32_t sample_index, std::vector<LightSplat>& out,
+             TraceCounters& counters) const;
+
+  // The largest distance, in pixels, from a splat to a pixel centre it reaches.
+  float filter_radius() const { return filter_radius_; }
+
+ private:
+  const RenderScene& scene_;
+  std::vector<double> power_;       // per light: total power (light_power)
+  std::vector<double> mean_value_;  // per light: its spectrum's mean over Λ
+  float filter_radius_ = 0.5f;
+};
+
+}  // namespace prism::worker
