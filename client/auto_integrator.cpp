@@ -33,6 +33,14 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   RenderCommandOptions& chosen = out.options;
   chosen.prepass = false;
   job::AutoReport report;
+  if (options.caustics == "light") {
+    // Light tracing takes the caustic paths; of the eye tracers, hero carries the rest.
+    chosen.integrator = "hero";
+    report.choice = "hero";
+    report.reason = "--caustics light renders caustics by light tracing and the rest by hero; no pilot";
+    out.report = std::move(report);
+    return out;
+  }
   if (options.prepass == true || has_prepass_options(options)) {
     // Only hero runs the prepass.
     chosen.prepass = options.prepass;

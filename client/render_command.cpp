@@ -169,6 +169,10 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   PRISM_RETURN_IF_ERROR(parse_spectral_pdf(o.spectral_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_emitter_pdf(o.emitter_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_light_selection(o.light_selection).status());
+  if (o.caustics != "off" && o.caustics != "light") {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--caustics '", o.caustics, "': want off or light"));
+  }
   const bool gradient =
       !automatic && *parse_integrator(o.integrator) == job::IntegratorKind::kGradient;
   if (!gradient &&
@@ -346,6 +350,7 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
                            : v1::EMITTER_PDF_EMITTERS);
   spec.set_light_selection(job::to_proto(*parse_light_selection(o.light_selection)));
   spec.set_spectral_light_selection(o.spectral_light_selection);
+  spec.set_light_caustics(o.caustics == "light");
   spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
   spec.set_name(o.scene.filename().string());
   spec.set_allow_unsupported(o.allow_unsupported);
@@ -455,6 +460,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   report.emitter_pdf = job::name(render.emitter_pdf);
   report.light_selection = job::name(render.light_selection);
   report.spectral_light_selection = render.spectral_light_selection;
+  report.light_caustics = render.light_caustics;
   report.max_depth = render.max_depth;
   report.threads = result->stats.threads;
   report.tile_size = local.tile_size;

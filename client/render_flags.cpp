@@ -16,6 +16,9 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
                  "auto (a pilot picks hero, gradient or uniform; hero where nothing depends on "
                  "wavelength), uniform, hero, gradient or light (light paths to a pinhole "
                  "camera; --spp counts batches of one path per pixel) (default auto)");
+  cmd.add_option("--caustics", o.caustics,
+                 "off, or light: caustic paths (light, delta chain, the first non-delta surface "
+                 "the camera sees) by light tracing, the rest by hero or uniform (default off)");
   f.bins_opt =
       cmd.add_option("--bins", f.bins, "Spectral bins, 4..256 (default: nbuckets, else 64)");
   f.resolution_opt =

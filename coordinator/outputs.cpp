@@ -299,6 +299,7 @@ image::ExrMetadata output_metadata(const RenderReport& report) {
   metadata["emitter_pdf"] = report.emitter_pdf;
   metadata["light_selection"] = report.light_selection;
   metadata["spectral_light_selection"] = report.spectral_light_selection ? "on" : "off";
+  if (report.light_caustics) metadata["caustics"] = "light";
   metadata["max_depth"] = absl::StrCat(report.max_depth);
   if (report.gradient.has_value()) {
     metadata[std::string(image::kMetaGradientOffsetBins)] =

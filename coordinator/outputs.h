@@ -152,6 +152,7 @@ struct RenderReport {
   std::string emitter_pdf;
   std::string light_selection;
   bool spectral_light_selection = true;
+  bool light_caustics = false;  // --caustics light
   int max_depth = 0;
   int threads = 0;
   int tile_size = 0;

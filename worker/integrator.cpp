@@ -54,6 +54,10 @@ struct PathState {
   bool prev_specular = true;
   float eta_scale = 1;
   int medium = -1;
+  // Where the path stands against the caustic class of `--caustics light` (light → delta chain
+  // → the first, non-delta vertex → camera): 0 before the first scattering, 1 after a non-delta
+  // first vertex, 2 once a delta vertex followed it (and only delta ones since), −1 outside it.
+  int caustic_chain = 0;
 
   explicit PathState(const SampledWavelengths& l) : lambda(l), lambda_prev(l) {}
 };
@@ -83,6 +87,8 @@ class CameraPath {
   void add_emission(const SampledSpectrum& le, int light, const SurfaceHit* hit,
                     const Vec3f& direction) {
     if (le.is_zero()) return;
+    // With --caustics light the light tracer renders this path (light_tracer.h).
+    if (state.caustic_chain == 2 && scene_.options().light_caustics) return;
     float denominator = lane_sum(state.r, lanes_);
     if (!state.prev_specular) {
       float p_light = scene_.light_sampler().pmf(state.prev_ctx.p, state.lambda_prev, light);
@@ -217,6 +223,7 @@ class CameraPath {
     state.lambda_prev = state.lambda;
     state.prev_ctx = ctx;
     state.prev_specular = false;
+    state.caustic_chain = -1;
     state.pdf_since_prev = phase_pdf;
     ray = {p, wi};
     return Flight::kScattered;
@@ -249,6 +256,11 @@ class CameraPath {
     state.prev_ctx = ctx;
     state.prev_specular = bs->specular;
     state.pdf_since_prev = bs->pdf[0];
+    if (state.caustic_chain == 0) {
+      state.caustic_chain = bs->specular ? -1 : 1;
+    } else if (state.caustic_chain > 0) {
+      state.caustic_chain = bs->specular ? 2 : -1;
+    }
     state.beta *= bs->f * (abs_cos_theta(bs->wi) / bs->pdf[0]);
     state.r *= over_hero(bs->pdf);
     if (bs->hero_only) terminate_secondary();

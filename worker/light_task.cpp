@@ -4,6 +4,9 @@
 // sums, squares and counts then mean what an eye tracer's do, so merging, statistics and outputs
 // need nothing new. Paths run in parallel in fixed chunks, each chunk keeps its splats in path
 // order, and the chunks are added in chunk order, so the bytes do not depend on the threads.
+// With --caustics light the batch also takes every pixel's eye sample s (the path tracer, which
+// leaves the caustic paths to the light paths): a pixel's sample is then the sum of the two
+// independent estimates, and its square that sum's.
 #include <tbb/blocked_range.h>
 #include <tbb/combinable.h>
 #include <tbb/parallel_for.h>
@@ -17,9 +20,6 @@
 #include "worker/tile_renderer.h"
 
 namespace prism::worker {
-namespace {
-
-constexpr std::int64_t kPathsPerChunk = 1024;
 
 // One batch's per-pixel values before they become a sample: the bins and R, G, B, and the
 // pixels touched in first-touch order (so only they are folded and cleared).
@@ -48,6 +48,10 @@ struct BatchImage {
   }
 };
 
+namespace {
+
+constexpr std::int64_t kPathsPerChunk = 1024;
+
 // A splat into the pixels whose filter reaches it: weight f(offset from the centre) / ∫f, so that
 // its share in each pixel is what an eye sample of that pixel at the same film position carries
 // on average (pixel_filter.h).
@@ -73,11 +77,36 @@ void splat(const PixelFilter& filter, const LightSplat& s, double scale, BatchIm
 
 }  // namespace
 
+void TileRenderer::add_eye_samples(std::uint64_t s, BatchImage& batch,
+                                   tbb::combinable<TraceCounters>& counters,
+                                   const std::atomic<bool>* cancel) const {
+  const spectral::WavelengthPdfView lambda_pdf(scene_.wavelength_pdf());
+  const std::int64_t pixels = std::int64_t(batch.width) * batch.height;
+  // Each pixel is one thread's: its bins and R, G, B are written by it alone.
+  tbb::parallel_for(
+      tbb::blocked_range<std::int64_t>(0, pixels, 64),
+      [&](const tbb::blocked_range<std::int64_t>& range) {
+        TraceCounters& local = counters.local();
+        for (std::int64_t p = range.begin(); p != range.end(); ++p) {
+          if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) return;
+          const int x = int(p % batch.width), y = int(p / batch.width);
+          const SampleContribution c =
+              integrator_.trace(x, y, 0, std::uint32_t(s), lambda_pdf, local);
+          for (int lane = 0; lane < c.lanes; ++lane) {
+            batch.values[std::size_t(p) * batch.bins + c.bin[lane]] += c.value[lane];
+          }
+          for (int k = 0; k < 3; ++k) batch.rgb[std::size_t(p) * 3 + k] += c.rgb[k];
+        }
+      },
+      tbb::simple_partitioner());
+}
+
 absl::StatusOr<image::TileResult> TileRenderer::render_light(
     const RenderTask& task, TileStats* stats, const std::atomic<bool>* cancel,
     std::atomic<std::uint64_t>* progress) const {
   const int width = scene_.camera().width(), height = scene_.camera().height();
   const int bins = scene_.grid().bins();
+  const bool with_eye_paths = scene_.options().light_caustics;
   if (task.tile != image::TileRect{0, 0, width, height}) {
     return absl::InvalidArgumentError(
         absl::StrCat("a light-tracing task covers the whole image (0,0)-(", width, ",", height,
@@ -131,6 +160,14 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
       for (const LightSplat& splat_value : out) {
         splat(scene_.pixel_filter(), splat_value, scale, batch);
       }
+    }
+    if (with_eye_paths) {
+      add_eye_samples(s, batch, counters, cancel);
+      if (cancel != nullptr && cancel->load()) return absl::CancelledError("task cancelled");
+      // Every pixel has a sample now: fold them all, in pixel order.
+      for (std::int64_t p : batch.order) batch.touched[std::size_t(p)] = 0;
+      batch.order.resize(std::size_t(paths));
+      for (std::int64_t p = 0; p < paths; ++p) batch.order[std::size_t(p)] = p;
     }
     // The batch is one sample of every pixel: its sums and squares (untouched pixels add 0).
     for (std::int64_t p : batch.order) {

@@ -77,7 +77,8 @@ class LightPath {
         sampler_(sampler),
         out_(out),
         counters_(counters),
-        margin_(std::max(0.0f, filter_radius - 0.5f)) {}
+        margin_(std::max(0.0f, filter_radius - 0.5f)),
+        caustics_only_(scene.options().light_caustics) {}
 
   SampledWavelengths lambda;
   float beta = 0;  // the path's weight: f / p of everything sampled so far, importance-mode
@@ -131,10 +132,13 @@ class LightPath {
       auto point = area->sample_point(to_point(sampler_.at2(kPosition)), sampler_.at(kTriangle));
       if (!point) return false;
       const float pdf_area = 1.0f / float(area->area());
-      // The emitter seen by the camera: L_e · |n·ω|/d² · W / (p_A · p(e, λ)).
-      connect(point->p, point->n, [&](const Vec3f& to_camera) {
-        return area->radiance(point->n, to_camera, lambda)[0] / (pdf_area * density);
-      });
+      // The emitter seen by the camera: L_e · |n·ω|/d² · W / (p_A · p(e, λ)) (the eye paths'
+      // with --caustics light).
+      if (!caustics_only_) {
+        connect(point->p, point->n, [&](const Vec3f& to_camera) {
+          return area->radiance(point->n, to_camera, lambda)[0] / (pdf_area * density);
+        });
+      }
       Vec3f n = point->n;
       float side = 1.0f;
       if (area->two_sided()) {
@@ -219,9 +223,14 @@ class LightPath {
       const Vec3f back_local = frame.to_local(back);
       ++depth;
       if (!is_specular(*bsdf)) {
-        connect(hit->p, hit->ng, [&](const Vec3f& to_camera) {
-          return beta * eval(*bsdf, frame.to_local(to_camera), back_local)[0];
-        });
+        // With --caustics light only a first non-delta vertex after a delta chain connects, and
+        // nothing after it can: the path ends there.
+        if (!caustics_only_ || depth >= 2) {
+          connect(hit->p, hit->ng, [&](const Vec3f& to_camera) {
+            return beta * eval(*bsdf, frame.to_local(to_camera), back_local)[0];
+          });
+        }
+        if (caustics_only_) return;
       }
       if (depth >= options.max_depth) return;
       const std::uint32_t dim = kBounce + kDimsPerBounce * std::uint32_t(depth - 1);
@@ -295,6 +304,8 @@ class LightPath {
   std::vector<LightSplat>& out_;
   TraceCounters& counters_;
   const float margin_;
+  // --caustics light: only light → delta chain → first non-delta vertex paths connect.
+  const bool caustics_only_;
 };
 
 }  // namespace

@@ -19,6 +19,11 @@
 // and the environment seen directly, since no light path can hit a pinhole. Those pixels stay
 // dark; `--caustics light` (hero plus light paths) is the combination that renders everything.
 //
+// With --caustics light (RenderOptions::light_caustics) a path connects only at its first
+// non-delta vertex, and only after one delta vertex or more (light → delta chain → receiver),
+// and ends there; the eye paths leave out exactly those paths (integrator.h's caustic_chain),
+// so the two add up to each path once.
+//
 // Spectral ray differentials (spectral_differential.h) are carried from the first dispersive
 // refraction to the first non-delta vertex, the receiver; each splat records its raster
 // position's derivative per nm, for differential splatting.

@@ -14,7 +14,10 @@ namespace prism::worker {
 
 TileRenderer::TileRenderer(const RenderScene& scene) : scene_(scene), integrator_(scene) {
   if (scene.options().integrator == job::IntegratorKind::kGradient) gradient_.emplace(scene);
-  if (scene.options().integrator == job::IntegratorKind::kLight) light_.emplace(scene);
+  if (scene.options().integrator == job::IntegratorKind::kLight ||
+      scene.options().light_caustics) {
+    light_.emplace(scene);
+  }
 }
 
 absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, TileStats* stats,

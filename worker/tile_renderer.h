@@ -9,6 +9,8 @@
 // the hero path tracer renders whatever the job's integrator.
 #pragma once
 
+#include <tbb/combinable.h>
+
 #include <atomic>
 #include <cstdint>
 #include <optional>
@@ -22,6 +24,8 @@
 #include "worker/render_scene.h"
 
 namespace prism::worker {
+
+struct BatchImage;  // light_task.cpp
 
 struct RenderTask {
   image::TileRect tile;
@@ -63,6 +67,9 @@ class TileRenderer {
   absl::StatusOr<image::TileResult> render_light(const RenderTask& task, TileStats* stats,
                                                  const std::atomic<bool>* cancel,
                                                  std::atomic<std::uint64_t>* progress) const;
+  // With --caustics light: every pixel's eye sample s, added into the batch.
+  void add_eye_samples(std::uint64_t s, BatchImage& batch, tbb::combinable<TraceCounters>& counters,
+                       const std::atomic<bool>* cancel) const;
 
   const RenderScene& scene_;
   PathIntegrator integrator_;

@@ -355,6 +355,19 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
     return absl::InvalidArgumentError("prepass options are set but the prepass is off");
   }
 
+  p.render.light_caustics = spec.light_caustics();
+  if (p.render.light_caustics) {
+    if (p.render.integrator != IntegratorKind::kHero &&
+        p.render.integrator != IntegratorKind::kUniform) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "light_caustics needs the hero or the uniform integrator, not ", name(p.render.integrator)));
+    }
+    if (prepass || p.target_error) {
+      return absl::InvalidArgumentError(
+          "light_caustics does not combine with the prepass or a target_error yet (its task is "
+          "the whole image)");
+    }
+  }
   if (p.render.integrator == IntegratorKind::kLight) {
     if (prepass) {
       return absl::InvalidArgumentError(
@@ -465,6 +478,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
                            : prism::v1::EMITTER_PDF_EMITTERS);
   spec.set_light_selection(to_proto(p.render.light_selection));
   spec.set_spectral_light_selection(p.render.spectral_light_selection);
+  spec.set_light_caustics(p.render.light_caustics);
   spec.set_spp(static_cast<std::uint32_t>(p.spp));
   if (p.auto_choice.has_value()) {
     prism::v1::AutoChoice* a = spec.mutable_auto_choice();

@@ -211,6 +211,18 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
       {"integrator_enum",
        [](prism::v1::JobSpec& s) { s.set_integrator(static_cast<prism::v1::Integrator>(42)); },
        "integrator 42: want uniform, hero, gradient or light"},
+      {"caustics_with_gradient",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.set_light_caustics(true);
+       },
+       "light_caustics needs the hero or the uniform integrator, not gradient"},
+      {"caustics_with_prepass",
+       [](prism::v1::JobSpec& s) {
+         s.set_light_caustics(true);
+         s.mutable_prepass()->set_enabled(true);
+       },
+       "light_caustics does not combine with the prepass"},
       {"light_with_prepass",
        [](prism::v1::JobSpec& s) {
          s.set_integrator(prism::v1::INTEGRATOR_LIGHT);

@@ -80,6 +80,11 @@ struct RenderOptions {
   // for the variance-weighted reconstruction.
   bool gradient_variances = false;
   float gradient_tau = 0;
+  // `--caustics light` (hero and uniform, docs/estimators.md §6): light paths render the caustic
+  // paths light → delta chain (one vertex or more) → the camera's first, non-delta vertex, and
+  // the eye paths everything else; a task is then the whole image (both kinds splat or cover
+  // every pixel).
+  bool light_caustics = false;
 
   int lanes() const { return integrator == IntegratorKind::kHero ? 4 : 1; }
 };
