@@ -62,6 +62,9 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   }
   std::vector<std::string> candidates = {"hero", "gradient"};
   if (!dependence.dispersive_materials.empty()) candidates.push_back("uniform");
+  // Hero with light-traced caustics unless --caustics was given, where the scene allows light
+  // tracing (dropped below when it does not: a lens, media, a portal).
+  if (options.caustics.empty()) candidates.push_back(kHeroWithLightCaustics);
 
   // The job's film and spp, as hero would render it. (The gradient's own flags need
   // --integrator gradient, so `options` holds none.)
@@ -91,14 +94,25 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   };
   std::vector<Measured> measured;
   std::vector<double> image_sum;
+  std::vector<std::string> measured_candidates;
   for (const std::string& method : candidates) {
     RenderCommandOptions o = probe;
     o.integrator = method;
+    if (method == kHeroWithLightCaustics) {
+      o.integrator = "hero";
+      o.caustics = "light";
+    }
     o.resolution = absl::StrCat(width, "x", height);
     o.spp = static_cast<std::int64_t>(spp);
     o.seed = kPilotSeed;
     PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
                                                                    bundle_hash, scene_relpath));
+    if (method == kHeroWithLightCaustics) {
+      // A scene the light tracer refuses (worker/light_tracer.h) has no such candidate.
+      auto tried = coordinator::LocalRender::create(device, description, library, prepared.local);
+      if (!tried.ok()) continue;
+    }
+    measured_candidates.push_back(method);
     Measured m;
     double rays = 0;
     std::optional<image::SpectralImage> first;
@@ -128,6 +142,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     m.cost = rays / (2 * pixel_samples);
     measured.push_back(std::move(m));
   }
+  candidates = std::move(measured_candidates);
   // The weights: 1/(truth² + 0.01), the truth estimated by every render's mean over the pixel
   // and its 3 x 3 neighbours (54 renders' worth of samples). Without the neighbours, one
   // candidate's outlier would also set the weight of its own pixel.
@@ -176,7 +191,11 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   const double gain = 1.0 - report.candidates[best].relative_efficiency;
   if (best != 0 && gain < kAutoMinimumGain) best = 0;
   chosen.integrator = candidates[best];
-  report.choice = chosen.integrator;
+  report.choice = candidates[best];
+  if (candidates[best] == kHeroWithLightCaustics) {
+    chosen.integrator = "hero";
+    chosen.caustics = "light";
+  }
   report.reason = best == 0 ? absl::StrCat("no candidate was predicted at least ",
                                            static_cast<int>(100 * kAutoMinimumGain),
                                            " % better than hero at equal time")

@@ -18,9 +18,12 @@
 //     choice is a pure function of the scene and the options (the same spec gives the same
 //     bytes); it leaves out per-ray work (`prism render` at 64 spp on four evaluation scenes:
 //     uniform 5.7–6.2 M rays/s, hero 4.3–5.3, gradient 3.6–5.4);
-// and predicts its error at equal time as their product. Candidates are hero and gradient, and
+// and predicts its error at equal time as their product. Candidates are hero and gradient,
 // uniform where a dielectric disperses (hero terminates its secondary lanes there, and the
-// single-wavelength tracer is then cheaper per sample). The prepass is not a candidate: at equal
+// single-wavelength tracer is then cheaper per sample), and hero+caustics (hero with
+// --caustics light) where the scene can be light traced. A light path's rays are counted like
+// an eye path's; on four scenes the rays' ratio to hero's was within 10 % of the CPU time's
+// (docs/benchmarks.md). The prepass is not a candidate: at equal
 // time it has not beaten the emitter mixture by more than 8 % on any scene measured
 // (docs/benchmarks.md, issue 11), and it needs the job's own budget to learn anything.
 //
@@ -44,6 +47,8 @@ namespace prism::client {
 
 // Predicted equal-time gain a candidate needs to replace hero.
 inline constexpr double kAutoMinimumGain = 0.10;
+// The candidate name of hero with --caustics light.
+inline constexpr char kHeroWithLightCaustics[] = "hero+caustics";
 
 struct ResolvedIntegrator {
   RenderCommandOptions options;           // with an explicit integrator and prepass

@@ -169,7 +169,7 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   PRISM_RETURN_IF_ERROR(parse_spectral_pdf(o.spectral_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_emitter_pdf(o.emitter_pdf).status());
   PRISM_RETURN_IF_ERROR(parse_light_selection(o.light_selection).status());
-  if (o.caustics != "off" && o.caustics != "light") {
+  if (!o.caustics.empty() && o.caustics != "off" && o.caustics != "light") {
     return absl::InvalidArgumentError(
         absl::StrCat("--caustics '", o.caustics, "': want off or light"));
   }
@@ -498,6 +498,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   return absl::StrCat(
       "rendered ", report.scene, ": ", report.width, "x", report.height, ", ", report.spp, " spp, ",
       report.bins, " bins, ", report.integrator,
+      report.light_caustics ? " with light-traced caustics" : "",
       report.auto_choice.has_value()
           ? absl::StrCat(" (chosen by auto: ", report.auto_choice->reason, ")")
           : std::string(),

@@ -43,7 +43,8 @@ struct RenderCommandOptions {
   std::string emitter_pdf = "emitters";
   std::string light_selection = "power";
   bool spectral_light_selection = true;
-  std::string caustics = "off";  // or light (--caustics)
+  // --caustics: off, light, or empty (not given: off, but `auto` may choose light).
+  std::string caustics;
   std::optional<std::int64_t> max_depth;
   std::optional<std::int64_t> samples_per_task;  // unset: one task per tile
   double exposure = 0.0;                         // PNG preview, in stops

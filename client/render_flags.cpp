@@ -18,7 +18,8 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
                  "camera; --spp counts batches of one path per pixel) (default auto)");
   cmd.add_option("--caustics", o.caustics,
                  "off, or light: caustic paths (light, delta chain, the first non-delta surface "
-                 "the camera sees) by light tracing, the rest by hero or uniform (default off)");
+                 "the camera sees) by light tracing, the rest by hero or uniform (default off; "
+                 "auto may choose light)");
   f.bins_opt =
       cmd.add_option("--bins", f.bins, "Spectral bins, 4..256 (default: nbuckets, else 64)");
   f.resolution_opt =

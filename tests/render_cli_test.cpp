@@ -310,6 +310,25 @@ Shape "sphere" "float radius" 0.7
   EXPECT_TRUE(same_bits(spectral_pixels(dir / "spectral_auto.exr", nullptr),
                         spectral_pixels(dir / "spectral.exr", nullptr)));
 
+  // Where the floor sees its lamp only through a prism, the pilot finds light-traced caustics
+  // best by far (docs/benchmarks.md), and the choice renders as the explicit options do.
+  CommandRun caustic =
+      run_prism(dir, {"render", source("scenes/dispersive-caustic.pbrt"), "--resolution", "160x120",
+                      "--spp", "16", "-o", "caustic_auto.exr"});
+  ASSERT_EQ(caustic.exit_code, 0) << caustic.output;
+  EXPECT_NE(caustic.output.find("hero with light-traced caustics (chosen by auto"),
+            std::string::npos)
+      << caustic.output;
+  auto caustic_report = nlohmann::json::parse(*prism::base::read_file(dir / "caustic_auto.json"));
+  EXPECT_EQ(caustic_report["auto"]["choice"], "hero+caustics");
+  EXPECT_EQ(caustic_report["caustics"], "light");
+  CommandRun caustic_explicit = run_prism(
+      dir, {"render", source("scenes/dispersive-caustic.pbrt"), "--resolution", "160x120", "--spp",
+            "16", "--integrator", "hero", "--caustics", "light", "-o", "caustic.exr"});
+  ASSERT_EQ(caustic_explicit.exit_code, 0) << caustic_explicit.output;
+  EXPECT_TRUE(same_bits(spectral_pixels(dir / "caustic_auto.exr", nullptr),
+                        spectral_pixels(dir / "caustic.exr", nullptr)));
+
   // Asking for the prepass means hero with it, without a pilot.
   CommandRun prepass =
       run_prism(dir, {"render", source("scenes/three-emitters.pbrt"), "--resolution", "48x36",
@@ -329,6 +348,9 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
       {{"render", scene, "--resolution", "64"}, "--resolution '64': want WxH"},
       {{"render", scene, "--integrator", "foo"},
        "prism: --integrator 'foo': want uniform, hero, gradient, light or auto"},
+      {{"render", scene, "--caustics", "photon"}, "prism: --caustics 'photon': want off or light"},
+      {{"render", scene, "--integrator", "gradient", "--caustics", "light"},
+       "light_caustics needs the hero or the uniform integrator, not gradient"},
       {{"render", scene, "--spp", "0"}, "--spp 0 is out of range"},
       {{"render", scene, "--spp", "-3"}, "--spp -3 is out of range"},
       {{"render", scene, "--threads", "0"}, "--threads 0 is out of range"},

@@ -31,8 +31,8 @@ absl::StatusOr<IntegratorKind> integrator_of(prism::v1::Integrator value) {
     default:
       break;
   }
-  return absl::InvalidArgumentError(
-      absl::StrCat("integrator ", static_cast<int>(value), ": want uniform, hero, gradient or light"));
+  return absl::InvalidArgumentError(absl::StrCat("integrator ", static_cast<int>(value),
+                                                 ": want uniform, hero, gradient or light"));
 }
 
 absl::StatusOr<SpectralPdfKind> spectral_pdf_of(prism::v1::SpectralPdf value) {
@@ -328,9 +328,13 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
       return absl::InvalidArgumentError(
           "auto_choice: want at most 8 candidates and a reason of at most 1024 bytes");
     }
-    if (a.choice() != name(p.render.integrator)) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "auto_choice says '", a.choice(), "' but the integrator is ", name(p.render.integrator)));
+    // `hero+caustics` is hero with light_caustics (client/auto_integrator.h).
+    const std::string ran = spec.light_caustics()
+                                ? absl::StrCat(name(p.render.integrator), "+caustics")
+                                : std::string(name(p.render.integrator));
+    if (a.choice() != ran) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("auto_choice says '", a.choice(), "' but the integrator is ", ran));
     }
     AutoReport r;
     r.choice = a.choice();
@@ -359,8 +363,9 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   if (p.render.light_caustics) {
     if (p.render.integrator != IntegratorKind::kHero &&
         p.render.integrator != IntegratorKind::kUniform) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "light_caustics needs the hero or the uniform integrator, not ", name(p.render.integrator)));
+      return absl::InvalidArgumentError(
+          absl::StrCat("light_caustics needs the hero or the uniform integrator, not ",
+                       name(p.render.integrator)));
     }
     if (prepass || p.target_error) {
       return absl::InvalidArgumentError(
