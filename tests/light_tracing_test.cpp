@@ -26,7 +26,9 @@ constexpr int kWidth = 32, kHeight = 24, kBins = 8, kSeeds = 16;
 // delta light's caustic through glass is light the eye tracer cannot find at all, pbrt-v4's
 // neither: NEE is blocked by the glass and a sampled direction never hits a point. So delta lights
 // stay clear of the glass.)
-std::string light_scene(const std::string& filter, bool caustic) {
+// `mirror` adds a smooth metal sphere beside the glass one (a second caustic caster whose cone,
+// seen from the lamp, overlaps the glass sphere's).
+std::string light_scene(const std::string& filter, bool caustic, bool mirror = false) {
   std::string text = R"(LookAt 0 5 -4  0 0 0  0 1 0
 Camera "perspective" "float fov" 50
 Film "spectral" "integer xresolution" 32 "integer yresolution" 24 "integer nbuckets" 8
@@ -49,6 +51,14 @@ AttributeBegin
   Material "diffuse" "rgb reflectance" [0.2 0.5 0.8]
   Translate 0.3 1.1 0.4
   Shape "sphere" "float radius" 0.6
+AttributeEnd
+)";
+  }
+  if (mirror) {
+    text += R"(AttributeBegin
+  Material "conductor" "spectrum eta" "metal-Ag-eta" "spectrum k" "metal-Ag-k" "float roughness" 0
+  Translate -0.6 0.7 0.9
+  Shape "sphere" "float radius" 0.45
 AttributeEnd
 )";
   }
@@ -79,6 +89,7 @@ struct Case {
   // Hero with --caustics light instead of the light tracer alone: every pixel counts, the glass
   // sphere's too (the eye paths see it).
   bool caustics_mode = false;
+  bool mirror = false;
 };
 
 class LightTracingTest : public RenderFixtureBase<::testing::TestWithParam<Case>> {
@@ -108,7 +119,8 @@ class LightTracingTest : public RenderFixtureBase<::testing::TestWithParam<Case>
 };
 
 TEST_P(LightTracingTest, AgreesWithUniformPerBinAndRegion) {
-  auto scene = load("light_tracing.pbrt", light_scene(GetParam().filter, GetParam().caustic));
+  auto scene = load("light_tracing.pbrt",
+                    light_scene(GetParam().filter, GetParam().caustic, GetParam().mirror));
   ASSERT_TRUE(scene.ok()) << scene.status();
   std::vector<bool> clear = clear_of_the_sphere(*scene);
   if (GetParam().caustics_mode) clear.assign(clear.size(), true);
@@ -248,7 +260,8 @@ INSTANTIATE_TEST_SUITE_P(
                       Case{"CausticBox", "PixelFilter \"box\"", true},
                       Case{"CausticGaussian", "", true},
                       Case{"HeroWithLightCausticsDeltaLights", "", false, true},
-                      Case{"HeroWithLightCausticsGlass", "PixelFilter \"box\"", true, true}),
+                      Case{"HeroWithLightCausticsGlass", "PixelFilter \"box\"", true, true},
+                      Case{"HeroWithLightCausticsGlassAndMirror", "", true, true, true}),
     [](const ::testing::TestParamInfo<Case>& info) { return std::string(info.param.name); });
 
 }  // namespace

@@ -256,6 +256,7 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
   g->scene_ = rtcNewScene(dev);
   rtcSetSceneBuildQuality(g->scene_, RTC_BUILD_QUALITY_HIGH);
   g->meshes_.resize(desc.shapes.size());
+  g->shape_bounds_.resize(desc.shapes.size());
   g->spheres_.resize(desc.shapes.size());
   g->quadrics_.resize(desc.shapes.size());
   g->alpha_ = std::move(alpha);
@@ -317,6 +318,7 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
       const scene::Vec3 c{corner & 1 ? hi[0] : lo[0], corner & 2 ? hi[1] : lo[1],
                           corner & 4 ? hi[2] : lo[2]};
       g->bounds_.extend(to_vec(t.apply_point(c)));
+      g->shape_bounds_[id].extend(to_vec(t.apply_point(c)));
     }
   };
 
@@ -335,6 +337,7 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
       const auto& src = *m->mesh;
       for (const Float3& p : src.positions) {
         g->bounds_.extend(to_vec(shape.object_to_world.apply_point({p.x, p.y, p.z})));
+        g->shape_bounds_[i].extend(to_vec(shape.object_to_world.apply_point({p.x, p.y, p.z})));
       }
       if (mesh->instanced) {
         RTCScene& child = instanced_scenes[m->mesh.get()];

@@ -82,6 +82,8 @@ class Geometry {
   bool occluded(const Ray& ray, float t_max) const;
 
   const Bounds3f& bounds() const { return bounds_; }
+  // One shape's world bounds (a box around it for spheres, disks and cylinders).
+  const Bounds3f& shape_bounds(int shape) const { return shape_bounds_[std::size_t(shape)]; }
   // World-space triangle of a mesh shape (for area light sampling).
   struct WorldTriangle {
     Vec3f p0, p1, p2;
@@ -136,6 +138,7 @@ class Geometry {
   std::vector<AlphaFunction> alpha_;  // per shape (empty: none)
   std::vector<std::unique_ptr<AlphaFilter>> filters_;
   Bounds3f bounds_;
+  std::vector<Bounds3f> shape_bounds_;
   float epsilon_ = 1e-4f;
 };
 

@@ -64,6 +64,19 @@ LightTracer::LightTracer(const RenderScene& scene) : scene_(scene) {
   }
   const PixelFilter& filter = scene.pixel_filter();
   filter_radius_ = float(std::max(filter.radius(0), filter.radius(1)));
+  if (scene.options().light_caustics) {
+    for (int i = 0; i < scene.shape_count(); ++i) {
+      const Material& m = scene.materials()[std::size_t(scene.shape(i).material)];
+      if (std::holds_alternative<DiffuseMaterial>(m) ||
+          std::holds_alternative<DiffuseTransmissionMaterial>(m) ||
+          std::holds_alternative<InterfaceMaterial>(m)) {
+        continue;
+      }
+      const Bounds3f& b = scene.geometry().shape_bounds(i);
+      if (!(b.hi.x >= b.lo.x)) continue;  // empty
+      targets_.push_back({b.centre(), b.radius() * 1.001f + 1e-4f});
+    }
+  }
 }
 
 namespace {
@@ -72,13 +85,14 @@ namespace {
 class LightPath {
  public:
   LightPath(const RenderScene& scene, const Sampler& sampler, std::vector<LightSplat>& out,
-            TraceCounters& counters, float filter_radius)
+            TraceCounters& counters, float filter_radius, const std::vector<CausticTarget>& targets)
       : scene_(scene),
         sampler_(sampler),
         out_(out),
         counters_(counters),
         margin_(std::max(0.0f, filter_radius - 0.5f)),
-        caustics_only_(scene.options().light_caustics) {}
+        caustics_only_(scene.options().light_caustics),
+        targets_(targets) {}
 
   SampledWavelengths lambda;
   float beta = 0;  // the path's weight: f / p of everything sampled so far, importance-mode
@@ -123,6 +137,62 @@ class LightPath {
     out_.push_back(s);
   }
 
+  // A direction from p towards the caustic targets and its density (the mixture of their
+  // cones, each chosen with 1/T; a target around p covers the whole sphere); false for none.
+  bool towards_targets(const Vec3f& p, Vec3f* w, float* pdf) const {
+    const auto count = targets_.size();
+    const float pick = sampler_.at(kSide) * float(count);
+    const std::size_t j = std::min(count - 1, std::size_t(pick));
+    const Point2f u = to_point(sampler_.at2(kEmission));
+    const CausticTarget& t = targets_[j];
+    const Vec3f to = t.centre - p;
+    const float d2 = length_squared(to);
+    if (d2 <= t.radius * t.radius) {
+      *w = sample_uniform_sphere(u);
+    } else {
+      const float cos_max = std::sqrt(std::max(0.0f, 1.0f - t.radius * t.radius / d2));
+      const float cos_theta = 1.0f - u.x * (1.0f - cos_max);
+      const float sin_theta = std::sqrt(std::max(0.0f, 1.0f - cos_theta * cos_theta));
+      const float phi = 2.0f * kPi * u.y;
+      *w = Frame::from_z(to / std::sqrt(d2))
+               .from_local({sin_theta * std::cos(phi), sin_theta * std::sin(phi), cos_theta});
+    }
+    float sum = 0.0f;
+    for (const CausticTarget& c : targets_) {
+      const Vec3f a = c.centre - p;
+      const float a2 = length_squared(a);
+      if (a2 <= c.radius * c.radius) {
+        sum += 1.0f / (4.0f * kPi);
+        continue;
+      }
+      const float cos_max = std::sqrt(std::max(0.0f, 1.0f - c.radius * c.radius / a2));
+      if (dot(*w, a) >= cos_max * std::sqrt(a2)) sum += 1.0f / (2.0f * kPi * (1.0f - cos_max));
+    }
+    *pdf = sum / float(count);
+    return *pdf > 0.0f && std::isfinite(*pdf);
+  }
+
+  // For light along w from infinitely far: a point of the beam's cross-section on the disk of a
+  // target across w, from outside the scene, and its density per unit area (the mixture).
+  bool beam_towards_targets(const Vec3f& w, Vec3f* origin, float* pdf) const {
+    const auto count = targets_.size();
+    const std::size_t j = std::min(count - 1, std::size_t(sampler_.at(kSide) * float(count)));
+    const Frame frame = Frame::from_z(w);
+    const Point2f d = sample_uniform_disk_concentric(to_point(sampler_.at2(kPosition)));
+    const CausticTarget& t = targets_[j];
+    const Bounds3f& bounds = scene_.geometry().bounds();
+    const float back = length(t.centre - bounds.centre()) + bounds.radius() * 1.01f + 1e-3f;
+    *origin = t.centre - w * back + (frame.s * d.x + frame.t * d.y) * t.radius;
+    float sum = 0.0f;
+    for (const CausticTarget& c : targets_) {
+      const Vec3f off = c.centre - *origin;
+      const Vec3f across = off - w * dot(off, w);
+      if (length_squared(across) <= c.radius * c.radius) sum += 1.0f / (kPi * c.radius * c.radius);
+    }
+    *pdf = sum / float(count);
+    return *pdf > 0.0f && std::isfinite(*pdf);
+  }
+
   // The emitted ray, with beta set; false when this light emits nothing here.
   bool emit(const Light& light, float selection, Ray* ray) {
     const float density = selection * lambda.pdf(0);
@@ -138,6 +208,15 @@ class LightPath {
         connect(point->p, point->n, [&](const Vec3f& to_camera) {
           return area->radiance(point->n, to_camera, lambda)[0] / (pdf_area * density);
         });
+      }
+      if (caustics_only_) {
+        Vec3f w;
+        float pdf_w = 0.0f;
+        if (!towards_targets(point->p, &w, &pdf_w)) return false;
+        const float le = area->radiance(point->n, w, lambda)[0];
+        beta = le * std::abs(dot(point->n, w)) / (pdf_area * pdf_w * density);
+        *ray = {scene_.geometry().offset_origin(point->p, point->n, w), w};
+        return beta > 0.0f;
       }
       Vec3f n = point->n;
       float side = 1.0f;
@@ -165,8 +244,14 @@ class LightPath {
       };
       // No connection of the light itself: a point has no area for a camera ray to hit, and an
       // eye tracer (pbrt-v4's too) never sees one; the image would differ at one pixel.
-      const Vec3f w = sample_uniform_sphere(to_point(sampler_.at2(kEmission)));
-      beta = intensity(w) * (4.0f * kPi) / density;
+      Vec3f w;
+      float pdf_w = 1.0f / (4.0f * kPi);
+      if (caustics_only_) {
+        if (!towards_targets(position, &w, &pdf_w)) return false;
+      } else {
+        w = sample_uniform_sphere(to_point(sampler_.at2(kEmission)));
+      }
+      beta = intensity(w) / (pdf_w * density);
       *ray = {position, w};
       return beta > 0.0f;
     }
@@ -183,6 +268,14 @@ class LightPath {
       const auto& inf = std::get<InfiniteLight>(light);
       w = sample_uniform_sphere(to_point(sampler_.at2(kEmission)));
       value = inf.radiance(bounds.centre(), -w, lambda)[0] * (4.0f * kPi);
+    }
+    if (caustics_only_) {
+      Vec3f origin;
+      float pdf_beam = 0.0f;
+      if (!beam_towards_targets(w, &origin, &pdf_beam)) return false;
+      beta = value / (pdf_beam * density);
+      *ray = {origin, w};
+      return beta > 0.0f;
     }
     const Point2f d = sample_uniform_disk_concentric(to_point(sampler_.at2(kPosition)));
     const Frame frame = Frame::from_z(w);
@@ -306,6 +399,7 @@ class LightPath {
   const float margin_;
   // --caustics light: only light → delta chain → first non-delta vertex paths connect.
   const bool caustics_only_;
+  const std::vector<CausticTarget>& targets_;
 };
 
 }  // namespace
@@ -315,7 +409,8 @@ void LightTracer::trace(int x, int y, std::uint32_t sample_index, std::vector<Li
   const job::RenderOptions& options = scene_.options();
   Sampler sampler(options.sampler, SampleKey{options.seed, kLightPathPass, std::uint32_t(x),
                                              std::uint32_t(y), sample_index});
-  LightPath path(scene_, sampler, out, counters, filter_radius_);
+  if (options.light_caustics && targets_.empty()) return;  // no caustic path in this scene
+  LightPath path(scene_, sampler, out, counters, filter_radius_, targets_);
   path.lambda =
       spectral::WavelengthPdfView(scene_.wavelength_pdf()).sample_lanes(sampler.at(kWavelength), 1);
   if (!(path.lambda.pdf(0) > 0.0f)) return;

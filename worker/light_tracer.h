@@ -22,7 +22,12 @@
 // With --caustics light (RenderOptions::light_caustics) a path connects only at its first
 // non-delta vertex, and only after one delta vertex or more (light → delta chain → receiver),
 // and ends there; the eye paths leave out exactly those paths (integrator.h's caustic_chain),
-// so the two add up to each path once.
+// so the two add up to each path once. A caustic path's first vertex is a delta one, so its
+// first segment meets the bounding sphere of a shape whose material can be a delta (anything
+// but diffuse, diffuse transmission and interface): in this mode lights emit only towards those
+// spheres (a direction in the cone of one, chosen uniformly, the density the mixture of every
+// cone holding it; for light from infinitely far a point on the disk of one across the beam),
+// which covers every caustic path and wastes no path on the rest.
 //
 // Spectral ray differentials (spectral_differential.h) are carried from the first dispersive
 // refraction to the first non-delta vertex, the receiver; each splat records its raster
@@ -40,6 +45,13 @@ namespace prism::worker {
 
 // The sample stream of light paths: its own pass, apart from every eye path's.
 inline constexpr std::uint32_t kLightPathPass = 1u << 20;
+
+// With --caustics light, a sphere around a shape that may scatter as a delta (a caustic path's
+// first vertex lies on one): light paths are emitted towards these only.
+struct CausticTarget {
+  Vec3f centre;
+  float radius = 0;
+};
 
 struct LightSplat {
   Point2f raster;         // film position (pixel x + offset)
@@ -70,8 +82,9 @@ class LightTracer {
 
  private:
   const RenderScene& scene_;
-  std::vector<double> power_;       // per light: total power (light_power)
-  std::vector<double> mean_value_;  // per light: its spectrum's mean over Λ
+  std::vector<double> power_;           // per light: total power (light_power)
+  std::vector<double> mean_value_;      // per light: its spectrum's mean over Λ
+  std::vector<CausticTarget> targets_;  // --caustics light only
   float filter_radius_ = 0.5f;
 };
 

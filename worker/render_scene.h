@@ -70,6 +70,7 @@ class RenderScene {
   const std::vector<Light>& lights() const { return lights_; }
   const std::vector<HomogeneousMedium>& media() const { return media_; }
   const ShapeInfo& shape(int index) const { return shapes_[index]; }
+  int shape_count() const { return int(shapes_.size()); }
   int camera_medium() const { return camera_medium_; }
   int infinite_light() const { return infinite_light_; }  // index into lights(), or -1
   const LightSampler& light_sampler() const { return *light_sampler_; }
