@@ -19,12 +19,9 @@ absl::StatusOr<std::unique_ptr<ActiveJob>> ActiveJob::create(
   job->params = params;
   job->spec = spec;
   job->scene_features = reported_features(scene);
-  PRISM_ASSIGN_OR_RETURN(
-      job->plan,
-      plan_tiles({params.width, params.height, params.tile_size, params.spp,
-                  params.samples_per_task,
-                  params.render.integrator == job::IntegratorKind::kLight ||
-                      params.render.light_caustics}));
+  PRISM_ASSIGN_OR_RETURN(job->plan,
+                         plan_tiles({params.width, params.height, params.tile_size, params.spp,
+                                     params.samples_per_task, params.render.traces_light_paths()}));
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb, image::RgbImage::create(params.width, params.height));
   job->rgb = std::make_unique<image::RgbImage>(std::move(rgb));
   job->statistics =

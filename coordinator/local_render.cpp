@@ -66,17 +66,14 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
   // The variance-weighted reconstruction needs the workers' squares of G.
   render->options_.render.gradient_variances = options.poisson_norm == job::PoissonNorm::kWeighted;
   PRISM_ASSIGN_OR_RETURN(
-      render->plan_,
-      plan_tiles({options.width, options.height, options.tile_size, options.spp,
-                  options.samples_per_task,
-                  options.render.integrator == job::IntegratorKind::kLight ||
-                      options.render.light_caustics}));
+      render->plan_, plan_tiles({options.width, options.height, options.tile_size, options.spp,
+                                 options.samples_per_task, options.render.traces_light_paths()}));
   render->threads_ = options.threads > 0 ? options.threads : tbb::info::default_concurrency();
   const Clock::time_point start = Clock::now();
   PRISM_ASSIGN_OR_RETURN(render->scene_,
                          worker::RenderScene::build(device, scene, library, render->options_.render,
                                                     options.width, options.height));
-  if (options.render.integrator == job::IntegratorKind::kLight || options.render.light_caustics) {
+  if (options.render.traces_light_paths()) {
     PRISM_RETURN_IF_ERROR(worker::check_light_tracing(*render->scene_));
   }
   if (options.render.integrator == job::IntegratorKind::kGradient) {

@@ -192,12 +192,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
   }
   auto counts = result.mutable_counts();
   std::fill(counts.begin(), counts.end(), task.samples.count());
-  if (stats != nullptr) {
-    stats->counters = TraceCounters();
-    counters.combine_each([&](const TraceCounters& c) { stats->counters += c; });
-    stats->seconds =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  }
+  record_stats(stats, counters, start);
   return result;
 }
 

@@ -14,10 +14,7 @@ namespace prism::worker {
 
 TileRenderer::TileRenderer(const RenderScene& scene) : scene_(scene), integrator_(scene) {
   if (scene.options().integrator == job::IntegratorKind::kGradient) gradient_.emplace(scene);
-  if (scene.options().integrator == job::IntegratorKind::kLight ||
-      scene.options().light_caustics) {
-    light_.emplace(scene);
-  }
+  if (scene.options().traces_light_paths()) light_.emplace(scene);
 }
 
 absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, TileStats* stats,
@@ -198,13 +195,16 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
       },
       tbb::simple_partitioner());
   if (cancelled.load()) return absl::CancelledError("task cancelled");
-  if (stats != nullptr) {
-    stats->counters = TraceCounters();
-    counters.combine_each([&](const TraceCounters& c) { stats->counters += c; });
-    stats->seconds =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  }
+  record_stats(stats, counters, start);
   return result;
+}
+
+void TileRenderer::record_stats(TileStats* stats, tbb::combinable<TraceCounters>& counters,
+                                std::chrono::steady_clock::time_point start) {
+  if (stats == nullptr) return;
+  stats->counters = TraceCounters();
+  counters.combine_each([&](const TraceCounters& c) { stats->counters += c; });
+  stats->seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
 }  // namespace prism::worker

@@ -12,6 +12,7 @@
 #include <tbb/combinable.h>
 
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <optional>
 
@@ -67,6 +68,9 @@ class TileRenderer {
   absl::StatusOr<image::TileResult> render_light(const RenderTask& task, TileStats* stats,
                                                  const std::atomic<bool>* cancel,
                                                  std::atomic<std::uint64_t>* progress) const;
+  // The task's counters, summed over the threads, and its seconds since `start`.
+  static void record_stats(TileStats* stats, tbb::combinable<TraceCounters>& counters,
+                           std::chrono::steady_clock::time_point start);
   // With --caustics light: every pixel's eye sample s, added into the batch.
   void add_eye_samples(std::uint64_t s, BatchImage& batch, tbb::combinable<TraceCounters>& counters,
                        const std::atomic<bool>* cancel) const;

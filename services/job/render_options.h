@@ -87,6 +87,8 @@ struct RenderOptions {
   bool light_caustics = false;
 
   int lanes() const { return integrator == IntegratorKind::kHero ? 4 : 1; }
+  // Light paths splat over the whole film, so such a job's task is the whole image.
+  bool traces_light_paths() const { return integrator == IntegratorKind::kLight || light_caustics; }
 };
 
 // The lanes C of a prepass task: the hero path tracer with its default C (docs/estimators.md §2,
