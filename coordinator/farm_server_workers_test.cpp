@@ -387,6 +387,14 @@ TEST_F(FarmServerTest, RealWorkerProcessesRenderALightTracingJobTheSameBytes) {
   render_with_real_workers(spec);
 }
 
+// Hero with light-traced caustics: whole-image tasks that trace both kinds of path.
+TEST_F(FarmServerTest, RealWorkerProcessesRenderALightCausticsJobTheSameBytes) {
+  v1::JobSpec spec = small_spec("");
+  spec.set_integrator(v1::INTEGRATOR_HERO);
+  spec.set_light_caustics(true);
+  render_with_real_workers(spec);
+}
+
 TEST_F(FarmServerTest, TheStandardHealthServiceReportsServing) {
   auto channel = grpc::CreateChannel(farm_->address(), grpc::InsecureChannelCredentials());
   grpc::GenericStub stub(channel);
