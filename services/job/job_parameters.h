@@ -31,6 +31,10 @@ inline constexpr int kMaxTileSize = 1024;
 inline constexpr int kDefaultTileSize = 32;
 inline constexpr std::size_t kMaxJobNameBytes = 256;
 inline constexpr std::size_t kMaxScenePathBytes = 1024;
+// A job whose task is the whole image (light paths: RenderOptions::traces_light_paths) returns
+// per task, per pixel, the sums and squares of every bin and of R, G, B as doubles; a task's
+// result may hold at most this many bytes (1 GiB: 1920x1080 at 32 bins is 0.55 GiB).
+inline constexpr std::uint64_t kMaxWholeImageResultBytes = std::uint64_t{1} << 30;
 
 // ---- Spectral gradient sampling: the Poisson reconstruction
 

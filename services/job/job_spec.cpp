@@ -360,6 +360,17 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   }
 
   p.render.light_caustics = spec.light_caustics();
+  if (p.render.traces_light_paths()) {
+    const std::uint64_t bytes = std::uint64_t(p.width) * std::uint64_t(p.height) *
+                                (2 * std::uint64_t(p.render.bins) + 2 * 3 + 1) * 8;
+    if (bytes > kMaxWholeImageResultBytes) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("light paths make each task the whole image, and a ", p.width, "x", p.height,
+                       " image at ", p.render.bins, " bins returns ", bytes >> 20,
+                       " MiB per task, over the limit of ", kMaxWholeImageResultBytes >> 20,
+                       " MiB: use fewer bins or pixels"));
+    }
+  }
   if (p.render.light_caustics) {
     if (p.render.integrator != IntegratorKind::kHero &&
         p.render.integrator != IntegratorKind::kUniform) {

@@ -211,6 +211,14 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
       {"integrator_enum",
        [](prism::v1::JobSpec& s) { s.set_integrator(static_cast<prism::v1::Integrator>(42)); },
        "integrator 42: want uniform, hero, gradient or light"},
+      {"light_too_large",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_LIGHT);
+         s.set_width(4096);
+         s.set_height(4096);
+         s.set_bins(64);
+       },
+       "returns 17280 MiB per task, over the limit of 1024 MiB"},
       {"caustics_with_gradient",
        [](prism::v1::JobSpec& s) {
          s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
