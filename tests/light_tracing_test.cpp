@@ -27,7 +27,8 @@ constexpr int kWidth = 32, kHeight = 24, kBins = 8, kSeeds = 16;
 // neither: NEE is blocked by the glass and a sampled direction never hits a point. So delta lights
 // stay clear of the glass.)
 // `mirror` adds a smooth metal sphere beside the glass one (a second caustic caster whose cone,
-// seen from the lamp, overlaps the glass sphere's).
+// seen from the lamp, overlaps the glass sphere's) and a sphere with a smooth coat over a diffuse
+// base (a BSDF that is not a delta but samples its coat's mirror reflection as one).
 std::string light_scene(const std::string& filter, bool caustic, bool mirror = false) {
   std::string text = R"(LookAt 0 5 -4  0 0 0  0 1 0
 Camera "perspective" "float fov" 50
@@ -59,6 +60,11 @@ AttributeEnd
   Material "conductor" "spectrum eta" "metal-Ag-eta" "spectrum k" "metal-Ag-k" "float roughness" 0
   Translate -0.6 0.7 0.9
   Shape "sphere" "float radius" 0.45
+AttributeEnd
+AttributeBegin
+  Material "coateddiffuse" "float roughness" 0 "rgb reflectance" [0.2 0.6 0.3]
+  Translate 1.2 0.5 -0.6
+  Shape "sphere" "float radius" 0.4
 AttributeEnd
 )";
   }

@@ -55,8 +55,9 @@ struct PathState {
   float eta_scale = 1;
   int medium = -1;
   // Where the path stands against the caustic class of `--caustics light` (light → delta chain
-  // → the first, non-delta vertex → camera): 0 before the first scattering, 1 after a non-delta
-  // first vertex, 2 once a delta vertex followed it (and only delta ones since), −1 outside it.
+  // → the first, non-delta vertex → camera), by each vertex's BSDF (is_specular): 0 before the
+  // first scattering, 1 after a non-delta first vertex, 2 once a delta vertex followed it (and
+  // only delta ones since), −1 outside it.
   int caustic_chain = 0;
 
   explicit PathState(const SampledWavelengths& l) : lambda(l), lambda_prev(l) {}
@@ -256,10 +257,13 @@ class CameraPath {
     state.prev_ctx = ctx;
     state.prev_specular = bs->specular;
     state.pdf_since_prev = bs->pdf[0];
+    // By the vertex's BSDF, not the sample: the light tracer decides by is_specular too, and a
+    // coated BSDF (not a delta) samples its smooth coat's reflection as a delta event.
+    const bool delta_vertex = is_specular(bsdf);
     if (state.caustic_chain == 0) {
-      state.caustic_chain = bs->specular ? -1 : 1;
+      state.caustic_chain = delta_vertex ? -1 : 1;
     } else if (state.caustic_chain > 0) {
-      state.caustic_chain = bs->specular ? 2 : -1;
+      state.caustic_chain = delta_vertex ? 2 : -1;
     }
     state.beta *= bs->f * (abs_cos_theta(bs->wi) / bs->pdf[0]);
     state.r *= over_hero(bs->pdf);
