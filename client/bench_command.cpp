@@ -155,13 +155,18 @@ absl::StatusOr<RenderCommandOptions> method_options(const std::string& method,
     o.prepass = true;
   } else if (method == "gradient") {
     o.integrator = "gradient";
+  } else if (method == "light") {
+    o.integrator = "light";
+  } else if (method == "hero+caustics") {
+    o.integrator = "hero";
+    o.caustics = "light";
   } else if (method == "auto") {
     o.integrator = "auto";
     o.prepass.reset();
   } else {
     return absl::InvalidArgumentError(absl::StrCat("--methods: unknown method '", method,
                                                    "' (choose from uniform, hero, hero+prepass, "
-                                                   "gradient, auto)"));
+                                                   "gradient, light, hero+caustics, auto)"));
   }
   return o;
 }

@@ -56,10 +56,9 @@ int main(int argc, char** argv) {
   int offset_bins = 0;
   auto* reconstruct_cmd = app.add_subcommand(
       "reconstruct", "Screened Poisson reconstruction of a saved primal and gradient EXR pair");
-  reconstruct_cmd->add_option("primal", reconstruct.primal, "Primal spectral EXR (I)")
-      ->required();
-  reconstruct_cmd->add_option("gradient", reconstruct.gradient,
-                              "Gradient spectral EXR (G[b] ~ I[b+k] - I[b])")
+  reconstruct_cmd->add_option("primal", reconstruct.primal, "Primal spectral EXR (I)")->required();
+  reconstruct_cmd
+      ->add_option("gradient", reconstruct.gradient, "Gradient spectral EXR (G[b] ~ I[b+k] - I[b])")
       ->required();
   reconstruct_cmd->add_option("-o,--output", reconstruct.output, "Spectral EXR to write")
       ->required();
@@ -91,7 +90,8 @@ int main(int argc, char** argv) {
   bench_cmd->add_option("scenes", bench.scenes, "pbrt-v4 scene files")->required();
   bench_cmd->add_option(
       "--methods", bench.methods,
-      "Comma-separated: uniform, hero, hero+prepass, gradient, auto (default all)");
+      "Comma-separated: uniform, hero, hero+prepass, gradient, light, hero+caustics, auto "
+      "(default: uniform, hero, hero+prepass, gradient, auto)");
   auto* budgets_opt = bench_cmd->add_option(
       "--budgets", bench.budgets, "Time budgets per render, e.g. 10s,30s,2m (default 10s,30s)");
   auto* bench_spp_opt =
@@ -160,8 +160,8 @@ int main(int argc, char** argv) {
 
   CLI11_PARSE(app, argc, argv);
 
-  for (CLI::App* cmd : {submit_cmd, status_cmd, jobs_cmd, watch_cmd, cancel_cmd, fetch_cmd,
-                        workers_cmd}) {
+  for (CLI::App* cmd :
+       {submit_cmd, status_cmd, jobs_cmd, watch_cmd, cancel_cmd, fetch_cmd, workers_cmd}) {
     if (!cmd->parsed()) continue;
     if (absl::Status resolved = prism::client::resolve_connection(farm); !resolved.ok()) {
       return report(resolved);
