@@ -32,25 +32,26 @@ Point2f to_point(const Point2& p) {
 absl::Status check_light_tracing(const RenderScene& scene) {
   if (!scene.camera().is_pinhole()) {
     return absl::InvalidArgumentError(
-        "the light tracer connects paths to a pinhole camera: use a \"perspective\" camera "
-        "without \"lensradius\" (or another integrator)");
+        "light paths (--integrator light, --caustics light) connect to a pinhole camera: use a "
+        "\"perspective\" camera without \"lensradius\", or render without light paths");
   }
   if (!scene.media().empty()) {
     return absl::InvalidArgumentError(
-        "the light tracer does not trace participating media yet; render this scene with "
-        "--integrator uniform, hero or gradient");
+        "light paths (--integrator light, --caustics light) do not trace participating media "
+        "yet; render this scene without them");
   }
   if (scene.infinite_light() >= 0) {
     const auto& inf = std::get<InfiniteLight>(scene.lights()[scene.infinite_light()]);
     if (inf.portal()) {
       return scene::location_error(
           inf.where(),
-          "the light tracer cannot emit through an environment light's portal; render this "
-          "scene with --integrator uniform, hero or gradient");
+          "light paths (--integrator light, --caustics light) cannot emit through an environment "
+          "light's portal; render this scene without them");
     }
   }
   if (scene.lights().empty()) {
-    return absl::InvalidArgumentError("the light tracer needs at least one light in the scene");
+    return absl::InvalidArgumentError(
+        "light paths (--integrator light, --caustics light) need at least one light in the scene");
   }
   return absl::OkStatus();
 }
