@@ -116,6 +116,16 @@ class FarmServerTest : public ::testing::Test {
     return status;
   }
 
+  // Writes kScene under root_/scene, uploads its bundle and returns the hash (empty, with the
+  // failure recorded, when the upload fails).
+  std::string upload_scene() {
+    scene_root_ = root_ / "scene";
+    std::string hash;
+    const grpc::Status status = upload(packed_bundle(scene_root_, kScene), &hash);
+    EXPECT_TRUE(status.ok()) << status.error_message();
+    return status.ok() ? hash : std::string();
+  }
+
   v1::JobSpec small_spec(const std::string& hash) {
     v1::JobSpec spec;
     spec.set_bundle_hash(hash);
@@ -294,9 +304,8 @@ class FarmServerTest : public ::testing::Test {
   void render_with_real_workers(v1::JobSpec spec) {
     const char* binary = std::getenv("PRISM_WORKER_BIN");
     if (binary == nullptr || *binary == '\0') binary = PRISM_WORKER_BINARY;
-    scene_root_ = root_ / "scene";
-    std::string hash;
-    ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+    const std::string hash = upload_scene();
+    ASSERT_FALSE(hash.empty());
     spec.set_bundle_hash(hash);
     const std::string job_id = submit(spec).job_id();
     std::vector<std::unique_ptr<prism::testing::ChildProcess>> workers;

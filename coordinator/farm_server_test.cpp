@@ -10,9 +10,8 @@ namespace fs = std::filesystem;
 namespace v1 = prism::v1;
 
 TEST_F(FarmServerTest, AFakeWorkerRendersAJobBitIdenticalToTheEmbeddedRender) {
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   {
     v1::HasBundleRequest request;
     request.set_bundle_hash(hash);

@@ -11,9 +11,8 @@ namespace fs = std::filesystem;
 namespace v1 = prism::v1;
 
 TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   submit(small_spec(hash));
   const std::string worker_id = register_worker();
   std::optional<v1::Lease> lease = acquire(worker_id);
@@ -50,9 +49,8 @@ TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {
 // A gradient job's result must carry gradients: one without is the worker's fault (refused,
 // the task requeued), not a reason to fail the job.
 TEST_F(FarmServerTest, AGradientResultWithoutGradientsIsTheWorkersFault) {
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   v1::JobSpec spec = small_spec(hash);
   spec.set_integrator(v1::INTEGRATOR_GRADIENT);
   spec.set_bins(16);
@@ -89,9 +87,8 @@ TEST_F(FarmServerTest, AGradientResultWithoutGradientsIsTheWorkersFault) {
 // every result; a result with gradients only is the worker's fault too, and the real render of
 // the task, which carries them, is accepted.
 TEST_F(FarmServerTest, AWeightedGradientResultWithoutHalvesIsTheWorkersFault) {
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   v1::JobSpec spec = small_spec(hash);
   spec.set_integrator(v1::INTEGRATOR_GRADIENT);
   spec.set_bins(16);
@@ -133,9 +130,8 @@ TEST_F(FarmServerTest, AWeightedGradientResultWithoutHalvesIsTheWorkersFault) {
 }
 
 TEST_F(FarmServerTest, ListWorkersShowsWhatABusyWorkerRenders) {
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   const std::string job_id = submit(small_spec(hash)).job_id();
   const std::string worker_id = register_worker();
   std::optional<v1::Lease> lease = acquire(worker_id);
@@ -157,9 +153,8 @@ TEST_F(FarmServerTest, ListWorkersShowsWhatABusyWorkerRenders) {
 }
 
 TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   const v1::JobInfo a = submit(small_spec(hash), "token-1");
   const v1::JobInfo b = submit(small_spec(hash), "token-1");
   const v1::JobInfo c = submit(small_spec(hash), "token-2");
@@ -173,9 +168,8 @@ TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {
 }
 
 TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   const v1::JobSpec spec = small_spec(hash);
   const std::string job_id = submit(spec).job_id();
   const auto first = run_worker(register_worker(), 7);
@@ -288,9 +282,8 @@ TEST_F(FarmServerTest, CancelReachesTheWorkerAtItsNextHeartbeat) {
 }
 
 TEST_F(FarmServerTest, ASceneFaultFailsTheJobWithTheWorkersMessage) {
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   const std::string job_id = submit(small_spec(hash)).job_id();
   const std::string worker_id = register_worker();
   std::optional<v1::Lease> lease = acquire(worker_id);
@@ -310,9 +303,8 @@ TEST_F(FarmServerTest, ASceneFaultFailsTheJobWithTheWorkersMessage) {
 }
 
 TEST_F(FarmServerTest, ALostWorkersLeaseGoesToAnotherWorker) {
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   submit(small_spec(hash));
   const std::string silent = register_worker();
   std::optional<v1::Lease> lease = acquire(silent);
@@ -341,9 +333,8 @@ TEST_F(FarmServerTest, SubmissionsBeyondTheQueueLimitAreResourceExhausted) {
   stop();
   max_queued_jobs_ = 1;
   start();
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   submit(small_spec(hash), "first");
   v1::SubmitJobRequest request;
   *request.mutable_spec() = small_spec(hash);
@@ -359,9 +350,8 @@ TEST_F(FarmServerTest, SubmissionsBeyondTheQueueLimitAreResourceExhausted) {
 }
 
 TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {
-  scene_root_ = root_ / "scene";
-  std::string hash;
-  ASSERT_TRUE(upload(packed_bundle(scene_root_, kScene), &hash).ok());
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
   v1::SubmitJobRequest request;
   *request.mutable_spec() = small_spec(hash);
   request.mutable_spec()->set_bins(1000);
