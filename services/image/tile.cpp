@@ -210,6 +210,10 @@ absl::StatusOr<TileResult> TileResult::create(const TileRect& rect, const Sample
     r.rgb_sums_.assign(area * 3, 0.0);
     r.rgb_squares_.assign(area * 3, 0.0);
   }
+  if (buffers.filtered) {
+    r.filtered_sums_.assign(area * bins, 0.0);
+    r.filtered_rgb_sums_.assign(area * 3, 0.0);
+  }
   if (buffers.guides) {
     r.depth_.assign(area, 0.0f);
     r.normals_.assign(area * 3, 0.0f);
@@ -279,10 +283,11 @@ absl::Status TileResult::add(const TileResult& other) {
                                                    " bins into one with ", bins_, " bins"));
   }
   if (other.buffers_ != buffers_) {
-    return absl::InvalidArgumentError(absl::StrCat(
-        "cannot merge tile results of ", to_string(rect_),
-        " with different optional buffers (gradients, halves, rgb, guides or counter names "
-        "differ)"));
+    return absl::InvalidArgumentError(absl::StrCat("cannot merge tile results of ",
+                                                   to_string(rect_),
+                                                   " with different optional buffers (gradients, "
+                                                   "halves, rgb, filtered, guides or counter names "
+                                                   "differ)"));
   }
   SampleRange merged;
   if (other.samples_.s0 == samples_.s1) {
@@ -308,6 +313,8 @@ absl::Status TileResult::add(const TileResult& other) {
   add_vectors(half_counts_, other.half_counts_);
   add_vectors(rgb_sums_, other.rgb_sums_);
   add_vectors(rgb_squares_, other.rgb_squares_);
+  add_vectors(filtered_sums_, other.filtered_sums_);
+  add_vectors(filtered_rgb_sums_, other.filtered_rgb_sums_);
   add_vectors(depth_, other.depth_);
   add_vectors(normals_, other.normals_);
   add_vectors(albedo_, other.albedo_);
@@ -348,6 +355,11 @@ SpectralImage finalise(const TileResult& result) {
 SpectralImage finalise_gradients(const TileResult& result) {
   PRISM_CHECK(result.has_gradients());
   return means_of(result, result.gradients());
+}
+
+SpectralImage finalise_filtered(const TileResult& result) {
+  PRISM_CHECK(result.has_filtered());
+  return means_of(result, result.filtered_sums());
 }
 
 absl::Status paste_tile(const SpectralImage& tile, const TileRect& rect, SpectralImage& image) {

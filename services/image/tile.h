@@ -26,6 +26,10 @@
 //                                                             linear sRGB R, G, B (c = 0, 1, 2)
 //                                                             from its exact wavelengths
 //      rgb_squares double, area*3,    rgb_squares[p*3 + c]    sum over samples of their squares
+//    (optional filtered: jobs with differential splatting, a second, biased image beside the
+//    unbiased one, worker/light_task.cpp; divide by counts like sums)
+//      filtered_sums     double, area*bins, filtered_sums[p*bins + b]
+//      filtered_rgb_sums double, area*3,    filtered_rgb_sums[p*3 + c]
 //      depth       float,  area,      depth[p]                (optional guides) sum of depths
 //      normals     float,  area*3,    normals[p*3 + i]        (optional guides) sum of normals
 //      albedo      float,  area,      albedo[p]               (optional guides) sum of albedos
@@ -169,6 +173,8 @@ struct TileBuffers {
   // Each sample's linear sRGB from its exact wavelengths (the RGB outputs do not depend on the
   // bins).
   bool rgb = false;
+  // The filtered image's sums per bin and its R, G, B (differential splatting).
+  bool filtered = false;
   friend bool operator==(const TileBuffers&, const TileBuffers&) = default;
 };
 
@@ -197,6 +203,7 @@ class TileResult {
   bool has_halves() const { return buffers_.halves; }
   bool has_guides() const { return buffers_.guides; }
   bool has_rgb() const { return buffers_.rgb; }
+  bool has_filtered() const { return buffers_.filtered; }
   int counter_count() const { return static_cast<int>(buffers_.counter_names.size()); }
 
   // Accumulation by a worker. (x,y) are image coordinates inside rect() (PRISM_CHECK).
@@ -233,6 +240,8 @@ class TileResult {
   std::span<const std::uint64_t> half_counts() const { return half_counts_; }
   std::span<const double> rgb_sums() const { return rgb_sums_; }
   std::span<const double> rgb_squares() const { return rgb_squares_; }
+  std::span<const double> filtered_sums() const { return filtered_sums_; }
+  std::span<const double> filtered_rgb_sums() const { return filtered_rgb_sums_; }
   std::span<const float> depth() const { return depth_; }
   std::span<const float> normals() const { return normals_; }
   std::span<const float> albedo() const { return albedo_; }
@@ -250,6 +259,8 @@ class TileResult {
   std::span<std::uint64_t> mutable_half_counts() { return half_counts_; }
   std::span<double> mutable_rgb_sums() { return rgb_sums_; }
   std::span<double> mutable_rgb_squares() { return rgb_squares_; }
+  std::span<double> mutable_filtered_sums() { return filtered_sums_; }
+  std::span<double> mutable_filtered_rgb_sums() { return filtered_rgb_sums_; }
   std::span<float> mutable_depth() { return depth_; }
   std::span<float> mutable_normals() { return normals_; }
   std::span<float> mutable_albedo() { return albedo_; }
@@ -278,6 +289,8 @@ class TileResult {
   std::vector<std::uint64_t> half_counts_;
   std::vector<double> rgb_sums_;
   std::vector<double> rgb_squares_;
+  std::vector<double> filtered_sums_;
+  std::vector<double> filtered_rgb_sums_;
   std::vector<float> depth_;
   std::vector<float> normals_;
   std::vector<float> albedo_;
@@ -296,6 +309,8 @@ SpectralImage finalise(const TileResult& result);
 // The same for the gradient sums: per-pixel means of G[b]. The result must carry gradients
 // (PRISM_CHECK).
 SpectralImage finalise_gradients(const TileResult& result);
+// The same for the filtered sums. The result must carry them (PRISM_CHECK).
+SpectralImage finalise_filtered(const TileResult& result);
 
 // Copies a finalised tile into the full image at result.rect(); INVALID_ARGUMENT when the
 // rect does not fit or the bins differ.

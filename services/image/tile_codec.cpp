@@ -13,7 +13,9 @@ constexpr std::uint32_t kFlagGradients = 1u << 0;
 constexpr std::uint32_t kFlagGuides = 1u << 1;
 constexpr std::uint32_t kFlagHalves = 1u << 2;
 constexpr std::uint32_t kFlagRgb = 1u << 3;
-constexpr std::uint32_t kKnownFlags = kFlagGradients | kFlagGuides | kFlagHalves | kFlagRgb;
+constexpr std::uint32_t kFlagFiltered = 1u << 4;
+constexpr std::uint32_t kKnownFlags =
+    kFlagGradients | kFlagGuides | kFlagHalves | kFlagRgb | kFlagFiltered;
 
 class Writer {
  public:
@@ -77,12 +79,15 @@ class Reader {
   std::size_t pos_ = 0;
 };
 
-std::uint64_t payload_bytes(std::uint64_t area, std::uint64_t bins, bool gradients, bool halves,
-                            bool rgb, bool guides, std::uint64_t counters) {
+std::uint64_t payload_bytes(std::uint64_t area, std::uint64_t bins, const TileBuffers& buffers,
+                            std::uint64_t counters) {
+  const bool gradients = buffers.gradients, halves = buffers.halves, rgb = buffers.rgb,
+             guides = buffers.guides;
   std::uint64_t n = area * bins * 8 * 2 + area * 8;
   if (gradients) n += area * bins * 8;
   if (halves) n += area * bins * 8 * 5 + area * 8;
   if (rgb) n += area * 3 * 8 * 2;
+  if (buffers.filtered) n += area * bins * 8 + area * 3 * 8;
   if (guides) n += area * 4 * 5;
   n += area * counters * 8;
   return n;
@@ -95,14 +100,14 @@ std::string serialise_tile(const TileResult& result) {
   const TileRect& rect = result.rect();
   std::uint64_t area = std::uint64_t(rect.area());
   std::uint64_t payload =
-      payload_bytes(area, result.bins(), result.has_gradients(), result.has_halves(),
-                    result.has_rgb(), result.has_guides(), result.counter_count());
+      payload_bytes(area, result.bins(), result.buffers(), result.counter_count());
   out.reserve(64 + payload);
   Writer w(out);
   w.bytes(kTileMagic);
   w.u32(kTileFormatVersion);
   w.u32((result.has_gradients() ? kFlagGradients : 0) | (result.has_guides() ? kFlagGuides : 0) |
-        (result.has_halves() ? kFlagHalves : 0) | (result.has_rgb() ? kFlagRgb : 0));
+        (result.has_halves() ? kFlagHalves : 0) | (result.has_rgb() ? kFlagRgb : 0) |
+        (result.has_filtered() ? kFlagFiltered : 0));
   w.i32(rect.x0);
   w.i32(rect.y0);
   w.i32(rect.x1);
@@ -128,6 +133,8 @@ std::string serialise_tile(const TileResult& result) {
   for (std::uint64_t v : result.half_counts()) w.u64(v);
   for (double v : result.rgb_sums()) w.f64(v);
   for (double v : result.rgb_squares()) w.f64(v);
+  for (double v : result.filtered_sums()) w.f64(v);
+  for (double v : result.filtered_rgb_sums()) w.f64(v);
   for (float v : result.depth()) w.f32(v);
   for (float v : result.normals()) w.f32(v);
   for (float v : result.albedo()) w.f32(v);
@@ -183,6 +190,7 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   buffers.guides = (*flags & kFlagGuides) != 0;
   buffers.halves = (*flags & kFlagHalves) != 0;
   buffers.rgb = (*flags & kFlagRgb) != 0;
+  buffers.filtered = (*flags & kFlagFiltered) != 0;
   for (std::uint64_t c = 0; c < *counter_count; ++c) {
     auto length = r.uint(4, "counter name length");
     if (!length.ok()) return length.status();
@@ -206,8 +214,7 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   }
   // Checked before anything is allocated, so a lying header cannot make us allocate.
   std::uint64_t expected =
-      payload_bytes(std::uint64_t(rect.area()), *bins, buffers.gradients, buffers.halves,
-                    buffers.rgb, buffers.guides, *counter_count);
+      payload_bytes(std::uint64_t(rect.area()), *bins, buffers, *counter_count);
   if (*declared != expected) {
     return absl::InvalidArgumentError(absl::StrCat("tile result declares a payload of ", *declared,
                                                    " bytes but its header implies ", expected));
@@ -232,6 +239,8 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   for (std::uint64_t& v : t.mutable_half_counts()) v = r.raw_u64();
   for (double& v : t.mutable_rgb_sums()) v = std::bit_cast<double>(r.raw_u64());
   for (double& v : t.mutable_rgb_squares()) v = std::bit_cast<double>(r.raw_u64());
+  for (double& v : t.mutable_filtered_sums()) v = std::bit_cast<double>(r.raw_u64());
+  for (double& v : t.mutable_filtered_rgb_sums()) v = std::bit_cast<double>(r.raw_u64());
   for (float& v : t.mutable_depth()) v = std::bit_cast<float>(r.raw_u32());
   for (float& v : t.mutable_normals()) v = std::bit_cast<float>(r.raw_u32());
   for (float& v : t.mutable_albedo()) v = std::bit_cast<float>(r.raw_u32());
