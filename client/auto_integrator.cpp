@@ -33,11 +33,18 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   RenderCommandOptions& chosen = out.options;
   chosen.prepass = false;
   job::AutoReport report;
-  if (options.caustics == "light") {
-    // Light tracing takes the caustic paths; of the eye tracers, hero carries the rest.
+  if (options.caustics == "light" ||
+      (options.splat_width.has_value() && options.caustics.empty())) {
+    // Light tracing takes the caustic paths; of the eye tracers, hero carries the rest. (--splat
+    // draws light paths, so under auto it asks for them.)
     chosen.integrator = "hero";
-    report.choice = "hero";
-    report.reason = "--caustics light renders caustics by light tracing and the rest by hero; no pilot";
+    chosen.caustics = "light";
+    report.choice = kHeroWithLightCaustics;
+    report.reason = options.caustics == "light"
+                        ? "--caustics light renders caustics by light tracing and the rest by "
+                          "hero; no pilot"
+                        : "--splat draws light paths, so caustics by light tracing and the rest "
+                          "by hero; no pilot";
     out.report = std::move(report);
     return out;
   }

@@ -321,6 +321,12 @@ absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
       case v1::OUTPUT_KIND_GRADIENT_EXR:
         path = paths.gradient_exr;
         break;
+      case v1::OUTPUT_KIND_FILTERED_EXR:
+        path = paths.filtered_exr;
+        break;
+      case v1::OUTPUT_KIND_FILTERED_PNG:
+        path = paths.filtered_png;
+        break;
       default:
         continue;  // outputs this client does not name yet
     }

@@ -173,6 +173,19 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
     return absl::InvalidArgumentError(
         absl::StrCat("--caustics '", o.caustics, "': want off or light"));
   }
+  if (o.splat_width.has_value()) {
+    if (!(*o.splat_width >= job::kMinSplatWidthNm && *o.splat_width <= job::kMaxSplatWidthNm)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--splat-width ", *o.splat_width, " is out of range: want nm in ",
+                       job::kMinSplatWidthNm, "..", job::kMaxSplatWidthNm));
+    }
+    const bool light = !automatic && *parse_integrator(o.integrator) == job::IntegratorKind::kLight;
+    if (!light && o.caustics != "light" && !(automatic && o.caustics.empty())) {
+      return absl::InvalidArgumentError(
+          "--splat draws light paths as lines: use it with --integrator light or --caustics "
+          "light");
+    }
+  }
   const bool gradient =
       !automatic && *parse_integrator(o.integrator) == job::IntegratorKind::kGradient;
   if (!gradient &&
@@ -351,6 +364,7 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   spec.set_light_selection(job::to_proto(*parse_light_selection(o.light_selection)));
   spec.set_spectral_light_selection(o.spectral_light_selection);
   spec.set_light_caustics(o.caustics == "light");
+  if (o.splat_width.has_value()) spec.set_splat_width(static_cast<float>(*o.splat_width));
   spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
   spec.set_name(o.scene.filename().string());
   spec.set_allow_unsupported(o.allow_unsupported);
@@ -492,6 +506,14 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
     PRISM_RETURN_IF_ERROR(coordinator::write_primal_and_gradient(
         *result->primal, *result->gradient, renderer->scene().cmf(), report, paths));
   }
+  if (report.filtered.has_value()) {
+    coordinator::fill_filtered_counters(report.counters, *report.filtered);
+  }
+  if (result->filtered.has_value() && result->filtered_rgb.has_value()) {
+    PRISM_RETURN_IF_ERROR(coordinator::write_filtered(*result->filtered, *result->filtered_rgb,
+                                                      report, paths,
+                                                      {static_cast<float>(options.exposure)}));
+  }
   PRISM_RETURN_IF_ERROR(coordinator::write_outputs(result->image, result->rgb, report, paths,
                                                    {static_cast<float>(options.exposure)}));
   const double seconds = report.render_seconds;
@@ -515,7 +537,11 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
       absl::StrFormat("%.2f", seconds), " s (", human(seconds > 0 ? report.samples / seconds : NAN),
       " samples/s, ", human(seconds > 0 ? report.rays / seconds : NAN), " rays/s, peak ",
       report.peak_memory_bytes >> 20, " MiB); wrote ", paths.spectral_exr.string(), ", ",
-      paths.rgb_exr.string(), ", ", paths.png.string(), ", ", paths.json.string(), "\n");
+      paths.rgb_exr.string(), ", ", paths.png.string(), ", ",
+      report.filtered.has_value()
+          ? absl::StrCat(paths.filtered_exr.string(), ", ", paths.filtered_png.string(), ", ")
+          : std::string(),
+      paths.json.string(), "\n");
 }
 
 }  // namespace prism::client

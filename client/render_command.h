@@ -45,6 +45,9 @@ struct RenderCommandOptions {
   bool spectral_light_selection = true;
   // --caustics: off, light, or empty (not given: off, but `auto` may choose light).
   std::string caustics;
+  // --splat / --splat-width: differential splatting of the light paths, Δλ in nm at sample 0
+  // (job spec splat_width); unset: off.
+  std::optional<double> splat_width;
   std::optional<std::int64_t> max_depth;
   std::optional<std::int64_t> samples_per_task;  // unset: one task per tile
   double exposure = 0.0;                         // PNG preview, in stops

@@ -20,6 +20,17 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
                  "off, or light: caustic paths (light, delta chain, the first non-delta surface "
                  "the camera sees) by light tracing, the rest by hero or uniform (default off; "
                  "auto may choose light)");
+  cmd.add_flag("--splat", f.splat,
+               "Differential splatting of the light paths (--integrator light or --caustics "
+               "light; with auto it means --caustics light): also writes <stem>.filtered.exr and "
+               "<stem>.filtered.png, the caustics smoothed along their dispersion (biased, "
+               "consistent; the main image stays unbiased)");
+  f.splat_width_opt = cmd.add_option(
+      "--splat-width", f.splat_width,
+      absl::StrCat("With --splat: the spectral neighbourhood Δλ in nm at the first sample, "
+                   "shrinking as (s+1)^(-1/5), ",
+                   job::kMinSplatWidthNm, "..", job::kMaxSplatWidthNm, " (default ",
+                   job::kDefaultSplatWidthNm, "; implies --splat)"));
   f.bins_opt =
       cmd.add_option("--bins", f.bins, "Spectral bins, 4..256 (default: nbuckets, else 64)");
   f.resolution_opt =
@@ -132,6 +143,11 @@ absl::Status apply_render_flags(const RenderFlags& f, RenderCommandOptions& o) {
     PRISM_ASSIGN_OR_RETURN(o.target_error, parse_target_error(f.target_error));
   }
   take(f.max_spp_opt, f.max_spp, o.max_spp);
+  if (f.splat_width_opt->count() > 0) {
+    o.splat_width = f.splat_width;
+  } else if (f.splat) {
+    o.splat_width = job::kDefaultSplatWidthNm;
+  }
   take(f.prepass_passes_opt, f.prepass_passes, o.prepass_passes);
   take(f.prepass_spp_opt, f.prepass_spp, o.prepass_spp);
   take(f.prepass_epsilon_opt, f.prepass_epsilon, o.prepass_epsilon);

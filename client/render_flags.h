@@ -20,7 +20,7 @@ struct RenderFlags {
   std::int64_t spp = 0, bins = 0, max_depth = 0, samples_per_task = 0;
   bool no_spectral_light_selection = false;
   double delta = 0, alpha = 0;
-  std::string tau;  // a value >= 0 or "auto"
+  std::string tau;           // a value >= 0 or "auto"
   std::string target_error;  // "0.01" or "1%"
   std::int64_t max_spp = 0;
   CLI::Option* target_error_opt = nullptr;
@@ -28,6 +28,9 @@ struct RenderFlags {
   std::int64_t prepass_passes = 0, prepass_spp = 0;
   double prepass_epsilon = 0, prepass_fallback = 0, prepass_sigma_s = 0, prepass_sigma_r = 0;
   bool prepass = false, no_prepass = false;
+  bool splat = false;
+  double splat_width = 0;
+  CLI::Option* splat_width_opt = nullptr;
   CLI::Option* delta_opt = nullptr;
   CLI::Option* tau_opt = nullptr;
   CLI::Option* alpha_opt = nullptr;

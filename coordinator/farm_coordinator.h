@@ -129,6 +129,8 @@ enum class OutputKind {
   kReportJson = 4,
   kPrimalExr = 5,    // gradient jobs with primal_and_gradients
   kGradientExr = 6,  // likewise
+  kFilteredExr = 7,  // jobs with differential splatting
+  kFilteredPng = 8,  // likewise
 };
 
 struct OutputFile {

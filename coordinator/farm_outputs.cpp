@@ -19,9 +19,10 @@ fs::path FarmCoordinator::output_dir(const std::string& job_id) const {
 
 OutputPaths FarmCoordinator::output_paths_of(const std::string& job_id) const {
   const fs::path dir = output_dir(job_id);
-  return OutputPaths{dir / (job_id + ".exr"),        dir / (job_id + ".rgb.exr"),
-                     dir / (job_id + ".png"),        dir / (job_id + ".json"),
-                     dir / (job_id + ".primal.exr"), dir / (job_id + ".gradient.exr")};
+  return OutputPaths{dir / (job_id + ".exr"),          dir / (job_id + ".rgb.exr"),
+                     dir / (job_id + ".png"),          dir / (job_id + ".json"),
+                     dir / (job_id + ".primal.exr"),   dir / (job_id + ".gradient.exr"),
+                     dir / (job_id + ".filtered.exr"), dir / (job_id + ".filtered.png")};
 }
 
 absl::StatusOr<std::vector<OutputFile>> FarmCoordinator::result_files(
@@ -49,6 +50,10 @@ absl::StatusOr<std::vector<OutputFile>> FarmCoordinator::result_files(
   if (params.outputs.primal_and_gradients) {
     all.push_back({OutputKind::kPrimalExr, paths.primal_exr, ""});
     all.push_back({OutputKind::kGradientExr, paths.gradient_exr, ""});
+  }
+  if (params.render.splats_differentials()) {
+    all.push_back({OutputKind::kFilteredExr, paths.filtered_exr, ""});
+    all.push_back({OutputKind::kFilteredPng, paths.filtered_png, ""});
   }
   std::vector<OutputFile> out;
   for (OutputFile& file : all) {
@@ -149,6 +154,7 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   report.scene_features = job.scene_features;
   add_job_sections(p, report);
   if (report.gradient.has_value()) fill_gradient_counters(report.counters, *report.gradient);
+  if (report.filtered.has_value()) fill_filtered_counters(report.counters, *report.filtered);
   if (report.prepass.has_value()) {
     report.prepass->seconds = job.prepass_seconds;
     report.prepass->final_seconds =
@@ -182,6 +188,29 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
             },
             &gradient_band),
         gradient_rgb, report, paths));
+  }
+  if (p.render.splats_differentials()) {
+    // The filtered image, tile by tile from the files like the main one.
+    PRISM_ASSIGN_OR_RETURN(image::RgbImage filtered_rgb,
+                           image::RgbImage::create(p.width, p.height));
+    for (std::size_t t = 0; t < job.plan.tiles.size(); ++t) {
+      PRISM_ASSIGN_OR_RETURN(image::TileResult merged, job.tiles->get(static_cast<int>(t)));
+      PRISM_ASSIGN_OR_RETURN(image::RgbImage tile, filtered_tile_rgb(merged));
+      PRISM_RETURN_IF_ERROR(filtered_rgb.paste(tile, merged.rect().x0, merged.rect().y0));
+    }
+    std::vector<float> filtered_band;
+    PRISM_RETURN_IF_ERROR(write_filtered(
+        p.render.bins, job.tiles->band_rows(),
+        job.tiles->rows(
+            [](const image::TileResult& merged) -> absl::StatusOr<image::SpectralImage> {
+              if (!merged.has_filtered()) {
+                return absl::InternalError(absl::StrCat("tile ", image::to_string(merged.rect()),
+                                                        " has no filtered sums"));
+              }
+              return image::finalise_filtered(merged);
+            },
+            &filtered_band),
+        filtered_rgb, report, paths, {p.outputs.png_exposure}));
   }
   PRISM_RETURN_IF_ERROR(write_outputs(p.render.bins, job.tiles->band_rows(),
                                       job.tiles->rows(job.finalise, &band), *job.rgb, report, paths,

@@ -116,12 +116,12 @@ class FarmServerTest : public ::testing::Test {
     return status;
   }
 
-  // Writes kScene under root_/scene, uploads its bundle and returns the hash (empty, with the
-  // failure recorded, when the upload fails).
-  std::string upload_scene() {
+  // Writes `text` (kScene by default) under root_/scene, uploads its bundle and returns the hash
+  // (empty, with the failure recorded, when the upload fails).
+  std::string upload_scene(const std::string& text = kScene) {
     scene_root_ = root_ / "scene";
     std::string hash;
-    const grpc::Status status = upload(packed_bundle(scene_root_, kScene), &hash);
+    const grpc::Status status = upload(packed_bundle(scene_root_, text), &hash);
     EXPECT_TRUE(status.ok()) << status.error_message();
     return status.ok() ? hash : std::string();
   }
@@ -237,8 +237,9 @@ class FarmServerTest : public ::testing::Test {
     return info;
   }
 
-  // The embedded render of the same job, through the same output writer.
-  image::SpectralExr oracle(const v1::JobSpec& spec) {
+  // The embedded render of the same job, through the same output writer (its filtered image when
+  // `filtered`).
+  image::SpectralExr oracle(const v1::JobSpec& spec, bool filtered = false) {
     auto loaded = scene::load_scene(scene_root_ / "scene.pbrt", {});
     auto params = job::job_parameters(spec, loaded->description);
     EXPECT_TRUE(params.ok()) << params.status();
@@ -256,18 +257,28 @@ class FarmServerTest : public ::testing::Test {
     EXPECT_TRUE(result.ok()) << result.status();
     const fs::path dir = root_ / "oracle";
     fs::create_directories(dir);
-    OutputPaths paths{dir / "o.exr", dir / "o.rgb.exr", dir / "o.png", dir / "o.json"};
+    OutputPaths paths{dir / "o.exr",          dir / "o.rgb.exr",     dir / "o.png",
+                      dir / "o.json",         dir / "o.primal.exr",  dir / "o.gradient.exr",
+                      dir / "o.filtered.exr", dir / "o.filtered.png"};
     RenderReport report;
+    if (filtered) {
+      EXPECT_TRUE(result->filtered.has_value() && result->filtered_rgb.has_value());
+      EXPECT_TRUE(write_filtered(*result->filtered, *result->filtered_rgb, report, paths, {}).ok());
+      auto exr = image::read_spectral_exr(paths.filtered_exr);
+      EXPECT_TRUE(exr.ok()) << exr.status();
+      return *std::move(exr);
+    }
     EXPECT_TRUE(write_outputs(result->image, result->rgb, report, paths, {}).ok());
     auto exr = image::read_spectral_exr(paths.spectral_exr);
     EXPECT_TRUE(exr.ok()) << exr.status();
     return *std::move(exr);
   }
 
-  std::string fetch_spectral_exr(const std::string& job_id) {
+  std::string fetch_spectral_exr(const std::string& job_id,
+                                 v1::OutputKind kind = v1::OUTPUT_KIND_SPECTRAL_EXR) {
     v1::GetResultRequest request;
     request.set_job_id(job_id);
-    request.add_kinds(v1::OUTPUT_KIND_SPECTRAL_EXR);
+    request.add_kinds(kind);
     auto context = client();
     auto reader = farm_stub_->GetResult(context.get(), request);
     std::string bytes, sha;
@@ -282,12 +293,14 @@ class FarmServerTest : public ::testing::Test {
     return bytes;
   }
 
-  void expect_identical(const std::string& exr_bytes, const v1::JobSpec& spec) {
+  // `filtered`: the job's filtered image (differential splatting) instead of the main one.
+  void expect_identical(const std::string& exr_bytes, const v1::JobSpec& spec,
+                        bool filtered = false) {
     const fs::path fetched = root_ / "fetched.exr";
     write(fetched, exr_bytes);
     auto farm_exr = image::read_spectral_exr(fetched);
     ASSERT_TRUE(farm_exr.ok()) << farm_exr.status();
-    const image::SpectralExr local = oracle(spec);
+    const image::SpectralExr local = oracle(spec, filtered);
     const auto a = farm_exr->spectral.data();
     const auto b = local.spectral.data();
     ASSERT_EQ(a.size(), b.size());
@@ -299,12 +312,13 @@ class FarmServerTest : public ::testing::Test {
   }
 
 #ifdef PRISM_WORKER_BINARY
-  // Two real prism-worker processes render `spec` (its bundle_hash is set here from kScene); the
-  // fetched spectral EXR must be the embedded render's bytes.
-  void render_with_real_workers(v1::JobSpec spec) {
+  // Two real prism-worker processes render `spec` (its bundle_hash is set here from `scene`); the
+  // fetched spectral EXR must be the embedded render's bytes, and so must the filtered one when
+  // the job splats.
+  void render_with_real_workers(v1::JobSpec spec, const std::string& scene = kScene) {
     const char* binary = std::getenv("PRISM_WORKER_BIN");
     if (binary == nullptr || *binary == '\0') binary = PRISM_WORKER_BINARY;
-    const std::string hash = upload_scene();
+    const std::string hash = upload_scene(scene);
     ASSERT_FALSE(hash.empty());
     spec.set_bundle_hash(hash);
     const std::string job_id = submit(spec).job_id();
@@ -323,6 +337,9 @@ class FarmServerTest : public ::testing::Test {
     }
     ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
     expect_identical(fetch_spectral_exr(job_id), spec);
+    if (spec.splat_width() > 0) {
+      expect_identical(fetch_spectral_exr(job_id, v1::OUTPUT_KIND_FILTERED_EXR), spec, true);
+    }
     v1::ListWorkersRequest request;
     v1::ListWorkersResponse response;
     auto context = client();

@@ -385,6 +385,36 @@ TEST_F(FarmServerTest, RealWorkerProcessesRenderALightCausticsJobTheSameBytes) {
   render_with_real_workers(spec);
 }
 
+// Differential splatting on the farm: light-traced caustics through a dispersive glass sphere,
+// drawn as lines into the filtered image, which must come back as the embedded render's bytes.
+TEST_F(FarmServerTest, RealWorkerProcessesRenderASplattingJobTheSameBytes) {
+  v1::JobSpec spec = small_spec("");
+  spec.set_integrator(v1::INTEGRATOR_HERO);
+  spec.set_light_caustics(true);
+  spec.set_splat_width(60.0f);
+  spec.set_spp(8);
+  spec.set_samples_per_task(3);
+  render_with_real_workers(spec, R"(LookAt 0 4 -3  0 0 0  0 1 0
+Camera "perspective" "float fov" 45
+Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
+WorldBegin
+LightSource "infinite" "spectrum L" [360 0.1 830 0.1]
+Material "diffuse" "rgb reflectance" [0.7 0.7 0.7]
+Shape "trianglemesh" "point3 P" [-5 0 -5  5 0 -5  5 0 5  -5 0 5] "integer indices" [0 1 2 0 2 3]
+AttributeBegin
+  AreaLightSource "diffuse" "spectrum L" "stdillum-D65" "float scale" 4
+  Translate 0 2.5 0
+  Shape "trianglemesh" "point3 P" [-0.5 0 -0.5  0.5 0 -0.5  0.5 0 0.5  -0.5 0 0.5]
+    "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+AttributeBegin
+  Material "dielectric" "spectrum eta" "glass-SF11"
+  Translate 0 1 0
+  Shape "sphere" "float radius" 0.5
+AttributeEnd
+)");
+}
+
 TEST_F(FarmServerTest, TheStandardHealthServiceReportsServing) {
   auto channel = grpc::CreateChannel(farm_->address(), grpc::InsecureChannelCredentials());
   grpc::GenericStub stub(channel);

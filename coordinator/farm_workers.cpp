@@ -131,6 +131,11 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
         problem = parsed->has_halves()
                       ? "a gradient job's result with halves its reconstruction does not use"
                       : "a variance-weighted gradient job's result without halves";
+      } else if (!prepass &&
+                 it->second->params.render.splats_differentials() != parsed->has_filtered()) {
+        problem = parsed->has_filtered()
+                      ? "a result with filtered sums its job did not ask for"
+                      : "a differential-splatting job's result without its filtered sums";
       }
     }
     if (!problem.empty()) {

@@ -17,6 +17,12 @@ std::vector<SceneFeatureNote> reported_features(const scene::SceneDescription& s
 
 void add_job_sections(const job::JobParameters& p, RenderReport& report) {
   report.auto_choice = p.auto_choice;
+  if (p.render.splats_differentials()) {
+    FilteredReport f;
+    f.width_nm = p.render.splat_width_nm;
+    f.last_width_nm = job::splat_width_at(p.render.splat_width_nm, p.spp > 0 ? p.spp - 1 : 0);
+    report.filtered = f;
+  }
   if (p.render.integrator == job::IntegratorKind::kGradient) {
     GradientReport g;
     g.offset_bins = p.render.gradient_offset_bins;

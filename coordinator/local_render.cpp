@@ -247,6 +247,13 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
     PRISM_ASSIGN_OR_RETURN(gradient,
                            image::SpectralImage::create(options_.width, options_.height, bins));
   }
+  std::optional<image::SpectralImage> filtered;
+  std::optional<image::RgbImage> filtered_rgb;
+  if (options_.render.splats_differentials()) {
+    PRISM_ASSIGN_OR_RETURN(filtered,
+                           image::SpectralImage::create(options_.width, options_.height, bins));
+    PRISM_ASSIGN_OR_RETURN(filtered_rgb, image::RgbImage::create(options_.width, options_.height));
+  }
   BinStatisticsAccumulator statistics(plan_.tiles.size(), bins);
   std::optional<PrepassRun> prepass;
   if (prepass_template_ != nullptr) prepass.emplace(*prepass_template_);
@@ -339,6 +346,16 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
       PRISM_RETURN_IF_ERROR(image::paste_tile(image::finalise(merged), merged.rect(), *primal));
       PRISM_RETURN_IF_ERROR(
           image::paste_tile(image::finalise_gradients(merged), merged.rect(), *gradient));
+    }
+    if (filtered.has_value()) {
+      if (!merged.has_filtered()) {
+        return absl::InternalError(absl::StrCat("tile ", image::to_string(merged.rect()),
+                                                " came back without its filtered sums"));
+      }
+      PRISM_RETURN_IF_ERROR(
+          image::paste_tile(image::finalise_filtered(merged), merged.rect(), *filtered));
+      PRISM_ASSIGN_OR_RETURN(image::RgbImage tile_filtered, filtered_tile_rgb(merged));
+      PRISM_RETURN_IF_ERROR(filtered_rgb->paste(tile_filtered, merged.rect().x0, merged.rect().y0));
     }
     PRISM_ASSIGN_OR_RETURN(
         image::RgbImage tile_colour,
@@ -449,13 +466,10 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   stats.tasks = tasks_run;
   stats.tiles = static_cast<int>(plan_.tiles.size());
   stats.peak_tiles_in_flight = shared.peak_tiles_in_flight;
-  LocalRenderResult result{std::move(image),
-                           std::move(rgb),
-                           std::move(rgb_standard_error),
-                           std::move(primal),
-                           std::move(gradient),
-                           statistics.finish(),
-                           stats};
+  LocalRenderResult result{
+      std::move(image),        std::move(rgb),      std::move(rgb_standard_error),
+      std::move(primal),       std::move(gradient), std::move(filtered),
+      std::move(filtered_rgb), statistics.finish(), stats};
   result.prepass_tables = std::move(prepass_tables);
   return result;
 }

@@ -101,6 +101,10 @@ struct LocalRenderResult {
   // estimates I[b+k] − I[b]), per-pixel means like `image`.
   std::optional<image::SpectralImage> primal;
   std::optional<image::SpectralImage> gradient;
+  // Jobs with differential splatting (RenderOptions::splat_width_nm): the filtered image, its
+  // bins' means and its R, G, B from each fragment's wavelength; biased, beside `image`.
+  std::optional<image::SpectralImage> filtered;
+  std::optional<image::RgbImage> filtered_rgb;
   BinStatistics statistics;
   LocalRenderStats stats;
   // keep_prepass_tables with a prepass: the tables the final pass sampled (their mixture weights

@@ -15,7 +15,6 @@
 #include "services/image/png.h"
 #include "services/spectral/wavelength_grid.h"
 
-
 namespace prism::coordinator {
 namespace fs = std::filesystem;
 namespace {
@@ -58,6 +57,8 @@ absl::StatusOr<OutputPaths> output_paths(const std::optional<fs::path>& output,
   paths.png = with_suffix(stem, ".png");
   paths.primal_exr = with_suffix(stem, ".primal.exr");
   paths.gradient_exr = with_suffix(stem, ".gradient.exr");
+  paths.filtered_exr = with_suffix(stem, ".filtered.exr");
+  paths.filtered_png = with_suffix(stem, ".filtered.png");
   if (json.has_value()) {
     if (json->empty() || !json->has_filename() || json->filename() == "." ||
         json->filename() == "..") {
@@ -68,10 +69,12 @@ absl::StatusOr<OutputPaths> output_paths(const std::optional<fs::path>& output,
   } else {
     paths.json = with_suffix(stem, ".json");
   }
-  const fs::path* all[] = {&paths.spectral_exr, &paths.rgb_exr,    &paths.png,
-                           &paths.json,         &paths.primal_exr, &paths.gradient_exr};
-  for (int i = 0; i < 6; ++i) {
-    for (int j = i + 1; j < 6; ++j) {
+  const fs::path* all[] = {&paths.spectral_exr, &paths.rgb_exr,     &paths.png,
+                           &paths.json,         &paths.primal_exr,  &paths.gradient_exr,
+                           &paths.filtered_exr, &paths.filtered_png};
+  constexpr int kOutputs = sizeof(all) / sizeof(all[0]);
+  for (int i = 0; i < kOutputs; ++i) {
+    for (int j = i + 1; j < kOutputs; ++j) {
       if (fs::absolute(*all[i]).lexically_normal() == fs::absolute(*all[j]).lexically_normal()) {
         return absl::InvalidArgumentError(absl::StrCat("two outputs would both be written to '",
                                                        all[i]->string(),
@@ -225,6 +228,25 @@ absl::StatusOr<image::RgbImage> tile_rgb(const image::TileResult& merged,
     }
   }
   return rgb;
+}
+
+absl::StatusOr<image::RgbImage> filtered_tile_rgb(const image::TileResult& merged) {
+  if (!merged.has_filtered()) {
+    return absl::FailedPreconditionError(absl::StrCat("tile ", image::to_string(merged.rect()),
+                                                      " has no filtered sums: no filtered image"));
+  }
+  const image::TileRect& rect = merged.rect();
+  PRISM_ASSIGN_OR_RETURN(image::RgbImage out, image::RgbImage::create(rect.width(), rect.height()));
+  const std::span<const double> sums = merged.filtered_rgb_sums();
+  const std::span<const std::uint64_t> counts = merged.counts();
+  for (int y = 0; y < rect.height(); ++y) {
+    for (int x = 0; x < rect.width(); ++x) {
+      const std::size_t p = std::size_t(y) * rect.width() + x;
+      const double n = double(counts[p]);
+      for (int c = 0; c < 3; ++c) out.value(x, y, c) = float(n > 0 ? sums[p * 3 + c] / n : 0.0);
+    }
+  }
+  return out;
 }
 
 absl::StatusOr<image::RgbImage> tile_rgb_standard_error(const image::TileResult& merged) {
@@ -384,6 +406,40 @@ absl::Status write_primal_and_gradient(const image::SpectralImage& primal,
   PRISM_ASSIGN_OR_RETURN(image::RgbImage gradient_rgb, to_linear_srgb(gradient, cmf));
   return write_primal_and_gradient(primal.bins(), primal.height(), rows_of(primal), primal_rgb,
                                    rows_of(gradient), gradient_rgb, report, paths);
+}
+
+absl::Status write_filtered(int bins, int band_rows, const image::SpectralRows& filtered,
+                            const image::RgbImage& filtered_rgb, const RenderReport& report,
+                            const OutputPaths& paths, const OutputOptions& options) {
+  image::ExrMetadata metadata = output_metadata(report);
+  metadata["filtered"] = "differential splatting (biased; the unbiased image is the main output)";
+  if (report.filtered.has_value()) {
+    metadata["splat_width_nm"] = absl::StrCat(report.filtered->width_nm);
+  }
+  absl::Status status = image::write_spectral_exr_rows(
+      paths.filtered_exr, image::bin_centres_nm(bins), filtered_rgb.width(), filtered_rgb.height(),
+      band_rows, filtered, filtered_rgb, metadata);
+  if (!status.ok()) {
+    return absl::Status(
+        status.code(),
+        absl::StrCat("could not write '", paths.filtered_exr.string(), "': ", status.message()));
+  }
+  status = image::write_png_preview(paths.filtered_png, filtered_rgb, options.exposure_stops);
+  if (!status.ok()) {
+    std::error_code ec;
+    fs::remove(paths.filtered_exr, ec);
+    return absl::Status(
+        status.code(),
+        absl::StrCat("could not write '", paths.filtered_png.string(), "': ", status.message()));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status write_filtered(const image::SpectralImage& filtered,
+                            const image::RgbImage& filtered_rgb, const RenderReport& report,
+                            const OutputPaths& paths, const OutputOptions& options) {
+  return write_filtered(filtered.bins(), filtered.height(), rows_of(filtered), filtered_rgb, report,
+                        paths, options);
 }
 
 std::uint64_t peak_memory_bytes() {

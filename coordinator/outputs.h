@@ -44,6 +44,10 @@ struct OutputPaths {
   // <stem>.gradient.exr), the pair `prism reconstruct` takes.
   std::filesystem::path primal_exr;
   std::filesystem::path gradient_exr;
+  // Jobs with differential splatting: the filtered image (<stem>.filtered.exr, spectral with
+  // R, G, B, and <stem>.filtered.png).
+  std::filesystem::path filtered_exr;
+  std::filesystem::path filtered_png;
 };
 
 // `output`: the -o path (an extension other than .exr is refused; none gets .exr). Without it,
@@ -114,6 +118,18 @@ struct GradientReport {
   bool with_primal_and_gradients = false;
 };
 
+// Differential splatting in the report (worker/differential_splat.h): Δλ at the first and the
+// last sample, Δλ_s = width·(s + 1)^(−exponent), and how many light-path splats were drawn as
+// lines (from the counters light_splats and splat_lines).
+struct FilteredReport {
+  std::string method = "splat";
+  float width_nm = 0;  // Δλ at sample 0 (float, as the job spec keeps it)
+  double last_width_nm = 0;
+  double exponent = 0.2;
+  std::uint64_t splats = 0;
+  std::uint64_t lines = 0;
+};
+
 // The multi-pass prepass in the report.
 struct PrepassReport {
   int passes = 0;
@@ -166,6 +182,7 @@ struct RenderReport {
   BinStatistics statistics;
   std::optional<GradientReport> gradient;
   std::optional<PrepassReport> prepass;
+  std::optional<FilteredReport> filtered;
   // A job rendered to a target error: what it reached (target_error.h).
   std::optional<TargetErrorOutcome> target_error;
   // A job whose integrator `auto` chose.
@@ -177,6 +194,10 @@ struct RenderReport {
 
 // "to 1 % per pixel: met in 3 of 7 rounds (max 0.98 %, p99 0.71 %, mean 0.32 %), 16..64 spp"
 std::string target_error_summary(const TargetErrorOutcome& outcome);
+
+// The splat counts of a filtered report, taken from the named counters.
+void fill_filtered_counters(const std::vector<std::pair<std::string, std::uint64_t>>& counters,
+                            FilteredReport& report);
 
 // The counters of a gradient job's Table 1, taken from the named counters.
 void fill_gradient_counters(const std::vector<std::pair<std::string, std::uint64_t>>& counters,
@@ -195,6 +216,10 @@ struct OutputOptions {
 absl::StatusOr<image::RgbImage> tile_rgb(const image::TileResult& merged,
                                          const image::SpectralImage& finalised, bool reconstructed,
                                          const spectral::ColorMatching& cmf);
+
+// The filtered image's linear sRGB of one finished tile (TileBuffers::filtered): the means of
+// its R, G, B sums. FAILED_PRECONDITION without them.
+absl::StatusOr<image::RgbImage> filtered_tile_rgb(const image::TileResult& merged);
 
 // The standard error of each pixel's RGB mean over its samples' own R, G, B (tile_rgb without a
 // reconstruction's change), from the samples' RGB squares: sqrt((Σc²/n − c̄²)/(n − 1)). NaN for
@@ -232,6 +257,16 @@ absl::Status write_primal_and_gradient(const image::SpectralImage& primal,
                                        const image::SpectralImage& gradient,
                                        const spectral::ColorMatching& cmf,
                                        const RenderReport& report, const OutputPaths& paths);
+
+// The filtered image of a job with differential splatting (paths.filtered_exr, a spectral EXR
+// with its R, G, B, and paths.filtered_png), streamed like the main output. Both or neither
+// are written: a failed second write removes the first.
+absl::Status write_filtered(int bins, int band_rows, const image::SpectralRows& filtered,
+                            const image::RgbImage& filtered_rgb, const RenderReport& report,
+                            const OutputPaths& paths, const OutputOptions& options);
+absl::Status write_filtered(const image::SpectralImage& filtered,
+                            const image::RgbImage& filtered_rgb, const RenderReport& report,
+                            const OutputPaths& paths, const OutputOptions& options);
 
 // The process's peak resident set size (getrusage ru_maxrss), in bytes.
 std::uint64_t peak_memory_bytes();

@@ -85,6 +85,16 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
   j["bin_standard_error"] = r.statistics.standard_error;
   j["bin_variance_of_mean"] = r.statistics.variance_of_mean;
   j["pixels_with_error_estimate"] = r.statistics.pixels_with_error;
+  if (r.filtered.has_value()) {
+    const FilteredReport& f = *r.filtered;
+    j["filtered"] = {{"method", f.method},
+                     {"width_nm", f.width_nm},
+                     {"last_width_nm", f.last_width_nm},
+                     {"width_exponent", -f.exponent},
+                     {"splats", f.splats},
+                     {"lines", f.lines},
+                     {"line_fraction", f.splats > 0 ? double(f.lines) / double(f.splats) : 0.0}};
+  }
   if (r.gradient.has_value()) {
     const GradientReport& g = *r.gradient;
     auto fraction = [](std::uint64_t part, std::uint64_t whole) {
@@ -205,8 +215,20 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
     outputs["primal_exr"] = paths.primal_exr.string();
     outputs["gradient_exr"] = paths.gradient_exr.string();
   }
+  if (r.filtered.has_value()) {
+    outputs["filtered_exr"] = paths.filtered_exr.string();
+    outputs["filtered_png"] = paths.filtered_png.string();
+  }
   j["outputs"] = outputs;
   return j.dump(2) + "\n";
+}
+
+void fill_filtered_counters(const std::vector<std::pair<std::string, std::uint64_t>>& counters,
+                            FilteredReport& report) {
+  for (const auto& [name, value] : counters) {
+    if (name == "light_splats") report.splats = value;
+    if (name == "splat_lines") report.lines = value;
+  }
 }
 
 void fill_gradient_counters(const std::vector<std::pair<std::string, std::uint64_t>>& counters,

@@ -329,6 +329,28 @@ Shape "sphere" "float radius" 0.7
   EXPECT_TRUE(same_bits(spectral_pixels(dir / "caustic_auto.exr", nullptr),
                         spectral_pixels(dir / "caustic.exr", nullptr)));
 
+  // --caustics light, and --splat (which draws light paths), mean hero with light-traced
+  // caustics under auto, without a pilot.
+  for (const char* flag : {"--caustics", "--splat"}) {
+    std::vector<std::string> args = {"render",
+                                     source("scenes/slit-prism.pbrt"),
+                                     "--resolution",
+                                     "40x30",
+                                     "--spp",
+                                     "2",
+                                     "-o",
+                                     "asked.exr",
+                                     flag};
+    if (std::string(flag) == "--caustics") args.push_back("light");
+    CommandRun asked = run_prism(dir, args);
+    ASSERT_EQ(asked.exit_code, 0) << asked.output;
+    EXPECT_NE(asked.output.find("hero with light-traced caustics (chosen by auto: "),
+              std::string::npos)
+        << asked.output;
+    auto asked_report = nlohmann::json::parse(*prism::base::read_file(dir / "asked.json"));
+    EXPECT_EQ(asked_report["auto"]["choice"], "hero+caustics");
+  }
+
   // Asking for the prepass means hero with it, without a pilot.
   CommandRun prepass =
       run_prism(dir, {"render", source("scenes/three-emitters.pbrt"), "--resolution", "48x36",
@@ -351,6 +373,13 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
       {{"render", scene, "--caustics", "photon"}, "prism: --caustics 'photon': want off or light"},
       {{"render", scene, "--integrator", "gradient", "--caustics", "light"},
        "light_caustics needs the hero or the uniform integrator, not gradient"},
+      {{"render", scene, "--integrator", "hero", "--splat"},
+       "prism: --splat draws light paths as lines: use it with --integrator light or --caustics "
+       "light"},
+      {{"render", scene, "--caustics", "off", "--splat-width", "30"},
+       "--splat draws light paths as lines"},
+      {{"render", scene, "--integrator", "light", "--splat-width", "0"},
+       "prism: --splat-width 0 is out of range: want nm in 0.1..470"},
       {{"render", scene, "--spp", "0"}, "--spp 0 is out of range"},
       {{"render", scene, "--spp", "-3"}, "--spp -3 is out of range"},
       {{"render", scene, "--threads", "0"}, "--threads 0 is out of range"},
@@ -473,6 +502,39 @@ TEST(RenderCliTest, BenchMeasuresTheLightPathMethods) {
   std::set<std::string> methods;
   for (std::size_t i = 1; i < rows.size(); ++i) methods.insert(rows[i][method]);
   EXPECT_EQ(methods, (std::set<std::string>{"hero", "light", "hero+caustics"}));
+}
+
+// --splat writes the filtered image beside the unbiased one, which it leaves bit for bit as it
+// is, and the report says how the lines were drawn.
+TEST(RenderCliTest, SplattingWritesAFilteredImageAndLeavesTheMainOneAlone) {
+  const fs::path dir = fresh_dir("splat");
+  const std::vector<std::string> common = {"render",       source("scenes/slit-prism.pbrt"),
+                                           "--resolution", "48x36",
+                                           "--spp",        "8",
+                                           "--integrator", "light"};
+  std::vector<std::string> plain_args = common, splat_args = common;
+  plain_args.insert(plain_args.end(), {"-o", "plain.exr"});
+  splat_args.insert(splat_args.end(), {"--splat-width", "80", "-o", "splat.exr"});
+  CommandRun plain = run_prism(dir, plain_args);
+  ASSERT_EQ(plain.exit_code, 0) << plain.output;
+  EXPECT_FALSE(fs::exists(dir / "plain.filtered.exr"));
+  CommandRun splat = run_prism(dir, splat_args);
+  ASSERT_EQ(splat.exit_code, 0) << splat.output;
+  EXPECT_NE(splat.output.find("splat.filtered.exr, splat.filtered.png"), std::string::npos)
+      << splat.output;
+  EXPECT_TRUE(same_bits(spectral_pixels(dir / "plain.exr", nullptr),
+                        spectral_pixels(dir / "splat.exr", nullptr)));
+  std::vector<double> wavelengths;
+  const std::vector<float> filtered = spectral_pixels(dir / "splat.filtered.exr", &wavelengths);
+  EXPECT_EQ(wavelengths.size(), 32u);
+  EXPECT_FALSE(same_bits(filtered, spectral_pixels(dir / "splat.exr", nullptr)));
+  EXPECT_TRUE(fs::exists(dir / "splat.filtered.png"));
+  auto report = nlohmann::json::parse(*prism::base::read_file(dir / "splat.json"));
+  EXPECT_EQ(report["filtered"]["method"], "splat");
+  EXPECT_EQ(report["filtered"]["width_nm"], 80.0);
+  EXPECT_NEAR(report["filtered"]["last_width_nm"].get<double>(), 80.0 * std::pow(8.0, -0.2), 1e-9);
+  EXPECT_GT(report["filtered"]["lines"].get<std::uint64_t>(), 0u);
+  EXPECT_EQ(report["outputs"]["filtered_exr"], "splat.filtered.exr");
 }
 
 TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {

@@ -107,7 +107,8 @@ std::optional<CameraConnection> Camera::connect(const Vec3f& p, float margin) co
   c.raster = {float(rx), float(ry)};
   c.to_camera = {float(dx / distance), float(dy / distance), float(dz / distance)};
   c.distance = float(distance);
-  c.importance = float(1.0 / (std::abs(screen_dx_ * screen_dy_) * cos_theta * cos_theta * cos_theta));
+  c.importance =
+      float(1.0 / (std::abs(screen_dx_ * screen_dy_) * cos_theta * cos_theta * cos_theta));
   return c;
 }
 
@@ -119,6 +120,13 @@ Point2f Camera::raster_differential(const Vec3f& p, const Vec3f& dp) const {
   const double inv = 1.0 / (q[2] * q[2]);
   return {float((dq[0] * q[2] - q[0] * dq[2]) * inv / screen_dx_),
           float((dq[1] * q[2] - q[1] * dq[2]) * inv / screen_dy_)};
+}
+
+float Camera::pixel_footprint(const Vec3f& p) const {
+  const scene::Vec3 q = camera_from_world_.apply_point({p.x, p.y, p.z});
+  if (!(q[2] > 0.0)) return 0.0f;
+  const double axis = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]) / q[2];
+  return float(q[2] * std::max(std::abs(screen_dx_), std::abs(screen_dy_)) * axis);
 }
 
 Ray Camera::generate_ray(Point2f film, Point2f lens) const {

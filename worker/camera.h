@@ -53,6 +53,8 @@ class Camera {
   std::optional<CameraConnection> connect(const Vec3f& p, float margin) const;
   // How p's raster position moves when p moves by dp (first order; p in front of the camera).
   Point2f raster_differential(const Vec3f& p, const Vec3f& dp) const;
+  // The width in world units of one pixel's cone at p's depth (is_pinhole(); 0 behind the camera).
+  float pixel_footprint(const Vec3f& p) const;
 
  private:
   int width_ = 0, height_ = 0;

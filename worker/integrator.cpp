@@ -366,7 +366,9 @@ std::vector<std::pair<std::string, std::uint64_t>> counter_list(const TraceCount
           {"gradient_shifts_wasted", c.gradient_shifts_wasted},
           {"gradient_divergences", c.gradient_divergences},
           {"gradient_reconnections", c.gradient_reconnections},
-          {"gradient_repeated_divergences", c.gradient_repeated_divergences}};
+          {"gradient_repeated_divergences", c.gradient_repeated_divergences},
+          {"light_splats", c.light_splats},
+          {"splat_lines", c.splat_lines}};
 }
 
 SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,

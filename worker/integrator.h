@@ -74,6 +74,10 @@ struct TraceCounters {
   std::uint64_t gradient_divergences = 0;
   std::uint64_t gradient_reconnections = 0;
   std::uint64_t gradient_repeated_divergences = 0;
+  // Light paths (light_tracer.h): their splats on the film, and of those the ones differential
+  // splatting drew as lines (differential_splat.h).
+  std::uint64_t light_splats = 0;
+  std::uint64_t splat_lines = 0;
 
   TraceCounters& operator+=(const TraceCounters& o) {
     camera_rays += o.camera_rays;
@@ -89,6 +93,8 @@ struct TraceCounters {
     gradient_divergences += o.gradient_divergences;
     gradient_reconnections += o.gradient_reconnections;
     gradient_repeated_divergences += o.gradient_repeated_divergences;
+    light_splats += o.light_splats;
+    splat_lines += o.splat_lines;
     return *this;
   }
 };

@@ -126,7 +126,7 @@ class AreaLight {
   bool is_disk_ = false;             // sampled uniformly by area in its object-space annulus
   scene::DiskShape disk_;
   scene::Transform disk_to_world_;
-  Vec3f disk_normal_;  // world, after the orientation rule: the side it emits to
+  Vec3f disk_normal_;         // world, after the orientation rule: the side it emits to
   bool is_cylinder_ = false;  // uniform in (z, φ): uniform by area under a similarity
   scene::CylinderShape cylinder_;
   scene::Transform cylinder_to_world_;
@@ -194,6 +194,9 @@ class SpotLight {
   const spectral::Spectrum& spectrum() const { return spectrum_; }
   double scale() const { return scale_; }
   Vec3f position() const { return position_; }
+  Vec3f direction() const { return direction_; }  // unit, the cone's axis
+  // Cosine of the cone's half-angle: no light outside it.
+  float cos_falloff_end() const { return cos_falloff_end_; }
   // Solid angle-weighted mean falloff over the sphere, for power estimates.
   double power_factor() const;
   // The falloff in [0, 1] towards world direction w (unit, pointing away from the light).

@@ -7,16 +7,23 @@
 // With --caustics light the batch also takes every pixel's eye sample s (the path tracer, which
 // leaves the caustic paths to the light paths): a pixel's sample is then the sum of the two
 // independent estimates, and its square that sum's.
+// With differential splatting (job spec splat_width, differential_splat.h) the task also sums a
+// filtered image: the same splats and eye samples, except that each splat with a spectral
+// differential is drawn as a line over ±Δλ_s, Δλ_s = splat_width·(s + 1)^(−1/5) for batch s
+// (job::splat_width_at). Δλ depends on the batch's index only, so the sums do not depend on
+// how the batches are split into tasks.
 #include <tbb/blocked_range.h>
 #include <tbb/combinable.h>
 #include <tbb/parallel_for.h>
 
 #include <chrono>
 #include <cmath>
+#include <optional>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/status.h"
+#include "worker/differential_splat.h"
 #include "worker/tile_renderer.h"
 
 namespace prism::worker {
@@ -56,28 +63,13 @@ constexpr std::int64_t kPathsPerChunk = 1024;
 // its share in each pixel is what an eye sample of that pixel at the same film position carries
 // on average (pixel_filter.h).
 void splat(const PixelFilter& filter, const LightSplat& s, double scale, BatchImage& batch) {
-  if (filter.unit_box()) {
-    const int x = int(std::floor(s.raster.x)), y = int(std::floor(s.raster.y));
-    if (x >= 0 && x < batch.width && y >= 0 && y < batch.height) batch.add(x, y, s, scale);
-    return;
-  }
-  const double rx = filter.radius(0), ry = filter.radius(1);
-  const double inverse_integral = scale / filter.integral();
-  const int x0 = std::max(0, int(std::ceil(s.raster.x - rx - 0.5)));
-  const int x1 = std::min(batch.width - 1, int(std::floor(s.raster.x + rx - 0.5)));
-  const int y0 = std::max(0, int(std::ceil(s.raster.y - ry - 0.5)));
-  const int y1 = std::min(batch.height - 1, int(std::floor(s.raster.y + ry - 0.5)));
-  for (int y = y0; y <= y1; ++y) {
-    for (int x = x0; x <= x1; ++x) {
-      const double f = filter.evaluate(s.raster.x - (x + 0.5), s.raster.y - (y + 0.5));
-      if (f != 0.0) batch.add(x, y, s, f * inverse_integral);
-    }
-  }
+  for_each_filter_pixel(filter, s.raster, scale, batch.width, batch.height,
+                        [&](int x, int y, double w) { batch.add(x, y, s, w); });
 }
 
 }  // namespace
 
-void TileRenderer::add_eye_samples(std::uint64_t s, BatchImage& batch,
+void TileRenderer::add_eye_samples(std::uint64_t s, BatchImage& batch, FilteredSums* filtered,
                                    tbb::combinable<TraceCounters>& counters,
                                    const std::atomic<bool>* cancel) const {
   const spectral::WavelengthPdfView lambda_pdf(scene_.wavelength_pdf());
@@ -94,8 +86,14 @@ void TileRenderer::add_eye_samples(std::uint64_t s, BatchImage& batch,
               integrator_.trace(x, y, 0, std::uint32_t(s), lambda_pdf, local);
           for (int lane = 0; lane < c.lanes; ++lane) {
             batch.values[std::size_t(p) * batch.bins + c.bin[lane]] += c.value[lane];
+            if (filtered != nullptr) {
+              filtered->values[std::size_t(p) * batch.bins + c.bin[lane]] += c.value[lane];
+            }
           }
-          for (int k = 0; k < 3; ++k) batch.rgb[std::size_t(p) * 3 + k] += c.rgb[k];
+          for (int k = 0; k < 3; ++k) {
+            batch.rgb[std::size_t(p) * 3 + k] += c.rgb[k];
+            if (filtered != nullptr) filtered->rgb[std::size_t(p) * 3 + k] += c.rgb[k];
+          }
         }
       },
       tbb::simple_partitioner());
@@ -122,6 +120,8 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
   }
   image::TileBuffers buffers;
   buffers.rgb = true;
+  const float splat_width = scene_.options().splat_width_nm;
+  buffers.filtered = splat_width > 0.0f;
   PRISM_ASSIGN_OR_RETURN(image::TileResult result,
                          image::TileResult::create(task.tile, task.samples, bins, buffers));
   const auto start = std::chrono::steady_clock::now();
@@ -136,6 +136,17 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
   auto rgb_squares = result.mutable_rgb_squares();
   tbb::combinable<TraceCounters> counters;
   std::atomic<bool> cancelled{false};
+  // Differential splatting: the filtered image, summed straight into the result (it keeps no
+  // squares), lines drawn in the same fixed order as the points.
+  std::optional<ReceiverImage> receivers;
+  std::optional<DifferentialSplatter> splatter;
+  FilteredSums filtered{width, height, bins, result.mutable_filtered_sums(),
+                        result.mutable_filtered_rgb_sums()};
+  TraceCounters splat_counters;
+  if (buffers.filtered) {
+    receivers.emplace(scene_);
+    splatter.emplace(scene_, *receivers);
+  }
   for (std::uint64_t s = task.samples.s0; s < task.samples.s1; ++s) {
     tbb::parallel_for(
         tbb::blocked_range<std::int64_t>(0, chunks, 1),
@@ -156,13 +167,18 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
         },
         tbb::simple_partitioner());
     if (cancelled.load()) return absl::CancelledError("task cancelled");
+    const double width_nm = job::splat_width_at(splat_width, s);
     for (const std::vector<LightSplat>& out : chunk_splats) {
       for (const LightSplat& splat_value : out) {
         splat(scene_.pixel_filter(), splat_value, scale, batch);
+        ++splat_counters.light_splats;
+        if (splatter && splatter->splat(splat_value, width_nm, scale, filtered)) {
+          ++splat_counters.splat_lines;
+        }
       }
     }
     if (with_eye_paths) {
-      add_eye_samples(s, batch, counters, cancel);
+      add_eye_samples(s, batch, splatter ? &filtered : nullptr, counters, cancel);
       if (cancel != nullptr && cancel->load()) return absl::CancelledError("task cancelled");
       // Every pixel has a sample now: fold them all, in pixel order.
       for (std::int64_t p : batch.order) batch.touched[std::size_t(p)] = 0;
@@ -192,6 +208,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
   }
   auto counts = result.mutable_counts();
   std::fill(counts.begin(), counts.end(), task.samples.count());
+  counters.local() += splat_counters;
   record_stats(stats, counters, start);
   return result;
 }

@@ -98,6 +98,7 @@ class LightPath {
   SampledWavelengths lambda;
   float beta = 0;  // the path's weight: f / p of everything sampled so far, importance-mode
   SpectralDifferential diff;
+  int light = -1;  // the emitting light's index
 
   // The contribution C of a vertex at p (geometric normal ng) that sends
   // `value_towards(to_camera)` towards the camera, per unit area of p: value · |ng·ω|/d² · W.
@@ -131,9 +132,13 @@ class LightPath {
     s.rgb[0] = float(bar.r * visible);
     s.rgb[1] = float(bar.g * visible);
     s.rgb[2] = float(bar.b * visible);
+    s.position = p;
+    s.normal = ng;
+    s.light = light;
     if (diff.tracked) {
       s.has_differential = true;
       s.raster_per_nm = camera.raster_differential(p, diff.dp);
+      s.position_per_nm = diff.dp;
     }
     out_.push_back(s);
   }
@@ -247,8 +252,20 @@ class LightPath {
       // eye tracer (pbrt-v4's too) never sees one; the image would differ at one pixel.
       Vec3f w;
       float pdf_w = 1.0f / (4.0f * kPi);
+      const auto* spot = std::get_if<SpotLight>(&light);
       if (caustics_only_) {
         if (!towards_targets(position, &w, &pdf_w)) return false;
+      } else if (spot != nullptr && spot->cos_falloff_end() > -1.0f &&
+                 1.0f - spot->cos_falloff_end() > 1e-6f) {
+        // A spot emits only inside its cone: directions uniform in the cone.
+        const float cos_max = spot->cos_falloff_end();
+        const Point2f u = to_point(sampler_.at2(kEmission));
+        const float cos_theta = 1.0f - u.x * (1.0f - cos_max);
+        const float sin_theta = std::sqrt(std::max(0.0f, 1.0f - cos_theta * cos_theta));
+        const float phi = 2.0f * kPi * u.y;
+        w = Frame::from_z(spot->direction())
+                .from_local({sin_theta * std::cos(phi), sin_theta * std::sin(phi), cos_theta});
+        pdf_w = 1.0f / (2.0f * kPi * (1.0f - cos_max));
       } else {
         w = sample_uniform_sphere(to_point(sampler_.at2(kEmission)));
       }
@@ -440,6 +457,7 @@ void LightTracer::trace(int x, int y, std::uint32_t sample_index, std::vector<Li
   const double selection = weight(chosen) / total;
   if (!(selection > 0.0)) return;
   Ray ray;
+  path.light = int(chosen);
   if (!path.emit(lights[chosen], float(selection), &ray)) return;
   path.walk(ray);
 }

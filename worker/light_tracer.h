@@ -61,6 +61,10 @@ struct LightSplat {
   float lambda = 0;       // nm
   Point2f raster_per_nm;  // d(raster)/dλ (0 unless the path met a dispersive refraction)
   bool has_differential = false;
+  // The receiver (the vertex that connected): its point, unit geometric normal and ∂p/∂λ (world
+  // units per nm; with has_differential), for differential splatting's bilateral weights.
+  Vec3f position, normal, position_per_nm;
+  int light = -1;  // the light the path started from (RenderScene::lights())
 };
 
 // OK when the scene can be light traced; otherwise INVALID_ARGUMENT saying what stands in the

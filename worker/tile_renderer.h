@@ -26,7 +26,8 @@
 
 namespace prism::worker {
 
-struct BatchImage;  // light_task.cpp
+struct BatchImage;    // light_task.cpp
+struct FilteredSums;  // differential_splat.h
 
 struct RenderTask {
   image::TileRect tile;
@@ -71,8 +72,10 @@ class TileRenderer {
   // The task's counters, summed over the threads, and its seconds since `start`.
   static void record_stats(TileStats* stats, tbb::combinable<TraceCounters>& counters,
                            std::chrono::steady_clock::time_point start);
-  // With --caustics light: every pixel's eye sample s, added into the batch.
-  void add_eye_samples(std::uint64_t s, BatchImage& batch, tbb::combinable<TraceCounters>& counters,
+  // With --caustics light: every pixel's eye sample s, added into the batch (and into the
+  // filtered sums when there are some).
+  void add_eye_samples(std::uint64_t s, BatchImage& batch, FilteredSums* filtered,
+                       tbb::combinable<TraceCounters>& counters,
                        const std::atomic<bool>* cancel) const;
 
   const RenderScene& scene_;

@@ -135,7 +135,7 @@ grpc::Status FarmServiceImpl::GetResult(grpc::ServerContext* context,
   std::vector<OutputKind> kinds;
   for (int k : request->kinds()) {
     if (k < static_cast<int>(OutputKind::kSpectralExr) ||
-        k > static_cast<int>(OutputKind::kGradientExr)) {
+        k > static_cast<int>(OutputKind::kFilteredPng)) {
       return to_grpc(absl::InvalidArgumentError(
           absl::StrCat("kinds: output kind ", k, " is not produced by this coordinator")));
     }
@@ -212,10 +212,9 @@ grpc::Status FarmServiceImpl::ListWorkers(grpc::ServerContext* context,
       info->set_current_lease(lease.id);
       const std::string pass =
           t.pass == Pass::kFinal ? "final" : absl::StrCat("prepass ", t.pass_index);
-      info->set_current_task(absl::StrCat("job ", lease.task.job_id, " ", pass, " tile (",
-                                          t.tile.x0, ",", t.tile.y0, ")-(", t.tile.x1, ",",
-                                          t.tile.y1, ") samples [", t.samples.s0, ",",
-                                          t.samples.s1, ")"));
+      info->set_current_task(absl::StrCat(
+          "job ", lease.task.job_id, " ", pass, " tile (", t.tile.x0, ",", t.tile.y0, ")-(",
+          t.tile.x1, ",", t.tile.y1, ") samples [", t.samples.s0, ",", t.samples.s1, ")"));
     }
   }
   return grpc::Status::OK;

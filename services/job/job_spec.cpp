@@ -360,9 +360,24 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   }
 
   p.render.light_caustics = spec.light_caustics();
+  if (spec.splat_width() != 0.0f) {
+    if (!(spec.splat_width() >= kMinSplatWidthNm && spec.splat_width() <= kMaxSplatWidthNm)) {
+      return absl::InvalidArgumentError(absl::StrCat("splat_width ", spec.splat_width(),
+                                                     " nm is out of range: want ", kMinSplatWidthNm,
+                                                     "..", kMaxSplatWidthNm));
+    }
+    if (!p.render.traces_light_paths()) {
+      return absl::InvalidArgumentError(
+          "splat_width splats light paths: it needs the light integrator or light_caustics");
+    }
+    p.render.splat_width_nm = spec.splat_width();
+  }
   if (p.render.traces_light_paths()) {
-    const std::uint64_t bytes = std::uint64_t(p.width) * std::uint64_t(p.height) *
-                                (2 * std::uint64_t(p.render.bins) + 2 * 3 + 1) * 8;
+    // sums, squares, R, G, B and their squares, counts; a filtered image's sums and R, G, B.
+    const std::uint64_t per_pixel =
+        2 * std::uint64_t(p.render.bins) + 2 * 3 + 1 +
+        (p.render.splats_differentials() ? std::uint64_t(p.render.bins) + 3 : 0);
+    const std::uint64_t bytes = std::uint64_t(p.width) * std::uint64_t(p.height) * per_pixel * 8;
     if (bytes > kMaxWholeImageResultBytes) {
       return absl::InvalidArgumentError(
           absl::StrCat("light paths make each task the whole image, and a ", p.width, "x", p.height,
@@ -495,6 +510,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   spec.set_light_selection(to_proto(p.render.light_selection));
   spec.set_spectral_light_selection(p.render.spectral_light_selection);
   spec.set_light_caustics(p.render.light_caustics);
+  spec.set_splat_width(p.render.splat_width_nm);
   spec.set_spp(static_cast<std::uint32_t>(p.spp));
   if (p.auto_choice.has_value()) {
     prism::v1::AutoChoice* a = spec.mutable_auto_choice();

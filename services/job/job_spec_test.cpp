@@ -69,6 +69,8 @@ TEST(JobSpecTest, ExplicitValuesRoundTripIndependentlyOfTheScene) {
   spec.set_seed(0xfeedfacecafebeefULL);
   spec.set_max_depth(0);  // a depth, not "the scene's"
   spec.set_samples_per_task(3);
+  spec.set_light_caustics(true);
+  spec.set_splat_width(12.5f);
   spec.mutable_outputs()->set_png(true);
   spec.mutable_outputs()->set_png_exposure(-1.5f);
 
@@ -95,6 +97,8 @@ TEST(JobSpecTest, ExplicitValuesRoundTripIndependentlyOfTheScene) {
   EXPECT_EQ(again->render.max_depth, 0);
   EXPECT_EQ(again->tile_size, 8);
   EXPECT_EQ(again->samples_per_task, 3u);
+  EXPECT_TRUE(again->render.light_caustics);
+  EXPECT_EQ(again->render.splat_width_nm, 12.5f);
   EXPECT_EQ(again->render.integrator, IntegratorKind::kUniform);
   EXPECT_EQ(again->render.spectral_pdf, SpectralPdfKind::kVisible);
   EXPECT_EQ(again->render.emitter_pdf, EmitterPdfKind::kUniform);
@@ -219,6 +223,20 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_bins(64);
        },
        "returns 17280 MiB per task, over the limit of 1024 MiB"},
+      {"splat_without_light_paths", [](prism::v1::JobSpec& s) { s.set_splat_width(20.0f); },
+       "splat_width splats light paths: it needs the light integrator or light_caustics"},
+      {"splat_width_range",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_LIGHT);
+         s.set_splat_width(500.0f);
+       },
+       "splat_width 500 nm is out of range: want 0.1..470"},
+      {"splat_width_nan",
+       [](prism::v1::JobSpec& s) {
+         s.set_light_caustics(true);
+         s.set_splat_width(std::nanf(""));
+       },
+       "splat_width nan nm is out of range"},
       {"caustics_with_gradient",
        [](prism::v1::JobSpec& s) {
          s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);

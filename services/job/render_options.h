@@ -85,11 +85,25 @@ struct RenderOptions {
   // the eye paths everything else; a task is then the whole image (both kinds splat or cover
   // every pixel).
   bool light_caustics = false;
+  // Differential splatting of the light paths (§6.1) when > 0: Δλ in nm at sample 0, shrinking
+  // as (s + 1)^(-1/5); also a filtered image beside the unbiased one (TileBuffers::filtered).
+  float splat_width_nm = 0;
 
   int lanes() const { return integrator == IntegratorKind::kHero ? 4 : 1; }
   // Light paths splat over the whole film, so such a job's task is the whole image.
   bool traces_light_paths() const { return integrator == IntegratorKind::kLight || light_caustics; }
+  bool splats_differentials() const { return splat_width_nm > 0; }
 };
+
+// Range of RenderOptions::splat_width_nm when on, and the CLI's default.
+inline constexpr float kMinSplatWidthNm = 0.1f;
+inline constexpr float kMaxSplatWidthNm = 470.0f;
+inline constexpr float kDefaultSplatWidthNm = 20.0f;
+// Δλ of differential splatting at sample s (0-based): width·(s + 1)^(−1/5), the kernel width of
+// a consistent density estimate (bias O(Δλ²), variance O(1/(n·Δλ))): docs/estimators.md §6.1.
+inline double splat_width_at(float width_nm, std::uint64_t s) {
+  return double(width_nm) * std::pow(double(s) + 1.0, -0.2);
+}
 
 // The lanes C of a prepass task: the hero path tracer with its default C (docs/estimators.md §2,
 // §4), whatever the job's integrator.
