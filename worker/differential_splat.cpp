@@ -14,9 +14,6 @@ namespace prism::worker {
 namespace {
 
 constexpr int kMaxPassthroughs = 64;
-// Largest factor the emitter's spectrum may scale a fragment by (a sample from a trough of a
-// line spectrum would otherwise paint the lines with the trough's rare weight).
-constexpr double kMaxEmissionRatio = 4.0;
 // |n·n_g|^32: 0.72 at 2.3°, 0.2 at 10°, 0.01 at 17°.
 constexpr int kNormalExponent = 32;
 
@@ -89,6 +86,13 @@ bool DifferentialSplatter::splat(const LightSplat& s, double width_nm, double sc
     return false;
   }
   const int fragments = int(std::clamp(std::ceil(2.0 * pixels), 1.0, double(kMaxSplatFragments)));
+  // The emitter's spectrum, when the splat knows its light: fragments share the splat's energy in
+  // proportion to it (with the bilateral weights), so that the caustic keeps its lamp's spectral
+  // shape along the line and only the rest of the path's throughput is taken as constant.
+  const spectral::Spectrum* emitted = nullptr;
+  if (s.light >= 0 && std::size_t(s.light) < scene_.lights().size()) {
+    emitted = &light_spectrum(scene_.lights()[std::size_t(s.light)]);
+  }
   weights_.assign(std::size_t(fragments), 0.0);
   double total = 0.0;
   for (int k = 0; k < fragments; ++k) {
@@ -106,22 +110,17 @@ bool DifferentialSplatter::splat(const LightSplat& s, double width_nm, double sc
         w = std::exp(-0.5 * off_plane * off_plane) * normal_weight(g.normal, s.normal);
       }
     }
+    if (emitted != nullptr && w > 0.0) {
+      w *= std::max(0.0f, spectral::eval(*emitted, float(lambda + t * width_nm)));
+    }
     weights_[std::size_t(k)] = w;
     total += w;
   }
-  if (!(total > 0.0)) {
+  if (!(total > 0.0) || !std::isfinite(total)) {
     point(s, scale, out);
     return false;
   }
   const double energy = double(s.value) * grid.bin_width();  // the splat's value at λ
-  // The emitter's spectrum moves the value along the line; the rest of the path's throughput is
-  // taken as constant over ±Δλ.
-  const spectral::Spectrum* emitted = nullptr;
-  double emitted_at_lambda = 0.0;
-  if (s.light >= 0 && std::size_t(s.light) < scene_.lights().size()) {
-    emitted = &light_spectrum(scene_.lights()[std::size_t(s.light)]);
-    emitted_at_lambda = spectral::eval(*emitted, s.lambda);
-  }
   for (int k = 0; k < fragments; ++k) {
     const double w = weights_[std::size_t(k)];
     if (w == 0.0) continue;
@@ -130,12 +129,7 @@ bool DifferentialSplatter::splat(const LightSplat& s, double width_nm, double sc
     const int bin = grid.bin_of(l);
     if (bin < 0) continue;
     const spectral::Rgb bar = scene_.cmf().srgb(l);
-    double ratio = 1.0;
-    if (emitted != nullptr && emitted_at_lambda > 0.0) {
-      ratio = std::clamp(double(spectral::eval(*emitted, l)) / emitted_at_lambda, 0.0,
-                         kMaxEmissionRatio);
-    }
-    const double share = scale * ratio * w / total;
+    const double share = scale * w / total;
     const double value = double(s.value) * share;
     const double rgb[3] = {bar.r * energy * share, bar.g * energy * share, bar.b * energy * share};
     const Point2f raster{float(s.raster.x + t * dx), float(s.raster.y + t * dy)};

@@ -2,21 +2,24 @@
 // light-path splat whose receiver moved with the wavelength (LightSplat::has_differential) is
 // drawn as a line instead of a point. With Δλ the spectral neighbourhood, the line runs from
 // ρ(p − Δλ·∂p/∂λ) to ρ(p + Δλ·∂p/∂λ) on the film, and its fragment at t ∈ [−1, 1] carries the
-// splat's value at wavelength λ + t·Δλ: the bin of that wavelength, and the R, G, B of that
-// wavelength's colour matching functions (the paper's extrapolation across the spectrum: the
-// caustic's radiance is assumed constant along its own dispersion curve).
+// splat's energy at wavelength λ + t·Δλ: the bin of that wavelength, and the R, G, B of that
+// wavelength's colour matching functions (the paper's extrapolation across the spectrum).
 //
 // The fragments are spaced at most half a pixel apart, at the midpoints of equal parts of the
-// line, and each lands through the pixel filter as a point splat would. A fragment's weight is
-// bilateral in the receiver's geometry: with (q, n) the receiver's point moved along the line and
-// its normal, and (g, n_g) what the camera sees through the pixel centre the fragment lands in
-// (ReceiverImage), w = exp(−½ (((g − q)·n) / σ)²) · |n·n_g|^32, σ one pixel's footprint at g.
-// So a line that runs off its surface (over an edge, behind an occluder) gives nothing there.
-// A fragment off the film weighs 1 and lands nowhere (what the caustic sends out of the frame).
-// The weights are normalised over the fragments, so each splat keeps its energy: the filtered
-// image holds what the unbiased one does, moved along the caustics. A line whose fragments all
-// weigh 0 lands as the point. Wavelengths outside the grid cut the line short (t is limited so
-// that λ + t·Δλ stays in the grid) and the rest is renormalised the same way.
+// line, and each lands through the pixel filter as a point splat would. They share the splat's
+// energy in proportion to their weights, so each splat keeps its energy (the filtered image holds
+// what the unbiased one does, moved along the caustics). A fragment's weight is the product of
+//  - the emitting light's spectrum at the fragment's wavelength (when the splat names its light):
+//    the caustic keeps its lamp's spectral shape, a line lamp's lines stay lines, and only the
+//    rest of the path's throughput is assumed constant over ±Δλ;
+//  - a bilateral term in the receiver's geometry: with (q, n) the receiver's point moved along
+//    the line and its normal, and (g, n_g) what the camera sees through the pixel centre the
+//    fragment lands in (ReceiverImage), exp(−½ (((g − q)·n) / σ)²) · |n·n_g|^32, σ one pixel's
+//    footprint at g. A line that runs off its surface (over an edge, behind an occluder) gives
+//    nothing there. Off the film the term is 1 and the fragment lands nowhere (what the caustic
+//    sends out of the frame).
+// A line whose fragments all weigh 0 lands as the point. Wavelengths outside the grid cut the
+// line short (t is limited so that λ + t·Δλ stays in the grid).
 //
 // As Δλ → 0 every fragment lands where the point does: the estimate is consistent when Δλ
 // shrinks with the samples (job::splat_width_at), biased by O(Δλ²) for a caustic smooth along

@@ -14,6 +14,7 @@
 #include "services/spectral/named_spectra.h"
 #include "tests/testing/test_dir.h"
 #include "worker/embree_device.h"
+#include "worker/light.h"
 
 namespace prism::worker {
 namespace {
@@ -38,7 +39,8 @@ Shape "trianglemesh" "point3 P" [0 1 -20  20 1 -20  20 1 20  0 1 20]
 
 class DifferentialSplatTest : public ::testing::Test {
  protected:
-  void SetUp() override {
+  void SetUp() override { build(kBins); }
+  void build(int bins) {
     library_ =
         std::make_unique<spectral::SpectrumLibrary>(*spectral::SpectrumLibrary::load_builtin());
     const fs::path file = prism::testing::test_dir() / "block.pbrt";
@@ -46,7 +48,7 @@ class DifferentialSplatTest : public ::testing::Test {
     auto loaded = scene::load_scene(file, scene::with_library_names(*library_));
     ASSERT_TRUE(loaded.ok()) << loaded.status();
     job::RenderOptions options;
-    options.bins = kBins;
+    options.bins = bins;
     options.integrator = job::IntegratorKind::kLight;
     auto built =
         RenderScene::build(device_, loaded->description, *library_, options, kWidth, kHeight);
@@ -83,12 +85,13 @@ class DifferentialSplatTest : public ::testing::Test {
 };
 
 struct Image {
-  std::vector<double> values = std::vector<double>(std::size_t(kWidth) * kHeight * kBins, 0.0);
+  int bins = kBins;
+  std::vector<double> values = std::vector<double>(std::size_t(kWidth) * kHeight * bins, 0.0);
   std::vector<double> rgb = std::vector<double>(std::size_t(kWidth) * kHeight * 3, 0.0);
-  FilteredSums sums() { return {kWidth, kHeight, kBins, values, rgb}; }
+  FilteredSums sums() { return {kWidth, kHeight, bins, values, rgb}; }
   double pixel(int x, int y) const {
     double total = 0;
-    for (int b = 0; b < kBins; ++b) total += values[(std::size_t(y) * kWidth + x) * kBins + b];
+    for (int b = 0; b < bins; ++b) total += values[(std::size_t(y) * kWidth + x) * bins + b];
     return total;
   }
   double total() const { return std::accumulate(values.begin(), values.end(), 0.0); }
@@ -174,6 +177,41 @@ TEST_F(DifferentialSplatTest, ALineOfNoLengthIsThePoint) {
   for (std::size_t i = 0; i < dot.rgb.size(); ++i) {
     EXPECT_NEAR(line.rgb[i], dot.rgb[i], 1e-5 * std::abs(dot.rgb[i]) + 1e-12) << i;
   }
+}
+
+// With its light named, a line shares the splat's energy in proportion to the lamp's spectrum
+// (a 3000 K blackbody here): with 4 bins of 117.5 nm, what each bin receives of a line over
+// 450..650 nm is ∫ Le over the bin's part of that range, over ∫ Le over all of it (the fragments,
+// about 3 nm apart, sample Le by the midpoint rule).
+TEST_F(DifferentialSplatTest, ALineSharesItsEnergyLikeItsLampsSpectrum) {
+  build(4);
+  const ReceiverImage receivers(*scene_);
+  DifferentialSplatter splatter(*scene_, receivers);
+  LightSplat s = floor_splat({-2.2f, 0.0f, 0.3f}, {0.02f, 0.0f, 0.0f});
+  s.light = 0;
+  Image image;
+  image.bins = 4;
+  image.values.assign(std::size_t(kWidth) * kHeight * 4, 0.0);
+  FilteredSums sums = image.sums();
+  ASSERT_TRUE(splatter.splat(s, 100.0, 1.0, sums));
+  EXPECT_NEAR(image.total(), s.value, 1e-9 * s.value);
+  const spectral::Spectrum& le = light_spectrum(scene_->lights()[0]);
+  auto integral = [&](double a, double b) {
+    double sum = 0;
+    for (int i = 0; i < 1000; ++i) sum += spectral::eval(le, float(a + (b - a) * (i + 0.5) / 1000));
+    return sum * (b - a) / 1000;
+  };
+  const double all = integral(450, 650);
+  const double expected[4] = {integral(450, 477.5) / all, integral(477.5, 595) / all,
+                              integral(595, 650) / all, 0.0};
+  for (int b = 0; b < 4; ++b) {
+    double in_bin = 0;
+    for (std::size_t p = 0; p < std::size_t(kWidth) * kHeight; ++p)
+      in_bin += image.values[p * 4 + b];
+    EXPECT_NEAR(in_bin / s.value, expected[b], 0.03) << "bin " << b;
+  }
+  // A flat share would give the red part (595..650) 55/200 = 0.275; the 3000 K lamp gives more.
+  EXPECT_GT(expected[2], 0.3);
 }
 
 TEST_F(DifferentialSplatTest, WavelengthsOutsideTheGridShortenTheLine) {

@@ -98,7 +98,7 @@ struct RenderOptions {
 // Range of RenderOptions::splat_width_nm when on, and the CLI's default.
 inline constexpr float kMinSplatWidthNm = 0.1f;
 inline constexpr float kMaxSplatWidthNm = 470.0f;
-inline constexpr float kDefaultSplatWidthNm = 20.0f;
+inline constexpr float kDefaultSplatWidthNm = 100.0f;
 // Δλ of differential splatting at sample s (0-based): width·(s + 1)^(−1/5), the kernel width of
 // a consistent density estimate (bias O(Δλ²), variance O(1/(n·Δλ))): docs/estimators.md §6.1.
 inline double splat_width_at(float width_nm, std::uint64_t s) {
