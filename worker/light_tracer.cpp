@@ -9,9 +9,9 @@
 #include "worker/bsdf.h"
 #include "worker/light.h"
 #include "worker/material.h"
+#include "worker/path_differential.h"
 #include "worker/sample_layout.h"
 #include "worker/shadow_ray.h"
-#include "worker/spectral_differential.h"
 
 namespace prism::worker {
 namespace {
@@ -378,36 +378,8 @@ class LightPath {
   // The spectral differential through the scattering from direction `in` to `out` at `hit`.
   void follow_differential(const Material& material, const SurfaceHit& hit, const Vec3f& in,
                            const Vec3f& out, const BsdfSample& bs) {
-    const auto* dielectric = std::get_if<DielectricMaterial>(&material);
-    if (!bs.specular && dielectric == nullptr) {
-      diff.tracked = false;  // a diffuse receiver, a rough conductor, a layer: it ends here
-      return;
-    }
-    if (!diff.tracked && (dielectric == nullptr || !dielectric->dispersive || !bs.transmission)) {
-      return;  // nothing to carry, nothing to start
-    }
-    if (std::holds_alternative<ThinDielectricMaterial>(material) && bs.transmission) return;
-    const Vec3f dn = diff.tracked ? scene_.geometry().normal_differential(hit, diff.dp) : Vec3f();
-    // The interface's normal: the shading normal, or the sampled microfacet normal held fixed
-    // in the shading frame (rough dielectrics).
-    Vec3f m = hit.ns, dm = dn;
-    RelativeEta eta;
-    if (bs.transmission && dielectric != nullptr) {
-      const double l = lambda.lambda(0);
-      const double n = spectral::eta(dielectric->eta, l),
-                   dn_dl = spectral::deta_dlambda(dielectric->eta, l);
-      const bool entering = dot(in, hit.ng) < 0;
-      eta = entering ? relative_eta(1, 0, n, dn_dl) : relative_eta(n, dn_dl, 1, 0);
-      if (!bs.specular) m = normalize(in * eta.eta - out);  // n_i·in − n_t·out, over n_t
-    } else if (!bs.specular) {
-      m = normalize(out - in);
-    }
-    if (!bs.specular) dm = microfacet_normal_differential(hit.ns, dn, m);
-    if (bs.transmission) {
-      refract(diff, in, m, dm, eta);
-    } else {
-      reflect(diff, in, m, dm);
-    }
+    scatter_differential(diff, scene_.geometry(), material, hit, in, out, bs.specular,
+                         bs.transmission, lambda.lambda(0));
   }
 
   const RenderScene& scene_;
