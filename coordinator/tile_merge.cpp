@@ -43,7 +43,8 @@ std::array<std::uint8_t, 32> tile_result_digest(const image::TileResult& result)
                                  result.counter_count(),
                                  result.has_halves(),
                                  result.has_rgb(),
-                                 result.has_filtered()};
+                                 result.has_filtered(),
+                                 result.has_offsets()};
   hash_span(hasher, std::span<const std::int64_t>(header));
   for (const std::string& name : result.buffers().counter_names) {
     hash_value(hasher, name.size());
@@ -63,6 +64,7 @@ std::array<std::uint8_t, 32> tile_result_digest(const image::TileResult& result)
   hash_span(hasher, result.rgb_squares());
   hash_span(hasher, result.filtered_sums());
   hash_span(hasher, result.filtered_rgb_sums());
+  hash_span(hasher, result.offsets());
   hash_span(hasher, result.depth());
   hash_span(hasher, result.normals());
   hash_span(hasher, result.albedo());

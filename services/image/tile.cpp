@@ -214,6 +214,7 @@ absl::StatusOr<TileResult> TileResult::create(const TileRect& rect, const Sample
     r.filtered_sums_.assign(area * bins, 0.0);
     r.filtered_rgb_sums_.assign(area * 3, 0.0);
   }
+  if (buffers.offsets) r.offsets_.assign(area * kOffsetValues, 0.0);
   if (buffers.guides) {
     r.depth_.assign(area, 0.0f);
     r.normals_.assign(area * 3, 0.0f);
@@ -283,11 +284,11 @@ absl::Status TileResult::add(const TileResult& other) {
                                                    " bins into one with ", bins_, " bins"));
   }
   if (other.buffers_ != buffers_) {
-    return absl::InvalidArgumentError(absl::StrCat("cannot merge tile results of ",
-                                                   to_string(rect_),
-                                                   " with different optional buffers (gradients, "
-                                                   "halves, rgb, filtered, guides or counter names "
-                                                   "differ)"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("cannot merge tile results of ", to_string(rect_),
+                     " with different optional buffers (gradients, "
+                     "halves, rgb, filtered, offsets, guides or counter names "
+                     "differ)"));
   }
   SampleRange merged;
   if (other.samples_.s0 == samples_.s1) {
@@ -315,6 +316,7 @@ absl::Status TileResult::add(const TileResult& other) {
   add_vectors(rgb_squares_, other.rgb_squares_);
   add_vectors(filtered_sums_, other.filtered_sums_);
   add_vectors(filtered_rgb_sums_, other.filtered_rgb_sums_);
+  add_vectors(offsets_, other.offsets_);
   add_vectors(depth_, other.depth_);
   add_vectors(normals_, other.normals_);
   add_vectors(albedo_, other.albedo_);

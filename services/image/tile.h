@@ -30,6 +30,12 @@
 //    unbiased one, worker/light_task.cpp; divide by counts like sums)
 //      filtered_sums     double, area*bins, filtered_sums[p*bins + b]
 //      filtered_rgb_sums double, area*3,    filtered_rgb_sums[p*3 + c]
+//    (optional offsets: eye-traced jobs with gathering, worker/integrator.h)
+//      offsets     double, area*6,    offsets[p*6 + i]        over the caustic events found
+//                                                             with a spectral offset (dx, dy)
+//                                                             in pixels per nm, weight w:
+//                                                             Σw, Σw·dx, Σw·dy, Σw·dx², Σw·dy²,
+//                                                             Σw·dx·dy (i = 0..5)
 //      depth       float,  area,      depth[p]                (optional guides) sum of depths
 //      normals     float,  area*3,    normals[p*3 + i]        (optional guides) sum of normals
 //      albedo      float,  area,      albedo[p]               (optional guides) sum of albedos
@@ -175,10 +181,14 @@ struct TileBuffers {
   bool rgb = false;
   // The filtered image's sums per bin and its R, G, B (differential splatting).
   bool filtered = false;
+  // The spectral offsets of caustic events (gathering).
+  bool offsets = false;
   friend bool operator==(const TileBuffers&, const TileBuffers&) = default;
 };
 
 inline constexpr int kMaxCounters = 64;
+// Values per pixel of the offsets buffer (layout above).
+inline constexpr int kOffsetValues = 6;
 inline constexpr int kMaxCounterNameLength = 64;
 // Largest tile a TileResult may describe (pixels).
 inline constexpr std::int64_t kMaxTileArea = std::int64_t{1} << 22;
@@ -204,6 +214,7 @@ class TileResult {
   bool has_guides() const { return buffers_.guides; }
   bool has_rgb() const { return buffers_.rgb; }
   bool has_filtered() const { return buffers_.filtered; }
+  bool has_offsets() const { return buffers_.offsets; }
   int counter_count() const { return static_cast<int>(buffers_.counter_names.size()); }
 
   // Accumulation by a worker. (x,y) are image coordinates inside rect() (PRISM_CHECK).
@@ -242,6 +253,7 @@ class TileResult {
   std::span<const double> rgb_squares() const { return rgb_squares_; }
   std::span<const double> filtered_sums() const { return filtered_sums_; }
   std::span<const double> filtered_rgb_sums() const { return filtered_rgb_sums_; }
+  std::span<const double> offsets() const { return offsets_; }
   std::span<const float> depth() const { return depth_; }
   std::span<const float> normals() const { return normals_; }
   std::span<const float> albedo() const { return albedo_; }
@@ -261,6 +273,7 @@ class TileResult {
   std::span<double> mutable_rgb_squares() { return rgb_squares_; }
   std::span<double> mutable_filtered_sums() { return filtered_sums_; }
   std::span<double> mutable_filtered_rgb_sums() { return filtered_rgb_sums_; }
+  std::span<double> mutable_offsets() { return offsets_; }
   std::span<float> mutable_depth() { return depth_; }
   std::span<float> mutable_normals() { return normals_; }
   std::span<float> mutable_albedo() { return albedo_; }
@@ -291,6 +304,7 @@ class TileResult {
   std::vector<double> rgb_squares_;
   std::vector<double> filtered_sums_;
   std::vector<double> filtered_rgb_sums_;
+  std::vector<double> offsets_;
   std::vector<float> depth_;
   std::vector<float> normals_;
   std::vector<float> albedo_;

@@ -14,8 +14,9 @@ constexpr std::uint32_t kFlagGuides = 1u << 1;
 constexpr std::uint32_t kFlagHalves = 1u << 2;
 constexpr std::uint32_t kFlagRgb = 1u << 3;
 constexpr std::uint32_t kFlagFiltered = 1u << 4;
+constexpr std::uint32_t kFlagOffsets = 1u << 5;
 constexpr std::uint32_t kKnownFlags =
-    kFlagGradients | kFlagGuides | kFlagHalves | kFlagRgb | kFlagFiltered;
+    kFlagGradients | kFlagGuides | kFlagHalves | kFlagRgb | kFlagFiltered | kFlagOffsets;
 
 class Writer {
  public:
@@ -88,6 +89,7 @@ std::uint64_t payload_bytes(std::uint64_t area, std::uint64_t bins, const TileBu
   if (halves) n += area * bins * 8 * 5 + area * 8;
   if (rgb) n += area * 3 * 8 * 2;
   if (buffers.filtered) n += area * bins * 8 + area * 3 * 8;
+  if (buffers.offsets) n += area * kOffsetValues * 8;
   if (guides) n += area * 4 * 5;
   n += area * counters * 8;
   return n;
@@ -107,7 +109,7 @@ std::string serialise_tile(const TileResult& result) {
   w.u32(kTileFormatVersion);
   w.u32((result.has_gradients() ? kFlagGradients : 0) | (result.has_guides() ? kFlagGuides : 0) |
         (result.has_halves() ? kFlagHalves : 0) | (result.has_rgb() ? kFlagRgb : 0) |
-        (result.has_filtered() ? kFlagFiltered : 0));
+        (result.has_filtered() ? kFlagFiltered : 0) | (result.has_offsets() ? kFlagOffsets : 0));
   w.i32(rect.x0);
   w.i32(rect.y0);
   w.i32(rect.x1);
@@ -135,6 +137,7 @@ std::string serialise_tile(const TileResult& result) {
   for (double v : result.rgb_squares()) w.f64(v);
   for (double v : result.filtered_sums()) w.f64(v);
   for (double v : result.filtered_rgb_sums()) w.f64(v);
+  for (double v : result.offsets()) w.f64(v);
   for (float v : result.depth()) w.f32(v);
   for (float v : result.normals()) w.f32(v);
   for (float v : result.albedo()) w.f32(v);
@@ -191,6 +194,7 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   buffers.halves = (*flags & kFlagHalves) != 0;
   buffers.rgb = (*flags & kFlagRgb) != 0;
   buffers.filtered = (*flags & kFlagFiltered) != 0;
+  buffers.offsets = (*flags & kFlagOffsets) != 0;
   for (std::uint64_t c = 0; c < *counter_count; ++c) {
     auto length = r.uint(4, "counter name length");
     if (!length.ok()) return length.status();
@@ -241,6 +245,7 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   for (double& v : t.mutable_rgb_squares()) v = std::bit_cast<double>(r.raw_u64());
   for (double& v : t.mutable_filtered_sums()) v = std::bit_cast<double>(r.raw_u64());
   for (double& v : t.mutable_filtered_rgb_sums()) v = std::bit_cast<double>(r.raw_u64());
+  for (double& v : t.mutable_offsets()) v = std::bit_cast<double>(r.raw_u64());
   for (float& v : t.mutable_depth()) v = std::bit_cast<float>(r.raw_u32());
   for (float& v : t.mutable_normals()) v = std::bit_cast<float>(r.raw_u32());
   for (float& v : t.mutable_albedo()) v = std::bit_cast<float>(r.raw_u32());

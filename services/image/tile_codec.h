@@ -6,7 +6,8 @@
 //   bytes 0..7   magic "PRSMTILE"
 //   u32          version (1)
 //   u32          flags: bit 0 gradients present, bit 1 guides present, bit 2 halves present
-//                (only with bit 0), bit 3 rgb present, bit 4 filtered present; other bits zero
+//                (only with bit 0), bit 3 rgb present, bit 4 filtered present, bit 5 offsets
+//                present; other bits zero
 //   i32 x4       rect x0, y0, x1, y1
 //   u64 x2       sample range s0, s1
 //   u32          bins
@@ -20,6 +21,7 @@
 //     u64 half_counts[area]                  (if flag bit 2)
 //     f64 rgb_sums[area*3], f64 rgb_squares[area*3]            (if flag bit 3)
 //     f64 filtered_sums[area*bins], f64 filtered_rgb_sums[area*3] (if flag bit 4)
+//     f64 offsets[area*6]                    (if flag bit 5)
 //     f32 depth[area], f32 normals[area*3], f32 albedo[area]   (if flag bit 1)
 //     u64 counters[area*n]
 // The parser treats its input as untrusted: it checks every field against the limits of

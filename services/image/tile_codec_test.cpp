@@ -33,6 +33,7 @@ TileResult random_result(std::uint64_t seed, const TileBuffers& buffers) {
   for (double& v : result->mutable_rgb_squares()) v = std::bit_cast<double>(rng());
   for (double& v : result->mutable_filtered_sums()) v = std::bit_cast<double>(rng());
   for (double& v : result->mutable_filtered_rgb_sums()) v = std::bit_cast<double>(rng());
+  for (double& v : result->mutable_offsets()) v = std::bit_cast<double>(rng());
   for (float& v : result->mutable_depth()) v = std::bit_cast<float>(std::uint32_t(rng()));
   for (float& v : result->mutable_normals()) v = std::bit_cast<float>(std::uint32_t(rng()));
   for (float& v : result->mutable_albedo()) v = std::bit_cast<float>(std::uint32_t(rng()));
@@ -48,7 +49,8 @@ TEST(TileCodec, RoundTripIsExact) {
        {TileBuffers{}, TileBuffers{true, false, {}}, TileBuffers{true, true, {"rays", "shifts"}},
         TileBuffers{true, false, {"rays"}, true}, TileBuffers{false, false, {}, false, true},
         TileBuffers{true, true, {"rays"}, true, true},
-        TileBuffers{false, false, {}, false, true, true}}) {
+        TileBuffers{false, false, {}, false, true, true},
+        TileBuffers{false, true, {}, false, true, false, true}}) {
     TileResult original = random_result(7, buffers);
     std::string bytes = serialise_tile(original);
     auto parsed = parse_tile(bytes);
@@ -78,7 +80,8 @@ TEST(TileCodec, RoundTripIsExact) {
     for (auto [a, b] : {std::pair{parsed->rgb_sums(), original.rgb_sums()},
                         std::pair{parsed->rgb_squares(), original.rgb_squares()},
                         std::pair{parsed->filtered_sums(), original.filtered_sums()},
-                        std::pair{parsed->filtered_rgb_sums(), original.filtered_rgb_sums()}}) {
+                        std::pair{parsed->filtered_rgb_sums(), original.filtered_rgb_sums()},
+                        std::pair{parsed->offsets(), original.offsets()}}) {
       ASSERT_EQ(a.size(), b.size());
       EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
     }
@@ -123,7 +126,7 @@ TEST(TileCodec, CorruptedHeadersAreRefusedWithClearErrors) {
   put_u32(bad, 8, 2);
   refused(bad, "version");
   bad = good;
-  put_u32(bad, 12, 32);  // the first bit no version-1 writer sets
+  put_u32(bad, 12, 64);  // the first bit no version-1 writer sets
   refused(bad, "flags");
   bad = good;
   put_u32(bad, 12, 2 | 16);  // filtered flag set: the payload is now too short
