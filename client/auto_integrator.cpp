@@ -48,6 +48,14 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     out.report = std::move(report);
     return out;
   }
+  if (options.gather_width.has_value()) {
+    // Gathering filters an eye-traced image; hero is the eye tracer auto keeps by default.
+    chosen.integrator = "hero";
+    report.choice = "hero";
+    report.reason = "--gather filters hero's image; no pilot";
+    out.report = std::move(report);
+    return out;
+  }
   if (options.prepass == true || has_prepass_options(options)) {
     // Only hero runs the prepass.
     chosen.prepass = options.prepass;

@@ -186,6 +186,25 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
           "light");
     }
   }
+  if (o.gather_width.has_value()) {
+    if (!(*o.gather_width >= job::kMinSplatWidthNm && *o.gather_width <= job::kMaxSplatWidthNm)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--gather-width ", *o.gather_width, " is out of range: want nm in ",
+                       job::kMinSplatWidthNm, "..", job::kMaxSplatWidthNm));
+    }
+    if (o.splat_width.has_value()) {
+      return absl::InvalidArgumentError(
+          "--gather and --splat are two filters of the same output: choose one");
+    }
+    const bool eye =
+        !automatic && (*parse_integrator(o.integrator) == job::IntegratorKind::kHero ||
+                       *parse_integrator(o.integrator) == job::IntegratorKind::kUniform);
+    if (!(eye || automatic) || o.caustics == "light") {
+      return absl::InvalidArgumentError(
+          "--gather filters eye-traced images: use it with --integrator hero or uniform, without "
+          "--caustics light (light paths have --splat)");
+    }
+  }
   const bool gradient =
       !automatic && *parse_integrator(o.integrator) == job::IntegratorKind::kGradient;
   if (!gradient &&
@@ -365,6 +384,7 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   spec.set_spectral_light_selection(o.spectral_light_selection);
   spec.set_light_caustics(o.caustics == "light");
   if (o.splat_width.has_value()) spec.set_splat_width(static_cast<float>(*o.splat_width));
+  if (o.gather_width.has_value()) spec.set_gather_width(static_cast<float>(*o.gather_width));
   spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
   spec.set_name(o.scene.filename().string());
   spec.set_allow_unsupported(o.allow_unsupported);
@@ -508,6 +528,11 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   }
   if (report.filtered.has_value()) {
     coordinator::fill_filtered_counters(report.counters, *report.filtered);
+    if (result->stats.gather.has_value()) {
+      report.filtered->pixels_with_offsets = result->stats.gather->pixels_with_offsets;
+      report.filtered->pixels_filtered = result->stats.gather->pixels_filtered;
+      report.filtered->pixels_incoherent = result->stats.gather->pixels_incoherent;
+    }
   }
   if (result->filtered.has_value() && result->filtered_rgb.has_value()) {
     PRISM_RETURN_IF_ERROR(coordinator::write_filtered(*result->filtered, *result->filtered_rgb,

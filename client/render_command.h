@@ -48,6 +48,9 @@ struct RenderCommandOptions {
   // --splat / --splat-width: differential splatting of the light paths, Δλ in nm at sample 0
   // (job spec splat_width); unset: off.
   std::optional<double> splat_width;
+  // --gather / --gather-width: gathering for eye-traced jobs, Δλ in nm for spp = 1 (job spec
+  // gather_width); unset: off.
+  std::optional<double> gather_width;
   std::optional<std::int64_t> max_depth;
   std::optional<std::int64_t> samples_per_task;  // unset: one task per tile
   double exposure = 0.0;                         // PNG preview, in stops

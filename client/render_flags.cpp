@@ -31,6 +31,16 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
                    "shrinking as (s+1)^(-1/5), ",
                    job::kMinSplatWidthNm, "..", job::kMaxSplatWidthNm, " (default ",
                    job::kDefaultSplatWidthNm, "; implies --splat)"));
+  cmd.add_flag("--gather", f.gather,
+               "Gathering for eye-traced images (hero or uniform; with auto it means hero): also "
+               "writes <stem>.filtered.exr and <stem>.filtered.png, the image filtered along each "
+               "pixel's mean spectral offset of its caustics, left alone where offsets disagree "
+               "(biased, consistent; the main image stays unbiased)");
+  f.gather_width_opt =
+      cmd.add_option("--gather-width", f.gather_width,
+                     absl::StrCat("With --gather: Δλ in nm at 1 spp, shrinking as spp^(-1/5), ",
+                                  job::kMinSplatWidthNm, "..", job::kMaxSplatWidthNm, " (default ",
+                                  job::kDefaultSplatWidthNm, "; implies --gather)"));
   f.bins_opt =
       cmd.add_option("--bins", f.bins, "Spectral bins, 4..256 (default: nbuckets, else 64)");
   f.resolution_opt =
@@ -147,6 +157,11 @@ absl::Status apply_render_flags(const RenderFlags& f, RenderCommandOptions& o) {
     o.splat_width = f.splat_width;
   } else if (f.splat) {
     o.splat_width = job::kDefaultSplatWidthNm;
+  }
+  if (f.gather_width_opt->count() > 0) {
+    o.gather_width = f.gather_width;
+  } else if (f.gather) {
+    o.gather_width = job::kDefaultSplatWidthNm;
   }
   take(f.prepass_passes_opt, f.prepass_passes, o.prepass_passes);
   take(f.prepass_spp_opt, f.prepass_spp, o.prepass_spp);

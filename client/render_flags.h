@@ -28,9 +28,10 @@ struct RenderFlags {
   std::int64_t prepass_passes = 0, prepass_spp = 0;
   double prepass_epsilon = 0, prepass_fallback = 0, prepass_sigma_s = 0, prepass_sigma_r = 0;
   bool prepass = false, no_prepass = false;
-  bool splat = false;
-  double splat_width = 0;
+  bool splat = false, gather = false;
+  double splat_width = 0, gather_width = 0;
   CLI::Option* splat_width_opt = nullptr;
+  CLI::Option* gather_width_opt = nullptr;
   CLI::Option* delta_opt = nullptr;
   CLI::Option* tau_opt = nullptr;
   CLI::Option* alpha_opt = nullptr;

@@ -2,6 +2,7 @@
 // its finished tiles, the files a client fetches, and previews of a running job.
 #include "absl/strings/str_cat.h"
 #include "coordinator/farm_coordinator.h"
+#include "coordinator/gather.h"
 #include "coordinator/job_report.h"
 #include "services/base/atomic_file.h"
 #include "services/base/status.h"
@@ -51,7 +52,7 @@ absl::StatusOr<std::vector<OutputFile>> FarmCoordinator::result_files(
     all.push_back({OutputKind::kPrimalExr, paths.primal_exr, ""});
     all.push_back({OutputKind::kGradientExr, paths.gradient_exr, ""});
   }
-  if (params.render.splats_differentials()) {
+  if (params.render.filters()) {
     all.push_back({OutputKind::kFilteredExr, paths.filtered_exr, ""});
     all.push_back({OutputKind::kFilteredPng, paths.filtered_png, ""});
   }
@@ -211,6 +212,50 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
             },
             &filtered_band),
         filtered_rgb, report, paths, {p.outputs.png_exposure}));
+  } else if (p.render.gathers()) {
+    // Gathering filters the whole image at once: its bins, counts, offsets and guides, made
+    // tile by tile from the files.
+    const std::size_t pixels = std::size_t(p.width) * std::size_t(p.height);
+    PRISM_ASSIGN_OR_RETURN(image::SpectralImage whole,
+                           image::SpectralImage::create(p.width, p.height, p.render.bins));
+    std::vector<std::uint64_t> counts(pixels);
+    std::vector<double> offsets(pixels * image::kOffsetValues);
+    std::vector<float> depth(pixels), normals(pixels * 3);
+    for (std::size_t t = 0; t < job.plan.tiles.size(); ++t) {
+      PRISM_ASSIGN_OR_RETURN(image::TileResult merged, job.tiles->get(static_cast<int>(t)));
+      if (!merged.has_offsets() || !merged.has_guides()) {
+        return absl::InternalError(absl::StrCat("tile ", image::to_string(merged.rect()),
+                                                " has no offsets or guides to gather with"));
+      }
+      PRISM_ASSIGN_OR_RETURN(image::SpectralImage finalised, job.finalise(merged));
+      const image::TileRect& r = merged.rect();
+      PRISM_RETURN_IF_ERROR(image::paste_tile(finalised, r, whole));
+      for (int y = r.y0; y < r.y1; ++y) {
+        for (int x = r.x0; x < r.x1; ++x) {
+          const std::size_t i = std::size_t(y - r.y0) * r.width() + (x - r.x0);
+          const std::size_t o = std::size_t(y) * p.width + x;
+          counts[o] = merged.counts()[i];
+          for (int k = 0; k < image::kOffsetValues; ++k) {
+            offsets[o * image::kOffsetValues + k] = merged.offsets()[i * image::kOffsetValues + k];
+          }
+          depth[o] = merged.depth()[i];
+          for (int k = 0; k < 3; ++k) normals[o * 3 + k] = merged.normals()[i * 3 + k];
+        }
+      }
+    }
+    GatherStats gathered;
+    PRISM_ASSIGN_OR_RETURN(
+        image::SpectralImage filtered,
+        gather_filter({&whole, counts, offsets, depth, normals},
+                      gather_width_at(p.render.gather_width_nm, report.spp), &gathered));
+    PRISM_ASSIGN_OR_RETURN(image::RgbImage filtered_rgb, to_linear_srgb(filtered, cmf_));
+    if (report.filtered.has_value()) {
+      report.filtered->pixels_with_offsets = gathered.pixels_with_offsets;
+      report.filtered->pixels_filtered = gathered.pixels_filtered;
+      report.filtered->pixels_incoherent = gathered.pixels_incoherent;
+    }
+    PRISM_RETURN_IF_ERROR(
+        write_filtered(filtered, filtered_rgb, report, paths, {p.outputs.png_exposure}));
   }
   PRISM_RETURN_IF_ERROR(write_outputs(p.render.bins, job.tiles->band_rows(),
                                       job.tiles->rows(job.finalise, &band), *job.rgb, report, paths,

@@ -337,7 +337,7 @@ class FarmServerTest : public ::testing::Test {
     }
     ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
     expect_identical(fetch_spectral_exr(job_id), spec);
-    if (spec.splat_width() > 0) {
+    if (spec.splat_width() > 0 || spec.gather_width() > 0) {
       expect_identical(fetch_spectral_exr(job_id, v1::OUTPUT_KIND_FILTERED_EXR), spec, true);
     }
     v1::ListWorkersRequest request;

@@ -385,16 +385,8 @@ TEST_F(FarmServerTest, RealWorkerProcessesRenderALightCausticsJobTheSameBytes) {
   render_with_real_workers(spec);
 }
 
-// Differential splatting on the farm: light-traced caustics through a dispersive glass sphere,
-// drawn as lines into the filtered image, which must come back as the embedded render's bytes.
-TEST_F(FarmServerTest, RealWorkerProcessesRenderASplattingJobTheSameBytes) {
-  v1::JobSpec spec = small_spec("");
-  spec.set_integrator(v1::INTEGRATOR_HERO);
-  spec.set_light_caustics(true);
-  spec.set_splat_width(60.0f);
-  spec.set_spp(8);
-  spec.set_samples_per_task(3);
-  render_with_real_workers(spec, R"(LookAt 0 4 -3  0 0 0  0 1 0
+// A glass sphere's caustic under a small lamp, over a floor: the farm tests of the filtered image.
+constexpr char kCausticScene[] = R"(LookAt 0 4 -3  0 0 0  0 1 0
 Camera "perspective" "float fov" 45
 Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
 WorldBegin
@@ -412,7 +404,29 @@ AttributeBegin
   Translate 0 1 0
   Shape "sphere" "float radius" 0.5
 AttributeEnd
-)");
+)";
+
+// Differential splatting on the farm: light-traced caustics through a dispersive glass sphere,
+// drawn as lines into the filtered image, which must come back as the embedded render's bytes.
+TEST_F(FarmServerTest, RealWorkerProcessesRenderASplattingJobTheSameBytes) {
+  v1::JobSpec spec = small_spec("");
+  spec.set_integrator(v1::INTEGRATOR_HERO);
+  spec.set_light_caustics(true);
+  spec.set_splat_width(60.0f);
+  spec.set_spp(8);
+  spec.set_samples_per_task(3);
+  render_with_real_workers(spec, kCausticScene);
+}
+
+// Gathering on the farm: eye paths' offsets and guides come back with every tile, and the
+// coordinator's filter over the whole image gives the embedded render's bytes.
+TEST_F(FarmServerTest, RealWorkerProcessesRenderAGatheringJobTheSameBytes) {
+  v1::JobSpec spec = small_spec("");
+  spec.set_integrator(v1::INTEGRATOR_HERO);
+  spec.set_gather_width(60.0f);
+  spec.set_spp(16);
+  spec.set_tile_size(8);
+  render_with_real_workers(spec, kCausticScene);
 }
 
 TEST_F(FarmServerTest, TheStandardHealthServiceReportsServing) {

@@ -136,6 +136,9 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
         problem = parsed->has_filtered()
                       ? "a result with filtered sums its job did not ask for"
                       : "a differential-splatting job's result without its filtered sums";
+      } else if (!prepass && it->second->params.render.gathers() &&
+                 !(parsed->has_offsets() && parsed->has_guides())) {
+        problem = "a gathering job's result without its offsets and guides";
       }
     }
     if (!problem.empty()) {

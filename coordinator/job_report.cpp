@@ -1,6 +1,7 @@
 #include "coordinator/job_report.h"
 
 #include "absl/strings/str_cat.h"
+#include "coordinator/gather.h"
 #include "coordinator/prepass.h"
 
 namespace prism::coordinator {
@@ -21,6 +22,12 @@ void add_job_sections(const job::JobParameters& p, RenderReport& report) {
     FilteredReport f;
     f.width_nm = p.render.splat_width_nm;
     f.last_width_nm = job::splat_width_at(p.render.splat_width_nm, p.spp > 0 ? p.spp - 1 : 0);
+    report.filtered = f;
+  } else if (p.render.gathers()) {
+    FilteredReport f;
+    f.method = "gather";
+    f.width_nm = p.render.gather_width_nm;
+    f.last_width_nm = gather_width_at(p.render.gather_width_nm, p.spp);
     report.filtered = f;
   }
   if (p.render.integrator == job::IntegratorKind::kGradient) {

@@ -19,6 +19,7 @@
 #include <optional>
 
 #include "absl/status/statusor.h"
+#include "coordinator/gather.h"
 #include "coordinator/outputs.h"
 #include "coordinator/poisson.h"
 #include "coordinator/prepass.h"
@@ -87,6 +88,8 @@ struct LocalRenderStats {
   std::optional<PrepassOutcome> prepass;
   // With a target error: what it reached (samples above counts every round's).
   std::optional<TargetErrorOutcome> target_error;
+  // With gathering: what its filter did.
+  std::optional<GatherStats> gather;
 };
 
 struct LocalRenderResult {

@@ -118,9 +118,11 @@ struct GradientReport {
   bool with_primal_and_gradients = false;
 };
 
-// Differential splatting in the report (worker/differential_splat.h): Δλ at the first and the
-// last sample, Δλ_s = width·(s + 1)^(−exponent), and how many light-path splats were drawn as
-// lines (from the counters light_splats and splat_lines).
+// The filtered image in the report. "splat" (worker/differential_splat.h): Δλ at the first and
+// the last sample, Δλ_s = width·(s + 1)^(−exponent), and how many light-path splats were drawn
+// as lines (from the counters light_splats and splat_lines). "gather" (gather.h): Δλ at the end,
+// width·spp^(−exponent), and how many pixels had offsets, were filtered, or were left alone
+// because their offsets disagreed.
 struct FilteredReport {
   std::string method = "splat";
   float width_nm = 0;  // Δλ at sample 0 (float, as the job spec keeps it)
@@ -128,6 +130,9 @@ struct FilteredReport {
   double exponent = 0.2;
   std::uint64_t splats = 0;
   std::uint64_t lines = 0;
+  std::uint64_t pixels_with_offsets = 0;
+  std::uint64_t pixels_filtered = 0;
+  std::uint64_t pixels_incoherent = 0;
 };
 
 // The multi-pass prepass in the report.

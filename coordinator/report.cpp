@@ -90,10 +90,16 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
     j["filtered"] = {{"method", f.method},
                      {"width_nm", f.width_nm},
                      {"last_width_nm", f.last_width_nm},
-                     {"width_exponent", -f.exponent},
-                     {"splats", f.splats},
-                     {"lines", f.lines},
-                     {"line_fraction", f.splats > 0 ? double(f.lines) / double(f.splats) : 0.0}};
+                     {"width_exponent", -f.exponent}};
+    if (f.method == "splat") {
+      j["filtered"]["splats"] = f.splats;
+      j["filtered"]["lines"] = f.lines;
+      j["filtered"]["line_fraction"] = f.splats > 0 ? double(f.lines) / double(f.splats) : 0.0;
+    } else {
+      j["filtered"]["pixels_with_offsets"] = f.pixels_with_offsets;
+      j["filtered"]["pixels_filtered"] = f.pixels_filtered;
+      j["filtered"]["pixels_incoherent"] = f.pixels_incoherent;
+    }
   }
   if (r.gradient.has_value()) {
     const GradientReport& g = *r.gradient;

@@ -380,6 +380,15 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
        "--splat draws light paths as lines"},
       {{"render", scene, "--integrator", "light", "--splat-width", "0"},
        "prism: --splat-width 0 is out of range: want nm in 0.1..470"},
+      {{"render", scene, "--integrator", "light", "--gather"},
+       "prism: --gather filters eye-traced images: use it with --integrator hero or uniform, "
+       "without --caustics light (light paths have --splat)"},
+      {{"render", scene, "--integrator", "hero", "--caustics", "light", "--gather"},
+       "--gather filters eye-traced images"},
+      {{"render", scene, "--integrator", "light", "--splat", "--gather"},
+       "prism: --gather and --splat are two filters of the same output: choose one"},
+      {{"render", scene, "--gather-width", "900"},
+       "prism: --gather-width 900 is out of range: want nm in 0.1..470"},
       {{"render", scene, "--spp", "0"}, "--spp 0 is out of range"},
       {{"render", scene, "--spp", "-3"}, "--spp -3 is out of range"},
       {{"render", scene, "--threads", "0"}, "--threads 0 is out of range"},
@@ -504,9 +513,9 @@ TEST(RenderCliTest, BenchMeasuresTheLightPathMethods) {
   EXPECT_EQ(methods, (std::set<std::string>{"hero", "light", "hero+caustics"}));
 }
 
-// --splat writes the filtered image beside the unbiased one, which it leaves bit for bit as it
-// is, and the report says how the lines were drawn.
-TEST(RenderCliTest, SplattingWritesAFilteredImageAndLeavesTheMainOneAlone) {
+// --splat (and --gather) write the filtered image beside the unbiased one, which they leave bit
+// for bit as it is, and the report says how the image was filtered.
+TEST(RenderCliTest, SplattingAndGatheringWriteAFilteredImageAndLeaveTheMainOneAlone) {
   const fs::path dir = fresh_dir("splat");
   const std::vector<std::string> common = {"render",       source("scenes/slit-prism.pbrt"),
                                            "--resolution", "48x36",
@@ -535,6 +544,26 @@ TEST(RenderCliTest, SplattingWritesAFilteredImageAndLeavesTheMainOneAlone) {
   EXPECT_NEAR(report["filtered"]["last_width_nm"].get<double>(), 80.0 * std::pow(8.0, -0.2), 1e-9);
   EXPECT_GT(report["filtered"]["lines"].get<std::uint64_t>(), 0u);
   EXPECT_EQ(report["outputs"]["filtered_exr"], "splat.filtered.exr");
+
+  // --gather does the same for an eye-traced image.
+  const std::vector<std::string> eye = {"render",       source("scenes/crossing-caustics.pbrt"),
+                                        "--resolution", "48x36",
+                                        "--spp",        "128",
+                                        "--integrator", "hero"};
+  std::vector<std::string> eye_plain = eye, eye_gather = eye;
+  eye_plain.insert(eye_plain.end(), {"-o", "eye.exr"});
+  eye_gather.insert(eye_gather.end(), {"--gather", "-o", "gather.exr"});
+  ASSERT_EQ(run_prism(dir, eye_plain).exit_code, 0);
+  CommandRun gather = run_prism(dir, eye_gather);
+  ASSERT_EQ(gather.exit_code, 0) << gather.output;
+  EXPECT_TRUE(same_bits(spectral_pixels(dir / "eye.exr", nullptr),
+                        spectral_pixels(dir / "gather.exr", nullptr)));
+  EXPECT_FALSE(same_bits(spectral_pixels(dir / "gather.filtered.exr", nullptr),
+                         spectral_pixels(dir / "gather.exr", nullptr)));
+  auto gather_report = nlohmann::json::parse(*prism::base::read_file(dir / "gather.json"));
+  EXPECT_EQ(gather_report["filtered"]["method"], "gather");
+  EXPECT_EQ(gather_report["filtered"]["width_nm"], 100.0);
+  EXPECT_GT(gather_report["filtered"]["pixels_filtered"].get<std::uint64_t>(), 0u);
 }
 
 TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {

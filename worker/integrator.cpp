@@ -1,5 +1,6 @@
 #include "worker/integrator.h"
 
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -9,6 +10,7 @@
 #include "worker/light.h"
 #include "worker/material.h"
 #include "worker/medium.h"
+#include "worker/path_differential.h"
 #include "worker/sample_layout.h"
 #include "worker/shadow_ray.h"
 
@@ -59,6 +61,13 @@ struct PathState {
   // first scattering, 1 after a non-delta first vertex, 2 once a delta vertex followed it (and
   // only delta ones since), −1 outside it.
   int caustic_chain = 0;
+  // Gathering: the first vertex (the caustic's receiver) and the delta vertices after it while
+  // the path is in that class; `chain_size` past the array: too long to replay.
+  SurfaceHit receiver;
+  std::array<ChainVertex, 8> chain;
+  int chain_size = 0;
+  // The caustic events' offset sums (SampleContribution::offset), before the filter's weight.
+  double offset[6] = {0, 0, 0, 0, 0, 0};
 
   explicit PathState(const SampledWavelengths& l) : lambda(l), lambda_prev(l) {}
 };
@@ -103,7 +112,30 @@ class CameraPath {
         denominator += state.r_prev[k] * p_light / state.pdf_since_prev;
       }
     }
-    if (denominator > 0) state.radiance += state.beta * le / denominator;
+    if (!(denominator > 0)) return;
+    const SampledSpectrum added = state.beta * le / denominator;
+    state.radiance += added;
+    if (state.caustic_chain == 2 && gathers_ && hit != nullptr) record_offset(added, hit->p);
+  }
+
+  // Gathering: the caustic event's offset on the film, weighted by what it added over its lanes.
+  void record_offset(const SampledSpectrum& added, const Vec3f& emitter) {
+    if (state.chain_size < 1 || state.chain_size > int(state.chain.size())) return;
+    double w = 0;
+    for (int s = 0; s < lanes_; ++s) {
+      const float pdf = state.lambda.pdf(s);
+      if (pdf > 0) w += double(added[s]) / pdf;
+    }
+    if (!(w > 0) || !std::isfinite(w)) return;
+    auto dp = receiver_offset(scene_.geometry(), state.receiver,
+                              std::span<const ChainVertex>(state.chain.data(), state.chain_size),
+                              emitter, state.lambda.lambda(0));
+    if (!dp) return;
+    const Point2f d = scene_.camera().raster_differential(state.receiver.p, *dp);
+    if (!std::isfinite(d.x) || !std::isfinite(d.y)) return;
+    const double dx = d.x, dy = d.y;
+    const double terms[6] = {w, w * dx, w * dy, w * dx * dx, w * dy * dy, w * dx * dy};
+    for (int i = 0; i < 6; ++i) state.offset[i] += terms[i];
   }
 
   // The environment seen along an escaping ray.
@@ -233,8 +265,8 @@ class CameraPath {
   // Scattering at a surface vertex: NEE (unless the BSDF is specular), then the BSDF's sampled
   // direction becomes `ray`. False when the path ends here. `roulette_u` receives the number
   // Russian roulette reads after this vertex (it shares its pair with the lobe choice).
-  bool scatter_at_surface(const Bsdf& bsdf, const SurfaceHit& hit, const ShapeInfo& info,
-                          std::uint32_t dim, Ray& ray, float* roulette_u) {
+  bool scatter_at_surface(const Bsdf& bsdf, const Material& material, const SurfaceHit& hit,
+                          const ShapeInfo& info, std::uint32_t dim, Ray& ray, float* roulette_u) {
     const Geometry& geometry = scene_.geometry();
     Frame frame = Frame::from_xz(hit.dpdu, hit.ns);
     Vec3f wo = frame.to_local(-ray.direction);
@@ -262,14 +294,26 @@ class CameraPath {
     const bool delta_vertex = is_specular(bsdf);
     if (state.caustic_chain == 0) {
       state.caustic_chain = delta_vertex ? -1 : 1;
+      if (gathers_ && !delta_vertex) {
+        state.receiver = hit;
+        state.chain_size = 0;
+      }
     } else if (state.caustic_chain > 0) {
       state.caustic_chain = delta_vertex ? 2 : -1;
     }
+    const bool in_chain = gathers_ && state.caustic_chain == 2;
     state.beta *= bs->f * (abs_cos_theta(bs->wi) / bs->pdf[0]);
     state.r *= over_hero(bs->pdf);
     if (bs->hero_only) terminate_secondary();
     if (state.beta.is_zero()) return false;
     Vec3f wi = frame.from_local(bs->wi);
+    if (in_chain) {
+      if (state.chain_size < int(state.chain.size())) {
+        state.chain[std::size_t(state.chain_size)] =
+            ChainVertex{hit, &material, ray.direction, wi, bs->transmission};
+      }
+      ++state.chain_size;
+    }
     if (bs->transmission) {
       state.eta_scale *= bs->etap * bs->etap;
       if (info.medium_transition) {
@@ -336,6 +380,9 @@ class CameraPath {
       if (out.bin[s] < 0) out.bin[s] = 0;
     }
     if (!finite) ++counters_.non_finite;
+    if (finite && state.offset[0] > 0) {
+      for (int i = 0; i < 6; ++i) out.offset[i] = state.offset[i] * std::abs(filter_weight);
+    }
     return out;
   }
 
@@ -345,6 +392,9 @@ class CameraPath {
   const Sampler& sampler_;
   const int lanes_;
   const bool early_stop_;
+  // Gathering: record the caustic events' spectral offsets (RenderOptions::gathers; never with
+  // --caustics light, whose light paths take those events).
+  const bool gathers_ = scene_.options().gathers() && !scene_.options().light_caustics;
 
  public:
   PathState state;
@@ -444,7 +494,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     // terminates the others when it makes the BSDF, before next-event estimation).
     if (terminates_secondary(material)) path.terminate_secondary();
     float roulette_u = 0;
-    if (!path.scatter_at_surface(*bsdf, *hit, info, dim, ray, &roulette_u)) break;
+    if (!path.scatter_at_surface(*bsdf, material, *hit, info, dim, ray, &roulette_u)) break;
     ++depth;
     crossings = 0;
     if (depth >= options.rr_min_depth && !path.survives_roulette(roulette_u)) break;

@@ -50,6 +50,13 @@ struct SampleContribution {
   // r̄ the sRGB matching functions (pbrt-v4's cie1931 sensor, no division by the Y integral): what
   // the RGB outputs average, so that they do not depend on the bins. 0 when not finite.
   double rgb[3] = {0, 0, 0};
+  // Gathering (RenderOptions::gather_width_nm): the caustic events' spectral offsets on the
+  // film, d(raster)/dλ in pixels per nm, as the sums of TileBuffers::offsets (Σw, Σw·dx, Σw·dy,
+  // Σw·dx², Σw·dy², Σw·dx·dy) with w the event's contribution over its lanes, times |filter
+  // weight|. A caustic event: the camera's first vertex y is not a delta, every later one is, one
+  // of them refracts dispersively, and the path finds an area light's emission; its offset is how
+  // y would move per nm for the same light point (path_differential.h's receiver_offset).
+  double offset[6] = {0, 0, 0, 0, 0, 0};
 };
 
 // Event counts for reports (rays traced, paths terminated by Russian roulette, ...); summed

@@ -45,7 +45,12 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
       gradient_.has_value() && !task.prepass ? &*gradient_ : nullptr;
   const TraceOptions trace_options{task.prepass ? job::kPrepassLanes : 0, task.early_stop};
   image::TileBuffers buffers;
-  buffers.guides = task.want_guides;
+  // Gathering's final pass records the caustic events' offsets, and the guides its filter's
+  // bilateral weights compare.
+  const bool gathers = scene_.options().gathers() && !task.prepass && !gradient_.has_value();
+  const bool want_guides = task.want_guides || gathers;
+  buffers.guides = want_guides;
+  buffers.offsets = gathers;
   buffers.gradients = gradient != nullptr;
   buffers.halves = gradient != nullptr && scene_.options().gradient_variances;
   // The final pass's RGB comes from each sample's exact wavelengths, not from the bins.
@@ -75,6 +80,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
   auto half_counts = result.mutable_half_counts();
   auto rgb_sums = result.mutable_rgb_sums();
   auto rgb_squares = result.mutable_rgb_squares();
+  auto offsets = result.mutable_offsets();
 
   // Each pixel is owned by one thread and its samples are added in index order, so every
   // double in the result is the same whatever the scheduling.
@@ -121,7 +127,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
             GuideValues guide;
             if (gradient != nullptr) {
               GradientSample g = gradient->trace(x, y, task.pass, std::uint32_t(s), lambda_pdf,
-                                                 local, task.want_guides ? &guide : nullptr);
+                                                 local, want_guides ? &guide : nullptr);
               if (g.primal != 0.0f) {
                 const double v = g.primal;
                 pixel_sums[g.bin] += v;
@@ -150,7 +156,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
                   half_gradient_squares[o + g.bin_below] += g2_below;
                 }
               }
-              if (task.want_guides) {
+              if (want_guides) {
                 depth_sum += guide.depth;
                 normal_sum += guide.normal;
                 albedo_sum += guide.albedo;
@@ -160,8 +166,12 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
             }
             SampleContribution c =
                 integrator_.trace(x, y, task.pass, std::uint32_t(s), lambda_pdf, local,
-                                  task.want_guides ? &guide : nullptr, trace_options);
+                                  want_guides ? &guide : nullptr, trace_options);
             add_rgb(c.rgb);
+            if (gathers && c.offset[0] > 0) {
+              const std::size_t o = std::size_t(index) * image::kOffsetValues;
+              for (int i = 0; i < image::kOffsetValues; ++i) offsets[o + i] += c.offset[i];
+            }
             // Lanes that land in the same bin form one value of this sample for that bin, so
             // the sum of squares is that of per-sample bin values.
             for (int lane = 0; lane < c.lanes; ++lane) sample_values[c.bin[lane]] += c.value[lane];
@@ -173,7 +183,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
                 v = 0.0;
               }
             }
-            if (task.want_guides) {
+            if (want_guides) {
               depth_sum += guide.depth;
               normal_sum += guide.normal;
               albedo_sum += guide.albedo;
@@ -185,7 +195,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
             // The even indices in [s0, s1).
             half_counts[std::size_t(index)] = (task.samples.s1 + 1) / 2 - (task.samples.s0 + 1) / 2;
           }
-          if (task.want_guides && guide_count > 0) {
+          if (want_guides && guide_count > 0) {
             result.add_guides(x, y, depth_sum, normal_sum.x, normal_sum.y, normal_sum.z,
                               albedo_sum);
           }

@@ -372,6 +372,21 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
     }
     p.render.splat_width_nm = spec.splat_width();
   }
+  if (spec.gather_width() != 0.0f) {
+    if (!(spec.gather_width() >= kMinSplatWidthNm && spec.gather_width() <= kMaxSplatWidthNm)) {
+      return absl::InvalidArgumentError(absl::StrCat("gather_width ", spec.gather_width(),
+                                                     " nm is out of range: want ", kMinSplatWidthNm,
+                                                     "..", kMaxSplatWidthNm));
+    }
+    if ((p.render.integrator != IntegratorKind::kHero &&
+         p.render.integrator != IntegratorKind::kUniform) ||
+        p.render.light_caustics) {
+      return absl::InvalidArgumentError(
+          "gather_width filters eye-traced images: it needs the hero or the uniform integrator "
+          "without light_caustics (light paths have splat_width)");
+    }
+    p.render.gather_width_nm = spec.gather_width();
+  }
   if (p.render.traces_light_paths()) {
     // sums, squares, R, G, B and their squares, counts; a filtered image's sums and R, G, B.
     const std::uint64_t per_pixel =
@@ -511,6 +526,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   spec.set_spectral_light_selection(p.render.spectral_light_selection);
   spec.set_light_caustics(p.render.light_caustics);
   spec.set_splat_width(p.render.splat_width_nm);
+  spec.set_gather_width(p.render.gather_width_nm);
   spec.set_spp(static_cast<std::uint32_t>(p.spp));
   if (p.auto_choice.has_value()) {
     prism::v1::AutoChoice* a = spec.mutable_auto_choice();

@@ -237,6 +237,20 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_splat_width(std::nanf(""));
        },
        "splat_width nan nm is out of range"},
+      {"gather_with_light",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_LIGHT);
+         s.set_gather_width(50.0f);
+       },
+       "gather_width filters eye-traced images: it needs the hero or the uniform integrator"},
+      {"gather_with_caustics",
+       [](prism::v1::JobSpec& s) {
+         s.set_light_caustics(true);
+         s.set_gather_width(50.0f);
+       },
+       "without light_caustics"},
+      {"gather_width_range", [](prism::v1::JobSpec& s) { s.set_gather_width(-3.0f); },
+       "gather_width -3 nm is out of range: want 0.1..470"},
       {"caustics_with_gradient",
        [](prism::v1::JobSpec& s) {
          s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);

@@ -88,11 +88,18 @@ struct RenderOptions {
   // Differential splatting of the light paths (§6.1) when > 0: Δλ in nm at sample 0, shrinking
   // as (s + 1)^(-1/5); also a filtered image beside the unbiased one (TileBuffers::filtered).
   float splat_width_nm = 0;
+  // Gathering (§6.2) for eye-traced jobs when > 0: eye paths record each caustic event's
+  // spectral offset on the film, and the coordinator filters the image along each pixel's mean
+  // offset over ±Δλ, Δλ = gather_width_nm·spp^(−1/5), into the filtered image.
+  float gather_width_nm = 0;
 
   int lanes() const { return integrator == IntegratorKind::kHero ? 4 : 1; }
   // Light paths splat over the whole film, so such a job's task is the whole image.
   bool traces_light_paths() const { return integrator == IntegratorKind::kLight || light_caustics; }
   bool splats_differentials() const { return splat_width_nm > 0; }
+  bool gathers() const { return gather_width_nm > 0; }
+  // Either filter: the job writes a filtered image.
+  bool filters() const { return splats_differentials() || gathers(); }
 };
 
 // Range of RenderOptions::splat_width_nm when on, and the CLI's default.
