@@ -160,13 +160,24 @@ absl::StatusOr<RenderCommandOptions> method_options(const std::string& method,
   } else if (method == "hero+caustics") {
     o.integrator = "hero";
     o.caustics = "light";
+  } else if (method == "light+splat") {
+    o.integrator = "light";
+    o.splat_width = job::kDefaultSplatWidthNm;
+  } else if (method == "hero+caustics+splat") {
+    o.integrator = "hero";
+    o.caustics = "light";
+    o.splat_width = job::kDefaultSplatWidthNm;
+  } else if (method == "hero+gather") {
+    o.integrator = "hero";
+    o.gather_width = job::kDefaultSplatWidthNm;
   } else if (method == "auto") {
     o.integrator = "auto";
     o.prepass.reset();
   } else {
     return absl::InvalidArgumentError(absl::StrCat("--methods: unknown method '", method,
                                                    "' (choose from uniform, hero, hero+prepass, "
-                                                   "gradient, light, hero+caustics, auto)"));
+                                                   "gradient, light, hero+caustics, light+splat, "
+                                                   "hero+caustics+splat, hero+gather, auto)"));
   }
   return o;
 }
@@ -769,10 +780,16 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
               cost.add(spp, t.on(options.clock));
             }
           }
+          // The splatting and gathering methods are judged by their filtered image.
+          const bool filtered = mo.splat_width.has_value() || mo.gather_width.has_value();
+          if (filtered && !t.result.filtered.has_value()) {
+            return absl::InternalError(absl::StrCat(method, " rendered no filtered image"));
+          }
+          const image::SpectralImage& judged = filtered ? *t.result.filtered : t.result.image;
           for (std::size_t ri = 0; ri < regions.size(); ++ri) {
             PRISM_ASSIGN_OR_RETURN(
                 image::ErrorMetrics m,
-                image::compare_spectral(t.result.image, reference->image, regions[ri].second));
+                image::compare_spectral(judged, reference->image, regions[ri].second));
             BenchRow row;
             row.scene = stem;
             row.method = method;

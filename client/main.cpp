@@ -90,8 +90,9 @@ int main(int argc, char** argv) {
   bench_cmd->add_option("scenes", bench.scenes, "pbrt-v4 scene files")->required();
   bench_cmd->add_option(
       "--methods", bench.methods,
-      "Comma-separated: uniform, hero, hero+prepass, gradient, light, hero+caustics, auto "
-      "(default: uniform, hero, hero+prepass, gradient, auto)");
+      "Comma-separated: uniform, hero, hero+prepass, gradient, light, hero+caustics, "
+      "light+splat, hero+caustics+splat, hero+gather (these three judged by their filtered "
+      "image), auto (default: uniform, hero, hero+prepass, gradient, auto)");
   auto* budgets_opt = bench_cmd->add_option(
       "--budgets", bench.budgets, "Time budgets per render, e.g. 10s,30s,2m (default 10s,30s)");
   auto* bench_spp_opt =

@@ -495,22 +495,24 @@ TEST(RenderCliTest, UnsupportedFeaturesRenderOnlyWhenAllowedAndTheReportListsThe
 // `prism bench` on a small scene: every method, budget, seed and region has a row with finite
 // errors and a known noise floor; the report and both plots are written; a second run against
 // the cached reference file finds the same floor; bad flags fail before rendering.
-// The light tracer and hero with light-traced caustics are bench methods too.
+// The light tracer, hero with light-traced caustics and the filtered methods are bench methods
+// too.
 TEST(RenderCliTest, BenchMeasuresTheLightPathMethods) {
   const fs::path dir = fresh_dir("bench_light");
   CommandRun run =
       run_prism(dir, {"bench", source("scenes/slit-prism.pbrt"), "--resolution", "32x24",
-                      "--methods", "hero,light,hero+caustics", "--spp", "4", "--seeds", "1",
-                      "--reference-spp", "16", "--threads", "2", "-o", "out"});
+                      "--methods", "hero,light,hero+caustics,light+splat,hero+gather", "--spp", "4",
+                      "--seeds", "1", "--reference-spp", "16", "--threads", "2", "-o", "out"});
   ASSERT_EQ(run.exit_code, 0) << run.output;
   auto csv = prism::base::read_file(dir / "out" / "results.csv");
   ASSERT_TRUE(csv.ok()) << csv.status();
   const auto rows = csv_rows(*csv);
-  ASSERT_EQ(rows.size(), 4u) << *csv;  // a header and one row per method
+  ASSERT_EQ(rows.size(), 6u) << *csv;  // a header and one row per method
   const auto method = std::find(rows[0].begin(), rows[0].end(), "method") - rows[0].begin();
   std::set<std::string> methods;
   for (std::size_t i = 1; i < rows.size(); ++i) methods.insert(rows[i][method]);
-  EXPECT_EQ(methods, (std::set<std::string>{"hero", "light", "hero+caustics"}));
+  EXPECT_EQ(methods, (std::set<std::string>{"hero", "light", "hero+caustics", "light+splat",
+                                            "hero+gather"}));
 }
 
 // --splat (and --gather) write the filtered image beside the unbiased one, which they leave bit

@@ -385,6 +385,11 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
           "gather_width filters eye-traced images: it needs the hero or the uniform integrator "
           "without light_caustics (light paths have splat_width)");
     }
+    if (spec.target_error() != 0.0f) {
+      return absl::InvalidArgumentError(
+          "gather_width does not combine with a target_error yet (the filter runs once over the "
+          "finished image)");
+    }
     p.render.gather_width_nm = spec.gather_width();
   }
   if (p.render.traces_light_paths()) {

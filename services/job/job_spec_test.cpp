@@ -249,6 +249,12 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_gather_width(50.0f);
        },
        "without light_caustics"},
+      {"gather_with_target_error",
+       [](prism::v1::JobSpec& s) {
+         s.set_gather_width(50.0f);
+         s.set_target_error(0.05f);
+       },
+       "gather_width does not combine with a target_error yet"},
       {"gather_width_range", [](prism::v1::JobSpec& s) { s.set_gather_width(-3.0f); },
        "gather_width -3 nm is out of range: want 0.1..470"},
       {"caustics_with_gradient",
