@@ -215,39 +215,20 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   } else if (p.render.gathers()) {
     // Gathering filters the whole image at once: its bins, counts, offsets and guides, made
     // tile by tile from the files.
-    const std::size_t pixels = std::size_t(p.width) * std::size_t(p.height);
     PRISM_ASSIGN_OR_RETURN(image::SpectralImage whole,
                            image::SpectralImage::create(p.width, p.height, p.render.bins));
-    std::vector<std::uint64_t> counts(pixels);
-    std::vector<double> offsets(pixels * image::kOffsetValues);
-    std::vector<float> depth(pixels), normals(pixels * 3);
+    GatherImages inputs(p.width, p.height);
     for (std::size_t t = 0; t < job.plan.tiles.size(); ++t) {
       PRISM_ASSIGN_OR_RETURN(image::TileResult merged, job.tiles->get(static_cast<int>(t)));
-      if (!merged.has_offsets() || !merged.has_guides()) {
-        return absl::InternalError(absl::StrCat("tile ", image::to_string(merged.rect()),
-                                                " has no offsets or guides to gather with"));
-      }
+      PRISM_RETURN_IF_ERROR(inputs.add_tile(merged));
       PRISM_ASSIGN_OR_RETURN(image::SpectralImage finalised, job.finalise(merged));
-      const image::TileRect& r = merged.rect();
-      PRISM_RETURN_IF_ERROR(image::paste_tile(finalised, r, whole));
-      for (int y = r.y0; y < r.y1; ++y) {
-        for (int x = r.x0; x < r.x1; ++x) {
-          const std::size_t i = std::size_t(y - r.y0) * r.width() + (x - r.x0);
-          const std::size_t o = std::size_t(y) * p.width + x;
-          counts[o] = merged.counts()[i];
-          for (int k = 0; k < image::kOffsetValues; ++k) {
-            offsets[o * image::kOffsetValues + k] = merged.offsets()[i * image::kOffsetValues + k];
-          }
-          depth[o] = merged.depth()[i];
-          for (int k = 0; k < 3; ++k) normals[o * 3 + k] = merged.normals()[i * 3 + k];
-        }
-      }
+      PRISM_RETURN_IF_ERROR(image::paste_tile(finalised, merged.rect(), whole));
     }
     GatherStats gathered;
     PRISM_ASSIGN_OR_RETURN(
         image::SpectralImage filtered,
-        gather_filter({&whole, counts, offsets, depth, normals},
-                      gather_width_at(p.render.gather_width_nm, report.spp), &gathered));
+        gather_filter(inputs.inputs(whole), gather_width_at(p.render.gather_width_nm, report.spp),
+                      &gathered));
     PRISM_ASSIGN_OR_RETURN(image::RgbImage filtered_rgb, to_linear_srgb(filtered, cmf_));
     if (report.filtered.has_value()) {
       report.filtered->pixels_with_offsets = gathered.pixels_with_offsets;

@@ -27,6 +27,38 @@ struct Guide {
 
 }  // namespace
 
+GatherImages::GatherImages(int width, int height)
+    : width_(width),
+      counts_(std::size_t(width) * height),
+      offsets_(std::size_t(width) * height * image::kOffsetValues),
+      depth_(std::size_t(width) * height),
+      normals_(std::size_t(width) * height * 3) {}
+
+absl::Status GatherImages::add_tile(const image::TileResult& merged) {
+  const image::TileRect& r = merged.rect();
+  if (!merged.has_offsets() || !merged.has_guides()) {
+    return absl::InternalError(
+        absl::StrCat("tile ", image::to_string(r), " has no offsets or guides to gather with"));
+  }
+  if (r.x0 < 0 || r.y0 < 0 || r.x1 > width_ ||
+      std::size_t(r.y1) * std::size_t(width_) > counts_.size()) {
+    return absl::InternalError(absl::StrCat("tile ", image::to_string(r), " is outside the image"));
+  }
+  for (int y = r.y0; y < r.y1; ++y) {
+    for (int x = r.x0; x < r.x1; ++x) {
+      const std::size_t t = std::size_t(y - r.y0) * r.width() + (x - r.x0);
+      const std::size_t p = std::size_t(y) * width_ + x;
+      counts_[p] = merged.counts()[t];
+      for (int i = 0; i < image::kOffsetValues; ++i) {
+        offsets_[p * image::kOffsetValues + i] = merged.offsets()[t * image::kOffsetValues + i];
+      }
+      depth_[p] = merged.depth()[t];
+      for (int i = 0; i < 3; ++i) normals_[p * 3 + i] = merged.normals()[t * 3 + i];
+    }
+  }
+  return absl::OkStatus();
+}
+
 double gather_width_at(float width_nm, std::uint64_t spp) {
   return double(width_nm) * std::pow(double(std::max<std::uint64_t>(spp, 1)), -0.2);
 }

@@ -16,6 +16,7 @@
 #pragma once
 
 #include <span>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "services/image/tile.h"
@@ -42,6 +43,24 @@ struct GatherStats {
 // INVALID_ARGUMENT when the spans do not match the image's size or width_nm is not positive.
 absl::StatusOr<image::SpectralImage> gather_filter(const GatherInputs& inputs, double width_nm,
                                                    GatherStats* stats = nullptr);
+
+// Gathering's full-image inputs besides the image, assembled from finished tiles in any order
+// (each tile writes its own pixels).
+class GatherImages {
+ public:
+  GatherImages(int width, int height);
+  // Copies the tile's counts, offsets and guides; INTERNAL when it has no offsets or guides.
+  absl::Status add_tile(const image::TileResult& merged);
+  GatherInputs inputs(const image::SpectralImage& image) const {
+    return {&image, counts_, offsets_, depth_, normals_};
+  }
+
+ private:
+  int width_;
+  std::vector<std::uint64_t> counts_;
+  std::vector<double> offsets_;
+  std::vector<float> depth_, normals_;
+};
 
 // Δλ at the end of a job of `spp` samples: width·spp^(−1/5).
 double gather_width_at(float width_nm, std::uint64_t spp);

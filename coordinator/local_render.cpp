@@ -251,11 +251,8 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   std::optional<image::RgbImage> filtered_rgb;
   // Gathering's full-image inputs, pasted tile by tile (gather.h).
   const bool gathers = options_.render.gathers();
-  const std::size_t pixel_count = std::size_t(options_.width) * std::size_t(options_.height);
-  std::vector<std::uint64_t> gather_counts(gathers ? pixel_count : 0);
-  std::vector<double> gather_offsets(gathers ? pixel_count * image::kOffsetValues : 0);
-  std::vector<float> gather_depth(gathers ? pixel_count : 0);
-  std::vector<float> gather_normals(gathers ? pixel_count * 3 : 0);
+  std::optional<GatherImages> gather_images;
+  if (gathers) gather_images.emplace(options_.width, options_.height);
   if (options_.render.splats_differentials()) {
     PRISM_ASSIGN_OR_RETURN(filtered,
                            image::SpectralImage::create(options_.width, options_.height, bins));
@@ -354,26 +351,7 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
       PRISM_RETURN_IF_ERROR(
           image::paste_tile(image::finalise_gradients(merged), merged.rect(), *gradient));
     }
-    if (gathers) {
-      if (!merged.has_offsets() || !merged.has_guides()) {
-        return absl::InternalError(absl::StrCat("tile ", image::to_string(merged.rect()),
-                                                " came back without its offsets or guides"));
-      }
-      const image::TileRect& r = merged.rect();
-      for (int y = r.y0; y < r.y1; ++y) {
-        for (int x = r.x0; x < r.x1; ++x) {
-          const std::size_t t = std::size_t(y - r.y0) * r.width() + (x - r.x0);
-          const std::size_t p = std::size_t(y) * options_.width + x;
-          gather_counts[p] = merged.counts()[t];
-          for (int i = 0; i < image::kOffsetValues; ++i) {
-            gather_offsets[p * image::kOffsetValues + i] =
-                merged.offsets()[t * image::kOffsetValues + i];
-          }
-          gather_depth[p] = merged.depth()[t];
-          for (int i = 0; i < 3; ++i) gather_normals[p * 3 + i] = merged.normals()[t * 3 + i];
-        }
-      }
-    }
+    if (gathers) PRISM_RETURN_IF_ERROR(gather_images->add_tile(merged));
     if (filtered.has_value()) {
       if (!merged.has_filtered()) {
         return absl::InternalError(absl::StrCat("tile ", image::to_string(merged.rect()),
@@ -489,11 +467,8 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
     GatherStats gathered;
     PRISM_ASSIGN_OR_RETURN(
         filtered,
-        gather_filter(
-            {&image, gather_counts, gather_offsets, gather_depth, gather_normals},
-            gather_width_at(options_.render.gather_width_nm,
-                            stats.target_error ? stats.target_error->max_spp : options_.spp),
-            &gathered));
+        gather_filter(gather_images->inputs(image),
+                      gather_width_at(options_.render.gather_width_nm, options_.spp), &gathered));
     PRISM_ASSIGN_OR_RETURN(filtered_rgb, to_linear_srgb(*filtered, scene_->cmf()));
     stats.gather = gathered;
   }

@@ -360,12 +360,15 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   }
 
   p.render.light_caustics = spec.light_caustics();
+  // The filters' widths (splat_width, gather_width): 0 (off) or nm in range.
+  auto check_width = [](const char* field, float nm) -> absl::Status {
+    if (nm == 0.0f || (nm >= kMinSplatWidthNm && nm <= kMaxSplatWidthNm)) return absl::OkStatus();
+    return absl::InvalidArgumentError(absl::StrCat(field, " ", nm, " nm is out of range: want ",
+                                                   kMinSplatWidthNm, "..", kMaxSplatWidthNm));
+  };
+  PRISM_RETURN_IF_ERROR(check_width("splat_width", spec.splat_width()));
+  PRISM_RETURN_IF_ERROR(check_width("gather_width", spec.gather_width()));
   if (spec.splat_width() != 0.0f) {
-    if (!(spec.splat_width() >= kMinSplatWidthNm && spec.splat_width() <= kMaxSplatWidthNm)) {
-      return absl::InvalidArgumentError(absl::StrCat("splat_width ", spec.splat_width(),
-                                                     " nm is out of range: want ", kMinSplatWidthNm,
-                                                     "..", kMaxSplatWidthNm));
-    }
     if (!p.render.traces_light_paths()) {
       return absl::InvalidArgumentError(
           "splat_width splats light paths: it needs the light integrator or light_caustics");
@@ -373,11 +376,6 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
     p.render.splat_width_nm = spec.splat_width();
   }
   if (spec.gather_width() != 0.0f) {
-    if (!(spec.gather_width() >= kMinSplatWidthNm && spec.gather_width() <= kMaxSplatWidthNm)) {
-      return absl::InvalidArgumentError(absl::StrCat("gather_width ", spec.gather_width(),
-                                                     " nm is out of range: want ", kMinSplatWidthNm,
-                                                     "..", kMaxSplatWidthNm));
-    }
     if ((p.render.integrator != IntegratorKind::kHero &&
          p.render.integrator != IntegratorKind::kUniform) ||
         p.render.light_caustics) {
