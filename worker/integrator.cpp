@@ -1,6 +1,5 @@
 #include "worker/integrator.h"
 
-#include <array>
 #include <cmath>
 #include <limits>
 
@@ -62,10 +61,12 @@ struct PathState {
   // only delta ones since), −1 outside it.
   int caustic_chain = 0;
   // Gathering: the first vertex (the caustic's receiver) and the delta vertices after it while
-  // the path is in that class; `chain_size` past the array: too long to replay.
+  // the path is in that class (a vector, empty and unallocated unless the job gathers); more
+  // than kMaxChain of them: too long to replay.
+  static constexpr std::size_t kMaxChain = 8;
   SurfaceHit receiver;
-  std::array<ChainVertex, 8> chain;
-  int chain_size = 0;
+  std::vector<ChainVertex> chain;
+  bool chain_too_long = false;
   // The caustic events' offset sums (SampleContribution::offset), before the filter's weight.
   double offset[6] = {0, 0, 0, 0, 0, 0};
 
@@ -120,16 +121,15 @@ class CameraPath {
 
   // Gathering: the caustic event's offset on the film, weighted by what it added over its lanes.
   void record_offset(const SampledSpectrum& added, const Vec3f& emitter) {
-    if (state.chain_size < 1 || state.chain_size > int(state.chain.size())) return;
+    if (state.chain.empty() || state.chain_too_long) return;
     double w = 0;
     for (int s = 0; s < lanes_; ++s) {
       const float pdf = state.lambda.pdf(s);
       if (pdf > 0) w += double(added[s]) / pdf;
     }
     if (!(w > 0) || !std::isfinite(w)) return;
-    auto dp = receiver_offset(scene_.geometry(), state.receiver,
-                              std::span<const ChainVertex>(state.chain.data(), state.chain_size),
-                              emitter, state.lambda.lambda(0));
+    auto dp = receiver_offset(scene_.geometry(), state.receiver, state.chain, emitter,
+                              state.lambda.lambda(0));
     if (!dp) return;
     const Point2f d = scene_.camera().raster_differential(state.receiver.p, *dp);
     if (!std::isfinite(d.x) || !std::isfinite(d.y)) return;
@@ -296,7 +296,8 @@ class CameraPath {
       state.caustic_chain = delta_vertex ? -1 : 1;
       if (gathers_ && !delta_vertex) {
         state.receiver = hit;
-        state.chain_size = 0;
+        state.chain.clear();
+        state.chain_too_long = false;
       }
     } else if (state.caustic_chain > 0) {
       state.caustic_chain = delta_vertex ? 2 : -1;
@@ -308,11 +309,11 @@ class CameraPath {
     if (state.beta.is_zero()) return false;
     Vec3f wi = frame.from_local(bs->wi);
     if (in_chain) {
-      if (state.chain_size < int(state.chain.size())) {
-        state.chain[std::size_t(state.chain_size)] =
-            ChainVertex{hit, &material, ray.direction, wi, bs->transmission};
+      if (state.chain.size() < PathState::kMaxChain) {
+        state.chain.push_back(ChainVertex{hit, &material, ray.direction, wi, bs->transmission});
+      } else {
+        state.chain_too_long = true;
       }
-      ++state.chain_size;
     }
     if (bs->transmission) {
       state.eta_scale *= bs->etap * bs->etap;
