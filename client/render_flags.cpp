@@ -14,7 +14,7 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   f.spp_opt = cmd.add_option("--spp", f.spp, "Samples per pixel (default: the scene's)");
   cmd.add_option("--integrator", o.integrator,
                  "auto (a pilot picks hero, gradient or uniform; hero where nothing depends on "
-                 "wavelength), uniform, hero, gradient or light (light paths to a pinhole "
+                 "wavelength), uniform, hero, gradient or light (light paths to a perspective "
                  "camera; --spp counts batches of one path per pixel) (default auto)");
   cmd.add_option("--caustics", o.caustics,
                  "off, or light: caustic paths (light, delta chain, the first non-delta surface "

@@ -31,9 +31,11 @@ constexpr int kWidth = 32, kHeight = 24, kBins = 8, kSeeds = 16;
 // `mirror` adds a smooth metal sphere beside the glass one (a second caustic caster whose cone,
 // seen from the lamp, overlaps the glass sphere's) and a sphere with a smooth coat over a diffuse
 // base (a BSDF that is not a delta but samples its coat's mirror reflection as one).
-std::string light_scene(const std::string& filter, bool caustic, bool mirror = false) {
-  std::string text = R"(LookAt 0 5 -4  0 0 0  0 1 0
-Camera "perspective" "float fov" 50
+std::string light_scene(const std::string& filter, bool caustic, bool mirror = false,
+                        bool lens = false) {
+  std::string text = std::string(R"(LookAt 0 5 -4  0 0 0  0 1 0
+Camera "perspective" "float fov" 50)") +
+                     (lens ? R"( "float lensradius" 0.2 "float focaldistance" 5.5)" : "") + R"(
 Film "spectral" "integer xresolution" 32 "integer yresolution" 24 "integer nbuckets" 8
 )" + filter + R"(
 WorldBegin
@@ -98,6 +100,9 @@ struct Case {
   // sphere's too (the eye paths see it).
   bool caustics_mode = false;
   bool mirror = false;
+  // A thin lens (radius 0.2, in focus at 5.5, about where the floor's middle is) instead of the
+  // pinhole: each connection samples its own lens point.
+  bool lens = false;
 };
 
 class LightTracingTest : public RenderFixtureBase<::testing::TestWithParam<Case>> {
@@ -127,8 +132,8 @@ class LightTracingTest : public RenderFixtureBase<::testing::TestWithParam<Case>
 };
 
 TEST_P(LightTracingTest, AgreesWithUniformPerBinAndRegion) {
-  auto scene = load("light_tracing.pbrt",
-                    light_scene(GetParam().filter, GetParam().caustic, GetParam().mirror));
+  auto scene = load("light_tracing.pbrt", light_scene(GetParam().filter, GetParam().caustic,
+                                                      GetParam().mirror, GetParam().lens));
   ASSERT_TRUE(scene.ok()) << scene.status();
   std::vector<bool> clear = clear_of_the_sphere(*scene);
   if (GetParam().caustics_mode) clear.assign(clear.size(), true);
@@ -347,13 +352,10 @@ Shape "trianglemesh" "point3 P" [-5 0 -5  5 0 -5  5 0 5  -5 0 5] "integer indice
     std::string text;
     const char* message;
   } cases[] = {
-      {"lens",
-       "LookAt 0 3 -3  0 0 0  0 1 0\nCamera \"perspective\" \"float lensradius\" 0.1 "
-       "\"float focaldistance\" 4\n" +
-           floor,
-       "pinhole camera"},
+      {"spherical", "LookAt 0 3 -3  0 0 0  0 1 0\nCamera \"spherical\"\n" + floor,
+       "perspective camera"},
       {"orthographic", "LookAt 0 3 -3  0 0 0  0 1 0\nCamera \"orthographic\"\n" + floor,
-       "pinhole camera"},
+       "perspective camera"},
       {"medium",
        "LookAt 0 3 -3  0 0 0  0 1 0\nCamera \"perspective\"\nMakeNamedMedium \"fog\" "
        "\"string type\" \"homogeneous\"\n" +
@@ -381,7 +383,9 @@ INSTANTIATE_TEST_SUITE_P(
                       Case{"CausticGaussian", "", true},
                       Case{"HeroWithLightCausticsDeltaLights", "", false, true},
                       Case{"HeroWithLightCausticsGlass", "PixelFilter \"box\"", true, true},
-                      Case{"HeroWithLightCausticsGlassAndMirror", "", true, true, true}),
+                      Case{"HeroWithLightCausticsGlassAndMirror", "", true, true, true},
+                      Case{"ThinLensDeltaLights", "", false, false, false, true},
+                      Case{"ThinLensCaustic", "PixelFilter \"box\"", true, false, false, true}),
     [](const ::testing::TestParamInfo<Case>& info) { return std::string(info.param.name); });
 
 }  // namespace

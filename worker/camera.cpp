@@ -89,17 +89,27 @@ absl::StatusOr<Camera> Camera::create(const scene::Camera& camera, int width, in
   return c;
 }
 
-std::optional<CameraConnection> Camera::connect(const Vec3f& p, float margin) const {
+std::optional<CameraConnection> Camera::connect(const Vec3f& p, float margin, Point2f lens) const {
   const scene::Vec3 q = camera_from_world_.apply_point({p.x, p.y, p.z});
   if (!(q[2] > 0.0)) return std::nullopt;
-  const double sx = q[0] / q[2], sy = q[1] / q[2];
+  // The lens point (the pinhole: the origin) and the ray from it through q.
+  double lx = 0.0, ly = 0.0;
+  if (lens_radius_ > 0.0) {
+    const Point2f d = sample_uniform_disk_concentric(lens);
+    lx = lens_radius_ * d.x;
+    ly = lens_radius_ * d.y;
+  }
+  const double vx = q[0] - lx, vy = q[1] - ly, vz = q[2];
+  // Where it meets z = f, over f: the z = 1 point whose pinhole ray every lens point aims at.
+  const double f = lens_radius_ > 0.0 ? focal_distance_ : 1.0;
+  const double sx = (lx + vx * f / vz) / f, sy = (ly + vy * f / vz) / f;
   const double rx = (sx - screen_x0_) / screen_dx_, ry = (sy - screen_y0_) / screen_dy_;
   if (!(rx >= -margin && rx < width_ + margin && ry >= -margin && ry < height_ + margin)) {
     return std::nullopt;
   }
   // cos θ in camera space (angles survive a similarity world_from_camera).
-  const double cos_theta = q[2] / std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
-  const scene::Vec3 o = world_from_camera_.apply_point({0.0, 0.0, 0.0});
+  const double cos_theta = vz / std::sqrt(vx * vx + vy * vy + vz * vz);
+  const scene::Vec3 o = world_from_camera_.apply_point({lx, ly, 0.0});
   const double dx = o[0] - p.x, dy = o[1] - p.y, dz = o[2] - p.z;
   const double distance = std::sqrt(dx * dx + dy * dy + dz * dz);
   if (!(distance > 0.0)) return std::nullopt;
@@ -107,6 +117,7 @@ std::optional<CameraConnection> Camera::connect(const Vec3f& p, float margin) co
   c.raster = {float(rx), float(ry)};
   c.to_camera = {float(dx / distance), float(dy / distance), float(dz / distance)};
   c.distance = float(distance);
+  c.lens_point = {float(o[0]), float(o[1]), float(o[2])};
   c.importance =
       float(1.0 / (std::abs(screen_dx_ * screen_dy_) * cos_theta * cos_theta * cos_theta));
   return c;

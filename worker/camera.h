@@ -29,6 +29,7 @@ struct CameraConnection {
   Vec3f to_camera;
   float distance = 0;
   float importance = 0;
+  Vec3f lens_point;  // where the connection meets the camera (the pinhole, or a lens point)
 };
 
 class Camera {
@@ -45,12 +46,19 @@ class Camera {
   int width() const { return width_; }
   int height() const { return height_; }
   Vec3f position() const;  // the pinhole (lens centre) in world space
-  // Whether connect() is defined: a perspective camera without a lens (a pinhole).
-  bool is_pinhole() const { return !orthographic_ && spherical_ == 0 && !(lens_radius_ > 0); }
-  // The pinhole connection to world point p (is_pinhole() must hold), or nullopt when p is behind
-  // the camera or its raster position is farther than `margin` pixels outside the film (a pixel
-  // filter of radius r reaches r − 0.5 beyond the film's edge).
-  std::optional<CameraConnection> connect(const Vec3f& p, float margin) const;
+  // Whether connect() is defined: a perspective camera, a pinhole or a thin lens.
+  bool is_perspective() const { return !orthographic_ && spherical_ == 0; }
+  bool is_pinhole() const { return is_perspective() && !(lens_radius_ > 0); }
+  // The connection to world point p through the lens point `lens` picks (in [0,1)², mapped as
+  // generate_ray maps it; ignored by a pinhole), or nullopt when p is behind the camera or its
+  // raster position is farther than `margin` pixels outside the film (a pixel filter of radius r
+  // reaches r − 0.5 beyond the film's edge). is_perspective() must hold. With a lens, the raster
+  // position is where the ray from the lens point through p meets the plane in focus, and the
+  // importance is the pinhole's with θ the angle of that ray: the eye estimate averages over the
+  // lens, and a lens point's rays cover the film as the pinhole's do (dω = dA₁·cos³θ).
+  std::optional<CameraConnection> connect(const Vec3f& p, float margin,
+                                          Point2f lens = {0.5f, 0.5f}) const;
+  bool has_lens() const { return lens_radius_ > 0; }
   // How p's raster position moves when p moves by dp (first order; p in front of the camera).
   Point2f raster_differential(const Vec3f& p, const Vec3f& dp) const;
   // The width in world units of one pixel's cone at p's depth (is_pinhole(); 0 behind the camera).

@@ -18,6 +18,8 @@
 //    footprint at g. A line that runs off its surface (over an edge, behind an occluder) gives
 //    nothing there. Off the film the term is 1 and the fragment lands nowhere (what the caustic
 //    sends out of the frame).
+// With a thin lens the line starts where the splat's own lens point put it and runs along the
+// lens centre's d(raster)/dλ (the receiver image is the lens centre's too).
 // A line whose fragments all weigh 0 lands as the point. Wavelengths outside the grid cut the
 // line short (t is limited so that λ + t·Δλ stays in the grid).
 //

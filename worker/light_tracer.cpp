@@ -30,10 +30,10 @@ Point2f to_point(const Point2& p) {
 }  // namespace
 
 absl::Status check_light_tracing(const RenderScene& scene) {
-  if (!scene.camera().is_pinhole()) {
+  if (!scene.camera().is_perspective()) {
     return absl::InvalidArgumentError(
-        "light paths (--integrator light, --caustics light) connect to a pinhole camera: use a "
-        "\"perspective\" camera without \"lensradius\", or render without light paths");
+        "light paths (--integrator light, --caustics light) connect to a perspective camera "
+        "(a pinhole or a thin lens): render this camera without them");
   }
   if (!scene.media().empty()) {
     return absl::InvalidArgumentError(
@@ -98,14 +98,18 @@ class LightPath {
   SampledWavelengths lambda;
   float beta = 0;  // the path's weight: f / p of everything sampled so far, importance-mode
   SpectralDifferential diff;
-  int light = -1;  // the emitting light's index
+  int light = -1;                  // the emitting light's index
+  std::uint32_t connections_ = 0;  // camera connections so far (their lens dimensions)
 
   // The contribution C of a vertex at p (geometric normal ng) that sends
   // `value_towards(to_camera)` towards the camera, per unit area of p: value · |ng·ω|/d² · W.
   template <typename ValueTowards>
   void connect(const Vec3f& p, const Vec3f& ng, ValueTowards&& value_towards) {
     const Camera& camera = scene_.camera();
-    auto c = camera.connect(p, margin_);
+    // A thin lens: each connection its own lens point, from dimensions of their own.
+    const Point2f lens =
+        camera.has_lens() ? to_point(sampler_.at2(kLensConnect + 2 * connections_++)) : Point2f{};
+    auto c = camera.connect(p, margin_, lens);
     if (!c) return;
     const float cos_p = std::abs(dot(ng, c->to_camera));
     const float value = value_towards(c->to_camera);
@@ -116,8 +120,8 @@ class LightPath {
       return;
     }
     const Vec3f origin = ng == Vec3f() ? p : scene_.geometry().offset_origin(p, ng, c->to_camera);
-    const Shadow shadow = trace_shadow(scene_, origin, c->to_camera, camera.position(), false, -1,
-                                       lambda, 1, counters_);
+    const Shadow shadow =
+        trace_shadow(scene_, origin, c->to_camera, c->lens_point, false, -1, lambda, 1, counters_);
     if (!(shadow.transmittance[0] > 0.0f)) return;
     const float visible = contribution * shadow.transmittance[0];
     const spectral::WavelengthGrid& grid = scene_.grid();

@@ -12,11 +12,11 @@
 // estimates W·H times the eye tracer's per-pixel radiance at the pixels it lands in, so a batch
 // of W·H paths is worth one sample per pixel (LightTaskRenderer divides by W·H).
 //
-// Limits, refused by check_light_tracing with the reason: a pinhole perspective camera only
-// (the connection needs a point camera; a thin lens would need its own lens sample), no
+// Limits, refused by check_light_tracing with the reason: a perspective camera only (a pinhole,
+// or a thin lens with a lens point of its own per connection: Camera::connect), no
 // participating media, no portal on the environment. What a light tracer cannot render at all
 // and an eye tracer can: whatever the camera sees through a delta BSDF (a mirror, smooth glass)
-// and the environment seen directly, since no light path can hit a pinhole. Those pixels stay
+// and the environment seen directly, since no light path can hit the camera. Those pixels stay
 // dark; `--caustics light` (hero plus light paths) is the combination that renders everything.
 //
 // With --caustics light (RenderOptions::light_caustics) a path connects only at its first

@@ -37,6 +37,8 @@ inline constexpr std::uint32_t kEmission = 6;  // 2D: the emitted direction
 inline constexpr std::uint32_t kBounce = 8;    // first dimension of bounce 0
 inline constexpr std::uint32_t kDimsPerBounce = 4;
 // Within a bounce: the scattered direction (2D) at 0, the lobe at 2, Russian roulette at 3.
+// A thin lens: connection i's lens point (2D) at kLensConnect + 2i.
+inline constexpr std::uint32_t kLensConnect = 1u << 16;
 }  // namespace light
 
 }  // namespace prism::worker::layout
