@@ -205,7 +205,9 @@ std::optional<Lease> Scheduler::acquire(const std::string& worker_id, Millis now
                   .worker_id = worker_id,
                   .attempt = task.counted_failures + 1,
                   .deadline = now + options_.lease_duration,
+                  .granted = now,
                   .task = Task{.job_id = job_id, .index = index, .spec = task.spec}};
+      ++counters_.leases_granted;
       task.state = TaskState::kLeased;
       task.current_lease = lease.id;
       job.pending.erase(index);
@@ -333,6 +335,7 @@ void Scheduler::tick(Millis now) {
     // Ending one job (attempt cap) ends its other leases, which may be further in the list.
     if (!record.current) continue;
     const Lease lease = record.lease;
+    ++counters_.lease_expiries;
     end_lease(record, absl::StrCat("it expired at ", lease.deadline.count(), " ms"));
     requeue(jobs_.at(lease.task.job_id), lease.task.job_id, lease.task.index, FailureClass::kWorker,
             lease.worker_id,
@@ -360,6 +363,7 @@ void Scheduler::tick(Millis now) {
       ++requeued;
     }
     workers_.erase(worker_id);
+    ++counters_.workers_lost;
     events_.push_back(
         {.kind = SchedulerEvent::Kind::kWorkerLost,
          .job_id = "",
@@ -369,6 +373,17 @@ void Scheduler::tick(Millis now) {
                                  " heartbeat intervals); requeued ", requeued,
                                  requeued == 1 ? " lease" : " leases")});
   }
+}
+
+TaskCounts Scheduler::task_counts() const {
+  TaskCounts counts;
+  for (const auto& [order, job_id] : job_order_) {
+    const JobRecord& job = jobs_.at(job_id);
+    counts.pending += job.pending.size();
+    counts.leased += std::uint64_t(job.leased);
+    counts.done += std::uint64_t(job.done);
+  }
+  return counts;
 }
 
 std::vector<SchedulerEvent> Scheduler::take_events() {
@@ -431,6 +446,19 @@ void Scheduler::requeue(JobRecord& job, const std::string& job_id, int index,
   TaskRecord& task = job.tasks[index];
   task.state = TaskState::kPending;
   job.pending.insert(index);
+  switch (failure_class) {
+    case FailureClass::kWorker:
+      ++counters_.retries_worker;
+      break;
+    case FailureClass::kInfrastructure:
+      ++counters_.retries_infrastructure;
+      break;
+    case FailureClass::kReturned:
+      ++counters_.retries_returned;
+      break;
+    case FailureClass::kScene:
+      break;
+  }
   if (failure_class == FailureClass::kWorker) {
     ++task.counted_failures;
     task.avoid_worker = worker_id;

@@ -106,6 +106,7 @@ struct Lease {
   std::string worker_id;
   int attempt = 1;  // 1 + counted (worker) failures of the task before this lease
   Millis deadline{0};
+  Millis granted{0};  // when acquire() handed it out
   Task task;
   friend bool operator==(const Lease&, const Lease&) = default;
 };
@@ -152,6 +153,25 @@ struct SchedulerEvent {
   std::string worker_id;  // kWorkerLost
   std::string message;    // kJobFailed: the failure; kWorkerLost: what was requeued
   friend bool operator==(const SchedulerEvent&, const SchedulerEvent&) = default;
+};
+
+// Running totals since the Scheduler was made, for the coordinator's metrics.
+struct SchedulerCounters {
+  std::uint64_t leases_granted = 0;
+  std::uint64_t lease_expiries = 0;  // leases that ran past their deadline
+  std::uint64_t workers_lost = 0;
+  // Tasks put back in the queue after their lease ended, by why: a worker fault (including
+  // expiries and lost workers), an infrastructure failure, or a draining worker handing it back.
+  std::uint64_t retries_worker = 0;
+  std::uint64_t retries_infrastructure = 0;
+  std::uint64_t retries_returned = 0;
+};
+
+// Tasks of the running jobs as they stand now.
+struct TaskCounts {
+  std::uint64_t pending = 0;
+  std::uint64_t leased = 0;
+  std::uint64_t done = 0;
 };
 
 struct WorkerInfo {
@@ -236,6 +256,9 @@ class Scheduler {
   std::optional<Lease> lease(const std::string& lease_id) const;
   // Registered workers, by id.
   std::vector<WorkerInfo> workers() const;
+  const SchedulerCounters& counters() const { return counters_; }
+  // Summed over the running jobs: O(jobs).
+  TaskCounts task_counts() const;
 
  private:
   enum class TaskState { kPending, kLeased, kDone, kDropped };
@@ -298,6 +321,7 @@ class Scheduler {
   std::map<std::uint64_t, std::string> current_leases_;  // by sequence number
   std::map<std::string, WorkerRecord> workers_;
   std::vector<SchedulerEvent> events_;
+  SchedulerCounters counters_;
 };
 
 }  // namespace prism::coordinator

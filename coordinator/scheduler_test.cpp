@@ -109,9 +109,14 @@ TEST(SchedulerTest, ExpiredLeaseIsRequeuedItsLateResultStaleAndTheNewOneAccepted
   EXPECT_EQ(s.progress("j")->leased, 0);
   EXPECT_EQ(s.progress("j")->pending, 1);
   EXPECT_TRUE(s.take_events().empty()) << "an expiry is not a worker loss";
+  EXPECT_EQ(s.counters().lease_expiries, 1u);
+  EXPECT_EQ(s.counters().retries_worker, 1u);
+  EXPECT_EQ(s.counters().workers_lost, 0u);
 
   auto second = s.acquire("w2", at(3100));
   ASSERT_TRUE(second.has_value());
+  EXPECT_EQ(second->granted, at(3100));
+  EXPECT_EQ(s.counters().leases_granted, 2u);
   EXPECT_NE(second->id, first->id);
   EXPECT_EQ(second->attempt, 2) << "an expired lease is a counted worker fault";
 
@@ -433,8 +438,13 @@ TEST(SchedulerTest, DrainingHandsOutNothingAndReturnedLeasesAreNotCounted) {
   EXPECT_EQ(reply.directives, (std::vector<Directive>{{DirectiveKind::kDrain, ""}}));
   EXPECT_EQ(reply.lease_deadline, at(1000) + kLease) << "held leases may still finish";
   EXPECT_FALSE(s.acquire("w", at(1100)).has_value());
+  EXPECT_EQ(s.task_counts().leased, 1u);
   ASSERT_TRUE(s.fail("w", lease->id, FailureClass::kReturned, "SIGTERM", at(1200)).ok());
   EXPECT_EQ(s.progress("j")->pending, 2);
+  EXPECT_EQ(s.task_counts().pending, 2u);
+  EXPECT_EQ(s.task_counts().leased, 0u);
+  EXPECT_EQ(s.counters().retries_returned, 1u);
+  EXPECT_EQ(s.counters().retries_worker, 0u);
   s.set_draining(false);
   EXPECT_TRUE(s.heartbeat("w", {}, at(2000)).directives.empty());
   auto again = s.acquire("w", at(2100));

@@ -663,6 +663,14 @@ absl::StatusOr<JobProgress> JobStore::progress(std::string_view job_id) {
   return job.progress;
 }
 
+absl::StatusOr<std::map<JobState, std::int64_t>> JobStore::count_jobs_by_state() {
+  PRISM_ASSIGN_OR_RETURN(
+      auto rows, db_.query("SELECT state, COUNT(*) FROM jobs GROUP BY state ORDER BY state"));
+  std::map<JobState, std::int64_t> counts;
+  for (const auto& row : rows) counts[static_cast<JobState>(row.integer(0))] = row.integer(1);
+  return counts;
+}
+
 absl::StatusOr<std::vector<JobRecord>> JobStore::jobs_to_resume() {
   return query_jobs(
       "WHERE state NOT IN (?, ?, ?) ORDER BY seq ASC",

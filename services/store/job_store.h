@@ -184,6 +184,8 @@ class JobStore {
   absl::StatusOr<std::map<std::string, int>> worker_failures(std::string_view job_id);
 
   absl::StatusOr<JobProgress> progress(std::string_view job_id);
+  // How many jobs are in each state (states with none are absent): for the coordinator's metrics.
+  absl::StatusOr<std::map<JobState, std::int64_t>> count_jobs_by_state();
 
   // Every job not in a terminal state, oldest first: what a restarted coordinator resumes.
   absl::StatusOr<std::vector<JobRecord>> jobs_to_resume();

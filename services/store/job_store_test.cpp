@@ -160,6 +160,21 @@ TEST_F(JobStoreTest, MigratesEmptyFileAndRefusesNewerSchema) {
   EXPECT_EQ(JobStore::open(garbage).status().code(), absl::StatusCode::kFailedPrecondition);
 }
 
+TEST_F(JobStoreTest, CountsJobsByState) {
+  JobStore store = open_store();
+  EXPECT_TRUE(store.count_jobs_by_state()->empty());
+  const std::string a = create(store), b = create(store), c = create(store);
+  create(store);
+  ASSERT_TRUE(store.set_job_state(a, JobState::kRendering, 10).ok());
+  ASSERT_TRUE(store.set_job_state(b, JobState::kRendering, 10).ok());
+  ASSERT_TRUE(store.set_job_state(c, JobState::kCancelled, 10, "by hand").ok());
+  auto counts = store.count_jobs_by_state();
+  ASSERT_TRUE(counts.ok()) << counts.status();
+  EXPECT_EQ(*counts,
+            (std::map<JobState, std::int64_t>{
+                {JobState::kQueued, 1}, {JobState::kRendering, 2}, {JobState::kCancelled, 1}}));
+}
+
 TEST_F(JobStoreTest, StateTransitionTable) {
   // Rows: from, columns: to, both in kAllStates order (Q P R F D X C).
   constexpr bool kAllowed[7][7] = {
