@@ -14,7 +14,9 @@
 #include "absl/strings/str_format.h"
 #include "client/auto_integrator.h"
 #include "coordinator/outputs.h"
+#include "google/protobuf/util/json_util.h"
 #include "prism/v1/farm.grpc.pb.h"
+#include "services/base/atomic_file.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/job/job_spec.h"
@@ -353,9 +355,18 @@ absl::Status resolve_connection(FarmConnection& c) {
   return absl::OkStatus();
 }
 
-absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOptions& options) {
+namespace {
+
+// What submitting a scene sends: the packed bundle and the request with its explicit spec and
+// client token, and the scene's own output name (for --wait's -o default).
+struct Submission {
+  scene::Bundle bundle;
+  v1::SubmitJobRequest request;
+  std::string film_filename;
+};
+
+absl::StatusOr<Submission> prepare_submission(const SubmitOptions& options) {
   PRISM_RETURN_IF_ERROR(validate_render_flags(options.render));
-  PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
   PRISM_ASSIGN_OR_RETURN(spectral::SpectrumLibrary library,
                          spectral::SpectrumLibrary::load_builtin());
   scene::LoadOptions load = scene::with_library_names(library);
@@ -366,13 +377,15 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
     for (const std::string& w : scene::feature_warnings(loaded.description.features, false))
       *options.render.warnings << w << "\n";
   }
-  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle, scene::make_bundle(loaded.root, loaded.scene_relpath,
-                                                                  loaded.description.files));
+  Submission out;
+  out.film_filename = loaded.description.film.filename;
+  PRISM_ASSIGN_OR_RETURN(
+      out.bundle, scene::make_bundle(loaded.root, loaded.scene_relpath, loaded.description.files));
   if (options.wait) {
     // Checked before anything is submitted, so a bad -o does not leave a job behind.
-    PRISM_ASSIGN_OR_RETURN(coordinator::OutputPaths paths,
-                           coordinator::output_paths(options.render.output, std::nullopt,
-                                                     loaded.description.film.filename));
+    PRISM_ASSIGN_OR_RETURN(
+        coordinator::OutputPaths paths,
+        coordinator::output_paths(options.render.output, std::nullopt, out.film_filename));
     PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
   }
   // `auto` and the τ pilot run here, so the job carries their choices and every worker traces
@@ -383,10 +396,11 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
     device.emplace();
     PRISM_ASSIGN_OR_RETURN(resolved,
                            resolve_integrator(options.render, *device, loaded.description, library,
-                                              bundle.content_hash, loaded.scene_relpath));
+                                              out.bundle.content_hash, loaded.scene_relpath));
   }
-  PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec, job_spec_of(resolved.options, loaded.description,
-                                                       bundle.content_hash, loaded.scene_relpath));
+  PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec,
+                         job_spec_of(resolved.options, loaded.description, out.bundle.content_hash,
+                                     loaded.scene_relpath));
   if (resolved.report.has_value()) set_auto_choice(*resolved.report, spec);
   if (spec.integrator() == v1::INTEGRATOR_GRADIENT && !resolved.options.tau.has_value()) {
     // The pilot runs here, so the job carries its τ and every worker traces with it.
@@ -394,18 +408,41 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
     PRISM_RETURN_IF_ERROR(
         choose_tau(resolved.options, *device, loaded.description, library, spec).status());
   }
-  PRISM_RETURN_IF_ERROR(
-      upload_if_missing(farm, bundle.content_hash, scene::pack(bundle), options.progress));
-
-  v1::SubmitJobRequest request;
-  *request.mutable_spec() = spec;
+  *out.request.mutable_spec() = spec;
   if (options.client_token.empty()) {
     std::string spec_bytes;
     spec.SerializeToString(&spec_bytes);
-    request.set_client_token(base::sha256_hex(absl::StrCat(bundle.content_hash, "\n", spec_bytes)));
+    out.request.set_client_token(
+        base::sha256_hex(absl::StrCat(out.bundle.content_hash, "\n", spec_bytes)));
   } else {
-    request.set_client_token(options.client_token);
+    out.request.set_client_token(options.client_token);
   }
+  return out;
+}
+
+}  // namespace
+
+absl::StatusOr<std::string> run_pack(const SubmitOptions& options,
+                                     const std::filesystem::path& bundle_file) {
+  PRISM_ASSIGN_OR_RETURN(Submission submission, prepare_submission(options));
+  const std::string packed = scene::pack(submission.bundle);
+  PRISM_RETURN_IF_ERROR(base::write_file_atomic(bundle_file, packed));
+  google::protobuf::util::JsonPrintOptions print;
+  print.add_whitespace = true;
+  std::string json;
+  if (auto printed = google::protobuf::util::MessageToJsonString(submission.request, &json, print);
+      !printed.ok()) {
+    return absl::InternalError(std::string(printed.message()));
+  }
+  return json;
+}
+
+absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOptions& options) {
+  PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
+  PRISM_ASSIGN_OR_RETURN(Submission submission, prepare_submission(options));
+  PRISM_RETURN_IF_ERROR(upload_if_missing(farm, submission.bundle.content_hash,
+                                          scene::pack(submission.bundle), options.progress));
+  const v1::SubmitJobRequest& request = submission.request;
   v1::SubmitJobResponse response;
   if (grpc::Status s = farm.stub().SubmitJob(farm.call().get(), request, &response); !s.ok()) {
     return rpc_error(s);
@@ -418,7 +455,7 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
   PRISM_ASSIGN_OR_RETURN(v1::JobInfo job, watch(farm, id, out, options.progress_is_terminal));
   PRISM_RETURN_IF_ERROR(job_outcome(job));
   PRISM_ASSIGN_OR_RETURN(std::string written,
-                         fetch(farm, id, options.render.output, loaded.description.film.filename));
+                         fetch(farm, id, options.render.output, submission.film_filename));
   return absl::StrCat(id, "\n", written);
 }
 

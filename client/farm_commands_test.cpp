@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "coordinator/testing/in_process_farm.h"
+#include "google/protobuf/util/json_util.h"
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
 #include "tests/testing/test_dir.h"
@@ -104,6 +105,37 @@ TEST_F(FarmCommandsTest, SubmitUploadsOnceAndIsIdempotent) {
   auto workers = run_workers(connection_);
   ASSERT_TRUE(workers.ok()) << workers.status();
   EXPECT_EQ(*workers, "no workers\n");
+}
+
+// `prism pack` writes the bundle and the request `prism submit` sends: uploading the one and
+// submitting the other (as a curl user of the HTTP API would) is the same job as `prism submit`.
+TEST_F(FarmCommandsTest, PackWritesWhatSubmitSends) {
+  const fs::path bundle = root_ / "out" / "scene.bundle";
+  fs::create_directories(bundle.parent_path());
+  auto json = run_pack(submit_options(nullptr), bundle);
+  ASSERT_TRUE(json.ok()) << json.status();
+  prism::v1::SubmitJobRequest request;
+  ASSERT_TRUE(google::protobuf::util::JsonStringToMessage(*json, &request).ok()) << *json;
+  EXPECT_EQ(request.spec().spp(), 2u);
+  EXPECT_EQ(request.spec().tile_size(), 8u);
+  EXPECT_EQ(request.client_token().size(), 64u);
+  std::ifstream in(bundle, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  auto uploaded = farm_->farm().upload_bundle("", bytes);
+  ASSERT_TRUE(uploaded.ok()) << uploaded.status();
+  EXPECT_EQ(*uploaded, request.spec().bundle_hash());
+  auto job = farm_->farm().submit(request.spec(), request.client_token());
+  ASSERT_TRUE(job.ok()) << job.status();
+  auto submitted = run_submit(connection_, submit_options(nullptr));
+  ASSERT_TRUE(submitted.ok()) << submitted.status();
+  EXPECT_EQ(*submitted, job->record.id + "\n");
+
+  // A bad scene writes nothing.
+  SubmitOptions bad = submit_options(nullptr);
+  bad.render.scene = root_ / "missing.pbrt";
+  const fs::path none = root_ / "out" / "none.bundle";
+  EXPECT_FALSE(run_pack(bad, none).ok());
+  EXPECT_FALSE(fs::exists(none));
 }
 
 // A gradient job without --tau: the client's pilot chooses τ before submitting, so the spec the

@@ -140,6 +140,17 @@ int main(int argc, char** argv) {
   submit_cmd->add_option("--client-token", submit.client_token,
                          "Idempotency key (default: hash of bundle and spec)");
 
+  prism::client::SubmitOptions pack;
+  prism::client::RenderFlags pack_flags;
+  std::string pack_bundle;
+  auto* pack_cmd = app.add_subcommand(
+      "pack", "Write a scene's bundle and print the SubmitJobRequest JSON (for the HTTP API)");
+  prism::client::add_render_flags(*pack_cmd, pack_flags, pack.render);
+  pack_cmd->add_option("--bundle", pack_bundle, "Packed bundle to write (POST /api/v1/bundles)")
+      ->required();
+  pack_cmd->add_option("--client-token", pack.client_token,
+                       "Idempotency key (default: hash of bundle and spec)");
+
   std::string job_id, fetch_output;
   auto* status_cmd = app.add_subcommand("status", "Show a farm job");
   status_cmd->add_option("job", job_id, "Job id")->required();
@@ -167,6 +178,14 @@ int main(int argc, char** argv) {
     if (absl::Status resolved = prism::client::resolve_connection(farm); !resolved.ok()) {
       return report(resolved);
     }
+  }
+  if (pack_cmd->parsed()) {
+    if (absl::Status applied = prism::client::apply_render_flags(pack_flags, pack.render);
+        !applied.ok()) {
+      return report(applied);
+    }
+    pack.render.warnings = &std::cerr;
+    return report(prism::client::run_pack(pack, pack_bundle));
   }
   if (submit_cmd->parsed()) {
     if (absl::Status applied = prism::client::apply_render_flags(submit_flags, submit.render);

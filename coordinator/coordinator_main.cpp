@@ -11,12 +11,14 @@
 #include <string>
 
 #include "coordinator/farm_coordinator.h"
+#include "coordinator/http/http_api.h"
 #include "coordinator/rpc/coordinator_server.h"
 
 namespace {
 
 struct Config {
   std::string listen;
+  std::string http_listen;
   std::string data_dir;
   std::string worker_secret;
   std::string api_token;
@@ -36,6 +38,9 @@ int main(int argc, char** argv) {
   Config config;
   CLI::App app{"prism-coordinator: the Prism render farm's coordinator"};
   app.add_option("--listen", config.listen, "address to serve on, e.g. 0.0.0.0:7070")->required();
+  app.add_option("--http-listen", config.http_listen,
+                 "also serve the HTTP/JSON API and /metrics here, e.g. 0.0.0.0:8080 (off when "
+                 "absent; same token, HTTPS with --tls-cert)");
   app.add_option("--data-dir", config.data_dir, "job store, bundles, results and outputs")
       ->required();
   app.add_option("--worker-secret", config.worker_secret, "bearer token workers must send")
@@ -98,7 +103,24 @@ int main(int argc, char** argv) {
     std::cerr << "prism-coordinator: " << server.status().message() << "\n";
     return 1;
   }
-  // The port line is what scripts and tests read when --listen asks for port 0.
+  std::unique_ptr<prism::coordinator::http::HttpApi> http;
+  if (!config.http_listen.empty()) {
+    prism::coordinator::http::HttpConfig http_config;
+    http_config.listen = config.http_listen;
+    http_config.api_token = config.api_token;
+    http_config.tls = server_config.tls;
+    auto started = prism::coordinator::http::HttpApi::start(**farm, http_config, logger);
+    if (!started.ok()) {
+      std::cerr << "prism-coordinator: " << started.status().message() << "\n";
+      (*server)->shutdown();
+      (*farm)->shutdown();
+      return 1;
+    }
+    http = *std::move(started);
+    std::cout << "http listening on port " << http->port() << std::endl;
+    logger->info("HTTP API on {} (port {})", config.http_listen, http->port());
+  }
+  // The port lines are what scripts and tests read when --listen asks for port 0.
   std::cout << "listening on port " << (*server)->port() << std::endl;
   logger->info("serving on {} (port {}), data in {}", config.listen, (*server)->port(),
                config.data_dir);
@@ -106,6 +128,7 @@ int main(int argc, char** argv) {
   int signal = 0;
   sigwait(&signals, &signal);
   logger->info("signal {}: shutting down", signal);
+  if (http != nullptr) http->shutdown();
   (*server)->shutdown();
   (*server)->wait();
   (*farm)->shutdown();

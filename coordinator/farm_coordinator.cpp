@@ -479,6 +479,39 @@ absl::StatusOr<std::vector<JobStatus>> FarmCoordinator::jobs(
   return out;
 }
 
+absl::StatusOr<FarmSnapshot> FarmCoordinator::snapshot() {
+  FarmSnapshot snapshot;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    PRISM_ASSIGN_OR_RETURN(snapshot.jobs, store_->count_jobs_by_state());
+    snapshot.tasks = scheduler_.task_counts();
+    snapshot.scheduler = scheduler_.counters();
+    for (const auto& [id, job] : active_) {
+      absl::StatusOr<store::JobRecord> record = store_->get_job(id);
+      if (record.ok()) snapshot.samples_per_second += status_locked(*record).samples_per_second;
+    }
+  }
+  PRISM_ASSIGN_OR_RETURN(std::vector<WorkerStatus> workers, this->workers());
+  for (const WorkerStatus& w : workers) ++snapshot.workers[w.state];
+  // The data directory's size needs no lock: its files are published atomically, and one that
+  // vanishes while it is counted is skipped.
+  std::error_code ec;
+  for (auto it = std::filesystem::recursive_directory_iterator(options_.data_dir, ec);
+       !ec && it != std::filesystem::recursive_directory_iterator(); it.increment(ec)) {
+    std::error_code size_ec;
+    if (it->is_regular_file(size_ec)) {
+      const std::uintmax_t size = it->file_size(size_ec);
+      if (!size_ec) snapshot.store_bytes += size;
+    }
+  }
+  return snapshot;
+}
+
+absl::StatusOr<std::string> FarmCoordinator::metrics_text() {
+  PRISM_ASSIGN_OR_RETURN(FarmSnapshot snapshot, this->snapshot());
+  return metrics_.text(snapshot);
+}
+
 absl::StatusOr<JobStatus> FarmCoordinator::cancel(const std::string& job_id) {
   std::lock_guard<std::mutex> lock(mutex_);
   PRISM_ASSIGN_OR_RETURN(store::JobRecord record, store_->get_job(job_id));

@@ -56,6 +56,7 @@
 #include "absl/status/statusor.h"
 #include "coordinator/active_job.h"
 #include "coordinator/bundle_store.h"
+#include "coordinator/farm_metrics.h"
 #include "coordinator/finished_tiles.h"
 #include "coordinator/outputs.h"
 #include "coordinator/prepass_run.h"
@@ -196,6 +197,12 @@ class FarmCoordinator {
                     FailureClass failure_class, const std::string& message);
   absl::StatusOr<std::vector<WorkerStatus>> workers();
 
+  // Monitoring: the farm as it stands (jobs, tasks and workers by state, the Scheduler's
+  // totals, the data directory's size), and the Prometheus exposition of it and of the events
+  // recorded so far (farm_metrics.h).
+  absl::StatusOr<FarmSnapshot> snapshot();
+  absl::StatusOr<std::string> metrics_text();
+
   // Stops the tick thread and wakes every waiter (the server is shutting down).
   void shutdown();
 
@@ -234,6 +241,7 @@ class FarmCoordinator {
   Scheduler scheduler_;
   std::map<std::string, std::unique_ptr<ActiveJob>> active_;
   std::map<std::string, std::uint64_t> tasks_completed_;  // by worker
+  FarmMetrics metrics_;
   std::uint64_t temp_counter_ = 0;
   bool stopping_ = false;
   std::thread ticker_;

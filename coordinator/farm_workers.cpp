@@ -100,6 +100,8 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
     const std::string& worker_id, const std::string& lease_id, std::string bytes,
     const std::string& sha256, double render_seconds, std::uint64_t rays,
     const std::vector<std::pair<std::string, std::uint64_t>>& counters) {
+  const SteadyClock::time_point started = SteadyClock::now();
+  const std::uint64_t received = bytes.size();
   // Parsing is the expensive part and needs no state.
   absl::StatusOr<image::TileResult> parsed = image::parse_tile(bytes);
   std::unique_lock<std::mutex> lock(mutex_);
@@ -142,6 +144,7 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
       }
     }
     if (!problem.empty()) {
+      metrics_.result_not_merged("refused", received);
       const std::string message = absl::StrCat("result for lease ", lease_id, ": ", problem);
       PRISM_RETURN_IF_ERROR(
           scheduler_.fail(worker_id, lease_id, FailureClass::kWorker, message, now()));
@@ -165,8 +168,10 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
   }
   switch (reply->outcome) {
     case CompleteOutcome::kStale:
+      metrics_.result_not_merged("stale", received);
       return absl::FailedPreconditionError(reply->reason);
     case CompleteOutcome::kDuplicate:
+      metrics_.result_not_merged("duplicate", received);
       return CompleteResult::kDuplicate;
     case CompleteOutcome::kAccepted:
       break;
@@ -207,6 +212,11 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
   }
   process_events_locked();
   changed_locked();
+  const Millis granted = lease.has_value() ? lease->granted : now();
+  metrics_.task_completed(render_seconds, std::max(0.0, double((now() - granted).count()) / 1000.0),
+                          std::chrono::duration<double>(SteadyClock::now() - started).count(),
+                          received,
+                          std::uint64_t(task.spec.tile.area()) * task.spec.samples.count());
   return CompleteResult::kAccepted;
 }
 

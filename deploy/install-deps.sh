@@ -8,7 +8,8 @@ packages=(
   libembree-dev libopenexr-dev
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libspdlog-dev libfmt-dev libtbb-dev libcli11-dev libsqlite3-dev libpng-dev
-  libtinyobjloader-dev libssl-dev libcpp-httplib-dev nlohmann-json3-dev
+  libtinyobjloader-dev libssl-dev libcpp-httplib-dev nlohmann-json3-dev prometheus-cpp-dev
+  prometheus
   libgtest-dev libgmock-dev libbenchmark-dev
   gnuplot-nox fonts-dejavu-core
 )

@@ -307,7 +307,7 @@ void wrong_or_missing_client_tokens_are_unauthenticated() {
   auto missing = call("");
   status = farm_->farm->GetJob(missing.get(), request, &info);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::UNAUTHENTICATED);
-  EXPECT_TRUE(says(status, "missing authorization metadata"));
+  EXPECT_TRUE(says(status, "missing authorization"));
 
   // The worker secret is not a client token.
   auto secret = call(kSecret);

@@ -21,6 +21,54 @@ constexpr Millis kWatchInterval{200};
 
 }  // namespace
 
+absl::Status follow_job(FarmCoordinator& farm, const std::string& job_id,
+                        const std::function<bool()>& stopped,
+                        const std::function<bool(const prism::v1::JobInfo&)>& send) {
+  std::optional<prism::v1::JobInfo> last;
+  std::uint64_t seen = farm.change_counter();
+  while (!stopped()) {
+    absl::StatusOr<JobStatus> job = farm.job(job_id);
+    if (!job.ok()) return job.status();
+    prism::v1::JobInfo info = to_proto(*job);
+    // Rates move continuously; an update is due when the state or the counts changed.
+    prism::v1::JobInfo comparable = info;
+    comparable.mutable_progress()->clear_samples_per_second();
+    comparable.mutable_progress()->clear_eta_seconds();
+    if (!last.has_value() ||
+        !google::protobuf::util::MessageDifferencer::Equals(comparable, *last)) {
+      if (!send(info)) return absl::OkStatus();  // the client went away
+      last = std::move(comparable);
+    }
+    if (store::is_terminal(job->record.state)) return absl::OkStatus();
+    std::this_thread::sleep_for(kWatchInterval);
+    seen = farm.wait_for_change(seen, Millis(1000));
+  }
+  return absl::CancelledError("the watch was cancelled");
+}
+
+prism::v1::WorkerInfo to_proto(const WorkerStatus& w) {
+  prism::v1::WorkerInfo info;
+  info.set_worker_id(w.record.id);
+  info.set_host(w.record.host);
+  info.set_version(w.record.version);
+  info.set_threads(static_cast<std::uint32_t>(w.record.threads));
+  info.set_state(w.state);
+  info.set_last_heartbeat_unix_ms(w.last_seen_ms);
+  info.set_tasks_completed(w.tasks_completed);
+  info.set_leases(static_cast<std::uint32_t>(w.leases));
+  if (!w.current.empty()) {
+    const Lease& lease = w.current.front();
+    const TaskSpec& t = lease.task.spec;
+    info.set_current_lease(lease.id);
+    const std::string pass =
+        t.pass == Pass::kFinal ? "final" : absl::StrCat("prepass ", t.pass_index);
+    info.set_current_task(absl::StrCat("job ", lease.task.job_id, " ", pass, " tile (", t.tile.x0,
+                                       ",", t.tile.y0, ")-(", t.tile.x1, ",", t.tile.y1,
+                                       ") samples [", t.samples.s0, ",", t.samples.s1, ")"));
+  }
+  return info;
+}
+
 prism::v1::JobInfo to_proto(const JobStatus& status) {
   const store::JobRecord& r = status.record;
   prism::v1::JobInfo info;
@@ -96,26 +144,9 @@ grpc::Status FarmServiceImpl::WatchJob(grpc::ServerContext* context,
                                        const prism::v1::WatchJobRequest* request,
                                        grpc::ServerWriter<prism::v1::JobInfo>* writer) {
   if (auto auth = check_bearer(*context, api_token_); !auth.ok()) return refused(*context, auth);
-  std::optional<prism::v1::JobInfo> last;
-  std::uint64_t seen = farm_.change_counter();
-  while (!context->IsCancelled()) {
-    absl::StatusOr<JobStatus> job = farm_.job(request->job_id());
-    if (!job.ok()) return to_grpc(job.status());
-    prism::v1::JobInfo info = to_proto(*job);
-    // Rates move continuously; an update is due when the state or the counts changed.
-    prism::v1::JobInfo comparable = info;
-    comparable.mutable_progress()->clear_samples_per_second();
-    comparable.mutable_progress()->clear_eta_seconds();
-    if (!last.has_value() ||
-        !google::protobuf::util::MessageDifferencer::Equals(comparable, *last)) {
-      if (!writer->Write(info)) return grpc::Status::OK;  // the client went away
-      last = std::move(comparable);
-    }
-    if (store::is_terminal(job->record.state)) return grpc::Status::OK;
-    std::this_thread::sleep_for(kWatchInterval);
-    seen = farm_.wait_for_change(seen, Millis(1000));
-  }
-  return grpc::Status(grpc::StatusCode::CANCELLED, "the watch was cancelled");
+  return to_grpc(follow_job(
+      farm_, request->job_id(), [context] { return context->IsCancelled(); },
+      [writer](const prism::v1::JobInfo& info) { return writer->Write(info); }));
 }
 
 grpc::Status FarmServiceImpl::CancelJob(grpc::ServerContext* context,
@@ -196,27 +227,7 @@ grpc::Status FarmServiceImpl::ListWorkers(grpc::ServerContext* context,
   if (auto auth = check_bearer(*context, api_token_); !auth.ok()) return refused(*context, auth);
   absl::StatusOr<std::vector<WorkerStatus>> workers = farm_.workers();
   if (!workers.ok()) return to_grpc(workers.status());
-  for (const WorkerStatus& w : *workers) {
-    prism::v1::WorkerInfo* info = response->add_workers();
-    info->set_worker_id(w.record.id);
-    info->set_host(w.record.host);
-    info->set_version(w.record.version);
-    info->set_threads(static_cast<std::uint32_t>(w.record.threads));
-    info->set_state(w.state);
-    info->set_last_heartbeat_unix_ms(w.last_seen_ms);
-    info->set_tasks_completed(w.tasks_completed);
-    info->set_leases(static_cast<std::uint32_t>(w.leases));
-    if (!w.current.empty()) {
-      const Lease& lease = w.current.front();
-      const TaskSpec& t = lease.task.spec;
-      info->set_current_lease(lease.id);
-      const std::string pass =
-          t.pass == Pass::kFinal ? "final" : absl::StrCat("prepass ", t.pass_index);
-      info->set_current_task(absl::StrCat(
-          "job ", lease.task.job_id, " ", pass, " tile (", t.tile.x0, ",", t.tile.y0, ")-(",
-          t.tile.x1, ",", t.tile.y1, ") samples [", t.samples.s0, ",", t.samples.s1, ")"));
-    }
-  }
+  for (const WorkerStatus& w : *workers) *response->add_workers() = to_proto(w);
   return grpc::Status::OK;
 }
 

@@ -5,6 +5,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -51,7 +52,16 @@ class FarmServiceImpl final : public prism::v1::FarmService::Service {
   std::shared_ptr<spdlog::logger> logger_;
 };
 
-// The wire form of a job's status.
+// The wire forms of a job's and a worker's status (the gRPC and the HTTP/JSON API share them).
 prism::v1::JobInfo to_proto(const JobStatus& status);
+prism::v1::WorkerInfo to_proto(const WorkerStatus& status);
+
+// Follows a job for a watch (gRPC WatchJob, the HTTP API's event stream): `send` gets its status
+// at once and again whenever its state or counts change, until the job is over (OK), `send`
+// returns false (the client went away: OK) or `stopped` returns true (CANCELLED). NOT_FOUND for
+// an unknown job.
+absl::Status follow_job(FarmCoordinator& farm, const std::string& job_id,
+                        const std::function<bool()>& stopped,
+                        const std::function<bool(const prism::v1::JobInfo&)>& send);
 
 }  // namespace prism::coordinator::rpc

@@ -19,16 +19,24 @@ bool equal_constant_time(std::string_view a, std::string_view b) {
 absl::Status check_bearer(const grpc::ServerContext& context, std::string_view expected) {
   if (expected.empty()) return absl::OkStatus();
   const auto& metadata = context.client_metadata();
-  auto range = metadata.equal_range(grpc::string_ref(kAuthorizationHeader.data(),
-                                                     kAuthorizationHeader.size()));
+  auto range = metadata.equal_range(
+      grpc::string_ref(kAuthorizationHeader.data(), kAuthorizationHeader.size()));
   if (range.first == range.second) {
-    return absl::UnauthenticatedError("missing authorization metadata (want 'Bearer <token>')");
+    return absl::UnauthenticatedError("missing authorization (want 'Bearer <token>')");
   }
-  std::string_view value(range.first->second.data(), range.first->second.size());
-  if (value.substr(0, kScheme.size()) != kScheme) {
-    return absl::UnauthenticatedError("authorization metadata is not a 'Bearer <token>'");
+  return check_bearer_value(
+      std::string_view(range.first->second.data(), range.first->second.size()), expected);
+}
+
+absl::Status check_bearer_value(std::optional<std::string_view> value, std::string_view expected) {
+  if (expected.empty()) return absl::OkStatus();
+  if (!value.has_value()) {
+    return absl::UnauthenticatedError("missing authorization (want 'Bearer <token>')");
   }
-  if (!equal_constant_time(value.substr(kScheme.size()), expected)) {
+  if (value->substr(0, kScheme.size()) != kScheme) {
+    return absl::UnauthenticatedError("authorization is not a 'Bearer <token>'");
+  }
+  if (!equal_constant_time(value->substr(kScheme.size()), expected)) {
     return absl::UnauthenticatedError("invalid token");
   }
   return absl::OkStatus();

@@ -62,8 +62,8 @@ TEST_F(AuthTest, AcceptsTheTokenAndRefusesEverythingElse) {
     std::string header;
     std::string message;
   };
-  for (const Case& c : {Case{"", "missing authorization metadata (want 'Bearer <token>')"},
-                        Case{"s3cret-token", "authorization metadata is not a 'Bearer <token>'"},
+  for (const Case& c : {Case{"", "missing authorization (want 'Bearer <token>')"},
+                        Case{"s3cret-token", "authorization is not a 'Bearer <token>'"},
                         Case{"Bearer s3cret-tokeN", "invalid token"},
                         Case{"Bearer s3cret-token ", "invalid token"},
                         Case{"Bearer ", "invalid token"}}) {
