@@ -117,7 +117,7 @@ int main(int argc, char** argv) {
       return 1;
     }
     http = *std::move(started);
-    std::cout << "http listening on port " << http->port() << std::endl;
+    std::cout << "serving HTTP on port " << http->port() << std::endl;
     logger->info("HTTP API on {} (port {})", config.http_listen, http->port());
   }
   // The port lines are what scripts and tests read when --listen asks for port 0.

@@ -79,7 +79,7 @@ struct FarmMetrics::Families {
   Counter* retries_infrastructure = nullptr;
   Counter* retries_returned = nullptr;
   Gauge* store_bytes = nullptr;
-  Gauge* cpu_seconds = nullptr;  // a counter by nature, but set from /proc, not incremented
+  Counter* cpu_seconds = nullptr;  // moved by the CPU time /proc reports since the last scrape
   Gauge* resident_bytes = nullptr;
   Gauge* start_time = nullptr;
 };
@@ -170,7 +170,7 @@ FarmMetrics::FarmMetrics()
                          .Help("Bytes under the coordinator's data directory")
                          .Register(r)
                          .Add({});
-  f_->cpu_seconds = &prometheus::BuildGauge()
+  f_->cpu_seconds = &prometheus::BuildCounter()
                          .Name("process_cpu_seconds_total")
                          .Help("Total user and system CPU time spent in seconds")
                          .Register(r)
@@ -230,7 +230,10 @@ std::string FarmMetrics::text(const FarmSnapshot& snapshot) {
   last_ = c;
   f_->store_bytes->Set(double(snapshot.store_bytes));
   const ProcessUsage usage = process_usage();
-  f_->cpu_seconds->Set(usage.cpu_seconds);
+  if (usage.cpu_seconds > last_cpu_seconds_) {
+    f_->cpu_seconds->Increment(usage.cpu_seconds - last_cpu_seconds_);
+    last_cpu_seconds_ = usage.cpu_seconds;
+  }
   f_->resident_bytes->Set(double(usage.resident_bytes));
   f_->start_time->Set(usage.start_time_seconds);
   return prometheus::TextSerializer().Serialize(registry_->Collect());

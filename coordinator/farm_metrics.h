@@ -67,6 +67,7 @@ class FarmMetrics {
   std::unique_ptr<Families> f_;
   std::mutex mutex_;  // the snapshot's counters move by differences from the last scrape
   SchedulerCounters last_;
+  double last_cpu_seconds_ = 0;
 };
 
 // This process's CPU time (user + system) in seconds and resident set in bytes, from /proc/self;

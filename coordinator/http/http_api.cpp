@@ -393,6 +393,11 @@ void HttpApi::install_routes() {
     const std::string pattern = path_regex(route.path);
     if (route.method == "get") {
       server_->Get(pattern, handler);
+    } else if (route.method == "post" && route.request == nullptr && !route.binary_request) {
+      // A POST without a body (`curl -X POST URL` sends no Content-Length, which cpp-httplib
+      // refuses when it reads a body): a content-reader handler is dispatched before any read.
+      server_->Post(pattern, [handler](const httplib::Request& req, httplib::Response& res,
+                                       const httplib::ContentReader&) { handler(req, res); });
     } else if (route.method == "post") {
       server_->Post(pattern, handler);
     } else {

@@ -1,0 +1,307 @@
+// The coordinator's HTTP/JSON API and /metrics as their users meet them: a real
+// `prism-coordinator --http-listen` and `prism-worker` on loopback, driven by the real `curl`
+// (over HTTPS, with the gRPC side on TLS too) and scraped by a real Prometheus server from
+// Debian's packages, which this test starts on a loopback port with its own configuration and
+// queries through its HTTP API. The job's EXR fetched over HTTP must be the bytes `prism render`
+// writes for the same flags.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <thread>
+
+#include "tests/testing/child_process.h"
+#include "tests/testing/tls_cert.h"
+
+namespace prism {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+constexpr char kToken[] = "http-token";
+constexpr char kSecret[] = "worker-secret";
+
+std::string read(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+// The full path of a program on $PATH (the children are started with execv); the bare name when
+// it is not found, so the failure names it.
+std::string program(const std::string& name) {
+  const char* path = std::getenv("PATH");
+  std::istringstream dirs(path != nullptr ? path : "/usr/bin:/bin");
+  for (std::string dir; std::getline(dirs, dir, ':');) {
+    const fs::path candidate = fs::path(dir) / name;
+    if (::access(candidate.c_str(), X_OK) == 0) return candidate.string();
+  }
+  ADD_FAILURE() << name << " is not on PATH (deploy/install-deps.sh installs it)";
+  return name;
+}
+
+class HttpProcessTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    root_ = testing::fresh_dir();
+    fs::create_directories(root_ / "scene");
+    fs::copy_file(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/unbiased.pbrt",
+                  root_ / "scene" / "scene.pbrt");
+  }
+  void TearDown() override {
+    children_.clear();
+    fs::remove_all(root_);
+  }
+
+  testing::ChildProcess* spawn(std::vector<std::string> argv) {
+    children_.push_back(testing::ChildProcess::start(std::move(argv)));
+    return children_.back().get();
+  }
+
+  // Starts the coordinator with the HTTP listener (HTTPS and TLS gRPC with `tls`); reads both
+  // ports.
+  void start_coordinator(bool tls) {
+    std::vector<std::string> argv = {PRISM_COORDINATOR_BINARY,
+                                     "--listen",
+                                     "127.0.0.1:0",
+                                     "--http-listen",
+                                     "127.0.0.1:0",
+                                     "--data-dir",
+                                     (root_ / "data").string(),
+                                     "--worker-secret",
+                                     kSecret,
+                                     "--api-token",
+                                     kToken,
+                                     "--heartbeat-ms",
+                                     "200",
+                                     "--lease-ms",
+                                     "2000",
+                                     "--log-level",
+                                     "warn"};
+    if (tls) {
+      testing::make_self_signed(root_ / "cert.pem", root_ / "key.pem");
+      for (const char* a : {"--tls-cert", "cert.pem", "--tls-key", "key.pem"}) {
+        std::string arg = a;
+        argv.push_back(arg.rfind("--", 0) == 0 ? arg : (root_ / arg).string());
+      }
+    }
+    testing::ChildProcess* c = spawn(argv);
+    ASSERT_NE(c, nullptr);
+    auto http = c->wait_for_line("serving HTTP on port", std::chrono::seconds(20));
+    auto grpc = c->wait_for_line("listening on port", std::chrono::seconds(20));
+    ASSERT_TRUE(http.has_value() && grpc.has_value()) << "the coordinator printed no ports";
+    std::sscanf(http->c_str(), "serving HTTP on port %d", &http_port_);
+    std::sscanf(grpc->c_str(), "listening on port %d", &grpc_port_);
+    ASSERT_GT(http_port_, 0);
+    ASSERT_GT(grpc_port_, 0);
+    base_ = std::string(tls ? "https" : "http") + "://127.0.0.1:" + std::to_string(http_port_);
+    tls_ = tls;
+  }
+
+  void start_worker() {
+    std::vector<std::string> argv = {PRISM_WORKER_BINARY,
+                                     "--coordinator",
+                                     "127.0.0.1:" + std::to_string(grpc_port_),
+                                     "--threads",
+                                     "1",
+                                     "--secret",
+                                     kSecret,
+                                     "--cache-dir",
+                                     (root_ / "cache").string(),
+                                     "--log-level",
+                                     "error"};
+    if (tls_) {
+      argv.push_back("--tls-ca");
+      argv.push_back((root_ / "cert.pem").string());
+    }
+    ASSERT_NE(spawn(argv), nullptr);
+  }
+
+  // `curl` with the token (and the CA for HTTPS), failing the test unless it exits with 0.
+  // Returns its stdout; `status` gets the HTTP status when given.
+  std::string curl(std::vector<std::string> args, int* status = nullptr,
+                   const std::string& token = kToken) {
+    std::vector<std::string> argv = {program("curl"), "--silent", "--show-error", "--max-time",
+                                     "120"};
+    if (!token.empty()) {
+      argv.push_back("-H");
+      argv.push_back("Authorization: Bearer " + token);
+    }
+    if (tls_) {
+      argv.push_back("--cacert");
+      argv.push_back((root_ / "cert.pem").string());
+    }
+    if (status != nullptr) {
+      argv.push_back("--write-out");
+      argv.push_back("\n%{http_code}");
+    }
+    argv.insert(argv.end(), args.begin(), args.end());
+    testing::RunResult r = testing::run(argv, {}, std::chrono::minutes(3));
+    EXPECT_EQ(r.exit_code, 0) << "curl failed: " << r.err;
+    if (status != nullptr) {
+      const std::size_t nl = r.out.rfind('\n');
+      if (nl == std::string::npos) return r.out;
+      *status = std::atoi(r.out.c_str() + nl + 1);
+      r.out.resize(nl);
+    }
+    return r.out;
+  }
+
+  std::vector<std::string> render_flags() {
+    return {"--integrator", "hero", "--spp",  "16", "--resolution", "24x16",
+            "--bins",       "8",    "--tile", "8",  "--seed",       "3"};
+  }
+
+  fs::path root_;
+  std::vector<std::unique_ptr<testing::ChildProcess>> children_;
+  int http_port_ = 0, grpc_port_ = 0;
+  bool tls_ = false;
+  std::string base_;
+};
+
+TEST_F(HttpProcessTest, CurlUploadsSubmitsWatchesFetchesAndCancelsOverHttps) {
+  ASSERT_NO_FATAL_FAILURE(start_coordinator(/*tls=*/true));
+  // What `prism submit` would send, as files for curl.
+  std::vector<std::string> pack = {PRISM_BINARY, "pack", (root_ / "scene/scene.pbrt").string(),
+                                   "--bundle", (root_ / "scene.bundle").string()};
+  for (const std::string& f : render_flags()) pack.push_back(f);
+  testing::RunResult packed = testing::run(pack);
+  ASSERT_EQ(packed.exit_code, 0) << packed.err;
+  std::ofstream(root_ / "request.json") << packed.out;
+
+  int status = 0;
+  json bundle = json::parse(
+      curl({"--data-binary", "@" + (root_ / "scene.bundle").string(), base_ + "/api/v1/bundles"},
+           &status));
+  ASSERT_EQ(status, 200) << bundle.dump();
+  EXPECT_EQ(bundle["bundleHash"], json::parse(packed.out)["spec"]["bundleHash"]);
+  json submitted =
+      json::parse(curl({"-H", "Content-Type: application/json", "--data-binary",
+                        "@" + (root_ / "request.json").string(), base_ + "/api/v1/jobs"},
+                       &status));
+  ASSERT_EQ(status, 200) << submitted.dump();
+  const std::string id = submitted["job"]["jobId"];
+
+  // Without the token: 401 and nothing listed.
+  curl({base_ + "/api/v1/jobs"}, &status, "");
+  EXPECT_EQ(status, 401);
+
+  ASSERT_NO_FATAL_FAILURE(start_worker());
+  // The event stream ends when the job does.
+  const std::string events = curl({"--no-buffer", base_ + "/api/v1/jobs/" + id + ":watch"});
+  const std::size_t last = events.rfind("data: ");
+  ASSERT_NE(last, std::string::npos) << events;
+  EXPECT_EQ(json::parse(events.substr(last + 6))["state"], "JOB_STATE_DONE") << events;
+
+  json jobs = json::parse(curl({base_ + "/api/v1/jobs?state=done"}));
+  ASSERT_EQ(jobs["jobs"].size(), 1u);
+  EXPECT_EQ(jobs["jobs"][0]["jobId"], id);
+  curl({"--output", (root_ / "farm.exr").string(),
+        base_ + "/api/v1/jobs/" + id + "/outputs/" + id + ".exr"},
+       &status);
+  EXPECT_EQ(status, 200);
+
+  // The same flags rendered by `prism render` (run beside the scene, so the EXR's scene name is
+  // the bundle's "scene.pbrt"): the same bytes.
+  std::vector<std::string> render = {PRISM_BINARY, "render", "scene.pbrt", "-o",
+                                     (root_ / "local.exr").string()};
+  for (const std::string& f : render_flags()) render.push_back(f);
+  testing::ChildOptions beside;
+  beside.working_dir = root_ / "scene";
+  testing::RunResult rendered = testing::run(render, beside);
+  ASSERT_EQ(rendered.exit_code, 0) << rendered.err;
+  EXPECT_EQ(read(root_ / "farm.exr"), read(root_ / "local.exr"))
+      << "the EXR fetched over HTTP is not the embedded render's";
+
+  // A long job, cancelled over HTTP while the worker renders it.
+  json request = json::parse(packed.out);
+  request["spec"]["spp"] = 1 << 16;
+  request["clientToken"] = "long";
+  std::ofstream(root_ / "long.json") << request.dump();
+  const std::string long_id =
+      json::parse(curl({"--data-binary", "@" + (root_ / "long.json").string(),
+                        base_ + "/api/v1/jobs"}))["job"]["jobId"];
+  json cancelled =
+      json::parse(curl({"-X", "POST", base_ + "/api/v1/jobs/" + long_id + ":cancel"}, &status));
+  EXPECT_EQ(status, 200) << cancelled.dump();
+  EXPECT_EQ(cancelled["state"], "JOB_STATE_CANCELLED");
+  EXPECT_EQ(json::parse(curl({base_ + "/api/v1/jobs/" + long_id}))["state"], "JOB_STATE_CANCELLED");
+}
+
+// Prometheus scrapes /metrics with the bearer token; its query API then returns the farm's
+// figures, and `promtool` accepts the exposition.
+TEST_F(HttpProcessTest, PrometheusScrapesTheMetrics) {
+  ASSERT_NO_FATAL_FAILURE(start_coordinator(/*tls=*/false));
+  ASSERT_NO_FATAL_FAILURE(start_worker());
+  std::vector<std::string> submit = {PRISM_BINARY,
+                                     "submit",
+                                     (root_ / "scene/scene.pbrt").string(),
+                                     "--coordinator",
+                                     "127.0.0.1:" + std::to_string(grpc_port_),
+                                     "--token",
+                                     kToken,
+                                     "--wait",
+                                     "-o",
+                                     (root_ / "out.exr").string()};
+  for (const std::string& f : render_flags()) submit.push_back(f);
+  testing::RunResult submitted = testing::run(submit);
+  ASSERT_EQ(submitted.exit_code, 0) << submitted.err;
+
+  // The exposition passes Prometheus's own linter.
+  const std::string metrics = curl({base_ + "/metrics"});
+  std::ofstream(root_ / "metrics.txt") << metrics;
+  testing::RunResult lint =
+      testing::run({program("sh"), "-c",
+                    program("promtool") + " check metrics < " + (root_ / "metrics.txt").string()});
+  EXPECT_EQ(lint.exit_code, 0) << lint.out << lint.err;
+
+  const int prometheus_port = testing::free_port();
+  std::ofstream(root_ / "prometheus.yml")
+      << "global:\n  scrape_interval: 1s\n  scrape_timeout: 1s\n"
+      << "scrape_configs:\n  - job_name: prism\n    authorization:\n      type: Bearer\n"
+      << "      credentials: " << kToken << "\n    static_configs:\n"
+      << "      - targets: ['127.0.0.1:" << http_port_ << "']\n";
+  testing::ChildProcess* prometheus =
+      spawn({program("prometheus"), "--config.file=" + (root_ / "prometheus.yml").string(),
+             "--storage.tsdb.path=" + (root_ / "tsdb").string(),
+             "--web.listen-address=127.0.0.1:" + std::to_string(prometheus_port)});
+  ASSERT_NE(prometheus, nullptr);
+  const std::string api = "http://127.0.0.1:" + std::to_string(prometheus_port) + "/api/v1/query";
+  // Polls a PromQL query until it returns one sample; its value.
+  auto query = [&](const std::string& promql) -> std::optional<double> {
+    const auto end = Clock::now() + std::chrono::seconds(60);
+    while (Clock::now() < end) {
+      testing::RunResult r = testing::run({program("curl"), "--silent", "--max-time", "5", "--get",
+                                           "--data-urlencode", "query=" + promql, api});
+      json body = json::parse(r.out, nullptr, false);
+      if (!body.is_discarded() && body.value("status", "") == "success" &&
+          body["data"]["result"].size() == 1) {
+        return std::stod(body["data"]["result"][0]["value"][1].get<std::string>());
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(250));
+    }
+    return std::nullopt;
+  };
+  EXPECT_EQ(query("up{job=\"prism\"} == 1"), 1.0) << prometheus->out() << prometheus->err();
+  EXPECT_EQ(query("prism_jobs{state=\"done\"}"), 1.0);
+  // 24x16 in 8-pixel tiles: 6 final-pass tasks (no prepass by default), all accepted.
+  EXPECT_EQ(query("prism_results_total{outcome=\"accepted\"}"), 6.0);
+  EXPECT_EQ(query("prism_samples_total"), 24.0 * 16 * 16);
+  EXPECT_EQ(query("prism_task_latency_seconds_count"), 6.0);
+  const std::optional<double> rss = query("process_resident_memory_bytes");
+  ASSERT_TRUE(rss.has_value());
+  EXPECT_GT(*rss, 1e6);
+  EXPECT_EQ(query("prism_workers{state=\"idle\"}"), 1.0);
+}
+
+}  // namespace
+}  // namespace prism
