@@ -95,6 +95,8 @@ TEST_F(FarmCommandsTest, SubmitUploadsOnceAndIsIdempotent) {
   auto after = run_status(connection_, id);
   ASSERT_TRUE(after.ok()) << after.status();
   EXPECT_NE(after->find("cancelled"), std::string::npos) << *after;
+  // What was done before the cancel (nothing here: no worker), of the job's 4 tiles.
+  EXPECT_NE(after->find("tiles 0/4"), std::string::npos) << *after;
 
   // Watching a cancelled job fails, saying so.
   std::ostringstream progress;

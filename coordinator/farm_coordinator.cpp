@@ -419,7 +419,7 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   return absl::OkStatus();
 }
 
-JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) const {
+JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) {
   JobStatus status;
   status.record = record;
   auto it = active_.find(record.id);
@@ -435,6 +435,14 @@ JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) const {
       status.samples_per_second = double(fresh) / seconds;
       status.eta_seconds = double(record.progress.samples_total - record.progress.samples_done) /
                            status.samples_per_second;
+    }
+  } else if (record.state == store::JobState::kCancelled ||
+             record.state == store::JobState::kFailed) {
+    // What it finished before it ended (its tasks stay in the store).
+    absl::StatusOr<store::JobStore::TileCounts> tiles = store_->final_tile_counts(record.id);
+    if (tiles.ok()) {
+      status.tiles_finalised = static_cast<int>(tiles->done);
+      status.tiles_total = static_cast<int>(tiles->total);
     }
   } else if (record.state == store::JobState::kDone) {
     prism::v1::JobSpec spec;

@@ -99,7 +99,7 @@ struct JobStatus {
 
 struct WorkerStatus {
   store::WorkerRecord record;
-  std::string state;  // idle, busy, lost
+  std::string state;  // idle, busy, lost, left
   int leases = 0;
   std::vector<Lease> current;  // the leases it holds now, oldest first
   std::uint64_t tasks_completed = 0;
@@ -196,6 +196,9 @@ class FarmCoordinator {
   absl::Status fail(const std::string& worker_id, const std::string& lease_id,
                     FailureClass failure_class, const std::string& message);
   absl::StatusOr<std::vector<WorkerStatus>> workers();
+  // A drained worker leaves: leases it still holds go back unpenalised, and it is listed as
+  // `left` (not `lost`) until it registers again. NOT_FOUND for a worker never registered.
+  absl::Status leave(const std::string& worker_id);
 
   // Monitoring: the farm as it stands (jobs, tasks and workers by state, the Scheduler's
   // totals, the data directory's size), and the Prometheus exposition of it and of the events
@@ -223,7 +226,7 @@ class FarmCoordinator {
   void process_events_locked();
   absl::Status finalise_locked(const std::string& job_id);
   void fail_job_locked(const std::string& job_id, const std::string& message);
-  JobStatus status_locked(const store::JobRecord& record) const;
+  JobStatus status_locked(const store::JobRecord& record);
   std::filesystem::path output_dir(const std::string& job_id) const;
   OutputPaths output_paths_of(const std::string& job_id) const;
   void changed_locked();
@@ -241,6 +244,7 @@ class FarmCoordinator {
   Scheduler scheduler_;
   std::map<std::string, std::unique_ptr<ActiveJob>> active_;
   std::map<std::string, std::uint64_t> tasks_completed_;  // by worker
+  std::map<std::string, std::int64_t> left_;              // workers that left cleanly, when
   FarmMetrics metrics_;
   std::uint64_t temp_counter_ = 0;
   bool stopping_ = false;

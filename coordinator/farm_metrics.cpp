@@ -50,7 +50,7 @@ constexpr store::JobState kJobStates[] = {store::JobState::kQueued,    store::Jo
                                           store::JobState::kRendering, store::JobState::kFinalising,
                                           store::JobState::kDone,      store::JobState::kFailed,
                                           store::JobState::kCancelled};
-constexpr const char* kWorkerStates[] = {"idle", "busy", "lost"};
+constexpr const char* kWorkerStates[] = {"idle", "busy", "lost", "left"};
 constexpr const char* kResultOutcomes[] = {"accepted", "duplicate", "stale", "refused"};
 
 void add_difference(Counter& counter, std::uint64_t now, std::uint64_t before) {
@@ -101,7 +101,7 @@ FarmMetrics::FarmMetrics()
   f_->tasks_done = &tasks.Add({{"state", "done"}});
   auto& workers = prometheus::BuildGauge()
                       .Name("prism_workers")
-                      .Help("Registered workers, by state (idle, busy, lost)")
+                      .Help("Registered workers, by state (idle, busy, lost, left)")
                       .Register(r);
   for (const char* s : kWorkerStates) f_->workers[s] = &workers.Add({{"state", s}});
   f_->samples_per_second = &prometheus::BuildGauge()

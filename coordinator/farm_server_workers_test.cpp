@@ -329,6 +329,49 @@ TEST_F(FarmServerTest, ALostWorkersLeaseGoesToAnotherWorker) {
             grpc::StatusCode::FAILED_PRECONDITION);
 }
 
+// A worker that drained says Leave: the lease it still held goes straight to another worker as
+// a first attempt (no fault counted), and the worker is listed as `left`, never `lost`.
+TEST_F(FarmServerTest, ALeavingWorkersLeaseGoesBackUncountedAndItIsListedAsLeft) {
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  submit(small_spec(hash));
+  const std::string leaving = register_worker();
+  std::optional<v1::Lease> lease = acquire(leaving);
+  ASSERT_TRUE(lease.has_value());
+  {
+    v1::LeaveRequest request;
+    request.set_worker_id(leaving);
+    v1::LeaveResponse response;
+    auto context = worker_call();
+    ASSERT_TRUE(worker_stub_->Leave(context.get(), request, &response).ok());
+  }
+  const std::string other = register_worker();
+  std::optional<v1::Lease> next = acquire(other);
+  ASSERT_TRUE(next.has_value());
+  EXPECT_EQ(next->task().tile().x0(), lease->task().tile().x0());
+  EXPECT_EQ(next->task().tile().y0(), lease->task().tile().y0());
+  EXPECT_EQ(next->task().samples().begin(), lease->task().samples().begin());
+  EXPECT_EQ(next->attempt(), 1u) << "leaving is not a fault";
+  EXPECT_EQ(complete(leaving, lease->lease_id(), render(*lease)).error_code(),
+            grpc::StatusCode::FAILED_PRECONDITION);
+  // Long after the lost-worker interval (3 x 200 ms) it is still `left`.
+  std::this_thread::sleep_for(std::chrono::milliseconds(900));
+  v1::ListWorkersRequest request;
+  v1::ListWorkersResponse response;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->ListWorkers(context.get(), request, &response).ok());
+  std::map<std::string, std::string> states;
+  for (const v1::WorkerInfo& w : response.workers()) states[w.worker_id()] = w.state();
+  EXPECT_EQ(states[leaving], "left");
+  // Leaving is refused for a worker the coordinator never registered.
+  v1::LeaveRequest unknown;
+  unknown.set_worker_id("w-999999");
+  v1::LeaveResponse ignored;
+  auto call = worker_call();
+  EXPECT_EQ(worker_stub_->Leave(call.get(), unknown, &ignored).error_code(),
+            grpc::StatusCode::NOT_FOUND);
+}
+
 TEST_F(FarmServerTest, SubmissionsBeyondTheQueueLimitAreResourceExhausted) {
   stop();
   max_queued_jobs_ = 1;

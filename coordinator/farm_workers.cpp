@@ -18,6 +18,7 @@ absl::StatusOr<store::WorkerRecord> FarmCoordinator::register_worker(
   record.last_seen_ms = now().count();
   PRISM_ASSIGN_OR_RETURN(store::WorkerRecord stored, store_->register_worker(std::move(record)));
   scheduler_.register_worker(stored.id, stored.threads, now());
+  left_.erase(stored.id);
   options_.logger->info("[worker {}] registered: host {}, version {}, {} threads", stored.id,
                         stored.host, stored.version, stored.threads);
   changed_locked();
@@ -231,6 +232,18 @@ absl::Status FarmCoordinator::fail(const std::string& worker_id, const std::stri
   return absl::OkStatus();
 }
 
+absl::Status FarmCoordinator::leave(const std::string& worker_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_RETURN_IF_ERROR(store_->get_worker(worker_id).status());
+  const int returned = scheduler_.remove_worker(worker_id, now());
+  left_[worker_id] = now().count();
+  options_.logger->info("[worker {}] left ({} {} returned)", worker_id, returned,
+                        returned == 1 ? "lease" : "leases");
+  process_events_locked();
+  changed_locked();
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::vector<WorkerStatus>> FarmCoordinator::workers() {
   std::lock_guard<std::mutex> lock(mutex_);
   PRISM_ASSIGN_OR_RETURN(std::vector<store::WorkerRecord> records, store_->list_workers());
@@ -243,7 +256,9 @@ absl::StatusOr<std::vector<WorkerStatus>> FarmCoordinator::workers() {
     status.last_seen_ms = record.last_seen_ms;
     auto it = live.find(record.id);
     if (it == live.end()) {
-      status.state = "lost";
+      auto left = left_.find(record.id);
+      status.state = left != left_.end() ? "left" : "lost";
+      if (left != left_.end()) status.last_seen_ms = left->second;
     } else {
       status.leases = it->second.leases;
       status.current = it->second.current;

@@ -375,6 +375,26 @@ void Scheduler::tick(Millis now) {
   }
 }
 
+int Scheduler::remove_worker(const std::string& worker_id, Millis now) {
+  auto it = workers_.find(worker_id);
+  if (it == workers_.end()) return 0;
+  const WorkerRecord worker = it->second;
+  int requeued = 0;
+  for (std::uint64_t seq : worker.leases) {
+    auto current = current_leases_.find(seq);
+    if (current == current_leases_.end()) continue;
+    LeaseRecord& record = leases_.at(current->second);
+    const Lease lease = record.lease;
+    end_lease(record, absl::StrCat("its worker ", worker_id, " left"));
+    requeue(jobs_.at(lease.task.job_id), lease.task.job_id, lease.task.index,
+            FailureClass::kReturned, worker_id,
+            absl::StrCat("worker ", worker_id, " left holding lease ", lease.id), now);
+    ++requeued;
+  }
+  workers_.erase(worker_id);
+  return requeued;
+}
+
 TaskCounts Scheduler::task_counts() const {
   TaskCounts counts;
   for (const auto& [order, job_id] : job_order_) {

@@ -243,6 +243,11 @@ class Scheduler {
   // more than lost_after_missed intervals. Call it about once per heartbeat interval.
   void tick(Millis now);
 
+  // A worker leaves cleanly (it drained): its current leases are requeued as returned (not
+  // counted) and it is forgotten, with no kWorkerLost event. Unknown workers: nothing happens.
+  // Returns how many leases were requeued.
+  int remove_worker(const std::string& worker_id, Millis now);
+
   // While draining, acquire() returns nothing and heartbeats carry DRAIN.
   void set_draining(bool draining) { draining_ = draining; }
   bool draining() const { return draining_; }

@@ -175,8 +175,8 @@ grpc::Status WorkerServiceImpl::CompleteTask(grpc::ServerContext* context,
   }
   absl::StatusOr<std::string> bytes = assembler.finish(sha256);
   if (!bytes.ok()) return to_grpc(bytes.status());
-  absl::StatusOr<CompleteResult> result =
-      farm_.complete(worker_id, lease_id, *std::move(bytes), sha256, render_seconds, rays, counters);
+  absl::StatusOr<CompleteResult> result = farm_.complete(worker_id, lease_id, *std::move(bytes),
+                                                         sha256, render_seconds, rays, counters);
   if (!result.ok()) return to_grpc(result.status());
   response->set_accepted(*result == CompleteResult::kAccepted);
   return grpc::Status::OK;
@@ -191,6 +191,14 @@ grpc::Status WorkerServiceImpl::FailTask(grpc::ServerContext* context,
   if (!failure_class.ok()) return to_grpc(failure_class.status());
   return to_grpc(
       farm_.fail(request->worker_id(), request->lease_id(), *failure_class, request->message()));
+}
+
+grpc::Status WorkerServiceImpl::Leave(grpc::ServerContext* context,
+                                      const prism::v1::LeaveRequest* request,
+                                      prism::v1::LeaveResponse*) {
+  if (auto auth = check_bearer(*context, worker_secret_); !auth.ok())
+    return refused(*context, auth);
+  return to_grpc(farm_.leave(request->worker_id()));
 }
 
 grpc::Status WorkerServiceImpl::FetchBundle(grpc::ServerContext* context,

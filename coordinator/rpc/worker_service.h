@@ -39,6 +39,8 @@ class WorkerServiceImpl final : public prism::v1::WorkerService::Service {
   grpc::Status FetchBundle(grpc::ServerContext* context,
                            const prism::v1::FetchBundleRequest* request,
                            grpc::ServerWriter<prism::v1::BundleData>* writer) override;
+  grpc::Status Leave(grpc::ServerContext* context, const prism::v1::LeaveRequest* request,
+                     prism::v1::LeaveResponse* response) override;
 
  private:
   // Logs a refused call (with its peer) and converts the status.

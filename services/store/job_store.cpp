@@ -663,6 +663,18 @@ absl::StatusOr<JobProgress> JobStore::progress(std::string_view job_id) {
   return job.progress;
 }
 
+absl::StatusOr<JobStore::TileCounts> JobStore::final_tile_counts(std::string_view job_id) {
+  PRISM_ASSIGN_OR_RETURN(
+      auto rows,
+      db_.query("SELECT COUNT(*), COALESCE(SUM(pending = 0), 0) FROM (SELECT tile_index, "
+                "SUM(state = ?) AS pending FROM tasks WHERE job_id = ? AND pass = ? "
+                "GROUP BY tile_index)",
+                {integer(static_cast<int>(TaskState::kPending)), text(job_id),
+                 integer(static_cast<int>(TaskPass::kFinal))}));
+  PRISM_CHECK(rows.size() == 1);
+  return TileCounts{.done = rows[0].integer(1), .total = rows[0].integer(0)};
+}
+
 absl::StatusOr<std::map<JobState, std::int64_t>> JobStore::count_jobs_by_state() {
   PRISM_ASSIGN_OR_RETURN(
       auto rows, db_.query("SELECT state, COUNT(*) FROM jobs GROUP BY state ORDER BY state"));

@@ -184,6 +184,15 @@ class JobStore {
   absl::StatusOr<std::map<std::string, int>> worker_failures(std::string_view job_id);
 
   absl::StatusOr<JobProgress> progress(std::string_view job_id);
+  // The job's tiles with final-pass tasks, and those whose final-pass tasks are all done: what a
+  // job that ended early (cancelled, failed) had finished. {0, 0} for a job with no final pass
+  // planned yet.
+  struct TileCounts {
+    std::int64_t done = 0;
+    std::int64_t total = 0;
+    friend bool operator==(const TileCounts&, const TileCounts&) = default;
+  };
+  absl::StatusOr<TileCounts> final_tile_counts(std::string_view job_id);
   // How many jobs are in each state (states with none are absent): for the coordinator's metrics.
   absl::StatusOr<std::map<JobState, std::int64_t>> count_jobs_by_state();
 

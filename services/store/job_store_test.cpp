@@ -175,6 +175,26 @@ TEST_F(JobStoreTest, CountsJobsByState) {
                 {JobState::kQueued, 1}, {JobState::kRendering, 2}, {JobState::kCancelled, 1}}));
 }
 
+TEST_F(JobStoreTest, CountsTheTilesWhoseFinalTasksAreAllDone) {
+  JobStore store = open_store();
+  // Tiles 0 and 1 have two final-pass tasks each, tile 2 one; one prepass task on tile 0.
+  std::vector<TaskRecord> tasks = make_tasks(6);
+  const int tile_of[] = {0, 0, 1, 1, 2, 0};
+  for (int i = 0; i < 6; ++i) tasks[i].tile_index = tile_of[i];
+  tasks[5].pass = TaskPass::kPrepass;
+  tasks[5].pass_index = 1;
+  auto created = store.create_job(make_job(), tasks);
+  ASSERT_TRUE(created.ok()) << created.status();
+  const std::string id = created->job.id;
+  EXPECT_EQ(*store.final_tile_counts(id), (JobStore::TileCounts{0, 3}));
+  ASSERT_TRUE(store.mark_task_done(id, 0, "a").ok());  // half of tile 0
+  ASSERT_TRUE(store.mark_task_done(id, 4, "b").ok());  // all of tile 2
+  EXPECT_EQ(*store.final_tile_counts(id), (JobStore::TileCounts{1, 3}));
+  ASSERT_TRUE(store.mark_task_done(id, 1, "c").ok());  // tile 0 done; its prepass task is not
+  EXPECT_EQ(*store.final_tile_counts(id), (JobStore::TileCounts{2, 3}));
+  EXPECT_EQ(*store.final_tile_counts("j-nope"), (JobStore::TileCounts{0, 0}));
+}
+
 TEST_F(JobStoreTest, StateTransitionTable) {
   // Rows: from, columns: to, both in kAllStates order (Q P R F D X C).
   constexpr bool kAllowed[7][7] = {

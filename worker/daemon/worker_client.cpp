@@ -188,4 +188,15 @@ absl::Status WorkerClient::fail_task(const v1::FailTaskRequest& request) {
   return absl::OkStatus();
 }
 
+absl::Status WorkerClient::leave(const std::string& worker_id) {
+  grpc::ClientContext context;
+  prepare(context, config_.call_timeout);
+  v1::LeaveRequest request;
+  request.set_worker_id(worker_id);
+  v1::LeaveResponse response;
+  const grpc::Status status = stub_->Leave(&context, request, &response);
+  if (!status.ok()) return named("Leave", status);
+  return absl::OkStatus();
+}
+
 }  // namespace prism::worker

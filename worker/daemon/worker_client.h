@@ -59,6 +59,8 @@ class WorkerClient {
       double render_seconds, std::uint64_t rays,
       const std::vector<std::pair<std::string, std::uint64_t>>& counters);
   absl::Status fail_task(const v1::FailTaskRequest& request);
+  // Tells the coordinator a drained worker is leaving (sent once).
+  absl::Status leave(const std::string& worker_id);
 
   // Cancels an AcquireTask in flight and refuses further ones (a draining worker never acquires
   // again). Thread-safe.

@@ -165,9 +165,16 @@ void WorkerDaemon::drain() {
     std::lock_guard<std::mutex> lock(mutex_);
     if (draining_) return;
     draining_ = true;
-    // A lease without a deadline (0) is simply finished.
+    // A lease without a deadline (0) is simply finished, unless a drain timeout bounds it.
     if (held_ != nullptr && held_->deadline_unix_ms > 0) {
       drain_deadline_unix_ms_ = held_->deadline_unix_ms;
+    }
+    if (held_ != nullptr && config_.drain_timeout.count() > 0) {
+      const std::int64_t bound =
+          std::chrono::duration_cast<std::chrono::milliseconds>(
+              std::chrono::system_clock::now().time_since_epoch() + config_.drain_timeout)
+              .count();
+      drain_deadline_unix_ms_ = std::min(drain_deadline_unix_ms_.value_or(bound), bound);
     }
   }
   logger_->info("draining: no new tasks; finishing or returning the held lease");
@@ -250,7 +257,12 @@ absl::Status WorkerDaemon::run() {
   }
   wake_.notify_all();
   if (heartbeat_thread_.joinable()) heartbeat_thread_.join();
-  if (result.ok()) logger_->info("drained; worker {} stops", worker_id());
+  if (result.ok()) {
+    // Said once: a coordinator that cannot be reached lists the worker as lost instead.
+    absl::Status left = client_.leave(worker_id());
+    if (!left.ok()) logger_->warn("{}", std::string(left.message()));
+    logger_->info("drained; worker {} stops", worker_id());
+  }
   return result;
 }
 

@@ -20,10 +20,11 @@
 // the task is dropped without a result), DRAIN drains, REREGISTER registers again.
 //
 // Drain (like Seastar's gate): stop acquiring (an AcquireTask in flight is cancelled); a task in
-// progress is finished if it completes before the lease deadline known when the drain began
-// (less a margin for the upload), else it is cancelled and returned with FailTask(RETURNED); then
-// run() returns OK. Lease extensions that arrive during a drain do not postpone that decision,
-// so a drain always ends within one lease.
+// progress is finished if it completes before the lease deadline known when the drain began, or
+// before drain_timeout from the drain's start when that is sooner (less a margin for the upload),
+// else it is cancelled and returned with FailTask(RETURNED); then the worker says Leave (it is
+// listed as `left`, not `lost`) and run() returns OK. Lease extensions that arrive during a drain
+// do not postpone that decision, so a drain always ends within one lease and within the timeout.
 #pragma once
 
 #include <spdlog/logger.h>
@@ -60,6 +61,8 @@ struct WorkerConfig {
   std::uint64_t max_bundle_bytes = std::uint64_t{4} << 30;
   // A draining worker gives up a task that would not finish this long before its deadline.
   std::chrono::milliseconds return_margin{500};
+  // The longest a drain waits for the task in progress (0: up to the lease's deadline).
+  std::chrono::milliseconds drain_timeout{0};
   // Pause after a failed Register or AcquireTask (past the client's own retries) before trying
   // again.
   std::chrono::milliseconds acquire_error_pause{1'000};

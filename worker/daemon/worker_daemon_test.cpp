@@ -163,6 +163,14 @@ class FakeCoordinator final : public v1::WorkerService::Service {
     return grpc::Status::OK;
   }
 
+  grpc::Status Leave(grpc::ServerContext*, const v1::LeaveRequest* request,
+                     v1::LeaveResponse*) override {
+    std::lock_guard<std::mutex> lock(mutex);
+    left.push_back(request->worker_id());
+    changed.notify_all();
+    return grpc::Status::OK;
+  }
+
   grpc::Status FetchBundle(grpc::ServerContext*, const v1::FetchBundleRequest* request,
                            grpc::ServerWriter<v1::BundleData>* writer) override {
     {
@@ -201,6 +209,7 @@ class FakeCoordinator final : public v1::WorkerService::Service {
   std::vector<Upload> uploads;
   std::vector<v1::FailTaskRequest> failures;
   std::vector<std::string> fetched;
+  std::vector<std::string> left;  // worker ids that said Leave
 };
 
 class WorkerDaemonTest : public ::testing::Test {
@@ -278,8 +287,8 @@ class WorkerDaemonTest : public ::testing::Test {
     return "127.0.0.1:" + std::to_string(port);
   }
 
-  void start_worker(std::chrono::milliseconds return_margin = 100ms,
-                    const std::string& secret = "") {
+  void start_worker(std::chrono::milliseconds return_margin = 100ms, const std::string& secret = "",
+                    std::chrono::milliseconds drain_timeout = 0ms) {
     ClientConfig client_config;
     client_config.address = start_server();
     client_config.secret = secret;
@@ -292,6 +301,7 @@ class WorkerDaemonTest : public ::testing::Test {
     config.cache_dir = cache_dir_;
     config.acquire_wait_ms = 200;
     config.return_margin = return_margin;
+    config.drain_timeout = drain_timeout;
     config.acquire_error_pause = 100ms;
     daemon_ = std::make_unique<WorkerDaemon>(config, *client_, device_, *library_, arena_, logger_);
     worker_thread_ = std::thread([this] {
@@ -519,6 +529,30 @@ TEST_F(WorkerDaemonTest, DrainReturnsALeaseThatWouldNotFinishInTime) {
   EXPECT_EQ(fake_.failures[0].failure_class(), v1::FAILURE_CLASS_RETURNED);
   // It stopped acquiring: no AcquireTask after the lease.
   EXPECT_TRUE(fake_.acquires_after_lease.empty());
+  // And said it left, so it is listed as left, not lost.
+  EXPECT_EQ(fake_.left.size(), 1u);
+}
+
+TEST_F(WorkerDaemonTest, ADrainTimeoutReturnsALongTaskLongBeforeItsLeaseEnds) {
+  // Minutes of work on a one-minute lease; the drain may wait 800 ms (less the 300 ms margin).
+  fake_.lease = make_lease(rect(0, 0, 16, 16), 0, 1 << 16, 100, 60s);
+  fake_.heartbeat_interval_ms = 100;
+  start_worker(/*return_margin=*/300ms, "", /*drain_timeout=*/800ms);
+  ASSERT_TRUE(fake_.wait(
+      [&] { return !fake_.heartbeats.empty() && fake_.heartbeats.back().samples_done() > 0; }));
+  const Clock::time_point drained = Clock::now();
+  daemon_->drain();
+  ASSERT_TRUE(join_worker(10s));
+  const auto took = Clock::now() - drained;
+  EXPECT_TRUE(run_status_.ok()) << run_status_;
+  EXPECT_GE(took, 400ms) << "it gave the task its time first";
+  EXPECT_LT(took, 3s) << "the drain timeout, not the one-minute lease, bounds the drain";
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  EXPECT_TRUE(fake_.uploads.empty());
+  ASSERT_EQ(fake_.failures.size(), 1u);
+  EXPECT_EQ(fake_.failures[0].failure_class(), v1::FAILURE_CLASS_RETURNED);
+  ASSERT_EQ(fake_.left.size(), 1u);
+  EXPECT_FALSE(fake_.left[0].empty());
 }
 
 TEST_F(WorkerDaemonTest, ADrainDirectiveLetsATaskThatFitsItsLeaseComplete) {

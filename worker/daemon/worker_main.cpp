@@ -68,6 +68,11 @@ int main(int argc, char** argv) {
   app.add_option("--secret", secret, "worker secret")->envname("PRISM_WORKER_SECRET");
   app.add_option("--tls-ca", tls_ca, "PEM CA bundle to verify the coordinator (enables TLS)");
   app.add_option("--host", host, "host name reported to the coordinator");
+  double drain_timeout = 0;
+  app.add_option("--drain-timeout", drain_timeout,
+                 "seconds a drain (SIGTERM) waits for the task in progress before handing it "
+                 "back (0: up to its lease's deadline)")
+      ->check(CLI::Range(0.0, 86400.0));
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
   CLI11_PARSE(app, argc, argv);
@@ -107,6 +112,7 @@ int main(int argc, char** argv) {
   config.version = PRISM_VERSION;
   config.threads = threads;
   config.cache_dir = cache_dir;
+  config.drain_timeout = std::chrono::milliseconds(std::int64_t(drain_timeout * 1000));
   prism::worker::WorkerDaemon daemon(config, client, device, *library, arena, logger);
   logger->info("prism-worker {} on {}: coordinator {}, {} threads, cache {}", PRISM_VERSION, host,
                coordinator, threads, cache_dir);
