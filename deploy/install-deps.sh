@@ -9,7 +9,7 @@ packages=(
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libspdlog-dev libfmt-dev libtbb-dev libcli11-dev libsqlite3-dev libpng-dev
   libtinyobjloader-dev libssl-dev libcpp-httplib-dev nlohmann-json3-dev prometheus-cpp-dev
-  prometheus curl
+  prometheus curl slurm-wlm munge
   libgtest-dev libgmock-dev libbenchmark-dev
   gnuplot-nox fonts-dejavu-core
 )
