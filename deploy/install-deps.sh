@@ -1,6 +1,9 @@
 #!/usr/bin/env bash
-# Installs every Debian 12 package Prism needs to build, test and run. Idempotent: it asks apt
-# only for what is missing and runs `apt-get update` at most once. Safe to rerun.
+# Installs every Debian 12 package Prism needs to build, test and run, and the npm packages of
+# the Kubernetes manifest check (deploy/k8s/test, pinned by its package-lock.json). Idempotent:
+# it asks apt only for what is missing, runs `apt-get update` at most once, and runs `npm ci`
+# only when the lock file changed. Safe to rerun. PRISM_SKIP_TEST_TOOLS=1 (the container build)
+# leaves out what only the tests use.
 set -euo pipefail
 
 packages=(
@@ -9,10 +12,25 @@ packages=(
   libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libspdlog-dev libfmt-dev libtbb-dev libcli11-dev libsqlite3-dev libpng-dev
   libtinyobjloader-dev libssl-dev libcpp-httplib-dev nlohmann-json3-dev prometheus-cpp-dev
-  prometheus curl slurm-wlm munge
   libgtest-dev libgmock-dev libbenchmark-dev
   gnuplot-nox fonts-dejavu-core
 )
+# What the tests start: a real Prometheus and curl (the HTTP API), a single-host Slurm, and the
+# Kubernetes manifest check (kubectl's kustomize, Python's YAML reader, Node.js).
+test_packages=(prometheus curl slurm-wlm munge python3-yaml)
+# Installed only when the command is missing, so a kubectl or Node.js the machine already has
+# from elsewhere is kept (Debian's packages would conflict with them).
+declare -A test_commands=([kubectl]=kubernetes-client [node]=nodejs [npm]=npm)
+
+here=$(cd "$(dirname "$0")" && pwd)
+with_tests=1
+[[ "${PRISM_SKIP_TEST_TOOLS:-0}" == 1 ]] && with_tests=0
+if ((with_tests)); then
+  packages+=("${test_packages[@]}")
+  for command in "${!test_commands[@]}"; do
+    command -v "$command" > /dev/null || packages+=("${test_commands[$command]}")
+  done
+fi
 
 missing=()
 for p in "${packages[@]}"; do
@@ -20,16 +38,24 @@ for p in "${packages[@]}"; do
   [[ "$status" == "install ok installed" ]] || missing+=("$p")
 done
 
-if ((${#missing[@]} == 0)); then
-  echo "install-deps: all ${#packages[@]} packages present"
-  exit 0
-fi
-
 sudo=""
 if [[ $(id -u) -ne 0 ]]; then sudo="sudo"; fi
-echo "install-deps: installing ${missing[*]}"
-export DEBIAN_FRONTEND=noninteractive
-if ! $sudo apt-get install -y --no-install-recommends "${missing[@]}"; then
-  $sudo apt-get update
-  $sudo apt-get install -y --no-install-recommends "${missing[@]}"
+if ((${#missing[@]} == 0)); then
+  echo "install-deps: all ${#packages[@]} packages present"
+else
+  echo "install-deps: installing ${missing[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  if ! $sudo apt-get install -y --no-install-recommends "${missing[@]}"; then
+    $sudo apt-get update
+    $sudo apt-get install -y --no-install-recommends "${missing[@]}"
+  fi
+fi
+
+if ((with_tests)); then
+  k8s_test=$here/k8s/test
+  stamp=$k8s_test/node_modules/.package-lock.json
+  if [[ ! -f "$stamp" || "$k8s_test/package-lock.json" -nt "$stamp" ]]; then
+    echo "install-deps: npm ci in deploy/k8s/test"
+    (cd "$k8s_test" && npm ci --no-audit --no-fund --loglevel=error)
+  fi
 fi
