@@ -57,17 +57,15 @@ class SlurmTest : public ::testing::Test {
     fs::create_symlink(PRISM_COORDINATOR_BINARY, root_ / "bin" / "prism-coordinator");
     fs::create_symlink(PRISM_WORKER_BINARY, root_ / "bin" / "prism-worker");
     env_ = {"SLURM_CONF=" + (root_ / "slurm.conf").string(),
-            "PRISM_SHARED=" + (root_ / "shared").string(),
-            "PRISM_BIN=" + (root_ / "bin").string(), "PRISM_DRAIN_TIMEOUT=60",
-            "PRISM_COORDINATOR_ARGS=--heartbeat-ms 200 --lease-ms 5000"};
+            "PRISM_SHARED=" + (root_ / "shared").string(), "PRISM_BIN=" + (root_ / "bin").string(),
+            "PRISM_DRAIN_TIMEOUT=60", "PRISM_COORDINATOR_ARGS=--heartbeat-ms 200 --lease-ms 5000"};
   }
   void TearDown() override {
     if (slurmctld_ != nullptr) {
       // Every job ends (its slurmstepd with it) before the daemons go.
       run_slurm({"scancel", "--full", "--user", user()}, true);
       const auto end = Clock::now() + std::chrono::seconds(60);
-      while (Clock::now() < end &&
-             !run_slurm({"squeue", "--noheader"}, true).empty()) {
+      while (Clock::now() < end && !run_slurm({"squeue", "--noheader"}, true).empty()) {
         std::this_thread::sleep_for(std::chrono::milliseconds(200));
       }
     }
@@ -109,9 +107,8 @@ class SlurmTest : public ::testing::Test {
     }
     ::chmod(key.c_str(), 0400);
     const fs::path socket = root_ / "munge.sock";
-    munged_ = spawn({program("munged"), "--foreground", "--force",
-                     "--key-file=" + key.string(), "--socket=" + socket.string(),
-                     "--pid-file=" + (root_ / "munged.pid").string(),
+    munged_ = spawn({program("munged"), "--foreground", "--force", "--key-file=" + key.string(),
+                     "--socket=" + socket.string(), "--pid-file=" + (root_ / "munged.pid").string(),
                      "--log-file=" + (root_ / "log/munged.log").string(),
                      "--seed-file=" + (root_ / "munge.seed").string()});
     ASSERT_NE(munged_, nullptr);
@@ -188,22 +185,21 @@ TEST_F(SlurmTest, SbatchStartedWorkersRenderTheSameBytesAndAScancelledOneDrains)
   std::map<std::string, std::string> published = coordinator_env();
   ASSERT_TRUE(published.contains("PRISM_COORDINATOR")) << read(root_ / "log/slurmctld.log");
   ASSERT_FALSE(published["PRISM_WORKER_SECRET"].empty());
-  const std::string array = run_slurm(
-      {"sbatch", "--parsable", "--array=0-1", "--cpus-per-task=1",
-       "--output=" + (root_ / "out/worker-%A_%a.out").string(), scripts + "/workers.sbatch"});
+  const std::string array = run_slurm({"sbatch", "--parsable", "--array=0-1", "--cpus-per-task=1",
+                                       "--output=" + (root_ / "out/worker-%A_%a.out").string(),
+                                       scripts + "/workers.sbatch"});
   const std::string array_id = array.substr(0, array.find_first_of(";\n"));
   ASSERT_FALSE(array_id.empty());
 
   // The client needs only what the coordinator published.
-  const std::vector<std::string> flags = {"--integrator", "hero", "--spp", "256", "--resolution",
-                                          "32x24", "--bins", "8", "--tile", "8", "--seed", "5",
-                                          "--samples-per-task", "32"};
+  const std::vector<std::string> flags = {
+      "--integrator", "hero", "--spp",  "256", "--resolution",       "32x24", "--bins", "8",
+      "--tile",       "8",    "--seed", "5",   "--samples-per-task", "32"};
   testing::ChildOptions client;
   client.env = {"PRISM_COORDINATOR=" + published["PRISM_COORDINATOR"],
                 "PRISM_API_TOKEN=" + published["PRISM_API_TOKEN"]};
-  std::vector<std::string> submit = {PRISM_BINARY, "submit",
-                                     (root_ / "scene/scene.pbrt").string(), "--wait", "-o",
-                                     (root_ / "farm.exr").string()};
+  std::vector<std::string> submit = {PRISM_BINARY, "submit", (root_ / "scene/scene.pbrt").string(),
+                                     "--wait",     "-o",     (root_ / "farm.exr").string()};
   submit.insert(submit.end(), flags.begin(), flags.end());
   children_.push_back(testing::ChildProcess::start(submit, client));
   testing::ChildProcess* submitted = children_.back().get();
@@ -214,7 +210,8 @@ TEST_F(SlurmTest, SbatchStartedWorkersRenderTheSameBytesAndAScancelledOneDrains)
   while (Clock::now() < busy_by && busy < 2) {
     testing::RunResult w = testing::run({PRISM_BINARY, "workers"}, client);
     busy = 0;
-    for (std::size_t at = w.out.find("busy"); at != std::string::npos; at = w.out.find("busy", at + 1))
+    for (std::size_t at = w.out.find("busy"); at != std::string::npos;
+         at = w.out.find("busy", at + 1))
       ++busy;
     if (busy < 2) std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }

@@ -10,8 +10,8 @@
 
 namespace prism::testing {
 
-void make_self_signed(const std::filesystem::path& cert_path,
-                      const std::filesystem::path& key_path) {
+void make_self_signed(const std::filesystem::path& cert_path, const std::filesystem::path& key_path,
+                      const std::vector<std::string>& extra_ips) {
   EVP_PKEY* key = EVP_EC_gen("P-256");
   ASSERT_NE(key, nullptr);
   X509* cert = X509_new();
@@ -25,11 +25,12 @@ void make_self_signed(const std::filesystem::path& cert_path,
   X509_NAME_add_entry_by_txt(name, "CN", MBSTRING_ASC,
                              reinterpret_cast<const unsigned char*>("localhost"), -1, -1, 0);
   X509_set_issuer_name(cert, name);
+  std::string names = "DNS:localhost,IP:127.0.0.1";
+  for (const std::string& ip : extra_ips) names += ",IP:" + ip;
   X509V3_CTX ctx;
   X509V3_set_ctx_nodb(&ctx);
   X509V3_set_ctx(&ctx, cert, cert, nullptr, nullptr, 0);
-  X509_EXTENSION* san =
-      X509V3_EXT_conf_nid(nullptr, &ctx, NID_subject_alt_name, "DNS:localhost,IP:127.0.0.1");
+  X509_EXTENSION* san = X509V3_EXT_conf_nid(nullptr, &ctx, NID_subject_alt_name, names.c_str());
   ASSERT_NE(san, nullptr);
   X509_add_ext(cert, san, -1);
   X509_EXTENSION_free(san);

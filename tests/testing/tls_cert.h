@@ -3,11 +3,14 @@
 #pragma once
 
 #include <filesystem>
+#include <string>
+#include <vector>
 
 namespace prism::testing {
 
 // Writes the certificate and its private key as PEM files; fails the current test on error.
-void make_self_signed(const std::filesystem::path& cert_path,
-                      const std::filesystem::path& key_path);
+// `extra_ips`: more IPv4 addresses the certificate names (servers reached across namespaces).
+void make_self_signed(const std::filesystem::path& cert_path, const std::filesystem::path& key_path,
+                      const std::vector<std::string>& extra_ips = {});
 
 }  // namespace prism::testing
