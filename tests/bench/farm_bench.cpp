@@ -24,15 +24,25 @@
 //            the TCP bytes of real CompleteTask calls to a prism-coordinator through a counting
 //            loopback relay (HTTP/2 frames and headers included), for 16/64/256 bins.
 //
-// Usage: prism-bench-farm [overhead] [capacity] [wire]      (none: all three)
+//  load      (only when asked for) A real prism-coordinator with its HTTP API, --workers
+//            synthetic workers as in capacity, and --load-jobs jobs kept queued (a new job is
+//            submitted whenever one finishes) for --load-seconds, while one client sends 20 HTTP
+//            API requests per second (jobs list, a job, workers, /metrics): the coordinator's
+//            RSS and CPU over time, jobs lost (failed, cancelled or missing: must be zero) and
+//            the API's latency percentiles.
+//
+// Usage: prism-bench-farm [overhead] [capacity] [wire] [load]  (none: the first three)
 //          [--resolution 320x240] [--spp 256] [--tile 32] [--repeats 2]          (overhead)
 //          [--workers 100] [--channels 100] [--capacity-resolution 1024x1024]
 //          [--capacity-tile 16] [--capacity-bins 16]                             (capacity)
 //          [--wire-tile 32]                                                      (wire)
+//          [--workers 100] [--load-jobs 200] [--load-seconds 1800]
+//          [--load-resolution 128x128]                                           (load)
 #include <arpa/inet.h>
 #include <fcntl.h>
 #include <grpcpp/create_channel.h>
 #include <grpcpp/security/credentials.h>
+#include <httplib.h>
 #include <netinet/in.h>
 #include <poll.h>
 #include <signal.h>
@@ -52,6 +62,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -348,6 +359,7 @@ absl::Status grpc_error(const std::string& what, const grpc::Status& status) {
 struct Coordinator {
   pid_t pid = -1;
   int port = 0;
+  int http_port = 0;  // with --http-listen
   std::string address;
   std::unique_ptr<v1::FarmService::Stub> farm;
 };
@@ -372,6 +384,7 @@ absl::StatusOr<Coordinator> start_coordinator(Children& children, const fs::path
   if (c.pid < 0 || out == nullptr) return absl::InternalError("cannot start prism-coordinator");
   char line[512];
   while (std::fgets(line, sizeof(line), out) != nullptr) {
+    std::sscanf(line, "serving HTTP on port %d", &c.http_port);
     if (std::sscanf(line, "listening on port %d", &c.port) == 1) break;
   }
   // Keep draining so the coordinator never blocks on a full pipe.
@@ -711,9 +724,14 @@ class ResultFactory {
     const std::pair<int, int> shape{rect.width(), rect.height()};
     auto it = templates_.find(shape);
     if (it == templates_.end()) {
+      // With the RGB sums every final-pass result carries (the coordinator refuses one
+      // without them).
+      image::TileBuffers buffers;
+      buffers.rgb = true;
       PRISM_ASSIGN_OR_RETURN(image::TileResult result,
                              image::TileResult::create({0, 0, shape.first, shape.second},
-                                                       {0, samples.count()}, bins_));
+                                                       {0, samples.count()}, bins_, buffers));
+      for (double& v : result.mutable_rgb_sums()) v = 0.5 * double(samples.count());
       for (double& v : result.mutable_sums()) v = 0.5 * double(samples.count());
       for (double& v : result.mutable_sum_squares()) v = 0.25 * double(samples.count());
       for (std::uint64_t& n : result.mutable_counts()) n = samples.count();
@@ -1041,6 +1059,213 @@ absl::Status run_capacity(const Flags& flags, const fs::path& root) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// load
+
+// Latencies of one kind of API request, in milliseconds.
+struct Latencies {
+  std::vector<double> ms;
+  std::uint64_t errors = 0;
+  double quantile(double q) const {
+    if (ms.empty()) return 0;
+    std::vector<double> sorted = ms;
+    std::sort(sorted.begin(), sorted.end());
+    return sorted[std::min(sorted.size() - 1, std::size_t(q * double(sorted.size())))];
+  }
+};
+
+absl::Status run_load(const Flags& flags, const fs::path& root) {
+  PRISM_ASSIGN_OR_RETURN(const double workers, flags.number("--workers", 100, 1, 10000));
+  PRISM_ASSIGN_OR_RETURN(const double queued, flags.number("--load-jobs", 200, 1, 1000));
+  PRISM_ASSIGN_OR_RETURN(const double seconds, flags.number("--load-seconds", 1800, 10, 86400));
+  PRISM_ASSIGN_OR_RETURN(auto size, parse_size(flags.get("--load-resolution", "128x128")));
+  constexpr int kTile = 16, kBins = 16;
+  fs::create_directories(root / "scene");
+  std::ofstream(root / "scene" / "scene.pbrt", std::ios::binary) << kCapacityScene;
+  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,
+                         scene::make_bundle(root / "scene", "scene.pbrt", {}));
+  Children children;
+  PRISM_ASSIGN_OR_RETURN(Coordinator coordinator, start_coordinator(children, root,
+                                                                    {"--http-listen", "127.0.0.1:0",
+                                                                     "--max-queued-jobs", "1000"}));
+  if (coordinator.http_port <= 0) return absl::InternalError("no HTTP port");
+  PRISM_RETURN_IF_ERROR(upload_bundle(coordinator, scene::pack(bundle)));
+
+  // Synthetic workers as in `capacity`; results are hashed as they are sent.
+  CapacityShared shared;
+  shared.coordinator_pid = coordinator.pid;
+  shared.bins = kBins;
+  shared.total_tasks = std::numeric_limits<int>::max();  // no 10/90 % marks
+  ResultFactory factory{kBins};
+  for (int w : {kTile, size.first % kTile}) {
+    for (int h : {kTile, size.second % kTile}) {
+      if (w == 0 || h == 0) continue;
+      PRISM_ASSIGN_OR_RETURN(std::string bytes, factory.bytes({0, 0, w, h}, {0, 1}));
+      shared.templates[{w, h}] = bytes;
+    }
+  }
+  std::vector<std::thread> threads;
+  auto channel = grpc::CreateChannel(coordinator.address, grpc::InsecureChannelCredentials());
+  for (int i = 0; i < int(workers); ++i)
+    threads.emplace_back(synthetic_worker, i, channel, std::ref(shared));
+
+  std::vector<std::string> submitted;
+  auto submit = [&]() -> absl::Status {
+    v1::SubmitJobRequest request;
+    v1::JobSpec& spec = *request.mutable_spec();
+    spec.set_bundle_hash(bundle.content_hash);
+    spec.set_scene_path("scene.pbrt");
+    spec.set_width(size.first);
+    spec.set_height(size.second);
+    spec.set_bins(kBins);
+    spec.set_tile_size(kTile);
+    spec.set_spp(1);
+    spec.set_seed(submitted.size() + 1);
+    request.set_client_token(absl::StrCat("load-", submitted.size()));
+    v1::SubmitJobResponse response;
+    auto context = call(kToken);
+    const grpc::Status status = coordinator.farm->SubmitJob(context.get(), request, &response);
+    if (!status.ok()) return grpc_error("SubmitJob", status);
+    submitted.push_back(response.job().job_id());
+    return absl::OkStatus();
+  };
+  auto unfinished = [&]() -> absl::StatusOr<int> {
+    v1::ListJobsRequest request;
+    for (v1::JobState s : {v1::JOB_STATE_QUEUED, v1::JOB_STATE_PREPASS, v1::JOB_STATE_RENDERING,
+                           v1::JOB_STATE_FINALISING})
+      request.add_states(s);
+    v1::ListJobsResponse response;
+    auto context = call(kToken);
+    const grpc::Status status = coordinator.farm->ListJobs(context.get(), request, &response);
+    if (!status.ok()) return grpc_error("ListJobs", status);
+    return response.jobs_size();
+  };
+
+  // API clients: a steady mix of HTTP requests, 20 per second, timed.
+  std::map<std::string, Latencies> latencies;
+  std::mutex latency_mutex;
+  std::atomic<bool> stop_api{false};
+  std::thread api([&] {
+    httplib::Client http("127.0.0.1", coordinator.http_port);
+    http.set_read_timeout(30, 0);
+    const httplib::Headers auth = {{"Authorization", std::string("Bearer ") + kToken}};
+    int i = 0;
+    while (!stop_api.load()) {
+      std::string kind, path;
+      switch (i++ % 4) {
+        case 0:
+          kind = "GET /api/v1/jobs?limit=20";
+          path = "/api/v1/jobs?limit=20";
+          break;
+        case 1: {
+          kind = "GET /api/v1/jobs/{id}";
+          std::lock_guard<std::mutex> lock(latency_mutex);
+          path = "/api/v1/jobs/" + (submitted.empty() ? std::string("none") : submitted.back());
+          break;
+        }
+        case 2:
+          kind = "GET /api/v1/workers";
+          path = "/api/v1/workers";
+          break;
+        default:
+          kind = "GET /metrics";
+          path = "/metrics";
+          break;
+      }
+      const Clock::time_point start = Clock::now();
+      auto result = http.Get(path, auth);
+      const double ms = seconds_since(start) * 1000.0;
+      std::lock_guard<std::mutex> lock(latency_mutex);
+      Latencies& l = latencies[kind];
+      if (!result || result->status != 200)
+        ++l.errors;
+      else
+        l.ms.push_back(ms);
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+  });
+
+  struct Sample {
+    double t, rss_mib, cpu_s;
+    int done, unfinished;
+  };
+  std::vector<Sample> samples;
+  const Clock::time_point start = Clock::now();
+  const double cpu0 = cpu_seconds(coordinator.pid);
+  absl::Status failed;
+  double next_sample = 0;
+  while (seconds_since(start) < seconds && failed.ok()) {
+    absl::StatusOr<int> open = unfinished();
+    if (!open.ok()) {
+      failed = open.status();
+      break;
+    }
+    int now_open = *open;
+    for (; now_open < int(queued) && failed.ok(); ++now_open) {
+      std::lock_guard<std::mutex> lock(latency_mutex);
+      failed = submit();
+    }
+    if (seconds_since(start) >= next_sample) {
+      samples.push_back({seconds_since(start), status_mib(coordinator.pid, "VmRSS:"),
+                         cpu_seconds(coordinator.pid) - cpu0, int(submitted.size()) - now_open,
+                         now_open});
+      next_sample += std::max(10.0, seconds / 30);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  }
+  stop_api = true;
+  api.join();
+  shared.stop = true;
+  for (std::thread& th : threads) th.join();
+  PRISM_RETURN_IF_ERROR(failed);
+
+  // Every job submitted is done or still in the queue; none failed, vanished or was cancelled.
+  std::map<v1::JobState, int> states;
+  int lost = 0;
+  for (const std::string& id : submitted) {
+    absl::StatusOr<v1::JobInfo> info = get_job(coordinator, id);
+    if (!info.ok()) {
+      ++lost;
+      continue;
+    }
+    ++states[info->state()];
+    if (info->state() == v1::JOB_STATE_FAILED || info->state() == v1::JOB_STATE_CANCELLED) ++lost;
+  }
+  const double hwm = status_mib(coordinator.pid, "VmHWM:");
+  children.stop(coordinator.pid);
+
+  std::printf("\n### Load: %d queued jobs, %d synthetic workers, %.0f s\n\n", int(queued),
+              int(workers), seconds);
+  std::printf(
+      "Jobs of %dx%d, %d px tiles, %d bins, 1 spp (%d tasks each). Submitted %zu, done %d, "
+      "unfinished %d, **lost %d** (failed, cancelled or missing). Coordinator peak RSS "
+      "(VmHWM) %.0f MiB.\n\n",
+      size.first, size.second, kTile, kBins,
+      ((size.first + kTile - 1) / kTile) * ((size.second + kTile - 1) / kTile), submitted.size(),
+      states[v1::JOB_STATE_DONE], int(submitted.size()) - states[v1::JOB_STATE_DONE] - lost, lost,
+      hwm);
+  std::printf(
+      "| time s | coordinator RSS MiB | coordinator CPU s | jobs done | jobs unfinished |\n");
+  std::printf("|---|---|---|---|---|\n");
+  for (const Sample& s : samples)
+    std::printf("| %.0f | %.0f | %.0f | %d | %d |\n", s.t, s.rss_mib, s.cpu_s, s.done,
+                s.unfinished);
+  std::printf(
+      "\n| API request (20/s in all, one client) | n | p50 ms | p99 ms | max ms | errors |\n");
+  std::printf("|---|---|---|---|---|---|\n");
+  for (const auto& [kind, l] : latencies) {
+    std::printf("| %s | %zu | %.1f | %.1f | %.1f | %llu |\n", kind.c_str(), l.ms.size(),
+                l.quantile(0.5), l.quantile(0.99), l.quantile(1.0),
+                static_cast<unsigned long long>(l.errors));
+  }
+  std::printf("\n%llu task results sent by the synthetic workers, %llu worker errors%s%s\n",
+              static_cast<unsigned long long>(shared.completed.load()),
+              static_cast<unsigned long long>(shared.errors.load()),
+              shared.first_error.empty() ? "" : "; first: ", shared.first_error.c_str());
+  std::fflush(stdout);
+  return absl::OkStatus();
+}
+
+// ---------------------------------------------------------------------------------------------
 // wire
 
 struct WireSize {
@@ -1240,7 +1465,8 @@ int run(int argc, char** argv) {
   auto flags =
       parse_flags(argc, argv,
                   {"--resolution", "--spp", "--tile", "--repeats", "--workers", "--channels",
-                   "--capacity-resolution", "--capacity-tile", "--capacity-bins", "--wire-tile"});
+                   "--capacity-resolution", "--capacity-tile", "--capacity-bins", "--wire-tile",
+                   "--load-jobs", "--load-seconds", "--load-resolution"});
   if (!flags.ok()) {
     std::cerr << kProgram << ": " << flags.status().message() << "\n";
     return 2;
@@ -1248,9 +1474,9 @@ int run(int argc, char** argv) {
   std::vector<std::string> which = flags->positional;
   if (which.empty()) which = {"overhead", "capacity", "wire"};
   for (const std::string& w : which) {
-    if (w != "overhead" && w != "capacity" && w != "wire") {
+    if (w != "overhead" && w != "capacity" && w != "wire" && w != "load") {
       std::cerr << kProgram << ": unknown measurement '" << w
-                << "': want overhead, capacity or wire\n";
+                << "': want overhead, capacity, wire or load\n";
       return 2;
     }
   }
@@ -1265,6 +1491,7 @@ int run(int argc, char** argv) {
     if (w == "overhead") status = run_overhead(*flags, root / "overhead");
     if (w == "capacity") status = run_capacity(*flags, root / "capacity");
     if (w == "wire") status = run_wire(*flags, root / "wire");
+    if (w == "load") status = run_load(*flags, root / "load");
     if (!status.ok()) {
       std::cerr << kProgram << ": " << w << ": " << status.message() << " (logs under "
                 << (root / w).string() << ")\n";
