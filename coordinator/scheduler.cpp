@@ -350,19 +350,7 @@ void Scheduler::tick(Millis now) {
     if (now - worker.last_seen > silence) lost.push_back(id);
   for (const std::string& worker_id : lost) {
     const WorkerRecord worker = workers_.at(worker_id);
-    int requeued = 0;
-    for (std::uint64_t seq : worker.leases) {
-      auto current = current_leases_.find(seq);
-      if (current == current_leases_.end()) continue;
-      LeaseRecord& record = leases_.at(current->second);
-      const Lease lease = record.lease;
-      end_lease(record, absl::StrCat("its worker ", worker_id, " was declared lost"));
-      requeue(jobs_.at(lease.task.job_id), lease.task.job_id, lease.task.index,
-              FailureClass::kWorker, worker_id,
-              absl::StrCat("worker ", worker_id, " holding lease ", lease.id, " was lost"), now);
-      ++requeued;
-    }
-    workers_.erase(worker_id);
+    const int requeued = end_worker(worker_id, FailureClass::kWorker, "was declared lost", now);
     ++counters_.workers_lost;
     events_.push_back(
         {.kind = SchedulerEvent::Kind::kWorkerLost,
@@ -376,19 +364,23 @@ void Scheduler::tick(Millis now) {
 }
 
 int Scheduler::remove_worker(const std::string& worker_id, Millis now) {
-  auto it = workers_.find(worker_id);
-  if (it == workers_.end()) return 0;
-  const WorkerRecord worker = it->second;
+  if (!workers_.contains(worker_id)) return 0;
+  return end_worker(worker_id, FailureClass::kReturned, "left", now);
+}
+
+int Scheduler::end_worker(const std::string& worker_id, FailureClass failure_class,
+                          const std::string& what, Millis now) {
+  const WorkerRecord worker = workers_.at(worker_id);
   int requeued = 0;
   for (std::uint64_t seq : worker.leases) {
     auto current = current_leases_.find(seq);
     if (current == current_leases_.end()) continue;
     LeaseRecord& record = leases_.at(current->second);
     const Lease lease = record.lease;
-    end_lease(record, absl::StrCat("its worker ", worker_id, " left"));
-    requeue(jobs_.at(lease.task.job_id), lease.task.job_id, lease.task.index,
-            FailureClass::kReturned, worker_id,
-            absl::StrCat("worker ", worker_id, " left holding lease ", lease.id), now);
+    end_lease(record, absl::StrCat("its worker ", worker_id, " ", what));
+    requeue(jobs_.at(lease.task.job_id), lease.task.job_id, lease.task.index, failure_class,
+            worker_id, absl::StrCat("worker ", worker_id, " holding lease ", lease.id, " ", what),
+            now);
     ++requeued;
   }
   workers_.erase(worker_id);

@@ -304,6 +304,10 @@ class Scheduler {
                                int first_index);
   bool eligible(const JobRecord& job, const TaskRecord& task, const std::string& worker_id,
                 Millis now) const;
+  // Forgets a worker: its current leases end ("its worker <id> <what>") and their tasks are
+  // requeued as `failure_class`. Returns how many.
+  int end_worker(const std::string& worker_id, FailureClass failure_class, const std::string& what,
+                 Millis now);
   // Ends a current lease: it stops being current, leaves its worker and its task's slot.
   void end_lease(LeaseRecord& record, std::string why);
   // Puts a task back in its job's pending set after its lease ended for `failure_class`.

@@ -1,7 +1,7 @@
 // The farm's bad-input guarantee with real processes on loopback: one `prism-coordinator` (a
 // small --max-bundle-bytes, a worker secret and an API token) and one `prism-worker`, started
-// once for the whole sequence. A good job runs on the worker while this test sends every kind of bad
-// input over gRPC and checks the exact status code and that the message says what is wrong:
+// once for the whole sequence. A good job runs on the worker while this test sends every kind of
+// bad input over gRPC and checks the exact status code and that the message says what is wrong:
 // wrong or missing tokens (UNAUTHENTICATED), bytes that are not a bundle, a tampered bundle and
 // a wrong claimed hash (INVALID_ARGUMENT), scenes that escape their directory (INVALID_ARGUMENT
 // naming the path; a job for such a bundle is FAILED_PRECONDITION), oversized uploads
@@ -64,8 +64,8 @@ constexpr std::uint64_t kGoodSeed = 11;
   if (status.error_message().find(needle) != std::string::npos) {
     return ::testing::AssertionSuccess();
   }
-  return ::testing::AssertionFailure() << "message \"" << status.error_message()
-                                       << "\" does not contain \"" << needle << "\"";
+  return ::testing::AssertionFailure()
+         << "message \"" << status.error_message() << "\" does not contain \"" << needle << "\"";
 }
 
 // The processes and ids the tests share: started by SetUpTestSuite, killed by TearDownTestSuite.
@@ -96,8 +96,12 @@ std::unique_ptr<grpc::ClientContext> call(const std::string& token) {
   context->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(20));
   return context;
 }
-std::unique_ptr<grpc::ClientContext> client() { return call(kToken); }
-std::unique_ptr<grpc::ClientContext> worker_call() { return call(kSecret); }
+std::unique_ptr<grpc::ClientContext> client() {
+  return call(kToken);
+}
+std::unique_ptr<grpc::ClientContext> worker_call() {
+  return call(kSecret);
+}
 
 void write(const fs::path& path, const std::string& text) {
   fs::create_directories(path.parent_path());
@@ -498,8 +502,8 @@ void stale_foreign_or_unknown_leases_are_failed_precondition() {
 
   // The fake worker never heartbeats: it is declared lost after three missed beats and its lease
   // expires at its deadline; either ends the lease. Wait past both (ticks are 100 ms apart).
-  const auto deadline = std::chrono::system_clock::time_point(
-      std::chrono::milliseconds(lease.deadline_unix_ms()));
+  const auto deadline =
+      std::chrono::system_clock::time_point(std::chrono::milliseconds(lease.deadline_unix_ms()));
   std::this_thread::sleep_until(deadline + std::chrono::milliseconds(3 * kHeartbeatMs));
   bool accepted = true;
   status = complete(kSecret, farm_->fake_worker, lease.lease_id(), bytes, &accepted);

@@ -29,26 +29,6 @@ using Clock = std::chrono::steady_clock;
 constexpr char kToken[] = "http-token";
 constexpr char kSecret[] = "worker-secret";
 
-std::string read(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-// The full path of a program on $PATH (the children are started with execv); the bare name when
-// it is not found, so the failure names it.
-std::string program(const std::string& name) {
-  const char* path = std::getenv("PATH");
-  std::istringstream dirs(path != nullptr ? path : "/usr/bin:/bin");
-  for (std::string dir; std::getline(dirs, dir, ':');) {
-    const fs::path candidate = fs::path(dir) / name;
-    if (::access(candidate.c_str(), X_OK) == 0) return candidate.string();
-  }
-  ADD_FAILURE() << name << " is not on PATH (deploy/install-deps.sh installs it)";
-  return name;
-}
-
 class HttpProcessTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -130,8 +110,8 @@ class HttpProcessTest : public ::testing::Test {
   // Returns its stdout; `status` gets the HTTP status when given.
   std::string curl(std::vector<std::string> args, int* status = nullptr,
                    const std::string& token = kToken) {
-    std::vector<std::string> argv = {program("curl"), "--silent", "--show-error", "--max-time",
-                                     "120"};
+    std::vector<std::string> argv = {testing::find_program("curl"), "--silent", "--show-error",
+                                     "--max-time", "120"};
     if (!token.empty()) {
       argv.push_back("-H");
       argv.push_back("Authorization: Bearer " + token);
@@ -210,16 +190,10 @@ TEST_F(HttpProcessTest, CurlUploadsSubmitsWatchesFetchesAndCancelsOverHttps) {
        &status);
   EXPECT_EQ(status, 200);
 
-  // The same flags rendered by `prism render` (run beside the scene, so the EXR's scene name is
-  // the bundle's "scene.pbrt"): the same bytes.
-  std::vector<std::string> render = {PRISM_BINARY, "render", "scene.pbrt", "-o",
-                                     (root_ / "local.exr").string()};
-  for (const std::string& f : render_flags()) render.push_back(f);
-  testing::ChildOptions beside;
-  beside.working_dir = root_ / "scene";
-  testing::RunResult rendered = testing::run(render, beside);
-  ASSERT_EQ(rendered.exit_code, 0) << rendered.err;
-  EXPECT_EQ(read(root_ / "farm.exr"), read(root_ / "local.exr"))
+  // The same flags rendered by `prism render`: the same bytes.
+  EXPECT_EQ(
+      testing::read_file(root_ / "farm.exr"),
+      testing::render_beside(PRISM_BINARY, root_ / "scene", root_ / "local.exr", render_flags()))
       << "the EXR fetched over HTTP is not the embedded render's";
 
   // A long job, cancelled over HTTP while the worker renders it.
@@ -259,9 +233,9 @@ TEST_F(HttpProcessTest, PrometheusScrapesTheMetrics) {
   // The exposition passes Prometheus's own linter.
   const std::string metrics = curl({base_ + "/metrics"});
   std::ofstream(root_ / "metrics.txt") << metrics;
-  testing::RunResult lint =
-      testing::run({program("sh"), "-c",
-                    program("promtool") + " check metrics < " + (root_ / "metrics.txt").string()});
+  testing::RunResult lint = testing::run(
+      {testing::find_program("sh"), "-c",
+       testing::find_program("promtool") + " check metrics < " + (root_ / "metrics.txt").string()});
   EXPECT_EQ(lint.exit_code, 0) << lint.out << lint.err;
 
   const int prometheus_port = testing::free_port();
@@ -270,18 +244,19 @@ TEST_F(HttpProcessTest, PrometheusScrapesTheMetrics) {
       << "scrape_configs:\n  - job_name: prism\n    authorization:\n      type: Bearer\n"
       << "      credentials: " << kToken << "\n    static_configs:\n"
       << "      - targets: ['127.0.0.1:" << http_port_ << "']\n";
-  testing::ChildProcess* prometheus =
-      spawn({program("prometheus"), "--config.file=" + (root_ / "prometheus.yml").string(),
-             "--storage.tsdb.path=" + (root_ / "tsdb").string(),
-             "--web.listen-address=127.0.0.1:" + std::to_string(prometheus_port)});
+  testing::ChildProcess* prometheus = spawn(
+      {testing::find_program("prometheus"), "--config.file=" + (root_ / "prometheus.yml").string(),
+       "--storage.tsdb.path=" + (root_ / "tsdb").string(),
+       "--web.listen-address=127.0.0.1:" + std::to_string(prometheus_port)});
   ASSERT_NE(prometheus, nullptr);
   const std::string api = "http://127.0.0.1:" + std::to_string(prometheus_port) + "/api/v1/query";
   // Polls a PromQL query until it returns one sample; its value.
   auto query = [&](const std::string& promql) -> std::optional<double> {
     const auto end = Clock::now() + std::chrono::seconds(60);
     while (Clock::now() < end) {
-      testing::RunResult r = testing::run({program("curl"), "--silent", "--max-time", "5", "--get",
-                                           "--data-urlencode", "query=" + promql, api});
+      testing::RunResult r =
+          testing::run({testing::find_program("curl"), "--silent", "--max-time", "5", "--get",
+                        "--data-urlencode", "query=" + promql, api});
       json body = json::parse(r.out, nullptr, false);
       if (!body.is_discarded() && body.value("status", "") == "success" &&
           body["data"]["result"].size() == 1) {

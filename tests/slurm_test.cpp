@@ -24,27 +24,6 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-std::string read(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-// The full path of a program on $PATH or in the sbin directories (children start with execv).
-std::string program(const std::string& name) {
-  const char* path = std::getenv("PATH");
-  std::string dirs = path != nullptr ? path : "/usr/bin:/bin";
-  dirs += ":/usr/sbin:/sbin";
-  std::istringstream list(dirs);
-  for (std::string dir; std::getline(list, dir, ':');) {
-    const fs::path candidate = fs::path(dir) / name;
-    if (::access(candidate.c_str(), X_OK) == 0) return candidate.string();
-  }
-  ADD_FAILURE() << name << " is not installed (deploy/install-deps.sh installs it)";
-  return name;
-}
-
 class SlurmTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -87,11 +66,13 @@ class SlurmTest : public ::testing::Test {
 
   // A Slurm client command with the test's SLURM_CONF; its stdout.
   std::string run_slurm(std::vector<std::string> argv, bool quiet = false) {
-    argv[0] = program(argv[0]);
+    argv[0] = testing::find_program(argv[0]);
     testing::ChildOptions options;
     options.env = env_;
     testing::RunResult r = testing::run(argv, options, std::chrono::minutes(1));
-    if (!quiet) EXPECT_EQ(r.exit_code, 0) << argv[0] << ": " << r.out << r.err;
+    if (!quiet) {
+      EXPECT_EQ(r.exit_code, 0) << argv[0] << ": " << r.out << r.err;
+    }
     return r.out;
   }
 
@@ -107,14 +88,16 @@ class SlurmTest : public ::testing::Test {
     }
     ::chmod(key.c_str(), 0400);
     const fs::path socket = root_ / "munge.sock";
-    munged_ = spawn({program("munged"), "--foreground", "--force", "--key-file=" + key.string(),
-                     "--socket=" + socket.string(), "--pid-file=" + (root_ / "munged.pid").string(),
+    munged_ = spawn({testing::find_program("munged"), "--foreground", "--force",
+                     "--key-file=" + key.string(), "--socket=" + socket.string(),
+                     "--pid-file=" + (root_ / "munged.pid").string(),
                      "--log-file=" + (root_ / "log/munged.log").string(),
                      "--seed-file=" + (root_ / "munge.seed").string()});
     ASSERT_NE(munged_, nullptr);
     for (int i = 0; i < 100 && !fs::exists(socket); ++i)
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    ASSERT_TRUE(fs::exists(socket)) << "munged did not start: " << read(root_ / "log/munged.log");
+    ASSERT_TRUE(fs::exists(socket))
+        << "munged did not start: " << testing::read_file(root_ / "log/munged.log");
 
     char host[256] = {};
     ::gethostname(host, sizeof(host) - 1);
@@ -140,10 +123,10 @@ class SlurmTest : public ::testing::Test {
         << "SlurmdParameters=config_overrides\n"
         << "NodeName=" << node << " NodeAddr=127.0.0.1 CPUs=4 State=UNKNOWN\n"
         << "PartitionName=test Nodes=ALL Default=YES MaxTime=INFINITE State=UP\n";
-    slurmctld_ = spawn({program("slurmctld"), "-D", "-i"});
+    slurmctld_ = spawn({testing::find_program("slurmctld"), "-D", "-i"});
     ASSERT_NE(slurmctld_, nullptr);
     std::this_thread::sleep_for(std::chrono::milliseconds(500));
-    ASSERT_NE(spawn({program("slurmd"), "-D"}), nullptr);
+    ASSERT_NE(spawn({testing::find_program("slurmd"), "-D"}), nullptr);
     const auto end = Clock::now() + std::chrono::seconds(60);
     std::string state;
     while (Clock::now() < end) {
@@ -152,7 +135,8 @@ class SlurmTest : public ::testing::Test {
       std::this_thread::sleep_for(std::chrono::milliseconds(250));
     }
     FAIL() << "the Slurm node never became idle (sinfo: " << state << ")\n"
-           << read(root_ / "log/slurmctld.log") << read(root_ / "log/slurmd.log");
+           << testing::read_file(root_ / "log/slurmctld.log")
+           << testing::read_file(root_ / "log/slurmd.log");
   }
 
   // The published coordinator.env as a map, waiting for it.
@@ -162,7 +146,7 @@ class SlurmTest : public ::testing::Test {
     while (Clock::now() < end && !fs::exists(file))
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
     std::map<std::string, std::string> values;
-    std::istringstream lines(read(file));
+    std::istringstream lines(testing::read_file(file));
     for (std::string line; std::getline(lines, line);) {
       const std::size_t eq = line.find('=');
       if (eq != std::string::npos) values[line.substr(0, eq)] = line.substr(eq + 1);
@@ -183,7 +167,8 @@ TEST_F(SlurmTest, SbatchStartedWorkersRenderTheSameBytesAndAScancelledOneDrains)
   run_slurm({"sbatch", "--output=" + (root_ / "out/coordinator-%j.out").string(),
              scripts + "/coordinator.sbatch"});
   std::map<std::string, std::string> published = coordinator_env();
-  ASSERT_TRUE(published.contains("PRISM_COORDINATOR")) << read(root_ / "log/slurmctld.log");
+  ASSERT_TRUE(published.contains("PRISM_COORDINATOR"))
+      << testing::read_file(root_ / "log/slurmctld.log");
   ASSERT_FALSE(published["PRISM_WORKER_SECRET"].empty());
   const std::string array = run_slurm({"sbatch", "--parsable", "--array=0-1", "--cpus-per-task=1",
                                        "--output=" + (root_ / "out/worker-%A_%a.out").string(),
@@ -192,9 +177,11 @@ TEST_F(SlurmTest, SbatchStartedWorkersRenderTheSameBytesAndAScancelledOneDrains)
   ASSERT_FALSE(array_id.empty());
 
   // The client needs only what the coordinator published.
+  // Twelve tasks of about a second each: both workers stay busy long enough to be seen so, and
+  // the scancelled one is mid-task.
   const std::vector<std::string> flags = {
-      "--integrator", "hero", "--spp",  "256", "--resolution",       "32x24", "--bins", "8",
-      "--tile",       "8",    "--seed", "5",   "--samples-per-task", "32"};
+      "--integrator", "hero", "--spp",  "8192", "--resolution",       "32x24", "--bins", "8",
+      "--tile",       "8",    "--seed", "5",    "--samples-per-task", "8192"};
   testing::ChildOptions client;
   client.env = {"PRISM_COORDINATOR=" + published["PRISM_COORDINATOR"],
                 "PRISM_API_TOKEN=" + published["PRISM_API_TOKEN"]};
@@ -207,7 +194,7 @@ TEST_F(SlurmTest, SbatchStartedWorkersRenderTheSameBytesAndAScancelledOneDrains)
   // Once both workers render, scancel the second array task.
   const auto busy_by = Clock::now() + std::chrono::seconds(90);
   int busy = 0;
-  while (Clock::now() < busy_by && busy < 2) {
+  while (Clock::now() < busy_by && busy < 2 && submitted->running()) {
     testing::RunResult w = testing::run({PRISM_BINARY, "workers"}, client);
     busy = 0;
     for (std::size_t at = w.out.find("busy"); at != std::string::npos;
@@ -215,7 +202,8 @@ TEST_F(SlurmTest, SbatchStartedWorkersRenderTheSameBytesAndAScancelledOneDrains)
       ++busy;
     if (busy < 2) std::this_thread::sleep_for(std::chrono::milliseconds(100));
   }
-  ASSERT_EQ(busy, 2) << "both sbatch workers should be rendering";
+  ASSERT_EQ(busy, 2) << "both sbatch workers should be rendering (the job "
+                     << (submitted->running() ? "is still running" : "already ended") << ")";
   run_slurm({"scancel", array_id + "_1"});
 
   const std::optional<int> exit_code = submitted->wait(std::chrono::minutes(5));
@@ -239,14 +227,9 @@ TEST_F(SlurmTest, SbatchStartedWorkersRenderTheSameBytesAndAScancelledOneDrains)
   EXPECT_EQ(state_of_1, "left") << workers;
   EXPECT_EQ(workers.find("lost"), std::string::npos) << workers;
 
-  std::vector<std::string> render = {PRISM_BINARY, "render", "scene.pbrt", "-o",
-                                     (root_ / "local.exr").string()};
-  render.insert(render.end(), flags.begin(), flags.end());
-  testing::ChildOptions beside;
-  beside.working_dir = root_ / "scene";
-  testing::RunResult rendered = testing::run(render, beside);
-  ASSERT_EQ(rendered.exit_code, 0) << rendered.err;
-  EXPECT_EQ(read(root_ / "farm.exr"), read(root_ / "local.exr"))
+  // The same flags rendered by `prism render`: the same bytes.
+  EXPECT_EQ(testing::read_file(root_ / "farm.exr"),
+            testing::render_beside(PRISM_BINARY, root_ / "scene", root_ / "local.exr", flags))
       << "the Slurm farm's EXR is not prism render's";
 }
 

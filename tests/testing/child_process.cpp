@@ -10,9 +10,12 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
+#include <fstream>
 #include <iostream>
 #include <map>
+#include <sstream>
 
 extern char** environ;
 
@@ -221,6 +224,37 @@ int free_port() {
   ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
   ::close(fd);
   return ntohs(addr.sin_port);
+}
+
+std::string find_program(const std::string& name) {
+  const char* path = std::getenv("PATH");
+  std::string dirs = path != nullptr ? path : "/usr/bin:/bin";
+  dirs += ":/usr/sbin:/sbin";
+  std::istringstream list(dirs);
+  for (std::string dir; std::getline(list, dir, ':');) {
+    const std::filesystem::path candidate = std::filesystem::path(dir) / name;
+    if (::access(candidate.c_str(), X_OK) == 0) return candidate.string();
+  }
+  ADD_FAILURE() << name << " is not installed (deploy/install-deps.sh installs it)";
+  return name;
+}
+
+std::string read_file(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+std::string render_beside(const std::string& prism, const std::filesystem::path& scene_dir,
+                          const std::filesystem::path& out, const std::vector<std::string>& flags) {
+  std::vector<std::string> argv = {prism, "render", "scene.pbrt", "-o", out.string()};
+  argv.insert(argv.end(), flags.begin(), flags.end());
+  ChildOptions beside;
+  beside.working_dir = scene_dir;
+  const RunResult rendered = run(argv, beside);
+  EXPECT_EQ(rendered.exit_code, 0) << "prism render failed: " << rendered.err;
+  return read_file(out);
 }
 
 }  // namespace prism::testing

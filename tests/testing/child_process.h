@@ -84,6 +84,20 @@ struct RunResult {
 RunResult run(std::vector<std::string> argv, const ChildOptions& options = {},
               std::chrono::milliseconds timeout = std::chrono::minutes(10));
 
+// The full path of an installed program (children start with execv, which searches nothing):
+// $PATH, then /usr/sbin and /sbin (daemons). Fails the current test and returns the bare name
+// when it is not found, so the failure names it.
+std::string find_program(const std::string& name);
+
+// `<prism> render scene.pbrt -o <out> <flags>` run in `scene_dir`, so that the EXR names its scene
+// "scene.pbrt" as a farm job's bundle does: the farm's outputs must be these bytes. Fails the
+// test when the render fails; returns the EXR's bytes.
+std::string render_beside(const std::string& prism, const std::filesystem::path& scene_dir,
+                          const std::filesystem::path& out, const std::vector<std::string>& flags);
+
+// A whole file's bytes ("" when it cannot be read).
+std::string read_file(const std::filesystem::path& path);
+
 // A loopback TCP port that was free a moment ago (for a server that must be restarted on the
 // same address; servers that can should bind port 0 and print the port they got).
 int free_port();
