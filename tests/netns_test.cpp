@@ -48,7 +48,9 @@ class NetnsTest : public ::testing::Test {
   void ip(std::vector<std::string> args, bool quiet = false) {
     args.insert(args.begin(), testing::find_program("ip"));
     testing::RunResult r = testing::run(args, {}, std::chrono::seconds(30));
-    if (!quiet) EXPECT_EQ(r.exit_code, 0) << "ip failed: " << r.out << r.err;
+    if (!quiet) {
+      EXPECT_EQ(r.exit_code, 0) << "ip failed: " << r.out << r.err;
+    }
   }
   void in_ns(const std::string& ns, std::vector<std::string> args) {
     args.insert(args.begin(), {"netns", "exec", ns, testing::find_program("ip")});
