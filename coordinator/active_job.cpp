@@ -184,6 +184,8 @@ absl::Status ActiveJob::absorb_tile(int tile, const image::TileResult& merged,
                *cmf_));
   PRISM_RETURN_IF_ERROR(rgb->paste(tile_colour, merged.rect().x0, merged.rect().y0));
   ++tiles_finalised;
+  if (tile_done.size() < plan.tiles.size()) tile_done.resize(plan.tiles.size(), 0);
+  tile_done[static_cast<std::size_t>(tile)] = 1;
   return absl::OkStatus();
 }
 

@@ -171,6 +171,12 @@ class FarmCoordinator {
   // naming the state otherwise.
   absl::StatusOr<std::vector<OutputFile>> result_files(const std::string& job_id,
                                                        const std::vector<OutputKind>& kinds);
+  // The final pass's tiles: queued, leased, done or failed (prism::v1::TileMap's characters).
+  struct TileMapStatus {
+    int width = 0, height = 0, tile_size = 0, tiles_x = 0, tiles_y = 0;
+    std::string states;  // one of q, l, d, f per tile in raster order
+  };
+  absl::StatusOr<TileMapStatus> tile_map(const std::string& job_id);
   // An 8-bit PNG of the image as far as it is finalised. FAILED_PRECONDITION before any tile.
   absl::StatusOr<std::string> preview_png(const std::string& job_id, float exposure_stops);
 

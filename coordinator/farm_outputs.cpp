@@ -69,6 +69,59 @@ absl::StatusOr<std::vector<OutputFile>> FarmCoordinator::result_files(
   return out;
 }
 
+absl::StatusOr<FarmCoordinator::TileMapStatus> FarmCoordinator::tile_map(
+    const std::string& job_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_ASSIGN_OR_RETURN(store::JobRecord record, store_->get_job(job_id));
+  TileMapStatus map;
+  auto it = active_.find(job_id);
+  if (it != active_.end()) {
+    const ActiveJob& job = *it->second;
+    map.width = job.params.width;
+    map.height = job.params.height;
+    map.tile_size = job.params.tile_size;
+    map.tiles_x = job.plan.tiles_x;
+    map.tiles_y = job.plan.tiles_y;
+    map.states.assign(job.plan.tiles.size(), 'q');
+    for (const WorkerInfo& worker : scheduler_.workers()) {
+      for (const Lease& lease : worker.current) {
+        if (lease.task.job_id != job_id ||
+            job.stage_of(lease.task.index) < job.first_final_stage()) {
+          continue;
+        }
+        const int tile = job.tile_of(lease.task.index);
+        if (tile >= 0 && tile < int(map.states.size())) map.states[std::size_t(tile)] = 'l';
+      }
+    }
+    for (std::size_t t = 0; t < job.tile_done.size() && t < map.states.size(); ++t) {
+      if (job.tile_done[t]) map.states[t] = 'd';
+    }
+    return map;
+  }
+  // An ended job: its plan from the stored spec, its done tiles from the store.
+  prism::v1::JobSpec spec;
+  if (!spec.ParseFromString(record.spec)) {
+    return absl::DataLossError(absl::StrCat("job ", job_id, ": the stored spec does not parse"));
+  }
+  PRISM_ASSIGN_OR_RETURN(job::JobParameters params,
+                         job::job_parameters(spec, scene::SceneDescription{}));
+  map.width = params.width;
+  map.height = params.height;
+  map.tile_size = params.tile_size;
+  map.tiles_x = (params.width + params.tile_size - 1) / params.tile_size;
+  map.tiles_y = (params.height + params.tile_size - 1) / params.tile_size;
+  const char undone = record.state == store::JobState::kFailed ? 'f' : 'q';
+  map.states.assign(std::size_t(map.tiles_x) * std::size_t(map.tiles_y),
+                    record.state == store::JobState::kDone ? 'd' : undone);
+  if (record.state != store::JobState::kDone) {
+    PRISM_ASSIGN_OR_RETURN(std::vector<int> done, store_->done_final_tiles(job_id));
+    for (int t : done) {
+      if (t >= 0 && t < int(map.states.size())) map.states[std::size_t(t)] = 'd';
+    }
+  }
+  return map;
+}
+
 absl::StatusOr<std::string> FarmCoordinator::preview_png(const std::string& job_id,
                                                          float exposure_stops) {
   if (!std::isfinite(exposure_stops) || std::fabs(exposure_stops) > job::kMaxJobExposureStops) {

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs every Debian 12 package Prism needs to build, test and run, and the npm packages of
-# the Kubernetes manifest check (deploy/k8s/test, pinned by its package-lock.json). Idempotent:
+# the Kubernetes manifest check (deploy/k8s/test) and the dashboard's browser test
+# (tests/browser), each pinned by its package-lock.json. Idempotent:
 # it asks apt only for what is missing, runs `apt-get update` at most once, and runs `npm ci`
 # only when the lock file changed. Safe to rerun. PRISM_SKIP_TEST_TOOLS=1 (the container build)
 # leaves out what only the tests use.
@@ -15,9 +16,10 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   gnuplot-nox fonts-dejavu-core
 )
-# What the tests start: a real Prometheus and curl (the HTTP API), a single-host Slurm, and the
-# Kubernetes manifest check (kubectl's kustomize, Python's YAML reader, Node.js).
-test_packages=(prometheus curl slurm-wlm munge python3-yaml)
+# What the tests start: a real Prometheus and curl (the HTTP API), a single-host Slurm, the
+# Kubernetes manifest check (kubectl's kustomize, Python's YAML reader, Node.js) and headless
+# Chromium for the dashboard.
+test_packages=(prometheus curl slurm-wlm munge python3-yaml chromium)
 # Installed only when the command is missing, so a kubectl or Node.js the machine already has
 # from elsewhere is kept (Debian's packages would conflict with them).
 declare -A test_commands=([kubectl]=kubernetes-client [node]=nodejs [npm]=npm)
@@ -52,10 +54,11 @@ else
 fi
 
 if ((with_tests)); then
-  k8s_test=$here/k8s/test
-  stamp=$k8s_test/node_modules/.package-lock.json
-  if [[ ! -f "$stamp" || "$k8s_test/package-lock.json" -nt "$stamp" ]]; then
-    echo "install-deps: npm ci in deploy/k8s/test"
-    (cd "$k8s_test" && npm ci --no-audit --no-fund --loglevel=error)
-  fi
+  for dir in "$here/k8s/test" "$here/../tests/browser"; do
+    stamp=$dir/node_modules/.package-lock.json
+    if [[ ! -f "$stamp" || "$dir/package-lock.json" -nt "$stamp" ]]; then
+      echo "install-deps: npm ci in $(realpath --relative-to="$here/.." "$dir")"
+      (cd "$dir" && npm ci --no-audit --no-fund --loglevel=error)
+    fi
+  done
 fi

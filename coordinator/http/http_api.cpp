@@ -14,6 +14,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "coordinator/http/api_routes.h"
+#include "coordinator/http/dashboard_assets.h"
 #include "coordinator/rpc/farm_service.h"
 #include "google/protobuf/util/json_util.h"
 #include "prism/v1/farm.pb.h"
@@ -307,6 +308,18 @@ void HttpApi::install_routes() {
     res.set_header("Cache-Control", "no-store");
     res.set_content(*std::move(png), "image/png");
   };
+  handlers["getTiles"] = [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<FarmCoordinator::TileMapStatus> map = farm_.tile_map(req.matches[1]);
+    if (!map.ok()) return send_error(res, map.status());
+    v1::TileMap response;
+    response.set_width(std::uint32_t(map->width));
+    response.set_height(std::uint32_t(map->height));
+    response.set_tile_size(std::uint32_t(map->tile_size));
+    response.set_tiles_x(std::uint32_t(map->tiles_x));
+    response.set_tiles_y(std::uint32_t(map->tiles_y));
+    response.set_states(map->states);
+    send_message(res, response);
+  };
   handlers["listResults"] = [this](const httplib::Request& req, httplib::Response& res) {
     absl::StatusOr<std::vector<OutputFile>> files = farm_.result_files(req.matches[1], {});
     if (!files.ok()) return send_error(res, files.status());
@@ -404,6 +417,18 @@ void HttpApi::install_routes() {
       PRISM_CHECK(route.method == "put");
       server_->Put(pattern, handler);
     }
+  }
+  // The dashboard: static files, no token (the page asks for it and sends it to the API).
+  server_->Get("/", [](const httplib::Request&, httplib::Response& res) {
+    res.set_redirect("/dashboard/");
+  });
+  for (const DashboardAsset& asset : dashboard_assets()) {
+    const std::string path =
+        asset.name == "index.html" ? "/dashboard/" : "/dashboard/" + std::string(asset.name);
+    server_->Get(path_regex(path), [asset](const httplib::Request&, httplib::Response& res) {
+      res.set_header("Cache-Control", "no-cache");
+      res.set_content(std::string(asset.content), std::string(asset.content_type));
+    });
   }
   // Anything else: a JSON 404 naming what was asked for.
   Handler unknown = [](const httplib::Request& req, httplib::Response& res) {

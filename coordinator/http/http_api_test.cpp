@@ -265,6 +265,10 @@ TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
   EXPECT_TRUE(checked("listJobs", http_->Get("/api/v1/jobs?state=JOB_STATE_QUEUED", auth()), 200)
                   .value("jobs", json::array())
                   .empty());
+  json tiles = checked("getTiles", http_->Get("/api/v1/jobs/" + job_id + "/tiles", auth()), 200);
+  EXPECT_EQ(tiles["tilesX"], 3);  // 12x10 in 4 px tiles
+  EXPECT_EQ(tiles["tilesY"], 3);
+  EXPECT_EQ(tiles["states"], std::string(9, 'd'));
   json outputs =
       checked("listResults", http_->Get("/api/v1/jobs/" + job_id + "/outputs", auth()), 200);
   std::string exr_name;
@@ -293,11 +297,15 @@ TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
   const std::string second =
       checked("submitJob", http_->Post("/api/v1/jobs", auth(), body, "application/json"),
               200)["job"]["jobId"];
+  // No worker takes the second job before it is cancelled: all its tiles stay queued.
   for (int i = 0; i < 2; ++i) {
     json cancelled =
         checked("cancelJob", http_->Post("/api/v1/jobs/" + second + ":cancel", auth()), 200);
     EXPECT_EQ(cancelled["state"], "JOB_STATE_CANCELLED");
   }
+  EXPECT_EQ(
+      checked("getTiles", http_->Get("/api/v1/jobs/" + second + "/tiles", auth()), 200)["states"],
+      std::string(9, 'q'));
   // The workers list shows the fake worker with its completed tasks.
   json workers = checked("listWorkers", http_->Get("/api/v1/workers", auth()), 200);
   ASSERT_EQ(workers["workers"].size(), 1u);

@@ -675,6 +675,18 @@ absl::StatusOr<JobStore::TileCounts> JobStore::final_tile_counts(std::string_vie
   return TileCounts{.done = rows[0].integer(1), .total = rows[0].integer(0)};
 }
 
+absl::StatusOr<std::vector<int>> JobStore::done_final_tiles(std::string_view job_id) {
+  PRISM_ASSIGN_OR_RETURN(
+      auto rows, db_.query("SELECT tile_index FROM tasks WHERE job_id = ? AND pass = ? "
+                           "GROUP BY tile_index HAVING SUM(state = ?) = 0 ORDER BY tile_index",
+                           {text(job_id), integer(static_cast<int>(TaskPass::kFinal)),
+                            integer(static_cast<int>(TaskState::kPending))}));
+  std::vector<int> tiles;
+  tiles.reserve(rows.size());
+  for (const auto& row : rows) tiles.push_back(static_cast<int>(row.integer(0)));
+  return tiles;
+}
+
 absl::StatusOr<std::map<JobState, std::int64_t>> JobStore::count_jobs_by_state() {
   PRISM_ASSIGN_OR_RETURN(
       auto rows, db_.query("SELECT state, COUNT(*) FROM jobs GROUP BY state ORDER BY state"));

@@ -193,6 +193,8 @@ class JobStore {
     friend bool operator==(const TileCounts&, const TileCounts&) = default;
   };
   absl::StatusOr<TileCounts> final_tile_counts(std::string_view job_id);
+  // The tile indices (ascending) whose final-pass tasks are all done.
+  absl::StatusOr<std::vector<int>> done_final_tiles(std::string_view job_id);
   // How many jobs are in each state (states with none are absent): for the coordinator's metrics.
   absl::StatusOr<std::map<JobState, std::int64_t>> count_jobs_by_state();
 

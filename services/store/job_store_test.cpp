@@ -192,6 +192,7 @@ TEST_F(JobStoreTest, CountsTheTilesWhoseFinalTasksAreAllDone) {
   EXPECT_EQ(*store.final_tile_counts(id), (JobStore::TileCounts{1, 3}));
   ASSERT_TRUE(store.mark_task_done(id, 1, "c").ok());  // tile 0 done; its prepass task is not
   EXPECT_EQ(*store.final_tile_counts(id), (JobStore::TileCounts{2, 3}));
+  EXPECT_EQ(*store.done_final_tiles(id), (std::vector<int>{0, 2}));
   EXPECT_EQ(*store.final_tile_counts("j-nope"), (JobStore::TileCounts{0, 0}));
 }
 

@@ -1,0 +1,87 @@
+// The dashboard in a real browser: a prism-coordinator with its HTTP listener and one
+// prism-worker on loopback, a running job and a queued one submitted with `prism submit`, then
+// tests/browser/dashboard.cjs drives Debian's headless Chromium through playwright-core (log in,
+// watch the tile map reach done, two preview screenshots that differ, the page's numbers
+// against the API's, Cancel on the queued job). ctest label `browser`.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <string>
+
+#include "tests/testing/child_process.h"
+
+namespace prism {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr char kToken[] = "dashboard-token";
+constexpr char kSecret[] = "dashboard-secret";
+
+TEST(DashboardBrowserTest, TheDashboardFollowsAJobAndCancelsAnother) {
+  const fs::path root = testing::fresh_dir();
+  fs::create_directories(root / "scene");
+  fs::copy_file(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/unbiased.pbrt",
+                root / "scene" / "scene.pbrt");
+  auto coordinator = testing::ChildProcess::start(
+      {PRISM_COORDINATOR_BINARY, "--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0",
+       "--data-dir", (root / "data").string(), "--worker-secret", kSecret, "--api-token", kToken,
+       "--heartbeat-ms", "200", "--log-level", "warn"});
+  ASSERT_NE(coordinator, nullptr);
+  auto http = coordinator->wait_for_line("serving HTTP on port", std::chrono::seconds(20));
+  auto grpc = coordinator->wait_for_line("listening on port", std::chrono::seconds(20));
+  ASSERT_TRUE(http.has_value() && grpc.has_value());
+  int http_port = 0, grpc_port = 0;
+  std::sscanf(http->c_str(), "serving HTTP on port %d", &http_port);
+  std::sscanf(grpc->c_str(), "listening on port %d", &grpc_port);
+  const std::string address = "127.0.0.1:" + std::to_string(grpc_port);
+
+  // Twelve tiles of about half a second each for one worker thread: the preview fills in.
+  auto submit = [&](const std::string& spp, const std::string& seed) {
+    testing::RunResult r = testing::run({PRISM_BINARY,
+                                         "submit",
+                                         (root / "scene/scene.pbrt").string(),
+                                         "--coordinator",
+                                         address,
+                                         "--token",
+                                         kToken,
+                                         "--integrator",
+                                         "hero",
+                                         "--spp",
+                                         spp,
+                                         "--resolution",
+                                         "64x48",
+                                         "--tile",
+                                         "16",
+                                         "--bins",
+                                         "8",
+                                         "--seed",
+                                         seed,
+                                         "--samples-per-task",
+                                         spp});
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    return r.out.substr(0, r.out.find('\n'));
+  };
+  const std::string running = submit("2048", "1");
+  const std::string queued = submit("2048", "2");
+  ASSERT_FALSE(running.empty() || queued.empty());
+  auto worker = testing::ChildProcess::start({PRISM_WORKER_BINARY, "--coordinator", address,
+                                              "--threads", "1", "--secret", kSecret, "--cache-dir",
+                                              (root / "cache").string(), "--log-level", "error"});
+  ASSERT_NE(worker, nullptr);
+
+  testing::ChildOptions in_browser_dir;
+  in_browser_dir.working_dir = fs::path(PRISM_SOURCE_DIR) / "tests/browser";
+  in_browser_dir.merge_stderr = true;
+  const testing::RunResult browser = testing::run(
+      {testing::find_program("node"), "dashboard.cjs",
+       "http://127.0.0.1:" + std::to_string(http_port), kToken, running, queued, root.string()},
+      in_browser_dir, std::chrono::minutes(4));
+  EXPECT_EQ(browser.exit_code, 0) << browser.out;
+  EXPECT_TRUE(fs::exists(root / "dashboard-running.png"));
+}
+
+}  // namespace
+}  // namespace prism
