@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <string>
 
 #include "tests/testing/child_process.h"
@@ -22,23 +23,31 @@ constexpr char kSecret[] = "dashboard-secret";
 
 TEST(DashboardBrowserTest, TheDashboardFollowsAJobAndCancelsAnother) {
   const fs::path root = testing::fresh_dir();
+  // Bright everywhere (a diffuse sphere under a white environment), so every finished tile
+  // changes the preview.
   fs::create_directories(root / "scene");
-  fs::copy_file(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/unbiased.pbrt",
-                root / "scene" / "scene.pbrt");
+  std::ofstream(root / "scene" / "scene.pbrt") << R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 30
+Film "spectral" "integer xresolution" 64 "integer yresolution" 48 "integer nbuckets" 8
+Sampler "zsobol" "integer pixelsamples" 16
+Integrator "volpath" "integer maxdepth" 5
+WorldBegin
+LightSource "infinite" "spectrum L" [360 1 830 1] "float scale" 1
+AttributeBegin
+  Material "diffuse" "float reflectance" 0.5
+  Shape "sphere" "float radius" 0.8
+AttributeEnd
+)";
   auto coordinator = testing::ChildProcess::start(
       {PRISM_COORDINATOR_BINARY, "--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0",
        "--data-dir", (root / "data").string(), "--worker-secret", kSecret, "--api-token", kToken,
        "--heartbeat-ms", "200", "--log-level", "warn"});
   ASSERT_NE(coordinator, nullptr);
-  auto http = coordinator->wait_for_line("serving HTTP on port", std::chrono::seconds(20));
-  auto grpc = coordinator->wait_for_line("listening on port", std::chrono::seconds(20));
-  ASSERT_TRUE(http.has_value() && grpc.has_value());
-  int http_port = 0, grpc_port = 0;
-  std::sscanf(http->c_str(), "serving HTTP on port %d", &http_port);
-  std::sscanf(grpc->c_str(), "listening on port %d", &grpc_port);
+  const auto [grpc_port, http_port] = testing::coordinator_ports(*coordinator);
+  ASSERT_GT(grpc_port, 0);
   const std::string address = "127.0.0.1:" + std::to_string(grpc_port);
 
-  // Twelve tiles of about half a second each for one worker thread: the preview fills in.
+  // Twelve tiles of a second or two each for one worker thread: the preview fills in.
   auto submit = [&](const std::string& spp, const std::string& seed) {
     testing::RunResult r = testing::run({PRISM_BINARY,
                                          "submit",
@@ -64,8 +73,8 @@ TEST(DashboardBrowserTest, TheDashboardFollowsAJobAndCancelsAnother) {
     EXPECT_EQ(r.exit_code, 0) << r.err;
     return r.out.substr(0, r.out.find('\n'));
   };
-  const std::string running = submit("2048", "1");
-  const std::string queued = submit("2048", "2");
+  const std::string running = submit("16384", "1");
+  const std::string queued = submit("16384", "2");
   ASSERT_FALSE(running.empty() || queued.empty());
   auto worker = testing::ChildProcess::start({PRISM_WORKER_BINARY, "--coordinator", address,
                                               "--threads", "1", "--secret", kSecret, "--cache-dir",

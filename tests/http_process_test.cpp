@@ -76,11 +76,9 @@ class HttpProcessTest : public ::testing::Test {
     }
     testing::ChildProcess* c = spawn(argv);
     ASSERT_NE(c, nullptr);
-    auto http = c->wait_for_line("serving HTTP on port", std::chrono::seconds(20));
-    auto grpc = c->wait_for_line("listening on port", std::chrono::seconds(20));
-    ASSERT_TRUE(http.has_value() && grpc.has_value()) << "the coordinator printed no ports";
-    std::sscanf(http->c_str(), "serving HTTP on port %d", &http_port_);
-    std::sscanf(grpc->c_str(), "listening on port %d", &grpc_port_);
+    const testing::CoordinatorPorts ports = testing::coordinator_ports(*c);
+    http_port_ = ports.http;
+    grpc_port_ = ports.grpc;
     ASSERT_GT(http_port_, 0);
     ASSERT_GT(grpc_port_, 0);
     base_ = std::string(tls ? "https" : "http") + "://127.0.0.1:" + std::to_string(http_port_);

@@ -124,12 +124,8 @@ TEST_F(NetnsTest, ACutLinkLongerThanALeaseLosesNothingAndMergesNothingTwice) {
                                                              "--log-level",
                                                              "warn"}));
   ASSERT_NE(coordinator, nullptr);
-  auto http = coordinator->wait_for_line("serving HTTP on port", std::chrono::seconds(20));
-  auto grpc = coordinator->wait_for_line("listening on port", std::chrono::seconds(20));
-  ASSERT_TRUE(http.has_value() && grpc.has_value());
-  int http_port = 0, grpc_port = 0;
-  std::sscanf(http->c_str(), "serving HTTP on port %d", &http_port);
-  std::sscanf(grpc->c_str(), "listening on port %d", &grpc_port);
+  const auto [grpc_port, http_port] = testing::coordinator_ports(*coordinator);
+  ASSERT_GT(grpc_port, 0);
   for (int i = 1; i <= kWorkers; ++i) {
     ASSERT_NE(
         spawn(exec_in(ns(i),

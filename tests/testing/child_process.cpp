@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
@@ -255,6 +256,17 @@ std::string render_beside(const std::string& prism, const std::filesystem::path&
   const RunResult rendered = run(argv, beside);
   EXPECT_EQ(rendered.exit_code, 0) << "prism render failed: " << rendered.err;
   return read_file(out);
+}
+
+CoordinatorPorts coordinator_ports(ChildProcess& coordinator) {
+  CoordinatorPorts ports;
+  const auto http = coordinator.wait_for_line("serving HTTP on port", std::chrono::seconds(20));
+  const auto grpc = coordinator.wait_for_line("listening on port", std::chrono::seconds(20));
+  if (http.has_value()) std::sscanf(http->c_str(), "serving HTTP on port %d", &ports.http);
+  if (grpc.has_value()) std::sscanf(grpc->c_str(), "listening on port %d", &ports.grpc);
+  EXPECT_GT(ports.http, 0) << "the coordinator printed no HTTP port";
+  EXPECT_GT(ports.grpc, 0) << "the coordinator printed no gRPC port";
+  return ports;
 }
 
 }  // namespace prism::testing

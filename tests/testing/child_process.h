@@ -95,6 +95,15 @@ std::string find_program(const std::string& name);
 std::string render_beside(const std::string& prism, const std::filesystem::path& scene_dir,
                           const std::filesystem::path& out, const std::vector<std::string>& flags);
 
+// The ports a prism-coordinator started with --listen ...:0 and --http-listen ...:0 prints
+// ("serving HTTP on port N", then "listening on port M"), waiting up to 20 s; fails the current
+// test and returns zeros when it printed none.
+struct CoordinatorPorts {
+  int grpc = 0;
+  int http = 0;
+};
+CoordinatorPorts coordinator_ports(ChildProcess& coordinator);
+
 // A whole file's bytes ("" when it cannot be read).
 std::string read_file(const std::filesystem::path& path);
 
