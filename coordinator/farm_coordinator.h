@@ -103,6 +103,7 @@ struct WorkerStatus {
   int leases = 0;
   std::vector<Lease> current;  // the leases it holds now, oldest first
   std::uint64_t tasks_completed = 0;
+  std::uint64_t samples_completed = 0;  // pixel samples of its accepted results
   std::int64_t last_seen_ms = 0;
 };
 
@@ -249,8 +250,9 @@ class FarmCoordinator {
   std::optional<BundleStore> bundles_;
   Scheduler scheduler_;
   std::map<std::string, std::unique_ptr<ActiveJob>> active_;
-  std::map<std::string, std::uint64_t> tasks_completed_;  // by worker
-  std::map<std::string, std::int64_t> left_;              // workers that left cleanly, when
+  std::map<std::string, std::uint64_t> tasks_completed_;    // by worker
+  std::map<std::string, std::uint64_t> samples_completed_;  // by worker
+  std::map<std::string, std::int64_t> left_;                // workers that left cleanly, when
   FarmMetrics metrics_;
   std::uint64_t temp_counter_ = 0;
   bool stopping_ = false;

@@ -180,6 +180,7 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
   PRISM_CHECK(reply->task.has_value());
   const Task& task = *reply->task;
   ++tasks_completed_[worker_id];
+  samples_completed_[worker_id] += std::uint64_t(task.spec.tile.area()) * task.spec.samples.count();
   absl::StatusOr<bool> marked = store_->mark_task_done(task.job_id, task.index, sha256);
   if (!marked.ok()) {
     fail_job_locked(task.job_id, absl::StrCat("cannot record task ", task.index, ": ",
@@ -267,6 +268,8 @@ absl::StatusOr<std::vector<WorkerStatus>> FarmCoordinator::workers() {
     }
     auto done = tasks_completed_.find(record.id);
     if (done != tasks_completed_.end()) status.tasks_completed = done->second;
+    auto samples = samples_completed_.find(record.id);
+    if (samples != samples_completed_.end()) status.samples_completed = samples->second;
     out.push_back(std::move(status));
   }
   return out;

@@ -311,6 +311,8 @@ TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
   ASSERT_EQ(workers["workers"].size(), 1u);
   EXPECT_EQ(workers["workers"][0]["workerId"], worker);
   EXPECT_NE(workers["workers"][0]["tasksCompleted"], "0");
+  EXPECT_EQ(workers["workers"][0]["samplesCompleted"], job["progress"]["samplesTotal"])
+      << "the one worker rendered every sample of the job";
 
   // /metrics counts what happened.
   auto metrics = http_->Get("/metrics", auth());

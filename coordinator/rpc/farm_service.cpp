@@ -55,6 +55,7 @@ prism::v1::WorkerInfo to_proto(const WorkerStatus& w) {
   info.set_state(w.state);
   info.set_last_heartbeat_unix_ms(w.last_seen_ms);
   info.set_tasks_completed(w.tasks_completed);
+  info.set_samples_completed(w.samples_completed);
   info.set_leases(static_cast<std::uint32_t>(w.leases));
   if (!w.current.empty()) {
     const Lease& lease = w.current.front();

@@ -59,6 +59,10 @@ async function waitFor(what, predicate, seconds = 60) {
     const second = await page.locator("#preview").screenshot();
     if (Buffer.compare(first, second) === 0) fail("the preview did not change between screenshots");
 
+    // The rendering worker shows a throughput.
+    await waitFor("a worker's throughput", async () =>
+      Number((await page.textContent("#workers td.rate") || "0").replace(/\D/g, "")) > 0);
+
     // Cancel the queued job from the page (it waits behind the running one).
     await page.click(`#jobs tr[data-job="${queuedJob}"] button.cancel`);
     await waitFor("the cancel to reach the API", async () =>

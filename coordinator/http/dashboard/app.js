@@ -1,12 +1,13 @@
 // The Prism farm dashboard: a static page over the coordinator's HTTP/JSON API (/api/v1/,
 // docs/api/openapi.json). It polls the jobs and workers once a second; for the selected job it
 // draws the tile map, reloads the preview when a tile was finalised, plots samples done against
-// time as seen from this page, and shows the report once the job is done. Cancel asks first.
+// time as seen from this page, and shows the report once the job is done; each worker's
+// throughput is its accepted samples over the last 10 s of polls. Cancel asks first.
 // The API token is kept in this tab's sessionStorage only.
 "use strict";
 
 const state = { token: sessionStorage.getItem("prism-token") || "", selected: null,
-                finalised: -1, history: new Map(), previewUrl: null };
+                finalised: -1, history: new Map(), previewUrl: null, workerSamples: new Map() };
 const $ = (id) => document.getElementById(id);
 
 async function api(path, options = {}) {
@@ -89,6 +90,14 @@ function renderWorkers(workers) {
     cell(row, w.state);
     cell(row, w.threads);
     cell(row, w.tasksCompleted);
+    // Throughput: accepted samples between this poll and the one a few seconds before.
+    const samples = Number(w.samplesCompleted || 0);
+    const seen = (state.workerSamples.get(w.workerId) || []).filter((p) => now - p.t < 10000);
+    seen.push({ t: now, samples });
+    state.workerSamples.set(w.workerId, seen);
+    const first = seen[0];
+    const rate = now > first.t ? (samples - first.samples) / ((now - first.t) / 1000) : 0;
+    cell(row, Math.round(rate).toLocaleString()).className = "rate";
     cell(row, `${((now - Number(w.lastHeartbeatUnixMs)) / 1000).toFixed(1)} s ago`);
     cell(row, w.currentTask || "");
   }
