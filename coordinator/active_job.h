@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "coordinator/convergence.h"
 #include "coordinator/finished_tiles.h"
 #include "coordinator/outputs.h"
 #include "coordinator/prepass_run.h"
@@ -85,8 +86,9 @@ struct ActiveJob {
   std::unique_ptr<image::RgbImage> rgb;  // finished tiles' linear sRGB
   std::unique_ptr<BinStatisticsAccumulator> statistics;
   int tiles_finalised = 0;
-  std::vector<std::uint8_t> tile_done;  // by final-pass tile: finalised (absorb_tile)
-  double render_seconds = 0;            // summed over workers
+  std::vector<std::uint8_t> tile_done;              // by final-pass tile: finalised (absorb_tile)
+  std::unique_ptr<ConvergenceTracker> convergence;  // from the first final-pass result
+  double render_seconds = 0;                        // summed over workers
   std::uint64_t rays = 0;
   std::chrono::steady_clock::time_point started;
   std::uint64_t samples_at_start = 0;            // done before this incarnation (resumed)

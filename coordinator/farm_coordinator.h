@@ -178,6 +178,9 @@ class FarmCoordinator {
     std::string states;  // one of q, l, d, f per tile in raster order
   };
   absl::StatusOr<TileMapStatus> tile_map(const std::string& job_id);
+  // The job's error estimate against time (convergence.h), one point per accepted final-pass
+  // result; kept for the 256 newest jobs (empty for older ones and before the first result).
+  absl::StatusOr<std::vector<ConvergencePoint>> convergence(const std::string& job_id);
   // An 8-bit PNG of the image as far as it is finalised. FAILED_PRECONDITION before any tile.
   absl::StatusOr<std::string> preview_png(const std::string& job_id, float exposure_stops);
 
@@ -252,7 +255,9 @@ class FarmCoordinator {
   std::map<std::string, std::unique_ptr<ActiveJob>> active_;
   std::map<std::string, std::uint64_t> tasks_completed_;    // by worker
   std::map<std::string, std::uint64_t> samples_completed_;  // by worker
-  std::map<std::string, std::int64_t> left_;                // workers that left cleanly, when
+  std::map<std::string, std::int64_t> left_;
+  std::map<std::string, std::vector<ConvergencePoint>>
+      convergence_;  // by job id                // workers that left cleanly, when
   FarmMetrics metrics_;
   std::uint64_t temp_counter_ = 0;
   bool stopping_ = false;

@@ -122,6 +122,15 @@ absl::StatusOr<FarmCoordinator::TileMapStatus> FarmCoordinator::tile_map(
   return map;
 }
 
+absl::StatusOr<std::vector<ConvergencePoint>> FarmCoordinator::convergence(
+    const std::string& job_id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  PRISM_RETURN_IF_ERROR(store_->get_job(job_id).status());
+  auto it = convergence_.find(job_id);
+  if (it == convergence_.end()) return std::vector<ConvergencePoint>();
+  return it->second;
+}
+
 absl::StatusOr<std::string> FarmCoordinator::preview_png(const std::string& job_id,
                                                          float exposure_stops) {
   if (!std::isfinite(exposure_stops) || std::fabs(exposure_stops) > job::kMaxJobExposureStops) {

@@ -172,6 +172,13 @@ const std::vector<Route>& api_routes() {
        .summary = "The job's final-pass tiles as they stand: queued, leased, done or failed",
        .parameters = {job_id()},
        .response = v1::TileMap::descriptor()},
+      {.id = "getConvergence",
+       .method = "get",
+       .path = "/api/v1/jobs/{job_id}/convergence",
+       .summary = "The job's error estimate against time: the relative standard error of the "
+                  "image's mean after each accepted final-pass result",
+       .parameters = {job_id()},
+       .response = v1::Convergence::descriptor()},
       {.id = "listResults",
        .method = "get",
        .path = "/api/v1/jobs/{job_id}/outputs",

@@ -320,6 +320,18 @@ void HttpApi::install_routes() {
     response.set_states(map->states);
     send_message(res, response);
   };
+  handlers["getConvergence"] = [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<std::vector<ConvergencePoint>> points = farm_.convergence(req.matches[1]);
+    if (!points.ok()) return send_error(res, points.status());
+    v1::Convergence response;
+    for (const ConvergencePoint& p : *points) {
+      v1::ConvergencePoint* out = response.add_points();
+      out->set_seconds(p.seconds);
+      out->set_samples(p.samples);
+      out->set_relative_error(p.relative_error);
+    }
+    send_message(res, response);
+  };
   handlers["listResults"] = [this](const httplib::Request& req, httplib::Response& res) {
     absl::StatusOr<std::vector<OutputFile>> files = farm_.result_files(req.matches[1], {});
     if (!files.ok()) return send_error(res, files.status());

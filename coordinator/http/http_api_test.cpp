@@ -265,6 +265,14 @@ TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
   EXPECT_TRUE(checked("listJobs", http_->Get("/api/v1/jobs?state=JOB_STATE_QUEUED", auth()), 200)
                   .value("jobs", json::array())
                   .empty());
+  // One point per accepted final-pass result (9 tiles x 2 sample ranges), ending at every sample.
+  json convergence =
+      checked("getConvergence", http_->Get("/api/v1/jobs/" + job_id + "/convergence", auth()), 200);
+  ASSERT_EQ(convergence["points"].size(), 18u);
+  const json& last = convergence["points"].back();
+  EXPECT_EQ(last["samples"], job["progress"]["samplesTotal"]);
+  EXPECT_GT(last["relativeError"].get<double>(), 0.0);
+  EXPECT_LT(last["relativeError"].get<double>(), 1.0);
   json tiles = checked("getTiles", http_->Get("/api/v1/jobs/" + job_id + "/tiles", auth()), 200);
   EXPECT_EQ(tiles["tilesX"], 3);  // 12x10 in 4 px tiles
   EXPECT_EQ(tiles["tilesY"], 3);

@@ -52,12 +52,16 @@ async function waitFor(what, predicate, seconds = 60) {
     const version = async () => Number(await page.getAttribute("#preview", "data-version") || 0);
     await waitFor("a first preview", async () => (await version()) >= 1);
     const first = await page.locator("#preview").screenshot();
-    await page.screenshot({ path: path.join(shots, "dashboard-running.png") });
     const firstVersion = await version();
     await waitFor("a later preview", async () => (await version()) > firstVersion);
     await new Promise((r) => setTimeout(r, 300));  // the new image is decoded and drawn
     const second = await page.locator("#preview").screenshot();
     if (Buffer.compare(first, second) === 0) fail("the preview did not change between screenshots");
+
+    // The convergence plot draws the API's error estimate.
+    await waitFor("the convergence plot", async () =>
+      Number(await page.getAttribute("#convergence", "data-points") || 0) >= 3);
+    await page.screenshot({ path: path.join(shots, "dashboard-running.png") });
 
     // The rendering worker shows a throughput.
     await waitFor("a worker's throughput", async () =>
@@ -78,6 +82,10 @@ async function waitFor(what, predicate, seconds = 60) {
     const tiles = await apiJson(`/api/v1/jobs/${runningJob}/tiles`);
     const shown = await page.getAttribute("#tiles", "data-states");
     if (shown !== tiles.states) fail(`tile map ${shown} but the API says ${tiles.states}`);
+    const convergence = (await apiJson(`/api/v1/jobs/${runningJob}/convergence`)).points;
+    const drawn = Number(await page.getAttribute("#convergence", "data-last"));
+    const final = convergence[convergence.length - 1].relativeError;
+    if (Math.abs(drawn - final) > 1e-12 * final) fail(`plotted error ${drawn}, API ${final}`);
     const counts = await page.textContent("#tile-counts");
     if (!counts.startsWith(`${tiles.states.length} done`)) fail(`tile counts read "${counts}"`);
     await waitFor("the job to show done", async () =>

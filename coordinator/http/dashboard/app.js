@@ -1,13 +1,13 @@
 // The Prism farm dashboard: a static page over the coordinator's HTTP/JSON API (/api/v1/,
 // docs/api/openapi.json). It polls the jobs and workers once a second; for the selected job it
-// draws the tile map, reloads the preview when a tile was finalised, plots samples done against
-// time as seen from this page, and shows the report once the job is done; each worker's
+// draws the tile map, reloads the preview when a tile was finalised, plots the job's error
+// estimate against time (GET .../convergence), and shows the report once the job is done; each worker's
 // throughput is its accepted samples over the last 10 s of polls. Cancel asks first.
 // The API token is kept in this tab's sessionStorage only.
 "use strict";
 
 const state = { token: sessionStorage.getItem("prism-token") || "", selected: null,
-                finalised: -1, history: new Map(), previewUrl: null, workerSamples: new Map() };
+                finalised: -1, previewUrl: null, workerSamples: new Map() };
 const $ = (id) => document.getElementById(id);
 
 async function api(path, options = {}) {
@@ -124,26 +124,33 @@ function drawTiles(map) {
   canvas.dataset.states = map.states;
 }
 
+// The job's error estimate (relative standard error of the image mean, log scale) against time.
 function drawConvergence(points) {
   const canvas = $("convergence");
   const ctx = canvas.getContext("2d");
   ctx.clearRect(0, 0, canvas.width, canvas.height);
-  if (points.length < 2) return;
-  const t0 = points[0].t, t1 = points[points.length - 1].t;
-  const total = points[points.length - 1].total || 1;
+  const usable = points.filter((p) => p.relativeError > 0);
+  canvas.dataset.points = String(usable.length);
+  if (usable.length === 0) return;
+  canvas.dataset.last = String(usable[usable.length - 1].relativeError);
+  const t1 = Math.max(usable[usable.length - 1].seconds, 1e-3);
+  const logs = usable.map((p) => Math.log10(p.relativeError));
+  const hi = Math.ceil(Math.max(...logs)), lo = Math.min(Math.floor(Math.min(...logs)), hi - 1);
+  const left = 40, top = 10, w = canvas.width - 50, h = canvas.height - 40;
   ctx.strokeStyle = "#888";
-  ctx.strokeRect(30, 10, canvas.width - 40, canvas.height - 40);
+  ctx.strokeRect(left, top, w, h);
   ctx.beginPath();
   ctx.strokeStyle = "#26c";
-  points.forEach((p, i) => {
-    const x = 30 + (canvas.width - 40) * (p.t - t0) / Math.max(1, t1 - t0);
-    const y = canvas.height - 30 - (canvas.height - 40) * p.done / total;
+  usable.forEach((p, i) => {
+    const x = left + w * p.seconds / t1;
+    const y = top + h * (hi - Math.log10(p.relativeError)) / (hi - lo);
     i ? ctx.lineTo(x, y) : ctx.moveTo(x, y);
   });
   ctx.stroke();
   ctx.fillStyle = "#444";
-  ctx.fillText(`${((t1 - t0) / 1000).toFixed(0)} s`, canvas.width - 40, canvas.height - 12);
-  ctx.fillText("100 %", 0, 18);
+  ctx.fillText(`1e${hi}`, 2, top + 8);
+  ctx.fillText(`1e${lo}`, 2, top + h);
+  ctx.fillText(`${t1.toFixed(1)} s`, canvas.width - 45, canvas.height - 12);
 }
 
 async function refreshPreview(jobId) {
@@ -166,10 +173,7 @@ async function refreshJob(job) {
   const map = await (await api(`/api/v1/jobs/${job.jobId}/tiles`)).json();
   drawTiles(map);
   const p = job.progress || {};
-  const history = state.history.get(job.jobId) || [];
-  history.push({ t: Date.now(), done: Number(p.samplesDone || 0), total: Number(p.samplesTotal || 0) });
-  state.history.set(job.jobId, history.slice(-600));
-  drawConvergence(history);
+  drawConvergence((await (await api(`/api/v1/jobs/${job.jobId}/convergence`)).json()).points || []);
   if (p.tilesFinalised !== state.finalised) {
     state.finalised = p.tilesFinalised;
     await refreshPreview(job.jobId);
