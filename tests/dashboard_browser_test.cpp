@@ -8,7 +8,6 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <string>
 
 #include "tests/testing/child_process.h"
@@ -23,21 +22,11 @@ constexpr char kSecret[] = "dashboard-secret";
 
 TEST(DashboardBrowserTest, TheDashboardFollowsAJobAndCancelsAnother) {
   const fs::path root = testing::fresh_dir();
-  // Bright everywhere (a diffuse sphere under a white environment), so every finished tile
-  // changes the preview.
+  // The white furnace looks like its environment everywhere, so every finished tile changes the
+  // preview.
   fs::create_directories(root / "scene");
-  std::ofstream(root / "scene" / "scene.pbrt") << R"(LookAt 0 0 -5  0 0 0  0 1 0
-Camera "perspective" "float fov" 30
-Film "spectral" "integer xresolution" 64 "integer yresolution" 48 "integer nbuckets" 8
-Sampler "zsobol" "integer pixelsamples" 16
-Integrator "volpath" "integer maxdepth" 5
-WorldBegin
-LightSource "infinite" "spectrum L" [360 1 830 1] "float scale" 1
-AttributeBegin
-  Material "diffuse" "float reflectance" 0.5
-  Shape "sphere" "float radius" 0.8
-AttributeEnd
-)";
+  fs::copy_file(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/furnace.pbrt",
+                root / "scene" / "scene.pbrt");
   auto coordinator = testing::ChildProcess::start(
       {PRISM_COORDINATOR_BINARY, "--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0",
        "--data-dir", (root / "data").string(), "--worker-secret", kSecret, "--api-token", kToken,
@@ -73,8 +62,8 @@ AttributeEnd
     EXPECT_EQ(r.exit_code, 0) << r.err;
     return r.out.substr(0, r.out.find('\n'));
   };
-  const std::string running = submit("16384", "1");
-  const std::string queued = submit("16384", "2");
+  const std::string running = submit("8192", "1");
+  const std::string queued = submit("8192", "2");
   ASSERT_FALSE(running.empty() || queued.empty());
   auto worker = testing::ChildProcess::start({PRISM_WORKER_BINARY, "--coordinator", address,
                                               "--threads", "1", "--secret", kSecret, "--cache-dir",
