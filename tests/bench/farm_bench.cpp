@@ -757,6 +757,22 @@ TaskKey key_of(const image::TileRect& r, const image::SampleRange& s) {
   return {r.x0, r.y0, r.x1, r.y1, static_cast<std::int64_t>(s.s0), static_cast<std::int64_t>(s.s1)};
 }
 
+// The synthetic workers' kind of job: kCapacityScene at `size`, 1 spp, in `tile` px tiles.
+v1::SubmitJobRequest one_spp_job(const std::string& bundle_hash, std::pair<int, int> size, int bins,
+                                 int tile, std::uint64_t seed) {
+  v1::SubmitJobRequest request;
+  v1::JobSpec& spec = *request.mutable_spec();
+  spec.set_bundle_hash(bundle_hash);
+  spec.set_scene_path("scene.pbrt");
+  spec.set_width(size.first);
+  spec.set_height(size.second);
+  spec.set_bins(bins);
+  spec.set_tile_size(tile);
+  spec.set_spp(1);
+  spec.set_seed(seed);
+  return request;
+}
+
 struct CapacityShared {
   int total_tasks = 0;
   int bins = 0;
@@ -971,16 +987,7 @@ absl::Status run_capacity(const Flags& flags, const fs::path& root) {
   const Clock::time_point submitted = Clock::now();
   std::string job_id;
   {
-    v1::SubmitJobRequest request;
-    v1::JobSpec& spec = *request.mutable_spec();
-    spec.set_bundle_hash(bundle.content_hash);
-    spec.set_scene_path("scene.pbrt");
-    spec.set_width(size.first);
-    spec.set_height(size.second);
-    spec.set_bins(int(bins));
-    spec.set_tile_size(t);
-    spec.set_spp(1);
-    spec.set_seed(1);
+    const v1::SubmitJobRequest request = one_spp_job(bundle.content_hash, size, int(bins), t, 1);
     v1::SubmitJobResponse response;
     auto context = call(kToken);
     const grpc::Status status = coordinator.farm->SubmitJob(context.get(), request, &response);
@@ -1110,16 +1117,8 @@ absl::Status run_load(const Flags& flags, const fs::path& root) {
 
   std::vector<std::string> submitted;
   auto submit = [&]() -> absl::Status {
-    v1::SubmitJobRequest request;
-    v1::JobSpec& spec = *request.mutable_spec();
-    spec.set_bundle_hash(bundle.content_hash);
-    spec.set_scene_path("scene.pbrt");
-    spec.set_width(size.first);
-    spec.set_height(size.second);
-    spec.set_bins(kBins);
-    spec.set_tile_size(kTile);
-    spec.set_spp(1);
-    spec.set_seed(submitted.size() + 1);
+    v1::SubmitJobRequest request =
+        one_spp_job(bundle.content_hash, size, kBins, kTile, submitted.size() + 1);
     request.set_client_token(absl::StrCat("load-", submitted.size()));
     v1::SubmitJobResponse response;
     auto context = call(kToken);
