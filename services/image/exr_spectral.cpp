@@ -6,6 +6,7 @@
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
 #include <ImfStringAttribute.h>
+#include <ImfThreading.h>
 #include <half.h>
 
 #include <algorithm>
@@ -13,6 +14,7 @@
 #include <cmath>
 #include <exception>
 #include <functional>
+#include <mutex>
 #include <optional>
 #include <set>
 
@@ -80,14 +82,39 @@ using PlaneSource = std::function<absl::StatusOr<std::vector<Plane>>(int y0, int
 
 // Writes the image in bands of `band_rows` rows (the last may be shorter), asking `source` for
 // each band in turn, so a caller can stream an image that is never whole in memory.
+// The pool only grows: writers running at once never shrink each other's.
+void grow_global_exr_pool(int threads) {
+  static std::mutex mutex;
+  std::lock_guard<std::mutex> lock(mutex);
+  if (Imf::globalThreadCount() < threads) Imf::setGlobalThreadCount(threads);
+}
+
+Imf::Compression to_imf(ExrCompression compression) {
+  switch (compression) {
+    case ExrCompression::kNone:
+      return Imf::NO_COMPRESSION;
+    case ExrCompression::kRle:
+      return Imf::RLE_COMPRESSION;
+    case ExrCompression::kZips:
+      return Imf::ZIPS_COMPRESSION;
+    case ExrCompression::kZip:
+      return Imf::ZIP_COMPRESSION;
+    case ExrCompression::kPiz:
+      return Imf::PIZ_COMPRESSION;
+  }
+  PRISM_CHECK(false);
+  return Imf::ZIP_COMPRESSION;
+}
+
 absl::Status write_exr(const std::filesystem::path& path, int width, int height, int band_rows,
-                       const PlaneSource& source,
-                       const std::function<void(Imf::Header&)>& decorate) {
+                       const PlaneSource& source, const std::function<void(Imf::Header&)>& decorate,
+                       const ExrWriteOptions& options) {
   PRISM_CHECK(band_rows >= 1);
+  const int threads = std::clamp(options.threads, 1, 256);
   return base::write_via_temp(path, [&](const std::filesystem::path& temp) -> absl::Status {
     try {
       Imf::Header header(width, height);
-      header.compression() = Imf::ZIP_COMPRESSION;
+      header.compression() = to_imf(options.compression);
       decorate(header);
       std::optional<Imf::OutputFile> file;
       for (int y0 = 0; y0 < height; y0 += band_rows) {
@@ -97,7 +124,10 @@ absl::Status write_exr(const std::filesystem::path& path, int width, int height,
           for (const Plane& plane : planes) {
             header.channels().insert(plane.name, Imf::Channel(plane.type));
           }
-          file.emplace(temp.c_str(), header);
+          // OpenEXR 3.1 sizes the file's line buffers by numThreads but runs the compression
+          // tasks on its global pool (0 threads: in place on this thread).
+          if (threads > 1) grow_global_exr_pool(threads);
+          file.emplace(temp.c_str(), header, threads > 1 ? threads : 0);
         }
         const Imath::Box2i band({0, y0}, {width - 1, y0 + rows - 1});
         Imf::FrameBuffer frame;
@@ -325,15 +355,46 @@ std::optional<double> parse_spectral_channel_name(std::string_view name) {
   return value;
 }
 
+std::string_view name(ExrCompression compression) {
+  switch (compression) {
+    case ExrCompression::kNone:
+      return "none";
+    case ExrCompression::kRle:
+      return "rle";
+    case ExrCompression::kZips:
+      return "zips";
+    case ExrCompression::kZip:
+      return "zip";
+    case ExrCompression::kPiz:
+      return "piz";
+  }
+  PRISM_CHECK(false);
+  return "";
+}
+
+std::vector<ExrCompression> all_exr_compressions() {
+  return {ExrCompression::kNone, ExrCompression::kRle, ExrCompression::kZips, ExrCompression::kZip,
+          ExrCompression::kPiz};
+}
+
+std::optional<ExrCompression> parse_exr_compression(std::string_view text) {
+  for (ExrCompression c : all_exr_compressions()) {
+    if (name(c) == text) return c;
+  }
+  return std::nullopt;
+}
+
 absl::Status write_spectral_exr(const std::filesystem::path& path, const SpectralImage& spectral,
-                                const RgbImage& rgb, const ExrMetadata& metadata) {
-  return write_spectral_exr(path, bin_centres_nm(spectral.bins()), spectral, rgb, metadata);
+                                const RgbImage& rgb, const ExrMetadata& metadata,
+                                const ExrWriteOptions& options) {
+  return write_spectral_exr(path, bin_centres_nm(spectral.bins()), spectral, rgb, metadata,
+                            options);
 }
 
 absl::Status write_spectral_exr(const std::filesystem::path& path,
                                 const std::vector<double>& wavelengths_nm,
                                 const SpectralImage& spectral, const RgbImage& rgb,
-                                const ExrMetadata& metadata) {
+                                const ExrMetadata& metadata, const ExrWriteOptions& options) {
   if (wavelengths_nm.size() != std::size_t(spectral.bins())) {
     return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(), ": ",
                                                    wavelengths_nm.size(), " wavelengths for ",
@@ -344,13 +405,14 @@ absl::Status write_spectral_exr(const std::filesystem::path& path,
   return write_spectral_exr_rows(
       path, wavelengths_nm, spectral.width(), spectral.height(), spectral.height(),
       [&](int y0, int) -> absl::StatusOr<const float*> { return data + y0 * row_values; }, rgb,
-      metadata);
+      metadata, options);
 }
 
 absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
                                      const std::vector<double>& wavelengths_nm, int width,
                                      int height, int band_rows, const SpectralRows& rows,
-                                     const RgbImage& rgb, const ExrMetadata& metadata) {
+                                     const RgbImage& rgb, const ExrMetadata& metadata,
+                                     const ExrWriteOptions& options) {
   if (rgb.width() != width || rgb.height() != height) {
     return absl::InvalidArgumentError(
         absl::StrCat("cannot write ", path.string(), ": RGB image is ", rgb.width(), "x",
@@ -392,12 +454,15 @@ absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
     }
     return planes;
   };
-  return write_exr(path, width, height, band_rows, source, [&](Imf::Header& header) {
-    header.insert(kLayoutVersionAttribute,
-                  Imf::StringAttribute(std::string(kSpectralLayoutVersion)));
-    header.insert(kEmissiveUnitsAttribute, Imf::StringAttribute(std::string(kEmissiveUnits)));
-    insert_metadata(header, metadata);
-  });
+  return write_exr(
+      path, width, height, band_rows, source,
+      [&](Imf::Header& header) {
+        header.insert(kLayoutVersionAttribute,
+                      Imf::StringAttribute(std::string(kSpectralLayoutVersion)));
+        header.insert(kEmissiveUnitsAttribute, Imf::StringAttribute(std::string(kEmissiveUnits)));
+        insert_metadata(header, metadata);
+      },
+      options);
 }
 
 absl::StatusOr<SpectralExr> read_spectral_exr(const std::filesystem::path& path) {
@@ -412,17 +477,18 @@ absl::StatusOr<ExrImage> read_exr(const std::filesystem::path& path) {
 }
 
 absl::Status write_rgb_exr(const std::filesystem::path& path, const RgbImage& rgb,
-                           ExrPixelType pixel_type, const ExrMetadata& metadata) {
+                           ExrPixelType pixel_type, const ExrMetadata& metadata,
+                           const ExrWriteOptions& options) {
   PRISM_RETURN_IF_ERROR(validate_metadata(path, metadata));
   auto decorate = [&](Imf::Header& header) { insert_metadata(header, metadata); };
   if (pixel_type == ExrPixelType::kFloat) {
     return write_exr(path, rgb.width(), rgb.height(), rgb.height(),
-                     whole(rgb_planes(rgb.data().data(), Imf::FLOAT)), decorate);
+                     whole(rgb_planes(rgb.data().data(), Imf::FLOAT)), decorate, options);
   }
   // Imath's float -> half conversion rounds to nearest and overflows to infinity.
   std::vector<Imath::half> halves(rgb.data().begin(), rgb.data().end());
   return write_exr(path, rgb.width(), rgb.height(), rgb.height(),
-                   whole(rgb_planes(halves.data(), Imf::HALF)), decorate);
+                   whole(rgb_planes(halves.data(), Imf::HALF)), decorate, options);
 }
 
 absl::StatusOr<RgbExr> read_rgb_exr(const std::filesystem::path& path) {

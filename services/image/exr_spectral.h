@@ -8,7 +8,8 @@
 // attributes spectralLayoutVersion = "1.0" and emissiveUnits = "W.m^-2.sr^-1". R, G, B
 // FLOAT32 channels hold the caller's RGB rendering so ordinary viewers show the image. Prism's
 // own metadata (spp, integrator, seed, job id, ...) are string attributes named
-// `prism:<key>`. Pixel data are ZIP-compressed (lossless), so values read back bit-exactly.
+// `prism:<key>`. Pixel data are compressed losslessly (ExrCompression; RLE unless the caller
+// chooses another), so values read back bit-exactly.
 //
 // Prism's grid: B bins over [360, 830] nm, bin b centred at 360 + (b + 0.5)*470/B nm.
 //
@@ -91,17 +92,42 @@ struct ExrImage {
   ExrMetadata metadata;
 };
 
+// The lossless compressions OpenEXR offers for float data. Lossy ones (PXR24, B44, DWA) are not
+// offered: a spectral reference must read back bit-exactly. Compression works on blocks of scan
+// lines (1 for ZIPS and RLE, 16 for ZIP, 32 for PIZ) that OpenEXR's thread pool compresses in
+// parallel; the bytes written do not depend on the thread count.
+enum class ExrCompression { kNone, kRle, kZips, kZip, kPiz };
+// RLE: on the renders measured in docs/benchmarks.md ("Output") it writes 4-6x faster than ZIP
+// and within 3-23 % of ZIP's size (spectral images have runs of exact zeros where nothing emits).
+inline constexpr ExrCompression kDefaultExrCompression = ExrCompression::kRle;
+
+// "none", "rle", "zips", "zip", "piz".
+std::string_view name(ExrCompression compression);
+// The inverse of name(); nullopt for anything else.
+std::optional<ExrCompression> parse_exr_compression(std::string_view text);
+// All of them, in the enum's order (for help texts and benchmarks).
+std::vector<ExrCompression> all_exr_compressions();
+
+struct ExrWriteOptions {
+  ExrCompression compression = kDefaultExrCompression;
+  // Threads compressing line blocks (OpenEXR's thread pool); 1 compresses on the caller's
+  // thread. Clamped to [1, 256].
+  int threads = 1;
+};
+
 // Writes spectral + RGB on Prism's grid (wavelengths from bin_centres_nm(spectral.bins())).
 // INVALID_ARGUMENT when rgb's size differs or a metadata key is empty or has control
 // characters; INTERNAL (naming the file) when OpenEXR or the file system fails.
 absl::Status write_spectral_exr(const std::filesystem::path& path, const SpectralImage& spectral,
-                                const RgbImage& rgb, const ExrMetadata& metadata = {});
+                                const RgbImage& rgb, const ExrMetadata& metadata = {},
+                                const ExrWriteOptions& options = {});
 // Same with explicit wavelengths: strictly ascending, finite, > 0, one per bin, and distinct
 // once formatted as channel names.
 absl::Status write_spectral_exr(const std::filesystem::path& path,
                                 const std::vector<double>& wavelengths_nm,
                                 const SpectralImage& spectral, const RgbImage& rgb,
-                                const ExrMetadata& metadata = {});
+                                const ExrMetadata& metadata = {},
+                                const ExrWriteOptions& options = {});
 
 // Rows [y0, y0 + rows) of a spectral image, row-major and pixel-interleaved (width*rows*bins
 // floats, as SpectralImage lays them out), valid until the next call.
@@ -114,7 +140,8 @@ using SpectralRows = std::function<absl::StatusOr<const float*>(int y0, int rows
 absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
                                      const std::vector<double>& wavelengths_nm, int width,
                                      int height, int band_rows, const SpectralRows& rows,
-                                     const RgbImage& rgb, const ExrMetadata& metadata = {});
+                                     const RgbImage& rgb, const ExrMetadata& metadata = {},
+                                     const ExrWriteOptions& options = {});
 
 // Reads a spectral EXR (see above). NOT_FOUND for a missing file; INVALID_ARGUMENT naming the
 // file when it is not an EXR, has no S0.<λ>nm channels, uses the polarised or reflective
@@ -131,10 +158,10 @@ enum class ExrPixelType {
   kFloat,  // 32-bit float: exact
 };
 
-// Writes R, G, B channels (ZIP-compressed) plus prism:<key> metadata; atomic.
+// Writes R, G, B channels (compressed as `options` say) plus prism:<key> metadata; atomic.
 absl::Status write_rgb_exr(const std::filesystem::path& path, const RgbImage& rgb,
                            ExrPixelType pixel_type = ExrPixelType::kFloat,
-                           const ExrMetadata& metadata = {});
+                           const ExrMetadata& metadata = {}, const ExrWriteOptions& options = {});
 
 // Reads the R, G, B channels of any EXR (plain RGB or spectral with RGB), converted to float.
 // INVALID_ARGUMENT naming the file when one of them is missing.

@@ -11,6 +11,8 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <random>
 
 #include "absl/strings/str_format.h"
@@ -121,10 +123,57 @@ TEST_F(ExrTest, StreamedBandsWriteTheSameFileAsTheWholeImage) {
     if (y0 > 0) return absl::DataLossError("tile 3 is unreadable");
     return spectral.data().data();
   };
-  absl::Status status = write_spectral_exr_rows(dir_ / "failed.exr", bin_centres_nm(bins), w, h,
-                                                4, failing, rgb, metadata);
+  absl::Status status = write_spectral_exr_rows(dir_ / "failed.exr", bin_centres_nm(bins), w, h, 4,
+                                                failing, rgb, metadata);
   EXPECT_EQ(status.code(), absl::StatusCode::kDataLoss) << status;
   EXPECT_FALSE(fs::exists(dir_ / "failed.exr"));
+}
+
+// Every offered compression is lossless, is the one the header records, and writes the same
+// bytes whatever the thread count (a job's outputs are bytes-identical on any machine).
+TEST_F(ExrTest, EveryCompressionIsLosslessAndThreadCountFree) {
+  // Taller than several line blocks (PIZ: 32 rows) so the threads have blocks to share.
+  const int w = 37, h = 101, bins = 24;
+  auto spectral =
+      SpectralImage::from_data(w, h, bins, random_floats(std::size_t(w) * h * bins, 5)).value();
+  RgbImage rgb = random_rgb(w, h, 6);
+  ASSERT_EQ(all_exr_compressions().size(), 5u);
+  for (ExrCompression compression : all_exr_compressions()) {
+    const std::string label(name(compression));
+    EXPECT_EQ(parse_exr_compression(label), compression);
+    std::string first_bytes;
+    for (int threads : {1, 2, 5}) {
+      const fs::path path = dir_ / absl::StrFormat("%s-%d.exr", label, threads);
+      ASSERT_TRUE(write_spectral_exr(path, spectral, rgb, {}, {compression, threads}).ok());
+      Imf::InputFile file(path.c_str());
+      EXPECT_EQ(static_cast<int>(file.header().compression()),
+                static_cast<int>(compression == ExrCompression::kNone   ? Imf::NO_COMPRESSION
+                                 : compression == ExrCompression::kRle  ? Imf::RLE_COMPRESSION
+                                 : compression == ExrCompression::kZips ? Imf::ZIPS_COMPRESSION
+                                 : compression == ExrCompression::kZip  ? Imf::ZIP_COMPRESSION
+                                                                        : Imf::PIZ_COMPRESSION))
+          << label;
+      auto read = read_spectral_exr(path);
+      ASSERT_TRUE(read.ok()) << read.status();
+      EXPECT_EQ(std::memcmp(read->spectral.data().data(), spectral.data().data(),
+                            spectral.data().size_bytes()),
+                0)
+          << label << ", " << threads << " threads";
+      EXPECT_EQ(std::memcmp(read->rgb->data().data(), rgb.data().data(), rgb.data().size_bytes()),
+                0);
+      std::ifstream in(path, std::ios::binary);
+      const std::string bytes((std::istreambuf_iterator<char>(in)),
+                              std::istreambuf_iterator<char>());
+      if (threads == 1) {
+        first_bytes = bytes;
+      } else {
+        EXPECT_TRUE(bytes == first_bytes) << label << ": " << threads << " threads differ";
+      }
+    }
+  }
+  for (const char* bad : {"", "ZIP", "dwaa", "pxr24", "b44"}) {
+    EXPECT_FALSE(parse_exr_compression(bad).has_value()) << bad;
+  }
 }
 
 TEST_F(ExrTest, ChannelNamesAndAttributesFollowTheSpectralLayout) {
