@@ -1,9 +1,11 @@
 #include "services/image/tile.h"
 
+#include <new>
 #include <set>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/check.h"
+#include "services/base/status.h"
 
 namespace prism::image {
 namespace {
@@ -36,6 +38,17 @@ absl::Status validate_region(const TileRect& rect, int width, int height, const 
   return absl::OkStatus();
 }
 
+// A zeroed buffer for a whole image; RESOURCE_EXHAUSTED instead of std::bad_alloc when the
+// allocation fails (admission control plans memory so that it does not, resource_plan.h).
+absl::StatusOr<std::vector<float>> zeros(std::size_t values, const char* what) {
+  try {
+    return std::vector<float>(values, 0.0f);
+  } catch (const std::bad_alloc&) {
+    return absl::ResourceExhaustedError(
+        absl::StrCat("cannot allocate the ", what, " (", values * sizeof(float), " bytes)"));
+  }
+}
+
 // Copies rows of `channels`-interleaved float pixels between two images of the same layout.
 void copy_rows(std::span<const float> src, int src_width, int sx0, int sy0, std::span<float> dst,
                int dst_width, int dx0, int dy0, int w, int h, int channels) {
@@ -66,8 +79,9 @@ std::string to_string(const TileRect& rect) {
 
 absl::StatusOr<SpectralImage> SpectralImage::create(int width, int height, int bins) {
   if (auto s = validate_image_size(width, height, bins, "spectral image"); !s.ok()) return s;
-  return SpectralImage(width, height, bins,
-                       std::vector<float>(std::size_t(width) * height * bins, 0.0f));
+  PRISM_ASSIGN_OR_RETURN(std::vector<float> data,
+                         zeros(std::size_t(width) * height * bins, "spectral image"));
+  return SpectralImage(width, height, bins, std::move(data));
 }
 
 absl::StatusOr<SpectralImage> SpectralImage::from_data(int width, int height, int bins,
@@ -108,7 +122,9 @@ absl::Status SpectralImage::paste(const SpectralImage& tile, int x0, int y0) {
 
 absl::StatusOr<RgbImage> RgbImage::create(int width, int height) {
   if (auto s = validate_image_size(width, height, 3, "RGB image"); !s.ok()) return s;
-  return RgbImage(width, height, std::vector<float>(std::size_t(width) * height * 3, 0.0f));
+  PRISM_ASSIGN_OR_RETURN(std::vector<float> data,
+                         zeros(std::size_t(width) * height * 3, "RGB image"));
+  return RgbImage(width, height, std::move(data));
 }
 
 absl::StatusOr<RgbImage> RgbImage::from_data(int width, int height, std::vector<float> data) {
