@@ -10,8 +10,9 @@ namespace {
 
 absl::Status check_hash(std::string_view hash) {
   if (!base::is_sha256_hex(hash)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("malformed blob hash '", std::string(hash.substr(0, 80)), "': want 64 lowercase hex digits"));
+    return absl::InvalidArgumentError(absl::StrCat("malformed blob hash '",
+                                                   std::string(hash.substr(0, 80)),
+                                                   "': want 64 lowercase hex digits"));
   }
   return absl::OkStatus();
 }
@@ -22,9 +23,8 @@ absl::StatusOr<BlobStore> BlobStore::open(const std::filesystem::path& root) {
   std::error_code ec;
   std::filesystem::create_directories(root, ec);
   if (ec || !std::filesystem::is_directory(root)) {
-    return absl::FailedPreconditionError(
-        absl::StrCat("cannot use ", root.string(), " as a blob store directory",
-                     ec ? ": " + ec.message() : ""));
+    return absl::FailedPreconditionError(absl::StrCat(
+        "cannot use ", root.string(), " as a blob store directory", ec ? ": " + ec.message() : ""));
   }
   return BlobStore(root);
 }
@@ -69,6 +69,17 @@ absl::Status BlobStore::remove(std::string_view hash) const {
   if (ec) {
     return absl::InternalError(
         absl::StrCat("cannot delete blob ", std::string(hash), ": ", ec.message()));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status BlobStore::discard(std::string_view hash, const std::filesystem::path& dir) const {
+  PRISM_RETURN_IF_ERROR(check_hash(hash));
+  std::error_code ec;
+  std::filesystem::rename(path_of(hash), dir / std::string(hash), ec);
+  if (ec && ec != std::errc::no_such_file_or_directory) {
+    return absl::InternalError(
+        absl::StrCat("cannot discard blob ", std::string(hash), ": ", ec.message()));
   }
   return absl::OkStatus();
 }

@@ -36,6 +36,10 @@ class BlobStore {
   // Deletes a blob; OK when it is not there (deleting twice is harmless). INVALID_ARGUMENT for
   // a malformed hash, INTERNAL on a file system error.
   absl::Status remove(std::string_view hash) const;
+  // Moves a blob into `dir` (same file system, existing) as <dir>/<hash>, for the caller to
+  // delete later: it is gone from the store at once (O(1) whatever its size), and a later put of
+  // the same hash writes a fresh file. OK when it is not there; errors as remove().
+  absl::Status discard(std::string_view hash, const std::filesystem::path& dir) const;
 
   // Size in bytes of a stored blob.
   absl::StatusOr<std::uint64_t> size(std::string_view hash) const;

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <fstream>
+#include <iterator>
 
 #include "services/base/sha256.h"
 #include "tests/testing/test_dir.h"
@@ -31,6 +32,25 @@ TEST(BlobStoreTest, PutGetByHash) {
   EXPECT_EQ(store->get(*hash).status().code(), absl::StatusCode::kNotFound);
   EXPECT_TRUE(store->remove(*hash).ok());
   EXPECT_EQ(store->remove("../x").code(), absl::StatusCode::kInvalidArgument);
+  fs::remove_all(dir);
+}
+
+TEST(BlobStoreTest, DiscardMovesTheBlobOutAndAFreshPutWritesItAgain) {
+  auto dir = fresh_dir("discard");
+  auto store = BlobStore::open(dir / "blobs");
+  ASSERT_TRUE(store.ok()) << store.status();
+  fs::create_directories(dir / "trash");
+  auto hash = store->put("tile result");
+  ASSERT_TRUE(hash.ok());
+  ASSERT_TRUE(store->discard(*hash, dir / "trash").ok());
+  EXPECT_FALSE(store->contains(*hash));
+  std::ifstream moved(dir / "trash" / *hash);
+  std::string bytes((std::istreambuf_iterator<char>(moved)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(bytes, "tile result");
+  EXPECT_TRUE(store->discard(*hash, dir / "trash").ok()) << "discarding twice is harmless";
+  EXPECT_EQ(*store->put("tile result"), *hash);
+  EXPECT_EQ(*store->get(*hash), "tile result");
+  EXPECT_EQ(store->discard("../x", dir / "trash").code(), absl::StatusCode::kInvalidArgument);
   fs::remove_all(dir);
 }
 
