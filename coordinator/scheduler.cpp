@@ -363,6 +363,12 @@ void Scheduler::tick(Millis now) {
   }
 }
 
+void Scheduler::forgive(Millis unheard) {
+  if (unheard.count() <= 0) return;
+  for (auto& [id, worker] : workers_) worker.last_seen += unheard;
+  for (const auto& [seq, id] : current_leases_) leases_.at(id).lease.deadline += unheard;
+}
+
 int Scheduler::remove_worker(const std::string& worker_id, Millis now) {
   if (!workers_.contains(worker_id)) return 0;
   return end_worker(worker_id, FailureClass::kReturned, "left", now);

@@ -243,6 +243,12 @@ class Scheduler {
   // more than lost_after_missed intervals. Call it about once per heartbeat interval.
   void tick(Millis now);
 
+  // The coordinator could not listen for `unheard` (a long operation held its lock, the process
+  // was stopped): nobody's silence in that time is their fault. Every worker's last_seen and
+  // every current lease's deadline move later by `unheard`, so the next tick() neither expires
+  // a lease nor declares a worker lost for heartbeats the coordinator could not take.
+  void forgive(Millis unheard);
+
   // A worker leaves cleanly (it drained): its current leases are requeued as returned (not
   // counted) and it is forgotten, with no kWorkerLost event. Unknown workers: nothing happens.
   // Returns how many leases were requeued.

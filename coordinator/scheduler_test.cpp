@@ -226,6 +226,34 @@ TEST(SchedulerTest, WorkerIsLostAfterThreeMissedHeartbeatsAndItsTaskGoesToAnothe
   EXPECT_EQ(s.complete("w2", retry->id, "h", at(4400)).outcome, CompleteOutcome::kAccepted);
 }
 
+// Issue 18, case 2: a coordinator that could not listen for 10 s (planning a huge job under its
+// lock) declared its healthy workers lost and dropped their finished tiles. Forgiven time is
+// not silence; silence after it still is.
+TEST(SchedulerTest, TimeTheCoordinatorCouldNotListenIsNotSilence) {
+  SchedulerOptions options = test_options();
+  options.lease_duration = Millis{2500};
+  Scheduler s(options);
+  ASSERT_TRUE(s.add_job("j", specs(1)).ok());
+  s.register_worker("w1", 1, at(0));
+  auto lease = s.acquire("w1", at(0));
+  ASSERT_TRUE(lease.has_value());
+  s.heartbeat("w1", {lease->id}, at(1000));
+  // The coordinator stalls from 1000 to 11000 ms; its next tick forgives the 10 s first.
+  s.forgive(Millis{10000});
+  s.tick(at(11000));
+  EXPECT_TRUE(s.knows_worker("w1"));
+  EXPECT_TRUE(s.take_events().empty());
+  EXPECT_EQ(s.counters().lease_expiries, 0u);
+  // The queued heartbeat arrives; the lease is still current and completes.
+  EXPECT_TRUE(s.heartbeat("w1", {lease->id}, at(11001)).directives.empty());
+  EXPECT_EQ(s.complete("w1", lease->id, "h", at(11002)).outcome, CompleteOutcome::kAccepted);
+  // Silence after the stall counts as before: 3 intervals and a bit more is lost.
+  s.tick(at(14002));
+  EXPECT_TRUE(s.knows_worker("w1"));
+  s.tick(at(14003));
+  EXPECT_FALSE(s.knows_worker("w1"));
+}
+
 TEST(SchedulerTest, RetryPrefersAnotherWorkerButDoesNotStarve) {
   Scheduler s(test_options());
   ASSERT_TRUE(s.add_job("j", specs(1)).ok());
