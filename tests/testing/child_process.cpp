@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <signal.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -74,6 +75,10 @@ std::unique_ptr<ChildProcess> ChildProcess::start(std::vector<std::string> argv_
     ::dup2(out[1], STDOUT_FILENO);
     ::dup2(options.merge_stderr ? out[1] : err[1], STDERR_FILENO);
     if (!dir.empty() && ::chdir(dir.c_str()) != 0) ::_exit(126);
+    if (options.address_space_limit > 0) {
+      const rlimit limit{options.address_space_limit, options.address_space_limit};
+      if (::setrlimit(RLIMIT_AS, &limit) != 0) ::_exit(126);
+    }
     ::execve(argv[0], argv.data(), envp.data());
     ::_exit(127);
   }

@@ -27,6 +27,8 @@ struct ChildOptions {
   bool clear_environment = false;  // start from an empty environment instead of the test's
   std::filesystem::path working_dir;  // empty: the test's
   bool merge_stderr = false;          // stderr into the stdout pipe (as `2>&1`), in order
+  // The child's RLIMIT_AS (as `ulimit -v`, in bytes); 0: the test's own.
+  std::uint64_t address_space_limit = 0;
 };
 
 class ChildProcess {
