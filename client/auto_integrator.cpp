@@ -120,6 +120,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     o.resolution = absl::StrCat(width, "x", height);
     o.spp = static_cast<std::int64_t>(spp);
     o.seed = kPilotSeed;
+    o.max_memory.clear();  // it limits the job; the pilot's small renders fit the machine's
     PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
                                                                    bundle_hash, scene_relpath));
     if (method == kHeroWithLightCaustics) {

@@ -1,7 +1,7 @@
-#include <fstream>
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include "client/check_command.h"
@@ -76,8 +76,8 @@ TEST(CompareCommandTest, PrintsMetricsOfTwoImages) {
   EXPECT_DOUBLE_EQ(j["spectral"]["mse"].get<double>(), 0.5);
   EXPECT_NEAR(j["spectral"]["rel_mse"].get<double>(), 4.0 / 4.01 / 8, 1e-12);
   // The crop that excludes the differing pixel has no error.
-  auto cropped = nlohmann::json::parse(*run_compare({dir / "test.exr", dir / "ref.exr",
-                                                     image::Crop{0, 0, 1, 1}, true}));
+  auto cropped = nlohmann::json::parse(
+      *run_compare({dir / "test.exr", dir / "ref.exr", image::Crop{0, 0, 1, 1}, true}));
   EXPECT_EQ(cropped["spectral"]["mse"].get<double>(), 0.0);
   auto outside = run_compare({dir / "test.exr", dir / "ref.exr", image::Crop{1, 0, 2, 1}, false});
   EXPECT_EQ(outside.status().code(), absl::StatusCode::kInvalidArgument);

@@ -14,7 +14,9 @@
 #include "coordinator/outputs.h"
 #include "coordinator/poisson.h"
 #include "coordinator/prepass.h"
+#include "coordinator/resource_plan.h"
 #include "services/base/status.h"
+#include "services/image/exr_spectral.h"
 #include "services/job/job_spec.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
@@ -285,6 +287,15 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
         absl::StrCat("--exposure ", o.exposure, " is out of range: want stops in -",
                      job::kMaxJobExposureStops, "..", job::kMaxJobExposureStops));
   }
+  if (!o.max_memory.empty()) {
+    absl::StatusOr<std::uint64_t> bytes = coordinator::parse_bytes(o.max_memory);
+    if (!bytes.ok())
+      return absl::InvalidArgumentError(absl::StrCat("--max-memory ", bytes.status().message()));
+  }
+  if (!o.exr_compression.empty() && !image::parse_exr_compression(o.exr_compression)) {
+    return absl::InvalidArgumentError(absl::StrCat("--exr-compression '", o.exr_compression,
+                                                   "': want none, rle, zips, zip or piz"));
+  }
   // The names alone (the film's filename is not needed to check -o and --json).
   return coordinator::output_paths(o.output, o.json, "render.exr").status();
 }
@@ -386,6 +397,10 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   if (o.splat_width.has_value()) spec.set_splat_width(static_cast<float>(*o.splat_width));
   if (o.gather_width.has_value()) spec.set_gather_width(static_cast<float>(*o.gather_width));
   spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
+  if (!o.exr_compression.empty()) {
+    spec.mutable_outputs()->set_exr_compression(
+        job::to_proto(*image::parse_exr_compression(o.exr_compression)));
+  }
   spec.set_name(o.scene.filename().string());
   spec.set_allow_unsupported(o.allow_unsupported);
   if (o.target_error.has_value()) {
@@ -427,6 +442,9 @@ absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& option
   local.samples_per_task = job.samples_per_task;
   local.tile_size = job.tile_size;
   local.threads = o.threads.has_value() ? static_cast<int>(*o.threads) : 0;
+  if (!o.max_memory.empty()) {
+    PRISM_ASSIGN_OR_RETURN(local.max_memory_bytes, coordinator::parse_bytes(o.max_memory));
+  }
   local.poisson_alpha = job.gradient.alpha;
   local.poisson_norm = job.gradient.norm;
   local.keep_primal_and_gradients = job.outputs.primal_and_gradients;
@@ -522,9 +540,13 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
     if (result->stats.prepass.has_value()) report.prepass->outcome = *result->stats.prepass;
   }
 
+  // The render's threads compress the outputs too.
+  const Clock::time_point output_start = Clock::now();
+  const coordinator::OutputOptions outputs{static_cast<float>(options.exposure),
+                                           {job.outputs.exr_compression, result->stats.threads}};
   if (result->primal.has_value() && result->gradient.has_value()) {
     PRISM_RETURN_IF_ERROR(coordinator::write_primal_and_gradient(
-        *result->primal, *result->gradient, renderer->scene().cmf(), report, paths));
+        *result->primal, *result->gradient, renderer->scene().cmf(), report, paths, outputs));
   }
   if (report.filtered.has_value()) {
     coordinator::fill_filtered_counters(report.counters, *report.filtered);
@@ -536,11 +558,11 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   }
   if (result->filtered.has_value() && result->filtered_rgb.has_value()) {
     PRISM_RETURN_IF_ERROR(coordinator::write_filtered(*result->filtered, *result->filtered_rgb,
-                                                      report, paths,
-                                                      {static_cast<float>(options.exposure)}));
+                                                      report, paths, outputs));
   }
-  PRISM_RETURN_IF_ERROR(coordinator::write_outputs(result->image, result->rgb, report, paths,
-                                                   {static_cast<float>(options.exposure)}));
+  PRISM_RETURN_IF_ERROR(
+      coordinator::write_outputs(result->image, result->rgb, report, paths, outputs));
+  const double output_seconds = std::chrono::duration<double>(Clock::now() - output_start).count();
   const double seconds = report.render_seconds;
   return absl::StrCat(
       "rendered ", report.scene, ": ", report.width, "x", report.height, ", ", report.spp, " spp, ",
@@ -566,7 +588,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
       report.filtered.has_value()
           ? absl::StrCat(paths.filtered_exr.string(), ", ", paths.filtered_png.string(), ", ")
           : std::string(),
-      paths.json.string(), "\n");
+      paths.json.string(), absl::StrFormat(" in %.2f s", output_seconds), "\n");
 }
 
 }  // namespace prism::client

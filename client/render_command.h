@@ -37,6 +37,8 @@ struct RenderCommandOptions {
   std::optional<std::int64_t> bins;
   std::optional<std::string> resolution;  // "WxH"
   std::optional<std::int64_t> threads;    // unset: every hardware thread
+  std::string
+      max_memory;  // --max-memory, a byte count (coordinator::parse_bytes); empty: the machine's
   std::uint64_t seed = 0;
   std::int64_t tile = 32;
   std::string spectral_pdf = "flat";
@@ -54,6 +56,7 @@ struct RenderCommandOptions {
   std::optional<std::int64_t> max_depth;
   std::optional<std::int64_t> samples_per_task;  // unset: one task per tile
   double exposure = 0.0;                         // PNG preview, in stops
+  std::string exr_compression;                   // --exr-compression; empty: the default
   // Spectral gradient sampling (--integrator gradient); unset: the defaults (job_spec.h).
   std::optional<double> delta;  // fraction of the range, snapped to whole bins
   std::optional<double> tau;    // unset: chosen by the pilot, as with tau_auto

@@ -4,6 +4,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "services/base/status.h"
+#include "services/image/exr_spectral.h"
 
 namespace prism::client {
 
@@ -71,6 +72,10 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   f.max_depth_opt = cmd.add_option("--max-depth", f.max_depth,
                                    "Path vertices after the camera (default: the scene's)");
   cmd.add_option("--exposure", o.exposure, "PNG preview exposure in stops (default 0)");
+  cmd.add_option("--exr-compression", o.exr_compression,
+                 absl::StrCat("Lossless compression of the EXR outputs: none, rle, zips, zip or "
+                              "piz (default ",
+                              std::string(image::name(image::kDefaultExrCompression)), ")"));
 
   f.delta_opt = cmd.add_option("--delta", f.delta,
                                "Gradient: spectral offset as a fraction of the range, snapped to "

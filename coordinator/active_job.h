@@ -73,6 +73,10 @@ struct ActiveJob {
 
   job::JobParameters params;
   prism::v1::JobSpec spec;
+  // What admission control planned for it (resource_plan.h): counted against the coordinator's
+  // memory and disk budgets while the job is unfinished.
+  std::uint64_t planned_memory = 0;
+  std::uint64_t planned_disk = 0;
   TilePlan plan;                             // the final pass
   std::unique_ptr<TileAssembler> assembler;  // the final pass
   TileFinaliser finalise;

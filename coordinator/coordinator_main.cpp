@@ -5,13 +5,17 @@
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <csignal>
 #include <cstdint>
 #include <iostream>
 #include <string>
+#include <thread>
+#include <tuple>
 
 #include "coordinator/farm_coordinator.h"
 #include "coordinator/http/http_api.h"
+#include "coordinator/resource_plan.h"
 #include "coordinator/rpc/coordinator_server.h"
 
 namespace {
@@ -26,6 +30,9 @@ struct Config {
   std::string tls_key;
   std::uint64_t max_bundle_bytes = std::uint64_t{1} << 30;
   std::uint64_t max_queued_jobs = 1000;
+  std::string max_memory;
+  std::string max_disk;
+  int output_threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   std::int64_t heartbeat_ms = 1000;
   std::int64_t lease_ms = 30000;
   std::string log_level = "info";
@@ -53,6 +60,15 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(std::uint64_t{1}, std::uint64_t{1} << 40));
   app.add_option("--max-queued-jobs", config.max_queued_jobs, "unfinished jobs accepted at once")
       ->check(CLI::Range(std::uint64_t{1}, std::uint64_t{1} << 20));
+  app.add_option("--max-memory", config.max_memory,
+                 "refuse a job when the unfinished jobs' planned memory would exceed this, e.g. "
+                 "16G (default: the machine's memory or the process's limit, the smaller)");
+  app.add_option("--max-disk", config.max_disk,
+                 "refuse a job when the unfinished jobs' planned disk would exceed this, e.g. "
+                 "500G (default: each job must fit the data dir's free space)");
+  app.add_option("--output-threads", config.output_threads,
+                 "threads compressing a finished job's EXR outputs (default: the hardware's)")
+      ->check(CLI::Range(1, 256));
   app.add_option("--heartbeat-ms", config.heartbeat_ms, "worker heartbeat interval")
       ->check(CLI::Range(std::int64_t{10}, std::int64_t{600000}));
   app.add_option("--lease-ms", config.lease_ms, "lease duration, extended by heartbeats")
@@ -83,6 +99,18 @@ int main(int argc, char** argv) {
   options.data_dir = config.data_dir;
   options.max_bundle_bytes = config.max_bundle_bytes;
   options.max_queued_jobs = config.max_queued_jobs;
+  options.output_threads = config.output_threads;
+  for (auto [flag, text, bytes] :
+       {std::tuple{"--max-memory", &config.max_memory, &options.max_memory_bytes},
+        std::tuple{"--max-disk", &config.max_disk, &options.max_disk_bytes}}) {
+    if (text->empty()) continue;
+    absl::StatusOr<std::uint64_t> parsed = prism::coordinator::parse_bytes(*text);
+    if (!parsed.ok()) {
+      std::cerr << "prism-coordinator: " << flag << " " << parsed.status().message() << "\n";
+      return 2;
+    }
+    *bytes = *parsed;
+  }
   options.scheduler.heartbeat_interval = Millis(config.heartbeat_ms);
   options.scheduler.lease_duration = Millis(config.lease_ms);
   options.tick_interval = Millis(std::max<std::int64_t>(10, config.heartbeat_ms / 2));

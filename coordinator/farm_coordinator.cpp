@@ -53,7 +53,7 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator>> FarmCoordinator::open(FarmOptio
 
 absl::Status FarmCoordinator::start() {
   const fs::path& dir = options_.data_dir;
-  for (const char* sub : {"blobs", "bundles", "jobs", "scenes", "outputs", "tmp"}) {
+  for (const char* sub : {"blobs", "bundles", "jobs", "scenes", "outputs", "tmp", "trash"}) {
     PRISM_RETURN_IF_ERROR(base::make_directories(dir / sub));
   }
   // Leftovers of an interrupted upload are never referenced.
@@ -62,6 +62,12 @@ absl::Status FarmCoordinator::start() {
     fs::remove_all(entry.path(), ec);
 
   PRISM_ASSIGN_OR_RETURN(library_, spectral::SpectrumLibrary::load_builtin());
+  memory_budget_ = options_.max_memory_bytes > 0
+                       ? MemoryBudget{options_.max_memory_bytes, "--max-memory", false}
+                       : machine_memory_budget();
+  // A machine-derived budget is for the whole process; --max-memory is for the jobs alone.
+  baseline_memory_ =
+      options_.max_memory_bytes > 0 ? 0 : memory_in_use(memory_budget_.address_space);
   bundles_.emplace(dir, options_.max_bundle_bytes, library_, options_.logger);
   PRISM_ASSIGN_OR_RETURN(store::JobStore job_store, store::JobStore::open(dir / "jobs.sqlite"));
   store_.emplace(std::move(job_store));
@@ -89,8 +95,30 @@ absl::Status FarmCoordinator::start() {
     }
     process_events_locked();
   }
+  janitor_ = std::thread([this] { janitor_loop(); });
   ticker_ = std::thread([this] { tick_loop(); });
   return absl::OkStatus();
+}
+
+void FarmCoordinator::janitor_loop() {
+  std::unique_lock<std::mutex> lock(janitor_mutex_);
+  while (true) {
+    janitor_wake_.wait(lock, [this] { return janitor_pending_ || janitor_stopping_; });
+    if (janitor_stopping_) return;
+    janitor_pending_ = false;
+    lock.unlock();
+    // Entries are whole: clean_up_locked renames each in complete. A crash midway leaves the
+    // rest for the next start.
+    std::error_code ec;
+    for (const auto& entry : fs::directory_iterator(trash_dir(), ec)) {
+      std::error_code removed;
+      fs::remove_all(entry.path(), removed);
+      if (removed) {
+        options_.logger->warn("cannot delete {}: {}", entry.path().string(), removed.message());
+      }
+    }
+    lock.lock();
+  }
 }
 
 FarmCoordinator::~FarmCoordinator() {
@@ -104,13 +132,35 @@ void FarmCoordinator::shutdown() {
     changed_locked();
   }
   if (ticker_.joinable()) ticker_.join();
+  {
+    std::lock_guard<std::mutex> lock(janitor_mutex_);
+    janitor_stopping_ = true;
+  }
+  janitor_wake_.notify_all();
+  if (janitor_.joinable()) janitor_.join();
 }
 
 void FarmCoordinator::tick_loop() {
+  using Steady = std::chrono::steady_clock;
   std::unique_lock<std::mutex> lock(mutex_);
+  Steady::time_point previous = Steady::now();
   while (!stopping_) {
     changed_.wait_for(lock, options_.tick_interval);
     if (stopping_) break;
+    // Ticks come at most tick_interval apart unless the lock was held (by another call, or by
+    // the last tick's own events, such as finalising a job) or the process was stopped for
+    // longer: heartbeats queued behind it all that time, which must not count as silence.
+    const Steady::time_point started = Steady::now();
+    const Millis unheard =
+        std::chrono::duration_cast<Millis>(started - previous) - options_.tick_interval;
+    previous = started;
+    if (unheard > options_.scheduler.heartbeat_interval) {
+      options_.logger->warn(
+          "the coordinator could not listen for {} ms; leases and workers' "
+          "silence are not counted for that time",
+          unheard.count());
+      scheduler_.forgive(unheard);
+    }
     scheduler_.tick(now());
     process_events_locked();
   }
@@ -153,23 +203,44 @@ absl::StatusOr<std::string> FarmCoordinator::bundle_bytes(const std::string& has
 // ---- jobs ----
 
 void FarmCoordinator::clean_up_locked(const std::string& job_id) {
+  // A fresh name per clean-up: a job cleaned up again (after a restart) never meets its old
+  // trash.
+  const fs::path trash =
+      trash_dir() / absl::StrCat(job_id, "-", ++temp_counter_, "-", now().count());
   std::error_code ec;
-  fs::remove_all(options_.data_dir / "jobs" / job_id, ec);
-  if (ec) {
-    options_.logger->warn("[job {}] cannot remove its tiles: {}", job_id, ec.message());
+  const fs::path job_dir = options_.data_dir / "jobs" / job_id;
+  if (fs::exists(job_dir, ec)) {
+    fs::rename(job_dir, trash, ec);
+    if (ec) {
+      options_.logger->warn("[job {}] cannot move its tiles to the trash: {}", job_id,
+                            ec.message());
+      fs::remove_all(job_dir, ec);
+    }
   }
   absl::StatusOr<std::vector<std::string>> unshared = store_->unshared_results(job_id);
   if (!unshared.ok()) {
     options_.logger->warn("[job {}] cannot list its results: {}", job_id,
                           unshared.status().ToString());
-    return;
-  }
-  for (const std::string& hash : *unshared) {
-    if (absl::Status removed = blobs_->remove(hash); !removed.ok()) {
-      options_.logger->warn("[job {}] cannot delete result {}: {}", job_id, hash,
-                            removed.ToString());
+  } else if (!unshared->empty()) {
+    const fs::path blobs = trash.string() + "-results";
+    if (absl::Status made = base::make_directories(blobs); !made.ok()) {
+      options_.logger->warn("[job {}] {}", job_id, made.ToString());
+    }
+    for (const std::string& hash : *unshared) {
+      // The blob leaves the store now: a later job's identical result is written afresh.
+      absl::Status moved = blobs_->discard(hash, blobs);
+      if (!moved.ok()) moved = blobs_->remove(hash);
+      if (!moved.ok()) {
+        options_.logger->warn("[job {}] cannot delete result {}: {}", job_id, hash,
+                              moved.ToString());
+      }
     }
   }
+  {
+    std::lock_guard<std::mutex> lock(janitor_mutex_);
+    janitor_pending_ = true;
+  }
+  janitor_wake_.notify_one();
 }
 
 absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec,
@@ -209,9 +280,26 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
       bundles_->load_scene(spec.allow_unsupported(), spec.bundle_hash(), bundle_scene));
   PRISM_ASSIGN_OR_RETURN(job::JobParameters params, job::job_parameters(spec, loaded.description));
   const prism::v1::JobSpec explicit_spec = to_proto(params);
+  // Admission before the job's buffers exist: the plan's bytes stay reserved until the job is
+  // active (then they are its own) or the submission fails.
+  std::uint64_t memory = 0, disk = 0;
+  lock.lock();
+  PRISM_RETURN_IF_ERROR(admit_locked(params, &memory, &disk));
+  lock.unlock();
+  struct Reservation {
+    FarmCoordinator* farm;
+    std::unique_lock<std::mutex>* lock;
+    std::uint64_t memory, disk;
+    ~Reservation() {
+      if (!lock->owns_lock()) lock->lock();
+      farm->release_locked(memory, disk);
+    }
+  } reservation{this, &lock, memory, disk};
   PRISM_ASSIGN_OR_RETURN(
       std::unique_ptr<ActiveJob> active,
       ActiveJob::create(params, explicit_spec, loaded.description, library_, cmf_));
+  active->planned_memory = memory;
+  active->planned_disk = disk;
 
   store::JobRecord record;
   record.client_token = client_token;
@@ -230,6 +318,7 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
   }
   lock.lock();
   PRISM_RETURN_IF_ERROR(check_queue());
+  if (options_.before_store_job) options_.before_store_job();
   PRISM_ASSIGN_OR_RETURN(store::CreateJobResult created, store_->create_job(record, tasks));
   if (created.existed) return status_locked(created.job);
   const std::string id = created.job.id;
@@ -253,6 +342,48 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
   return status_locked(now_record);
 }
 
+absl::Status FarmCoordinator::admit_locked(const job::JobParameters& params, std::uint64_t* memory,
+                                           std::uint64_t* disk) {
+  const ResourcePlan plan = plan_farm_job(params);
+  std::uint64_t planned_memory = reserved_memory_, planned_disk = reserved_disk_;
+  for (const auto& [id, job] : active_) {
+    planned_memory += job->planned_memory;
+    planned_disk += job->planned_disk;
+  }
+  const std::string job = absl::StrCat("a job of ", params.width, "x", params.height, " with ",
+                                       params.render.bins, " bins");
+  const std::string advice =
+      "use fewer bins or a smaller resolution, or wait for the farm's unfinished jobs";
+  const std::uint64_t budget = memory_budget_.bytes;
+  PRISM_RETURN_IF_ERROR(
+      check_memory(job, plan, baseline_memory_ + planned_memory, budget,
+                   absl::StrCat(memory_budget_.source, "; the unfinished jobs plan ",
+                                format_bytes(planned_memory)),
+                   advice));
+  PRISM_ASSIGN_OR_RETURN(std::uint64_t free, free_disk_bytes(options_.data_dir));
+  PRISM_RETURN_IF_ERROR(
+      check_disk(job, plan, free, absl::StrCat("free in ", options_.data_dir.string()), advice));
+  if (options_.max_disk_bytes > 0) {
+    const std::uint64_t left =
+        options_.max_disk_bytes > planned_disk ? options_.max_disk_bytes - planned_disk : 0;
+    PRISM_RETURN_IF_ERROR(
+        check_disk(job, plan, left,
+                   absl::StrCat("--max-disk ", format_bytes(options_.max_disk_bytes),
+                                " less the unfinished jobs' ", format_bytes(planned_disk)),
+                   advice));
+  }
+  *memory = plan.memory_bytes();
+  *disk = plan.disk_bytes();
+  reserved_memory_ += *memory;
+  reserved_disk_ += *disk;
+  return absl::OkStatus();
+}
+
+void FarmCoordinator::release_locked(std::uint64_t memory, std::uint64_t disk) {
+  reserved_memory_ -= std::min(reserved_memory_, memory);
+  reserved_disk_ -= std::min(reserved_disk_, disk);
+}
+
 absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   prism::v1::JobSpec spec;
   if (!spec.ParseFromString(record.spec)) {
@@ -267,6 +398,10 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
       bundles_->load_scene(params.allow_unsupported, params.bundle_hash, params.scene_path));
   PRISM_ASSIGN_OR_RETURN(std::unique_ptr<ActiveJob> active,
                          ActiveJob::create(params, spec, loaded.description, library_, cmf_));
+  // Admitted before the restart: counted, never refused now.
+  const ResourcePlan plan = plan_farm_job(params);
+  active->planned_memory = plan.memory_bytes();
+  active->planned_disk = plan.disk_bytes();
   PRISM_ASSIGN_OR_RETURN(std::vector<store::TaskRecord> tasks, store_->tasks_of(record.id));
   const std::vector<TaskSpec> specs = active->task_specs();
   if (tasks.size() != specs.size()) {

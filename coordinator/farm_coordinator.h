@@ -60,6 +60,7 @@
 #include "coordinator/finished_tiles.h"
 #include "coordinator/outputs.h"
 #include "coordinator/prepass_run.h"
+#include "coordinator/resource_plan.h"
 #include "coordinator/scheduler.h"
 #include "coordinator/target_error.h"
 #include "coordinator/tile_merge.h"
@@ -80,10 +81,22 @@ struct FarmOptions {
   std::uint64_t max_bundle_bytes = std::uint64_t{1} << 30;
   std::uint64_t max_result_bytes = std::uint64_t{1} << 32;
   std::size_t max_queued_jobs = 1000;  // jobs not yet in a terminal state
+  // Admission control (resource_plan.h): the memory the unfinished jobs' plans may add up to,
+  // besides what the coordinator held when it started (0: the machine's budget, the smallest
+  // of its memory and the process's limits), and the disk they may add up to (0: no sum is
+  // kept). A job is also refused when its own disk plan exceeds the data dir's free space.
+  std::uint64_t max_memory_bytes = 0;
+  std::uint64_t max_disk_bytes = 0;
+  // Threads compressing a finished job's EXR outputs (OpenEXR's pool); the bytes do not
+  // depend on it.
+  int output_threads = 1;
   SchedulerOptions scheduler;
   Millis tick_interval{200};
   // Milliseconds since the Unix epoch; injectable for tests.
   std::function<Millis()> clock;
+  // Fault injection for tests: called under the lock just before a submitted job's tasks are
+  // stored (a slow store or a huge plan stalls the coordinator there).
+  std::function<void()> before_store_job;
   // The "coordinator" logger (main creates it); null: a logger that drops everything.
   std::shared_ptr<spdlog::logger> logger;
 };
@@ -231,10 +244,18 @@ class FarmCoordinator {
   // the Scheduler; after the final pass the job is finalised.
   absl::Status advance_locked(const std::string& job_id);
   // Deletes what a job that is over no longer needs: its tile files and unshared result blobs.
+  // Under the lock they are only moved into <data dir>/trash (renames: O(1) per file, whatever
+  // the bytes); the janitor thread frees the space without the lock.
   void clean_up_locked(const std::string& job_id);
+  void janitor_loop();
   std::filesystem::path tiles_dir(const std::string& job_id) const;
   void process_events_locked();
   absl::Status finalise_locked(const std::string& job_id);
+  // Admission control for a job of `params` (resource_plan.h): RESOURCE_EXHAUSTED with the
+  // numbers, else the plan's bytes are reserved until release_locked.
+  absl::Status admit_locked(const job::JobParameters& params, std::uint64_t* memory,
+                            std::uint64_t* disk);
+  void release_locked(std::uint64_t memory, std::uint64_t disk);
   void fail_job_locked(const std::string& job_id, const std::string& message);
   JobStatus status_locked(const store::JobRecord& record);
   std::filesystem::path output_dir(const std::string& job_id) const;
@@ -255,13 +276,25 @@ class FarmCoordinator {
   std::map<std::string, std::unique_ptr<ActiveJob>> active_;
   std::map<std::string, std::uint64_t> tasks_completed_;    // by worker
   std::map<std::string, std::uint64_t> samples_completed_;  // by worker
-  std::map<std::string, std::int64_t> left_;
-  std::map<std::string, std::vector<ConvergencePoint>>
-      convergence_;  // by job id                // workers that left cleanly, when
+  std::map<std::string, std::int64_t> left_;                // workers that left cleanly, when
+  std::map<std::string, std::vector<ConvergencePoint>> convergence_;  // by job id
+  // Admission control: the budgets, what the coordinator held at start, and the plans of
+  // submissions between their check and their job's creation.
+  MemoryBudget memory_budget_;
+  std::uint64_t baseline_memory_ = 0;
+  std::uint64_t reserved_memory_ = 0;
+  std::uint64_t reserved_disk_ = 0;
   FarmMetrics metrics_;
   std::uint64_t temp_counter_ = 0;
   bool stopping_ = false;
   std::thread ticker_;
+  // The janitor empties trash_dir() when woken (and at start: a crash may have left trash).
+  std::filesystem::path trash_dir() const { return options_.data_dir / "trash"; }
+  std::mutex janitor_mutex_;
+  std::condition_variable janitor_wake_;
+  bool janitor_pending_ = true;
+  bool janitor_stopping_ = false;
+  std::thread janitor_;
 };
 
 }  // namespace prism::coordinator

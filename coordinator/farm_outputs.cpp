@@ -185,6 +185,10 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
       store::JobRecord record,
       store_->set_job_state(job_id, store::JobState::kFinalising, now().count()));
   const job::JobParameters& p = job.params;
+  auto output_options = [this](const job::JobParameters& params) {
+    return OutputOptions{params.outputs.png_exposure,
+                         {params.outputs.exr_compression, options_.output_threads}};
+  };
   RenderReport report;
   report.scene = p.scene_path;
   report.width = p.width;
@@ -250,7 +254,7 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
               return image::finalise_gradients(merged);
             },
             &gradient_band),
-        gradient_rgb, report, paths));
+        gradient_rgb, report, paths, output_options(p)));
   }
   if (p.render.splats_differentials()) {
     // The filtered image, tile by tile from the files like the main one.
@@ -273,7 +277,7 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
               return image::finalise_filtered(merged);
             },
             &filtered_band),
-        filtered_rgb, report, paths, {p.outputs.png_exposure}));
+        filtered_rgb, report, paths, output_options(p)));
   } else if (p.render.gathers()) {
     // Gathering filters the whole image at once: its bins, counts, offsets and guides, made
     // tile by tile from the files.
@@ -297,12 +301,11 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
       report.filtered->pixels_filtered = gathered.pixels_filtered;
       report.filtered->pixels_incoherent = gathered.pixels_incoherent;
     }
-    PRISM_RETURN_IF_ERROR(
-        write_filtered(filtered, filtered_rgb, report, paths, {p.outputs.png_exposure}));
+    PRISM_RETURN_IF_ERROR(write_filtered(filtered, filtered_rgb, report, paths, output_options(p)));
   }
   PRISM_RETURN_IF_ERROR(write_outputs(p.render.bins, job.tiles->band_rows(),
                                       job.tiles->rows(job.finalise, &band), *job.rgb, report, paths,
-                                      {p.outputs.png_exposure}));
+                                      output_options(p)));
   // write_outputs writes every kind; keep what the job asked for, the report, and the RGB EXR
   // (previews of a finished job are made from it; GetResult serves it only when asked for).
   std::error_code ec;

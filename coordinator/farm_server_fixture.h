@@ -80,6 +80,9 @@ class FarmServerTest : public ::testing::Test {
     farm_ = testing::InProcessFarm::start(root_ / "data", [this](FarmOptions& options) {
       options.max_bundle_bytes = 64 << 10;
       options.max_queued_jobs = max_queued_jobs_;
+      options.max_memory_bytes = max_memory_bytes_;
+      options.max_disk_bytes = max_disk_bytes_;
+      options.before_store_job = before_store_job_;
       options.scheduler.lease_duration = Millis(5000);
     });
     ASSERT_NE(farm_, nullptr);
@@ -349,6 +352,9 @@ class FarmServerTest : public ::testing::Test {
 #endif
 
   std::size_t max_queued_jobs_ = 1000;
+  std::uint64_t max_memory_bytes_ = 0;
+  std::uint64_t max_disk_bytes_ = 0;
+  std::function<void()> before_store_job_;
   fs::path root_;
   fs::path scene_root_;
   spectral::SpectrumLibrary library_;

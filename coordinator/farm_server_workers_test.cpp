@@ -221,6 +221,33 @@ TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
   EXPECT_EQ(count_files(data / "outputs" / job_id), 4u);
 }
 
+// Issue 18, case 4: cancelling a job with a few hundred finished tiles took 10-11 s, deleting
+// its files under the coordinator's lock. Cancel now only moves them out of the way (renames);
+// the job's tiles and results are gone from the store when it returns, and the janitor frees
+// the space afterwards, without the lock.
+TEST_F(FarmServerTest, CancelMovesAJobsFilesOutAtOnceAndTheJanitorDeletesThem) {
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const std::string job_id = submit(small_spec(hash)).job_id();
+  ASSERT_EQ(run_worker(register_worker(), 7).size(), 7u);
+  const fs::path data = root_ / "data";
+  ASSERT_EQ(count_files(data / "jobs" / job_id / "tiles"), 3u);
+  ASSERT_GT(count_files(data / "blobs"), 0u);
+  v1::CancelJobRequest request;
+  request.set_job_id(job_id);
+  v1::JobInfo info;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->CancelJob(context.get(), request, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
+  EXPECT_FALSE(fs::exists(data / "jobs" / job_id));
+  EXPECT_EQ(count_files(data / "blobs"), 0u);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  while (count_files(data / "trash") > 0 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(count_files(data / "trash"), 0u);
+}
+
 TEST_F(FarmServerTest, CancelReachesTheWorkerAtItsNextHeartbeat) {
   scene_root_ = root_ / "scene";
   const std::string packed = packed_bundle(scene_root_, kScene);
@@ -392,6 +419,75 @@ TEST_F(FarmServerTest, SubmissionsBeyondTheQueueLimitAreResourceExhausted) {
   EXPECT_FALSE(submit(small_spec(hash), "first").job_id().empty());
 }
 
+// Issue 18, "found under load" case 1: the farm accepted a 16384x16384 job that would have
+// needed ~2 TB of disk and GBs of coordinator memory. Admission control refuses what does not
+// fit the budgets, with the numbers, before allocating anything; what fits is accepted, and a
+// cancelled job gives its share back.
+TEST_F(FarmServerTest, JobsBeyondTheMemoryOrDiskBudgetAreRefusedWithTheNumbers) {
+  stop();
+  max_memory_bytes_ = 64 << 20;
+  max_disk_bytes_ = std::uint64_t{100} << 30;
+  start();
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  auto submit_sized = [&](int side, int bins, const std::string& token, v1::JobInfo* info) {
+    v1::SubmitJobRequest request;
+    *request.mutable_spec() = small_spec(hash);
+    request.mutable_spec()->set_width(static_cast<std::uint32_t>(side));
+    request.mutable_spec()->set_height(static_cast<std::uint32_t>(side));
+    request.mutable_spec()->set_bins(static_cast<std::uint32_t>(bins));
+    request.mutable_spec()->set_tile_size(64);
+    request.mutable_spec()->set_samples_per_task(0);
+    request.set_client_token(token);
+    v1::SubmitJobResponse response;
+    auto context = client();
+    grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
+    if (info != nullptr) *info = response.job();
+    return status;
+  };
+  // 16384² at 32 bins: ~200 GiB of finished tiles and outputs.
+  grpc::Status huge = submit_sized(16384, 32, "huge", nullptr);
+  EXPECT_EQ(huge.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(huge.error_message().find("a job of 16384x16384 with 32 bins needs about"),
+            std::string::npos)
+      << huge.error_message();
+  // Refused on memory (its RGB image alone is 3 GiB) before disk is looked at.
+  EXPECT_NE(huge.error_message().find("of memory (RGB image 3.0 GiB"), std::string::npos)
+      << huge.error_message();
+  // 1024² at 16 bins with 64-pixel tiles plans 12 MiB of RGB, 8 MiB for a row of tiles (and
+  // its finalised copy) and 3 MiB of PNG: two fit in 64 MiB, a third does not.
+  v1::JobInfo first;
+  ASSERT_TRUE(submit_sized(1024, 16, "a", &first).ok());
+  ASSERT_TRUE(submit_sized(1024, 16, "b", nullptr).ok());
+  grpc::Status third = submit_sized(1024, 16, "c", nullptr);
+  EXPECT_EQ(third.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(third.error_message().find("more than the 64 MiB allowed (--max-memory; the "
+                                       "unfinished jobs plan 46 MiB)"),
+            std::string::npos)
+      << third.error_message();
+  // Cancelling gives the first job's share back.
+  v1::CancelJobRequest cancel;
+  cancel.set_job_id(first.job_id());
+  v1::JobInfo cancelled;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->CancelJob(context.get(), cancel, &cancelled).ok());
+  EXPECT_TRUE(submit_sized(1024, 16, "c", nullptr).ok());
+
+  // Disk: within the memory budget but over --max-disk.
+  stop();
+  max_memory_bytes_ = std::uint64_t{1} << 40;
+  max_disk_bytes_ = 64 << 20;
+  start();
+  grpc::Status disk = submit_sized(2048, 64, "disk", nullptr);
+  EXPECT_EQ(disk.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(disk.error_message().find("of disk (finished tiles"), std::string::npos)
+      << disk.error_message();
+  // The two unfinished 1024² jobs resumed with the restart and count too.
+  EXPECT_NE(disk.error_message().find("(--max-disk 64 MiB less the unfinished jobs' "),
+            std::string::npos)
+      << disk.error_message();
+}
+
 TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {
   const std::string hash = upload_scene();
   ASSERT_FALSE(hash.empty());
@@ -403,6 +499,51 @@ TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {
   grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_EQ(status.error_message(), "bins 1000 is out of range: want 4..256");
+}
+
+// Issue 18, case 2: a coordinator that stalled for 18-43 s storing a huge job declared its
+// healthy workers lost and rejected their finished tiles. A 10 s stall is injected where a job
+// is stored (the in-process farm's heartbeats are 200 ms apart, lost after 3 missed: 50
+// intervals). The worker's next heartbeat is sent only after the ticker has run several times
+// past the stall (the order that lost workers before): it is still the same worker, its lease
+// still current, and its result is accepted.
+TEST_F(FarmServerTest, ATenSecondStallDoesNotMakeAHealthyWorkerLost) {
+  std::atomic<int> stores{0};
+  stop();
+  before_store_job_ = [&stores] {
+    if (stores.fetch_add(1) == 1) std::this_thread::sleep_for(std::chrono::seconds(10));
+  };
+  start();
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  submit(small_spec(hash), "first");
+  const std::string worker_id = register_worker();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  auto beat = [&] {
+    v1::HeartbeatRequest request;
+    request.set_worker_id(worker_id);
+    request.add_lease_ids(lease->lease_id());
+    v1::HeartbeatResponse reply;
+    auto context = worker_call();
+    EXPECT_TRUE(worker_stub_->Heartbeat(context.get(), request, &reply).ok());
+    return reply;
+  };
+  EXPECT_EQ(beat().directives_size(), 0);
+  v1::JobSpec second = small_spec(hash);
+  second.set_seed(8);
+  submit(second, "second");  // holds the coordinator's lock for 10 s
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));  // 5 ticks, no heartbeat
+  EXPECT_EQ(beat().directives_size(), 0) << "told to re-register or to cancel its task";
+  EXPECT_TRUE(complete(worker_id, lease->lease_id(), render(*lease)).ok());
+  v1::ListWorkersRequest request;
+  v1::ListWorkersResponse response;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->ListWorkers(context.get(), request, &response).ok());
+  ASSERT_EQ(response.workers_size(), 1);
+  EXPECT_NE(response.workers(0).state(), "lost");
+  EXPECT_EQ(farm_->farm().snapshot()->scheduler.workers_lost, 0u);
+  EXPECT_EQ(farm_->farm().snapshot()->scheduler.lease_expiries, 0u);
 }
 
 // Two real prism-worker processes (the build's, or PRISM_WORKER_BIN) render a job through the

@@ -47,7 +47,10 @@ absl::StatusOr<std::optional<LeaseGrant>> FarmCoordinator::acquire(const std::st
       options_.logger->debug("[job {} task {}] leased to {} as {}", lease->task.job_id,
                              lease->task.index, worker_id, lease->id);
       ActiveJob& job = *it->second;
-      LeaseGrant grant{*lease, job.spec, job.params.bundle_hash};
+      LeaseGrant grant;
+      grant.lease = *lease;
+      grant.spec = job.spec;
+      grant.bundle_hash = job.params.bundle_hash;
       if (job.prepass.has_value()) {
         const TaskSpec& spec = lease->task.spec;
         absl::StatusOr<std::optional<std::string>> tables = std::optional<std::string>();

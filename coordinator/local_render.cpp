@@ -16,6 +16,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "coordinator/outputs.h"
+#include "coordinator/resource_plan.h"
 #include "coordinator/tile_merge.h"
 #include "services/base/status.h"
 #include "services/job/scene_spectra.h"
@@ -29,6 +30,32 @@ using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+// Admission control before the scene is built or any image allocated.
+absl::Status check_local_memory(const LocalRenderOptions& options, const TilePlan& plan,
+                                int threads) {
+  LocalRenderShape shape;
+  shape.width = options.width;
+  shape.height = options.height;
+  shape.render = options.render;
+  shape.prepass = options.prepass.has_value();
+  shape.target_error = options.target_error.has_value();
+  shape.keep_primal_and_gradients = options.keep_primal_and_gradients &&
+                                    options.render.integrator == job::IntegratorKind::kGradient;
+  shape.threads = threads;
+  for (const image::TileRect& tile : plan.tiles) {
+    shape.largest_tile_area = std::max<std::uint64_t>(
+        shape.largest_tile_area, std::uint64_t(tile.width()) * std::uint64_t(tile.height()));
+  }
+  MemoryBudget budget = machine_memory_budget();
+  if (options.max_memory_bytes > 0) budget = {options.max_memory_bytes, "--max-memory", false};
+  return check_memory(
+      absl::StrCat("rendering ", options.width, "x", options.height, " with ", options.render.bins,
+                   " bins"),
+      plan_local_render(shape), memory_in_use(budget.address_space), budget.bytes, budget.source,
+      "use fewer --bins or a smaller --resolution, or render on the farm (`prism submit`), whose "
+      "coordinator streams finished tiles to disk");
 }
 
 }  // namespace
@@ -69,6 +96,7 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
       render->plan_, plan_tiles({options.width, options.height, options.tile_size, options.spp,
                                  options.samples_per_task, options.render.traces_light_paths()}));
   render->threads_ = options.threads > 0 ? options.threads : tbb::info::default_concurrency();
+  PRISM_RETURN_IF_ERROR(check_local_memory(render->options_, render->plan_, render->threads_));
   const Clock::time_point start = Clock::now();
   PRISM_ASSIGN_OR_RETURN(render->scene_,
                          worker::RenderScene::build(device, scene, library, render->options_.render,
@@ -481,10 +509,10 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   stats.tiles = static_cast<int>(plan_.tiles.size());
   stats.peak_tiles_in_flight = shared.peak_tiles_in_flight;
   LocalRenderResult result{
-      std::move(image),        std::move(rgb),      std::move(rgb_standard_error),
-      std::move(primal),       std::move(gradient), std::move(filtered),
-      std::move(filtered_rgb), statistics.finish(), stats};
-  result.prepass_tables = std::move(prepass_tables);
+      std::move(image),         std::move(rgb),      std::move(rgb_standard_error),
+      std::move(primal),        std::move(gradient), std::move(filtered),
+      std::move(filtered_rgb),  statistics.finish(), stats,
+      std::move(prepass_tables)};
   return result;
 }
 

@@ -71,6 +71,9 @@ struct LocalRenderOptions {
   // Rendering to a target error (target_error.h), when set: `spp` is the first round's, and
   // rounds double it for the tiles short of the target up to target_error->max_spp.
   std::optional<job::TargetError> target_error;
+  // Admission control (resource_plan.h): create() refuses a job whose planned memory, besides
+  // what the process already holds, exceeds this many bytes. 0: machine_memory_budget().
+  std::uint64_t max_memory_bytes = 0;
 };
 
 struct LocalRenderStats {

@@ -361,11 +361,11 @@ absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& r
     absl::StrAppend(&failures, failures.empty() ? "" : "; ", "could not write '", path.string(),
                     "': ", status.message());
   };
-  record(paths.spectral_exr,
-         image::write_spectral_exr_rows(paths.spectral_exr, image::bin_centres_nm(bins),
-                                        rgb.width(), rgb.height(), band_rows, rows, rgb, metadata));
-  record(paths.rgb_exr,
-         image::write_rgb_exr(paths.rgb_exr, rgb, image::ExrPixelType::kFloat, metadata));
+  record(paths.spectral_exr, image::write_spectral_exr_rows(
+                                 paths.spectral_exr, image::bin_centres_nm(bins), rgb.width(),
+                                 rgb.height(), band_rows, rows, rgb, metadata, options.exr));
+  record(paths.rgb_exr, image::write_rgb_exr(paths.rgb_exr, rgb, image::ExrPixelType::kFloat,
+                                             metadata, options.exr));
   record(paths.png, image::write_png_preview(paths.png, rgb, options.exposure_stops));
   const std::string json = format_report_json(report, paths);
   record(paths.json, base::write_file_atomic(paths.json, std::span<const char>(json)));
@@ -377,19 +377,20 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
                                        const image::RgbImage& primal_rgb,
                                        const image::SpectralRows& gradient,
                                        const image::RgbImage& gradient_rgb,
-                                       const RenderReport& report, const OutputPaths& paths) {
+                                       const RenderReport& report, const OutputPaths& paths,
+                                       const OutputOptions& options) {
   const image::ExrMetadata metadata = output_metadata(report);
   const std::vector<double> centres = image::bin_centres_nm(bins);
-  absl::Status status =
-      image::write_spectral_exr_rows(paths.primal_exr, centres, primal_rgb.width(),
-                                     primal_rgb.height(), band_rows, primal, primal_rgb, metadata);
+  absl::Status status = image::write_spectral_exr_rows(
+      paths.primal_exr, centres, primal_rgb.width(), primal_rgb.height(), band_rows, primal,
+      primal_rgb, metadata, options.exr);
   if (!status.ok()) {
     return absl::Status(status.code(), absl::StrCat("could not write '", paths.primal_exr.string(),
                                                     "': ", status.message()));
   }
   status = image::write_spectral_exr_rows(paths.gradient_exr, centres, gradient_rgb.width(),
                                           gradient_rgb.height(), band_rows, gradient, gradient_rgb,
-                                          metadata);
+                                          metadata, options.exr);
   if (!status.ok()) {
     return absl::Status(
         status.code(),
@@ -401,11 +402,12 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
 absl::Status write_primal_and_gradient(const image::SpectralImage& primal,
                                        const image::SpectralImage& gradient,
                                        const spectral::ColorMatching& cmf,
-                                       const RenderReport& report, const OutputPaths& paths) {
+                                       const RenderReport& report, const OutputPaths& paths,
+                                       const OutputOptions& options) {
   PRISM_ASSIGN_OR_RETURN(image::RgbImage primal_rgb, to_linear_srgb(primal, cmf));
   PRISM_ASSIGN_OR_RETURN(image::RgbImage gradient_rgb, to_linear_srgb(gradient, cmf));
   return write_primal_and_gradient(primal.bins(), primal.height(), rows_of(primal), primal_rgb,
-                                   rows_of(gradient), gradient_rgb, report, paths);
+                                   rows_of(gradient), gradient_rgb, report, paths, options);
 }
 
 absl::Status write_filtered(int bins, int band_rows, const image::SpectralRows& filtered,
@@ -418,7 +420,7 @@ absl::Status write_filtered(int bins, int band_rows, const image::SpectralRows& 
   }
   absl::Status status = image::write_spectral_exr_rows(
       paths.filtered_exr, image::bin_centres_nm(bins), filtered_rgb.width(), filtered_rgb.height(),
-      band_rows, filtered, filtered_rgb, metadata);
+      band_rows, filtered, filtered_rgb, metadata, options.exr);
   if (!status.ok()) {
     return absl::Status(
         status.code(),

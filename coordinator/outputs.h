@@ -210,6 +210,9 @@ void fill_gradient_counters(const std::vector<std::pair<std::string, std::uint64
 
 struct OutputOptions {
   float exposure_stops = 0.0f;  // PNG preview only
+  // Every EXR: the job's compression and the threads that compress (the bytes do not depend on
+  // the thread count).
+  image::ExrWriteOptions exr;
 };
 
 // The linear sRGB of one finished tile, as the RGB EXR and the PNG show it. With RGB buffers
@@ -256,12 +259,14 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
                                        const image::RgbImage& primal_rgb,
                                        const image::SpectralRows& gradient,
                                        const image::RgbImage& gradient_rgb,
-                                       const RenderReport& report, const OutputPaths& paths);
+                                       const RenderReport& report, const OutputPaths& paths,
+                                       const OutputOptions& options);
 // The same from whole images.
 absl::Status write_primal_and_gradient(const image::SpectralImage& primal,
                                        const image::SpectralImage& gradient,
                                        const spectral::ColorMatching& cmf,
-                                       const RenderReport& report, const OutputPaths& paths);
+                                       const RenderReport& report, const OutputPaths& paths,
+                                       const OutputOptions& options);
 
 // The filtered image of a job with differential splatting (paths.filtered_exr, a spectral EXR
 // with its R, G, B, and paths.filtered_png), streamed like the main output. Both or neither

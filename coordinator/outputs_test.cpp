@@ -184,7 +184,7 @@ TEST(WriteOutputsTest, WritesFourFilesThatReadBack) {
   auto paths = output_paths(dir / "render.exr", std::nullopt, "x.exr");
   ASSERT_TRUE(paths.ok());
   const RenderReport report = sample_report();
-  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {1.0f}).ok());
+  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {1.0f, {}}).ok());
   EXPECT_TRUE((listing(dir) ==
                std::vector<fs::path>{"render.exr", "render.json", "render.png", "render.rgb.exr"}));
 
@@ -262,7 +262,7 @@ TEST(WriteOutputsTest, TheJsonSaysHowTauWasChosen) {
   RenderReport report = sample_report();
   report.gradient = GradientReport{};
   report.gradient->tau = 0.25f;
-  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {0.0f}).ok());
+  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {0.0f, {}}).ok());
   nlohmann::json given = nlohmann::json::parse(*base::read_file(paths->json));
   EXPECT_EQ(given["gradient"]["tau"], 0.25);
   EXPECT_EQ(given["gradient"]["tau_source"], "given");
@@ -270,7 +270,7 @@ TEST(WriteOutputsTest, TheJsonSaysHowTauWasChosen) {
 
   report.gradient->tau_pilot =
       job::TauPilotReport{0.1f, 1200, 8, 5000, 0.25f, 0.5f, 0.0625f, 0.125f, 0.75f, 0.02};
-  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {0.0f}).ok());
+  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {0.0f, {}}).ok());
   nlohmann::json pilot = nlohmann::json::parse(*base::read_file(paths->json));
   EXPECT_EQ(pilot["gradient"]["tau_source"], "pilot");
   const nlohmann::json& t = pilot["gradient"]["tau_pilot"];

@@ -402,6 +402,12 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
       {{"render", scene, "--light-selection", "best"},
        "--light-selection 'best': want uniform, power or spatial"},
       {{"render", scene, "--exposure", "1e9"}, "--exposure 1e+09 is out of range"},
+      {{"render", scene, "--exr-compression", "dwaa"},
+       "prism: --exr-compression 'dwaa': want none, rle, zips, zip or piz"},
+      {{"render", scene, "--max-memory", "lots"},
+       "prism: --max-memory 'lots' is not a byte count: want e.g. 1073741824, 512M, 12G or 1.5T"},
+      {{"render", scene, "--max-memory", "1M", "--resolution", "64x64", "--integrator", "hero"},
+       "prism: rendering 64x64 with 32 bins needs about"},
       {{"render", scene, "-o", "out.png"}, "give a name ending in .exr"},
       {{"render", scene, "-o", "missing/out.exr", "--resolution", "8x8"},
        "cannot write 'missing/out.exr': directory 'missing' does not exist"},
@@ -422,6 +428,42 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
   for (std::size_t i = 0; i < cases.size(); ++i) {
     SCOPED_TRACE(i);
     expect_failure_writes_nothing("flag" + std::to_string(i), cases[i]);
+  }
+}
+
+// Issue 18, case 3: just under the image-size limits, a render that cannot fit the process's
+// memory died of std::bad_alloc after allocating for a while. It is refused at once, with the
+// numbers, and writes nothing.
+TEST(RenderCliTest, RendersThatCannotFitTheMemoryLimitAreRefusedAtOnce) {
+  const fs::path dir = fresh_dir("render_cli_memory");
+  struct Case {
+    std::vector<std::string> args;
+    std::string message;
+  };
+  const std::vector<Case> cases = {
+      {{"--resolution", "8192x8192", "--bins", "63"},
+       "prism: rendering 8192x8192 with 63 bins needs about 18 GiB of memory (spectral image 16 "
+       "GiB, RGB and standard errors 1.5 GiB"},
+      {{"--resolution", "4096x4096", "--bins", "256"},
+       "prism: rendering 4096x4096 with 256 bins needs about 17 GiB of memory (spectral image 16 "
+       "GiB"},
+  };
+  for (const Case& c : cases) {
+    std::vector<std::string> argv = {PRISM_BINARY, "render", source("scenes/prism.pbrt"),
+                                     "--spp",      "1",      "--integrator",
+                                     "hero",       "-o",     "big.exr"};
+    argv.insert(argv.end(), c.args.begin(), c.args.end());
+    prism::testing::ChildOptions options;
+    options.working_dir = dir;
+    options.merge_stderr = true;
+    options.address_space_limit = std::uint64_t{16} << 30;
+    const prism::testing::RunResult run = prism::testing::run(argv, options);
+    EXPECT_EQ(run.exit_code, 1) << run.out;
+    EXPECT_NE(run.out.find(c.message), std::string::npos) << run.out;
+    EXPECT_NE(run.out.find("more than the 16 GiB allowed (RLIMIT_AS); use fewer --bins"),
+              std::string::npos)
+        << run.out;
+    EXPECT_TRUE(listing(dir).empty());
   }
 }
 

@@ -14,6 +14,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "services/image/exr_spectral.h"
 #include "services/job/render_options.h"
 
 namespace prism::job {
@@ -159,6 +160,7 @@ struct JobOutputs {
   bool png = true;
   bool primal_and_gradients = false;  // gradient jobs: also the raw I and G spectral EXRs
   float png_exposure = 0.0f;          // stops
+  image::ExrCompression exr_compression = image::kDefaultExrCompression;
 
   bool operator==(const JobOutputs&) const = default;
 };

@@ -35,6 +35,27 @@ absl::StatusOr<IntegratorKind> integrator_of(prism::v1::Integrator value) {
                                                  ": want uniform, hero, gradient or light"));
 }
 
+absl::StatusOr<image::ExrCompression> exr_compression_of(prism::v1::ExrCompression value) {
+  switch (value) {
+    case prism::v1::EXR_COMPRESSION_UNSPECIFIED:
+      return image::kDefaultExrCompression;
+    case prism::v1::EXR_COMPRESSION_NONE:
+      return image::ExrCompression::kNone;
+    case prism::v1::EXR_COMPRESSION_RLE:
+      return image::ExrCompression::kRle;
+    case prism::v1::EXR_COMPRESSION_ZIPS:
+      return image::ExrCompression::kZips;
+    case prism::v1::EXR_COMPRESSION_ZIP:
+      return image::ExrCompression::kZip;
+    case prism::v1::EXR_COMPRESSION_PIZ:
+      return image::ExrCompression::kPiz;
+    default:
+      break;
+  }
+  return absl::InvalidArgumentError(absl::StrCat(
+      "outputs.exr_compression ", static_cast<int>(value), ": want none, rle, zips, zip or piz"));
+}
+
 absl::StatusOr<SpectralPdfKind> spectral_pdf_of(prism::v1::SpectralPdf value) {
   switch (value) {
     case prism::v1::SPECTRAL_PDF_UNSPECIFIED:
@@ -438,6 +459,7 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   }
   p.outputs.png_exposure = exposure;
   p.outputs.primal_and_gradients = out.primal_and_gradients();
+  PRISM_ASSIGN_OR_RETURN(p.outputs.exr_compression, exr_compression_of(out.exr_compression()));
   return p;
 }
 
@@ -453,6 +475,22 @@ prism::v1::Integrator to_proto(IntegratorKind kind) {
       return prism::v1::INTEGRATOR_LIGHT;
   }
   return prism::v1::INTEGRATOR_UNSPECIFIED;
+}
+
+prism::v1::ExrCompression to_proto(image::ExrCompression compression) {
+  switch (compression) {
+    case image::ExrCompression::kNone:
+      return prism::v1::EXR_COMPRESSION_NONE;
+    case image::ExrCompression::kRle:
+      return prism::v1::EXR_COMPRESSION_RLE;
+    case image::ExrCompression::kZips:
+      return prism::v1::EXR_COMPRESSION_ZIPS;
+    case image::ExrCompression::kZip:
+      return prism::v1::EXR_COMPRESSION_ZIP;
+    case image::ExrCompression::kPiz:
+      return prism::v1::EXR_COMPRESSION_PIZ;
+  }
+  return prism::v1::EXR_COMPRESSION_UNSPECIFIED;
 }
 
 prism::v1::LightSelection to_proto(LightSelectionKind kind) {
@@ -562,6 +600,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   out->set_png(p.outputs.png);
   out->set_primal_and_gradients(p.outputs.primal_and_gradients);
   out->set_png_exposure(p.outputs.png_exposure);
+  out->set_exr_compression(to_proto(p.outputs.exr_compression));
   return spec;
 }
 

@@ -37,6 +37,7 @@ bool prepass_by_default(IntegratorKind integrator, const scene::SceneDescription
 prism::v1::Integrator to_proto(IntegratorKind kind);
 prism::v1::LightSelection to_proto(LightSelectionKind kind);
 prism::v1::PoissonNorm to_proto(PoissonNorm norm);
+prism::v1::ExrCompression to_proto(image::ExrCompression compression);
 prism::v1::GradientTauPilot to_proto(const TauPilotReport& pilot);
 
 // Every value explicit (see the invariant above).

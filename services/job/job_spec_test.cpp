@@ -73,6 +73,7 @@ TEST(JobSpecTest, ExplicitValuesRoundTripIndependentlyOfTheScene) {
   spec.set_splat_width(12.5f);
   spec.mutable_outputs()->set_png(true);
   spec.mutable_outputs()->set_png_exposure(-1.5f);
+  spec.mutable_outputs()->set_exr_compression(prism::v1::EXR_COMPRESSION_PIZ);
 
   auto p = job_parameters(spec, test_scene());
   ASSERT_TRUE(p.ok()) << p.status();
@@ -80,6 +81,7 @@ TEST(JobSpecTest, ExplicitValuesRoundTripIndependentlyOfTheScene) {
   EXPECT_FALSE(p->render.spectral_light_selection);
   EXPECT_FALSE(p->outputs.spectral_exr);
   EXPECT_TRUE(p->outputs.png);
+  EXPECT_EQ(p->outputs.exr_compression, image::ExrCompression::kPiz);
   EXPECT_EQ(p->render.seed, 0xfeedfacecafebeefULL);
 
   const prism::v1::JobSpec wire = to_proto(*p);
@@ -97,6 +99,7 @@ TEST(JobSpecTest, ExplicitValuesRoundTripIndependentlyOfTheScene) {
   EXPECT_EQ(again->render.max_depth, 0);
   EXPECT_EQ(again->tile_size, 8);
   EXPECT_EQ(again->samples_per_task, 3u);
+  EXPECT_EQ(again->outputs.exr_compression, image::ExrCompression::kPiz);
   EXPECT_TRUE(again->render.light_caustics);
   EXPECT_EQ(again->render.splat_width_nm, 12.5f);
   EXPECT_EQ(again->render.integrator, IntegratorKind::kUniform);
@@ -318,6 +321,11 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
        "prepass options are set but the prepass is off"},
       {"exposure", [](prism::v1::JobSpec& s) { s.mutable_outputs()->set_png_exposure(65.0f); },
        "outputs.png_exposure 65 is out of range"},
+      {"exr_compression",
+       [](prism::v1::JobSpec& s) {
+         s.mutable_outputs()->set_exr_compression(static_cast<prism::v1::ExrCompression>(9));
+       },
+       "outputs.exr_compression 9: want none, rle, zips, zip or piz"},
       {"name", [](prism::v1::JobSpec& s) { s.set_name(std::string(300, 'n')); }, "name is 300"},
   };
   for (const BadCase& c : cases) {
