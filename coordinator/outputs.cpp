@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <system_error>
+#include <thread>
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
@@ -361,12 +362,21 @@ absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& r
     absl::StrAppend(&failures, failures.empty() ? "" : "; ", "could not write '", path.string(),
                     "': ", status.message());
   };
-  record(paths.spectral_exr, image::write_spectral_exr_rows(
-                                 paths.spectral_exr, image::bin_centres_nm(bins), rgb.width(),
-                                 rgb.height(), band_rows, rows, rgb, metadata, options.exr));
-  record(paths.rgb_exr, image::write_rgb_exr(paths.rgb_exr, rgb, image::ExrPixelType::kFloat,
-                                             metadata, options.exr));
-  record(paths.png, image::write_png_preview(paths.png, rgb, options.exposure_stops));
+  // The RGB EXR and the PNG read only `rgb`: they are written beside the spectral EXR, whose
+  // band reads and copies leave the cores idle part of the time.
+  absl::Status rgb_written, png_written;
+  std::thread beside([&] {
+    rgb_written = image::write_rgb_exr(paths.rgb_exr, rgb, image::ExrPixelType::kFloat, metadata,
+                                       options.exr);
+    png_written = image::write_png_preview(paths.png, rgb, options.exposure_stops);
+  });
+  const absl::Status spectral_written =
+      image::write_spectral_exr_rows(paths.spectral_exr, image::bin_centres_nm(bins), rgb.width(),
+                                     rgb.height(), band_rows, rows, rgb, metadata, options.exr);
+  beside.join();
+  record(paths.spectral_exr, spectral_written);
+  record(paths.rgb_exr, rgb_written);
+  record(paths.png, png_written);
   const std::string json = format_report_json(report, paths);
   record(paths.json, base::write_file_atomic(paths.json, std::span<const char>(json)));
   if (first.ok()) return first;
