@@ -81,6 +81,9 @@ int main(int argc, char** argv) {
                                              "Render threads (default: all hardware threads)");
   auto* json_opt =
       render_cmd->add_option("--json", json_path, "JSON report path (default: <output stem>.json)");
+  render_cmd->add_option("--spool", render.spool,
+                         "auto, always or never: keep the finished bins on disk beside the "
+                         "outputs instead of in memory (auto: when they exceed 1 GiB)");
   render_cmd->add_option("--max-memory", render.max_memory,
                          "Refuse a render planned to need more memory than this, e.g. 8G (default: "
                          "the machine's memory or the process's limit, whichever is smaller)");

@@ -287,6 +287,10 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
         absl::StrCat("--exposure ", o.exposure, " is out of range: want stops in -",
                      job::kMaxJobExposureStops, "..", job::kMaxJobExposureStops));
   }
+  if (o.spool != "auto" && o.spool != "always" && o.spool != "never") {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--spool '", o.spool, "': want auto, always or never"));
+  }
   if (!o.max_memory.empty()) {
     absl::StatusOr<std::uint64_t> bytes = coordinator::parse_bytes(o.max_memory);
     if (!bytes.ok())
@@ -494,6 +498,17 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
     local.progress = [out](const coordinator::RenderProgress& p) { draw_progress(*out, p); };
   }
 
+  // Bins too large to hold go to a spool file beside the outputs (same bytes either way).
+  const bool keeps_other_images =
+      (local.keep_primal_and_gradients && render.integrator == job::IntegratorKind::kGradient) ||
+      render.splats_differentials() || render.gathers();
+  const std::uint64_t bin_bytes = std::uint64_t(local.width) * std::uint64_t(local.height) *
+                                  std::uint64_t(render.bins) * sizeof(float);
+  if (options.spool == "always" ||
+      (options.spool == "auto" && !keeps_other_images && bin_bytes > kSpoolAboveBytes)) {
+    local.spool_dir = paths.spectral_exr.parent_path();
+    if (local.spool_dir.empty()) local.spool_dir = ".";
+  }
   PRISM_ASSIGN_OR_RETURN(std::unique_ptr<coordinator::LocalRender> renderer,
                          coordinator::LocalRender::create(device, description, library, local));
   absl::StatusOr<coordinator::LocalRenderResult> result = renderer->render();
@@ -560,8 +575,15 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
     PRISM_RETURN_IF_ERROR(coordinator::write_filtered(*result->filtered, *result->filtered_rgb,
                                                       report, paths, outputs));
   }
-  PRISM_RETURN_IF_ERROR(
-      coordinator::write_outputs(result->image, result->rgb, report, paths, outputs));
+  if (result->spool != nullptr) {
+    std::vector<float> band;
+    PRISM_RETURN_IF_ERROR(coordinator::write_outputs(render.bins, result->spool->band_rows(),
+                                                     result->spool->rows(&band), result->rgb,
+                                                     report, paths, outputs));
+  } else {
+    PRISM_RETURN_IF_ERROR(
+        coordinator::write_outputs(result->image, result->rgb, report, paths, outputs));
+  }
   const double output_seconds = std::chrono::duration<double>(Clock::now() - output_start).count();
   const double seconds = report.render_seconds;
   return absl::StrCat(

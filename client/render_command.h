@@ -28,6 +28,9 @@
 namespace prism::client {
 
 // The flags as given; unset optionals take the scene's values.
+// `--spool auto` spools the finished bins when they take more than this (1 GiB).
+inline constexpr std::uint64_t kSpoolAboveBytes = std::uint64_t{1} << 30;
+
 struct RenderCommandOptions {
   std::filesystem::path scene;
   std::optional<std::filesystem::path> output;  // -o
@@ -37,8 +40,11 @@ struct RenderCommandOptions {
   std::optional<std::int64_t> bins;
   std::optional<std::string> resolution;  // "WxH"
   std::optional<std::int64_t> threads;    // unset: every hardware thread
-  std::string
-      max_memory;  // --max-memory, a byte count (coordinator::parse_bytes); empty: the machine's
+  // --max-memory, a byte count (coordinator::parse_bytes); empty: the machine's budget.
+  std::string max_memory;
+  // --spool: auto (the bins on disk beside the outputs when they exceed kSpoolAboveBytes and
+  // the job keeps no other whole image), always, never.
+  std::string spool = "auto";
   std::uint64_t seed = 0;
   std::int64_t tile = 32;
   std::string spectral_pdf = "flat";

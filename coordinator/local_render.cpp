@@ -44,18 +44,26 @@ absl::Status check_local_memory(const LocalRenderOptions& options, const TilePla
   shape.keep_primal_and_gradients = options.keep_primal_and_gradients &&
                                     options.render.integrator == job::IntegratorKind::kGradient;
   shape.threads = threads;
+  shape.spooled = !options.spool_dir.empty();
+  shape.tile_size = options.tile_size;
   for (const image::TileRect& tile : plan.tiles) {
     shape.largest_tile_area = std::max<std::uint64_t>(
         shape.largest_tile_area, std::uint64_t(tile.width()) * std::uint64_t(tile.height()));
   }
   MemoryBudget budget = machine_memory_budget();
   if (options.max_memory_bytes > 0) budget = {options.max_memory_bytes, "--max-memory", false};
-  return check_memory(
-      absl::StrCat("rendering ", options.width, "x", options.height, " with ", options.render.bins,
-                   " bins"),
-      plan_local_render(shape), memory_in_use(budget.address_space), budget.bytes, budget.source,
-      "use fewer --bins or a smaller --resolution, or render on the farm (`prism submit`), whose "
-      "coordinator streams finished tiles to disk");
+  const std::string job = absl::StrCat("rendering ", options.width, "x", options.height, " with ",
+                                       options.render.bins, " bins");
+  const ResourcePlan resources = plan_local_render(shape);
+  PRISM_RETURN_IF_ERROR(check_memory(
+      job, resources, memory_in_use(budget.address_space), budget.bytes, budget.source,
+      shape.spooled ? "use fewer --bins or a smaller --resolution"
+                    : "use fewer --bins or a smaller --resolution, or --spool always (the bins "
+                      "on disk instead of in memory)"));
+  if (!shape.spooled) return absl::OkStatus();
+  PRISM_ASSIGN_OR_RETURN(std::uint64_t free, free_disk_bytes(options.spool_dir));
+  return check_disk(job, resources, free, absl::StrCat("free in ", options.spool_dir.string()),
+                    "free some space there or write the outputs elsewhere (-o)");
 }
 
 }  // namespace
@@ -72,6 +80,14 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
   if (options.spp < 1 || options.spp > std::numeric_limits<std::uint32_t>::max()) {
     return absl::InvalidArgumentError(absl::StrCat("spp ", options.spp, " is outside 1..",
                                                    std::numeric_limits<std::uint32_t>::max()));
+  }
+  if (!options.spool_dir.empty() &&
+      ((options.keep_primal_and_gradients &&
+        options.render.integrator == job::IntegratorKind::kGradient) ||
+       options.render.splats_differentials() || options.render.gathers())) {
+    return absl::InvalidArgumentError(
+        "a spooled render keeps no whole image: not with the primal and gradients, splatting or "
+        "gathering");
   }
   if (options.threads < 0 || options.threads > job::kMaxThreads) {
     return absl::InvalidArgumentError(
@@ -260,12 +276,21 @@ void run_stage(const Stage& stage, int bins, tbb::task_arena& arena, StageShared
 
 absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* cancel) const {
   const int bins = scene_->grid().bins();
+  // Spooled: the bins go to disk tile by tile, and the whole-image buffers other than the RGB
+  // are 1x1 placeholders.
+  std::shared_ptr<SpectralSpool> spool;
+  if (!options_.spool_dir.empty()) {
+    PRISM_ASSIGN_OR_RETURN(spool, SpectralSpool::create(options_.spool_dir, plan_, options_.width,
+                                                        options_.height, bins));
+  }
+  const int kept_width = spool != nullptr ? 1 : options_.width;
+  const int kept_height = spool != nullptr ? 1 : options_.height;
   PRISM_ASSIGN_OR_RETURN(image::SpectralImage image,
-                         image::SpectralImage::create(options_.width, options_.height, bins));
+                         image::SpectralImage::create(kept_width, kept_height, bins));
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb,
                          image::RgbImage::create(options_.width, options_.height));
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb_standard_error,
-                         image::RgbImage::create(options_.width, options_.height));
+                         image::RgbImage::create(kept_width, kept_height));
   std::optional<image::SpectralImage> primal, gradient;
   const bool keep_raw = options_.keep_primal_and_gradients &&
                         options_.render.integrator == job::IntegratorKind::kGradient;
@@ -395,6 +420,7 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
         tile_rgb(merged, finalised, options_.render.integrator == job::IntegratorKind::kGradient,
                  scene_->cmf()));
     PRISM_RETURN_IF_ERROR(rgb.paste(tile_colour, merged.rect().x0, merged.rect().y0));
+    if (spool != nullptr) return spool->put(tile, finalised);
     PRISM_ASSIGN_OR_RETURN(image::RgbImage tile_error, tile_rgb_standard_error(merged));
     PRISM_RETURN_IF_ERROR(rgb_standard_error.paste(tile_error, merged.rect().x0, merged.rect().y0));
     return image::paste_tile(finalised, merged.rect(), image);
@@ -509,10 +535,10 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   stats.tiles = static_cast<int>(plan_.tiles.size());
   stats.peak_tiles_in_flight = shared.peak_tiles_in_flight;
   LocalRenderResult result{
-      std::move(image),         std::move(rgb),      std::move(rgb_standard_error),
-      std::move(primal),        std::move(gradient), std::move(filtered),
-      std::move(filtered_rgb),  statistics.finish(), stats,
-      std::move(prepass_tables)};
+      std::move(image),          std::move(rgb),      std::move(rgb_standard_error),
+      std::move(primal),         std::move(gradient), std::move(filtered),
+      std::move(filtered_rgb),   statistics.finish(), stats,
+      std::move(prepass_tables), std::move(spool)};
   return result;
 }
 

@@ -24,6 +24,7 @@
 #include "coordinator/poisson.h"
 #include "coordinator/prepass.h"
 #include "coordinator/prepass_run.h"
+#include "coordinator/spectral_spool.h"
 #include "coordinator/target_error.h"
 #include "coordinator/tile_finaliser.h"
 #include "coordinator/tile_plan.h"
@@ -74,6 +75,12 @@ struct LocalRenderOptions {
   // Admission control (resource_plan.h): create() refuses a job whose planned memory, besides
   // what the process already holds, exceeds this many bytes. 0: machine_memory_budget().
   std::uint64_t max_memory_bytes = 0;
+  // When set, the finished bins go to a SpectralSpool (spectral_spool.h) in this directory
+  // instead of a whole image in memory: result.spool holds them, and result.image and
+  // result.rgb_standard_error are 1x1 placeholders. Only for jobs that keep no other whole
+  // spectral image (create() refuses it with keep_primal_and_gradients, splatting or
+  // gathering). The bytes written from it are the same as from the image.
+  std::filesystem::path spool_dir;
 };
 
 struct LocalRenderStats {
@@ -96,7 +103,8 @@ struct LocalRenderStats {
 };
 
 struct LocalRenderResult {
-  // Bin averages, width x height x bins; for a gradient job the Poisson reconstruction.
+  // Bin averages, width x height x bins; for a gradient job the Poisson reconstruction. 1x1
+  // (unused) when spooled: then `spool` has them.
   image::SpectralImage image;
   // Its linear sRGB for the RGB outputs, from each sample's exact wavelengths (tile_rgb), and
   // each pixel's standard error of that mean (tile_rgb_standard_error; for a gradient job that
@@ -116,6 +124,8 @@ struct LocalRenderResult {
   // keep_prepass_tables with a prepass: the tables the final pass sampled (their mixture weights
   // and predicted variances per pixel).
   std::optional<PixelTableImage> prepass_tables;
+  // With LocalRenderOptions::spool_dir: the finished bins, on disk.
+  std::shared_ptr<const SpectralSpool> spool;
 };
 
 class LocalRender {

@@ -97,8 +97,15 @@ ResourcePlan plan_local_render(const LocalRenderShape& s) {
   ResourcePlan plan;
   const u64 n = pixels(s.width, s.height);
   const u64 bins = u64(s.render.bins);
-  push(plan.memory, "spectral image", mul(n, bins * 4));
-  push(plan.memory, "RGB and standard errors", mul(n, 24));
+  if (s.spooled) {
+    // A row of tiles read back, and the tile being read.
+    push(plan.memory, "spooled bins' band", mul(mul(u64(s.tile_size), u64(s.width)), bins * 4 * 2));
+    push(plan.disk, "spooled bins", mul(n, bins * 4));
+    push(plan.memory, "RGB", mul(n, 12));
+  } else {
+    push(plan.memory, "spectral image", mul(n, bins * 4));
+    push(plan.memory, "RGB and standard errors", mul(n, 24));
+  }
   if (s.keep_primal_and_gradients)
     push(plan.memory, "primal and gradient images", mul(n, bins * 8));
   if (s.render.splats_differentials() || s.render.gathers()) {

@@ -53,6 +53,10 @@ struct LocalRenderShape {
   bool keep_primal_and_gradients = false;
   int threads = 1;
   std::uint64_t largest_tile_area = 0;
+  // The bins go to a SpectralSpool on disk (a row of tiles in memory while writing) instead of
+  // a whole image.
+  bool spooled = false;
+  int tile_size = 32;
 };
 ResourcePlan plan_local_render(const LocalRenderShape& shape);
 
