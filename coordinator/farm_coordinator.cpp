@@ -96,6 +96,7 @@ absl::Status FarmCoordinator::start() {
     process_events_locked();
   }
   janitor_ = std::thread([this] { janitor_loop(); });
+  finaliser_ = std::thread([this] { finaliser_loop(); });
   ticker_ = std::thread([this] { tick_loop(); });
   return absl::OkStatus();
 }
@@ -131,7 +132,9 @@ void FarmCoordinator::shutdown() {
     stopping_ = true;
     changed_locked();
   }
+  finaliser_wake_.notify_all();
   if (ticker_.joinable()) ticker_.join();
+  if (finaliser_.joinable()) finaliser_.join();
   {
     std::lock_guard<std::mutex> lock(janitor_mutex_);
     janitor_stopping_ = true;
@@ -663,8 +666,14 @@ absl::StatusOr<JobStatus> FarmCoordinator::cancel(const std::string& job_id) {
     return absl::FailedPreconditionError(
         absl::StrCat("job ", job_id, " is already ", store::to_string(record.state)));
   }
-  absl::Status cancelled = scheduler_.cancel_job(job_id);
-  if (!cancelled.ok() && cancelled.code() != absl::StatusCode::kNotFound) return cancelled;
+  if (record.state == store::JobState::kFinalising) {
+    // Every task is done and the finaliser is writing the outputs: they are dropped when it
+    // finishes (finish_finalise_locked).
+    (void)scheduler_.remove_job(job_id);
+  } else {
+    absl::Status cancelled = scheduler_.cancel_job(job_id);
+    if (!cancelled.ok() && cancelled.code() != absl::StatusCode::kNotFound) return cancelled;
+  }
   PRISM_ASSIGN_OR_RETURN(record, store_->set_job_state(job_id, store::JobState::kCancelled,
                                                        now().count(), "cancelled by a client"));
   // The Scheduler keeps the cancelled job so that heartbeats listing its leases get CANCEL_TASK.

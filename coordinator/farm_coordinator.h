@@ -41,6 +41,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <deque>
 #include <filesystem>
 #include <functional>
 #include <map>
@@ -97,6 +98,9 @@ struct FarmOptions {
   // Fault injection for tests: called under the lock just before a submitted job's tasks are
   // stored (a slow store or a huge plan stalls the coordinator there).
   std::function<void()> before_store_job;
+  // Fault injection for tests: called by the finaliser thread, without the lock, before a
+  // finished job's outputs are written.
+  std::function<void()> before_write_outputs;
   // The "coordinator" logger (main creates it); null: a logger that drops everything.
   std::shared_ptr<spdlog::logger> logger;
 };
@@ -250,7 +254,22 @@ class FarmCoordinator {
   void janitor_loop();
   std::filesystem::path tiles_dir(const std::string& job_id) const;
   void process_events_locked();
+  // A job whose last stage is done: marked FINALISING and queued for the finaliser thread,
+  // which writes its outputs without the lock (a big job's take tens of seconds) and then
+  // marks it DONE (or FAILED), unless it was cancelled meanwhile (its outputs are removed).
   absl::Status finalise_locked(const std::string& job_id);
+  struct Finalising {
+    std::string job_id;
+    std::shared_ptr<ActiveJob> job;  // shared: a cancel may drop it from active_ meanwhile
+    RenderReport report;
+    OutputPaths paths;
+  };
+  // Without the lock: reads only the job's finished tiles, RGB and parameters, which nothing
+  // changes once its last stage is done.
+  absl::Status write_job_outputs(const ActiveJob& job, RenderReport& report,
+                                 const OutputPaths& paths) const;
+  void finish_finalise_locked(Finalising& item, const absl::Status& written);
+  void finaliser_loop();
   // Admission control for a job of `params` (resource_plan.h): RESOURCE_EXHAUSTED with the
   // numbers, else the plan's bytes are reserved until release_locked.
   absl::Status admit_locked(const job::JobParameters& params, std::uint64_t* memory,
@@ -273,7 +292,7 @@ class FarmCoordinator {
   std::optional<store::BlobStore> blobs_;
   std::optional<BundleStore> bundles_;
   Scheduler scheduler_;
-  std::map<std::string, std::unique_ptr<ActiveJob>> active_;
+  std::map<std::string, std::shared_ptr<ActiveJob>> active_;
   std::map<std::string, std::uint64_t> tasks_completed_;    // by worker
   std::map<std::string, std::uint64_t> samples_completed_;  // by worker
   std::map<std::string, std::int64_t> left_;                // workers that left cleanly, when
@@ -295,6 +314,9 @@ class FarmCoordinator {
   bool janitor_pending_ = true;
   bool janitor_stopping_ = false;
   std::thread janitor_;
+  std::deque<Finalising> finalising_;  // under mutex_
+  std::condition_variable finaliser_wake_;
+  std::thread finaliser_;
 };
 
 }  // namespace prism::coordinator

@@ -185,10 +185,6 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
       store::JobRecord record,
       store_->set_job_state(job_id, store::JobState::kFinalising, now().count()));
   const job::JobParameters& p = job.params;
-  auto output_options = [this](const job::JobParameters& params) {
-    return OutputOptions{params.outputs.png_exposure,
-                         {params.outputs.exr_compression, options_.output_threads}};
-  };
   RenderReport report;
   report.scene = p.scene_path;
   report.width = p.width;
@@ -230,8 +226,20 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
     report.prepass->outcome = job.prepass->outcome();
   }
 
-  const OutputPaths paths = output_paths_of(job_id);
-  PRISM_RETURN_IF_ERROR(base::make_directories(output_dir(job_id)));
+  finalising_.push_back({job_id, it->second, std::move(report), output_paths_of(job_id)});
+  finaliser_wake_.notify_one();
+  changed_locked();
+  return absl::OkStatus();
+}
+
+absl::Status FarmCoordinator::write_job_outputs(const ActiveJob& job, RenderReport& report,
+                                                const OutputPaths& paths) const {
+  const job::JobParameters& p = job.params;
+  auto output_options = [this](const job::JobParameters& params) {
+    return OutputOptions{params.outputs.png_exposure,
+                         {params.outputs.exr_compression, options_.output_threads}};
+  };
+  PRISM_RETURN_IF_ERROR(base::make_directories(paths.spectral_exr.parent_path()));
   std::vector<float> band;
   if (p.outputs.primal_and_gradients) {
     // The raw I and G with the R, G, B of their own values, made tile by tile from the files.
@@ -311,14 +319,51 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   std::error_code ec;
   if (!p.outputs.spectral_exr) fs::remove(paths.spectral_exr, ec);
   if (!p.outputs.png) fs::remove(paths.png, ec);
-  PRISM_RETURN_IF_ERROR(store_->set_report(job_id, format_report_json(report, paths)));
-  PRISM_RETURN_IF_ERROR(
-      store_->set_job_state(job_id, store::JobState::kDone, now().count()).status());
-  active_.erase(it);
+  return absl::OkStatus();
+}
+
+void FarmCoordinator::finaliser_loop() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  while (true) {
+    finaliser_wake_.wait(lock, [this] { return stopping_ || !finalising_.empty(); });
+    // Jobs still queued stay FINALISING in the store: a restart finalises them again.
+    if (stopping_) return;
+    Finalising item = std::move(finalising_.front());
+    finalising_.pop_front();
+    lock.unlock();
+    if (options_.before_write_outputs) options_.before_write_outputs();
+    const absl::Status written = write_job_outputs(*item.job, item.report, item.paths);
+    lock.lock();
+    finish_finalise_locked(item, written);
+  }
+}
+
+void FarmCoordinator::finish_finalise_locked(Finalising& item, const absl::Status& written) {
+  const std::string& job_id = item.job_id;
+  absl::StatusOr<store::JobRecord> record = store_->get_job(job_id);
+  if (!record.ok() || record->state != store::JobState::kFinalising) {
+    // Cancelled (or failed) while its outputs were written: they go too.
+    std::error_code ec;
+    fs::remove_all(output_dir(job_id), ec);
+    return;
+  }
+  absl::Status done = written;
+  if (done.ok()) done = store_->set_report(job_id, format_report_json(item.report, item.paths));
+  if (done.ok()) {
+    done = store_->set_job_state(job_id, store::JobState::kDone, now().count()).status();
+  }
+  if (!done.ok()) {
+    options_.logger->error("[job {}] cannot write its outputs: {}", job_id, done.ToString());
+    std::error_code ec;
+    fs::remove_all(output_dir(job_id), ec);
+    fail_job_locked(job_id, absl::StrCat("cannot write the outputs: ", done.message()));
+    return;
+  }
+  active_.erase(job_id);
   (void)scheduler_.remove_job(job_id);
   clean_up_locked(job_id);
-  options_.logger->info("[job {}] done: wrote {}", job_id, paths.spectral_exr.string());
-  return absl::OkStatus();
+  options_.logger->info("[job {}] done: wrote {}", job_id, item.paths.spectral_exr.string());
+  changed_locked();
 }
 
 }  // namespace prism::coordinator

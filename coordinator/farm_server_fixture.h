@@ -83,6 +83,7 @@ class FarmServerTest : public ::testing::Test {
       options.max_memory_bytes = max_memory_bytes_;
       options.max_disk_bytes = max_disk_bytes_;
       options.before_store_job = before_store_job_;
+      options.before_write_outputs = before_write_outputs_;
       options.scheduler.lease_duration = Millis(5000);
     });
     ASSERT_NE(farm_, nullptr);
@@ -355,6 +356,7 @@ class FarmServerTest : public ::testing::Test {
   std::uint64_t max_memory_bytes_ = 0;
   std::uint64_t max_disk_bytes_ = 0;
   std::function<void()> before_store_job_;
+  std::function<void()> before_write_outputs_;
   fs::path root_;
   fs::path scene_root_;
   spectral::SpectrumLibrary library_;

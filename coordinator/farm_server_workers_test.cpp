@@ -332,7 +332,7 @@ TEST_F(FarmServerTest, ASceneFaultFailsTheJobWithTheWorkersMessage) {
 TEST_F(FarmServerTest, ALostWorkersLeaseGoesToAnotherWorker) {
   const std::string hash = upload_scene();
   ASSERT_FALSE(hash.empty());
-  submit(small_spec(hash));
+  const std::string job_id = submit(small_spec(hash)).job_id();
   const std::string silent = register_worker();
   std::optional<v1::Lease> lease = acquire(silent);
   ASSERT_TRUE(lease.has_value());
@@ -352,6 +352,9 @@ TEST_F(FarmServerTest, ALostWorkersLeaseGoesToAnotherWorker) {
     ASSERT_TRUE(complete(live, next->lease_id(), render(*next)).ok());
   }
   EXPECT_TRUE(requeued);
+  // Once the job is over, the lost worker's late result is refused. (While its outputs are
+  // written, a result equal to the accepted one is a harmless duplicate.)
+  EXPECT_EQ(wait_done(job_id).state(), v1::JOB_STATE_DONE);
   EXPECT_EQ(complete(silent, lease->lease_id(), render(*lease)).error_code(),
             grpc::StatusCode::FAILED_PRECONDITION);
 }
@@ -544,6 +547,91 @@ TEST_F(FarmServerTest, ATenSecondStallDoesNotMakeAHealthyWorkerLost) {
   EXPECT_NE(response.workers(0).state(), "lost");
   EXPECT_EQ(farm_->farm().snapshot()->scheduler.workers_lost, 0u);
   EXPECT_EQ(farm_->farm().snapshot()->scheduler.lease_expiries, 0u);
+}
+
+// Writing a finished job's outputs (tens of seconds for a big one) held the coordinator's lock,
+// so every RPC waited. The finaliser thread writes them without it: while it is held up before
+// writing, the job reads FINALISING, another job is submitted and its task leased and
+// completed; released, the job is DONE with the embedded render's bytes. A job cancelled while
+// finalising ends CANCELLED with no outputs. (Were the lock held, these calls would block
+// until the test's 30 s deadlines and fail.)
+TEST_F(FarmServerTest, OutputsAreWrittenWithoutTheCoordinatorsLock) {
+  std::mutex gate_mutex;
+  std::condition_variable gate;
+  int waiting = 0;
+  bool open = false;
+  stop();
+  before_write_outputs_ = [&] {
+    std::unique_lock<std::mutex> lock(gate_mutex);
+    ++waiting;
+    gate.notify_all();
+    gate.wait(lock, [&] { return open; });
+  };
+  start();
+  auto wait_for_writer = [&](int n) {
+    std::unique_lock<std::mutex> lock(gate_mutex);
+    return gate.wait_for(lock, std::chrono::seconds(30), [&] { return waiting >= n; });
+  };
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const v1::JobSpec spec = small_spec(hash);
+  const std::string job_id = submit(spec, "first").job_id();
+  const std::string worker_id = register_worker();
+  EXPECT_EQ(run_worker(worker_id).size(), 18u);
+  ASSERT_TRUE(wait_for_writer(1));
+  v1::GetJobRequest get;
+  get.set_job_id(job_id);
+  v1::JobInfo info;
+  {
+    auto context = client();
+    ASSERT_TRUE(farm_stub_->GetJob(context.get(), get, &info).ok());
+  }
+  EXPECT_EQ(info.state(), v1::JOB_STATE_FINALISING);
+  v1::JobSpec other = small_spec(hash);
+  other.set_seed(9);
+  const std::string other_id = submit(other, "second").job_id();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  EXPECT_EQ(lease->task().job_id(), other_id);
+  EXPECT_TRUE(complete(worker_id, lease->lease_id(), render(*lease)).ok());
+  {
+    std::lock_guard<std::mutex> lock(gate_mutex);
+    open = true;
+  }
+  gate.notify_all();
+  const v1::JobInfo done = wait_done(job_id);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral_exr(job_id), spec);
+
+  // Cancelled while finalising: no outputs.
+  {
+    std::lock_guard<std::mutex> lock(gate_mutex);
+    open = false;
+  }
+  EXPECT_EQ(run_worker(worker_id).size(), 17u);
+  ASSERT_TRUE(wait_for_writer(2));
+  v1::CancelJobRequest cancel;
+  cancel.set_job_id(other_id);
+  {
+    auto context = client();
+    ASSERT_TRUE(farm_stub_->CancelJob(context.get(), cancel, &info).ok());
+  }
+  EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
+  {
+    std::lock_guard<std::mutex> lock(gate_mutex);
+    open = true;
+  }
+  gate.notify_all();
+  // The finaliser finishes; the job stays cancelled and its outputs are gone.
+  for (int i = 0; i < 500 && fs::exists(root_ / "data" / "outputs" / other_id); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  EXPECT_FALSE(fs::exists(root_ / "data" / "outputs" / other_id));
+  get.set_job_id(other_id);
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->GetJob(context.get(), get, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
+  stop();  // joins the finaliser while the test's gate still exists
 }
 
 // Two real prism-worker processes (the build's, or PRISM_WORKER_BIN) render a job through the
