@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <optional>
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
@@ -69,27 +70,15 @@ absl::StatusOr<image::TileResult> FinishedTiles::get(int tile) const {
 image::SpectralRows FinishedTiles::rows(TileFinaliser finalise, std::vector<float>* buffer) const {
   return [this, finalise = std::move(finalise), buffer](int y0,
                                                         int rows) -> absl::StatusOr<const float*> {
-    buffer->assign(std::size_t(width_) * std::size_t(rows) * std::size_t(bins_), 0.0f);
-    bool covered = false;
-    for (std::size_t t = 0; t < plan_.tiles.size(); ++t) {
-      const image::TileRect& rect = plan_.tiles[t];
-      if (rect.y0 != y0) continue;
-      if (rect.height() != rows) {
-        return absl::InternalError(absl::StrCat("band of ", rows, " rows at y ", y0,
-                                                " does not match tile ", to_string(rect)));
-      }
-      covered = true;
-      PRISM_ASSIGN_OR_RETURN(image::TileResult merged, get(static_cast<int>(t)));
-      PRISM_ASSIGN_OR_RETURN(image::SpectralImage values, finalise(merged));
-      const std::size_t row_values = std::size_t(rect.width()) * std::size_t(bins_);
-      for (int y = 0; y < rect.height(); ++y) {
-        std::memcpy(buffer->data() + (std::size_t(y) * width_ + rect.x0) * bins_,
-                    values.pixel(0, y).data(), row_values * sizeof(float));
-      }
-    }
-    if (!covered) {
-      return absl::InternalError(absl::StrCat("no row of tiles starts at y ", y0));
-    }
+    std::optional<image::SpectralImage> values;
+    PRISM_RETURN_IF_ERROR(assemble_band(
+        plan_, width_, bins_, y0, rows,
+        [&](std::size_t t) -> absl::StatusOr<const float*> {
+          PRISM_ASSIGN_OR_RETURN(image::TileResult merged, get(static_cast<int>(t)));
+          PRISM_ASSIGN_OR_RETURN(values, finalise(merged));
+          return values->data().data();
+        },
+        buffer));
     return buffer->data();
   };
 }

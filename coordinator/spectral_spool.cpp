@@ -7,13 +7,27 @@
 #include <cstring>
 
 #include "absl/strings/str_cat.h"
+#include "services/base/status.h"
 
 namespace prism::coordinator {
 namespace {
 
-absl::Status io_error(const char* what, std::uint64_t offset) {
-  return absl::InternalError(
-      absl::StrCat("spool ", what, " at byte ", offset, " failed: ", std::strerror(errno)));
+// All `size` bytes at `offset`, through short reads and writes and interruptions.
+template <typename Bytes, typename Io>
+absl::Status transfer(const char* what, Io io, int fd, Bytes* bytes, std::size_t size,
+                      std::uint64_t offset) {
+  while (size > 0) {
+    const ssize_t n = io(fd, bytes, size, static_cast<off_t>(offset));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      return absl::InternalError(
+          absl::StrCat("spool ", what, " at byte ", offset, " failed: ", std::strerror(errno)));
+    }
+    bytes += n;
+    size -= std::size_t(n);
+    offset += std::uint64_t(n);
+  }
+  return absl::OkStatus();
 }
 
 }  // namespace
@@ -61,52 +75,23 @@ absl::Status SpectralSpool::put(int tile, const image::SpectralImage& finalised)
                                                    "x", finalised.height(), "x", finalised.bins(),
                                                    ", not its rect's"));
   }
-  const char* bytes = reinterpret_cast<const char*>(finalised.data().data());
-  std::size_t left = finalised.data().size_bytes();
-  std::uint64_t offset = offsets_[std::size_t(tile)];
-  while (left > 0) {
-    const ssize_t n = ::pwrite(fd_, bytes, left, static_cast<off_t>(offset));
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) return io_error("write", offset);
-    bytes += n;
-    left -= std::size_t(n);
-    offset += std::uint64_t(n);
-  }
-  return absl::OkStatus();
+  return transfer("write", ::pwrite, fd_, reinterpret_cast<const char*>(finalised.data().data()),
+                  finalised.data().size_bytes(), offsets_[std::size_t(tile)]);
 }
 
 image::SpectralRows SpectralSpool::rows(std::vector<float>* buffer) const {
   return [this, buffer](int y0, int rows) -> absl::StatusOr<const float*> {
-    buffer->resize(std::size_t(width_) * std::size_t(rows) * std::size_t(bins_));
     std::vector<float> tile;
-    bool covered = false;
-    for (std::size_t t = 0; t < plan_.tiles.size(); ++t) {
-      const image::TileRect& rect = plan_.tiles[t];
-      if (rect.y0 != y0) continue;
-      if (rect.height() != rows) {
-        return absl::InternalError(absl::StrCat("band of ", rows, " rows at y ", y0,
-                                                " does not match tile ", to_string(rect)));
-      }
-      covered = true;
-      const std::size_t row_values = std::size_t(rect.width()) * std::size_t(bins_);
-      tile.resize(row_values * std::size_t(rect.height()));
-      char* bytes = reinterpret_cast<char*>(tile.data());
-      std::size_t left = tile.size() * sizeof(float);
-      std::uint64_t offset = offsets_[t];
-      while (left > 0) {
-        const ssize_t n = ::pread(fd_, bytes, left, static_cast<off_t>(offset));
-        if (n < 0 && errno == EINTR) continue;
-        if (n <= 0) return io_error("read", offset);
-        bytes += n;
-        left -= std::size_t(n);
-        offset += std::uint64_t(n);
-      }
-      for (int y = 0; y < rect.height(); ++y) {
-        std::memcpy(buffer->data() + (std::size_t(y) * width_ + rect.x0) * bins_,
-                    tile.data() + std::size_t(y) * row_values, row_values * sizeof(float));
-      }
-    }
-    if (!covered) return absl::InternalError(absl::StrCat("no row of tiles starts at y ", y0));
+    PRISM_RETURN_IF_ERROR(assemble_band(
+        plan_, width_, bins_, y0, rows,
+        [&](std::size_t t) -> absl::StatusOr<const float*> {
+          const image::TileRect& rect = plan_.tiles[t];
+          tile.resize(std::size_t(rect.width()) * std::size_t(rect.height()) * std::size_t(bins_));
+          PRISM_RETURN_IF_ERROR(transfer("read", ::pread, fd_, reinterpret_cast<char*>(tile.data()),
+                                         tile.size() * sizeof(float), offsets_[t]));
+          return tile.data();
+        },
+        buffer));
     return buffer->data();
   };
 }

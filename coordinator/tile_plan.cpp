@@ -1,8 +1,10 @@
 #include "coordinator/tile_plan.h"
 
 #include <algorithm>
+#include <cstring>
 
 #include "absl/strings/str_cat.h"
+#include "services/base/status.h"
 
 namespace prism::coordinator {
 namespace {
@@ -46,6 +48,31 @@ absl::StatusOr<TilePlan> plan_tiles(const TilePlanOptions& options) {
     plan.ranges.push_back({s0, std::min(s0 + per_task, options.spp)});
   }
   return plan;
+}
+
+absl::Status assemble_band(
+    const TilePlan& plan, int width, int bins, int y0, int rows,
+    const std::function<absl::StatusOr<const float*>(std::size_t)>& tile_values,
+    std::vector<float>* band) {
+  band->resize(std::size_t(width) * std::size_t(rows) * std::size_t(bins));
+  bool covered = false;
+  for (std::size_t t = 0; t < plan.tiles.size(); ++t) {
+    const image::TileRect& rect = plan.tiles[t];
+    if (rect.y0 != y0) continue;
+    if (rect.height() != rows) {
+      return absl::InternalError(absl::StrCat("band of ", rows, " rows at y ", y0,
+                                              " does not match tile ", to_string(rect)));
+    }
+    covered = true;
+    PRISM_ASSIGN_OR_RETURN(const float* values, tile_values(t));
+    const std::size_t row_values = std::size_t(rect.width()) * std::size_t(bins);
+    for (int y = 0; y < rect.height(); ++y) {
+      std::memcpy(band->data() + (std::size_t(y) * width + rect.x0) * bins,
+                  values + std::size_t(y) * row_values, row_values * sizeof(float));
+    }
+  }
+  if (!covered) return absl::InternalError(absl::StrCat("no row of tiles starts at y ", y0));
+  return absl::OkStatus();
 }
 
 }  // namespace prism::coordinator

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -35,5 +36,15 @@ struct TilePlan {
 
 // INVALID_ARGUMENT with the offending value when a size is out of range.
 absl::StatusOr<TilePlan> plan_tiles(const TilePlanOptions& options);
+
+// The band of rows [y0, y0 + rows) of a width x height x bins image assembled from its finished
+// tiles, for streaming an output a row of tiles at a time (FinishedTiles, SpectralSpool):
+// `tile_values(t)` gives tile t's values, its rect's pixels row-major with `bins` per pixel.
+// `band` is resized to width x rows x bins. INTERNAL when no row of tiles starts at y0 or its
+// height is not `rows`.
+absl::Status assemble_band(
+    const TilePlan& plan, int width, int bins, int y0, int rows,
+    const std::function<absl::StatusOr<const float*>(std::size_t)>& tile_values,
+    std::vector<float>* band);
 
 }  // namespace prism::coordinator

@@ -67,4 +67,12 @@ absl::StatusOr<std::pair<int, int>> parse_size(const std::string& text) {
   return absl::InvalidArgumentError(absl::StrCat("size '", text, "': want WxH, e.g. 160x120"));
 }
 
+float hashed_unit(std::uint64_t index, std::uint64_t stream) {
+  std::uint64_t z = index * 2 + stream + 0x9e3779b97f4a7c15ULL;
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+  z ^= z >> 31;
+  return static_cast<float>(z >> 40) * 0x1.0p-24f;
+}
+
 }  // namespace prism::bench

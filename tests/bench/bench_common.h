@@ -2,6 +2,8 @@
 // reading `--name value` flags. Benchmarks print figures; they assert nothing.
 #pragma once
 
+#include <algorithm>
+#include <chrono>
 #include <cstdint>
 #include <filesystem>
 #include <map>
@@ -38,5 +40,22 @@ absl::StatusOr<Flags> parse_flags(int argc, char** argv, const std::vector<std::
 
 // "WxH" -> (W, H).
 absl::StatusOr<std::pair<int, int>> parse_size(const std::string& text);
+
+// The best (smallest) wall time of `repeats` runs of `run`, in seconds.
+template <typename F>
+double best_seconds(int repeats, F&& run) {
+  double best = 1e300;
+  for (int r = 0; r < repeats; ++r) {
+    const auto t0 = std::chrono::steady_clock::now();
+    run();
+    best = std::min(best,
+                    std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+  return best;
+}
+
+// A deterministic value in [0, 1) from an index and a stream: SplitMix64, cheap enough for
+// filling benchmark inputs of 10^8 values.
+float hashed_unit(std::uint64_t index, std::uint64_t stream = 0);
 
 }  // namespace prism::bench

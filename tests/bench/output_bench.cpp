@@ -36,25 +36,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-template <typename F>
-double best_seconds(int repeats, F&& run) {
-  double best = 1e300;
-  for (int r = 0; r < repeats; ++r) {
-    const auto t0 = Clock::now();
-    run();
-    best = std::min(best, std::chrono::duration<double>(Clock::now() - t0).count());
-  }
-  return best;
-}
-
-float hashed_noise(std::uint64_t index) {
-  std::uint64_t z = index + 0x9e3779b97f4a7c15ULL;
-  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
-  z ^= z >> 31;
-  return static_cast<float>(z >> 40) * 0x1.0p-24f;
-}
-
 // Smooth spectra that vary across the image, times 1 ± 50 % noise per value (one sample per
 // pixel is that noisy).
 absl::StatusOr<image::SpectralExr> synthetic(int width, int height, int bins) {
@@ -68,7 +49,7 @@ absl::StatusOr<image::SpectralExr> synthetic(int width, int height, int bins) {
       for (int b = 0; b < bins; ++b) {
         const double phase = 6.0 * b / bins + 4.0 * x / width + 3.0 * y / height;
         const std::size_t i = pixel * bins + b;
-        values[i] = static_cast<float>((1.0 + std::sin(phase)) * (0.5 + hashed_noise(i)));
+        values[i] = static_cast<float>((1.0 + std::sin(phase)) * (0.5 + hashed_unit(i)));
       }
       for (int c = 0; c < 3; ++c) rgb.data()[pixel * 3 + c] = values[pixel * bins + c];
     }
