@@ -59,6 +59,8 @@ absl::Status write_png_preview(const std::filesystem::path& path, const RgbImage
     image.width = static_cast<png_uint_32>(preview.width);
     image.height = static_cast<png_uint_32>(preview.height);
     image.format = PNG_FORMAT_RGB;
+    // Speed over size (libpng's fast zlib settings): a 4096x4096 preview took 2.3 s.
+    image.flags = PNG_IMAGE_FLAG_FAST;
     int ok = png_image_write_to_file(&image, temp.c_str(), /*convert_to_8bit=*/0,
                                      preview.bytes.data(), /*row_stride=*/0, nullptr);
     if (!ok) {
