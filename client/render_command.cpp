@@ -499,13 +499,10 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   }
 
   // Bins too large to hold go to a spool file beside the outputs (same bytes either way).
-  const bool keeps_other_images =
-      (local.keep_primal_and_gradients && render.integrator == job::IntegratorKind::kGradient) ||
-      render.splats_differentials() || render.gathers();
   const std::uint64_t bin_bytes = std::uint64_t(local.width) * std::uint64_t(local.height) *
                                   std::uint64_t(render.bins) * sizeof(float);
   if (options.spool == "always" ||
-      (options.spool == "auto" && !keeps_other_images && bin_bytes > kSpoolAboveBytes)) {
+      (options.spool == "auto" && local.can_spool() && bin_bytes > kSpoolAboveBytes)) {
     local.spool_dir = paths.spectral_exr.parent_path();
     if (local.spool_dir.empty()) local.spool_dir = ".";
   }

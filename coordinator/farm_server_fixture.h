@@ -228,6 +228,19 @@ class FarmServerTest : public ::testing::Test {
     return rendered;
   }
 
+  grpc::Status get_job(const std::string& job_id, v1::JobInfo* info) {
+    v1::GetJobRequest request;
+    request.set_job_id(job_id);
+    auto context = client();
+    return farm_stub_->GetJob(context.get(), request, info);
+  }
+  grpc::Status cancel_job(const std::string& job_id, v1::JobInfo* info) {
+    v1::CancelJobRequest request;
+    request.set_job_id(job_id);
+    auto context = client();
+    return farm_stub_->CancelJob(context.get(), request, info);
+  }
+
   v1::JobInfo wait_done(const std::string& job_id, int polls = 200) {
     v1::JobInfo info;
     for (int i = 0; i < polls; ++i) {

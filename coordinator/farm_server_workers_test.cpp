@@ -233,11 +233,8 @@ TEST_F(FarmServerTest, CancelMovesAJobsFilesOutAtOnceAndTheJanitorDeletesThem) {
   const fs::path data = root_ / "data";
   ASSERT_EQ(count_files(data / "jobs" / job_id / "tiles"), 3u);
   ASSERT_GT(count_files(data / "blobs"), 0u);
-  v1::CancelJobRequest request;
-  request.set_job_id(job_id);
   v1::JobInfo info;
-  auto context = client();
-  ASSERT_TRUE(farm_stub_->CancelJob(context.get(), request, &info).ok());
+  ASSERT_TRUE(cancel_job(job_id, &info).ok());
   EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
   EXPECT_FALSE(fs::exists(data / "jobs" / job_id));
   EXPECT_EQ(count_files(data / "blobs"), 0u);
@@ -278,11 +275,8 @@ TEST_F(FarmServerTest, CancelReachesTheWorkerAtItsNextHeartbeat) {
   EXPECT_EQ(lease->bundle_hash(), hash);
   EXPECT_EQ(lease->attempt(), 1u);
   {
-    v1::CancelJobRequest request;
-    request.set_job_id(job_id);
     v1::JobInfo info;
-    auto context = client();
-    ASSERT_TRUE(farm_stub_->CancelJob(context.get(), request, &info).ok());
+    ASSERT_TRUE(cancel_job(job_id, &info).ok());
     EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
   }
   v1::HeartbeatRequest beat;
@@ -469,11 +463,8 @@ TEST_F(FarmServerTest, JobsBeyondTheMemoryOrDiskBudgetAreRefusedWithTheNumbers) 
             std::string::npos)
       << third.error_message();
   // Cancelling gives the first job's share back.
-  v1::CancelJobRequest cancel;
-  cancel.set_job_id(first.job_id());
   v1::JobInfo cancelled;
-  auto context = client();
-  ASSERT_TRUE(farm_stub_->CancelJob(context.get(), cancel, &cancelled).ok());
+  ASSERT_TRUE(cancel_job(first.job_id(), &cancelled).ok());
   EXPECT_TRUE(submit_sized(1024, 16, "c", nullptr).ok());
 
   // Disk: within the memory budget but over --max-disk.
@@ -579,13 +570,8 @@ TEST_F(FarmServerTest, OutputsAreWrittenWithoutTheCoordinatorsLock) {
   const std::string worker_id = register_worker();
   EXPECT_EQ(run_worker(worker_id).size(), 18u);
   ASSERT_TRUE(wait_for_writer(1));
-  v1::GetJobRequest get;
-  get.set_job_id(job_id);
   v1::JobInfo info;
-  {
-    auto context = client();
-    ASSERT_TRUE(farm_stub_->GetJob(context.get(), get, &info).ok());
-  }
+  ASSERT_TRUE(get_job(job_id, &info).ok());
   EXPECT_EQ(info.state(), v1::JOB_STATE_FINALISING);
   v1::JobSpec other = small_spec(hash);
   other.set_seed(9);
@@ -610,12 +596,7 @@ TEST_F(FarmServerTest, OutputsAreWrittenWithoutTheCoordinatorsLock) {
   }
   EXPECT_EQ(run_worker(worker_id).size(), 17u);
   ASSERT_TRUE(wait_for_writer(2));
-  v1::CancelJobRequest cancel;
-  cancel.set_job_id(other_id);
-  {
-    auto context = client();
-    ASSERT_TRUE(farm_stub_->CancelJob(context.get(), cancel, &info).ok());
-  }
+  ASSERT_TRUE(cancel_job(other_id, &info).ok());
   EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
   {
     std::lock_guard<std::mutex> lock(gate_mutex);
@@ -627,9 +608,7 @@ TEST_F(FarmServerTest, OutputsAreWrittenWithoutTheCoordinatorsLock) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
   EXPECT_FALSE(fs::exists(root_ / "data" / "outputs" / other_id));
-  get.set_job_id(other_id);
-  auto context = client();
-  ASSERT_TRUE(farm_stub_->GetJob(context.get(), get, &info).ok());
+  ASSERT_TRUE(get_job(other_id, &info).ok());
   EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
   stop();  // joins the finaliser while the test's gate still exists
 }

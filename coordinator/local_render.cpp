@@ -41,8 +41,7 @@ absl::Status check_local_memory(const LocalRenderOptions& options, const TilePla
   shape.render = options.render;
   shape.prepass = options.prepass.has_value();
   shape.target_error = options.target_error.has_value();
-  shape.keep_primal_and_gradients = options.keep_primal_and_gradients &&
-                                    options.render.integrator == job::IntegratorKind::kGradient;
+  shape.keep_primal_and_gradients = options.keeps_primal_and_gradients();
   shape.threads = threads;
   shape.spooled = !options.spool_dir.empty();
   shape.tile_size = options.tile_size;
@@ -81,10 +80,7 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
     return absl::InvalidArgumentError(absl::StrCat("spp ", options.spp, " is outside 1..",
                                                    std::numeric_limits<std::uint32_t>::max()));
   }
-  if (!options.spool_dir.empty() &&
-      ((options.keep_primal_and_gradients &&
-        options.render.integrator == job::IntegratorKind::kGradient) ||
-       options.render.splats_differentials() || options.render.gathers())) {
+  if (!options.spool_dir.empty() && !options.can_spool()) {
     return absl::InvalidArgumentError(
         "a spooled render keeps no whole image: not with the primal and gradients, splatting or "
         "gathering");
@@ -292,8 +288,7 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb_standard_error,
                          image::RgbImage::create(kept_width, kept_height));
   std::optional<image::SpectralImage> primal, gradient;
-  const bool keep_raw = options_.keep_primal_and_gradients &&
-                        options_.render.integrator == job::IntegratorKind::kGradient;
+  const bool keep_raw = options_.keeps_primal_and_gradients();
   if (keep_raw) {
     PRISM_ASSIGN_OR_RETURN(primal,
                            image::SpectralImage::create(options_.width, options_.height, bins));

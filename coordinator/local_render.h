@@ -81,6 +81,16 @@ struct LocalRenderOptions {
   // spectral image (create() refuses it with keep_primal_and_gradients, splatting or
   // gathering). The bytes written from it are the same as from the image.
   std::filesystem::path spool_dir;
+
+  // A gradient job that returns its raw primal and gradient images.
+  bool keeps_primal_and_gradients() const {
+    return keep_primal_and_gradients && render.integrator == job::IntegratorKind::kGradient;
+  }
+  // Spooling is possible: the job keeps no whole spectral image besides the bins (no raw primal
+  // and gradients, no splatted or gathered image).
+  bool can_spool() const {
+    return !keeps_primal_and_gradients() && !render.splats_differentials() && !render.gathers();
+  }
 };
 
 struct LocalRenderStats {
