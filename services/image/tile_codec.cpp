@@ -2,6 +2,8 @@
 
 #include <bit>
 #include <cstring>
+#include <iterator>
+#include <type_traits>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/check.h"
@@ -27,6 +29,18 @@ class Writer {
   void f64(double v) { put(std::bit_cast<std::uint64_t>(v), 8); }
   void f32(float v) { put(std::bit_cast<std::uint32_t>(v), 4); }
   void bytes(std::string_view s) { out_.append(s); }
+  // A whole array of doubles, floats or uint64s, little-endian: one copy on a little-endian host.
+  template <typename Range>
+  void values(const Range& range) {
+    using T = std::remove_cvref_t<decltype(*std::data(range))>;
+    static_assert(sizeof(T) == 4 || sizeof(T) == 8);
+    if constexpr (std::endian::native == std::endian::little) {
+      out_.append(reinterpret_cast<const char*>(std::data(range)), std::size(range) * sizeof(T));
+    } else {
+      using U = std::conditional_t<sizeof(T) == 8, std::uint64_t, std::uint32_t>;
+      for (const T& v : range) put(std::bit_cast<U>(v), sizeof(T));
+    }
+  }
 
  private:
   void put(std::uint64_t v, int n) {
@@ -63,9 +77,22 @@ class Reader {
     pos_ += n;
     return v;
   }
-  // Payload reads: the caller has checked the exact total length beforehand.
-  std::uint64_t raw_u64() { return raw(8); }
-  std::uint32_t raw_u32() { return static_cast<std::uint32_t>(raw(4)); }
+  // Payload reads: the caller has checked the exact total length beforehand. A whole array of
+  // doubles, floats or uint64s, as Writer::values wrote it.
+  template <typename Range>
+  void raw_values(Range&& range) {
+    using T = std::remove_cvref_t<decltype(*std::data(range))>;
+    static_assert(sizeof(T) == 4 || sizeof(T) == 8);
+    const std::size_t n = std::size(range) * sizeof(T);
+    PRISM_CHECK(remaining() >= n);
+    if constexpr (std::endian::native == std::endian::little) {
+      if (n > 0) std::memcpy(std::data(range), in_.data() + pos_, n);
+      pos_ += n;
+    } else {
+      using U = std::conditional_t<sizeof(T) == 8, std::uint64_t, std::uint32_t>;
+      for (T& v : range) v = std::bit_cast<T>(static_cast<U>(raw(sizeof(T))));
+    }
+  }
 
  private:
   std::uint64_t raw(int n) {
@@ -123,25 +150,25 @@ std::string serialise_tile(const TileResult& result) {
     w.bytes(name);
   }
   w.u64(payload);
-  for (double v : result.sums()) w.f64(v);
-  for (double v : result.sum_squares()) w.f64(v);
-  for (std::uint64_t v : result.counts()) w.u64(v);
-  for (double v : result.gradients()) w.f64(v);
-  for (double v : result.gradient_squares()) w.f64(v);
-  for (double v : result.half_sums()) w.f64(v);
-  for (double v : result.half_sum_squares()) w.f64(v);
-  for (double v : result.half_gradients()) w.f64(v);
-  for (double v : result.half_gradient_squares()) w.f64(v);
-  for (std::uint64_t v : result.half_counts()) w.u64(v);
-  for (double v : result.rgb_sums()) w.f64(v);
-  for (double v : result.rgb_squares()) w.f64(v);
-  for (double v : result.filtered_sums()) w.f64(v);
-  for (double v : result.filtered_rgb_sums()) w.f64(v);
-  for (double v : result.offsets()) w.f64(v);
-  for (float v : result.depth()) w.f32(v);
-  for (float v : result.normals()) w.f32(v);
-  for (float v : result.albedo()) w.f32(v);
-  for (std::uint64_t v : result.counters()) w.u64(v);
+  w.values(result.sums());
+  w.values(result.sum_squares());
+  w.values(result.counts());
+  w.values(result.gradients());
+  w.values(result.gradient_squares());
+  w.values(result.half_sums());
+  w.values(result.half_sum_squares());
+  w.values(result.half_gradients());
+  w.values(result.half_gradient_squares());
+  w.values(result.half_counts());
+  w.values(result.rgb_sums());
+  w.values(result.rgb_squares());
+  w.values(result.filtered_sums());
+  w.values(result.filtered_rgb_sums());
+  w.values(result.offsets());
+  w.values(result.depth());
+  w.values(result.normals());
+  w.values(result.albedo());
+  w.values(result.counters());
   return out;
 }
 
@@ -231,25 +258,25 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   auto result = TileResult::create(rect, samples, static_cast<int>(*bins), buffers);
   PRISM_CHECK(result.ok());
   TileResult& t = *result;
-  for (double& v : t.mutable_sums()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_sum_squares()) v = std::bit_cast<double>(r.raw_u64());
-  for (std::uint64_t& v : t.mutable_counts()) v = r.raw_u64();
-  for (double& v : t.mutable_gradients()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_gradient_squares()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_half_sums()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_half_sum_squares()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_half_gradients()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_half_gradient_squares()) v = std::bit_cast<double>(r.raw_u64());
-  for (std::uint64_t& v : t.mutable_half_counts()) v = r.raw_u64();
-  for (double& v : t.mutable_rgb_sums()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_rgb_squares()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_filtered_sums()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_filtered_rgb_sums()) v = std::bit_cast<double>(r.raw_u64());
-  for (double& v : t.mutable_offsets()) v = std::bit_cast<double>(r.raw_u64());
-  for (float& v : t.mutable_depth()) v = std::bit_cast<float>(r.raw_u32());
-  for (float& v : t.mutable_normals()) v = std::bit_cast<float>(r.raw_u32());
-  for (float& v : t.mutable_albedo()) v = std::bit_cast<float>(r.raw_u32());
-  for (std::uint64_t& v : t.mutable_counters()) v = r.raw_u64();
+  r.raw_values(t.mutable_sums());
+  r.raw_values(t.mutable_sum_squares());
+  r.raw_values(t.mutable_counts());
+  r.raw_values(t.mutable_gradients());
+  r.raw_values(t.mutable_gradient_squares());
+  r.raw_values(t.mutable_half_sums());
+  r.raw_values(t.mutable_half_sum_squares());
+  r.raw_values(t.mutable_half_gradients());
+  r.raw_values(t.mutable_half_gradient_squares());
+  r.raw_values(t.mutable_half_counts());
+  r.raw_values(t.mutable_rgb_sums());
+  r.raw_values(t.mutable_rgb_squares());
+  r.raw_values(t.mutable_filtered_sums());
+  r.raw_values(t.mutable_filtered_rgb_sums());
+  r.raw_values(t.mutable_offsets());
+  r.raw_values(t.mutable_depth());
+  r.raw_values(t.mutable_normals());
+  r.raw_values(t.mutable_albedo());
+  r.raw_values(t.mutable_counters());
   PRISM_CHECK(r.remaining() == 0);
   return result;
 }
