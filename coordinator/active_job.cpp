@@ -172,6 +172,7 @@ absl::Status ActiveJob::attach_tiles(const std::filesystem::path& dir) {
   PRISM_ASSIGN_OR_RETURN(FinishedTiles opened,
                          FinishedTiles::open(dir, plan, params.width, params.render.bins));
   tiles = std::make_unique<FinishedTiles>(std::move(opened));
+  PRISM_ASSIGN_OR_RETURN(results, ResultPack::open(dir.parent_path() / "results.pack"));
   return absl::OkStatus();
 }
 

@@ -26,6 +26,7 @@
 #include "coordinator/finished_tiles.h"
 #include "coordinator/outputs.h"
 #include "coordinator/prepass_run.h"
+#include "coordinator/result_pack.h"
 #include "coordinator/scheduler.h"
 #include "coordinator/target_error.h"
 #include "coordinator/tile_merge.h"
@@ -62,7 +63,8 @@ struct ActiveJob {
   std::vector<TaskSpec> stage_specs(int stage) const;
   std::vector<TaskSpec> task_specs() const;
 
-  // Opens the job's finished-tile directory; before any result is added.
+  // Opens the job's finished-tile directory and, beside it, its result pack; before any
+  // result is added.
   absl::Status attach_tiles(const std::filesystem::path& dir);
   // A finished tile's contribution to the statistics, the RGB image and progress.
   absl::Status absorb_tile(int tile, const image::TileResult& merged,
@@ -87,6 +89,8 @@ struct ActiveJob {
   std::map<std::string, std::uint64_t> counters;  // the final pass's, summed
   double prepass_seconds = 0;            // submit (or resume) to the final pass's start, wall clock
   std::unique_ptr<FinishedTiles> tiles;  // set by attach_tiles before any result is added
+  // The task results, in <dir>/../results.pack (set by attach_tiles too).
+  std::shared_ptr<ResultPack> results;
   std::unique_ptr<image::RgbImage> rgb;  // finished tiles' linear sRGB
   std::unique_ptr<BinStatisticsAccumulator> statistics;
   int tiles_finalised = 0;

@@ -7,6 +7,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "services/base/atomic_file.h"
+#include "services/base/check.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/tile_codec.h"
@@ -73,6 +74,11 @@ absl::Status FarmCoordinator::start() {
   store_.emplace(std::move(job_store));
   PRISM_ASSIGN_OR_RETURN(store::BlobStore blob_store, store::BlobStore::open(dir / "blobs"));
   blobs_.emplace(std::move(blob_store));
+  // Result bytes first: a record made durable before its bytes would name a lost result.
+  commit_ = std::make_unique<store::GroupCommit>([this]() -> absl::Status {
+    PRISM_RETURN_IF_ERROR(dirty_packs_.sync());
+    return store_->sync();
+  });
 
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -172,6 +178,24 @@ void FarmCoordinator::tick_loop() {
 void FarmCoordinator::changed_locked() {
   ++change_counter_;
   changed_.notify_all();
+}
+
+absl::Status FarmCoordinator::make_durable(std::uint64_t ticket) {
+  absl::Status durable = commit_->wait(ticket);
+  if (durable.ok()) return durable;
+  options_.logger->error(
+      "the job store cannot be synced; results are refused until the "
+      "coordinator is restarted: {}",
+      durable.ToString());
+  return absl::UnavailableError(
+      absl::StrCat("the coordinator cannot make results durable: ", durable.message()));
+}
+
+absl::StatusOr<std::string> FarmCoordinator::result_bytes(const ActiveJob& job,
+                                                          const store::TaskRecord& task) {
+  if (task.result_offset < 0) return blobs_->get(task.result_hash);
+  PRISM_CHECK(job.results != nullptr);
+  return job.results->read(std::uint64_t(task.result_offset), task.result_size, task.result_hash);
 }
 
 std::uint64_t FarmCoordinator::change_counter() const {
@@ -419,6 +443,21 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
     }
   }
   PRISM_RETURN_IF_ERROR(active->attach_tiles(tiles_dir(record.id)));
+  // A done task's result, or nothing when a power loss took its bytes (its record reached the
+  // disk first; it was never acknowledged): the task goes back to pending and runs again.
+  auto load =
+      [&](const store::TaskRecord& task) -> absl::StatusOr<std::optional<image::TileResult>> {
+    absl::StatusOr<std::string> bytes = result_bytes(*active, task);
+    if (absl::IsDataLoss(bytes.status()) || absl::IsNotFound(bytes.status())) {
+      options_.logger->warn("[job {} task {}] {}; rendering it again", record.id, task.index,
+                            bytes.status().ToString());
+      PRISM_RETURN_IF_ERROR(store_->reopen_task(record.id, task.index));
+      return std::optional<image::TileResult>();
+    }
+    PRISM_RETURN_IF_ERROR(bytes.status());
+    PRISM_ASSIGN_OR_RETURN(image::TileResult result, image::parse_tile(*bytes));
+    return std::optional<image::TileResult>(std::move(result));
+  };
   const int final_stage = active->final_stage();
   const int first_final = active->first_final_stage();
   const int stages = final_stage + 1;
@@ -433,14 +472,17 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   std::vector<int> done;
   int stage = 0;
   for (; stage < first_final; ++stage) {
-    const bool complete = stage_done(stage);
+    bool complete = stage_done(stage);
     TileAssembler& assembler = *active->prepass_assemblers[static_cast<std::size_t>(stage)];
     for (int i = active->stage_first[stage]; i < active->stage_first[stage + 1]; ++i) {
       const store::TaskRecord& task = tasks[static_cast<std::size_t>(i)];
       if (task.state != store::TaskState::kDone) continue;
-      PRISM_ASSIGN_OR_RETURN(std::string bytes, blobs_->get(task.result_hash));
-      PRISM_ASSIGN_OR_RETURN(image::TileResult result, image::parse_tile(bytes));
-      PRISM_RETURN_IF_ERROR(assembler.add(active->tile_of(i), std::move(result)));
+      PRISM_ASSIGN_OR_RETURN(std::optional<image::TileResult> result, load(task));
+      if (!result.has_value()) {
+        complete = false;
+        continue;
+      }
+      PRISM_RETURN_IF_ERROR(assembler.add(active->tile_of(i), *std::move(result)));
       done.push_back(i);
     }
     if (!complete) break;
@@ -484,9 +526,12 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
             complete = false;
             continue;
           }
-          PRISM_ASSIGN_OR_RETURN(std::string bytes, blobs_->get(task.result_hash));
-          PRISM_ASSIGN_OR_RETURN(image::TileResult result, image::parse_tile(bytes));
-          PRISM_RETURN_IF_ERROR(assembler.add(tile, std::move(result)));
+          PRISM_ASSIGN_OR_RETURN(std::optional<image::TileResult> result, load(task));
+          if (!result.has_value()) {
+            complete = false;
+            continue;
+          }
+          PRISM_RETURN_IF_ERROR(assembler.add(tile, *std::move(result)));
           done.push_back(i);
         }
       }
@@ -537,9 +582,9 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
       if (task.state != store::TaskState::kDone) continue;
       const int tile = active->tile_of(i);
       if (!restored[static_cast<std::size_t>(tile)]) {
-        PRISM_ASSIGN_OR_RETURN(std::string bytes, blobs_->get(task.result_hash));
-        PRISM_ASSIGN_OR_RETURN(image::TileResult result, image::parse_tile(bytes));
-        PRISM_RETURN_IF_ERROR(active->assembler->add(tile, std::move(result)));
+        PRISM_ASSIGN_OR_RETURN(std::optional<image::TileResult> result, load(task));
+        if (!result.has_value()) continue;
+        PRISM_RETURN_IF_ERROR(active->assembler->add(tile, *std::move(result)));
       }
       done.push_back(i);
     }

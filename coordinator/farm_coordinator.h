@@ -62,6 +62,7 @@
 #include "coordinator/outputs.h"
 #include "coordinator/prepass_run.h"
 #include "coordinator/resource_plan.h"
+#include "coordinator/result_pack.h"
 #include "coordinator/scheduler.h"
 #include "coordinator/target_error.h"
 #include "coordinator/tile_merge.h"
@@ -73,6 +74,7 @@
 #include "services/spectral/color.h"
 #include "services/spectral/named_spectra.h"
 #include "services/store/blob_store.h"
+#include "services/store/group_commit.h"
 #include "services/store/job_store.h"
 
 namespace prism::coordinator {
@@ -280,6 +282,12 @@ class FarmCoordinator {
   std::filesystem::path output_dir(const std::string& job_id) const;
   OutputPaths output_paths_of(const std::string& job_id) const;
   void changed_locked();
+  // Waits, without the lock, until the result bytes and store records written before `ticket`
+  // (commit_->note_write) are durable; a failed sync is logged and returned (UNAVAILABLE: the
+  // caller retries, and every later wait fails too until the coordinator is restarted).
+  absl::Status make_durable(std::uint64_t ticket);
+  // A done task's result: from the job's pack, or the blob store for a task from before packs.
+  absl::StatusOr<std::string> result_bytes(const ActiveJob& job, const store::TaskRecord& task);
   void tick_loop();
 
   FarmOptions options_;
@@ -289,7 +297,11 @@ class FarmCoordinator {
   std::condition_variable changed_;
   std::uint64_t change_counter_ = 0;
   std::optional<store::JobStore> store_;
-  std::optional<store::BlobStore> blobs_;
+  std::optional<store::BlobStore> blobs_;  // results of jobs from before result packs
+  // Group commit of results (make_durable): the packs written since the last flush, then the
+  // store's WAL.
+  DirtyPacks dirty_packs_;
+  std::unique_ptr<store::GroupCommit> commit_;
   std::optional<BundleStore> bundles_;
   Scheduler scheduler_;
   std::map<std::string, std::shared_ptr<ActiveJob>> active_;

@@ -158,14 +158,24 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
   }
   // Stale leases are refused by the Scheduler before anything is stored.
   std::optional<CompleteReply> reply;
+  store::ResultLocation location;
   if (!lease.has_value() || lease->worker_id != worker_id) {
     reply = scheduler_.complete(worker_id, lease_id, sha256, now());
   } else {
-    // Store the bytes first: a task is only marked done once its result is durable. The blob
-    // store is thread-safe, so the (synced) write does not hold up other calls; a lease that
-    // goes stale meanwhile leaves only an unreferenced blob.
+    // Write the bytes first, without the lock: into a range of the job's result pack (made
+    // durable with the record, by the group commit below), or, for a job no longer active, the
+    // blob store (synced at once). A lease that goes stale meanwhile leaves only unreferenced
+    // bytes.
+    auto it = active_.find(lease->task.job_id);
+    std::shared_ptr<ResultPack> pack =
+        it != active_.end() ? it->second->results : std::shared_ptr<ResultPack>();
+    if (pack != nullptr) {
+      location = {static_cast<std::int64_t>(pack->reserve(bytes.size())), bytes.size()};
+    }
     lock.unlock();
-    absl::Status stored = blobs_->put_verified(sha256, bytes);
+    absl::Status stored = pack != nullptr ? pack->write(std::uint64_t(location.offset), bytes)
+                                          : blobs_->put_hashed(sha256, bytes);
+    if (pack != nullptr && stored.ok()) dirty_packs_.add(pack);
     lock.lock();
     PRISM_RETURN_IF_ERROR(stored);
     reply = scheduler_.complete(worker_id, lease_id, sha256, now());
@@ -174,9 +184,14 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
     case CompleteOutcome::kStale:
       metrics_.result_not_merged("stale", received);
       return absl::FailedPreconditionError(reply->reason);
-    case CompleteOutcome::kDuplicate:
+    case CompleteOutcome::kDuplicate: {
       metrics_.result_not_merged("duplicate", received);
+      // The first copy's record may not be durable yet (its own call is still waiting).
+      const std::uint64_t ticket = commit_->last_ticket();
+      lock.unlock();
+      PRISM_RETURN_IF_ERROR(make_durable(ticket));
       return CompleteResult::kDuplicate;
+    }
     case CompleteOutcome::kAccepted:
       break;
   }
@@ -184,7 +199,7 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
   const Task& task = *reply->task;
   ++tasks_completed_[worker_id];
   samples_completed_[worker_id] += std::uint64_t(task.spec.tile.area()) * task.spec.samples.count();
-  absl::StatusOr<bool> marked = store_->mark_task_done(task.job_id, task.index, sha256);
+  absl::StatusOr<bool> marked = store_->mark_task_done(task.job_id, task.index, sha256, location);
   if (!marked.ok()) {
     fail_job_locked(task.job_id, absl::StrCat("cannot record task ", task.index, ": ",
                                               marked.status().message()));
@@ -227,10 +242,17 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
   process_events_locked();
   changed_locked();
   const Millis granted = lease.has_value() ? lease->granted : now();
-  metrics_.task_completed(render_seconds, std::max(0.0, double((now() - granted).count()) / 1000.0),
+  const double lease_seconds = std::max(0.0, double((now() - granted).count()) / 1000.0);
+  const std::uint64_t pixel_samples =
+      std::uint64_t(task.spec.tile.area()) * task.spec.samples.count();
+  // Group commit: the task's record was committed without a sync; the worker hears "accepted"
+  // only once it is durable, and one sync serves every result acknowledged meanwhile.
+  const std::uint64_t ticket = commit_->note_write();
+  lock.unlock();
+  PRISM_RETURN_IF_ERROR(make_durable(ticket));
+  metrics_.task_completed(render_seconds, lease_seconds,
                           std::chrono::duration<double>(SteadyClock::now() - started).count(),
-                          received,
-                          std::uint64_t(task.spec.tile.area()) * task.spec.samples.count());
+                          received, pixel_samples);
   return CompleteResult::kAccepted;
 }
 

@@ -1,18 +1,43 @@
 #include "coordinator/finished_tiles.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <cstring>
 #include <optional>
 #include <system_error>
+#include <utility>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/atomic_file.h"
+#include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/tile_codec.h"
 
 namespace prism::coordinator {
 
 namespace fs = std::filesystem;
+
+namespace {
+
+constexpr char kRecordMagic[4] = {'P', 'R', 'T', 'R'};
+constexpr std::size_t kHeaderBytes = 4 + 4 + 8 + 32;
+
+void put_le(char* out, std::uint64_t value, int bytes) {
+  for (int i = 0; i < bytes; ++i) out[i] = static_cast<char>((value >> (8 * i)) & 0xff);
+}
+
+std::uint64_t get_le(const char* in, int bytes) {
+  std::uint64_t value = 0;
+  for (int i = 0; i < bytes; ++i)
+    value |= std::uint64_t(static_cast<unsigned char>(in[i])) << (8 * i);
+  return value;
+}
+
+}  // namespace
 
 absl::StatusOr<FinishedTiles> FinishedTiles::open(fs::path dir, TilePlan plan, int width,
                                                   int bins) {
@@ -26,39 +51,116 @@ absl::StatusOr<FinishedTiles> FinishedTiles::open(fs::path dir, TilePlan plan, i
     return absl::InternalError(
         absl::StrCat("cannot create the tile directory ", dir.string(), ": ", ec.message()));
   }
-  return FinishedTiles(std::move(dir), std::move(plan), width, bins);
+  const fs::path path = dir / "tiles.pack";
+  const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    return absl::InternalError(
+        absl::StrCat("cannot open the tile pack ", path.string(), ": ", std::strerror(errno)));
+  }
+  FinishedTiles tiles(std::move(dir), std::move(plan), width, bins, fd);
+  PRISM_RETURN_IF_ERROR(tiles.scan());
+  return tiles;
 }
 
-fs::path FinishedTiles::path_of(int tile) const {
-  return dir_ / absl::StrCat(tile, ".tile");
+FinishedTiles::FinishedTiles(fs::path dir, TilePlan plan, int width, int bins, int fd)
+    : dir_(std::move(dir)),
+      plan_(std::move(plan)),
+      width_(width),
+      bins_(bins),
+      fd_(fd),
+      mutex_(std::make_unique<std::mutex>()),
+      records_(plan_.tiles.size()) {}
+
+FinishedTiles::FinishedTiles(FinishedTiles&& other) noexcept
+    : dir_(std::move(other.dir_)),
+      plan_(std::move(other.plan_)),
+      width_(other.width_),
+      bins_(other.bins_),
+      fd_(std::exchange(other.fd_, -1)),
+      mutex_(std::move(other.mutex_)),
+      records_(std::move(other.records_)),
+      end_(other.end_) {}
+
+FinishedTiles::~FinishedTiles() {
+  if (fd_ >= 0) ::close(fd_);
 }
 
-absl::Status FinishedTiles::put(int tile, const image::TileResult& merged) const {
+absl::Status FinishedTiles::scan() {
+  struct stat st {};
+  if (::fstat(fd_, &st) != 0) {
+    return absl::InternalError(absl::StrCat("cannot stat the tile pack ", pack_path().string(),
+                                            ": ", std::strerror(errno)));
+  }
+  const std::uint64_t size = std::uint64_t(st.st_size);
+  std::uint64_t at = 0;
+  char header[kHeaderBytes];
+  while (at + kHeaderBytes <= size) {
+    if (!base::pread_all(fd_, header, kHeaderBytes, at, "tile pack").ok()) break;
+    if (std::memcmp(header, kRecordMagic, 4) != 0) break;
+    const std::uint64_t tile = get_le(header + 4, 4);
+    const std::uint64_t bytes = get_le(header + 8, 8);
+    if (tile >= records_.size() || bytes > size - at - kHeaderBytes) break;
+    Record record{at + kHeaderBytes, bytes, {}};
+    std::memcpy(record.sha256.data(), header + 16, 32);
+    records_[tile] = record;
+    at += kHeaderBytes + bytes;
+  }
+  // A torn last record (a crash while appending) is written over.
+  end_ = at;
+  return absl::OkStatus();
+}
+
+absl::Status FinishedTiles::put(int tile, const image::TileResult& merged) {
   if (tile < 0 || static_cast<std::size_t>(tile) >= plan_.tiles.size() ||
       merged.rect() != plan_.tiles[static_cast<std::size_t>(tile)] || merged.bins() != bins_) {
     return absl::InvalidArgumentError(absl::StrCat("tile ", tile, " (", to_string(merged.rect()),
                                                    ") is not a tile of this job's plan"));
   }
-  const std::string bytes = image::serialise_tile(merged);
-  return base::write_file_atomic(path_of(tile), std::span<const char>(bytes));
+  std::string record(kHeaderBytes, '\0');
+  record += image::serialise_tile(merged);
+  const std::uint64_t size = record.size() - kHeaderBytes;
+  base::Sha256 hasher;
+  hasher.update(std::string_view(record).substr(kHeaderBytes));
+  const std::array<std::uint8_t, 32> digest = hasher.digest();
+  std::memcpy(record.data(), kRecordMagic, 4);
+  put_le(record.data() + 4, std::uint64_t(tile), 4);
+  put_le(record.data() + 8, size, 8);
+  std::memcpy(record.data() + 16, digest.data(), 32);
+  std::lock_guard<std::mutex> lock(*mutex_);
+  PRISM_RETURN_IF_ERROR(base::pwrite_all(fd_, record.data(), record.size(), end_,
+                                         absl::StrCat("tile pack ", pack_path().string())));
+  records_[static_cast<std::size_t>(tile)] = Record{end_ + kHeaderBytes, size, digest};
+  end_ += record.size();
+  return absl::OkStatus();
 }
 
 bool FinishedTiles::has(int tile) const {
-  std::error_code ec;
-  return fs::is_regular_file(path_of(tile), ec);
+  std::lock_guard<std::mutex> lock(*mutex_);
+  return tile >= 0 && static_cast<std::size_t>(tile) < records_.size() &&
+         records_[static_cast<std::size_t>(tile)].has_value();
 }
 
 absl::StatusOr<image::TileResult> FinishedTiles::get(int tile) const {
-  const fs::path path = path_of(tile);
   auto fail = [&](const std::string& why) {
-    return absl::DataLossError(absl::StrCat("finished tile ", path.string(), ": ", why));
+    return absl::DataLossError(
+        absl::StrCat("finished tile ", tile, " in ", pack_path().string(), ": ", why));
   };
   if (tile < 0 || static_cast<std::size_t>(tile) >= plan_.tiles.size()) {
     return fail("not a tile of the plan");
   }
-  absl::StatusOr<std::string> bytes = base::read_file(path);
-  if (!bytes.ok()) return fail(std::string(bytes.status().message()));
-  absl::StatusOr<image::TileResult> result = image::parse_tile(*bytes);
+  std::optional<Record> record;
+  {
+    std::lock_guard<std::mutex> lock(*mutex_);
+    record = records_[static_cast<std::size_t>(tile)];
+  }
+  if (!record.has_value()) return fail("not there");
+  std::string bytes(record->size, '\0');
+  PRISM_RETURN_IF_ERROR(
+      base::pread_all(fd_, bytes.data(), bytes.size(), record->offset, "tile pack"));
+  base::Sha256 hasher;
+  hasher.update(bytes);
+  if (hasher.digest() != record->sha256) return fail("its bytes do not match their hash");
+  absl::StatusOr<image::TileResult> result = image::parse_tile(bytes);
   if (!result.ok()) return fail(std::string(result.status().message()));
   if (result->rect() != plan_.tiles[static_cast<std::size_t>(tile)] || result->bins() != bins_) {
     return fail(absl::StrCat("holds ", to_string(result->rect()), " with ", result->bins(),

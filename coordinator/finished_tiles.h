@@ -1,14 +1,24 @@
 // A job's finished tiles, on disk. The coordinator keeps in memory only the tiles in flight
 // (their range results, in the TileAssembler) and the job's linear sRGB (3 floats per pixel,
 // for previews and the RGB outputs); a finished tile's merged result (the tile codec's bytes:
-// sums, sums of squares, counts, and gradients or guides when present) goes to
-// <dir>/<tile index>.tile, written atomically, and the spectral EXR is streamed from these files
-// one row of tiles at a time. The files are also what a restarted coordinator resumes finished
-// tiles from, so the range results they were merged from can be deleted once they are written.
+// sums, sums of squares, counts, and gradients or guides when present) is appended to one file,
+// <dir>/tiles.pack, as a record (magic, tile index, size, SHA-256, bytes), and the spectral EXR is
+// streamed from it one row of tiles at a time. One file, not one per tile: creating files cost
+// the coordinator more kernel time than merging the results in them.
+//
+// The pack is also what a restarted coordinator resumes finished tiles from: open() reads the
+// record headers and stops at the first that is not whole. Records are not flushed to disk: the
+// range results a tile was merged from are durable and kept until the job is over, and a
+// record a power loss damaged fails get() (its hash), so the tile is merged from them again.
 #pragma once
 
+#include <array>
+#include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -26,11 +36,13 @@ class FinishedTiles {
   static absl::StatusOr<FinishedTiles> open(std::filesystem::path dir, TilePlan plan, int width,
                                             int bins);
 
-  // Writes (or rewrites, with the same bytes) tile `tile`'s merged result. INVALID_ARGUMENT
-  // when the index or the rect is not the plan's; INTERNAL naming the file on an I/O error.
-  absl::Status put(int tile, const image::TileResult& merged) const;
+  // Appends tile `tile`'s merged result (a rewrite supersedes the earlier record).
+  // INVALID_ARGUMENT when the index or the rect is not the plan's; INTERNAL naming the file on
+  // an I/O error. Thread-safe, as are has and get.
+  absl::Status put(int tile, const image::TileResult& merged);
   bool has(int tile) const;
-  // DATA_LOSS naming the file when it is missing, unreadable or not this tile of this job.
+  // DATA_LOSS naming the pack and the tile when it is missing, damaged or not this tile of this
+  // job.
   absl::StatusOr<image::TileResult> get(int tile) const;
 
   // The finished image for image::write_spectral_exr_rows, in bands of band_rows() rows (one
@@ -42,16 +54,28 @@ class FinishedTiles {
   absl::Status remove() const;
 
   const std::filesystem::path& dir() const { return dir_; }
+  std::filesystem::path pack_path() const { return dir_ / "tiles.pack"; }
+
+  FinishedTiles(FinishedTiles&&) noexcept;
+  ~FinishedTiles();
 
  private:
-  FinishedTiles(std::filesystem::path dir, TilePlan plan, int width, int bins)
-      : dir_(std::move(dir)), plan_(std::move(plan)), width_(width), bins_(bins) {}
-  std::filesystem::path path_of(int tile) const;
+  struct Record {
+    std::uint64_t offset = 0;  // of the bytes, after the header
+    std::uint64_t size = 0;
+    std::array<std::uint8_t, 32> sha256{};
+  };
+  FinishedTiles(std::filesystem::path dir, TilePlan plan, int width, int bins, int fd);
+  absl::Status scan();
 
   std::filesystem::path dir_;
   TilePlan plan_;
   int width_;
   int bins_;
+  int fd_ = -1;
+  std::unique_ptr<std::mutex> mutex_;           // guards records_ and end_
+  std::vector<std::optional<Record>> records_;  // by tile
+  std::uint64_t end_ = 0;
 };
 
 }  // namespace prism::coordinator

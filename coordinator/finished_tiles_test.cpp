@@ -80,27 +80,59 @@ TEST_F(FinishedTilesTest, StreamedRowsEqualTheImageAssembledInMemory) {
   EXPECT_FALSE(fs::exists(dir_ / "job" / "tiles"));
 }
 
-TEST_F(FinishedTilesTest, RefusesForeignTilesAndReportsDamagedFiles) {
-  auto tiles = FinishedTiles::open(dir_, plan_, kWidth, kBins);
-  ASSERT_TRUE(tiles.ok());
-  EXPECT_EQ(tiles->put(1, merged(0)).code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_EQ(tiles->put(-1, merged(0)).code(), absl::StatusCode::kInvalidArgument);
-  absl::Status missing = tiles->get(2).status();
-  EXPECT_EQ(missing.code(), absl::StatusCode::kDataLoss);
-  EXPECT_NE(missing.message().find("2.tile"), std::string::npos) << missing;
-  // A file holding another tile, and a truncated file.
-  ASSERT_TRUE(tiles->put(0, merged(0)).ok());
-  fs::copy_file(dir_ / "0.tile", dir_ / "3.tile");
-  EXPECT_EQ(tiles->get(3).status().code(), absl::StatusCode::kDataLoss);
-  fs::resize_file(dir_ / "0.tile", 40);
-  EXPECT_EQ(tiles->get(0).status().code(), absl::StatusCode::kDataLoss);
-  std::vector<float> buffer;
-  auto rows = tiles->rows(
-      [](const image::TileResult& r) -> absl::StatusOr<image::SpectralImage> {
-        return image::finalise(r);
-      },
-      &buffer);
-  EXPECT_EQ(rows(0, kTile).status().code(), absl::StatusCode::kDataLoss);
+TEST_F(FinishedTilesTest, RefusesForeignTilesAndReportsDamagedRecords) {
+  {
+    auto tiles = FinishedTiles::open(dir_, plan_, kWidth, kBins);
+    ASSERT_TRUE(tiles.ok());
+    EXPECT_EQ(tiles->put(1, merged(0)).code(), absl::StatusCode::kInvalidArgument);
+    EXPECT_EQ(tiles->put(-1, merged(0)).code(), absl::StatusCode::kInvalidArgument);
+    absl::Status missing = tiles->get(2).status();
+    EXPECT_EQ(missing.code(), absl::StatusCode::kDataLoss);
+    EXPECT_NE(missing.message().find("finished tile 2 in"), std::string::npos) << missing;
+    EXPECT_NE(missing.message().find("tiles.pack"), std::string::npos) << missing;
+    for (int tile : {0, 1, 2}) ASSERT_TRUE(tiles->put(tile, merged(tile)).ok());
+    // A rewrite supersedes the first record.
+    ASSERT_TRUE(tiles->put(1, merged(1)).ok());
+    EXPECT_TRUE(tiles->get(1).ok());
+  }
+  const fs::path pack = dir_ / "tiles.pack";
+  const std::uintmax_t whole = fs::file_size(pack);
+  {
+    // A flipped byte inside tile 0's record (the first; its header is 48 bytes): its hash no
+    // longer matches.
+    std::fstream file(pack, std::ios::in | std::ios::out | std::ios::binary);
+    file.seekp(200);
+    const char flipped = static_cast<char>(file.peek() ^ 0x5a);
+    file.seekp(200);
+    file.put(flipped);
+  }
+  {
+    // The last record torn (a crash while appending): tile 1 falls back to its first record.
+    fs::resize_file(pack, whole - 40);
+    auto tiles = FinishedTiles::open(dir_, plan_, kWidth, kBins);
+    ASSERT_TRUE(tiles.ok());
+    absl::Status damaged = tiles->get(0).status();
+    EXPECT_EQ(damaged.code(), absl::StatusCode::kDataLoss);
+    EXPECT_NE(damaged.message().find("do not match their hash"), std::string::npos) << damaged;
+    EXPECT_TRUE(tiles->get(1).ok());
+    EXPECT_TRUE(tiles->get(2).ok());
+    EXPECT_FALSE(tiles->has(3));
+    // Appends go over the torn record.
+    ASSERT_TRUE(tiles->put(3, merged(3)).ok());
+    EXPECT_TRUE(tiles->get(3).ok());
+    std::vector<float> buffer;
+    auto rows = tiles->rows(
+        [](const image::TileResult& r) -> absl::StatusOr<image::SpectralImage> {
+          return image::finalise(r);
+        },
+        &buffer);
+    EXPECT_EQ(rows(0, kTile).status().code(), absl::StatusCode::kDataLoss);
+  }
+  auto reopened = FinishedTiles::open(dir_, plan_, kWidth, kBins);
+  ASSERT_TRUE(reopened.ok());
+  EXPECT_TRUE(reopened->get(3).ok());
+  EXPECT_TRUE(reopened->get(1).ok());
+  EXPECT_EQ(reopened->get(0).status().code(), absl::StatusCode::kDataLoss);
 }
 
 }  // namespace

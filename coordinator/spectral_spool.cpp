@@ -7,31 +7,10 @@
 #include <cstring>
 
 #include "absl/strings/str_cat.h"
+#include "services/base/atomic_file.h"
 #include "services/base/status.h"
 
 namespace prism::coordinator {
-namespace {
-
-// All `size` bytes at `offset`, through short reads and writes and interruptions.
-template <typename Bytes, typename Io>
-absl::Status transfer(const char* what, Io io, int fd, Bytes* bytes, std::size_t size,
-                      std::uint64_t offset) {
-  while (size > 0) {
-    const ssize_t n = io(fd, bytes, size, static_cast<off_t>(offset));
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) {
-      return absl::InternalError(
-          absl::StrCat("spool ", what, " at byte ", offset, " failed: ", std::strerror(errno)));
-    }
-    bytes += n;
-    size -= std::size_t(n);
-    offset += std::uint64_t(n);
-  }
-  return absl::OkStatus();
-}
-
-}  // namespace
-
 absl::StatusOr<std::unique_ptr<SpectralSpool>> SpectralSpool::create(
     const std::filesystem::path& dir, TilePlan plan, int width, int height, int bins) {
   int fd = ::open(dir.c_str(), O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
@@ -75,8 +54,8 @@ absl::Status SpectralSpool::put(int tile, const image::SpectralImage& finalised)
                                                    "x", finalised.height(), "x", finalised.bins(),
                                                    ", not its rect's"));
   }
-  return transfer("write", ::pwrite, fd_, reinterpret_cast<const char*>(finalised.data().data()),
-                  finalised.data().size_bytes(), offsets_[std::size_t(tile)]);
+  return base::pwrite_all(fd_, reinterpret_cast<const char*>(finalised.data().data()),
+                          finalised.data().size_bytes(), offsets_[std::size_t(tile)], "spool");
 }
 
 image::SpectralRows SpectralSpool::rows(std::vector<float>* buffer) const {
@@ -87,8 +66,8 @@ image::SpectralRows SpectralSpool::rows(std::vector<float>* buffer) const {
         [&](std::size_t t) -> absl::StatusOr<const float*> {
           const image::TileRect& rect = plan_.tiles[t];
           tile.resize(std::size_t(rect.width()) * std::size_t(rect.height()) * std::size_t(bins_));
-          PRISM_RETURN_IF_ERROR(transfer("read", ::pread, fd_, reinterpret_cast<char*>(tile.data()),
-                                         tile.size() * sizeof(float), offsets_[t]));
+          PRISM_RETURN_IF_ERROR(base::pread_all(fd_, reinterpret_cast<char*>(tile.data()),
+                                                tile.size() * sizeof(float), offsets_[t], "spool"));
           return tile.data();
         },
         buffer));

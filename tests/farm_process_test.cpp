@@ -12,20 +12,25 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <mutex>
 #include <nlohmann/json.hpp>
 #include <thread>
 
 #include "prism/v1/farm.grpc.pb.h"
+#include "prism/v1/worker.grpc.pb.h"
 #include "services/base/sha256.h"
 #include "services/image/exr_spectral.h"
+#include "services/image/tile_codec.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
+#include "services/rpc/result_upload.h"
 #include "services/scene/bundle.h"
 #include "services/store/job_store.h"
 #include "tests/testing/child_process.h"
@@ -724,6 +729,184 @@ TEST_F(FarmProcessTest, ACoordinatorKilledMidJobResumesWithoutRerenderingFinishe
     }
   }
   expect_identical(farm, cli_render(kSlowSpp));
+}
+
+// Synthetic workers for the burst test below: they register, lease and answer each task at
+// once with a result whose value depends on its sample range (1 + the range's first sample),
+// so a range merged twice, or lost, changes its tile's mean. Each acknowledged result is
+// listed with its SHA-256; a worker stops at its first error (the coordinator was killed).
+struct Acknowledged {
+  image::TileRect rect;
+  image::SampleRange samples;
+  std::string sha256;
+};
+
+struct SyntheticWorkers {
+  int port = 0;
+  int bins = 0;
+  std::atomic<bool> stop{false};
+  std::mutex mutex;
+  std::vector<Acknowledged> acknowledged;
+  std::vector<std::thread> threads;
+
+  void start(int count) {
+    for (int i = 0; i < count; ++i) threads.emplace_back([this, i] { run(i); });
+  }
+  void join() {
+    stop = true;
+    for (std::thread& t : threads) t.join();
+    threads.clear();
+  }
+  std::size_t count() {
+    std::lock_guard<std::mutex> lock(mutex);
+    return acknowledged.size();
+  }
+
+  static std::unique_ptr<grpc::ClientContext> call() {
+    auto context = std::make_unique<grpc::ClientContext>();
+    prism::rpc::add_bearer(*context, kSecret);
+    context->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
+    return context;
+  }
+
+  std::string result(const image::TileRect& rect, const image::SampleRange& samples) const {
+    image::TileBuffers buffers;
+    buffers.rgb = true;
+    image::TileResult r = image::TileResult::create(rect, samples, bins, buffers).value();
+    const double n = double(samples.count());
+    const double v = 1.0 + double(samples.s0);
+    for (double& x : r.mutable_sums()) x = v * n;
+    for (double& x : r.mutable_sum_squares()) x = v * v * n;
+    for (double& x : r.mutable_rgb_sums()) x = v * n;
+    for (double& x : r.mutable_rgb_squares()) x = v * v * n;
+    for (std::uint64_t& c : r.mutable_counts()) c = samples.count();
+    return image::serialise_tile(r);
+  }
+
+  void run(int index) {
+    auto stub = v1::WorkerService::NewStub(grpc::CreateChannel("127.0.0.1:" + std::to_string(port),
+                                                               grpc::InsecureChannelCredentials()));
+    v1::RegisterRequest hello;
+    hello.set_host("synthetic-" + std::to_string(index));
+    hello.set_threads(1);
+    v1::RegisterResponse registered;
+    if (!stub->Register(call().get(), hello, &registered).ok()) return;
+    Clock::time_point beat = Clock::now();
+    while (!stop) {
+      if (Clock::now() - beat > std::chrono::milliseconds(kHeartbeatMs / 2)) {
+        v1::HeartbeatRequest request;
+        request.set_worker_id(registered.worker_id());
+        v1::HeartbeatResponse reply;
+        if (!stub->Heartbeat(call().get(), request, &reply).ok()) return;
+        beat = Clock::now();
+      }
+      v1::AcquireTaskRequest request;
+      request.set_worker_id(registered.worker_id());
+      request.set_wait_ms(50);
+      v1::AcquireTaskResponse response;
+      if (!stub->AcquireTask(call().get(), request, &response).ok()) return;
+      if (!response.has_lease()) continue;
+      const v1::Task& task = response.lease().task();
+      const image::TileRect rect{task.tile().x0(), task.tile().y0(), task.tile().x1(),
+                                 task.tile().y1()};
+      const image::SampleRange samples{task.samples().begin(), task.samples().end()};
+      const std::string bytes = result(rect, samples);
+      prism::rpc::ResultUploadHeader header;
+      header.worker_id = registered.worker_id();
+      header.lease_id = response.lease().lease_id();
+      header.sha256 = base::sha256_hex(bytes);
+      auto context = call();
+      v1::CompleteTaskResponse done;
+      auto writer = stub->CompleteTask(context.get(), &done);
+      if (!prism::rpc::upload_result(*writer, header, bytes).ok()) return;
+      if (!done.accepted()) return;
+      std::lock_guard<std::mutex> lock(mutex);
+      acknowledged.push_back({rect, samples, header.sha256});
+    }
+  }
+};
+
+// Issue 18: results are made durable in groups (one sync of the result pack and the store for
+// every result acknowledged meanwhile). A coordinator killed (-9) in the middle of a burst of
+// completions from eight workers has every acknowledged result in its store, whole; once
+// restarted it finishes the job with every task counted once, and the image is exactly that of
+// the same job run without a kill (a range merged twice or lost would change a tile's mean).
+TEST_F(FarmProcessTest, AKillDuringABurstOfResultsLosesNothingAcknowledgedAndMergesNothingTwice) {
+  const int port = testing::free_port();
+  start_coordinator(port);
+  const std::string hash = upload();
+  v1::JobSpec s = spec(hash, 4, 1);  // four one-sample ranges per tile
+  s.set_width(64);
+  s.set_height(64);  // 64 tiles of 8x8: 256 tasks
+  s.set_bins(8);
+  const std::string job_id = submit(s);
+  ASSERT_FALSE(job_id.empty());
+
+  SyntheticWorkers workers;
+  workers.port = port;
+  workers.bins = 8;
+  workers.start(8);
+  const auto until = Clock::now() + std::chrono::seconds(30);
+  while (workers.count() < 80 && Clock::now() < until) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  coordinator_->kill();
+  workers.join();
+  const std::vector<Acknowledged> acknowledged = workers.acknowledged;
+  ASSERT_GE(acknowledged.size(), 80u);
+  ASSERT_LT(acknowledged.size(), 256u) << "the job finished before the kill";
+
+  // Every acknowledged result is DONE in the store with its hash, and its bytes are whole.
+  {
+    auto store = store::JobStore::open(root_ / "data" / "jobs.sqlite");
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto tasks = store->tasks_of(job_id);
+    ASSERT_TRUE(tasks.ok()) << tasks.status();
+    ASSERT_EQ(tasks->size(), 256u);
+    const int fd = ::open((root_ / "data" / "jobs" / job_id / "results.pack").c_str(), O_RDONLY);
+    ASSERT_GE(fd, 0);
+    int found = 0;
+    for (const Acknowledged& a : acknowledged) {
+      for (const store::TaskRecord& t : *tasks) {
+        if (!(t.rect == a.rect) || !(t.samples == a.samples)) continue;
+        ++found;
+        EXPECT_EQ(t.state, store::TaskState::kDone) << "task " << t.index;
+        EXPECT_EQ(t.result_hash, a.sha256) << "task " << t.index;
+        std::string bytes(t.result_size, '\0');
+        EXPECT_EQ(::pread(fd, bytes.data(), bytes.size(), t.result_offset), ssize_t(bytes.size()));
+        EXPECT_EQ(base::sha256_hex(bytes), a.sha256) << "task " << t.index;
+      }
+    }
+    ::close(fd);
+    EXPECT_EQ(found, int(acknowledged.size()));
+  }
+
+  start_coordinator(port);
+  workers.stop = false;
+  workers.start(8);
+  const v1::JobInfo done = wait_for(job_id, terminal, 60);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  EXPECT_EQ(done.progress().tasks_done(), 256u);
+  EXPECT_EQ(done.progress().samples_done(), done.progress().samples_total());
+  EXPECT_EQ(done.progress().samples_total(), 64u * 64u * 4u);
+  const std::string killed = fetch_bytes(job_id, v1::OUTPUT_KIND_SPECTRAL_EXR);
+
+  // The same job on the same coordinator without a kill.
+  const std::string again = submit(s);
+  ASSERT_FALSE(again.empty());
+  const v1::JobInfo done_again = wait_for(again, terminal, 60);
+  workers.join();
+  ASSERT_EQ(done_again.state(), v1::JOB_STATE_DONE) << done_again.error();
+  const std::string clean = fetch_bytes(again, v1::OUTPUT_KIND_SPECTRAL_EXR);
+  ASSERT_FALSE(clean.empty());
+  EXPECT_TRUE(killed == clean) << "the job across the kill differs from the same job without";
+  // Each pixel is the mean of its four ranges' values, 1..4: a range counted twice or lost
+  // would move it.
+  const fs::path file = root_ / "killed.exr";
+  std::ofstream(file, std::ios::binary) << killed;
+  const std::vector<float> pixels = read_pixels(file);
+  ASSERT_EQ(pixels.size(), 64u * 64u * 8u);
+  for (std::size_t i = 0; i < pixels.size(); ++i) ASSERT_EQ(pixels[i], pixels[i % 8]) << i;
 }
 
 TEST_F(FarmProcessTest, ACancelledJobFreesItsWorkerWithinAHeartbeat) {

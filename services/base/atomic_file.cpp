@@ -44,10 +44,11 @@ absl::StatusOr<std::string> read_file(const std::filesystem::path& path, std::ui
     return absl::InvalidArgumentError(absl::StrCat("not a regular file: ", path.string()));
   }
   auto size = std::filesystem::file_size(path, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot stat ", path.string(), ": ", ec.message()));
+  if (ec)
+    return absl::InternalError(absl::StrCat("cannot stat ", path.string(), ": ", ec.message()));
   if (size > max_bytes) {
-    return absl::ResourceExhaustedError(absl::StrCat(path.string(), " is ", size,
-                                                     " bytes, over the limit of ", max_bytes));
+    return absl::ResourceExhaustedError(
+        absl::StrCat(path.string(), " is ", size, " bytes, over the limit of ", max_bytes));
   }
   std::ifstream in(path, std::ios::binary);
   if (!in) return errno_status("cannot open", path);
@@ -59,8 +60,9 @@ absl::StatusOr<std::string> read_file(const std::filesystem::path& path, std::ui
   return bytes;
 }
 
-absl::Status write_via_temp(const std::filesystem::path& path,
-                            const std::function<absl::Status(const std::filesystem::path&)>& writer) {
+absl::Status write_via_temp(
+    const std::filesystem::path& path,
+    const std::function<absl::Status(const std::filesystem::path&)>& writer) {
   auto temp = temp_name_for(path);
   absl::Status status = writer(temp);
   if (status.ok()) status = fsync_path(temp);
@@ -83,6 +85,38 @@ absl::Status write_file_atomic(const std::filesystem::path& path, std::span<cons
     if (!out) return errno_status("cannot write", temp);
     return absl::OkStatus();
   });
+}
+
+namespace {
+
+template <typename Bytes, typename Io>
+absl::Status transfer(std::string_view what, const char* verb, Io io, int fd, Bytes* bytes,
+                      std::size_t size, std::uint64_t offset) {
+  while (size > 0) {
+    const ssize_t n = io(fd, bytes, size, static_cast<off_t>(offset));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      return absl::InternalError(
+          absl::StrCat(std::string(what), " ", verb, " at byte ", offset,
+                       " failed: ", n == 0 ? "end of file" : std::strerror(errno)));
+    }
+    bytes += n;
+    size -= std::size_t(n);
+    offset += std::uint64_t(n);
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::Status pwrite_all(int fd, const char* bytes, std::size_t size, std::uint64_t offset,
+                        std::string_view what) {
+  return transfer(what, "write", ::pwrite, fd, bytes, size, offset);
+}
+
+absl::Status pread_all(int fd, char* bytes, std::size_t size, std::uint64_t offset,
+                       std::string_view what) {
+  return transfer(what, "read", ::pread, fd, bytes, size, offset);
 }
 
 absl::Status make_directories(const std::filesystem::path& dir) {

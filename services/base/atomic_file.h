@@ -9,6 +9,7 @@
 #include <functional>
 #include <span>
 #include <string>
+#include <string_view>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -25,8 +26,16 @@ absl::Status write_file_atomic(const std::filesystem::path& path, std::span<cons
 
 // For libraries that can only write to a file name (OpenEXR, libpng): `writer` writes to the
 // temporary path it is given, and the file is renamed into place only if it returns OK.
-absl::Status write_via_temp(const std::filesystem::path& path,
-                            const std::function<absl::Status(const std::filesystem::path&)>& writer);
+absl::Status write_via_temp(
+    const std::filesystem::path& path,
+    const std::function<absl::Status(const std::filesystem::path&)>& writer);
+
+// All of `size` bytes at `offset` of an open file, through short transfers and interruptions;
+// INTERNAL naming `what` and the offset on an error (a read past the end is one).
+absl::Status pwrite_all(int fd, const char* bytes, std::size_t size, std::uint64_t offset,
+                        std::string_view what);
+absl::Status pread_all(int fd, char* bytes, std::size_t size, std::uint64_t offset,
+                       std::string_view what);
 
 // Creates `dir` and its parents when missing; INTERNAL naming the directory otherwise.
 absl::Status make_directories(const std::filesystem::path& dir);

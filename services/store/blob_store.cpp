@@ -45,6 +45,11 @@ absl::Status BlobStore::put_verified(std::string_view hash, std::string_view byt
     return absl::InvalidArgumentError(
         absl::StrCat("blob content does not match its hash ", std::string(hash)));
   }
+  return put_hashed(hash, bytes);
+}
+
+absl::Status BlobStore::put_hashed(std::string_view hash, std::string_view bytes) const {
+  PRISM_RETURN_IF_ERROR(check_hash(hash));
   if (contains(hash)) return absl::OkStatus();
   auto path = path_of(hash);
   std::error_code ec;

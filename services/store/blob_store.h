@@ -26,6 +26,10 @@ class BlobStore {
   // Stores bytes claimed to hash to `hash` (from a peer); INVALID_ARGUMENT if they do not.
   absl::Status put_verified(std::string_view hash, std::string_view bytes) const;
 
+  // put_verified for bytes whose hash the caller has just computed from them (an upload
+  // already checked against its claimed hash), without hashing them a second time.
+  absl::Status put_hashed(std::string_view hash, std::string_view bytes) const;
+
   bool contains(std::string_view hash) const;
 
   // NOT_FOUND for an unknown hash, INVALID_ARGUMENT for a malformed one. The bytes are

@@ -1,9 +1,16 @@
 #include "services/store/database.h"
 
+#include <fcntl.h>
 #include <sqlite3.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <mutex>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/check.h"
+#include "services/base/status.h"
 
 namespace prism::store {
 
@@ -31,37 +38,77 @@ bool SqlRow::is_null(std::size_t i) const {
 
 absl::StatusOr<Database> Database::open(const std::filesystem::path& file) {
   sqlite3* db = nullptr;
-  int rc = sqlite3_open_v2(file.c_str(), &db,
-                           SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX, nullptr);
+  int rc = sqlite3_open_v2(
+      file.c_str(), &db, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX, nullptr);
   if (rc != SQLITE_OK) {
     std::string message = db ? sqlite3_errmsg(db) : sqlite3_errstr(rc);
     sqlite3_close(db);
     return absl::FailedPreconditionError(
         absl::StrCat("cannot open database ", file.string(), ": ", message));
   }
-  Database database(db);
+  Database database(db, file);
   sqlite3_busy_timeout(db, 5000);
-  auto status = database.exec(
-      "PRAGMA journal_mode=WAL; PRAGMA synchronous=FULL; PRAGMA foreign_keys=ON;");
+  auto status =
+      database.exec("PRAGMA journal_mode=WAL; PRAGMA synchronous=FULL; PRAGMA foreign_keys=ON;");
   if (!status.ok()) return status;
   return database;
 }
 
-Database::Database(Database&& other) noexcept : db_(other.db_) { other.db_ = nullptr; }
+// The WAL file's descriptor, opened at the first sync (the file exists once anything has been
+// committed) and kept: fdatasync on any descriptor flushes the file's dirty pages, SQLite's own
+// writes included. The file keeps its inode while the connection is open (a checkpoint rewinds
+// it, never replaces it).
+struct Database::WalSync {
+  explicit WalSync(std::filesystem::path path) : path(std::move(path)) {}
+  ~WalSync() {
+    if (fd >= 0) ::close(fd);
+  }
+
+  absl::Status sync() {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (fd < 0) {
+      fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+      if (fd < 0) {
+        return absl::InternalError(
+            absl::StrCat("cannot open ", path.string(), " to sync it: ", std::strerror(errno)));
+      }
+    }
+    if (::fdatasync(fd) != 0) {
+      return absl::InternalError(
+          absl::StrCat("cannot sync ", path.string(), ": ", std::strerror(errno)));
+    }
+    return absl::OkStatus();
+  }
+
+  std::mutex mutex;  // guards fd's opening
+  std::filesystem::path path;
+  int fd = -1;
+};
+
+Database::Database(sqlite3* db, const std::filesystem::path& file)
+    : db_(db), wal_(std::make_unique<WalSync>(file.string() + "-wal")) {}
+
+Database::Database(Database&& other) noexcept : db_(other.db_), wal_(std::move(other.wal_)) {
+  other.db_ = nullptr;
+}
 
 Database& Database::operator=(Database&& other) noexcept {
   if (this != &other) {
     sqlite3_close(db_);
     db_ = other.db_;
+    wal_ = std::move(other.wal_);
     other.db_ = nullptr;
   }
   return *this;
 }
 
-Database::~Database() { sqlite3_close(db_); }
+Database::~Database() {
+  sqlite3_close(db_);
+}
 
 absl::Status Database::error(std::string_view what) const {
-  return absl::InternalError(absl::StrCat("sqlite: ", std::string(what), ": ", sqlite3_errmsg(db_)));
+  return absl::InternalError(
+      absl::StrCat("sqlite: ", std::string(what), ": ", sqlite3_errmsg(db_)));
 }
 
 absl::Status Database::exec(std::string_view sql) {
@@ -155,19 +202,33 @@ absl::StatusOr<std::vector<SqlRow>> Database::query(std::string_view sql,
   return rows;
 }
 
-absl::Status Database::transaction(const std::function<absl::Status()>& body) {
-  if (auto status = exec("BEGIN IMMEDIATE"); !status.ok()) return status;
-  absl::Status status = body();
+absl::Status Database::transaction(const std::function<absl::Status()>& body, Commit commit) {
+  // synchronous=NORMAL in WAL mode: the commit is appended to the WAL without a sync (still
+  // atomic, never corrupting); make_durable syncs it.
+  if (commit == Commit::kDeferred) PRISM_RETURN_IF_ERROR(exec("PRAGMA synchronous=NORMAL"));
+  absl::Status status = exec("BEGIN IMMEDIATE");
   if (status.ok()) {
-    status = exec("COMMIT");
-    if (status.ok()) return status;
+    status = body();
+    if (status.ok()) status = exec("COMMIT");
+    if (!status.ok()) (void)exec("ROLLBACK");
   }
-  (void)exec("ROLLBACK");
+  if (commit == Commit::kDeferred) {
+    absl::Status restored = exec("PRAGMA synchronous=FULL");
+    if (status.ok()) status = restored;
+  }
   return status;
 }
 
-std::int64_t Database::last_insert_rowid() const { return sqlite3_last_insert_rowid(db_); }
+absl::Status Database::sync_wal() const {
+  return wal_->sync();
+}
 
-std::int64_t Database::changes() const { return sqlite3_changes64(db_); }
+std::int64_t Database::last_insert_rowid() const {
+  return sqlite3_last_insert_rowid(db_);
+}
+
+std::int64_t Database::changes() const {
+  return sqlite3_changes64(db_);
+}
 
 }  // namespace prism::store

@@ -59,18 +59,34 @@ class Database {
   absl::StatusOr<std::vector<SqlRow>> query(std::string_view sql,
                                             const std::vector<SqlValue>& params = {});
 
+  // How a transaction's commit reaches the disk. kDurable: before transaction() returns
+  // (synchronous=FULL, one fsync of the WAL per commit). kDeferred: the commit is in the WAL
+  // (atomic, visible at once) but not yet synced; sync_wal() makes it durable, together with
+  // every other commit made before it, so one sync can serve a group of commits
+  // (group_commit.h). A durable commit also makes every earlier deferred one durable.
+  enum class Commit { kDurable, kDeferred };
+
   // Runs `body` in a transaction: committed if it returns OK, rolled back otherwise.
-  absl::Status transaction(const std::function<absl::Status()>& body);
+  absl::Status transaction(const std::function<absl::Status()>& body,
+                           Commit commit = Commit::kDurable);
+
+  // fdatasync of the WAL file: every commit made before the call is durable when it returns.
+  // Unlike the rest of this class it is thread-safe and needs no serialisation with the other
+  // calls, so a caller can release its own lock while it syncs.
+  absl::Status sync_wal() const;
 
   std::int64_t last_insert_rowid() const;
   std::int64_t changes() const;
 
  private:
-  explicit Database(sqlite3* db) : db_(db) {}
+  struct WalSync;
+
+  Database(sqlite3* db, const std::filesystem::path& file);
   absl::StatusOr<sqlite3_stmt*> prepare(std::string_view sql, const std::vector<SqlValue>& params);
   absl::Status error(std::string_view what) const;
 
   sqlite3* db_ = nullptr;
+  std::unique_ptr<WalSync> wal_;  // owned apart so that it outlives moves of the Database
 };
 
 }  // namespace prism::store

@@ -10,8 +10,9 @@ namespace fs = std::filesystem;
 class DatabaseTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("prism_db_" + std::to_string(::getpid()) + "_" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    dir_ = fs::temp_directory_path() /
+           ("prism_db_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
   }
@@ -27,8 +28,9 @@ TEST_F(DatabaseTest, UsesWalAndRoundTripsValues) {
   EXPECT_EQ((*mode)[0].text(0), "wal");
   ASSERT_TRUE(db->exec("CREATE TABLE t (id INTEGER PRIMARY KEY, x REAL, s BLOB, n TEXT)").ok());
   std::string bytes("a\0b", 3);
-  ASSERT_TRUE(db->run("INSERT INTO t (x, s, n) VALUES (?, ?, ?)",
-                      {2.5, SqlBlob{bytes}, std::monostate{}}).ok());
+  ASSERT_TRUE(
+      db->run("INSERT INTO t (x, s, n) VALUES (?, ?, ?)", {2.5, SqlBlob{bytes}, std::monostate{}})
+          .ok());
   EXPECT_EQ(db->last_insert_rowid(), 1);
   auto rows = db->query("SELECT id, x, s, n FROM t WHERE id = ?", {std::int64_t{1}});
   ASSERT_TRUE(rows.ok());
@@ -38,8 +40,8 @@ TEST_F(DatabaseTest, UsesWalAndRoundTripsValues) {
   EXPECT_EQ((*rows)[0].text(2), bytes);
   EXPECT_TRUE((*rows)[0].is_null(3));
   // Strings bind as TEXT, blobs as BLOB.
-  auto types = db->query("SELECT typeof(s), typeof(?), typeof(?) FROM t",
-                         {std::string("x"), SqlBlob{"y"}});
+  auto types =
+      db->query("SELECT typeof(s), typeof(?), typeof(?) FROM t", {std::string("x"), SqlBlob{"y"}});
   ASSERT_TRUE(types.ok());
   EXPECT_EQ((*types)[0].text(0), "blob");
   EXPECT_EQ((*types)[0].text(1), "text");
@@ -68,6 +70,39 @@ TEST_F(DatabaseTest, ErrorsCarrySqliteMessage) {
   EXPECT_NE(rows.status().message().find("no such table"), std::string::npos);
   auto bad = Database::open(dir_ / "no" / "such" / "dir" / "x.db");
   EXPECT_EQ(bad.status().code(), absl::StatusCode::kFailedPrecondition);
+}
+
+TEST_F(DatabaseTest, DeferredCommitsAreVisibleAtOnceAndTheConnectionSyncsOthersAgain) {
+  auto db = Database::open(dir_ / "jobs.db");
+  ASSERT_TRUE(db.ok()) << db.status();
+  ASSERT_TRUE(db->exec("CREATE TABLE t (id INTEGER PRIMARY KEY)").ok());
+  for (int i = 1; i <= 3; ++i) {
+    ASSERT_TRUE(
+        db->transaction([&] { return db->run("INSERT INTO t (id) VALUES (?)", {std::int64_t{i}}); },
+                        Database::Commit::kDeferred)
+            .ok());
+  }
+  // The connection is back to syncing every other commit (FULL is 2).
+  EXPECT_EQ((*db->query("PRAGMA synchronous"))[0].integer(0), 2);
+  // Committed: another connection reads them before any sync.
+  auto other = Database::open(dir_ / "jobs.db");
+  ASSERT_TRUE(other.ok());
+  EXPECT_EQ(other->query("SELECT id FROM t")->size(), 3u);
+  EXPECT_TRUE(db->sync_wal().ok());
+  // So is a rolled-back deferred transaction's connection.
+  EXPECT_FALSE(
+      db->transaction([] { return absl::AbortedError("no"); }, Database::Commit::kDeferred).ok());
+  EXPECT_EQ((*db->query("PRAGMA synchronous"))[0].integer(0), 2);
+  // A moved database syncs the same file.
+  Database moved = *std::move(db);
+  EXPECT_TRUE(moved.sync_wal().ok());
+  // A WAL that cannot be opened is an error that names it.
+  auto fresh = Database::open(dir_ / "fresh.db");
+  ASSERT_TRUE(fresh.ok());
+  fs::remove(dir_ / "fresh.db-wal");
+  const absl::Status missing = fresh->sync_wal();
+  EXPECT_EQ(missing.code(), absl::StatusCode::kInternal);
+  EXPECT_NE(missing.message().find("fresh.db-wal"), std::string::npos) << missing;
 }
 
 }  // namespace

@@ -74,6 +74,12 @@ CREATE TABLE workers (
     R"sql(
 CREATE INDEX tasks_by_result ON tasks (result_hash) WHERE result_hash != '';
 )sql",
+    // Results kept in the job's result pack (coordinator/result_pack.h) at an offset; -1: in
+    // the blob store, as every result before this version.
+    R"sql(
+ALTER TABLE tasks ADD COLUMN result_offset INTEGER NOT NULL DEFAULT -1;
+ALTER TABLE tasks ADD COLUMN result_size INTEGER NOT NULL DEFAULT 0;
+)sql",
 };
 static_assert(std::size(kMigrations) == JobStore::kSchemaVersion);
 
@@ -84,6 +90,10 @@ constexpr std::string_view kJobColumns =
 constexpr std::string_view kTaskColumns =
     "task_index, pass, pass_index, tile_index, x0, y0, x1, y1, s0, s1, state, attempts, "
     "result_hash";
+// What a read returns: the inserted columns and where the result is kept.
+constexpr std::string_view kTaskReadColumns =
+    "task_index, pass, pass_index, tile_index, x0, y0, x1, y1, s0, s1, state, attempts, "
+    "result_hash, result_offset, result_size";
 
 constexpr std::string_view kWorkerColumns =
     "id, host, version, threads, capabilities, last_seen_ms";
@@ -138,6 +148,8 @@ TaskRecord task_from_row(const SqlRow& row) {
   task.state = static_cast<TaskState>(row.integer(10));
   task.attempts = static_cast<int>(row.integer(11));
   task.result_hash = row.text(12);
+  task.result_offset = row.integer(13);
+  task.result_size = static_cast<std::uint64_t>(row.integer(14));
   return task;
 }
 
@@ -478,7 +490,7 @@ absl::Status JobStore::set_report(std::string_view job_id, std::string_view repo
 absl::StatusOr<std::vector<TaskRecord>> JobStore::query_tasks(std::string_view job_id,
                                                               bool pending_only) {
   std::string sql =
-      absl::StrCat("SELECT ", std::string(kTaskColumns), " FROM tasks WHERE job_id = ?");
+      absl::StrCat("SELECT ", std::string(kTaskReadColumns), " FROM tasks WHERE job_id = ?");
   std::vector<SqlValue> params = {text(job_id)};
   if (pending_only) {
     sql += " AND state = ?";
@@ -504,7 +516,8 @@ absl::StatusOr<std::vector<std::string>> JobStore::unshared_results(std::string_
       auto rows,
       db_.query(
           absl::StrCat("SELECT DISTINCT t.result_hash FROM tasks t WHERE t.job_id = ?1 AND "
-                       "t.result_hash != '' AND NOT EXISTS (SELECT 1 FROM tasks u JOIN jobs j ON "
+                       "t.result_hash != '' AND t.result_offset < 0 AND NOT EXISTS (SELECT 1 FROM "
+                       "tasks u JOIN jobs j ON "
                        "j.id = u.job_id WHERE u.result_hash = t.result_hash AND u.job_id != ?1 AND "
                        "j.state NOT IN (",
                        static_cast<int>(JobState::kDone), ", ", static_cast<int>(JobState::kFailed),
@@ -533,7 +546,7 @@ absl::Status JobStore::skip_tasks(std::string_view job_id, int first, int last) 
           "job ", in_quotes(job_id), " is ", to_string(job.state), ": no tasks are skipped"));
     }
     PRISM_ASSIGN_OR_RETURN(
-        auto rows, db_.query(absl::StrCat("SELECT ", std::string(kTaskColumns),
+        auto rows, db_.query(absl::StrCat("SELECT ", std::string(kTaskReadColumns),
                                           " FROM tasks WHERE job_id = ? AND task_index >= ? AND "
                                           "task_index < ? ORDER BY task_index"),
                              {text(job_id), integer(first), integer(last)}));
@@ -563,67 +576,97 @@ absl::Status JobStore::skip_tasks(std::string_view job_id, int first, int last) 
 }
 
 absl::StatusOr<bool> JobStore::mark_task_done(std::string_view job_id, int task_index,
-                                              std::string_view result_hash) {
+                                              std::string_view result_hash,
+                                              ResultLocation location) {
   if (result_hash.empty()) {
     return absl::InvalidArgumentError(
         absl::StrCat("job ", in_quotes(job_id), " task ", task_index, ": empty result hash"));
   }
   bool newly_done = false;
-  auto status = db_.transaction([&]() -> absl::Status {
-    PRISM_ASSIGN_OR_RETURN(JobRecord job, get_job_row(job_id));
-    PRISM_ASSIGN_OR_RETURN(
-        auto rows, db_.query(absl::StrCat("SELECT ", std::string(kTaskColumns),
-                                          " FROM tasks WHERE job_id = ? AND task_index = ?"),
-                             {text(job_id), integer(task_index)}));
-    if (rows.empty()) {
-      return absl::NotFoundError(absl::StrCat("job ", in_quotes(job_id), " has no task ",
-                                              task_index, " (it has ", job.progress.tasks_total,
-                                              ")"));
-    }
-    TaskRecord task = task_from_row(rows[0]);
-    if (task.state == TaskState::kDone) {
-      if (task.result_hash == result_hash) return absl::OkStatus();
-      return absl::DataLossError(absl::StrCat(
-          "job ", in_quotes(job_id), " task ", task_index, " is already done with result ",
-          task.result_hash, " but a result with hash ", std::string(result_hash),
-          " arrived: renders are deterministic, so one of them is corrupt"));
-    }
-    if (job.state == JobState::kFailed || job.state == JobState::kCancelled) {
-      return absl::FailedPreconditionError(absl::StrCat("job ", in_quotes(job_id), " is ",
-                                                        to_string(job.state), ": result for task ",
-                                                        task_index, " refused"));
-    }
-    PRISM_RETURN_IF_ERROR(
-        db_.run("UPDATE tasks SET state = ?, result_hash = ? "
-                "WHERE job_id = ? AND task_index = ?",
-                {integer(static_cast<int>(TaskState::kDone)), text(result_hash), text(job_id),
-                 integer(task_index)}));
-    PRISM_RETURN_IF_ERROR(
-        db_.run("UPDATE jobs SET tasks_done = tasks_done + 1, samples_done = samples_done + ? "
-                "WHERE id = ?",
-                {integer(static_cast<std::int64_t>(task_samples(task))), text(job_id)}));
-    newly_done = true;
-    return absl::OkStatus();
-  });
+  auto status = db_.transaction(
+      [&]() -> absl::Status {
+        PRISM_ASSIGN_OR_RETURN(JobRecord job, get_job_row(job_id));
+        PRISM_ASSIGN_OR_RETURN(
+            auto rows, db_.query(absl::StrCat("SELECT ", std::string(kTaskReadColumns),
+                                              " FROM tasks WHERE job_id = ? AND task_index = ?"),
+                                 {text(job_id), integer(task_index)}));
+        if (rows.empty()) {
+          return absl::NotFoundError(absl::StrCat("job ", in_quotes(job_id), " has no task ",
+                                                  task_index, " (it has ", job.progress.tasks_total,
+                                                  ")"));
+        }
+        TaskRecord task = task_from_row(rows[0]);
+        if (task.state == TaskState::kDone) {
+          if (task.result_hash == result_hash) return absl::OkStatus();
+          return absl::DataLossError(absl::StrCat(
+              "job ", in_quotes(job_id), " task ", task_index, " is already done with result ",
+              task.result_hash, " but a result with hash ", std::string(result_hash),
+              " arrived: renders are deterministic, so one of them is corrupt"));
+        }
+        if (job.state == JobState::kFailed || job.state == JobState::kCancelled) {
+          return absl::FailedPreconditionError(
+              absl::StrCat("job ", in_quotes(job_id), " is ", to_string(job.state),
+                           ": result for task ", task_index, " refused"));
+        }
+        PRISM_RETURN_IF_ERROR(db_.run(
+            "UPDATE tasks SET state = ?, result_hash = ?, result_offset = ?, result_size = ? "
+            "WHERE job_id = ? AND task_index = ?",
+            {integer(static_cast<int>(TaskState::kDone)), text(result_hash),
+             integer(location.offset), integer(static_cast<std::int64_t>(location.size)),
+             text(job_id), integer(task_index)}));
+        PRISM_RETURN_IF_ERROR(
+            db_.run("UPDATE jobs SET tasks_done = tasks_done + 1, samples_done = samples_done + ? "
+                    "WHERE id = ?",
+                    {integer(static_cast<std::int64_t>(task_samples(task))), text(job_id)}));
+        newly_done = true;
+        return absl::OkStatus();
+      },
+      Database::Commit::kDeferred);
   if (!status.ok()) return status;
   return newly_done;
 }
 
-absl::StatusOr<int> JobStore::record_attempt(std::string_view job_id, int task_index) {
-  int attempts = 0;
-  auto status = db_.transaction([&]() -> absl::Status {
+absl::Status JobStore::reopen_task(std::string_view job_id, int task_index) {
+  return db_.transaction([&]() -> absl::Status {
     PRISM_RETURN_IF_ERROR(get_job_row(job_id).status());
-    PRISM_ASSIGN_OR_RETURN(auto rows,
-                           db_.query("UPDATE tasks SET attempts = attempts + 1 "
-                                     "WHERE job_id = ? AND task_index = ? RETURNING attempts",
-                                     {text(job_id), integer(task_index)}));
+    PRISM_ASSIGN_OR_RETURN(
+        auto rows, db_.query(absl::StrCat("SELECT ", std::string(kTaskReadColumns),
+                                          " FROM tasks WHERE job_id = ? AND task_index = ?"),
+                             {text(job_id), integer(task_index)}));
     if (rows.empty()) {
       return absl::NotFoundError(
           absl::StrCat("job ", in_quotes(job_id), " has no task ", task_index));
     }
-    attempts = static_cast<int>(rows[0].integer(0));
-    return absl::OkStatus();
+    const TaskRecord task = task_from_row(rows[0]);
+    if (task.state != TaskState::kDone) return absl::OkStatus();
+    PRISM_RETURN_IF_ERROR(db_.run(
+        "UPDATE tasks SET state = ?, result_hash = '', result_offset = -1, "
+        "result_size = 0 WHERE job_id = ? AND task_index = ?",
+        {integer(static_cast<int>(TaskState::kPending)), text(job_id), integer(task_index)}));
+    return db_.run(
+        "UPDATE jobs SET tasks_done = tasks_done - 1, samples_done = samples_done - ? "
+        "WHERE id = ?",
+        {integer(static_cast<std::int64_t>(task_samples(task))), text(job_id)});
   });
+}
+
+absl::StatusOr<int> JobStore::record_attempt(std::string_view job_id, int task_index) {
+  int attempts = 0;
+  auto status = db_.transaction(
+      [&]() -> absl::Status {
+        PRISM_RETURN_IF_ERROR(get_job_row(job_id).status());
+        PRISM_ASSIGN_OR_RETURN(auto rows,
+                               db_.query("UPDATE tasks SET attempts = attempts + 1 "
+                                         "WHERE job_id = ? AND task_index = ? RETURNING attempts",
+                                         {text(job_id), integer(task_index)}));
+        if (rows.empty()) {
+          return absl::NotFoundError(
+              absl::StrCat("job ", in_quotes(job_id), " has no task ", task_index));
+        }
+        attempts = static_cast<int>(rows[0].integer(0));
+        return absl::OkStatus();
+      },
+      Database::Commit::kDeferred);
   if (!status.ok()) return status;
   return attempts;
 }
@@ -736,12 +779,16 @@ absl::StatusOr<WorkerRecord> JobStore::register_worker(WorkerRecord record) {
 }
 
 absl::Status JobStore::touch_worker(std::string_view worker_id, std::int64_t now_ms) {
-  PRISM_RETURN_IF_ERROR(db_.run("UPDATE workers SET last_seen_ms = ? WHERE id = ?",
-                                {integer(now_ms), text(worker_id)}));
-  if (db_.changes() == 0) {
-    return absl::NotFoundError(absl::StrCat("no worker ", in_quotes(worker_id)));
-  }
-  return absl::OkStatus();
+  return db_.transaction(
+      [&]() -> absl::Status {
+        PRISM_RETURN_IF_ERROR(db_.run("UPDATE workers SET last_seen_ms = ? WHERE id = ?",
+                                      {integer(now_ms), text(worker_id)}));
+        if (db_.changes() == 0) {
+          return absl::NotFoundError(absl::StrCat("no worker ", in_quotes(worker_id)));
+        }
+        return absl::OkStatus();
+      },
+      Database::Commit::kDeferred);
 }
 
 absl::StatusOr<WorkerRecord> JobStore::get_worker(std::string_view worker_id) {

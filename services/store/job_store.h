@@ -93,7 +93,17 @@ struct TaskRecord {
   TaskState state = TaskState::kPending;
   int attempts = 0;         // leases handed out for this task so far
   std::string result_hash;  // hex hash of the accepted result; empty while pending
+  // Where the result is kept: bytes [result_offset, result_offset + result_size) of the job's
+  // result pack, or the blob store (under result_hash) when result_offset is -1.
+  std::int64_t result_offset = -1;
+  std::uint64_t result_size = 0;
   friend bool operator==(const TaskRecord&, const TaskRecord&) = default;
+};
+
+// Where mark_task_done records a result is kept (TaskRecord::result_offset).
+struct ResultLocation {
+  std::int64_t offset = -1;  // in the job's result pack; -1: the blob store
+  std::uint64_t size = 0;
 };
 
 struct WorkerRecord {
@@ -114,7 +124,7 @@ struct CreateJobResult {
 class JobStore {
  public:
   // The schema version this build writes; open() migrates older files up to it.
-  static constexpr int kSchemaVersion = 2;
+  static constexpr int kSchemaVersion = 3;
 
   // Opens or creates the store file and applies pending migrations, each in its own
   // transaction with its user_version bump. FAILED_PRECONDITION when the file has a newer
@@ -165,8 +175,15 @@ class JobStore {
   // duplicate with the same hash (harmless: nothing changes). DATA_LOSS when the task is
   // already done with a different hash; FAILED_PRECONDITION when the job is FAILED or
   // CANCELLED; NOT_FOUND for an unknown job or task; INVALID_ARGUMENT for an empty hash.
+  // The commit is deferred (Database::Commit): it is visible at once, and durable only after
+  // sync(), which a caller must wait for before acknowledging it.
   absl::StatusOr<bool> mark_task_done(std::string_view job_id, int task_index,
-                                      std::string_view result_hash);
+                                      std::string_view result_hash, ResultLocation location = {});
+  // Undoes a task's DONE (back to PENDING, its result and progress forgotten): for a result a
+  // restarted coordinator finds missing or damaged after a power loss. Its record reached the
+  // disk before its bytes did, so it was never acknowledged (an acknowledgement waits for both).
+  // OK when the task is not DONE; NOT_FOUND for an unknown job or task.
+  absl::Status reopen_task(std::string_view job_id, int task_index);
 
   // Marks the tasks [first, last) SKIPPED (TaskState) and counts them, and their samples, as
   // finished in the progress. Tasks already SKIPPED stay so (a restarted coordinator repeats the
@@ -175,7 +192,8 @@ class JobStore {
   absl::Status skip_tasks(std::string_view job_id, int first, int last);
 
   // Counts one more lease handed out for the task and returns the new attempt number (1 for
-  // the first lease).
+  // the first lease). Deferred like mark_task_done: a lease is no acknowledgement, and an
+  // attempt lost with the machine's power only undercounts.
   absl::StatusOr<int> record_attempt(std::string_view job_id, int task_index);
 
   // Counts one more failure of `worker_id` on the job and returns the new count.
@@ -204,11 +222,15 @@ class JobStore {
   // Registers a worker (assigning a new id when record.id is empty) or updates a known one
   // (a worker reattaching after a restart keeps its id). Returns the stored record.
   absl::StatusOr<WorkerRecord> register_worker(WorkerRecord record);
-  // NOT_FOUND for an unknown worker.
+  // NOT_FOUND for an unknown worker. Deferred like record_attempt (last_seen_ms is advice).
   absl::Status touch_worker(std::string_view worker_id, std::int64_t now_ms);
   absl::StatusOr<WorkerRecord> get_worker(std::string_view worker_id);
   // In registration order.
   absl::StatusOr<std::vector<WorkerRecord>> list_workers();
+
+  // Makes every write so far durable, the deferred ones included: thread-safe, see
+  // Database::sync_wal.
+  absl::Status sync() const { return db_.sync_wal(); }
 
   // The underlying connection, for inspection and tests.
   Database& database() { return db_; }
