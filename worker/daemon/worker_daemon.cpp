@@ -145,8 +145,11 @@ WorkerDaemon::~WorkerDaemon() {
   {
     std::lock_guard<std::mutex> lock(mutex_);
     stop_heartbeats_ = true;
+    stop_uploads_ = true;
   }
   wake_.notify_all();
+  uploads_changed_.notify_all();
+  if (upload_thread_.joinable()) upload_thread_.join();
   if (heartbeat_thread_.joinable()) heartbeat_thread_.join();
 }
 
@@ -221,6 +224,7 @@ absl::Status WorkerDaemon::run() {
     }
   }
   heartbeat_thread_ = std::thread([this] { heartbeat_loop(); });
+  if (config_.uploads_in_flight > 0) upload_thread_ = std::thread([this] { upload_loop(); });
 
   absl::Status result;
   while (!draining()) {
@@ -250,7 +254,15 @@ absl::Status WorkerDaemon::run() {
     process(response->lease());
   }
 
-  // Reverse order of startup: heartbeats stop after the last lease is settled.
+  // Reverse order of startup: the last results are sent, then heartbeats stop after the last
+  // lease is settled.
+  flush_uploads();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    stop_uploads_ = true;
+  }
+  uploads_changed_.notify_all();
+  if (upload_thread_.joinable()) upload_thread_.join();
   {
     std::lock_guard<std::mutex> lock(mutex_);
     stop_heartbeats_ = true;
@@ -307,6 +319,7 @@ void WorkerDaemon::send_heartbeat() {
       request.add_lease_ids(held_->lease_id);
       request.set_samples_done(held_->progress.load());
     }
+    for (const Upload& waiting : uploads_) request.add_lease_ids(waiting.lease_id);
     interval = heartbeat_interval_;
   }
   absl::StatusOr<v1::HeartbeatResponse> response =
@@ -392,15 +405,18 @@ void WorkerDaemon::process(const v1::Lease& lease) {
   wake_.notify_all();
 
   if (status.ok()) {
-    absl::StatusOr<v1::CompleteTaskResponse> response =
-        client_.complete_task(worker_id(), lease.lease_id(), bytes, stats.seconds,
-                              stats.counters.rays, counter_list(stats.counters));
-    if (!response.ok()) {
-      logger_->warn("{} {}", context, std::string(response.status().message()));
-    } else {
-      logger_->debug("{} completed: {} bytes in {:.3f} s{}", context, bytes.size(), stats.seconds,
-                     response->accepted() ? "" : " (a duplicate)");
+    Upload result{lease.lease_id(), context, std::move(bytes), stats};
+    if (config_.uploads_in_flight <= 0) {
+      upload(result);
+      return;
     }
+    // The next task renders while this one uploads; a full queue waits for room first.
+    std::unique_lock<std::mutex> lock(mutex_);
+    uploads_changed_.wait(lock, [&] {
+      return uploads_.size() < std::size_t(config_.uploads_in_flight) || stop_uploads_;
+    });
+    uploads_.push_back(std::move(result));
+    uploads_changed_.notify_all();
     return;
   }
   if (status.code() == absl::StatusCode::kCancelled && reason != CancelReason::kNone) {
@@ -412,6 +428,38 @@ void WorkerDaemon::process(const v1::Lease& lease) {
     return;
   }
   fail(lease.lease_id(), failure_class, std::string(status.message()), context);
+}
+
+void WorkerDaemon::upload(const Upload& result) {
+  absl::StatusOr<v1::CompleteTaskResponse> response =
+      client_.complete_task(worker_id(), result.lease_id, result.bytes, result.stats.seconds,
+                            result.stats.counters.rays, counter_list(result.stats.counters));
+  if (!response.ok()) {
+    logger_->warn("{} {}", result.context, std::string(response.status().message()));
+  } else {
+    logger_->debug("{} completed: {} bytes in {:.3f} s{}", result.context, result.bytes.size(),
+                   result.stats.seconds, response->accepted() ? "" : " (a duplicate)");
+  }
+}
+
+void WorkerDaemon::upload_loop() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  for (;;) {
+    uploads_changed_.wait(lock, [&] { return !uploads_.empty() || stop_uploads_; });
+    if (uploads_.empty()) return;
+    // The front stays queued while it uploads: heartbeats keep its lease alive.
+    const Upload& front = uploads_.front();
+    lock.unlock();
+    upload(front);
+    lock.lock();
+    uploads_.pop_front();
+    uploads_changed_.notify_all();
+  }
+}
+
+void WorkerDaemon::flush_uploads() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  uploads_changed_.wait(lock, [&] { return uploads_.empty() || !upload_thread_.joinable(); });
 }
 
 absl::StatusOr<fs::path> WorkerDaemon::ensure_bundle(const std::string& hash,

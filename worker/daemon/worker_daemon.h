@@ -15,9 +15,15 @@
 // does not decode, or a tile outside its film), or INFRASTRUCTURE when the coordinator could not
 // be reached for the bundle.
 //
+// Uploads are pipelined: a finished result goes to a bounded queue that an uploader thread sends
+// from, while the next task is acquired and rendered; a full queue holds back the next render
+// (WorkerConfig::uploads_in_flight). A result still queued when the process dies is simply lost:
+// its lease expires and the task runs again, as for any crash.
+//
 // Heartbeats run on their own thread every heartbeat_interval_ms (from Register) and carry the
-// held lease. Directives: CANCEL_TASK sets the render's cancel flag (it stops between pixels and
-// the task is dropped without a result), DRAIN drains, REREGISTER registers again.
+// held lease and those of the results waiting for or in upload (so their deadlines move on).
+// Directives: CANCEL_TASK sets the render's cancel flag (it stops between pixels and the task is
+// dropped without a result), DRAIN drains, REREGISTER registers again.
 //
 // Drain (like Seastar's gate): stop acquiring (an AcquireTask in flight is cancelled); a task in
 // progress is finished if it completes before the lease deadline known when the drain began, or
@@ -34,6 +40,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <deque>
 #include <filesystem>
 #include <memory>
 #include <mutex>
@@ -66,6 +73,9 @@ struct WorkerConfig {
   // Pause after a failed Register or AcquireTask (past the client's own retries) before trying
   // again.
   std::chrono::milliseconds acquire_error_pause{1'000};
+  // Finished results waiting for or in upload while the next task renders; 0: each result is
+  // uploaded before the next task is acquired.
+  int uploads_in_flight = 1;
 };
 
 class WorkerDaemon {
@@ -100,11 +110,22 @@ class WorkerDaemon {
   };
   struct TaskFailure;
   struct CachedScene;
+  // A rendered result for the uploader.
+  struct Upload {
+    std::string lease_id;
+    std::string context;
+    std::string bytes;
+    TileStats stats;
+  };
 
   absl::Status register_worker();
   void heartbeat_loop();
   void send_heartbeat();
   void process(const v1::Lease& lease);
+  void upload(const Upload& result);
+  void upload_loop();
+  // Waits until every queued result has been uploaded.
+  void flush_uploads();
   // Renders the lease's task into its canonical bytes and statistics; on failure, says how to
   // classify it.
   absl::Status execute(const v1::Lease& lease, HeldLease& held, const std::string& context,
@@ -131,8 +152,12 @@ class WorkerDaemon {
   bool draining_ = false;
   std::optional<std::int64_t> drain_deadline_unix_ms_;  // of the held lease, fixed at drain
   bool stop_heartbeats_ = false;
-  HeldLease* held_ = nullptr;  // the lease being worked on, owned by process()
+  HeldLease* held_ = nullptr;   // the lease being worked on, owned by process()
+  std::deque<Upload> uploads_;  // the front is in upload
+  bool stop_uploads_ = false;
+  std::condition_variable uploads_changed_;
   std::thread heartbeat_thread_;
+  std::thread upload_thread_;
 };
 
 }  // namespace prism::worker

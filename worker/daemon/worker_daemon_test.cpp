@@ -21,6 +21,7 @@
 #include <optional>
 #include <thread>
 
+#include "absl/strings/str_cat.h"
 #include "services/base/sha256.h"
 #include "services/image/tile_codec.h"
 #include "services/job/job_spec.h"
@@ -61,11 +62,13 @@ class FakeCoordinator final : public v1::WorkerService::Service {
   std::string blob;  // what FetchBundle streams
   v1::Lease lease;   // handed out by the first AcquireTask
   std::uint32_t heartbeat_interval_ms = 100;
-  bool cancel_when_rendering = false;  // CANCEL_TASK once a heartbeat reports progress
-  bool drain_when_holding = false;     // DRAIN once a heartbeat carries the lease
-  bool reregister_once = false;        // REREGISTER on the first heartbeat
-  int unavailable_registers = 0;       // answer this many Register calls with UNAVAILABLE
-  std::string secret;                  // the worker secret every call must carry
+  bool cancel_when_rendering = false;   // CANCEL_TASK once a heartbeat reports progress
+  bool drain_when_holding = false;      // DRAIN once a heartbeat carries the lease
+  bool reregister_once = false;         // REREGISTER on the first heartbeat
+  int unavailable_registers = 0;        // answer this many Register calls with UNAVAILABLE
+  std::string secret;                   // the worker secret every call must carry
+  std::vector<v1::Lease> later_leases;  // handed out by the AcquireTasks after the first
+  bool hold_uploads = false;            // CompleteTask answers only once this is false
 
   grpc::Status Register(grpc::ServerContext* context, const v1::RegisterRequest* request,
                         v1::RegisterResponse* response) override {
@@ -91,6 +94,11 @@ class FakeCoordinator final : public v1::WorkerService::Service {
     if (!handed_out) {
       handed_out = true;
       *response->mutable_lease() = lease;
+      return grpc::Status::OK;
+    }
+    if (later_handed < later_leases.size()) {
+      *response->mutable_lease() = later_leases[later_handed++];
+      changed.notify_all();
       return grpc::Status::OK;
     }
     acquires_after_lease.push_back(Clock::now());
@@ -148,7 +156,10 @@ class FakeCoordinator final : public v1::WorkerService::Service {
         upload.counters.insert(chunk.counters().begin(), chunk.counters().end());
       }
     }
-    std::lock_guard<std::mutex> lock(mutex);
+    std::unique_lock<std::mutex> lock(mutex);
+    uploads_started.push_back(upload.lease_id);
+    changed.notify_all();
+    changed.wait(lock, [&] { return !hold_uploads; });
     uploads.push_back(std::move(upload));
     response->set_accepted(true);
     changed.notify_all();
@@ -199,6 +210,8 @@ class FakeCoordinator final : public v1::WorkerService::Service {
   std::mutex mutex;
   std::condition_variable changed;
   bool handed_out = false;
+  std::size_t later_handed = 0;              // of later_leases
+  std::vector<std::string> uploads_started;  // lease ids, as each upload arrived whole
   std::vector<v1::RegisterRequest> registrations;
   int refused_secrets = 0;
   std::vector<v1::HeartbeatRequest> heartbeats;
@@ -441,6 +454,49 @@ TEST_F(WorkerDaemonTest, FetchesRendersAndUploadsTheSameBytesAsAnInProcessRender
   EXPECT_TRUE(upload.bytes == render_in_process(fake_.lease));
   // The bundle stays cached under its hash.
   EXPECT_TRUE(fs::is_regular_file(cache_dir_ / bundle_.content_hash / "furnace.pbrt"));
+}
+
+// Issue 18: a worker renders task N+1 while task N uploads, with at most one result waiting
+// (WorkerConfig::uploads_in_flight = 1), and keeps the uploading lease alive by heartbeat.
+TEST_F(WorkerDaemonTest, RendersTheNextTaskWhileAResultUploadsWithABoundedQueue) {
+  fake_.lease = make_lease(rect(0, 0, 16, 16), 0, 8, 5);
+  for (const char* id : {"lease-2", "lease-3"}) {
+    v1::Lease next = fake_.lease;
+    next.set_lease_id(id);
+    fake_.later_leases.push_back(next);
+  }
+  fake_.hold_uploads = true;
+  start_worker();
+  // lease-1's upload is held; lease-2 is handed out and rendered meanwhile, and its result
+  // queued behind lease-1's, so the worker asks for nothing more.
+  ASSERT_TRUE(
+      fake_.wait([&] { return fake_.uploads_started.size() == 1 && fake_.later_handed >= 1; }));
+  ASSERT_TRUE(fake_.wait([&] {
+    for (const v1::HeartbeatRequest& beat : fake_.heartbeats) {
+      for (const std::string& id : beat.lease_ids()) {
+        if (id == "lease-1") return true;
+      }
+    }
+    return false;
+  })) << "the uploading lease is not kept alive";
+  std::this_thread::sleep_for(500ms);
+  {
+    std::lock_guard<std::mutex> lock(fake_.mutex);
+    EXPECT_EQ(fake_.later_handed, 1u) << "a third task was taken while two results were held";
+    EXPECT_EQ(fake_.uploads_started, std::vector<std::string>{"lease-1"});
+    fake_.hold_uploads = false;
+  }
+  fake_.changed.notify_all();
+  ASSERT_TRUE(fake_.wait([&] { return fake_.uploads.size() == 3; }));
+  ASSERT_TRUE(stop_worker());
+  EXPECT_TRUE(run_status_.ok()) << run_status_;
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  EXPECT_TRUE(fake_.failures.empty());
+  ASSERT_EQ(fake_.uploads.size(), 3u);
+  for (std::size_t i = 0; i < 3; ++i) {
+    EXPECT_EQ(fake_.uploads[i].lease_id, absl::StrCat("lease-", i + 1));
+    EXPECT_TRUE(fake_.uploads[i].bytes == fake_.uploads[0].bytes);
+  }
 }
 
 TEST_F(WorkerDaemonTest, ACancelDirectiveStopsALongTaskWithinOneHeartbeat) {

@@ -73,6 +73,11 @@ int main(int argc, char** argv) {
                  "seconds a drain (SIGTERM) waits for the task in progress before handing it "
                  "back (0: up to its lease's deadline)")
       ->check(CLI::Range(0.0, 86400.0));
+  int uploads_in_flight = 1;
+  app.add_option("--uploads-in-flight", uploads_in_flight,
+                 "finished results that may wait for or be in upload while the next task renders "
+                 "(0: upload each before taking the next)")
+      ->check(CLI::Range(0, 16));
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
   CLI11_PARSE(app, argc, argv);
@@ -113,6 +118,7 @@ int main(int argc, char** argv) {
   config.threads = threads;
   config.cache_dir = cache_dir;
   config.drain_timeout = std::chrono::milliseconds(std::int64_t(drain_timeout * 1000));
+  config.uploads_in_flight = uploads_in_flight;
   prism::worker::WorkerDaemon daemon(config, client, device, *library, arena, logger);
   logger->info("prism-worker {} on {}: coordinator {}, {} threads, cache {}", PRISM_VERSION, host,
                coordinator, threads, cache_dir);
