@@ -27,6 +27,19 @@ store::TaskPass store_pass(Pass pass) {
   return pass == Pass::kPrepass ? store::TaskPass::kPrepass : store::TaskPass::kFinal;
 }
 
+// Task `i` of the job's plan as the store records it.
+store::TaskRecord task_record(const ActiveJob& job, const std::vector<TaskSpec>& specs, int i) {
+  store::TaskRecord task;
+  const TaskSpec& spec = specs[static_cast<std::size_t>(i)];
+  task.index = i;
+  task.pass = store_pass(spec.pass);
+  task.pass_index = spec.pass_index;
+  task.tile_index = job.tile_of(i);
+  task.rect = spec.tile;
+  task.samples = spec.samples;
+  return task;
+}
+
 }  // namespace
 
 FarmCoordinator::FarmCoordinator(FarmOptions options)
@@ -336,19 +349,36 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
   const std::vector<TaskSpec> specs = active->task_specs();
   std::vector<store::TaskRecord> tasks(specs.size());
   for (std::size_t i = 0; i < specs.size(); ++i) {
-    tasks[i].index = static_cast<int>(i);
-    tasks[i].pass = store_pass(specs[i].pass);
-    tasks[i].pass_index = specs[i].pass_index;
-    tasks[i].tile_index = active->tile_of(static_cast<int>(i));
-    tasks[i].rect = specs[i].tile;
-    tasks[i].samples = specs[i].samples;
+    tasks[i] = task_record(*active, specs, static_cast<int>(i));
   }
   lock.lock();
   PRISM_RETURN_IF_ERROR(check_queue());
   if (options_.before_store_job) options_.before_store_job();
-  PRISM_ASSIGN_OR_RETURN(store::CreateJobResult created, store_->create_job(record, tasks));
+  // The tasks go to the store in parts, the lock released between them: storing a job of
+  // hundreds of thousands of tasks holds up heartbeats and leases for one part at a time. Until
+  // the last part the job is QUEUED and unknown to the scheduler; a restart before then stores
+  // the rest (resume_locked), a cancel meanwhile ends the submission.
+  const std::span<const store::TaskRecord> all(tasks);
+  const std::size_t part = std::max<std::size_t>(1, options_.tasks_per_store_part);
+  const std::size_t first_part = std::min(all.size(), part);
+  PRISM_ASSIGN_OR_RETURN(store::CreateJobResult created,
+                         store_->create_job(record, all.first(first_part)));
   if (created.existed) return status_locked(created.job);
   const std::string id = created.job.id;
+  for (std::size_t at = first_part; at < all.size(); at += part) {
+    lock.unlock();
+    if (options_.between_task_parts) PRISM_RETURN_IF_ERROR(options_.between_task_parts(id));
+    lock.lock();
+    absl::Status added = store_->add_tasks(id, all.subspan(at, std::min(part, all.size() - at)),
+                                           store::Database::Commit::kDeferred);
+    if (!added.ok()) {
+      absl::StatusOr<store::JobRecord> now_record = store_->get_job(id);
+      if (now_record.ok() && !store::is_terminal(now_record->state)) {
+        fail_job_locked(id, absl::StrCat("cannot store its tasks: ", added.message()));
+      }
+      return added;
+    }
+  }
   if (absl::Status attached = active->attach_tiles(tiles_dir(id)); !attached.ok()) {
     (void)store_->set_job_state(id, store::JobState::kFailed, now().count(),
                                 absl::StrCat("cannot store its tiles: ", attached.message()));
@@ -431,6 +461,18 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   active->planned_disk = plan.disk_bytes();
   PRISM_ASSIGN_OR_RETURN(std::vector<store::TaskRecord> tasks, store_->tasks_of(record.id));
   const std::vector<TaskSpec> specs = active->task_specs();
+  if (record.state == store::JobState::kQueued && tasks.size() < specs.size()) {
+    // The coordinator stopped while it stored the job's tasks (in parts): the rest are a pure
+    // function of the plan, stored now.
+    std::vector<store::TaskRecord> rest;
+    for (std::size_t i = tasks.size(); i < specs.size(); ++i) {
+      rest.push_back(task_record(*active, specs, static_cast<int>(i)));
+    }
+    PRISM_RETURN_IF_ERROR(store_->add_tasks(record.id, rest));
+    options_.logger->info("[job {}] stored the {} tasks its submission had not stored", record.id,
+                          rest.size());
+    PRISM_ASSIGN_OR_RETURN(tasks, store_->tasks_of(record.id));
+  }
   if (tasks.size() != specs.size()) {
     return absl::DataLossError(
         absl::StrCat("the store has ", tasks.size(), " tasks but the plan has ", specs.size()));

@@ -100,6 +100,12 @@ struct FarmOptions {
   // Fault injection for tests: called under the lock just before a submitted job's tasks are
   // stored (a slow store or a huge plan stalls the coordinator there).
   std::function<void()> before_store_job;
+  // A job's tasks are stored this many at a time, the lock released between parts.
+  std::size_t tasks_per_store_part = 4096;
+  // Fault injection for tests: called without the lock between the parts of a large job's
+  // tasks being stored (after the job's first part); an error makes submit return it at once,
+  // leaving the store as a crash there would.
+  std::function<absl::Status(const std::string& job_id)> between_task_parts;
   // Fault injection for tests: called by the finaliser thread, without the lock, before a
   // finished job's outputs are written.
   std::function<void()> before_write_outputs;

@@ -84,6 +84,8 @@ class FarmServerTest : public ::testing::Test {
       options.max_disk_bytes = max_disk_bytes_;
       options.before_store_job = before_store_job_;
       options.before_write_outputs = before_write_outputs_;
+      options.between_task_parts = between_task_parts_;
+      if (tasks_per_store_part_ > 0) options.tasks_per_store_part = tasks_per_store_part_;
       options.scheduler.lease_duration = Millis(5000);
     });
     ASSERT_NE(farm_, nullptr);
@@ -370,6 +372,8 @@ class FarmServerTest : public ::testing::Test {
   std::uint64_t max_disk_bytes_ = 0;
   std::function<void()> before_store_job_;
   std::function<void()> before_write_outputs_;
+  std::function<absl::Status(const std::string&)> between_task_parts_;
+  std::size_t tasks_per_store_part_ = 0;  // 0: the coordinator's default
   fs::path root_;
   fs::path scene_root_;
   spectral::SpectrumLibrary library_;

@@ -545,6 +545,74 @@ TEST_F(FarmServerTest, ATenSecondStallDoesNotMakeAHealthyWorkerLost) {
   EXPECT_EQ(farm_->farm().snapshot()->scheduler.lease_expiries, 0u);
 }
 
+// Issue 18: storing a job of hundreds of thousands of tasks held the coordinator's lock for
+// seconds, and every heartbeat, lease and query waited. The tasks are stored in parts with the
+// lock released between them (4 tasks a part here, 18 tasks): at each pause the farm answers
+// another call and the job reads QUEUED with the tasks stored so far. A coordinator that
+// stops in the middle (simulated: the hook ends the submission as a crash would) stores the
+// rest when it restarts, and the job renders the embedded render's bytes.
+TEST_F(FarmServerTest, ALargeJobsTasksAreStoredInPartsAndARestartStoresTheRest) {
+  stop();
+  tasks_per_store_part_ = 4;
+  std::vector<std::uint64_t> stored_at_pause;
+  bool crash = true;
+  between_task_parts_ = [&](const std::string& job_id) -> absl::Status {
+    // Another thread's call is answered while the submission pauses (were the lock held, it
+    // would wait for it: the test's 30 s deadline would fail it).
+    auto query = std::async(std::launch::async, [&] {
+      v1::GetJobRequest request;
+      request.set_job_id(job_id);
+      v1::JobInfo info;
+      auto context = client();
+      const grpc::Status status = farm_stub_->GetJob(context.get(), request, &info);
+      EXPECT_TRUE(status.ok()) << status.error_message();
+      EXPECT_EQ(info.state(), v1::JOB_STATE_QUEUED);
+      return info.progress().tasks_total();
+    });
+    stored_at_pause.push_back(query.get());
+    if (crash && stored_at_pause.size() == 2) return absl::UnavailableError("stopped here");
+    return absl::OkStatus();
+  };
+  start();
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const v1::JobSpec spec = small_spec(hash);  // 9 tiles x 2 ranges
+  v1::SubmitJobRequest request;
+  *request.mutable_spec() = spec;
+  v1::SubmitJobResponse response;
+  {
+    auto context = client();
+    EXPECT_EQ(farm_stub_->SubmitJob(context.get(), request, &response).error_code(),
+              grpc::StatusCode::UNAVAILABLE);
+  }
+  EXPECT_EQ(stored_at_pause, (std::vector<std::uint64_t>{4, 8}));
+
+  stop();
+  crash = false;
+  start();
+  v1::ListJobsRequest list;
+  v1::ListJobsResponse jobs;
+  {
+    auto context = client();
+    ASSERT_TRUE(farm_stub_->ListJobs(context.get(), list, &jobs).ok());
+  }
+  ASSERT_EQ(jobs.jobs_size(), 1);
+  const std::string job_id = jobs.jobs(0).job_id();
+  EXPECT_EQ(jobs.jobs(0).progress().tasks_total(), 18u);
+  EXPECT_EQ(run_worker(register_worker()).size(), 18u);
+  const v1::JobInfo done = wait_done(job_id);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral_exr(job_id), spec);
+
+  // A submission in parts on a running coordinator: the same bytes again.
+  stored_at_pause.clear();
+  const std::string second = submit(spec, "again").job_id();
+  EXPECT_EQ(stored_at_pause, (std::vector<std::uint64_t>{4, 8, 12, 16}));
+  EXPECT_EQ(run_worker(register_worker()).size(), 18u);
+  ASSERT_EQ(wait_done(second).state(), v1::JOB_STATE_DONE);
+  expect_identical(fetch_spectral_exr(second), spec);
+}
+
 // Writing a finished job's outputs (tens of seconds for a big one) held the coordinator's lock,
 // so every RPC waited. The finaliser thread writes them without it: while it is held up before
 // writing, the job reads FINALISING, another job is submitted and its task leased and

@@ -401,15 +401,18 @@ absl::StatusOr<CreateJobResult> JobStore::create_job(JobRecord job,
   return result;
 }
 
-absl::Status JobStore::add_tasks(std::string_view job_id, std::span<const TaskRecord> tasks) {
-  return db_.transaction([&]() -> absl::Status {
-    PRISM_ASSIGN_OR_RETURN(JobRecord job, get_job_row(job_id));
-    if (is_terminal(job.state)) {
-      return absl::FailedPreconditionError(absl::StrCat(
-          "job ", in_quotes(job_id), " is ", to_string(job.state), ": no tasks can be added"));
-    }
-    return insert_tasks(job_id, tasks, static_cast<int>(job.progress.tasks_total));
-  });
+absl::Status JobStore::add_tasks(std::string_view job_id, std::span<const TaskRecord> tasks,
+                                 Database::Commit commit) {
+  return db_.transaction(
+      [&]() -> absl::Status {
+        PRISM_ASSIGN_OR_RETURN(JobRecord job, get_job_row(job_id));
+        if (is_terminal(job.state)) {
+          return absl::FailedPreconditionError(absl::StrCat(
+              "job ", in_quotes(job_id), " is ", to_string(job.state), ": no tasks can be added"));
+        }
+        return insert_tasks(job_id, tasks, static_cast<int>(job.progress.tasks_total));
+      },
+      commit);
 }
 
 absl::StatusOr<JobRecord> JobStore::get_job(std::string_view job_id) {

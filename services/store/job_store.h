@@ -138,9 +138,11 @@ class JobStore {
   // nothing: the spec and tasks of the repeated request are ignored.
   absl::StatusOr<CreateJobResult> create_job(JobRecord job, std::span<const TaskRecord> tasks);
 
-  // Appends tasks (a later pass planned once the earlier one is known) to a non-terminal job;
-  // their indices must continue the job's numbering. Updates the totals.
-  absl::Status add_tasks(std::string_view job_id, std::span<const TaskRecord> tasks);
+  // Appends tasks to a non-terminal job (the rest of a large plan, stored in parts); their
+  // indices must continue the job's numbering. Updates the totals. `commit`: see
+  // Database::Commit (a later durable commit, such as the job's next state, covers a deferred one).
+  absl::Status add_tasks(std::string_view job_id, std::span<const TaskRecord> tasks,
+                         Database::Commit commit = Database::Commit::kDurable);
 
   // NOT_FOUND naming the id when there is no such job.
   absl::StatusOr<JobRecord> get_job(std::string_view job_id);
