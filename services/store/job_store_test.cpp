@@ -272,6 +272,67 @@ TEST_F(JobStoreTest, StateTransitionTable) {
   EXPECT_NE(missing_get.status().message().find("j-424242"), std::string::npos);
 }
 
+// Results in a job's result pack: the record names the range, survives a reopen, and a result
+// lost to a power loss (reopen_task) sends the task back to pending with its progress undone.
+// Blob-store cleanup ignores pack results (they go with the job's directory).
+TEST_F(JobStoreTest, PackLocationsAreKeptAndAReopenedTaskIsPendingAgain) {
+  std::string id;
+  {
+    JobStore store = open_store();
+    id = create(store, 3);
+    ASSERT_TRUE(store.mark_task_done(id, 0, "aaaa", ResultLocation{4096, 777}).ok());
+    ASSERT_TRUE(store.mark_task_done(id, 1, "bbbb").ok());  // a blob-store result
+    ASSERT_TRUE(store.sync().ok());
+  }
+  JobStore store = open_store();
+  auto tasks = store.tasks_of(id);
+  ASSERT_TRUE(tasks.ok()) << tasks.status();
+  EXPECT_EQ((*tasks)[0].result_offset, 4096);
+  EXPECT_EQ((*tasks)[0].result_size, 777u);
+  EXPECT_EQ((*tasks)[1].result_offset, -1);
+  EXPECT_EQ((*tasks)[2].result_offset, -1);
+  EXPECT_EQ(*store.unshared_results(id), std::vector<std::string>{"bbbb"});
+  EXPECT_EQ(*store.progress(id), (JobProgress{3, 2, 3 * 512, 2 * 512}));
+
+  ASSERT_TRUE(store.reopen_task(id, 0).ok());
+  EXPECT_EQ(*store.progress(id), (JobProgress{3, 1, 3 * 512, 512}));
+  tasks = store.tasks_of(id);
+  ASSERT_TRUE(tasks.ok());
+  EXPECT_EQ((*tasks)[0].state, TaskState::kPending);
+  EXPECT_EQ((*tasks)[0].result_hash, "");
+  EXPECT_EQ((*tasks)[0].result_offset, -1);
+  // Pending already: nothing changes; unknown ones are named.
+  ASSERT_TRUE(store.reopen_task(id, 0).ok());
+  ASSERT_TRUE(store.reopen_task(id, 2).ok());
+  EXPECT_EQ(*store.progress(id), (JobProgress{3, 1, 3 * 512, 512}));
+  EXPECT_EQ(store.reopen_task(id, 9).code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(store.reopen_task("j-000777", 0).code(), absl::StatusCode::kNotFound);
+  // Done again, with another range.
+  ASSERT_TRUE(store.mark_task_done(id, 0, "cccc", ResultLocation{0, 10}).ok());
+  EXPECT_EQ(*store.progress(id), (JobProgress{3, 2, 3 * 512, 2 * 512}));
+}
+
+// The parts of a large job's tasks added as deferred commits, after the job's first part.
+TEST_F(JobStoreTest, TasksAddedInDeferredPartsContinueTheJob) {
+  JobStore store = open_store();
+  std::vector<TaskRecord> all = make_tasks(10);
+  auto created = store.create_job(make_job(), std::span(all).first(4));
+  ASSERT_TRUE(created.ok()) << created.status();
+  const std::string id = created->job.id;
+  ASSERT_TRUE(store.add_tasks(id, std::span(all).subspan(4, 4), Database::Commit::kDeferred).ok());
+  ASSERT_TRUE(store.add_tasks(id, std::span(all).subspan(8), Database::Commit::kDeferred).ok());
+  EXPECT_EQ(*store.progress(id), (JobProgress{10, 0, 10 * 512, 0}));
+  auto tasks = store.tasks_of(id);
+  ASSERT_TRUE(tasks.ok());
+  ASSERT_EQ(tasks->size(), 10u);
+  for (int i = 0; i < 10; ++i) EXPECT_EQ((*tasks)[std::size_t(i)].rect, all[std::size_t(i)].rect);
+  // A part out of order is refused.
+  EXPECT_FALSE(store.add_tasks(id, std::span(all).first(1), Database::Commit::kDeferred).ok());
+  ASSERT_TRUE(store.set_job_state(id, JobState::kCancelled, 2000).ok());
+  EXPECT_EQ(store.add_tasks(id, std::span(all).first(1)).code(),
+            absl::StatusCode::kFailedPrecondition);
+}
+
 TEST_F(JobStoreTest, TaskDoneIsIdempotentAndConflictingHashRefused) {
   JobStore store = open_store();
   std::string id = create(store, 3);
