@@ -226,6 +226,53 @@ TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
   EXPECT_EQ(count_files(data / "outputs" / job_id), 4u);
 }
 
+// A data directory from before result packs: a job's results are blobs (result_offset -1) and
+// its finished tiles files this version does not read. The restarted coordinator merges the
+// blobs again, renders only the rest, gives the embedded render's bytes and deletes the blobs.
+TEST_F(FarmServerTest, ResultsStoredAsBlobsByAnEarlierVersionAreResumed) {
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const v1::JobSpec spec = small_spec(hash);
+  const std::string job_id = submit(spec).job_id();
+  ASSERT_EQ(run_worker(register_worker(), 7).size(), 7u);
+  stop();
+  const fs::path data = root_ / "data";
+  {
+    auto store = store::JobStore::open(data / "jobs.sqlite");
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto blobs = store::BlobStore::open(data / "blobs");
+    ASSERT_TRUE(blobs.ok());
+    auto tasks = store->tasks_of(job_id);
+    ASSERT_TRUE(tasks.ok()) << tasks.status();
+    std::ifstream pack(data / "jobs" / job_id / "results.pack", std::ios::binary);
+    int moved = 0;
+    for (const store::TaskRecord& task : *tasks) {
+      if (task.state != store::TaskState::kDone) continue;
+      std::string bytes(task.result_size, '\0');
+      pack.seekg(task.result_offset);
+      pack.read(bytes.data(), std::streamsize(bytes.size()));
+      auto put = blobs->put(bytes);
+      ASSERT_TRUE(put.ok()) << put.status();
+      ASSERT_EQ(*put, task.result_hash);
+      ASSERT_TRUE(store->database()
+                      .run("UPDATE tasks SET result_offset = -1, result_size = 0 "
+                           "WHERE job_id = ? AND task_index = ?",
+                           {job_id, std::int64_t{task.index}})
+                      .ok());
+      ++moved;
+    }
+    EXPECT_EQ(moved, 7);
+  }
+  fs::remove(data / "jobs" / job_id / "results.pack");
+  fs::remove(data / "jobs" / job_id / "tiles" / "tiles.pack");
+  start();
+  EXPECT_EQ(run_worker(register_worker()).size(), 11u);
+  const v1::JobInfo done = wait_done(job_id);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral_exr(job_id), spec);
+  EXPECT_EQ(count_files(data / "blobs"), 0u);
+}
+
 // Issue 18, case 4: cancelling a job with a few hundred finished tiles took 10-11 s, deleting
 // its files under the coordinator's lock. Cancel now only moves them out of the way (renames);
 // the job's tiles and results are gone from the store when it returns, and the janitor frees
