@@ -49,11 +49,11 @@ float IndependentSampler::sample(std::uint32_t dimension) const {
 }
 
 std::uint32_t reverse_bits(std::uint32_t x) {
+  // The bytes' order by one byte swap, then the bits within each byte.
+  x = __builtin_bswap32(x);
   x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
   x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
-  x = ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);
-  x = ((x >> 8) & 0x00ff00ffu) | ((x & 0x00ff00ffu) << 8);
-  return (x >> 16) | (x << 16);
+  return ((x >> 4) & 0x0f0f0f0fu) | ((x & 0x0f0f0f0fu) << 4);
 }
 
 std::uint32_t sobol_dimension0(std::uint32_t index) {
@@ -77,21 +77,36 @@ struct Sobol1Tables {
   std::uint32_t byte[4][256];
 };
 
-constexpr Sobol1Tables make_sobol1_tables() {
+constexpr std::uint32_t reverse_bits_slow(std::uint32_t x) {
+  std::uint32_t r = 0;
+  for (int i = 0; i < 32; ++i) r |= ((x >> i) & 1u) << (31 - i);
+  return r;
+}
+
+// reversed: the bit-reversed products (bit reversal is linear over GF(2) too).
+constexpr Sobol1Tables make_sobol1_tables(bool reversed) {
   Sobol1Tables t{};
   for (int k = 0; k < 4; ++k) {
-    for (std::uint32_t b = 0; b < 256; ++b) t.byte[k][b] = sobol_dimension1_slow(b << (8 * k));
+    for (std::uint32_t b = 0; b < 256; ++b) {
+      const std::uint32_t v = sobol_dimension1_slow(b << (8 * k));
+      t.byte[k][b] = reversed ? reverse_bits_slow(v) : v;
+    }
   }
   return t;
 }
 
-constexpr Sobol1Tables kSobol1 = make_sobol1_tables();
+constexpr Sobol1Tables kSobol1 = make_sobol1_tables(false);
+constexpr Sobol1Tables kSobol1Reversed = make_sobol1_tables(true);
+
+std::uint32_t by_bytes(const Sobol1Tables& t, std::uint32_t index) {
+  return t.byte[0][index & 255u] ^ t.byte[1][(index >> 8) & 255u] ^
+         t.byte[2][(index >> 16) & 255u] ^ t.byte[3][index >> 24];
+}
 
 }  // namespace
 
 std::uint32_t sobol_dimension1(std::uint32_t index) {
-  return kSobol1.byte[0][index & 255u] ^ kSobol1.byte[1][(index >> 8) & 255u] ^
-         kSobol1.byte[2][(index >> 16) & 255u] ^ kSobol1.byte[3][index >> 24];
+  return by_bytes(kSobol1, index);
 }
 
 std::uint32_t nested_uniform_scramble(std::uint32_t x, std::uint32_t seed) {
@@ -100,6 +115,13 @@ std::uint32_t nested_uniform_scramble(std::uint32_t x, std::uint32_t seed) {
 
 namespace {
 
+// One pair of dimensions of a pixel sample, as
+//   shuffled = nested_uniform_scramble(index, h)              (h: low half of the pair's hash)
+//   u_j = nested_uniform_scramble(sobol_dimension_j(shuffled), s_j)
+// with s_j from the pair's hash and j, written so that bit reversals cancel: with R the bit
+// reversal and P the Laine-Karras permutation, nested_uniform_scramble(x, s) = R(P(R(x), s)),
+// sobol_dimension0 = R, so u_0 = R(P(shuffled, s_0)), and u_1 = R(P(R(sobol1(shuffled)), s_1))
+// with R∘sobol1 one table lookup. Four reversals instead of seven, the same bits.
 struct PairSeeds {
   std::uint32_t shuffled_index;
   std::uint64_t pair_hash;
@@ -109,14 +131,16 @@ PairSeeds pair_seeds(std::uint64_t base, std::uint32_t index, std::uint32_t pair
   std::uint64_t pair_hash = mix64(base ^ mix64(static_cast<std::uint64_t>(pair) + kGolden));
   // Shuffling the index by an Owen scramble keeps every power-of-two prefix a net while
   // decorrelating pairs; the two halves of the hash seed shuffle and scramble independently.
-  return {nested_uniform_scramble(index, static_cast<std::uint32_t>(pair_hash)), pair_hash};
+  return {reverse_bits(
+              laine_karras_permutation(reverse_bits(index), static_cast<std::uint32_t>(pair_hash))),
+          pair_hash};
 }
 
 float scrambled(const PairSeeds& seeds, std::uint32_t within) {
   auto scramble_seed = static_cast<std::uint32_t>(mix64(seeds.pair_hash ^ within) >> 32);
-  std::uint32_t point =
-      within ? sobol_dimension1(seeds.shuffled_index) : sobol_dimension0(seeds.shuffled_index);
-  return bits_to_unit_float(nested_uniform_scramble(point, scramble_seed));
+  const std::uint32_t reversed_point =
+      within ? by_bytes(kSobol1Reversed, seeds.shuffled_index) : seeds.shuffled_index;
+  return bits_to_unit_float(reverse_bits(laine_karras_permutation(reversed_point, scramble_seed)));
 }
 
 }  // namespace

@@ -89,7 +89,9 @@ int run(int argc, char** argv) {
   }
   std::vector<std::string> scenes = flags->positional;
   if (scenes.empty()) {
-    scenes = {source_path("scenes/cornell-two-lights.pbrt").string(),
+    scenes = {source_path("scenes/bunny-cornell.pbrt").string(),
+              source_path("scenes/suzanne-grid.pbrt").string(),
+              source_path("scenes/cornell-two-lights.pbrt").string(),
               source_path("scenes/prism.pbrt").string()};
   }
 
