@@ -151,6 +151,7 @@ void FarmCoordinator::shutdown() {
     stopping_ = true;
     changed_locked();
   }
+  tick_wake_.notify_all();
   finaliser_wake_.notify_all();
   if (ticker_.joinable()) ticker_.join();
   if (finaliser_.joinable()) finaliser_.join();
@@ -167,7 +168,7 @@ void FarmCoordinator::tick_loop() {
   std::unique_lock<std::mutex> lock(mutex_);
   Steady::time_point previous = Steady::now();
   while (!stopping_) {
-    changed_.wait_for(lock, options_.tick_interval);
+    tick_wake_.wait_for(lock, options_.tick_interval, [&] { return stopping_; });
     if (stopping_) break;
     // Ticks come at most tick_interval apart unless the lock was held (by another call, or by
     // the last tick's own events, such as finalising a job) or the process was stopped for

@@ -301,6 +301,8 @@ class FarmCoordinator {
   spectral::ColorMatching cmf_;
   mutable std::mutex mutex_;
   std::condition_variable changed_;
+  // The ticker's own wake-up (stop only): waking it on every change ran a tick per result.
+  std::condition_variable tick_wake_;
   std::uint64_t change_counter_ = 0;
   std::optional<store::JobStore> store_;
   std::optional<store::BlobStore> blobs_;  // results of jobs from before result packs
