@@ -252,8 +252,7 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
   if (!device.valid()) return device.take_error();
   std::unique_ptr<Geometry> g(new Geometry());
   g->device_ = &device;
-  RTCDevice dev = device.get();
-  g->scene_ = rtcNewScene(dev);
+  g->scene_ = rtcNewScene(device.get());
   rtcSetSceneBuildQuality(g->scene_, RTC_BUILD_QUALITY_HIGH);
   g->meshes_.resize(desc.shapes.size());
   g->shape_bounds_.resize(desc.shapes.size());
@@ -261,17 +260,6 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
   g->quadrics_.resize(desc.shapes.size());
   g->alpha_ = std::move(alpha);
   g->alpha_.resize(desc.shapes.size());
-  // Cut-outs get Embree filter callbacks reading this per-geometry data.
-  auto add_filter = [&](RTCGeometry geom, std::size_t shape, const MeshShape* mesh) {
-    if (!g->alpha_[shape]) return;
-    auto filter = std::make_unique<AlphaFilter>();
-    filter->alpha = &g->alpha_[shape];
-    filter->mesh = mesh;
-    rtcSetGeometryUserData(geom, filter.get());
-    rtcSetGeometryIntersectFilterFunction(geom, alpha_filter);
-    rtcSetGeometryOccludedFilterFunction(geom, alpha_filter);
-    g->filters_.push_back(std::move(filter));
-  };
 
   // A mesh object shared by several shapes is instanced; count the sharing first.
   std::map<const scene::TriangleMeshData*, int> uses;
@@ -279,145 +267,17 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
     if (auto* m = std::get_if<scene::TriangleMeshShape>(&shape.geometry)) ++uses[m->mesh.get()];
   }
   std::map<const scene::TriangleMeshData*, RTCScene> instanced_scenes;
-
-  auto attach_triangles = [&](RTCScene target, MeshShape& mesh, unsigned id, std::size_t shape) {
-    RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
-    add_filter(geom, shape, &mesh);
-    rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                               mesh.positions.data(), 0, sizeof(Float3), mesh.vertex_count);
-    rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                               mesh.source->triangles.data(), 0, sizeof(scene::Triangle),
-                               mesh.source->triangles.size());
-    rtcCommitGeometry(geom);
-    rtcAttachGeometryByID(target, geom, id);
-    rtcReleaseGeometry(geom);
-  };
-  auto attach_instance = [&](RTCScene child, const scene::Transform& t, unsigned id) {
-    RTCGeometry inst = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_INSTANCE);
-    rtcSetGeometryInstancedScene(inst, child);
-    float m[12];
-    instance_matrix(t, m);
-    rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, m);
-    rtcCommitGeometry(inst);
-    rtcAttachGeometryByID(g->scene_, inst, id);
-    rtcReleaseGeometry(inst);
-  };
-
-  // An object-space primitive in its own scene, instanced with the shape's transform; its
-  // object-space box [lo, hi] extends the world bounds.
-  auto attach_object_space = [&](RTCGeometry geom, const scene::Transform& t, unsigned id,
-                                 const scene::Vec3& lo, const scene::Vec3& hi) {
-    RTCScene child = rtcNewScene(dev);
-    rtcCommitGeometry(geom);
-    rtcAttachGeometryByID(child, geom, 0);
-    rtcReleaseGeometry(geom);
-    rtcCommitScene(child);
-    g->sub_scenes_.push_back(child);
-    attach_instance(child, t, id);
-    for (int corner = 0; corner < 8; ++corner) {
-      const scene::Vec3 c{corner & 1 ? hi[0] : lo[0], corner & 2 ? hi[1] : lo[1],
-                          corner & 4 ? hi[2] : lo[2]};
-      g->bounds_.extend(to_vec(t.apply_point(c)));
-      g->shape_bounds_[id].extend(to_vec(t.apply_point(c)));
-    }
-  };
-
   for (std::size_t i = 0; i < desc.shapes.size(); ++i) {
     const scene::Shape& shape = desc.shapes[i];
-    bool flip = shape.reverse_orientation != shape.transform_swaps_handedness;
-    unsigned id = static_cast<unsigned>(i);
     if (auto* m = std::get_if<scene::TriangleMeshShape>(&shape.geometry)) {
-      auto mesh = std::make_unique<MeshShape>();
-      mesh->source = m->mesh;
-      mesh->flip = flip;
-      mesh->object_to_world = shape.object_to_world;
-      mesh->vertex_count = static_cast<std::uint32_t>(m->mesh->positions.size());
       // A cut-out mesh is never shared: its filter is its own.
-      mesh->instanced = uses[m->mesh.get()] > 1 && !g->alpha_[i];
-      const auto& src = *m->mesh;
-      for (const Float3& p : src.positions) {
-        g->bounds_.extend(to_vec(shape.object_to_world.apply_point({p.x, p.y, p.z})));
-        g->shape_bounds_[i].extend(to_vec(shape.object_to_world.apply_point({p.x, p.y, p.z})));
-      }
-      if (mesh->instanced) {
-        RTCScene& child = instanced_scenes[m->mesh.get()];
-        if (child == nullptr) {
-          mesh->positions.reserve(src.positions.size() + 1);
-          mesh->positions = src.positions;
-          mesh->positions.push_back({});
-          child = rtcNewScene(dev);
-          attach_triangles(child, *mesh, 0, i);
-          rtcCommitScene(child);
-          g->sub_scenes_.push_back(child);
-        } else {
-          // Another shape owns the padded copy Embree reads; keep a reference copy for shading.
-          mesh->positions = src.positions;
-        }
-        mesh->normals = src.normals;
-        mesh->uvs = src.uvs;
-        attach_instance(child, shape.object_to_world, id);
-      } else {
-        mesh->positions.reserve(src.positions.size() + 1);
-        for (const Float3& p : src.positions) {
-          auto w = shape.object_to_world.apply_point({p.x, p.y, p.z});
-          mesh->positions.push_back({float(w[0]), float(w[1]), float(w[2])});
-        }
-        mesh->positions.push_back({});
-        mesh->normals.reserve(src.normals.size());
-        for (const Float3& n : src.normals) {
-          auto w = shape.object_to_world.apply_normal({n.x, n.y, n.z});
-          mesh->normals.push_back({float(w[0]), float(w[1]), float(w[2])});
-        }
-        mesh->uvs = src.uvs;
-        attach_triangles(g->scene_, *mesh, id, i);
-      }
-      g->meshes_[i] = std::move(mesh);
+      const bool shared = uses[m->mesh.get()] > 1 && !g->alpha_[i];
+      g->add_mesh(i, shape, *m, shared ? &instanced_scenes[m->mesh.get()] : nullptr);
     } else if (auto* s = std::get_if<scene::SphereShape>(&shape.geometry)) {
-      auto sphere = std::make_unique<SphereShape>();
-      sphere->radius = s->radius;
-      sphere->object_to_world = shape.object_to_world;
-      sphere->world_to_object = shape.object_to_world.inverse();
-      sphere->flip = flip;
-      RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_SPHERE_POINT);
-      auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(
-          geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1));
-      if (v != nullptr) {
-        v[0] = v[1] = v[2] = 0.0f;
-        v[3] = float(s->radius);
-      }
-      add_filter(geom, i, nullptr);
-      attach_object_space(geom, shape.object_to_world, id, {-s->radius, -s->radius, -s->radius},
-                          {s->radius, s->radius, s->radius});
-      g->spheres_[i] = std::move(sphere);
+      g->add_sphere(i, shape, *s);
     } else if (std::holds_alternative<scene::DiskShape>(shape.geometry) ||
                std::holds_alternative<scene::CylinderShape>(shape.geometry)) {
-      auto quadric = std::make_unique<QuadricShape>();
-      if (const auto* d = std::get_if<scene::DiskShape>(&shape.geometry)) {
-        quadric->height = float(d->height);
-        quadric->radius = float(d->radius);
-        quadric->inner_radius = float(d->inner_radius);
-      } else {
-        const auto& c = std::get<scene::CylinderShape>(shape.geometry);
-        quadric->cylinder = true;
-        quadric->radius = float(c.radius);
-        quadric->z_min = float(c.z_min);
-        quadric->z_max = float(c.z_max);
-      }
-      quadric->object_to_world = shape.object_to_world;
-      quadric->world_to_object = shape.object_to_world.inverse();
-      quadric->flip = flip;
-      if (g->alpha_[i]) quadric->alpha = &g->alpha_[i];
-      RTCGeometry geom = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_USER);
-      rtcSetGeometryUserPrimitiveCount(geom, 1);
-      rtcSetGeometryUserData(geom, static_cast<QuadricShapeData*>(quadric.get()));
-      rtcSetGeometryBoundsFunction(geom, quadric_bounds, nullptr);
-      rtcSetGeometryIntersectFunction(geom, quadric_intersect);
-      rtcSetGeometryOccludedFunction(geom, quadric_occluded);
-      const double r = quadric->radius;
-      const double z0 = quadric->cylinder ? quadric->z_min : quadric->height;
-      const double z1 = quadric->cylinder ? quadric->z_max : quadric->height;
-      attach_object_space(geom, shape.object_to_world, id, {-r, -r, z0}, {r, r, z1});
-      g->quadrics_[i] = std::move(quadric);
+      g->add_quadric(i, shape);
     }
   }
   rtcCommitScene(g->scene_);
@@ -429,6 +289,157 @@ absl::StatusOr<std::unique_ptr<Geometry>> Geometry::build(EmbreeDevice& device,
   // Float positions carry ~1e-7 relative error; 1e-5 of the extent clears it with margin.
   g->epsilon_ = extent * 1e-5f;
   return g;
+}
+
+void Geometry::add_alpha_filter(RTCGeometry geom, std::size_t shape, const MeshShape* mesh) {
+  if (!alpha_[shape]) return;
+  auto filter = std::make_unique<AlphaFilter>();
+  filter->alpha = &alpha_[shape];
+  filter->mesh = mesh;
+  rtcSetGeometryUserData(geom, filter.get());
+  rtcSetGeometryIntersectFilterFunction(geom, alpha_filter);
+  rtcSetGeometryOccludedFilterFunction(geom, alpha_filter);
+  filters_.push_back(std::move(filter));
+}
+
+void Geometry::attach_triangles(RTCScene target, MeshShape& mesh, unsigned id, std::size_t shape) {
+  RTCGeometry geom = rtcNewGeometry(device_->get(), RTC_GEOMETRY_TYPE_TRIANGLE);
+  add_alpha_filter(geom, shape, &mesh);
+  rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                             mesh.positions.data(), 0, sizeof(Float3), mesh.vertex_count);
+  rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                             mesh.source->triangles.data(), 0, sizeof(scene::Triangle),
+                             mesh.source->triangles.size());
+  rtcCommitGeometry(geom);
+  rtcAttachGeometryByID(target, geom, id);
+  rtcReleaseGeometry(geom);
+}
+
+void Geometry::attach_instance(RTCScene child, const scene::Transform& t, unsigned id) {
+  RTCGeometry inst = rtcNewGeometry(device_->get(), RTC_GEOMETRY_TYPE_INSTANCE);
+  rtcSetGeometryInstancedScene(inst, child);
+  float m[12];
+  instance_matrix(t, m);
+  rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, m);
+  rtcCommitGeometry(inst);
+  rtcAttachGeometryByID(scene_, inst, id);
+  rtcReleaseGeometry(inst);
+}
+
+void Geometry::attach_object_space(RTCGeometry geom, const scene::Transform& t, unsigned id,
+                                   const scene::Vec3& lo, const scene::Vec3& hi) {
+  RTCScene child = rtcNewScene(device_->get());
+  rtcCommitGeometry(geom);
+  rtcAttachGeometryByID(child, geom, 0);
+  rtcReleaseGeometry(geom);
+  rtcCommitScene(child);
+  sub_scenes_.push_back(child);
+  attach_instance(child, t, id);
+  for (int corner = 0; corner < 8; ++corner) {
+    const scene::Vec3 c{corner & 1 ? hi[0] : lo[0], corner & 2 ? hi[1] : lo[1],
+                        corner & 4 ? hi[2] : lo[2]};
+    bounds_.extend(to_vec(t.apply_point(c)));
+    shape_bounds_[id].extend(to_vec(t.apply_point(c)));
+  }
+}
+
+void Geometry::add_mesh(std::size_t i, const scene::Shape& shape, const scene::TriangleMeshShape& m,
+                        RTCScene* instanced) {
+  const unsigned id = static_cast<unsigned>(i);
+  auto mesh = std::make_unique<MeshShape>();
+  mesh->source = m.mesh;
+  mesh->flip = shape.reverse_orientation != shape.transform_swaps_handedness;
+  mesh->object_to_world = shape.object_to_world;
+  mesh->vertex_count = static_cast<std::uint32_t>(m.mesh->positions.size());
+  mesh->instanced = instanced != nullptr;
+  const auto& src = *m.mesh;
+  for (const Float3& p : src.positions) {
+    bounds_.extend(to_vec(shape.object_to_world.apply_point({p.x, p.y, p.z})));
+    shape_bounds_[i].extend(to_vec(shape.object_to_world.apply_point({p.x, p.y, p.z})));
+  }
+  if (instanced != nullptr) {
+    RTCScene& child = *instanced;
+    if (child == nullptr) {
+      mesh->positions.reserve(src.positions.size() + 1);
+      mesh->positions = src.positions;
+      mesh->positions.push_back({});
+      child = rtcNewScene(device_->get());
+      attach_triangles(child, *mesh, 0, i);
+      rtcCommitScene(child);
+      sub_scenes_.push_back(child);
+    } else {
+      // Another shape owns the padded copy Embree reads; keep a reference copy for shading.
+      mesh->positions = src.positions;
+    }
+    mesh->normals = src.normals;
+    mesh->uvs = src.uvs;
+    attach_instance(child, shape.object_to_world, id);
+  } else {
+    mesh->positions.reserve(src.positions.size() + 1);
+    for (const Float3& p : src.positions) {
+      auto w = shape.object_to_world.apply_point({p.x, p.y, p.z});
+      mesh->positions.push_back({float(w[0]), float(w[1]), float(w[2])});
+    }
+    mesh->positions.push_back({});
+    mesh->normals.reserve(src.normals.size());
+    for (const Float3& n : src.normals) {
+      auto w = shape.object_to_world.apply_normal({n.x, n.y, n.z});
+      mesh->normals.push_back({float(w[0]), float(w[1]), float(w[2])});
+    }
+    mesh->uvs = src.uvs;
+    attach_triangles(scene_, *mesh, id, i);
+  }
+  meshes_[i] = std::move(mesh);
+}
+
+void Geometry::add_sphere(std::size_t i, const scene::Shape& shape, const scene::SphereShape& s) {
+  auto sphere = std::make_unique<SphereShape>();
+  sphere->radius = s.radius;
+  sphere->object_to_world = shape.object_to_world;
+  sphere->world_to_object = shape.object_to_world.inverse();
+  sphere->flip = shape.reverse_orientation != shape.transform_swaps_handedness;
+  RTCGeometry geom = rtcNewGeometry(device_->get(), RTC_GEOMETRY_TYPE_SPHERE_POINT);
+  auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0,
+                                                        RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1));
+  if (v != nullptr) {
+    v[0] = v[1] = v[2] = 0.0f;
+    v[3] = float(s.radius);
+  }
+  add_alpha_filter(geom, i, nullptr);
+  attach_object_space(geom, shape.object_to_world, static_cast<unsigned>(i),
+                      {-s.radius, -s.radius, -s.radius}, {s.radius, s.radius, s.radius});
+  spheres_[i] = std::move(sphere);
+}
+
+void Geometry::add_quadric(std::size_t i, const scene::Shape& shape) {
+  auto quadric = std::make_unique<QuadricShape>();
+  if (const auto* d = std::get_if<scene::DiskShape>(&shape.geometry)) {
+    quadric->height = float(d->height);
+    quadric->radius = float(d->radius);
+    quadric->inner_radius = float(d->inner_radius);
+  } else {
+    const auto& c = std::get<scene::CylinderShape>(shape.geometry);
+    quadric->cylinder = true;
+    quadric->radius = float(c.radius);
+    quadric->z_min = float(c.z_min);
+    quadric->z_max = float(c.z_max);
+  }
+  quadric->object_to_world = shape.object_to_world;
+  quadric->world_to_object = shape.object_to_world.inverse();
+  quadric->flip = shape.reverse_orientation != shape.transform_swaps_handedness;
+  if (alpha_[i]) quadric->alpha = &alpha_[i];
+  RTCGeometry geom = rtcNewGeometry(device_->get(), RTC_GEOMETRY_TYPE_USER);
+  rtcSetGeometryUserPrimitiveCount(geom, 1);
+  rtcSetGeometryUserData(geom, static_cast<QuadricShapeData*>(quadric.get()));
+  rtcSetGeometryBoundsFunction(geom, quadric_bounds, nullptr);
+  rtcSetGeometryIntersectFunction(geom, quadric_intersect);
+  rtcSetGeometryOccludedFunction(geom, quadric_occluded);
+  const double r = quadric->radius;
+  const double z0 = quadric->cylinder ? quadric->z_min : quadric->height;
+  const double z1 = quadric->cylinder ? quadric->z_max : quadric->height;
+  attach_object_space(geom, shape.object_to_world, static_cast<unsigned>(i), {-r, -r, z0},
+                      {r, r, z1});
+  quadrics_[i] = std::move(quadric);
 }
 
 Vec3f Geometry::offset_origin(const Vec3f& p, const Vec3f& ng, const Vec3f& direction) const {

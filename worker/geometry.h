@@ -126,6 +126,21 @@ class Geometry {
   SurfaceHit finish_quadric_hit(int shape, const Ray& ray, float t) const;
   SurfaceHit finish_triangle_hit(int shape, std::uint32_t prim, float u, float v, float t) const;
   SurfaceHit finish_sphere_hit(int shape, const Ray& ray, float t) const;
+  // Building (build): each shape kind into the scene, with its bounds and alpha filter.
+  void add_mesh(std::size_t shape_index, const scene::Shape& shape,
+                const scene::TriangleMeshShape& mesh,
+                RTCScene* instanced);  // the shared mesh's scene (null: not shared)
+  void add_sphere(std::size_t shape_index, const scene::Shape& shape,
+                  const scene::SphereShape& sphere);
+  void add_quadric(std::size_t shape_index, const scene::Shape& shape);
+  // Cut-outs get Embree filter callbacks reading this per-geometry data.
+  void add_alpha_filter(RTCGeometry geom, std::size_t shape, const MeshShape* mesh);
+  void attach_triangles(RTCScene target, MeshShape& mesh, unsigned id, std::size_t shape);
+  void attach_instance(RTCScene child, const scene::Transform& t, unsigned id);
+  // An object-space primitive in its own scene, instanced with the shape's transform; its
+  // object-space box [lo, hi] extends the world bounds.
+  void attach_object_space(RTCGeometry geom, const scene::Transform& t, unsigned id,
+                           const scene::Vec3& lo, const scene::Vec3& hi);
 
   EmbreeDevice* device_ = nullptr;
   RTCScene scene_ = nullptr;

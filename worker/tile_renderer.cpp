@@ -5,6 +5,7 @@
 #include <tbb/parallel_for.h>
 
 #include <chrono>
+#include <span>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -17,10 +18,124 @@ TileRenderer::TileRenderer(const RenderScene& scene) : scene_(scene), integrator
   if (scene.options().traces_light_paths()) light_.emplace(scene);
 }
 
-absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, TileStats* stats,
-                                                       const std::atomic<bool>* cancel,
-                                                       std::atomic<std::uint64_t>* progress) const {
-  if (light_.has_value() && !task.prepass) return render_light(task, stats, cancel, progress);
+namespace {
+
+// One tile's output buffers (spans into its TileResult), and what each pixel's samples add to
+// them. Every method touches the pixel `index` only, in sample order, so the doubles are the same
+// whatever thread renders the pixel.
+struct TileSums {
+  TileSums(image::TileResult& result, const image::TileBuffers& buffers, int bins)
+      : bins(bins),
+        buffers(buffers),
+        sums(result.mutable_sums()),
+        squares(result.mutable_sum_squares()),
+        counts(result.mutable_counts()),
+        gradients(result.mutable_gradients()),
+        gradient_squares(result.mutable_gradient_squares()),
+        half_sums(result.mutable_half_sums()),
+        half_squares(result.mutable_half_sum_squares()),
+        half_gradients(result.mutable_half_gradients()),
+        half_gradient_squares(result.mutable_half_gradient_squares()),
+        half_counts(result.mutable_half_counts()),
+        rgb_sums(result.mutable_rgb_sums()),
+        rgb_squares(result.mutable_rgb_squares()),
+        offsets(result.mutable_offsets()) {}
+
+  // A sample's R, G, B into the pixel's sums (in sample order, like the bins).
+  void add_rgb(std::int64_t index, const double* rgb) {
+    if (!buffers.rgb) return;
+    const std::size_t o = std::size_t(index) * 3;
+    for (int c = 0; c < 3; ++c) {
+      rgb_sums[o + c] += rgb[c];
+      rgb_squares[o + c] += rgb[c] * rgb[c];
+    }
+  }
+
+  // A gradient sample s: its primal into its bin, its two gradient halves into G[bin] and
+  // G[bin_below], and with halves the even samples again into the half buffers.
+  void add_gradient(std::int64_t index, std::uint64_t s, const GradientSample& g) {
+    const std::size_t o = std::size_t(index) * bins;
+    if (g.primal != 0.0f) {
+      const double v = g.primal;
+      sums[o + g.bin] += v;
+      squares[o + g.bin] += v * v;
+    }
+    add_rgb(index, g.rgb);
+    gradients[o + g.bin] += g.gradient;
+    gradients[o + g.bin_below] += g.gradient_below;
+    if (!buffers.halves) return;
+    // bin and bin_below differ (1 <= k < bins): each is one per-sample value.
+    const double g2 = double(g.gradient) * g.gradient;
+    const double g2_below = double(g.gradient_below) * g.gradient_below;
+    gradient_squares[o + g.bin] += g2;
+    gradient_squares[o + g.bin_below] += g2_below;
+    // The halves split by the sample's global index, so they do not depend on how the samples
+    // were cut into tasks.
+    if (s % 2 != 0) return;
+    const double v = g.primal;
+    half_sums[o + g.bin] += v;
+    half_squares[o + g.bin] += v * v;
+    half_gradients[o + g.bin] += g.gradient;
+    half_gradients[o + g.bin_below] += g.gradient_below;
+    half_gradient_squares[o + g.bin] += g2;
+    half_gradient_squares[o + g.bin_below] += g2_below;
+  }
+
+  // A hero sample: lanes that land in the same bin form one value of this sample for that bin,
+  // so the sum of squares is that of per-sample bin values. `scratch` holds `bins` zeros and is
+  // left so.
+  void add_hero(std::int64_t index, const SampleContribution& c, std::span<double> scratch) {
+    add_rgb(index, c.rgb);
+    if (buffers.offsets && c.offset[0] > 0) {
+      const std::size_t o = std::size_t(index) * image::kOffsetValues;
+      for (int i = 0; i < image::kOffsetValues; ++i) offsets[o + i] += c.offset[i];
+    }
+    double* pixel_sums = &sums[std::size_t(index) * bins];
+    double* pixel_squares = &squares[std::size_t(index) * bins];
+    for (int lane = 0; lane < c.lanes; ++lane) scratch[c.bin[lane]] += c.value[lane];
+    for (int lane = 0; lane < c.lanes; ++lane) {
+      double& v = scratch[c.bin[lane]];
+      if (v != 0.0) {
+        pixel_sums[c.bin[lane]] += v;
+        pixel_squares[c.bin[lane]] += v * v;
+        v = 0.0;
+      }
+    }
+  }
+
+  void set_counts(std::int64_t index, const image::SampleRange& samples) {
+    counts[std::size_t(index)] = samples.count();
+    // The even indices in [s0, s1).
+    if (buffers.halves)
+      half_counts[std::size_t(index)] = (samples.s1 + 1) / 2 - (samples.s0 + 1) / 2;
+  }
+
+  const int bins;
+  const image::TileBuffers buffers;
+  std::span<double> sums, squares;
+  std::span<std::uint64_t> counts;
+  std::span<double> gradients, gradient_squares, half_sums, half_squares, half_gradients,
+      half_gradient_squares;
+  std::span<std::uint64_t> half_counts;
+  std::span<double> rgb_sums, rgb_squares, offsets;
+};
+
+// A pixel's guide features, summed over its samples.
+struct GuideSums {
+  void add(const GuideValues& guide) {
+    depth += guide.depth;
+    normal += guide.normal;
+    albedo += guide.albedo;
+    ++count;
+  }
+  std::uint64_t count = 0;
+  float depth = 0, albedo = 0;
+  Vec3f normal;
+};
+
+}  // namespace
+
+absl::Status TileRenderer::check_task(const RenderTask& task) const {
   const int bins = scene_.grid().bins();
   const image::TileRect& rect = task.tile;
   if (task.early_stop && !task.prepass) {
@@ -39,56 +154,57 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
                                                    " cells per pixel but the job has ", bins,
                                                    " bins; a table holds one mass per bin"));
   }
-  // A prepass traces with the hero path tracer whatever the job's integrator, so a gradient
-  // job's prepass has no gradients.
-  const GradientIntegrator* gradient =
-      gradient_.has_value() && !task.prepass ? &*gradient_ : nullptr;
-  const TraceOptions trace_options{task.prepass ? job::kPrepassLanes : 0, task.early_stop};
-  image::TileBuffers buffers;
-  // Gathering's final pass records the caustic events' offsets, and the guides its filter's
-  // bilateral weights compare.
-  const bool gathers = scene_.options().gathers() && !task.prepass && !gradient_.has_value();
-  const bool want_guides = task.want_guides || gathers;
-  buffers.guides = want_guides;
-  buffers.offsets = gathers;
-  buffers.gradients = gradient != nullptr;
-  buffers.halves = gradient != nullptr && scene_.options().gradient_variances;
-  // The final pass's RGB comes from each sample's exact wavelengths, not from the bins.
-  buffers.rgb = !task.prepass;
-  auto created = image::TileResult::create(task.tile, task.samples, bins, buffers);
-  if (!created.ok()) return created.status();
-  image::TileResult result = std::move(*created);
   if (task.samples.s1 > std::uint64_t{1} << 32) {
     return absl::InvalidArgumentError(
         absl::StrCat("sample range ends at ", task.samples.s1, ", beyond 2^32 samples per pixel"));
   }
+  return absl::OkStatus();
+}
+
+image::TileBuffers TileRenderer::buffers_for(const RenderTask& task) const {
+  image::TileBuffers buffers;
+  // A prepass traces with the hero path tracer whatever the job's integrator, so a gradient
+  // job's prepass has no gradients.
+  const bool gradient = gradient_.has_value() && !task.prepass;
+  // Gathering's final pass records the caustic events' offsets, and the guides its filter's
+  // bilateral weights compare.
+  const bool gathers = scene_.options().gathers() && !task.prepass && !gradient_.has_value();
+  buffers.guides = task.want_guides || gathers;
+  buffers.offsets = gathers;
+  buffers.gradients = gradient;
+  buffers.halves = gradient && scene_.options().gradient_variances;
+  // The final pass's RGB comes from each sample's exact wavelengths, not from the bins.
+  buffers.rgb = !task.prepass;
+  return buffers;
+}
+
+absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, TileStats* stats,
+                                                       const std::atomic<bool>* cancel,
+                                                       std::atomic<std::uint64_t>* progress) const {
+  if (light_.has_value() && !task.prepass) return render_light(task, stats, cancel, progress);
+  if (absl::Status checked = check_task(task); !checked.ok()) return checked;
+  const int bins = scene_.grid().bins();
+  const image::TileRect& rect = task.tile;
+  const image::TileBuffers buffers = buffers_for(task);
+  auto created = image::TileResult::create(task.tile, task.samples, bins, buffers);
+  if (!created.ok()) return created.status();
+  image::TileResult result = std::move(*created);
   const auto start = std::chrono::steady_clock::now();
   const int width = rect.width();
   const spectral::WavelengthDistribution& job_pdf = scene_.wavelength_pdf();
+  const GradientIntegrator* gradient = buffers.gradients ? &*gradient_ : nullptr;
+  const TraceOptions trace_options{task.prepass ? job::kPrepassLanes : 0, task.early_stop};
+  TileSums out(result, buffers, bins);
 
   tbb::combinable<TraceCounters> counters;
   std::atomic<bool> cancelled{false};
-  auto sums = result.mutable_sums();
-  auto squares = result.mutable_sum_squares();
-  auto counts = result.mutable_counts();
-  auto gradients = result.mutable_gradients();
-  auto gradient_squares = result.mutable_gradient_squares();
-  auto half_sums = result.mutable_half_sums();
-  auto half_squares = result.mutable_half_sum_squares();
-  auto half_gradients = result.mutable_half_gradients();
-  auto half_gradient_squares = result.mutable_half_gradient_squares();
-  auto half_counts = result.mutable_half_counts();
-  auto rgb_sums = result.mutable_rgb_sums();
-  auto rgb_squares = result.mutable_rgb_squares();
-  auto offsets = result.mutable_offsets();
-
   // Each pixel is owned by one thread and its samples are added in index order, so every
   // double in the result is the same whatever the scheduling.
   tbb::parallel_for(
       tbb::blocked_range<std::int64_t>(0, rect.area(), 1),
       [&](const tbb::blocked_range<std::int64_t>& range) {
         TraceCounters& local = counters.local();
-        std::vector<double> sample_values(bins, 0.0);
+        std::vector<double> scratch(bins, 0.0);
         for (std::int64_t index = range.begin(); index != range.end(); ++index) {
           if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) {
             cancelled.store(true, std::memory_order_relaxed);
@@ -98,106 +214,34 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
           const int y = rect.y0 + int(index / width);
           // A prepass skips the pixels that fell back to the default distribution in an earlier
           // pass (docs/estimators.md §4): their all-zero row says so; they keep no samples.
-          if (task.prepass && task.tables != nullptr &&
-              task.tables->uses_default(x - rect.x0, y - rect.y0)) {
-            if (progress != nullptr) {
-              progress->fetch_add(task.samples.count(), std::memory_order_relaxed);
-            }
-            continue;
-          }
-          const spectral::WavelengthPdfView lambda_pdf =
-              task.tables != nullptr
-                  ? task.tables->view(x - rect.x0, y - rect.y0, job_pdf, scene_.binned_shape())
-                  : spectral::WavelengthPdfView(job_pdf);
-          double* pixel_sums = &sums[std::size_t(index) * bins];
-          double* pixel_squares = &squares[std::size_t(index) * bins];
-          // A sample's R, G, B into the pixel's sums (in sample order, like the bins).
-          auto add_rgb = [&](const double* rgb) {
-            if (!buffers.rgb) return;
-            const std::size_t o = std::size_t(index) * 3;
-            for (int c = 0; c < 3; ++c) {
-              rgb_sums[o + c] += rgb[c];
-              rgb_squares[o + c] += rgb[c] * rgb[c];
-            }
-          };
-          std::uint64_t guide_count = 0;
-          float depth_sum = 0, albedo_sum = 0;
-          Vec3f normal_sum;
-          for (std::uint64_t s = task.samples.s0; s < task.samples.s1; ++s) {
-            GuideValues guide;
-            if (gradient != nullptr) {
-              GradientSample g = gradient->trace(x, y, task.pass, std::uint32_t(s), lambda_pdf,
-                                                 local, want_guides ? &guide : nullptr);
-              if (g.primal != 0.0f) {
-                const double v = g.primal;
-                pixel_sums[g.bin] += v;
-                pixel_squares[g.bin] += v * v;
+          const bool skipped = task.prepass && task.tables != nullptr &&
+                               task.tables->uses_default(x - rect.x0, y - rect.y0);
+          if (!skipped) {
+            const spectral::WavelengthPdfView lambda_pdf =
+                task.tables != nullptr
+                    ? task.tables->view(x - rect.x0, y - rect.y0, job_pdf, scene_.binned_shape())
+                    : spectral::WavelengthPdfView(job_pdf);
+            GuideSums guides;
+            for (std::uint64_t s = task.samples.s0; s < task.samples.s1; ++s) {
+              GuideValues guide;
+              GuideValues* want_guide = buffers.guides ? &guide : nullptr;
+              if (gradient != nullptr) {
+                out.add_gradient(index, s,
+                                 gradient->trace(x, y, task.pass, std::uint32_t(s), lambda_pdf,
+                                                 local, want_guide));
+              } else {
+                out.add_hero(index,
+                             integrator_.trace(x, y, task.pass, std::uint32_t(s), lambda_pdf, local,
+                                               want_guide, trace_options),
+                             scratch);
               }
-              add_rgb(g.rgb);
-              double* pixel_gradients = &gradients[std::size_t(index) * bins];
-              pixel_gradients[g.bin] += g.gradient;
-              pixel_gradients[g.bin_below] += g.gradient_below;
-              if (buffers.halves) {
-                // bin and bin_below differ (1 <= k < bins): each is one per-sample value.
-                const std::size_t o = std::size_t(index) * bins;
-                const double g2 = double(g.gradient) * g.gradient;
-                const double g2_below = double(g.gradient_below) * g.gradient_below;
-                gradient_squares[o + g.bin] += g2;
-                gradient_squares[o + g.bin_below] += g2_below;
-                // The halves split by the sample's global index, so they do not depend on how
-                // the samples were cut into tasks.
-                if (s % 2 == 0) {
-                  const double v = g.primal;
-                  half_sums[o + g.bin] += v;
-                  half_squares[o + g.bin] += v * v;
-                  half_gradients[o + g.bin] += g.gradient;
-                  half_gradients[o + g.bin_below] += g.gradient_below;
-                  half_gradient_squares[o + g.bin] += g2;
-                  half_gradient_squares[o + g.bin_below] += g2_below;
-                }
-              }
-              if (want_guides) {
-                depth_sum += guide.depth;
-                normal_sum += guide.normal;
-                albedo_sum += guide.albedo;
-                ++guide_count;
-              }
-              continue;
+              if (want_guide != nullptr) guides.add(guide);
             }
-            SampleContribution c =
-                integrator_.trace(x, y, task.pass, std::uint32_t(s), lambda_pdf, local,
-                                  want_guides ? &guide : nullptr, trace_options);
-            add_rgb(c.rgb);
-            if (gathers && c.offset[0] > 0) {
-              const std::size_t o = std::size_t(index) * image::kOffsetValues;
-              for (int i = 0; i < image::kOffsetValues; ++i) offsets[o + i] += c.offset[i];
+            out.set_counts(index, task.samples);
+            if (guides.count > 0) {
+              result.add_guides(x, y, guides.depth, guides.normal.x, guides.normal.y,
+                                guides.normal.z, guides.albedo);
             }
-            // Lanes that land in the same bin form one value of this sample for that bin, so
-            // the sum of squares is that of per-sample bin values.
-            for (int lane = 0; lane < c.lanes; ++lane) sample_values[c.bin[lane]] += c.value[lane];
-            for (int lane = 0; lane < c.lanes; ++lane) {
-              double& v = sample_values[c.bin[lane]];
-              if (v != 0.0) {
-                pixel_sums[c.bin[lane]] += v;
-                pixel_squares[c.bin[lane]] += v * v;
-                v = 0.0;
-              }
-            }
-            if (want_guides) {
-              depth_sum += guide.depth;
-              normal_sum += guide.normal;
-              albedo_sum += guide.albedo;
-              ++guide_count;
-            }
-          }
-          counts[std::size_t(index)] = task.samples.count();
-          if (buffers.halves) {
-            // The even indices in [s0, s1).
-            half_counts[std::size_t(index)] = (task.samples.s1 + 1) / 2 - (task.samples.s0 + 1) / 2;
-          }
-          if (want_guides && guide_count > 0) {
-            result.add_guides(x, y, depth_sum, normal_sum.x, normal_sum.y, normal_sum.z,
-                              albedo_sum);
           }
           if (progress != nullptr)
             progress->fetch_add(task.samples.count(), std::memory_order_relaxed);

@@ -65,6 +65,10 @@ class TileRenderer {
                                            std::atomic<std::uint64_t>* progress = nullptr) const;
 
  private:
+  // INVALID_ARGUMENT for a task this renderer cannot take (see render).
+  absl::Status check_task(const RenderTask& task) const;
+  // The buffers a task's result carries.
+  image::TileBuffers buffers_for(const RenderTask& task) const;
   // A light-tracing task (light_task.cpp): the whole image, a range of batches of W·H paths.
   absl::StatusOr<image::TileResult> render_light(const RenderTask& task, TileStats* stats,
                                                  const std::atomic<bool>* cancel,
