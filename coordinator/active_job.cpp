@@ -154,6 +154,18 @@ std::vector<TaskSpec> ActiveJob::task_specs() const {
   return tasks;
 }
 
+store::TaskRecord ActiveJob::task_record(const std::vector<TaskSpec>& specs, int index) const {
+  const TaskSpec& spec = specs[static_cast<std::size_t>(index)];
+  store::TaskRecord task;
+  task.index = index;
+  task.pass = spec.pass == Pass::kPrepass ? store::TaskPass::kPrepass : store::TaskPass::kFinal;
+  task.pass_index = spec.pass_index;
+  task.tile_index = tile_of(index);
+  task.rect = spec.tile;
+  task.samples = spec.samples;
+  return task;
+}
+
 absl::Status ActiveJob::finish_round() {
   const std::size_t round = static_cast<std::size_t>(stage - first_final_stage());
   PRISM_RETURN_IF_ERROR(round_assemblers[round]->check_complete());

@@ -37,6 +37,7 @@
 #include "services/scene/scene_description.h"
 #include "services/spectral/color.h"
 #include "services/spectral/named_spectra.h"
+#include "services/store/job_store.h"
 
 namespace prism::coordinator {
 
@@ -62,6 +63,8 @@ struct ActiveJob {
   // The tasks of one stage (0-based: prepass k is stage k − 1), and of every stage in order.
   std::vector<TaskSpec> stage_specs(int stage) const;
   std::vector<TaskSpec> task_specs() const;
+  // Task `index` of task_specs() (`specs`) as the store records it.
+  store::TaskRecord task_record(const std::vector<TaskSpec>& specs, int index) const;
 
   // Opens the job's finished-tile directory and, beside it, its result pack; before any
   // result is added.

@@ -3,23 +3,26 @@
 // absl::Status they return.
 //
 // State and persistence (everything under the data directory):
-//   jobs.sqlite          the JobStore: jobs, planned tasks, done tasks with their result hash
-//   blobs/               task results (the tile codec's bytes), content-addressed
+//   jobs.sqlite          the JobStore: jobs, planned tasks, done tasks with their result's hash
+//                        and place in the job's result pack
+//   jobs/<job id>/results.pack  a running job's task results end to end (result_pack.h)
+//   jobs/<job id>/tiles/ a running job's finished tiles (finished_tiles.h)
+//   blobs/               task results of jobs from before result packs, content-addressed
 //   bundles/<hash>       packed scene bundles, named by their content hash
 //   scenes/<hash>/       the extracted bundle the scene loader checked
-//   jobs/<job id>/tiles/ a running job's finished tiles (finished_tiles.h)
 //   outputs/<job id>/    the finished job's spectral EXR, RGB EXR, PNG and JSON report
-// A task is marked done in the store only after its result blob is on disk, so a restarted
-// coordinator resumes every unfinished job from the store alone: it re-plans (plans are pure
-// functions of the job), gives the Scheduler the done indices (never leased again) and feeds
-// their stored results into a fresh TileAssembler. Outputs are written atomically before the
-// job becomes DONE.
+// A task is marked done in the store only with its result's bytes written, and CompleteTask
+// answers only once both are synced (group commit: one flush serves every result that arrived
+// during the previous one), so a restarted coordinator resumes every unfinished job from the
+// store alone: it re-plans (plans are pure functions of the job), gives the Scheduler the done
+// indices (never leased again) and feeds their stored results into a fresh TileAssembler.
+// Outputs are written atomically before the job becomes DONE.
 //
 // Memory is bounded by the tiles in flight: a running job holds the partial results of its
 // unfinished tiles (TileAssembler) and its linear sRGB image (3 floats per pixel, for previews
 // and the RGB outputs); finished tiles go to disk and the spectral EXR is streamed from them.
-// When a job is over (done, failed or cancelled) its tile files and the result blobs no other
-// unfinished job shares are deleted, so the data directory keeps only bundles and outputs.
+// When a job is over (done, failed or cancelled) its tile files, result pack and the blobs no
+// other unfinished job shares are deleted, so the data directory keeps only bundles and outputs.
 //
 // Bundles are checked before anything else uses them (bundle_store.h).
 //
@@ -27,8 +30,9 @@
 // (bundle_store.h) keeps the bundles; an ActiveJob (active_job.h) per running job its stages,
 // assemblers and image; the Scheduler (scheduler.h) the leases; JobStore and BlobStore what
 // survives a restart. Its definitions are split by concern: farm_coordinator.cpp (lifecycle,
-// submit, resume, job queries), farm_stages.cpp (stages handed on, events), farm_outputs.cpp
-// (outputs, previews) and farm_workers.cpp (registration, leases, results).
+// submit, job queries), farm_resume.cpp (restart), farm_stages.cpp (stages handed on, events),
+// farm_outputs.cpp (outputs, previews) and farm_workers.cpp (registration, leases, results).
+// What monitoring reads is the read-only FarmView (farm_view.h) it implements.
 //
 // Threading: one mutex guards all state; a background thread calls Scheduler::tick(). Long
 // polls (acquire) and watches wait on a condition variable signalled on every change. The
@@ -58,6 +62,7 @@
 #include "coordinator/active_job.h"
 #include "coordinator/bundle_store.h"
 #include "coordinator/farm_metrics.h"
+#include "coordinator/farm_view.h"
 #include "coordinator/finished_tiles.h"
 #include "coordinator/outputs.h"
 #include "coordinator/prepass_run.h"
@@ -113,25 +118,6 @@ struct FarmOptions {
   std::shared_ptr<spdlog::logger> logger;
 };
 
-// A job as the clients see it.
-struct JobStatus {
-  store::JobRecord record;
-  int tiles_finalised = 0;
-  int tiles_total = 0;
-  double samples_per_second = 0;
-  double eta_seconds = -1;
-};
-
-struct WorkerStatus {
-  store::WorkerRecord record;
-  std::string state;  // idle, busy, lost, left
-  int leases = 0;
-  std::vector<Lease> current;  // the leases it holds now, oldest first
-  std::uint64_t tasks_completed = 0;
-  std::uint64_t samples_completed = 0;  // pixel samples of its accepted results
-  std::int64_t last_seen_ms = 0;
-};
-
 // A lease as handed to a worker, with what it needs to render the task.
 struct LeaseGrant {
   Lease lease;
@@ -149,24 +135,7 @@ struct LeaseGrant {
 
 enum class CompleteResult { kAccepted, kDuplicate };
 
-enum class OutputKind {
-  kSpectralExr = 1,
-  kRgbExr = 2,
-  kPng = 3,
-  kReportJson = 4,
-  kPrimalExr = 5,    // gradient jobs with primal_and_gradients
-  kGradientExr = 6,  // likewise
-  kFilteredExr = 7,  // jobs with differential splatting
-  kFilteredPng = 8,  // likewise
-};
-
-struct OutputFile {
-  OutputKind kind;
-  std::filesystem::path path;
-  std::string file_name;
-};
-
-class FarmCoordinator {
+class FarmCoordinator : public FarmView {
  public:
   // Opens (or creates) the data directory, resumes unfinished jobs and starts the tick thread.
   static absl::StatusOr<std::unique_ptr<FarmCoordinator>> open(FarmOptions options);
@@ -181,38 +150,26 @@ class FarmCoordinator {
   // a scene that does not load (the loader's message). Returns the content hash.
   absl::StatusOr<std::string> upload_bundle(const std::string& claimed_hash,
                                             std::string_view bytes);
-  bool has_bundle(const std::string& hash) const;
+  bool has_bundle(const std::string& hash) const override;
   // The packed bundle; NOT_FOUND for an unknown hash.
   absl::StatusOr<std::string> bundle_bytes(const std::string& hash) const;
 
   // Jobs. Submitting again with a known client token returns the first job unchanged.
   absl::StatusOr<JobStatus> submit(const prism::v1::JobSpec& spec, const std::string& client_token);
-  absl::StatusOr<JobStatus> job(const std::string& job_id);
+  absl::StatusOr<JobStatus> job(const std::string& job_id) override;
   absl::StatusOr<std::vector<JobStatus>> jobs(std::size_t limit,
-                                              const std::vector<store::JobState>& states);
+                                              const std::vector<store::JobState>& states) override;
   absl::StatusOr<JobStatus> cancel(const std::string& job_id);
   // The job's explicit spec (as stored).
   absl::StatusOr<prism::v1::JobSpec> job_spec(const std::string& job_id);
-  // The output files of a DONE job (all kinds when `kinds` is empty). FAILED_PRECONDITION
-  // naming the state otherwise.
-  absl::StatusOr<std::vector<OutputFile>> result_files(const std::string& job_id,
-                                                       const std::vector<OutputKind>& kinds);
-  // The final pass's tiles: queued, leased, done or failed (prism::v1::TileMap's characters).
-  struct TileMapStatus {
-    int width = 0, height = 0, tile_size = 0, tiles_x = 0, tiles_y = 0;
-    std::string states;  // one of q, l, d, f per tile in raster order
-  };
-  absl::StatusOr<TileMapStatus> tile_map(const std::string& job_id);
-  // The job's error estimate against time (convergence.h), one point per accepted final-pass
-  // result; kept for the 256 newest jobs (empty for older ones and before the first result).
-  absl::StatusOr<std::vector<ConvergencePoint>> convergence(const std::string& job_id);
-  // An 8-bit PNG of the image as far as it is finalised. FAILED_PRECONDITION before any tile.
-  absl::StatusOr<std::string> preview_png(const std::string& job_id, float exposure_stops);
-
-  // A counter that moves on every change of any job's state or progress, and a wait for it to
-  // move past `seen` (returns the new value; `seen` on timeout).
-  std::uint64_t change_counter() const;
-  std::uint64_t wait_for_change(std::uint64_t seen, Millis timeout);
+  // The monitoring reads (farm_view.h).
+  absl::StatusOr<std::vector<OutputFile>> result_files(
+      const std::string& job_id, const std::vector<OutputKind>& kinds) override;
+  absl::StatusOr<TileMapStatus> tile_map(const std::string& job_id) override;
+  absl::StatusOr<std::vector<ConvergencePoint>> convergence(const std::string& job_id) override;
+  absl::StatusOr<std::string> preview_png(const std::string& job_id, float exposure_stops) override;
+  std::uint64_t change_counter() const override;
+  std::uint64_t wait_for_change(std::uint64_t seen, Millis timeout) override;
 
   // Workers.
   absl::StatusOr<store::WorkerRecord> register_worker(store::WorkerRecord record,
@@ -230,16 +187,13 @@ class FarmCoordinator {
       const std::vector<std::pair<std::string, std::uint64_t>>& counters = {});
   absl::Status fail(const std::string& worker_id, const std::string& lease_id,
                     FailureClass failure_class, const std::string& message);
-  absl::StatusOr<std::vector<WorkerStatus>> workers();
+  absl::StatusOr<std::vector<WorkerStatus>> workers() override;
   // A drained worker leaves: leases it still holds go back unpenalised, and it is listed as
   // `left` (not `lost`) until it registers again. NOT_FOUND for a worker never registered.
   absl::Status leave(const std::string& worker_id);
 
-  // Monitoring: the farm as it stands (jobs, tasks and workers by state, the Scheduler's
-  // totals, the data directory's size), and the Prometheus exposition of it and of the events
-  // recorded so far (farm_metrics.h).
-  absl::StatusOr<FarmSnapshot> snapshot();
-  absl::StatusOr<std::string> metrics_text();
+  absl::StatusOr<FarmSnapshot> snapshot() override;
+  absl::StatusOr<std::string> metrics_text() override;
 
   // Stops the tick thread and wakes every waiter (the server is shutting down).
   void shutdown();
@@ -248,7 +202,23 @@ class FarmCoordinator {
   explicit FarmCoordinator(FarmOptions options);
   Millis now() const { return options_.clock(); }
   absl::Status start();
+  // Restart (farm_resume.cpp): rebuilds a stored job and replays its stored results.
+  struct Replay;
   absl::Status resume_locked(const store::JobRecord& record);
+  // The job's stored tasks, checked against its plan; the tasks a submission had not stored
+  // when the coordinator stopped are stored now.
+  absl::StatusOr<std::vector<store::TaskRecord>> stored_tasks_locked(
+      const store::JobRecord& record, const ActiveJob& job, const std::vector<TaskSpec>& specs);
+  // Task `index`'s stored result; nothing when it is not done or its bytes were lost (then it
+  // is reopened, to render again).
+  absl::StatusOr<std::optional<image::TileResult>> stored_result_locked(Replay& replay, int index);
+  // Stages first..last are skipped: their tasks count as done.
+  absl::Status skip_stages_locked(Replay& replay, int first, int last);
+  // Each returns the stage the job goes on at.
+  absl::StatusOr<int> replay_prepasses_locked(Replay& replay);
+  absl::StatusOr<int> replay_rounds_locked(Replay& replay);
+  // The final pass's finished tiles (from their records) and done tasks (merged again).
+  absl::Status restore_final_pass_locked(Replay& replay);
   // Target-error jobs: hands the round of stage job.stage to the Scheduler, skipping the tiles
   // that are done (ActiveJob::finish_round ended the round before).
   absl::Status hand_round_locked(ActiveJob& job, const std::string& job_id);

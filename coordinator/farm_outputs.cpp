@@ -69,8 +69,7 @@ absl::StatusOr<std::vector<OutputFile>> FarmCoordinator::result_files(
   return out;
 }
 
-absl::StatusOr<FarmCoordinator::TileMapStatus> FarmCoordinator::tile_map(
-    const std::string& job_id) {
+absl::StatusOr<TileMapStatus> FarmCoordinator::tile_map(const std::string& job_id) {
   std::lock_guard<std::mutex> lock(mutex_);
   PRISM_ASSIGN_OR_RETURN(store::JobRecord record, store_->get_job(job_id));
   TileMapStatus map;

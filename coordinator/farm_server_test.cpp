@@ -5,9 +5,7 @@
 namespace prism::coordinator {
 namespace {
 
-using namespace farm_server_testing;
-namespace fs = std::filesystem;
-namespace v1 = prism::v1;
+using namespace farm_server_testing;  // also fs (std::filesystem) and v1 (prism::v1)
 
 TEST_F(FarmServerTest, AFakeWorkerRendersAJobBitIdenticalToTheEmbeddedRender) {
   const std::string hash = upload_scene();

@@ -156,7 +156,7 @@ const char* content_type_of(const std::filesystem::path& file) {
 }  // namespace
 
 HttpApi::HttpApi(FarmCoordinator& farm, HttpConfig config, std::shared_ptr<spdlog::logger> logger)
-    : farm_(farm), config_(std::move(config)), logger_(std::move(logger)) {}
+    : farm_(farm), view_(farm), config_(std::move(config)), logger_(std::move(logger)) {}
 
 absl::StatusOr<std::unique_ptr<HttpApi>> HttpApi::start(FarmCoordinator& farm,
                                                         const HttpConfig& config,
@@ -231,7 +231,7 @@ void HttpApi::install_routes() {
       states.push_back(*state);
     }
     absl::StatusOr<std::vector<JobStatus>> jobs =
-        farm_.jobs(std::size_t(limit->value_or(0)), states);
+        view_.jobs(std::size_t(limit->value_or(0)), states);
     if (!jobs.ok()) return send_error(res, jobs.status());
     v1::ListJobsResponse response;
     for (const JobStatus& job : *jobs) *response.add_jobs() = rpc::to_proto(job);
@@ -254,7 +254,7 @@ void HttpApi::install_routes() {
     send_message(res, response);
   };
   handlers["getJob"] = [this](const httplib::Request& req, httplib::Response& res) {
-    absl::StatusOr<JobStatus> job = farm_.job(req.matches[1]);
+    absl::StatusOr<JobStatus> job = view_.job(req.matches[1]);
     if (!job.ok()) return send_error(res, job.status());
     send_message(res, rpc::to_proto(*job));
   };
@@ -266,7 +266,7 @@ void HttpApi::install_routes() {
   handlers["watchJob"] = [this](const httplib::Request& req, httplib::Response& res) {
     const std::string job_id = req.matches[1];
     // An unknown job is an ordinary 404, not an empty stream.
-    if (absl::StatusOr<JobStatus> job = farm_.job(job_id); !job.ok())
+    if (absl::StatusOr<JobStatus> job = view_.job(job_id); !job.ok())
       return send_error(res, job.status());
     if (streams_.fetch_add(1) >= kMaxStreams) {
       streams_.fetch_sub(1);
@@ -278,7 +278,7 @@ void HttpApi::install_routes() {
         "text/event-stream",
         [this, job_id](std::size_t, httplib::DataSink& sink) {
           absl::Status status = rpc::follow_job(
-              farm_, job_id, [this, &sink] { return stopping_.load() || !sink.is_writable(); },
+              view_, job_id, [this, &sink] { return stopping_.load() || !sink.is_writable(); },
               [&sink](const v1::JobInfo& info) {
                 const std::string event = absl::StrCat("event: job\ndata: ", to_json(info), "\n\n");
                 return sink.write(event.data(), event.size());
@@ -303,13 +303,13 @@ void HttpApi::install_routes() {
                                                         "-64..64 stops"));
     }
     absl::StatusOr<std::string> png =
-        farm_.preview_png(req.matches[1], float(exposure->value_or(0)));
+        view_.preview_png(req.matches[1], float(exposure->value_or(0)));
     if (!png.ok()) return send_error(res, png.status());
     res.set_header("Cache-Control", "no-store");
     res.set_content(*std::move(png), "image/png");
   };
   handlers["getTiles"] = [this](const httplib::Request& req, httplib::Response& res) {
-    absl::StatusOr<FarmCoordinator::TileMapStatus> map = farm_.tile_map(req.matches[1]);
+    absl::StatusOr<TileMapStatus> map = view_.tile_map(req.matches[1]);
     if (!map.ok()) return send_error(res, map.status());
     v1::TileMap response;
     response.set_width(std::uint32_t(map->width));
@@ -321,7 +321,7 @@ void HttpApi::install_routes() {
     send_message(res, response);
   };
   handlers["getConvergence"] = [this](const httplib::Request& req, httplib::Response& res) {
-    absl::StatusOr<std::vector<ConvergencePoint>> points = farm_.convergence(req.matches[1]);
+    absl::StatusOr<std::vector<ConvergencePoint>> points = view_.convergence(req.matches[1]);
     if (!points.ok()) return send_error(res, points.status());
     v1::Convergence response;
     for (const ConvergencePoint& p : *points) {
@@ -333,7 +333,7 @@ void HttpApi::install_routes() {
     send_message(res, response);
   };
   handlers["listResults"] = [this](const httplib::Request& req, httplib::Response& res) {
-    absl::StatusOr<std::vector<OutputFile>> files = farm_.result_files(req.matches[1], {});
+    absl::StatusOr<std::vector<OutputFile>> files = view_.result_files(req.matches[1], {});
     if (!files.ok()) return send_error(res, files.status());
     v1::ListResultsResponse response;
     for (const OutputFile& file : *files) {
@@ -352,7 +352,7 @@ void HttpApi::install_routes() {
   };
   handlers["getResult"] = [this](const httplib::Request& req, httplib::Response& res) {
     const std::string job_id = req.matches[1], name = req.matches[2];
-    absl::StatusOr<std::vector<OutputFile>> files = farm_.result_files(job_id, {});
+    absl::StatusOr<std::vector<OutputFile>> files = view_.result_files(job_id, {});
     if (!files.ok()) return send_error(res, files.status());
     auto file = std::find_if(files->begin(), files->end(),
                              [&](const OutputFile& f) { return f.file_name == name; });
@@ -378,7 +378,7 @@ void HttpApi::install_routes() {
                              });
   };
   handlers["listWorkers"] = [this](const httplib::Request&, httplib::Response& res) {
-    absl::StatusOr<std::vector<WorkerStatus>> workers = farm_.workers();
+    absl::StatusOr<std::vector<WorkerStatus>> workers = view_.workers();
     if (!workers.ok()) return send_error(res, workers.status());
     v1::ListWorkersResponse response;
     for (const WorkerStatus& w : *workers) *response.add_workers() = rpc::to_proto(w);
@@ -386,7 +386,7 @@ void HttpApi::install_routes() {
   };
   handlers["hasBundle"] = [this](const httplib::Request& req, httplib::Response& res) {
     v1::HasBundleResponse response;
-    response.set_present(farm_.has_bundle(req.matches[1]));
+    response.set_present(view_.has_bundle(req.matches[1]));
     send_message(res, response);
   };
   handlers["uploadBundle"] = [this](const httplib::Request& req, httplib::Response& res) {
@@ -400,7 +400,7 @@ void HttpApi::install_routes() {
     send_message(res, response);
   };
   handlers["metrics"] = [this](const httplib::Request&, httplib::Response& res) {
-    absl::StatusOr<std::string> text = farm_.metrics_text();
+    absl::StatusOr<std::string> text = view_.metrics_text();
     if (!text.ok()) return send_error(res, text.status());
     res.set_content(*std::move(text), "text/plain; version=0.0.4; charset=utf-8");
   };

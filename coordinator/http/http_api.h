@@ -1,9 +1,10 @@
 // The coordinator's HTTP/JSON API and Prometheus /metrics on one listener (`prism-coordinator
 // --http-listen ADDR`; off by default). A thin adapter like the gRPC services: each route of
 // api_routes.h checks the API token (`Authorization: Bearer <token>`, the same token as gRPC),
-// converts the request, calls the FarmCoordinator and writes the reply as the protobuf message's
-// JSON; errors are an ApiError body with the status mapped to HTTP. TLS with the coordinator's
-// certificate and key when it has them.
+// converts the request, calls the FarmCoordinator (every read through its read-only FarmView,
+// farm_view.h) and writes the reply as the protobuf message's JSON; errors are an ApiError body
+// with the status mapped to HTTP. TLS with the coordinator's certificate and key when it has
+// them.
 //
 // Built on cpp-httplib (Debian's libcpp-httplib-dev, compiled with OpenSSL): a maintained
 // library in Debian, a thread pool per server, chunked responses for the event stream and file
@@ -57,7 +58,8 @@ class HttpApi {
   HttpApi(FarmCoordinator& farm, HttpConfig config, std::shared_ptr<spdlog::logger> logger);
   void install_routes();
 
-  FarmCoordinator& farm_;
+  FarmCoordinator& farm_;  // submissions, cancels, bundle uploads
+  FarmView& view_;         // everything the API reads
   const HttpConfig config_;
   std::shared_ptr<spdlog::logger> logger_;
   std::unique_ptr<httplib::Server> server_;

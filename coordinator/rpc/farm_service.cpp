@@ -21,7 +21,7 @@ constexpr Millis kWatchInterval{200};
 
 }  // namespace
 
-absl::Status follow_job(FarmCoordinator& farm, const std::string& job_id,
+absl::Status follow_job(FarmView& farm, const std::string& job_id,
                         const std::function<bool()>& stopped,
                         const std::function<bool(const prism::v1::JobInfo&)>& send) {
   std::optional<prism::v1::JobInfo> last;

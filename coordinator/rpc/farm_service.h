@@ -60,7 +60,7 @@ prism::v1::WorkerInfo to_proto(const WorkerStatus& status);
 // at once and again whenever its state or counts change, until the job is over (OK), `send`
 // returns false (the client went away: OK) or `stopped` returns true (CANCELLED). NOT_FOUND for
 // an unknown job.
-absl::Status follow_job(FarmCoordinator& farm, const std::string& job_id,
+absl::Status follow_job(FarmView& farm, const std::string& job_id,
                         const std::function<bool()>& stopped,
                         const std::function<bool(const prism::v1::JobInfo&)>& send);
 

@@ -1,0 +1,418 @@
+// Jobs through the coordinator's gRPC services: idempotent submission, admission limits and bad
+// specs, restarts that resume (and store a large job's remaining tasks), results from an earlier
+// version's blob store, cancels, scene faults, and outputs written without the farm's lock.
+#include "coordinator/farm_server_fixture.h"
+
+namespace prism::coordinator {
+namespace {
+
+using namespace farm_server_testing;  // also fs (std::filesystem) and v1 (prism::v1)
+
+TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const v1::JobInfo a = submit(small_spec(hash), "token-1");
+  const v1::JobInfo b = submit(small_spec(hash), "token-1");
+  const v1::JobInfo c = submit(small_spec(hash), "token-2");
+  EXPECT_EQ(a.job_id(), b.job_id());
+  EXPECT_NE(a.job_id(), c.job_id());
+  v1::ListJobsRequest request;
+  v1::ListJobsResponse response;
+  auto context = client();
+  ASSERT_TRUE(farm_stub_->ListJobs(context.get(), request, &response).ok());
+  EXPECT_EQ(response.jobs_size(), 2);
+}
+
+TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const v1::JobSpec spec = small_spec(hash);
+  const std::string job_id = submit(spec).job_id();
+  const auto first = run_worker(register_worker(), 7);
+  ASSERT_EQ(first.size(), 7u);
+  stop();
+
+  // Tiles 0-2 (tasks 0-5) finished and went to the tile pack; tile 3 has one of its two
+  // ranges. Their range results are zeroed in the result pack here, so the restart can only
+  // take tiles 0-2 from the tile pack (a damaged range result's task would run again).
+  const fs::path data = root_ / "data";
+  ASSERT_GT(fs::file_size(data / "jobs" / job_id / "tiles" / "tiles.pack"), 0u);
+  {
+    auto store = store::JobStore::open(data / "jobs.sqlite");
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto tasks = store->tasks_of(job_id);
+    ASSERT_TRUE(tasks.ok()) << tasks.status();
+    std::fstream pack(data / "jobs" / job_id / "results.pack",
+                      std::ios::in | std::ios::out | std::ios::binary);
+    ASSERT_TRUE(pack.is_open());
+    for (const store::TaskRecord& task : *tasks) {
+      if (task.tile_index >= 3) continue;
+      ASSERT_EQ(task.state, store::TaskState::kDone) << "task " << task.index;
+      ASSERT_GE(task.result_offset, 0) << "task " << task.index;
+      pack.seekp(task.result_offset);
+      pack << std::string(task.result_size, '\0');
+    }
+    ASSERT_TRUE(pack.good());
+  }
+
+  start();
+  const auto second = run_worker(register_worker());
+  EXPECT_EQ(second.size(), 11u);
+  std::set<std::pair<int, int>> all(first.begin(), first.end());
+  for (const auto& task : second) EXPECT_FALSE(all.contains(task)) << "re-rendered a finished task";
+  all.insert(second.begin(), second.end());
+  EXPECT_EQ(all.size(), 18u);
+  const v1::JobInfo done = wait_done(job_id);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral_exr(job_id), spec);
+  stop();
+
+  // From the store: every task was leased exactly once across both incarnations.
+  auto store = store::JobStore::open(root_ / "data" / "jobs.sqlite");
+  ASSERT_TRUE(store.ok()) << store.status();
+  auto tasks = store->tasks_of(job_id);
+  ASSERT_TRUE(tasks.ok());
+  for (const store::TaskRecord& task : *tasks) {
+    EXPECT_EQ(task.attempts, 1) << "task " << task.index;
+    EXPECT_EQ(task.state, store::TaskState::kDone);
+  }
+  // The finished job keeps its outputs and nothing else.
+  EXPECT_EQ(count_files(data / "blobs"), 0u);
+  EXPECT_FALSE(fs::exists(data / "jobs" / job_id));
+  EXPECT_EQ(count_files(data / "outputs" / job_id), 4u);
+}
+
+// A data directory from before result packs: a job's results are blobs (result_offset -1) and
+// its finished tiles files this version does not read. The restarted coordinator merges the
+// blobs again, renders only the rest, gives the embedded render's bytes and deletes the blobs.
+TEST_F(FarmServerTest, ResultsStoredAsBlobsByAnEarlierVersionAreResumed) {
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const v1::JobSpec spec = small_spec(hash);
+  const std::string job_id = submit(spec).job_id();
+  ASSERT_EQ(run_worker(register_worker(), 7).size(), 7u);
+  stop();
+  const fs::path data = root_ / "data";
+  {
+    auto store = store::JobStore::open(data / "jobs.sqlite");
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto blobs = store::BlobStore::open(data / "blobs");
+    ASSERT_TRUE(blobs.ok());
+    auto tasks = store->tasks_of(job_id);
+    ASSERT_TRUE(tasks.ok()) << tasks.status();
+    std::ifstream pack(data / "jobs" / job_id / "results.pack", std::ios::binary);
+    int moved = 0;
+    for (const store::TaskRecord& task : *tasks) {
+      if (task.state != store::TaskState::kDone) continue;
+      std::string bytes(task.result_size, '\0');
+      pack.seekg(task.result_offset);
+      pack.read(bytes.data(), std::streamsize(bytes.size()));
+      auto put = blobs->put(bytes);
+      ASSERT_TRUE(put.ok()) << put.status();
+      ASSERT_EQ(*put, task.result_hash);
+      ASSERT_TRUE(store->database()
+                      .run("UPDATE tasks SET result_offset = -1, result_size = 0 "
+                           "WHERE job_id = ? AND task_index = ?",
+                           {job_id, std::int64_t{task.index}})
+                      .ok());
+      ++moved;
+    }
+    EXPECT_EQ(moved, 7);
+  }
+  fs::remove(data / "jobs" / job_id / "results.pack");
+  fs::remove(data / "jobs" / job_id / "tiles" / "tiles.pack");
+  start();
+  EXPECT_EQ(run_worker(register_worker()).size(), 11u);
+  const v1::JobInfo done = wait_done(job_id);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral_exr(job_id), spec);
+  EXPECT_EQ(count_files(data / "blobs"), 0u);
+}
+
+// Issue 18, case 4: cancelling a job with a few hundred finished tiles took 10-11 s, deleting
+// its files under the coordinator's lock. Cancel now only moves them out of the way (renames);
+// the job's tiles and results are gone from the store when it returns, and the janitor frees
+// the space afterwards, without the lock.
+TEST_F(FarmServerTest, CancelMovesAJobsFilesOutAtOnceAndTheJanitorDeletesThem) {
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const std::string job_id = submit(small_spec(hash)).job_id();
+  ASSERT_EQ(run_worker(register_worker(), 7).size(), 7u);
+  const fs::path data = root_ / "data";
+  ASSERT_GT(fs::file_size(data / "jobs" / job_id / "tiles" / "tiles.pack"), 0u);
+  ASSERT_GT(fs::file_size(data / "jobs" / job_id / "results.pack"), 0u);
+  v1::JobInfo info;
+  ASSERT_TRUE(cancel_job(job_id, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
+  EXPECT_FALSE(fs::exists(data / "jobs" / job_id));
+  EXPECT_EQ(count_files(data / "blobs"), 0u);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  while (count_files(data / "trash") > 0 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(count_files(data / "trash"), 0u);
+}
+
+TEST_F(FarmServerTest, ASceneFaultFailsTheJobWithTheWorkersMessage) {
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const std::string job_id = submit(small_spec(hash)).job_id();
+  const std::string worker_id = register_worker();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  v1::FailTaskRequest request;
+  request.set_worker_id(worker_id);
+  request.set_lease_id(lease->lease_id());
+  request.set_failure_class(v1::FAILURE_CLASS_SCENE);
+  request.set_message("scene.pbrt:9:3: the sphere is made of cheese");
+  v1::FailTaskResponse response;
+  auto context = worker_call();
+  ASSERT_TRUE(worker_stub_->FailTask(context.get(), request, &response).ok());
+  const v1::JobInfo info = wait_done(job_id);
+  EXPECT_EQ(info.state(), v1::JOB_STATE_FAILED);
+  EXPECT_NE(info.error().find("the sphere is made of cheese"), std::string::npos) << info.error();
+  EXPECT_FALSE(acquire(worker_id).has_value());
+}
+
+TEST_F(FarmServerTest, SubmissionsBeyondTheQueueLimitAreResourceExhausted) {
+  stop();
+  max_queued_jobs_ = 1;
+  start();
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  submit(small_spec(hash), "first");
+  v1::SubmitJobRequest request;
+  *request.mutable_spec() = small_spec(hash);
+  request.set_client_token("second");
+  v1::SubmitJobResponse response;
+  auto context = client();
+  grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(status.error_message().find("--max-queued-jobs 1"), std::string::npos)
+      << status.error_message();
+  // A repeat of the accepted submission is still answered.
+  EXPECT_FALSE(submit(small_spec(hash), "first").job_id().empty());
+}
+
+// Issue 18, "found under load" case 1: the farm accepted a 16384x16384 job that would have
+// needed ~2 TB of disk and GBs of coordinator memory. Admission control refuses what does not
+// fit the budgets, with the numbers, before allocating anything; what fits is accepted, and a
+// cancelled job gives its share back.
+TEST_F(FarmServerTest, JobsBeyondTheMemoryOrDiskBudgetAreRefusedWithTheNumbers) {
+  stop();
+  max_memory_bytes_ = 64 << 20;
+  max_disk_bytes_ = std::uint64_t{100} << 30;
+  start();
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  auto submit_sized = [&](int side, int bins, const std::string& token, v1::JobInfo* info) {
+    v1::SubmitJobRequest request;
+    *request.mutable_spec() = small_spec(hash);
+    request.mutable_spec()->set_width(static_cast<std::uint32_t>(side));
+    request.mutable_spec()->set_height(static_cast<std::uint32_t>(side));
+    request.mutable_spec()->set_bins(static_cast<std::uint32_t>(bins));
+    request.mutable_spec()->set_tile_size(64);
+    request.mutable_spec()->set_samples_per_task(0);
+    request.set_client_token(token);
+    v1::SubmitJobResponse response;
+    auto context = client();
+    grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
+    if (info != nullptr) *info = response.job();
+    return status;
+  };
+  // 16384² at 32 bins: ~200 GiB of finished tiles and outputs.
+  grpc::Status huge = submit_sized(16384, 32, "huge", nullptr);
+  EXPECT_EQ(huge.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(huge.error_message().find("a job of 16384x16384 with 32 bins needs about"),
+            std::string::npos)
+      << huge.error_message();
+  // Refused on memory (its RGB image alone is 3 GiB) before disk is looked at.
+  EXPECT_NE(huge.error_message().find("of memory (RGB image 3.0 GiB"), std::string::npos)
+      << huge.error_message();
+  // 1024² at 16 bins with 64-pixel tiles plans 12 MiB of RGB, 8 MiB for a row of tiles (and
+  // its finalised copy) and 3 MiB of PNG: two fit in 64 MiB, a third does not.
+  v1::JobInfo first;
+  ASSERT_TRUE(submit_sized(1024, 16, "a", &first).ok());
+  ASSERT_TRUE(submit_sized(1024, 16, "b", nullptr).ok());
+  grpc::Status third = submit_sized(1024, 16, "c", nullptr);
+  EXPECT_EQ(third.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(third.error_message().find("more than the 64 MiB allowed (--max-memory; the "
+                                       "unfinished jobs plan 46 MiB)"),
+            std::string::npos)
+      << third.error_message();
+  // Cancelling gives the first job's share back.
+  v1::JobInfo cancelled;
+  ASSERT_TRUE(cancel_job(first.job_id(), &cancelled).ok());
+  EXPECT_TRUE(submit_sized(1024, 16, "c", nullptr).ok());
+
+  // Disk: within the memory budget but over --max-disk.
+  stop();
+  max_memory_bytes_ = std::uint64_t{1} << 40;
+  max_disk_bytes_ = 64 << 20;
+  start();
+  grpc::Status disk = submit_sized(2048, 64, "disk", nullptr);
+  EXPECT_EQ(disk.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(disk.error_message().find("of disk (finished tiles"), std::string::npos)
+      << disk.error_message();
+  // The two unfinished 1024² jobs resumed with the restart and count too.
+  EXPECT_NE(disk.error_message().find("(--max-disk 64 MiB less the unfinished jobs' "),
+            std::string::npos)
+      << disk.error_message();
+}
+
+TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  v1::SubmitJobRequest request;
+  *request.mutable_spec() = small_spec(hash);
+  request.mutable_spec()->set_bins(1000);
+  v1::SubmitJobResponse response;
+  auto context = client();
+  grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(status.error_message(), "bins 1000 is out of range: want 4..256");
+}
+
+// Issue 18: storing a job of hundreds of thousands of tasks held the coordinator's lock for
+// seconds, and every heartbeat, lease and query waited. The tasks are stored in parts with the
+// lock released between them (4 tasks a part here, 18 tasks): at each pause the farm answers
+// another call and the job reads QUEUED with the tasks stored so far. A coordinator that
+// stops in the middle (simulated: the hook ends the submission as a crash would) stores the
+// rest when it restarts, and the job renders the embedded render's bytes.
+TEST_F(FarmServerTest, ALargeJobsTasksAreStoredInPartsAndARestartStoresTheRest) {
+  stop();
+  tasks_per_store_part_ = 4;
+  std::vector<std::uint64_t> stored_at_pause;
+  bool crash = true;
+  between_task_parts_ = [&](const std::string& job_id) -> absl::Status {
+    // Another thread's call is answered while the submission pauses (were the lock held, it
+    // would wait for it: the test's 30 s deadline would fail it).
+    auto query = std::async(std::launch::async, [&] {
+      v1::GetJobRequest request;
+      request.set_job_id(job_id);
+      v1::JobInfo info;
+      auto context = client();
+      const grpc::Status status = farm_stub_->GetJob(context.get(), request, &info);
+      EXPECT_TRUE(status.ok()) << status.error_message();
+      EXPECT_EQ(info.state(), v1::JOB_STATE_QUEUED);
+      return info.progress().tasks_total();
+    });
+    stored_at_pause.push_back(query.get());
+    if (crash && stored_at_pause.size() == 2) return absl::UnavailableError("stopped here");
+    return absl::OkStatus();
+  };
+  start();
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const v1::JobSpec spec = small_spec(hash);  // 9 tiles x 2 ranges
+  v1::SubmitJobRequest request;
+  *request.mutable_spec() = spec;
+  v1::SubmitJobResponse response;
+  {
+    auto context = client();
+    EXPECT_EQ(farm_stub_->SubmitJob(context.get(), request, &response).error_code(),
+              grpc::StatusCode::UNAVAILABLE);
+  }
+  EXPECT_EQ(stored_at_pause, (std::vector<std::uint64_t>{4, 8}));
+
+  stop();
+  crash = false;
+  start();
+  v1::ListJobsRequest list;
+  v1::ListJobsResponse jobs;
+  {
+    auto context = client();
+    ASSERT_TRUE(farm_stub_->ListJobs(context.get(), list, &jobs).ok());
+  }
+  ASSERT_EQ(jobs.jobs_size(), 1);
+  const std::string job_id = jobs.jobs(0).job_id();
+  EXPECT_EQ(jobs.jobs(0).progress().tasks_total(), 18u);
+  EXPECT_EQ(run_worker(register_worker()).size(), 18u);
+  const v1::JobInfo done = wait_done(job_id);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral_exr(job_id), spec);
+
+  // A submission in parts on a running coordinator: the same bytes again.
+  stored_at_pause.clear();
+  const std::string second = submit(spec, "again").job_id();
+  EXPECT_EQ(stored_at_pause, (std::vector<std::uint64_t>{4, 8, 12, 16}));
+  EXPECT_EQ(run_worker(register_worker()).size(), 18u);
+  ASSERT_EQ(wait_done(second).state(), v1::JOB_STATE_DONE);
+  expect_identical(fetch_spectral_exr(second), spec);
+}
+
+// Writing a finished job's outputs (tens of seconds for a big one) held the coordinator's lock,
+// so every RPC waited. The finaliser thread writes them without it: while it is held up before
+// writing, the job reads FINALISING, another job is submitted and its task leased and
+// completed; released, the job is DONE with the embedded render's bytes. A job cancelled while
+// finalising ends CANCELLED with no outputs. (Were the lock held, these calls would block
+// until the test's 30 s deadlines and fail.)
+TEST_F(FarmServerTest, OutputsAreWrittenWithoutTheCoordinatorsLock) {
+  std::mutex gate_mutex;
+  std::condition_variable gate;
+  int waiting = 0;
+  bool open = false;
+  stop();
+  before_write_outputs_ = [&] {
+    std::unique_lock<std::mutex> lock(gate_mutex);
+    ++waiting;
+    gate.notify_all();
+    gate.wait(lock, [&] { return open; });
+  };
+  start();
+  auto wait_for_writer = [&](int n) {
+    std::unique_lock<std::mutex> lock(gate_mutex);
+    return gate.wait_for(lock, std::chrono::seconds(30), [&] { return waiting >= n; });
+  };
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const v1::JobSpec spec = small_spec(hash);
+  const std::string job_id = submit(spec, "first").job_id();
+  const std::string worker_id = register_worker();
+  EXPECT_EQ(run_worker(worker_id).size(), 18u);
+  ASSERT_TRUE(wait_for_writer(1));
+  v1::JobInfo info;
+  ASSERT_TRUE(get_job(job_id, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_FINALISING);
+  v1::JobSpec other = small_spec(hash);
+  other.set_seed(9);
+  const std::string other_id = submit(other, "second").job_id();
+  std::optional<v1::Lease> lease = acquire(worker_id);
+  ASSERT_TRUE(lease.has_value());
+  EXPECT_EQ(lease->task().job_id(), other_id);
+  EXPECT_TRUE(complete(worker_id, lease->lease_id(), render(*lease)).ok());
+  {
+    std::lock_guard<std::mutex> lock(gate_mutex);
+    open = true;
+  }
+  gate.notify_all();
+  const v1::JobInfo done = wait_done(job_id);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral_exr(job_id), spec);
+
+  // Cancelled while finalising: no outputs.
+  {
+    std::lock_guard<std::mutex> lock(gate_mutex);
+    open = false;
+  }
+  EXPECT_EQ(run_worker(worker_id).size(), 17u);
+  ASSERT_TRUE(wait_for_writer(2));
+  ASSERT_TRUE(cancel_job(other_id, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
+  {
+    std::lock_guard<std::mutex> lock(gate_mutex);
+    open = true;
+  }
+  gate.notify_all();
+  // The finaliser finishes; the job stays cancelled and its outputs are gone.
+  for (int i = 0; i < 500 && fs::exists(root_ / "data" / "outputs" / other_id); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  EXPECT_FALSE(fs::exists(root_ / "data" / "outputs" / other_id));
+  ASSERT_TRUE(get_job(other_id, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
+  stop();  // joins the finaliser while the test's gate still exists
+}
+
+}  // namespace
+}  // namespace prism::coordinator
