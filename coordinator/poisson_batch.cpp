@@ -83,48 +83,44 @@ struct Lanes {
   r3 = __builtin_shufflevector(t1, t3, 2, 3, 6, 7);
 }
 
-// kBatch pixels of B values, pixel-major (in[p·B + b]), to bin-major t[b·kBatch + p], by
-// 4x4 blocks.
-[[gnu::always_inline]] inline void to_bin_major(const float* in, int B, float* t) {
-  const int B4 = B & ~3;
-  // One group of four pixels at a time, so the loads walk four contiguous rows (prefetch
-  // friendly) rather than all kBatch rows at once.
-  for (int g = 0; g < kBatch; g += 4) {
-    for (int b = 0; b < B4; b += 4) {
-      F4 r0 = load<F4>(in + (g + 0) * B + b);
-      F4 r1 = load<F4>(in + (g + 1) * B + b);
-      F4 r2 = load<F4>(in + (g + 2) * B + b);
-      F4 r3 = load<F4>(in + (g + 3) * B + b);
-      transpose4(r0, r1, r2, r3);
-      store(t + (b + 0) * kBatch + g, r0);
-      store(t + (b + 1) * kBatch + g, r1);
-      store(t + (b + 2) * kBatch + g, r2);
-      store(t + (b + 3) * kBatch + g, r3);
-    }
-  }
-  for (int b = B4; b < B; ++b) {
-    for (int p = 0; p < kBatch; ++p) t[b * kBatch + p] = in[p * B + b];
-  }
+// A 4x4 block of floats from rows `in` (stride in_stride) to columns of `out` (stride out_stride).
+[[gnu::always_inline]] inline void transpose_block(const float* in, int in_stride, float* out,
+                                                   int out_stride) {
+  F4 r0 = load<F4>(in);
+  F4 r1 = load<F4>(in + in_stride);
+  F4 r2 = load<F4>(in + 2 * in_stride);
+  F4 r3 = load<F4>(in + 3 * in_stride);
+  transpose4(r0, r1, r2, r3);
+  store(out, r0);
+  store(out + out_stride, r1);
+  store(out + 2 * out_stride, r2);
+  store(out + 3 * out_stride, r3);
 }
 
-// The inverse of to_bin_major.
-[[gnu::always_inline]] inline void to_pixel_major(const float* t, int B, float* out) {
+// kBatch pixels of B values between pixel-major (p·B + b) and bin-major (b·kBatch + p) layouts,
+// by 4x4 blocks: to bin-major when kToBinMajor, back otherwise. One group of four pixels at a
+// time, so the pixel-major side walks four contiguous rows (prefetch friendly) rather than all
+// kBatch rows at once.
+template <bool kToBinMajor>
+[[gnu::always_inline]] inline void transpose_batch(const float* from, int B, float* to) {
   const int B4 = B & ~3;
   for (int g = 0; g < kBatch; g += 4) {
     for (int b = 0; b < B4; b += 4) {
-      F4 r0 = load<F4>(t + (b + 0) * kBatch + g);
-      F4 r1 = load<F4>(t + (b + 1) * kBatch + g);
-      F4 r2 = load<F4>(t + (b + 2) * kBatch + g);
-      F4 r3 = load<F4>(t + (b + 3) * kBatch + g);
-      transpose4(r0, r1, r2, r3);
-      store(out + (g + 0) * B + b, r0);
-      store(out + (g + 1) * B + b, r1);
-      store(out + (g + 2) * B + b, r2);
-      store(out + (g + 3) * B + b, r3);
+      if constexpr (kToBinMajor) {
+        transpose_block(from + g * B + b, B, to + b * kBatch + g, kBatch);
+      } else {
+        transpose_block(from + b * kBatch + g, kBatch, to + g * B + b, B);
+      }
     }
   }
   for (int b = B4; b < B; ++b) {
-    for (int p = 0; p < kBatch; ++p) out[p * B + b] = t[b * kBatch + p];
+    for (int p = 0; p < kBatch; ++p) {
+      if constexpr (kToBinMajor) {
+        to[b * kBatch + p] = from[p * B + b];
+      } else {
+        to[p * B + b] = from[b * kBatch + p];
+      }
+    }
   }
 }
 
@@ -149,8 +145,8 @@ template <int W>
   float* ti = t;
   float* tg = t + kBatch * B + kPad;
   float* to = tg + kBatch * B + kPad;
-  to_bin_major(primal, B, ti);
-  to_bin_major(gradient, B, tg);
+  transpose_batch<true>(primal, B, ti);
+  transpose_batch<true>(gradient, B, tg);
   F check[N] = {};
   for (int c = 0; c < chains; ++c) {
     const int* order = order_all + c * L;
@@ -188,7 +184,7 @@ template <int W>
       V::narrow(x, to + order[j] * kBatch, check);
     }
   }
-  to_pixel_major(to, B, out);
+  transpose_batch<false>(to, B, out);
   float all = 0;
   for (int k = 0; k < N; ++k) {
     for (int p = 0; p < W; ++p) all += check[k][p];

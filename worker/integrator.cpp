@@ -437,11 +437,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
                   lambda_pdf.sample_lanes(sampler.at(kDimWavelength), lanes), lanes,
                   trace.early_stop);
 
-  const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
-  // The film position from the pixel filter; the sample's value carries the filter's weight.
-  const FilterSample filtered = scene_.pixel_filter().sample(film.u0, film.u1);
-  Ray ray = scene_.camera().generate_ray({float(px) + filtered.x, float(py) + filtered.y},
-                                         {lens.u0, lens.u1});
+  auto [ray, filter_weight] = scene_.camera_sample(px, py, sampler);
   ++counters.camera_rays;
   if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
 
@@ -500,7 +496,7 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     crossings = 0;
     if (depth >= options.rr_min_depth && !path.survives_roulette(roulette_u)) break;
   }
-  return path.contribution(filtered.weight);
+  return path.contribution(filter_weight);
 }
 
 }  // namespace prism::worker

@@ -292,6 +292,23 @@ bool survives_roulette(int depth, int lanes, WalkRng& rng, SampledSpectrum* beta
   return true;
 }
 
+// The slab's two interfaces, the coat on top and the base below (an Interface points at its
+// layer, so they live together).
+struct Slab {
+  Slab(float eta, const TrowbridgeReitz& distrib, int lanes, const LayeredBsdf::Base& base_layer)
+      : coat(eta, distrib, lanes), base(base_layer), top(coat), bottom(base) {}
+  Slab(const Slab&) = delete;
+  Slab& operator=(const Slab&) = delete;
+  const Coat coat;
+  const BaseLayer base;
+  const Interface top, bottom;
+};
+
+// The BSDF is two-sided: both directions mirrored so that wo is above the coat.
+std::pair<Vec3f, Vec3f> above_the_coat(const Vec3f& wo, const Vec3f& wi) {
+  return wo.z < 0 ? std::pair{-wo, -wi} : std::pair{wo, wi};
+}
+
 }  // namespace
 
 LayeredBsdf::LayeredBsdf(const DielectricBsdf& top, const Base& bottom, const LayerParams& params,
@@ -314,13 +331,9 @@ LayeredBsdf::LayeredBsdf(const DielectricBsdf& top, const Base& bottom, const La
 SampledSpectrum LayeredBsdf::eval(const Vec3f& wo_in, const Vec3f& wi_in) const {
   if (wo_in.z == 0 || wi_in.z == 0) return {};
   WalkRng rng(seed_of(Stream::kEval, {wo_in.x, wo_in.y, wo_in.z, wi_in.x, wi_in.y, wi_in.z}));
-  // Two-sided: mirror both directions so that wo is above the coat.
-  const bool flip = wo_in.z < 0;
-  const Vec3f wo = flip ? -wo_in : wo_in, wi = flip ? -wi_in : wi_in;
-
-  const Coat coat(eta_, distrib_, lanes_);
-  const BaseLayer base(bottom_);
-  const Interface top(coat), bottom(base);
+  const auto [wo, wi] = above_the_coat(wo_in, wi_in);
+  const Slab slab(eta_, distrib_, lanes_, bottom_);
+  const Interface &top = slab.top, &bottom = slab.bottom;
   // The walk enters through the coat; it leaves through the coat for a reflection and through
   // the base for a transmission (never, for an opaque base, but the logic stays general).
   const bool reflection = same_hemisphere(wo, wi);
@@ -333,7 +346,7 @@ SampledSpectrum LayeredBsdf::eval(const Vec3f& wo_in, const Vec3f& wi_in) const 
 
   // Reflection at the coat itself, known exactly (0 for a smooth coat: a delta).
   SampledSpectrum f;
-  if (reflection) f = coat.f(wo, wi) * float(params_.samples);
+  if (reflection) f = slab.coat.f(wo, wi) * float(params_.samples);
 
   for (int s = 0; s < params_.samples; ++s) {
     // Into the slab through the coat, and, from the other end, the exit interface sampled from
@@ -444,17 +457,14 @@ SampledSpectrum LayeredBsdf::eval(const Vec3f& wo_in, const Vec3f& wi_in) const 
 
 SampledSpectrum LayeredBsdf::pdf(const Vec3f& wo_in, const Vec3f& wi_in) const {
   WalkRng rng(seed_of(Stream::kPdf, {wi_in.x, wi_in.y, wi_in.z, wo_in.x, wo_in.y, wo_in.z}));
-  const bool flip = wo_in.z < 0;
-  const Vec3f wo = flip ? -wo_in : wo_in, wi = flip ? -wi_in : wi_in;
-
-  const Coat coat(eta_, distrib_, lanes_);
-  const BaseLayer base(bottom_);
-  const Interface top(coat), bottom(base);
+  const auto [wo, wi] = above_the_coat(wo_in, wi_in);
+  const Slab slab(eta_, distrib_, lanes_, bottom_);
+  const Interface &top = slab.top, &bottom = slab.bottom;
   const bool reflection = same_hemisphere(wo, wi);
 
   // Reflection at the coat (pbrt-v4 uses the reflection-only density here).
   double sum = 0;
-  if (reflection) sum += double(params_.samples) * coat.pdf(wo, wi, kReflection);
+  if (reflection) sum += double(params_.samples) * slab.coat.pdf(wo, wi, kReflection);
 
   for (int s = 0; s < params_.samples; ++s) {
     if (reflection) {
@@ -520,10 +530,9 @@ std::optional<BsdfSample> LayeredBsdf::sample(const Vec3f& wo_in, float uc, Poin
     return BsdfSample{wi, ratio * p[0], p, false, transmission, false, 1.0f};
   };
 
-  const Coat coat(eta_, distrib_, lanes_);
-  const BaseLayer base(bottom_);
-  const Interface top(coat), bottom(base);
-  const auto entry = coat.sample(wo, uc, u, kBoth, Transport::kRadiance);
+  const Slab slab(eta_, distrib_, lanes_, bottom_);
+  const Interface &top = slab.top, &bottom = slab.bottom;
+  const auto entry = slab.coat.sample(wo, uc, u, kBoth, Transport::kRadiance);
   if (!usable(entry)) return std::nullopt;
   if (!entry->transmission) {
     const Vec3f wi = outside(entry->wi);

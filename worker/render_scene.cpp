@@ -10,6 +10,7 @@
 #include "services/scene/source_location.h"
 #include "services/scene/wavelength_dependence.h"
 #include "worker/float_hash.h"
+#include "worker/sample_layout.h"
 
 namespace prism::worker {
 namespace {
@@ -337,6 +338,14 @@ const Material& RenderScene::material_at(int index, const SurfaceHit& hit, const
     m = &materials_[std::size_t(chosen)];
   }
   return *m;
+}
+
+RenderScene::CameraSample RenderScene::camera_sample(int px, int py, const Sampler& sampler) const {
+  const Point2 film = sampler.at2(layout::kDimFilm), lens = sampler.at2(layout::kDimLens);
+  const FilterSample filtered = pixel_filter().sample(film.u0, film.u1);
+  return {
+      camera_.generate_ray({float(px) + filtered.x, float(py) + filtered.y}, {lens.u0, lens.u1}),
+      filtered.weight};
 }
 
 }  // namespace prism::worker

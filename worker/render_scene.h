@@ -35,6 +35,7 @@
 #include "worker/material.h"
 #include "worker/medium.h"
 #include "worker/pixel_filter.h"
+#include "worker/sampler.h"
 
 namespace prism::worker {
 
@@ -61,6 +62,14 @@ class RenderScene {
   const Camera& camera() const { return camera_; }
   // The scene's pixel filter (pbrt-v4's default gaussian when it names none).
   const PixelFilter& pixel_filter() const { return *pixel_filter_; }
+  // A pixel sample's camera ray: its film position from the pixel filter (dimensions
+  // layout::kDimFilm) and its lens point (layout::kDimLens). The sample's value carries
+  // `filter_weight`.
+  struct CameraSample {
+    Ray ray;
+    float filter_weight = 1;
+  };
+  CameraSample camera_sample(int px, int py, const Sampler& sampler) const;
   const std::vector<Material>& materials() const { return materials_; }
   // Material `index` as it stands at the hit seen from direction wo (unit, away from the
   // surface): a mix resolved to one of its components by pbrt-v4's rule, a hash of (p, wo) and

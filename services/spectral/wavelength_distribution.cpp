@@ -88,6 +88,17 @@ double cyclic_offset(double u, int lane, int lanes) {
   return v >= 1.0 ? v - 1.0 : v;
 }
 
+// Hero lanes from one number: lane s samples u + s/lanes (mod 1).
+template <typename Distribution>
+SampledWavelengths sample_cyclic_lanes(const Distribution& d, double u, int lanes) {
+  SampledWavelengths w(lanes);
+  for (int s = 0; s < lanes; ++s) {
+    const WavelengthSample x = d.sample(cyclic_offset(u, s, lanes));
+    w.set(s, x.lambda, x.pdf);
+  }
+  return w;
+}
+
 }  // namespace
 
 WavelengthDistribution::WavelengthDistribution(std::vector<double> weights) {
@@ -230,12 +241,7 @@ double WavelengthDistribution::cdf(float lambda_nm) const {
 }
 
 SampledWavelengths WavelengthDistribution::sample_lanes(double u, int lanes) const {
-  SampledWavelengths w(lanes);
-  for (int s = 0; s < lanes; ++s) {
-    const WavelengthSample x = sample(cyclic_offset(u, s, lanes));
-    w.set(s, x.lambda, x.pdf);
-  }
-  return w;
+  return sample_cyclic_lanes(*this, u, lanes);
 }
 
 std::vector<std::uint16_t> WavelengthDistribution::quantise() const {
@@ -368,12 +374,7 @@ double QuantisedWavelengthCdf::cdf(float lambda_nm) const {
 }
 
 SampledWavelengths QuantisedWavelengthCdf::sample_lanes(double u, int lanes) const {
-  SampledWavelengths w(lanes);
-  for (int s = 0; s < lanes; ++s) {
-    const WavelengthSample x = sample(cyclic_offset(u, s, lanes));
-    w.set(s, x.lambda, x.pdf);
-  }
-  return w;
+  return sample_cyclic_lanes(*this, u, lanes);
 }
 
 }  // namespace prism::spectral

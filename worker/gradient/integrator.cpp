@@ -627,11 +627,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                 lambda_pdf.sample_lanes(sampler.at(kDimWavelength), 1));
   if (!path.start(lambda_pdf, offset_bins_)) return path.out;
 
-  const Point2 film = sampler.at2(kDimFilm), lens = sampler.at2(kDimLens);
-  // The film position from the pixel filter; the sample's value carries the filter's weight.
-  const FilterSample filtered = scene_.pixel_filter().sample(film.u0, film.u1);
-  Ray ray = scene_.camera().generate_ray({float(px) + filtered.x, float(py) + filtered.y},
-                                         {lens.u0, lens.u1});
+  auto [ray, filter_weight] = scene_.camera_sample(px, py, sampler);
   ++counters.camera_rays;
   if (guides) *guides = GuideValues{1.0f, {}, 0.0f};
 
@@ -681,7 +677,7 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
     if (!path.scatter_at_surface(ray, hit, info, material, vertex, dim)) break;
     crossings = 0;
   }
-  return path.finish(filtered.weight);
+  return path.finish(filter_weight);
 }
 
 }  // namespace prism::worker
