@@ -23,6 +23,7 @@
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
 #include "services/rpc/credentials.h"
+#include "services/rpc/result_download.h"
 #include "services/rpc/status_mapping.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
@@ -272,37 +273,17 @@ absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
   v1::GetResultRequest request;
   request.set_job_id(id);
   auto reader = farm.stub().GetResult(context.get(), request);
-  std::map<v1::OutputKind, std::string> files;
-  std::map<v1::OutputKind, std::string> verified;
-  v1::ResultChunk chunk;
-  absl::Status failure;
-  while (failure.ok() && reader->Read(&chunk)) {
-    std::string& bytes = files[chunk.kind()];
-    if (chunk.offset() != bytes.size()) {
-      failure = absl::DataLossError(absl::StrCat("result ", chunk.file_name(), ": chunk at ",
-                                                 chunk.offset(), ", expected ", bytes.size()));
-      break;
-    }
-    bytes += chunk.data();
-    if (chunk.last()) {
-      if (base::sha256_hex(bytes) != chunk.sha256()) {
-        failure = absl::DataLossError(
-            absl::StrCat("result ", chunk.file_name(), " does not match its SHA-256"));
-        break;
-      }
-      verified[chunk.kind()] = std::move(bytes);
-      files.erase(chunk.kind());
-    }
-  }
-  if (!failure.ok()) {
+  absl::StatusOr<rpc::ResultFiles> read = rpc::read_result_files(*reader);
+  if (!read.ok()) {
     context->TryCancel();
     reader->Finish();
-    return failure;
+    return read.status();
   }
   if (grpc::Status s = reader->Finish(); !s.ok()) return rpc_error(s);
-  if (!files.empty()) return absl::DataLossError("the result stream ended inside a file");
+  if (read->ended_inside_a_file)
+    return absl::DataLossError("the result stream ended inside a file");
   std::string written;
-  for (auto& [kind, bytes] : verified) {
+  for (auto& [kind, bytes] : read->files) {
     fs::path path;
     switch (kind) {
       case v1::OUTPUT_KIND_SPECTRAL_EXR:

@@ -31,6 +31,7 @@
 #include "services/job/job_spec.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
+#include "services/rpc/result_download.h"
 #include "services/rpc/result_upload.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
@@ -300,16 +301,11 @@ class FarmServerTest : public ::testing::Test {
     request.add_kinds(kind);
     auto context = client();
     auto reader = farm_stub_->GetResult(context.get(), request);
-    std::string bytes, sha;
-    v1::ResultChunk chunk;
-    while (reader->Read(&chunk)) {
-      EXPECT_EQ(chunk.offset(), bytes.size());
-      bytes += chunk.data();
-      if (chunk.last()) sha = chunk.sha256();
-    }
+    absl::StatusOr<prism::rpc::ResultFiles> read = prism::rpc::read_result_files(*reader);
     EXPECT_TRUE(reader->Finish().ok());
-    EXPECT_EQ(sha, base::sha256_hex(bytes));
-    return bytes;
+    EXPECT_TRUE(read.ok() && !read->ended_inside_a_file && read->files.size() == 1)
+        << read.status();
+    return read.ok() ? read->files[kind] : std::string();
   }
 
   // `filtered`: the job's filtered image (differential splatting) instead of the main one.

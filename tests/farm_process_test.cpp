@@ -30,6 +30,7 @@
 #include "services/image/tile_codec.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
+#include "services/rpc/result_download.h"
 #include "services/rpc/result_upload.h"
 #include "services/scene/bundle.h"
 #include "services/store/job_store.h"
@@ -80,10 +81,9 @@ class FarmProcessTest : public ::testing::Test {
 
   // Starts the coordinator on `port` (0: any) and connects the stubs to it.
   void start_coordinator(int port = 0) {
-    coordinator_ = spawn({PRISM_COORDINATOR_BINARY, "--listen", "127.0.0.1:" + std::to_string(port),
-                          "--data-dir", (root_ / "data").string(), "--worker-secret", kSecret,
-                          "--api-token", kToken, "--heartbeat-ms", std::to_string(kHeartbeatMs),
-                          "--lease-ms", "1000", "--log-level", "warn"});
+    coordinator_ = spawn(testing::coordinator_command(
+        PRISM_COORDINATOR_BINARY, "127.0.0.1:" + std::to_string(port), root_ / "data", kSecret,
+        kToken, {"--heartbeat-ms", std::to_string(kHeartbeatMs), "--lease-ms", "1000"}));
     ASSERT_NE(coordinator_, nullptr);
     const std::optional<std::string> line =
         coordinator_->wait_for_line("listening on port", std::chrono::seconds(20));
@@ -219,15 +219,11 @@ class FarmProcessTest : public ::testing::Test {
     request.add_kinds(kind);
     auto context = client();
     auto reader = stub_->GetResult(context.get(), request);
-    std::string bytes, sha;
-    v1::ResultChunk chunk;
-    while (reader->Read(&chunk)) {
-      bytes += chunk.data();
-      if (chunk.last()) sha = chunk.sha256();
-    }
+    absl::StatusOr<rpc::ResultFiles> read = rpc::read_result_files(*reader);
     EXPECT_TRUE(reader->Finish().ok());
-    EXPECT_EQ(sha, base::sha256_hex(bytes));
-    return bytes;
+    EXPECT_TRUE(read.ok() && !read->ended_inside_a_file && read->files.size() == 1)
+        << read.status();
+    return read.ok() ? read->files[kind] : std::string();
   }
 
   static std::vector<float> read_pixels(const fs::path& file) {
