@@ -27,10 +27,9 @@ TEST(DashboardBrowserTest, TheDashboardFollowsAJobAndCancelsAnother) {
   fs::create_directories(root / "scene");
   fs::copy_file(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/furnace.pbrt",
                 root / "scene" / "scene.pbrt");
-  auto coordinator = testing::ChildProcess::start(
-      {PRISM_COORDINATOR_BINARY, "--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0",
-       "--data-dir", (root / "data").string(), "--worker-secret", kSecret, "--api-token", kToken,
-       "--heartbeat-ms", "200", "--log-level", "warn"});
+  auto coordinator = testing::ChildProcess::start(testing::coordinator_command(
+      PRISM_COORDINATOR_BINARY, "127.0.0.1:0", root / "data", kSecret, kToken,
+      {"--http-listen", "127.0.0.1:0", "--heartbeat-ms", "200"}));
   ASSERT_NE(coordinator, nullptr);
   const auto [grpc_port, http_port] = testing::coordinator_ports(*coordinator);
   ASSERT_GT(grpc_port, 0);
@@ -38,27 +37,10 @@ TEST(DashboardBrowserTest, TheDashboardFollowsAJobAndCancelsAnother) {
 
   // Twelve tiles of a second or two each for one worker thread: the preview fills in.
   auto submit = [&](const std::string& spp, const std::string& seed) {
-    testing::RunResult r = testing::run({PRISM_BINARY,
-                                         "submit",
-                                         (root / "scene/scene.pbrt").string(),
-                                         "--coordinator",
-                                         address,
-                                         "--token",
-                                         kToken,
-                                         "--integrator",
-                                         "hero",
-                                         "--spp",
-                                         spp,
-                                         "--resolution",
-                                         "64x48",
-                                         "--tile",
-                                         "16",
-                                         "--bins",
-                                         "8",
-                                         "--seed",
-                                         seed,
-                                         "--samples-per-task",
-                                         spp});
+    testing::RunResult r = testing::run(testing::submit_command(
+        PRISM_BINARY, root / "scene/scene.pbrt", address, kToken,
+        {"--integrator", "hero", "--spp", spp, "--resolution", "64x48", "--tile", "16", "--bins",
+         "8", "--seed", seed, "--samples-per-task", spp}));
     EXPECT_EQ(r.exit_code, 0) << r.err;
     return r.out.substr(0, r.out.find('\n'));
   };

@@ -243,12 +243,11 @@ class FarmBadInputTest : public ::testing::Test {
     farm_ = new Farm;
     farm_->root = testing::fresh_dir("farm_bad_input");
 
-    testing::ChildProcess* coordinator =
-        spawn({PRISM_COORDINATOR_BINARY, "--listen", "127.0.0.1:0", "--data-dir",
-               (farm_->root / "data").string(), "--worker-secret", kSecret, "--api-token", kToken,
-               "--max-bundle-bytes", std::to_string(kMaxBundleBytes), "--heartbeat-ms",
-               std::to_string(kHeartbeatMs), "--lease-ms", std::to_string(kLeaseMs), "--log-level",
-               "error"});
+    testing::ChildProcess* coordinator = spawn(testing::coordinator_command(
+        PRISM_COORDINATOR_BINARY, "127.0.0.1:0", farm_->root / "data", kSecret, kToken,
+        {"--max-bundle-bytes", std::to_string(kMaxBundleBytes), "--heartbeat-ms",
+         std::to_string(kHeartbeatMs), "--lease-ms", std::to_string(kLeaseMs)},
+        "error"));
     ASSERT_NE(coordinator, nullptr);
     const std::optional<std::string> line =
         coordinator->wait_for_line("listening on port", std::chrono::seconds(20));

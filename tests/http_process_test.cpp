@@ -50,23 +50,9 @@ class HttpProcessTest : public ::testing::Test {
   // Starts the coordinator with the HTTP listener (HTTPS and TLS gRPC with `tls`); reads both
   // ports.
   void start_coordinator(bool tls) {
-    std::vector<std::string> argv = {PRISM_COORDINATOR_BINARY,
-                                     "--listen",
-                                     "127.0.0.1:0",
-                                     "--http-listen",
-                                     "127.0.0.1:0",
-                                     "--data-dir",
-                                     (root_ / "data").string(),
-                                     "--worker-secret",
-                                     kSecret,
-                                     "--api-token",
-                                     kToken,
-                                     "--heartbeat-ms",
-                                     "200",
-                                     "--lease-ms",
-                                     "2000",
-                                     "--log-level",
-                                     "warn"};
+    std::vector<std::string> argv = testing::coordinator_command(
+        PRISM_COORDINATOR_BINARY, "127.0.0.1:0", root_ / "data", kSecret, kToken,
+        {"--http-listen", "127.0.0.1:0", "--heartbeat-ms", "200", "--lease-ms", "2000"});
     if (tls) {
       testing::make_self_signed(root_ / "cert.pem", root_ / "key.pem");
       for (const char* a : {"--tls-cert", "cert.pem", "--tls-key", "key.pem"}) {
@@ -214,16 +200,9 @@ TEST_F(HttpProcessTest, CurlUploadsSubmitsWatchesFetchesAndCancelsOverHttps) {
 TEST_F(HttpProcessTest, PrometheusScrapesTheMetrics) {
   ASSERT_NO_FATAL_FAILURE(start_coordinator(/*tls=*/false));
   ASSERT_NO_FATAL_FAILURE(start_worker());
-  std::vector<std::string> submit = {PRISM_BINARY,
-                                     "submit",
-                                     (root_ / "scene/scene.pbrt").string(),
-                                     "--coordinator",
-                                     "127.0.0.1:" + std::to_string(grpc_port_),
-                                     "--token",
-                                     kToken,
-                                     "--wait",
-                                     "-o",
-                                     (root_ / "out.exr").string()};
+  std::vector<std::string> submit = testing::submit_command(
+      PRISM_BINARY, root_ / "scene/scene.pbrt", "127.0.0.1:" + std::to_string(grpc_port_), kToken,
+      {"--wait", "-o", (root_ / "out.exr").string()});
   for (const std::string& f : render_flags()) submit.push_back(f);
   testing::RunResult submitted = testing::run(submit);
   ASSERT_EQ(submitted.exit_code, 0) << submitted.err;

@@ -33,16 +33,30 @@ namespace {
 
 class KnownAnswerTest : public RenderFixture {};
 
+// An 8x8 view straight down +z through a narrow field (box filter), `between` the camera and a
+// flat two-sided emitter of unit flat radiance at z = 3 that fills the view.
+std::string on_axis_scene(int bins, const std::string& between) {
+  return R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 1
+Film "spectral" "integer xresolution" 8 "integer yresolution" 8 "integer nbuckets" )" +
+         std::to_string(bins) + R"(
+PixelFilter "box"
+WorldBegin
+)" + between +
+         R"(AttributeBegin
+  Material "diffuse" "rgb reflectance" [0 0 0]
+  AreaLightSource "diffuse" "spectrum L" [360 1 830 1] "bool twosided" true
+  Shape "trianglemesh" "point3 P" [-4 -4 3  4 -4 3  4 4 3  -4 4 3] "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+)";
+}
+
 // Along the axis of a BK7 slab one unit thick, filled with a dye (piecewise-linear sigma_a,
 // scale 1.5), at a flat emitter behind it: at (near) normal incidence every wavelength crosses
 // the same length, so L(λ) = Le·(1 − R)²·τ / (1 − R²·τ²), R = ((η − 1)/(η + 1))², τ =
 // exp(−1.5·σ_a(λ)), the internal reflections retracing the axis.
 TEST_F(KnownAnswerTest, ADyeBehindDispersiveGlassFollowsBeerLambert) {
-  auto scene = load("dye_slab.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
-Camera "perspective" "float fov" 1
-Film "spectral" "integer xresolution" 8 "integer yresolution" 8 "integer nbuckets" 16
-PixelFilter "box"
-WorldBegin
+  auto scene = load("dye_slab.pbrt", on_axis_scene(16, R"(
 MakeNamedMedium "dye" "string type" "homogeneous"
   "spectrum sigma_a" [360 5 480 5 540 3 590 0.5 640 0.15 830 0.15]
   "spectrum sigma_s" [360 0 830 0] "float scale" 1.5
@@ -54,12 +68,7 @@ AttributeBegin
   Shape "trianglemesh" "point3 P" [-2 -2 0.5  2 -2 0.5  2 2 0.5  -2 2 0.5]
     "integer indices" [0 1 2 0 2 3]
 AttributeEnd
-AttributeBegin
-  Material "diffuse" "rgb reflectance" [0 0 0]
-  AreaLightSource "diffuse" "spectrum L" [360 1 830 1] "bool twosided" true
-  Shape "trianglemesh" "point3 P" [-4 -4 3  4 -4 3  4 4 3  -4 4 3] "integer indices" [0 1 2 0 2 3]
-AttributeEnd
-)");
+)"));
   ASSERT_TRUE(scene.ok()) << scene.status();
   const spectral::Ior* bk7 = library_->find_ior("glass-BK7");
   ASSERT_NE(bk7, nullptr);
@@ -152,21 +161,12 @@ Rotate -90 1 0 0
 // A thin dielectric sheet (η 1.5) at normal incidence in front of a flat emitter passes
 // T' = (1 − R)/(1 + R) of its light at every wavelength, R = 0.04.
 TEST_F(KnownAnswerTest, AThinDielectricSheetPassesTheSlabTransmittance) {
-  auto scene = load("thin.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
-Camera "perspective" "float fov" 1
-Film "spectral" "integer xresolution" 8 "integer yresolution" 8 "integer nbuckets" 8
-PixelFilter "box"
-WorldBegin
+  auto scene = load("thin.pbrt", on_axis_scene(8, R"(
 AttributeBegin
   Material "thindielectric" "float eta" 1.5
   Shape "trianglemesh" "point3 P" [-2 -2 0  2 -2 0  2 2 0  -2 2 0] "integer indices" [0 1 2 0 2 3]
 AttributeEnd
-AttributeBegin
-  Material "diffuse" "rgb reflectance" [0 0 0]
-  AreaLightSource "diffuse" "spectrum L" [360 1 830 1] "bool twosided" true
-  Shape "trianglemesh" "point3 P" [-4 -4 3  4 -4 3  4 4 3  -4 4 3] "integer indices" [0 1 2 0 2 3]
-AttributeEnd
-)");
+)"));
   ASSERT_TRUE(scene.ok()) << scene.status();
   const double expected = unit_flat_emission() * (1 - 0.04) / (1 + 0.04);
   expect_every_integrator(*scene, 256, 8, [&](double, double) { return expected; });
@@ -202,16 +202,11 @@ Shape "trianglemesh" "point3 P" [-5 -1 -5  5 -1 -5  5 -1 5  -5 -1 5] "integer in
 // (R + T) times the sky's radiance (no interreflection to count): the sheet's pixels against the
 // sky's.
 TEST_F(KnownAnswerTest, ADiffuseTransmissionSheetShowsReflectancePlusTransmittance) {
-  auto scene = load("sheet.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
-Camera "perspective" "float fov" 30
-Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
-PixelFilter "box"
-WorldBegin
-LightSource "infinite" "spectrum L" [360 1 830 1]
+  auto scene = load("sheet.pbrt", sky_scene(R"(
 Material "diffusetransmission" "spectrum reflectance" [360 0.3 830 0.3]
   "spectrum transmittance" [360 0.5 830 0.5]
 Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indices" [0 1 2 0 2 3]
-)");
+)"));
   ASSERT_TRUE(scene.ok()) << scene.status();
   expect_sheet_over_sky(*scene, 0.8, 2);
 }
@@ -233,14 +228,9 @@ Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0]
         std::pair{std::string(R"(Shape "sphere" "float radius" 0.9 "float alpha" 0.5)"), 0.25},
         std::pair{std::string(R"(Shape "disk" "float radius" 1 "float alpha" 0.4)"), 0.6}}) {
     SCOPED_TRACE(shape);
-    auto scene = load("alpha.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
-Camera "perspective" "float fov" 30
-Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
-PixelFilter "box"
-WorldBegin
-LightSource "infinite" "spectrum L" [360 1 830 1]
+    auto scene = load("alpha.pbrt", sky_scene(R"(
 Material "diffuse" "spectrum reflectance" [360 0 830 0]
-)" + shape + "\n");
+)" + shape + "\n"));
     ASSERT_TRUE(scene.ok()) << scene.status();
     expect_sheet_over_sky(*scene, expected, 5);
   }
@@ -256,12 +246,7 @@ TEST_F(KnownAnswerTest, AMixPicksItsComponentsInProportion) {
        {std::pair{std::string("speckled"), 0.3}, std::pair{std::string("nested"), 0.65},
         std::pair{std::string("textured"), 0.3}}) {
     SCOPED_TRACE(outer);
-    auto scene = load("mix.pbrt", R"(LookAt 0 0 -5  0 0 0  0 1 0
-Camera "perspective" "float fov" 30
-Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
-PixelFilter "box"
-WorldBegin
-LightSource "infinite" "spectrum L" [360 1 830 1]
+    auto scene = load("mix.pbrt", sky_scene(R"(
 MakeNamedMaterial "black" "string type" "diffuse" "spectrum reflectance" [360 0 830 0]
 MakeNamedMaterial "white" "string type" "diffuse" "spectrum reflectance" [360 1 830 1]
 MakeNamedMaterial "speckled" "string type" "mix" "string materials" ["black" "white"]
@@ -275,7 +260,7 @@ MakeNamedMaterial "textured" "string type" "mix" "string materials" ["black" "wh
 NamedMaterial ")" + outer + R"("
 Shape "trianglemesh" "point3 P" [-1 -1 0  1 -1 0  1 1 0  -1 1 0] "integer indices" [0 1 2 0 2 3]
   "point2 uv" [0 0 1 0 1 1 0 1]
-)");
+)"));
     ASSERT_TRUE(scene.ok()) << scene.status();
     expect_sheet_over_sky(*scene, expected, 3);
   }

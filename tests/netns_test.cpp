@@ -102,27 +102,12 @@ TEST_F(NetnsTest, ACutLinkLongerThanALeaseLosesNothingAndMergesNothingTwice) {
   for (int i = 1; i <= kWorkers; ++i) ips.push_back(coordinator_ip(i));
   testing::make_self_signed(root_ / "cert.pem", root_ / "key.pem", ips);
 
-  testing::ChildProcess* coordinator = spawn(exec_in(ns(0), {PRISM_COORDINATOR_BINARY,
-                                                             "--listen",
-                                                             "0.0.0.0:0",
-                                                             "--http-listen",
-                                                             "127.0.0.1:0",
-                                                             "--data-dir",
-                                                             (root_ / "data").string(),
-                                                             "--worker-secret",
-                                                             kSecret,
-                                                             "--api-token",
-                                                             kToken,
-                                                             "--tls-cert",
-                                                             (root_ / "cert.pem").string(),
-                                                             "--tls-key",
-                                                             (root_ / "key.pem").string(),
-                                                             "--heartbeat-ms",
-                                                             "200",
-                                                             "--lease-ms",
-                                                             "1000",
-                                                             "--log-level",
-                                                             "warn"}));
+  testing::ChildProcess* coordinator = spawn(exec_in(
+      ns(0),
+      testing::coordinator_command(
+          PRISM_COORDINATOR_BINARY, "0.0.0.0:0", root_ / "data", kSecret, kToken,
+          {"--http-listen", "127.0.0.1:0", "--tls-cert", (root_ / "cert.pem").string(), "--tls-key",
+           (root_ / "key.pem").string(), "--heartbeat-ms", "200", "--lease-ms", "1000"})));
   ASSERT_NE(coordinator, nullptr);
   const auto [grpc_port, http_port] = testing::coordinator_ports(*coordinator);
   ASSERT_GT(grpc_port, 0);
@@ -141,18 +126,9 @@ TEST_F(NetnsTest, ACutLinkLongerThanALeaseLosesNothingAndMergesNothingTwice) {
   const std::vector<std::string> flags = {
       "--integrator", "hero", "--spp",  "16384", "--resolution",       "32x24", "--bins", "8",
       "--tile",       "8",    "--seed", "9",     "--samples-per-task", "16384"};
-  std::vector<std::string> submit = {PRISM_BINARY,
-                                     "submit",
-                                     (root_ / "scene/scene.pbrt").string(),
-                                     "--coordinator",
-                                     "127.0.0.1:" + std::to_string(grpc_port),
-                                     "--token",
-                                     kToken,
-                                     "--tls-ca",
-                                     (root_ / "cert.pem").string(),
-                                     "--wait",
-                                     "-o",
-                                     (root_ / "farm.exr").string()};
+  std::vector<std::string> submit = testing::submit_command(
+      PRISM_BINARY, root_ / "scene/scene.pbrt", "127.0.0.1:" + std::to_string(grpc_port), kToken,
+      {"--tls-ca", (root_ / "cert.pem").string(), "--wait", "-o", (root_ / "farm.exr").string()});
   submit.insert(submit.end(), flags.begin(), flags.end());
   testing::ChildProcess* submitted = spawn(exec_in(ns(0), submit));
 

@@ -109,6 +109,18 @@ class RenderFixtureBase : public Base {
     }
   }
 
+  // The view expect_sheet_over_sky looks through (16 x 16, fov 30, box filter, 8 bins) in a
+  // constant sky of unit flat radiance, then `world`: the sheet's material and shape.
+  static std::string sky_scene(const std::string& world) {
+    return R"(LookAt 0 0 -5  0 0 0  0 1 0
+Camera "perspective" "float fov" 30
+Film "spectral" "integer xresolution" 16 "integer yresolution" 16 "integer nbuckets" 8
+PixelFilter "box"
+WorldBegin
+LightSource "infinite" "spectrum L" [360 1 830 1]
+)" + world;
+  }
+
   // A 2 x 2 sheet at distance 5 filling the middle of a 16 x 16, fov 30 film in a constant sky
   // (box filter): for every integrator and bin, the sheet's pixels (4..11, fully inside: it
   // covers 2.03..13.97) show `ratio` times the sky's (columns 0 and 15).

@@ -17,13 +17,6 @@ namespace {
 
 constexpr int kLanes = 4;
 
-SampledSpectrum spectrum_of(std::initializer_list<float> values) {
-  SampledSpectrum s;
-  int i = 0;
-  for (float v : values) s[i++] = v;
-  return s;
-}
-
 // Lane `lane` moved into lane 0 (the hero), so sampling uses that lane's parameters.
 SampledSpectrum with_hero(SampledSpectrum s, int lane) {
   std::swap(s[0], s[lane]);
@@ -38,6 +31,7 @@ Vec3f direction(float theta_deg, float phi_deg) {
 using testing::cell_of;
 using testing::expected_counts;
 using testing::kCells;
+using testing::spectrum_of;
 
 constexpr int kSamplesPerTest = 250000;
 

@@ -15,19 +15,15 @@
 #include <vector>
 
 #include "worker/fresnel.h"
+#include "worker/testing/sphere_histogram.h"
 
 namespace prism::worker {
 namespace {
 
+using testing::spectrum_of;
+
 constexpr int kLanes = 4;
 constexpr int kMaxLanes = spectral::kMaxLanes;
-
-SampledSpectrum spectrum_of(std::initializer_list<float> values) {
-  SampledSpectrum s;
-  int i = 0;
-  for (float v : values) s[i++] = v;
-  return s;
-}
 
 Vec3f direction(float theta_deg, float phi_deg) {
   float t = theta_deg * kPi / 180, p = phi_deg * kPi / 180;

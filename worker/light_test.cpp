@@ -13,6 +13,7 @@
 #include "services/spectral/testing/chi_square.h"
 #include "worker/equal_area.h"
 #include "worker/light_sampler.h"
+#include "worker/testing/sphere_histogram.h"
 
 namespace prism::worker {
 namespace {
@@ -23,6 +24,19 @@ constexpr float kInf = std::numeric_limits<float>::infinity();
 
 scene::SourceLocation at(int line) {
   return {"test.pbrt", line, 3};
+}
+
+// An area-light shape of the given geometry under t, declared at test line `line`.
+scene::Shape light_shape(scene::ShapeGeometry geometry, const scene::Transform& t, bool reverse,
+                         int line) {
+  scene::Shape s;
+  s.geometry = std::move(geometry);
+  s.object_to_world = t;
+  s.transform_swaps_handedness = t.swaps_handedness();
+  s.reverse_orientation = reverse;
+  s.area_light = scene::AreaLight{};
+  s.where = at(line);
+  return s;
 }
 
 spectral::Spectrum band(double lo, double hi) {
@@ -158,19 +172,11 @@ struct Binning {
     return ti * kPhiCells + pi;
   }
   double integrate(const std::function<float(const Vec3f&)>& pdf, int ti, int pi, int n) const {
-    const double theta0 = ti * theta_max / kThetaCells, phi0 = pi * 2 * M_PI / kPhiCells;
-    const double dtheta = theta_max / kThetaCells / n, dphi = 2 * M_PI / kPhiCells / n;
     double sum = 0;
-    for (int a = 0; a < n; ++a) {
-      double theta = theta0 + (a + 0.5) * dtheta;
-      double weight = std::sin(theta) * dtheta * dphi;
-      for (int b = 0; b < n; ++b) {
-        double phi = phi0 + (b + 0.5) * dphi;
-        Vec3f local(float(std::sin(theta) * std::cos(phi)), float(std::sin(theta) * std::sin(phi)),
-                    float(std::cos(theta)));
-        sum += pdf(frame.from_local(local)) * weight;
-      }
-    }
+    testing::for_each_midpoint(
+        ti * theta_max / kThetaCells, theta_max / kThetaCells, pi * 2 * M_PI / kPhiCells,
+        2 * M_PI / kPhiCells, n,
+        [&](const Vec3f& local, double weight) { sum += pdf(frame.from_local(local)) * weight; });
     return sum;
   }
 };
@@ -493,14 +499,7 @@ TEST(AreaLightTest, IrradianceMatchesAnalyticValues) {
 // irradiance E = π L (R²/(h² + R²) − r²/(h² + r²)); reversed, it lights the other side only.
 TEST(AreaLightTest, DiskDirectionsFollowPdfAndIrradianceIsAnalytic) {
   auto shape = [](const scene::Transform& t, double inner, bool reverse) {
-    scene::Shape s;
-    s.geometry = scene::DiskShape{0.0, 1.0, inner};
-    s.object_to_world = t;
-    s.transform_swaps_handedness = t.swaps_handedness();
-    s.reverse_orientation = reverse;
-    s.area_light = scene::AreaLight{};
-    s.where = at(31);
-    return s;
+    return light_shape(scene::DiskShape{0.0, 1.0, inner}, t, reverse, 31);
   };
   auto t = scene::Transform::translate({0.3f, 0.1f, 3}) * *scene::Transform::rotate(25, {1, 0, 0}) *
            *scene::Transform::scale({1.5, 0.8, 1});
@@ -532,14 +531,7 @@ TEST(AreaLightTest, DiskDirectionsFollowPdfAndIrradianceIsAnalytic) {
 // end takes the cone of half-angle atan(R/h)).
 TEST(AreaLightTest, CylinderDirectionsFollowPdfAndIrradianceIsAnalytic) {
   auto shape = [](const scene::Transform& t, bool reverse) {
-    scene::Shape s;
-    s.geometry = scene::CylinderShape{0.5, -1.0, 1.0};
-    s.object_to_world = t;
-    s.transform_swaps_handedness = t.swaps_handedness();
-    s.reverse_orientation = reverse;
-    s.area_light = scene::AreaLight{};
-    s.where = at(37);
-    return s;
+    return light_shape(scene::CylinderShape{0.5, -1.0, 1.0}, t, reverse, 37);
   };
   auto t = scene::Transform::translate({0.2f, -0.3f, 4}) *
            *scene::Transform::rotate(40, {1, 1, 0}) * *scene::Transform::scale({1.5, 1.5, 1.5});

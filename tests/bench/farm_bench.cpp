@@ -712,6 +712,16 @@ void put_le(std::string& bytes, std::size_t offset, std::uint64_t value, int wid
   for (int i = 0; i < width; ++i) bytes[offset + i] = static_cast<char>((value >> (8 * i)) & 0xff);
 }
 
+// A template result's bytes made the result of `rect` and `samples`.
+void retarget(std::string& bytes, const image::TileRect& rect, const image::SampleRange& samples) {
+  put_le(bytes, kRectOffset + 0, static_cast<std::uint32_t>(rect.x0), 4);
+  put_le(bytes, kRectOffset + 4, static_cast<std::uint32_t>(rect.y0), 4);
+  put_le(bytes, kRectOffset + 8, static_cast<std::uint32_t>(rect.x1), 4);
+  put_le(bytes, kRectOffset + 12, static_cast<std::uint32_t>(rect.y1), 4);
+  put_le(bytes, kSamplesOffset + 0, samples.s0, 8);
+  put_le(bytes, kSamplesOffset + 8, samples.s1, 8);
+}
+
 // Task results of one tile shape: a constant TileResult, encoded once; per task only the rect
 // and sample range are rewritten.
 class ResultFactory {
@@ -738,12 +748,7 @@ class ResultFactory {
       it = templates_.emplace(shape, image::serialise_tile(result)).first;
     }
     std::string out = it->second;
-    put_le(out, kRectOffset + 0, static_cast<std::uint32_t>(rect.x0), 4);
-    put_le(out, kRectOffset + 4, static_cast<std::uint32_t>(rect.y0), 4);
-    put_le(out, kRectOffset + 8, static_cast<std::uint32_t>(rect.x1), 4);
-    put_le(out, kRectOffset + 12, static_cast<std::uint32_t>(rect.y1), 4);
-    put_le(out, kSamplesOffset + 0, samples.s0, 8);
-    put_le(out, kSamplesOffset + 8, samples.s1, 8);
+    retarget(out, rect, samples);
     return out;
   }
 
@@ -881,12 +886,7 @@ void synthetic_worker(int index, std::shared_ptr<grpc::Channel> channel, Capacit
       continue;
     }
     bytes = it->second;
-    put_le(bytes, kRectOffset + 0, static_cast<std::uint32_t>(rect.x0), 4);
-    put_le(bytes, kRectOffset + 4, static_cast<std::uint32_t>(rect.y0), 4);
-    put_le(bytes, kRectOffset + 8, static_cast<std::uint32_t>(rect.x1), 4);
-    put_le(bytes, kRectOffset + 12, static_cast<std::uint32_t>(rect.y1), 4);
-    put_le(bytes, kSamplesOffset + 0, samples.s0, 8);
-    put_le(bytes, kSamplesOffset + 8, samples.s1, 8);
+    retarget(bytes, rect, samples);
     std::string sha;
     if (auto h = shared.sha.find(key_of(rect, samples)); h != shared.sha.end()) {
       sha = h->second;

@@ -263,6 +263,29 @@ std::string render_beside(const std::string& prism, const std::filesystem::path&
   return read_file(out);
 }
 
+std::vector<std::string> coordinator_command(const std::string& binary, const std::string& listen,
+                                             const std::filesystem::path& data_dir,
+                                             const std::string& worker_secret,
+                                             const std::string& api_token,
+                                             const std::vector<std::string>& extra,
+                                             const std::string& log_level) {
+  std::vector<std::string> argv = {
+      binary,        "--listen",    listen,    "--data-dir",  data_dir.string(), "--worker-secret",
+      worker_secret, "--api-token", api_token, "--log-level", log_level};
+  argv.insert(argv.end(), extra.begin(), extra.end());
+  return argv;
+}
+
+std::vector<std::string> submit_command(const std::string& prism,
+                                        const std::filesystem::path& scene,
+                                        const std::string& address, const std::string& api_token,
+                                        const std::vector<std::string>& extra) {
+  std::vector<std::string> argv = {prism,   "submit",  scene.string(), "--coordinator",
+                                   address, "--token", api_token};
+  argv.insert(argv.end(), extra.begin(), extra.end());
+  return argv;
+}
+
 CoordinatorPorts coordinator_ports(ChildProcess& coordinator) {
   CoordinatorPorts ports;
   const auto http = coordinator.wait_for_line("serving HTTP on port", std::chrono::seconds(20));

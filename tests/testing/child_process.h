@@ -97,6 +97,23 @@ std::string find_program(const std::string& name);
 std::string render_beside(const std::string& prism, const std::filesystem::path& scene_dir,
                           const std::filesystem::path& out, const std::vector<std::string>& flags);
 
+// A test coordinator's command line: `binary` serving gRPC on `listen`, its data under
+// `data_dir`, the test's worker secret and API token, logging at `log_level`, then `extra` (for
+// example --http-listen, --heartbeat-ms, --lease-ms, TLS files).
+std::vector<std::string> coordinator_command(const std::string& binary, const std::string& listen,
+                                             const std::filesystem::path& data_dir,
+                                             const std::string& worker_secret,
+                                             const std::string& api_token,
+                                             const std::vector<std::string>& extra,
+                                             const std::string& log_level = "warn");
+
+// `prism submit` of `scene` to the coordinator at `address` with the test's API token, then
+// `extra` (render flags, --wait, -o ...).
+std::vector<std::string> submit_command(const std::string& prism,
+                                        const std::filesystem::path& scene,
+                                        const std::string& address, const std::string& api_token,
+                                        const std::vector<std::string>& extra);
+
 // The ports a prism-coordinator started with --listen ...:0 and --http-listen ...:0 prints
 // ("serving HTTP on port N", then "listening on port M"), waiting up to 20 s; fails the current
 // test and returns zeros when it printed none.

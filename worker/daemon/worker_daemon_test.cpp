@@ -390,6 +390,26 @@ class WorkerDaemonTest : public ::testing::Test {
     return lease;
   }
 
+  // Waits for the worker's first heartbeat with samples done, drains it and waits for it to stop
+  // cleanly: how long the drain took (a day, with the test failed, when it never rendered or did
+  // not stop).
+  Clock::duration drain_once_rendering() {
+    if (!fake_.wait([&] {
+          return !fake_.heartbeats.empty() && fake_.heartbeats.back().samples_done() > 0;
+        })) {
+      ADD_FAILURE() << "the worker reported no progress";
+      return 24h;
+    }
+    const Clock::time_point drained = Clock::now();
+    daemon_->drain();
+    if (!join_worker(10s)) {
+      ADD_FAILURE() << "the drained worker did not stop";
+      return 24h;
+    }
+    EXPECT_TRUE(run_status_.ok()) << run_status_;
+    return Clock::now() - drained;
+  }
+
   // Runs the worker on fake_.lease, which must fail; the failure.
   v1::FailTaskRequest expect_failure() {
     start_worker();
@@ -544,17 +564,10 @@ TEST_F(WorkerDaemonTest, RefusesABundleWhoseHashDoesNotMatchAndCachesNothing) {
   ASSERT_TRUE(other.ok()) << other.status();
   ASSERT_NE(other->content_hash, bundle_.content_hash);
   fake_.blob = scene::pack(*other);
-  start_worker();
-  ASSERT_TRUE(fake_.wait([&] { return !fake_.failures.empty() || !fake_.uploads.empty(); }));
-  ASSERT_TRUE(stop_worker());
-
-  std::lock_guard<std::mutex> lock(fake_.mutex);
-  EXPECT_TRUE(fake_.uploads.empty());
-  ASSERT_EQ(fake_.failures.size(), 1u);
-  EXPECT_EQ(fake_.failures[0].lease_id(), "lease-1");
-  EXPECT_EQ(fake_.failures[0].failure_class(), v1::FAILURE_CLASS_WORKER);
-  EXPECT_NE(fake_.failures[0].message().find(other->content_hash), std::string::npos)
-      << fake_.failures[0].message();
+  const v1::FailTaskRequest failure = expect_failure();
+  EXPECT_EQ(failure.lease_id(), "lease-1");
+  EXPECT_EQ(failure.failure_class(), v1::FAILURE_CLASS_WORKER);
+  EXPECT_NE(failure.message().find(other->content_hash), std::string::npos) << failure.message();
   EXPECT_FALSE(fs::exists(cache_dir_ / bundle_.content_hash));
   EXPECT_FALSE(fs::exists(cache_dir_ / other->content_hash));
   const int left = fs::exists(cache_dir_)
@@ -569,13 +582,7 @@ TEST_F(WorkerDaemonTest, DrainReturnsALeaseThatWouldNotFinishInTime) {
   fake_.lease = make_lease(rect(0, 0, 16, 16), 0, 1 << 16, 100, 1500ms);
   fake_.heartbeat_interval_ms = 100;
   start_worker(/*return_margin=*/300ms);
-  ASSERT_TRUE(fake_.wait(
-      [&] { return !fake_.heartbeats.empty() && fake_.heartbeats.back().samples_done() > 0; }));
-  const Clock::time_point drained = Clock::now();
-  daemon_->drain();
-  ASSERT_TRUE(join_worker(10s));
-  const auto took = Clock::now() - drained;
-  EXPECT_TRUE(run_status_.ok()) << run_status_;
+  const Clock::duration took = drain_once_rendering();
   EXPECT_LT(took, 3s);
 
   std::lock_guard<std::mutex> lock(fake_.mutex);
@@ -594,13 +601,7 @@ TEST_F(WorkerDaemonTest, ADrainTimeoutReturnsALongTaskLongBeforeItsLeaseEnds) {
   fake_.lease = make_lease(rect(0, 0, 16, 16), 0, 1 << 16, 100, 60s);
   fake_.heartbeat_interval_ms = 100;
   start_worker(/*return_margin=*/300ms, "", /*drain_timeout=*/800ms);
-  ASSERT_TRUE(fake_.wait(
-      [&] { return !fake_.heartbeats.empty() && fake_.heartbeats.back().samples_done() > 0; }));
-  const Clock::time_point drained = Clock::now();
-  daemon_->drain();
-  ASSERT_TRUE(join_worker(10s));
-  const auto took = Clock::now() - drained;
-  EXPECT_TRUE(run_status_.ok()) << run_status_;
+  const Clock::duration took = drain_once_rendering();
   EXPECT_GE(took, 400ms) << "it gave the task its time first";
   EXPECT_LT(took, 3s) << "the drain timeout, not the one-minute lease, bounds the drain";
   std::lock_guard<std::mutex> lock(fake_.mutex);
@@ -663,16 +664,11 @@ TEST_F(WorkerDaemonTest, ASceneThatDoesNotLoadFailsTheTaskAsASceneFault) {
   fake_.blob = scene::pack(bundle_);
   fake_.lease = make_lease(rect(0, 0, 4, 4), 0, 2, 5);
   fake_.lease.mutable_task()->mutable_spec()->set_scene_path("unknown_shape.pbrt");
-  start_worker();
-  ASSERT_TRUE(fake_.wait([&] { return !fake_.failures.empty() || !fake_.uploads.empty(); }));
-  ASSERT_TRUE(stop_worker());
-  std::lock_guard<std::mutex> lock(fake_.mutex);
-  EXPECT_TRUE(fake_.uploads.empty());
-  ASSERT_EQ(fake_.failures.size(), 1u);
-  EXPECT_EQ(fake_.failures[0].failure_class(), v1::FAILURE_CLASS_SCENE);
+  const v1::FailTaskRequest failure = expect_failure();
+  EXPECT_EQ(failure.failure_class(), v1::FAILURE_CLASS_SCENE);
   // The loader's message, with the position in the scene file.
-  EXPECT_NE(fake_.failures[0].message().find("unknown_shape.pbrt:2:"), std::string::npos)
-      << fake_.failures[0].message();
+  EXPECT_NE(failure.message().find("unknown_shape.pbrt:2:"), std::string::npos)
+      << failure.message();
 }
 
 TEST_F(WorkerDaemonTest, AResultLargerThanAChunkIsStreamedInMebibyteChunks) {

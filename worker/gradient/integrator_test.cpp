@@ -617,6 +617,14 @@ AttributeBegin
 AttributeEnd
 )";
 
+// kEmitterInView's emitter: its radiance at λ towards the camera (straight down its normal).
+double radiance_towards_camera(const RenderScene& scene, float lambda) {
+  const auto& light = std::get<AreaLight>(scene.lights()[0]);
+  SampledWavelengths w(1);
+  w.set(0, lambda, 1.0f);
+  return double(light.radiance(Vec3f(0, 0, -1), Vec3f(0, 0, -1), w)[0]);
+}
+
 TEST_F(GradientIntegratorTest, DirectlySeenEmitterGivesExactGradients) {
   auto desc = load_text("emitter_in_view.pbrt", kEmitterInView);
   job::RenderOptions options = gradient_options(5);
@@ -625,14 +633,9 @@ TEST_F(GradientIntegratorTest, DirectlySeenEmitterGivesExactGradients) {
   auto scene = build(desc, options);
   ASSERT_TRUE(scene);
   ASSERT_EQ(scene->lights().size(), 1u);
-  const auto& light = std::get<AreaLight>(scene->lights()[0]);
   const auto& grid = scene->grid();
   const int k = options.gradient_offset_bins;
-  auto radiance = [&](float l) {
-    SampledWavelengths w(1);
-    w.set(0, l, 1.0f);
-    return double(light.radiance(Vec3f(0, 0, -1), Vec3f(0, 0, -1), w)[0]);
-  };
+  auto radiance = [&](float l) { return radiance_towards_camera(*scene, l); };
   GradientIntegrator integrator(*scene);
   TraceCounters counters;
   int checked = 0;
@@ -677,14 +680,9 @@ TEST_F(GradientIntegratorTest, DirectlySeenEmitterWeighsOffsetsByThePixelsTable)
   options.max_depth = 0;
   auto scene = build(desc, options);
   ASSERT_TRUE(scene);
-  const auto& light = std::get<AreaLight>(scene->lights()[0]);
   const auto& grid = scene->grid();
   const int k = options.gradient_offset_bins;
-  auto radiance = [&](float l) {
-    SampledWavelengths w(1);
-    w.set(0, l, 1.0f);
-    return double(light.radiance(Vec3f(0, 0, -1), Vec3f(0, 0, -1), w)[0]);
-  };
+  auto radiance = [&](float l) { return radiance_towards_camera(*scene, l); };
   const spectral::PixelTables tables = testing::skewed_tables(4, 4, 16);
   const spectral::WavelengthPdfView table =
       tables.view(1, 2, scene->wavelength_pdf(), scene->binned_shape());

@@ -11,6 +11,7 @@
 #include <array>
 #include <cmath>
 #include <functional>
+#include <initializer_list>
 #include <vector>
 
 #include "services/spectral/sampled.h"
@@ -31,27 +32,46 @@ inline int cell_of(const Vec3f& w) {
   return ti * kPhiCells + pi;
 }
 
+// A spectrum with the given lane values (the rest 0), for BSDF parameters in tests.
+inline spectral::SampledSpectrum spectrum_of(std::initializer_list<float> values) {
+  spectral::SampledSpectrum s;
+  int i = 0;
+  for (float v : values) s[i++] = v;
+  return s;
+}
+
 // A density per lane (lanes 0..lanes-1 of the returned spectrum).
 using LaneDensity = std::function<spectral::SampledSpectrum(const Vec3f&)>;
 
 using LaneSums = std::array<double, spectral::kMaxLanes>;
 
-// ∫ pdf dω over cell (ti, pi) for every lane with an n x n midpoint rule.
-inline LaneSums integrate_cell(const LaneDensity& pdf, int lanes, int ti, int pi, int n) {
-  const double theta0 = ti * kPi / kThetaCells, phi0 = pi * 2 * kPi / kPhiCells;
-  const double dtheta = kPi / kThetaCells / n, dphi = 2 * kPi / kPhiCells / n;
-  LaneSums sum{};
+// The n x n midpoint rule over the (θ, φ) cell [θ0, θ0 + Δθ] x [φ0, φ0 + Δφ] of the unit
+// sphere: calls point(w, weight) at each midpoint's direction w with weight sin θ dθ dφ, so the
+// weighted sum of a density integrates it over the cell's solid angle.
+template <typename Point>
+void for_each_midpoint(double theta0, double cell_theta, double phi0, double cell_phi, int n,
+                       Point&& point) {
+  const double dtheta = cell_theta / n, dphi = cell_phi / n;
   for (int a = 0; a < n; ++a) {
-    double theta = theta0 + (a + 0.5) * dtheta;
-    double weight = std::sin(theta) * dtheta * dphi;
+    const double theta = theta0 + (a + 0.5) * dtheta;
+    const double weight = std::sin(theta) * dtheta * dphi;
     for (int b = 0; b < n; ++b) {
-      double phi = phi0 + (b + 0.5) * dphi;
-      Vec3f w(float(std::sin(theta) * std::cos(phi)), float(std::sin(theta) * std::sin(phi)),
-              float(std::cos(theta)));
-      spectral::SampledSpectrum p = pdf(w);
-      for (int l = 0; l < lanes; ++l) sum[l] += p[l] * weight;
+      const double phi = phi0 + (b + 0.5) * dphi;
+      point(Vec3f(float(std::sin(theta) * std::cos(phi)), float(std::sin(theta) * std::sin(phi)),
+                  float(std::cos(theta))),
+            weight);
     }
   }
+}
+
+// ∫ pdf dω over cell (ti, pi) for every lane with an n x n midpoint rule.
+inline LaneSums integrate_cell(const LaneDensity& pdf, int lanes, int ti, int pi, int n) {
+  LaneSums sum{};
+  for_each_midpoint(ti * kPi / kThetaCells, kPi / kThetaCells, pi * 2 * kPi / kPhiCells,
+                    2 * kPi / kPhiCells, n, [&](const Vec3f& w, double weight) {
+                      const spectral::SampledSpectrum p = pdf(w);
+                      for (int l = 0; l < lanes; ++l) sum[l] += p[l] * weight;
+                    });
   return sum;
 }
 
@@ -81,8 +101,8 @@ inline std::vector<std::vector<double>> expected_counts(const LaneDensity& pdf, 
 // One density (lane 0 only).
 inline std::vector<double> expected_counts(const std::function<double(const Vec3f&)>& pdf,
                                            int samples) {
-  return expected_counts(
-      [&](const Vec3f& w) { return spectral::SampledSpectrum(float(pdf(w))); }, 1, samples)[0];
+  return expected_counts([&](const Vec3f& w) { return spectral::SampledSpectrum(float(pdf(w))); },
+                         1, samples)[0];
 }
 
 }  // namespace prism::worker::testing
