@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "services/base/atomic_file.h"
+#include "services/base/check.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/png.h"
 #include "services/spectral/wavelength_grid.h"
@@ -148,6 +149,13 @@ TEST(ColourTest, BinnedD65AtUnitLuminanceIsSrgbWhite) {
   EXPECT_EQ(to_linear_srgb(*too_few, cmf).status().code(), absl::StatusCode::kInvalidArgument);
 }
 
+// A black 2x2 image of 8 bins.
+image::SpectralImage blank_image() {
+  auto image = image::SpectralImage::create(2, 2, 8);
+  PRISM_CHECK(image.ok());
+  return *std::move(image);
+}
+
 RenderReport sample_report() {
   RenderReport r;
   r.scene = "scenes/box.pbrt";
@@ -233,14 +241,13 @@ TEST(WriteOutputsTest, WritesFourFilesThatReadBack) {
 
 TEST(WriteOutputsTest, AFailedWriteNamesTheFileAndLeavesNothingPartial) {
   const fs::path dir = fresh_dir("fail");
-  auto image = image::SpectralImage::create(2, 2, 8);
-  ASSERT_TRUE(image.ok());
+  const image::SpectralImage image = blank_image();
   const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
   // The PNG's name is taken by a directory: that one write fails, the others succeed.
   auto paths = output_paths(dir / "r.exr", std::nullopt, "x.exr");
   ASSERT_TRUE(paths.ok());
   fs::create_directories(paths->png);
-  absl::Status status = write_outputs(*image, cmf, sample_report(), *paths, {});
+  absl::Status status = write_outputs(image, cmf, sample_report(), *paths, {});
   EXPECT_FALSE(status.ok());
   EXPECT_NE(status.message().find("could not write '" + paths->png.string() + "'"),
             std::string::npos)
@@ -254,15 +261,14 @@ TEST(WriteOutputsTest, AFailedWriteNamesTheFileAndLeavesNothingPartial) {
 // A gradient job's τ says where it came from, and the pilot's figures come with it.
 TEST(WriteOutputsTest, TheJsonSaysHowTauWasChosen) {
   const fs::path dir = fresh_dir("tau");
-  auto image = image::SpectralImage::create(2, 2, 8);
-  ASSERT_TRUE(image.ok());
+  const image::SpectralImage image = blank_image();
   const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
   auto paths = output_paths(dir / "render.exr", std::nullopt, "x.exr");
   ASSERT_TRUE(paths.ok());
   RenderReport report = sample_report();
   report.gradient = GradientReport{};
   report.gradient->tau = 0.25f;
-  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {0.0f, {}}).ok());
+  ASSERT_TRUE(write_outputs(image, cmf, report, *paths, {0.0f, {}}).ok());
   nlohmann::json given = nlohmann::json::parse(*base::read_file(paths->json));
   EXPECT_EQ(given["gradient"]["tau"], 0.25);
   EXPECT_EQ(given["gradient"]["tau_source"], "given");
@@ -270,7 +276,7 @@ TEST(WriteOutputsTest, TheJsonSaysHowTauWasChosen) {
 
   report.gradient->tau_pilot =
       job::TauPilotReport{0.1f, 1200, 8, 5000, 0.25f, 0.5f, 0.0625f, 0.125f, 0.75f, 0.02};
-  ASSERT_TRUE(write_outputs(*image, cmf, report, *paths, {0.0f, {}}).ok());
+  ASSERT_TRUE(write_outputs(image, cmf, report, *paths, {0.0f, {}}).ok());
   nlohmann::json pilot = nlohmann::json::parse(*base::read_file(paths->json));
   EXPECT_EQ(pilot["gradient"]["tau_source"], "pilot");
   const nlohmann::json& t = pilot["gradient"]["tau_pilot"];

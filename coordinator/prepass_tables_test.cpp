@@ -12,6 +12,7 @@
 
 #include "coordinator/prepass.h"
 #include "gtest/gtest.h"
+#include "services/base/testing/status_says.h"
 #include "services/spectral/binned_shape.h"
 #include "services/spectral/pixel_tables.h"
 #include "services/spectral/testing/chi_square.h"
@@ -22,10 +23,6 @@ namespace {
 
 using image::SpectralImage;
 using spectral::WavelengthDistribution;
-
-bool has(const absl::Status& s, const std::string& text) {
-  return std::string(s.message()).find(text) != std::string::npos;
-}
 
 std::vector<double> partial_default(int bins = 32) {
   std::vector<double> w(static_cast<size_t>(bins), 0.0);
@@ -354,7 +351,7 @@ TEST(PrepassTablesTest, RefusesMismatchedInputs) {
   EXPECT_TRUE(build_tables(img, guides, {}, d16, {}, model).ok());
   absl::Status s = build_tables(img, guides, {}, d8, {}, model).status();
   EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_TRUE(has(s, "8 default masses")) << s;
+  EXPECT_TRUE(status_says(s, "8 default masses")) << s;
   EXPECT_FALSE(build_tables(img, guides, {}, d16, d8, model).ok());
   EXPECT_FALSE(build_tables(img, guides, {}, std::vector<double>(16, 0.0), {}, model).ok());
   std::vector<double> negative = d16;
@@ -362,7 +359,7 @@ TEST(PrepassTablesTest, RefusesMismatchedInputs) {
   EXPECT_FALSE(build_tables(img, guides, {}, negative, {}, model).ok());
   job::PrepassParameters bad;
   bad.epsilon = 2.0;
-  EXPECT_TRUE(has(build_tables(img, guides, bad, d16, {}, model).status(), "epsilon"));
+  EXPECT_TRUE(status_says(build_tables(img, guides, bad, d16, {}, model).status(), "epsilon"));
   EXPECT_FALSE(build_tables(*SpectralImage::create(2, 2, 31), guides, {}, d16, {}, model).ok());
   EXPECT_FALSE(build_tables(img, row_guides(3, 2), {}, d16, {}, model).ok());
   SpectralImage other = *SpectralImage::create(3, 2, 32);

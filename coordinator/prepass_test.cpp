@@ -22,10 +22,6 @@ namespace {
 using image::SpectralImage;
 using spectral::WavelengthDistribution;
 
-bool has(const absl::Status& s, const std::string& text) {
-  return std::string(s.message()).find(text) != std::string::npos;
-}
-
 // Distance in units in the last place between two finite floats of the same sign.
 std::int64_t ulps(float a, float b) {
   std::int32_t ia, ib;

@@ -4,12 +4,10 @@
 
 #include <string>
 
+#include "services/base/testing/status_says.h"
+
 namespace prism::coordinator {
 namespace {
-
-bool has(const absl::Status& status, const std::string& text) {
-  return std::string(status.message()).find(text) != std::string::npos;
-}
 
 std::uint64_t item(const std::vector<ResourceItem>& items, const std::string& what) {
   for (const ResourceItem& i : items) {
@@ -61,13 +59,13 @@ TEST(ResourcePlanTest, EightKAtSixtyThreeBinsDoesNotFitSixteenGigabytes) {
   const absl::Status status = check_memory("rendering 8192x8192 with 63 bins", plan, 40ull << 20,
                                            cap, "RLIMIT_AS", "use fewer --bins");
   EXPECT_EQ(status.code(), absl::StatusCode::kResourceExhausted);
-  EXPECT_TRUE(has(status,
-                  "rendering 8192x8192 with 63 bins needs about 18 GiB of memory "
-                  "(spectral image 16 GiB, RGB and standard errors 1.5 GiB"))
+  EXPECT_TRUE(status_says(status,
+                          "rendering 8192x8192 with 63 bins needs about 18 GiB of memory "
+                          "(spectral image 16 GiB, RGB and standard errors 1.5 GiB"))
       << status;
-  EXPECT_TRUE(has(status,
-                  "besides the 40 MiB in use, more than the 16 GiB allowed (RLIMIT_AS); "
-                  "use fewer --bins"))
+  EXPECT_TRUE(status_says(status,
+                          "besides the 40 MiB in use, more than the 16 GiB allowed (RLIMIT_AS); "
+                          "use fewer --bins"))
       << status;
   // The same job fits a machine with room for it, exactly at the boundary.
   EXPECT_TRUE(check_memory("x", plan, 0, plan.memory_bytes(), "s", "a").ok());
@@ -103,9 +101,11 @@ TEST(ResourcePlanTest, FarmPlanCountsTheFinishedTilesAndOutputsOnDisk) {
   const absl::Status status =
       check_disk("job 16384x16384 with 256 bins", plan, 75ull << 30, "free space", "fewer bins");
   EXPECT_EQ(status.code(), absl::StatusCode::kResourceExhausted);
-  EXPECT_TRUE(has(status, "needs about 1.3 TiB of disk (finished tiles 1.0 TiB, outputs 263 GiB)"))
+  EXPECT_TRUE(
+      status_says(status, "needs about 1.3 TiB of disk (finished tiles 1.0 TiB, outputs 263 GiB)"))
       << status;
-  EXPECT_TRUE(has(status, "more than the 75 GiB available (free space); fewer bins")) << status;
+  EXPECT_TRUE(status_says(status, "more than the 75 GiB available (free space); fewer bins"))
+      << status;
 
   // A small job fits; a target error adds its sums to the coordinator's memory.
   p.width = p.height = 64;
@@ -139,7 +139,7 @@ TEST(ResourcePlanTest, BytesFormatAndParse) {
   for (const char* bad : {"", "G", "12X", "12GB2", "-1G", "0", "0.1", "1e3", "99999999T"}) {
     EXPECT_FALSE(parse_bytes(bad).ok()) << bad;
   }
-  EXPECT_TRUE(has(parse_bytes("12X").status(), "'12X' is not a byte count"));
+  EXPECT_TRUE(status_says(parse_bytes("12X").status(), "'12X' is not a byte count"));
 }
 
 TEST(ResourcePlanTest, MachineBudgetIsPositiveAndMemoryInUseIsMeasured) {

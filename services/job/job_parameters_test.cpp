@@ -6,12 +6,10 @@
 #include <string>
 #include <vector>
 
+#include "services/base/testing/status_says.h"
+
 namespace prism::job {
 namespace {
-
-bool has(const absl::Status& s, const std::string& text) {
-  return std::string(s.message()).find(text) != std::string::npos;
-}
 
 TEST(PoissonNormTest, ParsesItsThreeNamesAndRefusesOthers) {
   EXPECT_EQ(*parse_poisson_norm("l2"), PoissonNorm::kL2);
@@ -55,7 +53,7 @@ TEST(PrepassParametersTest, ValidateNamesTheBadField) {
   for (const Case& c : cases) {
     const absl::Status s = c.p.validate();
     EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << c.field;
-    EXPECT_TRUE(has(s, std::string("prepass ") + c.field + " is")) << s;
+    EXPECT_TRUE(status_says(s, std::string("prepass ") + c.field + " is")) << s;
   }
   // Edges that are allowed.
   EXPECT_TRUE(with([](auto& p) { p.fallback = 0.0; }).validate().ok());

@@ -410,6 +410,19 @@ class WorkerDaemonTest : public ::testing::Test {
     return Clock::now() - drained;
   }
 
+  // Runs the worker on fake_.lease, which must succeed; its one upload (nothing, with the test
+  // failed, otherwise).
+  std::optional<Upload> expect_upload() {
+    start_worker();
+    EXPECT_TRUE(fake_.wait([&] { return !fake_.uploads.empty() || !fake_.failures.empty(); }));
+    EXPECT_TRUE(stop_worker());
+    std::lock_guard<std::mutex> lock(fake_.mutex);
+    EXPECT_TRUE(fake_.failures.empty()) << fake_.failures[0].message();
+    EXPECT_EQ(fake_.uploads.size(), 1u);
+    if (!fake_.failures.empty() || fake_.uploads.size() != 1) return std::nullopt;
+    return fake_.uploads[0];
+  }
+
   // Runs the worker on fake_.lease, which must fail; the failure.
   v1::FailTaskRequest expect_failure() {
     start_worker();
@@ -678,13 +691,9 @@ TEST_F(WorkerDaemonTest, AResultLargerThanAChunkIsStreamedInMebibyteChunks) {
   spec.set_width(64);
   spec.set_height(64);
   spec.set_bins(64);
-  start_worker();
-  ASSERT_TRUE(fake_.wait([&] { return !fake_.uploads.empty() || !fake_.failures.empty(); }));
-  ASSERT_TRUE(stop_worker());
-  std::lock_guard<std::mutex> lock(fake_.mutex);
-  ASSERT_TRUE(fake_.failures.empty()) << fake_.failures[0].message();
-  ASSERT_EQ(fake_.uploads.size(), 1u);
-  const Upload& upload = fake_.uploads[0];
+  const std::optional<Upload> uploaded = expect_upload();
+  ASSERT_TRUE(uploaded.has_value());
+  const Upload& upload = *uploaded;
   EXPECT_GT(upload.bytes.size(), std::size_t{4} << 20);
   EXPECT_EQ(upload.chunk_sizes.size(), (upload.bytes.size() + (1u << 20) - 1) >> 20);
   for (std::size_t size : upload.chunk_sizes) EXPECT_LE(size, std::size_t{1} << 20);
@@ -699,13 +708,9 @@ TEST_F(WorkerDaemonTest, AResultLargerThanAChunkIsStreamedInMebibyteChunks) {
 // in-process render of the same task, and carries the task's counters.
 TEST_F(WorkerDaemonTest, RendersAPrepassTaskWithPdfTablesOnItsFilm) {
   fake_.lease = make_prepass_lease(rect(2, 1, 8, 8));
-  start_worker();
-  ASSERT_TRUE(fake_.wait([&] { return !fake_.uploads.empty() || !fake_.failures.empty(); }));
-  ASSERT_TRUE(stop_worker());
-  std::lock_guard<std::mutex> lock(fake_.mutex);
-  ASSERT_TRUE(fake_.failures.empty()) << fake_.failures[0].message();
-  ASSERT_EQ(fake_.uploads.size(), 1u);
-  const Upload& upload = fake_.uploads[0];
+  const std::optional<Upload> uploaded = expect_upload();
+  ASSERT_TRUE(uploaded.has_value());
+  const Upload& upload = *uploaded;
   auto tile = image::parse_tile(upload.bytes);
   ASSERT_TRUE(tile.ok()) << tile.status();
   EXPECT_EQ(tile->rect(), (image::TileRect{2, 1, 8, 8}));
