@@ -154,6 +154,13 @@ std::vector<TaskSpec> ActiveJob::task_specs() const {
   return tasks;
 }
 
+ConvergencePoint ActiveJob::track_convergence(const image::TileResult& result, double seconds) {
+  if (convergence == nullptr) {
+    convergence = std::make_unique<ConvergenceTracker>(params.width, params.height);
+  }
+  return convergence->add(result, seconds);
+}
+
 store::TaskRecord ActiveJob::task_record(const std::vector<TaskSpec>& specs, int index) const {
   const TaskSpec& spec = specs[static_cast<std::size_t>(index)];
   store::TaskRecord task;

@@ -63,6 +63,9 @@ struct ActiveJob {
   // The tasks of one stage (0-based: prepass k is stage k − 1), and of every stage in order.
   std::vector<TaskSpec> stage_specs(int stage) const;
   std::vector<TaskSpec> task_specs() const;
+  // A final-pass result into the convergence tracker (created on first use); the estimate after
+  // it, `seconds` into the job's rendering.
+  ConvergencePoint track_convergence(const image::TileResult& result, double seconds);
   // Task `index` of task_specs() (`specs`) as the store records it.
   store::TaskRecord task_record(const std::vector<TaskSpec>& specs, int index) const;
 
@@ -99,6 +102,8 @@ struct ActiveJob {
   int tiles_finalised = 0;
   std::vector<std::uint8_t> tile_done;              // by final-pass tile: finalised (absorb_tile)
   std::unique_ptr<ConvergenceTracker> convergence;  // from the first final-pass result
+  std::optional<ConvergenceLog> convergence_log;    // its series on disk (convergence.h)
+  double convergence_seconds_at_start = 0;          // the series' last time when resumed
   double render_seconds = 0;                        // summed over workers
   std::uint64_t rays = 0;
   std::chrono::steady_clock::time_point started;

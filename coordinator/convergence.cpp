@@ -1,6 +1,19 @@
 #include "coordinator/convergence.h"
 
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <bit>
+#include <cerrno>
 #include <cmath>
+#include <cstring>
+#include <string>
+#include <system_error>
+#include <utility>
+
+#include "absl/strings/str_cat.h"
+#include "services/base/atomic_file.h"
+#include "services/base/status.h"
 
 namespace prism::coordinator {
 
@@ -51,6 +64,115 @@ void append_point(std::vector<ConvergencePoint>& points, const ConvergencePoint&
 double ConvergenceTracker::relative_error() const {
   if (mean_total_ == 0.0) return 0.0;
   return std::sqrt(std::max(0.0, variance_total_)) / std::abs(mean_total_);
+}
+
+namespace {
+
+constexpr std::size_t kRecordBytes = 24;
+
+void put(std::string& out, std::uint64_t bits) {
+  for (int i = 0; i < 8; ++i) out.push_back(char((bits >> (8 * i)) & 0xff));
+}
+
+std::uint64_t get(const char* p) {
+  std::uint64_t bits = 0;
+  for (int i = 0; i < 8; ++i) bits |= std::uint64_t(std::uint8_t(p[i])) << (8 * i);
+  return bits;
+}
+
+std::string encode(const ConvergencePoint& point) {
+  std::string out;
+  put(out, std::bit_cast<std::uint64_t>(point.seconds));
+  put(out, point.samples);
+  put(out, std::bit_cast<std::uint64_t>(point.relative_error));
+  return out;
+}
+
+// The valid records at the start of `bytes`: each a finite, later point than the one before
+// (more samples, no earlier time), its error finite and not negative.
+std::vector<ConvergencePoint> decode(const std::string& bytes, std::uint64_t* valid_bytes) {
+  std::vector<ConvergencePoint> points;
+  std::size_t at = 0;
+  ConvergencePoint previous;
+  for (; at + kRecordBytes <= bytes.size(); at += kRecordBytes) {
+    ConvergencePoint p;
+    p.seconds = std::bit_cast<double>(get(bytes.data() + at));
+    p.samples = get(bytes.data() + at + 8);
+    p.relative_error = std::bit_cast<double>(get(bytes.data() + at + 16));
+    const bool later = p.samples > previous.samples && p.seconds >= previous.seconds;
+    if (!std::isfinite(p.seconds) || !std::isfinite(p.relative_error) || p.relative_error < 0 ||
+        !later) {
+      break;
+    }
+    append_point(points, p);
+    previous = p;
+  }
+  if (valid_bytes != nullptr) *valid_bytes = at;
+  return points;
+}
+
+}  // namespace
+
+absl::StatusOr<ConvergenceLog> ConvergenceLog::open(const std::filesystem::path& path,
+                                                    std::vector<ConvergencePoint>* points) {
+  const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    return absl::InternalError(
+        absl::StrCat("cannot open ", path.string(), ": ", std::strerror(errno)));
+  }
+  std::string bytes;
+  std::error_code ec;
+  const std::uintmax_t size = std::filesystem::file_size(path, ec);
+  if (!ec && size > 0) {
+    bytes.resize(size);
+    if (absl::Status read = base::pread_all(fd, bytes.data(), bytes.size(), 0, path.string());
+        !read.ok()) {
+      ::close(fd);
+      return read;
+    }
+  }
+  std::uint64_t valid = 0;
+  std::vector<ConvergencePoint> read = decode(bytes, &valid);
+  if (points != nullptr) *points = std::move(read);
+  return ConvergenceLog(fd, valid);
+}
+
+ConvergenceLog::ConvergenceLog(ConvergenceLog&& other) noexcept
+    : fd_(std::exchange(other.fd_, -1)), size_(other.size_) {}
+
+ConvergenceLog& ConvergenceLog::operator=(ConvergenceLog&& other) noexcept {
+  if (this != &other) {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = std::exchange(other.fd_, -1);
+    size_ = other.size_;
+  }
+  return *this;
+}
+
+ConvergenceLog::~ConvergenceLog() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+absl::Status ConvergenceLog::append(const ConvergencePoint& point) {
+  const std::string record = encode(point);
+  // At the end of the valid records: a torn or stale tail left by a crash is overwritten.
+  PRISM_RETURN_IF_ERROR(
+      base::pwrite_all(fd_, record.data(), record.size(), size_, "the convergence series"));
+  size_ += record.size();
+  return absl::OkStatus();
+}
+
+std::vector<ConvergencePoint> read_convergence(const std::filesystem::path& path) {
+  absl::StatusOr<std::string> bytes = base::read_file(path);
+  if (!bytes.ok()) return {};
+  return decode(*bytes, nullptr);
+}
+
+absl::Status write_convergence(const std::filesystem::path& path,
+                               const std::vector<ConvergencePoint>& points) {
+  std::string bytes;
+  for (const ConvergencePoint& p : points) bytes += encode(p);
+  return base::write_file_atomic(path, bytes);
 }
 
 }  // namespace prism::coordinator

@@ -7,8 +7,10 @@
 #pragma once
 
 #include <cstdint>
+#include <filesystem>
 #include <vector>
 
+#include "absl/status/statusor.h"
 #include "services/image/tile.h"
 
 namespace prism::coordinator {
@@ -45,5 +47,36 @@ class ConvergenceTracker {
 // other point is dropped (the first and the last stay).
 inline constexpr std::size_t kMaxConvergencePoints = 2048;
 void append_point(std::vector<ConvergencePoint>& points, const ConvergencePoint& point);
+
+// A job's series on disk (data/convergence/<job id>), so the dashboard's plot survives a
+// coordinator restart and the job's end. A running job appends one 24-byte record (seconds,
+// samples, error; little-endian) per point, unsynced: a crash may tear the last record or leave
+// zeros, and reading stops at the first record that is not a later point than the one before.
+// When the job is over its file is rewritten with the thinned series (at most
+// kMaxConvergencePoints records).
+class ConvergenceLog {
+ public:
+  // Opens (creating) the file for appending; its valid points so far in `*points`, thinned.
+  static absl::StatusOr<ConvergenceLog> open(const std::filesystem::path& path,
+                                             std::vector<ConvergencePoint>* points);
+  ConvergenceLog(ConvergenceLog&& other) noexcept;
+  ConvergenceLog& operator=(ConvergenceLog&& other) noexcept;
+  ConvergenceLog(const ConvergenceLog&) = delete;
+  ConvergenceLog& operator=(const ConvergenceLog&) = delete;
+  ~ConvergenceLog();
+
+  absl::Status append(const ConvergencePoint& point);
+
+ private:
+  ConvergenceLog(int fd, std::uint64_t size) : fd_(fd), size_(size) {}
+  int fd_ = -1;
+  std::uint64_t size_ = 0;  // bytes of whole, valid records
+};
+
+// The valid points of a series file, thinned; empty when there is none.
+std::vector<ConvergencePoint> read_convergence(const std::filesystem::path& path);
+// Replaces the file with `points` (atomically).
+absl::Status write_convergence(const std::filesystem::path& path,
+                               const std::vector<ConvergencePoint>& points);
 
 }  // namespace prism::coordinator

@@ -3,6 +3,10 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include "tests/testing/test_dir.h"
 
 namespace prism::coordinator {
 namespace {
@@ -45,6 +49,76 @@ TEST(ConvergenceTest, ALongSeriesIsThinnedKeepingItsEnds) {
   EXPECT_LE(points.size(), kMaxConvergencePoints);
   EXPECT_EQ(points.front().samples, 0u);
   EXPECT_EQ(points.back().samples, std::uint64_t(kMaxConvergencePoints));
+}
+
+bool same(const std::vector<ConvergencePoint>& a, const std::vector<ConvergencePoint>& b) {
+  if (a.size() != b.size()) return false;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    if (a[i].seconds != b[i].seconds || a[i].samples != b[i].samples ||
+        a[i].relative_error != b[i].relative_error) {
+      return false;
+    }
+  }
+  return true;
+}
+
+// The series on disk: what is appended reads back bit for bit after a reopen; a torn tail (a
+// crash mid-record) or a stale record that is not a later point ends the series there, and the
+// next append overwrites it; a finished job's rewrite is the thinned series.
+TEST(ConvergenceLogTest, PointsSurviveAReopenAndATornTailIsOverwritten) {
+  const std::filesystem::path path = testing::fresh_dir("convergence_log") / "job";
+  const std::vector<ConvergencePoint> points = {
+      {0.5, 16, 0.25}, {1.25, 32, 0.125}, {2.0, 48, 1.0 / 3.0}};
+  {
+    std::vector<ConvergencePoint> none;
+    auto log = ConvergenceLog::open(path, &none);
+    ASSERT_TRUE(log.ok()) << log.status();
+    EXPECT_TRUE(none.empty());
+    for (const ConvergencePoint& p : points) ASSERT_TRUE(log->append(p).ok());
+  }
+  std::vector<ConvergencePoint> read;
+  {
+    auto log = ConvergenceLog::open(path, &read);
+    ASSERT_TRUE(log.ok()) << log.status();
+  }
+  EXPECT_TRUE(same(read, points));
+  EXPECT_TRUE(same(read_convergence(path), points));
+
+  // A torn record, then a whole but stale one (fewer samples).
+  std::ofstream(path, std::ios::binary | std::ios::app) << std::string(10, '\x7f');
+  EXPECT_TRUE(same(read_convergence(path), points));
+  {
+    auto log = ConvergenceLog::open(path, &read);
+    ASSERT_TRUE(log.ok());
+    EXPECT_TRUE(same(read, points));
+    ASSERT_TRUE(log->append({3.0, 64, 0.2}).ok());
+  }
+  EXPECT_EQ(std::filesystem::file_size(path), 4u * 24u) << "the torn tail is overwritten";
+  std::vector<ConvergencePoint> four = points;
+  four.push_back({3.0, 64, 0.2});
+  EXPECT_TRUE(same(read_convergence(path), four));
+  std::ofstream(path, std::ios::binary | std::ios::app) << std::string(24, '\0');
+  EXPECT_TRUE(same(read_convergence(path), four));
+
+  // A long series reads back thinned, and the rewrite keeps exactly that.
+  std::vector<ConvergencePoint> long_series;
+  {
+    auto log = ConvergenceLog::open(path, &read);
+    ASSERT_TRUE(log.ok());
+    long_series = read;
+    for (std::uint64_t k = 5; k < 5000; ++k) {
+      const ConvergencePoint p{double(k), 16 * k, 1.0 / double(k)};
+      ASSERT_TRUE(log->append(p).ok());
+      append_point(long_series, p);
+    }
+  }
+  const std::vector<ConvergencePoint> thinned = read_convergence(path);
+  EXPECT_LE(thinned.size(), kMaxConvergencePoints);
+  EXPECT_TRUE(same(thinned, long_series));
+  ASSERT_TRUE(write_convergence(path, thinned).ok());
+  EXPECT_EQ(std::filesystem::file_size(path), thinned.size() * 24u);
+  EXPECT_TRUE(same(read_convergence(path), thinned));
+  EXPECT_TRUE(read_convergence(path.string() + ".missing").empty());
 }
 
 }  // namespace

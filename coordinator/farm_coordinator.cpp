@@ -50,7 +50,8 @@ absl::StatusOr<std::unique_ptr<FarmCoordinator>> FarmCoordinator::open(FarmOptio
 
 absl::Status FarmCoordinator::start() {
   const fs::path& dir = options_.data_dir;
-  for (const char* sub : {"blobs", "bundles", "jobs", "scenes", "outputs", "tmp", "trash"}) {
+  for (const char* sub :
+       {"blobs", "bundles", "convergence", "jobs", "scenes", "outputs", "tmp", "trash"}) {
     PRISM_RETURN_IF_ERROR(base::make_directories(dir / sub));
   }
   // Leftovers of an interrupted upload are never referenced.
@@ -227,6 +228,7 @@ absl::StatusOr<std::string> FarmCoordinator::bundle_bytes(const std::string& has
 // ---- jobs ----
 
 void FarmCoordinator::clean_up_locked(const std::string& job_id) {
+  close_convergence_locked(job_id);
   // A fresh name per clean-up: a job cleaned up again (after a restart) never meets its old
   // trash.
   const fs::path trash =
@@ -376,6 +378,7 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
                                 absl::StrCat("cannot store its tiles: ", attached.message()));
     return attached;
   }
+  open_convergence_locked(id, *active);
   // The first stage only: later stages need the tables their predecessor learns.
   PRISM_RETURN_IF_ERROR(scheduler_.add_job(id, active->stage_specs(0)));
   PRISM_ASSIGN_OR_RETURN(store::JobRecord rendering,

@@ -264,6 +264,14 @@ class FarmCoordinator : public FarmView {
   absl::Status make_durable(std::uint64_t ticket);
   // A done task's result: from the job's pack, or the blob store for a task from before packs.
   absl::StatusOr<std::string> result_bytes(const ActiveJob& job, const store::TaskRecord& task);
+  // The dashboard's convergence series (farm_outputs.cpp): a job's file under convergence/ is
+  // opened when it starts or resumes (its points so far into convergence_), appended to with
+  // every accepted final-pass result, and rewritten thinned when the job is over.
+  std::filesystem::path convergence_path(const std::string& job_id) const;
+  void open_convergence_locked(const std::string& job_id, ActiveJob& job);
+  void record_convergence_locked(const std::string& job_id, ActiveJob& job,
+                                 const ConvergencePoint& point);
+  void close_convergence_locked(const std::string& job_id);
   void tick_loop();
 
   FarmOptions options_;
@@ -286,7 +294,9 @@ class FarmCoordinator : public FarmView {
   std::map<std::string, std::uint64_t> tasks_completed_;    // by worker
   std::map<std::string, std::uint64_t> samples_completed_;  // by worker
   std::map<std::string, std::int64_t> left_;                // workers that left cleanly, when
-  std::map<std::string, std::vector<ConvergencePoint>> convergence_;  // by job id
+  // The newest jobs' convergence series (by job id); older ones are read from their files.
+  static constexpr std::size_t kConvergenceJobsInMemory = 256;
+  std::map<std::string, std::vector<ConvergencePoint>> convergence_;
   // Admission control: the budgets, what the coordinator held at start, and the plans of
   // submissions between their check and their job's creation.
   MemoryBudget memory_budget_;

@@ -123,11 +123,66 @@ absl::StatusOr<TileMapStatus> FarmCoordinator::tile_map(const std::string& job_i
 
 absl::StatusOr<std::vector<ConvergencePoint>> FarmCoordinator::convergence(
     const std::string& job_id) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  PRISM_RETURN_IF_ERROR(store_->get_job(job_id).status());
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    PRISM_RETURN_IF_ERROR(store_->get_job(job_id).status());
+    auto it = convergence_.find(job_id);
+    if (it != convergence_.end()) return it->second;
+  }
+  // An older job's (or one from before a restart that is over): its file, read without the lock.
+  return read_convergence(convergence_path(job_id));
+}
+
+fs::path FarmCoordinator::convergence_path(const std::string& job_id) const {
+  return options_.data_dir / "convergence" / job_id;
+}
+
+void FarmCoordinator::open_convergence_locked(const std::string& job_id, ActiveJob& job) {
+  std::vector<ConvergencePoint> points;
+  absl::StatusOr<ConvergenceLog> log = ConvergenceLog::open(convergence_path(job_id), &points);
+  if (!log.ok()) {
+    // The plot is for people watching; the render goes on without it.
+    options_.logger->warn("[job {}] {}; its convergence plot is kept in memory only", job_id,
+                          log.status().ToString());
+    return;
+  }
+  job.convergence_log = std::move(*log);
+  if (!points.empty()) {
+    job.convergence_seconds_at_start = points.back().seconds;
+    convergence_[job_id] = std::move(points);
+  }
+}
+
+void FarmCoordinator::record_convergence_locked(const std::string& job_id, ActiveJob& job,
+                                                const ConvergencePoint& point) {
+  append_point(convergence_[job_id], point);
+  // Job ids grow: the smallest are the oldest. Running jobs stay; the rest are on disk.
+  for (auto it = convergence_.begin();
+       convergence_.size() > kConvergenceJobsInMemory && it != convergence_.end();) {
+    it = active_.contains(it->first) ? std::next(it) : convergence_.erase(it);
+  }
+  if (!job.convergence_log.has_value()) return;
+  if (absl::Status appended = job.convergence_log->append(point); !appended.ok()) {
+    options_.logger->warn("[job {}] {}; its convergence plot is kept in memory only", job_id,
+                          appended.ToString());
+    job.convergence_log.reset();
+  }
+}
+
+void FarmCoordinator::close_convergence_locked(const std::string& job_id) {
+  auto active = active_.find(job_id);
+  if (active != active_.end()) active->second->convergence_log.reset();
   auto it = convergence_.find(job_id);
-  if (it == convergence_.end()) return std::vector<ConvergencePoint>();
-  return it->second;
+  const std::vector<ConvergencePoint> points =
+      it != convergence_.end() ? it->second : read_convergence(convergence_path(job_id));
+  if (points.empty()) {
+    std::error_code ec;
+    fs::remove(convergence_path(job_id), ec);
+    return;
+  }
+  if (absl::Status written = write_convergence(convergence_path(job_id), points); !written.ok()) {
+    options_.logger->warn("[job {}] {}", job_id, written.ToString());
+  }
 }
 
 absl::StatusOr<std::string> FarmCoordinator::preview_png(const std::string& job_id,

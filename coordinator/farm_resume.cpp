@@ -1,7 +1,8 @@
 // FarmCoordinator's restart (farm_coordinator.h): a job the store holds as queued or rendering is
 // rebuilt from its spec and replayed from its stored results, in stage order, so that every
 // decision taken before the restart (a prepass stopping early, the tiles a target-error round
-// went on with) is taken again the same way.
+// went on with) is taken again the same way. The final pass's replayed results also rebuild the
+// convergence tracker, so the plot's error goes on from where it was.
 #include <algorithm>
 
 #include "absl/strings/str_cat.h"
@@ -43,6 +44,7 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   PRISM_ASSIGN_OR_RETURN(std::vector<store::TaskRecord> tasks,
                          stored_tasks_locked(record, *active, specs));
   PRISM_RETURN_IF_ERROR(active->attach_tiles(tiles_dir(record.id)));
+  open_convergence_locked(record.id, *active);
 
   Replay replay{record.id, *active, std::move(tasks), {}};
   PRISM_ASSIGN_OR_RETURN(int stage, replay_prepasses_locked(replay));
@@ -184,6 +186,7 @@ absl::StatusOr<int> FarmCoordinator::replay_rounds_locked(Replay& replay) {
           complete = false;
           continue;
         }
+        replay.job.track_convergence(*result, replay.job.convergence_seconds_at_start);
         PRISM_RETURN_IF_ERROR(assembler.add(tile, *std::move(result)));
         replay.done.push_back(i);
       }
@@ -217,6 +220,7 @@ absl::Status FarmCoordinator::restore_final_pass_locked(Replay& replay) {
       continue;
     }
     PRISM_RETURN_IF_ERROR(job.assembler->mark_finished(tile));
+    job.track_convergence(*merged, job.convergence_seconds_at_start);
     PRISM_RETURN_IF_ERROR(job.absorb_tile(tile, *merged, *finalised));
     restored[t] = true;
   }
@@ -228,6 +232,7 @@ absl::Status FarmCoordinator::restore_final_pass_locked(Replay& replay) {
       PRISM_ASSIGN_OR_RETURN(std::optional<image::TileResult> result,
                              stored_result_locked(replay, i));
       if (!result.has_value()) continue;
+      job.track_convergence(*result, job.convergence_seconds_at_start);
       PRISM_RETURN_IF_ERROR(job.assembler->add(tile, *std::move(result)));
     }
     replay.done.push_back(i);

@@ -82,6 +82,59 @@ TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
   EXPECT_EQ(count_files(data / "outputs" / job_id), 4u);
 }
 
+// The dashboard's convergence series outlives the coordinator: after a restart it holds the
+// points from before, and goes on from the replayed results (the error at the end is the one an
+// uninterrupted run of the same job reaches); after the job's end a fresh coordinator still
+// serves it, from its file.
+TEST_F(FarmServerTest, TheConvergenceSeriesSurvivesARestartAndTheJobsEnd) {
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  const v1::JobSpec spec = small_spec(hash);
+  const std::string job_id = submit(spec).job_id();
+  ASSERT_EQ(run_worker(register_worker(), 7).size(), 7u);
+  auto before = farm_->farm().convergence(job_id);
+  ASSERT_TRUE(before.ok()) << before.status();
+  ASSERT_EQ(before->size(), 7u);
+  stop();
+
+  start();
+  auto resumed = farm_->farm().convergence(job_id);
+  ASSERT_TRUE(resumed.ok()) << resumed.status();
+  ASSERT_EQ(resumed->size(), 7u);
+  for (std::size_t i = 0; i < 7; ++i) {
+    EXPECT_EQ((*resumed)[i].seconds, (*before)[i].seconds);
+    EXPECT_EQ((*resumed)[i].samples, (*before)[i].samples);
+    EXPECT_EQ((*resumed)[i].relative_error, (*before)[i].relative_error);
+  }
+  ASSERT_EQ(run_worker(register_worker()).size(), 11u);
+  ASSERT_EQ(wait_done(job_id).state(), v1::JOB_STATE_DONE);
+  auto series = farm_->farm().convergence(job_id);
+  ASSERT_TRUE(series.ok()) << series.status();
+  ASSERT_EQ(series->size(), 18u);
+  for (std::size_t i = 1; i < series->size(); ++i) {
+    EXPECT_GE((*series)[i].seconds, (*series)[i - 1].seconds) << i;
+    EXPECT_GT((*series)[i].samples, (*series)[i - 1].samples) << i;
+  }
+  EXPECT_EQ(series->back().samples, 12u * 10u * 4u);
+
+  // The same job again, uninterrupted.
+  const std::string again_id = submit(spec).job_id();
+  ASSERT_NE(again_id, job_id);
+  run_worker(register_worker());
+  ASSERT_EQ(wait_done(again_id).state(), v1::JOB_STATE_DONE);
+  auto again = farm_->farm().convergence(again_id);
+  ASSERT_TRUE(again.ok() && !again->empty());
+  EXPECT_NEAR(series->back().relative_error, again->back().relative_error,
+              1e-12 * again->back().relative_error);
+  stop();
+
+  start();
+  auto after_end = farm_->farm().convergence(job_id);
+  ASSERT_TRUE(after_end.ok()) << after_end.status();
+  ASSERT_EQ(after_end->size(), 18u);
+  EXPECT_EQ(after_end->back().relative_error, series->back().relative_error);
+}
+
 // A data directory from before result packs: a job's results are blobs (result_offset -1) and
 // its finished tiles files this version does not read. The restarted coordinator merges the
 // blobs again, renders only the rest, gives the embedded render's bytes and deletes the blobs.

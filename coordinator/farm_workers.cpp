@@ -215,15 +215,12 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
     const bool final_stage = stage >= job.first_final_stage();
     if (final_stage) {
       for (const auto& [name, value] : counters) job.counters[name] += value;
-      if (job.convergence == nullptr) {
-        job.convergence = std::make_unique<ConvergenceTracker>(job.params.width, job.params.height);
-      }
-      append_point(
-          convergence_[task.job_id],
-          job.convergence->add(
-              *parsed, std::chrono::duration<double>(SteadyClock::now() - job.started).count()));
-      // Job ids grow: the smallest are the oldest.
-      while (convergence_.size() > 256) convergence_.erase(convergence_.begin());
+      record_convergence_locked(
+          task.job_id, job,
+          job.track_convergence(
+              *parsed,
+              job.convergence_seconds_at_start +
+                  std::chrono::duration<double>(SteadyClock::now() - job.started).count()));
     }
     absl::Status added =
         !final_stage
