@@ -8,6 +8,7 @@
 //   jobs/<job id>/results.pack  a running job's task results end to end (result_pack.h)
 //   jobs/<job id>/tiles/ a running job's finished tiles (finished_tiles.h)
 //   blobs/               task results of jobs from before result packs, content-addressed
+//   convergence/<job id> a job's error-against-time series for the dashboard (convergence.h)
 //   bundles/<hash>       packed scene bundles, named by their content hash
 //   scenes/<hash>/       the extracted bundle the scene loader checked
 //   outputs/<job id>/    the finished job's spectral EXR, RGB EXR, PNG and JSON report
