@@ -146,15 +146,37 @@ class FarmServerTest : public ::testing::Test {
     return spec;
   }
 
-  v1::JobInfo submit(const v1::JobSpec& spec, const std::string& token = "") {
+  // small_spec of the uploaded scene (no bundle hash, with the test failed, when the upload
+  // failed).
+  v1::JobSpec uploaded_small_spec() {
+    const std::string hash = upload_scene();
+    return hash.empty() ? v1::JobSpec() : small_spec(hash);
+  }
+
+  // Uploads the scene and submits small_spec of it: the job's id ("" when either failed).
+  std::string submit_small_job() {
+    const v1::JobSpec spec = uploaded_small_spec();
+    return spec.bundle_hash().empty() ? std::string() : submit(spec).job_id();
+  }
+
+  // SubmitJob's status (and the job in `info`, when given and submitted).
+  grpc::Status try_submit(const v1::JobSpec& spec, const std::string& token = "",
+                          v1::JobInfo* info = nullptr) {
     v1::SubmitJobRequest request;
     *request.mutable_spec() = spec;
     request.set_client_token(token);
     v1::SubmitJobResponse response;
     auto context = client();
     grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
+    if (info != nullptr) *info = response.job();
+    return status;
+  }
+
+  v1::JobInfo submit(const v1::JobSpec& spec, const std::string& token = "") {
+    v1::JobInfo info;
+    const grpc::Status status = try_submit(spec, token, &info);
     EXPECT_TRUE(status.ok()) << status.error_message();
-    return response.job();
+    return info;
   }
 
   std::string register_worker() {

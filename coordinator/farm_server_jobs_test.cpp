@@ -9,11 +9,11 @@ namespace {
 using namespace farm_server_testing;  // also fs (std::filesystem) and v1 (prism::v1)
 
 TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  const v1::JobInfo a = submit(small_spec(hash), "token-1");
-  const v1::JobInfo b = submit(small_spec(hash), "token-1");
-  const v1::JobInfo c = submit(small_spec(hash), "token-2");
+  const v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
+  const v1::JobInfo a = submit(spec, "token-1");
+  const v1::JobInfo b = submit(spec, "token-1");
+  const v1::JobInfo c = submit(spec, "token-2");
   EXPECT_EQ(a.job_id(), b.job_id());
   EXPECT_NE(a.job_id(), c.job_id());
   v1::ListJobsRequest request;
@@ -24,9 +24,8 @@ TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {
 }
 
 TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  const v1::JobSpec spec = small_spec(hash);
+  const v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
   const std::string job_id = submit(spec).job_id();
   const auto first = run_worker(register_worker(), 7);
   ASSERT_EQ(first.size(), 7u);
@@ -87,9 +86,8 @@ TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
 // uninterrupted run of the same job reaches); after the job's end a fresh coordinator still
 // serves it, from its file.
 TEST_F(FarmServerTest, TheConvergenceSeriesSurvivesARestartAndTheJobsEnd) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  const v1::JobSpec spec = small_spec(hash);
+  const v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
   const std::string job_id = submit(spec).job_id();
   ASSERT_EQ(run_worker(register_worker(), 7).size(), 7u);
   auto before = farm_->farm().convergence(job_id);
@@ -139,9 +137,8 @@ TEST_F(FarmServerTest, TheConvergenceSeriesSurvivesARestartAndTheJobsEnd) {
 // its finished tiles files this version does not read. The restarted coordinator merges the
 // blobs again, renders only the rest, gives the embedded render's bytes and deletes the blobs.
 TEST_F(FarmServerTest, ResultsStoredAsBlobsByAnEarlierVersionAreResumed) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  const v1::JobSpec spec = small_spec(hash);
+  const v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
   const std::string job_id = submit(spec).job_id();
   ASSERT_EQ(run_worker(register_worker(), 7).size(), 7u);
   stop();
@@ -187,9 +184,8 @@ TEST_F(FarmServerTest, ResultsStoredAsBlobsByAnEarlierVersionAreResumed) {
 // the job's tiles and results are gone from the store when it returns, and the janitor frees
 // the space afterwards, without the lock.
 TEST_F(FarmServerTest, CancelMovesAJobsFilesOutAtOnceAndTheJanitorDeletesThem) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  const std::string job_id = submit(small_spec(hash)).job_id();
+  const std::string job_id = submit_small_job();
+  ASSERT_FALSE(job_id.empty());
   ASSERT_EQ(run_worker(register_worker(), 7).size(), 7u);
   const fs::path data = root_ / "data";
   ASSERT_GT(fs::file_size(data / "jobs" / job_id / "tiles" / "tiles.pack"), 0u);
@@ -207,9 +203,8 @@ TEST_F(FarmServerTest, CancelMovesAJobsFilesOutAtOnceAndTheJanitorDeletesThem) {
 }
 
 TEST_F(FarmServerTest, ASceneFaultFailsTheJobWithTheWorkersMessage) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  const std::string job_id = submit(small_spec(hash)).job_id();
+  const std::string job_id = submit_small_job();
+  ASSERT_FALSE(job_id.empty());
   const std::string worker_id = register_worker();
   std::optional<v1::Lease> lease = acquire(worker_id);
   ASSERT_TRUE(lease.has_value());
@@ -231,20 +226,15 @@ TEST_F(FarmServerTest, SubmissionsBeyondTheQueueLimitAreResourceExhausted) {
   stop();
   max_queued_jobs_ = 1;
   start();
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  submit(small_spec(hash), "first");
-  v1::SubmitJobRequest request;
-  *request.mutable_spec() = small_spec(hash);
-  request.set_client_token("second");
-  v1::SubmitJobResponse response;
-  auto context = client();
-  grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
+  const v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
+  submit(spec, "first");
+  grpc::Status status = try_submit(spec, "second");
   EXPECT_EQ(status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
   EXPECT_NE(status.error_message().find("--max-queued-jobs 1"), std::string::npos)
       << status.error_message();
   // A repeat of the accepted submission is still answered.
-  EXPECT_FALSE(submit(small_spec(hash), "first").job_id().empty());
+  EXPECT_FALSE(submit(spec, "first").job_id().empty());
 }
 
 // Issue 18, "found under load" case 1: the farm accepted a 16384x16384 job that would have
@@ -259,19 +249,13 @@ TEST_F(FarmServerTest, JobsBeyondTheMemoryOrDiskBudgetAreRefusedWithTheNumbers) 
   const std::string hash = upload_scene();
   ASSERT_FALSE(hash.empty());
   auto submit_sized = [&](int side, int bins, const std::string& token, v1::JobInfo* info) {
-    v1::SubmitJobRequest request;
-    *request.mutable_spec() = small_spec(hash);
-    request.mutable_spec()->set_width(static_cast<std::uint32_t>(side));
-    request.mutable_spec()->set_height(static_cast<std::uint32_t>(side));
-    request.mutable_spec()->set_bins(static_cast<std::uint32_t>(bins));
-    request.mutable_spec()->set_tile_size(64);
-    request.mutable_spec()->set_samples_per_task(0);
-    request.set_client_token(token);
-    v1::SubmitJobResponse response;
-    auto context = client();
-    grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
-    if (info != nullptr) *info = response.job();
-    return status;
+    v1::JobSpec spec = small_spec(hash);
+    spec.set_width(static_cast<std::uint32_t>(side));
+    spec.set_height(static_cast<std::uint32_t>(side));
+    spec.set_bins(static_cast<std::uint32_t>(bins));
+    spec.set_tile_size(64);
+    spec.set_samples_per_task(0);
+    return try_submit(spec, token, info);
   };
   // 16384² at 32 bins: ~200 GiB of finished tiles and outputs.
   grpc::Status huge = submit_sized(16384, 32, "huge", nullptr);
@@ -314,14 +298,10 @@ TEST_F(FarmServerTest, JobsBeyondTheMemoryOrDiskBudgetAreRefusedWithTheNumbers) 
 }
 
 TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  v1::SubmitJobRequest request;
-  *request.mutable_spec() = small_spec(hash);
-  request.mutable_spec()->set_bins(1000);
-  v1::SubmitJobResponse response;
-  auto context = client();
-  grpc::Status status = farm_stub_->SubmitJob(context.get(), request, &response);
+  v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
+  spec.set_bins(1000);
+  const grpc::Status status = try_submit(spec);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_EQ(status.error_message(), "bins 1000 is out of range: want 4..256");
 }
@@ -358,14 +338,7 @@ TEST_F(FarmServerTest, ALargeJobsTasksAreStoredInPartsAndARestartStoresTheRest) 
   const std::string hash = upload_scene();
   ASSERT_FALSE(hash.empty());
   const v1::JobSpec spec = small_spec(hash);  // 9 tiles x 2 ranges
-  v1::SubmitJobRequest request;
-  *request.mutable_spec() = spec;
-  v1::SubmitJobResponse response;
-  {
-    auto context = client();
-    EXPECT_EQ(farm_stub_->SubmitJob(context.get(), request, &response).error_code(),
-              grpc::StatusCode::UNAVAILABLE);
-  }
+  EXPECT_EQ(try_submit(spec).error_code(), grpc::StatusCode::UNAVAILABLE);
   EXPECT_EQ(stored_at_pause, (std::vector<std::uint64_t>{4, 8}));
 
   stop();

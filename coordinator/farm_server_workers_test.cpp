@@ -9,9 +9,7 @@ namespace {
 using namespace farm_server_testing;  // also fs (std::filesystem) and v1 (prism::v1)
 
 TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  submit(small_spec(hash));
+  ASSERT_FALSE(submit_small_job().empty());
   const std::string worker_id = register_worker();
   std::optional<v1::Lease> lease = acquire(worker_id);
   ASSERT_TRUE(lease.has_value());
@@ -47,9 +45,8 @@ TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {
 // A gradient job's result must carry gradients: one without is the worker's fault (refused,
 // the task requeued), not a reason to fail the job.
 TEST_F(FarmServerTest, AGradientResultWithoutGradientsIsTheWorkersFault) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  v1::JobSpec spec = small_spec(hash);
+  v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
   spec.set_integrator(v1::INTEGRATOR_GRADIENT);
   spec.set_bins(16);
   const v1::JobInfo job = submit(spec);
@@ -85,9 +82,8 @@ TEST_F(FarmServerTest, AGradientResultWithoutGradientsIsTheWorkersFault) {
 // every result; a result with gradients only is the worker's fault too, and the real render of
 // the task, which carries them, is accepted.
 TEST_F(FarmServerTest, AWeightedGradientResultWithoutHalvesIsTheWorkersFault) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  v1::JobSpec spec = small_spec(hash);
+  v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
   spec.set_integrator(v1::INTEGRATOR_GRADIENT);
   spec.set_bins(16);
   spec.mutable_gradient()->set_norm(v1::POISSON_NORM_WEIGHTED);
@@ -128,9 +124,8 @@ TEST_F(FarmServerTest, AWeightedGradientResultWithoutHalvesIsTheWorkersFault) {
 }
 
 TEST_F(FarmServerTest, ListWorkersShowsWhatABusyWorkerRenders) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  const std::string job_id = submit(small_spec(hash)).job_id();
+  const std::string job_id = submit_small_job();
+  ASSERT_FALSE(job_id.empty());
   const std::string worker_id = register_worker();
   std::optional<v1::Lease> lease = acquire(worker_id);
   ASSERT_TRUE(lease.has_value());
@@ -208,9 +203,8 @@ TEST_F(FarmServerTest, CancelReachesTheWorkerAtItsNextHeartbeat) {
 }
 
 TEST_F(FarmServerTest, ALostWorkersLeaseGoesToAnotherWorker) {
-  const std::string hash = upload_scene();
-  ASSERT_FALSE(hash.empty());
-  const std::string job_id = submit(small_spec(hash)).job_id();
+  const std::string job_id = submit_small_job();
+  ASSERT_FALSE(job_id.empty());
   const std::string silent = register_worker();
   std::optional<v1::Lease> lease = acquire(silent);
   ASSERT_TRUE(lease.has_value());

@@ -21,12 +21,10 @@ constexpr char kToken[] = "dashboard-token";
 constexpr char kSecret[] = "dashboard-secret";
 
 TEST(DashboardBrowserTest, TheDashboardFollowsAJobAndCancelsAnother) {
-  const fs::path root = testing::fresh_dir();
   // The white furnace looks like its environment everywhere, so every finished tile changes the
   // preview.
-  fs::create_directories(root / "scene");
-  fs::copy_file(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/furnace.pbrt",
-                root / "scene" / "scene.pbrt");
+  const fs::path root =
+      testing::fresh_scene_dir(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/furnace.pbrt");
   auto coordinator = testing::ChildProcess::start(testing::coordinator_command(
       PRISM_COORDINATOR_BINARY, "127.0.0.1:0", root / "data", kSecret, kToken,
       {"--http-listen", "127.0.0.1:0", "--heartbeat-ms", "200"}));

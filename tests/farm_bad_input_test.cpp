@@ -49,9 +49,6 @@ namespace fs = std::filesystem;
 namespace v1 = prism::v1;
 using Clock = std::chrono::steady_clock;
 
-constexpr char kToken[] = "client-token";
-constexpr char kSecret[] = "worker-secret";
-constexpr int kHeartbeatMs = 200;
 constexpr int kLeaseMs = 1000;
 constexpr std::uint64_t kMaxBundleBytes = 64 << 10;
 // The good job: 24x24 in 8-pixel tiles, 9 tasks of about 0.3 s each on one thread, so that it
@@ -97,10 +94,10 @@ std::unique_ptr<grpc::ClientContext> call(const std::string& token) {
   return context;
 }
 std::unique_ptr<grpc::ClientContext> client() {
-  return call(kToken);
+  return call(testing::kApiToken);
 }
 std::unique_ptr<grpc::ClientContext> worker_call() {
-  return call(kSecret);
+  return call(testing::kWorkerSecret);
 }
 
 void write(const fs::path& path, const std::string& text) {
@@ -126,7 +123,7 @@ std::string packed_bundle(const fs::path& dir) {
 // Streams `bytes` as an upload in 16 KiB chunks, each declaring `declared` total bytes.
 grpc::Status upload(const std::string& bytes, std::string* hash = nullptr,
                     std::uint64_t declared = 0, const std::string& claimed_hash = "",
-                    const std::string& token = kToken) {
+                    const std::string& token = testing::kApiToken) {
   auto context = call(token);
   v1::UploadBundleResponse response;
   auto writer = farm_->farm->UploadBundle(context.get(), &response);
@@ -244,9 +241,10 @@ class FarmBadInputTest : public ::testing::Test {
     farm_->root = testing::fresh_dir("farm_bad_input");
 
     testing::ChildProcess* coordinator = spawn(testing::coordinator_command(
-        PRISM_COORDINATOR_BINARY, "127.0.0.1:0", farm_->root / "data", kSecret, kToken,
+        PRISM_COORDINATOR_BINARY, "127.0.0.1:0", farm_->root / "data", testing::kWorkerSecret,
+        testing::kApiToken,
         {"--max-bundle-bytes", std::to_string(kMaxBundleBytes), "--heartbeat-ms",
-         std::to_string(kHeartbeatMs), "--lease-ms", std::to_string(kLeaseMs)},
+         std::to_string(testing::kHeartbeatMs), "--lease-ms", std::to_string(kLeaseMs)},
         "error"));
     ASSERT_NE(coordinator, nullptr);
     const std::optional<std::string> line =
@@ -278,7 +276,7 @@ class FarmBadInputTest : public ::testing::Test {
     }
     ASSERT_TRUE(submit(good_spec(farm_->good_hash, kGoodSpp), &farm_->good_job).ok());
     spawn({PRISM_WORKER_BINARY, "--coordinator", "127.0.0.1:" + std::to_string(farm_->port),
-           "--threads", "1", "--secret", kSecret, "--host", "real", "--cache-dir",
+           "--threads", "1", "--secret", testing::kWorkerSecret, "--host", "real", "--cache-dir",
            (farm_->root / "cache").string(), "--log-level", "error"});
   }
 
@@ -313,7 +311,7 @@ void wrong_or_missing_client_tokens_are_unauthenticated() {
   EXPECT_TRUE(says(status, "missing authorization"));
 
   // The worker secret is not a client token.
-  auto secret = call(kSecret);
+  auto secret = call(testing::kWorkerSecret);
   v1::SubmitJobRequest submit_request;
   *submit_request.mutable_spec() = good_spec(farm_->good_hash, 1);
   v1::SubmitJobResponse submit_response;
@@ -342,11 +340,11 @@ void wrong_worker_secrets_are_unauthenticated() {
   v1::AcquireTaskRequest acquire;
   acquire.set_worker_id(farm_->fake_worker);
   v1::AcquireTaskResponse lease;
-  auto token = call(kToken);
+  auto token = call(testing::kApiToken);
   status = farm_->worker->AcquireTask(token.get(), acquire, &lease);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::UNAUTHENTICATED);
   EXPECT_FALSE(lease.has_lease());
-  status = complete(kToken, farm_->fake_worker, farm_->fake_lease->lease_id(),
+  status = complete(testing::kApiToken, farm_->fake_worker, farm_->fake_lease->lease_id(),
                     zero_result(*farm_->fake_lease));
   EXPECT_EQ(status.error_code(), grpc::StatusCode::UNAUTHENTICATED);
   EXPECT_TRUE(says(status, "invalid token"));
@@ -449,24 +447,20 @@ void oversized_uploads_are_resource_exhausted() {
 void unknown_job_ids_are_not_found() {
   SCOPED_TRACE("unknown_job_ids_are_not_found");
   const std::string unknown = "j-999999";
-  {
-    v1::GetJobRequest request;
-    request.set_job_id(unknown);
+  // GetJob and CancelJob take the same request fields.
+  for (const bool cancel : {false, true}) {
+    v1::GetJobRequest get;
+    v1::CancelJobRequest cancel_request;
+    get.set_job_id(unknown);
+    cancel_request.set_job_id(unknown);
     v1::JobInfo info;
     auto context = client();
-    const grpc::Status status = farm_->farm->GetJob(context.get(), request, &info);
-    EXPECT_EQ(status.error_code(), grpc::StatusCode::NOT_FOUND);
-    EXPECT_TRUE(says(status, "no job"));
-    EXPECT_TRUE(says(status, unknown));
-  }
-  {
-    v1::CancelJobRequest request;
-    request.set_job_id(unknown);
-    v1::JobInfo info;
-    auto context = client();
-    const grpc::Status status = farm_->farm->CancelJob(context.get(), request, &info);
-    EXPECT_EQ(status.error_code(), grpc::StatusCode::NOT_FOUND);
-    EXPECT_TRUE(says(status, unknown));
+    const grpc::Status status = cancel
+                                    ? farm_->farm->CancelJob(context.get(), cancel_request, &info)
+                                    : farm_->farm->GetJob(context.get(), get, &info);
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::NOT_FOUND) << cancel;
+    EXPECT_TRUE(says(status, "no job")) << cancel << ": " << status.error_message();
+    EXPECT_TRUE(says(status, unknown)) << cancel;
   }
   {
     v1::GetResultRequest request;
@@ -490,12 +484,12 @@ void stale_foreign_or_unknown_leases_are_failed_precondition() {
   // Another worker's result for the fake worker's lease is refused whether or not it is
   // current: fencing is by lease and worker.
   const std::string other = register_fake_worker("other");
-  grpc::Status status = complete(kSecret, other, lease.lease_id(), bytes);
+  grpc::Status status = complete(testing::kWorkerSecret, other, lease.lease_id(), bytes);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
   EXPECT_TRUE(says(status, "lease " + lease.lease_id() + " belongs to worker " +
                                farm_->fake_worker + ", not " + other));
 
-  status = complete(kSecret, other, "l-no-such-lease", bytes);
+  status = complete(testing::kWorkerSecret, other, "l-no-such-lease", bytes);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
   EXPECT_TRUE(says(status, "unknown lease l-no-such-lease"));
 
@@ -503,9 +497,9 @@ void stale_foreign_or_unknown_leases_are_failed_precondition() {
   // expires at its deadline; either ends the lease. Wait past both (ticks are 100 ms apart).
   const auto deadline =
       std::chrono::system_clock::time_point(std::chrono::milliseconds(lease.deadline_unix_ms()));
-  std::this_thread::sleep_until(deadline + std::chrono::milliseconds(3 * kHeartbeatMs));
+  std::this_thread::sleep_until(deadline + std::chrono::milliseconds(3 * testing::kHeartbeatMs));
   bool accepted = true;
-  status = complete(kSecret, farm_->fake_worker, lease.lease_id(), bytes, &accepted);
+  status = complete(testing::kWorkerSecret, farm_->fake_worker, lease.lease_id(), bytes, &accepted);
   EXPECT_EQ(status.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
   EXPECT_TRUE(says(status, "lease " + lease.lease_id() + " is no longer current"));
   EXPECT_FALSE(accepted);

@@ -43,10 +43,6 @@ namespace fs = std::filesystem;
 namespace v1 = prism::v1;
 using Clock = std::chrono::steady_clock;
 
-constexpr char kToken[] = "client-token";
-constexpr char kSecret[] = "worker-secret";
-constexpr int kHeartbeatMs = 200;
-
 fs::path source_scene() {
   return fs::path(PRISM_SOURCE_DIR) / "worker/testdata/unbiased.pbrt";
 }
@@ -55,11 +51,7 @@ constexpr int kSpp = 16;
 
 class FarmProcessTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    root_ = testing::fresh_dir();
-    fs::create_directories(root_ / "scene");
-    fs::copy_file(source_scene(), root_ / "scene" / "scene.pbrt");
-  }
+  void SetUp() override { root_ = testing::fresh_scene_dir(source_scene()); }
   void TearDown() override {
     children_.clear();  // each is killed and reaped; its output printed when the test failed
     fs::remove_all(root_);
@@ -82,8 +74,9 @@ class FarmProcessTest : public ::testing::Test {
   // Starts the coordinator on `port` (0: any) and connects the stubs to it.
   void start_coordinator(int port = 0) {
     coordinator_ = spawn(testing::coordinator_command(
-        PRISM_COORDINATOR_BINARY, "127.0.0.1:" + std::to_string(port), root_ / "data", kSecret,
-        kToken, {"--heartbeat-ms", std::to_string(kHeartbeatMs), "--lease-ms", "1000"}));
+        PRISM_COORDINATOR_BINARY, "127.0.0.1:" + std::to_string(port), root_ / "data",
+        testing::kWorkerSecret, testing::kApiToken,
+        {"--heartbeat-ms", std::to_string(testing::kHeartbeatMs), "--lease-ms", "1000"}));
     ASSERT_NE(coordinator_, nullptr);
     const std::optional<std::string> line =
         coordinator_->wait_for_line("listening on port", std::chrono::seconds(20));
@@ -99,8 +92,9 @@ class FarmProcessTest : public ::testing::Test {
     std::string host = "w";
     host += std::to_string(i);
     return spawn({PRISM_WORKER_BINARY, "--coordinator", "127.0.0.1:" + std::to_string(port_),
-                  "--threads", "1", "--secret", kSecret, "--host", host, "--cache-dir",
-                  (root_ / ("cache" + std::to_string(i))).string(), "--log-level", "error"});
+                  "--threads", "1", "--secret", testing::kWorkerSecret, "--host", host,
+                  "--cache-dir", (root_ / ("cache" + std::to_string(i))).string(), "--log-level",
+                  "error"});
   }
 
   // Whether the worker started as start_worker(i) with host `host` holds a lease within `seconds`.
@@ -122,7 +116,7 @@ class FarmProcessTest : public ::testing::Test {
 
   std::unique_ptr<grpc::ClientContext> client() {
     auto context = std::make_unique<grpc::ClientContext>();
-    prism::rpc::add_bearer(*context, kToken);
+    prism::rpc::add_bearer(*context, testing::kApiToken);
     context->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(20));
     return context;
   }
@@ -590,8 +584,8 @@ TEST_F(FarmProcessTest, BenchOnTheFarmMeasuresExactlyWhatALocalBenchMeasures) {
                                      "-o",
                                      (root_ / out).string()};
     if (farm) {
-      args.insert(args.end(),
-                  {"--coordinator", "127.0.0.1:" + std::to_string(port_), "--token", kToken});
+      args.insert(args.end(), {"--coordinator", "127.0.0.1:" + std::to_string(port_), "--token",
+                               testing::kApiToken});
     }
     const testing::RunResult r = testing::run(args);
     EXPECT_EQ(r.exit_code, 0) << out << ": " << r.err;
@@ -654,7 +648,7 @@ TEST_F(FarmProcessTest, BenchOnAFarmWithoutWorkersStopsBeforeSubmittingAnything)
       run_prism({"bench", (root_ / "scene" / "scene.pbrt").string(), "--spp", "4", "--seeds", "1",
                  "--reference-spp", "8", "--reference-cache", (root_ / "cache").string(), "-o",
                  (root_ / "out").string(), "--coordinator", "127.0.0.1:" + std::to_string(port_),
-                 "--token", kToken},
+                 "--token", testing::kApiToken},
                 1);
   const std::string& message = r.err;
   EXPECT_NE(message.find("has no idle or busy worker"), std::string::npos) << message;
@@ -760,7 +754,7 @@ struct SyntheticWorkers {
 
   static std::unique_ptr<grpc::ClientContext> call() {
     auto context = std::make_unique<grpc::ClientContext>();
-    prism::rpc::add_bearer(*context, kSecret);
+    prism::rpc::add_bearer(*context, testing::kWorkerSecret);
     context->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(10));
     return context;
   }
@@ -789,7 +783,7 @@ struct SyntheticWorkers {
     if (!stub->Register(call().get(), hello, &registered).ok()) return;
     Clock::time_point beat = Clock::now();
     while (!stop) {
-      if (Clock::now() - beat > std::chrono::milliseconds(kHeartbeatMs / 2)) {
+      if (Clock::now() - beat > std::chrono::milliseconds(testing::kHeartbeatMs / 2)) {
         v1::HeartbeatRequest request;
         request.set_worker_id(registered.worker_id());
         v1::HeartbeatResponse reply;
@@ -937,7 +931,7 @@ TEST_F(FarmProcessTest, ACancelledJobFreesItsWorkerWithinAHeartbeat) {
   const double seconds = std::chrono::duration<double>(Clock::now() - cancelled_at).count();
   ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
   // Two heartbeats for the directive to reach the worker, plus the tiny render and finalise.
-  EXPECT_LT(seconds, 2 * kHeartbeatMs / 1000.0 + 0.8);
+  EXPECT_LT(seconds, 2 * testing::kHeartbeatMs / 1000.0 + 0.8);
 }
 
 }  // namespace

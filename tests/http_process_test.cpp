@@ -32,10 +32,7 @@ constexpr char kSecret[] = "worker-secret";
 class HttpProcessTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    root_ = testing::fresh_dir();
-    fs::create_directories(root_ / "scene");
-    fs::copy_file(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/unbiased.pbrt",
-                  root_ / "scene" / "scene.pbrt");
+    root_ = testing::fresh_scene_dir(fs::path(PRISM_SOURCE_DIR) / "worker/testdata/unbiased.pbrt");
   }
   void TearDown() override {
     children_.clear();

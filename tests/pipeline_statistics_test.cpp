@@ -115,8 +115,11 @@ class PipelineStatisticsTest : public testing::Test {
     return worst;
   }
 
-  static LocalRenderOptions base_options(int width, int height, std::uint64_t spp) {
+  // `integrator` at 16 bins, max depth 6, in 16 px tiles on every thread.
+  static LocalRenderOptions base_options(job::IntegratorKind integrator, int width, int height,
+                                         std::uint64_t spp) {
     LocalRenderOptions o;
+    o.render.integrator = integrator;
     o.render.bins = 16;
     o.render.max_depth = 6;
     o.width = width;
@@ -147,8 +150,7 @@ TEST_P(GradientPipelineTest, ReconstructionAgreesWithUniformPerBin) {
   auto scene = load(c.scene);
   ASSERT_TRUE(scene.ok()) << scene.status();
   constexpr int kSeeds = 24;
-  LocalRenderOptions uniform = base_options(12, 12, 512);
-  uniform.render.integrator = job::IntegratorKind::kUniform;
+  LocalRenderOptions uniform = base_options(job::IntegratorKind::kUniform, 12, 12, 512);
   LocalRenderOptions gradient = uniform;
   gradient.render.integrator = job::IntegratorKind::kGradient;
   gradient.render.gradient_offset_bins = *job::gradient_offset_bins(0.15, uniform.render.bins);
@@ -204,8 +206,7 @@ TEST_P(PrepassPipelineTest, FinalPassWithLearnedTablesAgreesWithUniformPerBin) {
   auto scene = load("tests/testdata/pipeline/three_emitters.pbrt");
   ASSERT_TRUE(scene.ok()) << scene.status();
   constexpr int kSeeds = 24;
-  LocalRenderOptions uniform = base_options(24, 24, 64);
-  uniform.render.integrator = job::IntegratorKind::kUniform;
+  LocalRenderOptions uniform = base_options(job::IntegratorKind::kUniform, 24, 24, 64);
   LocalRenderOptions prepass = uniform;
   prepass.render.integrator = c.integrator;
   prepass.render.gradient_offset_bins = *job::gradient_offset_bins(0.15, uniform.render.bins);
@@ -250,8 +251,7 @@ TEST_F(PipelineStatisticsTest, HeroWithADispersiveCoatAgreesWithUniformPerBin) {
   auto scene = load("tests/testdata/pipeline/spectral_coat.pbrt");
   ASSERT_TRUE(scene.ok()) << scene.status();
   constexpr int kSeeds = 16;
-  LocalRenderOptions uniform = base_options(24, 24, 256);
-  uniform.render.integrator = job::IntegratorKind::kUniform;
+  LocalRenderOptions uniform = base_options(job::IntegratorKind::kUniform, 24, 24, 256);
   LocalRenderOptions hero = uniform;
   hero.render.integrator = job::IntegratorKind::kHero;
   const SeedStats u = over_seeds(*scene, uniform, kSeeds);
@@ -274,8 +274,7 @@ TEST_F(PipelineStatisticsTest, APortalChangesSamplingNotTheImage) {
     }
   }
   constexpr int kSeeds = 12;
-  LocalRenderOptions hero = base_options(24, 24, 64);
-  hero.render.integrator = job::IntegratorKind::kHero;
+  LocalRenderOptions hero = base_options(job::IntegratorKind::kHero, 24, 24, 64);
   LocalRenderOptions gradient = hero;
   gradient.render.integrator = job::IntegratorKind::kGradient;
   const SeedStats plain = over_seeds(without_portal, hero, kSeeds);

@@ -488,9 +488,10 @@ AttributeEnd
 )");
   auto scene = build(desc, early_stop_options());
   ASSERT_TRUE(scene);
-  EXPECT_FALSE(scene->shape(0).wavelength_dependent);
-  EXPECT_TRUE(scene->shape(1).wavelength_dependent);
-  EXPECT_TRUE(scene->shape(2).wavelength_dependent);
+  const bool dependent[] = {false, true, true};  // grey floor, coloured wall, blackbody lamp
+  for (int shape = 0; shape < 3; ++shape) {
+    EXPECT_EQ(scene->shape(shape).wavelength_dependent, dependent[shape]) << "shape " << shape;
+  }
 }
 
 }  // namespace

@@ -19,6 +19,15 @@ namespace fs = std::filesystem;
 
 class TileRendererTest : public ::testing::Test {
  protected:
+  // The gradient integrator at 8 bins, its offsets `offset_bins` bins apart.
+  static job::RenderOptions gradient_options(int offset_bins) {
+    job::RenderOptions options;
+    options.bins = 8;
+    options.integrator = job::IntegratorKind::kGradient;
+    options.gradient_offset_bins = offset_bins;
+    return options;
+  }
+
   void SetUp() override {
     library_ =
         std::make_unique<spectral::SpectrumLibrary>(*spectral::SpectrumLibrary::load_builtin());
@@ -203,10 +212,7 @@ TEST_F(TileRendererTest, RefusesTablesOfAnotherSizeAndEarlyStopOutsideAPrepass) 
 // gradients buffer, and the same bytes as the same pass of a `hero` job. Its final-pass tasks
 // still carry gradients.
 TEST_F(TileRendererTest, APrepassOfAGradientJobIsAFourLaneHeroRenderWithoutGradients) {
-  job::RenderOptions options;
-  options.bins = 8;
-  options.integrator = job::IntegratorKind::kGradient;
-  options.gradient_offset_bins = 2;
+  job::RenderOptions options = gradient_options(2);
   auto gradient = build(options);
   options.integrator = job::IntegratorKind::kHero;
   auto hero = build(options);
@@ -249,10 +255,7 @@ TEST_F(TileRendererTest, APrepassOfAGradientJobIsAFourLaneHeroRenderWithoutGradi
 // square exactly the gradient's square; n samples bound it below by Cauchy–Schwarz,
 // Σ G² >= (Σ G)²/n. The halves of [0, 4) are the totals of samples 0 and 2, rendered alone.
 TEST_F(TileRendererTest, GradientVariancesAddSquaresAndHalves) {
-  job::RenderOptions options;
-  options.bins = 8;
-  options.integrator = job::IntegratorKind::kGradient;
-  options.gradient_offset_bins = 3;
+  job::RenderOptions options = gradient_options(3);
   auto plain = build(options);
   options.gradient_variances = true;
   auto with_halves = build(options);

@@ -1158,7 +1158,9 @@ absl::Status run_load(const Flags& flags, const fs::path& root) {
         case 1: {
           kind = "GET /api/v1/jobs/{id}";
           std::lock_guard<std::mutex> lock(latency_mutex);
-          path = "/api/v1/jobs/" + (submitted.empty() ? std::string("none") : submitted.back());
+          // The newest job (the lists first, until one is submitted).
+          path = submitted.empty() ? "/api/v1/jobs?limit=20" : "/api/v1/jobs/" + submitted.back();
+          if (submitted.empty()) kind = "GET /api/v1/jobs?limit=20";
           break;
         }
         case 2:

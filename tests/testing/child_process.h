@@ -97,6 +97,12 @@ std::string find_program(const std::string& name);
 std::string render_beside(const std::string& prism, const std::filesystem::path& scene_dir,
                           const std::filesystem::path& out, const std::vector<std::string>& flags);
 
+// The API token and worker secret the farm process tests give their coordinator.
+inline constexpr char kApiToken[] = "client-token";
+inline constexpr char kWorkerSecret[] = "worker-secret";
+// Their heartbeat interval (--heartbeat-ms): short, so lost workers are noticed within a second.
+inline constexpr int kHeartbeatMs = 200;
+
 // A test coordinator's command line: `binary` serving gRPC on `listen`, its data under
 // `data_dir`, the test's worker secret and API token, logging at `log_level`, then `extra` (for
 // example --http-listen, --heartbeat-ms, --lease-ms, TLS files).

@@ -39,4 +39,13 @@ inline std::filesystem::path fresh_dir(const std::string& name = "") {
   return dir;
 }
 
+// A fresh directory holding scene/scene.pbrt, a copy of `scene`: a farm job's bundle as the
+// process tests submit it.
+inline std::filesystem::path fresh_scene_dir(const std::filesystem::path& scene) {
+  const std::filesystem::path dir = fresh_dir();
+  std::filesystem::create_directories(dir / "scene");
+  std::filesystem::copy_file(scene, dir / "scene" / "scene.pbrt");
+  return dir;
+}
+
 }  // namespace prism::testing
