@@ -462,16 +462,13 @@ JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) {
       status.tiles_total = static_cast<int>(tiles->total);
     }
   } else if (record.state == store::JobState::kDone) {
+    // The stored spec is explicit (every field set), so its own numbers give the tile count.
     prism::v1::JobSpec spec;
-    if (spec.ParseFromString(record.spec)) {
-      absl::StatusOr<job::JobParameters> params =
-          job::job_parameters(spec, scene::SceneDescription{});
-      if (params.ok()) {
-        const int tile = params->tile_size;
-        status.tiles_total =
-            ((params->width + tile - 1) / tile) * ((params->height + tile - 1) / tile);
-        status.tiles_finalised = status.tiles_total;
-      }
+    if (spec.ParseFromString(record.spec) && spec.tile_size() > 0) {
+      const std::int64_t tile = spec.tile_size();
+      status.tiles_total = static_cast<int>(((std::int64_t(spec.width()) + tile - 1) / tile) *
+                                            ((std::int64_t(spec.height()) + tile - 1) / tile));
+      status.tiles_finalised = status.tiles_total;
     }
     status.eta_seconds = 0;
   }
@@ -511,25 +508,44 @@ absl::StatusOr<FarmSnapshot> FarmCoordinator::snapshot() {
     PRISM_ASSIGN_OR_RETURN(snapshot.jobs, store_->count_jobs_by_state());
     snapshot.tasks = scheduler_.task_counts();
     snapshot.scheduler = scheduler_.counters();
-    for (const auto& [id, job] : active_) {
-      absl::StatusOr<store::JobRecord> record = store_->get_job(id);
-      if (record.ok()) snapshot.samples_per_second += status_locked(*record).samples_per_second;
+    // The running jobs' progress in one query, not one per job under the lock.
+    const store::JobState running[] = {store::JobState::kQueued, store::JobState::kPrepass,
+                                       store::JobState::kRendering, store::JobState::kFinalising};
+    PRISM_ASSIGN_OR_RETURN(std::vector<store::JobRecord> records, store_->list_jobs(0, running));
+    for (const store::JobRecord& record : records) {
+      if (active_.contains(record.id)) {
+        snapshot.samples_per_second += status_locked(record).samples_per_second;
+      }
     }
   }
   PRISM_ASSIGN_OR_RETURN(std::vector<WorkerStatus> workers, this->workers());
   for (const WorkerStatus& w : workers) ++snapshot.workers[w.state];
-  // The data directory's size needs no lock: its files are published atomically, and one that
-  // vanishes while it is counted is skipped.
+  snapshot.store_bytes = data_dir_bytes();
+  return snapshot;
+}
+
+std::uint64_t FarmCoordinator::data_dir_bytes() {
+  std::lock_guard<std::mutex> lock(data_dir_bytes_mutex_);
+  const SteadyClock::time_point now = SteadyClock::now();
+  if (data_dir_bytes_at_ != SteadyClock::time_point() &&
+      now - data_dir_bytes_at_ < kDataDirBytesInterval) {
+    return data_dir_bytes_;
+  }
+  // Needs no farm lock: the files are published atomically, and one that vanishes while it is
+  // counted is skipped.
+  std::uint64_t total = 0;
   std::error_code ec;
   for (auto it = std::filesystem::recursive_directory_iterator(options_.data_dir, ec);
        !ec && it != std::filesystem::recursive_directory_iterator(); it.increment(ec)) {
     std::error_code size_ec;
     if (it->is_regular_file(size_ec)) {
       const std::uintmax_t size = it->file_size(size_ec);
-      if (!size_ec) snapshot.store_bytes += size;
+      if (!size_ec) total += size;
     }
   }
-  return snapshot;
+  data_dir_bytes_ = total;
+  data_dir_bytes_at_ = SteadyClock::now();
+  return total;
 }
 
 absl::StatusOr<std::string> FarmCoordinator::metrics_text() {
