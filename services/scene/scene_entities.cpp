@@ -301,7 +301,8 @@ absl::StatusOr<LightImage> read_light_image(const ParameterList& params, const T
 
 absl::StatusOr<LayerSpec> read_layer(const ParameterList& params, const EntityContext& ctx) {
   LayerSpec l;
-  PRISM_RETURN_IF_ERROR(read_float_slot(params, "thickness", ctx, &l.thickness, &l.thickness_texture));
+  PRISM_RETURN_IF_ERROR(
+      read_float_slot(params, "thickness", ctx, &l.thickness, &l.thickness_texture));
   if (l.thickness_texture < 0)
     PRISM_RETURN_IF_ERROR(check_range(params, "thickness", l.thickness, 1e-30, 1e30, "> 0"));
   PRISM_RETURN_IF_ERROR(read_float_slot(params, "g", ctx, &l.g, &l.g_texture));
@@ -962,26 +963,37 @@ absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
   return kind;
 }
 
+// A light's emission parameters, read in pbrt-v4's order: the spectrum `name` (the default
+// illuminant when absent) into `spectrum`, `scale`, and the optional positive `normalisation`
+// ("power" or "illuminance") into `normalised`.
+template <typename L>
+absl::Status read_emission(const ParameterList& params, const EntityContext& ctx,
+                           const std::string& name, SpectrumParam L::*spectrum,
+                           const std::string& normalisation, std::optional<double> L::*normalised,
+                           L& light) {
+  PRISM_ASSIGN_OR_RETURN(light.*spectrum, spectrum_or(params, name, SpectrumRole::kIlluminant, ctx,
+                                                      SpectrumNamed{kDefaultIlluminant}));
+  PRISM_ASSIGN_OR_RETURN(light.scale, params.get_float("scale", 1.0));
+  PRISM_ASSIGN_OR_RETURN(light.*normalised, positive_optional(params, normalisation));
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const ParameterList& params,
                                                 const Transform& ctm, const EntityContext& ctx) {
   Light light;
   light.where = type.where;
   if (type.name == "point") {
     PointLight p;
-    PRISM_ASSIGN_OR_RETURN(p.intensity, spectrum_or(params, "I", SpectrumRole::kIlluminant, ctx,
-                                                    SpectrumNamed{kDefaultIlluminant}));
-    PRISM_ASSIGN_OR_RETURN(p.scale, params.get_float("scale", 1.0));
-    PRISM_ASSIGN_OR_RETURN(p.power, positive_optional(params, "power"));
+    PRISM_RETURN_IF_ERROR(
+        read_emission(params, ctx, "I", &PointLight::intensity, "power", &PointLight::power, p));
     PRISM_ASSIGN_OR_RETURN(Vec3 from, params.get_point3("from", {0, 0, 0}));
     light.light_to_world = ctm * Transform::translate(from);
     p.position_world = light.light_to_world.apply_point({0, 0, 0});
     light.kind = std::move(p);
   } else if (type.name == "goniometric") {
     PointLight p;
-    PRISM_ASSIGN_OR_RETURN(p.intensity, spectrum_or(params, "I", SpectrumRole::kIlluminant, ctx,
-                                                    SpectrumNamed{kDefaultIlluminant}));
-    PRISM_ASSIGN_OR_RETURN(p.scale, params.get_float("scale", 1.0));
-    PRISM_ASSIGN_OR_RETURN(p.power, positive_optional(params, "power"));
+    PRISM_RETURN_IF_ERROR(
+        read_emission(params, ctx, "I", &PointLight::intensity, "power", &PointLight::power, p));
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
     if (!filename || filename->empty())
       return location_error(type.where, "goniometric light needs a 'string filename'");
@@ -1019,10 +1031,8 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
     light.kind = std::move(p);
   } else if (type.name == "spot") {
     SpotLight s;
-    PRISM_ASSIGN_OR_RETURN(s.intensity, spectrum_or(params, "I", SpectrumRole::kIlluminant, ctx,
-                                                    SpectrumNamed{kDefaultIlluminant}));
-    PRISM_ASSIGN_OR_RETURN(s.scale, params.get_float("scale", 1.0));
-    PRISM_ASSIGN_OR_RETURN(s.power, positive_optional(params, "power"));
+    PRISM_RETURN_IF_ERROR(
+        read_emission(params, ctx, "I", &SpotLight::intensity, "power", &SpotLight::power, s));
     PRISM_ASSIGN_OR_RETURN(Vec3 from, params.get_point3("from", {0, 0, 0}));
     PRISM_ASSIGN_OR_RETURN(Vec3 to, params.get_point3("to", {0, 0, 1}));
     PRISM_ASSIGN_OR_RETURN(s.cone_angle_deg, params.get_float("coneangle", 30.0));
@@ -1054,18 +1064,14 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
       return param_error(params, "portal",
                          "needs an image 'filename' (pbrt-v4 has no portal for a constant 'L')");
     }
-    PRISM_ASSIGN_OR_RETURN(i.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
-                                                   SpectrumNamed{kDefaultIlluminant}));
-    PRISM_ASSIGN_OR_RETURN(i.scale, params.get_float("scale", 1.0));
-    PRISM_ASSIGN_OR_RETURN(i.illuminance, positive_optional(params, "illuminance"));
+    PRISM_RETURN_IF_ERROR(read_emission(params, ctx, "L", &InfiniteLight::radiance, "illuminance",
+                                        &InfiniteLight::illuminance, i));
     light.light_to_world = ctm;
     light.kind = std::move(i);
   } else if (type.name == "distant") {
     DistantLight d;
-    PRISM_ASSIGN_OR_RETURN(d.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
-                                                   SpectrumNamed{kDefaultIlluminant}));
-    PRISM_ASSIGN_OR_RETURN(d.scale, params.get_float("scale", 1.0));
-    PRISM_ASSIGN_OR_RETURN(d.illuminance, positive_optional(params, "illuminance"));
+    PRISM_RETURN_IF_ERROR(read_emission(params, ctx, "L", &DistantLight::radiance, "illuminance",
+                                        &DistantLight::illuminance, d));
     PRISM_ASSIGN_OR_RETURN(Vec3 from, params.get_point3("from", {0, 0, 0}));
     PRISM_ASSIGN_OR_RETURN(Vec3 to, params.get_point3("to", {0, 0, 1}));
     const Vec3 w{from[0] - to[0], from[1] - to[1], from[2] - to[2]};
