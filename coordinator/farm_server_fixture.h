@@ -80,14 +80,11 @@ class FarmServerTest : public ::testing::Test {
   void start() {
     farm_ = testing::InProcessFarm::start(root_ / "data", [this](FarmOptions& options) {
       options.max_bundle_bytes = 64 << 10;
-      options.max_queued_jobs = max_queued_jobs_;
-      options.max_memory_bytes = max_memory_bytes_;
-      options.max_disk_bytes = max_disk_bytes_;
-      options.before_store_job = before_store_job_;
-      options.before_write_outputs = before_write_outputs_;
-      options.between_task_parts = between_task_parts_;
-      if (tasks_per_store_part_ > 0) options.tasks_per_store_part = tasks_per_store_part_;
+      options.max_queued_jobs = 1000;
+      options.max_memory_bytes = 0;
+      options.max_disk_bytes = 0;
       options.scheduler.lease_duration = Millis(5000);
+      if (configure_) configure_(options);
     });
     ASSERT_NE(farm_, nullptr);
     auto channel = grpc::CreateChannel(farm_->address(), grpc::InsecureChannelCredentials());
@@ -385,13 +382,8 @@ class FarmServerTest : public ::testing::Test {
   }
 #endif
 
-  std::size_t max_queued_jobs_ = 1000;
-  std::uint64_t max_memory_bytes_ = 0;
-  std::uint64_t max_disk_bytes_ = 0;
-  std::function<void()> before_store_job_;
-  std::function<void()> before_write_outputs_;
-  std::function<absl::Status(const std::string&)> between_task_parts_;
-  std::size_t tasks_per_store_part_ = 0;  // 0: the coordinator's default
+  // A test's own farm options (limits, hooks), applied by the next start().
+  std::function<void(FarmOptions&)> configure_;
   fs::path root_;
   fs::path scene_root_;
   spectral::SpectrumLibrary library_;

@@ -224,7 +224,7 @@ TEST_F(FarmServerTest, ASceneFaultFailsTheJobWithTheWorkersMessage) {
 
 TEST_F(FarmServerTest, SubmissionsBeyondTheQueueLimitAreResourceExhausted) {
   stop();
-  max_queued_jobs_ = 1;
+  configure_ = [](FarmOptions& options) { options.max_queued_jobs = 1; };
   start();
   const v1::JobSpec spec = uploaded_small_spec();
   ASSERT_FALSE(spec.bundle_hash().empty());
@@ -243,8 +243,10 @@ TEST_F(FarmServerTest, SubmissionsBeyondTheQueueLimitAreResourceExhausted) {
 // cancelled job gives its share back.
 TEST_F(FarmServerTest, JobsBeyondTheMemoryOrDiskBudgetAreRefusedWithTheNumbers) {
   stop();
-  max_memory_bytes_ = 64 << 20;
-  max_disk_bytes_ = std::uint64_t{100} << 30;
+  configure_ = [](FarmOptions& options) {
+    options.max_memory_bytes = 64 << 20;
+    options.max_disk_bytes = std::uint64_t{100} << 30;
+  };
   start();
   const std::string hash = upload_scene();
   ASSERT_FALSE(hash.empty());
@@ -284,8 +286,10 @@ TEST_F(FarmServerTest, JobsBeyondTheMemoryOrDiskBudgetAreRefusedWithTheNumbers) 
 
   // Disk: within the memory budget but over --max-disk.
   stop();
-  max_memory_bytes_ = std::uint64_t{1} << 40;
-  max_disk_bytes_ = 64 << 20;
+  configure_ = [](FarmOptions& options) {
+    options.max_memory_bytes = std::uint64_t{1} << 40;
+    options.max_disk_bytes = 64 << 20;
+  };
   start();
   grpc::Status disk = submit_sized(2048, 64, "disk", nullptr);
   EXPECT_EQ(disk.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
@@ -314,10 +318,9 @@ TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {
 // rest when it restarts, and the job renders the embedded render's bytes.
 TEST_F(FarmServerTest, ALargeJobsTasksAreStoredInPartsAndARestartStoresTheRest) {
   stop();
-  tasks_per_store_part_ = 4;
   std::vector<std::uint64_t> stored_at_pause;
   bool crash = true;
-  between_task_parts_ = [&](const std::string& job_id) -> absl::Status {
+  auto between_parts = [&](const std::string& job_id) -> absl::Status {
     // Another thread's call is answered while the submission pauses (were the lock held, it
     // would wait for it: the test's 30 s deadline would fail it).
     auto query = std::async(std::launch::async, [&] {
@@ -333,6 +336,10 @@ TEST_F(FarmServerTest, ALargeJobsTasksAreStoredInPartsAndARestartStoresTheRest) 
     stored_at_pause.push_back(query.get());
     if (crash && stored_at_pause.size() == 2) return absl::UnavailableError("stopped here");
     return absl::OkStatus();
+  };
+  configure_ = [&](FarmOptions& options) {
+    options.tasks_per_store_part = 4;
+    options.between_task_parts = between_parts;
   };
   start();
   const std::string hash = upload_scene();
@@ -379,11 +386,13 @@ TEST_F(FarmServerTest, OutputsAreWrittenWithoutTheCoordinatorsLock) {
   int waiting = 0;
   bool open = false;
   stop();
-  before_write_outputs_ = [&] {
-    std::unique_lock<std::mutex> lock(gate_mutex);
-    ++waiting;
-    gate.notify_all();
-    gate.wait(lock, [&] { return open; });
+  configure_ = [&](FarmOptions& options) {
+    options.before_write_outputs = [&] {
+      std::unique_lock<std::mutex> lock(gate_mutex);
+      ++waiting;
+      gate.notify_all();
+      gate.wait(lock, [&] { return open; });
+    };
   };
   start();
   auto wait_for_writer = [&](int n) {

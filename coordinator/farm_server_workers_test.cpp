@@ -283,8 +283,10 @@ TEST_F(FarmServerTest, ALeavingWorkersLeaseGoesBackUncountedAndItIsListedAsLeft)
 TEST_F(FarmServerTest, ATenSecondStallDoesNotMakeAHealthyWorkerLost) {
   std::atomic<int> stores{0};
   stop();
-  before_store_job_ = [&stores] {
-    if (stores.fetch_add(1) == 1) std::this_thread::sleep_for(std::chrono::seconds(10));
+  configure_ = [&stores](FarmOptions& options) {
+    options.before_store_job = [&stores] {
+      if (stores.fetch_add(1) == 1) std::this_thread::sleep_for(std::chrono::seconds(10));
+    };
   };
   start();
   const std::string hash = upload_scene();
