@@ -106,20 +106,34 @@ absl::Status FarmCoordinator::start() {
 
 void FarmCoordinator::janitor_loop() {
   std::unique_lock<std::mutex> lock(janitor_mutex_);
+  SteadyClock::time_point counted;  // the data directory's last count (none yet)
   while (true) {
-    janitor_wake_.wait(lock, [this] { return janitor_pending_ || janitor_stopping_; });
+    // Woken by clean-ups (the trash to empty) and at least every kDataDirBytesInterval, to
+    // count the data directory for /metrics: a walk over many jobs' files takes too long for
+    // the scrape to wait on it.
+    if (counted != SteadyClock::time_point()) {
+      janitor_wake_.wait_for(lock, kDataDirBytesInterval,
+                             [this] { return janitor_pending_ || janitor_stopping_; });
+    }
     if (janitor_stopping_) return;
+    const bool empty_trash = janitor_pending_;
     janitor_pending_ = false;
     lock.unlock();
-    // Entries are whole: clean_up_locked renames each in complete. A crash midway leaves the
-    // rest for the next start.
-    std::error_code ec;
-    for (const auto& entry : fs::directory_iterator(trash_dir(), ec)) {
-      std::error_code removed;
-      fs::remove_all(entry.path(), removed);
-      if (removed) {
-        options_.logger->warn("cannot delete {}: {}", entry.path().string(), removed.message());
+    if (empty_trash) {
+      // Entries are whole: clean_up_locked renames each in complete. A crash midway leaves the
+      // rest for the next start.
+      std::error_code ec;
+      for (const auto& entry : fs::directory_iterator(trash_dir(), ec)) {
+        std::error_code removed;
+        fs::remove_all(entry.path(), removed);
+        if (removed) {
+          options_.logger->warn("cannot delete {}: {}", entry.path().string(), removed.message());
+        }
       }
+    }
+    if (SteadyClock::now() - counted >= kDataDirBytesInterval) {
+      data_dir_bytes_.store(count_data_dir_bytes(), std::memory_order_relaxed);
+      counted = SteadyClock::now();
     }
     lock.lock();
   }
@@ -520,17 +534,11 @@ absl::StatusOr<FarmSnapshot> FarmCoordinator::snapshot() {
   }
   PRISM_ASSIGN_OR_RETURN(std::vector<WorkerStatus> workers, this->workers());
   for (const WorkerStatus& w : workers) ++snapshot.workers[w.state];
-  snapshot.store_bytes = data_dir_bytes();
+  snapshot.store_bytes = data_dir_bytes_.load(std::memory_order_relaxed);
   return snapshot;
 }
 
-std::uint64_t FarmCoordinator::data_dir_bytes() {
-  std::lock_guard<std::mutex> lock(data_dir_bytes_mutex_);
-  const SteadyClock::time_point now = SteadyClock::now();
-  if (data_dir_bytes_at_ != SteadyClock::time_point() &&
-      now - data_dir_bytes_at_ < kDataDirBytesInterval) {
-    return data_dir_bytes_;
-  }
+std::uint64_t FarmCoordinator::count_data_dir_bytes() const {
   // Needs no farm lock: the files are published atomically, and one that vanishes while it is
   // counted is skipped.
   std::uint64_t total = 0;
@@ -543,8 +551,6 @@ std::uint64_t FarmCoordinator::data_dir_bytes() {
       if (!size_ec) total += size;
     }
   }
-  data_dir_bytes_ = total;
-  data_dir_bytes_at_ = SteadyClock::now();
   return total;
 }
 

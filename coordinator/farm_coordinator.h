@@ -265,9 +265,9 @@ class FarmCoordinator : public FarmView {
   absl::Status make_durable(std::uint64_t ticket);
   // A done task's result: from the job's pack, or the blob store for a task from before packs.
   absl::StatusOr<std::string> result_bytes(const ActiveJob& job, const store::TaskRecord& task);
-  // The data directory's size for /metrics, walked at most every kDataDirBytesInterval (a walk
-  // over many jobs' files costs more than a scrape should).
-  std::uint64_t data_dir_bytes();
+  // The data directory's size, walked by the janitor thread every kDataDirBytesInterval and
+  // read by /metrics from data_dir_bytes_.
+  std::uint64_t count_data_dir_bytes() const;
   // The dashboard's convergence series (farm_outputs.cpp): a job's file under convergence/ is
   // opened when it starts or resumes (its points so far into convergence_), appended to with
   // every accepted final-pass result, and rewritten thinned when the job is over.
@@ -301,9 +301,7 @@ class FarmCoordinator : public FarmView {
   // The newest jobs' convergence series (by job id); older ones are read from their files.
   static constexpr std::size_t kConvergenceJobsInMemory = 256;
   static constexpr std::chrono::seconds kDataDirBytesInterval{10};
-  std::mutex data_dir_bytes_mutex_;
-  std::uint64_t data_dir_bytes_ = 0;
-  std::chrono::steady_clock::time_point data_dir_bytes_at_;
+  std::atomic<std::uint64_t> data_dir_bytes_{0};
   std::map<std::string, std::vector<ConvergencePoint>> convergence_;
   // Admission control: the budgets, what the coordinator held at start, and the plans of
   // submissions between their check and their job's creation.

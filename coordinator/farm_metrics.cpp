@@ -165,12 +165,11 @@ FarmMetrics::FarmMetrics()
   f_->retries_worker = &retries.Add({{"reason", "worker"}});
   f_->retries_infrastructure = &retries.Add({{"reason", "infrastructure"}});
   f_->retries_returned = &retries.Add({{"reason", "returned"}});
-  f_->store_bytes =
-      &prometheus::BuildGauge()
-           .Name("prism_store_bytes")
-           .Help("Bytes under the coordinator's data directory (counted at most every 10 s)")
-           .Register(r)
-           .Add({});
+  f_->store_bytes = &prometheus::BuildGauge()
+                         .Name("prism_store_bytes")
+                         .Help("Bytes under the coordinator's data directory (counted every 10 s)")
+                         .Register(r)
+                         .Add({});
   f_->cpu_seconds = &prometheus::BuildCounter()
                          .Name("process_cpu_seconds_total")
                          .Help("Total user and system CPU time spent in seconds")
