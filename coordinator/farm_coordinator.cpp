@@ -115,10 +115,20 @@ void FarmCoordinator::janitor_loop() {
       janitor_wake_.wait_for(lock, kDataDirBytesInterval,
                              [this] { return janitor_pending_ || janitor_stopping_; });
     }
-    if (janitor_stopping_) return;
+    if (janitor_stopping_) {
+      // The finished series are small and quick to write; the trash waits for the next start.
+      auto series = std::move(janitor_series_);
+      janitor_series_.clear();
+      lock.unlock();
+      for (auto& [job_id, points] : series) finish_convergence(job_id, std::move(points));
+      return;
+    }
     const bool empty_trash = janitor_pending_;
     janitor_pending_ = false;
+    auto series = std::move(janitor_series_);
+    janitor_series_.clear();
     lock.unlock();
+    for (auto& [job_id, points] : series) finish_convergence(job_id, std::move(points));
     if (empty_trash) {
       // Entries are whole: clean_up_locked renames each in complete. A crash midway leaves the
       // rest for the next start.

@@ -270,12 +270,15 @@ class FarmCoordinator : public FarmView {
   std::uint64_t count_data_dir_bytes() const;
   // The dashboard's convergence series (farm_outputs.cpp): a job's file under convergence/ is
   // opened when it starts or resumes (its points so far into convergence_), appended to with
-  // every accepted final-pass result, and rewritten thinned when the job is over.
+  // every accepted final-pass result, and rewritten thinned by the janitor when the job is over
+  // (finish_convergence, without the lock).
   std::filesystem::path convergence_path(const std::string& job_id) const;
   void open_convergence_locked(const std::string& job_id, ActiveJob& job);
   void record_convergence_locked(const std::string& job_id, ActiveJob& job,
                                  const ConvergencePoint& point);
   void close_convergence_locked(const std::string& job_id);
+  void finish_convergence(const std::string& job_id,
+                          std::optional<std::vector<ConvergencePoint>> points) const;
   void tick_loop();
 
   FarmOptions options_;
@@ -319,6 +322,9 @@ class FarmCoordinator : public FarmView {
   std::condition_variable janitor_wake_;
   bool janitor_pending_ = true;
   bool janitor_stopping_ = false;
+  // Finished jobs' convergence series to rewrite thinned (their points, or none: read the file),
+  // off the farm's lock.
+  std::vector<std::pair<std::string, std::optional<std::vector<ConvergencePoint>>>> janitor_series_;
   std::thread janitor_;
   std::deque<Finalising> finalising_;  // under mutex_
   std::condition_variable finaliser_wake_;

@@ -173,14 +173,23 @@ void FarmCoordinator::close_convergence_locked(const std::string& job_id) {
   auto active = active_.find(job_id);
   if (active != active_.end()) active->second->convergence_log.reset();
   auto it = convergence_.find(job_id);
-  const std::vector<ConvergencePoint> points =
-      it != convergence_.end() ? it->second : read_convergence(convergence_path(job_id));
-  if (points.empty()) {
+  std::optional<std::vector<ConvergencePoint>> points;
+  if (it != convergence_.end()) points = it->second;
+  // The rewrite syncs a file: the janitor does it (clean_up_locked wakes it).
+  std::lock_guard<std::mutex> lock(janitor_mutex_);
+  janitor_series_.emplace_back(job_id, std::move(points));
+}
+
+void FarmCoordinator::finish_convergence(
+    const std::string& job_id, std::optional<std::vector<ConvergencePoint>> points) const {
+  const fs::path path = convergence_path(job_id);
+  if (!points.has_value()) points = read_convergence(path);
+  if (points->empty()) {
     std::error_code ec;
-    fs::remove(convergence_path(job_id), ec);
+    fs::remove(path, ec);
     return;
   }
-  if (absl::Status written = write_convergence(convergence_path(job_id), points); !written.ok()) {
+  if (absl::Status written = write_convergence(path, *points); !written.ok()) {
     options_.logger->warn("[job {}] {}", job_id, written.ToString());
   }
 }
