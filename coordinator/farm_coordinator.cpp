@@ -104,51 +104,6 @@ absl::Status FarmCoordinator::start() {
   return absl::OkStatus();
 }
 
-void FarmCoordinator::janitor_loop() {
-  std::unique_lock<std::mutex> lock(janitor_mutex_);
-  SteadyClock::time_point counted;  // the data directory's last count (none yet)
-  while (true) {
-    // Woken by clean-ups (the trash to empty) and at least every kDataDirBytesInterval, to
-    // count the data directory for /metrics: a walk over many jobs' files takes too long for
-    // the scrape to wait on it.
-    if (counted != SteadyClock::time_point()) {
-      janitor_wake_.wait_for(lock, kDataDirBytesInterval,
-                             [this] { return janitor_pending_ || janitor_stopping_; });
-    }
-    if (janitor_stopping_) {
-      // The finished series are small and quick to write; the trash waits for the next start.
-      auto series = std::move(janitor_series_);
-      janitor_series_.clear();
-      lock.unlock();
-      for (auto& [job_id, points] : series) finish_convergence(job_id, std::move(points));
-      return;
-    }
-    const bool empty_trash = janitor_pending_;
-    janitor_pending_ = false;
-    auto series = std::move(janitor_series_);
-    janitor_series_.clear();
-    lock.unlock();
-    for (auto& [job_id, points] : series) finish_convergence(job_id, std::move(points));
-    if (empty_trash) {
-      // Entries are whole: clean_up_locked renames each in complete. A crash midway leaves the
-      // rest for the next start.
-      std::error_code ec;
-      for (const auto& entry : fs::directory_iterator(trash_dir(), ec)) {
-        std::error_code removed;
-        fs::remove_all(entry.path(), removed);
-        if (removed) {
-          options_.logger->warn("cannot delete {}: {}", entry.path().string(), removed.message());
-        }
-      }
-    }
-    if (SteadyClock::now() - counted >= kDataDirBytesInterval) {
-      data_dir_bytes_.store(count_data_dir_bytes(), std::memory_order_relaxed);
-      counted = SteadyClock::now();
-    }
-    lock.lock();
-  }
-}
-
 FarmCoordinator::~FarmCoordinator() {
   shutdown();
 }
@@ -250,48 +205,6 @@ absl::StatusOr<std::string> FarmCoordinator::bundle_bytes(const std::string& has
 }
 
 // ---- jobs ----
-
-void FarmCoordinator::clean_up_locked(const std::string& job_id) {
-  close_convergence_locked(job_id);
-  // A fresh name per clean-up: a job cleaned up again (after a restart) never meets its old
-  // trash.
-  const fs::path trash =
-      trash_dir() / absl::StrCat(job_id, "-", ++temp_counter_, "-", now().count());
-  std::error_code ec;
-  const fs::path job_dir = options_.data_dir / "jobs" / job_id;
-  if (fs::exists(job_dir, ec)) {
-    fs::rename(job_dir, trash, ec);
-    if (ec) {
-      options_.logger->warn("[job {}] cannot move its tiles to the trash: {}", job_id,
-                            ec.message());
-      fs::remove_all(job_dir, ec);
-    }
-  }
-  absl::StatusOr<std::vector<std::string>> unshared = store_->unshared_results(job_id);
-  if (!unshared.ok()) {
-    options_.logger->warn("[job {}] cannot list its results: {}", job_id,
-                          unshared.status().ToString());
-  } else if (!unshared->empty()) {
-    const fs::path blobs = trash.string() + "-results";
-    if (absl::Status made = base::make_directories(blobs); !made.ok()) {
-      options_.logger->warn("[job {}] {}", job_id, made.ToString());
-    }
-    for (const std::string& hash : *unshared) {
-      // The blob leaves the store now: a later job's identical result is written afresh.
-      absl::Status moved = blobs_->discard(hash, blobs);
-      if (!moved.ok()) moved = blobs_->remove(hash);
-      if (!moved.ok()) {
-        options_.logger->warn("[job {}] cannot delete result {}: {}", job_id, hash,
-                              moved.ToString());
-      }
-    }
-  }
-  {
-    std::lock_guard<std::mutex> lock(janitor_mutex_);
-    janitor_pending_ = true;
-  }
-  janitor_wake_.notify_one();
-}
 
 absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec,
                                                   const std::string& client_token) {
@@ -546,22 +459,6 @@ absl::StatusOr<FarmSnapshot> FarmCoordinator::snapshot() {
   for (const WorkerStatus& w : workers) ++snapshot.workers[w.state];
   snapshot.store_bytes = data_dir_bytes_.load(std::memory_order_relaxed);
   return snapshot;
-}
-
-std::uint64_t FarmCoordinator::count_data_dir_bytes() const {
-  // Needs no farm lock: the files are published atomically, and one that vanishes while it is
-  // counted is skipped.
-  std::uint64_t total = 0;
-  std::error_code ec;
-  for (auto it = std::filesystem::recursive_directory_iterator(options_.data_dir, ec);
-       !ec && it != std::filesystem::recursive_directory_iterator(); it.increment(ec)) {
-    std::error_code size_ec;
-    if (it->is_regular_file(size_ec)) {
-      const std::uintmax_t size = it->file_size(size_ec);
-      if (!size_ec) total += size;
-    }
-  }
-  return total;
 }
 
 absl::StatusOr<std::string> FarmCoordinator::metrics_text() {

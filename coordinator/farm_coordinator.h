@@ -31,8 +31,9 @@
 // (bundle_store.h) keeps the bundles; an ActiveJob (active_job.h) per running job its stages,
 // assemblers and image; the Scheduler (scheduler.h) the leases; JobStore and BlobStore what
 // survives a restart. Its definitions are split by concern: farm_coordinator.cpp (lifecycle,
-// submit, job queries), farm_resume.cpp (restart), farm_stages.cpp (stages handed on, events),
-// farm_outputs.cpp (outputs, previews) and farm_workers.cpp (registration, leases, results).
+// submit, job queries), farm_resume.cpp (restart), farm_housekeeping.cpp (clean-up, janitor),
+// farm_stages.cpp (stages handed on, events), farm_outputs.cpp (outputs, previews) and
+// farm_workers.cpp (registration, leases, results).
 // What monitoring reads is the read-only FarmView (farm_view.h) it implements.
 //
 // Threading: one mutex guards all state; a background thread calls Scheduler::tick(). Long
