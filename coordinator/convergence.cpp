@@ -13,6 +13,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "services/base/atomic_file.h"
+#include "services/base/little_endian.h"
 #include "services/base/status.h"
 
 namespace prism::coordinator {
@@ -70,21 +71,11 @@ namespace {
 
 constexpr std::size_t kRecordBytes = 24;
 
-void put(std::string& out, std::uint64_t bits) {
-  for (int i = 0; i < 8; ++i) out.push_back(char((bits >> (8 * i)) & 0xff));
-}
-
-std::uint64_t get(const char* p) {
-  std::uint64_t bits = 0;
-  for (int i = 0; i < 8; ++i) bits |= std::uint64_t(std::uint8_t(p[i])) << (8 * i);
-  return bits;
-}
-
 std::string encode(const ConvergencePoint& point) {
   std::string out;
-  put(out, std::bit_cast<std::uint64_t>(point.seconds));
-  put(out, point.samples);
-  put(out, std::bit_cast<std::uint64_t>(point.relative_error));
+  base::append_le(out, std::bit_cast<std::uint64_t>(point.seconds), 8);
+  base::append_le(out, point.samples, 8);
+  base::append_le(out, std::bit_cast<std::uint64_t>(point.relative_error), 8);
   return out;
 }
 
@@ -96,9 +87,9 @@ std::vector<ConvergencePoint> decode(const std::string& bytes, std::uint64_t* va
   ConvergencePoint previous;
   for (; at + kRecordBytes <= bytes.size(); at += kRecordBytes) {
     ConvergencePoint p;
-    p.seconds = std::bit_cast<double>(get(bytes.data() + at));
-    p.samples = get(bytes.data() + at + 8);
-    p.relative_error = std::bit_cast<double>(get(bytes.data() + at + 16));
+    p.seconds = std::bit_cast<double>(base::get_le(bytes.data() + at, 8));
+    p.samples = base::get_le(bytes.data() + at + 8, 8);
+    p.relative_error = std::bit_cast<double>(base::get_le(bytes.data() + at + 16, 8));
     const bool later = p.samples > previous.samples && p.seconds >= previous.seconds;
     if (!std::isfinite(p.seconds) || !std::isfinite(p.relative_error) || p.relative_error < 0 ||
         !later) {

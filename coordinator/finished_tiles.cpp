@@ -13,6 +13,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "services/base/atomic_file.h"
+#include "services/base/little_endian.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/tile_codec.h"
@@ -26,16 +27,8 @@ namespace {
 constexpr char kRecordMagic[4] = {'P', 'R', 'T', 'R'};
 constexpr std::size_t kHeaderBytes = 4 + 4 + 8 + 32;
 
-void put_le(char* out, std::uint64_t value, int bytes) {
-  for (int i = 0; i < bytes; ++i) out[i] = static_cast<char>((value >> (8 * i)) & 0xff);
-}
-
-std::uint64_t get_le(const char* in, int bytes) {
-  std::uint64_t value = 0;
-  for (int i = 0; i < bytes; ++i)
-    value |= std::uint64_t(static_cast<unsigned char>(in[i])) << (8 * i);
-  return value;
-}
+using base::get_le;
+using base::put_le;
 
 }  // namespace
 

@@ -7,6 +7,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "services/base/check.h"
+#include "services/base/little_endian.h"
 
 namespace prism::image {
 namespace {
@@ -43,9 +44,7 @@ class Writer {
   }
 
  private:
-  void put(std::uint64_t v, int n) {
-    for (int i = 0; i < n; ++i) out_.push_back(static_cast<char>((v >> (8 * i)) & 0xff));
-  }
+  void put(std::uint64_t v, int n) { base::append_le(out_, v, n); }
   std::string& out_;
 };
 
@@ -65,9 +64,7 @@ class Reader {
   }
   absl::StatusOr<std::uint64_t> uint(int n, std::string_view field) {
     if (auto s = need(n, field); !s.ok()) return s;
-    std::uint64_t v = 0;
-    for (int i = 0; i < n; ++i)
-      v |= std::uint64_t(static_cast<unsigned char>(in_[pos_ + i])) << (8 * i);
+    const std::uint64_t v = base::get_le(in_.data() + pos_, n);
     pos_ += n;
     return v;
   }
@@ -97,9 +94,7 @@ class Reader {
  private:
   std::uint64_t raw(int n) {
     PRISM_CHECK(remaining() >= std::size_t(n));
-    std::uint64_t v = 0;
-    for (int i = 0; i < n; ++i)
-      v |= std::uint64_t(static_cast<unsigned char>(in_[pos_ + i])) << (8 * i);
+    const std::uint64_t v = base::get_le(in_.data() + pos_, n);
     pos_ += n;
     return v;
   }

@@ -14,6 +14,7 @@
 #include "absl/strings/str_split.h"
 #include "services/base/atomic_file.h"
 #include "services/base/check.h"
+#include "services/base/little_endian.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/scene/path_guard.h"
@@ -29,16 +30,10 @@ constexpr std::size_t kHashHexBytes = 64;
 constexpr std::size_t kHeaderBytes = 8 + 4 + 4 + kHashHexBytes + 8;
 constexpr absl::string_view kManifestFirstLine = "prism-bundle 1";
 
-void append_le(std::string& out, std::uint64_t value, int bytes) {
-  for (int i = 0; i < bytes; ++i) out.push_back(static_cast<char>((value >> (8 * i)) & 0xff));
-}
+using base::append_le;
 
 std::uint64_t read_le(absl::string_view bytes, std::size_t offset, int count) {
-  std::uint64_t value = 0;
-  for (int i = 0; i < count; ++i) {
-    value |= std::uint64_t{static_cast<unsigned char>(bytes[offset + i])} << (8 * i);
-  }
-  return value;
+  return base::get_le(bytes.data() + offset, count);
 }
 
 bool is_lower_hex(absl::string_view s) {

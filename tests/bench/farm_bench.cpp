@@ -75,6 +75,7 @@
 #include "absl/strings/str_format.h"
 #include "prism/v1/farm.grpc.pb.h"
 #include "prism/v1/worker.grpc.pb.h"
+#include "services/base/little_endian.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
@@ -708,18 +709,14 @@ AttributeEnd
 constexpr std::size_t kRectOffset = 16;
 constexpr std::size_t kSamplesOffset = 32;
 
-void put_le(std::string& bytes, std::size_t offset, std::uint64_t value, int width) {
-  for (int i = 0; i < width; ++i) bytes[offset + i] = static_cast<char>((value >> (8 * i)) & 0xff);
-}
-
 // A template result's bytes made the result of `rect` and `samples`.
 void retarget(std::string& bytes, const image::TileRect& rect, const image::SampleRange& samples) {
-  put_le(bytes, kRectOffset + 0, static_cast<std::uint32_t>(rect.x0), 4);
-  put_le(bytes, kRectOffset + 4, static_cast<std::uint32_t>(rect.y0), 4);
-  put_le(bytes, kRectOffset + 8, static_cast<std::uint32_t>(rect.x1), 4);
-  put_le(bytes, kRectOffset + 12, static_cast<std::uint32_t>(rect.y1), 4);
-  put_le(bytes, kSamplesOffset + 0, samples.s0, 8);
-  put_le(bytes, kSamplesOffset + 8, samples.s1, 8);
+  base::put_le(bytes.data() + kRectOffset + 0, static_cast<std::uint32_t>(rect.x0), 4);
+  base::put_le(bytes.data() + kRectOffset + 4, static_cast<std::uint32_t>(rect.y0), 4);
+  base::put_le(bytes.data() + kRectOffset + 8, static_cast<std::uint32_t>(rect.x1), 4);
+  base::put_le(bytes.data() + kRectOffset + 12, static_cast<std::uint32_t>(rect.y1), 4);
+  base::put_le(bytes.data() + kSamplesOffset + 0, samples.s0, 8);
+  base::put_le(bytes.data() + kSamplesOffset + 8, samples.s1, 8);
 }
 
 // Task results of one tile shape: a constant TileResult, encoded once; per task only the rect
