@@ -9,6 +9,7 @@
 #include "coordinator/local_render.h"
 #include "services/base/status.h"
 #include "services/image/metrics.h"
+#include "services/job/job_spec.h"
 #include "services/scene/wavelength_dependence.h"
 
 namespace prism::client {
@@ -18,6 +19,25 @@ using Clock = std::chrono::steady_clock;
 
 constexpr std::uint64_t kPilotSeed = 0x5eed0a;
 constexpr double kPilotPixels = 10000;
+
+// The relative cost of one ray of each candidate (see the header); hero+caustics is hero's.
+double ray_cost(const std::string& method) {
+  if (method == "uniform") return kUniformRayCost;
+  if (method == "gradient") return kGradientRayCost;
+  return kHeroRayCost;
+}
+
+// Whether the job these options make runs a prepass (its budget may leave none: job_spec.h).
+absl::StatusOr<bool> prepass_runs(const RenderCommandOptions& options,
+                                  const scene::SceneDescription& description,
+                                  const std::string& bundle_hash,
+                                  const std::string& scene_relpath) {
+  PRISM_ASSIGN_OR_RETURN(const v1::JobSpec spec,
+                         job_spec_of(options, description, bundle_hash, scene_relpath));
+  PRISM_ASSIGN_OR_RETURN(const job::JobParameters parameters,
+                         job::job_parameters(spec, description));
+  return parameters.prepass.has_value();
+}
 
 }  // namespace
 
@@ -60,8 +80,12 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     // Only hero runs the prepass.
     chosen.prepass = options.prepass;
     chosen.integrator = "hero";
-    report.choice = "hero";
-    report.reason = "the prepass was asked for, which hero runs; no pilot";
+    PRISM_ASSIGN_OR_RETURN(const bool runs,
+                           prepass_runs(chosen, description, bundle_hash, scene_relpath));
+    report.choice = runs ? kHeroWithPrepass : "hero";
+    report.reason = runs ? "the prepass was asked for, which hero runs; no pilot"
+                         : "the prepass was asked for, which hero runs, but the job's spp leaves "
+                           "it no budget; no pilot";
     out.report = std::move(report);
     return out;
   }
@@ -96,16 +120,19 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
       std::min(0.25, std::sqrt(kPilotPixels / (double(job.width()) * double(job.height()))));
   const int width = std::max(1, static_cast<int>(std::lround(job.width() * scale)));
   const int height = std::max(1, static_cast<int>(std::lround(job.height() * scale)));
-  const std::uint64_t spp = std::clamp<std::uint64_t>(job.spp() / 16, 4, 16);
-  const double pixel_samples = double(width) * double(height) * double(spp);
+  // The pilot's seeds follow the job's: another seed of the job is another pilot too.
+  const std::uint64_t pilot_seed = kPilotSeed ^ (job.seed() * 0x9e3779b97f4a7c15ULL);
+  const std::uint64_t spp =
+      std::clamp<std::uint64_t>(job.spp() / kPilotSppDivisor, kPilotMinSpp, kPilotMaxSpp);
 
   // Per candidate: the squared difference of its two halves per pixel and bin (twice the
   // variance of one half, unbiased whatever the method), and the rays it traced. Every half also
   // goes into one estimate of the image, whose square weighs the differences as relMSE weighs
-  // errors; the same weights for every candidate keep their ranking fair.
+  // errors; the same weights for every candidate keep their ranking fair. Every candidate renders
+  // with the same two seeds, so their errors per pixel are compared on the same sample numbers.
   struct Measured {
     std::vector<float> squared_difference;
-    double cost = 0;
+    double rays_per_sample = 0;
   };
   std::vector<Measured> measured;
   std::vector<double> image_sum;
@@ -119,7 +146,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     }
     o.resolution = absl::StrCat(width, "x", height);
     o.spp = static_cast<std::int64_t>(spp);
-    o.seed = kPilotSeed;
+    o.seed = pilot_seed;
     o.max_memory.clear();  // it limits the job; the pilot's small renders fit the machine's
     PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
                                                                    bundle_hash, scene_relpath));
@@ -134,7 +161,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     std::optional<image::SpectralImage> first;
     for (int h = 0; h < 2; ++h) {
       coordinator::LocalRenderOptions local = prepared.local;
-      local.render.seed = kPilotSeed + static_cast<std::uint64_t>(h);
+      local.render.seed = pilot_seed + static_cast<std::uint64_t>(h);
       PRISM_ASSIGN_OR_RETURN(auto render,
                              coordinator::LocalRender::create(device, description, library, local));
       PRISM_ASSIGN_OR_RETURN(coordinator::LocalRenderResult result, render->render());
@@ -155,13 +182,13 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
         }
       }
     }
-    m.cost = rays / (2 * pixel_samples);
+    m.rays_per_sample = rays / (2 * double(width) * double(height) * double(spp));
     measured.push_back(std::move(m));
   }
   candidates = std::move(measured_candidates);
   // The weights: 1/(truth² + 0.01), the truth estimated by every render's mean over the pixel
-  // and its 3 x 3 neighbours (54 renders' worth of samples). Without the neighbours, one
-  // candidate's outlier would also set the weight of its own pixel.
+  // and its 3 x 3 neighbours. Without the neighbours, one candidate's outlier would also set the
+  // weight of its own pixel.
   const double renders = 2.0 * double(candidates.size());
   std::vector<double> weight(image_sum.size());
   const int bins = static_cast<int>(image_sum.size() / (std::size_t(width) * std::size_t(height)));
@@ -187,25 +214,29 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
       }
     }
   }
+  // Per candidate: its relMSE per sample, its cost per sample (rays times the cost of one), and
+  // their product relative to hero's, its predicted relMSE at equal time relative to hero's.
   for (std::size_t c = 0; c < candidates.size(); ++c) {
     double sum = 0;
     for (std::size_t i = 0; i < image_sum.size(); ++i) {
       sum += 0.5 * measured[c].squared_difference[i] * weight[i];
     }
     const double variance = image_sum.empty() ? 0.0 : sum / double(image_sum.size()) * double(spp);
-    report.candidates.push_back({candidates[c], variance, measured[c].cost, 0.0});
+    report.candidates.push_back(
+        {candidates[c], variance, measured[c].rays_per_sample, 0.0, ray_cost(candidates[c])});
   }
-  const double hero =
-      report.candidates[0].rel_mse_per_sample * report.candidates[0].rays_per_sample;
+  auto efficiency = [](const job::AutoReport::Candidate& c) {
+    return c.rel_mse_per_sample * c.rays_per_sample * c.ray_cost;
+  };
+  const double hero = efficiency(report.candidates[0]);
   std::size_t best = 0;
-  for (std::size_t i = 0; i < report.candidates.size(); ++i) {
-    job::AutoReport::Candidate& c = report.candidates[i];
-    const double efficiency = c.rel_mse_per_sample * c.rays_per_sample;
-    c.relative_efficiency = hero > 0 ? efficiency / hero : 1.0;
-    if (hero > 0 && c.relative_efficiency < report.candidates[best].relative_efficiency) best = i;
+  for (std::size_t c = 0; c < candidates.size(); ++c) {
+    job::AutoReport::Candidate& k = report.candidates[c];
+    k.relative_efficiency = hero > 0 ? efficiency(k) / hero : 1.0;
+    if (k.relative_efficiency < report.candidates[best].relative_efficiency) best = c;
   }
-  const double gain = 1.0 - report.candidates[best].relative_efficiency;
-  if (best != 0 && gain < kAutoMinimumGain) best = 0;
+  // Another candidate replaces hero only when it is predicted kAutoMinimumGain better.
+  if (best != 0 && report.candidates[best].relative_efficiency > 1.0 - kAutoMinimumGain) best = 0;
   chosen.integrator = candidates[best];
   report.choice = candidates[best];
   if (candidates[best] == kHeroWithLightCaustics) {
@@ -219,24 +250,29 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
                                               report.candidates[best].relative_efficiency);
   absl::StrAppend(&report.reason, absl::StrFormat(" (pilot: %dx%d, 2 x %d spp per candidate)",
                                                   width, height, static_cast<int>(spp)));
+  // Hero with several emitter spectra runs the prepass, whose first pass decides whether
+  // per-pixel tables pay (coordinator/prepass_run.h) and otherwise stops.
+  if (best == 0 && dependence.emitter_spectra.size() > 1 && options.prepass != false &&
+      !options.target_error.has_value()) {
+    RenderCommandOptions with_prepass = chosen;
+    with_prepass.prepass = true;
+    PRISM_ASSIGN_OR_RETURN(const bool runs,
+                           prepass_runs(with_prepass, description, bundle_hash, scene_relpath));
+    if (runs) {
+      chosen.prepass = true;
+      report.choice = kHeroWithPrepass;
+      absl::StrAppend(&report.reason, "; ", dependence.emitter_spectra.size(),
+                      " emitter spectra: the prepass runs, and its first pass decides whether "
+                      "per-pixel tables pay");
+    }
+  }
   report.seconds = std::chrono::duration<double>(Clock::now() - start).count();
   out.report = std::move(report);
   return out;
 }
 
 void set_auto_choice(const job::AutoReport& report, prism::v1::JobSpec& spec) {
-  prism::v1::AutoChoice* a = spec.mutable_auto_choice();
-  a->Clear();
-  a->set_choice(report.choice);
-  a->set_reason(report.reason);
-  a->set_seconds(report.seconds);
-  for (const job::AutoReport::Candidate& c : report.candidates) {
-    prism::v1::AutoChoice::Candidate* out = a->add_candidates();
-    out->set_method(c.method);
-    out->set_rel_mse_per_sample(c.rel_mse_per_sample);
-    out->set_rays_per_sample(c.rays_per_sample);
-    out->set_relative_efficiency(c.relative_efficiency);
-  }
+  *spec.mutable_auto_choice() = job::to_proto(report);
 }
 
 }  // namespace prism::client

@@ -8,31 +8,40 @@
 // the cheapest adequate method (its four lanes all stay live), and no pilot runs.
 //
 // Otherwise a pilot renders each candidate on the job's camera at a quarter of the film's side
-// (at most about 10,000 pixels), twice with independent seeds at 4..16 spp (1/16 of the job's),
-// and estimates per candidate
-//   - its variance per sample: half the squared difference of its two renders per pixel and
-//     bin (E[(A − B)²] is twice one render's variance), weighted as relMSE weighs errors, by
+// (at most about 10,000 pixels), twice with independent seeds (derived from the job's, so that
+// another seed of the job is another pilot too) at an eighth of the job's spp (8..64), and
+// estimates per candidate
+//   - its relMSE per sample: half the squared difference of its two renders per pixel and bin
+//     (E[(A − B)²] is twice one render's variance), weighted as relMSE weighs errors, by
 //     1/(m² + 0.01) with m every candidate's renders averaged over the pixel and its 3 x 3
 //     neighbours, and times the pilot's spp;
-//   - its cost per sample: the rays its two renders traced per pixel sample, counted, so the
-//     choice is a pure function of the scene and the options (the same spec gives the same
-//     bytes); it leaves out per-ray work (`prism render` at 64 spp on four evaluation scenes:
-//     uniform 5.7–6.2 M rays/s, hero 4.3–5.3, gradient 3.6–5.4);
+//   - its cost per sample: the rays its renders traced per pixel sample, counted, so the choice
+//     is a pure function of the scene and the options (the same spec gives the same bytes), times
+//     the relative cost of one of its rays (uniform 1, hero 1.16, gradient 1.18: the medians of
+//     CPU time per ray over the 22 scenes of scenes/ at 64 spp and one thread; hero's lanes and
+//     gradient's shifts make a ray 2–28 % and 6–45 % dearer than uniform's, docs/benchmarks.md);
 // and predicts its error at equal time as their product. Candidates are hero and gradient,
 // uniform where a dielectric disperses (hero terminates its secondary lanes there, and the
 // single-wavelength tracer is then cheaper per sample), and hero+caustics (hero with
-// --caustics light) where the scene can be light traced. A light path's rays are counted like
-// an eye path's; on four scenes the rays' ratio to hero's was within 10 % of the CPU time's
-// (docs/benchmarks.md). The prepass is not a candidate: at equal
-// time it has not beaten the emitter mixture by more than 8 % on any scene measured
-// (docs/benchmarks.md, issue 11), and it needs the job's own budget to learn anything.
+// --caustics light) where the scene can be light traced, its rays costed as hero's.
+//
+// The pilot's size is a trade of its cost against its noise, measured over eight pilot seeds on
+// five scenes (docs/benchmarks.md): at the same samples, more spp on fewer pixels was less noisy
+// than fewer spp on more pixels, and an eighth of the job's spp (twice the samples of a
+// sixteenth) halved the spread of the predictions on the single-emitter rooms. It costs about
+// 5 % of a 300-spp job and 3 % of a 1000-spp one.
 //
 // The choice is hero unless another candidate is predicted at least 10 % better (a smaller
-// predicted gain is within the pilot's noise). It is recorded in the job spec
-// (JobSpec.auto_choice) with every candidate's figures, so a submitted job, and its report, say
-// exactly what ran.
+// predicted gain is within the pilot's noise). Hero in a scene with several emitter spectra
+// runs the prepass (hero+prepass) unless --no-prepass or a target error is given or the job's
+// spp leaves it no budget: its first pass predicts whether per-pixel tables beat the emitter
+// mixture and stops the prepass when they do not (about 2 % of the job's time then; the prepass
+// is not a pilot candidate because it needs the job's own budget to learn anything). The
+// choice is recorded in the job spec (JobSpec.auto_choice) with every candidate's figures, so a
+// submitted job, and its report, say exactly what ran.
 #pragma once
 
+#include <cstdint>
 #include <optional>
 #include <string>
 
@@ -47,8 +56,17 @@ namespace prism::client {
 
 // Predicted equal-time gain a candidate needs to replace hero.
 inline constexpr double kAutoMinimumGain = 0.10;
-// The candidate name of hero with --caustics light.
+// The candidate name of hero with --caustics light, and the choice of hero with the prepass.
 inline constexpr char kHeroWithLightCaustics[] = "hero+caustics";
+inline constexpr char kHeroWithPrepass[] = "hero+prepass";
+// The pilot's spp per half: an eighth of the job's, in these bounds.
+inline constexpr std::uint64_t kPilotSppDivisor = 8;
+inline constexpr std::uint64_t kPilotMinSpp = 8;
+inline constexpr std::uint64_t kPilotMaxSpp = 64;
+// The relative cost of one ray of each method (see above).
+inline constexpr double kUniformRayCost = 1.0;
+inline constexpr double kHeroRayCost = 1.16;
+inline constexpr double kGradientRayCost = 1.18;
 
 struct ResolvedIntegrator {
   RenderCommandOptions options;           // with an explicit integrator and prepass

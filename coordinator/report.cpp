@@ -192,7 +192,8 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
       candidates.push_back({{"method", c.method},
                             {"rel_mse_per_sample", c.rel_mse_per_sample},
                             {"rays_per_sample", c.rays_per_sample},
-                            {"relative_efficiency", c.relative_efficiency}});
+                            {"relative_efficiency", c.relative_efficiency},
+                            {"ray_cost", c.ray_cost}});
     }
     j["auto"] = {{"choice", a.choice},
                  {"reason", a.reason},

@@ -361,6 +361,41 @@ Shape "sphere" "float radius" 0.7
       << prepass.output;
 }
 
+// Hero in a scene of several emitter spectra runs the prepass where the job's spp gives it a
+// budget; its first pass decides whether per-pixel tables pay. boxes (two LED spectra, no
+// dispersion, a dye) is such a scene: its pilot finds gradient far behind hero. The image is
+// exactly `--integrator hero --prepass`'s; --no-prepass keeps the prepass off.
+TEST(RenderCliTest, AutoRunsThePrepassForHeroUnderSeveralEmitterSpectra) {
+  const fs::path dir = fresh_dir("auto_prepass");
+  const std::vector<std::string> common = {
+      "render", source("scenes/boxes.pbrt"), "--resolution", "64x36", "--spp", "256"};
+  auto with = [&](std::vector<std::string> extra) {
+    std::vector<std::string> args = common;
+    args.insert(args.end(), extra.begin(), extra.end());
+    return args;
+  };
+  CommandRun automatic = run_prism(dir, with({"-o", "auto.exr"}));
+  ASSERT_EQ(automatic.exit_code, 0) << automatic.output;
+  auto report = nlohmann::json::parse(*prism::base::read_file(dir / "auto.json"));
+  EXPECT_EQ(report["auto"]["choice"], "hero+prepass") << report["auto"].dump();
+  EXPECT_NE(report["auto"]["reason"].get<std::string>().find("2 emitter spectra: the prepass runs"),
+            std::string::npos)
+      << report["auto"].dump();
+  EXPECT_EQ(report["integrator"], "hero");
+  EXPECT_TRUE(report.contains("prepass")) << report.dump();
+  CommandRun explicit_run =
+      run_prism(dir, with({"--integrator", "hero", "--prepass", "-o", "explicit.exr"}));
+  ASSERT_EQ(explicit_run.exit_code, 0) << explicit_run.output;
+  EXPECT_TRUE(same_bits(spectral_pixels(dir / "auto.exr", nullptr),
+                        spectral_pixels(dir / "explicit.exr", nullptr)));
+
+  CommandRun off = run_prism(dir, with({"--no-prepass", "-o", "off.exr"}));
+  ASSERT_EQ(off.exit_code, 0) << off.output;
+  auto off_report = nlohmann::json::parse(*prism::base::read_file(dir / "off.json"));
+  EXPECT_EQ(off_report["auto"]["choice"], "hero") << off_report["auto"].dump();
+  EXPECT_FALSE(off_report.contains("prepass")) << off_report.dump();
+}
+
 TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
   const std::string scene = source(kCornell);
   const std::vector<BadCase> cases = {

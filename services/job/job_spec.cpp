@@ -343,30 +343,6 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
         "target_error_image or max_spp is set without a target_error");
   }
 
-  if (spec.has_auto_choice()) {
-    const prism::v1::AutoChoice& a = spec.auto_choice();
-    if (a.candidates_size() > 8 || a.reason().size() > 1024) {
-      return absl::InvalidArgumentError(
-          "auto_choice: want at most 8 candidates and a reason of at most 1024 bytes");
-    }
-    // `hero+caustics` is hero with light_caustics (client/auto_integrator.h).
-    const std::string ran = spec.light_caustics()
-                                ? absl::StrCat(name(p.render.integrator), "+caustics")
-                                : std::string(name(p.render.integrator));
-    if (a.choice() != ran) {
-      return absl::InvalidArgumentError(
-          absl::StrCat("auto_choice says '", a.choice(), "' but the integrator is ", ran));
-    }
-    AutoReport r;
-    r.choice = a.choice();
-    r.reason = a.reason();
-    r.seconds = a.seconds();
-    for (const auto& c : a.candidates()) {
-      r.candidates.push_back(
-          {c.method(), c.rel_mse_per_sample(), c.rays_per_sample(), c.relative_efficiency()});
-    }
-    p.auto_choice = std::move(r);
-  }
   if (gradient) PRISM_RETURN_IF_ERROR(gradient_of(spec.gradient(), p.render.bins, p));
   const bool prepass = spec.has_prepass() ? spec.prepass().enabled()
                                           : prepass_by_default(p.render.integrator, scene);
@@ -378,6 +354,32 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
               spec.prepass().fallback() != 0.0f || spec.prepass().sigma_s() != 0.0f ||
               spec.prepass().sigma_r() != 0.0f)) {
     return absl::InvalidArgumentError("prepass options are set but the prepass is off");
+  }
+
+  if (spec.has_auto_choice()) {
+    const prism::v1::AutoChoice& a = spec.auto_choice();
+    if (a.candidates_size() > 8 || a.reason().size() > 1024) {
+      return absl::InvalidArgumentError(
+          "auto_choice: want at most 8 candidates and a reason of at most 1024 bytes");
+    }
+    // `hero+caustics` is hero with light_caustics, `hero+prepass` hero with a prepass that runs
+    // (client/auto_integrator.h).
+    const std::string ran =
+        absl::StrCat(name(p.render.integrator), spec.light_caustics() ? "+caustics" : "",
+                     p.prepass.has_value() ? "+prepass" : "");
+    if (a.choice() != ran) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("auto_choice says '", a.choice(), "' but the integrator is ", ran));
+    }
+    AutoReport r;
+    r.choice = a.choice();
+    r.reason = a.reason();
+    r.seconds = a.seconds();
+    for (const auto& c : a.candidates()) {
+      r.candidates.push_back({c.method(), c.rel_mse_per_sample(), c.rays_per_sample(),
+                              c.relative_efficiency(), c.ray_cost()});
+    }
+    p.auto_choice = std::move(r);
   }
 
   p.render.light_caustics = spec.light_caustics();
@@ -517,6 +519,22 @@ prism::v1::PoissonNorm to_proto(PoissonNorm norm) {
   return prism::v1::POISSON_NORM_UNSPECIFIED;
 }
 
+prism::v1::AutoChoice to_proto(const AutoReport& report) {
+  prism::v1::AutoChoice a;
+  a.set_choice(report.choice);
+  a.set_reason(report.reason);
+  a.set_seconds(report.seconds);
+  for (const AutoReport::Candidate& c : report.candidates) {
+    prism::v1::AutoChoice::Candidate* out = a.add_candidates();
+    out->set_method(c.method);
+    out->set_rel_mse_per_sample(c.rel_mse_per_sample);
+    out->set_rays_per_sample(c.rays_per_sample);
+    out->set_relative_efficiency(c.relative_efficiency);
+    out->set_ray_cost(c.ray_cost);
+  }
+  return a;
+}
+
 prism::v1::GradientTauPilot to_proto(const TauPilotReport& r) {
   prism::v1::GradientTauPilot t;
   t.set_epsilon(r.epsilon);
@@ -569,19 +587,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   spec.set_splat_width(p.render.splat_width_nm);
   spec.set_gather_width(p.render.gather_width_nm);
   spec.set_spp(static_cast<std::uint32_t>(p.spp));
-  if (p.auto_choice.has_value()) {
-    prism::v1::AutoChoice* a = spec.mutable_auto_choice();
-    a->set_choice(p.auto_choice->choice);
-    a->set_reason(p.auto_choice->reason);
-    a->set_seconds(p.auto_choice->seconds);
-    for (const AutoReport::Candidate& c : p.auto_choice->candidates) {
-      prism::v1::AutoChoice::Candidate* out = a->add_candidates();
-      out->set_method(c.method);
-      out->set_rel_mse_per_sample(c.rel_mse_per_sample);
-      out->set_rays_per_sample(c.rays_per_sample);
-      out->set_relative_efficiency(c.relative_efficiency);
-    }
-  }
+  if (p.auto_choice.has_value()) *spec.mutable_auto_choice() = to_proto(*p.auto_choice);
   if (p.target_error.has_value()) {
     spec.set_target_error(static_cast<float>(p.target_error->relative));
     spec.set_target_error_image(p.target_error->image_scope);

@@ -39,6 +39,7 @@ prism::v1::LightSelection to_proto(LightSelectionKind kind);
 prism::v1::PoissonNorm to_proto(PoissonNorm norm);
 prism::v1::ExrCompression to_proto(image::ExrCompression compression);
 prism::v1::GradientTauPilot to_proto(const TauPilotReport& pilot);
+prism::v1::AutoChoice to_proto(const AutoReport& report);
 
 // Every value explicit (see the invariant above).
 prism::v1::JobSpec to_proto(const JobParameters& parameters);

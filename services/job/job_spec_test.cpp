@@ -409,6 +409,7 @@ TEST(JobSpecTest, TheAutoChoiceAndTheTargetErrorSurviveTheExplicitForm) {
     c->set_rel_mse_per_sample(0.02);
     c->set_rays_per_sample(1e-6);
     c->set_relative_efficiency(std::string(m) == "hero" ? 1.0 : 0.75);
+    c->set_ray_cost(std::string(m) == "hero" ? 1.16 : 1.18);
   }
   spec.set_target_error(0.02f);
   spec.set_target_error_image(true);
@@ -433,6 +434,27 @@ TEST(JobSpecTest, TheAutoChoiceAndTheTargetErrorSurviveTheExplicitForm) {
                 .message()
                 .find("auto_choice says 'uniform' but the integrator is gradient"),
             std::string_view::npos);
+
+  // hero+prepass is hero with a prepass that runs: a job whose spp leaves the prepass no budget
+  // runs hero alone, and says so.
+  prism::v1::JobSpec prepass = minimal_spec();
+  prepass.set_integrator(prism::v1::INTEGRATOR_HERO);
+  prepass.mutable_prepass()->set_enabled(true);
+  prepass.set_spp(1024);
+  prepass.mutable_auto_choice()->set_choice("hero+prepass");
+  auto with_prepass = job_parameters(prepass, test_scene());
+  ASSERT_TRUE(with_prepass.ok()) << with_prepass.status();
+  EXPECT_TRUE(with_prepass->prepass.has_value());
+  prepass.mutable_auto_choice()->set_choice("hero");
+  EXPECT_NE(job_parameters(prepass, test_scene())
+                .status()
+                .message()
+                .find("auto_choice says 'hero' but the integrator is hero+prepass"),
+            std::string_view::npos);
+  prepass.set_spp(16);
+  auto unbudgeted = job_parameters(prepass, test_scene());
+  ASSERT_TRUE(unbudgeted.ok()) << unbudgeted.status();
+  EXPECT_FALSE(unbudgeted->prepass.has_value());
   for (float bad : {1e-5f, 1.5f, -0.1f}) {
     prism::v1::JobSpec t = minimal_spec();
     t.set_target_error(bad);
