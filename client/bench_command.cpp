@@ -208,6 +208,7 @@ absl::StatusOr<Timed> timed_method(worker::EmbreeDevice& device,
                    prepared.auto_pilot_seconds.value_or(0.0),
                timed.cpu_seconds + (piloted ? prepare_cpu : 0.0),
                absl::StrCat(job::name(prepared.job.render.integrator),
+                            prepared.job.render.light_caustics ? "+caustics" : "",
                             prepared.job.prepass.has_value() ? "+prepass" : "")};
 }
 
@@ -290,7 +291,8 @@ absl::StatusOr<Timed> farm_method(const FarmConnection& farm, const fs::path& sc
   result.stats.target_error = target;
   return Timed{
       std::move(result), wall, 0.0,
-      absl::StrCat(meta(image::kMetaIntegrator), meta("prepass_passes").empty() ? "" : "+prepass")};
+      absl::StrCat(meta(image::kMetaIntegrator), meta("caustics") == "light" ? "+caustics" : "",
+                   meta("prepass_passes").empty() ? "" : "+prepass")};
 }
 
 std::string home_cache() {

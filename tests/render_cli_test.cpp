@@ -622,6 +622,16 @@ TEST(RenderCliTest, BenchMeasuresTheLightPathMethods) {
   for (std::size_t i = 1; i < rows.size(); ++i) methods.insert(rows[i][method]);
   EXPECT_EQ(methods, (std::set<std::string>{"hero", "light", "hero+caustics", "light+splat",
                                             "hero+gather"}));
+  // The `ran` column names the integrator with its light-traced caustics.
+  const auto ran = std::find(rows[0].begin(), rows[0].end(), "ran") - rows[0].begin();
+  for (std::size_t i = 1; i < rows.size(); ++i) {
+    const std::string& m = rows[i][method];
+    const std::string expected = m == "hero+caustics" ? "hero+caustics"
+                                 : m == "light+splat" ? "light"
+                                 : m == "hero+gather" ? "hero"
+                                                      : m;
+    EXPECT_EQ(rows[i][ran], expected) << *csv;
+  }
 }
 
 // --splat (and --gather) write the filtered image beside the unbiased one, which they leave bit
