@@ -115,15 +115,19 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   probe.target_error_scope = "pixel";
   PRISM_ASSIGN_OR_RETURN(v1::JobSpec job,
                          job_spec_of(probe, description, bundle_hash, scene_relpath));
-  // A quarter of the film's side, and at most about kPilotPixels pixels (the job's camera).
-  const double scale =
-      std::min(0.25, std::sqrt(kPilotPixels / (double(job.width()) * double(job.height()))));
-  const int width = std::max(1, static_cast<int>(std::lround(job.width() * scale)));
-  const int height = std::max(1, static_cast<int>(std::lround(job.height() * scale)));
-  // The pilot's seeds follow the job's: another seed of the job is another pilot too.
-  const std::uint64_t pilot_seed = kPilotSeed ^ (job.seed() * 0x9e3779b97f4a7c15ULL);
+  // An eighth of the job's spp (kPilotMinSpp..kPilotMaxSpp) on the job's camera at a quarter of
+  // its side at most, fewer pixels where the candidates' 2 x spp samples per pixel would cost
+  // more than kPilotShare of the job's samples, and at most about kPilotPixels pixels.
   const std::uint64_t spp =
       std::clamp<std::uint64_t>(job.spp() / kPilotSppDivisor, kPilotMinSpp, kPilotMaxSpp);
+  const double pixels = double(job.width()) * double(job.height());
+  const double affordable =
+      kPilotShare * double(job.spp()) / (2.0 * double(candidates.size()) * double(spp));
+  const double scale = std::min({0.25, std::sqrt(affordable), std::sqrt(kPilotPixels / pixels)});
+  const int width = std::max(4, static_cast<int>(std::lround(job.width() * scale)));
+  const int height = std::max(4, static_cast<int>(std::lround(job.height() * scale)));
+  // The pilot's seeds follow the job's: another seed of the job is another pilot too.
+  const std::uint64_t pilot_seed = kPilotSeed ^ (job.seed() * 0x9e3779b97f4a7c15ULL);
 
   // Per candidate: the squared difference of its two halves per pixel and bin (twice the
   // variance of one half, unbiased whatever the method), and the rays it traced. Every half also

@@ -7,10 +7,11 @@
 // spectrum, no medium: scene::analyze_wavelength_dependence) renders with hero and no prepass,
 // the cheapest adequate method (its four lanes all stay live), and no pilot runs.
 //
-// Otherwise a pilot renders each candidate on the job's camera at a quarter of the film's side
-// (at most about 10,000 pixels), twice with independent seeds (derived from the job's, so that
-// another seed of the job is another pilot too) at an eighth of the job's spp (8..64), and
-// estimates per candidate
+// Otherwise a pilot renders each candidate on the job's camera, twice with independent seeds
+// (derived from the job's, so that another seed of the job is another pilot too) at an eighth of
+// the job's spp (8..64), at a quarter of the film's side or less: fewer pixels where the
+// candidates' renders would take more than 4 % of the job's samples, and at most about 10,000.
+// It estimates per candidate
 //   - its relMSE per sample: half the squared difference of its two renders per pixel and bin
 //     (E[(A − B)²] is twice one render's variance), weighted as relMSE weighs errors, by
 //     1/(m² + 0.01) with m every candidate's renders averaged over the pixel and its 3 x 3
@@ -28,8 +29,8 @@
 // The pilot's size is a trade of its cost against its noise, measured over eight pilot seeds on
 // five scenes (docs/benchmarks.md): at the same samples, more spp on fewer pixels was less noisy
 // than fewer spp on more pixels, and an eighth of the job's spp (twice the samples of a
-// sixteenth) halved the spread of the predictions on the single-emitter rooms. It costs about
-// 5 % of a 300-spp job and 3 % of a 1000-spp one.
+// sixteenth) halved the spread of the predictions on the single-emitter rooms. With the τ pilot
+// and a scene build per render it costs 7–9 % of a 3-second job, less of longer ones.
 //
 // The choice is hero unless another candidate is predicted at least 10 % better (a smaller
 // predicted gain is within the pilot's noise). Hero in a scene with several emitter spectra
@@ -63,6 +64,9 @@ inline constexpr char kHeroWithPrepass[] = "hero+prepass";
 inline constexpr std::uint64_t kPilotSppDivisor = 8;
 inline constexpr std::uint64_t kPilotMinSpp = 8;
 inline constexpr std::uint64_t kPilotMaxSpp = 64;
+// The most of the job's samples the pilot's renders take together (its pixels shrink to stay
+// under it).
+inline constexpr double kPilotShare = 0.04;
 // The relative cost of one ray of each method (see above).
 inline constexpr double kUniformRayCost = 1.0;
 inline constexpr double kHeroRayCost = 1.16;
