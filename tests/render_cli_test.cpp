@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <set>
 #include <string>
@@ -299,6 +300,36 @@ Shape "sphere" "float radius" 0.7
     if (c["method"] == a["choice"]) chosen_efficiency = c["relative_efficiency"].get<double>();
   }
   EXPECT_EQ(methods, (std::set<std::string>{"hero", "gradient", "uniform"}));
+  // Each candidate's predicted relMSE at equal time, relative to hero's, is its relMSE per sample
+  // times its counted rays per sample times its method's cost of a ray.
+  const std::map<std::string, double> ray_cost = {
+      {"hero", 1.16}, {"gradient", 1.18}, {"uniform", 1.0}};
+  auto efficiency = [&](const nlohmann::json& c) {
+    return c["rel_mse_per_sample"].get<double>() * c["rays_per_sample"].get<double>() *
+           c["ray_cost"].get<double>();
+  };
+  const nlohmann::json* hero = nullptr;
+  for (const auto& c : a["candidates"]) {
+    if (c["method"] == "hero") hero = &c;
+  }
+  ASSERT_NE(hero, nullptr);
+  for (const auto& c : a["candidates"]) {
+    EXPECT_DOUBLE_EQ(c["ray_cost"].get<double>(), ray_cost.at(c["method"].get<std::string>()));
+    EXPECT_NEAR(c["relative_efficiency"].get<double>(), efficiency(c) / efficiency(*hero), 1e-9)
+        << c.dump();
+  }
+  // The pilot: an eighth of the job's spp (at least 8), and its renders (two per candidate) at
+  // most about 4 % of the job's samples (48 x 36 x 32): its film is shrunk to fit.
+  int pilot_width = 0, pilot_height = 0, pilot_spp = 0;
+  const std::string reason = a["reason"].get<std::string>();
+  ASSERT_EQ(std::sscanf(reason.c_str() + reason.find("(pilot: "), "(pilot: %dx%d, 2 x %d spp",
+                        &pilot_width, &pilot_height, &pilot_spp),
+            3)
+      << reason;
+  EXPECT_EQ(pilot_spp, 8);
+  EXPECT_LE(pilot_width, 48 / 4);
+  EXPECT_LE(pilot_height, 36 / 4);
+  EXPECT_LE(2.0 * 3 * pilot_width * pilot_height * pilot_spp, 0.05 * 48 * 36 * 32) << reason;
   ASSERT_GT(chosen_efficiency, 0) << "the choice is not a candidate: " << a.dump();
   if (a["choice"] != "hero") EXPECT_LE(chosen_efficiency, 0.9) << a.dump();
   EXPECT_EQ(report["integrator"], a["choice"]);
