@@ -48,15 +48,22 @@ async function waitFor(what, predicate, seconds = 60) {
       (await page.locator(`#jobs tr[data-job="${runningJob}"]`).count()) === 1);
     await page.click(`#jobs tr[data-job="${runningJob}"]`);
 
-    // The preview fills in: two screenshots of it at different tile counts differ.
+    // The preview fills in: a later preview, once a tile has finished since the first, differs
+    // from the first. (The page refetches the preview on every job update, so a new version need
+    // not hold a new tile: wait for later versions, for up to a minute of twelve 1-2 s tiles.)
     const version = async () => Number(await page.getAttribute("#preview", "data-version") || 0);
     await waitFor("a first preview", async () => (await version()) >= 1);
+    await new Promise((r) => setTimeout(r, 300));  // the image is decoded and drawn
     const first = await page.locator("#preview").screenshot();
-    const firstVersion = await version();
-    await waitFor("a later preview", async () => (await version()) > firstVersion);
-    await new Promise((r) => setTimeout(r, 300));  // the new image is decoded and drawn
-    const second = await page.locator("#preview").screenshot();
-    if (Buffer.compare(first, second) === 0) fail("the preview did not change between screenshots");
+    let seen = await version();
+    let changed = false;
+    for (const end = Date.now() + 60000; !changed && Date.now() < end;) {
+      await waitFor("a later preview", async () => (await version()) > seen);
+      seen = await version();
+      await new Promise((r) => setTimeout(r, 300));  // the new image is decoded and drawn
+      changed = Buffer.compare(first, await page.locator("#preview").screenshot()) !== 0;
+    }
+    if (!changed) fail("the preview did not change in a minute of rendering");
 
     // The convergence plot draws the API's error estimate.
     await waitFor("the convergence plot", async () =>
