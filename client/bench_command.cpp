@@ -295,6 +295,47 @@ absl::StatusOr<Timed> farm_method(const FarmConnection& farm, const fs::path& sc
                    meta("prepass_passes").empty() ? "" : "+prepass")};
 }
 
+// With `auto` and other methods among the rows: per scene, region and budget, auto's relMSE over
+// the lowest of the other methods' at auto's own seconds (each curve interpolated as for the
+// baseline), and which method that was. Empty otherwise.
+std::string auto_against_best(const Grouped& g) {
+  if (std::find(g.methods.begin(), g.methods.end(), "auto") == g.methods.end() ||
+      g.methods.size() < 2) {
+    return {};
+  }
+  std::string out =
+      "\n## auto against the best of the others at equal time\n\n"
+      "| scene | region | budget | auto ran | auto ÷ best | best |\n|---|---|---|---|---|---|\n";
+  for (const std::string& scene : g.scenes) {
+    for (const std::string& region : g.regions) {
+      for (const std::string& b : g.budgets) {
+        const Cell* a = g.find(scene, region, "auto", b);
+        if (a == nullptr || !(a->rel_mse > 0)) continue;
+        std::optional<double> best;
+        std::string best_method;
+        bool extrapolated = false;
+        for (const std::string& m : g.methods) {
+          if (m == "auto") continue;
+          bool beyond = false;
+          const std::optional<double> e =
+              evaluation::error_at_time(g.curve(scene, region, m), a->seconds, &beyond);
+          if (e.has_value() && *e > 0 && (!best.has_value() || *e < *best)) {
+            best = e;
+            best_method = m;
+            extrapolated = beyond;
+          }
+        }
+        if (!best.has_value()) continue;
+        absl::StrAppend(&out, "| ", scene, " | ", region == "image" ? "whole image" : region, " | ",
+                        b, " | ", a->ran.empty() ? "auto" : a->ran, " | ",
+                        absl::StrFormat("%.3f", a->rel_mse / *best),
+                        extrapolated ? " (extrapolated)" : "", " | ", best_method, " |\n");
+      }
+    }
+  }
+  return out;
+}
+
 std::string home_cache() {
   if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg != nullptr && *xdg != '\0') {
     return (fs::path(xdg) / "prism" / "references").string();
@@ -424,6 +465,7 @@ std::string bench_report(const std::vector<BenchRow>& rows, const std::string& b
       }
     }
   }
+  absl::StrAppend(&out, auto_against_best(g));
   return out;
 }
 

@@ -94,7 +94,8 @@ std::string bench_csv(const std::vector<BenchRow>& rows);
 
 // The markdown report: for each scene and region, each method's mean relMSE and seconds per
 // budget, and its equal-time ratio to `baseline` (relMSE ÷ the baseline's relMSE interpolated at
-// the same seconds; < 1 is better). `header` is prepended.
+// the same seconds; < 1 is better); with `auto` among the methods, also auto's ratio to the best
+// of the others at its own seconds. `header` is prepended.
 std::string bench_report(const std::vector<BenchRow>& rows, const std::string& baseline,
                          const std::string& header);
 
