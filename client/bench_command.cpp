@@ -16,6 +16,8 @@
 #include <set>
 #include <thread>
 
+#include "absl/algorithm/container.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
@@ -114,7 +116,11 @@ Grouped group(const std::vector<BenchRow>& rows) {
     remember(g.budgets, r.budget);
     Cell& c = g.cells[{r.scene, r.region, r.method, r.budget}];
     c.spp = r.spp;
-    if (!r.ran.empty() && r.ran != r.method) c.ran = r.ran;
+    // What ran for each seed, when it is not the method's name (auto's choices).
+    if (!r.ran.empty() && r.ran != r.method &&
+        !absl::c_linear_search(absl::StrSplit(c.ran, ", "), r.ran)) {
+      c.ran = c.ran.empty() ? r.ran : absl::StrCat(c.ran, ", ", r.ran);
+    }
     c.seconds += r.seconds;
     c.mse += r.metrics.mse;
     c.rel_mse += r.metrics.rel_mse;
@@ -417,6 +423,65 @@ std::string bench_csv(const std::vector<BenchRow>& rows) {
   return out;
 }
 
+absl::StatusOr<std::vector<BenchRow>> parse_bench_csv(const std::string& text,
+                                                      const std::string& name) {
+  std::vector<BenchRow> rows;
+  const std::string header = bench_csv({});
+  if (text.rfind(header, 0) != 0) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(name, ":1: not a prism bench results.csv (want the header ", header, ")"));
+  }
+  std::size_t at = header.size();
+  for (int line = 2; at < text.size(); ++line) {
+    // The fields of one line, quoted ones unquoted ("" stands for one quote).
+    std::vector<std::string> fields(1);
+    bool quoted = false;
+    for (; at < text.size() && (quoted || text[at] != '\n'); ++at) {
+      const char c = text[at];
+      if (c == '"') {
+        if (quoted && at + 1 < text.size() && text[at + 1] == '"') {
+          fields.back().push_back('"');
+          ++at;
+        } else {
+          quoted = !quoted;
+        }
+      } else if (c == ',' && !quoted) {
+        fields.emplace_back();
+      } else {
+        fields.back().push_back(c);
+      }
+    }
+    ++at;  // the line break
+    auto bad = [&](const std::string& what) {
+      return absl::InvalidArgumentError(absl::StrCat(name, ":", line, ": ", what));
+    };
+    if (fields.size() != 17) return bad(absl::StrCat(fields.size(), " fields, want 17"));
+    BenchRow r;
+    r.scene = fields[0];
+    r.method = fields[1];
+    r.budget = fields[2];
+    r.region = fields[4];
+    r.ran = fields[16];
+    double* numbers[] = {&r.seconds,     &r.wall_seconds,    &r.cpu_seconds,
+                         &r.metrics.mse, &r.metrics.rel_mse, &r.metrics.ssim,
+                         &r.mse_floor,   &r.rel_mse_floor,   &r.metrics.nonfinite_fraction};
+    const int columns[] = {6, 7, 8, 9, 10, 11, 12, 13, 15};
+    for (int i = 0; i < 9; ++i) {
+      if (!absl::SimpleAtod(fields[columns[i]], numbers[i])) {
+        return bad(
+            absl::StrCat("column ", columns[i] + 1, " '", fields[columns[i]], "' is not a number"));
+      }
+    }
+    if (!absl::SimpleAtoi(fields[3], &r.seed) || !absl::SimpleAtoi(fields[5], &r.spp) ||
+        (fields[14] != "0" && fields[14] != "1")) {
+      return bad("seed, spp or floor_known is not an integer of its range");
+    }
+    r.floor_known = fields[14] == "1";
+    rows.push_back(std::move(r));
+  }
+  return rows;
+}
+
 std::string bench_report(const std::vector<BenchRow>& rows, const std::string& baseline,
                          const std::string& header) {
   const Grouped g = group(rows);
@@ -522,9 +587,30 @@ BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene
 }
 
 absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::EmbreeDevice& device) {
+  std::vector<std::string> methods = absl::StrSplit(options.methods, ',');
+  if (!options.results.empty()) {
+    if (!options.scenes.empty()) {
+      return absl::InvalidArgumentError("give scenes to render or --results to report, not both");
+    }
+    std::vector<BenchRow> rows;
+    for (const fs::path& path : options.results) {
+      PRISM_ASSIGN_OR_RETURN(const std::string text, base::read_file(path));
+      PRISM_ASSIGN_OR_RETURN(std::vector<BenchRow> read, parse_bench_csv(text, path.string()));
+      for (BenchRow& r : read) {
+        if (absl::c_linear_search(methods, r.method)) rows.push_back(std::move(r));
+      }
+    }
+    std::error_code ec;
+    fs::create_directories(options.output, ec);
+    const fs::path report = options.output / "report.md";
+    PRISM_RETURN_IF_ERROR(base::write_file_atomic(
+        report, bench_report(rows, options.baseline,
+                             absl::StrCat("# prism bench\n\nThe rows of ", options.results.size(),
+                                          " results file(s), methods ", options.methods, ".\n"))));
+    return absl::StrCat("wrote ", report.string(), " from ", rows.size(), " rows\n");
+  }
   // ---- Flags, all checked before any render.
   if (options.scenes.empty()) return absl::InvalidArgumentError("prism bench needs a scene");
-  std::vector<std::string> methods = absl::StrSplit(options.methods, ',');
   for (const std::string& m : methods) {
     PRISM_RETURN_IF_ERROR(method_options(m, RenderCommandOptions{}).status());
   }

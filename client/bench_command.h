@@ -45,6 +45,9 @@ namespace prism::client {
 
 struct BenchOptions {
   std::vector<std::filesystem::path> scenes;
+  // Instead of rendering: the rows of earlier runs' results.csv (all from one reference cache),
+  // those of --methods only, into one report.md (with auto against the best of the others).
+  std::vector<std::filesystem::path> results;
   std::string methods = "uniform,hero,hero+prepass,gradient,auto";
   std::string budgets;  // "10s,30s,90s" (s or m suffix; plain numbers are seconds)
   std::string spp;      // "64,256,1024"; exclusive with budgets; neither: budgets 10s,30s
@@ -91,6 +94,10 @@ struct BenchRow {
 
 // The CSV text: a header and one line per row, numbers in full precision.
 std::string bench_csv(const std::vector<BenchRow>& rows);
+// The rows of such a text (`name` for errors); INVALID_ARGUMENT naming name:line and the column
+// when a line is not one of bench_csv's.
+absl::StatusOr<std::vector<BenchRow>> parse_bench_csv(const std::string& text,
+                                                      const std::string& name);
 
 // The markdown report: for each scene and region, each method's mean relMSE and seconds per
 // budget, and its equal-time ratio to `baseline` (relMSE ÷ the baseline's relMSE interpolated at

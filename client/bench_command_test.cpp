@@ -1,5 +1,6 @@
 #include "client/bench_command.h"
 
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <string>
@@ -57,6 +58,36 @@ TEST(BenchCommandTest, CsvQuotesRegionsAndKeepsItsColumns) {
   };
   EXPECT_EQ(columns(lines[1]), columns(lines[0]));
   EXPECT_EQ(columns(lines[2]), columns(lines[0]));
+}
+
+// parse_bench_csv reads back what bench_csv wrote (quoted regions, %.9g numbers) and names the
+// file and line of what it cannot read.
+TEST(BenchCommandTest, ResultsReadBackAsTheRowsTheyWere) {
+  BenchRow a = row("auto", "10s", 10.5, 0.0123456789, "1,2,3,4", 2);
+  a.ran = "hero+\"caustics\"";
+  a.floor_known = true;
+  a.rel_mse_floor = 1.5e-7;
+  const std::string csv = bench_csv({row("hero", "10s", 10.5, 0.01), a});
+  auto rows = parse_bench_csv(csv, "r.csv");
+  ASSERT_TRUE(rows.ok()) << rows.status();
+  ASSERT_EQ(rows->size(), 2u);
+  EXPECT_EQ(bench_csv(*rows), csv);
+  const BenchRow& b = (*rows)[1];
+  EXPECT_EQ(b.region, "1,2,3,4");
+  EXPECT_EQ(b.ran, a.ran);
+  EXPECT_EQ(b.seed, 2);
+  EXPECT_TRUE(b.floor_known);
+  EXPECT_DOUBLE_EQ(b.metrics.rel_mse, 0.0123456789);
+
+  EXPECT_THAT(parse_bench_csv("scene,method\n", "r.csv").status().message(),
+              ::testing::HasSubstr("r.csv:1: not a prism bench results.csv"));
+  std::string cut = csv.substr(0, csv.rfind(',', csv.size() - 2)) + "\n";
+  EXPECT_THAT(parse_bench_csv(cut, "r.csv").status().message(),
+              ::testing::HasSubstr("r.csv:3: 16 fields, want 17"));
+  std::string word = csv;
+  word.replace(word.find("10.5"), 4, "ten");
+  EXPECT_THAT(parse_bench_csv(word, "r.csv").status().message(),
+              ::testing::HasSubstr("r.csv:2: column 7 'ten' is not a number"));
 }
 
 // The equal-time ratio divides by the baseline's relMSE interpolated log-linearly at the

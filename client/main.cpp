@@ -93,7 +93,10 @@ int main(int argc, char** argv) {
   std::string bench_cache, bench_resolution, bench_reference_error;
   auto* bench_cmd = app.add_subcommand(
       "bench", "Error against time of the rendering methods on scenes (CSV, report, plots)");
-  bench_cmd->add_option("scenes", bench.scenes, "pbrt-v4 scene files")->required();
+  bench_cmd->add_option("scenes", bench.scenes, "pbrt-v4 scene files");
+  bench_cmd->add_option("--results", bench.results,
+                        "Instead of rendering: report on earlier runs' results.csv (repeatable; "
+                        "the rows of --methods)");
   bench_cmd->add_option(
       "--methods", bench.methods,
       "Comma-separated: uniform, hero, hero+prepass, gradient, light, hero+caustics, "
