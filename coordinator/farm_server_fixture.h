@@ -215,7 +215,7 @@ class FarmServerTest : public ::testing::Test {
     worker::TileStats stats;
     auto result = renderer.render(task, &stats, nullptr, nullptr);
     EXPECT_TRUE(result.ok()) << result.status();
-    return image::serialise_tile(*result);
+    return image::serialise_task_result(*std::move(result));
   }
 
   grpc::Status complete(const std::string& worker_id, const std::string& lease_id,

@@ -122,8 +122,10 @@ TEST_F(FarmServerTest, TheConvergenceSeriesSurvivesARestartAndTheJobsEnd) {
   ASSERT_EQ(wait_done(again_id).state(), v1::JOB_STATE_DONE);
   auto again = farm_->farm().convergence(again_id);
   ASSERT_TRUE(again.ok() && !again->empty());
+  // The resumed job knows its finished tiles as merged float32 sums (tile_merge.h), the
+  // uninterrupted one added their ranges: a few float32 roundings apart.
   EXPECT_NEAR(series->back().relative_error, again->back().relative_error,
-              1e-12 * again->back().relative_error);
+              1e-6 * again->back().relative_error);
   stop();
 
   start();

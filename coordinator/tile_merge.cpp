@@ -128,6 +128,9 @@ absl::Status TileAssembler::add(int tile_index, image::TileResult result) {
   if (range < 0) {
     return absl::InvalidArgumentError(absl::StrCat(name, ": not a sample range of the plan"));
   }
+  // What a worker sends is rounded already; a local render's results are rounded here, so both
+  // merge the same values.
+  result.round_to_float32();
   // Hashing reads the whole result: do it before taking the lock.
   const Digest digest = tile_result_digest(result);
 
@@ -180,6 +183,7 @@ absl::Status TileAssembler::add(int tile_index, image::TileResult result) {
     PRISM_CHECK_MSG(added.ok(), "ranges of one plan always merge");
   }
   parts.clear();
+  merged.round_to_float32();
   absl::StatusOr<image::SpectralImage> finalised = finalise_(merged);
   absl::Status status =
       finalised.ok() ? on_tile_(tile_index, merged, *finalised) : finalised.status();

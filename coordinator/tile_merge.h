@@ -2,7 +2,10 @@
 // the same sample ranges; results arrive in any order, from any thread or worker, possibly
 // more than once (retries, duplicated leases). The TileAssembler keeps a tile's partial results
 // until every range of that tile is in, then adds them in range order: the merged doubles are
-// therefore bit-identical whatever the arrival order (docs/estimators.md §7). The finished tile
+// therefore bit-identical whatever the arrival order (docs/estimators.md §7). Each result is
+// rounded to float32 as it is added (a worker has rounded it already) and so is the merged
+// tile (TileResult::round_to_float32): a local render and the farm merge the same values, and
+// the codec stores both at half the bytes. The finished tile
 // goes to a callback and its partial results are freed, so memory is bounded by the tiles in
 // flight, not by the image.
 //

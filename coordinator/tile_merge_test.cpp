@@ -123,21 +123,38 @@ TEST(TileAssemblerTest, MergesInRangeOrderAndFinalisesMeans) {
     ASSERT_TRUE(a.assembler->add(0, make_result(plan, 0, r)).ok());
   }
   ASSERT_EQ(a.collected->calls, 1);
-  image::TileResult expected = make_result(plan, 0, 0);
+  // Each range rounded to float32, added in range order in double, the sum rounded again.
+  auto rounded = [&](int r) {
+    image::TileResult result = make_result(plan, 0, r);
+    result.round_to_float32();
+    return result;
+  };
+  image::TileResult expected = rounded(0);
   for (std::size_t r = 1; r < plan.ranges.size(); ++r) {
-    ASSERT_TRUE(expected.add(make_result(plan, 0, int(r))).ok());
+    ASSERT_TRUE(expected.add(rounded(int(r))).ok());
   }
+  const image::TileResult unrounded = expected;
+  expected.round_to_float32();
   const image::TileResult& merged = a.collected->merged.at(0);
   EXPECT_TRUE(merged == expected);
+  EXPECT_FALSE(merged == unrounded);  // so the rounding of the sum is checked too
   EXPECT_EQ(merged.samples(), (image::SampleRange{0, 12}));
 
-  // The order matters for doubles: merging the ranges backwards gives other bits somewhere,
-  // so the equality above is a real check of the order.
-  image::TileResult backwards = make_result(plan, 0, int(plan.ranges.size()) - 1);
-  for (int r = int(plan.ranges.size()) - 2; r >= 0; --r) {
-    ASSERT_TRUE(backwards.add(make_result(plan, 0, r)).ok());
+  // The order shows even after the rounding: ranges holding 1, 2^-24, 2^-53 and 2^-53 in one
+  // value sum to 1 + 2^-24 in range order (each 2^-53 is a tie that rounds to even), which is
+  // the float32 1; backwards the small ones add up first, and 1 + 2^-24 + 2^-52 is the float32
+  // 1 + 2^-23.
+  ASSERT_EQ(plan.ranges.size(), 4u);
+  const double parts[4] = {1.0, std::ldexp(1.0, -24), std::ldexp(1.0, -53), std::ldexp(1.0, -53)};
+  EXPECT_EQ(double(float(((parts[3] + parts[2]) + parts[1]) + parts[0])),
+            1.0 + std::ldexp(1.0, -23));
+  Assembly ties = make_assembly(plan);
+  for (int r = 3; r >= 0; --r) {
+    image::TileResult result = make_result(plan, 0, r);
+    result.mutable_sums()[0] = parts[r];
+    ASSERT_TRUE(ties.assembler->add(0, std::move(result)).ok());
   }
-  EXPECT_FALSE(backwards == expected);
+  EXPECT_EQ(ties.collected->merged.at(0).sums()[0], 1.0);
 
   const image::TileRect& rect = plan.tiles[0];
   for (int y = rect.y0; y < rect.y1; ++y) {

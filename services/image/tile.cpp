@@ -1,5 +1,7 @@
 #include "services/image/tile.h"
 
+#include <cmath>
+#include <limits>
 #include <new>
 #include <set>
 
@@ -338,6 +340,18 @@ absl::Status TileResult::add(const TileResult& other) {
   add_vectors(albedo_, other.albedo_);
   add_vectors(counters_, other.counters_);
   return absl::OkStatus();
+}
+
+void TileResult::round_to_float32() {
+  constexpr double kLargest = std::numeric_limits<float>::max();
+  for (std::vector<double>* buffer :
+       {&sums_, &sum_squares_, &gradients_, &gradient_squares_, &half_sums_, &half_sum_squares_,
+        &half_gradients_, &half_gradient_squares_, &rgb_sums_, &rgb_squares_, &filtered_sums_,
+        &filtered_rgb_sums_}) {
+    for (double& v : *buffer) {
+      if (!(std::isfinite(v) && std::abs(v) > kLargest)) v = static_cast<float>(v);
+    }
+  }
 }
 
 absl::Status merge_into(const TileResult& src, TileResult& dst) {

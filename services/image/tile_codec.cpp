@@ -1,8 +1,10 @@
 #include "services/image/tile_codec.h"
 
+#include <algorithm>
 #include <bit>
 #include <cstring>
 #include <iterator>
+#include <span>
 #include <type_traits>
 
 #include "absl/strings/str_cat.h"
@@ -18,8 +20,12 @@ constexpr std::uint32_t kFlagHalves = 1u << 2;
 constexpr std::uint32_t kFlagRgb = 1u << 3;
 constexpr std::uint32_t kFlagFiltered = 1u << 4;
 constexpr std::uint32_t kFlagOffsets = 1u << 5;
-constexpr std::uint32_t kKnownFlags =
-    kFlagGradients | kFlagGuides | kFlagHalves | kFlagRgb | kFlagFiltered | kFlagOffsets;
+constexpr std::uint32_t kFlagFloat32 = 1u << 6;
+constexpr std::uint32_t kKnownFlags = kFlagGradients | kFlagGuides | kFlagHalves | kFlagRgb |
+                                      kFlagFiltered | kFlagOffsets | kFlagFloat32;
+
+// Values converted at a time between the float32 encoding and a double buffer.
+constexpr std::size_t kConvertChunk = 4096;
 
 class Writer {
  public:
@@ -40,6 +46,16 @@ class Writer {
     } else {
       using U = std::conditional_t<sizeof(T) == 8, std::uint64_t, std::uint32_t>;
       for (const T& v : range) put(std::bit_cast<U>(v), sizeof(T));
+    }
+  }
+  // A buffer of sums: as doubles, or as the float32 values they hold.
+  void sums(std::span<const double> range, bool float32) {
+    if (!float32) return values(range);
+    float chunk[kConvertChunk];
+    for (std::size_t i = 0; i < range.size(); i += kConvertChunk) {
+      const std::size_t n = std::min(kConvertChunk, range.size() - i);
+      for (std::size_t k = 0; k < n; ++k) chunk[k] = static_cast<float>(range[i + k]);
+      values(std::span<const float>(chunk, n));
     }
   }
 
@@ -90,6 +106,15 @@ class Reader {
       for (T& v : range) v = std::bit_cast<T>(static_cast<U>(raw(sizeof(T))));
     }
   }
+  void raw_sums(std::span<double> range, bool float32) {
+    if (!float32) return raw_values(range);
+    float chunk[kConvertChunk];
+    for (std::size_t i = 0; i < range.size(); i += kConvertChunk) {
+      const std::size_t n = std::min(kConvertChunk, range.size() - i);
+      raw_values(std::span<float>(chunk, n));
+      for (std::size_t k = 0; k < n; ++k) range[i + k] = chunk[k];
+    }
+  }
 
  private:
   std::uint64_t raw(int n) {
@@ -103,18 +128,37 @@ class Reader {
 };
 
 std::uint64_t payload_bytes(std::uint64_t area, std::uint64_t bins, const TileBuffers& buffers,
-                            std::uint64_t counters) {
+                            std::uint64_t counters, bool float32) {
   const bool gradients = buffers.gradients, halves = buffers.halves, rgb = buffers.rgb,
              guides = buffers.guides;
-  std::uint64_t n = area * bins * 8 * 2 + area * 8;
-  if (gradients) n += area * bins * 8;
-  if (halves) n += area * bins * 8 * 5 + area * 8;
-  if (rgb) n += area * 3 * 8 * 2;
-  if (buffers.filtered) n += area * bins * 8 + area * 3 * 8;
+  const std::uint64_t s = float32 ? 4 : 8;  // bytes of one value of sums
+  std::uint64_t n = area * bins * s * 2 + area * 8;
+  if (gradients) n += area * bins * s;
+  if (halves) n += area * bins * s * 5 + area * 8;
+  if (rgb) n += area * 3 * s * 2;
+  if (buffers.filtered) n += area * bins * s + area * 3 * s;
   if (buffers.offsets) n += area * kOffsetValues * 8;
   if (guides) n += area * 4 * 5;
   n += area * counters * 8;
   return n;
+}
+
+// True when every value of the result's buffers of sums is a float32 value (bit for bit, so a
+// NaN payload float32 cannot hold keeps the result in doubles).
+bool sums_are_float32(const TileResult& result) {
+  for (std::span<const double> buffer :
+       {result.sums(), result.sum_squares(), result.gradients(), result.gradient_squares(),
+        result.half_sums(), result.half_sum_squares(), result.half_gradients(),
+        result.half_gradient_squares(), result.rgb_sums(), result.rgb_squares(),
+        result.filtered_sums(), result.filtered_rgb_sums()}) {
+    for (double v : buffer) {
+      if (std::bit_cast<std::uint64_t>(static_cast<double>(static_cast<float>(v))) !=
+          std::bit_cast<std::uint64_t>(v)) {
+        return false;
+      }
+    }
+  }
+  return true;
 }
 
 }  // namespace
@@ -123,15 +167,17 @@ std::string serialise_tile(const TileResult& result) {
   std::string out;
   const TileRect& rect = result.rect();
   std::uint64_t area = std::uint64_t(rect.area());
+  const bool float32 = sums_are_float32(result);
   std::uint64_t payload =
-      payload_bytes(area, result.bins(), result.buffers(), result.counter_count());
+      payload_bytes(area, result.bins(), result.buffers(), result.counter_count(), float32);
   out.reserve(64 + payload);
   Writer w(out);
   w.bytes(kTileMagic);
   w.u32(kTileFormatVersion);
   w.u32((result.has_gradients() ? kFlagGradients : 0) | (result.has_guides() ? kFlagGuides : 0) |
         (result.has_halves() ? kFlagHalves : 0) | (result.has_rgb() ? kFlagRgb : 0) |
-        (result.has_filtered() ? kFlagFiltered : 0) | (result.has_offsets() ? kFlagOffsets : 0));
+        (result.has_filtered() ? kFlagFiltered : 0) | (result.has_offsets() ? kFlagOffsets : 0) |
+        (float32 ? kFlagFloat32 : 0));
   w.i32(rect.x0);
   w.i32(rect.y0);
   w.i32(rect.x1);
@@ -145,26 +191,31 @@ std::string serialise_tile(const TileResult& result) {
     w.bytes(name);
   }
   w.u64(payload);
-  w.values(result.sums());
-  w.values(result.sum_squares());
+  w.sums(result.sums(), float32);
+  w.sums(result.sum_squares(), float32);
   w.values(result.counts());
-  w.values(result.gradients());
-  w.values(result.gradient_squares());
-  w.values(result.half_sums());
-  w.values(result.half_sum_squares());
-  w.values(result.half_gradients());
-  w.values(result.half_gradient_squares());
+  w.sums(result.gradients(), float32);
+  w.sums(result.gradient_squares(), float32);
+  w.sums(result.half_sums(), float32);
+  w.sums(result.half_sum_squares(), float32);
+  w.sums(result.half_gradients(), float32);
+  w.sums(result.half_gradient_squares(), float32);
   w.values(result.half_counts());
-  w.values(result.rgb_sums());
-  w.values(result.rgb_squares());
-  w.values(result.filtered_sums());
-  w.values(result.filtered_rgb_sums());
+  w.sums(result.rgb_sums(), float32);
+  w.sums(result.rgb_squares(), float32);
+  w.sums(result.filtered_sums(), float32);
+  w.sums(result.filtered_rgb_sums(), float32);
   w.values(result.offsets());
   w.values(result.depth());
   w.values(result.normals());
   w.values(result.albedo());
   w.values(result.counters());
   return out;
+}
+
+std::string serialise_task_result(TileResult result) {
+  result.round_to_float32();
+  return serialise_tile(result);
 }
 
 absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
@@ -217,6 +268,7 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   buffers.rgb = (*flags & kFlagRgb) != 0;
   buffers.filtered = (*flags & kFlagFiltered) != 0;
   buffers.offsets = (*flags & kFlagOffsets) != 0;
+  const bool float32 = (*flags & kFlagFloat32) != 0;
   for (std::uint64_t c = 0; c < *counter_count; ++c) {
     auto length = r.uint(4, "counter name length");
     if (!length.ok()) return length.status();
@@ -240,7 +292,7 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   }
   // Checked before anything is allocated, so a lying header cannot make us allocate.
   std::uint64_t expected =
-      payload_bytes(std::uint64_t(rect.area()), *bins, buffers, *counter_count);
+      payload_bytes(std::uint64_t(rect.area()), *bins, buffers, *counter_count, float32);
   if (*declared != expected) {
     return absl::InvalidArgumentError(absl::StrCat("tile result declares a payload of ", *declared,
                                                    " bytes but its header implies ", expected));
@@ -253,20 +305,20 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   auto result = TileResult::create(rect, samples, static_cast<int>(*bins), buffers);
   PRISM_CHECK(result.ok());
   TileResult& t = *result;
-  r.raw_values(t.mutable_sums());
-  r.raw_values(t.mutable_sum_squares());
+  r.raw_sums(t.mutable_sums(), float32);
+  r.raw_sums(t.mutable_sum_squares(), float32);
   r.raw_values(t.mutable_counts());
-  r.raw_values(t.mutable_gradients());
-  r.raw_values(t.mutable_gradient_squares());
-  r.raw_values(t.mutable_half_sums());
-  r.raw_values(t.mutable_half_sum_squares());
-  r.raw_values(t.mutable_half_gradients());
-  r.raw_values(t.mutable_half_gradient_squares());
+  r.raw_sums(t.mutable_gradients(), float32);
+  r.raw_sums(t.mutable_gradient_squares(), float32);
+  r.raw_sums(t.mutable_half_sums(), float32);
+  r.raw_sums(t.mutable_half_sum_squares(), float32);
+  r.raw_sums(t.mutable_half_gradients(), float32);
+  r.raw_sums(t.mutable_half_gradient_squares(), float32);
   r.raw_values(t.mutable_half_counts());
-  r.raw_values(t.mutable_rgb_sums());
-  r.raw_values(t.mutable_rgb_squares());
-  r.raw_values(t.mutable_filtered_sums());
-  r.raw_values(t.mutable_filtered_rgb_sums());
+  r.raw_sums(t.mutable_rgb_sums(), float32);
+  r.raw_sums(t.mutable_rgb_squares(), float32);
+  r.raw_sums(t.mutable_filtered_sums(), float32);
+  r.raw_sums(t.mutable_filtered_rgb_sums(), float32);
   r.raw_values(t.mutable_offsets());
   r.raw_values(t.mutable_depth());
   r.raw_values(t.mutable_normals());

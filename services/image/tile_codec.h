@@ -7,7 +7,7 @@
 //   u32          version (1)
 //   u32          flags: bit 0 gradients present, bit 1 guides present, bit 2 halves present
 //                (only with bit 0), bit 3 rgb present, bit 4 filtered present, bit 5 offsets
-//                present; other bits zero
+//                present, bit 6 sums as float32; other bits zero
 //   i32 x4       rect x0, y0, x1, y1
 //   u64 x2       sample range s0, s1
 //   u32          bins
@@ -24,6 +24,9 @@
 //     f64 offsets[area*6]                    (if flag bit 5)
 //     f32 depth[area], f32 normals[area*3], f32 albedo[area]   (if flag bit 1)
 //     u64 counters[area*n]
+//   With flag bit 6 every f64 buffer above but offsets is stored as f32 instead. serialise_tile
+//   sets it exactly when every one of their values is a float32 value (TileResult::
+//   round_to_float32), so the encoding stays lossless: equal results, equal bytes.
 // The parser treats its input as untrusted: it checks every field against the limits of
 // TileResult::create and requires the input to be exactly as long as the header implies
 // before it allocates or reads any payload, so it never reads out of bounds.
@@ -43,6 +46,10 @@ inline constexpr std::uint32_t kTileFormatVersion = 1;
 
 // The canonical encoding of `result`.
 std::string serialise_tile(const TileResult& result);
+
+// A task's result as a worker sends it: its sums rounded to float32 (TileResult::
+// round_to_float32, as the coordinator merges them), then encoded.
+std::string serialise_task_result(TileResult result);
 
 // Decodes bytes produced by serialise_tile. INVALID_ARGUMENT (naming the offending field and
 // offset) for a wrong magic, unknown version or flags, out-of-range header values, truncated

@@ -4,10 +4,13 @@
 
 #include <algorithm>
 #include <bit>
+#include <cmath>
 #include <cstring>
 #include <limits>
 #include <random>
+#include <span>
 #include <utility>
+#include <vector>
 
 #include "services/base/check.h"
 
@@ -44,48 +47,137 @@ TileResult random_result(std::uint64_t seed, const TileBuffers& buffers) {
   return std::move(result).value();
 }
 
+// Every buffer of `parsed` holds the bits of `original`'s (NaNs compare unequal as doubles but
+// must survive unchanged).
+void expect_same_bits(const TileResult& parsed, const TileResult& original) {
+  EXPECT_EQ(parsed.rect(), original.rect());
+  EXPECT_EQ(parsed.samples(), original.samples());
+  EXPECT_EQ(parsed.buffers(), original.buffers());
+  for (auto [a, b] : {std::pair{parsed.sums(), original.sums()},
+                      std::pair{parsed.sum_squares(), original.sum_squares()},
+                      std::pair{parsed.gradients(), original.gradients()},
+                      std::pair{parsed.gradient_squares(), original.gradient_squares()},
+                      std::pair{parsed.half_sums(), original.half_sums()},
+                      std::pair{parsed.half_sum_squares(), original.half_sum_squares()},
+                      std::pair{parsed.half_gradients(), original.half_gradients()},
+                      std::pair{parsed.half_gradient_squares(), original.half_gradient_squares()},
+                      std::pair{parsed.rgb_sums(), original.rgb_sums()},
+                      std::pair{parsed.rgb_squares(), original.rgb_squares()},
+                      std::pair{parsed.filtered_sums(), original.filtered_sums()},
+                      std::pair{parsed.filtered_rgb_sums(), original.filtered_rgb_sums()},
+                      std::pair{parsed.offsets(), original.offsets()}}) {
+    ASSERT_EQ(a.size(), b.size());
+    EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
+  }
+  for (auto [a, b] : {std::pair{parsed.depth(), original.depth()},
+                      std::pair{parsed.normals(), original.normals()},
+                      std::pair{parsed.albedo(), original.albedo()}}) {
+    ASSERT_EQ(a.size(), b.size());
+    EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
+  }
+  EXPECT_TRUE(std::ranges::equal(parsed.counts(), original.counts()));
+  EXPECT_TRUE(std::ranges::equal(parsed.half_counts(), original.half_counts()));
+  EXPECT_TRUE(std::ranges::equal(parsed.counters(), original.counters()));
+}
+
+const std::vector<TileBuffers>& every_buffer_set() {
+  static const std::vector<TileBuffers> sets = {
+      TileBuffers{},
+      TileBuffers{true, false, {}},
+      TileBuffers{true, true, {"rays", "shifts"}},
+      TileBuffers{true, false, {"rays"}, true},
+      TileBuffers{false, false, {}, false, true},
+      TileBuffers{true, true, {"rays"}, true, true},
+      TileBuffers{false, false, {}, false, true, true},
+      TileBuffers{false, true, {}, false, true, false, true}};
+  return sets;
+}
+
 TEST(TileCodec, RoundTripIsExact) {
-  for (const TileBuffers& buffers :
-       {TileBuffers{}, TileBuffers{true, false, {}}, TileBuffers{true, true, {"rays", "shifts"}},
-        TileBuffers{true, false, {"rays"}, true}, TileBuffers{false, false, {}, false, true},
-        TileBuffers{true, true, {"rays"}, true, true},
-        TileBuffers{false, false, {}, false, true, true},
-        TileBuffers{false, true, {}, false, true, false, true}}) {
+  for (const TileBuffers& buffers : every_buffer_set()) {
     TileResult original = random_result(7, buffers);
     std::string bytes = serialise_tile(original);
     auto parsed = parse_tile(bytes);
     ASSERT_TRUE(parsed.ok()) << parsed.status();
-    EXPECT_EQ(parsed->rect(), original.rect());
-    EXPECT_EQ(parsed->samples(), original.samples());
-    EXPECT_EQ(parsed->buffers(), original.buffers());
-    // Bitwise: NaNs compare unequal as doubles but must survive unchanged.
-    ASSERT_EQ(parsed->sums().size(), original.sums().size());
-    EXPECT_EQ(
-        std::memcmp(parsed->sums().data(), original.sums().data(), original.sums().size_bytes()),
-        0);
-    EXPECT_EQ(std::memcmp(parsed->normals().data(), original.normals().data(),
-                          original.normals().size_bytes()),
-              0);
-    // The halves, bit for bit.
-    for (auto [a, b] :
-         {std::pair{parsed->gradient_squares(), original.gradient_squares()},
-          std::pair{parsed->half_sums(), original.half_sums()},
-          std::pair{parsed->half_sum_squares(), original.half_sum_squares()},
-          std::pair{parsed->half_gradients(), original.half_gradients()},
-          std::pair{parsed->half_gradient_squares(), original.half_gradient_squares()}}) {
-      ASSERT_EQ(a.size(), b.size());
-      EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
-    }
-    EXPECT_TRUE(std::ranges::equal(parsed->half_counts(), original.half_counts()));
-    for (auto [a, b] : {std::pair{parsed->rgb_sums(), original.rgb_sums()},
-                        std::pair{parsed->rgb_squares(), original.rgb_squares()},
-                        std::pair{parsed->filtered_sums(), original.filtered_sums()},
-                        std::pair{parsed->filtered_rgb_sums(), original.filtered_rgb_sums()},
-                        std::pair{parsed->offsets(), original.offsets()}}) {
-      ASSERT_EQ(a.size(), b.size());
-      EXPECT_EQ(std::memcmp(a.data(), b.data(), b.size_bytes()), 0);
-    }
+    expect_same_bits(*parsed, original);
     EXPECT_EQ(serialise_tile(*parsed), bytes);
+  }
+}
+
+// Flags are the u32 at byte 12.
+std::uint32_t flags_of(const std::string& bytes) {
+  return std::uint8_t(bytes[12]) | std::uint32_t(std::uint8_t(bytes[13])) << 8 |
+         std::uint32_t(std::uint8_t(bytes[14])) << 16 |
+         std::uint32_t(std::uint8_t(bytes[15])) << 24;
+}
+
+// random_result with the buffers of sums (all double buffers but offsets) holding doubles within
+// float32's range and 53 significant bits, plus a quiet NaN, an infinity and -0.
+TileResult result_in_float_range(std::uint64_t seed, const TileBuffers& buffers) {
+  TileResult result = random_result(seed, buffers);
+  std::mt19937_64 rng(seed + 1);
+  std::uniform_real_distribution<double> mantissa(-1.0, 1.0);
+  std::uniform_int_distribution<int> exponent(-140, 120);
+  for (std::span<double> buffer :
+       {result.mutable_sums(), result.mutable_sum_squares(), result.mutable_gradients(),
+        result.mutable_gradient_squares(), result.mutable_half_sums(),
+        result.mutable_half_sum_squares(), result.mutable_half_gradients(),
+        result.mutable_half_gradient_squares(), result.mutable_rgb_sums(),
+        result.mutable_rgb_squares(), result.mutable_filtered_sums(),
+        result.mutable_filtered_rgb_sums()}) {
+    for (double& v : buffer) v = std::ldexp(mantissa(rng), exponent(rng));
+  }
+  result.mutable_sums()[0] = std::numeric_limits<double>::quiet_NaN();
+  result.mutable_sums()[1] = -0.0;
+  result.mutable_sums()[2] = std::numeric_limits<double>::infinity();
+  return result;
+}
+
+TEST(TileCodec, Float32SumsAreStoredInHalfTheBytesAndStayExact) {
+  for (const TileBuffers& buffers : every_buffer_set()) {
+    const TileResult doubles = result_in_float_range(11, buffers);
+    const std::string wide = serialise_tile(doubles);
+    EXPECT_EQ(flags_of(wide) & (1u << 6), 0u);
+
+    TileResult rounded = doubles;
+    rounded.round_to_float32();
+    const std::string narrow = serialise_tile(rounded);
+    EXPECT_EQ(flags_of(narrow), flags_of(wide) | (1u << 6));
+    // Every buffer of sums (all double buffers but offsets) halves.
+    const std::uint64_t area = std::uint64_t(doubles.rect().area());
+    const std::uint64_t bins = std::uint64_t(doubles.bins());
+    std::uint64_t sums = area * bins * 2;
+    if (buffers.gradients) sums += area * bins;
+    if (buffers.halves) sums += area * bins * 5;
+    if (buffers.rgb) sums += area * 3 * 2;
+    if (buffers.filtered) sums += area * bins + area * 3;
+    EXPECT_EQ(wide.size() - narrow.size(), sums * 4);
+
+    auto parsed = parse_tile(narrow);
+    ASSERT_TRUE(parsed.ok()) << parsed.status();
+    expect_same_bits(*parsed, rounded);
+    EXPECT_EQ(serialise_tile(*parsed), narrow);
+    // Offsets are never rounded.
+    EXPECT_EQ(std::memcmp(rounded.offsets().data(), doubles.offsets().data(),
+                          doubles.offsets().size_bytes()),
+              0);
+  }
+}
+
+TEST(TileCodec, OneValueFloat32CannotHoldKeepsTheResultInDoubles) {
+  TileResult result = result_in_float_range(3, TileBuffers{true, false, {}, true, false, false});
+  result.round_to_float32();
+  ASSERT_NE(flags_of(serialise_tile(result)) & (1u << 6), 0u);
+  for (double beyond : {1e39, -1e300, 0.1}) {
+    TileResult widened = result;
+    widened.mutable_half_gradient_squares().back() = beyond;
+    widened.round_to_float32();
+    const std::string bytes = serialise_tile(widened);
+    // 0.1 rounds to a float32 value; the finite values beyond float32's range stay as they are.
+    EXPECT_EQ((flags_of(bytes) & (1u << 6)) != 0, beyond == 0.1) << beyond;
+    auto parsed = parse_tile(bytes);
+    ASSERT_TRUE(parsed.ok()) << parsed.status();
+    expect_same_bits(*parsed, widened);
   }
 }
 
@@ -95,8 +187,9 @@ TEST(TileCodec, HeaderIsLittleEndianAndVersioned) {
   EXPECT_EQ(bytes.substr(0, 8), "PRSMTILE");
   EXPECT_EQ(bytes[8], 1);
   EXPECT_EQ(bytes[9], 0);
-  // Header (8+4+4+16+16+4+4+8 = 64 bytes) + sums, squares, counts of one pixel and one bin.
-  EXPECT_EQ(bytes.size(), 64u + 24u);
+  // Header (8+4+4+16+16+4+4+8 = 64 bytes) + sums, squares (float32: zeros are) and counts of
+  // one pixel and one bin.
+  EXPECT_EQ(bytes.size(), 64u + 16u);
 }
 
 TEST(TileCodec, EveryTruncationIsRefused) {
@@ -126,8 +219,11 @@ TEST(TileCodec, CorruptedHeadersAreRefusedWithClearErrors) {
   put_u32(bad, 8, 2);
   refused(bad, "version");
   bad = good;
-  put_u32(bad, 12, 64);  // the first bit no version-1 writer sets
+  put_u32(bad, 12, 128);  // the first bit no version-1 writer sets
   refused(bad, "flags");
+  bad = good;
+  put_u32(bad, 12, 3 | 64);  // float32 flag set: the payload is now too long
+  refused(bad, "payload");
   bad = good;
   put_u32(bad, 12, 2 | 16);  // filtered flag set: the payload is now too short
   refused(bad, "payload");
@@ -164,10 +260,13 @@ TEST(TileCodec, CorruptedHeadersAreRefusedWithClearErrors) {
 }
 
 TEST(TileCodec, RandomCorruptionNeverCrashes) {
-  std::string good = serialise_tile(random_result(9, {false, true, {"a"}}));
+  TileResult narrow = result_in_float_range(9, {false, true, {"a"}});
+  narrow.round_to_float32();
+  const std::string goods[2] = {serialise_tile(random_result(9, {false, true, {"a"}})),
+                                serialise_tile(narrow)};
   std::mt19937_64 rng(11);
-  for (int trial = 0; trial < 2000; ++trial) {
-    std::string bytes = good;
+  for (int trial = 0; trial < 4000; ++trial) {
+    std::string bytes = goods[trial % 2];
     int flips = 1 + int(rng() % 4);
     for (int i = 0; i < flips; ++i) bytes[rng() % 72] = char(rng());
     if (rng() % 2) bytes.resize(rng() % bytes.size());

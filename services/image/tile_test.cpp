@@ -2,7 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <random>
+#include <span>
 
 namespace prism::image {
 namespace {
@@ -127,6 +129,43 @@ TEST(TileResult, MergingTwoSampleRangesEqualsOneAccumulation) {
   EXPECT_EQ(*first, *whole);
   EXPECT_EQ(first->count(9, 5), 6u);
   EXPECT_EQ(first->counter(9, 5, 0), 18u);
+}
+
+TEST(TileResult, RoundingToFloat32TakesTheNearestFloatOfEverySumButOffsets) {
+  TileBuffers buffers{true, false, {}, true, true, true, true};
+  auto result = TileResult::create({0, 0, 2, 1}, {0, 3}, 2, buffers);
+  ASSERT_TRUE(result.ok());
+  const double third = 1.0 / 3.0;
+  for (std::span<double> buffer :
+       {result->mutable_sums(), result->mutable_sum_squares(), result->mutable_gradients(),
+        result->mutable_gradient_squares(), result->mutable_half_sums(),
+        result->mutable_half_sum_squares(), result->mutable_half_gradients(),
+        result->mutable_half_gradient_squares(), result->mutable_rgb_sums(),
+        result->mutable_rgb_squares(), result->mutable_filtered_sums(),
+        result->mutable_filtered_rgb_sums(), result->mutable_offsets()}) {
+    for (double& v : buffer) v = third;
+  }
+  result->mutable_sums()[1] = 1e39;  // finite, beyond float32: kept
+  result->mutable_sums()[2] = -std::numeric_limits<double>::infinity();
+  result->mutable_sums()[3] = 1e-50;  // below float32's smallest denormal: zero
+  result->round_to_float32();
+  const double nearest = static_cast<float>(third);
+  EXPECT_NE(nearest, third);
+  EXPECT_EQ(result->sums()[0], nearest);
+  EXPECT_EQ(result->sums()[1], 1e39);
+  EXPECT_EQ(result->sums()[2], -std::numeric_limits<double>::infinity());
+  EXPECT_EQ(result->sums()[3], 0.0);
+  for (std::span<const double> buffer :
+       {result->sum_squares(), result->gradients(), result->gradient_squares(), result->half_sums(),
+        result->half_sum_squares(), result->half_gradients(), result->half_gradient_squares(),
+        result->rgb_sums(), result->rgb_squares(), result->filtered_sums(),
+        result->filtered_rgb_sums()}) {
+    for (double v : buffer) EXPECT_EQ(v, nearest);
+  }
+  for (double v : result->offsets()) EXPECT_EQ(v, third);
+  TileResult again = *result;
+  again.round_to_float32();
+  EXPECT_EQ(again, *result);  // a second rounding changes nothing
 }
 
 TEST(TileResult, MergeRefusesMismatches) {

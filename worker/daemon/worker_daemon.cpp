@@ -535,7 +535,7 @@ absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
   arena_.execute(
       [&] { result = renderer.render(setup.render_task, stats, &held.cancel, &held.progress); });
   PRISM_RETURN_IF_ERROR(result.status());
-  *bytes = image::serialise_tile(*result);
+  *bytes = image::serialise_task_result(*std::move(result));
   return absl::OkStatus();
 }
 

@@ -369,7 +369,7 @@ class WorkerDaemonTest : public ::testing::Test {
     }
     auto result = TileRenderer(**scene).render(task, nullptr);
     EXPECT_TRUE(result.ok()) << result.status();
-    return image::serialise_tile(*result);
+    return image::serialise_task_result(*std::move(result));
   }
 
   // A prepass-1 lease for `tile` of an 8x8 film (the job's is 16x16) with per-pixel tables over
@@ -685,12 +685,12 @@ TEST_F(WorkerDaemonTest, ASceneThatDoesNotLoadFailsTheTaskAsASceneFault) {
 }
 
 TEST_F(WorkerDaemonTest, AResultLargerThanAChunkIsStreamedInMebibyteChunks) {
-  // 64x64 pixels x 64 bins: sums and squared sums alone are 4 MiB.
+  // 64x64 pixels x 128 bins: float32 sums and squared sums alone are 4 MiB.
   fake_.lease = make_lease(rect(0, 0, 64, 64), 0, 1, 1);
   v1::JobSpec& spec = *fake_.lease.mutable_task()->mutable_spec();
   spec.set_width(64);
   spec.set_height(64);
-  spec.set_bins(64);
+  spec.set_bins(128);
   const std::optional<Upload> uploaded = expect_upload();
   ASSERT_TRUE(uploaded.has_value());
   const Upload& upload = *uploaded;
