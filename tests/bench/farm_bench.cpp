@@ -34,7 +34,7 @@
 // Usage: prism-bench-farm [overhead] [capacity] [wire] [load]  (none: the first three)
 //          [--resolution 320x240] [--spp 256] [--tile 32] [--repeats 2]          (overhead)
 //          [--workers 100] [--channels 100] [--capacity-resolution 1024x1024]
-//          [--capacity-tile 16] [--capacity-bins 16]                             (capacity)
+//          [--capacity-tile 16] [--capacity-bins 16] [--capacity-repeats 1]      (capacity)
 //          [--wire-tile 32]                                                      (wire)
 //          [--workers 100] [--load-jobs 200] [--load-seconds 1800]
 //          [--load-resolution 128x128]                                           (load)
@@ -723,7 +723,9 @@ void retarget(std::string& bytes, const image::TileRect& rect, const image::Samp
 // and sample range are rewritten.
 class ResultFactory {
  public:
-  explicit ResultFactory(int bins) : bins_(bins) {}
+  // `float64`: sums that are not float32 values, so the codec keeps them as doubles (what every
+  // result was before workers rounded their sums).
+  explicit ResultFactory(int bins, bool float64 = false) : bins_(bins), float64_(float64) {}
 
   // The bytes for `rect` x `samples` (the template of the rect's shape, patched).
   absl::StatusOr<std::string> bytes(const image::TileRect& rect,
@@ -738,9 +740,10 @@ class ResultFactory {
       PRISM_ASSIGN_OR_RETURN(image::TileResult result,
                              image::TileResult::create({0, 0, shape.first, shape.second},
                                                        {0, samples.count()}, bins_, buffers));
-      for (double& v : result.mutable_rgb_sums()) v = 0.5 * double(samples.count());
-      for (double& v : result.mutable_sums()) v = 0.5 * double(samples.count());
-      for (double& v : result.mutable_sum_squares()) v = 0.25 * double(samples.count());
+      const double scale = float64_ ? 1.0 + std::ldexp(1.0, -40) : 1.0;
+      for (double& v : result.mutable_rgb_sums()) v = 0.5 * double(samples.count()) * scale;
+      for (double& v : result.mutable_sums()) v = 0.5 * double(samples.count()) * scale;
+      for (double& v : result.mutable_sum_squares()) v = 0.25 * double(samples.count()) * scale;
       for (std::uint64_t& n : result.mutable_counts()) n = samples.count();
       it = templates_.emplace(shape, image::serialise_tile(result)).first;
     }
@@ -751,6 +754,7 @@ class ResultFactory {
 
  private:
   int bins_;
+  bool float64_;
   std::map<std::pair<int, int>, std::string> templates_;
 };
 
@@ -921,7 +925,9 @@ void synthetic_worker(int index, std::shared_ptr<grpc::Channel> channel, Capacit
   }
 }
 
-absl::Status run_capacity(const Flags& flags, const fs::path& root) {
+// One capacity job, with results whose sums the codec keeps as float32 or (`float64`) as doubles;
+// prints its row of the table.
+absl::Status run_capacity_once(const Flags& flags, const fs::path& root, bool float64) {
   PRISM_ASSIGN_OR_RETURN(const double workers, flags.number("--workers", 100, 1, 10000));
   PRISM_ASSIGN_OR_RETURN(const double channels, flags.number("--channels", workers, 1, 10000));
   PRISM_ASSIGN_OR_RETURN(auto size, parse_size(flags.get("--capacity-resolution", "1024x1024")));
@@ -942,7 +948,7 @@ absl::Status run_capacity(const Flags& flags, const fs::path& root) {
   CapacityShared shared;
   shared.coordinator_pid = coordinator.pid;
   shared.bins = int(bins);
-  ResultFactory factory{static_cast<int>(bins)};
+  ResultFactory factory{static_cast<int>(bins), float64};
   const int t = int(tile);
   for (int y = 0; y < size.second; y += t) {
     for (int x = 0; x < size.first; x += t) {
@@ -1033,31 +1039,50 @@ absl::Status run_capacity(const Flags& flags, const fs::path& root) {
   const double steady_rate = double(n90 - n10) / steady_s;
   const double steady_cpu_per_1000 = (shared.cpu90 - shared.cpu10) / double(n90 - n10) * 1000.0;
   const double whole_s = std::chrono::duration<double>(shared.last - *shared.first_lease).count();
-  std::printf("\n### Coordinator capacity\n\n");
   std::printf(
-      "| workers | channels | job | tasks | result bytes | completions/s (10-90 %%) | "
-      "coordinator CPU s / 1000 (10-90 %%) | completions/s (first lease to last) | "
-      "coordinator CPU s / 1000 (submit to DONE) | submit s | last completion to DONE seen s | "
-      "peak RSS MiB (idle RSS) | bench CPU s | heartbeats | errors |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-  std::printf(
-      "| %d | %d | %dx%d, %d px tiles, %d bins, 1 spp | %d | %zu | %.0f | %.3f | %.0f | %.3f | "
-      "%.2f | %.2f | %.0f (%.0f) | %.1f | %llu | %llu |\n",
-      int(workers), int(channels), size.first, size.second, t, int(bins), n, result_bytes,
-      steady_rate, steady_cpu_per_1000, double(n) / whole_s, (cpu_done - cpu0) / n * 1000.0,
-      submit_s, done_s - std::chrono::duration<double>(shared.last - submitted).count(), hwm,
-      rss_idle, self_cpu, static_cast<unsigned long long>(shared.heartbeats.load()),
+      "| %s | %d | %d | %dx%d, %d px tiles, %d bins, 1 spp | %d | %zu | %.0f | %.3f | %.0f | "
+      "%.3f | %.2f | %.2f | %.0f (%.0f) | %.1f | %llu | %llu |\n",
+      float64 ? "float64" : "float32", int(workers), int(channels), size.first, size.second, t,
+      int(bins), n, result_bytes, steady_rate, steady_cpu_per_1000, double(n) / whole_s,
+      (cpu_done - cpu0) / n * 1000.0, submit_s,
+      done_s - std::chrono::duration<double>(shared.last - submitted).count(), hwm, rss_idle,
+      self_cpu, static_cast<unsigned long long>(shared.heartbeats.load()),
       static_cast<unsigned long long>(shared.errors.load()));
-  std::printf(
-      "\ncoordinator CPU: utime+stime from /proc/<pid>/stat; peak RSS: VmHWM; DONE is "
-      "polled every 20 ms. bench CPU: "
-      "the synthetic workers' own cost, on the same 2 cores. %llu AcquireTask calls, %llu "
-      "hashes computed after the clock started.\n",
-      static_cast<unsigned long long>(shared.acquires.load()),
-      static_cast<unsigned long long>(shared.hash_misses.load()));
   if (shared.errors.load() > 0) {
     std::printf("first error: %s\n", shared.first_error.c_str());
   }
+  if (shared.hash_misses.load() > 0) {
+    std::printf("%llu hashes computed after the clock started\n",
+                static_cast<unsigned long long>(shared.hash_misses.load()));
+  }
+  std::fflush(stdout);
+  return absl::OkStatus();
+}
+
+// Capacity with float32 sums (what workers send) and with float64 sums (what they sent before),
+// alternately, `--capacity-repeats` times each: the bytes' share of the coordinator's cost,
+// measured side by side.
+absl::Status run_capacity(const Flags& flags, const fs::path& root) {
+  PRISM_ASSIGN_OR_RETURN(const double repeats, flags.number("--capacity-repeats", 1, 1, 20));
+  std::printf("\n### Coordinator capacity\n\n");
+  std::printf(
+      "| sums | workers | channels | job | tasks | result bytes | completions/s (10-90 %%) | "
+      "coordinator CPU s / 1000 (10-90 %%) | completions/s (first lease to last) | "
+      "coordinator CPU s / 1000 (submit to DONE) | submit s | last completion to DONE seen s | "
+      "peak RSS MiB (idle RSS) | bench CPU s | heartbeats | errors |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  std::fflush(stdout);
+  for (int r = 0; r < int(repeats); ++r) {
+    for (bool float64 : {false, true}) {
+      PRISM_RETURN_IF_ERROR(run_capacity_once(
+          flags, root / absl::StrCat(float64 ? "float64-" : "float32-", r), float64));
+    }
+  }
+  std::printf(
+      "\ncoordinator CPU: utime+stime from /proc/<pid>/stat; peak RSS: VmHWM; DONE is "
+      "polled every 20 ms. bench CPU: the synthetic workers' own cost, on the same 2 cores. "
+      "sums: how the results' sums were encoded (float64: values that are not float32, as "
+      "every result was before workers rounded them).\n");
   std::fflush(stdout);
   return absl::OkStatus();
 }
@@ -1445,7 +1470,7 @@ absl::Status run_wire(const Flags& flags, const fs::path& root) {
   task.samples = {0, 4};
   worker::TileStats stats;
   PRISM_ASSIGN_OR_RETURN(image::TileResult real, renderer.render(task, &stats));
-  const std::string real_bytes = image::serialise_tile(real);
+  const std::string real_bytes = image::serialise_task_result(std::move(real));
   const WireSize real_size = wire_size(real_bytes);
   std::printf(
       "\nA real rendered task (cornell-two-lights, %dx%d tile, 64 bins, 4 spp): %llu codec "
@@ -1460,11 +1485,11 @@ absl::Status run_wire(const Flags& flags, const fs::path& root) {
 }
 
 int run(int argc, char** argv) {
-  auto flags =
-      parse_flags(argc, argv,
-                  {"--resolution", "--spp", "--tile", "--repeats", "--workers", "--channels",
-                   "--capacity-resolution", "--capacity-tile", "--capacity-bins", "--wire-tile",
-                   "--load-jobs", "--load-seconds", "--load-resolution"});
+  auto flags = parse_flags(
+      argc, argv,
+      {"--resolution", "--spp", "--tile", "--repeats", "--workers", "--channels",
+       "--capacity-resolution", "--capacity-tile", "--capacity-bins", "--capacity-repeats",
+       "--wire-tile", "--load-jobs", "--load-seconds", "--load-resolution"});
   if (!flags.ok()) {
     std::cerr << kProgram << ": " << flags.status().message() << "\n";
     return 2;
