@@ -92,8 +92,16 @@ absl::StatusOr<std::unique_ptr<ActiveJob>> ActiveJob::create(
                        const image::SpectralImage& finalised) -> absl::Status {
     PRISM_CHECK(raw->tiles != nullptr);
     PRISM_RETURN_IF_ERROR(raw->tiles->put(tile, merged));
+    // The ranges' bytes are now in the tile pack too.
+    if (!raw->target.has_value()) {
+      std::vector<store::ResultLocation>& ranges =
+          raw->final_results[static_cast<std::size_t>(tile)];
+      raw->reclaimable.insert(raw->reclaimable.end(), ranges.begin(), ranges.end());
+      ranges = {};
+    }
     return raw->absorb_tile(tile, merged, finalised);
   };
+  job->final_results.resize(job->plan.tiles.size());
   PRISM_ASSIGN_OR_RETURN(
       job->assembler, TileAssembler::create(job->plan, params.render.bins, on_tile, job->finalise));
   return job;
@@ -190,9 +198,14 @@ absl::Status ActiveJob::finish_round() {
 absl::Status ActiveJob::attach_tiles(const std::filesystem::path& dir) {
   PRISM_ASSIGN_OR_RETURN(FinishedTiles opened,
                          FinishedTiles::open(dir, plan, params.width, params.render.bins));
-  tiles = std::make_unique<FinishedTiles>(std::move(opened));
+  tiles = std::make_shared<FinishedTiles>(std::move(opened));
   PRISM_ASSIGN_OR_RETURN(results, ResultPack::open(dir.parent_path() / "results.pack"));
   return absl::OkStatus();
+}
+
+void ActiveJob::note_final_result(int tile, const store::ResultLocation& location) {
+  if (target.has_value() || location.offset < 0) return;
+  final_results[static_cast<std::size_t>(tile)].push_back(location);
 }
 
 absl::Status ActiveJob::absorb_tile(int tile, const image::TileResult& merged,

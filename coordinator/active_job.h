@@ -72,6 +72,9 @@ struct ActiveJob {
   // Opens the job's finished-tile directory and, beside it, its result pack; before any
   // result is added.
   absl::Status attach_tiles(const std::filesystem::path& dir);
+  // Records where a final-pass result of tile `tile` is stored (a pack range; blob-store results
+  // are not recorded), so its bytes can be released once the tile is stored.
+  void note_final_result(int tile, const store::ResultLocation& location);
   // A finished tile's contribution to the statistics, the RGB image and progress.
   absl::Status absorb_tile(int tile, const image::TileResult& merged,
                            const image::SpectralImage& finalised);
@@ -93,10 +96,17 @@ struct ActiveJob {
   std::vector<int> stage_first;  // first task index of each stage, then the task count
   int stage = 0;                 // the last stage handed to the Scheduler
   std::map<std::string, std::uint64_t> counters;  // the final pass's, summed
-  double prepass_seconds = 0;            // submit (or resume) to the final pass's start, wall clock
-  std::unique_ptr<FinishedTiles> tiles;  // set by attach_tiles before any result is added
+  double prepass_seconds = 0;  // submit (or resume) to the final pass's start, wall clock
+  // Set by attach_tiles before any result is added; shared with the janitor, which syncs it
+  // before it releases range results (FarmCoordinator::reclaim_locked).
+  std::shared_ptr<FinishedTiles> tiles;
   // The task results, in <dir>/../results.pack (set by attach_tiles too).
   std::shared_ptr<ResultPack> results;
+  // Final-pass results in the pack, by tile, until the tile is stored (note_final_result); then
+  // they move to `reclaimable`, which the farm hands to its janitor. Not for target-error jobs,
+  // whose restart replays every round from the range results.
+  std::vector<std::vector<store::ResultLocation>> final_results;
+  std::vector<store::ResultLocation> reclaimable;
   std::unique_ptr<image::RgbImage> rgb;  // finished tiles' linear sRGB
   std::unique_ptr<BinStatisticsAccumulator> statistics;
   int tiles_finalised = 0;

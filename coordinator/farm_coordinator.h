@@ -231,6 +231,9 @@ class FarmCoordinator : public FarmView {
   // Under the lock they are only moved into <data dir>/trash (renames: O(1) per file, whatever
   // the bytes); the janitor thread frees the space without the lock.
   void clean_up_locked(const std::string& job_id);
+  // Hands the job's reclaimable range results (ActiveJob::reclaimable) to the janitor, which
+  // syncs the tile pack and then releases their bytes from the result pack.
+  void reclaim_locked(const std::string& job_id, ActiveJob& job);
   void janitor_loop();
   std::filesystem::path tiles_dir(const std::string& job_id) const;
   void process_events_locked();
@@ -326,6 +329,15 @@ class FarmCoordinator : public FarmView {
   // Finished jobs' convergence series to rewrite thinned (their points, or none: read the file),
   // off the farm's lock.
   std::vector<std::pair<std::string, std::optional<std::vector<ConvergencePoint>>>> janitor_series_;
+  // Range results whose tiles are stored, to release (reclaim_locked).
+  struct Reclaim {
+    std::string job_id;
+    std::shared_ptr<const FinishedTiles> tiles;
+    std::shared_ptr<const ResultPack> results;
+    std::vector<store::ResultLocation> ranges;
+  };
+  std::vector<Reclaim> janitor_reclaim_;
+  bool reclaim_unsupported_ = false;  // the file system cannot punch holes (janitor thread only)
   std::thread janitor_;
   std::deque<Finalising> finalising_;  // under mutex_
   std::condition_variable finaliser_wake_;

@@ -2,6 +2,8 @@
 // directory at once (renamed into the trash, under the lock) and are deleted by the janitor
 // thread, which also rewrites finished jobs' convergence series and counts the data directory
 // for /metrics, all without the farm's lock.
+#include <sys/stat.h>
+
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
@@ -55,6 +57,16 @@ void FarmCoordinator::clean_up_locked(const std::string& job_id) {
   janitor_wake_.notify_one();
 }
 
+void FarmCoordinator::reclaim_locked(const std::string& job_id, ActiveJob& job) {
+  if (job.reclaimable.empty() || job.tiles == nullptr || job.results == nullptr) return;
+  {
+    std::lock_guard<std::mutex> lock(janitor_mutex_);
+    janitor_reclaim_.push_back({job_id, job.tiles, job.results, std::move(job.reclaimable)});
+  }
+  job.reclaimable.clear();
+  janitor_wake_.notify_one();
+}
+
 void FarmCoordinator::janitor_loop() {
   std::unique_lock<std::mutex> lock(janitor_mutex_);
   SteadyClock::time_point counted;  // the data directory's last count (none yet)
@@ -63,8 +75,9 @@ void FarmCoordinator::janitor_loop() {
     // count the data directory for /metrics: a walk over many jobs' files takes too long for
     // the scrape to wait on it.
     if (counted != SteadyClock::time_point()) {
-      janitor_wake_.wait_for(lock, kDataDirBytesInterval,
-                             [this] { return janitor_pending_ || janitor_stopping_; });
+      janitor_wake_.wait_for(lock, kDataDirBytesInterval, [this] {
+        return janitor_pending_ || janitor_stopping_ || !janitor_reclaim_.empty();
+      });
     }
     if (janitor_stopping_) {
       // The finished series are small and quick to write; the trash waits for the next start.
@@ -78,8 +91,33 @@ void FarmCoordinator::janitor_loop() {
     janitor_pending_ = false;
     auto series = std::move(janitor_series_);
     janitor_series_.clear();
+    std::vector<Reclaim> reclaim = std::move(janitor_reclaim_);
+    janitor_reclaim_.clear();
     lock.unlock();
     for (auto& [job_id, points] : series) finish_convergence(job_id, std::move(points));
+    // A job's tile records first, then the range results they hold merged. A job that ended
+    // meanwhile has its files in the trash already: releasing their bytes is harmless.
+    for (const Reclaim& r : reclaim) {
+      if (reclaim_unsupported_) break;
+      absl::Status done = r.tiles->sync();
+      std::uint64_t bytes = 0;
+      for (const store::ResultLocation& range : r.ranges) {
+        if (!done.ok()) break;
+        done = r.results->release(std::uint64_t(range.offset), range.size);
+        bytes += range.size;
+      }
+      if (absl::IsUnimplemented(done)) {
+        reclaim_unsupported_ = true;
+        options_.logger->warn("{}; finished tiles' results stay on disk until their job ends",
+                              done.ToString());
+      } else if (!done.ok()) {
+        options_.logger->warn("[job {}] {}", r.job_id, done.ToString());
+      } else {
+        metrics_.results_released(r.ranges.size(), bytes);
+        options_.logger->debug("[job {}] released {} bytes of {} merged results", r.job_id, bytes,
+                               r.ranges.size());
+      }
+    }
     if (empty_trash) {
       // Entries are whole: clean_up_locked renames each in complete. A crash midway leaves the
       // rest for the next start.
@@ -107,10 +145,10 @@ std::uint64_t FarmCoordinator::count_data_dir_bytes() const {
   std::error_code ec;
   for (auto it = std::filesystem::recursive_directory_iterator(options_.data_dir, ec);
        !ec && it != std::filesystem::recursive_directory_iterator(); it.increment(ec)) {
-    std::error_code size_ec;
-    if (it->is_regular_file(size_ec)) {
-      const std::uintmax_t size = it->file_size(size_ec);
-      if (!size_ec) total += size;
+    // The blocks a file holds, not its length: result packs have holes (released results).
+    struct stat st {};
+    if (::lstat(it->path().c_str(), &st) == 0 && S_ISREG(st.st_mode)) {
+      total += std::uint64_t(st.st_blocks) * 512;
     }
   }
   return total;

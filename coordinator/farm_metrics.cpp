@@ -78,6 +78,8 @@ struct FarmMetrics::Families {
   Counter* retries_worker = nullptr;
   Counter* retries_infrastructure = nullptr;
   Counter* retries_returned = nullptr;
+  Counter* released_results = nullptr;
+  Counter* released_bytes = nullptr;
   Gauge* store_bytes = nullptr;
   Counter* cpu_seconds = nullptr;  // moved by the CPU time /proc reports since the last scrape
   Gauge* resident_bytes = nullptr;
@@ -135,6 +137,17 @@ FarmMetrics::FarmMetrics()
                           .Help("Bytes of task results received from workers")
                           .Register(r)
                           .Add({});
+  f_->released_results =
+      &prometheus::BuildCounter()
+           .Name("prism_results_released_total")
+           .Help("Stored task results whose bytes were freed because their tile is stored merged")
+           .Register(r)
+           .Add({});
+  f_->released_bytes = &prometheus::BuildCounter()
+                            .Name("prism_result_bytes_released_total")
+                            .Help("Bytes of stored task results freed: their tile is stored merged")
+                            .Register(r)
+                            .Add({});
   auto& results = prometheus::BuildCounter()
                       .Name("prism_results_total")
                       .Help("Task results received, by outcome")
@@ -167,7 +180,9 @@ FarmMetrics::FarmMetrics()
   f_->retries_returned = &retries.Add({{"reason", "returned"}});
   f_->store_bytes = &prometheus::BuildGauge()
                          .Name("prism_store_bytes")
-                         .Help("Bytes under the coordinator's data directory (counted every 10 s)")
+                         .Help(
+                             "Disk used under the coordinator's data directory (allocated blocks, "
+                             "counted every 10 s)")
                          .Register(r)
                          .Add({});
   f_->cpu_seconds = &prometheus::BuildCounter()
@@ -197,6 +212,11 @@ void FarmMetrics::task_completed(double render_seconds, double lease_seconds, do
   f_->result_bytes->Increment(double(bytes));
   f_->samples->Increment(double(samples));
   f_->results.at("accepted")->Increment();
+}
+
+void FarmMetrics::results_released(std::uint64_t count, std::uint64_t bytes) {
+  f_->released_results->Increment(double(count));
+  f_->released_bytes->Increment(double(bytes));
 }
 
 void FarmMetrics::result_not_merged(const std::string& outcome, std::uint64_t bytes) {

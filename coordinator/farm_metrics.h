@@ -39,7 +39,7 @@ struct FarmSnapshot {
   std::map<std::string, int> workers;            // by WorkerStatus::state
   double samples_per_second = 0;                 // summed over the running jobs
   SchedulerCounters scheduler;
-  std::uint64_t store_bytes = 0;  // everything under the data directory
+  std::uint64_t store_bytes = 0;  // disk used by everything under the data directory
 };
 
 class FarmMetrics {
@@ -57,6 +57,9 @@ class FarmMetrics {
   // A result that was not merged: "duplicate", "stale" or "refused" (bytes that do not parse
   // or do not match the task). Thread-safe.
   void result_not_merged(const std::string& outcome, std::uint64_t bytes);
+  // Stored task results whose bytes were released from a result pack: their tile is stored
+  // merged (result_pack.h). Thread-safe.
+  void results_released(std::uint64_t count, std::uint64_t bytes);
 
   // The whole exposition, the snapshot's figures and this process's included. Thread-safe.
   std::string text(const FarmSnapshot& snapshot);

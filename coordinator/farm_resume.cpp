@@ -54,6 +54,7 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   active->stage = stage;
   if (stage == active->final_stage() && !active->target.has_value()) {
     PRISM_RETURN_IF_ERROR(restore_final_pass_locked(replay));
+    reclaim_locked(record.id, *active);
   }
   active->samples_at_start = record.progress.samples_done;
   const std::vector<TaskSpec> handed(specs.begin(), specs.begin() + active->stage_first[stage + 1]);
@@ -204,9 +205,10 @@ absl::StatusOr<int> FarmCoordinator::replay_rounds_locked(Replay& replay) {
 
 absl::Status FarmCoordinator::restore_final_pass_locked(Replay& replay) {
   ActiveJob& job = replay.job;
-  // Tiles finished before the restart come back from their files (their range results are not
-  // merged again); a damaged file falls back to the range results, which are kept until the job
-  // is over.
+  // Tiles finished before the restart come back from the tile pack (their range results are
+  // not read); a damaged record falls back to the range results, which are released only once
+  // their tile's record is synced, so they are there unless the disk itself failed (then the
+  // tasks render again).
   std::vector<bool> restored(job.plan.tiles.size(), false);
   for (std::size_t t = 0; t < restored.size(); ++t) {
     const int tile = static_cast<int>(t);
@@ -226,12 +228,18 @@ absl::Status FarmCoordinator::restore_final_pass_locked(Replay& replay) {
   }
   const int final_stage = job.final_stage();
   for (int i = job.stage_first[final_stage]; i < job.stage_first[final_stage + 1]; ++i) {
-    if (replay.tasks[static_cast<std::size_t>(i)].state != store::TaskState::kDone) continue;
+    const store::TaskRecord& task = replay.tasks[static_cast<std::size_t>(i)];
+    if (task.state != store::TaskState::kDone) continue;
     const int tile = job.tile_of(i);
-    if (!restored[static_cast<std::size_t>(tile)]) {
+    const store::ResultLocation location{task.result_offset, task.result_size};
+    if (restored[static_cast<std::size_t>(tile)]) {
+      // Released before the restart, or not yet: releasing again is harmless.
+      if (location.offset >= 0) job.reclaimable.push_back(location);
+    } else {
       PRISM_ASSIGN_OR_RETURN(std::optional<image::TileResult> result,
                              stored_result_locked(replay, i));
       if (!result.has_value()) continue;
+      job.note_final_result(tile, location);
       job.track_convergence(*result, job.convergence_seconds_at_start);
       PRISM_RETURN_IF_ERROR(job.assembler->add(tile, *std::move(result)));
     }

@@ -222,6 +222,7 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
               job.convergence_seconds_at_start +
                   std::chrono::duration<double>(SteadyClock::now() - job.started).count()));
     }
+    if (final_stage) job.note_final_result(tile, location);
     absl::Status added =
         !final_stage
             ? job.prepass_assemblers[static_cast<std::size_t>(stage)]->add(tile, *std::move(parsed))
@@ -235,6 +236,7 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
       return added;
     }
     options_.logger->debug("[job {} task {}] accepted from {}", task.job_id, task.index, worker_id);
+    reclaim_locked(task.job_id, job);
   }
   process_events_locked();
   changed_locked();

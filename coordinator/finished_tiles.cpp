@@ -127,6 +127,14 @@ absl::Status FinishedTiles::put(int tile, const image::TileResult& merged) {
   return absl::OkStatus();
 }
 
+absl::Status FinishedTiles::sync() const {
+  if (::fdatasync(fd_) != 0) {
+    return absl::InternalError(absl::StrCat("cannot sync the tile pack ", pack_path().string(),
+                                            ": ", std::strerror(errno)));
+  }
+  return absl::OkStatus();
+}
+
 bool FinishedTiles::has(int tile) const {
   std::lock_guard<std::mutex> lock(*mutex_);
   return tile >= 0 && static_cast<std::size_t>(tile) < records_.size() &&

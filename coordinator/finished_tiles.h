@@ -7,9 +7,11 @@
 // the coordinator more kernel time than merging the results in them.
 //
 // The pack is also what a restarted coordinator resumes finished tiles from: open() reads the
-// record headers and stops at the first that is not whole. Records are not flushed to disk: the
-// range results a tile was merged from are durable and kept until the job is over, and a
-// record a power loss damaged fails get() (its hash), so the tile is merged from them again.
+// record headers and stops at the first that is not whole. Records are not flushed as they are
+// put: the range results a tile was merged from are durable, and a record a power loss damaged
+// fails get() (its hash), so the tile is merged from them again. Once a record is synced
+// (sync()), the farm frees its range results' bytes (ResultPack::release); a restart then finds
+// the tile here and never reads them.
 #pragma once
 
 #include <array>
@@ -49,6 +51,11 @@ class FinishedTiles {
   // row of tiles): each band reads and finalises that row's tiles into `buffer`.
   image::SpectralRows rows(TileFinaliser finalise, std::vector<float>* buffer) const;
   int band_rows() const { return plan_.tiles.empty() ? 1 : plan_.tiles.front().height(); }
+
+  // fdatasync of the pack: every record put before the call is durable. Before a tile's range
+  // results are released from the result pack (FarmCoordinator's janitor), so that a restart
+  // finds the tile whole. Thread-safe.
+  absl::Status sync() const;
 
   // Deletes the directory and everything in it (the job is over).
   absl::Status remove() const;

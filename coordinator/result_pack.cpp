@@ -55,6 +55,19 @@ absl::Status ResultPack::sync() const {
   return absl::OkStatus();
 }
 
+absl::Status ResultPack::release(std::uint64_t offset, std::uint64_t size) const {
+  if (size == 0) return absl::OkStatus();
+  if (::fallocate(fd_, FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE, off_t(offset), off_t(size)) !=
+      0) {
+    const std::string why = std::strerror(errno);
+    const std::string what =
+        absl::StrCat("cannot release ", size, " bytes at ", offset, " of ", path_.string(), ": ");
+    return errno == EOPNOTSUPP ? absl::UnimplementedError(what + why)
+                               : absl::InternalError(what + why);
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::string> ResultPack::read(std::uint64_t offset, std::uint64_t size,
                                              std::string_view sha256) const {
   auto lost = [&](const std::string& why) {

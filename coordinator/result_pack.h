@@ -8,7 +8,9 @@
 // the last flush (DirtyPacks), then the job store's WAL, before it acknowledges any result. A
 // record can still reach the disk before its bytes (another commit may sync the WAL first), so
 // reads check the hash: after a power loss a damaged or missing range is DATA_LOSS, and its
-// task, never acknowledged, is rendered again. Deleting the job's directory deletes its pack.
+// task, never acknowledged, is rendered again. A result whose tile is finished and stored (the
+// tile pack synced) has its bytes released as the job runs, so a job's disk holds each tile
+// about once. Deleting the job's directory deletes its pack.
 #pragma once
 
 #include <atomic>
@@ -39,6 +41,11 @@ class ResultPack {
   absl::Status write(std::uint64_t offset, std::string_view bytes) const;
   // fdatasync: everything written before the call is durable. Thread-safe.
   absl::Status sync() const;
+  // Frees the disk blocks of the `size` bytes at `offset` (a hole: they read as zeros, so a
+  // later read is DATA_LOSS, and offsets do not move). For results a synced finished tile holds
+  // merged (finished_tiles.h). UNIMPLEMENTED where the file system cannot punch holes.
+  // Thread-safe.
+  absl::Status release(std::uint64_t offset, std::uint64_t size) const;
   // The `size` bytes at `offset` if they hash to `sha256` (hex); DATA_LOSS naming the pack and
   // the range when they are missing or do not. Thread-safe.
   absl::StatusOr<std::string> read(std::uint64_t offset, std::uint64_t size,

@@ -1,6 +1,7 @@
 #include "coordinator/result_pack.h"
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <filesystem>
 #include <fstream>
@@ -95,6 +96,48 @@ TEST(ResultPackTest, MissingOrDamagedBytesAreDataLossNamingThePackAndTheRange) {
       ResultPack::open(dir / "no" / "such" / "dir" / "results.pack");
   EXPECT_EQ(refused.status().code(), absl::StatusCode::kInternal);
   EXPECT_NE(refused.status().message().find("no/such/dir/results.pack"), std::string::npos);
+}
+
+// Released results give their disk blocks back, read as DATA_LOSS, and leave their neighbours
+// and every offset as they were.
+TEST(ResultPackTest, AReleasedResultFreesItsBlocksAndOnlyItsBytes) {
+  const std::filesystem::path dir = prism::testing::fresh_dir("result_pack_release");
+  auto pack = ResultPack::open(dir / "results.pack");
+  ASSERT_TRUE(pack.ok()) << pack.status();
+  std::vector<std::string> results;
+  std::vector<std::uint64_t> offsets;
+  for (int i = 0; i < 3; ++i) {
+    // 1 MiB and a bit, so the ranges do not start or end on a block boundary.
+    results.push_back(std::string((std::size_t{1} << 20) + 1000 + i, char('x' + i)));
+    offsets.push_back((*pack)->reserve(results.back().size()));
+    ASSERT_TRUE((*pack)->write(offsets.back(), results.back()).ok());
+  }
+  ASSERT_TRUE((*pack)->sync().ok());
+  auto allocated = [&] {
+    struct stat st {};
+    EXPECT_EQ(::stat((dir / "results.pack").c_str(), &st), 0);
+    return std::uint64_t(st.st_blocks) * 512;
+  };
+  const std::uint64_t before = allocated();
+  const std::uint64_t length = std::filesystem::file_size(dir / "results.pack");
+  absl::Status released = (*pack)->release(offsets[1], results[1].size());
+  if (absl::IsUnimplemented(released)) GTEST_SKIP() << released;
+  ASSERT_TRUE(released.ok()) << released;
+  // The blocks wholly inside the range (all but at most one 4 KiB block at either end).
+  EXPECT_LE(allocated(), before - results[1].size() + 2 * 4096) << before;
+  EXPECT_EQ(std::filesystem::file_size(dir / "results.pack"), length);
+  const auto read = [&](int i) {
+    return (*pack)->read(offsets[i], results[i].size(), base::sha256_hex(results[i]));
+  };
+  EXPECT_EQ(read(1).status().code(), absl::StatusCode::kDataLoss);
+  for (int i : {0, 2}) {
+    auto bytes = read(i);
+    ASSERT_TRUE(bytes.ok()) << bytes.status();
+    EXPECT_EQ(*bytes, results[i]);
+  }
+  // Releasing again is harmless; a new result still goes after everything.
+  EXPECT_TRUE((*pack)->release(offsets[1], results[1].size()).ok());
+  EXPECT_EQ((*pack)->reserve(1), length);
 }
 
 }  // namespace
