@@ -6,6 +6,7 @@
 #include <iterator>
 #include <span>
 #include <type_traits>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/check.h"
@@ -21,8 +22,9 @@ constexpr std::uint32_t kFlagRgb = 1u << 3;
 constexpr std::uint32_t kFlagFiltered = 1u << 4;
 constexpr std::uint32_t kFlagOffsets = 1u << 5;
 constexpr std::uint32_t kFlagFloat32 = 1u << 6;
+constexpr std::uint32_t kFlagSparse = 1u << 7;
 constexpr std::uint32_t kKnownFlags = kFlagGradients | kFlagGuides | kFlagHalves | kFlagRgb |
-                                      kFlagFiltered | kFlagOffsets | kFlagFloat32;
+                                      kFlagFiltered | kFlagOffsets | kFlagFloat32 | kFlagSparse;
 
 // Values converted at a time between the float32 encoding and a double buffer.
 constexpr std::size_t kConvertChunk = 4096;
@@ -161,6 +163,116 @@ bool sums_are_float32(const TileResult& result) {
   return true;
 }
 
+// The pixels an encoding holds: all of them (dense), or with flag bit 7 the blocks of side x side
+// pixels (row-major over the rect, the last ones clipped) that are set in a bitmap.
+class Blocks {
+ public:
+  explicit Blocks(const TileRect& rect) : width_(rect.width()), height_(rect.height()) {}
+  Blocks(const TileRect& rect, int side)
+      : width_(rect.width()),
+        height_(rect.height()),
+        side_(side),
+        across_((width_ + side - 1) / side),
+        down_((height_ + side - 1) / side),
+        present_(std::size_t(across_) * std::size_t(down_), 0) {}
+
+  bool sparse() const { return side_ > 0; }
+  int side() const { return side_; }
+  std::size_t count() const { return present_.size(); }
+  bool present(std::size_t block) const { return present_[block] != 0; }
+  void set(std::size_t block) { present_[block] = 1; }
+  // The block of pixel p (p = y*width + x).
+  std::size_t block_of(std::size_t p) const {
+    const std::size_t x = p % std::size_t(width_), y = p / std::size_t(width_);
+    return (y / std::size_t(side_)) * std::size_t(across_) + x / std::size_t(side_);
+  }
+  std::uint64_t pixels() const {
+    if (!sparse()) return std::uint64_t(width_) * std::uint64_t(height_);
+    std::uint64_t n = 0;
+    for (std::size_t b = 0; b < present_.size(); ++b) {
+      if (present_[b] != 0) n += std::uint64_t(block_rect(b).area());
+    }
+    return n;
+  }
+  // Calls run(first, count) for each run of a buffer's values that the encoding holds, in its
+  // order (`buffer_size` values over the rect's pixels).
+  template <typename Run>
+  void for_each_run(std::size_t buffer_size, Run&& run) const {
+    if (buffer_size == 0) return;
+    if (!sparse()) return run(std::size_t{0}, buffer_size);
+    const std::size_t k = buffer_size / (std::size_t(width_) * std::size_t(height_));
+    for (std::size_t b = 0; b < present_.size(); ++b) {
+      if (present_[b] == 0) continue;
+      const TileRect r = block_rect(b);
+      for (int y = r.y0; y < r.y1; ++y) {
+        run((std::size_t(y) * std::size_t(width_) + std::size_t(r.x0)) * k,
+            std::size_t(r.width()) * k);
+      }
+    }
+  }
+
+ private:
+  TileRect block_rect(std::size_t b) const {
+    const int bx = int(b % std::size_t(across_)), by = int(b / std::size_t(across_));
+    return {bx * side_, by * side_, std::min(width_, (bx + 1) * side_),
+            std::min(height_, (by + 1) * side_)};
+  }
+  int width_, height_;
+  int side_ = 0, across_ = 0, down_ = 0;
+  std::vector<std::uint8_t> present_;
+};
+
+// Side of the blocks a sparse encoding leaves out.
+constexpr int kSparseBlock = 16;
+
+// The sparse blocks of `result`: those holding a pixel whose values are not all zero bits or
+// whose count is not the result's sample count; the dense layout when every block does (or the
+// result has halves, whose counts differ per pixel).
+Blocks blocks_of(const TileResult& result) {
+  const TileRect& rect = result.rect();
+  if (result.has_halves()) return Blocks(rect);
+  const std::size_t area = std::size_t(rect.area());
+  std::vector<std::uint8_t> busy(area, 0);
+  auto mark = [&](auto values) {
+    if (values.empty()) return;
+    const std::size_t k = values.size() / area;
+    for (std::size_t p = 0; p < area; ++p) {
+      if (busy[p] != 0) continue;
+      for (std::size_t j = 0; j < k; ++j) {
+        using T = std::remove_cvref_t<decltype(values[0])>;
+        using U = std::conditional_t<sizeof(T) == 8, std::uint64_t, std::uint32_t>;
+        if (std::bit_cast<U>(values[p * k + j]) != 0) {
+          busy[p] = 1;
+          break;
+        }
+      }
+    }
+  };
+  for (std::span<const double> buffer :
+       {result.sums(), result.sum_squares(), result.gradients(), result.gradient_squares(),
+        result.rgb_sums(), result.rgb_squares(), result.filtered_sums(), result.filtered_rgb_sums(),
+        result.offsets()}) {
+    mark(buffer);
+  }
+  for (std::span<const float> buffer : {result.depth(), result.normals(), result.albedo()}) {
+    mark(buffer);
+  }
+  mark(result.counters());
+  const std::uint64_t samples = result.samples().count();
+  std::span<const std::uint64_t> counts = result.counts();
+  for (std::size_t p = 0; p < area; ++p) {
+    if (counts[p] != samples) busy[p] = 1;
+  }
+  Blocks blocks(rect, kSparseBlock);
+  for (std::size_t p = 0; p < area; ++p) {
+    if (busy[p] != 0) blocks.set(blocks.block_of(p));
+  }
+  for (std::size_t b = 0; b < blocks.count(); ++b) {
+    if (!blocks.present(b)) return blocks;  // one block left out: worth its bitmap
+  }
+  return Blocks(rect);
+}
+
 }  // namespace
 
 std::string serialise_tile(const TileResult& result) {
@@ -168,8 +280,9 @@ std::string serialise_tile(const TileResult& result) {
   const TileRect& rect = result.rect();
   std::uint64_t area = std::uint64_t(rect.area());
   const bool float32 = sums_are_float32(result);
-  std::uint64_t payload =
-      payload_bytes(area, result.bins(), result.buffers(), result.counter_count(), float32);
+  const Blocks blocks = blocks_of(result);
+  std::uint64_t payload = payload_bytes(blocks.pixels(), result.bins(), result.buffers(),
+                                        result.counter_count(), float32);
   out.reserve(64 + payload);
   Writer w(out);
   w.bytes(kTileMagic);
@@ -177,7 +290,7 @@ std::string serialise_tile(const TileResult& result) {
   w.u32((result.has_gradients() ? kFlagGradients : 0) | (result.has_guides() ? kFlagGuides : 0) |
         (result.has_halves() ? kFlagHalves : 0) | (result.has_rgb() ? kFlagRgb : 0) |
         (result.has_filtered() ? kFlagFiltered : 0) | (result.has_offsets() ? kFlagOffsets : 0) |
-        (float32 ? kFlagFloat32 : 0));
+        (float32 ? kFlagFloat32 : 0) | (blocks.sparse() ? kFlagSparse : 0));
   w.i32(rect.x0);
   w.i32(rect.y0);
   w.i32(rect.x1);
@@ -191,25 +304,43 @@ std::string serialise_tile(const TileResult& result) {
     w.bytes(name);
   }
   w.u64(payload);
-  w.sums(result.sums(), float32);
-  w.sums(result.sum_squares(), float32);
-  w.values(result.counts());
-  w.sums(result.gradients(), float32);
-  w.sums(result.gradient_squares(), float32);
-  w.sums(result.half_sums(), float32);
-  w.sums(result.half_sum_squares(), float32);
-  w.sums(result.half_gradients(), float32);
-  w.sums(result.half_gradient_squares(), float32);
-  w.values(result.half_counts());
-  w.sums(result.rgb_sums(), float32);
-  w.sums(result.rgb_squares(), float32);
-  w.sums(result.filtered_sums(), float32);
-  w.sums(result.filtered_rgb_sums(), float32);
-  w.values(result.offsets());
-  w.values(result.depth());
-  w.values(result.normals());
-  w.values(result.albedo());
-  w.values(result.counters());
+  if (blocks.sparse()) {
+    w.u32(static_cast<std::uint32_t>(blocks.side()));
+    std::string bitmap((blocks.count() + 7) / 8, '\0');
+    for (std::size_t b = 0; b < blocks.count(); ++b) {
+      if (blocks.present(b)) bitmap[b / 8] = char(std::uint8_t(bitmap[b / 8]) | (1u << (b % 8)));
+    }
+    w.bytes(bitmap);
+  }
+  auto sums = [&](std::span<const double> values) {
+    blocks.for_each_run(values.size(), [&](std::size_t first, std::size_t n) {
+      w.sums(values.subspan(first, n), float32);
+    });
+  };
+  auto plain = [&](auto values) {
+    blocks.for_each_run(values.size(), [&](std::size_t first, std::size_t n) {
+      w.values(values.subspan(first, n));
+    });
+  };
+  sums(result.sums());
+  sums(result.sum_squares());
+  plain(result.counts());
+  sums(result.gradients());
+  sums(result.gradient_squares());
+  sums(result.half_sums());
+  sums(result.half_sum_squares());
+  sums(result.half_gradients());
+  sums(result.half_gradient_squares());
+  plain(result.half_counts());
+  sums(result.rgb_sums());
+  sums(result.rgb_squares());
+  sums(result.filtered_sums());
+  sums(result.filtered_rgb_sums());
+  plain(result.offsets());
+  plain(result.depth());
+  plain(result.normals());
+  plain(result.albedo());
+  plain(result.counters());
   return out;
 }
 
@@ -269,6 +400,10 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   buffers.filtered = (*flags & kFlagFiltered) != 0;
   buffers.offsets = (*flags & kFlagOffsets) != 0;
   const bool float32 = (*flags & kFlagFloat32) != 0;
+  const bool sparse = (*flags & kFlagSparse) != 0;
+  if (sparse && buffers.halves) {
+    return absl::InvalidArgumentError("tile result is sparse and has halves; halves are dense");
+  }
   for (std::uint64_t c = 0; c < *counter_count; ++c) {
     auto length = r.uint(4, "counter name length");
     if (!length.ok()) return length.status();
@@ -290,9 +425,28 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
     return absl::InvalidArgumentError(
         absl::StrCat("tile result header is invalid: ", status.message()));
   }
+  Blocks blocks(rect);
+  if (sparse) {
+    auto side = r.uint(4, "block side");
+    if (!side.ok()) return side.status();
+    if (*side < 1 || *side > std::uint64_t(kMaxImageSide)) {
+      return absl::InvalidArgumentError(absl::StrCat("tile result has sparse blocks of side ",
+                                                     *side, "; allowed are 1..", kMaxImageSide));
+    }
+    blocks = Blocks(rect, int(*side));
+    auto bitmap = r.bytes((blocks.count() + 7) / 8, "block bitmap");
+    if (!bitmap.ok()) return bitmap.status();
+    for (std::size_t i = 0; i < bitmap->size() * 8; ++i) {
+      if ((std::uint8_t((*bitmap)[i / 8]) >> (i % 8) & 1u) == 0) continue;
+      if (i >= blocks.count()) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("tile result's block bitmap sets block ", i, " of ", blocks.count()));
+      }
+      blocks.set(i);
+    }
+  }
   // Checked before anything is allocated, so a lying header cannot make us allocate.
-  std::uint64_t expected =
-      payload_bytes(std::uint64_t(rect.area()), *bins, buffers, *counter_count, float32);
+  std::uint64_t expected = payload_bytes(blocks.pixels(), *bins, buffers, *counter_count, float32);
   if (*declared != expected) {
     return absl::InvalidArgumentError(absl::StrCat("tile result declares a payload of ", *declared,
                                                    " bytes but its header implies ", expected));
@@ -305,25 +459,37 @@ absl::StatusOr<TileResult> parse_tile(std::string_view bytes) {
   auto result = TileResult::create(rect, samples, static_cast<int>(*bins), buffers);
   PRISM_CHECK(result.ok());
   TileResult& t = *result;
-  r.raw_sums(t.mutable_sums(), float32);
-  r.raw_sums(t.mutable_sum_squares(), float32);
-  r.raw_values(t.mutable_counts());
-  r.raw_sums(t.mutable_gradients(), float32);
-  r.raw_sums(t.mutable_gradient_squares(), float32);
-  r.raw_sums(t.mutable_half_sums(), float32);
-  r.raw_sums(t.mutable_half_sum_squares(), float32);
-  r.raw_sums(t.mutable_half_gradients(), float32);
-  r.raw_sums(t.mutable_half_gradient_squares(), float32);
-  r.raw_values(t.mutable_half_counts());
-  r.raw_sums(t.mutable_rgb_sums(), float32);
-  r.raw_sums(t.mutable_rgb_squares(), float32);
-  r.raw_sums(t.mutable_filtered_sums(), float32);
-  r.raw_sums(t.mutable_filtered_rgb_sums(), float32);
-  r.raw_values(t.mutable_offsets());
-  r.raw_values(t.mutable_depth());
-  r.raw_values(t.mutable_normals());
-  r.raw_values(t.mutable_albedo());
-  r.raw_values(t.mutable_counters());
+  // Pixels a sparse encoding leaves out hold zeros and the range's sample count.
+  if (blocks.sparse()) std::ranges::fill(t.mutable_counts(), samples.count());
+  auto sums = [&](std::span<double> values) {
+    blocks.for_each_run(values.size(), [&](std::size_t first, std::size_t n) {
+      r.raw_sums(values.subspan(first, n), float32);
+    });
+  };
+  auto plain = [&](auto values) {
+    blocks.for_each_run(values.size(), [&](std::size_t first, std::size_t n) {
+      r.raw_values(values.subspan(first, n));
+    });
+  };
+  sums(t.mutable_sums());
+  sums(t.mutable_sum_squares());
+  plain(t.mutable_counts());
+  sums(t.mutable_gradients());
+  sums(t.mutable_gradient_squares());
+  sums(t.mutable_half_sums());
+  sums(t.mutable_half_sum_squares());
+  sums(t.mutable_half_gradients());
+  sums(t.mutable_half_gradient_squares());
+  plain(t.mutable_half_counts());
+  sums(t.mutable_rgb_sums());
+  sums(t.mutable_rgb_squares());
+  sums(t.mutable_filtered_sums());
+  sums(t.mutable_filtered_rgb_sums());
+  plain(t.mutable_offsets());
+  plain(t.mutable_depth());
+  plain(t.mutable_normals());
+  plain(t.mutable_albedo());
+  plain(t.mutable_counters());
   PRISM_CHECK(r.remaining() == 0);
   return result;
 }
