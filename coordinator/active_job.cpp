@@ -164,7 +164,8 @@ std::vector<TaskSpec> ActiveJob::task_specs() const {
 
 ConvergencePoint ActiveJob::track_convergence(const image::TileResult& result, double seconds) {
   if (convergence == nullptr) {
-    convergence = std::make_unique<ConvergenceTracker>(params.width, params.height);
+    convergence = std::make_unique<ConvergenceTracker>(
+        params.target_error.has_value() ? params.target_error->max_spp : params.spp);
   }
   return convergence->add(result, seconds);
 }

@@ -18,8 +18,7 @@
 
 namespace prism::coordinator {
 
-ConvergenceTracker::ConvergenceTracker(int width, int height)
-    : width_(width), pixels_(std::size_t(width) * std::size_t(height)) {}
+ConvergenceTracker::ConvergenceTracker(std::uint64_t spp) : spp_(spp) {}
 
 double ConvergenceTracker::variance_of_mean(const Pixel& p) {
   if (p.n < 2) return 0.0;
@@ -34,22 +33,27 @@ ConvergencePoint ConvergenceTracker::add(const image::TileResult& result, double
   const auto counts = result.counts();
   const auto sums = result.rgb_sums();
   const auto squares = result.rgb_squares();
-  for (int y = r.y0; y < r.y1; ++y) {
-    for (int x = r.x0; x < r.x1; ++x) {
-      const std::size_t local =
-          std::size_t(y - r.y0) * std::size_t(r.width()) + std::size_t(x - r.x0);
-      if (counts[local] == 0) continue;
-      Pixel& p = pixels_[std::size_t(y) * std::size_t(width_) + std::size_t(x)];
-      variance_total_ -= variance_of_mean(p);
-      mean_total_ -= mean(p);
-      p.n += counts[local];
-      p.sum += sums[local * 3 + 1];
-      p.squares += squares[local * 3 + 1];
-      variance_total_ += variance_of_mean(p);
-      mean_total_ += mean(p);
-      samples_ += counts[local];
-    }
+  const auto key = std::make_pair(r.x0, r.y0);
+  auto it = tiles_.find(key);
+  if (it == tiles_.end()) {
+    it = tiles_.emplace(key, Tile{std::vector<Pixel>(std::size_t(r.area())), 0}).first;
   }
+  Tile& tile = it->second;
+  for (std::size_t local = 0; local < counts.size(); ++local) {
+    if (counts[local] == 0) continue;
+    Pixel& p = tile.pixels[local];
+    variance_total_ -= variance_of_mean(p);
+    mean_total_ -= mean(p);
+    p.n += counts[local];
+    p.sum += sums[local * 3 + 1];
+    p.squares += squares[local * 3 + 1];
+    variance_total_ += variance_of_mean(p);
+    mean_total_ += mean(p);
+    samples_ += counts[local];
+    tile.samples += counts[local];
+  }
+  // Every pixel has all its samples: nothing more comes for this tile.
+  if (tile.samples >= std::uint64_t(r.area()) * spp_) tiles_.erase(it);
   return {seconds, samples_, relative_error()};
 }
 

@@ -3,11 +3,16 @@
 // per-sample squares the results carry) to per-pixel sums; the estimate is the relative standard
 // error of the image's mean green over the pixels sampled so far:
 //   sqrt(Σ_p s²_p / n_p) / |Σ_p m_p|,  s²_p the sample variance and m_p the mean of pixel p.
-// Pixels with fewer than two samples add no variance. Updating is O(the result's pixels).
+// Pixels with fewer than two samples add no variance. Updating is O(the result's pixels). A
+// tile's per-pixel sums are kept only until its pixels have all their samples (their share of
+// the totals stays), so memory follows the tiles in flight, not the image (an 8K image's sums
+// would be 0.8 GB).
 #pragma once
 
 #include <cstdint>
 #include <filesystem>
+#include <map>
+#include <utility>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -23,10 +28,13 @@ struct ConvergencePoint {
 
 class ConvergenceTracker {
  public:
-  ConvergenceTracker(int width, int height);
+  // `spp`: the most samples a pixel gets (a target-error job's max_spp).
+  explicit ConvergenceTracker(std::uint64_t spp);
   // Adds a final-pass result (ignored without RGB buffers); the estimate after it, at `seconds`.
   ConvergencePoint add(const image::TileResult& result, double seconds);
   double relative_error() const;
+  // Tiles whose per-pixel sums are kept (some pixel has fewer than spp samples).
+  std::size_t tiles_in_flight() const { return tiles_.size(); }
 
  private:
   struct Pixel {
@@ -36,8 +44,13 @@ class ConvergenceTracker {
   static double variance_of_mean(const Pixel& p);
   static double mean(const Pixel& p) { return p.n > 0 ? p.sum / double(p.n) : 0.0; }
 
-  int width_;
-  std::vector<Pixel> pixels_;
+  struct Tile {
+    std::vector<Pixel> pixels;
+    std::uint64_t samples = 0;
+  };
+  // Tiles being rendered, by their rect's corner.
+  std::map<std::pair<int, int>, Tile> tiles_;
+  std::uint64_t spp_;
   double variance_total_ = 0;  // Σ_p s²_p / n_p
   double mean_total_ = 0;      // Σ_p m_p
   std::uint64_t samples_ = 0;

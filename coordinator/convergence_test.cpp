@@ -27,19 +27,42 @@ image::TileResult result(const image::TileRect& rect,
 }
 
 TEST(ConvergenceTest, TheEstimateIsTheImageMeansRelativeStandardError) {
-  ConvergenceTracker tracker(2, 1);
+  ConvergenceTracker tracker(4);
   // Pixel 0 saw 1 and 3 (mean 2, variance 2, of the mean 1); pixel 1 saw 2 and 2.
   ConvergencePoint first = tracker.add(result({0, 0, 2, 1}, {{2, 4, 10}, {2, 4, 8}}), 1.5);
   EXPECT_EQ(first.samples, 4u);
   EXPECT_DOUBLE_EQ(first.seconds, 1.5);
   EXPECT_DOUBLE_EQ(first.relative_error, std::sqrt(1.0) / 4.0);
   // Pixel 0 then sees a 2: n 3, Σ 6, Σ² 14, variance 1, of the mean 1/3; its mean stays 2.
-  ConvergencePoint second = tracker.add(result({0, 0, 1, 1}, {{1, 2, 4}}), 2.0);
+  ConvergencePoint second = tracker.add(result({0, 0, 2, 1}, {{1, 2, 4}, {0, 0, 0}}), 2.0);
   EXPECT_EQ(second.samples, 5u);
   EXPECT_NEAR(second.relative_error, std::sqrt(1.0 / 3.0) / 4.0, 1e-15);
   // A pixel with one sample adds its mean but no variance.
-  ConvergenceTracker single(1, 1);
+  ConvergenceTracker single(1);
   EXPECT_EQ(single.add(result({0, 0, 1, 1}, {{1, 5, 25}}), 0).relative_error, 0.0);
+}
+
+// A tile's per-pixel sums go once its pixels have every sample, and the estimate is the one a
+// tracker that keeps everything gives.
+TEST(ConvergenceTest, OnlyTilesStillRenderingKeepTheirPixels) {
+  ConvergenceTracker bounded(2);
+  ConvergenceTracker keeping(1000);
+  const std::vector<std::pair<image::TileRect, std::vector<std::array<double, 3>>>> results = {
+      {{0, 0, 2, 1}, {{1, 1, 1}, {1, 3, 9}}},    // tile A, first sample
+      {{2, 0, 4, 1}, {{2, 4, 10}, {2, 6, 20}}},  // tile B, both samples: done at once
+      {{0, 0, 2, 1}, {{1, 2, 4}, {1, 2, 4}}},    // tile A, second sample: done
+  };
+  const std::size_t in_flight[] = {1, 1, 0};
+  for (std::size_t i = 0; i < results.size(); ++i) {
+    const auto& [rect, pixels] = results[i];
+    const ConvergencePoint a = bounded.add(result(rect, pixels), double(i));
+    const ConvergencePoint b = keeping.add(result(rect, pixels), double(i));
+    EXPECT_EQ(bounded.tiles_in_flight(), in_flight[i]) << i;
+    EXPECT_EQ(a.samples, b.samples);
+    EXPECT_DOUBLE_EQ(a.relative_error, b.relative_error) << i;
+  }
+  EXPECT_GT(bounded.relative_error(), 0.0);
+  EXPECT_EQ(keeping.tiles_in_flight(), 2u);
 }
 
 TEST(ConvergenceTest, ALongSeriesIsThinnedKeepingItsEnds) {

@@ -80,14 +80,15 @@ u64 ResourcePlan::disk_bytes() const {
   return sum(disk);
 }
 
-u64 tile_result_bytes_per_pixel(const job::RenderOptions& render, bool prepass) {
+u64 tile_result_bytes_per_pixel(const job::RenderOptions& render, bool prepass, bool encoded) {
   const u64 bins = u64(render.bins);
-  u64 bytes = 16 * bins + 8;  // sums and squares (float64), count
-  bytes += 48;                // RGB sums and squares
+  const u64 sum = encoded ? 4 : 8;  // one value of a buffer of sums
+  u64 bytes = 2 * sum * bins + 8;   // sums and squares, count
+  bytes += 6 * sum;                 // RGB sums and squares
   if (render.integrator == job::IntegratorKind::kGradient) {
-    bytes += 48 * bins + 8;  // gradients, their squares and the half-sample buffers
+    bytes += 6 * sum * bins + 8;  // gradients, their squares and the half-sample buffers
   }
-  if (render.splats_differentials()) bytes += 8 * bins + 24;
+  if (render.splats_differentials()) bytes += sum * bins + 3 * sum;
   if (render.gathers()) bytes += 8 * u64(image::kOffsetValues);
   if (prepass) bytes += 20;  // depth, normal, albedo
   return bytes + 8 * 8;      // trace counters
@@ -133,6 +134,8 @@ ResourcePlan plan_farm_job(const job::JobParameters& p) {
   if (prepass) push(plan.memory, "prepass state", prepass_bytes(n, p.render.bins));
   if (p.target_error.has_value()) {
     push(plan.memory, "target-error sums", target_error_bytes(n, p.render));
+    // The convergence plot's per-pixel sums of tiles still going on (convergence.h).
+    push(plan.memory, "convergence sums", mul(n, 24));
   }
   // Finalising: a row of tiles read back and finalised, the PNG, and per kind of output its
   // whole-image RGB (gradient: primal and gradient; splatting: filtered) or, for gathering,
@@ -145,7 +148,8 @@ ResourcePlan plan_farm_job(const job::JobParameters& p) {
   }
   push(plan.memory, "finalising", finalising);
 
-  push(plan.disk, "finished tiles", mul(n, tile_result_bytes_per_pixel(p.render, false)));
+  // Each final-pass tile once: its range results are released as it is stored (result_pack.h).
+  push(plan.disk, "finished tiles", mul(n, tile_result_bytes_per_pixel(p.render, false, true)));
   u64 outputs = add(mul(n, (bins + 3) * 4), mul(n, 12 + 3));  // spectral EXR, RGB EXR, PNG
   if (p.outputs.primal_and_gradients) outputs = add(outputs, mul(n, (bins + 3) * 8));
   if (p.render.splats_differentials() || p.render.gathers()) {

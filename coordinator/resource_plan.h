@@ -36,10 +36,12 @@ struct ResourcePlan {
   std::uint64_t disk_bytes() const;
 };
 
-// The bytes of one pixel of a merged tile result with the job's options (the tile codec's
-// payload: sums, squares and counts, plus gradients, RGB, filtered sums, offsets and guides
-// when the job makes them).
-std::uint64_t tile_result_bytes_per_pixel(const job::RenderOptions& render, bool prepass);
+// The bytes of one pixel of a merged tile result with the job's options: sums, squares and
+// counts, plus gradients, RGB, filtered sums, offsets and guides when the job makes them; in
+// memory (doubles), or as the tile codec stores them (`encoded`: float32 sums; a sparse
+// encoding's left-out blocks are not counted off).
+std::uint64_t tile_result_bytes_per_pixel(const job::RenderOptions& render, bool prepass,
+                                          bool encoded = false);
 
 // What `prism render` holds for a job: the finished images, the prepass's and the target
 // error's whole-image state, gathering's inputs, the tiles in flight (2 per thread, each

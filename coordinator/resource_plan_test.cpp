@@ -96,13 +96,14 @@ TEST(ResourcePlanTest, FarmPlanCountsTheFinishedTilesAndOutputsOnDisk) {
   const ResourcePlan plan = plan_farm_job(p);
   const std::uint64_t n = 16384ull * 16384;
   EXPECT_EQ(item(plan.memory, "RGB image"), n * 12);
-  EXPECT_EQ(item(plan.disk, "finished tiles"), n * (256 * 16 + 8 + 48 + 64));
+  // Float32 sums and squares, a count, float32 RGB sums and squares, the trace counters.
+  EXPECT_EQ(item(plan.disk, "finished tiles"), n * (256 * 8 + 8 + 24 + 64));
   EXPECT_EQ(item(plan.disk, "outputs"), n * (259 * 4) + n * 15);
   const absl::Status status =
       check_disk("job 16384x16384 with 256 bins", plan, 75ull << 30, "free space", "fewer bins");
   EXPECT_EQ(status.code(), absl::StatusCode::kResourceExhausted);
   EXPECT_TRUE(
-      status_says(status, "needs about 1.3 TiB of disk (finished tiles 1.0 TiB, outputs 263 GiB)"))
+      status_says(status, "needs about 799 GiB of disk (finished tiles 536 GiB, outputs 263 GiB)"))
       << status;
   EXPECT_TRUE(status_says(status, "more than the 75 GiB available (free space); fewer bins"))
       << status;
