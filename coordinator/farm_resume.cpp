@@ -7,6 +7,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "coordinator/farm_coordinator.h"
+#include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/tile_codec.h"
 #include "services/scene/scene_loader.h"
@@ -99,6 +100,16 @@ absl::StatusOr<std::vector<store::TaskRecord>> FarmCoordinator::stored_tasks_loc
   return tasks;
 }
 
+namespace {
+
+// The stored result's SHA-256 (its bytes were read against it), which the live path gives the
+// assemblers too.
+std::optional<std::array<std::uint8_t, 32>> digest_of(const store::TaskRecord& task) {
+  return base::sha256_digest_of_hex(task.result_hash);
+}
+
+}  // namespace
+
 absl::StatusOr<std::optional<image::TileResult>> FarmCoordinator::stored_result_locked(
     Replay& replay, int index) {
   const store::TaskRecord& task = replay.tasks[static_cast<std::size_t>(index)];
@@ -144,7 +155,8 @@ absl::StatusOr<int> FarmCoordinator::replay_prepasses_locked(Replay& replay) {
         complete = false;
         continue;
       }
-      PRISM_RETURN_IF_ERROR(assembler.add(job.tile_of(i), *std::move(result)));
+      PRISM_RETURN_IF_ERROR(assembler.add(job.tile_of(i), *std::move(result),
+                                          digest_of(replay.tasks[static_cast<std::size_t>(i)])));
       replay.done.push_back(i);
     }
     if (!complete) return stage;
@@ -188,7 +200,8 @@ absl::StatusOr<int> FarmCoordinator::replay_rounds_locked(Replay& replay) {
           continue;
         }
         replay.job.track_convergence(*result, replay.job.convergence_seconds_at_start);
-        PRISM_RETURN_IF_ERROR(assembler.add(tile, *std::move(result)));
+        PRISM_RETURN_IF_ERROR(assembler.add(tile, *std::move(result),
+                                            digest_of(replay.tasks[static_cast<std::size_t>(i)])));
         replay.done.push_back(i);
       }
     }
@@ -241,7 +254,8 @@ absl::Status FarmCoordinator::restore_final_pass_locked(Replay& replay) {
       if (!result.has_value()) continue;
       job.note_final_result(tile, location);
       job.track_convergence(*result, job.convergence_seconds_at_start);
-      PRISM_RETURN_IF_ERROR(job.assembler->add(tile, *std::move(result)));
+      PRISM_RETURN_IF_ERROR(job.assembler->add(
+          tile, *std::move(result), digest_of(replay.tasks[static_cast<std::size_t>(i)])));
     }
     replay.done.push_back(i);
   }

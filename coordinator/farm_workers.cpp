@@ -2,6 +2,7 @@
 // what a task needs, heartbeats, results checked and merged, failures.
 #include "absl/strings/str_cat.h"
 #include "coordinator/farm_coordinator.h"
+#include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/tile_codec.h"
 
@@ -223,13 +224,14 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
                   std::chrono::duration<double>(SteadyClock::now() - job.started).count()));
     }
     if (final_stage) job.note_final_result(tile, location);
-    absl::Status added =
-        !final_stage
-            ? job.prepass_assemblers[static_cast<std::size_t>(stage)]->add(tile, *std::move(parsed))
+    // The upload checked the bytes against it: the assembler need not hash the result again.
+    const std::optional<std::array<std::uint8_t, 32>> digest = base::sha256_digest_of_hex(sha256);
+    TileAssembler& assembler =
+        !final_stage ? *job.prepass_assemblers[static_cast<std::size_t>(stage)]
         : job.target.has_value()
-            ? job.round_assemblers[static_cast<std::size_t>(stage - job.first_final_stage())]->add(
-                  tile, *std::move(parsed))
-            : job.assembler->add(tile, *std::move(parsed));
+            ? *job.round_assemblers[static_cast<std::size_t>(stage - job.first_final_stage())]
+            : *job.assembler;
+    absl::Status added = assembler.add(tile, *std::move(parsed), digest);
     if (!added.ok()) {
       fail_job_locked(task.job_id,
                       absl::StrCat("merging task ", task.index, ": ", added.message()));

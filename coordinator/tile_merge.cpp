@@ -109,7 +109,8 @@ int TileAssembler::range_index(const image::SampleRange& range) const {
   return static_cast<int>(it - plan_.ranges.begin());
 }
 
-absl::Status TileAssembler::add(int tile_index, image::TileResult result) {
+absl::Status TileAssembler::add(int tile_index, image::TileResult result,
+                                const std::optional<Digest>& encoded_sha256) {
   if (tile_index < 0 || static_cast<std::size_t>(tile_index) >= plan_.tiles.size()) {
     return absl::InvalidArgumentError(absl::StrCat(
         "tile index ", tile_index, " is outside the plan's ", plan_.tiles.size(), " tiles"));
@@ -132,7 +133,7 @@ absl::Status TileAssembler::add(int tile_index, image::TileResult result) {
   // merge the same values.
   result.round_to_float32();
   // Hashing reads the whole result: do it before taking the lock.
-  const Digest digest = tile_result_digest(result);
+  const Digest digest = encoded_sha256.has_value() ? *encoded_sha256 : tile_result_digest(result);
 
   std::vector<image::TileResult> parts;
   {

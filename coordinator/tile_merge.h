@@ -57,7 +57,12 @@ class TileAssembler {
   //  - OK and ignored when the same bytes were already accepted for that (tile, range);
   //    DATA_LOSS when different bytes were.
   //  - Otherwise OK; when this completes the tile, the callback's status.
-  absl::Status add(int tile_index, image::TileResult result);
+  // `encoded_sha256`: the SHA-256 of the result's tile-codec bytes when the caller has it (the
+  // farm checked it on upload; one encoding per result, so it identifies the result as well as
+  // tile_result_digest, which is computed otherwise). One job's results must all be added with
+  // it or all without.
+  absl::Status add(int tile_index, image::TileResult result,
+                   const std::optional<std::array<std::uint8_t, 32>>& encoded_sha256 = {});
 
   // Records tile `tile_index` as finished without its ranges: a restarted coordinator's tile
   // that was finished (and stored, see finished_tiles.h) before the restart. The callback is not

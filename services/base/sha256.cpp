@@ -11,7 +11,9 @@ Sha256::Sha256() : ctx_(EVP_MD_CTX_new()) {
   PRISM_CHECK(EVP_DigestInit_ex(static_cast<EVP_MD_CTX*>(ctx_), EVP_sha256(), nullptr) == 1);
 }
 
-Sha256::~Sha256() { EVP_MD_CTX_free(static_cast<EVP_MD_CTX*>(ctx_)); }
+Sha256::~Sha256() {
+  EVP_MD_CTX_free(static_cast<EVP_MD_CTX*>(ctx_));
+}
 
 void Sha256::update(std::string_view bytes) {
   PRISM_CHECK(!finished_);
@@ -43,6 +45,16 @@ std::string sha256_hex(std::string_view bytes) {
   Sha256 hasher;
   hasher.update(bytes);
   return hasher.hex();
+}
+
+std::optional<std::array<std::uint8_t, 32>> sha256_digest_of_hex(std::string_view text) {
+  if (!is_sha256_hex(text)) return std::nullopt;
+  auto nibble = [](char c) { return std::uint8_t(c <= '9' ? c - '0' : c - 'a' + 10); };
+  std::array<std::uint8_t, 32> out{};
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    out[i] = std::uint8_t(nibble(text[2 * i]) << 4 | nibble(text[2 * i + 1]));
+  }
+  return out;
 }
 
 bool is_sha256_hex(std::string_view text) {

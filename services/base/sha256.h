@@ -4,6 +4,7 @@
 
 #include <array>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -30,6 +31,9 @@ class Sha256 {
 std::string sha256_hex(std::string_view bytes);
 
 // True when text is 64 lowercase hex digits (a well-formed hash from an untrusted peer).
+// The 32 bytes of a lowercase hex SHA-256 (is_sha256_hex); nullopt for anything else.
+std::optional<std::array<std::uint8_t, 32>> sha256_digest_of_hex(std::string_view text);
+
 bool is_sha256_hex(std::string_view text);
 
 }  // namespace prism::base

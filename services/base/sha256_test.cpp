@@ -25,5 +25,15 @@ TEST(Sha256Test, RecognisesWellFormedHex) {
   EXPECT_FALSE(is_sha256_hex(std::string(63, 'a') + "/"));
 }
 
+TEST(Sha256Test, HexGivesBackTheDigestsBytes) {
+  for (const char* text : {"", "x", "a tile result"}) {
+    Sha256 hasher;
+    hasher.update(text);
+    EXPECT_EQ(sha256_digest_of_hex(sha256_hex(text)), hasher.digest()) << text;
+  }
+  EXPECT_FALSE(sha256_digest_of_hex("abc").has_value());
+  EXPECT_FALSE(sha256_digest_of_hex(std::string(64, 'A')).has_value());  // hex is lowercase
+}
+
 }  // namespace
 }  // namespace prism::base
