@@ -2,6 +2,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "coordinator/job_report.h"
+#include "services/base/atomic_file.h"
 #include "services/base/check.h"
 #include "services/base/status.h"
 #include "services/job/scene_spectra.h"
@@ -91,14 +92,18 @@ absl::StatusOr<std::unique_ptr<ActiveJob>> ActiveJob::create(
   auto on_tile = [raw](int tile, const image::TileResult& merged,
                        const image::SpectralImage& finalised) -> absl::Status {
     PRISM_CHECK(raw->tiles != nullptr);
-    PRISM_RETURN_IF_ERROR(raw->tiles->put(tile, merged));
-    // The ranges' bytes are now in the tile pack too.
-    if (!raw->target.has_value()) {
-      std::vector<store::ResultLocation>& ranges =
-          raw->final_results[static_cast<std::size_t>(tile)];
-      raw->reclaimable.insert(raw->reclaimable.end(), ranges.begin(), ranges.end());
-      ranges = {};
+    std::vector<FinalResult>& ranges = raw->final_results[static_cast<std::size_t>(tile)];
+    if (raw->plan.ranges.size() == 1 && ranges.size() == 1 && ranges[0].exact &&
+        ranges[0].sha256.has_value()) {
+      // The merged tile is that one result, whose bytes are in the result pack already.
+      PRISM_RETURN_IF_ERROR(raw->tiles->put_link(tile, std::uint64_t(ranges[0].location.offset),
+                                                 ranges[0].location.size, *ranges[0].sha256));
+    } else {
+      PRISM_RETURN_IF_ERROR(raw->tiles->put(tile, merged));
+      // The ranges' bytes are now in the tile pack too.
+      for (const FinalResult& range : ranges) raw->reclaimable.push_back(range.location);
     }
+    ranges = {};
     return raw->absorb_tile(tile, merged, finalised);
   };
   job->final_results.resize(job->plan.tiles.size());
@@ -197,16 +202,17 @@ absl::Status ActiveJob::finish_round() {
 }
 
 absl::Status ActiveJob::attach_tiles(const std::filesystem::path& dir) {
-  PRISM_ASSIGN_OR_RETURN(FinishedTiles opened,
-                         FinishedTiles::open(dir, plan, params.width, params.render.bins));
-  tiles = std::make_shared<FinishedTiles>(std::move(opened));
+  PRISM_RETURN_IF_ERROR(base::make_directories(dir));
   PRISM_ASSIGN_OR_RETURN(results, ResultPack::open(dir.parent_path() / "results.pack"));
+  PRISM_ASSIGN_OR_RETURN(FinishedTiles opened,
+                         FinishedTiles::open(dir, plan, params.width, params.render.bins, results));
+  tiles = std::make_shared<FinishedTiles>(std::move(opened));
   return absl::OkStatus();
 }
 
-void ActiveJob::note_final_result(int tile, const store::ResultLocation& location) {
-  if (target.has_value() || location.offset < 0) return;
-  final_results[static_cast<std::size_t>(tile)].push_back(location);
+void ActiveJob::note_final_result(int tile, const FinalResult& result) {
+  if (target.has_value() || result.location.offset < 0) return;
+  final_results[static_cast<std::size_t>(tile)].push_back(result);
 }
 
 absl::Status ActiveJob::absorb_tile(int tile, const image::TileResult& merged,

@@ -11,6 +11,7 @@
 // every use, the assemblers' callbacks included.
 #pragma once
 
+#include <array>
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
@@ -42,6 +43,13 @@
 namespace prism::coordinator {
 
 struct ActiveJob {
+  // A final-pass result in the result pack (final_results below).
+  struct FinalResult {
+    store::ResultLocation location;
+    std::optional<std::array<std::uint8_t, 32>> sha256;  // of its bytes
+    bool exact = false;  // its sums were float32 already: merged, it is its own bytes
+  };
+
   // Builds the stages, plans, assemblers and image from explicit parameters; `scene` gives a
   // prepass its emitter spectra and the report its features. `library` and `cmf` must outlive
   // the job.
@@ -73,8 +81,8 @@ struct ActiveJob {
   // result is added.
   absl::Status attach_tiles(const std::filesystem::path& dir);
   // Records where a final-pass result of tile `tile` is stored (a pack range; blob-store results
-  // are not recorded), so its bytes can be released once the tile is stored.
-  void note_final_result(int tile, const store::ResultLocation& location);
+  // are not recorded), so the tile can link to it or release it once the tile is stored.
+  void note_final_result(int tile, const FinalResult& result);
   // A finished tile's contribution to the statistics, the RGB image and progress.
   absl::Status absorb_tile(int tile, const image::TileResult& merged,
                            const image::SpectralImage& finalised);
@@ -102,10 +110,12 @@ struct ActiveJob {
   std::shared_ptr<FinishedTiles> tiles;
   // The task results, in <dir>/../results.pack (set by attach_tiles too).
   std::shared_ptr<ResultPack> results;
-  // Final-pass results in the pack, by tile, until the tile is stored (note_final_result); then
-  // they move to `reclaimable`, which the farm hands to its janitor. Not for target-error jobs,
-  // whose restart replays every round from the range results.
-  std::vector<std::vector<store::ResultLocation>> final_results;
+  // Final-pass results in the pack, by tile, until the tile is stored (note_final_result). A
+  // tile of one range whose result needed no rounding is stored as a link to it
+  // (FinishedTiles::put_link); otherwise its ranges move to `reclaimable`, which the farm hands
+  // to its janitor. Not for target-error jobs, whose restart replays every round from the
+  // range results.
+  std::vector<std::vector<FinalResult>> final_results;
   std::vector<store::ResultLocation> reclaimable;
   std::unique_ptr<image::RgbImage> rgb;  // finished tiles' linear sRGB
   std::unique_ptr<BinStatisticsAccumulator> statistics;

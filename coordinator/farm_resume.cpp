@@ -246,16 +246,17 @@ absl::Status FarmCoordinator::restore_final_pass_locked(Replay& replay) {
     const int tile = job.tile_of(i);
     const store::ResultLocation location{task.result_offset, task.result_size};
     if (restored[static_cast<std::size_t>(tile)]) {
-      // Released before the restart, or not yet: releasing again is harmless.
-      if (location.offset >= 0) job.reclaimable.push_back(location);
+      // Released before the restart, or not yet: releasing again is harmless. A linked tile's
+      // range is the tile.
+      if (location.offset >= 0 && !job.tiles->linked(tile)) job.reclaimable.push_back(location);
     } else {
       PRISM_ASSIGN_OR_RETURN(std::optional<image::TileResult> result,
                              stored_result_locked(replay, i));
       if (!result.has_value()) continue;
-      job.note_final_result(tile, location);
+      const bool exact = !result->round_to_float32();
+      job.note_final_result(tile, {location, digest_of(task), exact});
       job.track_convergence(*result, job.convergence_seconds_at_start);
-      PRISM_RETURN_IF_ERROR(job.assembler->add(
-          tile, *std::move(result), digest_of(replay.tasks[static_cast<std::size_t>(i)])));
+      PRISM_RETURN_IF_ERROR(job.assembler->add(tile, *std::move(result), digest_of(task)));
     }
     replay.done.push_back(i);
   }

@@ -97,6 +97,47 @@ TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
   EXPECT_EQ(count_files(data / "outputs" / job_id), 4u);
 }
 
+// By default a task is all of a tile's samples: the finished tile is its one range result,
+// already in the result pack, so the tile pack holds a 56-byte link to it instead of a second
+// copy, nothing is released, and a restart reads the linked tiles from the result pack.
+TEST_F(FarmServerTest, ATileOfOneRangeIsALinkToItsResult) {
+  v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
+  spec.set_samples_per_task(0);  // 9 tiles of 4x4 (the last row 4x2), one task each
+  const std::string job_id = submit(spec).job_id();
+  const auto first = run_worker(register_worker(), 4);
+  ASSERT_EQ(first.size(), 4u);
+  stop();
+
+  const fs::path job_dir = root_ / "data" / "jobs" / job_id;
+  EXPECT_EQ(fs::file_size(job_dir / "tiles" / "tiles.pack"), 4u * 56u);
+  {
+    auto store = store::JobStore::open(root_ / "data" / "jobs.sqlite");
+    ASSERT_TRUE(store.ok()) << store.status();
+    auto tasks = store->tasks_of(job_id);
+    ASSERT_TRUE(tasks.ok()) << tasks.status();
+    ASSERT_EQ(tasks->size(), 9u);
+    std::ifstream pack(job_dir / "results.pack", std::ios::binary);
+    int done = 0;
+    for (const store::TaskRecord& task : *tasks) {
+      if (task.state != store::TaskState::kDone) continue;
+      ++done;
+      std::string bytes(task.result_size, '\0');
+      pack.seekg(task.result_offset);
+      pack.read(bytes.data(), std::streamsize(bytes.size()));
+      EXPECT_EQ(base::sha256_hex(bytes), task.result_hash) << "task " << task.index;
+    }
+    EXPECT_EQ(done, 4);
+  }
+
+  start();
+  const auto second = run_worker(register_worker());
+  EXPECT_EQ(second.size(), 5u);
+  const v1::JobInfo done = wait_done(job_id);
+  ASSERT_EQ(done.state(), v1::JOB_STATE_DONE) << done.error();
+  expect_identical(fetch_spectral_exr(job_id), spec);
+}
+
 // The dashboard's convergence series outlives the coordinator: after a restart it holds the
 // points from before, and goes on from the replayed results (the error at the end is the one an
 // uninterrupted run of the same job reaches); after the job's end a fresh coordinator still

@@ -223,9 +223,10 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
               job.convergence_seconds_at_start +
                   std::chrono::duration<double>(SteadyClock::now() - job.started).count()));
     }
-    if (final_stage) job.note_final_result(tile, location);
     // The upload checked the bytes against it: the assembler need not hash the result again.
     const std::optional<std::array<std::uint8_t, 32>> digest = base::sha256_digest_of_hex(sha256);
+    const bool exact = !parsed->round_to_float32();  // what the assembler would do
+    if (final_stage) job.note_final_result(tile, {location, digest, exact});
     TileAssembler& assembler =
         !final_stage ? *job.prepass_assemblers[static_cast<std::size_t>(stage)]
         : job.target.has_value()

@@ -25,15 +25,17 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr char kRecordMagic[4] = {'P', 'R', 'T', 'R'};
+constexpr char kLinkMagic[4] = {'P', 'R', 'T', 'L'};
 constexpr std::size_t kHeaderBytes = 4 + 4 + 8 + 32;
+constexpr std::size_t kLinkBytes = kHeaderBytes + 8;  // and the offset in the result pack
 
 using base::get_le;
 using base::put_le;
 
 }  // namespace
 
-absl::StatusOr<FinishedTiles> FinishedTiles::open(fs::path dir, TilePlan plan, int width,
-                                                  int bins) {
+absl::StatusOr<FinishedTiles> FinishedTiles::open(fs::path dir, TilePlan plan, int width, int bins,
+                                                  std::shared_ptr<const ResultPack> results) {
   if (plan.tiles.empty() || width < 1 || bins < 1 || bins > image::kMaxChannels) {
     return absl::InvalidArgumentError(
         absl::StrCat("finished tiles need a plan with tiles, width ", width, " and bins ", bins));
@@ -50,17 +52,19 @@ absl::StatusOr<FinishedTiles> FinishedTiles::open(fs::path dir, TilePlan plan, i
     return absl::InternalError(
         absl::StrCat("cannot open the tile pack ", path.string(), ": ", std::strerror(errno)));
   }
-  FinishedTiles tiles(std::move(dir), std::move(plan), width, bins, fd);
+  FinishedTiles tiles(std::move(dir), std::move(plan), width, bins, fd, std::move(results));
   PRISM_RETURN_IF_ERROR(tiles.scan());
   return tiles;
 }
 
-FinishedTiles::FinishedTiles(fs::path dir, TilePlan plan, int width, int bins, int fd)
+FinishedTiles::FinishedTiles(fs::path dir, TilePlan plan, int width, int bins, int fd,
+                             std::shared_ptr<const ResultPack> results)
     : dir_(std::move(dir)),
       plan_(std::move(plan)),
       width_(width),
       bins_(bins),
       fd_(fd),
+      results_(std::move(results)),
       mutex_(std::make_unique<std::mutex>()),
       records_(plan_.tiles.size()) {}
 
@@ -70,6 +74,7 @@ FinishedTiles::FinishedTiles(FinishedTiles&& other) noexcept
       width_(other.width_),
       bins_(other.bins_),
       fd_(std::exchange(other.fd_, -1)),
+      results_(std::move(other.results_)),
       mutex_(std::move(other.mutex_)),
       records_(std::move(other.records_)),
       end_(other.end_) {}
@@ -86,17 +91,28 @@ absl::Status FinishedTiles::scan() {
   }
   const std::uint64_t size = std::uint64_t(st.st_size);
   std::uint64_t at = 0;
-  char header[kHeaderBytes];
+  char header[kLinkBytes];
   while (at + kHeaderBytes <= size) {
     if (!base::pread_all(fd_, header, kHeaderBytes, at, "tile pack").ok()) break;
-    if (std::memcmp(header, kRecordMagic, 4) != 0) break;
+    const bool link = std::memcmp(header, kLinkMagic, 4) == 0;
+    if (!link && std::memcmp(header, kRecordMagic, 4) != 0) break;
     const std::uint64_t tile = get_le(header + 4, 4);
     const std::uint64_t bytes = get_le(header + 8, 8);
-    if (tile >= records_.size() || bytes > size - at - kHeaderBytes) break;
-    Record record{at + kHeaderBytes, bytes, {}};
+    if (tile >= records_.size()) break;
+    Record record{at + kHeaderBytes, bytes, {}, link};
     std::memcpy(record.sha256.data(), header + 16, 32);
+    if (link) {
+      if (at + kLinkBytes > size) break;
+      if (!base::pread_all(fd_, header + kHeaderBytes, 8, at + kHeaderBytes, "tile pack").ok()) {
+        break;
+      }
+      record.offset = get_le(header + kHeaderBytes, 8);
+      at += kLinkBytes;
+    } else {
+      if (bytes > size - at - kHeaderBytes) break;
+      at += kHeaderBytes + bytes;
+    }
     records_[tile] = record;
-    at += kHeaderBytes + bytes;
   }
   // A torn last record (a crash while appending) is written over.
   end_ = at;
@@ -119,12 +135,46 @@ absl::Status FinishedTiles::put(int tile, const image::TileResult& merged) {
   put_le(record.data() + 4, std::uint64_t(tile), 4);
   put_le(record.data() + 8, size, 8);
   std::memcpy(record.data() + 16, digest.data(), 32);
+  return append(tile, record, Record{kHeaderBytes, size, digest, false});
+}
+
+absl::Status FinishedTiles::put_link(int tile, std::uint64_t offset, std::uint64_t size,
+                                     const std::array<std::uint8_t, 32>& sha256) {
+  if (tile < 0 || static_cast<std::size_t>(tile) >= plan_.tiles.size()) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("tile ", tile, " is not a tile of this job's plan"));
+  }
+  if (results_ == nullptr) {
+    return absl::FailedPreconditionError(
+        absl::StrCat("tile ", tile, ": no result pack to link finished tiles to"));
+  }
+  std::string record(kLinkBytes, '\0');
+  std::memcpy(record.data(), kLinkMagic, 4);
+  put_le(record.data() + 4, std::uint64_t(tile), 4);
+  put_le(record.data() + 8, size, 8);
+  std::memcpy(record.data() + 16, sha256.data(), 32);
+  put_le(record.data() + kHeaderBytes, offset, 8);
+  return append(tile, record, Record{offset, size, sha256, true});
+}
+
+// Writes `record` at the end; `entry` is its index entry, with the offset of a record's bytes
+// relative to the record's start.
+absl::Status FinishedTiles::append(int tile, const std::string& record, const Record& entry) {
   std::lock_guard<std::mutex> lock(*mutex_);
   PRISM_RETURN_IF_ERROR(base::pwrite_all(fd_, record.data(), record.size(), end_,
                                          absl::StrCat("tile pack ", pack_path().string())));
-  records_[static_cast<std::size_t>(tile)] = Record{end_ + kHeaderBytes, size, digest};
+  Record indexed = entry;
+  if (!indexed.linked) indexed.offset += end_;
+  records_[static_cast<std::size_t>(tile)] = indexed;
   end_ += record.size();
   return absl::OkStatus();
+}
+
+bool FinishedTiles::linked(int tile) const {
+  std::lock_guard<std::mutex> lock(*mutex_);
+  return tile >= 0 && static_cast<std::size_t>(tile) < records_.size() &&
+         records_[static_cast<std::size_t>(tile)].has_value() &&
+         records_[static_cast<std::size_t>(tile)]->linked;
 }
 
 absl::Status FinishedTiles::sync() const {
@@ -155,12 +205,21 @@ absl::StatusOr<image::TileResult> FinishedTiles::get(int tile) const {
     record = records_[static_cast<std::size_t>(tile)];
   }
   if (!record.has_value()) return fail("not there");
-  std::string bytes(record->size, '\0');
-  PRISM_RETURN_IF_ERROR(
-      base::pread_all(fd_, bytes.data(), bytes.size(), record->offset, "tile pack"));
-  base::Sha256 hasher;
-  hasher.update(bytes);
-  if (hasher.digest() != record->sha256) return fail("its bytes do not match their hash");
+  std::string bytes;
+  if (record->linked) {
+    if (results_ == nullptr) return fail("linked to a result pack that is not open");
+    absl::StatusOr<std::string> linked =
+        results_->read(record->offset, record->size, base::sha256_hex_of(record->sha256));
+    if (!linked.ok()) return fail(std::string(linked.status().message()));
+    bytes = *std::move(linked);
+  } else {
+    bytes.assign(record->size, '\0');
+    PRISM_RETURN_IF_ERROR(
+        base::pread_all(fd_, bytes.data(), bytes.size(), record->offset, "tile pack"));
+    base::Sha256 hasher;
+    hasher.update(bytes);
+    if (hasher.digest() != record->sha256) return fail("its bytes do not match their hash");
+  }
   absl::StatusOr<image::TileResult> result = image::parse_tile(bytes);
   if (!result.ok()) return fail(std::string(result.status().message()));
   if (result->rect() != plan_.tiles[static_cast<std::size_t>(tile)] || result->bins() != bins_) {

@@ -2,8 +2,11 @@
 // (their range results, in the TileAssembler) and the job's linear sRGB (3 floats per pixel,
 // for previews and the RGB outputs); a finished tile's merged result (the tile codec's bytes:
 // sums, sums of squares, counts, and gradients or guides when present) is appended to one file,
-// <dir>/tiles.pack, as a record (magic, tile index, size, SHA-256, bytes), and the spectral EXR is
-// streamed from it one row of tiles at a time. One file, not one per tile: creating files cost
+// <dir>/tiles.pack, as a record (magic "PRTR", tile index, size, SHA-256, bytes), and the
+// spectral EXR is streamed from it one row of tiles at a time. A tile of one sample range (the
+// default: all of a pixel's samples in one task) is its range result, already stored in the
+// job's result pack: its record is a link (magic "PRTL", tile, size, SHA-256, offset in
+// results.pack), and its bytes are written once. One file, not one per tile: creating files cost
 // the coordinator more kernel time than merging the results in them.
 //
 // The pack is also what a restarted coordinator resumes finished tiles from: open() reads the
@@ -25,6 +28,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "coordinator/result_pack.h"
 #include "coordinator/tile_finaliser.h"
 #include "coordinator/tile_plan.h"
 #include "services/image/exr_spectral.h"
@@ -34,14 +38,24 @@ namespace prism::coordinator {
 
 class FinishedTiles {
  public:
-  // Creates `dir` (and its parents) if needed; keeps what is already there.
+  // Creates `dir` (and its parents) if needed; keeps what is already there. `results`: the
+  // job's result pack, which linked tiles (put_link) are read from.
   static absl::StatusOr<FinishedTiles> open(std::filesystem::path dir, TilePlan plan, int width,
-                                            int bins);
+                                            int bins,
+                                            std::shared_ptr<const ResultPack> results = nullptr);
 
   // Appends tile `tile`'s merged result (a rewrite supersedes the earlier record).
   // INVALID_ARGUMENT when the index or the rect is not the plan's; INTERNAL naming the file on
   // an I/O error. Thread-safe, as are has and get.
   absl::Status put(int tile, const image::TileResult& merged);
+  // Records tile `tile` as the result stored at [offset, offset + size) of the result pack, with
+  // that SHA-256: a tile of one sample range whose merged result is that result (its sums
+  // already float32), so its bytes are not written twice. FAILED_PRECONDITION without a result
+  // pack; INVALID_ARGUMENT as put.
+  absl::Status put_link(int tile, std::uint64_t offset, std::uint64_t size,
+                        const std::array<std::uint8_t, 32>& sha256);
+  // True when the tile's record is a link (its range result must stay in the result pack).
+  bool linked(int tile) const;
   bool has(int tile) const;
   // DATA_LOSS naming the pack and the tile when it is missing, damaged or not this tile of this
   // job.
@@ -68,11 +82,14 @@ class FinishedTiles {
 
  private:
   struct Record {
-    std::uint64_t offset = 0;  // of the bytes, after the header
+    std::uint64_t offset = 0;  // of the bytes: after the header, or in the result pack (linked)
     std::uint64_t size = 0;
     std::array<std::uint8_t, 32> sha256{};
+    bool linked = false;
   };
-  FinishedTiles(std::filesystem::path dir, TilePlan plan, int width, int bins, int fd);
+  FinishedTiles(std::filesystem::path dir, TilePlan plan, int width, int bins, int fd,
+                std::shared_ptr<const ResultPack> results);
+  absl::Status append(int tile, const std::string& record, const Record& entry);
   absl::Status scan();
 
   std::filesystem::path dir_;
@@ -80,6 +97,7 @@ class FinishedTiles {
   int width_;
   int bins_;
   int fd_ = -1;
+  std::shared_ptr<const ResultPack> results_;
   std::unique_ptr<std::mutex> mutex_;           // guards records_ and end_
   std::vector<std::optional<Record>> records_;  // by tile
   std::uint64_t end_ = 0;

@@ -7,6 +7,7 @@
 #include <fstream>
 #include <random>
 
+#include "services/base/sha256.h"
 #include "services/image/tile_codec.h"
 
 namespace prism::coordinator {
@@ -133,6 +134,63 @@ TEST_F(FinishedTilesTest, RefusesForeignTilesAndReportsDamagedRecords) {
   EXPECT_TRUE(reopened->get(3).ok());
   EXPECT_TRUE(reopened->get(1).ok());
   EXPECT_EQ(reopened->get(0).status().code(), absl::StatusCode::kDataLoss);
+}
+
+// A linked tile is read from the result pack, survives a reopen, is refused without a pack,
+// and is DATA_LOSS when its range there is damaged; mixed with ordinary records in one pack.
+TEST_F(FinishedTilesTest, ALinkedTileIsReadFromTheResultPack) {
+  fs::create_directories(dir_ / "job");
+  auto pack = ResultPack::open(dir_ / "job" / "results.pack");
+  ASSERT_TRUE(pack.ok()) << pack.status();
+  image::TileResult one = merged(1);
+  one.round_to_float32();
+  const std::string bytes = image::serialise_tile(one);
+  const std::uint64_t offset = (*pack)->reserve(bytes.size());
+  ASSERT_TRUE((*pack)->write(offset, bytes).ok());
+  base::Sha256 hasher;
+  hasher.update(bytes);
+  const std::array<std::uint8_t, 32> sha = hasher.digest();
+  {
+    auto tiles = FinishedTiles::open(dir_ / "job" / "tiles", plan_, kWidth, kBins, *pack);
+    ASSERT_TRUE(tiles.ok()) << tiles.status();
+    ASSERT_TRUE(tiles->put(0, merged(0)).ok());
+    ASSERT_TRUE(tiles->put_link(1, offset, bytes.size(), sha).ok());
+    EXPECT_TRUE(tiles->linked(1));
+    EXPECT_FALSE(tiles->linked(0));
+    EXPECT_EQ(tiles->put_link(int(plan_.tiles.size()), offset, bytes.size(), sha).code(),
+              absl::StatusCode::kInvalidArgument);
+    // The link is 56 bytes: the tile's bytes are not written again.
+    EXPECT_EQ(fs::file_size(tiles->pack_path()), 48 + image::serialise_tile(merged(0)).size() + 56);
+  }
+  auto reopened = FinishedTiles::open(dir_ / "job" / "tiles", plan_, kWidth, kBins, *pack);
+  ASSERT_TRUE(reopened.ok()) << reopened.status();
+  EXPECT_TRUE(reopened->linked(1));
+  auto got = reopened->get(1);
+  ASSERT_TRUE(got.ok()) << got.status();
+  EXPECT_TRUE(*got == one);
+  auto first = reopened->get(0);
+  ASSERT_TRUE(first.ok()) << first.status();
+  EXPECT_TRUE(*first == merged(0));
+
+  // Without the result pack: links cannot be made, and a linked tile cannot be read.
+  auto alone = FinishedTiles::open(dir_ / "job" / "tiles", plan_, kWidth, kBins);
+  ASSERT_TRUE(alone.ok()) << alone.status();
+  EXPECT_EQ(alone->put_link(2, offset, bytes.size(), sha).code(),
+            absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(alone->get(1).status().code(), absl::StatusCode::kDataLoss);
+
+  // A damaged range in the result pack: DATA_LOSS naming the tile.
+  ASSERT_TRUE((*pack)->write(offset + 100, "damage").ok());
+  const absl::Status damaged = reopened->get(1).status();
+  EXPECT_EQ(damaged.code(), absl::StatusCode::kDataLoss);
+  EXPECT_NE(damaged.message().find("finished tile 1"), std::string::npos) << damaged;
+
+  // A torn link (the last record cut short) is forgotten, and the tile is not finished.
+  fs::resize_file(reopened->pack_path(), fs::file_size(reopened->pack_path()) - 3);
+  auto torn = FinishedTiles::open(dir_ / "job" / "tiles", plan_, kWidth, kBins, *pack);
+  ASSERT_TRUE(torn.ok()) << torn.status();
+  EXPECT_FALSE(torn->has(1));
+  EXPECT_TRUE(torn->has(0));
 }
 
 }  // namespace

@@ -31,10 +31,14 @@ std::array<std::uint8_t, 32> Sha256::digest() {
 }
 
 std::string Sha256::hex() {
+  return sha256_hex_of(digest());
+}
+
+std::string sha256_hex_of(const std::array<std::uint8_t, 32>& digest) {
   static constexpr char kDigits[] = "0123456789abcdef";
   std::string text;
   text.reserve(64);
-  for (std::uint8_t byte : digest()) {
+  for (std::uint8_t byte : digest) {
     text.push_back(kDigits[byte >> 4]);
     text.push_back(kDigits[byte & 15]);
   }

@@ -31,6 +31,9 @@ class Sha256 {
 std::string sha256_hex(std::string_view bytes);
 
 // True when text is 64 lowercase hex digits (a well-formed hash from an untrusted peer).
+// Lowercase hex of a digest (Sha256::digest).
+std::string sha256_hex_of(const std::array<std::uint8_t, 32>& digest);
+
 // The 32 bytes of a lowercase hex SHA-256 (is_sha256_hex); nullopt for anything else.
 std::optional<std::array<std::uint8_t, 32>> sha256_digest_of_hex(std::string_view text);
 

@@ -1,5 +1,6 @@
 #include "services/image/tile.h"
 
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <new>
@@ -342,16 +343,21 @@ absl::Status TileResult::add(const TileResult& other) {
   return absl::OkStatus();
 }
 
-void TileResult::round_to_float32() {
+bool TileResult::round_to_float32() {
   constexpr double kLargest = std::numeric_limits<float>::max();
+  bool changed = false;
   for (std::vector<double>* buffer :
        {&sums_, &sum_squares_, &gradients_, &gradient_squares_, &half_sums_, &half_sum_squares_,
         &half_gradients_, &half_gradient_squares_, &rgb_sums_, &rgb_squares_, &filtered_sums_,
         &filtered_rgb_sums_}) {
     for (double& v : *buffer) {
-      if (!(std::isfinite(v) && std::abs(v) > kLargest)) v = static_cast<float>(v);
+      if (std::isfinite(v) && std::abs(v) > kLargest) continue;
+      const double rounded = static_cast<float>(v);
+      changed |= std::bit_cast<std::uint64_t>(rounded) != std::bit_cast<std::uint64_t>(v);
+      v = rounded;
     }
   }
+  return changed;
 }
 
 absl::Status merge_into(const TileResult& src, TileResult& dst) {

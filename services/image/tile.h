@@ -237,8 +237,8 @@ class TileResult {
   // finite value beyond float32's range is kept as it is. Task results and finished tiles are
   // rounded before they are stored or sent, so the tile codec keeps their sums as float32 (half
   // the bytes), and a local render and the farm merge the same values (tile_merge.h). Offsets
-  // stay double: their second moments are differenced.
-  void round_to_float32();
+  // stay double: their second moments are differenced. True when a value changed.
+  bool round_to_float32();
 
   double sum(int x, int y, int b) const { return sums_[value_index(x, y, b)]; }
   double sum_squares(int x, int y, int b) const { return sum_squares_[value_index(x, y, b)]; }
