@@ -17,6 +17,7 @@ scenes=$(cd "$(dirname "$0")/../.." && pwd)/scenes
 options=(--resolution "$resolution" --bins "$bins" --spp "$spp" --integrator hero --no-prepass)
 mkdir -p "$work"
 export PRISM_API_TOKEN=bench PRISM_WORKER_SECRET=bench
+. "$(dirname "$0")/loopback_farm.sh"
 
 echo "== prism render $resolution, $bins bins, $spp spp"
 start=$(date +%s.%N)
@@ -30,12 +31,7 @@ printf 'prism render: %.1f s\n' "$(echo "$end - $start" | bc)"
 
 echo "== farm: one coordinator, two workers of one thread"
 rm -rf "$work/data"
-"$build/coordinator/prism-coordinator" --listen 127.0.0.1:0 --data-dir "$work/data" \
-  > "$work/coordinator.log" 2>&1 &
-coordinator=$!
-for _ in $(seq 100); do grep -q "listening on port" "$work/coordinator.log" && break; sleep 0.1; done
-port=$(grep -o "listening on port [0-9]*" "$work/coordinator.log" | awk '{print $4}')
-export PRISM_COORDINATOR=127.0.0.1:$port
+start_coordinator "$build" "$work"
 workers=()
 for i in 1 2; do
   "$build/worker/prism-worker" --coordinator "$PRISM_COORDINATOR" --threads 1 \

@@ -10,15 +10,11 @@ threads=${2:-1}
 runs=${3:-2}
 scene=$(cd "$(dirname "$0")/../.." && pwd)/scenes/cornell-two-lights.pbrt
 export PRISM_API_TOKEN=bench PRISM_WORKER_SECRET=bench
+. "$(dirname "$0")/loopback_farm.sh"
 for run in $(seq "$runs"); do
   for inflight in 0 1; do
     dir=$(mktemp -d)
-    "$build/coordinator/prism-coordinator" --listen 127.0.0.1:0 --data-dir "$dir/data" \
-      > "$dir/coordinator.log" 2>&1 &
-    coordinator=$!
-    for _ in $(seq 100); do grep -q "listening on port" "$dir/coordinator.log" && break; sleep 0.1; done
-    port=$(grep -o "listening on port [0-9]*" "$dir/coordinator.log" | awk '{print $4}')
-    export PRISM_COORDINATOR=127.0.0.1:$port
+    start_coordinator "$build" "$dir"
     "$build/worker/prism-worker" --coordinator "$PRISM_COORDINATOR" --threads "$threads" \
       --cache-dir "$dir/cache" --uploads-in-flight "$inflight" --log-level error &
     worker=$!
