@@ -4,6 +4,7 @@
 // for /metrics, all without the farm's lock.
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
@@ -97,9 +98,16 @@ void FarmCoordinator::janitor_loop() {
     for (auto& [job_id, points] : series) finish_convergence(job_id, std::move(points));
     // A job's tile records first, then the range results they hold merged. A job that ended
     // meanwhile has its files in the trash already: releasing their bytes is harmless.
+    // One sync per tile pack covers every entry of this batch (their records were put before
+    // they were queued).
+    std::vector<const FinishedTiles*> synced;
     for (const Reclaim& r : reclaim) {
       if (reclaim_unsupported_) break;
-      absl::Status done = r.tiles->sync();
+      absl::Status done;
+      if (std::find(synced.begin(), synced.end(), r.tiles.get()) == synced.end()) {
+        done = r.tiles->sync();
+        if (done.ok()) synced.push_back(r.tiles.get());
+      }
       std::uint64_t bytes = 0;
       for (const store::ResultLocation& range : r.ranges) {
         if (!done.ok()) break;
