@@ -183,8 +183,9 @@ absl::Status TileAssembler::add(int tile_index, image::TileResult result,
     absl::Status added = merged.add(parts[i]);
     PRISM_CHECK_MSG(added.ok(), "ranges of one plan always merge");
   }
+  // One range was rounded as it came in; the sum of several is rounded again.
+  if (parts.size() > 1) merged.round_to_float32();
   parts.clear();
-  merged.round_to_float32();
   absl::StatusOr<image::SpectralImage> finalised = finalise_(merged);
   absl::Status status =
       finalised.ok() ? on_tile_(tile_index, merged, *finalised) : finalised.status();

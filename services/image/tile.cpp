@@ -345,19 +345,24 @@ absl::Status TileResult::add(const TileResult& other) {
 
 bool TileResult::round_to_float32() {
   constexpr double kLargest = std::numeric_limits<float>::max();
-  bool changed = false;
+  constexpr double kLargestDouble = std::numeric_limits<double>::max();
+  std::uint64_t changed = 0;
   for (std::vector<double>* buffer :
        {&sums_, &sum_squares_, &gradients_, &gradient_squares_, &half_sums_, &half_sum_squares_,
         &half_gradients_, &half_gradient_squares_, &rgb_sums_, &rgb_squares_, &filtered_sums_,
         &filtered_rgb_sums_}) {
+    // Branch-free, so the compiler vectorises it: at 64 bins and 1 spp this pass was a tenth
+    // of a render's CPU time.
     for (double& v : *buffer) {
-      if (std::isfinite(v) && std::abs(v) > kLargest) continue;
-      const double rounded = static_cast<float>(v);
-      changed |= std::bit_cast<std::uint64_t>(rounded) != std::bit_cast<std::uint64_t>(v);
-      v = rounded;
+      const double x = v;
+      const double rounded = static_cast<float>(x);
+      const double a = std::abs(x);
+      const double kept = a > kLargest && a <= kLargestDouble ? x : rounded;
+      changed |= std::bit_cast<std::uint64_t>(kept) ^ std::bit_cast<std::uint64_t>(x);
+      v = kept;
     }
   }
-  return changed;
+  return changed != 0;
 }
 
 absl::Status merge_into(const TileResult& src, TileResult& dst) {
