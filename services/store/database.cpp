@@ -88,22 +88,33 @@ struct Database::WalSync {
 Database::Database(sqlite3* db, const std::filesystem::path& file)
     : db_(db), wal_(std::make_unique<WalSync>(file.string() + "-wal")) {}
 
-Database::Database(Database&& other) noexcept : db_(other.db_), wal_(std::move(other.wal_)) {
+Database::Database(Database&& other) noexcept
+    : db_(other.db_), statements_(std::move(other.statements_)), wal_(std::move(other.wal_)) {
   other.db_ = nullptr;
+  other.statements_.clear();
 }
 
 Database& Database::operator=(Database&& other) noexcept {
   if (this != &other) {
-    sqlite3_close(db_);
+    close();
     db_ = other.db_;
+    statements_ = std::move(other.statements_);
     wal_ = std::move(other.wal_);
     other.db_ = nullptr;
+    other.statements_.clear();
   }
   return *this;
 }
 
 Database::~Database() {
+  close();
+}
+
+void Database::close() {
+  for (auto& [sql, stmt] : statements_) sqlite3_finalize(stmt);
+  statements_.clear();
   sqlite3_close(db_);
+  db_ = nullptr;
 }
 
 absl::Status Database::error(std::string_view what) const {
@@ -125,9 +136,21 @@ absl::Status Database::exec(std::string_view sql) {
 absl::StatusOr<sqlite3_stmt*> Database::prepare(std::string_view sql,
                                                 const std::vector<SqlValue>& params) {
   sqlite3_stmt* stmt = nullptr;
-  if (sqlite3_prepare_v2(db_, sql.data(), static_cast<int>(sql.size()), &stmt, nullptr) !=
-      SQLITE_OK) {
-    return error(absl::StrCat("prepare '", std::string(sql.substr(0, 60)), "'"));
+  auto cached = statements_.find(std::string(sql));
+  if (cached != statements_.end()) {
+    stmt = cached->second;
+    sqlite3_reset(stmt);
+    sqlite3_clear_bindings(stmt);
+  } else {
+    if (sqlite3_prepare_v3(db_, sql.data(), static_cast<int>(sql.size()), SQLITE_PREPARE_PERSISTENT,
+                           &stmt, nullptr) != SQLITE_OK) {
+      return error(absl::StrCat("prepare '", std::string(sql.substr(0, 60)), "'"));
+    }
+    if (stmt == nullptr) {  // only whitespace or a comment
+      return absl::InvalidArgumentError(
+          absl::StrCat("sqlite: no statement in '", std::string(sql.substr(0, 60)), "'"));
+    }
+    statements_.emplace(std::string(sql), stmt);
   }
   for (std::size_t i = 0; i < params.size(); ++i) {
     int index = static_cast<int>(i) + 1;
@@ -150,8 +173,9 @@ absl::StatusOr<sqlite3_stmt*> Database::prepare(std::string_view sql,
         },
         params[i]);
     if (rc != SQLITE_OK) {
-      sqlite3_finalize(stmt);
-      return error("bind");
+      absl::Status status = error("bind");
+      sqlite3_clear_bindings(stmt);
+      return status;
     }
   }
   return stmt;
@@ -172,7 +196,7 @@ absl::StatusOr<std::vector<SqlRow>> Database::query(std::string_view sql,
     if (rc == SQLITE_DONE) break;
     if (rc != SQLITE_ROW) {
       auto status = error(absl::StrCat("step '", std::string(sql.substr(0, 60)), "'"));
-      sqlite3_finalize(*stmt);
+      sqlite3_reset(*stmt);
       return status;
     }
     SqlRow row;
@@ -198,22 +222,23 @@ absl::StatusOr<std::vector<SqlRow>> Database::query(std::string_view sql,
     }
     rows.push_back(std::move(row));
   }
-  sqlite3_finalize(*stmt);
+  // Reset at once: a statement left stepping would hold its read transaction open.
+  sqlite3_reset(*stmt);
   return rows;
 }
 
 absl::Status Database::transaction(const std::function<absl::Status()>& body, Commit commit) {
   // synchronous=NORMAL in WAL mode: the commit is appended to the WAL without a sync (still
   // atomic, never corrupting); make_durable syncs it.
-  if (commit == Commit::kDeferred) PRISM_RETURN_IF_ERROR(exec("PRAGMA synchronous=NORMAL"));
-  absl::Status status = exec("BEGIN IMMEDIATE");
+  if (commit == Commit::kDeferred) PRISM_RETURN_IF_ERROR(run("PRAGMA synchronous=NORMAL"));
+  absl::Status status = run("BEGIN IMMEDIATE");
   if (status.ok()) {
     status = body();
-    if (status.ok()) status = exec("COMMIT");
-    if (!status.ok()) (void)exec("ROLLBACK");
+    if (status.ok()) status = run("COMMIT");
+    if (!status.ok()) (void)run("ROLLBACK");
   }
   if (commit == Commit::kDeferred) {
-    absl::Status restored = exec("PRAGMA synchronous=FULL");
+    absl::Status restored = run("PRAGMA synchronous=FULL");
     if (status.ok()) status = restored;
   }
   return status;

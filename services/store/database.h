@@ -11,6 +11,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <unordered_map>
 #include <variant>
 #include <vector>
 
@@ -82,10 +83,14 @@ class Database {
   struct WalSync;
 
   Database(sqlite3* db, const std::filesystem::path& file);
+  // The statement for `sql`, reset, with `params` bound: compiled once per text and kept
+  // (statements_), since the store runs the same few statements for every task.
   absl::StatusOr<sqlite3_stmt*> prepare(std::string_view sql, const std::vector<SqlValue>& params);
   absl::Status error(std::string_view what) const;
+  void close();
 
   sqlite3* db_ = nullptr;
+  std::unordered_map<std::string, sqlite3_stmt*> statements_;  // by SQL text; reset after use
   std::unique_ptr<WalSync> wal_;  // owned apart so that it outlives moves of the Database
 };
 

@@ -72,6 +72,35 @@ TEST_F(DatabaseTest, ErrorsCarrySqliteMessage) {
   EXPECT_EQ(bad.status().code(), absl::StatusCode::kFailedPrecondition);
 }
 
+// Statements are compiled once per text and kept: reused with other parameters, after an
+// error and across a schema change; a kept statement holds no read open once its query has
+// returned (another connection's checkpoint is not blocked by it).
+TEST_F(DatabaseTest, KeptStatementsRebindAndHoldNothingOpen) {
+  auto db = Database::open(dir_ / "jobs.db");
+  ASSERT_TRUE(db.ok()) << db.status();
+  ASSERT_TRUE(db->exec("CREATE TABLE t (x INTEGER UNIQUE)").ok());
+  const char* insert = "INSERT INTO t (x) VALUES (?)";
+  for (std::int64_t x : {1, 2, 3}) ASSERT_TRUE(db->run(insert, {x}).ok());
+  EXPECT_FALSE(db->run(insert, {std::int64_t{2}}).ok());  // UNIQUE
+  ASSERT_TRUE(db->run(insert, {std::int64_t{4}}).ok());   // the same statement after its error
+  const char* select = "SELECT x FROM t WHERE x >= ? ORDER BY x";
+  EXPECT_EQ(db->query(select, {std::int64_t{2}})->size(), 3u);
+  EXPECT_EQ(db->query(select, {std::int64_t{4}})->size(), 1u);
+  // Another connection checkpoints the whole WAL: no kept statement is still reading.
+  auto other = Database::open(dir_ / "jobs.db");
+  ASSERT_TRUE(other.ok()) << other.status();
+  auto checkpoint = other->query("PRAGMA wal_checkpoint(TRUNCATE)");
+  ASSERT_TRUE(checkpoint.ok()) << checkpoint.status();
+  EXPECT_EQ((*checkpoint)[0].integer(0), 0) << "a reader blocked the checkpoint";
+  // A schema change: the kept statement is compiled again by SQLite.
+  ASSERT_TRUE(db->exec("ALTER TABLE t ADD COLUMN y INTEGER DEFAULT 7").ok());
+  auto rows = db->query("SELECT * FROM t WHERE x >= ? ORDER BY x", {std::int64_t{4}});
+  ASSERT_TRUE(rows.ok()) << rows.status();
+  ASSERT_EQ(rows->size(), 1u);
+  EXPECT_EQ((*rows)[0].integer(1), 7);
+  EXPECT_EQ(db->query(select, {std::int64_t{1}})->size(), 4u);
+}
+
 TEST_F(DatabaseTest, DeferredCommitsAreVisibleAtOnceAndTheConnectionSyncsOthersAgain) {
   auto db = Database::open(dir_ / "jobs.db");
   ASSERT_TRUE(db.ok()) << db.status();
