@@ -142,6 +142,13 @@ absl::StatusOr<sqlite3_stmt*> Database::prepare(std::string_view sql,
     sqlite3_reset(stmt);
     sqlite3_clear_bindings(stmt);
   } else {
+    // The store's statements are a fixed set of texts; should some caller make texts without
+    // end, the kept ones are let go (none is in use between calls) rather than grow forever.
+    constexpr std::size_t kMaxKeptStatements = 256;
+    if (statements_.size() >= kMaxKeptStatements) {
+      for (auto& [text, kept] : statements_) sqlite3_finalize(kept);
+      statements_.clear();
+    }
     if (sqlite3_prepare_v3(db_, sql.data(), static_cast<int>(sql.size()), SQLITE_PREPARE_PERSISTENT,
                            &stmt, nullptr) != SQLITE_OK) {
       return error(absl::StrCat("prepare '", std::string(sql.substr(0, 60)), "'"));

@@ -99,6 +99,13 @@ TEST_F(DatabaseTest, KeptStatementsRebindAndHoldNothingOpen) {
   ASSERT_EQ(rows->size(), 1u);
   EXPECT_EQ((*rows)[0].integer(1), 7);
   EXPECT_EQ(db->query(select, {std::int64_t{1}})->size(), 4u);
+  // More texts than are kept: every one still runs, and the first again afterwards.
+  for (int i = 0; i < 600; ++i) {
+    auto value = db->query("SELECT " + std::to_string(i));
+    ASSERT_TRUE(value.ok()) << value.status();
+    EXPECT_EQ((*value)[0].integer(0), i);
+  }
+  EXPECT_EQ(db->query(select, {std::int64_t{1}})->size(), 4u);
 }
 
 TEST_F(DatabaseTest, DeferredCommitsAreVisibleAtOnceAndTheConnectionSyncsOthersAgain) {
