@@ -46,6 +46,7 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <span>
 #include <string>
@@ -232,6 +233,12 @@ class TileResult {
   // buffers must match and other.samples() must start where samples() ends or end where it
   // starts. On mismatch returns INVALID_ARGUMENT and leaves this result unchanged.
   absl::Status add(const TileResult& other);
+
+  // The buffers of sums: every double buffer but offsets, in the codec's order. These are what
+  // round_to_float32 rounds and what the tile codec may store as float32.
+  static constexpr std::size_t kSumBuffers = 12;
+  std::array<std::span<const double>, kSumBuffers> sum_buffers() const;
+  std::array<std::span<double>, kSumBuffers> mutable_sum_buffers();
 
   // Rounds every buffer of sums (each double buffer but offsets) to the nearest float32; a
   // finite value beyond float32's range is kept as it is. Task results and finished tiles are

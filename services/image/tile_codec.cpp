@@ -148,11 +148,7 @@ std::uint64_t payload_bytes(std::uint64_t area, std::uint64_t bins, const TileBu
 // True when every value of the result's buffers of sums is a float32 value (bit for bit, so a
 // NaN payload float32 cannot hold keeps the result in doubles).
 bool sums_are_float32(const TileResult& result) {
-  for (std::span<const double> buffer :
-       {result.sums(), result.sum_squares(), result.gradients(), result.gradient_squares(),
-        result.half_sums(), result.half_sum_squares(), result.half_gradients(),
-        result.half_gradient_squares(), result.rgb_sums(), result.rgb_squares(),
-        result.filtered_sums(), result.filtered_rgb_sums()}) {
+  for (std::span<const double> buffer : result.sum_buffers()) {
     for (double v : buffer) {
       if (std::bit_cast<std::uint64_t>(static_cast<double>(static_cast<float>(v))) !=
           std::bit_cast<std::uint64_t>(v)) {
@@ -248,12 +244,8 @@ Blocks blocks_of(const TileResult& result) {
       }
     }
   };
-  for (std::span<const double> buffer :
-       {result.sums(), result.sum_squares(), result.gradients(), result.gradient_squares(),
-        result.rgb_sums(), result.rgb_squares(), result.filtered_sums(), result.filtered_rgb_sums(),
-        result.offsets()}) {
-    mark(buffer);
-  }
+  for (std::span<const double> buffer : result.sum_buffers()) mark(buffer);
+  mark(result.offsets());
   for (std::span<const float> buffer : {result.depth(), result.normals(), result.albedo()}) {
     mark(buffer);
   }

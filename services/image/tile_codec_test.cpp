@@ -119,13 +119,7 @@ TileResult result_in_float_range(std::uint64_t seed, const TileBuffers& buffers)
   std::mt19937_64 rng(seed + 1);
   std::uniform_real_distribution<double> mantissa(-1.0, 1.0);
   std::uniform_int_distribution<int> exponent(-140, 120);
-  for (std::span<double> buffer :
-       {result.mutable_sums(), result.mutable_sum_squares(), result.mutable_gradients(),
-        result.mutable_gradient_squares(), result.mutable_half_sums(),
-        result.mutable_half_sum_squares(), result.mutable_half_gradients(),
-        result.mutable_half_gradient_squares(), result.mutable_rgb_sums(),
-        result.mutable_rgb_squares(), result.mutable_filtered_sums(),
-        result.mutable_filtered_rgb_sums()}) {
+  for (std::span<double> buffer : result.mutable_sum_buffers()) {
     for (double& v : buffer) v = std::ldexp(mantissa(rng), exponent(rng));
   }
   result.mutable_sums()[0] = std::numeric_limits<double>::quiet_NaN();
