@@ -33,7 +33,8 @@ std::string describe(const coordinator::LocalRenderOptions& o) {
   return absl::StrCat(
       o.width, "x", o.height, "|spp ", o.spp, "|", job::name(r.integrator), "|",
       job::name(r.spectral_pdf), "|", job::name(r.emitter_pdf), "|", job::name(r.light_selection),
-      "|", r.spectral_light_selection, r.light_caustics ? "|caustics light" : "", "|",
+      "|", r.spectral_light_selection,
+      r.light_caustics ? absl::StrCat("|caustics light ", r.caustic_paths) : "", "|",
       static_cast<int>(r.sampler), "|bins ", r.bins, "|depth ", r.max_depth, "|rr ", r.rr_min_depth,
       "|seed ", r.seed, "|eps ", r.defensive_epsilon, "|k ", r.gradient_offset_bins, "|tau ",
       r.gradient_tau, "|prepass ", o.prepass.has_value(), "|alpha ", o.poisson_alpha, "|per task ",

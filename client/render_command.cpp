@@ -175,6 +175,19 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
     return absl::InvalidArgumentError(
         absl::StrCat("--caustics '", o.caustics, "': want off or light"));
   }
+  if (o.caustic_paths.has_value()) {
+    if (!(*o.caustic_paths >= job::kMinCausticPaths && *o.caustic_paths <= 1.0)) {
+      return absl::InvalidArgumentError(
+          absl::StrCat("--caustic-paths ", *o.caustic_paths,
+                       " is out of range: want light paths per pixel and sample in ",
+                       job::kMinCausticPaths, "..1"));
+    }
+    if (o.caustics != "light" && !(automatic && o.caustics.empty())) {
+      return absl::InvalidArgumentError(
+          "--caustic-paths is the share of light paths of --caustics light: use it with "
+          "--caustics light (or --integrator auto)");
+    }
+  }
   if (o.splat_width.has_value()) {
     if (!(*o.splat_width >= job::kMinSplatWidthNm && *o.splat_width <= job::kMaxSplatWidthNm)) {
       return absl::InvalidArgumentError(
@@ -398,6 +411,9 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
   spec.set_light_selection(job::to_proto(*parse_light_selection(o.light_selection)));
   spec.set_spectral_light_selection(o.spectral_light_selection);
   spec.set_light_caustics(o.caustics == "light");
+  if (o.caustics == "light" && o.caustic_paths.has_value() && *o.caustic_paths < 1.0) {
+    spec.set_caustic_paths(static_cast<float>(*o.caustic_paths));
+  }
   if (o.splat_width.has_value()) spec.set_splat_width(static_cast<float>(*o.splat_width));
   if (o.gather_width.has_value()) spec.set_gather_width(static_cast<float>(*o.gather_width));
   spec.mutable_outputs()->set_png_exposure(static_cast<float>(o.exposure));
@@ -525,6 +541,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   report.light_selection = job::name(render.light_selection);
   report.spectral_light_selection = render.spectral_light_selection;
   report.light_caustics = render.light_caustics;
+  report.caustic_paths = render.caustic_paths;
   report.max_depth = render.max_depth;
   report.threads = result->stats.threads;
   report.tile_size = local.tile_size;
@@ -586,7 +603,10 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   return absl::StrCat(
       "rendered ", report.scene, ": ", report.width, "x", report.height, ", ", report.spp, " spp, ",
       report.bins, " bins, ", report.integrator,
-      report.light_caustics ? " with light-traced caustics" : "",
+      !report.light_caustics        ? std::string()
+      : report.caustic_paths < 1.0f ? absl::StrCat(" with light-traced caustics (",
+                                                   report.caustic_paths, " light paths per pixel)")
+                                    : std::string(" with light-traced caustics"),
       report.auto_choice.has_value()
           ? absl::StrCat(" (chosen by auto: ", report.auto_choice->reason, ")")
           : std::string(),

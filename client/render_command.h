@@ -53,6 +53,9 @@ struct RenderCommandOptions {
   bool spectral_light_selection = true;
   // --caustics: off, light, or empty (not given: off, but `auto` may choose light).
   std::string caustics;
+  // --caustic-paths: light paths per pixel and sample with light-traced caustics (job spec
+  // caustic_paths); unset: 1, or under auto the pilot's share.
+  std::optional<double> caustic_paths;
   // --splat / --splat-width: differential splatting of the light paths, Δλ in nm at sample 0
   // (job spec splat_width); unset: off.
   std::optional<double> splat_width;

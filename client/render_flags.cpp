@@ -21,6 +21,10 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
                  "off, or light: caustic paths (light, delta chain, the first non-delta surface "
                  "the camera sees) by light tracing, the rest by hero or uniform (default off; "
                  "auto may choose light)");
+  f.caustic_paths_opt = cmd.add_option(
+      "--caustic-paths", f.caustic_paths,
+      "With --caustics light: light paths per pixel and sample, 1/256..1 (default 1; when auto "
+      "chooses light-traced caustics, the share its pilot fits to the scene)");
   cmd.add_flag("--splat", f.splat,
                "Differential splatting of the light paths (--integrator light or --caustics "
                "light; with auto it means --caustics light): also writes <stem>.filtered.exr and "
@@ -163,6 +167,7 @@ absl::Status apply_render_flags(const RenderFlags& f, RenderCommandOptions& o) {
   } else if (f.splat) {
     o.splat_width = job::kDefaultSplatWidthNm;
   }
+  take(f.caustic_paths_opt, f.caustic_paths, o.caustic_paths);
   if (f.gather_width_opt->count() > 0) {
     o.gather_width = f.gather_width;
   } else if (f.gather) {

@@ -29,7 +29,8 @@ struct RenderFlags {
   double prepass_epsilon = 0, prepass_fallback = 0, prepass_sigma_s = 0, prepass_sigma_r = 0;
   bool prepass = false, no_prepass = false;
   bool splat = false, gather = false;
-  double splat_width = 0, gather_width = 0;
+  double splat_width = 0, gather_width = 0, caustic_paths = 0;
+  CLI::Option* caustic_paths_opt = nullptr;
   CLI::Option* splat_width_opt = nullptr;
   CLI::Option* gather_width_opt = nullptr;
   CLI::Option* delta_opt = nullptr;

@@ -260,6 +260,7 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   report.light_selection = job::name(p.render.light_selection);
   report.spectral_light_selection = p.render.spectral_light_selection;
   report.light_caustics = p.render.light_caustics;
+  report.caustic_paths = p.render.caustic_paths;
   report.max_depth = p.render.max_depth;
   report.threads = 0;  // spread over the farm's workers
   report.tile_size = p.tile_size;

@@ -322,7 +322,12 @@ image::ExrMetadata output_metadata(const RenderReport& report) {
   metadata["emitter_pdf"] = report.emitter_pdf;
   metadata["light_selection"] = report.light_selection;
   metadata["spectral_light_selection"] = report.spectral_light_selection ? "on" : "off";
-  if (report.light_caustics) metadata["caustics"] = "light";
+  if (report.light_caustics) {
+    metadata["caustics"] = "light";
+    if (report.caustic_paths < 1.0f) {
+      metadata["caustic_paths"] = absl::StrCat(report.caustic_paths);
+    }
+  }
   metadata["max_depth"] = absl::StrCat(report.max_depth);
   if (report.gradient.has_value()) {
     metadata[std::string(image::kMetaGradientOffsetBins)] =

@@ -174,6 +174,7 @@ struct RenderReport {
   std::string light_selection;
   bool spectral_light_selection = true;
   bool light_caustics = false;  // --caustics light
+  float caustic_paths = 1.0f;   // its light paths per pixel and sample
   int max_depth = 0;
   int threads = 0;
   int tile_size = 0;

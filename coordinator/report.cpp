@@ -61,6 +61,7 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
   j["light_selection"] = r.light_selection;
   j["spectral_light_selection"] = r.spectral_light_selection;
   j["caustics"] = r.light_caustics ? "light" : "off";
+  if (r.light_caustics) j["caustic_paths"] = r.caustic_paths;
   j["max_depth"] = r.max_depth;
   j["threads"] = r.threads;
   j["tile_size"] = r.tile_size;

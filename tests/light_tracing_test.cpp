@@ -103,6 +103,8 @@ struct Case {
   // A thin lens (radius 0.2, in focus at 5.5, about where the floor's middle is) instead of the
   // pinhole: each connection samples its own lens point.
   bool lens = false;
+  // With caustics_mode: the light paths per pixel and sample (RenderOptions::caustic_paths).
+  float caustic_paths = 1.0f;
 };
 
 class LightTracingTest : public RenderFixtureBase<::testing::TestWithParam<Case>> {
@@ -166,6 +168,7 @@ TEST_P(LightTracingTest, AgreesWithUniformPerBinAndRegion) {
       const std::uint64_t spp = k == 1 && GetParam().caustic ? 1024 : 64;
       auto result = render(*scene, integrators[k], spp, 100 + seed, 5, [&](LocalRenderOptions& o) {
         o.render.light_caustics = k == 0 && GetParam().caustics_mode;
+        if (o.render.light_caustics) o.render.caustic_paths = GetParam().caustic_paths;
       });
       ASSERT_TRUE(result.ok()) << result.status();
       for (int r = 0; r < kRegions; ++r) {
@@ -226,6 +229,52 @@ TEST_F(LightTracingJobTest, TheBytesDependOnTheJobAlone) {
   EXPECT_EQ(run(1, 32, 1), reference);
   EXPECT_EQ(run(2, 8, 1), reference);
   EXPECT_NE(run(2, 32, 2), reference);
+}
+
+// With --caustics light a pixel's sample is a light estimate plus an eye estimate, rendered
+// apart (worker/light_task.cpp) and combined into one sample's sums and squares, so the standard
+// error the render reports must still be the spread of its mean over seeds: summed over the
+// image's R, G, B, the mean squared standard error against the variance of the mean over 24
+// seeds, with an eighth of the light paths. (It would catch a lost Σe² or Σl²; the cross term
+// 2·Σl·Σe/n is too small to show here, where the caustic's light estimates vary far more than
+// their mean: without it the ratio moves from 0.93 to 0.92.)
+TEST_F(LightTracingJobTest, TheStandardErrorWithLightCausticsIsTheSpreadOverSeeds) {
+  auto scene = load("light_tracing.pbrt", light_scene("", true));
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  constexpr int kRuns = 24;
+  const std::size_t values = std::size_t(kWidth) * kHeight * 3;
+  std::vector<double> sum(values, 0.0), square(values, 0.0), se2(values, 0.0);
+  for (int seed = 0; seed < kRuns; ++seed) {
+    auto r =
+        render(*scene, job::IntegratorKind::kHero, 8, 300 + seed, 5, [](LocalRenderOptions& o) {
+          o.render.light_caustics = true;
+          o.render.caustic_paths = 0.125f;
+          // Independent samples: Sobol's stratification makes the spread over seeds
+          // smaller than the variance the squares estimate.
+          o.render.sampler = job::SamplerKind::kIndependent;
+        });
+    ASSERT_TRUE(r.ok()) << r.status();
+    const auto rgb = r->rgb.data();
+    const auto se = r->rgb_standard_error.data();
+    ASSERT_EQ(rgb.size(), values);
+    for (std::size_t i = 0; i < values; ++i) {
+      sum[i] += rgb[i];
+      square[i] += double(rgb[i]) * rgb[i];
+      se2[i] += double(se[i]) * se[i];
+    }
+  }
+  double spread = 0, reported = 0;
+  for (std::size_t i = 0; i < values; ++i) {
+    const double mean = sum[i] / kRuns;
+    spread += (square[i] - kRuns * mean * mean) / (kRuns - 1);
+    reported += se2[i] / kRuns;
+  }
+  ASSERT_GT(spread, 0.0);
+  // Both sums are over ~2300 values; the spread's own relative error over 24 seeds is about
+  // sqrt(2/23) = 0.29 for one value and far less summed, so 0.8..1.25 leaves room for the
+  // heavy tail of caustic pixels and still catches a missing cross term.
+  EXPECT_GT(reported / spread, 0.8);
+  EXPECT_LT(reported / spread, 1.25);
 }
 
 // Differential splatting (worker/differential_splat.h) on scenes/slit-prism.pbrt's rainbow,
@@ -384,6 +433,8 @@ INSTANTIATE_TEST_SUITE_P(
                       Case{"HeroWithLightCausticsDeltaLights", "", false, true},
                       Case{"HeroWithLightCausticsGlass", "PixelFilter \"box\"", true, true},
                       Case{"HeroWithLightCausticsGlassAndMirror", "", true, true, true},
+                      Case{"HeroWithLightCausticsGlassEighthOfThePaths", "", true, true, false,
+                           false, 0.125f},
                       Case{"ThinLensDeltaLights", "", false, false, false, true},
                       Case{"ThinLensCaustic", "PixelFilter \"box\"", true, false, false, true}),
     [](const ::testing::TestParamInfo<Case>& info) { return std::string(info.param.name); });

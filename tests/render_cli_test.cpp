@@ -453,6 +453,11 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
        "--gather filters eye-traced images"},
       {{"render", scene, "--integrator", "light", "--splat", "--gather"},
        "prism: --gather and --splat are two filters of the same output: choose one"},
+      {{"render", scene, "--caustics", "light", "--caustic-paths", "0"},
+       "prism: --caustic-paths 0 is out of range: want light paths per pixel and sample in "
+       "0.00390625..1"},
+      {{"render", scene, "--integrator", "hero", "--caustic-paths", "0.5"},
+       "prism: --caustic-paths is the share of light paths of --caustics light"},
       {{"render", scene, "--gather-width", "900"},
        "prism: --gather-width 900 is out of range: want nm in 0.1..470"},
       {{"render", scene, "--spp", "0"}, "--spp 0 is out of range"},

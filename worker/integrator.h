@@ -30,6 +30,7 @@
 #pragma once
 
 #include <cstdint>
+#include <span>
 #include <string>
 #include <utility>
 #include <vector>
@@ -58,6 +59,22 @@ struct SampleContribution {
   // y would move per nm for the same light point (path_differential.h's receiver_offset).
   double offset[6] = {0, 0, 0, 0, 0, 0};
 };
+
+// Adds a sample's lanes into a pixel's per-bin sums and squares: lanes that land in the same bin
+// form one value of this sample for that bin, so the squares are those of per-sample bin values.
+// `scratch` holds one zero per bin and is left so.
+inline void fold_lanes(const SampleContribution& c, std::span<double> scratch, double* sums,
+                       double* squares) {
+  for (int lane = 0; lane < c.lanes; ++lane) scratch[c.bin[lane]] += c.value[lane];
+  for (int lane = 0; lane < c.lanes; ++lane) {
+    double& v = scratch[c.bin[lane]];
+    if (v != 0.0) {
+      sums[c.bin[lane]] += v;
+      squares[c.bin[lane]] += v * v;
+      v = 0.0;
+    }
+  }
+}
 
 // Event counts for reports (rays traced, paths terminated by Russian roulette, ...); summed
 // per thread and merged, never atomics in the hot path.

@@ -4,9 +4,14 @@
 // sums, squares and counts then mean what an eye tracer's do, so merging, statistics and outputs
 // need nothing new. Paths run in parallel in fixed chunks, each chunk keeps its splats in path
 // order, and the chunks are added in chunk order, so the bytes do not depend on the threads.
-// With --caustics light the batch also takes every pixel's eye sample s (the path tracer, which
-// leaves the caustic paths to the light paths): a pixel's sample is then the sum of the two
-// independent estimates, and its square that sum's.
+// With --caustics light every pixel also takes its eye samples (the path tracer, which leaves
+// the caustic paths to the light paths), after the batches and pixel by pixel like a tile: a
+// pixel's sample s is then the sum l_s + e_s of two independent estimates, its sums Σl + Σe and
+// its squares Σl² + Σe² + 2·Σl·Σe/n, whose expectation is that of Σ(l_s + e_s)² (the cross term
+// of independent estimates), so the variance estimates stay unbiased.
+// With --caustics light a batch may hold fewer paths than pixels (RenderOptions::caustic_paths):
+// n paths, path k drawing from pixel k's stream, splats divided by n; still one sample of every
+// pixel.
 // With differential splatting (job spec splat_width, differential_splat.h) the task also sums a
 // filtered image: the same splats and eye samples, except that each splat with a spectral
 // differential is drawn as a line over ±Δλ_s, Δλ_s = splat_width·(s + 1)^(−1/5) for batch s
@@ -69,31 +74,58 @@ void splat(const PixelFilter& filter, const LightSplat& s, double scale, BatchIm
 
 }  // namespace
 
-void TileRenderer::add_eye_samples(std::uint64_t s, BatchImage& batch, FilteredSums* filtered,
-                                   tbb::combinable<TraceCounters>& counters,
-                                   const std::atomic<bool>* cancel) const {
+void TileRenderer::add_eye_paths(const RenderTask& task, image::TileResult& result,
+                                 FilteredSums* filtered, tbb::combinable<TraceCounters>& counters,
+                                 const std::atomic<bool>* cancel,
+                                 std::atomic<std::uint64_t>* progress) const {
   const spectral::WavelengthPdfView lambda_pdf(scene_.wavelength_pdf());
-  const std::int64_t pixels = std::int64_t(batch.width) * batch.height;
-  // Each pixel is one thread's: its bins and R, G, B are written by it alone.
+  const int width = task.tile.width(), bins = scene_.grid().bins();
+  const std::uint64_t n = task.samples.count();
+  auto sums = result.mutable_sums();
+  auto squares = result.mutable_sum_squares();
+  auto rgb_sums = result.mutable_rgb_sums();
+  auto rgb_squares = result.mutable_rgb_squares();
+  // Σl and Σl² of the light paths are in the result; Σ(l + e)² = Σl² + Σe² + 2·Σl·Σe/n in
+  // expectation (l and e are independent), so the squares keep their meaning.
+  auto combine = [n](double& sum, double& square, double e, double e2) {
+    square += e2 + 2.0 * sum * e / double(n);
+    sum += e;
+  };
+  // Each pixel is one thread's, its samples taken in index order, as in TileRenderer::render.
   tbb::parallel_for(
-      tbb::blocked_range<std::int64_t>(0, pixels, 64),
+      tbb::blocked_range<std::int64_t>(0, task.tile.area(), 1),
       [&](const tbb::blocked_range<std::int64_t>& range) {
         TraceCounters& local = counters.local();
+        // The pixel's Σe and Σe² per bin, then R, G, B and their squares; a lane scratch.
+        std::vector<double> eye(2 * std::size_t(bins) + 6, 0.0), scratch(bins, 0.0);
+        double* e_sums = eye.data();
+        double* e_squares = e_sums + bins;
+        double* e_rgb = e_squares + bins;
         for (std::int64_t p = range.begin(); p != range.end(); ++p) {
           if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) return;
-          const int x = int(p % batch.width), y = int(p / batch.width);
-          const SampleContribution c =
-              integrator_.trace(x, y, 0, std::uint32_t(s), lambda_pdf, local);
-          for (int lane = 0; lane < c.lanes; ++lane) {
-            batch.values[std::size_t(p) * batch.bins + c.bin[lane]] += c.value[lane];
-            if (filtered != nullptr) {
-              filtered->values[std::size_t(p) * batch.bins + c.bin[lane]] += c.value[lane];
+          const int x = int(p % width), y = int(p / width);
+          for (std::uint64_t s = task.samples.s0; s < task.samples.s1; ++s) {
+            const SampleContribution c =
+                integrator_.trace(x, y, 0, std::uint32_t(s), lambda_pdf, local);
+            fold_lanes(c, scratch, e_sums, e_squares);
+            for (int k = 0; k < 3; ++k) {
+              e_rgb[k] += c.rgb[k];
+              e_rgb[3 + k] += c.rgb[k] * c.rgb[k];
             }
           }
-          for (int k = 0; k < 3; ++k) {
-            batch.rgb[std::size_t(p) * 3 + k] += c.rgb[k];
-            if (filtered != nullptr) filtered->rgb[std::size_t(p) * 3 + k] += c.rgb[k];
+          const std::size_t o = std::size_t(p) * bins;
+          for (int b = 0; b < bins; ++b) {
+            if (e_sums[b] == 0.0 && e_squares[b] == 0.0) continue;
+            combine(sums[o + b], squares[o + b], e_sums[b], e_squares[b]);
+            if (filtered != nullptr) filtered->values[o + b] += e_sums[b];
           }
+          for (int k = 0; k < 3; ++k) {
+            combine(rgb_sums[std::size_t(p) * 3 + k], rgb_squares[std::size_t(p) * 3 + k], e_rgb[k],
+                    e_rgb[3 + k]);
+            if (filtered != nullptr) filtered->rgb[std::size_t(p) * 3 + k] += e_rgb[k];
+          }
+          std::fill(eye.begin(), eye.end(), 0.0);
+          if (progress != nullptr) progress->fetch_add(n, std::memory_order_relaxed);
         }
       },
       tbb::simple_partitioner());
@@ -125,7 +157,8 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
   PRISM_ASSIGN_OR_RETURN(image::TileResult result,
                          image::TileResult::create(task.tile, task.samples, bins, buffers));
   const auto start = std::chrono::steady_clock::now();
-  const std::int64_t paths = std::int64_t(width) * height;
+  const std::int64_t pixels = std::int64_t(width) * height;
+  const std::int64_t paths = scene_.options().light_paths_per_batch(pixels);
   const std::int64_t chunks = (paths + kPathsPerChunk - 1) / kPathsPerChunk;
   std::vector<std::vector<LightSplat>> chunk_splats(static_cast<std::size_t>(chunks));
   BatchImage batch(width, height, bins);
@@ -177,14 +210,6 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
         }
       }
     }
-    if (with_eye_paths) {
-      add_eye_samples(s, batch, splatter ? &filtered : nullptr, counters, cancel);
-      if (cancel != nullptr && cancel->load()) return absl::CancelledError("task cancelled");
-      // Every pixel has a sample now: fold them all, in pixel order.
-      for (std::int64_t p : batch.order) batch.touched[std::size_t(p)] = 0;
-      batch.order.resize(std::size_t(paths));
-      for (std::int64_t p = 0; p < paths; ++p) batch.order[std::size_t(p)] = p;
-    }
     // The batch is one sample of every pixel: its sums and squares (untouched pixels add 0).
     for (std::int64_t p : batch.order) {
       for (int b = 0; b < bins; ++b) {
@@ -204,7 +229,14 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
       batch.touched[std::size_t(p)] = 0;
     }
     batch.order.clear();
-    if (progress != nullptr) progress->fetch_add(std::uint64_t(paths), std::memory_order_relaxed);
+    // With eye paths, progress counts their pixels' samples (most of the time) instead.
+    if (progress != nullptr && !with_eye_paths) {
+      progress->fetch_add(std::uint64_t(pixels), std::memory_order_relaxed);
+    }
+  }
+  if (with_eye_paths) {
+    add_eye_paths(task, result, splatter ? &filtered : nullptr, counters, cancel, progress);
+    if (cancel != nullptr && cancel->load()) return absl::CancelledError("task cancelled");
   }
   auto counts = result.mutable_counts();
   std::fill(counts.begin(), counts.end(), task.samples.count());

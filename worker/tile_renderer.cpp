@@ -81,26 +81,14 @@ struct TileSums {
     half_gradient_squares[o + g.bin_below] += g2_below;
   }
 
-  // A hero sample: lanes that land in the same bin form one value of this sample for that bin,
-  // so the sum of squares is that of per-sample bin values. `scratch` holds `bins` zeros and is
-  // left so.
+  // A hero sample (fold_lanes).
   void add_hero(std::int64_t index, const SampleContribution& c, std::span<double> scratch) {
     add_rgb(index, c.rgb);
     if (buffers.offsets && c.offset[0] > 0) {
       const std::size_t o = std::size_t(index) * image::kOffsetValues;
       for (int i = 0; i < image::kOffsetValues; ++i) offsets[o + i] += c.offset[i];
     }
-    double* pixel_sums = &sums[std::size_t(index) * bins];
-    double* pixel_squares = &squares[std::size_t(index) * bins];
-    for (int lane = 0; lane < c.lanes; ++lane) scratch[c.bin[lane]] += c.value[lane];
-    for (int lane = 0; lane < c.lanes; ++lane) {
-      double& v = scratch[c.bin[lane]];
-      if (v != 0.0) {
-        pixel_sums[c.bin[lane]] += v;
-        pixel_squares[c.bin[lane]] += v * v;
-        v = 0.0;
-      }
-    }
+    fold_lanes(c, scratch, &sums[std::size_t(index) * bins], &squares[std::size_t(index) * bins]);
   }
 
   void set_counts(std::int64_t index, const image::SampleRange& samples) {

@@ -76,11 +76,12 @@ class TileRenderer {
   // The task's counters, summed over the threads, and its seconds since `start`.
   static void record_stats(TileStats* stats, tbb::combinable<TraceCounters>& counters,
                            std::chrono::steady_clock::time_point start);
-  // With --caustics light: every pixel's eye sample s, added into the batch (and into the
-  // filtered sums when there are some).
-  void add_eye_samples(std::uint64_t s, BatchImage& batch, FilteredSums* filtered,
-                       tbb::combinable<TraceCounters>& counters,
-                       const std::atomic<bool>* cancel) const;
+  // With --caustics light: every pixel's eye samples of the task's range, added into the light
+  // paths' sums in `result` (light_task.cpp says how the squares combine), and into the filtered
+  // sums when there are some.
+  void add_eye_paths(const RenderTask& task, image::TileResult& result, FilteredSums* filtered,
+                     tbb::combinable<TraceCounters>& counters, const std::atomic<bool>* cancel,
+                     std::atomic<std::uint64_t>* progress) const;
 
   const RenderScene& scene_;
   PathIntegrator integrator_;

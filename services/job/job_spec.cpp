@@ -383,6 +383,19 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   }
 
   p.render.light_caustics = spec.light_caustics();
+  if (spec.caustic_paths() != 0.0f) {
+    if (!spec.light_caustics()) {
+      return absl::InvalidArgumentError(
+          "caustic_paths is the share of light paths of light_caustics: set light_caustics");
+    }
+    if (!(spec.caustic_paths() >= kMinCausticPaths && spec.caustic_paths() <= 1.0f)) {
+      return absl::InvalidArgumentError(absl::StrCat("caustic_paths ", spec.caustic_paths(),
+                                                     " is out of range: want light paths per "
+                                                     "pixel and sample in ",
+                                                     kMinCausticPaths, "..1"));
+    }
+    p.render.caustic_paths = spec.caustic_paths();
+  }
   // The filters' widths (splat_width, gather_width): 0 (off) or nm in range.
   auto check_width = [](const char* field, float nm) -> absl::Status {
     if (nm == 0.0f || (nm >= kMinSplatWidthNm && nm <= kMaxSplatWidthNm)) return absl::OkStatus();
@@ -584,6 +597,9 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   spec.set_light_selection(to_proto(p.render.light_selection));
   spec.set_spectral_light_selection(p.render.spectral_light_selection);
   spec.set_light_caustics(p.render.light_caustics);
+  if (p.render.light_caustics && p.render.caustic_paths < 1.0f) {
+    spec.set_caustic_paths(p.render.caustic_paths);
+  }
   spec.set_splat_width(p.render.splat_width_nm);
   spec.set_gather_width(p.render.gather_width_nm);
   spec.set_spp(static_cast<std::uint32_t>(p.spp));

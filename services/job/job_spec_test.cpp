@@ -70,6 +70,7 @@ TEST(JobSpecTest, ExplicitValuesRoundTripIndependentlyOfTheScene) {
   spec.set_max_depth(0);  // a depth, not "the scene's"
   spec.set_samples_per_task(3);
   spec.set_light_caustics(true);
+  spec.set_caustic_paths(0.125f);
   spec.set_splat_width(12.5f);
   spec.mutable_outputs()->set_png(true);
   spec.mutable_outputs()->set_png_exposure(-1.5f);
@@ -101,6 +102,8 @@ TEST(JobSpecTest, ExplicitValuesRoundTripIndependentlyOfTheScene) {
   EXPECT_EQ(again->samples_per_task, 3u);
   EXPECT_EQ(again->outputs.exr_compression, image::ExrCompression::kPiz);
   EXPECT_TRUE(again->render.light_caustics);
+  EXPECT_EQ(again->render.caustic_paths, 0.125f);
+  EXPECT_EQ(again->render.light_paths_per_batch(17 * 5), 11);  // round(10.625)
   EXPECT_EQ(again->render.splat_width_nm, 12.5f);
   EXPECT_EQ(again->render.integrator, IntegratorKind::kUniform);
   EXPECT_EQ(again->render.spectral_pdf, SpectralPdfKind::kVisible);
@@ -266,6 +269,20 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_light_caustics(true);
        },
        "light_caustics needs the hero or the uniform integrator, not gradient"},
+      {"caustic_paths_without_caustics", [](prism::v1::JobSpec& s) { s.set_caustic_paths(0.5f); },
+       "caustic_paths is the share of light paths of light_caustics: set light_caustics"},
+      {"caustic_paths_range",
+       [](prism::v1::JobSpec& s) {
+         s.set_light_caustics(true);
+         s.set_caustic_paths(1.5f);
+       },
+       "caustic_paths 1.5 is out of range: want light paths per pixel and sample in 0.00390625..1"},
+      {"caustic_paths_nan",
+       [](prism::v1::JobSpec& s) {
+         s.set_light_caustics(true);
+         s.set_caustic_paths(std::nanf(""));
+       },
+       "caustic_paths nan is out of range"},
       {"caustics_with_prepass",
        [](prism::v1::JobSpec& s) {
          s.set_light_caustics(true);

@@ -4,6 +4,7 @@
 // the job layer (services/job): the worker traces with them, the coordinator plans with them.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <string>
@@ -85,6 +86,9 @@ struct RenderOptions {
   // the eye paths everything else; a task is then the whole image (both kinds splat or cover
   // every pixel).
   bool light_caustics = false;
+  // With light_caustics: light paths per pixel and sample (kMinCausticPaths..1); a batch is
+  // caustic_light_paths(W·H) paths.
+  float caustic_paths = 1.0f;
   // Differential splatting of the light paths (§6.1) when > 0: Δλ in nm at sample 0, shrinking
   // as (s + 1)^(-1/5); also a filtered image beside the unbiased one (TileBuffers::filtered).
   float splat_width_nm = 0;
@@ -96,11 +100,20 @@ struct RenderOptions {
   int lanes() const { return integrator == IntegratorKind::kHero ? 4 : 1; }
   // Light paths splat over the whole film, so such a job's task is the whole image.
   bool traces_light_paths() const { return integrator == IntegratorKind::kLight || light_caustics; }
+  // The light paths of one batch (one sample of every pixel) on a film of `pixels` pixels: all of
+  // them for the light integrator, a share of them for caustics (at least one).
+  std::int64_t light_paths_per_batch(std::int64_t pixels) const {
+    if (!light_caustics || caustic_paths >= 1.0f) return pixels;
+    return std::max<std::int64_t>(1, std::llround(double(caustic_paths) * double(pixels)));
+  }
   bool splats_differentials() const { return splat_width_nm > 0; }
   bool gathers() const { return gather_width_nm > 0; }
   // Either filter: the job writes a filtered image.
   bool filters() const { return splats_differentials() || gathers(); }
 };
+
+// Range of RenderOptions::caustic_paths.
+inline constexpr float kMinCausticPaths = 1.0f / 256.0f;
 
 // Range of RenderOptions::splat_width_nm when on, and the CLI's default.
 inline constexpr float kMinSplatWidthNm = 0.1f;
