@@ -41,6 +41,27 @@ absl::StatusOr<bool> prepass_runs(const RenderCommandOptions& options,
 
 }  // namespace
 
+CausticSplit split_caustic_runs(double variance_full, double rays_full, double variance_few,
+                                double rays_few, double few) {
+  CausticSplit split;
+  // variance(s) = eye + light / s and rays(s) = eye_rays + s · light_rays, through the two runs.
+  split.light_variance = std::max(0.0, (variance_few - variance_full) / (1.0 / few - 1.0));
+  split.eye_variance = std::max(0.0, variance_full - split.light_variance);
+  split.light_rays = std::max(0.0, (rays_full - rays_few) / (1.0 - few));
+  split.eye_rays = std::max(0.0, rays_full - split.light_rays);
+  return split;
+}
+
+double CausticSplit::best_share() const {
+  // (eye + light/s)(eye_rays + s·light_rays) is least at s = sqrt(light·eye_rays /
+  // (eye·light_rays)), snapped to a power of two in [kMinCausticPaths, 1].
+  if (!(light_variance > 0) || !(light_rays > 0)) return job::kMinCausticPaths;
+  if (!(eye_variance > 0)) return 1.0;
+  const double s = std::sqrt(light_variance * eye_rays / (eye_variance * light_rays));
+  const double snapped = std::exp2(std::round(std::log2(s)));
+  return std::clamp(snapped, double(job::kMinCausticPaths), 1.0);
+}
+
 absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions& options,
                                                       worker::EmbreeDevice& device,
                                                       const scene::SceneDescription& description,
@@ -103,7 +124,11 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   if (!dependence.dispersive_materials.empty()) candidates.push_back("uniform");
   // Hero with light-traced caustics unless --caustics was given, where the scene allows light
   // tracing (dropped below when it does not: a lens, media, a portal).
+  // It is rendered twice over: with a light path per pixel and sample and with
+  // kPilotCausticPaths of them, which splits its variance and rays into the eye paths' and the
+  // light paths' parts, and so gives the share of light paths it is judged (and run) at.
   if (options.caustics.empty()) candidates.push_back(kHeroWithLightCaustics);
+  const std::size_t renders_per_half = candidates.size() + (options.caustics.empty() ? 1 : 0);
 
   // The job's film and spp, as hero would render it. (The gradient's own flags need
   // --integrator gradient, so `options` holds none.)
@@ -122,7 +147,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
       std::clamp<std::uint64_t>(job.spp() / kPilotSppDivisor, kPilotMinSpp, kPilotMaxSpp);
   const double pixels = double(job.width()) * double(job.height());
   const double affordable =
-      kPilotShare * double(job.spp()) / (2.0 * double(candidates.size()) * double(spp));
+      kPilotShare * double(job.spp()) / (2.0 * double(renders_per_half) * double(spp));
   const double scale = std::min({0.25, std::sqrt(affordable), std::sqrt(kPilotPixels / pixels)});
   const int width = std::max(4, static_cast<int>(std::lround(job.width() * scale)));
   const int height = std::max(4, static_cast<int>(std::lround(job.height() * scale)));
@@ -141,12 +166,15 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   std::vector<Measured> measured;
   std::vector<double> image_sum;
   std::vector<std::string> measured_candidates;
-  for (const std::string& method : candidates) {
+  std::vector<std::string> runs = candidates;
+  if (options.caustics.empty()) runs.push_back(kCausticPathsRun);
+  for (const std::string& method : runs) {
     RenderCommandOptions o = probe;
     o.integrator = method;
-    if (method == kHeroWithLightCaustics) {
+    if (method == kHeroWithLightCaustics || method == kCausticPathsRun) {
       o.integrator = "hero";
       o.caustics = "light";
+      o.caustic_paths = method == kCausticPathsRun ? kPilotCausticPaths : 1.0;
     }
     o.resolution = absl::StrCat(width, "x", height);
     o.spp = static_cast<std::int64_t>(spp);
@@ -154,7 +182,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     o.max_memory.clear();  // it limits the job; the pilot's small renders fit the machine's
     PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
                                                                    bundle_hash, scene_relpath));
-    if (method == kHeroWithLightCaustics) {
+    if (method == kHeroWithLightCaustics || method == kCausticPathsRun) {
       // A scene the light tracer refuses (worker/light_tracer.h) has no such candidate.
       auto tried = coordinator::LocalRender::create(device, description, library, prepared.local);
       if (!tried.ok()) continue;
@@ -189,11 +217,11 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     m.rays_per_sample = rays / (2 * double(width) * double(height) * double(spp));
     measured.push_back(std::move(m));
   }
-  candidates = std::move(measured_candidates);
+  runs = std::move(measured_candidates);
   // The weights: 1/(truth² + 0.01), the truth estimated by every render's mean over the pixel
   // and its 3 x 3 neighbours. Without the neighbours, one candidate's outlier would also set the
   // weight of its own pixel.
-  const double renders = 2.0 * double(candidates.size());
+  const double renders = 2.0 * double(runs.size());
   std::vector<double> weight(image_sum.size());
   const int bins = static_cast<int>(image_sum.size() / (std::size_t(width) * std::size_t(height)));
   auto at = [&](int x, int y, int b) {
@@ -220,15 +248,36 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   }
   // Per candidate: its relMSE per sample, its cost per sample (rays times the cost of one), and
   // their product relative to hero's, its predicted relMSE at equal time relative to hero's.
-  for (std::size_t c = 0; c < candidates.size(); ++c) {
+  std::optional<std::size_t> full_paths, few_paths;
+  std::vector<job::AutoReport::Candidate> figures;
+  for (std::size_t c = 0; c < runs.size(); ++c) {
     double sum = 0;
     for (std::size_t i = 0; i < image_sum.size(); ++i) {
       sum += 0.5 * measured[c].squared_difference[i] * weight[i];
     }
     const double variance = image_sum.empty() ? 0.0 : sum / double(image_sum.size()) * double(spp);
-    report.candidates.push_back(
-        {candidates[c], variance, measured[c].rays_per_sample, 0.0, ray_cost(candidates[c])});
+    figures.push_back({runs[c], variance, measured[c].rays_per_sample, 0.0, ray_cost(runs[c])});
+    if (runs[c] == kHeroWithLightCaustics) full_paths = c;
+    if (runs[c] == kCausticPathsRun) few_paths = c;
   }
+  // Hero with light-traced caustics at the share of light paths its two runs say is best (or
+  // the one given).
+  double caustic_paths = options.caustic_paths.value_or(1.0);
+  if (full_paths.has_value() && few_paths.has_value()) {
+    const CausticSplit split = split_caustic_runs(
+        figures[*full_paths].rel_mse_per_sample, figures[*full_paths].rays_per_sample,
+        figures[*few_paths].rel_mse_per_sample, figures[*few_paths].rays_per_sample,
+        kPilotCausticPaths);
+    if (!options.caustic_paths.has_value()) caustic_paths = split.best_share();
+    figures[*full_paths].rel_mse_per_sample = split.variance(caustic_paths);
+    figures[*full_paths].rays_per_sample = split.rays(caustic_paths);
+    figures[*full_paths].caustic_paths = caustic_paths;
+  }
+  for (job::AutoReport::Candidate& f : figures) {
+    if (f.method != kCausticPathsRun) report.candidates.push_back(std::move(f));
+  }
+  candidates.clear();
+  for (const job::AutoReport::Candidate& c : report.candidates) candidates.push_back(c.method);
   auto efficiency = [](const job::AutoReport::Candidate& c) {
     return c.rel_mse_per_sample * c.rays_per_sample * c.ray_cost;
   };
@@ -246,12 +295,17 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   if (candidates[best] == kHeroWithLightCaustics) {
     chosen.integrator = "hero";
     chosen.caustics = "light";
+    chosen.caustic_paths = caustic_paths;
   }
   report.reason = best == 0 ? absl::StrCat("no candidate was predicted at least ",
                                            static_cast<int>(100 * kAutoMinimumGain),
                                            " % better than hero at equal time")
                             : absl::StrFormat("predicted %.2f of hero's relMSE at equal time",
                                               report.candidates[best].relative_efficiency);
+  if (candidates[best] == kHeroWithLightCaustics && caustic_paths < 1.0) {
+    absl::StrAppend(&report.reason,
+                    absl::StrFormat(" with %g light paths per pixel and sample", caustic_paths));
+  }
   absl::StrAppend(&report.reason, absl::StrFormat(" (pilot: %dx%d, 2 x %d spp per candidate)",
                                                   width, height, static_cast<int>(spp)));
   // Hero with several emitter spectra runs the prepass, whose first pass decides whether

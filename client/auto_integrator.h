@@ -24,7 +24,12 @@
 // and predicts its error at equal time as their product. Candidates are hero and gradient,
 // uniform where a dielectric disperses (hero terminates its secondary lanes there, and the
 // single-wavelength tracer is then cheaper per sample), and hero+caustics (hero with
-// --caustics light) where the scene can be light traced, its rays costed as hero's.
+// --caustics light) where the scene can be light traced, its rays costed as hero's. That one is
+// rendered at one light path per pixel and sample and again at a sixteenth of them; the two
+// give its variance and rays per sample as eye + light/s and eye + s·light for a share s of
+// light paths (CausticSplit), and it is judged at the share that minimises their product (a
+// power of two from 1/256 to 1; --caustic-paths fixes it), which it then runs with: where the
+// caustics carry little of the error, few light paths are traced.
 //
 // The pilot's size is a trade of its cost against its noise, measured over eight pilot seeds on
 // five scenes (docs/benchmarks.md): at the same samples, more spp on fewer pixels was less noisy
@@ -67,10 +72,28 @@ inline constexpr std::uint64_t kPilotMaxSpp = 64;
 // The most of the job's samples the pilot's renders take together (its pixels shrink to stay
 // under it).
 inline constexpr double kPilotShare = 0.04;
+// The share of light paths of the pilot's second hero+caustics run (see above), and that run's
+// name inside the pilot.
+inline constexpr double kPilotCausticPaths = 1.0 / 16.0;
+inline constexpr char kCausticPathsRun[] = "hero+caustics (few paths)";
 // The relative cost of one ray of each method (see above).
 inline constexpr double kUniformRayCost = 1.0;
 inline constexpr double kHeroRayCost = 1.16;
 inline constexpr double kGradientRayCost = 1.18;
+
+// Hero with light-traced caustics split into its eye paths' and its light paths' parts, per
+// sample at one light path per pixel: variance(s) = eye + light/s, rays(s) = eye + s·light with
+// s the light paths per pixel and sample. From two pilot runs at s = 1 and s = `few`.
+struct CausticSplit {
+  double eye_variance = 0, light_variance = 0;
+  double eye_rays = 0, light_rays = 0;
+  double variance(double s) const { return eye_variance + light_variance / s; }
+  double rays(double s) const { return eye_rays + s * light_rays; }
+  // The share that minimises variance × rays, a power of two in [job::kMinCausticPaths, 1].
+  double best_share() const;
+};
+CausticSplit split_caustic_runs(double variance_full, double rays_full, double variance_few,
+                                double rays_few, double few);
 
 struct ResolvedIntegrator {
   RenderCommandOptions options;           // with an explicit integrator and prepass

@@ -4,6 +4,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "client/auto_integrator.h"
 #include "client/check_command.h"
 #include "client/compare_command.h"
 #include "services/image/exr_spectral.h"
@@ -92,6 +93,31 @@ TEST(CompareCommandTest, CropSyntax) {
   for (const char* bad : {"", "1,2,3", "1,2,3,4,5", "a,b,c,d", "-1,0,1,1", "1,2,3,4x"}) {
     EXPECT_EQ(parse_crop(bad).status().code(), absl::StatusCode::kInvalidArgument) << bad;
   }
+}
+
+// The pilot's two hero+caustics runs split into eye and light parts, and the share of light
+// paths that minimises (eye + light/s)(eye_rays + s·light_rays), against the closed form.
+TEST(AutoIntegratorTest, TheCausticShareMinimisesVarianceTimesRays) {
+  // eye 0.03, light 0.0008 per sample at s = 1; eye rays 2, light rays 1.
+  const double few = kPilotCausticPaths;
+  const CausticSplit split =
+      split_caustic_runs(0.03 + 0.0008, 3.0, 0.03 + 0.0008 / few, 2.0 + few, few);
+  EXPECT_NEAR(split.eye_variance, 0.03, 1e-12);
+  EXPECT_NEAR(split.light_variance, 0.0008, 1e-12);
+  EXPECT_NEAR(split.eye_rays, 2.0, 1e-12);
+  EXPECT_NEAR(split.light_rays, 1.0, 1e-12);
+  // sqrt(0.0008·2 / (0.03·1)) = 0.2309, whose nearest power of two (in log2) is 1/4.
+  EXPECT_EQ(split.best_share(), 0.25);
+  EXPECT_NEAR(split.variance(0.25), 0.0332, 1e-12);
+  EXPECT_NEAR(split.rays(0.25), 2.25, 1e-12);
+  // The power of two found is the best of all of them.
+  for (double s = 1.0; s >= job::kMinCausticPaths; s /= 2) {
+    EXPECT_LE(split.variance(0.25) * split.rays(0.25), split.variance(s) * split.rays(s)) << s;
+  }
+  // Light paths that reduce nothing (noise made the few-path run the better one): the fewest.
+  EXPECT_EQ(split_caustic_runs(0.03, 3.0, 0.029, 2.0625, few).best_share(), job::kMinCausticPaths);
+  // Eye paths with no variance left: every light path.
+  EXPECT_EQ(split_caustic_runs(0.001, 3.0, 0.016, 2.0625, few).best_share(), 1.0);
 }
 
 }  // namespace

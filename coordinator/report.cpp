@@ -195,6 +195,7 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
                             {"rays_per_sample", c.rays_per_sample},
                             {"relative_efficiency", c.relative_efficiency},
                             {"ray_cost", c.ray_cost}});
+      if (c.caustic_paths > 0) candidates.back()["caustic_paths"] = c.caustic_paths;
     }
     j["auto"] = {{"choice", a.choice},
                  {"reason", a.reason},

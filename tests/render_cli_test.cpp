@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
 #include "services/base/atomic_file.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/png.h"
@@ -342,10 +343,11 @@ Shape "sphere" "float radius" 0.7
                         spectral_pixels(dir / "spectral.exr", nullptr)));
 
   // Where the floor sees its lamp only through a prism, the pilot finds light-traced caustics
-  // best by far (docs/benchmarks.md), and the choice renders as the explicit options do.
+  // best by far (docs/benchmarks.md), and the choice renders as the explicit options do, with
+  // the share of light paths the pilot fitted.
   CommandRun caustic =
       run_prism(dir, {"render", source("scenes/dispersive-caustic.pbrt"), "--resolution", "160x120",
-                      "--spp", "16", "-o", "caustic_auto.exr"});
+                      "--spp", "32", "-o", "caustic_auto.exr"});
   ASSERT_EQ(caustic.exit_code, 0) << caustic.output;
   EXPECT_NE(caustic.output.find("hero with light-traced caustics (chosen by auto"),
             std::string::npos)
@@ -353,9 +355,15 @@ Shape "sphere" "float radius" 0.7
   auto caustic_report = nlohmann::json::parse(*prism::base::read_file(dir / "caustic_auto.json"));
   EXPECT_EQ(caustic_report["auto"]["choice"], "hero+caustics");
   EXPECT_EQ(caustic_report["caustics"], "light");
-  CommandRun caustic_explicit = run_prism(
-      dir, {"render", source("scenes/dispersive-caustic.pbrt"), "--resolution", "160x120", "--spp",
-            "16", "--integrator", "hero", "--caustics", "light", "-o", "caustic.exr"});
+  ASSERT_TRUE(caustic_report.contains("caustic_paths"));
+  const double share = caustic_report["caustic_paths"].get<double>();
+  const nlohmann::json& judged = caustic_report["auto"]["candidates"].back();
+  EXPECT_EQ(judged["method"], "hero+caustics");
+  EXPECT_EQ(judged["caustic_paths"].get<double>(), share);
+  CommandRun caustic_explicit =
+      run_prism(dir, {"render", source("scenes/dispersive-caustic.pbrt"), "--resolution", "160x120",
+                      "--spp", "32", "--integrator", "hero", "--caustics", "light",
+                      "--caustic-paths", absl::StrCat(share), "-o", "caustic.exr"});
   ASSERT_EQ(caustic_explicit.exit_code, 0) << caustic_explicit.output;
   EXPECT_TRUE(same_bits(spectral_pixels(dir / "caustic_auto.exr", nullptr),
                         spectral_pixels(dir / "caustic.exr", nullptr)));

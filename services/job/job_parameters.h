@@ -142,7 +142,8 @@ struct AutoReport {
     double rel_mse_per_sample = 0;
     double rays_per_sample = 0;
     double relative_efficiency = 0;
-    double ray_cost = 0;  // the cost of one of its rays relative to uniform's (0: not given)
+    double ray_cost = 0;       // the cost of one of its rays relative to uniform's (0: not given)
+    double caustic_paths = 0;  // hero+caustics: the share of light paths judged (0: not given)
     friend bool operator==(const Candidate&, const Candidate&) = default;
   };
   std::string choice;

@@ -377,7 +377,7 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
     r.seconds = a.seconds();
     for (const auto& c : a.candidates()) {
       r.candidates.push_back({c.method(), c.rel_mse_per_sample(), c.rays_per_sample(),
-                              c.relative_efficiency(), c.ray_cost()});
+                              c.relative_efficiency(), c.ray_cost(), c.caustic_paths()});
     }
     p.auto_choice = std::move(r);
   }
@@ -544,6 +544,7 @@ prism::v1::AutoChoice to_proto(const AutoReport& report) {
     out->set_rays_per_sample(c.rays_per_sample);
     out->set_relative_efficiency(c.relative_efficiency);
     out->set_ray_cost(c.ray_cost);
+    out->set_caustic_paths(c.caustic_paths);
   }
   return a;
 }

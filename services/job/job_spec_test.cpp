@@ -420,13 +420,14 @@ TEST(JobSpecTest, TheAutoChoiceAndTheTargetErrorSurviveTheExplicitForm) {
   a->set_choice("gradient");
   a->set_reason("predicted 0.75 of hero's relMSE at equal time");
   a->set_seconds(0.25);
-  for (const char* m : {"hero", "gradient"}) {
+  for (const char* m : {"hero", "gradient", "hero+caustics"}) {
     auto* c = a->add_candidates();
     c->set_method(m);
     c->set_rel_mse_per_sample(0.02);
     c->set_rays_per_sample(1e-6);
     c->set_relative_efficiency(std::string(m) == "hero" ? 1.0 : 0.75);
-    c->set_ray_cost(std::string(m) == "hero" ? 1.16 : 1.18);
+    c->set_ray_cost(std::string(m) == "gradient" ? 1.18 : 1.16);
+    if (std::string(m) == "hero+caustics") c->set_caustic_paths(0.0625);
   }
   spec.set_target_error(0.02f);
   spec.set_target_error_image(true);
@@ -434,7 +435,8 @@ TEST(JobSpecTest, TheAutoChoiceAndTheTargetErrorSurviveTheExplicitForm) {
   auto p = job_parameters(spec, test_scene());
   ASSERT_TRUE(p.ok()) << p.status();
   ASSERT_TRUE(p->auto_choice.has_value());
-  EXPECT_EQ(p->auto_choice->candidates.size(), 2u);
+  ASSERT_EQ(p->auto_choice->candidates.size(), 3u);
+  EXPECT_EQ(p->auto_choice->candidates[2].caustic_paths, 0.0625);
   ASSERT_TRUE(p->target_error.has_value());
   EXPECT_TRUE(p->target_error->image_scope);
   EXPECT_EQ(p->target_error->max_spp, 512u);
