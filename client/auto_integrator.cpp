@@ -11,6 +11,7 @@
 #include "services/image/metrics.h"
 #include "services/job/job_spec.h"
 #include "services/scene/wavelength_dependence.h"
+#include "worker/light_tracer.h"
 
 namespace prism::client {
 namespace {
@@ -122,14 +123,6 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   }
   std::vector<std::string> candidates = {"hero", "gradient"};
   if (!dependence.dispersive_materials.empty()) candidates.push_back("uniform");
-  // Hero with light-traced caustics unless --caustics was given, where the scene allows light
-  // tracing (dropped below when it does not: a lens, media, a portal).
-  // It is rendered twice over: with a light path per pixel and sample and with
-  // kPilotCausticPaths of them, which splits its variance and rays into the eye paths' and the
-  // light paths' parts, and so gives the share of light paths it is judged (and run) at.
-  if (options.caustics.empty()) candidates.push_back(kHeroWithLightCaustics);
-  const std::size_t renders_per_half = candidates.size() + (options.caustics.empty() ? 1 : 0);
-
   // The job's film and spp, as hero would render it. (The gradient's own flags need
   // --integrator gradient, so `options` holds none.)
   RenderCommandOptions probe = options;
@@ -138,6 +131,25 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   probe.target_error.reset();
   probe.max_spp.reset();
   probe.target_error_scope = "pixel";
+  // Hero with light-traced caustics unless --caustics was given, where the scene allows light
+  // tracing (not: a lens, media, a portal) and has a shape that can scatter as a delta (else it
+  // has no caustic path). It is rendered twice over: with a light path per pixel and sample and
+  // with kPilotCausticPaths of them, which splits its variance and rays into the eye paths' and
+  // the light paths' parts, and so gives the share of light paths it is judged (and run) at.
+  bool caustics = false;
+  if (options.caustics.empty()) {
+    RenderCommandOptions o = probe;
+    o.caustics = "light";
+    o.resolution = "4x4";
+    o.spp = 1;
+    o.max_memory.clear();
+    PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
+                                                                   bundle_hash, scene_relpath));
+    auto tried = coordinator::LocalRender::create(device, description, library, prepared.local);
+    caustics = tried.ok() && !worker::caustic_targets((*tried)->scene()).empty();
+  }
+  if (caustics) candidates.push_back(kHeroWithLightCaustics);
+  const std::size_t renders_per_half = candidates.size() + (caustics ? 1 : 0);
   PRISM_ASSIGN_OR_RETURN(v1::JobSpec job,
                          job_spec_of(probe, description, bundle_hash, scene_relpath));
   // An eighth of the job's spp (kPilotMinSpp..kPilotMaxSpp) on the job's camera at a quarter of
@@ -165,9 +177,8 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   };
   std::vector<Measured> measured;
   std::vector<double> image_sum;
-  std::vector<std::string> measured_candidates;
   std::vector<std::string> runs = candidates;
-  if (options.caustics.empty()) runs.push_back(kCausticPathsRun);
+  if (caustics) runs.push_back(kCausticPathsRun);
   for (const std::string& method : runs) {
     RenderCommandOptions o = probe;
     o.integrator = method;
@@ -182,12 +193,6 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     o.max_memory.clear();  // it limits the job; the pilot's small renders fit the machine's
     PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
                                                                    bundle_hash, scene_relpath));
-    if (method == kHeroWithLightCaustics || method == kCausticPathsRun) {
-      // A scene the light tracer refuses (worker/light_tracer.h) has no such candidate.
-      auto tried = coordinator::LocalRender::create(device, description, library, prepared.local);
-      if (!tried.ok()) continue;
-    }
-    measured_candidates.push_back(method);
     Measured m;
     double rays = 0;
     std::optional<image::SpectralImage> first;
@@ -217,7 +222,6 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     m.rays_per_sample = rays / (2 * double(width) * double(height) * double(spp));
     measured.push_back(std::move(m));
   }
-  runs = std::move(measured_candidates);
   // The weights: 1/(truth² + 0.01), the truth estimated by every render's mean over the pixel
   // and its 3 x 3 neighbours. Without the neighbours, one candidate's outlier would also set the
   // weight of its own pixel.

@@ -24,7 +24,8 @@
 // and predicts its error at equal time as their product. Candidates are hero and gradient,
 // uniform where a dielectric disperses (hero terminates its secondary lanes there, and the
 // single-wavelength tracer is then cheaper per sample), and hero+caustics (hero with
-// --caustics light) where the scene can be light traced, its rays costed as hero's. That one is
+// --caustics light) where the scene can be light traced and has a shape that can scatter as a
+// delta (so a caustic path to trace), its rays costed as hero's. That one is
 // rendered at one light path per pixel and sample and again at a sixteenth of them; the two
 // give its variance and rays per sample as eye + light/s and eye + s·light for a share s of
 // light paths (CausticSplit), and it is judged at the share that minimises their product (a

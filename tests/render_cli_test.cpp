@@ -404,6 +404,20 @@ Shape "sphere" "float radius" 0.7
 // budget; its first pass decides whether per-pixel tables pay. boxes (two LED spectra, no
 // dispersion, a dye) is such a scene: its pilot finds gradient far behind hero. The image is
 // exactly `--integrator hero --prepass`'s; --no-prepass keeps the prepass off.
+// The Cornell box with two lamps can be light traced but every surface in it is diffuse: no
+// caustic path, so no hero+caustics candidate (its pilot runs would be hero's, costed twice).
+TEST(RenderCliTest, AutoOffersLightTracedCausticsOnlyWhereAShapeCanScatterAsADelta) {
+  const fs::path dir = fresh_dir("auto_no_caustics");
+  CommandRun run = run_prism(dir, {"render", source("scenes/cornell-two-lights.pbrt"),
+                                   "--resolution", "40x40", "--spp", "16", "--no-prepass", "-o",
+                                   "auto.exr"});
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  auto report = nlohmann::json::parse(*prism::base::read_file(dir / "auto.json"));
+  std::set<std::string> methods;
+  for (const auto& c : report["auto"]["candidates"]) methods.insert(c["method"].get<std::string>());
+  EXPECT_EQ(methods, (std::set<std::string>{"hero", "gradient"})) << report["auto"].dump();
+}
+
 TEST(RenderCliTest, AutoRunsThePrepassForHeroUnderSeveralEmitterSpectra) {
   const fs::path dir = fresh_dir("auto_prepass");
   const std::vector<std::string> common = {

@@ -56,6 +56,22 @@ absl::Status check_light_tracing(const RenderScene& scene) {
   return absl::OkStatus();
 }
 
+std::vector<CausticTarget> caustic_targets(const RenderScene& scene) {
+  std::vector<CausticTarget> targets;
+  for (int i = 0; i < scene.shape_count(); ++i) {
+    const Material& m = scene.materials()[std::size_t(scene.shape(i).material)];
+    if (std::holds_alternative<DiffuseMaterial>(m) ||
+        std::holds_alternative<DiffuseTransmissionMaterial>(m) ||
+        std::holds_alternative<InterfaceMaterial>(m)) {
+      continue;
+    }
+    const Bounds3f& b = scene.geometry().shape_bounds(i);
+    if (!(b.hi.x >= b.lo.x)) continue;  // empty
+    targets.push_back({b.centre(), b.radius() * 1.001f + 1e-4f});
+  }
+  return targets;
+}
+
 LightTracer::LightTracer(const RenderScene& scene) : scene_(scene) {
   for (const Light& light : scene.lights()) {
     power_.push_back(light_power(light));
@@ -65,19 +81,7 @@ LightTracer::LightTracer(const RenderScene& scene) : scene_(scene) {
   }
   const PixelFilter& filter = scene.pixel_filter();
   filter_radius_ = float(std::max(filter.radius(0), filter.radius(1)));
-  if (scene.options().light_caustics) {
-    for (int i = 0; i < scene.shape_count(); ++i) {
-      const Material& m = scene.materials()[std::size_t(scene.shape(i).material)];
-      if (std::holds_alternative<DiffuseMaterial>(m) ||
-          std::holds_alternative<DiffuseTransmissionMaterial>(m) ||
-          std::holds_alternative<InterfaceMaterial>(m)) {
-        continue;
-      }
-      const Bounds3f& b = scene.geometry().shape_bounds(i);
-      if (!(b.hi.x >= b.lo.x)) continue;  // empty
-      targets_.push_back({b.centre(), b.radius() * 1.001f + 1e-4f});
-    }
-  }
+  if (scene.options().light_caustics) targets_ = caustic_targets(scene);
 }
 
 namespace {

@@ -67,6 +67,10 @@ struct LightSplat {
   int light = -1;  // the light the path started from (RenderScene::lights())
 };
 
+// The spheres around the scene's shapes that may scatter as a delta: empty when the scene has no
+// caustic path for --caustics light to trace.
+std::vector<CausticTarget> caustic_targets(const RenderScene& scene);
+
 // OK when the scene can be light traced; otherwise INVALID_ARGUMENT saying what stands in the
 // way (with the scene position where there is one).
 absl::Status check_light_tracing(const RenderScene& scene);
