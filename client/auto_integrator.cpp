@@ -132,7 +132,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   probe.max_spp.reset();
   probe.target_error_scope = "pixel";
   // Hero with light-traced caustics unless --caustics was given, where the scene allows light
-  // tracing (not: a lens, media, a portal) and has a shape that can scatter as a delta (else it
+  // tracing (not: an orthographic or spherical camera, a portal) and has a shape that can scatter as a delta (else it
   // has no caustic path). It is rendered twice over: with a light path per pixel and sample and
   // with kPilotCausticPaths of them, which splits its variance and rays into the eye paths' and
   // the light paths' parts, and so gives the share of light paths it is judged (and run) at.

@@ -290,7 +290,9 @@ Shape "sphere" "float radius" 0.7
   EXPECT_NE(spectral.output.find("(chosen by auto: "), std::string::npos) << spectral.output;
   auto report = nlohmann::json::parse(*prism::base::read_file(dir / "spectral_auto.json"));
   const auto& a = report["auto"];
-  ASSERT_EQ(a["candidates"].size(), 3u) << a.dump();  // the scene has a dispersive glass
+  // The scene has a dispersive glass (uniform) and smooth glass the light tracer can aim at
+  // (hero+caustics, judged at its fitted share of light paths).
+  ASSERT_EQ(a["candidates"].size(), 4u) << a.dump();
   std::set<std::string> methods;
   double chosen_efficiency = -1;
   for (const auto& c : a["candidates"]) {
@@ -300,11 +302,11 @@ Shape "sphere" "float radius" 0.7
     if (c["method"] == "hero") EXPECT_DOUBLE_EQ(c["relative_efficiency"].get<double>(), 1.0);
     if (c["method"] == a["choice"]) chosen_efficiency = c["relative_efficiency"].get<double>();
   }
-  EXPECT_EQ(methods, (std::set<std::string>{"hero", "gradient", "uniform"}));
+  EXPECT_EQ(methods, (std::set<std::string>{"hero", "gradient", "uniform", "hero+caustics"}));
   // Each candidate's predicted relMSE at equal time, relative to hero's, is its relMSE per sample
   // times its counted rays per sample times its method's cost of a ray.
   const std::map<std::string, double> ray_cost = {
-      {"hero", 1.16}, {"gradient", 1.18}, {"uniform", 1.0}};
+      {"hero", 1.16}, {"gradient", 1.18}, {"uniform", 1.0}, {"hero+caustics", 1.16}};
   auto efficiency = [&](const nlohmann::json& c) {
     return c["rel_mse_per_sample"].get<double>() * c["rays_per_sample"].get<double>() *
            c["ray_cost"].get<double>();
@@ -319,8 +321,9 @@ Shape "sphere" "float radius" 0.7
     EXPECT_NEAR(c["relative_efficiency"].get<double>(), efficiency(c) / efficiency(*hero), 1e-9)
         << c.dump();
   }
-  // The pilot: an eighth of the job's spp (at least 8), and its renders (two per candidate) at
-  // most about 4 % of the job's samples (48 x 36 x 32): its film is shrunk to fit.
+  // The pilot: an eighth of the job's spp (at least 8), and its renders (two per candidate, and
+  // two more for hero+caustics's second share) at most about 4 % of the job's samples
+  // (48 x 36 x 32): its film is shrunk to fit.
   int pilot_width = 0, pilot_height = 0, pilot_spp = 0;
   const std::string reason = a["reason"].get<std::string>();
   ASSERT_EQ(std::sscanf(reason.c_str() + reason.find("(pilot: "), "(pilot: %dx%d, 2 x %d spp",
@@ -330,13 +333,21 @@ Shape "sphere" "float radius" 0.7
   EXPECT_EQ(pilot_spp, 8);
   EXPECT_LE(pilot_width, 48 / 4);
   EXPECT_LE(pilot_height, 36 / 4);
-  EXPECT_LE(2.0 * 3 * pilot_width * pilot_height * pilot_spp, 0.05 * 48 * 36 * 32) << reason;
+  EXPECT_LE(2.0 * 5 * pilot_width * pilot_height * pilot_spp, 0.05 * 48 * 36 * 32) << reason;
   ASSERT_GT(chosen_efficiency, 0) << "the choice is not a candidate: " << a.dump();
   if (a["choice"] != "hero") EXPECT_LE(chosen_efficiency, 0.9) << a.dump();
-  EXPECT_EQ(report["integrator"], a["choice"]);
   std::vector<std::string> explicit_args = common;
-  explicit_args.insert(explicit_args.end(),
-                       {"--integrator", a["choice"].get<std::string>(), "-o", "spectral.exr"});
+  if (a["choice"] == "hero+caustics") {
+    EXPECT_EQ(report["integrator"], "hero");
+    EXPECT_EQ(report["caustics"], "light");
+    explicit_args.insert(explicit_args.end(),
+                         {"--integrator", "hero", "--caustics", "light", "--caustic-paths",
+                          absl::StrCat(report["caustic_paths"].get<double>())});
+  } else {
+    EXPECT_EQ(report["integrator"], a["choice"]);
+    explicit_args.insert(explicit_args.end(), {"--integrator", a["choice"].get<std::string>()});
+  }
+  explicit_args.insert(explicit_args.end(), {"-o", "spectral.exr"});
   CommandRun chosen = run_prism(dir, explicit_args);
   ASSERT_EQ(chosen.exit_code, 0) << chosen.output;
   EXPECT_TRUE(same_bits(spectral_pixels(dir / "spectral_auto.exr", nullptr),
@@ -408,9 +419,9 @@ Shape "sphere" "float radius" 0.7
 // caustic path, so no hero+caustics candidate (its pilot runs would be hero's, costed twice).
 TEST(RenderCliTest, AutoOffersLightTracedCausticsOnlyWhereAShapeCanScatterAsADelta) {
   const fs::path dir = fresh_dir("auto_no_caustics");
-  CommandRun run = run_prism(dir, {"render", source("scenes/cornell-two-lights.pbrt"),
-                                   "--resolution", "40x40", "--spp", "16", "--no-prepass", "-o",
-                                   "auto.exr"});
+  CommandRun run =
+      run_prism(dir, {"render", source("scenes/cornell-two-lights.pbrt"), "--resolution", "40x40",
+                      "--spp", "16", "--no-prepass", "-o", "auto.exr"});
   ASSERT_EQ(run.exit_code, 0) << run.output;
   auto report = nlohmann::json::parse(*prism::base::read_file(dir / "auto.json"));
   std::set<std::string> methods;

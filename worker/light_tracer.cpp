@@ -35,11 +35,6 @@ absl::Status check_light_tracing(const RenderScene& scene) {
         "light paths (--integrator light, --caustics light) connect to a perspective camera "
         "(a pinhole or a thin lens): render this camera without them");
   }
-  if (!scene.media().empty()) {
-    return absl::InvalidArgumentError(
-        "light paths (--integrator light, --caustics light) do not trace participating media "
-        "yet; render this scene without them");
-  }
   if (scene.infinite_light() >= 0) {
     const auto& inf = std::get<InfiniteLight>(scene.lights()[scene.infinite_light()]);
     if (inf.portal()) {
@@ -103,19 +98,24 @@ class LightPath {
   float beta = 0;  // the path's weight: f / p of everything sampled so far, importance-mode
   SpectralDifferential diff;
   int light = -1;                  // the emitting light's index
+  int medium = -1;                 // the medium the path is in (RenderScene::media()), -1 vacuum
   std::uint32_t connections_ = 0;  // camera connections so far (their lens dimensions)
 
   // The contribution C of a vertex at p (geometric normal ng) that sends
-  // `value_towards(to_camera)` towards the camera, per unit area of p: value · |ng·ω|/d² · W.
+  // `value_towards(to_camera)` towards the camera, per unit area of p: value · |ng·ω|/d² · W;
+  // a medium vertex (ng = 0) per unit volume: value/d² · W. The connection starts in `inside`
+  // when it leaves against ng, else in `outside` (the same medium twice where p is no medium
+  // boundary).
   template <typename ValueTowards>
-  void connect(const Vec3f& p, const Vec3f& ng, ValueTowards&& value_towards) {
+  void connect(const Vec3f& p, const Vec3f& ng, int inside, int outside,
+               ValueTowards&& value_towards) {
     const Camera& camera = scene_.camera();
     // A thin lens: each connection its own lens point, from dimensions of their own.
     const Point2f lens =
         camera.has_lens() ? to_point(sampler_.at2(kLensConnect + 2 * connections_++)) : Point2f{};
     auto c = camera.connect(p, margin_, lens);
     if (!c) return;
-    const float cos_p = std::abs(dot(ng, c->to_camera));
+    const float cos_p = ng == Vec3f() ? 1.0f : std::abs(dot(ng, c->to_camera));
     const float value = value_towards(c->to_camera);
     if (!(value > 0.0f) || !(cos_p > 0.0f)) return;
     const float contribution = value * cos_p * c->importance / (c->distance * c->distance);
@@ -124,8 +124,9 @@ class LightPath {
       return;
     }
     const Vec3f origin = ng == Vec3f() ? p : scene_.geometry().offset_origin(p, ng, c->to_camera);
-    const Shadow shadow =
-        trace_shadow(scene_, origin, c->to_camera, c->lens_point, false, -1, lambda, 1, counters_);
+    const int start = dot(c->to_camera, ng) < 0 ? inside : outside;
+    const Shadow shadow = trace_shadow(scene_, origin, c->to_camera, c->lens_point, false, start,
+                                       lambda, 1, counters_);
     if (!(shadow.transmittance[0] > 0.0f)) return;
     const float visible = contribution * shadow.transmittance[0];
     const spectral::WavelengthGrid& grid = scene_.grid();
@@ -208,7 +209,7 @@ class LightPath {
   }
 
   // The emitted ray, with beta set; false when this light emits nothing here.
-  bool emit(const Light& light, float selection, Ray* ray) {
+  bool emit(const Light& light, int light_index, float selection, Ray* ray) {
     const float density = selection * lambda.pdf(0);
     if (!(density > 0.0f)) return false;
     const Bounds3f& bounds = scene_.geometry().bounds();
@@ -218,17 +219,24 @@ class LightPath {
       const float pdf_area = 1.0f / float(area->area());
       // The emitter seen by the camera: L_e · |n·ω|/d² · W / (p_A · p(e, λ)) (the eye paths'
       // with --caustics light).
+      const ShapeInfo& info = scene_.shape(area->shape());
       if (!caustics_only_) {
-        connect(point->p, point->n, [&](const Vec3f& to_camera) {
-          return area->radiance(point->n, to_camera, lambda)[0] / (pdf_area * density);
-        });
+        connect(point->p, point->n, info.medium_inside, info.medium_outside,
+                [&](const Vec3f& to_camera) {
+                  return area->radiance(point->n, to_camera, lambda)[0] / (pdf_area * density);
+                });
       }
+      // The medium on the side it emits into (a shape that is no boundary has one medium).
+      auto emits_into = [&](const Vec3f& w) {
+        return dot(w, point->n) < 0 ? info.medium_inside : info.medium_outside;
+      };
       if (caustics_only_) {
         Vec3f w;
         float pdf_w = 0.0f;
         if (!towards_targets(point->p, &w, &pdf_w)) return false;
         const float le = area->radiance(point->n, w, lambda)[0];
         beta = le * std::abs(dot(point->n, w)) / (pdf_area * pdf_w * density);
+        medium = emits_into(w);
         *ray = {scene_.geometry().offset_origin(point->p, point->n, w), w};
         return beta > 0.0f;
       }
@@ -244,6 +252,7 @@ class LightPath {
       const float le = area->radiance(point->n, w, lambda)[0];
       // L_e·|cos| / (p_A · side · cos/π · p(e, λ)).
       beta = le * kPi / (pdf_area * side * density);
+      medium = emits_into(w);
       *ray = {scene_.geometry().offset_origin(point->p, point->n, w), w};
       return beta > 0.0f;
     }
@@ -278,11 +287,19 @@ class LightPath {
         w = sample_uniform_sphere(to_point(sampler_.at2(kEmission)));
       }
       beta = intensity(w) / (pdf_w * density);
+      medium = scene_.light_medium(light_index);
       *ray = {position, w};
       return beta > 0.0f;
     }
     // Light from infinitely far: a direction, then a point on the disk of the scene's bounding
-    // sphere across it, from outside the sphere (density 1/πR²).
+    // sphere across it, from outside the sphere (density 1/πR²). Declared in a medium that
+    // attenuates at λ, it reaches nothing, as an eye path escaping through that medium finds
+    // (an infinite flight).
+    medium = scene_.light_medium(light_index);
+    if (medium >= 0) {
+      const HomogeneousMedium& m = scene_.media()[std::size_t(medium)];
+      if ((m.sigma_a(lambda) + m.sigma_s(lambda))[0] > 0.0f) return false;
+    }
     const float radius = bounds.radius() * 1.01f + 1e-3f;
     Vec3f w;
     float value = 0.0f;
@@ -318,16 +335,67 @@ class LightPath {
     const Geometry& geometry = scene_.geometry();
     const float beta_emitted = beta;
     int passthroughs = 0;
+    std::uint32_t segments = 0;  // free flights so far (their sample dimensions)
+    // Russian roulette on the weight relative to the emitted one; false: the path ends.
+    auto survives = [&](int depth, float u) {
+      if (depth < options.rr_min_depth) return true;
+      const float survive = std::min(1.0f, beta / beta_emitted);
+      if (u >= survive) return false;
+      beta /= survive;
+      return true;
+    };
     for (int depth = 0;;) {
       ++counters_.rays;
       auto hit = geometry.intersect(ray, kInfinity);
+      if (medium >= 0) {
+        const HomogeneousMedium& m = scene_.media()[std::size_t(medium)];
+        const float sigma_s = m.sigma_s(lambda)[0];
+        const float sigma_t = m.sigma_a(lambda)[0] + sigma_s;
+        const std::uint32_t flight_dim = kFreeFlight + segments++;
+        if (caustics_only_ || !m.scattering()) {
+          // A caustic path does not scatter in a medium (the eye paths take those that do),
+          // and an absorbing medium is not sampled: the segment's transmittance is the weight.
+          if (!hit) return;
+          beta *= std::exp(-sigma_t * hit->t);
+          if (!(beta > 0.0f)) return;
+        } else if (sigma_t > 0.0f) {
+          // Free flight with density σ_t·T(t): scattering at t weighs σ_s/σ_t, passing the
+          // segment (probability T) weighs 1.
+          const float t = -std::log1p(-sampler_.at(flight_dim)) / sigma_t;
+          if (!hit || t < hit->t) {
+            beta *= sigma_s / sigma_t;
+            ++depth;
+            const Vec3f p = ray.origin + ray.direction * t;
+            const Vec3f back = -ray.direction;
+            const HenyeyGreenstein& phase = m.phase();
+            diff.tracked = false;  // a medium vertex receives: no differential beyond it
+            connect(p, Vec3f(), medium, medium,
+                    [&](const Vec3f& to_camera) { return beta * phase.p(back, to_camera); });
+            if (depth >= options.max_depth) return;
+            const std::uint32_t dim = kBounce + kDimsPerBounce * std::uint32_t(depth - 1);
+            float phase_pdf = 0.0f;
+            const Vec3f next = phase.sample(back, to_point(sampler_.at2(dim)), &phase_pdf);
+            if (!(phase_pdf > 0.0f) || !(beta > 0.0f) || !std::isfinite(beta)) return;
+            // The phase function is sampled exactly: p/pdf = 1.
+            if (!survives(depth, sampler_.at2(dim + 2).u1)) return;
+            ray = {p, next};
+            passthroughs = 0;
+            continue;
+          }
+        }
+      }
       if (!hit) return;
       transfer(diff, ray.direction, hit->t, hit->ng);
       const ShapeInfo& info = scene_.shape(hit->shape);
       const Material& material = scene_.material_at(info.material, *hit, -ray.direction);
       auto bsdf = make_bsdf(material, lambda, texture_context(*hit));
+      // The medium on each side of this surface: its own two where it is a boundary, else the
+      // path's.
+      const int inside = info.medium_transition ? info.medium_inside : medium;
+      const int outside = info.medium_transition ? info.medium_outside : medium;
       if (!bsdf) {
-        // An interface without media (check_light_tracing refuses media): pass through.
+        // An interface: pass through, into the medium on its other side.
+        medium = dot(ray.direction, hit->ng) < 0 ? inside : outside;
         ray.origin = geometry.offset_origin(hit->p, hit->ng, ray.direction);
         if (++passthroughs == kMaxPassthroughs) return;
         continue;
@@ -345,7 +413,7 @@ class LightPath {
         // With --caustics light only a first non-delta vertex after a delta chain connects, and
         // nothing after it can: the path ends there.
         if (!caustics_only_ || depth >= 2) {
-          connect(hit->p, hit->ng, [&](const Vec3f& to_camera) {
+          connect(hit->p, hit->ng, inside, outside, [&](const Vec3f& to_camera) {
             return beta * eval(*bsdf, frame.to_local(to_camera), back_local)[0];
           });
         }
@@ -372,12 +440,8 @@ class LightPath {
       beta *= ratio;
       if (!(beta > 0.0f) || !std::isfinite(beta)) return;
       follow_differential(material, *hit, ray.direction, next, *bs);
-      if (depth >= options.rr_min_depth) {
-        // Russian roulette on the weight relative to the emitted one.
-        const float survive = std::min(1.0f, beta / beta_emitted);
-        if (lobe_and_roulette.u1 >= survive) return;
-        beta /= survive;
-      }
+      if (!survives(depth, lobe_and_roulette.u1)) return;
+      medium = dot(next, hit->ng) < 0 ? inside : outside;
       ray = {geometry.offset_origin(hit->p, hit->ng, next), next};
     }
   }
@@ -438,7 +502,7 @@ void LightTracer::trace(int x, int y, std::uint32_t sample_index, std::vector<Li
   if (!(selection > 0.0)) return;
   Ray ray;
   path.light = int(chosen);
-  if (!path.emit(lights[chosen], float(selection), &ray)) return;
+  if (!path.emit(lights[chosen], int(chosen), float(selection), &ray)) return;
   path.walk(ray);
 }
 

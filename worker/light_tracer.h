@@ -12,9 +12,20 @@
 // estimates W·H times the eye tracer's per-pixel radiance at the pixels it lands in, so a batch
 // of W·H paths is worth one sample per pixel (LightTaskRenderer divides by W·H).
 //
+// Homogeneous media: a path starts in its light's medium (an area light's per side of its shape,
+// any other light's the one declared with it, pbrt-v4's light MediumInterface; light from
+// infinitely far declared in a medium that attenuates at λ reaches nothing, as an eye path
+// escaping through it finds) and changes medium where it crosses a boundary. On each segment in
+// a scattering medium it samples a free flight with the density σ_t·T(t) (weight σ_s/σ_t where it
+// scatters, 1 where it passes); a medium vertex connects to the camera with the phase function
+// per unit volume and scatters by sampling it; absorbing media weigh by their transmittance. With
+// --caustics light a caustic path never scatters in a medium (the eye paths take those that do),
+// so every segment weighs by its transmittance. Camera connections run through the media by
+// trace_shadow.
+//
 // Limits, refused by check_light_tracing with the reason: a perspective camera only (a pinhole,
-// or a thin lens with a lens point of its own per connection: Camera::connect), no
-// participating media, no portal on the environment. What a light tracer cannot render at all
+// or a thin lens with a lens point of its own per connection: Camera::connect), no portal on
+// the environment. What a light tracer cannot render at all
 // and an eye tracer can: whatever the camera sees through a delta BSDF (a mirror, smooth glass)
 // and the environment seen directly, since no light path can hit the camera. Those pixels stay
 // dark; `--caustics light` (hero plus light paths) is the combination that renders everything.

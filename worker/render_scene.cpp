@@ -280,6 +280,7 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
       info.area_light = int(rs->lights_.size());
       if (!spectral::is_constant(light.spectrum())) info.wavelength_dependent = true;
       rs->lights_.push_back(std::move(light));
+      rs->light_media_.push_back(-1);
     }
     rs->shapes_.push_back(info);
   }
@@ -295,6 +296,7 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
     }
     PRISM_ASSIGN_OR_RETURN(Light light, make_light(l, *rs->geometry_, library, uplift, *rs->cmf_));
     rs->lights_.push_back(std::move(light));
+    rs->light_media_.push_back(l.medium);
   }
   rs->camera_medium_ = scene.camera.medium;
 

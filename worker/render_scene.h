@@ -78,6 +78,9 @@ class RenderScene {
   const Material& material_at(int index, const SurfaceHit& hit, const Vec3f& wo) const;
   const std::vector<Light>& lights() const { return lights_; }
   const std::vector<HomogeneousMedium>& media() const { return media_; }
+  // The medium a light emits into (pbrt-v4's light MediumInterface, its outside medium current
+  // at the directive): -1 for vacuum and for area lights, whose shape's media say it per side.
+  int light_medium(int light) const { return light_media_[std::size_t(light)]; }
   const ShapeInfo& shape(int index) const { return shapes_[index]; }
   int shape_count() const { return int(shapes_.size()); }
   int camera_medium() const { return camera_medium_; }
@@ -99,6 +102,7 @@ class RenderScene {
   std::unique_ptr<PixelFilter> pixel_filter_;
   std::vector<Material> materials_;
   std::vector<Light> lights_;
+  std::vector<int> light_media_;  // per light (light_medium)
   std::vector<HomogeneousMedium> media_;
   std::vector<ShapeInfo> shapes_;
   int camera_medium_ = -1;

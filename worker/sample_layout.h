@@ -37,6 +37,9 @@ inline constexpr std::uint32_t kEmission = 6;  // 2D: the emitted direction
 inline constexpr std::uint32_t kBounce = 8;    // first dimension of bounce 0
 inline constexpr std::uint32_t kDimsPerBounce = 4;
 // Within a bounce: the scattered direction (2D) at 0, the lobe at 2, Russian roulette at 3.
+// Segment i's free flight through a medium at kFreeFlight + i (a medium vertex takes its
+// bounce's dimensions: the phase function's direction at 0, Russian roulette at 3).
+inline constexpr std::uint32_t kFreeFlight = 1u << 15;
 // A thin lens: connection i's lens point (2D) at kLensConnect + 2i.
 inline constexpr std::uint32_t kLensConnect = 1u << 16;
 }  // namespace light
