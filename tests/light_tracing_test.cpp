@@ -63,14 +63,24 @@ AttributeEnd
     "integer indices" [0 1 2 0 2 3]
 AttributeEnd
 )";
-  if (!caustic && media) {
-    // The fog lit from outside by the distant light and the spot; the point light sits in a
-    // sphere of absorbing tint, declared in it. (No light inside the fog: an eye path's
-    // next-event estimate from fog near a point light has infinite variance, 1/d⁴ against
-    // d² dd, which no z-test survives.)
-    return text + R"(LightSource "distant" "point3 from" [1 4 -1] "point3 to" [0 0 0]
+  if (!caustic) {
+    const std::string distant = R"(LightSource "distant" "point3 from" [1 4 -1] "point3 to" [0 0 0]
   "blackbody L" 5000 "float scale" 0.5
-MakeNamedMedium "tint" "string type" "homogeneous"
+)";
+    const std::string blue_sphere = R"(AttributeBegin
+  Material "diffuse" "rgb reflectance" [0.2 0.5 0.8]
+  Translate 0.3 1.1 0.4
+  Shape "sphere" "float radius" 0.6
+AttributeEnd
+)";
+    const std::string spot = R"(  "spectrum I" [360 0 450 1 600 0.2 830 0] "float scale" 10
+)";
+    if (media) {
+      // The fog lit from outside by the distant light and the spot; the point light sits in a
+      // sphere of absorbing tint, declared in it. (No light inside the fog: an eye path's
+      // next-event estimate from fog near a point light has infinite variance, 1/d⁴ against
+      // d² dd, which no z-test survives.)
+      return text + distant + R"(MakeNamedMedium "tint" "string type" "homogeneous"
   "spectrum sigma_a" [360 2.5 480 0.2 560 0.1 640 1.8 830 3] "spectrum sigma_s" [360 0 830 0]
 AttributeBegin
   MediumInterface "tint" ""
@@ -83,27 +93,13 @@ AttributeBegin
   LightSource "point" "point3 from" [1.4 1.6 -0.6] "blackbody I" 3000 "float scale" 8
 AttributeEnd
 LightSource "spot" "point3 from" [-2.5 3 -1] "point3 to" [-1.3 0 0.9] "float coneangle" 25
-  "spectrum I" [360 0 450 1 600 0.2 830 0] "float scale" 10
-AttributeBegin
-  Material "diffuse" "rgb reflectance" [0.2 0.5 0.8]
-  Translate 0.3 1.1 0.4
-  Shape "sphere" "float radius" 0.6
-AttributeEnd
-)";
-  }
-  if (!caustic) {
+)" + spot + blue_sphere;
+    }
     return text + R"(LightSource "infinite" "spectrum L" [360 0.2 830 0.2]
-LightSource "distant" "point3 from" [1 4 -1] "point3 to" [0 0 0]
-  "blackbody L" 5000 "float scale" 0.5
-LightSource "point" "point3 from" [-2 2.5 1] "blackbody I" 3000 "float scale" 8
+)" + distant +
+           R"(LightSource "point" "point3 from" [-2 2.5 1] "blackbody I" 3000 "float scale" 8
 LightSource "spot" "point3 from" [1.5 3 -1] "point3 to" [1.2 0 -0.8] "float coneangle" 25
-  "spectrum I" [360 0 450 1 600 0.2 830 0] "float scale" 10
-AttributeBegin
-  Material "diffuse" "rgb reflectance" [0.2 0.5 0.8]
-  Translate 0.3 1.1 0.4
-  Shape "sphere" "float radius" 0.6
-AttributeEnd
-)";
+)" + spot + blue_sphere;
   }
   if (mirror) {
     text += R"(AttributeBegin
