@@ -87,7 +87,7 @@ struct RenderOptions {
   // every pixel).
   bool light_caustics = false;
   // With light_caustics: light paths per pixel and sample (kMinCausticPaths..1); a batch is
-  // caustic_light_paths(W·H) paths.
+  // light_paths_per_batch(W·H) paths.
   float caustic_paths = 1.0f;
   // Differential splatting of the light paths (§6.1) when > 0: Δλ in nm at sample 0, shrinking
   // as (s + 1)^(-1/5); also a filtered image beside the unbiased one (TileBuffers::filtered).
