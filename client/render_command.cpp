@@ -222,10 +222,17 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   }
   const bool gradient =
       !automatic && *parse_integrator(o.integrator) == job::IntegratorKind::kGradient;
-  if (!gradient &&
-      (o.delta || o.tau || o.tau_auto || o.alpha || !o.poisson.empty() || o.primal_and_gradients)) {
+  if (!gradient && (o.delta || o.tau || o.tau_auto || o.alpha || o.gradient_lanes ||
+                    !o.poisson.empty() || o.primal_and_gradients)) {
     return absl::InvalidArgumentError(
-        "--delta, --tau, --alpha, --poisson and --primal-and-gradients need --integrator gradient");
+        "--delta, --tau, --alpha, --gradient-lanes, --poisson and --primal-and-gradients need "
+        "--integrator gradient");
+  }
+  if (o.gradient_lanes &&
+      !(*o.gradient_lanes >= 1 && *o.gradient_lanes <= job::kMaxGradientLanes)) {
+    return absl::InvalidArgumentError(absl::StrCat("--gradient-lanes ", *o.gradient_lanes,
+                                                   " is out of range: want 1..",
+                                                   job::kMaxGradientLanes));
   }
   if (o.delta && !(*o.delta > 0.0 && *o.delta <= 0.5)) {
     return absl::InvalidArgumentError(
@@ -373,6 +380,7 @@ absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
     if (o.delta) g->set_delta(static_cast<float>(*o.delta));
     if (o.tau) g->set_tau(static_cast<float>(*o.tau));
     if (o.alpha) g->set_alpha(static_cast<float>(*o.alpha));
+    if (o.gradient_lanes) g->set_lanes(static_cast<std::uint32_t>(*o.gradient_lanes));
     g->set_norm(job::to_proto(o.poisson.empty() ? job::PoissonNorm::kL2
                                                 : *job::parse_poisson_norm(o.poisson)));
     spec.mutable_outputs()->set_primal_and_gradients(o.primal_and_gradients);

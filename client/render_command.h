@@ -71,7 +71,8 @@ struct RenderCommandOptions {
   std::optional<double> tau;    // unset: chosen by the pilot, as with tau_auto
   bool tau_auto = false;        // --tau auto
   std::optional<double> alpha;
-  std::string poisson;                // empty: the job's default, l2
+  std::optional<std::int64_t> gradient_lanes;  // hero lanes of the base paths
+  std::string poisson;                         // empty: the job's default, l2
   bool primal_and_gradients = false;  // also write <stem>.primal.exr and <stem>.gradient.exr
   // The multi-pass prepass; unset: off (job::prepass_by_default), unless auto asks for it.
   std::optional<bool> prepass;

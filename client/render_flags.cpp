@@ -5,6 +5,7 @@
 #include "absl/strings/str_cat.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
+#include "services/job/render_options.h"
 
 namespace prism::client {
 
@@ -90,6 +91,13 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   f.alpha_opt =
       cmd.add_option("--alpha", f.alpha,
                      "Gradient: screened Poisson weight of --poisson l2 and l1, > 0 (default 0.2)");
+  f.gradient_lanes_opt =
+      cmd.add_option("--gradient-lanes", f.gradient_lanes,
+                     absl::StrCat("Gradient: hero wavelengths carried by each base path, 1..",
+                                  job::kMaxGradientLanes,
+                                  "; events are shifted only after a smooth dispersive refraction "
+                                  "(default: 1 where a material can refract so, else ",
+                                  job::kSceneGradientLanes, ")"));
   cmd.add_option("--poisson", o.poisson,
                  "Gradient: reconstruction l2 (one alpha), l1 (IRLS) or weighted (per-bin inverse "
                  "variances of I and G, unbiased but slower to converge; default l2)");
@@ -158,6 +166,7 @@ absl::Status apply_render_flags(const RenderFlags& f, RenderCommandOptions& o) {
     }
   }
   take(f.alpha_opt, f.alpha, o.alpha);
+  take(f.gradient_lanes_opt, f.gradient_lanes, o.gradient_lanes);
   if (f.target_error_opt->count() > 0) {
     PRISM_ASSIGN_OR_RETURN(o.target_error, parse_target_error(f.target_error));
   }

@@ -20,6 +20,8 @@ struct RenderFlags {
   std::int64_t spp = 0, bins = 0, max_depth = 0, samples_per_task = 0;
   bool no_spectral_light_selection = false;
   double delta = 0, alpha = 0;
+  std::int64_t gradient_lanes = 0;
+  CLI::Option* gradient_lanes_opt = nullptr;
   std::string tau;           // a value >= 0 or "auto"
   std::string target_error;  // "0.01" or "1%"
   std::int64_t max_spp = 0;

@@ -39,6 +39,7 @@ void add_job_sections(const job::JobParameters& p, RenderReport& report) {
     g.alpha = static_cast<float>(p.gradient.alpha);
     g.norm = std::string(to_string(p.gradient.norm));
     g.with_primal_and_gradients = p.outputs.primal_and_gradients;
+    g.lanes_requested = p.render.gradient_lanes;
     report.gradient = g;
   }
   if (p.prepass.has_value()) {

@@ -115,6 +115,9 @@ struct GradientReport {
   std::uint64_t shifts = 0;         // offsets evaluated
   std::uint64_t failed_shifts = 0;  // of those, no valid offset path
   std::uint64_t wasted_shifts = 0;  // of those, the offset's own contribution was <= τ
+  int lanes_requested = 0;          // the job's gradient lanes (0: by the scene)
+  std::uint64_t samples = 0;        // gradient samples traced, and the sum of their lanes
+  std::uint64_t lane_sum = 0;
   bool with_primal_and_gradients = false;
 };
 

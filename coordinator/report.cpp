@@ -123,6 +123,13 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
                      {"failed_shifts", g.failed_shifts},
                      {"wasted_shifts", g.wasted_shifts}};
     j["gradient"]["tau_source"] = g.tau_pilot.has_value() ? "pilot" : "given";
+    // The base paths' hero lanes C as traced (the job's --gradient-lanes, or the scene's choice),
+    // and what was asked (0: by the scene).
+    j["gradient"]["lanes"] =
+        g.samples > 0
+            ? nlohmann::ordered_json(shortest(float(double(g.lane_sum) / double(g.samples))))
+            : nlohmann::ordered_json();
+    j["gradient"]["lanes_requested"] = g.lanes_requested;
     if (g.tau_pilot.has_value()) {
       const job::TauPilotReport& t = *g.tau_pilot;
       nlohmann::ordered_json pilot = {
@@ -248,6 +255,8 @@ void fill_gradient_counters(const std::vector<std::pair<std::string, std::uint64
     if (name == "gradient_shifts") report.shifts = value;
     if (name == "gradient_shifts_failed") report.failed_shifts = value;
     if (name == "gradient_shifts_wasted") report.wasted_shifts = value;
+    if (name == "gradient_samples") report.samples = value;
+    if (name == "gradient_lanes") report.lane_sum = value;
   }
 }
 

@@ -418,6 +418,8 @@ std::vector<std::pair<std::string, std::uint64_t>> counter_list(const TraceCount
           {"gradient_divergences", c.gradient_divergences},
           {"gradient_reconnections", c.gradient_reconnections},
           {"gradient_repeated_divergences", c.gradient_repeated_divergences},
+          {"gradient_samples", c.gradient_samples},
+          {"gradient_lanes", c.gradient_lanes},
           {"light_splats", c.light_splats},
           {"splat_lines", c.splat_lines}};
 }

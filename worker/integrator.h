@@ -98,6 +98,9 @@ struct TraceCounters {
   std::uint64_t gradient_divergences = 0;
   std::uint64_t gradient_reconnections = 0;
   std::uint64_t gradient_repeated_divergences = 0;
+  // Gradient samples traced, and the sum of their hero lanes C (GradientIntegrator).
+  std::uint64_t gradient_samples = 0;
+  std::uint64_t gradient_lanes = 0;
   // Light paths (light_tracer.h): their splats on the film, and of those the ones differential
   // splatting drew as lines (differential_splat.h).
   std::uint64_t light_splats = 0;
@@ -117,6 +120,8 @@ struct TraceCounters {
     gradient_divergences += o.gradient_divergences;
     gradient_reconnections += o.gradient_reconnections;
     gradient_repeated_divergences += o.gradient_repeated_divergences;
+    gradient_samples += o.gradient_samples;
+    gradient_lanes += o.gradient_lanes;
     light_splats += o.light_splats;
     splat_lines += o.splat_lines;
     return *this;

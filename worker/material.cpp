@@ -378,6 +378,13 @@ bool terminates_secondary(const Material& material) {
   return false;
 }
 
+bool may_refract_smooth_dispersive(const Material& material) {
+  const auto* d = std::get_if<DielectricMaterial>(&material);
+  if (d == nullptr || !d->dispersive) return false;
+  return d->roughness_textures.u != nullptr || d->roughness_textures.v != nullptr ||
+         std::max(d->alpha_x, d->alpha_y) < TrowbridgeReitz::kSmoothAlpha;
+}
+
 bool is_dispersive(const Material& material) {
   const auto* d = std::get_if<DielectricMaterial>(&material);
   return d != nullptr && d->dispersive;

@@ -150,6 +150,10 @@ bool is_dispersive(const Material& material);
 // Whether a path that meets this material keeps only its hero wavelength from here on: a coat
 // whose index varies with wavelength (the layered walk cannot follow several indices at once).
 bool terminates_secondary(const Material& material);
+// Whether a hit on the material can refract through a smooth dispersive interface, the event only
+// the hero wavelength follows (BsdfSample::hero_only): a dispersive dielectric that is smooth or
+// whose roughness comes from textures (and so may be smooth somewhere).
+bool may_refract_smooth_dispersive(const Material& material);
 // True when the material's value varies with wavelength at all (coloured reflectance, a
 // conductor whose η or k is not constant, dispersive glass): what "no wavelength-dependent
 // event" tests look for. Constant-parameter materials and `interface` are false.

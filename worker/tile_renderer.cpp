@@ -51,34 +51,31 @@ struct TileSums {
     }
   }
 
-  // A gradient sample s: its primal into its bin, its two gradient halves into G[bin] and
-  // G[bin_below], and with halves the even samples again into the half buffers.
+  // A gradient sample s: each of its bins' primal and gradient values (GradientSample::entry,
+  // one per bin, so each is one per-sample value for the squares), and with halves the even
+  // samples again into the half buffers.
   void add_gradient(std::int64_t index, std::uint64_t s, const GradientSample& g) {
     const std::size_t o = std::size_t(index) * bins;
-    if (g.primal != 0.0f) {
-      const double v = g.primal;
-      sums[o + g.bin] += v;
-      squares[o + g.bin] += v * v;
-    }
     add_rgb(index, g.rgb);
-    gradients[o + g.bin] += g.gradient;
-    gradients[o + g.bin_below] += g.gradient_below;
-    if (!buffers.halves) return;
-    // bin and bin_below differ (1 <= k < bins): each is one per-sample value.
-    const double g2 = double(g.gradient) * g.gradient;
-    const double g2_below = double(g.gradient_below) * g.gradient_below;
-    gradient_squares[o + g.bin] += g2;
-    gradient_squares[o + g.bin_below] += g2_below;
     // The halves split by the sample's global index, so they do not depend on how the samples
     // were cut into tasks.
-    if (s % 2 != 0) return;
-    const double v = g.primal;
-    half_sums[o + g.bin] += v;
-    half_squares[o + g.bin] += v * v;
-    half_gradients[o + g.bin] += g.gradient;
-    half_gradients[o + g.bin_below] += g.gradient_below;
-    half_gradient_squares[o + g.bin] += g2;
-    half_gradient_squares[o + g.bin_below] += g2_below;
+    const bool half = buffers.halves && s % 2 == 0;
+    for (int e = 0; e < g.entries; ++e) {
+      const GradientBinValue& v = g.entry[e];
+      const std::size_t b = o + std::size_t(v.bin);
+      const double p = v.primal, p2 = p * p;
+      sums[b] += p;
+      squares[b] += p2;
+      gradients[b] += v.gradient;
+      if (!buffers.halves) continue;
+      const double g2 = double(v.gradient) * v.gradient;
+      gradient_squares[b] += g2;
+      if (!half) continue;
+      half_sums[b] += p;
+      half_squares[b] += p2;
+      half_gradients[b] += v.gradient;
+      half_gradient_squares[b] += g2;
+    }
   }
 
   // A hero sample (fold_lanes).

@@ -129,6 +129,12 @@ absl::Status gradient_of(const prism::v1::GradientOptions& g, int bins, JobParam
         absl::StrCat("gradient.tau ", g.tau(), " is out of range: want a finite value >= 0"));
   }
   p.render.gradient_tau = g.tau();
+  if (g.lanes() > std::uint32_t(kMaxGradientLanes)) {
+    return absl::InvalidArgumentError(absl::StrCat("gradient.lanes ", g.lanes(),
+                                                   " is out of range: want 1..", kMaxGradientLanes,
+                                                   " (0: by the scene)"));
+  }
+  p.render.gradient_lanes = int(g.lanes());
   if (g.has_tau_pilot()) {
     const prism::v1::GradientTauPilot& t = g.tau_pilot();
     if (!(t.epsilon() > 0.0f && t.epsilon() <= 1.0f)) {
@@ -291,9 +297,11 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   if (!gradient && spec.has_gradient() &&
       (spec.gradient().delta() != 0.0f || spec.gradient().tau() != 0.0f ||
        spec.gradient().alpha() != 0.0f || spec.gradient().has_tau_pilot() ||
+       spec.gradient().lanes() != 0 ||
        spec.gradient().norm() != prism::v1::POISSON_NORM_UNSPECIFIED)) {
     return absl::InvalidArgumentError(
-        absl::StrCat("gradient options (delta, tau, alpha, norm) need the gradient integrator, "
+        absl::StrCat("gradient options (delta, tau, alpha, norm, lanes) need the gradient "
+                     "integrator, "
                      "not ",
                      name(p.render.integrator)));
   }
@@ -577,6 +585,7 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
     if (p.gradient.tau_pilot.has_value()) *g->mutable_tau_pilot() = to_proto(*p.gradient.tau_pilot);
     g->set_alpha(static_cast<float>(p.gradient.alpha));
     g->set_norm(to_proto(p.gradient.norm));
+    if (p.render.gradient_lanes != 0) g->set_lanes(std::uint32_t(p.render.gradient_lanes));
   }
   auto* prepass = spec.mutable_prepass();
   prepass->set_enabled(p.prepass.has_value());

@@ -148,7 +148,7 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
        "resolution 16385x2: want WxH with 1 <= W, H <= 16384"},
       {"gradient_options_without_gradient",
        [](prism::v1::JobSpec& s) { s.mutable_gradient()->set_tau(0.5f); },
-       "gradient options (delta, tau, alpha, norm) need the gradient integrator, not hero"},
+       "gradient options (delta, tau, alpha, norm, lanes) need the gradient integrator, not hero"},
       {"delta",
        [](prism::v1::JobSpec& s) {
          s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
@@ -167,9 +167,17 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.mutable_gradient()->set_tau(-1.0f);
        },
        "gradient.tau -1 is out of range"},
+      {"lanes_without_gradient", [](prism::v1::JobSpec& s) { s.mutable_gradient()->set_lanes(4); },
+       "gradient options (delta, tau, alpha, norm, lanes) need the gradient integrator"},
+      {"lanes",
+       [](prism::v1::JobSpec& s) {
+         s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
+         s.mutable_gradient()->set_lanes(7);
+       },
+       "gradient.lanes 7 is out of range: want 1..6 (0: by the scene)"},
       {"tau_pilot_without_gradient",
        [](prism::v1::JobSpec& s) { s.mutable_gradient()->mutable_tau_pilot()->set_epsilon(0.1f); },
-       "gradient options (delta, tau, alpha, norm) need the gradient integrator"},
+       "gradient options (delta, tau, alpha, norm, lanes) need the gradient integrator"},
       {"tau_pilot_epsilon",
        [](prism::v1::JobSpec& s) {
          s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);

@@ -60,6 +60,14 @@ inline const char* name(LightSelectionKind kind) {
   return "?";
 }
 
+// RenderOptions::gradient_lanes: the default, 0, lets the scene decide (GradientIntegrator: 1
+// where a material may refract smooth-dispersively, else kSceneGradientLanes); the largest C
+// (the base, two offsets and C − 1 more lanes share one set of spectral evaluations,
+// spectral::kMaxLanes = 8).
+inline constexpr int kDefaultGradientLanes = 0;
+inline constexpr int kSceneGradientLanes = 4;
+inline constexpr int kMaxGradientLanes = 6;
+
 struct RenderOptions {
   IntegratorKind integrator = IntegratorKind::kHero;
   SpectralPdfKind spectral_pdf = SpectralPdfKind::kFlat;
@@ -81,6 +89,10 @@ struct RenderOptions {
   // for the variance-weighted reconstruction.
   bool gradient_variances = false;
   float gradient_tau = 0;
+  // Hero lanes C of the gradient integrator's base paths (paper §3.4 as built here,
+  // gradient/integrator.h): 1, single-wavelength base paths; 2..kMaxGradientLanes, C rotated
+  // wavelengths, shifted only after a smooth dispersive refraction; 0, by the scene.
+  int gradient_lanes = kDefaultGradientLanes;
   // `--caustics light` (hero and uniform, docs/estimators.md §6): light paths render the caustic
   // paths light → delta chain (one vertex or more) → the camera's first, non-delta vertex, and
   // the eye paths everything else; a task is then the whole image (both kinds splat or cover

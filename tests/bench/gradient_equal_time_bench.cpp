@@ -22,6 +22,7 @@
 //          [--spp 16,32,64,128,256] [--reference-spp 16384] [--cache-dir DIR] [--threads N]
 //          [--bins B (the scene's)] [--max-depth D (the scene's)] [--delta 0.15]
 //          [--tau 0 | auto | auto:EPS, comma-separated: one gradient curve each] [--alpha 0.2]
+//          [--gradient-lanes 0,1,4 (comma-separated: one curve per τ and C; 0 by the scene)]
 //          [--poisson l2|l1|weighted] [--clock wall|cpu] [--inset x,y,w,h]
 //          [--csv path (scene,method,spp,seconds,relmse; relMSE of the whole image)]
 #include <tbb/info.h>
@@ -58,7 +59,8 @@ struct Method {
   std::string name;
   job::IntegratorKind integrator;
   double tau = 0;
-  std::optional<double> pilot_epsilon;  // --tau auto: the pilot chooses τ
+  std::optional<double> pilot_epsilon;     // --tau auto: the pilot chooses τ
+  int lanes = job::kDefaultGradientLanes;  // the base paths' hero lanes
 };
 
 // "0.05", "auto" or "auto:0.2".
@@ -85,11 +87,9 @@ absl::StatusOr<Method> gradient_method(const std::string& entry, bool only) {
   return m;
 }
 
-absl::StatusOr<coordinator::LocalRenderOptions> options_for(const Setup& setup,
-                                                            const LoadedBenchScene& scene,
-                                                            job::IntegratorKind integrator,
-                                                            std::uint64_t spp, std::uint64_t seed,
-                                                            double tau = 0) {
+absl::StatusOr<coordinator::LocalRenderOptions> options_for(
+    const Setup& setup, const LoadedBenchScene& scene, job::IntegratorKind integrator,
+    std::uint64_t spp, std::uint64_t seed, double tau = 0, int lanes = job::kDefaultGradientLanes) {
   coordinator::LocalRenderOptions o;
   o.render.integrator = integrator;
   o.render.bins = setup.bins > 0 ? setup.bins : scene.description.film.bins.value_or(64);
@@ -99,6 +99,7 @@ absl::StatusOr<coordinator::LocalRenderOptions> options_for(const Setup& setup,
   PRISM_ASSIGN_OR_RETURN(o.render.gradient_offset_bins,
                          job::gradient_offset_bins(setup.delta, o.render.bins));
   o.render.gradient_tau = float(tau);
+  o.render.gradient_lanes = lanes;
   o.poisson_alpha = setup.alpha;
   o.poisson_norm = setup.norm;
   o.width = setup.width;
@@ -136,9 +137,10 @@ struct TimedPilot {
 // not timed, like the renders' own), the job's seed.
 absl::StatusOr<TimedPilot> run_pilot(worker::EmbreeDevice& device, const Setup& setup,
                                      const LoadedBenchScene& scene, double epsilon,
-                                     std::uint64_t seed) {
-  PRISM_ASSIGN_OR_RETURN(coordinator::LocalRenderOptions o,
-                         options_for(setup, scene, job::IntegratorKind::kGradient, 1, seed, 0.0));
+                                     std::uint64_t seed, int lanes) {
+  PRISM_ASSIGN_OR_RETURN(
+      coordinator::LocalRenderOptions o,
+      options_for(setup, scene, job::IntegratorKind::kGradient, 1, seed, 0.0, lanes));
   PRISM_ASSIGN_OR_RETURN(
       auto built, worker::RenderScene::build(device, scene.description, *scene.library, o.render,
                                              setup.width, setup.height));
@@ -168,7 +170,7 @@ int run(int argc, char** argv) {
   auto flags = parse_flags(argc, argv,
                            {"--resolution", "--spp", "--reference-spp", "--cache-dir", "--threads",
                             "--bins", "--max-depth", "--delta", "--tau", "--alpha", "--poisson",
-                            "--clock", "--csv", "--inset", "--seed"});
+                            "--clock", "--csv", "--inset", "--seed", "--gradient-lanes"});
   if (!flags.ok()) return fail(flags.status());
   auto size = parse_size(flags->get("--resolution", "80x60"));
   auto spp_list = parse_spp_list(flags->get("--spp", "16,32,64,128,256"));
@@ -201,10 +203,22 @@ int run(int argc, char** argv) {
   std::vector<Method> methods = {{"uniform", job::IntegratorKind::kUniform, 0, std::nullopt},
                                  {"hero", job::IntegratorKind::kHero, 0, std::nullopt}};
   const std::vector<std::string> taus = absl::StrSplit(flags->get("--tau", "0"), ',');
-  for (const std::string& entry : taus) {
-    auto m = gradient_method(entry, taus.size() == 1);
-    if (!m.ok()) return fail(m.status());
-    methods.push_back(*m);
+  const std::vector<std::string> lane_list =
+      absl::StrSplit(flags->get("--gradient-lanes", absl::StrCat(job::kDefaultGradientLanes)), ',');
+  for (const std::string& lanes : lane_list) {
+    int c = 0;
+    if (!absl::SimpleAtoi(lanes, &c) || c < 0 || c > job::kMaxGradientLanes) {
+      return fail(absl::InvalidArgumentError(absl::StrCat("--gradient-lanes ", lanes,
+                                                          ": want values in 0 (by the scene)..",
+                                                          job::kMaxGradientLanes)));
+    }
+    for (const std::string& entry : taus) {
+      auto m = gradient_method(entry, taus.size() == 1);
+      if (!m.ok()) return fail(m.status());
+      m->lanes = c;
+      if (lane_list.size() > 1) m->name = absl::StrCat(m->name, " C=", c);
+      methods.push_back(*m);
+    }
   }
   setup.alpha = *alpha;
   setup.cpu_clock = clock == "cpu";
@@ -267,7 +281,8 @@ int run(int argc, char** argv) {
     for (const Method& method : methods) {
       double tau = method.tau, pilot_wall = 0, pilot_cpu = 0;
       if (method.pilot_epsilon.has_value()) {
-        auto pilot = run_pilot(device, setup, *scene, *method.pilot_epsilon, std::uint64_t(*seed));
+        auto pilot = run_pilot(device, setup, *scene, *method.pilot_epsilon, std::uint64_t(*seed),
+                               method.lanes);
         if (!pilot.ok()) return fail(pilot.status());
         tau = pilot->pilot.tau;
         pilot_wall = pilot->wall;
@@ -283,8 +298,8 @@ int run(int argc, char** argv) {
             p.second_moment_rise, p.offset_vertex_fraction);
       }
       for (std::uint64_t spp : *spp_list) {
-        auto options =
-            options_for(setup, *scene, method.integrator, spp, std::uint64_t(*seed), tau);
+        auto options = options_for(setup, *scene, method.integrator, spp, std::uint64_t(*seed), tau,
+                                   method.lanes);
         if (!options.ok()) return fail(options.status());
         auto timed = timed_render(device, *scene, *options);
         if (!timed.ok()) return fail(timed.status());

@@ -1,5 +1,6 @@
 #include "worker/gradient/integrator.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <new>
@@ -43,6 +44,18 @@ SampledWavelengths single(float lambda, float pdf) {
   return w;
 }
 
+// Adds a sample's values to one bin: its entry for the bin, new or the one it has.
+void add_entry(GradientSample& out, int bin, float primal, float gradient) {
+  for (int e = 0; e < out.entries; ++e) {
+    if (out.entry[e].bin == bin) {
+      out.entry[e].primal += primal;
+      out.entry[e].gradient += gradient;
+      return;
+    }
+  }
+  out.entry[out.entries++] = {bin, primal, gradient};
+}
+
 // One gradient sample's base path and its two offsets (docs/estimators.md §5), the estimator's
 // steps by name: the events' accumulation with their shifts, emission found by the sampled
 // direction, a flight through a medium, next-event estimation at a surface, scattering and
@@ -50,16 +63,31 @@ SampledWavelengths single(float lambda, float pdf) {
 // (record, catch_up). It lives for one sample.
 class BasePath {
  public:
+  // `lanes` holds the C hero lanes (C = 1: the base wavelength alone); lane 0 is the base.
   BasePath(const RenderScene& scene, const Sampler& sampler, TraceCounters& counters,
-           GradientEventSink* events, float tau, const SampledWavelengths& base)
+           GradientEventSink* events, float tau, const SampledWavelengths& lanes)
       : scene_(scene),
         sampler(sampler),
         counters(counters),
         events(events),
         tau_(tau),
-        base_lambda(base),
-        shared(kLanes),
-        tracer(scene, counters) {}
+        hero_lanes(lanes.count()),
+        base_lambda(single(lanes.lambda(0), lanes.pdf(0))),
+        hero_lambda(lanes),
+        shared(kLanes + lanes.count() - 1),
+        tracer(scene, counters) {
+    for (int s = 0; s < hero_lanes; ++s) {
+      lane_lambda[s] = single(lanes.lambda(s), lanes.pdf(s));
+      hero.beta[s] = hero.r[s] = hero.r_prev[s] = 1.0f;
+    }
+  }
+
+  bool has_hero() const { return hero_lanes > 1; }
+  // The wavelengths the base's spectral evaluations (BSDF, emission, light samples) are made
+  // for: lane 0 is the base's.
+  const SampledWavelengths& eval_lambda() const { return has_hero() ? hero_lambda : base_lambda; }
+  // Hero lane s's index in `shared`.
+  static int shared_lane(int s) { return s == 0 ? kBase : kLanes + s - 1; }
 
   // Places the base wavelength and the offsets at λ ± δ (δ = `offset_bins` bins); false when the
   // base's λ falls in no bin or has no density.
@@ -72,10 +100,14 @@ class BasePath {
     out.lambda = lambda;
     out.bin = bin;
     out.bin_below = grid.wrap(bin - offset_bins);
+    offset_bins_ = offset_bins;
 
     // Offsets at λ ± δ, placed from the base's position inside its bin so that they land in bins
     // i ± k exactly (λ ± k·w wrapped can round into a neighbouring bin).
     shared.set(kBase, lambda, lambda_density);
+    for (int s = 1; s < hero_lanes; ++s) {
+      shared.set(shared_lane(s), hero_lambda.lambda(s), hero_lambda.pdf(s));
+    }
     for (int side = 0; side < 2; ++side) {
       const int target = grid.wrap(bin + (side == 0 ? offset_bins : -offset_bins));
       float l = grid.lower(target) + (lambda - grid.lower(bin));
@@ -94,6 +126,74 @@ class BasePath {
     medium = scene_.camera_medium();
     for (Offset& o : offsets) o.medium = medium;
     return true;
+  }
+
+  // Whether any lane still carries light: the base's throughput, or with hero lanes any of theirs
+  // (the path goes on for them; the base's events then add 0).
+  bool alive() const {
+    if (beta != 0.0f) return true;
+    for (int s = 1; s < hero_lanes; ++s) {
+      if (hero.beta[s] != 0.0f) return true;
+    }
+    return false;
+  }
+  // Whether a light's radiance reaches a hero lane other than the base's.
+  bool hero_lit(const SampledSpectrum& radiance) const {
+    for (int s = 1; s < hero_lanes; ++s) {
+      if (radiance[s] > 0) return true;
+    }
+    return false;
+  }
+
+  float hero_r_sum() const {
+    float sum = 0;
+    for (int k = 0; k < hero_lanes; ++k) sum += hero.r[k];
+    return sum;
+  }
+
+  // An emitter found by the sampled direction, for the hero lanes: `le` per lane (eval_lambda())
+  // and `light_density(l)`, the density next-event estimation with the single wavelength l as the
+  // base's would have given this point (read only after a non-specular event).
+  template <typename LightDensity>
+  void hero_emission(const SampledSpectrum& le, LightDensity&& light_density) {
+    if (!has_hero() || le.is_zero()) return;
+    float denominator = hero_r_sum();
+    if (!prev_specular) {
+      for (int k = 0; k < hero_lanes; ++k) {
+        if (hero.r_prev[k] > 0) {
+          denominator += hero.r_prev[k] * light_density(lane_lambda[k]) / pdf_since_prev;
+        }
+      }
+    }
+    if (!(denominator > 0)) return;
+    for (int s = 0; s < hero_lanes; ++s) hero.radiance[s] += hero.beta[s] * le[s] / denominator;
+  }
+
+  // Next-event estimation for the hero lanes: light `light` at `p` through the light sample `ls`
+  // (radiance per lane), the scattering value and density per lane towards it, its shadow.
+  void hero_direct(const Vec3f& p, int light, const LightSample& ls, const SampledSpectrum& f,
+                   const SampledSpectrum& scatter_pdf, const Shadow& shadow) {
+    if (!has_hero()) return;
+    float denominator = 0;
+    for (int k = 0; k < hero_lanes; ++k) {
+      if (!(hero.r[k] > 0)) continue;
+      const float p_light = scene_.light_sampler().pmf(p, lane_lambda[k], light) * ls.pdf;
+      const float p_unidirectional = ls.delta ? 0.0f : scatter_pdf[k] * shadow.pass[shared_lane(k)];
+      denominator += hero.r[k] * (p_light + p_unidirectional);
+    }
+    if (!(denominator > 0)) return;
+    for (int s = 0; s < hero_lanes; ++s) {
+      hero.radiance[s] +=
+          hero.beta[s] * f[s] * ls.radiance[s] * shadow.transmittance[shared_lane(s)] / denominator;
+    }
+  }
+
+  // The hero lanes other than the base's end here (an event only the base's wavelength follows).
+  void hero_terminate_secondary() {
+    if (!has_hero() || !hero.secondary) return;
+    hero.secondary = false;
+    for (int s = 1; s < hero_lanes; ++s) hero.beta[s] = hero.r[s] = 0;
+    ++counters.lane_splits;
   }
 
   // The base reached its next vertex (or escaped) after scattering at a surface: the offsets
@@ -129,7 +229,7 @@ class BasePath {
     const float c_free = c * survival;
     float up = -c, down = c;  // unshifted
     float own_values[2] = {0, 0};
-    if (c_free > tau_) {
+    if (c_free > tau_ && shiftable) {
       catch_up();
       ++counters.gradient_events;
       for (int side = 0; side < 2; ++side) {
@@ -195,17 +295,27 @@ class BasePath {
           return hit ? std::exp(-sa * hit->t) : (sa > 0 ? 0.0f : 1.0f);
         };
         beta *= absorb(sigma_a[kBase]);
+        for (int s = 0; s < hero_lanes && has_hero(); ++s) {
+          hero.beta[s] *= absorb(sigma_a[shared_lane(s)]);
+        }
         gradient::OffsetStep& step = record();
         step.kind = StepKind::kSegment;
         for (const Offset& o : offsets) step.factor[o.lane - 1] = absorb(sigma_a[o.lane]);
-        if (beta == 0.0f) return Flight::kEnded;
+        if (!alive()) return Flight::kEnded;
       } else {
         SampledSpectrum sigma_s = m.sigma_s(shared);
         SampledSpectrum sigma_t = m.sigma_a(shared) + sigma_s;
-        FreeFlight flight =
-            sample_free_flight(sigma_t, hit ? hit->t : kInfinity, sampler.at(flight_dim), kLanes);
+        FreeFlight flight = sample_free_flight(sigma_t, hit ? hit->t : kInfinity,
+                                               sampler.at(flight_dim), shared.count());
         const float p_x = flight.pdf[kBase];
         if (!(p_x > 0)) return Flight::kEnded;
+        if (has_hero()) {
+          for (int s = 0; s < hero_lanes; ++s) {
+            const int l = shared_lane(s);
+            hero.beta[s] *= flight.transmittance[l] * (flight.scattered ? sigma_s[l] : 1.0f) / p_x;
+            hero.r[s] *= flight.pdf[l] / p_x;
+          }
+        }
         {
           gradient::OffsetStep& step = record();
           step.kind = StepKind::kSegment;
@@ -219,7 +329,7 @@ class BasePath {
         }
         if (flight.scattered) {
           beta *= flight.transmittance[kBase] * sigma_s[kBase] / p_x;
-          if (beta == 0.0f || depth == scene_.options().max_depth) return Flight::kEnded;
+          if (!alive() || depth == scene_.options().max_depth) return Flight::kEnded;
           const Vec3f p = ray.origin + ray.direction * flight.t;
           const Vec3f wo = -ray.direction;
           const HenyeyGreenstein& phase = m.phase();
@@ -231,15 +341,21 @@ class BasePath {
           auto choice = scene_.light_sampler().sample(p, base_lambda, choice_u.u0);
           if (choice) {
             const Light& light = scene_.lights()[choice->light];
-            auto ls = sample_light(light, ctx, to_point(light_u), choice_u.u1, base_lambda);
-            if (ls && ls->pdf > 0 && ls->radiance[0] > 0) {
+            auto ls = sample_light(light, ctx, to_point(light_u), choice_u.u1, eval_lambda());
+            if (ls && ls->pdf > 0 && (ls->radiance[0] > 0 || hero_lit(ls->radiance))) {
               const float f = phase.p(wo, ls->wi);
               Shadow s = trace_shadow(scene_, p, ls->wi, ls->p_light, std::isinf(ls->distance),
-                                      medium, shared, kLanes, counters);
+                                      medium, shared, shared.count(), counters);
+              if (has_hero()) {
+                SampledSpectrum fs;
+                for (int l = 0; l < hero_lanes; ++l) fs[l] = f;
+                hero_direct(p, choice->light, *ls, fs, fs, s);
+              }
               const float p_light_x = choice->pmf * ls->pdf;
               const float denominator_x = p_light_x + (ls->delta ? 0.0f : f * s.pass[kBase]);
-              const float c =
-                  scale * beta * f * ls->radiance[0] * s.transmittance[kBase] / denominator_x;
+              const float c = ls->radiance[0] > 0 ? scale * beta * f * ls->radiance[0] *
+                                                        s.transmittance[kBase] / denominator_x
+                                                  : 0.0f;
               accumulate(c, [&](Offset& o) -> OffsetEvent {
                 if (o.state != OffsetState::kSame) return {};
                 auto ls_y = sample_light(light, ctx, to_point(light_u), choice_u.u1, o.lambda);
@@ -258,6 +374,7 @@ class BasePath {
           const Vec3f wi =
               phase.sample(wo, to_point(sampler.at2(dim + kScatterDirection)), &phase_pdf);
           if (!(phase_pdf > 0)) return Flight::kEnded;
+          for (int k = 0; k < hero_lanes; ++k) hero.r_prev[k] = hero.r[k];
           gradient::OffsetStep& step = record();
           step.kind = StepKind::kMediumVertex;
           step.phase_pdf = phase_pdf;
@@ -271,7 +388,7 @@ class BasePath {
         }
         beta *= flight.transmittance[kBase] / p_x;
         pdf_since_prev *= p_x;
-        if (beta == 0.0f) return Flight::kEnded;
+        if (!alive()) return Flight::kEnded;
       }
     }
     return Flight::kPassed;
@@ -288,18 +405,20 @@ class BasePath {
       };
       const float p_light_x =
           prev_specular ? 0.0f : light_density(prev_ctx, base_lambda, ray.direction);
-      emission_event(inf.radiance(ray.origin, ray.direction, base_lambda)[0], p_light_x,
-                     [&](Offset& o) -> std::optional<std::pair<float, float>> {
-                       Vec3f origin = ray.origin, dir = ray.direction;
-                       if (o.state == OffsetState::kDiverged) {
-                         if (o.has_hit) return std::pair{0.0f, 0.0f};
-                         origin = o.prev_ctx.p;
-                         dir = o.direction;
-                       }
-                       return std::pair{
-                           inf.radiance(origin, dir, o.lambda)[0],
-                           prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, dir)};
-                     });
+      const SampledSpectrum le = inf.radiance(ray.origin, ray.direction, eval_lambda());
+      hero_emission(le, [&](const SampledWavelengths& l) {
+        return light_density(prev_ctx, l, ray.direction);
+      });
+      emission_event(le[0], p_light_x, [&](Offset& o) -> std::optional<std::pair<float, float>> {
+        Vec3f origin = ray.origin, dir = ray.direction;
+        if (o.state == OffsetState::kDiverged) {
+          if (o.has_hit) return std::pair{0.0f, 0.0f};
+          origin = o.prev_ctx.p;
+          dir = o.direction;
+        }
+        return std::pair{inf.radiance(origin, dir, o.lambda)[0],
+                         prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, dir)};
+      });
     }
   }
 
@@ -330,25 +449,27 @@ class BasePath {
       const float p_light_x = prev_specular ? 0.0f
                                             : light_density(prev_ctx, base_lambda, info->area_light,
                                                             area, ray.direction, *hit);
-      emission_event(
-          area.radiance(hit->ng, -ray.direction, base_lambda)[0], p_light_x,
-          [&](Offset& o) -> std::optional<std::pair<float, float>> {
-            if (!at_vertex && o.state != OffsetState::kSame) return std::nullopt;
-            const SurfaceHit* h = &*hit;
-            Vec3f dir = ray.direction;
-            if (o.state == OffsetState::kReconnected) dir = o.direction;
-            if (o.state == OffsetState::kDiverged) {
-              if (!o.has_hit) return std::pair{0.0f, 0.0f};
-              h = &o.hit;
-              dir = o.direction;
-            }
-            const int light = scene_.shape(h->shape).area_light;
-            if (light < 0) return std::pair{0.0f, 0.0f};
-            const auto& a = std::get<AreaLight>(scene_.lights()[light]);
-            return std::pair{
-                a.radiance(h->ng, -dir, o.lambda)[0],
-                prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, light, a, dir, *h)};
-          });
+      const SampledSpectrum le = area.radiance(hit->ng, -ray.direction, eval_lambda());
+      hero_emission(le, [&](const SampledWavelengths& l) {
+        return light_density(prev_ctx, l, info->area_light, area, ray.direction, *hit);
+      });
+      emission_event(le[0], p_light_x, [&](Offset& o) -> std::optional<std::pair<float, float>> {
+        if (!at_vertex && o.state != OffsetState::kSame) return std::nullopt;
+        const SurfaceHit* h = &*hit;
+        Vec3f dir = ray.direction;
+        if (o.state == OffsetState::kReconnected) dir = o.direction;
+        if (o.state == OffsetState::kDiverged) {
+          if (!o.has_hit) return std::pair{0.0f, 0.0f};
+          h = &o.hit;
+          dir = o.direction;
+        }
+        const int light = scene_.shape(h->shape).area_light;
+        if (light < 0) return std::pair{0.0f, 0.0f};
+        const auto& a = std::get<AreaLight>(scene_.lights()[light]);
+        return std::pair{
+            a.radiance(h->ng, -dir, o.lambda)[0],
+            prev_specular ? 0.0f : light_density(o.prev_ctx, o.lambda, light, a, dir, *h)};
+      });
     }
   }
 
@@ -365,7 +486,9 @@ class BasePath {
   SurfaceVertex direct_at_surface(const Ray& ray, const std::optional<SurfaceHit>& hit,
                                   const Material* material, std::uint32_t dim) {
     const Geometry& geometry = scene_.geometry();
-    auto bsdf = make_bsdf(*material, base_lambda, texture_context(*hit));
+    // A coat of wavelength-dependent index was made for the base's wavelength alone (as `hero`).
+    if (has_hero() && terminates_secondary(*material)) hero_terminate_secondary();
+    auto bsdf = make_bsdf(*material, eval_lambda(), texture_context(*hit));
     const VertexKind kind = gradient::kind_of(*bsdf);
     const Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
     const Vec3f wo = frame.to_local(-ray.direction);
@@ -407,24 +530,28 @@ class BasePath {
       std::optional<LightSample> ls;
       if (choice) {
         ls = sample_light(scene_.lights()[choice->light], ctx, to_point(light_u), choice_u.u1,
-                          base_lambda);
+                          eval_lambda());
       }
-      if (ls && ls->pdf > 0 && ls->radiance[0] > 0) {
+      if (ls && ls->pdf > 0 && (ls->radiance[0] > 0 || hero_lit(ls->radiance))) {
         const Light& light = scene_.lights()[choice->light];
         const Vec3f wi_local = frame.to_local(ls->wi);
-        const float f_x = eval(*bsdf, wo, wi_local)[0] * abs_cos_theta(wi_local);
-        const float bsdf_pdf_x = pdf(*bsdf, wo, wi_local)[0];
-        if (f_x > 0) {
+        const SampledSpectrum f = eval(*bsdf, wo, wi_local) * abs_cos_theta(wi_local);
+        const float f_x = ls->radiance[0] > 0 ? f[0] : 0.0f;
+        if (f_x > 0 || hero_lit(f * ls->radiance)) {
+          const SampledSpectrum bsdf_pdf = pdf(*bsdf, wo, wi_local);
+          const float bsdf_pdf_x = bsdf_pdf[0];
           const Vec3f target = ls->n_light == Vec3f()
                                    ? ls->p_light
                                    : geometry.offset_origin(ls->p_light, ls->n_light, -ls->wi);
           Shadow s =
               trace_shadow(scene_, geometry.offset_origin(ctx.p, hit->ng, ls->wi), ls->wi, target,
-                           std::isinf(ls->distance), medium, shared, kLanes, counters);
+                           std::isinf(ls->distance), medium, shared, shared.count(), counters);
+          hero_direct(ctx.p, choice->light, *ls, f, bsdf_pdf, s);
           const float p_light_x = choice->pmf * ls->pdf;
           const float denominator_x = p_light_x + (ls->delta ? 0.0f : bsdf_pdf_x * s.pass[kBase]);
-          const float c =
-              scale * beta * f_x * ls->radiance[0] * s.transmittance[kBase] / denominator_x;
+          const float c = f_x > 0 ? scale * beta * f_x * ls->radiance[0] * s.transmittance[kBase] /
+                                        denominator_x
+                                  : 0.0f;
           accumulate(c, [&](Offset& o) -> OffsetEvent {
             const OffsetVertex y = offset_vertex(o);
             const Bsdf& b = *y.bsdf;
@@ -502,7 +629,18 @@ class BasePath {
     prev_specular = bs->specular;
     pdf_since_prev = p_x;
     beta *= bs->f[0] * abs_cos_theta(bs->wi) / p_x;
-    if (beta == 0.0f) return false;
+    if (has_hero()) {
+      for (int s = 0; s < hero_lanes; ++s) {
+        hero.r_prev[s] = hero.r[s];
+        hero.beta[s] *= bs->f[s] * abs_cos_theta(bs->wi) / p_x;
+        hero.r[s] *= bs->pdf[s] / p_x;
+      }
+      if (bs->hero_only) {
+        hero_terminate_secondary();
+        shiftable = true;
+      }
+    }
+    if (!alive()) return false;
     if (bs->transmission) {
       eta_scale *= bs->etap * bs->etap;
       if (info->medium_transition) {
@@ -513,11 +651,21 @@ class BasePath {
     ++depth;
 
     if (depth >= scene_.options().rr_min_depth) {
-      const float weight = beta * eta_scale;
+      // With hero lanes, PathIntegrator's weight f_s / Σ_k p_k: the same whichever lane is the
+      // base, as the lanes' MIS needs.
+      float weight = beta * eta_scale;
+      if (has_hero()) {
+        float most = 0;
+        for (int s = 0; s < hero_lanes; ++s) most = std::max(most, hero.beta[s]);
+        const float r_sum = hero_r_sum();
+        weight =
+            r_sum > 0 ? most * float(hero.secondary ? hero_lanes : 1) / r_sum * eta_scale : 0.0f;
+      }
       if (weight < 1.0f) {
         const float q = std::max(0.0f, 1.0f - weight);
         if (lobe_and_roulette.u1 < q) return false;
         beta /= 1.0f - q;
+        for (int s = 0; s < hero_lanes && has_hero(); ++s) hero.beta[s] /= 1.0f - q;
         survival *= 1.0f - q;
         gradient::OffsetStep& step = record();
         step.kind = StepKind::kRoulette;
@@ -527,27 +675,56 @@ class BasePath {
     return true;
   }
 
-  // The sample's primal and gradient values times the pixel filter's weight (nothing for a
-  // non-finite one), and the primal's exact-wavelength linear sRGB.
+  // The sample's values times the pixel filter's weight (nothing for a non-finite one) and the
+  // added primal's exact-wavelength linear sRGB. With hero lanes the tile gets the lanes' primal
+  // values, and the gradient rebuilt around them: G = D·I_hero + Σ (shifted − unshifted), the
+  // single-wavelength G with its unshifted part D·I replaced by the hero primal's finite
+  // difference (docs/estimators.md §5.1).
   GradientSample finish(float filter_weight) {
     const spectral::WavelengthGrid& grid = scene_.grid();
     if (any_shifted) ++counters.gradient_shifted_paths;
-    if (!std::isfinite(out.primal) || !std::isfinite(out.gradient) ||
-        !std::isfinite(out.gradient_below)) {
+    bool finite = std::isfinite(out.primal) && std::isfinite(out.gradient) &&
+                  std::isfinite(out.gradient_below);
+    for (int s = 0; s < hero_lanes && has_hero(); ++s) {
+      finite = finite && std::isfinite(hero.radiance[s]);
+    }
+    if (!finite) {
       ++counters.non_finite;
       out.primal = out.gradient = out.gradient_below = 0;
-    } else if (filter_weight != 1.0f) {
+      return out;
+    }
+    if (filter_weight != 1.0f) {
       out.primal *= filter_weight;
       out.gradient *= filter_weight;
       out.gradient_below *= filter_weight;
     }
-    if (out.primal != 0.0f) {
+    auto add = [&](int bin, float primal, float gradient) {
+      add_entry(out, bin, primal, gradient);
+    };
+    auto add_rgb = [&](float lambda_nm, double estimate) {
+      const spectral::Rgb bar = scene_.cmf().srgb(lambda_nm);
+      out.rgb[0] += bar.r * estimate;
+      out.rgb[1] += bar.g * estimate;
+      out.rgb[2] += bar.b * estimate;
+    };
+    if (!has_hero()) {
+      add(out.bin, out.primal, out.gradient);
+      add(out.bin_below, 0.0f, out.gradient_below);
       // primal is a per-bin average: times the bin width it is f/p at λ.
-      const double estimate = double(out.primal) * grid.bin_width();
-      const spectral::Rgb bar = scene_.cmf().srgb(lambda);
-      out.rgb[0] = bar.r * estimate;
-      out.rgb[1] = bar.g * estimate;
-      out.rgb[2] = bar.b * estimate;
+      if (out.primal != 0.0f) add_rgb(lambda, double(out.primal) * grid.bin_width());
+      return out;
+    }
+    add(out.bin, 0.0f, out.gradient + out.primal);
+    add(out.bin_below, 0.0f, out.gradient_below - out.primal);
+    const float inverse_width = 1.0f / float(grid.bin_width());
+    for (int s = 0; s < hero_lanes; ++s) {
+      const float pdf = hero_lambda.pdf(s);
+      const int bin = grid.bin_of(hero_lambda.lambda(s));
+      if (!(pdf > 0) || bin < 0 || hero.radiance[s] == 0.0f) continue;
+      const float v = hero.radiance[s] / pdf * inverse_width * filter_weight;
+      add(bin, v, -v);
+      add(grid.wrap(bin - offset_bins_), 0.0f, v);
+      add_rgb(hero_lambda.lambda(s), double(hero.radiance[s]) / pdf * filter_weight);
     }
     return out;
   }
@@ -568,7 +745,20 @@ class BasePath {
   const float tau_;
 
  public:
+  const int hero_lanes;
   const SampledWavelengths base_lambda;
+  const SampledWavelengths hero_lambda;                 // the C hero lanes, lane 0 the base's
+  SampledWavelengths lane_lambda[spectral::kMaxLanes];  // each hero lane alone
+  // The hero lanes' estimator (C > 1), PathIntegrator's (integrator.h) with each lane's own
+  // light selection: β_s = f_s / p_0, r_k = p_k / p_0 (the density of x̄ with λ_k as the base's
+  // wavelength), r_prev before the last scattering, and the radiance found per lane.
+  struct HeroLanes {
+    float beta[spectral::kMaxLanes] = {};
+    float r[spectral::kMaxLanes] = {};
+    float r_prev[spectral::kMaxLanes] = {};
+    float radiance[spectral::kMaxLanes] = {};
+    bool secondary = true;  // the lanes other than the base still follow the path
+  } hero;
   float lambda = 0;
   GradientSample out;
   Offset offsets[2];
@@ -582,6 +772,11 @@ class BasePath {
   float eta_scale = 1;
   int medium = -1;
   bool any_shifted = false;
+  // Whether this path's events may be shifted: always with C = 1; with hero lanes only after a
+  // smooth dispersive refraction (BsdfSample::hero_only), where the other lanes have ended
+  // (docs/estimators.md §5.1).
+  bool shiftable = hero_lanes == 1;
+  int offset_bins_ = 0;
   int depth = 0;
   bool resolve_due = false;  // the base scattered at a surface and has not reached its next vertex
 
@@ -604,14 +799,36 @@ class BasePath {
   int step_count = 0;
 };
 
+// A hero sample as a gradient sample: its lanes' values into I, and their finite differences
+// into G (G[b] −= v, G[b − k] += v), so that the reconstruction returns I.
+GradientSample from_lanes(const RenderScene& scene, int offset_bins, const SampleContribution& c) {
+  GradientSample out;
+  const spectral::WavelengthGrid& grid = scene.grid();
+  auto add = [&](int bin, float primal, float gradient) { add_entry(out, bin, primal, gradient); };
+  for (int s = 0; s < c.lanes; ++s) {
+    if (c.value[s] == 0.0f) continue;
+    add(c.bin[s], c.value[s], -c.value[s]);
+    add(grid.wrap(c.bin[s] - offset_bins), 0.0f, c.value[s]);
+  }
+  for (int i = 0; i < 3; ++i) out.rgb[i] = c.rgb[i];
+  return out;
+}
+
 }  // namespace
 
 GradientIntegrator::GradientIntegrator(const RenderScene& scene)
     : scene_(scene),
       offset_bins_(scene.options().gradient_offset_bins),
-      tau_(scene.options().gradient_tau) {
+      tau_(scene.options().gradient_tau),
+      hero_(scene) {
+  const bool smooth_dispersive = std::any_of(scene.materials().begin(), scene.materials().end(),
+                                             may_refract_smooth_dispersive);
+  hero_lanes_ = scene.options().gradient_lanes;
+  if (hero_lanes_ == 0) hero_lanes_ = smooth_dispersive ? 1 : job::kSceneGradientLanes;
+  shifts_possible_ = hero_lanes_ == 1 || smooth_dispersive;
   PRISM_CHECK(offset_bins_ >= 1 && offset_bins_ < scene.grid().bins());
   PRISM_CHECK(tau_ >= 0.0f);
+  PRISM_CHECK(hero_lanes_ >= 1 && hero_lanes_ <= job::kMaxGradientLanes);
 }
 
 GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
@@ -619,12 +836,20 @@ GradientSample GradientIntegrator::trace(int px, int py, std::uint32_t pass,
                                          spectral::WavelengthPdfView lambda_pdf,
                                          TraceCounters& counters, GuideValues* guides,
                                          GradientEventSink* events) const {
+  ++counters.gradient_samples;
+  counters.gradient_lanes += std::uint64_t(hero_lanes_);
+  if (!shifts_possible_) {
+    // Nothing can be shifted: the sample is `hero`'s with C lanes, and G its finite difference.
+    return from_lanes(scene_, offset_bins_,
+                      hero_.trace(px, py, pass, sample_index, lambda_pdf, counters, guides,
+                                  {hero_lanes_, false}));
+  }
   const job::RenderOptions& options = scene_.options();
   const Geometry& geometry = scene_.geometry();
   Sampler sampler(options.sampler, SampleKey{options.seed, pass, std::uint32_t(px),
                                              std::uint32_t(py), sample_index});
   BasePath path(scene_, sampler, counters, events, tau_,
-                lambda_pdf.sample_lanes(sampler.at(kDimWavelength), 1));
+                lambda_pdf.sample_lanes(sampler.at(kDimWavelength), hero_lanes_));
   if (!path.start(lambda_pdf, offset_bins_)) return path.out;
 
   auto [ray, filter_weight] = scene_.camera_sample(px, py, sampler);

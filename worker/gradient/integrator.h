@@ -73,9 +73,19 @@
 
 namespace prism::worker {
 
-// One camera sample's output: the base bin i, its primal value for I[i] and the gradient
-// contributions to G[i] and G[(i − k) mod B]. Per-bin averages (W·m⁻²·sr⁻¹·nm⁻¹), as
-// SampleContribution values; all finite (a non-finite sample contributes zeros and is counted).
+// What one sample adds to one bin of I and of G.
+struct GradientBinValue {
+  int bin = 0;
+  float primal = 0;
+  float gradient = 0;
+};
+
+// One camera sample's output. The single-wavelength estimator: the base bin i, its primal value
+// for I[i] and the gradient contributions to G[i] and G[(i − k) mod B]. What the tile adds is
+// `entry`: with C = 1 exactly those values, {i: primal, gradient} and {i − k: 0,
+// gradient_below}; with hero lanes (C > 1) the lanes' primal values and the gradient rebuilt
+// around them (GradientIntegrator). Per-bin averages (W·m⁻²·sr⁻¹·nm⁻¹), as SampleContribution
+// values; all finite (a non-finite sample contributes zeros and is counted).
 struct GradientSample {
   float lambda = 0;  // the base wavelength (nm); 0 when the sample drew none
   int bin = 0;
@@ -83,7 +93,10 @@ struct GradientSample {
   float primal = 0;
   float gradient = 0;        // to G[bin]
   float gradient_below = 0;  // to G[bin_below]
-  // The primal's linear sRGB at the base wavelength (SampleContribution::rgb).
+  // The values the tile adds, one entry per bin (distinct bins, at most 2C).
+  int entries = 0;
+  GradientBinValue entry[2 * spectral::kMaxLanes];
+  // The added primal's linear sRGB at the lanes' exact wavelengths (SampleContribution::rgb).
   double rgb[3] = {0, 0, 0};
 };
 
@@ -109,7 +122,8 @@ class GradientEventSink {
 
 class GradientIntegrator {
  public:
-  // The scene's options give k (gradient_offset_bins, 1 <= k < bins), τ, depth and roulette.
+  // The scene's options give k (gradient_offset_bins, 1 <= k < bins), τ, the hero lanes C
+  // (gradient_lanes), depth and roulette.
   explicit GradientIntegrator(const RenderScene& scene);
 
   // Traces pixel (px, py)'s sample `sample_index` of pass `pass`: the base wavelength is drawn
@@ -121,10 +135,18 @@ class GradientIntegrator {
                        spectral::WavelengthPdfView lambda_pdf, TraceCounters& counters,
                        GuideValues* guides = nullptr, GradientEventSink* events = nullptr) const;
 
+  // Whether any event can be shifted: always with C = 1; with hero lanes only when some material
+  // may refract through a smooth dispersive interface (may_refract_smooth_dispersive). Without,
+  // the offsets are never traced and the sample is the hero lanes' alone (G = D·I).
+  bool shifts_possible() const { return shifts_possible_; }
+
  private:
   const RenderScene& scene_;
   int offset_bins_;
   float tau_;
+  int hero_lanes_;
+  PathIntegrator hero_;  // the sample when nothing can be shifted
+  bool shifts_possible_;
 };
 
 }  // namespace prism::worker

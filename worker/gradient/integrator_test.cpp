@@ -348,9 +348,10 @@ class GradientIntegratorTest : public testing::TracerTest {
     return built.ok() ? std::move(*built) : nullptr;
   }
 
-  static job::RenderOptions gradient_options(std::uint64_t seed, float tau = 0) {
+  static job::RenderOptions gradient_options(std::uint64_t seed, float tau = 0, int lanes = 1) {
     job::RenderOptions options;
     options.integrator = job::IntegratorKind::kGradient;
+    options.gradient_lanes = lanes;
     options.sampler = job::SamplerKind::kIndependent;
     options.bins = 16;
     options.gradient_offset_bins = 4;
@@ -397,9 +398,13 @@ Consistency consistency(const RenderScene& scene, int spp,
                      std::isfinite(r.gradient_below);
       std::fill(g.begin(), g.end(), 0.0);
       std::fill(i.begin(), i.end(), 0.0);
-      i[r.bin] += r.primal;
-      g[r.bin] += r.gradient;
-      g[r.bin_below] += r.gradient_below;
+      // What the tile adds (with C = 1 the single-wavelength values themselves).
+      for (int e = 0; e < r.entries; ++e) {
+        i[r.entry[e].bin] += r.entry[e].primal;
+        g[r.entry[e].bin] += r.entry[e].gradient;
+        p.all_finite =
+            p.all_finite && std::isfinite(r.entry[e].primal) && std::isfinite(r.entry[e].gradient);
+      }
       for (int b = 0; b < bins; ++b) {
         double d = g[b] - (i[(b + k) % bins] - i[b]);
         p.values[4 * b] += d;
@@ -436,7 +441,9 @@ Consistency consistency(const RenderScene& scene, int spp,
 
 constexpr double kZ = 5.0;
 
-void expect_consistent(const Consistency& c, const std::string& what) {
+// `shifts`: whether the scene's paths are shifted at all (with hero lanes only those after a smooth
+// dispersive refraction are).
+void expect_consistent(const Consistency& c, const std::string& what, bool shifts = true) {
   EXPECT_TRUE(c.all_finite) << what;
   EXPECT_EQ(c.counters.non_finite, 0u) << what;
   int significant = 0;
@@ -448,7 +455,11 @@ void expect_consistent(const Consistency& c, const std::string& what) {
   }
   // The check has power: the gradient itself is resolved in several bins.
   EXPECT_GE(significant, 3) << what;
-  EXPECT_GT(c.counters.gradient_shifted_paths, 0u) << what;
+  if (shifts) {
+    EXPECT_GT(c.counters.gradient_shifted_paths, 0u) << what;
+  } else {
+    EXPECT_EQ(c.counters.gradient_shifted_paths, 0u) << what;
+  }
   // PRISM_GRADIENT_DEBUG=1 prints the per-bin figures (what mutation runs compare).
   if (std::getenv("PRISM_GRADIENT_DEBUG")) {
     double max_z = 0;
@@ -481,13 +492,18 @@ TEST_F(GradientIntegratorTest, GradientIsConsistentWithPrimalOnDispersiveScenes)
         "gradient_slab.pbrt", "gradient_mixed.pbrt", "gradient_media.pbrt", "gradient_room.pbrt",
         "unbiased.pbrt", "gradient_coated.pbrt"}) {
     auto desc = load(name);
-    for (float tau : {0.0f, 0.5f}) {
-      job::RenderOptions options = gradient_options(seed++, tau);
+    for (auto [tau, lanes] : {std::pair{0.0f, 1}, std::pair{0.5f, 1}, std::pair{0.0f, 4}}) {
+      job::RenderOptions options = gradient_options(seed++, tau, lanes);
       options.max_depth = desc.integrator.max_depth;
       auto scene = build(desc, options);
       ASSERT_TRUE(scene);
       Consistency c = consistency(*scene, 1536);
-      expect_consistent(c, std::string(name) + " tau " + std::to_string(tau));
+      // With hero lanes, rough dispersive glass keeps every lane and nothing is shifted.
+      const bool rough = std::string(name) == "gradient_rough_glass.pbrt";
+      expect_consistent(
+          c, std::string(name) + " tau " + std::to_string(tau) + " lanes " + std::to_string(lanes),
+          !(rough && lanes > 1));
+      if (lanes > 1) continue;
       if (tau > 0) {
         EXPECT_GT(c.counters.gradient_shifts_wasted, 0u) << name;
       }
@@ -519,37 +535,46 @@ image::TileResult render(const RenderScene& scene, std::uint64_t spp,
   return std::move(*result);
 }
 
-// The primal I of `gradient` is the single-wavelength tracer: per bin it agrees with `uniform`
-// (independent seeds, five standard errors per bin and the joint chi-square at p > 1e-4), for
-// τ = 0 and τ > 0; and with the same seed τ changes G only, never I.
+// The primal I of `gradient` is the single-wavelength tracer (C = 1) or the hero lanes' estimator
+// (C = 4): per bin it agrees with `uniform` (independent seeds, five standard errors per bin and
+// the joint chi-square at p > 1e-4), for τ = 0 and τ > 0; and with the same seed τ changes G
+// only, never I.
 TEST_F(GradientIntegratorTest, PrimalAgreesWithUniformPerBin) {
   std::uint64_t seed = 40;
   for (const char* name :
-       {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt", "gradient_rough_glass.pbrt"}) {
-    auto desc = load(name);
-    job::RenderOptions uniform = gradient_options(seed++);
-    uniform.integrator = job::IntegratorKind::kUniform;
-    BinStats reference = bin_stats(render(*build(desc, uniform), 1024));
-    image::TileResult tau_zero = render(*build(desc, gradient_options(seed, 0.0f)), 512);
-    image::TileResult tau_positive = render(*build(desc, gradient_options(seed++, 0.5f)), 512);
-    EXPECT_EQ(tau_zero.sums().size(), tau_positive.sums().size());
-    EXPECT_TRUE(
-        std::equal(tau_zero.sums().begin(), tau_zero.sums().end(), tau_positive.sums().begin()))
-        << name << ": τ changed I";
-    EXPECT_FALSE(std::equal(tau_zero.gradients().begin(), tau_zero.gradients().end(),
-                            tau_positive.gradients().begin()))
-        << name << ": τ = 0.5 shifted exactly what τ = 0 shifted";
-    BinStats gradient = bin_stats(tau_zero);
-    double chi2 = 0;
-    for (std::size_t b = 0; b < reference.mean.size(); ++b) {
-      double se = std::hypot(reference.standard_error[b], gradient.standard_error[b]);
-      double z = (gradient.mean[b] - reference.mean[b]) / se;
-      EXPECT_LT(std::abs(z), kZ) << name << " bin " << b;
-      EXPECT_GT(reference.mean[b], 0.0) << name << " bin " << b;
-      chi2 += z * z;
+       {"gradient_prism.pbrt", "gradient_glass_diffuse.pbrt", "gradient_rough_glass.pbrt",
+        "gradient_media.pbrt", "gradient_coated.pbrt", "gradient_mixed.pbrt", "unbiased.pbrt"}) {
+    for (int lanes : {1, 4}) {
+      SCOPED_TRACE(std::string(name) + " lanes " + std::to_string(lanes));
+      auto desc = load(name);
+      job::RenderOptions uniform = gradient_options(seed++);
+      uniform.integrator = job::IntegratorKind::kUniform;
+      BinStats reference = bin_stats(render(*build(desc, uniform), 1024));
+      image::TileResult tau_zero = render(*build(desc, gradient_options(seed, 0.0f, lanes)), 512);
+      image::TileResult tau_positive =
+          render(*build(desc, gradient_options(seed++, 0.5f, lanes)), 512);
+      EXPECT_EQ(tau_zero.sums().size(), tau_positive.sums().size());
+      EXPECT_TRUE(
+          std::equal(tau_zero.sums().begin(), tau_zero.sums().end(), tau_positive.sums().begin()))
+          << name << ": τ changed I";
+      // With hero lanes nothing on rough glass is shifted, whatever τ.
+      const bool shifts = lanes == 1 || std::string(name) != "gradient_rough_glass.pbrt";
+      EXPECT_NE(std::equal(tau_zero.gradients().begin(), tau_zero.gradients().end(),
+                           tau_positive.gradients().begin()),
+                shifts)
+          << name << ": τ = 0.5 shifted exactly what τ = 0 shifted, or shifted at all";
+      BinStats gradient = bin_stats(tau_zero);
+      double chi2 = 0;
+      for (std::size_t b = 0; b < reference.mean.size(); ++b) {
+        double se = std::hypot(reference.standard_error[b], gradient.standard_error[b]);
+        double z = (gradient.mean[b] - reference.mean[b]) / se;
+        EXPECT_LT(std::abs(z), kZ) << name << " bin " << b;
+        EXPECT_GT(reference.mean[b], 0.0) << name << " bin " << b;
+        chi2 += z * z;
+      }
+      EXPECT_GT(spectral::testing::chi_square_survival(chi2, int(reference.mean.size())), 1e-4)
+          << name;
     }
-    EXPECT_GT(spectral::testing::chi_square_survival(chi2, int(reference.mean.size())), 1e-4)
-        << name;
   }
 }
 
@@ -767,6 +792,53 @@ TEST_F(GradientIntegratorTest, WithoutWavelengthDependentGeometryOffsetsAreTheBa
   EXPECT_EQ(counters.gradient_shifts_failed, 0u);
   EXPECT_EQ(counters.gradient_shifts_wasted, 0u);
   EXPECT_EQ(counters.non_finite, 0u);
+}
+
+// The scene decides C when the job does not (gradient_lanes 0): single-wavelength base paths where
+// a material can refract smooth-dispersively, hero lanes elsewhere. Without such a material
+// nothing can be shifted and a sample is `hero`'s exactly: the tile's I is hero's to the bit and
+// G is its finite difference, G[b] = I[b+k] − I[b] to float rounding, so the reconstruction
+// returns I.
+TEST_F(GradientIntegratorTest, TheSceneChoosesTheLanesAndWithoutSmoothDispersionASampleIsHeros) {
+  for (auto [name, lanes] :
+       {std::pair{"gradient_prism.pbrt", 1}, std::pair{"gradient_glass_diffuse.pbrt", 1},
+        std::pair{"gradient_rough_glass.pbrt", job::kSceneGradientLanes}}) {
+    SCOPED_TRACE(name);
+    auto desc = load(name);
+    job::RenderOptions options = gradient_options(51, 0.0f, 0);
+    auto scene = build(desc, options);
+    ASSERT_TRUE(scene);
+    GradientIntegrator integrator(*scene);
+    EXPECT_EQ(integrator.shifts_possible(), lanes == 1);
+    TraceCounters counters;
+    integrator.trace(3, 4, 0, 0, spectral::WavelengthPdfView(scene->wavelength_pdf()), counters);
+    EXPECT_EQ(counters.gradient_samples, 1u);
+    EXPECT_EQ(counters.gradient_lanes, std::uint64_t(lanes));
+    if (lanes == 1) continue;
+
+    const image::TileResult gradient = render(*scene, 64);
+    job::RenderOptions hero_options = options;
+    hero_options.integrator = job::IntegratorKind::kHero;
+    const image::TileResult hero = render(*build(desc, hero_options), 64);
+    ASSERT_EQ(gradient.sums().size(), hero.sums().size());
+    EXPECT_TRUE(std::equal(gradient.sums().begin(), gradient.sums().end(), hero.sums().begin()));
+    EXPECT_TRUE(std::equal(gradient.sum_squares().begin(), gradient.sum_squares().end(),
+                           hero.sum_squares().begin()));
+    const int bins = scene->grid().bins(), k = options.gradient_offset_bins;
+    double largest = 0;
+    for (std::size_t o = 0; o < gradient.sums().size(); o += std::size_t(bins)) {
+      // G's per-sample values are floats: a bin's sum may round at float precision of the
+      // pixel's largest values.
+      double scale = 0;
+      for (int b = 0; b < bins; ++b) scale = std::max(scale, std::abs(gradient.sums()[o + b]));
+      for (int b = 0; b < bins; ++b) {
+        const double di = gradient.sums()[o + std::size_t((b + k) % bins)] - gradient.sums()[o + b];
+        EXPECT_NEAR(gradient.gradients()[o + b], di, 1e-6 * (1 + scale));
+        largest = std::max(largest, std::abs(di));
+      }
+    }
+    EXPECT_GT(largest, 0.0);
+  }
 }
 
 // Numerical corners: grazing refraction into dispersive glass, η(λ') totally reflected where

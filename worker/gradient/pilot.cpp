@@ -145,6 +145,12 @@ absl::StatusOr<GradientPilot> run_gradient_pilot(const RenderScene& scene, int w
       1 << 16, std::max<std::int64_t>(1, (options.samples + pixels - 1) / pixels)));
 
   const GradientIntegrator integrator(scene);
+  if (!integrator.shifts_possible()) {
+    // Nothing can be shifted (hero lanes and no smooth dispersive material): τ does not matter.
+    GradientPilot none;
+    none.epsilon = options.epsilon;
+    return none;
+  }
   const spectral::WavelengthPdfView lambda_pdf(scene.wavelength_pdf());
   std::vector<PixelEvents> per_pixel(static_cast<std::size_t>(pixels));
   auto trace = [&] {

@@ -91,12 +91,13 @@ class GradientPilotTest : public testing::TracerTest {
 
   static std::unique_ptr<RenderScene> build(
       const scene::SceneDescription& desc, float tau,
-      job::IntegratorKind integrator = job::IntegratorKind::kGradient) {
+      job::IntegratorKind integrator = job::IntegratorKind::kGradient, int lanes = 1) {
     job::RenderOptions options;
     options.integrator = integrator;
     options.bins = 16;
     options.gradient_offset_bins = 4;
     options.gradient_tau = tau;
+    options.gradient_lanes = lanes;  // 1: single-wavelength base paths shift on every scene
     options.max_depth = 6;
     options.seed = 11;
     auto built = RenderScene::build(*device_, desc, *library_, options, desc.film.x_resolution,
@@ -198,6 +199,27 @@ TEST_F(GradientPilotTest, ChoosesTheSameTauOnAnyThreadCount) {
   EXPECT_EQ(one->lost_benefit_fraction, two->lost_benefit_fraction);
   EXPECT_EQ(one->second_moment_rise, two->second_moment_rise);
   EXPECT_EQ(one->offset_vertex_fraction, two->offset_vertex_fraction);
+}
+
+// With hero lanes on a scene without a material that can refract smooth-dispersively nothing is
+// ever shifted (GradientIntegrator::shifts_possible): the pilot traces nothing and τ stays 0.
+TEST_F(GradientPilotTest, HasNothingToChooseWhereNothingCanBeShifted) {
+  const scene::SceneDescription rough = load("gradient_rough_glass.pbrt");
+  auto by_scene = build(rough, 0, job::IntegratorKind::kGradient, 0);
+  ASSERT_TRUE(by_scene);
+  auto pilot = run_gradient_pilot(*by_scene, 12, 12, {});
+  ASSERT_TRUE(pilot.ok()) << pilot.status();
+  EXPECT_EQ(pilot->events, 0u);
+  EXPECT_EQ(pilot->samples, 0u);
+  EXPECT_EQ(pilot->tau, 0.0f);
+  // The same scene with single-wavelength base paths has events to choose from.
+  auto single = build(rough, 0, job::IntegratorKind::kGradient, 1);
+  ASSERT_TRUE(single);
+  GradientPilotOptions small;
+  small.samples = 2048;
+  auto traced = run_gradient_pilot(*single, 12, 12, small);
+  ASSERT_TRUE(traced.ok()) << traced.status();
+  EXPECT_GT(traced->events, 0u);
 }
 
 TEST_F(GradientPilotTest, RefusesScenesAndOptionsItCannotUse) {
