@@ -2,7 +2,8 @@
 // process, two at a time, and gtest's TempDir() is shared by all of them, so a file written
 // there under a fixed name ("scene.pbrt") can be rewritten by another test between one test's
 // write and its read. Files a test writes go under test_dir() or fresh_dir() instead: the name
-// carries the suite, the test and the process id.
+// carries the suite, the test and the process id. A passing test's directories are removed when
+// it ends.
 #pragma once
 
 #include <gtest/gtest.h>
@@ -10,10 +11,45 @@
 
 #include <filesystem>
 #include <string>
+#include <system_error>
+#include <vector>
 
 namespace prism::testing {
 
 namespace detail {
+
+// Removes the directories a passing test made when the test ends (a failing test's stay, for a
+// look), so that runs do not pile them up in the temporary directory.
+class TestDirCleaner : public ::testing::EmptyTestEventListener {
+ public:
+  static TestDirCleaner& instance() {
+    static TestDirCleaner* cleaner = [] {
+      auto* c = new TestDirCleaner;  // owned by gtest's listener list once appended
+      ::testing::UnitTest::GetInstance()->listeners().Append(c);
+      return c;
+    }();
+    return *cleaner;
+  }
+  // Outside a test (a suite's set-up) the directory is left alone: later tests may use it.
+  void made(const std::filesystem::path& dir) {
+    if (::testing::UnitTest::GetInstance()->current_test_info() == nullptr) return;
+    for (const std::filesystem::path& d : dirs_) {
+      if (d == dir) return;
+    }
+    dirs_.push_back(dir);
+  }
+  void OnTestEnd(const ::testing::TestInfo& info) override {
+    if (info.result() != nullptr && !info.result()->Failed()) {
+      std::error_code ignored;
+      for (const std::filesystem::path& d : dirs_) std::filesystem::remove_all(d, ignored);
+    }
+    dirs_.clear();
+  }
+
+ private:
+  std::vector<std::filesystem::path> dirs_;
+};
+
 inline std::filesystem::path test_dir_path(const std::string& name) {
   const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
   std::string leaf = "prism_test";
@@ -28,6 +64,7 @@ inline std::filesystem::path test_dir_path(const std::string& name) {
 inline std::filesystem::path test_dir() {
   const std::filesystem::path dir = detail::test_dir_path("");
   std::filesystem::create_directories(dir);
+  detail::TestDirCleaner::instance().made(dir);
   return dir;
 }
 
@@ -36,6 +73,7 @@ inline std::filesystem::path fresh_dir(const std::string& name = "") {
   const std::filesystem::path dir = detail::test_dir_path(name);
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
+  detail::TestDirCleaner::instance().made(dir);
   return dir;
 }
 
