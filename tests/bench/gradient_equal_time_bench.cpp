@@ -216,7 +216,9 @@ int run(int argc, char** argv) {
       auto m = gradient_method(entry, taus.size() == 1);
       if (!m.ok()) return fail(m.status());
       m->lanes = c;
-      if (lane_list.size() > 1) m->name = absl::StrCat(m->name, " C=", c);
+      if (lane_list.size() > 1) {
+        m->name = absl::StrCat(m->name, " C=", c == 0 ? std::string("scene") : absl::StrCat(c));
+      }
       methods.push_back(*m);
     }
   }

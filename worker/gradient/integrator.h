@@ -1,8 +1,17 @@
 // Spectral gradient sampling on the worker (docs/estimators.md §5, spectral gradient paper §3): a
-// single-wavelength (C = 1) path tracer whose every base path x̄ at λ (bin i) is shifted to
-// offset paths y₊ at λ + δ and y₋ at λ − δ (δ = k bin widths, cyclic), returning the primal
-// contribution to I[i] and the gradient contributions to G[i] and G[i − k], with
-// E[G[b]] = I[b + k] − I[b].
+// path tracer whose every base path x̄ at λ (bin i) is shifted to offset paths y₊ at λ + δ and y₋
+// at λ − δ (δ = k bin widths, cyclic), returning the primal contribution to I[i] and the
+// gradient contributions to G[i] and G[i − k], with E[G[b]] = I[b + k] − I[b].
+//
+// Hero lanes (docs/estimators.md §5.1). With C > 1 the base also carries C − 1 rotated lanes
+// with PathIntegrator's estimator (each lane's light density its own single-wavelength
+// selection's, the lane-symmetric roulette weight), and its events split in two classes by
+// whether the path went through a smooth dispersive refraction (BsdfSample::hero_only; a shift
+// keeps the class). Those after one are this single-wavelength estimator's (the other lanes have
+// ended there); the others are never shifted, their lanes' values go to I and their finite
+// differences to G. Where no material can refract so (shifts_possible), a sample is
+// PathIntegrator's with C lanes and G its finite difference. The sections below describe the
+// single-wavelength estimator.
 //
 // Contributions. Every event that adds light (an emitter found by the sampled direction, or
 // next-event estimation) ends its own path prefix x̄, weighted against the other technique by
