@@ -51,14 +51,20 @@ struct Inverted {
 // Inverts a piecewise-linear CDF given by cdf_at(0..n) (non-decreasing, cdf_at(0) = 0,
 // cdf_at(n) = 1). The chosen cell c satisfies cdf(c) <= u < cdf(c+1), so it has positive mass;
 // the returned float λ is nudged, if rounding moved it, until cell_index(λ) == c, which is what
-// makes sample() and pdf() agree exactly.
+// makes sample() and pdf() agree exactly. With a guide (guide_cells below), the search starts in
+// the cells that u's guide interval can reach; the cell found is the same.
 template <typename CdfAt>
-Inverted invert(int n, double u, const CdfAt& cdf_at) {
+Inverted invert(int n, double u, const CdfAt& cdf_at, std::span<const int> guide = {}) {
   u = std::clamp(u, 0.0, 0x1.fffffffffffffp-1);  // the largest double below 1
   // The last c in [0, n) with cdf(c) <= u, by branch-free halving: which half holds u is a coin
   // toss that a branch predictor cannot learn, and a conditional move costs less than the
   // mispredictions.
   int c = 0, count = n;
+  if (!guide.empty()) {
+    const std::size_t j = static_cast<std::size_t>(u * double(guide.size() - 1));
+    c = guide[j];
+    count = guide[j + 1] - c + 1;
+  }
   while (count > 1) {
     const int half = count / 2;
     c = cdf_at(c + half) <= u ? c + half : c;
@@ -81,6 +87,23 @@ double eval_cdf(int n, float lambda_nm, const CdfAt& cdf_at) {
   const double w = kRange / n;
   const double t = std::clamp((lambda_nm - cell_lower(c, n)) / w, 0.0, 1.0);
   return cdf_at(c) + t * (cdf_at(c + 1) - cdf_at(c));
+}
+
+// A guide of g + 1 entries for a CDF of n cells (g a power of two, so u·g is exact): entry j is
+// the last cell c with cdf(c) <= j/g (n − 1 for j = g). The cell u falls in, for j/g <= u <
+// (j+1)/g, lies in [guide[j], guide[j+1]]: the answer does not decrease as u grows.
+std::vector<int> guide_cells(int n, const std::vector<double>& cdf) {
+  int g = 1;
+  while (g < 2 * n) g *= 2;
+  std::vector<int> guide(static_cast<std::size_t>(g) + 1);
+  int c = 0;
+  for (int j = 0; j < g; ++j) {
+    const double u = double(j) / g;
+    while (c + 1 < n && cdf[c + 1] <= u) ++c;
+    guide[j] = c;
+  }
+  guide[g] = n - 1;
+  return guide;
 }
 
 double cyclic_offset(double u, int lane, int lanes) {
@@ -119,6 +142,7 @@ WavelengthDistribution::WavelengthDistribution(std::vector<double> weights) {
     mass_[i] = cdf_[i + 1] - cdf_[i];
     pdf_[i] = static_cast<float>(mass_[i] / w);
   }
+  guide_ = guide_cells(n, cdf_);
 }
 
 absl::StatusOr<WavelengthDistribution> WavelengthDistribution::flat(int cells) {
@@ -227,7 +251,8 @@ int WavelengthDistribution::cell_of(float lambda_nm) const {
 }
 
 WavelengthSample WavelengthDistribution::sample(double u) const {
-  const Inverted r = invert(cells(), u, [this](int i) { return cdf_[i]; });
+  const Inverted r = invert(
+      cells(), u, [this](int i) { return cdf_[i]; }, guide_);
   return {r.lambda, pdf_[r.cell]};
 }
 

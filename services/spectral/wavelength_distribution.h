@@ -110,6 +110,9 @@ class WavelengthDistribution {
   std::vector<double> mass_;
   std::vector<double> cdf_;  // cells() + 1 values, cdf_[0] = 0, cdf_.back() = 1 exactly
   std::vector<float> pdf_;   // mass_ / w
+  // Where sample()'s search starts: 2^m + 1 cells, the first 2^m >= 2·cells() (wavelength_
+  // distribution.cpp, guide_cells).
+  std::vector<int> guide_;
 };
 
 // A non-owning view of a quantised CDF (see the header comment). Cheap to copy; the bytes must

@@ -129,6 +129,48 @@ TEST(WavelengthDistributionTest, RandomTableWithZeroCellsNeverSamplesThem) {
   expect_distribution_ok(d, 5, "random table");
 }
 
+// sample() starts its search from a guide; the cell it returns must be the one a search of the
+// whole CDF returns, the last c with cdf(c) <= u, for any u: random ones, the guide's own
+// boundaries j/2^m and their neighbours, the cells' CDF values (zero-mass runs included), on
+// tables of 1 to 16384 cells, spiky and flat.
+TEST(WavelengthDistributionTest, TheGuidedSearchFindsTheCellOfTheWholeSearch) {
+  std::mt19937_64 rng(1234);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  const SpectrumLibrary lib = *SpectrumLibrary::load_builtin();
+  std::vector<WavelengthDistribution> tables = {
+      *WavelengthDistribution::emitters(f11_and_a()),
+      *WavelengthDistribution::emitters(std::vector<Spectrum>{*lib.find_spectrum("lamp-lps")}),
+      *WavelengthDistribution::visible(), *WavelengthDistribution::flat(1),
+      *WavelengthDistribution::flat(WavelengthDistribution::kMaxCells)};
+  for (int cells : {2, 3, 200, 4096}) {
+    std::vector<double> w(static_cast<std::size_t>(cells));
+    for (double& x : w) x = uniform(rng) < 0.3 ? 0.0 : std::pow(uniform(rng), 8.0);
+    w[static_cast<std::size_t>(cells) / 2] = 1.0;
+    tables.push_back(*WavelengthDistribution::from_table(w));
+  }
+  for (const WavelengthDistribution& d : tables) {
+    const int n = d.cells();
+    auto whole = [&](double u) {
+      u = std::clamp(u, 0.0, std::nextafter(1.0, 0.0));
+      int c = 0;
+      for (int i = 0; i < n; ++i) {
+        if (d.cell_cdf(i) <= u) c = i;
+      }
+      return c;
+    };
+    std::vector<double> us;
+    for (int i = 0; i < 2000; ++i) us.push_back(uniform(rng));
+    for (int j = 0; j <= 4 * n && j <= 70000; ++j) {
+      const double g = double(j) / (4 * n);
+      for (double u : {g, std::nextafter(g, 0.0), std::nextafter(g, 1.0)}) us.push_back(u);
+    }
+    for (int i = 0; i <= n && i <= 20000; ++i) us.push_back(d.cell_cdf(i));
+    for (double u : us) {
+      ASSERT_EQ(d.cell_of(d.sample(u).lambda), whole(u)) << n << " cells, u " << u;
+    }
+  }
+}
+
 TEST(WavelengthDistributionTest, RefusesBadTables) {
   const std::vector<double> zeros(10, 0.0);
   EXPECT_EQ(WavelengthDistribution::from_table(zeros).status().code(),
