@@ -276,12 +276,14 @@ bool PoissonSolver::solve_l2_one(const float* primal, const float* gradient, flo
 }
 
 bool PoissonSolver::solve_l2_batch(const float* primal, const float* gradient, float* out,
-                                   double* z, float* t) const {
+                                   double* z, float* t, const float* next_primal,
+                                   const float* next_gradient, float* next_out) const {
   auto* run = kernel_ == PoissonKernel::kAvx512 ? poisson_batch::batch_avx512
               : kernel_ == PoissonKernel::kAvx2 ? poisson_batch::batch_avx2
                                                 : poisson_batch::batch_sse2;
   return run(order_.data(), rho_pow_.data(), chains_, bins_, length_, alpha_, rho_,
-             inv_one_minus_rho_l_, q_, primal, gradient, out, z, t);
+             inv_one_minus_rho_l_, q_, primal, gradient, out, z, t, next_primal, next_gradient,
+             next_out);
 }
 
 // One pixel's L1 reconstruction: scratch holds 8·B doubles.
@@ -452,8 +454,11 @@ absl::Status PoissonSolver::solve_pixels(job::PoissonNorm norm, std::span<const 
   if (norm == job::PoissonNorm::kL2) {
     for (; p + kBatch <= pixels; p += kBatch) {
       const std::size_t o = static_cast<std::size_t>(p) * B;
+      const bool next = p + 2 * kBatch <= pixels;
+      const std::size_t n = o + std::size_t(kBatch) * B;
       if (!solve_l2_batch(primal.data() + o, gradient.data() + o, out.data() + o, scratch.data(),
-                          t_buffer.data())) {
+                          t_buffer.data(), next ? primal.data() + n : nullptr,
+                          next ? gradient.data() + n : nullptr, next ? out.data() + n : nullptr)) {
         return fail(kBatch);
       }
     }

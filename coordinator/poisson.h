@@ -104,8 +104,9 @@ class PoissonSolver {
   PoissonSolver() = default;
 
   bool solve_l2_one(const float* primal, const float* gradient, float* out, double* scratch) const;
-  bool solve_l2_batch(const float* primal, const float* gradient, float* out, double* z,
-                      float* t) const;
+  // `next_primal`, `next_gradient`, `next_out`: the next batch's, prefetched (nullptr: none).
+  bool solve_l2_batch(const float* primal, const float* gradient, float* out, double* z, float* t,
+                      const float* next_primal, const float* next_gradient, float* next_out) const;
   void solve_l1_pixel(const float* primal, const float* gradient, float* out,
                       double* scratch) const;
 

@@ -20,17 +20,22 @@ constexpr int kPad = 24;
 
 // The kernels: `order` the chains' bin orders (chains × L), `pw` the per-bin weights, a, rho,
 // inv, q the factorisation's constants, kBatch pixels of primal, gradient and out (kBatch·B
-// values each); `z` holds kBatch·L doubles, `t` 3·(kBatch·B + kPad) floats. False when a value
-// is not finite.
+// values each); `z` holds kBatch·L doubles, `t` 3·(kBatch·B + kPad) floats; next_primal,
+// next_gradient and next_out the next batch's, prefetched while this one computes (nullptr:
+// none).
+// False when a value is not finite.
 bool batch_sse2(const int* order, const double* pw, int chains, int B, int L, double a, double rho,
                 double inv, double q, const float* primal, const float* gradient, float* out,
-                double* z, float* t);
+                double* z, float* t, const float* next_primal, const float* next_gradient,
+                float* next_out);
 bool batch_avx2(const int* order, const double* pw, int chains, int B, int L, double a, double rho,
                 double inv, double q, const float* primal, const float* gradient, float* out,
-                double* z, float* t);
+                double* z, float* t, const float* next_primal, const float* next_gradient,
+                float* next_out);
 bool batch_avx512(const int* order, const double* pw, int chains, int B, int L, double a,
                   double rho, double inv, double q, const float* primal, const float* gradient,
-                  float* out, double* z, float* t);
+                  float* out, double* z, float* t, const float* next_primal,
+                  const float* next_gradient, float* next_out);
 // Whether this CPU runs the kernel (SSE2 always on x86-64).
 bool cpu_supports(PoissonKernel kernel);
 
