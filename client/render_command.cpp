@@ -619,8 +619,14 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
           ? absl::StrCat(" (chosen by auto: ", report.auto_choice->reason, ")")
           : std::string(),
       report.gradient.has_value()
-          ? absl::StrCat(" (tau ", report.gradient->tau,
-                         report.gradient->tau_pilot.has_value() ? " from the pilot" : "", ")")
+          ? absl::StrCat(
+                " (tau ", report.gradient->tau,
+                report.gradient->tau_pilot.has_value() ? " from the pilot" : "",
+                report.gradient->samples > 0 && report.gradient->lane_sum > report.gradient->samples
+                    ? absl::StrCat(", ", report.gradient->lane_sum / report.gradient->samples,
+                                   " hero lanes")
+                    : std::string(),
+                ")")
           : std::string(),
       report.target_error.has_value()
           ? absl::StrCat(" ", coordinator::target_error_summary(*report.target_error))
