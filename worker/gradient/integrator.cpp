@@ -56,6 +56,14 @@ void add_entry(GradientSample& out, int bin, float primal, float gradient) {
   out.entry[out.entries++] = {bin, primal, gradient};
 }
 
+// Adds a lane's value v in `bin` unshifted: v to I[bin], and its finite difference to G
+// (G[bin] −= v, G[bin − k] += v).
+void add_unshifted_lane(GradientSample& out, const spectral::WavelengthGrid& grid, int k, int bin,
+                        float v) {
+  add_entry(out, bin, v, -v);
+  add_entry(out, grid.wrap(bin - k), 0.0f, v);
+}
+
 // One gradient sample's base path and its two offsets (docs/estimators.md §5), the estimator's
 // steps by name: the events' accumulation with their shifts, emission found by the sampled
 // direction, a flight through a medium, next-event estimation at a surface, scattering and
@@ -722,8 +730,7 @@ class BasePath {
       const int bin = grid.bin_of(hero_lambda.lambda(s));
       if (!(pdf > 0) || bin < 0 || hero.radiance[s] == 0.0f) continue;
       const float v = hero.radiance[s] / pdf * inverse_width * filter_weight;
-      add(bin, v, -v);
-      add(grid.wrap(bin - offset_bins_), 0.0f, v);
+      add_unshifted_lane(out, grid, offset_bins_, bin, v);
       add_rgb(hero_lambda.lambda(s), double(hero.radiance[s]) / pdf * filter_weight);
     }
     return out;
@@ -803,12 +810,9 @@ class BasePath {
 // into G (G[b] −= v, G[b − k] += v), so that the reconstruction returns I.
 GradientSample from_lanes(const RenderScene& scene, int offset_bins, const SampleContribution& c) {
   GradientSample out;
-  const spectral::WavelengthGrid& grid = scene.grid();
-  auto add = [&](int bin, float primal, float gradient) { add_entry(out, bin, primal, gradient); };
   for (int s = 0; s < c.lanes; ++s) {
-    if (c.value[s] == 0.0f) continue;
-    add(c.bin[s], c.value[s], -c.value[s]);
-    add(grid.wrap(c.bin[s] - offset_bins), 0.0f, c.value[s]);
+    if (c.value[s] != 0.0f)
+      add_unshifted_lane(out, scene.grid(), offset_bins, c.bin[s], c.value[s]);
   }
   for (int i = 0; i < 3; ++i) out.rgb[i] = c.rgb[i];
   return out;
