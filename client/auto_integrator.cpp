@@ -11,6 +11,7 @@
 #include "services/image/metrics.h"
 #include "services/job/job_spec.h"
 #include "services/scene/wavelength_dependence.h"
+#include "worker/gradient/integrator.h"
 #include "worker/light_tracer.h"
 
 namespace prism::client {
@@ -121,8 +122,6 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     out.report = std::move(report);
     return out;
   }
-  std::vector<std::string> candidates = {"hero", "gradient"};
-  if (!dependence.dispersive_materials.empty()) candidates.push_back("uniform");
   // The job's film and spp, as hero would render it. (The gradient's own flags need
   // --integrator gradient, so `options` holds none.)
   RenderCommandOptions probe = options;
@@ -131,24 +130,75 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   probe.target_error.reset();
   probe.max_spp.reset();
   probe.target_error_scope = "pixel";
-  // Hero with light-traced caustics unless --caustics was given, where the scene allows light
-  // tracing (not: an orthographic or spherical camera, a portal) and has a shape that can scatter as a delta (else it
-  // has no caustic path). It is rendered twice over: with a light path per pixel and sample and
-  // with kPilotCausticPaths of them, which splits its variance and rays into the eye paths' and
-  // the light paths' parts, and so gives the share of light paths it is judged (and run) at.
-  bool caustics = false;
-  if (options.caustics.empty()) {
+  // The scene as a job builds it (at 4 x 4 and 1 spp), for what the description alone does not
+  // say. Light tracing is tried unless --caustics was given; a scene that does not allow it (an
+  // orthographic or spherical camera, a portal) is built without.
+  auto build = [&](const std::string& caustics_mode)
+      -> absl::StatusOr<std::unique_ptr<coordinator::LocalRender>> {
     RenderCommandOptions o = probe;
-    o.caustics = "light";
+    o.caustics = caustics_mode;
     o.resolution = "4x4";
     o.spp = 1;
     o.max_memory.clear();
     PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
                                                                    bundle_hash, scene_relpath));
-    auto tried = coordinator::LocalRender::create(device, description, library, prepared.local);
-    caustics = tried.ok() && !worker::caustic_targets((*tried)->scene()).empty();
+    return coordinator::LocalRender::create(device, description, library, prepared.local);
+  };
+  // Hero with light-traced caustics where --caustics was not given, the scene allows light
+  // tracing and has a shape that can scatter as a delta (else it has no caustic path). It is
+  // rendered twice over: with a light path per pixel and sample and with kPilotCausticPaths of
+  // them, which splits its variance and rays into the eye paths' and the light paths' parts, and
+  // so gives the share of light paths it is judged (and run) at.
+  bool caustics = false;
+  std::unique_ptr<coordinator::LocalRender> built;
+  if (options.caustics.empty()) {
+    auto tried = build("light");
+    if (tried.ok()) {
+      built = std::move(*tried);
+      caustics = !worker::caustic_targets(built->scene()).empty();
+    }
   }
+  if (built == nullptr) {
+    PRISM_ASSIGN_OR_RETURN(built, build(options.caustics));
+  }
+  // Gradient with its lanes chosen by the scene is hero's render, and dearer, unless some
+  // material refracts smooth-dispersively (worker/gradient/integrator.h); uniform is a
+  // candidate where a dielectric disperses.
+  const bool gradient = worker::has_smooth_dispersive_refraction(built->scene());
+  built.reset();
+  std::vector<std::string> candidates = {"hero"};
+  if (gradient) candidates.push_back("gradient");
+  if (!dependence.dispersive_materials.empty()) candidates.push_back("uniform");
   if (caustics) candidates.push_back(kHeroWithLightCaustics);
+  // Hero with several emitter spectra runs the prepass, whose first pass decides whether
+  // per-pixel tables pay (coordinator/prepass_run.h) and otherwise stops.
+  auto finish = [&]() -> absl::StatusOr<ResolvedIntegrator> {
+    if (report.choice == "hero" && dependence.emitter_spectra.size() > 1 &&
+        options.prepass != false && !options.target_error.has_value()) {
+      RenderCommandOptions with_prepass = chosen;
+      with_prepass.prepass = true;
+      PRISM_ASSIGN_OR_RETURN(const bool runs,
+                             prepass_runs(with_prepass, description, bundle_hash, scene_relpath));
+      if (runs) {
+        chosen.prepass = true;
+        report.choice = kHeroWithPrepass;
+        absl::StrAppend(&report.reason, "; ", dependence.emitter_spectra.size(),
+                        " emitter spectra: the prepass runs, and its first pass decides whether "
+                        "per-pixel tables pay");
+      }
+    }
+    report.seconds = std::chrono::duration<double>(Clock::now() - start).count();
+    out.report = std::move(report);
+    return std::move(out);
+  };
+  if (candidates.size() == 1) {
+    chosen.integrator = "hero";
+    report.choice = "hero";
+    report.reason =
+        "hero is the only candidate (no dispersive dielectric for uniform, no smooth dispersive "
+        "refraction for gradient to shift, no caustic path to light trace); no pilot";
+    return finish();
+  }
   const std::size_t renders_per_half = candidates.size() + (caustics ? 1 : 0);
   PRISM_ASSIGN_OR_RETURN(v1::JobSpec job,
                          job_spec_of(probe, description, bundle_hash, scene_relpath));
@@ -312,25 +362,12 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   }
   absl::StrAppend(&report.reason, absl::StrFormat(" (pilot: %dx%d, 2 x %d spp per candidate)",
                                                   width, height, static_cast<int>(spp)));
-  // Hero with several emitter spectra runs the prepass, whose first pass decides whether
-  // per-pixel tables pay (coordinator/prepass_run.h) and otherwise stops.
-  if (best == 0 && dependence.emitter_spectra.size() > 1 && options.prepass != false &&
-      !options.target_error.has_value()) {
-    RenderCommandOptions with_prepass = chosen;
-    with_prepass.prepass = true;
-    PRISM_ASSIGN_OR_RETURN(const bool runs,
-                           prepass_runs(with_prepass, description, bundle_hash, scene_relpath));
-    if (runs) {
-      chosen.prepass = true;
-      report.choice = kHeroWithPrepass;
-      absl::StrAppend(&report.reason, "; ", dependence.emitter_spectra.size(),
-                      " emitter spectra: the prepass runs, and its first pass decides whether "
-                      "per-pixel tables pay");
-    }
+  if (!gradient) {
+    absl::StrAppend(&report.reason,
+                    "; gradient is not a candidate: nothing refracts smooth-dispersively, so it "
+                    "would render hero's image");
   }
-  report.seconds = std::chrono::duration<double>(Clock::now() - start).count();
-  out.report = std::move(report);
-  return out;
+  return finish();
 }
 
 void set_auto_choice(const job::AutoReport& report, prism::v1::JobSpec& spec) {

@@ -21,9 +21,11 @@
 //     the relative cost of one of its rays (uniform 1, hero 1.16, gradient 1.18: the medians of
 //     CPU time per ray over the 22 scenes of scenes/ at 64 spp and one thread; hero's lanes and
 //     gradient's shifts make a ray 2–28 % and 6–45 % dearer than uniform's, docs/benchmarks.md);
-// and predicts its error at equal time as their product. Candidates are hero and gradient,
-// uniform where a dielectric disperses (hero terminates its secondary lanes there, and the
-// single-wavelength tracer is then cheaper per sample), and hero+caustics (hero with
+// and predicts its error at equal time as their product. Candidates are hero; gradient where
+// some material refracts smooth-dispersively (elsewhere gradient, its lanes chosen by the scene,
+// renders hero's image at a higher cost: worker/gradient/integrator.h); uniform where a
+// dielectric disperses (hero terminates its secondary lanes there, and the single-wavelength
+// tracer is then cheaper per sample); and hero+caustics (hero with
 // --caustics light) where the scene can be light traced and has a shape that can scatter as a
 // delta (so a caustic path to trace), its rays costed as hero's. That one is
 // rendered at one light path per pixel and sample and again at a sixteenth of them; the two
@@ -37,6 +39,8 @@
 // than fewer spp on more pixels, and an eighth of the job's spp (twice the samples of a
 // sixteenth) halved the spread of the predictions on the single-emitter rooms. With the τ pilot
 // and a scene build per render it costs 7–9 % of a 3-second job, less of longer ones.
+//
+// Where hero is the only candidate no pilot runs.
 //
 // The choice is hero unless another candidate is predicted at least 10 % better (a smaller
 // predicted gain is within the pilot's noise). Hero in a scene with several emitter spectra

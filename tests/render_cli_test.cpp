@@ -411,24 +411,52 @@ Shape "sphere" "float radius" 0.7
       << prepass.output;
 }
 
-// Hero in a scene of several emitter spectra runs the prepass where the job's spp gives it a
-// budget; its first pass decides whether per-pixel tables pay. boxes (two LED spectra, no
-// dispersion, a dye) is such a scene: its pilot finds gradient far behind hero. The image is
-// exactly `--integrator hero --prepass`'s; --no-prepass keeps the prepass off.
 // The Cornell box with two lamps can be light traced but every surface in it is diffuse: no
-// caustic path, so no hero+caustics candidate (its pilot runs would be hero's, costed twice).
-TEST(RenderCliTest, AutoOffersLightTracedCausticsOnlyWhereAShapeCanScatterAsADelta) {
+// caustic path, so no hero+caustics candidate (its pilot runs would be hero's, costed twice); no
+// dispersive glass, so no uniform and no gradient (which would render hero's image). Hero is left
+// alone, and no pilot runs: the image is `--integrator hero`'s. Rough dispersive glass keeps
+// uniform and light-traced caustics (glass, rough or not, is a caustic target) but not gradient,
+// which has nothing to shift there.
+TEST(RenderCliTest, AutoOffersOnlyCandidatesThatCanDifferFromHero) {
   const fs::path dir = fresh_dir("auto_no_caustics");
   CommandRun run =
       run_prism(dir, {"render", source("scenes/cornell-two-lights.pbrt"), "--resolution", "40x40",
                       "--spp", "16", "--no-prepass", "-o", "auto.exr"});
   ASSERT_EQ(run.exit_code, 0) << run.output;
   auto report = nlohmann::json::parse(*prism::base::read_file(dir / "auto.json"));
+  EXPECT_TRUE(report["auto"]["candidates"].empty()) << report["auto"].dump();
+  EXPECT_EQ(report["auto"]["choice"], "hero");
+  const std::string reason = report["auto"]["reason"].get<std::string>();
+  EXPECT_NE(reason.find("hero is the only candidate"), std::string::npos) << reason;
+  EXPECT_EQ(reason.find("(pilot: "), std::string::npos) << reason;
+  CommandRun hero =
+      run_prism(dir, {"render", source("scenes/cornell-two-lights.pbrt"), "--resolution", "40x40",
+                      "--spp", "16", "--integrator", "hero", "--no-prepass", "-o", "hero.exr"});
+  ASSERT_EQ(hero.exit_code, 0) << hero.output;
+  EXPECT_TRUE(same_bits(spectral_pixels(dir / "auto.exr", nullptr),
+                        spectral_pixels(dir / "hero.exr", nullptr)));
+
+  CommandRun rough =
+      run_prism(dir, {"render", source("scenes/rough-glass-caustics.pbrt"), "--resolution", "40x30",
+                      "--spp", "16", "--no-prepass", "-o", "rough.exr"});
+  ASSERT_EQ(rough.exit_code, 0) << rough.output;
+  auto rough_report = nlohmann::json::parse(*prism::base::read_file(dir / "rough.json"));
   std::set<std::string> methods;
-  for (const auto& c : report["auto"]["candidates"]) methods.insert(c["method"].get<std::string>());
-  EXPECT_EQ(methods, (std::set<std::string>{"hero", "gradient"})) << report["auto"].dump();
+  for (const auto& c : rough_report["auto"]["candidates"]) {
+    methods.insert(c["method"].get<std::string>());
+  }
+  EXPECT_EQ(methods, (std::set<std::string>{"hero", "uniform", "hero+caustics"}))
+      << rough_report["auto"].dump();
+  EXPECT_NE(rough_report["auto"]["reason"].get<std::string>().find(
+                "gradient is not a candidate: nothing refracts smooth-dispersively"),
+            std::string::npos)
+      << rough_report["auto"].dump();
 }
 
+// Hero in a scene of several emitter spectra runs the prepass where the job's spp gives it a
+// budget; its first pass decides whether per-pixel tables pay. boxes (two LED spectra, no
+// dispersion, a dye) is such a scene: its pilot finds nothing better than hero. The image is
+// exactly `--integrator hero --prepass`'s; --no-prepass keeps the prepass off.
 TEST(RenderCliTest, AutoRunsThePrepassForHeroUnderSeveralEmitterSpectra) {
   const fs::path dir = fresh_dir("auto_prepass");
   const std::vector<std::string> common = {

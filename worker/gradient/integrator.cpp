@@ -820,13 +820,17 @@ GradientSample from_lanes(const RenderScene& scene, int offset_bins, const Sampl
 
 }  // namespace
 
+bool has_smooth_dispersive_refraction(const RenderScene& scene) {
+  return std::any_of(scene.materials().begin(), scene.materials().end(),
+                     may_refract_smooth_dispersive);
+}
+
 GradientIntegrator::GradientIntegrator(const RenderScene& scene)
     : scene_(scene),
       offset_bins_(scene.options().gradient_offset_bins),
       tau_(scene.options().gradient_tau),
       hero_(scene) {
-  const bool smooth_dispersive = std::any_of(scene.materials().begin(), scene.materials().end(),
-                                             may_refract_smooth_dispersive);
+  const bool smooth_dispersive = has_smooth_dispersive_refraction(scene);
   hero_lanes_ = scene.options().gradient_lanes;
   if (hero_lanes_ == 0) hero_lanes_ = smooth_dispersive ? 1 : job::kSceneGradientLanes;
   shifts_possible_ = hero_lanes_ == 1 || smooth_dispersive;

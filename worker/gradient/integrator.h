@@ -129,6 +129,12 @@ class GradientEventSink {
   virtual void record(const GradientEvent& event) = 0;
 };
 
+// Whether some material of the scene may refract through a smooth dispersive interface
+// (may_refract_smooth_dispersive): the one event a shift follows when the base path carries hero
+// lanes. Without one, a gradient job with its lanes chosen by the scene is hero's render with an
+// identity reconstruction (`auto` then leaves it out of its candidates).
+bool has_smooth_dispersive_refraction(const RenderScene& scene);
+
 class GradientIntegrator {
  public:
   // The scene's options give k (gradient_offset_bins, 1 <= k < bins), τ, the hero lanes C
