@@ -63,7 +63,7 @@ int main(int argc, char** argv) {
   reconstruct_cmd->add_option("-o,--output", reconstruct.output, "Spectral EXR to write")
       ->required();
   reconstruct_cmd->add_option("--alpha", reconstruct.alpha,
-                              "Screening weight alpha > 0 (default 0.2)");
+                              "Screening weight alpha > 0 (default 0.4)");
   reconstruct_cmd->add_option("--poisson", reconstruct.poisson, "Norm: l2 or l1 (default l2)");
   auto* offset_opt = reconstruct_cmd->add_option(
       "--offset-bins", offset_bins,

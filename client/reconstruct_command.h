@@ -15,6 +15,7 @@
 #include <string>
 
 #include "absl/status/statusor.h"
+#include "services/job/job_parameters.h"
 
 namespace prism::client {
 
@@ -22,7 +23,7 @@ struct ReconstructOptions {
   std::filesystem::path primal;
   std::filesystem::path gradient;
   std::filesystem::path output;
-  double alpha = 0.2;
+  double alpha = job::kDefaultPoissonAlpha;
   std::string poisson = "l2";  // l2 or l1
   std::optional<int> offset_bins;
 };

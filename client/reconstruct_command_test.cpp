@@ -76,7 +76,7 @@ TEST_F(ReconstructCommandTest, ConsistentPairReconstructsThePrimal) {
     o.poisson = norm;
     auto summary = run_reconstruct(o);
     ASSERT_TRUE(summary.ok()) << summary.status();
-    EXPECT_NE(summary->find("7x4, 32 bins, k 5, alpha 0.2"), std::string::npos) << *summary;
+    EXPECT_NE(summary->find("7x4, 32 bins, k 5, alpha 0.4"), std::string::npos) << *summary;
     auto out = image::read_spectral_exr(o.output);
     ASSERT_TRUE(out.ok()) << out.status();
     ASSERT_EQ(out->spectral.data().size(), in.data().size());
@@ -87,7 +87,7 @@ TEST_F(ReconstructCommandTest, ConsistentPairReconstructsThePrimal) {
         ASSERT_NEAR(out->spectral.data()[i], in.data()[i], 4 * std::ldexp(1.0f, -23)) << i;
       }
     }
-    EXPECT_EQ(out->metadata.at(std::string(image::kMetaPoissonAlpha)), "0.2");
+    EXPECT_EQ(out->metadata.at(std::string(image::kMetaPoissonAlpha)), "0.4");
     EXPECT_EQ(out->metadata.at(std::string(image::kMetaPoissonNorm)), norm);
     EXPECT_EQ(out->metadata.at(std::string(image::kMetaGradientOffsetBins)), "5");
     EXPECT_EQ(out->metadata.at(std::string(image::kMetaGradientDelta)), "0.15");

@@ -90,7 +90,7 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
                              "auto: chosen by a short pilot render (default auto)");
   f.alpha_opt =
       cmd.add_option("--alpha", f.alpha,
-                     "Gradient: screened Poisson weight of --poisson l2 and l1, > 0 (default 0.2)");
+                     "Gradient: screened Poisson weight of --poisson l2 and l1, > 0 (default 0.4)");
   f.gradient_lanes_opt =
       cmd.add_option("--gradient-lanes", f.gradient_lanes,
                      absl::StrCat("Gradient: hero wavelengths carried by each base path, 1..",

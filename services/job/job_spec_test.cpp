@@ -375,7 +375,7 @@ TEST(JobSpecTest, GradientAndPrepassDefaultsSurviveTheExplicitForm) {
   auto p = job_parameters(spec, test_scene());
   ASSERT_TRUE(p.ok()) << p.status();
   EXPECT_EQ(p->render.gradient_offset_bins, 5);  // round(0.15 * 32)
-  EXPECT_EQ(p->gradient.alpha, double(0.2f));
+  EXPECT_EQ(p->gradient.alpha, double(float(kDefaultPoissonAlpha)));
   EXPECT_EQ(p->gradient.norm, PoissonNorm::kL2);
   ASSERT_TRUE(p->prepass.has_value());
   EXPECT_EQ(p->prepass->passes, 2);

@@ -21,7 +21,7 @@
 // Usage: prism-bench-gradient-equal-time [scene.pbrt ...] [--resolution 80x60]
 //          [--spp 16,32,64,128,256] [--reference-spp 16384] [--cache-dir DIR] [--threads N]
 //          [--bins B (the scene's)] [--max-depth D (the scene's)] [--delta 0.15]
-//          [--tau 0 | auto | auto:EPS, comma-separated: one gradient curve each] [--alpha 0.2]
+//          [--tau 0 | auto | auto:EPS, comma-separated: one gradient curve each] [--alpha 0.4]
 //          [--gradient-lanes 0,1,4 (comma-separated: one curve per τ and C; 0 by the scene)]
 //          [--poisson l2|l1|weighted] [--clock wall|cpu] [--inset x,y,w,h]
 //          [--csv path (scene,method,spp,seconds,relmse; relMSE of the whole image)]
