@@ -189,8 +189,8 @@ struct StageShared {
 // its tiles. Errors go to shared.first_error.
 void run_stage(const Stage& stage, int bins, tbb::task_arena& arena, StageShared& shared,
                const std::atomic<bool>* cancel) {
-  absl::StatusOr<std::unique_ptr<TileAssembler>> assembler =
-      TileAssembler::create(*stage.plan, bins, stage.on_tile, stage.finalise);
+  absl::StatusOr<std::unique_ptr<TileAssembler>> assembler = TileAssembler::create(
+      *stage.plan, bins, stage.on_tile, stage.finalise, TileAssembler::Arrivals::kExactlyOnce);
   if (!assembler.ok()) {
     shared.fail(assembler.status());
     return;

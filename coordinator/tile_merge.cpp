@@ -74,7 +74,8 @@ std::array<std::uint8_t, 32> tile_result_digest(const image::TileResult& result)
 
 absl::StatusOr<std::unique_ptr<TileAssembler>> TileAssembler::create(TilePlan plan, int bins,
                                                                      TileCallback on_tile,
-                                                                     TileFinaliser finalise) {
+                                                                     TileFinaliser finalise,
+                                                                     Arrivals arrivals) {
   if (plan.tiles.empty() || plan.ranges.empty()) {
     return absl::InvalidArgumentError("cannot assemble a plan without tiles or sample ranges");
   }
@@ -89,14 +90,16 @@ absl::StatusOr<std::unique_ptr<TileAssembler>> TileAssembler::create(TilePlan pl
   PRISM_CHECK(on_tile != nullptr);
   if (!finalise) finalise = mean_finaliser();
   return std::unique_ptr<TileAssembler>(
-      new TileAssembler(std::move(plan), bins, std::move(on_tile), std::move(finalise)));
+      new TileAssembler(std::move(plan), bins, std::move(on_tile), std::move(finalise), arrivals));
 }
 
-TileAssembler::TileAssembler(TilePlan plan, int bins, TileCallback on_tile, TileFinaliser finalise)
+TileAssembler::TileAssembler(TilePlan plan, int bins, TileCallback on_tile, TileFinaliser finalise,
+                             Arrivals arrivals)
     : plan_(std::move(plan)),
       bins_(bins),
       on_tile_(std::move(on_tile)),
-      finalise_(std::move(finalise)) {
+      finalise_(std::move(finalise)),
+      arrivals_(arrivals) {
   tiles_.resize(plan_.tiles.size());
   for (TileState& tile : tiles_) tile.digests.resize(plan_.ranges.size());
 }
@@ -133,13 +136,20 @@ absl::Status TileAssembler::add(int tile_index, image::TileResult result,
   // merge the same values.
   result.round_to_float32();
   // Hashing reads the whole result: do it before taking the lock.
-  const Digest digest = encoded_sha256.has_value() ? *encoded_sha256 : tile_result_digest(result);
+  const bool identify = arrivals_ == Arrivals::kAtLeastOnce;
+  const Digest digest = !identify                    ? Digest{}
+                        : encoded_sha256.has_value() ? *encoded_sha256
+                                                     : tile_result_digest(result);
 
   std::vector<image::TileResult> parts;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     TileState& tile = tiles_[tile_index];
     if (tile.digests[range].has_value()) {
+      if (!identify) {
+        return absl::InternalError(
+            absl::StrCat(name, " arrived twice in a render that runs each task once"));
+      }
       if (*tile.digests[range] != digest) {
         return absl::DataLossError(absl::StrCat(
             name,

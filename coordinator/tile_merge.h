@@ -42,25 +42,36 @@ using TileCallback = std::function<absl::Status(int tile_index, const image::Til
 
 class TileAssembler {
  public:
+  // How often a task's result can arrive.
+  enum class Arrivals {
+    // A farm: a task can be leased again and its result sent twice. Each accepted result's
+    // identity (its encoded SHA-256, or tile_result_digest) is kept, so that a repeat is ignored
+    // when its bytes are the same and refused when they differ.
+    kAtLeastOnce,
+    // A local render: each task runs once, so no result is identified (hashing every result
+    // cost a quarter of a 1-spp render's CPU). A second arrival is a program error (INTERNAL).
+    kExactlyOnce,
+  };
+
   // INVALID_ARGUMENT when the plan has no tiles or ranges, or bins is outside [1,
   // image::kMaxChannels]. `finalise` (default: mean_finaliser()) runs on each finished tile before
   // the callback; its error is returned by the add() that completed the tile, and the tile counts
   // as finished.
-  static absl::StatusOr<std::unique_ptr<TileAssembler>> create(TilePlan plan, int bins,
-                                                               TileCallback on_tile,
-                                                               TileFinaliser finalise = nullptr);
+  static absl::StatusOr<std::unique_ptr<TileAssembler>> create(
+      TilePlan plan, int bins, TileCallback on_tile, TileFinaliser finalise = nullptr,
+      Arrivals arrivals = Arrivals::kAtLeastOnce);
 
   // Accepts the result of task (tile_index, result.samples()). Thread-safe.
   //  - INVALID_ARGUMENT (nothing kept) when the tile index is out of range, the rect is not the
   //    plan's rect for that tile, the bins differ, the sample range is not one of the plan's,
   //    or the optional buffers differ from the tile's other ranges.
   //  - OK and ignored when the same bytes were already accepted for that (tile, range);
-  //    DATA_LOSS when different bytes were.
+  //    DATA_LOSS when different bytes were (INTERNAL for any repeat under kExactlyOnce).
   //  - Otherwise OK; when this completes the tile, the callback's status.
   // `encoded_sha256`: the SHA-256 of the result's tile-codec bytes when the caller has it (the
   // farm checked it on upload; one encoding per result, so it identifies the result as well as
-  // tile_result_digest, which is computed otherwise). One job's results must all be added with
-  // it or all without.
+  // tile_result_digest, which is computed otherwise; neither under kExactlyOnce). One job's
+  // results must all be added with it or all without.
   absl::Status add(int tile_index, image::TileResult result,
                    const std::optional<std::array<std::uint8_t, 32>>& encoded_sha256 = {});
 
@@ -87,12 +98,14 @@ class TileAssembler {
   using Digest = std::array<std::uint8_t, 32>;
   struct TileState {
     std::vector<std::optional<image::TileResult>> parts;  // per range, until finished
-    std::vector<std::optional<Digest>> digests;           // per range, kept for good
+    std::vector<std::optional<Digest>> digests;           // per range, kept for good (all
+                                                          // zero under kExactlyOnce)
     int received = 0;
     bool finished = false;
   };
 
-  TileAssembler(TilePlan plan, int bins, TileCallback on_tile, TileFinaliser finalise);
+  TileAssembler(TilePlan plan, int bins, TileCallback on_tile, TileFinaliser finalise,
+                Arrivals arrivals);
   // Index of `range` in the plan, or -1.
   int range_index(const image::SampleRange& range) const;
 
@@ -100,6 +113,7 @@ class TileAssembler {
   const int bins_;
   const TileCallback on_tile_;
   const TileFinaliser finalise_;
+  const Arrivals arrivals_;
   mutable std::mutex mutex_;
   std::vector<TileState> tiles_;
   int finished_ = 0;

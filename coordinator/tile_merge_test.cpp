@@ -57,24 +57,26 @@ struct Assembly {
   std::shared_ptr<Collected> collected;
 };
 
-Assembly make_assembly(const TilePlan& plan) {
+Assembly make_assembly(const TilePlan& plan,
+                       TileAssembler::Arrivals arrivals = TileAssembler::Arrivals::kAtLeastOnce) {
   auto image = image::SpectralImage::create(kWidth, kHeight, kBins);
   EXPECT_TRUE(image.ok());
   Assembly a{nullptr, std::make_shared<image::SpectralImage>(*std::move(image)),
              std::make_shared<Collected>()};
   auto collected = a.collected;
   auto target = a.image;
-  auto assembler =
-      TileAssembler::create(plan, kBins,
-                            [collected, target](int tile, const image::TileResult& merged,
-                                                const image::SpectralImage& finalised) {
-                              {
-                                std::lock_guard<std::mutex> lock(collected->mutex);
-                                collected->merged.emplace(tile, merged);
-                                ++collected->calls;
-                              }
-                              return image::paste_tile(finalised, merged.rect(), *target);
-                            });
+  auto assembler = TileAssembler::create(
+      plan, kBins,
+      [collected, target](int tile, const image::TileResult& merged,
+                          const image::SpectralImage& finalised) {
+        {
+          std::lock_guard<std::mutex> lock(collected->mutex);
+          collected->merged.emplace(tile, merged);
+          ++collected->calls;
+        }
+        return image::paste_tile(finalised, merged.rect(), *target);
+      },
+      nullptr, arrivals);
   EXPECT_TRUE(assembler.ok()) << assembler.status();
   a.assembler = *std::move(assembler);
   return a;
@@ -333,6 +335,29 @@ TEST(TileAssemblerTest, CreateValidatesItsInputs) {
   TilePlan gap = make_plan();
   gap.ranges[1].s0 += 1;
   EXPECT_FALSE(TileAssembler::create(gap, kBins, noop).ok());
+}
+
+// A local render identifies no result; its bytes are those of a farm's assembly, and a task that
+// arrived twice (which a render running each task once cannot send) is refused, not merged.
+TEST(TileAssemblerTest, ExactlyOnceAssemblesTheSameBytesAndRefusesARepeat) {
+  const TilePlan plan = make_plan();
+  Assembly once = make_assembly(plan, TileAssembler::Arrivals::kExactlyOnce);
+  Assembly reference = make_assembly(plan);
+  for (auto [t, r] : all_tasks(plan)) {
+    ASSERT_TRUE(reference.assembler->add(t, make_result(plan, t, r)).ok());
+    ASSERT_TRUE(once.assembler->add(t, make_result(plan, t, r)).ok());
+    if (r == 0) {
+      const absl::Status repeat = once.assembler->add(t, make_result(plan, t, r));
+      EXPECT_EQ(repeat.code(), absl::StatusCode::kInternal) << repeat;
+      EXPECT_NE(repeat.message().find("arrived twice"), std::string::npos) << repeat;
+    }
+  }
+  const absl::Status after = once.assembler->add(0, make_result(plan, 0, 1));
+  EXPECT_EQ(after.code(), absl::StatusCode::kInternal) << after;
+  EXPECT_EQ(once.assembler->duplicates_ignored(), 0u);
+  EXPECT_EQ(once.collected->calls, int(plan.tiles.size()));
+  ASSERT_TRUE(once.assembler->check_complete().ok());
+  EXPECT_TRUE(same_bits(once.image->data(), reference.image->data()));
 }
 
 TEST(TileAssemblerTest, DigestSeesEveryByte) {
