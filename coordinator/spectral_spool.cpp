@@ -13,17 +13,7 @@
 namespace prism::coordinator {
 absl::StatusOr<std::unique_ptr<SpectralSpool>> SpectralSpool::create(
     const std::filesystem::path& dir, TilePlan plan, int width, int height, int bins) {
-  int fd = ::open(dir.c_str(), O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
-  if (fd < 0) {
-    // File systems without O_TMPFILE: a unique name, unlinked at once.
-    std::string name = (dir / ".prism-spool-XXXXXX").string();
-    fd = ::mkostemp(name.data(), O_CLOEXEC);
-    if (fd >= 0) ::unlink(name.c_str());
-  }
-  if (fd < 0) {
-    return absl::InternalError(
-        absl::StrCat("cannot make a spool file in ", dir.string(), ": ", std::strerror(errno)));
-  }
+  PRISM_ASSIGN_OR_RETURN(const int fd, base::make_anonymous_file(dir, "a spool file"));
   return std::unique_ptr<SpectralSpool>(
       new SpectralSpool(fd, std::move(plan), width, height, bins));
 }

@@ -119,6 +119,21 @@ absl::Status pread_all(int fd, char* bytes, std::size_t size, std::uint64_t offs
   return transfer(what, "read", ::pread, fd, bytes, size, offset);
 }
 
+absl::StatusOr<int> make_anonymous_file(const std::filesystem::path& dir, std::string_view what) {
+  int fd = ::open(dir.c_str(), O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
+  if (fd < 0) {
+    // File systems without O_TMPFILE: a unique name, unlinked at once.
+    std::string name = (dir / ".prism-XXXXXX").string();
+    fd = ::mkostemp(name.data(), O_CLOEXEC);
+    if (fd >= 0) ::unlink(name.c_str());
+  }
+  if (fd < 0) {
+    return absl::InternalError(absl::StrCat("cannot make ", std::string(what), " in ", dir.string(),
+                                            ": ", std::strerror(errno)));
+  }
+  return fd;
+}
+
 absl::Status make_directories(const std::filesystem::path& dir) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);

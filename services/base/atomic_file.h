@@ -37,6 +37,11 @@ absl::Status pwrite_all(int fd, const char* bytes, std::size_t size, std::uint64
 absl::Status pread_all(int fd, char* bytes, std::size_t size, std::uint64_t offset,
                        std::string_view what);
 
+// A new read-write file in `dir` with no name (O_TMPFILE, else a unique name unlinked at once),
+// so that it never outlives the process and a crash leaves nothing behind; the caller closes
+// the descriptor. INTERNAL naming `what` and the directory when it cannot be made.
+absl::StatusOr<int> make_anonymous_file(const std::filesystem::path& dir, std::string_view what);
+
 // Creates `dir` and its parents when missing; INTERNAL naming the directory otherwise.
 absl::Status make_directories(const std::filesystem::path& dir);
 

@@ -8,6 +8,7 @@
 #include <ImfStringAttribute.h>
 #include <ImfThreading.h>
 #include <half.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <charconv>
@@ -17,6 +18,7 @@
 #include <mutex>
 #include <optional>
 #include <set>
+#include <stdexcept>
 
 #include "absl/strings/str_cat.h"
 #include "services/base/atomic_file.h"
@@ -408,23 +410,16 @@ absl::Status write_spectral_exr(const std::filesystem::path& path,
       metadata, options);
 }
 
-absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
-                                     const std::vector<double>& wavelengths_nm, int width,
-                                     int height, int band_rows, const SpectralRows& rows,
-                                     const RgbImage& rgb, const ExrMetadata& metadata,
-                                     const ExrWriteOptions& options) {
-  if (rgb.width() != width || rgb.height() != height) {
+namespace {
+
+// The channel names of the bins; INVALID_ARGUMENT naming `path` unless the wavelengths are
+// finite, positive, strictly ascending and distinct once formatted.
+absl::StatusOr<std::vector<std::string>> spectral_channel_names(
+    const std::filesystem::path& path, const std::vector<double>& wavelengths_nm) {
+  if (wavelengths_nm.empty() || wavelengths_nm.size() > std::size_t(kMaxChannels)) {
     return absl::InvalidArgumentError(
-        absl::StrCat("cannot write ", path.string(), ": RGB image is ", rgb.width(), "x",
-                     rgb.height(), " but the spectral image is ", width, "x", height));
+        absl::StrCat("cannot write ", path.string(), ": ", wavelengths_nm.size(), " wavelengths"));
   }
-  if (wavelengths_nm.empty() || wavelengths_nm.size() > std::size_t(kMaxChannels) ||
-      band_rows < 1) {
-    return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(), ": ",
-                                                   wavelengths_nm.size(), " wavelengths and ",
-                                                   band_rows, " rows per band"));
-  }
-  const int bins = static_cast<int>(wavelengths_nm.size());
   std::vector<std::string> names;
   std::set<std::string> seen;
   for (std::size_t b = 0; b < wavelengths_nm.size(); ++b) {
@@ -443,6 +438,36 @@ absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
     }
     names.push_back(std::move(name));
   }
+  return names;
+}
+
+void decorate_spectral(Imf::Header& header, const ExrMetadata& metadata) {
+  header.insert(kLayoutVersionAttribute, Imf::StringAttribute(std::string(kSpectralLayoutVersion)));
+  header.insert(kEmissiveUnitsAttribute, Imf::StringAttribute(std::string(kEmissiveUnits)));
+  insert_metadata(header, metadata);
+}
+
+}  // namespace
+
+absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
+                                     const std::vector<double>& wavelengths_nm, int width,
+                                     int height, int band_rows, const SpectralRows& rows,
+                                     const RgbImage& rgb, const ExrMetadata& metadata,
+                                     const ExrWriteOptions& options) {
+  if (rgb.width() != width || rgb.height() != height) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("cannot write ", path.string(), ": RGB image is ", rgb.width(), "x",
+                     rgb.height(), " but the spectral image is ", width, "x", height));
+  }
+  if (wavelengths_nm.empty() || wavelengths_nm.size() > std::size_t(kMaxChannels) ||
+      band_rows < 1) {
+    return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(), ": ",
+                                                   wavelengths_nm.size(), " wavelengths and ",
+                                                   band_rows, " rows per band"));
+  }
+  const int bins = static_cast<int>(wavelengths_nm.size());
+  PRISM_ASSIGN_OR_RETURN(const std::vector<std::string> names,
+                         spectral_channel_names(path, wavelengths_nm));
   PRISM_RETURN_IF_ERROR(validate_metadata(path, metadata));
   auto source = [&](int y0, int n) -> absl::StatusOr<std::vector<Plane>> {
     PRISM_ASSIGN_OR_RETURN(const float* band, rows(y0, n));
@@ -456,13 +481,160 @@ absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
   };
   return write_exr(
       path, width, height, band_rows, source,
-      [&](Imf::Header& header) {
-        header.insert(kLayoutVersionAttribute,
-                      Imf::StringAttribute(std::string(kSpectralLayoutVersion)));
-        header.insert(kEmissiveUnitsAttribute, Imf::StringAttribute(std::string(kEmissiveUnits)));
-        insert_metadata(header, metadata);
-      },
-      options);
+      [&](Imf::Header& header) { decorate_spectral(header, metadata); }, options);
+}
+
+namespace {
+
+// The streamed file, written and read at explicit offsets of its descriptor (OpenEXR seeks back
+// to fill in the line offsets). Errors surface as exceptions, as OpenEXR's own streams do.
+class FdOStream final : public Imf::OStream {
+ public:
+  explicit FdOStream(int fd) : Imf::OStream("streamed spectral EXR"), fd_(fd) {}
+  void write(const char c[], int n) override {
+    const absl::Status s = base::pwrite_all(fd_, c, std::size_t(n), at_, "streamed spectral EXR");
+    if (!s.ok()) throw std::runtime_error(std::string(s.message()));
+    at_ += std::uint64_t(n);
+    end_ = std::max(end_, at_);
+  }
+  std::uint64_t tellp() override { return at_; }
+  void seekp(std::uint64_t pos) override { at_ = pos; }
+  std::uint64_t end() const { return end_; }
+
+ private:
+  int fd_;
+  std::uint64_t at_ = 0, end_ = 0;
+};
+
+class FdIStream final : public Imf::IStream {
+ public:
+  FdIStream(int fd, std::uint64_t size)
+      : Imf::IStream("streamed spectral EXR"), fd_(fd), size_(size) {}
+  bool read(char c[], int n) override {
+    if (n < 0 || at_ + std::uint64_t(n) > size_) {
+      throw std::runtime_error("read past the end of the streamed spectral EXR");
+    }
+    const absl::Status s = base::pread_all(fd_, c, std::size_t(n), at_, "streamed spectral EXR");
+    if (!s.ok()) throw std::runtime_error(std::string(s.message()));
+    at_ += std::uint64_t(n);
+    return at_ < size_;
+  }
+  std::uint64_t tellg() override { return at_; }
+  void seekg(std::uint64_t pos) override { at_ = pos; }
+
+ private:
+  int fd_;
+  std::uint64_t size_, at_ = 0;
+};
+
+}  // namespace
+
+struct SpectralExrStream::Open {
+  FdOStream stream;
+  std::optional<Imf::OutputFile> file;
+  explicit Open(int fd) : stream(fd) {}
+};
+
+absl::StatusOr<std::unique_ptr<SpectralExrStream>> SpectralExrStream::create(
+    const std::filesystem::path& dir, const std::vector<double>& wavelengths_nm, int width,
+    int height, const ExrWriteOptions& options) {
+  if (width < 1 || height < 1) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("a streamed spectral EXR of ", width, "x", height, " pixels"));
+  }
+  PRISM_ASSIGN_OR_RETURN(std::vector<std::string> names,
+                         spectral_channel_names(dir / "(streamed)", wavelengths_nm));
+  PRISM_ASSIGN_OR_RETURN(const int fd, base::make_anonymous_file(dir, "a streamed spectral EXR"));
+  std::unique_ptr<SpectralExrStream> stream(new SpectralExrStream(
+      fd, width, height, static_cast<int>(names.size()), std::clamp(options.threads, 1, 256)));
+  stream->names_ = std::move(names);
+  // The header write_exr makes for write_spectral_exr_rows, without the metadata.
+  Imf::Header header(width, height);
+  header.compression() = to_imf(options.compression);
+  decorate_spectral(header, {});
+  for (const std::string& name : stream->names_) {
+    header.channels().insert(name, Imf::Channel(Imf::FLOAT));
+  }
+  for (const char* name : {"R", "G", "B"}) header.channels().insert(name, Imf::Channel(Imf::FLOAT));
+  try {
+    stream->open_ = std::make_unique<Open>(fd);
+    if (stream->threads_ > 1) grow_global_exr_pool(stream->threads_);
+    stream->open_->file.emplace(stream->open_->stream, header,
+                                stream->threads_ > 1 ? stream->threads_ : 0);
+  } catch (const std::exception& e) {
+    return absl::InternalError(
+        absl::StrCat("cannot start a streamed spectral EXR in ", dir.string(), ": ", e.what()));
+  }
+  return stream;
+}
+
+SpectralExrStream::SpectralExrStream(int fd, int width, int height, int bins, int threads)
+    : fd_(fd), width_(width), height_(height), bins_(bins), threads_(threads) {}
+
+SpectralExrStream::~SpectralExrStream() {
+  try {
+    open_.reset();  // an unfinished file is abandoned with its descriptor
+  } catch (...) {
+  }
+  ::close(fd_);
+}
+
+absl::Status SpectralExrStream::write_rows(int rows, const float* bins, const float* rgb) {
+  if (open_ == nullptr || rows < 1 || rows > height_ - rows_written_) {
+    return absl::InvalidArgumentError(absl::StrCat("a streamed spectral EXR of ", height_,
+                                                   " rows has ", rows_written_,
+                                                   " written; cannot take ", rows, " more"));
+  }
+  try {
+    const Imath::Box2i band({0, rows_written_}, {width_ - 1, rows_written_ + rows - 1});
+    const std::size_t row_bins = std::size_t(width_) * std::size_t(bins_);
+    // Slice::Make takes the band's first value and shifts it to the data window's origin.
+    Imf::FrameBuffer frame;
+    for (int b = 0; b < bins_; ++b) {
+      frame.insert(names_[std::size_t(b)],
+                   Imf::Slice::Make(Imf::FLOAT, bins + b, band, sizeof(float) * bins_,
+                                    sizeof(float) * row_bins));
+    }
+    const char* rgb_names[] = {"R", "G", "B"};
+    for (int c = 0; c < 3; ++c) {
+      frame.insert(rgb_names[c], Imf::Slice::Make(Imf::FLOAT, rgb + c, band, sizeof(float) * 3,
+                                                  sizeof(float) * 3 * std::size_t(width_)));
+    }
+    open_->file->setFrameBuffer(frame);
+    open_->file->writePixels(rows);
+    rows_written_ += rows;
+    if (rows_written_ == height_) {
+      open_->file.reset();  // writes the line offsets
+    }
+  } catch (const std::exception& e) {
+    open_.reset();
+    return absl::InternalError(absl::StrCat("cannot write a streamed spectral EXR: ", e.what()));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status SpectralExrStream::write(const std::filesystem::path& path,
+                                      const ExrMetadata& metadata) {
+  if (open_ == nullptr || rows_written_ != height_) {
+    return absl::FailedPreconditionError(absl::StrCat("cannot write ", path.string(), ": ",
+                                                      rows_written_, " of ", height_,
+                                                      " rows were streamed"));
+  }
+  PRISM_RETURN_IF_ERROR(validate_metadata(path, metadata));
+  const std::uint64_t size = open_->stream.end();
+  return base::write_via_temp(path, [&](const std::filesystem::path& temp) -> absl::Status {
+    try {
+      FdIStream in_stream(fd_, size);
+      Imf::InputFile in(in_stream, threads_ > 1 ? threads_ : 0);
+      Imf::Header header = in.header();
+      insert_metadata(header, metadata);
+      Imf::OutputFile out(temp.c_str(), header, threads_ > 1 ? threads_ : 0);
+      out.copyPixels(in);
+    } catch (const std::exception& e) {
+      return absl::InternalError(absl::StrCat("cannot write EXR ", path.string(), ": ", e.what()));
+    }
+    return absl::OkStatus();
+  });
 }
 
 absl::StatusOr<SpectralExr> read_spectral_exr(const std::filesystem::path& path) {

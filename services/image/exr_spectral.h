@@ -23,6 +23,7 @@
 #include <filesystem>
 #include <functional>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -142,6 +143,43 @@ absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
                                      int height, int band_rows, const SpectralRows& rows,
                                      const RgbImage& rgb, const ExrMetadata& metadata = {},
                                      const ExrWriteOptions& options = {});
+
+// A spectral EXR written band by band while a render runs, so that compressing it overlaps the
+// render instead of following it (issue 18). Its lines go, compressed, to an anonymous file in
+// `dir`; write() then makes the file at `path` with metadata known only at the end, copying the
+// compressed lines as they are (OpenEXR's copyPixels): the same bytes as write_spectral_exr_rows
+// with the same rows, RGB and metadata. Not thread-safe: one writer at a time.
+class SpectralExrStream {
+ public:
+  // INVALID_ARGUMENT for wavelengths write_spectral_exr_rows refuses; INTERNAL naming `dir` when
+  // the anonymous file cannot be made.
+  static absl::StatusOr<std::unique_ptr<SpectralExrStream>> create(
+      const std::filesystem::path& dir, const std::vector<double>& wavelengths_nm, int width,
+      int height, const ExrWriteOptions& options = {});
+  ~SpectralExrStream();
+  SpectralExrStream(const SpectralExrStream&) = delete;
+  SpectralExrStream& operator=(const SpectralExrStream&) = delete;
+
+  // The next `rows` rows from the top: `bins` pixel-interleaved (width·rows·bins floats),
+  // `rgb` width·rows·3 floats. INVALID_ARGUMENT past the last row; INTERNAL on a write error.
+  absl::Status write_rows(int rows, const float* bins, const float* rgb);
+  int rows_written() const { return rows_written_; }
+
+  // Makes the file at `path` (atomically, as every output) once every row is written;
+  // FAILED_PRECONDITION before that, INVALID_ARGUMENT for bad metadata, INTERNAL naming the file
+  // on an I/O error.
+  absl::Status write(const std::filesystem::path& path, const ExrMetadata& metadata);
+
+ private:
+  struct Open;
+  SpectralExrStream(int fd, int width, int height, int bins, int threads);
+
+  int fd_;
+  int width_, height_, bins_, threads_;
+  int rows_written_ = 0;
+  std::vector<std::string> names_;
+  std::unique_ptr<Open> open_;  // the OpenEXR file being written, until the last row
+};
 
 // Reads a spectral EXR (see above). NOT_FOUND for a missing file; INVALID_ARGUMENT naming the
 // file when it is not an EXR, has no S0.<λ>nm channels, uses the polarised or reflective

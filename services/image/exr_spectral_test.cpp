@@ -129,6 +129,55 @@ TEST_F(ExrTest, StreamedBandsWriteTheSameFileAsTheWholeImage) {
   EXPECT_FALSE(fs::exists(dir_ / "failed.exr"));
 }
 
+std::string file_bytes(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+// A stream fed band by band, with its metadata given only at the end, writes the bytes
+// write_spectral_exr_rows writes, at every compression and thread count; the file appears only
+// at write(), and the stream's own file has no name.
+TEST_F(ExrTest, StreamedWhileRenderingWritesTheSameBytes) {
+  const int w = 37, h = 70, bins = 24;
+  auto spectral =
+      SpectralImage::from_data(w, h, bins, random_floats(std::size_t(w) * h * bins, 9)).value();
+  RgbImage rgb = random_rgb(w, h, 10);
+  const ExrMetadata metadata{{"spp", "8"}, {"integrator", "hero"}};
+  const fs::path work = dir_ / "work";
+  fs::create_directories(work);
+  for (ExrCompression compression : all_exr_compressions()) {
+    for (int threads : {1, 2}) {
+      const ExrWriteOptions options{compression, threads};
+      const std::string label = absl::StrFormat("%s-%d", name(compression), threads);
+      const fs::path direct = dir_ / (label + ".direct.exr");
+      ASSERT_TRUE(write_spectral_exr(direct, spectral, rgb, metadata, options).ok());
+      auto stream = SpectralExrStream::create(work, bin_centres_nm(bins), w, h, options);
+      ASSERT_TRUE(stream.ok()) << stream.status();
+      const fs::path streamed = dir_ / (label + ".streamed.exr");
+      EXPECT_EQ((*stream)->write(streamed, metadata).code(), absl::StatusCode::kFailedPrecondition);
+      for (int y0 = 0, band = 0; y0 < h; ++band) {
+        const int rows = std::min(h - y0, 5 + band % 7);  // uneven bands
+        auto cut = spectral.crop({0, y0, w, y0 + rows}).value();
+        ASSERT_TRUE(
+            (*stream)
+                ->write_rows(rows, cut.data().data(), rgb.data().data() + std::size_t(y0) * w * 3)
+                .ok());
+        y0 += rows;
+      }
+      EXPECT_TRUE(fs::is_empty(work)) << "the stream's file has no name";
+      EXPECT_FALSE(fs::exists(streamed));
+      EXPECT_EQ((*stream)->write_rows(1, spectral.data().data(), rgb.data().data()).code(),
+                absl::StatusCode::kInvalidArgument);
+      ASSERT_TRUE((*stream)->write(streamed, metadata).ok());
+      EXPECT_TRUE(file_bytes(streamed) == file_bytes(direct)) << label;
+    }
+  }
+  EXPECT_EQ(SpectralExrStream::create(work, {500.0, 400.0}, w, h).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(SpectralExrStream::create(dir_ / "missing", bin_centres_nm(bins), w, h).status().code(),
+            absl::StatusCode::kInternal);
+}
+
 // Every offered compression is lossless, is the one the header records, and writes the same
 // bytes whatever the thread count (a job's outputs are bytes-identical on any machine).
 TEST_F(ExrTest, EveryCompressionIsLosslessAndThreadCountFree) {
