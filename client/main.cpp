@@ -82,8 +82,10 @@ int main(int argc, char** argv) {
   auto* json_opt =
       render_cmd->add_option("--json", json_path, "JSON report path (default: <output stem>.json)");
   render_cmd->add_option("--spool", render.spool,
-                         "auto, always or never: keep the finished bins on disk beside the "
-                         "outputs instead of in memory (auto: when they exceed 1 GiB)");
+                         "auto, always or never: do not hold the finished bins in memory but "
+                         "write them into the spectral EXR as the render runs (to a target "
+                         "error: keep them on disk beside the outputs); auto: when they "
+                         "exceed 1 GiB");
   render_cmd->add_option("--max-memory", render.max_memory,
                          "Refuse a render planned to need more memory than this, e.g. 8G (default: "
                          "the machine's memory or the process's limit, whichever is smaller)");

@@ -522,13 +522,15 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
     local.progress = [out](const coordinator::RenderProgress& p) { draw_progress(*out, p); };
   }
 
-  // Bins too large to hold go to a spool file beside the outputs (same bytes either way).
+  // Bins too large to hold are streamed into the spectral EXR as the render runs (or, rendered
+  // to a target error, go to a spool file) beside the outputs: the same bytes either way.
   const std::uint64_t bin_bytes = std::uint64_t(local.width) * std::uint64_t(local.height) *
                                   std::uint64_t(render.bins) * sizeof(float);
   if (options.spool == "always" ||
       (options.spool == "auto" && local.can_spool() && bin_bytes > kSpoolAboveBytes)) {
     local.spool_dir = paths.spectral_exr.parent_path();
     if (local.spool_dir.empty()) local.spool_dir = ".";
+    local.exr_compression = job.outputs.exr_compression;
   }
   PRISM_ASSIGN_OR_RETURN(std::unique_ptr<coordinator::LocalRender> renderer,
                          coordinator::LocalRender::create(device, description, library, local));
@@ -597,7 +599,13 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
     PRISM_RETURN_IF_ERROR(coordinator::write_filtered(*result->filtered, *result->filtered_rgb,
                                                       report, paths, outputs));
   }
-  if (result->spool != nullptr) {
+  if (result->stream != nullptr) {
+    PRISM_RETURN_IF_ERROR(coordinator::write_outputs(
+        [&](const std::filesystem::path& path, const image::ExrMetadata& metadata) {
+          return result->stream->write(path, metadata);
+        },
+        result->rgb, report, paths, outputs));
+  } else if (result->spool != nullptr) {
     std::vector<float> band;
     PRISM_RETURN_IF_ERROR(coordinator::write_outputs(render.bins, result->spool->band_rows(),
                                                      result->spool->rows(&band), result->rgb,

@@ -17,6 +17,7 @@
 #include "absl/strings/str_cat.h"
 #include "coordinator/outputs.h"
 #include "coordinator/resource_plan.h"
+#include "coordinator/spectral_stream.h"
 #include "coordinator/tile_merge.h"
 #include "services/base/status.h"
 #include "services/job/scene_spectra.h"
@@ -184,9 +185,12 @@ struct StageShared {
   }
 };
 
-// Renders every task of a stage in plan order (tile-major, one task per body: a tile's ranges
-// finish close together, which keeps the tiles in flight near the thread count) and assembles
-// its tiles. Errors go to shared.first_error.
+// Renders every task of a stage in plan order (tile-major: a tile's ranges finish close together,
+// which keeps the tiles in flight near the thread count) and assembles its tiles. Each body takes
+// the next task from a counter, so tasks start in plan order whichever thread runs them (a
+// SpectralStream relies on the rows of tiles finishing from the top), and renders it isolated:
+// a thread waiting inside a tile's own parallel loop never picks up another task meanwhile.
+// Errors go to shared.first_error.
 void run_stage(const Stage& stage, int bins, tbb::task_arena& arena, StageShared& shared,
                const std::atomic<bool>* cancel) {
   absl::StatusOr<std::unique_ptr<TileAssembler>> assembler = TileAssembler::create(
@@ -214,11 +218,13 @@ void run_stage(const Stage& stage, int bins, tbb::task_arena& arena, StageShared
     }
     return tables[tile].get();
   };
+  std::atomic<std::size_t> next_task{0};
   arena.execute([&] {
     tbb::parallel_for(
         tbb::blocked_range<std::size_t>(0, plan.task_count(), 1),
         [&](const tbb::blocked_range<std::size_t>& tasks) {
-          for (std::size_t t = tasks.begin(); t != tasks.end(); ++t) {
+          for (std::size_t i = tasks.begin(); i != tasks.end(); ++i) {
+            const std::size_t t = next_task++;
             if (shared.stop.load() || (cancel != nullptr && cancel->load())) return;
             const std::size_t tile = t / plan.ranges.size();
             const std::size_t range = t % plan.ranges.size();
@@ -236,8 +242,8 @@ void run_stage(const Stage& stage, int bins, tbb::task_arena& arena, StageShared
             }
             task.tables = *tile_tables;
             worker::TileStats tile_stats;
-            absl::StatusOr<image::TileResult> result =
-                renderer.render(task, &tile_stats, &shared.stop, &shared.progress);
+            absl::StatusOr<image::TileResult> result = tbb::this_task_arena::isolate(
+                [&] { return renderer.render(task, &tile_stats, &shared.stop, &shared.progress); });
             if (!result.ok()) {
               shared.fail(result.status());
               return;
@@ -272,15 +278,19 @@ void run_stage(const Stage& stage, int bins, tbb::task_arena& arena, StageShared
 
 absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* cancel) const {
   const int bins = scene_->grid().bins();
-  // Spooled: the bins go to disk tile by tile, and the whole-image buffers other than the RGB
-  // are 1x1 placeholders.
+  // Not held in memory: the final pass's bins are streamed into the spectral EXR as its tiles
+  // finish (SpectralStream, made before the final pass) or, rendered to a target error (whose
+  // tiles are final only when the last round ends), go to a spool file tile by tile. The
+  // whole-image buffers other than the RGB are then 1x1 placeholders.
+  const bool unheld = !options_.spool_dir.empty();
   std::shared_ptr<SpectralSpool> spool;
-  if (!options_.spool_dir.empty()) {
+  std::shared_ptr<SpectralStream> stream;
+  if (unheld && options_.target_error.has_value()) {
     PRISM_ASSIGN_OR_RETURN(spool, SpectralSpool::create(options_.spool_dir, plan_, options_.width,
                                                         options_.height, bins));
   }
-  const int kept_width = spool != nullptr ? 1 : options_.width;
-  const int kept_height = spool != nullptr ? 1 : options_.height;
+  const int kept_width = unheld ? 1 : options_.width;
+  const int kept_height = unheld ? 1 : options_.height;
   PRISM_ASSIGN_OR_RETURN(image::SpectralImage image,
                          image::SpectralImage::create(kept_width, kept_height, bins));
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb,
@@ -416,6 +426,7 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
                  scene_->cmf()));
     PRISM_RETURN_IF_ERROR(rgb.paste(tile_colour, merged.rect().x0, merged.rect().y0));
     if (spool != nullptr) return spool->put(tile, finalised);
+    if (stream != nullptr) return stream->put(tile, finalised);
     PRISM_ASSIGN_OR_RETURN(image::RgbImage tile_error, tile_rgb_standard_error(merged));
     PRISM_RETURN_IF_ERROR(rgb_standard_error.paste(tile_error, merged.rect().x0, merged.rect().y0));
     return image::paste_tile(finalised, merged.rect(), image);
@@ -489,6 +500,18 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
       samples_taken = stats.target_error->samples;
     }
   } else if (!shared.stop.load()) {
+    if (unheld) {
+      // The writer thread runs beside the render's threads; its tail (the last rows of tiles)
+      // counts as rendering time, since the file is then complete but for its metadata.
+      absl::StatusOr<std::unique_ptr<SpectralStream>> created = SpectralStream::create(
+          options_.spool_dir, plan_, options_.width, options_.height, bins, rgb.data().data(),
+          {options_.exr_compression, threads_}, [&shared] { return shared.stop.load(); });
+      if (created.ok()) {
+        stream = *std::move(created);
+      } else {
+        shared.fail(created.status());
+      }
+    }
     Stage stage;
     stage.scene = scene_.get();
     stage.plan = &plan_;
@@ -497,7 +520,11 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
     stage.on_tile = absorb;
     stage.finalise = finaliser_;
     stage.counters = &final_counters;
-    run_stage(stage, bins, arena, shared, cancel);
+    if (!shared.stop.load()) run_stage(stage, bins, arena, shared, cancel);
+    if (stream != nullptr) {
+      const absl::Status streamed = stream->finish();
+      if (!streamed.ok()) shared.fail(streamed);
+    }
   }
   const double render_seconds = seconds_since(final_start);
   {
@@ -533,7 +560,7 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
       std::move(image),          std::move(rgb),      std::move(rgb_standard_error),
       std::move(primal),         std::move(gradient), std::move(filtered),
       std::move(filtered_rgb),   statistics.finish(), stats,
-      std::move(prepass_tables), std::move(spool)};
+      std::move(prepass_tables), std::move(spool),    std::move(stream)};
   return result;
 }
 

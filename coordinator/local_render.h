@@ -25,6 +25,7 @@
 #include "coordinator/prepass.h"
 #include "coordinator/prepass_run.h"
 #include "coordinator/spectral_spool.h"
+#include "coordinator/spectral_stream.h"
 #include "coordinator/target_error.h"
 #include "coordinator/tile_finaliser.h"
 #include "coordinator/tile_plan.h"
@@ -75,12 +76,16 @@ struct LocalRenderOptions {
   // Admission control (resource_plan.h): create() refuses a job whose planned memory, besides
   // what the process already holds, exceeds this many bytes. 0: machine_memory_budget().
   std::uint64_t max_memory_bytes = 0;
-  // When set, the finished bins go to a SpectralSpool (spectral_spool.h) in this directory
-  // instead of a whole image in memory: result.spool holds them, and result.image and
-  // result.rgb_standard_error are 1x1 placeholders. Only for jobs that keep no other whole
-  // spectral image (create() refuses it with keep_primal_and_gradients, splatting or
-  // gathering). The bytes written from it are the same as from the image.
+  // When set, the finished bins are not held as a whole image in memory: they are streamed into
+  // the spectral EXR while the final pass runs (SpectralStream, spectral_stream.h, compressed
+  // with exr_compression; result.stream writes the file), or, for a job rendered to a target
+  // error, go to a SpectralSpool (spectral_spool.h; result.spool). Either works in this
+  // directory, and result.image and result.rgb_standard_error are then 1x1 placeholders. Only
+  // for jobs that keep no other whole spectral image (create() refuses it with
+  // keep_primal_and_gradients, splatting or gathering). The bytes written are the same as from
+  // the image.
   std::filesystem::path spool_dir;
+  image::ExrCompression exr_compression = image::kDefaultExrCompression;
 
   // A gradient job that returns its raw primal and gradient images.
   bool keeps_primal_and_gradients() const {
@@ -134,8 +139,10 @@ struct LocalRenderResult {
   // keep_prepass_tables with a prepass: the tables the final pass sampled (their mixture weights
   // and predicted variances per pixel).
   std::optional<PixelTableImage> prepass_tables;
-  // With LocalRenderOptions::spool_dir: the finished bins, on disk.
+  // With LocalRenderOptions::spool_dir: the finished bins, on disk (spool, with a target error)
+  // or already in the spectral EXR but for its metadata (stream).
   std::shared_ptr<const SpectralSpool> spool;
+  std::shared_ptr<SpectralStream> stream;
 };
 
 class LocalRender {

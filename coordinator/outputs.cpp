@@ -352,6 +352,19 @@ image::ExrMetadata output_metadata(const RenderReport& report) {
 absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& rows,
                            const image::RgbImage& rgb, const RenderReport& report,
                            const OutputPaths& paths, const OutputOptions& options) {
+  return write_outputs(
+      [&](const fs::path& path, const image::ExrMetadata& metadata) {
+        return image::write_spectral_exr_rows(path, image::bin_centres_nm(bins), rgb.width(),
+                                              rgb.height(), band_rows, rows, rgb, metadata,
+                                              options.exr);
+      },
+      rgb, report, paths, options);
+}
+
+absl::Status write_outputs(const std::function<absl::Status(const std::filesystem::path&,
+                                                            const image::ExrMetadata&)>& spectral,
+                           const image::RgbImage& rgb, const RenderReport& report,
+                           const OutputPaths& paths, const OutputOptions& options) {
   image::ExrMetadata metadata = output_metadata(report);
   if (report.gradient.has_value()) {
     // The reconstruction records how it was made (exr_spectral.h).
@@ -375,9 +388,7 @@ absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& r
                                        options.exr);
     png_written = image::write_png_preview(paths.png, rgb, options.exposure_stops);
   });
-  const absl::Status spectral_written =
-      image::write_spectral_exr_rows(paths.spectral_exr, image::bin_centres_nm(bins), rgb.width(),
-                                     rgb.height(), band_rows, rows, rgb, metadata, options.exr);
+  const absl::Status spectral_written = spectral(paths.spectral_exr, metadata);
   beside.join();
   record(paths.spectral_exr, spectral_written);
   record(paths.rgb_exr, rgb_written);

@@ -255,6 +255,12 @@ absl::Status write_outputs(const image::SpectralImage& spectral, const image::Rg
 absl::Status write_outputs(int bins, int band_rows, const image::SpectralRows& rows,
                            const image::RgbImage& rgb, const RenderReport& report,
                            const OutputPaths& paths, const OutputOptions& options);
+// The same for a spectral EXR streamed while rendering (LocalRenderResult::stream): `spectral`
+// writes it at the path with the metadata, the other outputs are written from `rgb`.
+absl::Status write_outputs(const std::function<absl::Status(const std::filesystem::path&,
+                                                            const image::ExrMetadata&)>& spectral,
+                           const image::RgbImage& rgb, const RenderReport& report,
+                           const OutputPaths& paths, const OutputOptions& options);
 
 // The raw primal and gradient spectral EXRs of a gradient job (paths.primal_exr and
 // paths.gradient_exr), each with the R, G, B of its own values, streamed like the main output.

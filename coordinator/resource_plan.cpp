@@ -11,6 +11,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "coordinator/spectral_stream.h"
 #include "services/image/tile.h"
 
 namespace prism::coordinator {
@@ -99,8 +100,9 @@ ResourcePlan plan_local_render(const LocalRenderShape& s) {
   const u64 n = pixels(s.width, s.height);
   const u64 bins = u64(s.render.bins);
   if (s.spooled) {
-    // A row of tiles read back, and the tile being read.
-    push(plan.memory, "spooled bins' band", mul(mul(u64(s.tile_size), u64(s.width)), bins * 4 * 2));
+    // The rows of tiles a SpectralStream holds (a spool holds fewer: a row read back and a tile).
+    push(plan.memory, "streamed bins' bands",
+         mul(mul(u64(s.tile_size), u64(s.width)), bins * 4 * u64(kStreamBandsHeld)));
     push(plan.disk, "spooled bins", mul(n, bins * 4));
     push(plan.memory, "RGB", mul(n, 12));
   } else {

@@ -55,8 +55,8 @@ struct LocalRenderShape {
   bool keep_primal_and_gradients = false;
   int threads = 1;
   std::uint64_t largest_tile_area = 0;
-  // The bins go to a SpectralSpool on disk (a row of tiles in memory while writing) instead of
-  // a whole image.
+  // The bins are not held as a whole image: a SpectralStream writes them into the spectral EXR
+  // while rendering (a few rows of tiles in memory), or a SpectralSpool keeps them on disk.
   bool spooled = false;
   int tile_size = 32;
 };

@@ -4,6 +4,7 @@
 
 #include <string>
 
+#include "coordinator/spectral_stream.h"
 #include "services/base/testing/status_says.h"
 
 namespace prism::coordinator {
@@ -80,7 +81,7 @@ TEST(ResourcePlanTest, SpooledBinsAreDiskNotMemory) {
   s.tile_size = 32;
   const ResourcePlan plan = plan_local_render(s);
   EXPECT_EQ(item(plan.memory, "spectral image"), 0u);
-  EXPECT_EQ(item(plan.memory, "spooled bins' band"), 32ull * 7680 * 64 * 4 * 2);
+  EXPECT_EQ(item(plan.memory, "streamed bins' bands"), 32ull * 7680 * 64 * 4 * kStreamBandsHeld);
   EXPECT_EQ(item(plan.disk, "spooled bins"), 7680ull * 4320 * 64 * 4);
   EXPECT_LT(plan.memory_bytes(), std::uint64_t{3} << 29);
   EXPECT_GT(plan_local_render(shape(7680, 4320, 64)).memory_bytes(), std::uint64_t{8} << 30);

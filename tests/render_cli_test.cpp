@@ -565,26 +565,36 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
   }
 }
 
-// The finished bins spooled to disk (as --spool auto does for images over 1 GiB of bins) give
-// the same files, byte for byte, as the bins held in memory, at every EXR compression; a spool
-// leaves no file behind, and a job that keeps other whole images refuses it.
+// The finished bins not held in memory (as --spool auto does for images over 1 GiB of bins:
+// streamed into the spectral EXR while rendering, or spooled to disk when rendering to a target
+// error) give the same files, byte for byte, as the bins held in memory, at every EXR
+// compression; neither leaves a file behind, and a job that keeps other whole images refuses
+// them.
 TEST(RenderCliTest, SpooledBinsWriteTheSameBytesAsBinsInMemory) {
   const fs::path dir = fresh_dir("render_cli_spool");
-  for (const std::string compression : {"rle", "zip"}) {
+  const std::vector<std::pair<std::string, std::vector<std::string>>> variants = {
+      {"rle", {}},
+      {"zip", {}},
+      {"rle", {"--target-error", "20%", "--max-spp", "16"}},
+  };
+  for (std::size_t v = 0; v < variants.size(); ++v) {
+    const auto& [compression, extra] = variants[v];
+    const std::string stem = compression + "-" + std::to_string(v);
     for (const std::string spool : {"never", "always"}) {
-      std::vector<std::string> args = cornell_args(spool + "-" + compression + ".exr", "2", "16");
+      std::vector<std::string> args = cornell_args(spool + "-" + stem + ".exr", "2", "16");
       args.insert(args.end(),
                   {"--spool", spool, "--exr-compression", compression, "--integrator", "hero"});
+      args.insert(args.end(), extra.begin(), extra.end());
       CommandRun run = run_prism(dir, args);
       ASSERT_EQ(run.exit_code, 0) << run.output;
     }
     for (const std::string suffix : {".exr", ".rgb.exr", ".png"}) {
-      EXPECT_EQ(*prism::base::read_file(dir / ("never-" + compression + suffix)),
-                *prism::base::read_file(dir / ("always-" + compression + suffix)))
-          << compression << suffix;
+      EXPECT_EQ(*prism::base::read_file(dir / ("never-" + stem + suffix)),
+                *prism::base::read_file(dir / ("always-" + stem + suffix)))
+          << stem << suffix;
     }
   }
-  EXPECT_EQ(listing(dir).size(), 16u) << "4 renders x 4 files, no spool left";
+  EXPECT_EQ(listing(dir).size(), 24u) << "6 renders x 4 files, nothing else left";
   CommandRun refused = run_prism(
       dir, {"render", source(kCornell), "--integrator", "gradient", "--primal-and-gradients",
             "--spool", "always", "--resolution", "8x8", "-o", "g.exr"});
