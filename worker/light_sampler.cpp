@@ -107,6 +107,13 @@ absl::StatusOr<LightSampler> LightSampler::create(const std::vector<Light>& ligh
     for (int b = 0; b < bins; ++b) s.unit_emission_[e][b] = float(row[b] / sum);
     emitted[e] = light_scale(lights[e]) * sum;
   }
+  // Where every emitter has the same normalised spectrum (one light, or lights of one kind) the
+  // spectral factor Ê[e][b] is the same for every e and cancels from q(e): the base pmf is the
+  // same distribution without a lookup per lane on every shadow ray.
+  if (std::all_of(s.unit_emission_.begin(), s.unit_emission_.end(),
+                  [&](const std::vector<float>& row) { return row == s.unit_emission_.front(); })) {
+    s.spectral_factor_ = false;
+  }
 
   std::vector<double> power(static_cast<std::size_t>(n));
   int emitting = 0;
@@ -188,7 +195,7 @@ absl::StatusOr<LightSampler> LightSampler::create(const std::vector<Light>& ligh
     for (int e = 0; e < n; ++e) c.base[e] = total > 0 ? float(w[e] / total) : 0.0f;
     c.base_prefix.assign(std::size_t(n) + 1, 0.0);
     for (int e = 0; e < n; ++e) c.base_prefix[e + 1] = c.base_prefix[e] + c.base[e];
-    if (spectral_factor) {
+    if (s.spectral_factor_) {
       c.prefix.assign(std::size_t(bins), std::vector<double>(std::size_t(n) + 1, 0.0));
       for (int b = 0; b < bins; ++b) {
         for (int e = 0; e < n; ++e) {
