@@ -123,7 +123,16 @@ class AreaLight {
   float sphere_radius_ = 0;
   bool sphere_flip_ = false;         // reverse orientation XOR handedness swap: emits inwards
   std::vector<float> triangle_cdf_;  // by area, triangles of the shape
-  bool is_disk_ = false;             // sampled uniformly by area in its object-space annulus
+  // Each triangle in world space with its emitting side's unit geometric normal, as
+  // point_on_triangles needs them for every sample (computed once here, the same values).
+  struct EmitterTriangle {
+    Vec3f p0, p1, p2;
+    Vec3f n;           // unit geometric normal, orientation applied
+    Vec3f n0, n1, n2;  // vertex normals when has_normals
+    bool has_normals = false;
+  };
+  std::vector<EmitterTriangle> triangles_;
+  bool is_disk_ = false;  // sampled uniformly by area in its object-space annulus
   scene::DiskShape disk_;
   scene::Transform disk_to_world_;
   Vec3f disk_normal_;         // world, after the orientation rule: the side it emits to
