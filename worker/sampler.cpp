@@ -18,9 +18,7 @@ std::uint32_t laine_karras_permutation(std::uint32_t x, std::uint32_t seed) {
   return x;
 }
 
-}  // namespace
-
-std::uint64_t mix64(std::uint64_t x) {
+constexpr std::uint64_t mix64_constexpr(std::uint64_t x) {
   // SplitMix64's finaliser (Stafford's variant 13).
   x ^= x >> 30;
   x *= 0xbf58476d1ce4e5b9ull;
@@ -28,6 +26,30 @@ std::uint64_t mix64(std::uint64_t x) {
   x *= 0x94d049bb133111ebull;
   x ^= x >> 31;
   return x;
+}
+
+// mix64(i + kGolden) for the first dimensions and pairs, which every sample hashes again: the
+// same numbers from a table.
+constexpr int kHashedIndices = 128;
+struct IndexHashes {
+  std::uint64_t value[kHashedIndices];
+};
+constexpr IndexHashes make_index_hashes() {
+  IndexHashes h{};
+  for (int i = 0; i < kHashedIndices; ++i) h.value[i] = mix64_constexpr(std::uint64_t(i) + kGolden);
+  return h;
+}
+constexpr IndexHashes kIndexHashes = make_index_hashes();
+
+std::uint64_t index_hash(std::uint32_t i) {
+  return i < std::uint32_t(kHashedIndices) ? kIndexHashes.value[i]
+                                           : mix64_constexpr(std::uint64_t(i) + kGolden);
+}
+
+}  // namespace
+
+std::uint64_t mix64(std::uint64_t x) {
+  return mix64_constexpr(x);
 }
 
 std::uint64_t hash_key(const SampleKey& key) {
@@ -44,7 +66,7 @@ float bits_to_unit_float(std::uint32_t bits) {
 }
 
 float IndependentSampler::sample(std::uint32_t dimension) const {
-  std::uint64_t h = mix64(base_ ^ mix64(static_cast<std::uint64_t>(dimension) + kGolden));
+  std::uint64_t h = mix64(base_ ^ index_hash(dimension));
   return bits_to_unit_float(static_cast<std::uint32_t>(h >> 32));
 }
 
@@ -128,7 +150,7 @@ struct PairSeeds {
 };
 
 PairSeeds pair_seeds(std::uint64_t base, std::uint32_t index, std::uint32_t pair) {
-  std::uint64_t pair_hash = mix64(base ^ mix64(static_cast<std::uint64_t>(pair) + kGolden));
+  std::uint64_t pair_hash = mix64(base ^ index_hash(pair));
   // Shuffling the index by an Owen scramble keeps every power-of-two prefix a net while
   // decorrelating pairs; the two halves of the hash seed shuffle and scramble independently.
   return {reverse_bits(
