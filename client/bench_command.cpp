@@ -293,7 +293,7 @@ absl::StatusOr<Timed> farm_method(const FarmConnection& farm, const fs::path& sc
   }
   PRISM_ASSIGN_OR_RETURN(image::RgbImage no_rgb, image::RgbImage::create(1, 1));
   coordinator::LocalRenderResult result{
-      std::move(exr.spectral), no_rgb, no_rgb, {}, {}, {}, {}, {}, {}, {}, {}};
+      std::move(exr.spectral), no_rgb, no_rgb, {}, {}, {}, {}, {}, {}, {}, {}, {}};
   result.stats.target_error = target;
   return Timed{
       std::move(result), wall, 0.0,
