@@ -71,7 +71,9 @@ TEST(GatherTest, ANoisyRainbowComesOutCloserToTheCleanOne) {
   for (int y = 0; y < kH; ++y) {
     for (int x = 0; x < kW; ++x) {
       for (int b = 0; b < kBins; ++b) {
-        if (std::abs((x - 8) - b) > 4) EXPECT_EQ(out->value(x, y, b), 0.0f) << x << "," << b;
+        if (std::abs((x - 8) - b) > 4) {
+          EXPECT_EQ(out->value(x, y, b), 0.0f) << x << "," << b;
+        }
       }
     }
   }

@@ -434,7 +434,8 @@ std::vector<WorkerInfo> Scheduler::workers() const {
     WorkerInfo info{.id = id,
                     .threads = worker.threads,
                     .last_seen = worker.last_seen,
-                    .leases = static_cast<int>(worker.leases.size())};
+                    .leases = static_cast<int>(worker.leases.size()),
+                    .current = {}};
     for (std::uint64_t seq : worker.leases) {
       info.current.push_back(leases_.at(current_leases_.at(seq)).lease);
     }

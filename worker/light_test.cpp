@@ -295,8 +295,9 @@ void check_area_light(const World& w, const AreaLight& light, const AreaCase& c)
     EXPECT_NEAR(hit->t, s->distance, 1e-3f * s->distance) << c.name;
     // At grazing angles the density ∝ 1/cos θ_light magnifies the float error of the hit point
     // (a cylinder's silhouette is always grazing); there only the distribution test above holds.
-    if (abs_dot(hit->ng, s->wi) > 0.05f)
+    if (abs_dot(hit->ng, s->wi) > 0.05f) {
       EXPECT_NEAR(light.pdf(c.ctx, s->wi, *hit), s->pdf, 2e-3f * s->pdf) << c.name;
+    }
     EXPECT_NEAR(length(hit->p - s->p_light), 0.0f, 1e-3f * s->distance) << c.name;
     // n_light is the geometric normal intersections report there (shadow rays offset by it).
     EXPECT_NEAR(dot(hit->ng, s->n_light), 1.0f, 1e-3f) << c.name;
@@ -610,7 +611,9 @@ TEST(AreaLightTest, AlphaMaskedEmittersLoseTheMaskedPart) {
                          {(i + 0.5f) / 2000, (i * 0.618f) - int(i * 0.618f)}, 0.5f, lanes({600}));
         if (ls && ls->p_light.y < -1e-4f) ++kept_below;
       }
-      if (c.fraction == 0.5) EXPECT_EQ(kept_below, 0) << c.name;
+      if (c.fraction == 0.5) {
+        EXPECT_EQ(kept_below, 0) << c.name;
+      }
     }
   }
 }

@@ -111,7 +111,7 @@ absl::StatusOr<Material> resolve_dielectric(const scene::DielectricMaterial& m,
   PRISM_RETURN_IF_ERROR(check_roughness(m.roughness));
   PRISM_ASSIGN_OR_RETURN(spectral::Ior eta, job::resolve_ior(m.eta, library));
   DielectricMaterial out{std::move(eta), false, remap(m.roughness.u, m.roughness.remap),
-                         remap(m.roughness.v, m.roughness.remap)};
+                         remap(m.roughness.v, m.roughness.remap), {}};
   out.dispersive = spectral::is_dispersive(out.eta);
   return out;
 }
@@ -138,14 +138,14 @@ absl::StatusOr<Material> resolve_conductor(const scene::ConductorMaterial& m,
     PRISM_ASSIGN_OR_RETURN(auto k_table, spectral::PiecewiseLinearSpectrum::create(
                                              lambda, k, "conductor reflectance"));
     ConductorMaterial out{spectral::ConstantSpectrum{1.0f}, std::move(k_table), ax, ay,
-                          std::move(r)};
+                          std::move(r), {}};
     return out;
   }
   auto eta = job::resolve_spectrum(m.eta, job::SpectrumRole::kUnbounded, library, uplift);
   if (!eta.ok()) return invalid(absl::StrCat("eta: ", eta.status().message()));
   auto k = job::resolve_spectrum(m.k, job::SpectrumRole::kUnbounded, library, uplift);
   if (!k.ok()) return invalid(absl::StrCat("k: ", k.status().message()));
-  return ConductorMaterial{std::move(*eta), std::move(*k), ax, ay, std::nullopt};
+  return ConductorMaterial{std::move(*eta), std::move(*k), ax, ay, std::nullopt, {}};
 }
 
 }  // namespace

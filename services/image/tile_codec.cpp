@@ -270,7 +270,6 @@ Blocks blocks_of(const TileResult& result) {
 std::string serialise_tile(const TileResult& result) {
   std::string out;
   const TileRect& rect = result.rect();
-  std::uint64_t area = std::uint64_t(rect.area());
   const bool float32 = sums_are_float32(result);
   const Blocks blocks = blocks_of(result);
   std::uint64_t payload = payload_bytes(blocks.pixels(), result.bins(), result.buffers(),
