@@ -14,6 +14,7 @@
 //                           sRGB), for RGB emission; pbrt-v4's RGBIlluminantSpectrum.
 #pragma once
 
+#include <algorithm>
 #include <memory>
 #include <span>
 #include <string_view>
@@ -74,6 +75,30 @@ class PiecewiseLinearSpectrum {
   float max_ = 0.0f;
   float min_ = 0.0f;
 };
+
+// Inline: every shading point evaluates a few of these per lane.
+inline size_t PiecewiseLinearSpectrum::upper_index(float lambda_nm) const {
+  if (inverse_step_ > 0.0f) {
+    // The guess from the uniform spacing is exact but for rounding next to a sample; one step
+    // each way makes it equal to the binary search's answer.
+    size_t i = static_cast<size_t>((lambda_nm - lambda_.front()) * inverse_step_) + 1;
+    i = std::min(i, lambda_.size());
+    while (i < lambda_.size() && lambda_[i] <= lambda_nm) ++i;
+    while (i > 1 && lambda_[i - 1] > lambda_nm) --i;
+    return i;
+  }
+  return static_cast<size_t>(std::upper_bound(lambda_.begin(), lambda_.end(), lambda_nm) -
+                             lambda_.begin());
+}
+
+inline float PiecewiseLinearSpectrum::operator()(float lambda_nm) const {
+  if (!(lambda_nm >= lambda_.front() && lambda_nm <= lambda_.back())) return 0.0f;
+  // First sample strictly greater than λ; λ == last sample is the end of the last segment.
+  size_t i = upper_index(lambda_nm);
+  if (i == lambda_.size()) return value_.back();
+  const float t = (lambda_nm - lambda_[i - 1]) / (lambda_[i] - lambda_[i - 1]);
+  return value_[i - 1] + t * (value_[i] - value_[i - 1]);
+}
 
 class BlackbodySpectrum {
  public:

@@ -19,7 +19,7 @@ absl::StatusOr<WavelengthGrid> WavelengthGrid::create(int bins) {
 // bit for bit and bin_of(lower(b)) == b.
 float WavelengthGrid::lower(int b) const {
   PRISM_CHECK(b >= 0 && b < bins_);
-  return kLambdaMin + kLambdaRange * static_cast<float>(b) / static_cast<float>(bins_);
+  return lower_unchecked(b);
 }
 
 float WavelengthGrid::upper(int b) const {
@@ -31,16 +31,6 @@ float WavelengthGrid::upper(int b) const {
 
 float WavelengthGrid::centre(int b) const {
   return 0.5f * (lower(b) + upper(b));
-}
-
-int WavelengthGrid::bin_of(float lambda_nm) const {
-  if (!(lambda_nm >= kLambdaMin && lambda_nm <= kLambdaMax)) return -1;
-  int b = static_cast<int>((lambda_nm - kLambdaMin) * static_cast<float>(bins_) / kLambdaRange);
-  if (b >= bins_) b = bins_ - 1;
-  // The division can round across a boundary; settle against the exact bounds used by lower().
-  if (b > 0 && lambda_nm < lower(b)) --b;
-  if (b + 1 < bins_ && lambda_nm >= lower(b + 1)) ++b;
-  return b;
 }
 
 }  // namespace prism::spectral

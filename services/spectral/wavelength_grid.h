@@ -44,8 +44,17 @@ class WavelengthGrid {
   float upper(int b) const;
   float centre(int b) const;
 
-  // The bin holding lambda_nm, or -1 when lambda_nm is outside [360, 830] or NaN.
-  int bin_of(float lambda_nm) const;
+  // The bin holding lambda_nm, or -1 when lambda_nm is outside [360, 830] or NaN. Inline: every
+  // lane of every splat and light choice asks.
+  int bin_of(float lambda_nm) const {
+    if (!(lambda_nm >= kLambdaMin && lambda_nm <= kLambdaMax)) return -1;
+    int b = static_cast<int>((lambda_nm - kLambdaMin) * static_cast<float>(bins_) / kLambdaRange);
+    if (b >= bins_) b = bins_ - 1;
+    // The division can round across a boundary; settle against the exact bounds lower() uses.
+    if (b > 0 && lambda_nm < lower_unchecked(b)) --b;
+    if (b + 1 < bins_ && lambda_nm >= lower_unchecked(b + 1)) ++b;
+    return b;
+  }
 
   // Bin index modulo bins(), for any integer (negative too): the spectrum is cyclic for
   // gradient sampling (docs/estimators.md §5), so b + k and b − k wrap around.
@@ -59,6 +68,9 @@ class WavelengthGrid {
  private:
   explicit WavelengthGrid(int bins)
       : bins_(bins), width_(kLambdaRange / static_cast<float>(bins)) {}
+  float lower_unchecked(int b) const {
+    return kLambdaMin + kLambdaRange * static_cast<float>(b) / static_cast<float>(bins_);
+  }
 
   int bins_;
   float width_;
