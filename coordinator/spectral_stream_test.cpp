@@ -27,6 +27,18 @@ image::RgbImage coloured(int width, int height) {
   return rgb;
 }
 
+// A w x h image of `bins` with 8-pixel tiles, its RGB, and an empty directory.
+struct Setup {
+  TilePlan plan;
+  image::SpectralImage image;
+  image::RgbImage rgb;
+  fs::path dir;
+};
+Setup make_setup(int width, int height, int bins, const std::string& name) {
+  return {plan_tiles({width, height, 8, 1, 0, false}).value(), numbered(width, height, bins),
+          coloured(width, height), prism::testing::fresh_dir(name)};
+}
+
 std::string file_bytes(const fs::path& path) {
   std::ifstream in(path, std::ios::binary);
   return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -38,10 +50,7 @@ std::string file_bytes(const fs::path& path) {
 // directory but the output.
 TEST(SpectralStreamTest, TilesInPlanOrderFromTwoThreadsWriteTheWholeImagesBytes) {
   const int width = 37, height = 45, bins = 5;
-  const TilePlan plan = plan_tiles({width, height, 8, 1, 0, false}).value();
-  const image::SpectralImage image = numbered(width, height, bins);
-  const image::RgbImage rgb = coloured(width, height);
-  const fs::path dir = prism::testing::fresh_dir("spectral_stream");
+  const auto [plan, image, rgb, dir] = make_setup(width, height, bins, "spectral_stream");
   const image::ExrMetadata metadata{{"spp", "1"}};
   for (image::ExrCompression compression :
        {image::ExrCompression::kRle, image::ExrCompression::kZip}) {
@@ -78,10 +87,7 @@ TEST(SpectralStreamTest, TilesInPlanOrderFromTwoThreadsWriteTheWholeImagesBytes)
 // once the stop flag is up, finish() says the file was not written, and write() makes nothing.
 TEST(SpectralStreamTest, AStoppedRenderReleasesWaitingThreadsAndWritesNothing) {
   const int width = 16, height = 40, bins = 3;
-  const TilePlan plan = plan_tiles({width, height, 8, 1, 0, false}).value();
-  const image::SpectralImage image = numbered(width, height, bins);
-  const image::RgbImage rgb = coloured(width, height);
-  const fs::path dir = prism::testing::fresh_dir("spectral_stream_stop");
+  const auto [plan, image, rgb, dir] = make_setup(width, height, bins, "spectral_stream_stop");
   std::atomic<bool> stop{false};
   auto stream = SpectralStream::create(
       dir, plan, width, height, bins, rgb.data().data(), {}, [&] { return stop.load(); }, 1);

@@ -195,34 +195,28 @@ TEST(SamplerTest, PairsEqualTwoSingleDimensions) {
 // definition written with the building blocks, for every dimension of many pixel samples.
 TEST(SamplerTest, SobolEqualsItsDefinitionBitForBit) {
   constexpr std::uint64_t kGolden = 0x9e3779b97f4a7c15ull;
+  auto definition = [&](const SampleKey& key, std::uint32_t d) {
+    const std::uint64_t base = hash_key({key.seed, key.pass, key.px, key.py, 0});
+    const std::uint64_t pair_hash = mix64(base ^ mix64(std::uint64_t(d >> 1) + kGolden));
+    const std::uint32_t shuffled =
+        nested_uniform_scramble(key.sample, static_cast<std::uint32_t>(pair_hash));
+    const std::uint32_t point = (d & 1u) ? sobol_dimension1(shuffled) : sobol_dimension0(shuffled);
+    const auto seed = static_cast<std::uint32_t>(mix64(pair_hash ^ (d & 1u)) >> 32);
+    return bits_to_unit_float(nested_uniform_scramble(point, seed));
+  };
   for (std::uint32_t i = 0; i < 2000; ++i) {
     const SampleKey key{i * 2654435761u, i % 3, i % 37, i / 37, i * 7919u};
     const SobolSampler sampler(key);
-    const std::uint64_t base = hash_key({key.seed, key.pass, key.px, key.py, 0});
     for (std::uint32_t d = 0; d < 24; ++d) {
-      const std::uint64_t pair_hash = mix64(base ^ mix64(std::uint64_t(d >> 1) + kGolden));
-      const std::uint32_t shuffled =
-          nested_uniform_scramble(key.sample, static_cast<std::uint32_t>(pair_hash));
-      const std::uint32_t point =
-          (d & 1u) ? sobol_dimension1(shuffled) : sobol_dimension0(shuffled);
-      const auto seed = static_cast<std::uint32_t>(mix64(pair_hash ^ (d & 1u)) >> 32);
-      const float expected = bits_to_unit_float(nested_uniform_scramble(point, seed));
-      ASSERT_EQ(sampler.sample(d), expected) << "key " << i << " dimension " << d;
+      ASSERT_EQ(sampler.sample(d), definition(key, d)) << "key " << i << " dimension " << d;
     }
   }
   // Up to dimension 300: past the index-hash table (128) too.
   for (std::uint32_t i = 0; i < 20; ++i) {
     const SampleKey key{i * 977u, i % 3, i % 5, i / 5, i * 31u};
     const SobolSampler sampler(key);
-    const std::uint64_t base = hash_key({key.seed, key.pass, key.px, key.py, 0});
     for (std::uint32_t d = 200; d < 300; ++d) {
-      const std::uint64_t pair_hash = mix64(base ^ mix64(std::uint64_t(d >> 1) + kGolden));
-      const std::uint32_t shuffled =
-          nested_uniform_scramble(key.sample, static_cast<std::uint32_t>(pair_hash));
-      const std::uint32_t point =
-          (d & 1u) ? sobol_dimension1(shuffled) : sobol_dimension0(shuffled);
-      const auto seed = static_cast<std::uint32_t>(mix64(pair_hash ^ (d & 1u)) >> 32);
-      ASSERT_EQ(sampler.sample(d), bits_to_unit_float(nested_uniform_scramble(point, seed)));
+      ASSERT_EQ(sampler.sample(d), definition(key, d)) << "key " << i << " dimension " << d;
     }
   }
   for (std::uint32_t x : {0u, 1u, 0x80000000u, 0x12345678u, 0xdeadbeefu, 0xffffffffu}) {
