@@ -24,9 +24,11 @@ absl::Status ChunkAssembler::add(std::uint64_t offset, std::string_view data,
           "upload of ", declared_total, " bytes is over the limit of ", limit_, " bytes"));
     }
     if (declared_total_ != 0 && declared_total != declared_total_) {
-      return absl::InvalidArgumentError(absl::StrCat("declared size changed from ",
-                                                     declared_total_, " to ", declared_total));
+      return absl::InvalidArgumentError(
+          absl::StrCat("declared size changed from ", declared_total_, " to ", declared_total));
     }
+    // Room for all of it at once: growing by doubling copied a large upload several times.
+    if (declared_total_ == 0) bytes_.reserve(declared_total);
     declared_total_ = declared_total;
   }
   if (offset != bytes_.size()) {
@@ -48,8 +50,8 @@ absl::Status ChunkAssembler::add(std::uint64_t offset, std::string_view data,
 
 absl::StatusOr<std::string> ChunkAssembler::finish(std::string_view sha256_hex) {
   if (declared_total_ != 0 && bytes_.size() != declared_total_) {
-    return absl::InvalidArgumentError(absl::StrCat("upload ended after ", bytes_.size(),
-                                                   " of ", declared_total_, " bytes"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("upload ended after ", bytes_.size(), " of ", declared_total_, " bytes"));
   }
   std::string actual = hasher_.hex();
   if (actual != sha256_hex) {
