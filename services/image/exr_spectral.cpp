@@ -108,39 +108,55 @@ Imf::Compression to_imf(ExrCompression compression) {
   return Imf::ZIP_COMPRESSION;
 }
 
+// A file's header: its size, compression, attributes (`decorate`) and the planes' channels.
+Imf::Header exr_header(int width, int height, const ExrWriteOptions& options,
+                       const std::vector<Plane>& planes,
+                       const std::function<void(Imf::Header&)>& decorate) {
+  Imf::Header header(width, height);
+  header.compression() = to_imf(options.compression);
+  decorate(header);
+  for (const Plane& plane : planes) header.channels().insert(plane.name, Imf::Channel(plane.type));
+  return header;
+}
+
+// The numThreads of an OutputFile or InputFile for these options. OpenEXR 3.1 sizes a file's
+// line buffers by numThreads but runs the compression tasks on its global pool (0 threads: in
+// place on the caller's thread), which this grows to fit.
+int exr_file_threads(const ExrWriteOptions& options) {
+  const int threads = std::clamp(options.threads, 1, 256);
+  if (threads > 1) grow_global_exr_pool(threads);
+  return threads > 1 ? threads : 0;
+}
+
+// Writes rows [y0, y0 + rows) from `planes` (their bases at pixel (0, y0)).
+void write_band(Imf::OutputFile& file, int width, int y0, int rows,
+                const std::vector<Plane>& planes) {
+  const Imath::Box2i band({0, y0}, {width - 1, y0 + rows - 1});
+  Imf::FrameBuffer frame;
+  for (const Plane& plane : planes) {
+    std::size_t size = plane.type == Imf::HALF ? sizeof(Imath::half) : sizeof(float);
+    frame.insert(plane.name, Imf::Slice::Make(plane.type, plane.base, band, size * plane.stride,
+                                              size * std::size_t(plane.stride) * width));
+  }
+  file.setFrameBuffer(frame);
+  file.writePixels(rows);
+}
+
 absl::Status write_exr(const std::filesystem::path& path, int width, int height, int band_rows,
                        const PlaneSource& source, const std::function<void(Imf::Header&)>& decorate,
                        const ExrWriteOptions& options) {
   PRISM_CHECK(band_rows >= 1);
-  const int threads = std::clamp(options.threads, 1, 256);
   return base::write_via_temp(path, [&](const std::filesystem::path& temp) -> absl::Status {
     try {
-      Imf::Header header(width, height);
-      header.compression() = to_imf(options.compression);
-      decorate(header);
       std::optional<Imf::OutputFile> file;
       for (int y0 = 0; y0 < height; y0 += band_rows) {
         const int rows = std::min(band_rows, height - y0);
         PRISM_ASSIGN_OR_RETURN(std::vector<Plane> planes, source(y0, rows));
         if (!file.has_value()) {
-          for (const Plane& plane : planes) {
-            header.channels().insert(plane.name, Imf::Channel(plane.type));
-          }
-          // OpenEXR 3.1 sizes the file's line buffers by numThreads but runs the compression
-          // tasks on its global pool (0 threads: in place on this thread).
-          if (threads > 1) grow_global_exr_pool(threads);
-          file.emplace(temp.c_str(), header, threads > 1 ? threads : 0);
+          file.emplace(temp.c_str(), exr_header(width, height, options, planes, decorate),
+                       exr_file_threads(options));
         }
-        const Imath::Box2i band({0, y0}, {width - 1, y0 + rows - 1});
-        Imf::FrameBuffer frame;
-        for (const Plane& plane : planes) {
-          std::size_t size = plane.type == Imf::HALF ? sizeof(Imath::half) : sizeof(float);
-          frame.insert(plane.name,
-                       Imf::Slice::Make(plane.type, plane.base, band, size * plane.stride,
-                                        size * std::size_t(plane.stride) * width));
-        }
-        file->setFrameBuffer(frame);
-        file->writePixels(rows);
+        write_band(*file, width, y0, rows, planes);
       }
     } catch (const std::exception& e) {
       return absl::InternalError(absl::StrCat("cannot write EXR ", path.string(), ": ", e.what()));
@@ -159,6 +175,17 @@ PlaneSource whole(std::vector<Plane> planes) {
 template <typename T>
 std::vector<Plane> rgb_planes(const T* data, Imf::PixelType type) {
   return {{"R", data + 0, 3, type}, {"G", data + 1, 3, type}, {"B", data + 2, 3, type}};
+}
+
+// A spectral file's planes for a band: the bins, pixel-interleaved from `bins`, then R, G, B.
+std::vector<Plane> spectral_planes(const std::vector<std::string>& names, const float* bins,
+                                   const float* rgb) {
+  const int count = static_cast<int>(names.size());
+  std::vector<Plane> planes;
+  planes.reserve(names.size() + 3);
+  for (int b = 0; b < count; ++b) planes.push_back({names[b], bins + b, count, Imf::FLOAT});
+  for (Plane& plane : rgb_planes(rgb, Imf::FLOAT)) planes.push_back(std::move(plane));
+  return planes;
 }
 
 enum class ReadMode {
@@ -459,25 +486,16 @@ absl::Status write_spectral_exr_rows(const std::filesystem::path& path,
         absl::StrCat("cannot write ", path.string(), ": RGB image is ", rgb.width(), "x",
                      rgb.height(), " but the spectral image is ", width, "x", height));
   }
-  if (wavelengths_nm.empty() || wavelengths_nm.size() > std::size_t(kMaxChannels) ||
-      band_rows < 1) {
-    return absl::InvalidArgumentError(absl::StrCat("cannot write ", path.string(), ": ",
-                                                   wavelengths_nm.size(), " wavelengths and ",
-                                                   band_rows, " rows per band"));
+  if (band_rows < 1) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("cannot write ", path.string(), ": ", band_rows, " rows per band"));
   }
-  const int bins = static_cast<int>(wavelengths_nm.size());
   PRISM_ASSIGN_OR_RETURN(const std::vector<std::string> names,
                          spectral_channel_names(path, wavelengths_nm));
   PRISM_RETURN_IF_ERROR(validate_metadata(path, metadata));
   auto source = [&](int y0, int n) -> absl::StatusOr<std::vector<Plane>> {
     PRISM_ASSIGN_OR_RETURN(const float* band, rows(y0, n));
-    std::vector<Plane> planes;
-    planes.reserve(names.size() + 3);
-    for (int b = 0; b < bins; ++b) planes.push_back({names[b], band + b, bins, Imf::FLOAT});
-    for (Plane& plane : rgb_planes(rgb.data().data() + std::size_t(y0) * width * 3, Imf::FLOAT)) {
-      planes.push_back(std::move(plane));
-    }
-    return planes;
+    return spectral_planes(names, band, rgb.data().data() + std::size_t(y0) * width * 3);
   };
   return write_exr(
       path, width, height, band_rows, source,
@@ -545,22 +563,17 @@ absl::StatusOr<std::unique_ptr<SpectralExrStream>> SpectralExrStream::create(
   PRISM_ASSIGN_OR_RETURN(std::vector<std::string> names,
                          spectral_channel_names(dir / "(streamed)", wavelengths_nm));
   PRISM_ASSIGN_OR_RETURN(const int fd, base::make_anonymous_file(dir, "a streamed spectral EXR"));
-  std::unique_ptr<SpectralExrStream> stream(new SpectralExrStream(
-      fd, width, height, static_cast<int>(names.size()), std::clamp(options.threads, 1, 256)));
+  std::unique_ptr<SpectralExrStream> stream(
+      new SpectralExrStream(fd, width, height, exr_file_threads(options)));
   stream->names_ = std::move(names);
-  // The header write_exr makes for write_spectral_exr_rows, without the metadata.
-  Imf::Header header(width, height);
-  header.compression() = to_imf(options.compression);
-  decorate_spectral(header, {});
-  for (const std::string& name : stream->names_) {
-    header.channels().insert(name, Imf::Channel(Imf::FLOAT));
-  }
-  for (const char* name : {"R", "G", "B"}) header.channels().insert(name, Imf::Channel(Imf::FLOAT));
   try {
     stream->open_ = std::make_unique<Open>(fd);
-    if (stream->threads_ > 1) grow_global_exr_pool(stream->threads_);
-    stream->open_->file.emplace(stream->open_->stream, header,
-                                stream->threads_ > 1 ? stream->threads_ : 0);
+    // The header write_exr makes for write_spectral_exr_rows, without the metadata.
+    stream->open_->file.emplace(
+        stream->open_->stream,
+        exr_header(width, height, options, spectral_planes(stream->names_, nullptr, nullptr),
+                   [](Imf::Header& header) { decorate_spectral(header, {}); }),
+        stream->threads_);
   } catch (const std::exception& e) {
     return absl::InternalError(
         absl::StrCat("cannot start a streamed spectral EXR in ", dir.string(), ": ", e.what()));
@@ -568,8 +581,8 @@ absl::StatusOr<std::unique_ptr<SpectralExrStream>> SpectralExrStream::create(
   return stream;
 }
 
-SpectralExrStream::SpectralExrStream(int fd, int width, int height, int bins, int threads)
-    : fd_(fd), width_(width), height_(height), bins_(bins), threads_(threads) {}
+SpectralExrStream::SpectralExrStream(int fd, int width, int height, int threads)
+    : fd_(fd), width_(width), height_(height), threads_(threads) {}
 
 SpectralExrStream::~SpectralExrStream() {
   try {
@@ -586,22 +599,7 @@ absl::Status SpectralExrStream::write_rows(int rows, const float* bins, const fl
                                                    " written; cannot take ", rows, " more"));
   }
   try {
-    const Imath::Box2i band({0, rows_written_}, {width_ - 1, rows_written_ + rows - 1});
-    const std::size_t row_bins = std::size_t(width_) * std::size_t(bins_);
-    // Slice::Make takes the band's first value and shifts it to the data window's origin.
-    Imf::FrameBuffer frame;
-    for (int b = 0; b < bins_; ++b) {
-      frame.insert(names_[std::size_t(b)],
-                   Imf::Slice::Make(Imf::FLOAT, bins + b, band, sizeof(float) * bins_,
-                                    sizeof(float) * row_bins));
-    }
-    const char* rgb_names[] = {"R", "G", "B"};
-    for (int c = 0; c < 3; ++c) {
-      frame.insert(rgb_names[c], Imf::Slice::Make(Imf::FLOAT, rgb + c, band, sizeof(float) * 3,
-                                                  sizeof(float) * 3 * std::size_t(width_)));
-    }
-    open_->file->setFrameBuffer(frame);
-    open_->file->writePixels(rows);
+    write_band(*open_->file, width_, rows_written_, rows, spectral_planes(names_, bins, rgb));
     rows_written_ += rows;
     if (rows_written_ == height_) {
       open_->file.reset();  // writes the line offsets

@@ -172,10 +172,11 @@ class SpectralExrStream {
 
  private:
   struct Open;
-  SpectralExrStream(int fd, int width, int height, int bins, int threads);
+  SpectralExrStream(int fd, int width, int height, int threads);
 
   int fd_;
-  int width_, height_, bins_, threads_;
+  int width_, height_;
+  int threads_;  // the OpenEXR files' numThreads
   int rows_written_ = 0;
   std::vector<std::string> names_;
   std::unique_ptr<Open> open_;  // the OpenEXR file being written, until the last row
