@@ -299,7 +299,9 @@ Shape "sphere" "float radius" 0.7
     methods.insert(c["method"].get<std::string>());
     EXPECT_GT(c["rel_mse_per_sample"].get<double>(), 0) << c.dump();
     EXPECT_GT(c["rays_per_sample"].get<double>(), 0) << c.dump();
-    if (c["method"] == "hero") EXPECT_DOUBLE_EQ(c["relative_efficiency"].get<double>(), 1.0);
+    if (c["method"] == "hero") {
+      EXPECT_DOUBLE_EQ(c["relative_efficiency"].get<double>(), 1.0);
+    }
     if (c["method"] == a["choice"]) chosen_efficiency = c["relative_efficiency"].get<double>();
   }
   EXPECT_EQ(methods, (std::set<std::string>{"hero", "gradient", "uniform", "hero+caustics"}));
@@ -335,7 +337,9 @@ Shape "sphere" "float radius" 0.7
   EXPECT_LE(pilot_height, 36 / 4);
   EXPECT_LE(2.0 * 5 * pilot_width * pilot_height * pilot_spp, 0.05 * 48 * 36 * 32) << reason;
   ASSERT_GT(chosen_efficiency, 0) << "the choice is not a candidate: " << a.dump();
-  if (a["choice"] != "hero") EXPECT_LE(chosen_efficiency, 0.9) << a.dump();
+  if (a["choice"] != "hero") {
+    EXPECT_LE(chosen_efficiency, 0.9) << a.dump();
+  }
   std::vector<std::string> explicit_args = common;
   if (a["choice"] == "hero+caustics") {
     EXPECT_EQ(report["integrator"], "hero");
