@@ -489,10 +489,7 @@ SurfaceHit Geometry::finish_triangle_hit(int shape, std::uint32_t prim, float u,
   hit.shape = shape;
   hit.primitive = prim;
   hit.p = w.p0 * b0 + w.p1 * u + w.p2 * v;
-  Vec3f n = cross(w.p0 - w.p2, w.p1 - w.p2);
-  float len = length(n);
-  n = len > 0 ? n / len : Vec3f(0, 0, 1);
-  if (m.flip) n = -n;
+  const Vec3f n = w.unit_normal();
   hit.ng = n;
   hit.ns = n;
   if (w.has_normals) {

@@ -90,6 +90,13 @@ class Geometry {
     Vec3f n0, n1, n2;  // vertex normals, or all zero
     bool has_normals = false;
     bool flip = false;  // reverse orientation XOR handedness swap
+    // The unit geometric normal, oriented (flip applied); (0, 0, ±1) for a degenerate triangle.
+    Vec3f unit_normal() const {
+      Vec3f n = cross(p0 - p2, p1 - p2);
+      const float len = length(n);
+      n = len > 0 ? n / len : Vec3f(0, 0, 1);
+      return flip ? -n : n;
+    }
   };
   WorldTriangle triangle(int shape, std::uint32_t primitive) const;
   std::uint32_t triangle_count(int shape) const;

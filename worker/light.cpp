@@ -152,19 +152,7 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
   light.triangles_.resize(count);
   for (std::uint32_t i = 0; i < count; ++i) {
     Geometry::WorldTriangle t = geometry.triangle(shape_index, i);
-    EmitterTriangle& cached = light.triangles_[i];
-    cached.p0 = t.p0;
-    cached.p1 = t.p1;
-    cached.p2 = t.p2;
-    // The geometric normal exactly as Geometry::finish_triangle_hit builds it.
-    Vec3f n = cross(t.p0 - t.p2, t.p1 - t.p2);
-    const float len = length(n);
-    n = len > 0 ? n / len : Vec3f(0, 0, 1);
-    cached.n = t.flip ? -n : n;
-    cached.has_normals = t.has_normals;
-    cached.n0 = t.n0;
-    cached.n1 = t.n1;
-    cached.n2 = t.n2;
+    light.triangles_[i] = EmitterTriangle{t, t.unit_normal()};
     Vec3f e1 = t.p1 - t.p0, e2 = t.p2 - t.p0;
     double cx = double(e1.y) * e2.z - double(e1.z) * e2.y;
     double cy = double(e1.z) * e2.x - double(e1.x) * e2.z;
@@ -290,7 +278,7 @@ std::optional<AreaPoint> AreaLight::point_on_triangles(Point2f u, float u_tri) c
   auto it = std::upper_bound(triangle_cdf_.begin(), triangle_cdf_.end(), u_tri);
   auto index = std::uint32_t(std::min<std::ptrdiff_t>(it - triangle_cdf_.begin(),
                                                       std::ptrdiff_t(triangle_cdf_.size()) - 1));
-  const EmitterTriangle& t = triangles_[index];
+  const Geometry::WorldTriangle& t = triangles_[index].t;
   // Uniform barycentrics by Heitz's area-preserving square-to-triangle map (as pbrt-v4).
   float b0, b1;
   if (u.x < u.y) {
@@ -303,7 +291,7 @@ std::optional<AreaPoint> AreaLight::point_on_triangles(Point2f u, float u_tri) c
   float b2 = 1.0f - b0 - b1;
   Vec3f p = t.p0 * b0 + t.p1 * b1 + t.p2 * b2;
   // (b1, b2 are finish_triangle_hit's u, v.)
-  Vec3f n = t.n;
+  Vec3f n = triangles_[index].n;
   if (t.has_normals) {
     Vec3f ns = t.n0 * b0 + t.n1 * b1 + t.n2 * b2;
     float ls = length(ns);

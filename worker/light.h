@@ -123,13 +123,11 @@ class AreaLight {
   float sphere_radius_ = 0;
   bool sphere_flip_ = false;         // reverse orientation XOR handedness swap: emits inwards
   std::vector<float> triangle_cdf_;  // by area, triangles of the shape
-  // Each triangle in world space with its emitting side's unit geometric normal, as
-  // point_on_triangles needs them for every sample (computed once here, the same values).
+  // Each triangle in world space and its WorldTriangle::unit_normal, as point_on_triangles needs
+  // them for every sample (computed once here, the same values).
   struct EmitterTriangle {
-    Vec3f p0, p1, p2;
-    Vec3f n;           // unit geometric normal, orientation applied
-    Vec3f n0, n1, n2;  // vertex normals when has_normals
-    bool has_normals = false;
+    Geometry::WorldTriangle t;
+    Vec3f n;
   };
   std::vector<EmitterTriangle> triangles_;
   bool is_disk_ = false;  // sampled uniformly by area in its object-space annulus
