@@ -13,8 +13,9 @@ namespace prism::worker {
 
 inline constexpr std::uint64_t kGoldenGamma = 0x9E3779B97F4A7C15ull;
 
-// The splitmix64 finaliser.
-inline std::uint64_t mix64(std::uint64_t z) {
+// The splitmix64 finaliser (Stafford's variant 13): every input bit affects every output bit.
+// The samplers (sampler.h) hash with it too.
+inline constexpr std::uint64_t mix64(std::uint64_t z) {
   z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
   z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
   return z ^ (z >> 31);

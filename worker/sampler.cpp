@@ -5,7 +5,7 @@
 namespace prism::worker {
 namespace {
 
-constexpr std::uint64_t kGolden = 0x9e3779b97f4a7c15ull;
+constexpr std::uint64_t kGolden = kGoldenGamma;
 
 std::uint32_t laine_karras_permutation(std::uint32_t x, std::uint32_t seed) {
   // Burley 2020, "Practical Hash-based Owen Scrambling": a hash whose low bits never depend on
@@ -18,16 +18,6 @@ std::uint32_t laine_karras_permutation(std::uint32_t x, std::uint32_t seed) {
   return x;
 }
 
-constexpr std::uint64_t mix64_constexpr(std::uint64_t x) {
-  // SplitMix64's finaliser (Stafford's variant 13).
-  x ^= x >> 30;
-  x *= 0xbf58476d1ce4e5b9ull;
-  x ^= x >> 27;
-  x *= 0x94d049bb133111ebull;
-  x ^= x >> 31;
-  return x;
-}
-
 // mix64(i + kGolden) for the first dimensions and pairs, which every sample hashes again: the
 // same numbers from a table.
 constexpr int kHashedIndices = 128;
@@ -36,21 +26,17 @@ struct IndexHashes {
 };
 constexpr IndexHashes make_index_hashes() {
   IndexHashes h{};
-  for (int i = 0; i < kHashedIndices; ++i) h.value[i] = mix64_constexpr(std::uint64_t(i) + kGolden);
+  for (int i = 0; i < kHashedIndices; ++i) h.value[i] = mix64(std::uint64_t(i) + kGolden);
   return h;
 }
 constexpr IndexHashes kIndexHashes = make_index_hashes();
 
 std::uint64_t index_hash(std::uint32_t i) {
   return i < std::uint32_t(kHashedIndices) ? kIndexHashes.value[i]
-                                           : mix64_constexpr(std::uint64_t(i) + kGolden);
+                                           : mix64(std::uint64_t(i) + kGolden);
 }
 
 }  // namespace
-
-std::uint64_t mix64(std::uint64_t x) {
-  return mix64_constexpr(x);
-}
 
 std::uint64_t hash_key(const SampleKey& key) {
   std::uint64_t h = mix64(key.seed + kGolden);

@@ -16,6 +16,7 @@
 #include <variant>
 
 #include "services/job/render_options.h"
+#include "worker/float_hash.h"
 
 namespace prism::worker {
 
@@ -31,9 +32,6 @@ struct SampleKey {
   std::uint32_t py = 0;
   std::uint32_t sample = 0;
 };
-
-// 64-bit finaliser with full avalanche (every input bit affects every output bit).
-std::uint64_t mix64(std::uint64_t x);
 
 // Hash of a whole key, the base of both generators.
 std::uint64_t hash_key(const SampleKey& key);
