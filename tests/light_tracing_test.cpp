@@ -438,6 +438,95 @@ TEST_F(LightTracingJobTest, ProgressiveSplattingErrorFallsAsSamplesGrow) {
   }
 }
 
+// `--integrator auto`'s probe of the eye tracer's caustic paths (RenderOptions::CausticProbe,
+// client/auto_integrator.h): the variance per sample that an eye sample's caustic paths have at a
+// pixel and bin is M − C², C the light-only render's value and M the eye-moments one's. Tested
+// where every eye path that finds the lamp is a caustic path: the camera and the floor it sees lie
+// under a wide glass slab (two quads) with the lamp above it, so next-event estimation is blocked
+// by the glass and depth 3 leaves no path with a second diffuse vertex. There hero's own variance
+// per sample, averaged over the pixels and summed over the bins, must agree with the probe's over
+// seeds: with a constant η, where hero's four lanes all stay live, and with SF11, where the
+// secondary lanes end at the glass (a wrong lane count is a factor of 4).
+std::string slab_scene(const std::string& eta) {
+  return R"(LookAt 0 0.9 0   0 0 0   0 0 1
+Camera "perspective" "float fov" 90
+Film "spectral" "integer xresolution" 12 "integer yresolution" 12 "integer nbuckets" 8
+PixelFilter "box"
+WorldBegin
+AttributeBegin
+  Material "diffuse" "rgb reflectance" [0.6 0.6 0.6]
+  Shape "trianglemesh" "point3 P" [-20 0 -20  20 0 -20  20 0 20  -20 0 20]
+    "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+AttributeBegin
+  Material "dielectric" )" +
+         eta + R"(
+  Shape "trianglemesh" "point3 P" [-3 1 -3  3 1 -3  3 1 3  -3 1 3  -3 1.15 -3  3 1.15 -3  3 1.15 3  -3 1.15 3]
+    "integer indices" [0 1 2 0 2 3  4 6 5 4 7 6]
+AttributeEnd
+AttributeBegin
+  AreaLightSource "diffuse" "blackbody L" 4000 "float scale" 4 "bool twosided" true
+  Material "diffuse" "rgb reflectance" [0 0 0]
+  Shape "trianglemesh" "point3 P" [-0.6 2.5 -0.6  0.6 2.5 -0.6  0.6 2.5 0.6  -0.6 2.5 0.6]
+    "integer indices" [0 1 2 0 2 3]
+AttributeEnd
+)";
+}
+
+TEST_F(LightTracingJobTest, TheCausticProbeGivesTheEyeTracersCausticVariance) {
+  constexpr int kDepth = 3, kRuns = 8;
+  constexpr std::uint64_t kEyeSpp = 64, kLightSpp = 512;
+  for (const char* eta : {R"("float eta" 1.5)", R"("spectrum eta" "glass-SF11")"}) {
+    SCOPED_TRACE(eta);
+    auto scene = load("caustic_probe.pbrt", slab_scene(eta));
+    ASSERT_TRUE(scene.ok()) << scene.status();
+    double eye[kRuns], probe[kRuns];
+    for (int k = 0; k < kRuns; ++k) {
+      // Hero's variance per sample: the pixels' mean squared standard error times the samples.
+      auto r =
+          render(*scene, job::IntegratorKind::kHero, kEyeSpp, 700 + k, kDepth,
+                 [](LocalRenderOptions& o) { o.render.sampler = job::SamplerKind::kIndependent; });
+      ASSERT_TRUE(r.ok()) << r.status();
+      eye[k] = 0;
+      for (double v : r->statistics.variance_of_mean) eye[k] += v * double(kEyeSpp);
+      // The probe's, from two independent renders of the light paths alone.
+      std::vector<float> rendered[2];
+      for (const auto kind : {job::RenderOptions::CausticProbe::kLightOnly,
+                              job::RenderOptions::CausticProbe::kEyeMoments}) {
+        auto p = render(*scene, job::IntegratorKind::kHero, kLightSpp, 900 + 2 * k + int(kind),
+                        kDepth, [&](LocalRenderOptions& o) {
+                          o.render.light_caustics = true;
+                          o.render.caustic_probe = kind;
+                        });
+        ASSERT_TRUE(p.ok()) << p.status();
+        const auto data = p->image.data();
+        rendered[kind == job::RenderOptions::CausticProbe::kEyeMoments].assign(data.begin(),
+                                                                               data.end());
+      }
+      ASSERT_EQ(rendered[0].size(), rendered[1].size());
+      const double pixels = 12.0 * 12.0;
+      probe[k] = 0;
+      for (std::size_t i = 0; i < rendered[0].size(); ++i) {
+        probe[k] += (double(rendered[1][i]) - double(rendered[0][i]) * rendered[0][i]) / pixels;
+      }
+    }
+    double mean[2] = {0, 0}, square[2] = {0, 0};
+    for (int k = 0; k < kRuns; ++k) {
+      mean[0] += eye[k] / kRuns;
+      mean[1] += probe[k] / kRuns;
+      square[0] += eye[k] * eye[k] / kRuns;
+      square[1] += probe[k] * probe[k] / kRuns;
+    }
+    const double se = std::sqrt((std::max(0.0, square[0] - mean[0] * mean[0]) +
+                                 std::max(0.0, square[1] - mean[1] * mean[1])) /
+                                (kRuns - 1));
+    ASSERT_GT(mean[0], 0.0);
+    EXPECT_LE(std::abs(mean[0] - mean[1]), 4 * se)
+        << "hero " << mean[0] << " probe " << mean[1] << " z " << (mean[1] - mean[0]) / se;
+    EXPECT_LT(se, 0.1 * mean[0]);  // precise enough to tell a factor of 4 apart
+  }
+}
+
 // What a light tracer cannot do is refused when the render is built, saying why.
 TEST_F(LightTracingJobTest, ScenesItCannotTraceAreRefusedWithTheReason) {
   const std::string floor = R"(WorldBegin

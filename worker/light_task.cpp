@@ -136,7 +136,9 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
     std::atomic<std::uint64_t>* progress) const {
   const int width = scene_.camera().width(), height = scene_.camera().height();
   const int bins = scene_.grid().bins();
-  const bool with_eye_paths = scene_.options().light_caustics;
+  const bool with_eye_paths =
+      scene_.options().light_caustics &&
+      scene_.options().caustic_probe == job::RenderOptions::CausticProbe::kOff;
   if (task.tile != image::TileRect{0, 0, width, height}) {
     return absl::InvalidArgumentError(
         absl::StrCat("a light-tracing task covers the whole image (0,0)-(", width, ",", height,

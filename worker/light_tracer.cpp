@@ -92,6 +92,8 @@ class LightPath {
         counters_(counters),
         margin_(std::max(0.0f, filter_radius - 0.5f)),
         caustics_only_(scene.options().light_caustics),
+        eye_moments_(scene.options().caustic_probe ==
+                     job::RenderOptions::CausticProbe::kEyeMoments),
         targets_(targets) {}
 
   SampledWavelengths lambda;
@@ -100,6 +102,15 @@ class LightPath {
   int light = -1;                  // the emitting light's index
   int medium = -1;                 // the medium the path is in (RenderScene::media()), -1 vacuum
   std::uint32_t connections_ = 0;  // camera connections so far (their lens dimensions)
+  // RenderOptions::CausticProbe::kEyeMoments: what an eye path that found this caustic path would
+  // carry, in parts: the radiance it finds at the light (0 for a point, spot or distant light,
+  // which no eye path finds), the chain's factors as the eye path weighs them (the delta
+  // scatterings' f·|cos|/p with the radiance's 1/η'² of the eye's direction, transmittances),
+  // and whether a scattering was dispersive (the eye path's secondary lanes end there).
+  float eye_radiance = 0;
+  float eye_chain = 1;
+  std::vector<float> chain_factors;  // the chain's factors in light order (the roulette's weights)
+  bool dispersive = false;
 
   // The contribution C of a vertex at p (geometric normal ng) that sends
   // `value_towards(to_camera)` towards the camera, per unit area of p: value · |ng·ω|/d² · W;
@@ -235,6 +246,7 @@ class LightPath {
         float pdf_w = 0.0f;
         if (!towards_targets(point->p, &w, &pdf_w)) return false;
         const float le = area->radiance(point->n, w, lambda)[0];
+        eye_radiance = le;
         beta = le * std::abs(dot(point->n, w)) / (pdf_area * pdf_w * density);
         medium = emits_into(w);
         *ray = {scene_.geometry().offset_origin(point->p, point->n, w), w};
@@ -310,7 +322,8 @@ class LightPath {
     } else {
       const auto& inf = std::get<InfiniteLight>(light);
       w = sample_uniform_sphere(to_point(sampler_.at2(kEmission)));
-      value = inf.radiance(bounds.centre(), -w, lambda)[0] * (4.0f * kPi);
+      eye_radiance = inf.radiance(bounds.centre(), -w, lambda)[0];
+      value = eye_radiance * (4.0f * kPi);
     }
     if (caustics_only_) {
       Vec3f origin;
@@ -356,7 +369,9 @@ class LightPath {
           // A caustic path does not scatter in a medium (the eye paths take those that do),
           // and an absorbing medium is not sampled: the segment's transmittance is the weight.
           if (!hit) return;
-          beta *= std::exp(-sigma_t * hit->t);
+          const float transmittance = std::exp(-sigma_t * hit->t);
+          beta *= transmittance;
+          eye_chain *= transmittance;
           if (!(beta > 0.0f)) return;
         } else if (sigma_t > 0.0f) {
           // Free flight with density σ_t·T(t): scattering at t weighs σ_s/σ_t, passing the
@@ -414,7 +429,10 @@ class LightPath {
         // nothing after it can: the path ends there.
         if (!caustics_only_ || depth >= 2) {
           connect(hit->p, hit->ng, inside, outside, [&](const Vec3f& to_camera) {
-            return beta * eval(*bsdf, frame.to_local(to_camera), back_local)[0];
+            const Vec3f camera_local = frame.to_local(to_camera);
+            const float f = eval(*bsdf, camera_local, back_local)[0];
+            if (!eye_moments_) return beta * f;
+            return beta * f * eye_value(*bsdf, camera_local, back_local, f);
           });
         }
         if (caustics_only_) return;
@@ -432,6 +450,10 @@ class LightPath {
         // by a refraction), and the departure half of the shading-normal correction.
         ratio = bs->f[0] * abs_cos_theta(bs->wi) / bs->pdf[0];
         if (bs->transmission) ratio *= bs->etap * bs->etap;
+        // The eye path crosses the other way: its 1/η'² is this η'² (radiance mode).
+        eye_chain *= ratio;
+        if (eye_moments_) chain_factors.push_back(ratio);
+        dispersive = dispersive || bs->hero_only;
         const float cos_next_shading = abs_cos_theta(bs->wi);
         ratio = cos_next_shading > 0.0f ? ratio * cos_next_geometric / cos_next_shading : 0.0f;
       } else {
@@ -447,6 +469,38 @@ class LightPath {
   }
 
  private:
+  // CausticProbe::kEyeMoments: the value an eye path of the job's lanes adds to the bin of λ when
+  // it reaches this caustic path's light from the receiver (eye direction `camera_local`, BSDF
+  // value f towards the chain `chain_local`): its BSDF sample's f·|cos|/p, the chain, the
+  // light's radiance, over p(λ)·bin width and, where every lane stays live, over the lanes
+  // (integrator.h: a lane carries 1/C of a path no scattering told apart). A splat times it
+  // estimates, in expectation over the light paths, the eye tracer's second moment of the
+  // caustic paths per sample: E_light[(f/p_light)·(f/p_eye)] = ∫ f²/p_eye. The eye path's
+  // Russian roulette is in p_eye: from rr_min_depth on, after each scattering, it survives with
+  // min(1, throughput) (integrator.cpp; here the throughput at λ alone), which divides its value.
+  float eye_value(const Bsdf& bsdf, const Vec3f& camera_local, const Vec3f& chain_local,
+                  float f) const {
+    const float p = worker::pdf(bsdf, camera_local, chain_local)[0];
+    const float wavelength_pdf = lambda.pdf(0);
+    if (!(p > 0.0f) || !(wavelength_pdf > 0.0f)) return 0.0f;
+    const job::RenderOptions& options = scene_.options();
+    const int live = dispersive ? 1 : options.lanes();
+    const float receiver = f * abs_cos_theta(chain_local) / p;
+    // The eye path scatters at the receiver (depth 1), then along the chain from its end.
+    float throughput = receiver, survival = 1;
+    int depth = 1;
+    for (std::size_t k = chain_factors.size();; --k) {
+      if (depth >= options.rr_min_depth) survival *= std::min(1.0f, throughput);
+      if (k == 0) break;
+      throughput *= chain_factors[k - 1];
+      ++depth;
+    }
+    const float value =
+        receiver * eye_chain * eye_radiance /
+        (float(live) * wavelength_pdf * float(scene_.grid().bin_width()) * survival);
+    return std::isfinite(value) ? value : 0.0f;
+  }
+
   // The spectral differential through the scattering from direction `in` to `out` at `hit`.
   void follow_differential(const Material& material, const SurfaceHit& hit, const Vec3f& in,
                            const Vec3f& out, const BsdfSample& bs) {
@@ -461,6 +515,7 @@ class LightPath {
   const float margin_;
   // --caustics light: only light → delta chain → first non-delta vertex paths connect.
   const bool caustics_only_;
+  const bool eye_moments_;  // RenderOptions::CausticProbe::kEyeMoments
   const std::vector<CausticTarget>& targets_;
 };
 

@@ -40,6 +40,13 @@
 // cone holding it; for light from infinitely far a point on the disk of one across the beam),
 // which covers every caustic path and wastes no path on the rest.
 //
+// For `--integrator auto`'s pilot (RenderOptions::caustic_probe) the caustic paths are rendered
+// alone, without eye samples, plainly or with each splat times the value an eye path would have
+// carried for the same path (the BSDF sample at the receiver, the chain's factors, the light's
+// radiance, over p(λ)·bin width, the lanes still live and the eye path's Russian-roulette
+// survival): that image's mean is the eye tracers' second moment of the caustic paths per sample
+// (client/auto_integrator.h).
+//
 // Spectral ray differentials (spectral_differential.h) are carried from the first dispersive
 // refraction to the first non-delta vertex, the receiver; each splat records its raster
 // position's derivative per nm, for differential splatting.

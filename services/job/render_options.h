@@ -101,6 +101,13 @@ struct RenderOptions {
   // With light_caustics: light paths per pixel and sample (kMinCausticPaths..1); a batch is
   // light_paths_per_batch(W·H) paths.
   float caustic_paths = 1.0f;
+  // With light_caustics, for `--integrator auto`'s pilot only (never on the wire): kLightOnly
+  // renders the light paths alone, no eye samples; kEyeMoments renders them alone with every
+  // splat times the value an eye path of `lanes()` lanes would carry for the same path
+  // (light_tracer.h), so the image estimates the eye tracer's second moment per sample of the
+  // caustic paths, which its own few samples see too rarely (client/auto_integrator.h).
+  enum class CausticProbe { kOff, kLightOnly, kEyeMoments };
+  CausticProbe caustic_probe = CausticProbe::kOff;
   // Differential splatting of the light paths (§6.1) when > 0: Δλ in nm at sample 0, shrinking
   // as (s + 1)^(-1/5); also a filtered image beside the unbiased one (TileBuffers::filtered).
   float splat_width_nm = 0;
