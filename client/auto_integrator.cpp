@@ -43,13 +43,13 @@ absl::StatusOr<bool> prepass_runs(const RenderCommandOptions& options,
 
 }  // namespace
 
-CausticSplit split_caustic_runs(double variance_full, double rays_full, double variance_few,
-                                double rays_few, double few) {
+CausticSplit split_caustic_run(double variance_full, double rays_full, double light_variance,
+                               double light_rays) {
   CausticSplit split;
-  // variance(s) = eye + light / s and rays(s) = eye_rays + s · light_rays, through the two runs.
-  split.light_variance = std::max(0.0, (variance_few - variance_full) / (1.0 / few - 1.0));
+  // variance(1) = eye + light and rays(1) = eye_rays + light_rays: the eye part is the rest.
+  split.light_variance = std::max(0.0, light_variance);
   split.eye_variance = std::max(0.0, variance_full - split.light_variance);
-  split.light_rays = std::max(0.0, (rays_full - rays_few) / (1.0 - few));
+  split.light_rays = std::max(0.0, light_rays);
   split.eye_rays = std::max(0.0, rays_full - split.light_rays);
   return split;
 }
@@ -146,9 +146,9 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   };
   // Hero with light-traced caustics where --caustics was not given, the scene allows light
   // tracing and has a shape that can scatter as a delta (else it has no caustic path). It is
-  // rendered twice over: with a light path per pixel and sample and with kPilotCausticPaths of
-  // them, which splits its variance and rays into the eye paths' and the light paths' parts, and
-  // so gives the share of light paths it is judged (and run) at.
+  // rendered with a light path per pixel and sample; the probe's light-only renders split its
+  // variance and rays into the eye paths' and the light paths' parts, and so give the share of
+  // light paths it is judged (and run) at.
   bool caustics = false;
   std::unique_ptr<coordinator::LocalRender> built;
   if (options.caustics.empty()) {
@@ -199,6 +199,8 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
         "refraction for gradient to shift, no caustic path to light trace); no pilot";
     return finish();
   }
+  // With caustics: the probe of the caustic paths, whose three renders of light paths alone cost
+  // about what one candidate's two renders do (torus-glass: 0.08 s against 0.3 s for four).
   const std::size_t renders_per_half = candidates.size() + (caustics ? 1 : 0);
   PRISM_ASSIGN_OR_RETURN(v1::JobSpec job,
                          job_spec_of(probe, description, bundle_hash, scene_relpath));
@@ -228,14 +230,13 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   std::vector<Measured> measured;
   std::vector<double> image_sum;
   std::vector<std::string> runs = candidates;
-  if (caustics) runs.push_back(kCausticPathsRun);
   for (const std::string& method : runs) {
     RenderCommandOptions o = probe;
     o.integrator = method;
-    if (method == kHeroWithLightCaustics || method == kCausticPathsRun) {
+    if (method == kHeroWithLightCaustics) {
       o.integrator = "hero";
       o.caustics = "light";
-      o.caustic_paths = method == kCausticPathsRun ? kPilotCausticPaths : 1.0;
+      o.caustic_paths = 1.0;
     }
     o.resolution = absl::StrCat(width, "x", height);
     o.spp = static_cast<std::int64_t>(spp);
@@ -272,6 +273,56 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     m.rays_per_sample = rays / (2 * double(width) * double(height) * double(spp));
     measured.push_back(std::move(m));
   }
+  // The eye tracers' caustic paths (light → delta chain → the camera's first vertex) are rare
+  // and bright where the light is small: 2 x spp samples per pixel mostly miss them, so their
+  // measured variance is mostly too low. The probe renders those paths from the lights instead:
+  // twice plainly with independent seeds, A and B, whose product estimates their mean squared C²
+  // without bias and whose difference their variance per light path (the light part of
+  // hero+caustics at one path per pixel and sample), and once with every splat times the value
+  // an eye path would carry for it, whose mean is the eye tracers' second moment M of those paths
+  // per sample (light_tracer.cpp). M − C² per pixel and bin is the variance the eye tracers'
+  // caustic paths add per sample.
+  std::vector<float> caustic_variance, light_squared_difference;
+  double light_rays_per_sample = 0;
+  if (caustics) {
+    RenderCommandOptions o = probe;
+    o.caustics = "light";
+    o.caustic_paths = 1.0;
+    o.resolution = absl::StrCat(width, "x", height);
+    o.spp = static_cast<std::int64_t>(spp);
+    o.seed = pilot_seed;
+    o.max_memory.clear();
+    PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
+                                                                   bundle_hash, scene_relpath));
+    using Probe = job::RenderOptions::CausticProbe;
+    std::vector<float> light[2];
+    double light_rays = 0;
+    std::uint64_t seed = pilot_seed + 2;
+    for (const Probe kind : {Probe::kLightOnly, Probe::kLightOnly, Probe::kEyeMoments}) {
+      coordinator::LocalRenderOptions local = prepared.local;
+      local.render.seed = seed++;
+      local.render.caustic_probe = kind;
+      PRISM_ASSIGN_OR_RETURN(auto render,
+                             coordinator::LocalRender::create(device, description, library, local));
+      PRISM_ASSIGN_OR_RETURN(coordinator::LocalRenderResult result, render->render());
+      const std::span<const float> values = result.image.data();
+      if (kind == Probe::kLightOnly) {
+        light_rays += double(result.stats.counters.rays);
+        (light[0].empty() ? light[0] : light[1]).assign(values.begin(), values.end());
+        continue;
+      }
+      const std::size_t n = std::min({values.size(), light[0].size(), light[1].size()});
+      caustic_variance.assign(n, 0.0f);
+      light_squared_difference.assign(n, 0.0f);
+      for (std::size_t i = 0; i < n; ++i) {
+        const double v = double(values[i]) - double(light[0][i]) * light[1][i];
+        if (std::isfinite(v) && v > 0) caustic_variance[i] = float(v);
+        const double d = double(light[0][i]) - light[1][i];
+        if (std::isfinite(d)) light_squared_difference[i] = float(d * d);
+      }
+    }
+    light_rays_per_sample = light_rays / (2 * double(width) * double(height) * double(spp));
+  }
   // The weights: 1/(truth² + 0.01), the truth estimated by every render's mean over the pixel
   // and its 3 x 3 neighbours. Without the neighbours, one candidate's outlier would also set the
   // weight of its own pixel.
@@ -302,7 +353,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   }
   // Per candidate: its relMSE per sample, its cost per sample (rays times the cost of one), and
   // their product relative to hero's, its predicted relMSE at equal time relative to hero's.
-  std::optional<std::size_t> full_paths, few_paths;
+  std::optional<std::size_t> full_paths;
   std::vector<job::AutoReport::Candidate> figures;
   for (std::size_t c = 0; c < runs.size(); ++c) {
     double sum = 0;
@@ -312,24 +363,51 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     const double variance = image_sum.empty() ? 0.0 : sum / double(image_sum.size()) * double(spp);
     figures.push_back({runs[c], variance, measured[c].rays_per_sample, 0.0, ray_cost(runs[c])});
     if (runs[c] == kHeroWithLightCaustics) full_paths = c;
-    if (runs[c] == kCausticPathsRun) few_paths = c;
   }
-  // Hero with light-traced caustics at the share of light paths its two runs say is best (or
-  // the one given).
+  // Hero with light-traced caustics at the share of light paths its run and the probe say is best
+  // (or the one given).
   double caustic_paths = options.caustic_paths.value_or(1.0);
-  if (full_paths.has_value() && few_paths.has_value()) {
-    const CausticSplit split = split_caustic_runs(
-        figures[*full_paths].rel_mse_per_sample, figures[*full_paths].rays_per_sample,
-        figures[*few_paths].rel_mse_per_sample, figures[*few_paths].rays_per_sample,
-        kPilotCausticPaths);
+  std::string caustic_note;
+  if (full_paths.has_value()) {
+    // The light paths' variance per sample, weighted as the candidates' is.
+    double light_variance = 0;
+    for (std::size_t i = 0; i < light_squared_difference.size() && i < weight.size(); ++i) {
+      light_variance += 0.5 * double(light_squared_difference[i]) * weight[i];
+    }
+    if (!weight.empty()) light_variance = light_variance / double(weight.size()) * double(spp);
+    const CausticSplit split = split_caustic_run(figures[*full_paths].rel_mse_per_sample,
+                                                 figures[*full_paths].rays_per_sample,
+                                                 light_variance, light_rays_per_sample);
     if (!options.caustic_paths.has_value()) caustic_paths = split.best_share();
     figures[*full_paths].rel_mse_per_sample = split.variance(caustic_paths);
     figures[*full_paths].rays_per_sample = split.rays(caustic_paths);
     figures[*full_paths].caustic_paths = caustic_paths;
+    // The eye tracers' variance per sample as the caustic paths' model says: hero's eye paths
+    // without them (the split's eye part) and the probe's variance of them. What the pilot's
+    // eye tracers did not see of it is added to each (uniform and gradient miss the same rare
+    // paths), where it is kUnseenCausticFactor times hero's measured variance or more: below
+    // that it is the heavy tail of caustics the eye samples do find, which the job's own render
+    // rarely shows either (auto_integrator.h).
+    double modelled = 0;
+    for (std::size_t i = 0; i < caustic_variance.size() && i < weight.size(); ++i) {
+      modelled += double(caustic_variance[i]) * weight[i];
+    }
+    if (!weight.empty()) modelled /= double(weight.size());
+    const double unseen =
+        std::max(0.0, split.eye_variance + modelled - figures[0].rel_mse_per_sample);
+    if (unseen > 0 && unseen >= kUnseenCausticFactor * figures[0].rel_mse_per_sample) {
+      absl::StrAppend(&caustic_note,
+                      absl::StrFormat("; the eye tracers' caustic paths, modelled from light "
+                                      "paths, add %.3g to hero's measured relMSE per sample %.3g",
+                                      unseen, figures[0].rel_mse_per_sample));
+      for (job::AutoReport::Candidate& f : figures) {
+        if (f.method == "hero" || f.method == "uniform" || f.method == "gradient") {
+          f.rel_mse_per_sample += unseen;
+        }
+      }
+    }
   }
-  for (job::AutoReport::Candidate& f : figures) {
-    if (f.method != kCausticPathsRun) report.candidates.push_back(std::move(f));
-  }
+  for (job::AutoReport::Candidate& f : figures) report.candidates.push_back(std::move(f));
   candidates.clear();
   for (const job::AutoReport::Candidate& c : report.candidates) candidates.push_back(c.method);
   auto efficiency = [](const job::AutoReport::Candidate& c) {
@@ -362,6 +440,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   }
   absl::StrAppend(&report.reason, absl::StrFormat(" (pilot: %dx%d, 2 x %d spp per candidate)",
                                                   width, height, static_cast<int>(spp)));
+  absl::StrAppend(&report.reason, caustic_note);
   if (!gradient) {
     absl::StrAppend(&report.reason,
                     "; gradient is not a candidate: nothing refracts smooth-dispersively, so it "

@@ -95,13 +95,12 @@ TEST(CompareCommandTest, CropSyntax) {
   }
 }
 
-// The pilot's two hero+caustics runs split into eye and light parts, and the share of light
-// paths that minimises (eye + light/s)(eye_rays + s·light_rays), against the closed form.
+// The pilot's hero+caustics run and the probe's light part split into eye and light parts, and
+// the share of light paths that minimises (eye + light/s)(eye_rays + s·light_rays), against the
+// closed form.
 TEST(AutoIntegratorTest, TheCausticShareMinimisesVarianceTimesRays) {
   // eye 0.03, light 0.0008 per sample at s = 1; eye rays 2, light rays 1.
-  const double few = kPilotCausticPaths;
-  const CausticSplit split =
-      split_caustic_runs(0.03 + 0.0008, 3.0, 0.03 + 0.0008 / few, 2.0 + few, few);
+  const CausticSplit split = split_caustic_run(0.03 + 0.0008, 3.0, 0.0008, 1.0);
   EXPECT_NEAR(split.eye_variance, 0.03, 1e-12);
   EXPECT_NEAR(split.light_variance, 0.0008, 1e-12);
   EXPECT_NEAR(split.eye_rays, 2.0, 1e-12);
@@ -114,10 +113,12 @@ TEST(AutoIntegratorTest, TheCausticShareMinimisesVarianceTimesRays) {
   for (double s = 1.0; s >= job::kMinCausticPaths; s /= 2) {
     EXPECT_LE(split.variance(0.25) * split.rays(0.25), split.variance(s) * split.rays(s)) << s;
   }
-  // Light paths that reduce nothing (noise made the few-path run the better one): the fewest.
-  EXPECT_EQ(split_caustic_runs(0.03, 3.0, 0.029, 2.0625, few).best_share(), job::kMinCausticPaths);
-  // Eye paths with no variance left: every light path.
-  EXPECT_EQ(split_caustic_runs(0.001, 3.0, 0.016, 2.0625, few).best_share(), 1.0);
+  // Light paths with no variance (they find nothing the eye paths would not): the fewest.
+  EXPECT_EQ(split_caustic_run(0.03, 3.0, 0.0, 1.0).best_share(), job::kMinCausticPaths);
+  // Eye paths with no variance left (the light part is all of it): every light path.
+  EXPECT_EQ(split_caustic_run(0.001, 3.0, 0.001, 1.0).best_share(), 1.0);
+  // A light part measured above the whole run's (noise): the eye part is 0, not negative.
+  EXPECT_EQ(split_caustic_run(0.001, 3.0, 0.002, 1.0).eye_variance, 0.0);
 }
 
 }  // namespace

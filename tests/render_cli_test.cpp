@@ -457,6 +457,34 @@ TEST(RenderCliTest, AutoOffersOnlyCandidatesThatCanDifferFromHero) {
       << rough_report["auto"].dump();
 }
 
+// scenes/slit-prism.pbrt's floor sees its narrow slit lamp only through the prism: the pilot's eye
+// samples almost never find it, so their measured variance alone ranks hero and hero+caustics
+// alike. The probe of the caustic paths (client/auto_integrator.h) renders them from the lamp and
+// models what the eye samples missed; it is orders of magnitude more than they measured, it goes
+// to every eye-traced candidate, and auto light-traces the caustic.
+TEST(RenderCliTest, AutoModelsTheCausticPathsItsEyeSamplesMiss) {
+  const fs::path dir = fresh_dir("auto_caustic_probe");
+  CommandRun run = run_prism(dir, {"render", source("scenes/slit-prism.pbrt"), "--resolution",
+                                   "96x72", "--spp", "64", "-o", "slit.exr"});
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  auto report = nlohmann::json::parse(*prism::base::read_file(dir / "slit.json"));
+  const auto& a = report["auto"];
+  EXPECT_EQ(a["choice"], "hero+caustics") << a.dump();
+  const std::string reason = a["reason"].get<std::string>();
+  EXPECT_NE(reason.find("the eye tracers' caustic paths, modelled from light paths, add"),
+            std::string::npos)
+      << reason;
+  std::map<std::string, double> variance;
+  for (const auto& c : a["candidates"]) {
+    variance[c["method"].get<std::string>()] = c["rel_mse_per_sample"].get<double>();
+  }
+  ASSERT_EQ(variance.size(), 4u) << a.dump();
+  // The same unseen variance is in hero's, uniform's and gradient's figures.
+  EXPECT_GT(variance["hero"], 100 * variance["hero+caustics"]) << a.dump();
+  EXPECT_GT(variance["uniform"], 100 * variance["hero+caustics"]) << a.dump();
+  EXPECT_GT(variance["gradient"], 100 * variance["hero+caustics"]) << a.dump();
+}
+
 // Hero in a scene of several emitter spectra runs the prepass where the job's spp gives it a
 // budget; its first pass decides whether per-pixel tables pay. boxes (two LED spectra, no
 // dispersion, a dye) is such a scene: its pilot finds nothing better than hero. The image is
