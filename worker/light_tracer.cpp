@@ -450,8 +450,9 @@ class LightPath {
         // by a refraction), and the departure half of the shading-normal correction.
         ratio = bs->f[0] * abs_cos_theta(bs->wi) / bs->pdf[0];
         if (bs->transmission) ratio *= bs->etap * bs->etap;
-        // The eye path crosses the other way: its 1/η'² is this η'² (radiance mode).
-        eye_chain *= ratio;
+        // The eye path crosses the other way, in radiance mode: its f·|cos|/p is 1/η'_eye² =
+        // this η'² times the ratio; its roulette weight (times its η-scale η'_eye²) is the ratio.
+        eye_chain *= bs->transmission ? ratio * bs->etap * bs->etap : ratio;
         if (eye_moments_) chain_factors.push_back(ratio);
         dispersive = dispersive || bs->hero_only;
         const float cos_next_shading = abs_cos_theta(bs->wi);
