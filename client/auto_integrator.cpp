@@ -230,6 +230,25 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   std::vector<Measured> measured;
   std::vector<double> image_sum;
   std::vector<std::string> runs = candidates;
+  // Every pilot render: `o` at the pilot's size and spp, one seed, and for the caustic probe
+  // (hero with --caustics light) what it renders of the light paths.
+  using Probe = job::RenderOptions::CausticProbe;
+  auto prepare_pilot = [&](RenderCommandOptions o) -> absl::StatusOr<PreparedRender> {
+    o.resolution = absl::StrCat(width, "x", height);
+    o.spp = static_cast<std::int64_t>(spp);
+    o.seed = pilot_seed;
+    o.max_memory.clear();  // it limits the job; the pilot's small renders fit the machine's
+    return prepare_render(o, device, description, library, bundle_hash, scene_relpath);
+  };
+  auto render_pilot = [&](const PreparedRender& prepared, std::uint64_t seed,
+                          Probe kind) -> absl::StatusOr<coordinator::LocalRenderResult> {
+    coordinator::LocalRenderOptions local = prepared.local;
+    local.render.seed = seed;
+    local.render.caustic_probe = kind;
+    PRISM_ASSIGN_OR_RETURN(auto render,
+                           coordinator::LocalRender::create(device, description, library, local));
+    return render->render();
+  };
   for (const std::string& method : runs) {
     RenderCommandOptions o = probe;
     o.integrator = method;
@@ -238,21 +257,14 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
       o.caustics = "light";
       o.caustic_paths = 1.0;
     }
-    o.resolution = absl::StrCat(width, "x", height);
-    o.spp = static_cast<std::int64_t>(spp);
-    o.seed = pilot_seed;
-    o.max_memory.clear();  // it limits the job; the pilot's small renders fit the machine's
-    PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
-                                                                   bundle_hash, scene_relpath));
+    PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_pilot(std::move(o)));
     Measured m;
     double rays = 0;
     std::optional<image::SpectralImage> first;
     for (int h = 0; h < 2; ++h) {
-      coordinator::LocalRenderOptions local = prepared.local;
-      local.render.seed = pilot_seed + static_cast<std::uint64_t>(h);
-      PRISM_ASSIGN_OR_RETURN(auto render,
-                             coordinator::LocalRender::create(device, description, library, local));
-      PRISM_ASSIGN_OR_RETURN(coordinator::LocalRenderResult result, render->render());
+      PRISM_ASSIGN_OR_RETURN(
+          coordinator::LocalRenderResult result,
+          render_pilot(prepared, pilot_seed + static_cast<std::uint64_t>(h), Probe::kOff));
       rays += double(result.stats.counters.rays);
       const std::span<const float> values = result.image.data();
       if (image_sum.empty()) image_sum.assign(values.size(), 0.0);
@@ -288,40 +300,27 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     RenderCommandOptions o = probe;
     o.caustics = "light";
     o.caustic_paths = 1.0;
-    o.resolution = absl::StrCat(width, "x", height);
-    o.spp = static_cast<std::int64_t>(spp);
-    o.seed = pilot_seed;
-    o.max_memory.clear();
-    PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_render(o, device, description, library,
-                                                                   bundle_hash, scene_relpath));
-    using Probe = job::RenderOptions::CausticProbe;
-    std::vector<float> light[2];
-    double light_rays = 0;
-    std::uint64_t seed = pilot_seed + 2;
-    for (const Probe kind : {Probe::kLightOnly, Probe::kLightOnly, Probe::kEyeMoments}) {
-      coordinator::LocalRenderOptions local = prepared.local;
-      local.render.seed = seed++;
-      local.render.caustic_probe = kind;
-      PRISM_ASSIGN_OR_RETURN(auto render,
-                             coordinator::LocalRender::create(device, description, library, local));
-      PRISM_ASSIGN_OR_RETURN(coordinator::LocalRenderResult result, render->render());
-      const std::span<const float> values = result.image.data();
-      if (kind == Probe::kLightOnly) {
-        light_rays += double(result.stats.counters.rays);
-        (light[0].empty() ? light[0] : light[1]).assign(values.begin(), values.end());
-        continue;
-      }
-      const std::size_t n = std::min({values.size(), light[0].size(), light[1].size()});
-      caustic_variance.assign(n, 0.0f);
-      light_squared_difference.assign(n, 0.0f);
-      for (std::size_t i = 0; i < n; ++i) {
-        const double v = double(values[i]) - double(light[0][i]) * light[1][i];
-        if (std::isfinite(v) && v > 0) caustic_variance[i] = float(v);
-        const double d = double(light[0][i]) - light[1][i];
-        if (std::isfinite(d)) light_squared_difference[i] = float(d * d);
-      }
+    PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_pilot(std::move(o)));
+    std::optional<coordinator::LocalRenderResult> light[2];
+    for (std::uint64_t h = 0; h < 2; ++h) {
+      PRISM_ASSIGN_OR_RETURN(light[h],
+                             render_pilot(prepared, pilot_seed + 2 + h, Probe::kLightOnly));
     }
-    light_rays_per_sample = light_rays / (2 * double(width) * double(height) * double(spp));
+    PRISM_ASSIGN_OR_RETURN(coordinator::LocalRenderResult moments,
+                           render_pilot(prepared, pilot_seed + 4, Probe::kEyeMoments));
+    const std::span<const float> a = light[0]->image.data(), b = light[1]->image.data(),
+                                 m = moments.image.data();
+    const std::size_t n = std::min({a.size(), b.size(), m.size()});
+    caustic_variance.assign(n, 0.0f);
+    light_squared_difference.assign(n, 0.0f);
+    for (std::size_t i = 0; i < n; ++i) {
+      const double v = double(m[i]) - double(a[i]) * b[i];
+      if (std::isfinite(v) && v > 0) caustic_variance[i] = float(v);
+      const double d = double(a[i]) - b[i];
+      if (std::isfinite(d)) light_squared_difference[i] = float(d * d);
+    }
+    light_rays_per_sample = double(light[0]->stats.counters.rays + light[1]->stats.counters.rays) /
+                            (2 * double(width) * double(height) * double(spp));
   }
   // The weights: 1/(truth² + 0.01), the truth estimated by every render's mean over the pixel
   // and its 3 x 3 neighbours. Without the neighbours, one candidate's outlier would also set the
@@ -351,16 +350,24 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
       }
     }
   }
+  // A per-pixel-and-bin figure's mean over the image, weighted as relMSE weighs errors; and a
+  // relMSE per sample from the squared differences of two renders of spp samples.
+  auto weighted_mean = [&](const std::vector<float>& values) {
+    double sum = 0;
+    for (std::size_t i = 0; i < values.size() && i < weight.size(); ++i) {
+      sum += double(values[i]) * weight[i];
+    }
+    return weight.empty() ? 0.0 : sum / double(weight.size());
+  };
+  auto variance_per_sample = [&](const std::vector<float>& squared_difference) {
+    return 0.5 * weighted_mean(squared_difference) * double(spp);
+  };
   // Per candidate: its relMSE per sample, its cost per sample (rays times the cost of one), and
   // their product relative to hero's, its predicted relMSE at equal time relative to hero's.
   std::optional<std::size_t> full_paths;
   std::vector<job::AutoReport::Candidate> figures;
   for (std::size_t c = 0; c < runs.size(); ++c) {
-    double sum = 0;
-    for (std::size_t i = 0; i < image_sum.size(); ++i) {
-      sum += 0.5 * measured[c].squared_difference[i] * weight[i];
-    }
-    const double variance = image_sum.empty() ? 0.0 : sum / double(image_sum.size()) * double(spp);
+    const double variance = variance_per_sample(measured[c].squared_difference);
     figures.push_back({runs[c], variance, measured[c].rays_per_sample, 0.0, ray_cost(runs[c])});
     if (runs[c] == kHeroWithLightCaustics) full_paths = c;
   }
@@ -369,15 +376,9 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   double caustic_paths = options.caustic_paths.value_or(1.0);
   std::string caustic_note;
   if (full_paths.has_value()) {
-    // The light paths' variance per sample, weighted as the candidates' is.
-    double light_variance = 0;
-    for (std::size_t i = 0; i < light_squared_difference.size() && i < weight.size(); ++i) {
-      light_variance += 0.5 * double(light_squared_difference[i]) * weight[i];
-    }
-    if (!weight.empty()) light_variance = light_variance / double(weight.size()) * double(spp);
-    const CausticSplit split = split_caustic_run(figures[*full_paths].rel_mse_per_sample,
-                                                 figures[*full_paths].rays_per_sample,
-                                                 light_variance, light_rays_per_sample);
+    const CausticSplit split = split_caustic_run(
+        figures[*full_paths].rel_mse_per_sample, figures[*full_paths].rays_per_sample,
+        variance_per_sample(light_squared_difference), light_rays_per_sample);
     if (!options.caustic_paths.has_value()) caustic_paths = split.best_share();
     figures[*full_paths].rel_mse_per_sample = split.variance(caustic_paths);
     figures[*full_paths].rays_per_sample = split.rays(caustic_paths);
@@ -388,13 +389,8 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     // paths), where it is kUnseenCausticFactor times hero's measured variance or more: below
     // that it is the heavy tail of caustics the eye samples do find, which the job's own render
     // rarely shows either (auto_integrator.h).
-    double modelled = 0;
-    for (std::size_t i = 0; i < caustic_variance.size() && i < weight.size(); ++i) {
-      modelled += double(caustic_variance[i]) * weight[i];
-    }
-    if (!weight.empty()) modelled /= double(weight.size());
-    const double unseen =
-        std::max(0.0, split.eye_variance + modelled - figures[0].rel_mse_per_sample);
+    const double unseen = std::max(
+        0.0, split.eye_variance + weighted_mean(caustic_variance) - figures[0].rel_mse_per_sample);
     if (unseen > 0 && unseen >= kUnseenCausticFactor * figures[0].rel_mse_per_sample) {
       absl::StrAppend(&caustic_note,
                       absl::StrFormat("; the eye tracers' caustic paths, modelled from light "

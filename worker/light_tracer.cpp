@@ -371,7 +371,7 @@ class LightPath {
           if (!hit) return;
           const float transmittance = std::exp(-sigma_t * hit->t);
           beta *= transmittance;
-          eye_chain *= transmittance;
+          if (eye_moments_) eye_chain *= transmittance;
           if (!(beta > 0.0f)) return;
         } else if (sigma_t > 0.0f) {
           // Free flight with density σ_t·T(t): scattering at t weighs σ_s/σ_t, passing the
@@ -452,9 +452,11 @@ class LightPath {
         if (bs->transmission) ratio *= bs->etap * bs->etap;
         // The eye path crosses the other way, in radiance mode: its f·|cos|/p is 1/η'_eye² =
         // this η'² times the ratio; its roulette weight (times its η-scale η'_eye²) is the ratio.
-        eye_chain *= bs->transmission ? ratio * bs->etap * bs->etap : ratio;
-        if (eye_moments_) chain_factors.push_back(ratio);
-        dispersive = dispersive || bs->hero_only;
+        if (eye_moments_) {
+          eye_chain *= bs->transmission ? ratio * bs->etap * bs->etap : ratio;
+          chain_factors.push_back(ratio);
+          dispersive = dispersive || bs->hero_only;
+        }
         const float cos_next_shading = abs_cos_theta(bs->wi);
         ratio = cos_next_shading > 0.0f ? ratio * cos_next_geometric / cos_next_shading : 0.0f;
       } else {
