@@ -244,6 +244,7 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
   rs->materials_.reserve(scene.materials.size());
   for (const scene::Material& m : scene.materials) {
     PRISM_ASSIGN_OR_RETURN(Material material, resolve_material(m, library, uplift, textures));
+    rs->has_interfaces_ |= std::holds_alternative<InterfaceMaterial>(material);
     rs->materials_.push_back(std::move(material));
   }
   rs->media_.reserve(scene.media.size());

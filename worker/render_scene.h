@@ -78,6 +78,9 @@ class RenderScene {
   const Material& material_at(int index, const SurfaceHit& hit, const Vec3f& wo) const;
   const std::vector<Light>& lights() const { return lights_; }
   const std::vector<HomogeneousMedium>& media() const { return media_; }
+  // Whether any material is an `interface` (a surface shadow rays pass through): without one,
+  // anything a shadow ray meets blocks it, and an occlusion query answers it.
+  bool has_interfaces() const { return has_interfaces_; }
   // The medium a light emits into (pbrt-v4's light MediumInterface, its outside medium current
   // at the directive): -1 for vacuum and for area lights, whose shape's media say it per side.
   int light_medium(int light) const { return light_media_[std::size_t(light)]; }
@@ -105,6 +108,7 @@ class RenderScene {
   std::vector<int> light_media_;  // per light (light_medium)
   std::vector<HomogeneousMedium> media_;
   std::vector<ShapeInfo> shapes_;
+  bool has_interfaces_ = false;
   int camera_medium_ = -1;
   int infinite_light_ = -1;
   std::unique_ptr<LightSampler> light_sampler_;

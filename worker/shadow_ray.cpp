@@ -25,9 +25,9 @@ Shadow trace_shadow(const RenderScene& scene, Vec3f origin, Vec3f direction, con
       distance = length_to_target * (1.0f - 1e-4f);
     }
     ++counters.rays;
-    auto hit = geometry.intersect({origin, direction}, distance);
-    float segment = hit ? hit->t : distance;
-    if (medium >= 0) {
+    // Through `medium` for `segment` (infinite: to the environment).
+    const auto attenuate = [&](float segment) {
+      if (medium < 0) return;
       const HomogeneousMedium& m = scene.media()[medium];
       SampledSpectrum sigma_t = m.sigma_a(lambdas) + m.sigma_s(lambdas);
       SampledSpectrum t;
@@ -40,7 +40,16 @@ Shadow trace_shadow(const RenderScene& scene, Vec3f origin, Vec3f direction, con
         shadow.pass *= t;
         shadow.scattering = true;
       }
+    };
+    if (!scene.has_interfaces()) {
+      // Whatever is hit blocks: an any-hit query, with no hit point or material to work out,
+      // gives the same answer as the closest hit (alpha cut-outs decide each candidate alike).
+      if (geometry.occluded({origin, direction}, distance)) return Shadow{};
+      attenuate(distance);
+      return shadow;
     }
+    auto hit = geometry.intersect({origin, direction}, distance);
+    attenuate(hit ? hit->t : distance);
     if (!hit) return shadow;
     const ShapeInfo& info = scene.shape(hit->shape);
     if (!std::holds_alternative<InterfaceMaterial>(

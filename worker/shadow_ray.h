@@ -4,7 +4,8 @@
 // homogeneous media. It gives the transmittance per lane, and the probability that the
 // unidirectional technique's free flights would have passed the same segments (equal to the
 // transmittance in scattering media, 1 in purely absorbing ones, which are not sampled), both 0
-// when anything else blocks the segment.
+// when anything else blocks the segment. In a scene without interface materials nothing lets a
+// shadow ray through, and it is one occlusion query (no hit point, no material).
 //
 // A finite target is joined by the segment from each (offset) origin to it, not by the first
 // direction: that direction was computed from the un-offset point, and its parallel line,
