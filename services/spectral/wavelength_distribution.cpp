@@ -53,8 +53,16 @@ struct Inverted {
 // the returned float λ is nudged, if rounding moved it, until cell_index(λ) == c, which is what
 // makes sample() and pdf() agree exactly. With a guide (guide_cells below), the search starts in
 // the cells that u's guide interval can reach; the cell found is the same.
+// Per cell of n uniform cells: its lower edge (cell_lower) and the first and last float that
+// cell_index maps to it, so that a λ is settled into its cell by one clamp.
+struct CellFloats {
+  std::span<const double> lower;
+  std::span<const float> first, last;
+};
+
 template <typename CdfAt>
-Inverted invert(int n, double u, const CdfAt& cdf_at, std::span<const int> guide = {}) {
+Inverted invert(int n, double u, const CdfAt& cdf_at, std::span<const int> guide = {},
+                const CellFloats* floats = nullptr) {
   u = std::clamp(u, 0.0, 0x1.fffffffffffffp-1);  // the largest double below 1
   // The last c in [0, n) with cdf(c) <= u, by branch-free halving: which half holds u is a coin
   // toss that a branch predictor cannot learn, and a conditional move costs less than the
@@ -72,6 +80,12 @@ Inverted invert(int n, double u, const CdfAt& cdf_at, std::span<const int> guide
   }
   const double c0 = cdf_at(c), c1 = cdf_at(c + 1);
   const double t = std::clamp((u - c0) / (c1 - c0), 0.0, 1.0);
+  if (floats != nullptr) {
+    // cell_index is non-decreasing in λ, so the nudging below ends on the cell's first or last
+    // float: the clamp gives the same λ.
+    const float lambda = static_cast<float>(floats->lower[c] + t * (kRange / n));
+    return {std::clamp(lambda, floats->first[c], floats->last[c]), c};
+  }
   float lambda = static_cast<float>(cell_lower(c, n) + t * (kRange / n));
   lambda = std::clamp(lambda, kLambdaMin, kLambdaMax);
   while (cell_index(lambda, n) > c) lambda = std::nextafter(lambda, 0.0f);
@@ -104,6 +118,26 @@ std::vector<int> guide_cells(int n, const std::vector<double>& cdf) {
   }
   guide[g] = n - 1;
   return guide;
+}
+
+// The CellFloats tables of n cells. Every cell holds at least one float (PRISM_CHECK): true for
+// any n up to kMaxCells, whose cells are 0.029 nm wide against a float spacing of 6e-5 nm.
+void cell_floats(int n, std::vector<double>& lower, std::vector<float>& first,
+                 std::vector<float>& last) {
+  lower.resize(std::size_t(n));
+  for (int c = 0; c < n; ++c) lower[c] = cell_lower(c, n);
+  first.assign(std::size_t(n), kLambdaMax);
+  last.assign(std::size_t(n), kLambdaMin);
+  first[0] = kLambdaMin;
+  last[std::size_t(n) - 1] = kLambdaMax;
+  for (int i = 1; i < n; ++i) {
+    float edge = static_cast<float>(cell_lower(i, n));
+    while (cell_index(edge, n) >= i) edge = std::nextafter(edge, 0.0f);
+    while (cell_index(edge, n) < i) edge = std::nextafter(edge, kLambdaMax);
+    first[i] = edge;
+    last[i - 1] = std::nextafter(edge, 0.0f);
+  }
+  for (int c = 0; c < n; ++c) PRISM_CHECK(first[c] <= last[c]);
 }
 
 double cyclic_offset(double u, int lane, int lanes) {
@@ -143,6 +177,7 @@ WavelengthDistribution::WavelengthDistribution(std::vector<double> weights) {
     pdf_[i] = static_cast<float>(mass_[i] / w);
   }
   guide_ = guide_cells(n, cdf_);
+  cell_floats(n, lower_, first_, last_);
 }
 
 absl::StatusOr<WavelengthDistribution> WavelengthDistribution::flat(int cells) {
@@ -251,8 +286,9 @@ int WavelengthDistribution::cell_of(float lambda_nm) const {
 }
 
 WavelengthSample WavelengthDistribution::sample(double u) const {
+  const CellFloats floats{lower_, first_, last_};
   const Inverted r = invert(
-      cells(), u, [this](int i) { return cdf_[i]; }, guide_);
+      cells(), u, [this](int i) { return cdf_[i]; }, guide_, &floats);
   return {r.lambda, pdf_[r.cell]};
 }
 

@@ -113,6 +113,10 @@ class WavelengthDistribution {
   // Where sample()'s search starts: 2^m + 1 cells, the first 2^m >= 2·cells() (wavelength_
   // distribution.cpp, guide_cells).
   std::vector<int> guide_;
+  // Per cell: its lower edge in nm, and the first and last float cell_of maps to it, so that
+  // sample() settles λ into its cell with one clamp.
+  std::vector<double> lower_;
+  std::vector<float> first_, last_;
 };
 
 // A non-owning view of a quantised CDF (see the header comment). Cheap to copy; the bytes must

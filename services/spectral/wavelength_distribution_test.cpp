@@ -1,5 +1,6 @@
 #include "services/spectral/wavelength_distribution.h"
 
+#include <algorithm>
 #include <cmath>
 #include <functional>
 #include <random>
@@ -133,7 +134,7 @@ TEST(WavelengthDistributionTest, RandomTableWithZeroCellsNeverSamplesThem) {
 // whole CDF returns, the last c with cdf(c) <= u, for any u: random ones, the guide's own
 // boundaries j/2^m and their neighbours, the cells' CDF values (zero-mass runs included), on
 // tables of 1 to 16384 cells, spiky and flat.
-TEST(WavelengthDistributionTest, TheGuidedSearchFindsTheCellOfTheWholeSearch) {
+TEST(WavelengthDistributionTest, TheGuidedSearchFindsTheCellAndWavelengthOfTheWholeSearch) {
   std::mt19937_64 rng(1234);
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   const SpectrumLibrary lib = *SpectrumLibrary::load_builtin();
@@ -165,8 +166,24 @@ TEST(WavelengthDistributionTest, TheGuidedSearchFindsTheCellOfTheWholeSearch) {
       for (double u : {g, std::nextafter(g, 0.0), std::nextafter(g, 1.0)}) us.push_back(u);
     }
     for (int i = 0; i <= n && i <= 20000; ++i) us.push_back(d.cell_cdf(i));
+    // λ of the cell's linear inverse, moved a float at a time into the cell (what sample() did
+    // before it clamped to each cell's precomputed first and last float).
+    auto settled = [&](double u, int c) {
+      u = std::clamp(u, 0.0, std::nextafter(1.0, 0.0));
+      const double c0 = d.cell_cdf(c), c1 = d.cell_cdf(c + 1);
+      const double t = std::clamp((u - c0) / (c1 - c0), 0.0, 1.0);
+      const double lower = double{kLambdaMin} + double{kLambdaRange} * c / n;
+      float lambda = static_cast<float>(lower + t * (double{kLambdaRange} / n));
+      lambda = std::clamp(lambda, kLambdaMin, kLambdaMax);
+      while (d.cell_of(lambda) > c) lambda = std::nextafter(lambda, 0.0f);
+      while (d.cell_of(lambda) < c) lambda = std::nextafter(lambda, kLambdaMax);
+      return lambda;
+    };
     for (double u : us) {
-      ASSERT_EQ(d.cell_of(d.sample(u).lambda), whole(u)) << n << " cells, u " << u;
+      const int c = whole(u);
+      const float lambda = d.sample(u).lambda;
+      ASSERT_EQ(d.cell_of(lambda), c) << n << " cells, u " << u;
+      ASSERT_EQ(lambda, settled(u, c)) << n << " cells, u " << u;
     }
   }
 }
