@@ -637,6 +637,9 @@ Vec3f Geometry::normal_differential(const SurfaceHit& hit, const Vec3f& dp) cons
 }
 
 std::optional<SurfaceHit> Geometry::intersect(const Ray& ray, float t_max) const {
+  if (const RayObserver* o = observer_.load(std::memory_order_relaxed); o != nullptr) [[unlikely]] {
+    o->traced(ray, t_max, false);
+  }
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   RTCRayHit rh;
@@ -664,6 +667,9 @@ std::optional<SurfaceHit> Geometry::intersect(const Ray& ray, float t_max) const
 }
 
 bool Geometry::occluded(const Ray& ray, float t_max) const {
+  if (const RayObserver* o = observer_.load(std::memory_order_relaxed); o != nullptr) [[unlikely]] {
+    o->traced(ray, t_max, true);
+  }
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   RTCRay r;

@@ -16,6 +16,7 @@
 
 #include <embree3/rtcore.h>
 
+#include <atomic>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -42,6 +43,17 @@ struct SurfaceHit {
   Point2f uv;
   int shape = -1;               // index into SceneDescription::shapes
   std::uint32_t primitive = 0;  // triangle index within the shape's mesh (0 for spheres)
+};
+
+// Sees every query a Geometry answers (closest hit or occlusion), for prism-bench-tracer, which
+// records a render's rays and replays them through bare Embree calls. Called on the tracing
+// threads, concurrently; an implementation must be thread-safe.
+class RayObserver {
+ public:
+  virtual void traced(const Ray& ray, float t_max, bool shadow) const = 0;
+
+ protected:
+  ~RayObserver() = default;
 };
 
 struct Bounds3f {
@@ -80,6 +92,13 @@ class Geometry {
   Vec3f normal_differential(const SurfaceHit& hit, const Vec3f& dp) const;
   // True when anything blocks the segment origin + t·direction, t in (0, t_max).
   bool occluded(const Ray& ray, float t_max) const;
+  // Every later query is also passed to `observer` (null: none, the default). Set it while
+  // nothing traces; it must outlive the queries. Costs one predictable branch per query.
+  void observe(const RayObserver* observer) const {
+    observer_.store(observer, std::memory_order_relaxed);
+  }
+  // The committed Embree scene, for benchmarks that time bare Embree calls on it.
+  RTCScene embree_scene() const { return scene_; }
 
   const Bounds3f& bounds() const { return bounds_; }
   // One shape's world bounds (a box around it for spheres, disks and cylinders).
@@ -162,6 +181,7 @@ class Geometry {
   Bounds3f bounds_;
   std::vector<Bounds3f> shape_bounds_;
   float epsilon_ = 1e-4f;
+  mutable std::atomic<const RayObserver*> observer_{nullptr};
 };
 
 }  // namespace prism::worker
