@@ -54,6 +54,19 @@ CausticSplit split_caustic_run(double variance_full, double rays_full, double li
   return split;
 }
 
+std::optional<double> clean_caustic_share(const CausticSplit& split, double caustic_variance,
+                                          double hero_rays) {
+  if (!(split.light_variance > 0) || !(split.light_rays > 0) || !(caustic_variance > 0) ||
+      !(hero_rays > 0)) {
+    return std::nullopt;
+  }
+  const double most = kCleanCausticRays * hero_rays / split.light_rays;
+  if (!(most >= double(job::kMinCausticPaths))) return std::nullopt;
+  const double s = std::min(1.0, std::exp2(std::floor(std::log2(most))));
+  if (split.light_variance / s > caustic_variance / kCleanCausticGain) return std::nullopt;
+  return s;
+}
+
 double CausticSplit::best_share() const {
   // (eye + light/s)(eye_rays + s·light_rays) is least at s = sqrt(light·eye_rays /
   // (eye·light_rays)), snapped to a power of two in [kMinCausticPaths, 1].
@@ -375,6 +388,8 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   // (or the one given).
   double caustic_paths = options.caustic_paths.value_or(1.0);
   std::string caustic_note;
+  std::optional<CausticSplit> split_used;
+  std::optional<double> clean_share;
   if (full_paths.has_value()) {
     const CausticSplit split = split_caustic_run(
         figures[*full_paths].rel_mse_per_sample, figures[*full_paths].rays_per_sample,
@@ -383,6 +398,11 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     figures[*full_paths].rel_mse_per_sample = split.variance(caustic_paths);
     figures[*full_paths].rays_per_sample = split.rays(caustic_paths);
     figures[*full_paths].caustic_paths = caustic_paths;
+    split_used = split;
+    if (!options.caustic_paths.has_value()) {
+      clean_share =
+          clean_caustic_share(split, weighted_mean(caustic_variance), figures[0].rays_per_sample);
+    }
     // The eye tracers' variance per sample as the caustic paths' model says: hero's eye paths
     // without them (the split's eye part) and the probe's variance of them. What the pilot's
     // eye tracers did not see of it is added to each (uniform and gradient miss the same rare
@@ -418,6 +438,37 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   }
   // Another candidate replaces hero only when it is predicted kAutoMinimumGain better.
   if (best != 0 && report.candidates[best].relative_efficiency > 1.0 - kAutoMinimumGain) best = 0;
+  // Clean caustics (auto_integrator.h): hero's caustic paths by light tracing at the share that
+  // renders them kCleanCausticGain times cleaner, where that costs at most kCleanCausticRays.
+  // Not where hero would run the prepass (several emitter spectra, see finish): light-traced
+  // caustics are not combined with it, and the prepass's gain is on the whole image.
+  bool hero_runs_prepass = false;
+  if (best == 0 && dependence.emitter_spectra.size() > 1 && options.prepass != false &&
+      !options.target_error.has_value()) {
+    RenderCommandOptions with_prepass = chosen;
+    with_prepass.integrator = "hero";
+    with_prepass.prepass = true;
+    PRISM_ASSIGN_OR_RETURN(hero_runs_prepass,
+                           prepass_runs(with_prepass, description, bundle_hash, scene_relpath));
+  }
+  std::string clean_note;
+  if (clean_share.has_value() && full_paths.has_value() && (best == 0 || best == *full_paths) &&
+      !hero_runs_prepass && *clean_share > caustic_paths) {
+    const bool was_hero = best == 0;
+    best = *full_paths;
+    caustic_paths = *clean_share;
+    job::AutoReport::Candidate& k = report.candidates[best];
+    k.rel_mse_per_sample = split_used->variance(caustic_paths);
+    k.rays_per_sample = split_used->rays(caustic_paths);
+    k.caustic_paths = caustic_paths;
+    k.relative_efficiency = hero > 0 ? efficiency(k) / hero : 1.0;
+    clean_note = absl::StrFormat(
+        "; %s light paths render the caustic paths %.3g times cleaner than the eye tracers for "
+        "%.2g %% more rays",
+        was_hero ? "hero is predicted best, and" : "at this share",
+        weighted_mean(caustic_variance) * caustic_paths / split_used->light_variance,
+        100.0 * caustic_paths * split_used->light_rays / report.candidates[0].rays_per_sample);
+  }
   chosen.integrator = candidates[best];
   report.choice = candidates[best];
   if (candidates[best] == kHeroWithLightCaustics) {
@@ -428,15 +479,20 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   report.reason = best == 0 ? absl::StrCat("no candidate was predicted at least ",
                                            static_cast<int>(100 * kAutoMinimumGain),
                                            " % better than hero at equal time")
-                            : absl::StrFormat("predicted %.2f of hero's relMSE at equal time",
-                                              report.candidates[best].relative_efficiency);
+                  : !clean_note.empty()
+                      ? absl::StrFormat(
+                            "clean caustics: predicted %.2f of hero's relMSE at equal "
+                            "time",
+                            report.candidates[best].relative_efficiency)
+                      : absl::StrFormat("predicted %.2f of hero's relMSE at equal time",
+                                        report.candidates[best].relative_efficiency);
   if (candidates[best] == kHeroWithLightCaustics && caustic_paths < 1.0) {
     absl::StrAppend(&report.reason,
                     absl::StrFormat(" with %g light paths per pixel and sample", caustic_paths));
   }
   absl::StrAppend(&report.reason, absl::StrFormat(" (pilot: %dx%d, 2 x %d spp per candidate)",
                                                   width, height, static_cast<int>(spp)));
-  absl::StrAppend(&report.reason, caustic_note);
+  absl::StrAppend(&report.reason, clean_note, caustic_note);
   if (!gradient) {
     absl::StrAppend(&report.reason,
                     "; gradient is not a candidate: nothing refracts smooth-dispersively, so it "

@@ -64,6 +64,19 @@
 //
 // Where hero is the only candidate no pilot runs.
 //
+// Clean caustics. The error auto ranks by (relMSE over spectral bins) and the RGB image a user
+// looks at can disagree about caustics: on the README demo the eye tracers' caustic paths are
+// about 1 % of hero's relMSE, so light tracing them is a tie by that measure, yet at 1/64 of a
+// light path per pixel and sample they take hero's RGB relMSE to 0.83 and its dim floor's
+// fireflies away, for 1.5 % more rays (docs/benchmarks.md). So where hero (with or without
+// light-traced caustics) is the choice and the probe says light paths render the caustic paths
+// at least kCleanCausticGain times cleaner than the eye tracers do (the light part's variance at
+// the share s against M − C², both weighted as above) for at most kCleanCausticRays more rays
+// than hero traces, the job renders them by light tracing at that share, or at the fitted share
+// if it is larger (clean_caustic_share): at most about 2 % of the cost auto ranks by. Not where
+// hero would run the prepass (several emitter spectra, below): light-traced caustics are not
+// combined with it, and its gain is on the whole image, not on a few caustic paths.
+//
 // The choice is hero unless another candidate is predicted at least 10 % better (a smaller
 // predicted gain is within the pilot's noise). Hero in a scene with several emitter spectra
 // runs the prepass (hero+prepass) unless --no-prepass or a target error is given or the job's
@@ -92,6 +105,10 @@ inline constexpr double kAutoMinimumGain = 0.10;
 // The least ratio of the caustic variance the pilot's eye samples missed to hero's measured
 // variance for it to count (see above).
 inline constexpr double kUnseenCausticFactor = 10.0;
+// Clean caustics (see above): the most extra rays, as a share of hero's, and the least gain on
+// the caustic paths' own variance.
+inline constexpr double kCleanCausticRays = 0.02;
+inline constexpr double kCleanCausticGain = 4.0;
 // The candidate name of hero with --caustics light, and the choice of hero with the prepass.
 inline constexpr char kHeroWithLightCaustics[] = "hero+caustics";
 inline constexpr char kHeroWithPrepass[] = "hero+prepass";
@@ -121,6 +138,13 @@ struct CausticSplit {
 };
 CausticSplit split_caustic_run(double variance_full, double rays_full, double light_variance,
                                double light_rays);
+// The clean-caustics share (see above): the largest power of two s in [job::kMinCausticPaths, 1]
+// whose light paths cost at most kCleanCausticRays × hero_rays (s × split.light_rays), if at
+// that share their variance (split.light_variance / s) is at most caustic_variance (the eye
+// tracers' variance of the caustic paths per sample, M − C²) / kCleanCausticGain; none
+// otherwise, and none where any figure is not positive.
+std::optional<double> clean_caustic_share(const CausticSplit& split, double caustic_variance,
+                                          double hero_rays);
 
 struct ResolvedIntegrator {
   RenderCommandOptions options;           // with an explicit integrator and prepass

@@ -121,5 +121,29 @@ TEST(AutoIntegratorTest, TheCausticShareMinimisesVarianceTimesRays) {
   EXPECT_EQ(split_caustic_run(0.001, 3.0, 0.002, 1.0).eye_variance, 0.0);
 }
 
+// Clean caustics: the most light paths within 2 % of hero's rays, taken where at that share they
+// render the caustic paths at least 4 times cleaner than the eye tracers. The README demo's
+// probe figures (scenes/prism.pbrt at 64 spp): light part 6.92e-7 per sample at one path, 1.873
+// rays per light path, the eye tracers' caustic variance 3.405e-4, hero's 2.007 rays.
+TEST(AutoIntegratorTest, CleanCausticsTakeTheMostLightPathsTwoPercentOfRaysBuy) {
+  const CausticSplit demo = split_caustic_run(0.03525, 3.871, 6.92e-7, 1.873);
+  // 0.02·2.007/1.873 = 0.0214 light paths at most: 1/64; 6.92e-7·64 = 4.4e-5 <= 3.405e-4/4.
+  EXPECT_EQ(clean_caustic_share(demo, 3.405e-4, 2.007), 1.0 / 64);
+  // Twice hero's rays allow twice the share.
+  EXPECT_EQ(clean_caustic_share(demo, 3.405e-4, 4.014), 1.0 / 32);
+  // At 1/64 the light paths are 7.7 times cleaner: not with an eye variance under 4 times theirs.
+  EXPECT_EQ(clean_caustic_share(demo, 4.0 * 6.92e-7 * 64 * 0.99, 2.007), std::nullopt);
+  EXPECT_EQ(clean_caustic_share(demo, 4.0 * 6.92e-7 * 64 * 1.01, 2.007), 1.0 / 64);
+  // Light paths so dear that 2 % of hero's rays buy fewer than 1/256 per pixel: none.
+  EXPECT_EQ(clean_caustic_share(split_caustic_run(0.03, 600.0, 1e-9, 500.0), 1.0, 2.0),
+            std::nullopt);
+  // So cheap that every pixel gets one: the share stops at 1.
+  EXPECT_EQ(clean_caustic_share(split_caustic_run(0.03, 3.0, 1e-9, 0.001), 1.0, 2.0), 1.0);
+  // Nothing to clean: no caustic variance, or light paths that found nothing.
+  EXPECT_EQ(clean_caustic_share(demo, 0.0, 2.007), std::nullopt);
+  EXPECT_EQ(clean_caustic_share(split_caustic_run(0.03, 3.871, 0.0, 1.873), 3.405e-4, 2.007),
+            std::nullopt);
+}
+
 }  // namespace
 }  // namespace prism::client
