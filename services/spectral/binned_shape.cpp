@@ -99,19 +99,8 @@ int index_of(float lambda_nm, double scale, int n) {
 
 void BinnedShape::float_ranges(int n, double scale, std::vector<float>& first,
                                std::vector<float>& last) {
-  first.assign(std::size_t(n), kLambdaMax);
-  last.assign(std::size_t(n), kLambdaMin);
-  // Walk each edge's float neighbourhood: the first float of cell i is the smallest float whose
-  // index is i; cells are contiguous, so the last float of cell i − 1 is the float before it.
-  first[0] = kLambdaMin;
-  last[std::size_t(n) - 1] = kLambdaMax;
-  for (int i = 1; i < n; ++i) {
-    float edge = static_cast<float>(uniform_cell_lower(i, n));
-    while (index_of(edge, scale, n) >= i) edge = std::nextafter(edge, 0.0f);
-    while (index_of(edge, scale, n) < i) edge = std::nextafter(edge, kLambdaMax);
-    first[i] = edge;
-    last[i - 1] = std::nextafter(edge, 0.0f);
-  }
+  uniform_cell_floats(
+      n, [scale, n](float lambda) { return index_of(lambda, scale, n); }, first, last);
 }
 
 int BinnedShape::bin_of(float lambda_nm) const {

@@ -21,6 +21,23 @@ int uniform_cell_of(float lambda_nm, int n) {
   return std::min(c, n - 1);
 }
 
+void uniform_cell_floats(int n, absl::FunctionRef<int(float)> index, std::vector<float>& first,
+                         std::vector<float>& last) {
+  first.assign(std::size_t(n), kLambdaMax);
+  last.assign(std::size_t(n), kLambdaMin);
+  // Walk each edge's float neighbourhood: the first float of cell i is the smallest float whose
+  // index is i; cells are contiguous, so the last float of cell i − 1 is the float before it.
+  first[0] = kLambdaMin;
+  last[std::size_t(n) - 1] = kLambdaMax;
+  for (int i = 1; i < n; ++i) {
+    float edge = static_cast<float>(uniform_cell_lower(i, n));
+    while (index(edge) >= i) edge = std::nextafter(edge, 0.0f);
+    while (index(edge) < i) edge = std::nextafter(edge, kLambdaMax);
+    first[i] = edge;
+    last[i - 1] = std::nextafter(edge, 0.0f);
+  }
+}
+
 namespace {
 
 constexpr double kMin = kLambdaMin;
@@ -126,17 +143,8 @@ void cell_floats(int n, std::vector<double>& lower, std::vector<float>& first,
                  std::vector<float>& last) {
   lower.resize(std::size_t(n));
   for (int c = 0; c < n; ++c) lower[c] = cell_lower(c, n);
-  first.assign(std::size_t(n), kLambdaMax);
-  last.assign(std::size_t(n), kLambdaMin);
-  first[0] = kLambdaMin;
-  last[std::size_t(n) - 1] = kLambdaMax;
-  for (int i = 1; i < n; ++i) {
-    float edge = static_cast<float>(cell_lower(i, n));
-    while (cell_index(edge, n) >= i) edge = std::nextafter(edge, 0.0f);
-    while (cell_index(edge, n) < i) edge = std::nextafter(edge, kLambdaMax);
-    first[i] = edge;
-    last[i - 1] = std::nextafter(edge, 0.0f);
-  }
+  uniform_cell_floats(
+      n, [n](float lambda) { return cell_index(lambda, n); }, first, last);
   for (int c = 0; c < n; ++c) PRISM_CHECK(first[c] <= last[c]);
 }
 

@@ -16,6 +16,7 @@
 #include <span>
 #include <vector>
 
+#include "absl/functional/function_ref.h"
 #include "absl/status/statusor.h"
 #include "services/spectral/sampled.h"
 #include "services/spectral/spectrum.h"
@@ -28,6 +29,12 @@ namespace prism::spectral {
 // evaluation share, so they agree exactly).
 double uniform_cell_lower(int c, int n);
 int uniform_cell_of(float lambda_nm, int n);
+// The first and last float that `index` maps to each of n uniform cells, for a lookup `index`
+// that is non-decreasing in λ, maps Λ onto 0..n−1 and differs from uniform_cell_of at most by
+// rounding near the edges (so that each edge's float neighbourhood holds the change of cell).
+// Sampling settles a λ into its cell with one clamp to these.
+void uniform_cell_floats(int n, absl::FunctionRef<int(float)> index, std::vector<float>& first,
+                         std::vector<float>& last);
 
 struct WavelengthSample {
   float lambda = 0.0f;  // nm
