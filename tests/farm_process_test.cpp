@@ -535,6 +535,45 @@ TEST_F(FarmProcessTest, ATargetErrorJobMatchesPrismRenderAcrossACoordinatorResta
   EXPECT_EQ(section(cli_report)["spp"]["max"], 256);
 }
 
+// The README demo as a user submits it, with auto (the default) choosing in `prism submit` as in
+// `prism render`: its clean-caustics choice (hero with light-traced caustics at 1/64 of a light
+// path per pixel, tests/render_cli_test.cpp) goes into the job, whose whole-image tasks over two
+// worker processes give `prism render`'s bytes and the same auto section in the report.
+TEST_F(FarmProcessTest, TheDemoSubmittedWithAutoIsPrismRendersBytes) {
+  start_coordinator();
+  start_worker(0);
+  start_worker(1);
+  const std::string scene = (fs::path(PRISM_SOURCE_DIR) / "scenes/prism.pbrt").string();
+  const std::vector<std::string> job = {"--resolution", "160x120", "--spp", "64"};
+  std::vector<std::string> submit = testing::submit_command(
+      PRISM_BINARY, scene, "127.0.0.1:" + std::to_string(port_), testing::kApiToken,
+      {"--wait", "-o", (root_ / "farm" / "demo.exr").string()});
+  submit.insert(submit.end(), job.begin(), job.end());
+  fs::create_directories(root_ / "farm");
+  const testing::RunResult submitted = testing::run(submit);
+  ASSERT_EQ(submitted.exit_code, 0) << submitted.out << submitted.err;
+  std::vector<std::string> render = {"render", scene, "-o", (root_ / "cli" / "demo.exr").string()};
+  render.insert(render.end(), job.begin(), job.end());
+  fs::create_directories(root_ / "cli");
+  run_prism(render);
+  expect_identical(read_pixels(root_ / "farm" / "demo.exr"),
+                   read_pixels(root_ / "cli" / "demo.exr"));
+  auto report = [&](const char* dir) {
+    std::ifstream in(root_ / dir / "demo.json");
+    return nlohmann::json::parse(
+        std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>()),
+        nullptr, false);
+  };
+  const nlohmann::json farm = report("farm"), cli = report("cli");
+  ASSERT_FALSE(farm.is_discarded());
+  ASSERT_FALSE(cli.is_discarded());
+  EXPECT_EQ(cli["auto"]["choice"], "hero+caustics") << cli["auto"].dump();
+  EXPECT_EQ(cli["caustic_paths"], 0.015625) << cli.dump();
+  EXPECT_EQ(farm["auto"]["choice"], cli["auto"]["choice"]) << farm.dump();
+  EXPECT_EQ(farm["auto"]["reason"], cli["auto"]["reason"]);
+  EXPECT_EQ(farm["caustic_paths"], cli["caustic_paths"]);
+}
+
 // Tasks of tile x sample range: each tile's four ranges ([0,5), [5,10), [10,15), [15,16)) come
 // back from either worker in any order and are added in range order.
 TEST_F(FarmProcessTest, SampleRangeTasksMatchPrismRenderByteForByte) {
