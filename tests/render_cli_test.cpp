@@ -70,6 +70,13 @@ std::vector<float> spectral_pixels(const fs::path& path, std::vector<double>* wa
   return {exr->spectral.data().begin(), exr->spectral.data().end()};
 }
 
+// `first`'s arguments followed by `then`'s.
+std::vector<std::string> joined(std::vector<std::string> first,
+                                const std::vector<std::string>& then) {
+  first.insert(first.end(), then.begin(), then.end());
+  return first;
+}
+
 bool same_bits(const std::vector<float>& a, const std::vector<float>& b) {
   return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0;
 }
@@ -496,11 +503,7 @@ TEST(RenderCliTest, AutoRendersTheDemosCausticByLightTracing) {
   const fs::path dir = fresh_dir("auto_clean_caustics");
   const std::vector<std::string> common = {
       "render", source("scenes/prism.pbrt"), "--resolution", "160x120", "--spp", "64"};
-  auto with = [&](std::vector<std::string> extra) {
-    std::vector<std::string> args = common;
-    args.insert(args.end(), extra.begin(), extra.end());
-    return args;
-  };
+  auto with = [&](const std::vector<std::string>& extra) { return joined(common, extra); };
   CommandRun run = run_prism(dir, with({"-o", "auto.exr"}));
   ASSERT_EQ(run.exit_code, 0) << run.output;
   auto report = nlohmann::json::parse(*prism::base::read_file(dir / "auto.json"));
@@ -536,11 +539,7 @@ TEST(RenderCliTest, AutoRunsThePrepassForHeroUnderSeveralEmitterSpectra) {
   const fs::path dir = fresh_dir("auto_prepass");
   const std::vector<std::string> common = {
       "render", source("scenes/boxes.pbrt"), "--resolution", "64x36", "--spp", "256"};
-  auto with = [&](std::vector<std::string> extra) {
-    std::vector<std::string> args = common;
-    args.insert(args.end(), extra.begin(), extra.end());
-    return args;
-  };
+  auto with = [&](const std::vector<std::string>& extra) { return joined(common, extra); };
   CommandRun automatic = run_prism(dir, with({"-o", "auto.exr"}));
   ASSERT_EQ(automatic.exit_code, 0) << automatic.output;
   auto report = nlohmann::json::parse(*prism::base::read_file(dir / "auto.json"));
