@@ -184,14 +184,27 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   if (!dependence.dispersive_materials.empty()) candidates.push_back("uniform");
   if (caustics) candidates.push_back(kHeroWithLightCaustics);
   // Hero with several emitter spectra runs the prepass, whose first pass decides whether
-  // per-pixel tables pay (coordinator/prepass_run.h) and otherwise stops.
+  // per-pixel tables pay (coordinator/prepass_run.h) and otherwise stops. Whether it does (not
+  // with --no-prepass or a target error, nor where the job's spp leaves it no budget), asked
+  // once: by clean caustics below, and by finish.
+  std::optional<bool> hero_prepass;
+  auto hero_runs_prepass = [&]() -> absl::StatusOr<bool> {
+    if (!hero_prepass.has_value()) {
+      hero_prepass = false;
+      if (dependence.emitter_spectra.size() > 1 && options.prepass != false &&
+          !options.target_error.has_value()) {
+        RenderCommandOptions with_prepass = chosen;
+        with_prepass.integrator = "hero";
+        with_prepass.prepass = true;
+        PRISM_ASSIGN_OR_RETURN(hero_prepass,
+                               prepass_runs(with_prepass, description, bundle_hash, scene_relpath));
+      }
+    }
+    return *hero_prepass;
+  };
   auto finish = [&]() -> absl::StatusOr<ResolvedIntegrator> {
-    if (report.choice == "hero" && dependence.emitter_spectra.size() > 1 &&
-        options.prepass != false && !options.target_error.has_value()) {
-      RenderCommandOptions with_prepass = chosen;
-      with_prepass.prepass = true;
-      PRISM_ASSIGN_OR_RETURN(const bool runs,
-                             prepass_runs(with_prepass, description, bundle_hash, scene_relpath));
+    if (report.choice == "hero") {
+      PRISM_ASSIGN_OR_RETURN(const bool runs, hero_runs_prepass());
       if (runs) {
         chosen.prepass = true;
         report.choice = kHeroWithPrepass;
@@ -442,18 +455,13 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   // renders them kCleanCausticGain times cleaner, where that costs at most kCleanCausticRays.
   // Not where hero would run the prepass (several emitter spectra, see finish): light-traced
   // caustics are not combined with it, and the prepass's gain is on the whole image.
-  bool hero_runs_prepass = false;
-  if (best == 0 && dependence.emitter_spectra.size() > 1 && options.prepass != false &&
-      !options.target_error.has_value()) {
-    RenderCommandOptions with_prepass = chosen;
-    with_prepass.integrator = "hero";
-    with_prepass.prepass = true;
-    PRISM_ASSIGN_OR_RETURN(hero_runs_prepass,
-                           prepass_runs(with_prepass, description, bundle_hash, scene_relpath));
+  bool prepass_instead = false;
+  if (best == 0) {
+    PRISM_ASSIGN_OR_RETURN(prepass_instead, hero_runs_prepass());
   }
   std::string clean_note;
   if (clean_share.has_value() && full_paths.has_value() && (best == 0 || best == *full_paths) &&
-      !hero_runs_prepass && *clean_share > caustic_paths) {
+      !prepass_instead && *clean_share > caustic_paths) {
     const bool was_hero = best == 0;
     best = *full_paths;
     caustic_paths = *clean_share;
@@ -479,13 +487,9 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   report.reason = best == 0 ? absl::StrCat("no candidate was predicted at least ",
                                            static_cast<int>(100 * kAutoMinimumGain),
                                            " % better than hero at equal time")
-                  : !clean_note.empty()
-                      ? absl::StrFormat(
-                            "clean caustics: predicted %.2f of hero's relMSE at equal "
-                            "time",
-                            report.candidates[best].relative_efficiency)
-                      : absl::StrFormat("predicted %.2f of hero's relMSE at equal time",
-                                        report.candidates[best].relative_efficiency);
+                            : absl::StrFormat("%spredicted %.2f of hero's relMSE at equal time",
+                                              clean_note.empty() ? "" : "clean caustics: ",
+                                              report.candidates[best].relative_efficiency);
   if (candidates[best] == kHeroWithLightCaustics && caustic_paths < 1.0) {
     absl::StrAppend(&report.reason,
                     absl::StrFormat(" with %g light paths per pixel and sample", caustic_paths));
