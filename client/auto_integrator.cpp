@@ -275,9 +275,21 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
                            coordinator::LocalRender::create(device, description, library, local));
     return render->render();
   };
+  // Gradient's τ pilot on the job as gradient would render it (`chosen` with gradient), so its
+  // pilot renders trace at the job's τ and, where it is chosen, the job reuses it.
+  if (gradient) {
+    RenderCommandOptions g = chosen;
+    g.integrator = "gradient";
+    PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec,
+                           job_spec_of(g, description, bundle_hash, scene_relpath));
+    PRISM_ASSIGN_OR_RETURN(const std::optional<double> seconds,
+                           choose_tau(g, device, description, library, spec));
+    out.tau_pilot = TauPilotRun{std::move(spec), seconds.value_or(0.0)};
+  }
   for (const std::string& method : runs) {
     RenderCommandOptions o = probe;
     o.integrator = method;
+    if (method == "gradient") o.tau = out.tau_pilot->spec.gradient().tau();
     if (method == kHeroWithLightCaustics) {
       o.integrator = "hero";
       o.caustics = "light";

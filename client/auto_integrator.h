@@ -62,6 +62,11 @@
 // sixteenth) halved the spread of the predictions on the single-emitter rooms. With the τ pilot
 // and a scene build per render it costs 7–9 % of a 3-second job, less of longer ones.
 //
+// Gradient's τ pilot (worker/gradient/pilot.h) runs once, on the job as gradient would render it
+// (32768 samples whatever the film: on the pool at 3 s about 0.12 s, as much as the candidates'
+// renders together). The gradient candidate's pilot renders trace at that τ, the one the job
+// would use, and a gradient job reuses it (choose_or_reuse_tau) instead of running its own.
+//
 // Where hero is the only candidate no pilot runs.
 //
 // Clean caustics. The error auto ranks by (relMSE over spectral bins) and the RGB image a user
@@ -149,6 +154,10 @@ std::optional<double> clean_caustic_share(const CausticSplit& split, double caus
 struct ResolvedIntegrator {
   RenderCommandOptions options;           // with an explicit integrator and prepass
   std::optional<job::AutoReport> report;  // set when `auto` chose
+  // Gradient's τ pilot, run on the job as gradient would render it where gradient was a
+  // candidate: its renders trace at the job's τ, and a gradient job reuses it
+  // (choose_or_reuse_tau) rather than run it twice.
+  std::optional<TauPilotRun> tau_pilot;
 };
 
 // `options` as given when its integrator is explicit; otherwise the choice above.

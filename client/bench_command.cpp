@@ -210,7 +210,8 @@ absl::StatusOr<Timed> timed_method(worker::EmbreeDevice& device,
   const bool piloted =
       prepared.pilot_seconds.has_value() || prepared.auto_pilot_seconds.has_value();
   return Timed{std::move(timed.result),
-               timed.wall_seconds + prepared.pilot_seconds.value_or(0.0) +
+               timed.wall_seconds +
+                   (prepared.tau_pilot_in_auto ? 0.0 : prepared.pilot_seconds.value_or(0.0)) +
                    prepared.auto_pilot_seconds.value_or(0.0),
                timed.cpu_seconds + (piloted ? prepare_cpu : 0.0),
                absl::StrCat(job::name(prepared.job.render.integrator),

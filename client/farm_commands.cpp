@@ -386,8 +386,9 @@ absl::StatusOr<Submission> prepare_submission(const SubmitOptions& options) {
   if (spec.integrator() == v1::INTEGRATOR_GRADIENT && !resolved.options.tau.has_value()) {
     // The pilot runs here, so the job carries its τ and every worker traces with it.
     if (!device.has_value()) device.emplace();
-    PRISM_RETURN_IF_ERROR(
-        choose_tau(resolved.options, *device, loaded.description, library, spec).status());
+    PRISM_RETURN_IF_ERROR(choose_or_reuse_tau(resolved.options, resolved.tau_pilot, *device,
+                                              loaded.description, library, spec)
+                              .status());
   }
   *out.request.mutable_spec() = spec;
   if (options.client_token.empty()) {

@@ -187,6 +187,64 @@ TEST_F(FarmCommandsTest, AGradientSubmitCarriesThePilotsTau) {
   EXPECT_FALSE(given_spec->gradient().has_tau_pilot());
 }
 
+// `auto` runs gradient's τ pilot for its own pilot; a gradient job reuses it when it is a pilot
+// of the very same job (same τ, same figures, its seconds) and runs its own otherwise.
+TEST_F(FarmCommandsTest, ATauPilotIsReusedOnlyForTheSameJob) {
+  RenderCommandOptions options = submit_options(nullptr).render;
+  options.integrator = "gradient";
+  options.gradient_lanes = 1;
+  options.spp = 4;
+  options.threads = 1;
+  auto library = spectral::SpectrumLibrary::load_builtin();
+  ASSERT_TRUE(library.ok());
+  auto loaded = scene::load_scene(options.scene, {});
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  const std::string hash(64, '0');
+  worker::EmbreeDevice device;
+  auto spec_of = [&](const RenderCommandOptions& o) {
+    auto spec = job_spec_of(o, loaded->description, hash, "scene.pbrt");
+    EXPECT_TRUE(spec.ok()) << spec.status();
+    return *spec;
+  };
+  v1::JobSpec piloted = spec_of(options);
+  auto seconds = choose_tau(options, device, loaded->description, *library, piloted);
+  ASSERT_TRUE(seconds.ok()) << seconds.status();
+  ASSERT_TRUE(seconds->has_value());
+  const std::optional<TauPilotRun> ran = TauPilotRun{piloted, 123.0};
+
+  v1::JobSpec same = spec_of(options);
+  auto reused = choose_or_reuse_tau(options, ran, device, loaded->description, *library, same);
+  ASSERT_TRUE(reused.ok()) << reused.status();
+  EXPECT_TRUE(reused->reused);
+  EXPECT_EQ(reused->seconds, 123.0);
+  EXPECT_EQ(same.SerializeAsString(), piloted.SerializeAsString());
+
+  // Another job (twice the spp) runs its own pilot, whose figures are its own.
+  RenderCommandOptions other_options = options;
+  other_options.spp = 8;
+  v1::JobSpec other = spec_of(other_options);
+  auto own = choose_or_reuse_tau(other_options, ran, device, loaded->description, *library, other);
+  ASSERT_TRUE(own.ok()) << own.status();
+  EXPECT_FALSE(own->reused);
+  ASSERT_TRUE(own->seconds.has_value());
+  EXPECT_NE(*own->seconds, 123.0);
+  v1::JobSpec expected = spec_of(other_options);
+  ASSERT_TRUE(choose_tau(other_options, device, loaded->description, *library, expected).ok());
+  EXPECT_EQ(other.gradient().tau(), expected.gradient().tau());
+  EXPECT_EQ(other.gradient().tau_pilot().SerializeAsString(),
+            expected.gradient().tau_pilot().SerializeAsString());
+
+  // A τ given runs no pilot and reuses none.
+  RenderCommandOptions given_options = options;
+  given_options.tau = 0.25;
+  v1::JobSpec given = spec_of(given_options);
+  auto none = choose_or_reuse_tau(given_options, ran, device, loaded->description, *library, given);
+  ASSERT_TRUE(none.ok()) << none.status();
+  EXPECT_FALSE(none->reused);
+  EXPECT_FALSE(none->seconds.has_value());
+  EXPECT_EQ(given.gradient().tau(), 0.25f);
+}
+
 // No worker, so nothing changes for longer than the per-message deadline: the watch probes the
 // coordinator instead of failing, and ends with the cancellation's error.
 TEST_F(FarmCommandsTest, WatchOutlivesQuietPeriodsAndFailsOnCancel) {

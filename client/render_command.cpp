@@ -15,6 +15,7 @@
 #include "coordinator/poisson.h"
 #include "coordinator/prepass.h"
 #include "coordinator/resource_plan.h"
+#include "google/protobuf/util/message_differencer.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
 #include "services/job/job_spec.h"
@@ -362,6 +363,31 @@ absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& o,
   return pilot.seconds;
 }
 
+absl::StatusOr<TauChoice> choose_or_reuse_tau(const RenderCommandOptions& o,
+                                              const std::optional<TauPilotRun>& ran,
+                                              worker::EmbreeDevice& device,
+                                              const scene::SceneDescription& description,
+                                              const spectral::SpectrumLibrary& library,
+                                              v1::JobSpec& spec) {
+  if (ran.has_value() && spec.integrator() == v1::INTEGRATOR_GRADIENT && !o.tau.has_value()) {
+    auto without_tau = [](v1::JobSpec s) {
+      s.mutable_gradient()->clear_tau();
+      s.mutable_gradient()->clear_tau_pilot();
+      s.clear_auto_choice();
+      return s;
+    };
+    if (google::protobuf::util::MessageDifferencer::Equals(without_tau(spec),
+                                                           without_tau(ran->spec))) {
+      spec.mutable_gradient()->set_tau(ran->spec.gradient().tau());
+      *spec.mutable_gradient()->mutable_tau_pilot() = ran->spec.gradient().tau_pilot();
+      return TauChoice{ran->seconds, true};
+    }
+  }
+  PRISM_ASSIGN_OR_RETURN(std::optional<double> seconds,
+                         choose_tau(o, device, description, library, spec));
+  return TauChoice{seconds, false};
+}
+
 absl::StatusOr<v1::JobSpec> job_spec_of(const RenderCommandOptions& o,
                                         const scene::SceneDescription& description,
                                         const std::string& bundle_hash,
@@ -458,8 +484,11 @@ absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& option
     set_auto_choice(*resolved.report, prepared.spec);
     prepared.auto_pilot_seconds = resolved.report->seconds;
   }
-  PRISM_ASSIGN_OR_RETURN(prepared.pilot_seconds,
-                         choose_tau(o, device, description, library, prepared.spec));
+  PRISM_ASSIGN_OR_RETURN(
+      const TauChoice tau,
+      choose_or_reuse_tau(o, resolved.tau_pilot, device, description, library, prepared.spec));
+  prepared.pilot_seconds = tau.seconds;
+  prepared.tau_pilot_in_auto = tau.reused;
   PRISM_ASSIGN_OR_RETURN(prepared.job, job::job_parameters(prepared.spec, description));
   const job::JobParameters& job = prepared.job;
   coordinator::LocalRenderOptions& local = prepared.local;

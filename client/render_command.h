@@ -138,6 +138,28 @@ absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& opt
                                                  const spectral::SpectrumLibrary& library,
                                                  prism::v1::JobSpec& spec);
 
+// A τ pilot already run (by `auto`, which needs gradient's τ for its own pilot): the gradient
+// job's spec as choose_tau left it, and the pilot's wall seconds.
+struct TauPilotRun {
+  prism::v1::JobSpec spec;
+  double seconds = 0;
+};
+
+// choose_tau for `spec`, unless `ran` is a pilot of the same job (its spec equal to `spec` but
+// for τ, the pilot's figures and the auto choice): then its τ and figures are copied, and the
+// same bytes follow without running the pilot again. The pilot's seconds as choose_tau gives
+// them (those of `ran` when reused).
+struct TauChoice {
+  std::optional<double> seconds;
+  bool reused = false;
+};
+absl::StatusOr<TauChoice> choose_or_reuse_tau(const RenderCommandOptions& options,
+                                              const std::optional<TauPilotRun>& ran,
+                                              worker::EmbreeDevice& device,
+                                              const scene::SceneDescription& description,
+                                              const spectral::SpectrumLibrary& library,
+                                              prism::v1::JobSpec& spec);
+
 // The embedded render of a job, ready to run: the spec, its parameters (every default filled),
 // LocalRender's options and the τ pilot's wall seconds when one ran.
 struct PreparedRender {
@@ -146,6 +168,7 @@ struct PreparedRender {
   coordinator::LocalRenderOptions local;
   std::optional<double> pilot_seconds;       // the τ pilot's
   std::optional<double> auto_pilot_seconds;  // `--integrator auto`'s (auto_integrator.h)
+  bool tau_pilot_in_auto = false;            // pilot_seconds are part of auto_pilot_seconds
 };
 
 // What run_render does before rendering, for callers that run many renders of one loaded scene

@@ -424,6 +424,34 @@ Shape "sphere" "float radius" 0.7
       << prepass.output;
 }
 
+// Where gradient is a candidate, auto runs its τ pilot on the job itself (its pilot renders trace
+// at the job's τ), and a gradient choice reuses it: the job's τ and the pilot's figures are
+// `--integrator gradient`'s, as are the bytes, and the τ pilot's seconds are part of auto's. The
+// pool (waves and a window, every path through three dispersive interfaces) is where the pilot
+// predicts gradient at a fraction of hero's error (docs/benchmarks.md).
+TEST(RenderCliTest, AutoChoosingGradientReusesItsTauPilot) {
+  const fs::path dir = fresh_dir("auto_gradient_tau");
+  const std::vector<std::string> common = {
+      "render", source("scenes/pool.pbrt"), "--resolution", "64x48", "--spp", "32", "--seed", "1"};
+  CommandRun automatic = run_prism(dir, joined(common, {"-o", "auto.exr"}));
+  ASSERT_EQ(automatic.exit_code, 0) << automatic.output;
+  CommandRun gradient =
+      run_prism(dir, joined(common, {"--integrator", "gradient", "-o", "gradient.exr"}));
+  ASSERT_EQ(gradient.exit_code, 0) << gradient.output;
+  auto a = nlohmann::json::parse(*prism::base::read_file(dir / "auto.json"));
+  auto g = nlohmann::json::parse(*prism::base::read_file(dir / "gradient.json"));
+  ASSERT_EQ(a["auto"]["choice"], "gradient") << a["auto"].dump();
+  ASSERT_TRUE(a["gradient"].contains("tau_pilot")) << a["gradient"].dump();
+  nlohmann::json auto_pilot = a["gradient"]["tau_pilot"], own_pilot = g["gradient"]["tau_pilot"];
+  EXPECT_LE(auto_pilot["seconds"].get<double>(), a["auto"]["pilot_seconds"].get<double>());
+  auto_pilot.erase("seconds");
+  own_pilot.erase("seconds");
+  EXPECT_EQ(auto_pilot, own_pilot);
+  EXPECT_EQ(a["gradient"]["tau"], g["gradient"]["tau"]);
+  EXPECT_EQ(*prism::base::read_file(dir / "auto.exr"),
+            *prism::base::read_file(dir / "gradient.exr"));
+}
+
 // The Cornell box with two lamps can be light traced but every surface in it is diffuse: no
 // caustic path, so no hero+caustics candidate (its pilot runs would be hero's, costed twice); no
 // dispersive glass, so no uniform and no gradient (which would render hero's image). Hero is left
