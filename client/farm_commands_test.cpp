@@ -204,30 +204,33 @@ TEST_F(FarmCommandsTest, ATauPilotIsReusedOnlyForTheSameJob) {
   auto spec_of = [&](const RenderCommandOptions& o) {
     auto spec = job_spec_of(o, loaded->description, hash, "scene.pbrt");
     EXPECT_TRUE(spec.ok()) << spec.status();
-    return *spec;
+    return spec.value_or(v1::JobSpec{});
   };
   v1::JobSpec piloted = spec_of(options);
   auto seconds = choose_tau(options, device, loaded->description, *library, piloted);
   ASSERT_TRUE(seconds.ok()) << seconds.status();
   ASSERT_TRUE(seconds->has_value());
   const std::optional<TauPilotRun> ran = TauPilotRun{piloted, 123.0};
+  // The job `o` describes, its τ chosen or reused from `ran`.
+  auto with_tau = [&](const RenderCommandOptions& o) {
+    v1::JobSpec spec = spec_of(o);
+    auto choice = choose_or_reuse_tau(o, ran, device, loaded->description, *library, spec);
+    EXPECT_TRUE(choice.ok()) << choice.status();
+    return std::make_pair(spec, choice.value_or(TauChoice{}));
+  };
 
-  v1::JobSpec same = spec_of(options);
-  auto reused = choose_or_reuse_tau(options, ran, device, loaded->description, *library, same);
-  ASSERT_TRUE(reused.ok()) << reused.status();
-  EXPECT_TRUE(reused->reused);
-  EXPECT_EQ(reused->seconds, 123.0);
+  auto [same, reused] = with_tau(options);
+  EXPECT_TRUE(reused.reused);
+  EXPECT_EQ(reused.seconds, 123.0);
   EXPECT_EQ(same.SerializeAsString(), piloted.SerializeAsString());
 
   // Another job (twice the spp) runs its own pilot, whose figures are its own.
   RenderCommandOptions other_options = options;
   other_options.spp = 8;
-  v1::JobSpec other = spec_of(other_options);
-  auto own = choose_or_reuse_tau(other_options, ran, device, loaded->description, *library, other);
-  ASSERT_TRUE(own.ok()) << own.status();
-  EXPECT_FALSE(own->reused);
-  ASSERT_TRUE(own->seconds.has_value());
-  EXPECT_NE(*own->seconds, 123.0);
+  auto [other, own] = with_tau(other_options);
+  EXPECT_FALSE(own.reused);
+  ASSERT_TRUE(own.seconds.has_value());
+  EXPECT_NE(*own.seconds, 123.0);
   v1::JobSpec expected = spec_of(other_options);
   ASSERT_TRUE(choose_tau(other_options, device, loaded->description, *library, expected).ok());
   EXPECT_EQ(other.gradient().tau(), expected.gradient().tau());
@@ -237,11 +240,9 @@ TEST_F(FarmCommandsTest, ATauPilotIsReusedOnlyForTheSameJob) {
   // A τ given runs no pilot and reuses none.
   RenderCommandOptions given_options = options;
   given_options.tau = 0.25;
-  v1::JobSpec given = spec_of(given_options);
-  auto none = choose_or_reuse_tau(given_options, ran, device, loaded->description, *library, given);
-  ASSERT_TRUE(none.ok()) << none.status();
-  EXPECT_FALSE(none->reused);
-  EXPECT_FALSE(none->seconds.has_value());
+  auto [given, none] = with_tau(given_options);
+  EXPECT_FALSE(none.reused);
+  EXPECT_FALSE(none.seconds.has_value());
   EXPECT_EQ(given.gradient().tau(), 0.25f);
 }
 
