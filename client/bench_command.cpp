@@ -74,6 +74,9 @@ std::string number(double v) {
 struct Cell {
   std::uint64_t spp = 0;
   double seconds = 0, mse = 0, rel_mse = 0, ssim = 0;
+  // The seeds' lowest and highest relMSE: their ratio is how far two renders of one method
+  // apart can land, the noise a comparison of means sits in.
+  double rel_mse_low = 0, rel_mse_high = 0;
   int count = 0;
   std::string ran;  // the method that ran, when it is not the method's name (auto's choice)
 };
@@ -124,6 +127,8 @@ Grouped group(const std::vector<BenchRow>& rows) {
     c.seconds += r.seconds;
     c.mse += r.metrics.mse;
     c.rel_mse += r.metrics.rel_mse;
+    c.rel_mse_low = c.count == 0 ? r.metrics.rel_mse : std::min(c.rel_mse_low, r.metrics.rel_mse);
+    c.rel_mse_high = c.count == 0 ? r.metrics.rel_mse : std::max(c.rel_mse_high, r.metrics.rel_mse);
     c.ssim += r.metrics.ssim;
     ++c.count;
   }
@@ -304,7 +309,9 @@ absl::StatusOr<Timed> farm_method(const FarmConnection& farm, const fs::path& sc
 
 // With `auto` and other methods among the rows: per scene, region and budget, auto's relMSE over
 // the lowest of the other methods' at auto's own seconds (each curve interpolated as for the
-// baseline), and which method that was. Empty otherwise.
+// baseline), which method that was, and the seeds' spread: the larger of auto's and that
+// method's highest over lowest relMSE among their seeds at the budget ("–" with one seed), the
+// noise the ratio of their means sits in. Empty otherwise.
 std::string auto_against_best(const Grouped& g) {
   if (std::find(g.methods.begin(), g.methods.end(), "auto") == g.methods.end() ||
       g.methods.size() < 2) {
@@ -312,7 +319,13 @@ std::string auto_against_best(const Grouped& g) {
   }
   std::string out =
       "\n## auto against the best of the others at equal time\n\n"
-      "| scene | region | budget | auto ran | auto ÷ best | best |\n|---|---|---|---|---|---|\n";
+      "| scene | region | budget | auto ran | auto ÷ best | best | seeds' spread |\n"
+      "|---|---|---|---|---|---|---|\n";
+  auto spread = [](const Cell* c) {
+    return c != nullptr && c->count > 1 && c->rel_mse_low > 0
+               ? std::optional<double>(c->rel_mse_high / c->rel_mse_low)
+               : std::nullopt;
+  };
   for (const std::string& scene : g.scenes) {
     for (const std::string& region : g.regions) {
       for (const std::string& b : g.budgets) {
@@ -333,10 +346,16 @@ std::string auto_against_best(const Grouped& g) {
           }
         }
         if (!best.has_value()) continue;
-        absl::StrAppend(&out, "| ", scene, " | ", region == "image" ? "whole image" : region, " | ",
-                        b, " | ", a->ran.empty() ? "auto" : a->ran, " | ",
-                        absl::StrFormat("%.3f", a->rel_mse / *best),
-                        extrapolated ? " (extrapolated)" : "", " | ", best_method, " |\n");
+        const std::optional<double> s_auto = spread(a),
+                                    s_best = spread(g.find(scene, region, best_method, b));
+        const std::string seeds =
+            s_auto.has_value() || s_best.has_value()
+                ? absl::StrFormat("%.2f", std::max(s_auto.value_or(1.0), s_best.value_or(1.0)))
+                : "–";
+        absl::StrAppend(
+            &out, "| ", scene, " | ", region == "image" ? "whole image" : region, " | ", b, " | ",
+            a->ran.empty() ? "auto" : a->ran, " | ", absl::StrFormat("%.3f", a->rel_mse / *best),
+            extrapolated ? " (extrapolated)" : "", " | ", best_method, " | ", seeds, " |\n");
       }
     }
   }

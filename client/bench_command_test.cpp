@@ -122,9 +122,15 @@ TEST(BenchCommandTest, ReportGivesEqualTimeRatiosAgainstTheBaseline) {
   std::vector<BenchRow> all = rows;
   all.push_back(chose);
   const std::string against = bench_report(all, "hero", "");
-  EXPECT_NE(against.find("| box | whole image | a | gradient | 0.800 | gradient |"),
+  // The seeds' spread: gradient's two seeds at budget a are 0.02 and 0.03 (auto has one).
+  EXPECT_NE(against.find("| box | whole image | a | gradient | 0.800 | gradient | 1.50 |"),
             std::string::npos)
       << against;
+  // With one seed on both sides there is no spread to give.
+  const std::string single = bench_report({rows[0], rows[1], chose}, "hero", "");
+  EXPECT_NE(single.find("| box | whole image | a | gradient | 0.400 | hero | – |"),
+            std::string::npos)
+      << single;
   EXPECT_EQ(bench_report(rows, "hero", "").find("auto against the best"), std::string::npos);
   const std::string without = bench_report(rows, "uniform", "");
   EXPECT_NE(without.find("'uniform' was not among the methods"), std::string::npos);
