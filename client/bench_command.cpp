@@ -898,19 +898,38 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       floors.push_back(floor);
     }
 
-    // ---- The methods.
-    for (const std::string& method : methods) {
-      PRISM_ASSIGN_OR_RETURN(RenderCommandOptions mo, method_options(method, scene_base));
+    // ---- The methods, interleaved: each budget and seed renders every method in turn, so that
+    // the clock's drift over the minutes a scene takes falls on every method alike instead of on
+    // whichever ran last (on the 2-core VM a render's CPU time wanders by 10 % within minutes,
+    // docs/benchmarks.md). The calibrations run first; a method's spp for a budget is found by
+    // its seed 1 and kept for the other seeds.
+    struct MethodRun {
+      std::string name;
+      RenderCommandOptions options;
       CostModel cost;
+      std::uint64_t spp = 0;
+    };
+    std::vector<MethodRun> runs;
+    for (const std::string& method : methods) {
+      MethodRun r;
+      r.name = method;
+      PRISM_ASSIGN_OR_RETURN(r.options, method_options(method, scene_base));
       if (by_time) {
-        PRISM_ASSIGN_OR_RETURN(cost, calibrate(mo));
+        PRISM_ASSIGN_OR_RETURN(r.cost, calibrate(r.options));
       }
-      const std::size_t count = by_time ? budgets.size() : spps.size();
-      for (std::size_t bi = 0; bi < count; ++bi) {
-        const std::string budget =
-            by_time ? absl::StrCat(number(budgets[bi]), "s") : absl::StrCat(spps[bi], "spp");
-        std::uint64_t spp = by_time ? cost.spp_for(budgets[bi]) : spps[bi];
-        for (int seed = 1; seed <= options.seeds; ++seed) {
+      runs.push_back(std::move(r));
+    }
+    const std::size_t count = by_time ? budgets.size() : spps.size();
+    for (std::size_t bi = 0; bi < count; ++bi) {
+      const std::string budget =
+          by_time ? absl::StrCat(number(budgets[bi]), "s") : absl::StrCat(spps[bi], "spp");
+      for (int seed = 1; seed <= options.seeds; ++seed) {
+        for (MethodRun& run : runs) {
+          const std::string& method = run.name;
+          const RenderCommandOptions& mo = run.options;
+          CostModel& cost = run.cost;
+          std::uint64_t& spp = run.spp;
+          if (seed == 1) spp = by_time ? cost.spp_for(budgets[bi]) : spps[bi];
           RenderCommandOptions o = mo;
           o.seed = static_cast<std::uint64_t>(seed);
           o.spp = static_cast<std::int64_t>(spp);

@@ -943,6 +943,22 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
   EXPECT_EQ(methods,
             (std::set<std::string>{"uniform", "hero", "hero+prepass", "gradient", "auto"}));
   EXPECT_EQ(regions, (std::set<std::string>{"image", "4,4,8,8"}));
+  // The methods take turns: each budget and seed renders every method, in --methods order,
+  // before the next seed (so a drifting clock falls on all of them alike).
+  const std::vector<std::string> order = {"uniform", "hero", "hero+prepass", "gradient", "auto"};
+  std::vector<std::string> ran, expected;
+  for (std::size_t i = 1; i < rows.size(); ++i) {
+    if (rows[i][column("region")] != "image") continue;
+    ran.push_back(absl::StrCat(rows[i][column("budget")], " ", rows[i][column("seed")], " ",
+                               rows[i][column("method")]));
+  }
+  for (const char* budget : {"2spp", "4spp"}) {
+    for (const char* seed : {"1", "2"}) {
+      for (const std::string& m : order)
+        expected.push_back(absl::StrCat(budget, " ", seed, " ", m));
+    }
+  }
+  EXPECT_EQ(ran, expected);
   auto report = prism::base::read_file(dir / "out" / "report.md");
   ASSERT_TRUE(report.ok());
   EXPECT_NE(report->find("## three-emitters: whole image"), std::string::npos) << *report;
