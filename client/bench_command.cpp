@@ -900,7 +900,7 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
 
     // ---- The methods, interleaved: each budget and seed renders every method in turn, so that
     // the clock's drift over the minutes a scene takes falls on every method alike instead of on
-    // whichever ran last (on the 2-core VM a render's CPU time wanders by 10 % within minutes,
+    // whichever ran last (on the 2-core VM a render's CPU time wandered by 12 % within a minute,
     // docs/benchmarks.md). The calibrations run first; a method's spp for a budget is found by
     // its seed 1 and kept for the other seeds.
     struct MethodRun {
