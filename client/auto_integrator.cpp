@@ -43,17 +43,6 @@ absl::StatusOr<bool> prepass_runs(const RenderCommandOptions& options,
 
 }  // namespace
 
-CausticSplit split_caustic_run(double variance_full, double rays_full, double light_variance,
-                               double light_rays) {
-  CausticSplit split;
-  // variance(1) = eye + light and rays(1) = eye_rays + light_rays: the eye part is the rest.
-  split.light_variance = std::max(0.0, light_variance);
-  split.eye_variance = std::max(0.0, variance_full - split.light_variance);
-  split.light_rays = std::max(0.0, light_rays);
-  split.eye_rays = std::max(0.0, rays_full - split.light_rays);
-  return split;
-}
-
 std::optional<double> clean_caustic_share(const CausticSplit& split, double caustic_variance,
                                           double hero_rays) {
   if (!(split.light_variance > 0) || !(split.light_rays > 0) || !(caustic_variance > 0) ||
@@ -158,10 +147,9 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     return coordinator::LocalRender::create(device, description, library, prepared.local);
   };
   // Hero with light-traced caustics where --caustics was not given, the scene allows light
-  // tracing and has a shape that can scatter as a delta (else it has no caustic path). It is
-  // rendered with a light path per pixel and sample; the probe's light-only renders split its
-  // variance and rays into the eye paths' and the light paths' parts, and so give the share of
-  // light paths it is judged (and run) at.
+  // tracing and has a shape that can scatter as a delta (else it has no caustic path). Its eye
+  // paths are rendered alone, and the probe's light-only renders give its light paths' part, so
+  // the share of light paths it is judged (and run) at.
   bool caustics = false;
   std::unique_ptr<coordinator::LocalRender> built;
   if (options.caustics.empty()) {
@@ -256,8 +244,8 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   std::vector<Measured> measured;
   std::vector<double> image_sum;
   std::vector<std::string> runs = candidates;
-  // Every pilot render: `o` at the pilot's size and spp, one seed, and for the caustic probe
-  // (hero with --caustics light) what it renders of the light paths.
+  // Every pilot render: `o` at the pilot's size and spp, one seed, and for hero with --caustics
+  // light which of its paths it renders (all, its eye paths alone, or the probe's light paths).
   using Probe = job::RenderOptions::CausticProbe;
   auto prepare_pilot = [&](RenderCommandOptions o) -> absl::StatusOr<PreparedRender> {
     o.resolution = absl::StrCat(width, "x", height);
@@ -290,10 +278,13 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     RenderCommandOptions o = probe;
     o.integrator = method;
     if (method == "gradient") o.tau = out.tau_pilot->spec.gradient().tau();
+    // hero+caustics: its eye paths alone (the probe below renders its light paths).
+    Probe kind = Probe::kOff;
     if (method == kHeroWithLightCaustics) {
       o.integrator = "hero";
       o.caustics = "light";
       o.caustic_paths = 1.0;
+      kind = Probe::kEyeOnly;
     }
     PRISM_ASSIGN_OR_RETURN(PreparedRender prepared, prepare_pilot(std::move(o)));
     Measured m;
@@ -302,7 +293,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     for (int h = 0; h < 2; ++h) {
       PRISM_ASSIGN_OR_RETURN(
           coordinator::LocalRenderResult result,
-          render_pilot(prepared, pilot_seed + static_cast<std::uint64_t>(h), Probe::kOff));
+          render_pilot(prepared, pilot_seed + static_cast<std::uint64_t>(h), kind));
       rays += double(result.stats.counters.rays);
       const std::span<const float> values = result.image.data();
       if (image_sum.empty()) image_sum.assign(values.size(), 0.0);
@@ -359,6 +350,14 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     }
     light_rays_per_sample = double(light[0]->stats.counters.rays + light[1]->stats.counters.rays) /
                             (2 * double(width) * double(height) * double(spp));
+    // With hero+caustics's eye-only renders, each plain light render completes one of them to an
+    // estimate of the image.
+    for (std::uint64_t h = 0; h < 2; ++h) {
+      const std::span<const float> values = light[h]->image.data();
+      for (std::size_t i = 0; i < values.size() && i < image_sum.size(); ++i) {
+        if (std::isfinite(values[i])) image_sum[i] += values[i];
+      }
+    }
   }
   // The weights: 1/(truth² + 0.01), the truth estimated by every render's mean over the pixel
   // and its 3 x 3 neighbours. Without the neighbours, one candidate's outlier would also set the
@@ -402,12 +401,12 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   };
   // Per candidate: its relMSE per sample, its cost per sample (rays times the cost of one), and
   // their product relative to hero's, its predicted relMSE at equal time relative to hero's.
-  std::optional<std::size_t> full_paths;
+  std::optional<std::size_t> caustic_run;
   std::vector<job::AutoReport::Candidate> figures;
   for (std::size_t c = 0; c < runs.size(); ++c) {
     const double variance = variance_per_sample(measured[c].squared_difference);
     figures.push_back({runs[c], variance, measured[c].rays_per_sample, 0.0, ray_cost(runs[c])});
-    if (runs[c] == kHeroWithLightCaustics) full_paths = c;
+    if (runs[c] == kHeroWithLightCaustics) caustic_run = c;
   }
   // Hero with light-traced caustics at the share of light paths its run and the probe say is best
   // (or the one given).
@@ -415,14 +414,16 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   std::string caustic_note;
   std::optional<CausticSplit> split_used;
   std::optional<double> clean_share;
-  if (full_paths.has_value()) {
-    const CausticSplit split = split_caustic_run(
-        figures[*full_paths].rel_mse_per_sample, figures[*full_paths].rays_per_sample,
-        variance_per_sample(light_squared_difference), light_rays_per_sample);
+  if (caustic_run.has_value()) {
+    // Its renders measured the eye paths' part; the probe's light-only renders the light paths'.
+    const CausticSplit split{.eye_variance = figures[*caustic_run].rel_mse_per_sample,
+                             .light_variance = variance_per_sample(light_squared_difference),
+                             .eye_rays = figures[*caustic_run].rays_per_sample,
+                             .light_rays = light_rays_per_sample};
     if (!options.caustic_paths.has_value()) caustic_paths = split.best_share();
-    figures[*full_paths].rel_mse_per_sample = split.variance(caustic_paths);
-    figures[*full_paths].rays_per_sample = split.rays(caustic_paths);
-    figures[*full_paths].caustic_paths = caustic_paths;
+    figures[*caustic_run].rel_mse_per_sample = split.variance(caustic_paths);
+    figures[*caustic_run].rays_per_sample = split.rays(caustic_paths);
+    figures[*caustic_run].caustic_paths = caustic_paths;
     split_used = split;
     if (!options.caustic_paths.has_value()) {
       clean_share =
@@ -472,10 +473,10 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     PRISM_ASSIGN_OR_RETURN(prepass_instead, hero_runs_prepass());
   }
   std::string clean_note;
-  if (clean_share.has_value() && full_paths.has_value() && (best == 0 || best == *full_paths) &&
+  if (clean_share.has_value() && caustic_run.has_value() && (best == 0 || best == *caustic_run) &&
       !prepass_instead && *clean_share > caustic_paths) {
     const bool was_hero = best == 0;
-    best = *full_paths;
+    best = *caustic_run;
     caustic_paths = *clean_share;
     job::AutoReport::Candidate& k = report.candidates[best];
     k.rel_mse_per_sample = split_used->variance(caustic_paths);

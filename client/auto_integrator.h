@@ -27,12 +27,15 @@
 // dielectric disperses (hero terminates its secondary lanes there, and the single-wavelength
 // tracer is then cheaper per sample); and hero+caustics (hero with
 // --caustics light) where the scene can be light traced and has a shape that can scatter as a
-// delta (so a caustic path to trace), its rays costed as hero's. That one is
-// rendered at one light path per pixel and sample; with the probe's light-only renders (below)
-// it gives its variance and rays per sample as eye + light/s and eye + s·light for a share s of
-// light paths (CausticSplit), and it is judged at the share that minimises their product (a
-// power of two from 1/256 to 1; --caustic-paths fixes it), which it then runs with: where the
-// caustics carry little of the error, few light paths are traced.
+// delta (so a caustic path to trace), its rays costed as hero's. That one's eye paths are
+// rendered alone (its candidate renders), its light paths alone by the probe (below) at one light
+// path per pixel and sample; together they give its variance and rays per sample as eye +
+// light/s and eye + s·light for a share s of light paths (CausticSplit), and it is judged at the
+// share that minimises their product (a power of two from 1/256 to 1; --caustic-paths fixes it),
+// which it then runs with: where the caustics carry little of the error, few light paths are
+// traced. (Its renders at one light path per pixel would trace the probe's light paths twice
+// more: 13 % of the README demo's pilot.) Each eye-only render plus one of the probe's light-only
+// renders is an estimate of the whole image, which the weights above average.
 //
 // The pilot's eye tracers mostly miss the caustic paths (light → delta chain → the camera's first
 // vertex) where the lamp is small: 2 x spp samples per pixel rarely find it through the chain, so
@@ -131,8 +134,8 @@ inline constexpr double kGradientRayCost = 1.18;
 
 // Hero with light-traced caustics split into its eye paths' and its light paths' parts, per
 // sample at one light path per pixel: variance(s) = eye + light/s, rays(s) = eye + s·light with
-// s the light paths per pixel and sample. From the pilot's run at s = 1 and the probe's
-// light-only renders (the light part at s = 1).
+// s the light paths per pixel and sample. From the pilot's renders of its eye paths alone and
+// the probe's light-only renders (the light part at s = 1).
 struct CausticSplit {
   double eye_variance = 0, light_variance = 0;
   double eye_rays = 0, light_rays = 0;
@@ -141,8 +144,6 @@ struct CausticSplit {
   // The share that minimises variance × rays, a power of two in [job::kMinCausticPaths, 1].
   double best_share() const;
 };
-CausticSplit split_caustic_run(double variance_full, double rays_full, double light_variance,
-                               double light_rays);
 // The clean-caustics share (see above): the largest power of two s in [job::kMinCausticPaths, 1]
 // whose light paths cost at most kCleanCausticRays × hero_rays (s × split.light_rays), if at
 // that share their variance (split.light_variance / s) is at most caustic_variance (the eye

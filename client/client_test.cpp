@@ -95,16 +95,19 @@ TEST(CompareCommandTest, CropSyntax) {
   }
 }
 
-// The pilot's hero+caustics run and the probe's light part split into eye and light parts, and
-// the share of light paths that minimises (eye + light/s)(eye_rays + s·light_rays), against the
-// closed form.
+// The share of light paths that minimises (eye + light/s)(eye_rays + s·light_rays) for
+// hero+caustics's eye and light parts, against the closed form.
+CausticSplit make_split(double eye_variance, double light_variance, double eye_rays,
+                        double light_rays) {
+  return {.eye_variance = eye_variance,
+          .light_variance = light_variance,
+          .eye_rays = eye_rays,
+          .light_rays = light_rays};
+}
+
 TEST(AutoIntegratorTest, TheCausticShareMinimisesVarianceTimesRays) {
   // eye 0.03, light 0.0008 per sample at s = 1; eye rays 2, light rays 1.
-  const CausticSplit split = split_caustic_run(0.03 + 0.0008, 3.0, 0.0008, 1.0);
-  EXPECT_NEAR(split.eye_variance, 0.03, 1e-12);
-  EXPECT_NEAR(split.light_variance, 0.0008, 1e-12);
-  EXPECT_NEAR(split.eye_rays, 2.0, 1e-12);
-  EXPECT_NEAR(split.light_rays, 1.0, 1e-12);
+  const CausticSplit split = make_split(0.03, 0.0008, 2.0, 1.0);
   // sqrt(0.0008·2 / (0.03·1)) = 0.2309, whose nearest power of two (in log2) is 1/4.
   EXPECT_EQ(split.best_share(), 0.25);
   EXPECT_NEAR(split.variance(0.25), 0.0332, 1e-12);
@@ -114,11 +117,9 @@ TEST(AutoIntegratorTest, TheCausticShareMinimisesVarianceTimesRays) {
     EXPECT_LE(split.variance(0.25) * split.rays(0.25), split.variance(s) * split.rays(s)) << s;
   }
   // Light paths with no variance (they find nothing the eye paths would not): the fewest.
-  EXPECT_EQ(split_caustic_run(0.03, 3.0, 0.0, 1.0).best_share(), job::kMinCausticPaths);
-  // Eye paths with no variance left (the light part is all of it): every light path.
-  EXPECT_EQ(split_caustic_run(0.001, 3.0, 0.001, 1.0).best_share(), 1.0);
-  // A light part measured above the whole run's (noise): the eye part is 0, not negative.
-  EXPECT_EQ(split_caustic_run(0.001, 3.0, 0.002, 1.0).eye_variance, 0.0);
+  EXPECT_EQ(make_split(0.03, 0.0, 2.0, 1.0).best_share(), job::kMinCausticPaths);
+  // Eye paths with no variance (the light part is all of it): every light path.
+  EXPECT_EQ(make_split(0.0, 0.001, 2.0, 1.0).best_share(), 1.0);
 }
 
 // Clean caustics: the most light paths within 2 % of hero's rays, taken where at that share they
@@ -126,7 +127,7 @@ TEST(AutoIntegratorTest, TheCausticShareMinimisesVarianceTimesRays) {
 // probe figures (scenes/prism.pbrt at 64 spp): light part 6.92e-7 per sample at one path, 1.873
 // rays per light path, the eye tracers' caustic variance 3.405e-4, hero's 2.007 rays.
 TEST(AutoIntegratorTest, CleanCausticsTakeTheMostLightPathsTwoPercentOfRaysBuy) {
-  const CausticSplit demo = split_caustic_run(0.03525, 3.871, 6.92e-7, 1.873);
+  const CausticSplit demo = make_split(0.03525 - 6.92e-7, 6.92e-7, 3.871 - 1.873, 1.873);
   // 0.02·2.007/1.873 = 0.0214 light paths at most: 1/64; 6.92e-7·64 = 4.4e-5 <= 3.405e-4/4.
   EXPECT_EQ(clean_caustic_share(demo, 3.405e-4, 2.007), 1.0 / 64);
   // Twice hero's rays allow twice the share.
@@ -135,13 +136,12 @@ TEST(AutoIntegratorTest, CleanCausticsTakeTheMostLightPathsTwoPercentOfRaysBuy) 
   EXPECT_EQ(clean_caustic_share(demo, 4.0 * 6.92e-7 * 64 * 0.99, 2.007), std::nullopt);
   EXPECT_EQ(clean_caustic_share(demo, 4.0 * 6.92e-7 * 64 * 1.01, 2.007), 1.0 / 64);
   // Light paths so dear that 2 % of hero's rays buy fewer than 1/256 per pixel: none.
-  EXPECT_EQ(clean_caustic_share(split_caustic_run(0.03, 600.0, 1e-9, 500.0), 1.0, 2.0),
-            std::nullopt);
+  EXPECT_EQ(clean_caustic_share(make_split(0.03, 1e-9, 100.0, 500.0), 1.0, 2.0), std::nullopt);
   // So cheap that every pixel gets one: the share stops at 1.
-  EXPECT_EQ(clean_caustic_share(split_caustic_run(0.03, 3.0, 1e-9, 0.001), 1.0, 2.0), 1.0);
+  EXPECT_EQ(clean_caustic_share(make_split(0.03, 1e-9, 2.999, 0.001), 1.0, 2.0), 1.0);
   // Nothing to clean: no caustic variance, or light paths that found nothing.
   EXPECT_EQ(clean_caustic_share(demo, 0.0, 2.007), std::nullopt);
-  EXPECT_EQ(clean_caustic_share(split_caustic_run(0.03, 3.871, 0.0, 1.873), 3.405e-4, 2.007),
+  EXPECT_EQ(clean_caustic_share(make_split(0.03525, 0.0, 1.998, 1.873), 3.405e-4, 2.007),
             std::nullopt);
 }
 

@@ -542,6 +542,41 @@ TEST_F(LightTracingJobTest, TheCausticProbeGivesTheEyeTracersCausticVariance) {
   }
 }
 
+// hero+caustics's pilot renders (CausticProbe::kEyeOnly, client/auto_integrator.h): its eye
+// paths alone plus the probe's light paths alone are the whole render, value for value and ray for
+// ray, so the eye part's variance and rays it measures are those of the job's eye paths.
+TEST_F(LightTracingJobTest, EyeOnlyAndLightOnlyRendersAddUpToTheWholeRender) {
+  auto scene = load("caustic_probe.pbrt", slab_scene(R"("spectrum eta" "glass-SF11")", "1.15"));
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  using Probe = job::RenderOptions::CausticProbe;
+  auto run = [&](Probe kind) {
+    return render(*scene, job::IntegratorKind::kHero, 16, 31, 3, [&](LocalRenderOptions& o) {
+      o.render.light_caustics = true;
+      o.render.caustic_probe = kind;
+    });
+  };
+  auto whole = run(Probe::kOff), eye = run(Probe::kEyeOnly), light = run(Probe::kLightOnly);
+  ASSERT_TRUE(whole.ok()) << whole.status();
+  ASSERT_TRUE(eye.ok()) << eye.status();
+  ASSERT_TRUE(light.ok()) << light.status();
+  EXPECT_EQ(eye->stats.counters.rays + light->stats.counters.rays, whole->stats.counters.rays);
+  EXPECT_EQ(eye->stats.counters.light_splats, 0u);
+  EXPECT_EQ(light->stats.counters.light_splats, whole->stats.counters.light_splats);
+  const auto w = whole->image.data(), e = eye->image.data(), l = light->image.data();
+  ASSERT_EQ(w.size(), e.size());
+  ASSERT_EQ(w.size(), l.size());
+  double eye_total = 0, light_total = 0;
+  for (std::size_t i = 0; i < w.size(); ++i) {
+    const double sum = double(e[i]) + double(l[i]);
+    EXPECT_NEAR(w[i], sum, 1e-6 * (std::abs(e[i]) + std::abs(l[i]))) << i;
+    eye_total += e[i];
+    light_total += l[i];
+  }
+  // Both parts carry light, so the sum tests both.
+  EXPECT_GT(eye_total, 0.0);
+  EXPECT_GT(light_total, 0.0);
+}
+
 // What a light tracer cannot do is refused when the render is built, saying why.
 TEST_F(LightTracingJobTest, ScenesItCannotTraceAreRefusedWithTheReason) {
   const std::string floor = R"(WorldBegin

@@ -136,9 +136,11 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
     std::atomic<std::uint64_t>* progress) const {
   const int width = scene_.camera().width(), height = scene_.camera().height();
   const int bins = scene_.grid().bins();
+  using Probe = job::RenderOptions::CausticProbe;
+  const Probe probe = scene_.options().caustic_probe;
   const bool with_eye_paths =
-      scene_.options().light_caustics &&
-      scene_.options().caustic_probe == job::RenderOptions::CausticProbe::kOff;
+      scene_.options().light_caustics && (probe == Probe::kOff || probe == Probe::kEyeOnly);
+  const bool with_light_paths = probe != Probe::kEyeOnly;
   if (task.tile != image::TileRect{0, 0, width, height}) {
     return absl::InvalidArgumentError(
         absl::StrCat("a light-tracing task covers the whole image (0,0)-(", width, ",", height,
@@ -182,7 +184,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render_light(
     receivers.emplace(scene_);
     splatter.emplace(scene_, *receivers);
   }
-  for (std::uint64_t s = task.samples.s0; s < task.samples.s1; ++s) {
+  for (std::uint64_t s = task.samples.s0; with_light_paths && s < task.samples.s1; ++s) {
     tbb::parallel_for(
         tbb::blocked_range<std::int64_t>(0, chunks, 1),
         [&](const tbb::blocked_range<std::int64_t>& range) {

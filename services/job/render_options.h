@@ -105,8 +105,9 @@ struct RenderOptions {
   // renders the light paths alone, no eye samples; kEyeMoments renders them alone with every
   // splat times the value an eye path of `lanes()` lanes would carry for the same path
   // (light_tracer.h), so the image estimates the eye tracer's second moment per sample of the
-  // caustic paths, which its own few samples see too rarely (client/auto_integrator.h).
-  enum class CausticProbe { kOff, kLightOnly, kEyeMoments };
+  // caustic paths, which its own few samples see too rarely (client/auto_integrator.h);
+  // kEyeOnly renders the eye paths alone, without the caustic paths the light paths would add.
+  enum class CausticProbe { kOff, kLightOnly, kEyeMoments, kEyeOnly };
   CausticProbe caustic_probe = CausticProbe::kOff;
   // Differential splatting of the light paths (§6.1) when > 0: Δλ in nm at sample 0, shrinking
   // as (s + 1)^(-1/5); also a filtered image beside the unbiased one (TileBuffers::filtered).
