@@ -116,7 +116,8 @@ void add_render_flags(CLI::App& cmd, RenderFlags& f, RenderCommandOptions& o) {
   f.prepass_spp_opt = cmd.add_option("--prepass-spp", f.prepass_spp,
                                      "Samples per pixel of the last prepass (default: 8 % of the "
                                      "job's samples over the passes, at most 128; no prepass "
-                                     "under 16)");
+                                     "under 16, nor where the first of several passes would get "
+                                     "under 8 spp: under 900 spp with two)");
   cmd.add_option("--prepass-mode", o.prepass_mode,
                  "samples (earlier passes take fewer samples) or image (earlier passes a smaller "
                  "film); default samples");

@@ -560,13 +560,14 @@ TEST(RenderCliTest, AutoRendersTheDemosCausticByLightTracing) {
 }
 
 // Hero in a scene of several emitter spectra runs the prepass where the job's spp gives it a
-// budget; its first pass decides whether per-pixel tables pay. boxes (two LED spectra, no
-// dispersion, a dye) is such a scene: its pilot finds nothing better than hero. The image is
-// exactly `--integrator hero --prepass`'s; --no-prepass keeps the prepass off.
+// budget (900 spp and up: its first pass then gets 8 spp); its first pass decides whether
+// per-pixel tables pay. boxes (two LED spectra, no dispersion, a dye) is such a scene: its pilot
+// finds nothing better than hero. The image is exactly `--integrator hero --prepass`'s;
+// --no-prepass keeps the prepass off, and so does a job of 256 spp.
 TEST(RenderCliTest, AutoRunsThePrepassForHeroUnderSeveralEmitterSpectra) {
   const fs::path dir = fresh_dir("auto_prepass");
   const std::vector<std::string> common = {
-      "render", source("scenes/boxes.pbrt"), "--resolution", "64x36", "--spp", "256"};
+      "render", source("scenes/boxes.pbrt"), "--resolution", "32x18", "--spp", "1024"};
   auto with = [&](const std::vector<std::string>& extra) { return joined(common, extra); };
   CommandRun automatic = run_prism(dir, with({"-o", "auto.exr"}));
   ASSERT_EQ(automatic.exit_code, 0) << automatic.output;
@@ -592,6 +593,13 @@ TEST(RenderCliTest, AutoRunsThePrepassForHeroUnderSeveralEmitterSpectra) {
   EXPECT_EQ(off_report["auto"]["reason"].get<std::string>().rfind("clean caustics: ", 0), 0u)
       << off_report["auto"].dump();
   EXPECT_FALSE(off_report.contains("prepass")) << off_report.dump();
+
+  CommandRun small = run_prism(dir, {"render", source("scenes/boxes.pbrt"), "--resolution", "32x18",
+                                     "--spp", "256", "-o", "small.exr"});
+  ASSERT_EQ(small.exit_code, 0) << small.output;
+  auto small_report = nlohmann::json::parse(*prism::base::read_file(dir / "small.json"));
+  EXPECT_EQ(small_report["auto"]["choice"], "hero+caustics") << small_report["auto"].dump();
+  EXPECT_FALSE(small_report.contains("prepass")) << small_report.dump();
 }
 
 TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {

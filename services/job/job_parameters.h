@@ -100,12 +100,17 @@ struct PrepassParameters {
 // The prepass's Ñ for a job of `spp` final samples per pixel when the job does not set it: the K
 // passes' samples per pixel-equivalent (Ñ·Σ_k 8^−(K−k) sample-scaled, Ñ·Σ_k 4^−(K−k) image-scaled,
 // prepass_schedule) are at most kBudgetShare of the final pass's, so with the coordinator's
-// reconstruction the prepass stays under a tenth of the job's time; at most kMaxBudgetedSpp. 0
-// when that is under kMinBudgetedSpp: too few samples to learn a distribution from, and the job
-// runs without a prepass.
+// reconstruction the prepass stays under a tenth of the job's time; at most kMaxBudgetedSpp. 0,
+// and the job runs without a prepass, when that is under kMinBudgetedSpp (too few samples to
+// learn a distribution from) or leaves the first of several sample-scaled passes, whose tables
+// decide whether the prepass goes on, under kMinDecisionSpp per pixel: from 2 or 4 spp their
+// predicted gain ranged from −1.2 to 6.7 on the scenes of scenes/ (a fraction of the variance
+// removed, so at most 1) and went on where the last pass then dropped its tables, which cost
+// such jobs 7 % of their time for nothing (docs/benchmarks.md).
 inline constexpr double kBudgetShare = 0.08;
 inline constexpr std::uint32_t kMaxBudgetedSpp = 128;
 inline constexpr std::uint32_t kMinBudgetedSpp = 16;
+inline constexpr std::uint32_t kMinDecisionSpp = 8;
 std::uint32_t budgeted_prepass_spp(std::uint64_t spp, int passes, bool image_scaled = false);
 
 // ---- Rendering to a target error

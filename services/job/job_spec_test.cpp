@@ -555,15 +555,22 @@ TEST(JobSpecTest, PrepassDefaultFollowsTheScene) {
 }
 
 // Left open, Ñ follows the job's spp so the passes' samples stay under kBudgetShare of the final
-// pass's (K = 2: Ñ·(1 + 1/8), image-scaled Ñ·(1 + 1/4)); a job too small to learn from runs
-// without a prepass; an explicit Ñ is kept whatever the spp.
+// pass's (K = 2: Ñ·(1 + 1/8), image-scaled Ñ·(1 + 1/4)); a job too small to learn from, or whose
+// first sample-scaled pass would decide from fewer than 8 spp, runs without a prepass; an
+// explicit Ñ is kept whatever the spp.
 TEST(JobSpecTest, PrepassSamplesFollowTheBudget) {
-  EXPECT_EQ(budgeted_prepass_spp(1024, 2), 72u);        // ⌊0.08·1024/1.125⌋
+  EXPECT_EQ(budgeted_prepass_spp(1024, 2), 72u);        // ⌊0.08·1024/1.125⌋, first pass 9 spp
   EXPECT_EQ(budgeted_prepass_spp(1024, 2, true), 65u);  // ⌊0.08·1024/1.25⌋
   EXPECT_EQ(budgeted_prepass_spp(4096, 1), 128u);       // the cap
-  EXPECT_EQ(budgeted_prepass_spp(225, 2), 16u);
-  EXPECT_EQ(budgeted_prepass_spp(224, 2), 0u);
-  EXPECT_EQ(budgeted_prepass_spp(1024, 3), 71u);  // ⌊0.08·1024/1.140625⌋
+  EXPECT_EQ(budgeted_prepass_spp(900, 2), 64u);         // first pass 8 spp
+  EXPECT_EQ(budgeted_prepass_spp(899, 2), 0u);          // Ñ = 63: first pass 7 spp
+  EXPECT_EQ(budgeted_prepass_spp(225, 2), 0u);          // Ñ = 16: first pass 2 spp
+  EXPECT_EQ(budgeted_prepass_spp(225, 1), 18u);         // one pass: it is the last
+  EXPECT_EQ(budgeted_prepass_spp(222, 1), 17u);
+  EXPECT_EQ(budgeted_prepass_spp(199, 1), 0u);         // Ñ = 15
+  EXPECT_EQ(budgeted_prepass_spp(281, 2, true), 17u);  // image-scaled: Ñ spp on a smaller film
+  EXPECT_EQ(budgeted_prepass_spp(249, 2, true), 0u);   // Ñ = 15
+  EXPECT_EQ(budgeted_prepass_spp(4096, 3), 0u);        // first pass ⌊128/64⌋ = 2 spp
   for (std::uint64_t spp : {64u, 1024u, 100000u}) {
     const std::uint32_t n = budgeted_prepass_spp(spp, 2);
     if (n != 0) {
