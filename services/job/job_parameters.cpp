@@ -51,13 +51,14 @@ std::uint32_t budgeted_prepass_spp(std::uint64_t spp, int passes, bool image_sca
   const int shift = image_scaled ? 2 : 3;  // a pass costs 4^−(K−k) or 8^−(K−k) of the last
   double share = 0.0;
   for (int k = 1; k <= std::max(1, passes); ++k) share += std::ldexp(1.0, -shift * (passes - k));
-  const double n = std::floor(kBudgetShare * double(spp) / share);
+  const double n =
+      std::min<double>(std::floor(kBudgetShare * double(spp) / share), kMaxBudgetedSpp);
   if (n < kMinBudgetedSpp) return 0;
   // Sample-scaled, the first pass renders ⌊Ñ/8^(K−1)⌋ spp (prepass_schedule).
   if (!image_scaled && passes > 1 && std::ldexp(n, -shift * (passes - 1)) < kMinDecisionSpp) {
     return 0;
   }
-  return std::uint32_t(std::min<double>(n, kMaxBudgetedSpp));
+  return std::uint32_t(n);
 }
 
 }  // namespace prism::job

@@ -571,6 +571,8 @@ TEST(JobSpecTest, PrepassSamplesFollowTheBudget) {
   EXPECT_EQ(budgeted_prepass_spp(281, 2, true), 17u);  // image-scaled: Ñ spp on a smaller film
   EXPECT_EQ(budgeted_prepass_spp(249, 2, true), 0u);   // Ñ = 15
   EXPECT_EQ(budgeted_prepass_spp(4096, 3), 0u);        // first pass ⌊128/64⌋ = 2 spp
+  EXPECT_EQ(budgeted_prepass_spp(1000000, 3), 0u);     // the cap first: ⌊128/64⌋ = 2 spp
+  EXPECT_EQ(budgeted_prepass_spp(1000000, 2), 128u);   // first pass 16 spp
   for (std::uint64_t spp : {64u, 1024u, 100000u}) {
     const std::uint32_t n = budgeted_prepass_spp(spp, 2);
     if (n != 0) {
