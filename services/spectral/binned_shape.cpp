@@ -73,17 +73,10 @@ absl::StatusOr<BinnedShape> BinnedShape::create(const WavelengthDistribution& sh
     const int last = int(std::ceil((hi - double{kLambdaMin}) * n / double{kLambdaRange})) - 1;
     s.last_cell_[b] = std::clamp(last, s.first_cell_[b], n - 1);
   }
-  // The cell guide: thresholds computed exactly as sample() computes v, so the cell holding v
-  // lies between the guide entries around it.
-  s.cell_guide_.resize(std::size_t(bins) * (kCellGuide + 1));
-  for (int b = 0; b < bins; ++b) {
-    int c = s.first_cell_[b];
-    for (int k = 0; k <= kCellGuide; ++k) {
-      const double v = s.bin_cdf_[b] + (double(k) / kCellGuide) * s.bin_mass_[b];
-      while (c < s.last_cell_[b] && s.cell_cdf_[c + 1] <= v) ++c;
-      s.cell_guide_[std::size_t(b) * (kCellGuide + 1) + k] = c;
-    }
-  }
+  const std::span<const int> search = shape.search_guide();
+  s.cell_search_guide_.assign(search.begin(), search.end());
+  const int intervals = guide_entries(bins) - 1;  // a power of two up to 2^16
+  while ((65536 >> s.guide_shift_) > intervals) ++s.guide_shift_;
   return s;
 }
 
@@ -119,7 +112,8 @@ float BinnedShape::settle(float lambda, int b, int c) const {
     lo = std::max(lo, cell_first_[c]);
     hi = std::min(hi, cell_last_[c]);
   }
-  return std::clamp(lambda, lo, std::max(lo, hi));
+  // min and max rather than std::clamp: no branches, and hi < lo cannot reach it.
+  return std::min(std::max(lambda, lo), std::max(lo, hi));
 }
 
 float BinnedShape::density(int table_units, int b, int c) const {
@@ -141,7 +135,7 @@ WavelengthSample BinnedShape::sample(const QuantisedWavelengthCdf& table, double
   const std::uint16_t* first = q.data();
   int count = bins_;  // search q[first..first + count) for the last value <= ⌊x⌋
   if (guide != nullptr) {
-    const int j = int(std::int64_t{below} * bins_ / QuantisedWavelengthCdf::kTotal);
+    const int j = below >> guide_shift_;
     first = q.data() + guide[j];
     count = guide[j + 1] - guide[j] + 1;
   }
@@ -158,22 +152,28 @@ WavelengthSample BinnedShape::sample(const QuantisedWavelengthCdf& table, double
     const float lambda = settle(static_cast<float>(bin_lower_[b] + frac * w), b, -1);
     return {lambda, density(units, b, cell_of(lambda))};
   }
-  // The default's CDF value of the same fraction of the bin's default mass, then its cell among
-  // the few that overlap the bin: the largest c with cdf[c] <= v, which has positive mass.
+  // The default's CDF value of the same fraction of the bin's default mass, then its cell: the
+  // largest c with cdf[c] <= v among the cells that overlap the bin, which has positive mass.
+  // The guided search looks over all cells (v lies in the bin's CDF range, so only rounding at
+  // the bin's edges can find a cell outside it; the clamp brings it back).
   const double v = bin_cdf_[b] + frac * bin_mass_[b];
-  const int k = std::min(kCellGuide - 1, int(frac * kCellGuide));
-  const int* cells = cell_guide_.data() + std::size_t(b) * (kCellGuide + 1);
-  const double* cell = cell_cdf_.data() + cells[k];
-  int span = cells[k + 1] - cells[k] + 1;  // search for the last cdf value <= v
+  int lo = first_cell_[b], span = last_cell_[b] - lo + 1;
+  if (guide != nullptr) {
+    const double g = double(cell_search_guide_.size() - 1);
+    const std::size_t j = static_cast<std::size_t>(std::min(v, kBelowOne) * g);
+    lo = cell_search_guide_[j];
+    span = cell_search_guide_[j + 1] - lo + 1;
+  }
+  const double* cell = cell_cdf_.data() + lo;
   while (span > 1) {
     const int half = span / 2;
     cell = cell[half] <= v ? cell + half : cell;
     span -= half;
   }
-  int c = int(cell - cell_cdf_.data());
+  int c = std::clamp(int(cell - cell_cdf_.data()), first_cell_[b], last_cell_[b]);
   // Only rounding (v at the very top of the bin) can leave c on a zero-mass cell: take the
   // nearest cell below with mass, at its top.
-  while (c > first_cell_[b] && !(cell_cdf_[c + 1] > cell_cdf_[c])) --c;
+  while (inv_cell_mass_[c] == 0.0 && c > first_cell_[b]) --c;
   const double t = std::clamp((v - cell_cdf_[c]) * inv_cell_mass_[c], 0.0, 1.0);
   const float lambda = settle(static_cast<float>(cell_lower_[c] + t * cell_width_), b, c);
   return {lambda, density(units, b, c)};
@@ -218,16 +218,25 @@ SampledWavelengths BinnedShape::sample_lanes(const QuantisedWavelengthCdf& table
   return w;
 }
 
+int BinnedShape::guide_entries(int bins) {
+  int g = 1;
+  while (g < 2 * bins && g < 65536) g *= 2;
+  return g + 1;
+}
+
 void BinnedShape::build_guide(const QuantisedWavelengthCdf& table, std::span<std::uint16_t> guide) {
   const int n = table.cells();
-  PRISM_CHECK(guide.size() == std::size_t(n) + 1);
+  PRISM_CHECK(guide.size() == std::size_t(guide_entries(n)));
+  const int g = int(guide.size()) - 1;
+  const int width = 65536 / g;  // units per interval, 2^(16 − m)
   const std::span<const std::uint16_t> q = table.values();
   int b = 0;
-  for (int j = 0; j <= n; ++j) {
-    const int value = int(std::int64_t{j} * QuantisedWavelengthCdf::kTotal / n);
+  for (int j = 0; j < g; ++j) {
+    const int value = j * width;
     while (b + 1 < n && q[b + 1] <= value) ++b;  // the last bin whose lower CDF value <= value
     guide[j] = std::uint16_t(b);
   }
+  guide[g] = std::uint16_t(n - 1);
 }
 
 }  // namespace prism::spectral

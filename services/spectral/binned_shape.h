@@ -15,7 +15,9 @@
 // Invariants: sample() returns exactly pdf(λ) for the λ it returns (the bin and the default
 // cell of λ are looked up by the same arithmetic in both), never returns a λ where the table or
 // d is zero, and inverts the composite CDF continuously inside each (bin, cell) piece. A sample
-// costs one search over the table's bins and one over the few default cells of the chosen bin.
+// costs two short guided searches: the table's bin (from the pixel's guide, build_guide), then
+// the default cell of the same fraction of the bin's default mass (from the default's own search
+// guide, so it costs what a default sample's search does).
 // Construction allocates; sampling and evaluation do not. Coordinator and worker build it from
 // the same default distribution and get the same D_b bit for bit.
 #pragma once
@@ -40,8 +42,10 @@ class BinnedShape {
   double bin_mass(int b) const { return bin_mass_[static_cast<std::size_t>(b)]; }
   const std::vector<double>& bin_masses() const { return bin_mass_; }
 
-  // `table` must have bins() cells (PRISM_CHECK). `guide` (bins() + 1 values, build_guide of the
-  // table) only makes the search shorter: with or without it the sample is the same.
+  // `table` must have bins() cells (PRISM_CHECK). `guide` (guide_entries(bins()) values,
+  // build_guide of the table) and the default's search guide only make the searches shorter:
+  // without `guide`, sample() searches all bins and then all default cells of the chosen bin
+  // (the reference the guided searches are tested against), and the sample is the same.
   WavelengthSample sample(const QuantisedWavelengthCdf& table, double u,
                           const std::uint16_t* guide = nullptr) const;
   float pdf(const QuantisedWavelengthCdf& table, float lambda_nm) const;
@@ -50,9 +54,12 @@ class BinnedShape {
   SampledWavelengths sample_lanes(const QuantisedWavelengthCdf& table, double u, int lanes,
                                   const std::uint16_t* guide = nullptr) const;
 
-  // A table's search guide (guide.size() == table.cells() + 1, PRISM_CHECK): guide[j] is the bin
-  // holding the quantised CDF value ⌊j·65535/N⌋, N = table.cells(), so a search for any value
-  // starts within a few bins of its answer.
+  // A table's search guide over the quantised CDF's integer units: G = 2^m >= 2·bins intervals
+  // of 2^(16 − m) units each, so a value's interval is one shift. guide[j] (j < G) is the bin
+  // holding the value j·2^(16 − m), guide[G] the last bin; a value in interval j lies in a bin of
+  // [guide[j], guide[j + 1]], one or two bins for most values. guide.size() must be
+  // guide_entries(table.cells()) (PRISM_CHECK).
+  static int guide_entries(int bins);
   static void build_guide(const QuantisedWavelengthCdf& table, std::span<std::uint16_t> guide);
 
  private:
@@ -84,10 +91,8 @@ class BinnedShape {
   std::vector<double> bin_cdf_;                // default CDF at the lower edge of bin b
   std::vector<int> first_cell_;                // default cells overlapping bin b: [first, last]
   std::vector<int> last_cell_;
-  // Per bin kCellGuide + 1 cells: the cell holding the default's CDF at bin_cdf_ + k/kCellGuide
-  // of the bin's mass.
-  static constexpr int kCellGuide = 8;
-  std::vector<int> cell_guide_;
+  int guide_shift_ = 0;                 // 16 − m for the tables' guides (guide_entries)
+  std::vector<int> cell_search_guide_;  // the default's search_guide()
 };
 
 }  // namespace prism::spectral

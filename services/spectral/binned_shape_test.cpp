@@ -180,6 +180,47 @@ TEST(BinnedShapeTest, LanesAreRotatedSamples) {
   }
 }
 
+// The guided searches (the pixel's bin guide, then the default's cell guide) find what the full
+// searches find: the same λ and density for random u, for u on every guide interval's edge and
+// every bin's edge and a float step either side, with line spectra, bins without default mass,
+// table bins without mass, and from 1 to 300 bins.
+TEST(BinnedShapeTest, GuidedSamplesAreTheFullSearchsSamples) {
+  std::vector<double> narrow(470, 0.0);
+  for (int c = 200; c < 240; ++c) narrow[c] = 1.0 + (c % 3);
+  const std::vector<WavelengthDistribution> defaults = {
+      f11_default(), *WavelengthDistribution::from_table(narrow)};
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  for (const WavelengthDistribution& d : defaults) {
+    for (int bins : {1, 7, 32, 64, 300}) {
+      const BinnedShape shape = *BinnedShape::create(d, bins);
+      const std::vector<std::uint16_t> cdf =
+          WavelengthDistribution::from_table(random_weights(bins, rng))->quantise();
+      const QuantisedWavelengthCdf table = *QuantisedWavelengthCdf::create(cdf);
+      std::vector<std::uint16_t> guide(std::size_t(BinnedShape::guide_entries(bins)));
+      BinnedShape::build_guide(table, guide);
+      std::vector<double> us;
+      for (int i = 0; i < 2000; ++i) us.push_back(uniform(rng));
+      const int intervals = int(guide.size()) - 1;
+      for (int j = 0; j <= intervals; ++j) us.push_back(double(j) * (65536 / intervals) / 65535.0);
+      for (std::uint16_t q : cdf) us.push_back(q / 65535.0);
+      const std::size_t edges = us.size();
+      for (std::size_t i = 0; i < edges; ++i) {
+        us.push_back(std::nextafter(us[i], 0.0));
+        us.push_back(std::nextafter(us[i], 1.0));
+      }
+      for (double u : us) {
+        const WavelengthSample full = shape.sample(table, u);
+        const WavelengthSample guided = shape.sample(table, u, guide.data());
+        ASSERT_EQ(guided.lambda, full.lambda) << bins << " bins, u = " << u;
+        ASSERT_EQ(guided.pdf, full.pdf) << bins << " bins, u = " << u;
+        ASSERT_GT(full.pdf, 0.0f) << bins << " bins, u = " << u;
+        ASSERT_EQ(full.pdf, shape.pdf(table, full.lambda)) << bins << " bins, u = " << u;
+      }
+    }
+  }
+}
+
 // Edges of u and of Λ stay inside the support with a positive density.
 TEST(BinnedShapeTest, ExtremesOfUStayInsideTheSupport) {
   const WavelengthDistribution d = f11_default();

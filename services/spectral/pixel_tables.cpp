@@ -59,7 +59,8 @@ absl::StatusOr<PixelTables> PixelTables::decode(int width, int height, int cells
   const std::size_t area = std::size_t(width) * std::size_t(height);
   const std::size_t stride = std::size_t(cells) + 1;
   t.values_.resize(area * stride);
-  t.guides_.resize(area * stride);
+  t.guide_stride_ = std::size_t(BinnedShape::guide_entries(cells));
+  t.guides_.resize(area * t.guide_stride_);
   t.tables_.reserve(area);
   for (std::size_t p = 0; p < area; ++p) {
     const char* row = bytes.data() + p * std::size_t(cells) * 2u;
@@ -83,7 +84,8 @@ absl::StatusOr<PixelTables> PixelTables::decode(int width, int height, int cells
           ") is neither all zero (default distribution) nor a valid CDF: ",
           std::string(cdf.status().message())));
     }
-    BinnedShape::build_guide(*cdf, std::span<std::uint16_t>(t.guides_.data() + p * stride, stride));
+    BinnedShape::build_guide(
+        *cdf, std::span<std::uint16_t>(t.guides_.data() + p * t.guide_stride_, t.guide_stride_));
     t.tables_.emplace_back(*cdf);
   }
   return t;

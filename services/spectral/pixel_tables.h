@@ -112,7 +112,7 @@ class PixelTables {
                          const BinnedShape& shape) const {
     PRISM_CHECK(shape.bins() == cells_);
     const QuantisedWavelengthCdf* t = table(x, y);
-    return t != nullptr ? WavelengthPdfView(*t, shape, guides_.data() + index(x, y) * (cells_ + 1))
+    return t != nullptr ? WavelengthPdfView(*t, shape, guides_.data() + index(x, y) * guide_stride_)
                         : WavelengthPdfView(job_default);
   }
   // Pixels without a table.
@@ -127,7 +127,8 @@ class PixelTables {
   int cells_ = 0;
   std::int64_t default_pixels_ = 0;
   std::vector<std::uint16_t> values_;  // per pixel cells + 1 values, q_0 restored
-  std::vector<std::uint16_t> guides_;  // per pixel cells + 1 values (BinnedShape::build_guide)
+  std::size_t guide_stride_ = 0;       // BinnedShape::guide_entries(cells)
+  std::vector<std::uint16_t> guides_;  // per pixel guide_stride_ values (BinnedShape::build_guide)
   std::vector<std::optional<QuantisedWavelengthCdf>> tables_;
 };
 

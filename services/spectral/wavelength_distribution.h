@@ -90,6 +90,9 @@ class WavelengthDistribution {
   float cell_pdf(int i) const { return pdf_[i]; }
   // The cell holding lambda_nm, or -1 outside Λ.
   int cell_of(float lambda_nm) const;
+  // sample()'s search guide (2^m + 1 cells, see guide_ below): for j/2^m <= u < (j+1)/2^m the
+  // last cell c with cell_cdf(c) <= u lies in [guide[j], guide[j + 1]].
+  std::span<const int> search_guide() const { return guide_; }
 
   // The quantised CDF (cells() + 1 values) whose every positive-mass cell keeps a mass of at
   // least 1/65535, so quantisation never removes support; cells() must be <= kMaxCells.
