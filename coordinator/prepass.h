@@ -289,7 +289,10 @@ absl::StatusOr<image::SpectralImage> filter_estimate(const image::SpectralImage&
 //    pixel's samples did not shape it; a table fitted to the same samples would always look best,
 //    it chases their noise); the V of every candidate is then filtered like the moments but
 //    without the pixel itself, so each pixel's choice rests on its similar neighbours'
-//    validations and its own V stays an unbiased judge of that choice;
+//    validations and its own V stays an unbiased judge of that choice (in expectation only:
+//    from a few samples per pixel the penalty of a starved bin shows only in the rare pixel
+//    whose samples landed there, so the usual sum of these V over an image is optimistic,
+//    docs/benchmarks.md "The prepass's first pass at small budgets");
 //  - the pixel takes the candidate with the smallest filtered V and keeps the default
 //    (kMatchesDefault, α = 0) unless V <= (1 − params.fallback)·V(D) and V(D) > 0; without usable
 //    moments, or without neighbours, it is kNoEstimate or kMatchesDefault;
