@@ -188,16 +188,27 @@ TEST_F(AgreementTest, EmitterSelectionVariantsAgreeWithUniform) {
 // `hero` sampling every pixel from its own table, deliberately unlike the default distribution
 // (spikes and steep ramps that move from pixel to pixel over the 16 bins, the default's shape
 // inside each bin, some pixels on the default), agrees with the single-wavelength tracer per bin:
-// lanes are drawn and weighted by the pixel's table only.
+// lanes are drawn and weighted by the pixel's table only. Both ways of sampling a table: its
+// composite CDF (a task of 1024 samples per pixel) and its two searches (a task of fewer than
+// CompositeCdf::kMinSamples).
 TEST_F(AgreementTest, HeroWithPerPixelTablesAgreesWithUniform) {
   const spectral::PixelTables tables =
       testing::skewed_tables(24, 24, 16, [](int x, int y) { return (x * 7 + y) % 11 == 0; });
   ASSERT_GT(tables.default_pixels(), 0);
+  static_assert(spectral::CompositeCdf::kMinSamples > 96 &&
+                spectral::CompositeCdf::kMinSamples <= 1024);
   job::RenderOptions options;
   options.integrator = job::IntegratorKind::kHero;
   options.seed = 150;
   expect_agreement(run_task(options, [&](RenderTask& task) { task.tables = &tables; }), reference(),
-                   "hero with per-pixel tables");
+                   "hero with per-pixel tables, composite");
+  options.seed = 151;
+  expect_agreement(run_task(options,
+                            [&](RenderTask& task) {
+                              task.tables = &tables;
+                              task.samples = {0, 96};
+                            }),
+                   reference(), "hero with per-pixel tables, two searches");
 }
 
 // A prepass task of a `uniform` job traces 4 hero lanes (without early stop it is an unbiased

@@ -190,6 +190,7 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
       [&](const tbb::blocked_range<std::int64_t>& range) {
         TraceCounters& local = counters.local();
         std::vector<double> scratch(bins, 0.0);
+        spectral::CompositeCdf composite;  // a table pixel's, rebuilt per pixel
         for (std::int64_t index = range.begin(); index != range.end(); ++index) {
           if (cancel != nullptr && cancel->load(std::memory_order_relaxed)) {
             cancelled.store(true, std::memory_order_relaxed);
@@ -202,8 +203,17 @@ absl::StatusOr<image::TileResult> TileRenderer::render(const RenderTask& task, T
           const bool skipped = task.prepass && task.tables != nullptr &&
                                task.tables->uses_default(x - rect.x0, y - rect.y0);
           if (!skipped) {
+            // A pixel with a table samples its lanes from the table's composite CDF (one search
+            // per lane, for a build per pixel that its samples share) where the task renders
+            // enough of its samples to pay for the build, else by the table's two searches.
+            const spectral::QuantisedWavelengthCdf* table =
+                task.tables != nullptr ? task.tables->table(x - rect.x0, y - rect.y0) : nullptr;
+            const bool use_composite = table != nullptr && task.samples.s1 - task.samples.s0 >=
+                                                               spectral::CompositeCdf::kMinSamples;
+            if (use_composite) composite.assign(scene_.binned_shape(), *table);
             const spectral::WavelengthPdfView lambda_pdf =
-                task.tables != nullptr
+                use_composite ? spectral::WavelengthPdfView(composite)
+                : task.tables != nullptr
                     ? task.tables->view(x - rect.x0, y - rect.y0, job_pdf, scene_.binned_shape())
                     : spectral::WavelengthPdfView(job_pdf);
             GuideSums guides;

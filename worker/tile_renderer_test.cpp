@@ -111,21 +111,25 @@ TEST_F(TileRendererTest, RefusesSampleIndicesBeyond32Bits) {
 }
 
 // Per-pixel tables keep the result a pure function of (seed, pass, pixel, sample): the same
-// bytes for one thread or two, for a final-pass task and for a prepass with early stop.
+// bytes for one thread or two, for a final-pass task and for a prepass with early stop, with the
+// tables sampled by their two searches (8 samples per pixel) or their composite CDFs (enough
+// samples per pixel for the tile renderer to build them, reused pixel after pixel).
 TEST_F(TileRendererTest, TablesGiveTheSameBytesForAnyThreadCount) {
   TileRenderer renderer(*scene_);
   const spectral::PixelTables tables =
       testing::skewed_tables(10, 7, 8, [](int x, int y) { return (x + y) % 4 == 0; });
-  for (bool prepass : {false, true}) {
-    RenderTask task{{3, 5, 13, 12}, {0, 8}, prepass ? 2u : 0u, /*want_guides=*/prepass};
-    task.prepass = prepass;
-    task.early_stop = prepass;
-    task.tables = &tables;
-    auto one = tbb::task_arena(1).execute([&] { return renderer.render(task, nullptr); });
-    auto two = tbb::task_arena(2).execute([&] { return renderer.render(task, nullptr); });
-    ASSERT_TRUE(one.ok()) << one.status();
-    ASSERT_TRUE(two.ok()) << two.status();
-    EXPECT_TRUE(*one == *two) << "prepass " << prepass;
+  for (std::uint64_t samples : {std::uint64_t{8}, spectral::CompositeCdf::kMinSamples}) {
+    for (bool prepass : {false, true}) {
+      RenderTask task{{3, 5, 13, 12}, {0, samples}, prepass ? 2u : 0u, /*want_guides=*/prepass};
+      task.prepass = prepass;
+      task.early_stop = prepass;
+      task.tables = &tables;
+      auto one = tbb::task_arena(1).execute([&] { return renderer.render(task, nullptr); });
+      auto two = tbb::task_arena(2).execute([&] { return renderer.render(task, nullptr); });
+      ASSERT_TRUE(one.ok()) << one.status();
+      ASSERT_TRUE(two.ok()) << two.status();
+      EXPECT_TRUE(*one == *two) << "prepass " << prepass << ", " << samples << " samples";
+    }
   }
 }
 

@@ -73,6 +73,46 @@ absl::StatusOr<BinnedShape> BinnedShape::create(const WavelengthDistribution& sh
     const int last = int(std::ceil((hi - double{kLambdaMin}) * n / double{kLambdaRange})) - 1;
     s.last_cell_[b] = std::clamp(last, s.first_cell_[b], n - 1);
   }
+  // The pieces: each bin's overlaps with the default cells, in λ order.
+  s.bin_piece_.resize(std::size_t(bins) + 1);
+  for (int b = 0; b < bins; ++b) {
+    s.bin_piece_[b] = int(s.piece_cell_.size());
+    const double lo = s.bin_lower_[b], hi = uniform_cell_lower(b + 1, bins);
+    for (int c = s.first_cell_[b]; c <= s.last_cell_[b]; ++c) {
+      const double a = std::max(lo, s.cell_lower_[c]);
+      const double z = std::min(hi, uniform_cell_lower(c + 1, n));
+      if (!(z > a)) continue;
+      double fraction = 0.0;
+      if (a == lo) {
+        fraction = 0.0;
+      } else if (s.inv_bin_mass_[b] == 0.0) {
+        fraction = std::clamp((a - lo) / (hi - lo), 0.0, 1.0);
+      } else {
+        const double t = std::clamp((a - s.cell_lower_[c]) / cell_width, 0.0, 1.0);
+        const double below = s.cell_cdf_[c] + t * (s.cell_cdf_[c + 1] - s.cell_cdf_[c]);
+        fraction = std::clamp((below - s.bin_cdf_[b]) * s.inv_bin_mass_[b], 0.0, 1.0);
+      }
+      const float first = std::max(s.bin_first_[b], s.cell_first_[c]);
+      s.piece_cell_.push_back(c);
+      s.piece_lower_.push_back(a);
+      s.piece_width_.push_back(z - a);
+      s.piece_fraction_.push_back(fraction);
+      s.piece_first_.push_back(first);
+      s.piece_last_.push_back(std::max(first, std::min(s.bin_last_[b], s.cell_last_[c])));
+    }
+  }
+  s.bin_piece_[bins] = int(s.piece_cell_.size());
+  // A piece over a cell without default mass in a bin with some has no mass either: its fraction
+  // is the next piece's (1 at the bin's end) exactly, so that rounding cannot leave it a sliver of
+  // mass with a zero density.
+  for (int b = 0; b < bins; ++b) {
+    if (s.inv_bin_mass_[b] == 0.0) continue;
+    for (int k = s.bin_piece_[b + 1] - 1; k >= s.bin_piece_[b]; --k) {
+      if (s.inv_cell_mass_[s.piece_cell_[k]] != 0.0) continue;
+      s.piece_fraction_[k] = k + 1 < s.bin_piece_[b + 1] ? s.piece_fraction_[k + 1] : 1.0;
+    }
+  }
+  PRISM_CHECK(s.piece_cell_.size() < 65536);  // at most cells + bins <= 2·kMaxCells
   const std::span<const int> search = shape.search_guide();
   s.cell_search_guide_.assign(search.begin(), search.end());
   const int intervals = guide_entries(bins) - 1;  // a power of two up to 2^16
@@ -237,6 +277,84 @@ void BinnedShape::build_guide(const QuantisedWavelengthCdf& table, std::span<std
     guide[j] = std::uint16_t(b);
   }
   guide[g] = std::uint16_t(n - 1);
+}
+
+void CompositeCdf::assign(const BinnedShape& shape, const QuantisedWavelengthCdf& table) {
+  PRISM_CHECK(table.cells() == shape.bins());
+  shape_ = &shape;
+  table_ = &table;
+  const std::span<const std::uint16_t> q = table.values();
+  const std::size_t count = shape.piece_cell_.size();
+  cdf_.resize(count + 1);
+  pdf_.resize(count);
+  const double* fraction = shape.piece_fraction_.data();
+  const int* cell = shape.piece_cell_.data();
+  for (int b = 0; b < shape.bins_; ++b) {
+    const int units = q[b + 1] - q[b];
+    const int k0 = shape.bin_piece_[b], k1 = shape.bin_piece_[b + 1];
+    // In integer units first: a fraction of 0 or 1 lands exactly on the bin's edges q[b] and
+    // q[b + 1], which the neighbouring bins' pieces reach the same way.
+    for (int k = k0; k < k1; ++k) cdf_[std::size_t(k)] = (q[b] + fraction[k] * units) * kInvUnits;
+    // BinnedShape::density's arithmetic, its per-bin factor taken out of the loop.
+    if (shape.inv_bin_mass_[b] == 0.0) {
+      const float density = static_cast<float>(units * kInvUnits * shape.bin_scale_);
+      for (int k = k0; k < k1; ++k) pdf_[std::size_t(k)] = density;
+    } else {
+      const double factor = units * kInvUnits * shape.inv_bin_mass_[b];
+      for (int k = k0; k < k1; ++k) {
+        pdf_[std::size_t(k)] = static_cast<float>(factor * shape.cell_density_[cell[k]]);
+      }
+    }
+  }
+  cdf_[count] = 1.0;
+  // Nanometres per unit of u inside each piece (0 for the pieces without mass, never sampled).
+  slope_.resize(count);
+  const double* width = shape.piece_width_.data();
+  for (std::size_t k = 0; k < count; ++k) {
+    const double mass = cdf_[k + 1] - cdf_[k];
+    slope_[k] = mass > 0.0 ? width[k] / mass : 0.0;
+  }
+  // The guide: the first 2^m >= twice the pieces, so that u·2^m is exact. Entry j is the last piece
+  // whose lower CDF value is at or below j/2^m: piece k fills the entries from the first j/2^m
+  // above its lower value up to that above the next piece's.
+  std::size_t g = 1;
+  while (g < 2 * count) g *= 2;
+  guide_.resize(g + 1);
+  const double dg = double(g);
+  std::size_t j = 0;
+  for (std::size_t k = 0; k + 1 < count; ++k) {
+    // Entries j with j/g < cdf_[k + 1] belong to piece k or an earlier one.
+    while (j < g && double(j) < cdf_[k + 1] * dg) guide_[j++] = std::uint16_t(k);
+  }
+  while (j <= g) guide_[j++] = std::uint16_t(count - 1);
+}
+
+WavelengthSample CompositeCdf::sample(double u) const {
+  u = std::clamp(u, 0.0, kBelowOne);
+  // The last piece k with cdf[k] <= u, which has positive mass (cdf[k + 1] > u), by branch-free
+  // halving from the guide's range.
+  const std::size_t j = static_cast<std::size_t>(u * double(guide_.size() - 1));
+  const double* cell = cdf_.data() + guide_[j];
+  int span = guide_[j + 1] - guide_[j] + 1;
+  while (span > 1) {
+    const int half = span / 2;
+    cell = cell[half] <= u ? cell + half : cell;
+    span -= half;
+  }
+  const std::size_t k = std::size_t(cell - cdf_.data());
+  const BinnedShape& s = *shape_;
+  // Linear inside the piece; the clamp to its floats also absorbs any rounding past its edges.
+  const float lambda = static_cast<float>(s.piece_lower_[k] + (u - cell[0]) * slope_[k]);
+  return {std::min(std::max(lambda, s.piece_first_[k]), s.piece_last_[k]), pdf_[k]};
+}
+
+SampledWavelengths CompositeCdf::sample_lanes(double u, int lanes) const {
+  SampledWavelengths w(lanes);
+  for (int s = 0; s < lanes; ++s) {
+    const WavelengthSample x = sample(cyclic_offset(u, s, lanes));
+    w.set(s, x.lambda, x.pdf);
+  }
+  return w;
 }
 
 }  // namespace prism::spectral

@@ -17,7 +17,8 @@
 // d is zero, and inverts the composite CDF continuously inside each (bin, cell) piece. A sample
 // costs two short guided searches: the table's bin (from the pixel's guide, build_guide), then
 // the default cell of the same fraction of the bin's default mass (from the default's own search
-// guide, so it costs what a default sample's search does).
+// guide, so it costs what a default sample's search does). CompositeCdf below samples the same
+// density with one search, for a build per pixel.
 // Construction allocates; sampling and evaluation do not. Coordinator and worker build it from
 // the same default distribution and get the same D_b bit for bit.
 #pragma once
@@ -31,6 +32,8 @@
 #include "services/spectral/wavelength_distribution.h"
 
 namespace prism::spectral {
+
+class CompositeCdf;
 
 class BinnedShape {
  public:
@@ -63,6 +66,7 @@ class BinnedShape {
   static void build_guide(const QuantisedWavelengthCdf& table, std::span<std::uint16_t> guide);
 
  private:
+  friend class CompositeCdf;
   BinnedShape() = default;
   // Density of the composite at a λ in bin b and default cell c, from the table's integer mass.
   float density(int table_units, int b, int c) const;
@@ -93,6 +97,53 @@ class BinnedShape {
   std::vector<int> last_cell_;
   int guide_shift_ = 0;                 // 16 − m for the tables' guides (guide_entries)
   std::vector<int> cell_search_guide_;  // the default's search_guide()
+  // The pieces a table's composite density is constant on (CompositeCdf): every overlap of a bin
+  // and a default cell, in λ order. Per piece its cell, lower edge and width in nm, the fraction
+  // of its bin's default mass below it (of its width where D_b = 0), and the floats with bin_of
+  // == its bin and cell_of == its cell. bin_piece_[b] is bin b's first piece (bins + 1 values).
+  std::vector<int> piece_cell_;
+  std::vector<double> piece_lower_, piece_width_, piece_fraction_;
+  std::vector<float> piece_first_, piece_last_;
+  std::vector<int> bin_piece_;
+};
+
+// A pixel table's whole composite CDF (BinnedShape above) over the pieces where its density is
+// constant, with a search guide: a lane then costs one guided search, as a default lane does,
+// instead of a search over the table's bins and another over the default's cells. Building it
+// costs a few microseconds per pixel (a pass over the pieces and the guide), which the tile
+// renderer pays once per pixel and task, before that pixel's samples, where the task has at
+// least kMinSamples of them.
+//
+// Invariants: sample() returns exactly the BinnedShape's pdf(table, λ) for the λ it returns
+// (same bin and cell lookup, same density arithmetic) and the same distribution as
+// BinnedShape::sample(table, u): the same inverse CDF, evaluated piece by piece, so the λ of a
+// u agrees with it to rounding, not bit for bit. Assigning reuses the buffers; sampling does
+// not allocate. The shape and table must outlive the uses of an assignment.
+class CompositeCdf {
+ public:
+  // The samples of a pixel in one task from which the tile renderer builds the composite: four
+  // lanes per sample take about 70 to pay for a build (prism-bench-wavelength-sampling
+  // --pixel-samples, docs/benchmarks.md "Cost of a lane").
+  static constexpr std::uint64_t kMinSamples = 128;
+
+  // `table` must have shape.bins() cells (PRISM_CHECK).
+  void assign(const BinnedShape& shape, const QuantisedWavelengthCdf& table);
+
+  WavelengthSample sample(double u) const;
+  // CMIS lanes (docs/estimators.md §2): lane s at Q⁻¹((u + s/C) mod 1).
+  SampledWavelengths sample_lanes(double u, int lanes) const;
+  const BinnedShape& shape() const { return *shape_; }
+  const QuantisedWavelengthCdf& table() const { return *table_; }
+
+ private:
+  const BinnedShape* shape_ = nullptr;
+  const QuantisedWavelengthCdf* table_ = nullptr;
+  std::vector<double> cdf_;    // per piece its lower CDF value, then 1
+  std::vector<float> pdf_;     // per piece the density, BinnedShape::density of its bin and cell
+  std::vector<double> slope_;  // per piece its width over its mass: nm per unit of u
+  // 2^m intervals of u (2^m >= twice the pieces), per interval the last piece whose lower CDF
+  // value is at or below the interval's start, then the last piece.
+  std::vector<std::uint16_t> guide_;
 };
 
 }  // namespace prism::spectral

@@ -54,8 +54,13 @@ class WavelengthPdfView {
   WavelengthPdfView(const QuantisedWavelengthCdf& table, const BinnedShape& shape,
                     const std::uint16_t* guide = nullptr)
       : table_(&table), shape_(&shape), guide_(guide) {}
+  // The same density sampled from its composite CDF (one search per lane; binned_shape.h):
+  // samples agree with the table's view to rounding, densities exactly.
+  explicit WavelengthPdfView(const CompositeCdf& composite)
+      : table_(&composite.table()), shape_(&composite.shape()), composite_(&composite) {}
 
   WavelengthSample sample(double u) const {
+    if (composite_ != nullptr) return composite_->sample(u);
     return table_ != nullptr ? shape_->sample(*table_, u, guide_) : distribution_->sample(u);
   }
   float pdf(float lambda_nm) const {
@@ -66,6 +71,7 @@ class WavelengthPdfView {
   }
   // CMIS lanes (docs/estimators.md §2), exactly as the underlying density's sample_lanes.
   SampledWavelengths sample_lanes(double u, int lanes) const {
+    if (composite_ != nullptr) return composite_->sample_lanes(u, lanes);
     return table_ != nullptr ? shape_->sample_lanes(*table_, u, lanes, guide_)
                              : distribution_->sample_lanes(u, lanes);
   }
@@ -76,6 +82,7 @@ class WavelengthPdfView {
   const QuantisedWavelengthCdf* table_ = nullptr;
   const BinnedShape* shape_ = nullptr;
   const std::uint16_t* guide_ = nullptr;
+  const CompositeCdf* composite_ = nullptr;
 };
 static_assert(std::is_trivially_copyable_v<WavelengthPdfView>);
 
