@@ -25,6 +25,13 @@ WavelengthDistribution f11_default() {
   return *emitters.mix_defensive(0.05, emitters);
 }
 
+// A default with mass on 40 cells only (no defensive term): most bins have no default mass.
+WavelengthDistribution narrow_band_default() {
+  std::vector<double> w(470, 0.0);
+  for (int c = 200; c < 240; ++c) w[c] = 1.0 + (c % 3);
+  return *WavelengthDistribution::from_table(w);
+}
+
 std::vector<double> random_weights(int n, std::mt19937_64& rng) {
   std::uniform_real_distribution<double> u(0.0, 1.0);
   std::vector<double> w(static_cast<std::size_t>(n));
@@ -145,9 +152,7 @@ TEST(BinnedShapeTest, CdfIsTheIntegralOfThePdf) {
 // A bin with table mass and no default mass is sampled uniformly inside: a narrow-band default
 // (no defensive term) and a flat table.
 TEST(BinnedShapeTest, BinsWithoutDefaultMassAreUniformInside) {
-  std::vector<double> w(470, 0.0);
-  for (int c = 200; c < 240; ++c) w[c] = 1.0 + (c % 3);
-  const WavelengthDistribution d = *WavelengthDistribution::from_table(w);
+  const WavelengthDistribution d = narrow_band_default();
   const BinnedShape shape = *BinnedShape::create(d, 32);
   int empty = 0;
   for (int b = 0; b < 32; ++b) empty += shape.bin_mass(b) == 0.0 ? 1 : 0;
@@ -188,10 +193,7 @@ TEST(BinnedShapeTest, LanesAreRotatedSamples) {
 // every bin's edge and a float step either side, with line spectra, bins without default mass,
 // table bins without mass, and from 1 to 300 bins.
 TEST(BinnedShapeTest, GuidedSamplesAreTheFullSearchsSamples) {
-  std::vector<double> narrow(470, 0.0);
-  for (int c = 200; c < 240; ++c) narrow[c] = 1.0 + (c % 3);
-  const std::vector<WavelengthDistribution> defaults = {
-      f11_default(), *WavelengthDistribution::from_table(narrow)};
+  const std::vector<WavelengthDistribution> defaults = {f11_default(), narrow_band_default()};
   std::mt19937_64 rng(17);
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   for (const WavelengthDistribution& d : defaults) {
@@ -228,10 +230,7 @@ TEST(BinnedShapeTest, GuidedSamplesAreTheFullSearchsSamples) {
 // and 5 nm, its density equal to pdf() for every sample, and for random u the λ of the same
 // inverse CDF to rounding (at a u exactly on the edge of a bin the two may take either side).
 TEST(BinnedShapeTest, CompositeSamplesAreTheTwoStepSamplesToRounding) {
-  std::vector<double> narrow(470, 0.0);
-  for (int c = 200; c < 240; ++c) narrow[c] = 1.0 + (c % 3);
-  const std::vector<WavelengthDistribution> defaults = {
-      f11_default(), *WavelengthDistribution::from_table(narrow)};
+  const std::vector<WavelengthDistribution> defaults = {f11_default(), narrow_band_default()};
   std::mt19937_64 rng(23);
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   CompositeCdf composite;  // reassigned throughout, as the tile renderer does
