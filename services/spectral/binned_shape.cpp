@@ -314,11 +314,11 @@ void CompositeCdf::assign(const BinnedShape& shape, const QuantisedWavelengthCdf
     const double mass = cdf_[k + 1] - cdf_[k];
     slope_[k] = mass > 0.0 ? width[k] / mass : 0.0;
   }
-  // The guide: the first 2^m >= twice the pieces, so that u·2^m is exact. Entry j is the last piece
-  // whose lower CDF value is at or below j/2^m: piece k fills the entries from the first j/2^m
-  // above its lower value up to that above the next piece's.
+  // The guide: the first 2^m >= four times the pieces, so that u·2^m is exact. Entry j is the last
+  // piece whose lower CDF value is at or below j/2^m: piece k fills the entries from the first
+  // j/2^m above its lower value up to that above the next piece's.
   std::size_t g = 1;
-  while (g < 2 * count) g *= 2;
+  while (g < 4 * count) g *= 2;
   guide_.resize(g + 1);
   const double dg = double(g);
   std::size_t j = 0;

@@ -122,7 +122,7 @@ class BinnedShape {
 class CompositeCdf {
  public:
   // The samples of a pixel in one task from which the tile renderer builds the composite: four
-  // lanes per sample take about 70 to pay for a build (prism-bench-wavelength-sampling
+  // lanes per sample take about 90 to pay for a build (prism-bench-wavelength-sampling
   // --pixel-samples, docs/benchmarks.md "Cost of a lane").
   static constexpr std::uint64_t kMinSamples = 128;
 
@@ -141,7 +141,7 @@ class CompositeCdf {
   std::vector<double> cdf_;    // per piece its lower CDF value, then 1
   std::vector<float> pdf_;     // per piece the density, BinnedShape::density of its bin and cell
   std::vector<double> slope_;  // per piece its width over its mass: nm per unit of u
-  // 2^m intervals of u (2^m >= twice the pieces), per interval the last piece whose lower CDF
+  // 2^m intervals of u (2^m >= four times the pieces), per interval the last piece whose lower CDF
   // value is at or below the interval's start, then the last piece.
   std::vector<std::uint16_t> guide_;
 };
