@@ -19,6 +19,17 @@ double cyclic_offset(double u, int lane, int lanes) {
   return v >= 1.0 ? v - 1.0 : v;
 }
 
+// CMIS lanes (docs/estimators.md §2): lane s is sample_at((u + s/C) mod 1).
+template <typename SampleAt>
+SampledWavelengths rotated_lanes(double u, int lanes, const SampleAt& sample_at) {
+  SampledWavelengths w(lanes);
+  for (int s = 0; s < lanes; ++s) {
+    const WavelengthSample x = sample_at(cyclic_offset(u, s, lanes));
+    w.set(s, x.lambda, x.pdf);
+  }
+  return w;
+}
+
 }  // namespace
 
 absl::StatusOr<BinnedShape> BinnedShape::create(const WavelengthDistribution& shape, int bins) {
@@ -250,12 +261,7 @@ double BinnedShape::cdf(const QuantisedWavelengthCdf& table, float lambda_nm) co
 
 SampledWavelengths BinnedShape::sample_lanes(const QuantisedWavelengthCdf& table, double u,
                                              int lanes, const std::uint16_t* guide) const {
-  SampledWavelengths w(lanes);
-  for (int s = 0; s < lanes; ++s) {
-    const WavelengthSample x = sample(table, cyclic_offset(u, s, lanes), guide);
-    w.set(s, x.lambda, x.pdf);
-  }
-  return w;
+  return rotated_lanes(u, lanes, [&](double v) { return sample(table, v, guide); });
 }
 
 int BinnedShape::guide_entries(int bins) {
@@ -349,12 +355,7 @@ WavelengthSample CompositeCdf::sample(double u) const {
 }
 
 SampledWavelengths CompositeCdf::sample_lanes(double u, int lanes) const {
-  SampledWavelengths w(lanes);
-  for (int s = 0; s < lanes; ++s) {
-    const WavelengthSample x = sample(cyclic_offset(u, s, lanes));
-    w.set(s, x.lambda, x.pdf);
-  }
-  return w;
+  return rotated_lanes(u, lanes, [this](double v) { return sample(v); });
 }
 
 }  // namespace prism::spectral
