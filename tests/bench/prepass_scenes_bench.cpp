@@ -24,6 +24,7 @@
 //          [--reference-spp 16384] [--cache-dir DIR] [--threads N] [--clock cpu|wall]
 //          [--inset NAME=x,y,w,h ...] [--prepass-spp N (budgeted)] [--prepass-passes 2]
 //          [--prepass-epsilon 0.05] [--prepass-fallback F] [--prepass-sigma-s 1.75]
+//          [--min-image-gain G] [--min-final-gain G]
 //          [--sampler sobol|independent] [--dump DIR] [--csv path]
 // Default scenes: the prepass evaluation set of scenes/README.md. --inset may be repeated as
 // one comma-free list "a.pbrt=x,y,w,h;b.pbrt=...": NAME is the scene's file name.
@@ -127,7 +128,8 @@ int run(int argc, char** argv) {
       parse_flags(argc, argv,
                   {"--spp", "--seeds", "--reference-spp", "--cache-dir", "--threads", "--clock",
                    "--inset", "--prepass-spp", "--prepass-passes", "--prepass-epsilon",
-                   "--prepass-fallback", "--prepass-sigma-s", "--dump", "--csv", "--sampler"});
+                   "--prepass-fallback", "--prepass-sigma-s", "--min-image-gain",
+                   "--min-final-gain", "--dump", "--csv", "--sampler"});
   if (!flags.ok()) return fail(flags.status());
   std::vector<std::filesystem::path> scenes;
   for (const std::string& p : flags->positional) scenes.emplace_back(p);
@@ -143,9 +145,16 @@ int run(int argc, char** argv) {
   auto epsilon = flags->number("--prepass-epsilon", 0.05, 1e-6, 1 - 1e-6);
   auto fallback = flags->number("--prepass-fallback", job::PrepassParameters{}.fallback, 0, 0.999);
   auto sigma_s = flags->number("--prepass-sigma-s", 1.75, 0.1, 64);
+  // The early stop's and the final drop's margins (job_parameters.h), to see the tables they
+  // would stop or drop: --min-image-gain -1 goes on whatever pass 1 predicts.
+  auto min_image_gain =
+      flags->number("--min-image-gain", job::PrepassParameters::kMinImageGain, -1e9, 1);
+  auto min_final_gain =
+      flags->number("--min-final-gain", job::PrepassParameters::kMinFinalGain, -1e9, 1);
   for (const absl::Status& s : {seeds.status(), reference_spp.status(), threads.status(),
                                 spp_flag.status(), prepass_spp.status(), passes.status(),
-                                epsilon.status(), fallback.status(), sigma_s.status()}) {
+                                epsilon.status(), fallback.status(), sigma_s.status(),
+                                min_image_gain.status(), min_final_gain.status()}) {
     if (!s.ok()) return fail(s);
   }
   const bool cpu_clock = flags->get("--clock", "cpu") == "cpu";
@@ -220,6 +229,8 @@ int run(int argc, char** argv) {
     params.epsilon = *epsilon;
     params.fallback = *fallback;
     params.sigma_s = *sigma_s;
+    params.min_image_gain = *min_image_gain;
+    params.min_final_gain = *min_final_gain;
     params.spp = *prepass_spp > 0
                      ? std::uint32_t(*prepass_spp)
                      : job::budgeted_prepass_spp(base.spp, params.passes, params.image_scaled);
