@@ -344,7 +344,10 @@ const Material& RenderScene::material_at(int index, const SurfaceHit& hit, const
 }
 
 RenderScene::CameraSample RenderScene::camera_sample(int px, int py, const Sampler& sampler) const {
-  const Point2 film = sampler.at2(layout::kDimFilm), lens = sampler.at2(layout::kDimLens);
+  // A pinhole never reads its lens pair (Camera::generate_ray), so it is not drawn: one Sobol
+  // pair of the nine or so of a sample, and the same rays.
+  const Point2 film = sampler.at2(layout::kDimFilm);
+  const Point2 lens = camera_.has_lens() ? sampler.at2(layout::kDimLens) : Point2{0.5f, 0.5f};
   const FilterSample filtered = pixel_filter().sample(film.u0, film.u1);
   return {
       camera_.generate_ray({float(px) + filtered.x, float(py) + filtered.y}, {lens.u0, lens.u1}),
