@@ -264,9 +264,11 @@ class CameraPath {
 
   // Scattering at a surface vertex: NEE (unless the BSDF is specular), then the BSDF's sampled
   // direction becomes `ray`. False when the path ends here. `roulette_u` receives the number
-  // Russian roulette reads after this vertex (it shares its pair with the lobe choice).
+  // Russian roulette reads after this vertex (it shares its pair with the lobe choice), if
+  // `roulette_follows`.
   bool scatter_at_surface(const Bsdf& bsdf, const Material& material, const SurfaceHit& hit,
-                          const ShapeInfo& info, std::uint32_t dim, Ray& ray, float* roulette_u) {
+                          const ShapeInfo& info, std::uint32_t dim, bool roulette_follows,
+                          Ray& ray, float* roulette_u) {
     const Geometry& geometry = scene_.geometry();
     Frame frame = Frame::from_xz(hit.dpdu, hit.ns);
     Vec3f wo = frame.to_local(-ray.direction);
@@ -279,7 +281,11 @@ class CameraPath {
                       *pdf = worker::pdf(bsdf, wo, wi_local);
                     });
     }
-    const Point2 lobe_and_roulette = sampler_.at2(dim + kScatterLobe);
+    // A diffuse BSDF has one lobe and ignores the lobe number; where no roulette follows either,
+    // nothing reads the pair, so it is not drawn (the same numbers everywhere else).
+    const bool pair_read = roulette_follows || !std::holds_alternative<DiffuseBsdf>(bsdf);
+    const Point2 lobe_and_roulette =
+        pair_read ? sampler_.at2(dim + kScatterLobe) : Point2{0.5f, 0.5f};
     *roulette_u = lobe_and_roulette.u1;
     auto bs =
         sample(bsdf, wo, lobe_and_roulette.u0, to_point(sampler_.at2(dim + kScatterDirection)));
@@ -493,7 +499,10 @@ SampleContribution PathIntegrator::trace(int px, int py, std::uint32_t pass,
     // terminates the others when it makes the BSDF, before next-event estimation).
     if (terminates_secondary(material)) path.terminate_secondary();
     float roulette_u = 0;
-    if (!path.scatter_at_surface(*bsdf, material, *hit, info, dim, ray, &roulette_u)) break;
+    if (!path.scatter_at_surface(*bsdf, material, *hit, info, dim,
+                                 depth + 1 >= options.rr_min_depth, ray, &roulette_u)) {
+      break;
+    }
     ++depth;
     crossings = 0;
     if (depth >= options.rr_min_depth && !path.survives_roulette(roulette_u)) break;
