@@ -607,7 +607,12 @@ class BasePath {
     const Frame& frame = vertex.frame;
     const Vec3f wo = vertex.wo;
     const LightContext ctx = vertex.ctx;
-    const Point2 lobe_and_roulette = sampler.at2(dim + kScatterLobe);
+    // As in PathIntegrator: a diffuse BSDF ignores the lobe number, and before rr_min_depth no
+    // roulette reads the pair's other number, so then the pair is not drawn.
+    const bool pair_read =
+        depth + 1 >= scene_.options().rr_min_depth || !std::holds_alternative<DiffuseBsdf>(*bsdf);
+    const Point2 lobe_and_roulette =
+        pair_read ? sampler.at2(dim + kScatterLobe) : Point2{0.5f, 0.5f};
     auto bs =
         sample(*bsdf, wo, lobe_and_roulette.u0, to_point(sampler.at2(dim + kScatterDirection)));
     if (!bs || !(bs->pdf[0] > 0)) return false;
