@@ -66,6 +66,31 @@ std::string gnuplot_string(const std::string& text) {
   return out;
 }
 
+// Tics for a log axis over [lo, hi] (0 < lo <= hi): the 1-2-5 values of each decade inside it;
+// every integer multiple of a decade where those are fewer than two, and whole decades where they
+// are more than twelve. gnuplot's own log tics sit at whole decades only, so a range inside one
+// decade would show no number at all.
+std::string log_tics(double lo, double hi) {
+  auto tics_of = [&](std::initializer_list<int> mantissas) {
+    std::vector<double> tics;
+    for (int d = int(std::floor(std::log10(lo))); d <= int(std::ceil(std::log10(hi))); ++d) {
+      for (int m : mantissas) {
+        const double v = m * std::pow(10.0, d);
+        if (v >= lo && v <= hi) tics.push_back(v);
+      }
+    }
+    return tics;
+  };
+  std::vector<double> tics = tics_of({1, 2, 5});
+  if (tics.size() < 2) tics = tics_of({1, 2, 3, 4, 5, 6, 7, 8, 9});
+  if (tics.size() > 12) tics = tics_of({1});
+  std::string out = "(";
+  for (std::size_t i = 0; i < tics.size(); ++i) {
+    absl::StrAppend(&out, i ? ", " : "", absl::StrFormat("%.6g", tics[i]));
+  }
+  return absl::StrCat(out, ")");
+}
+
 std::string number(double v) {
   return absl::StrFormat("%.6g", v);
 }
@@ -561,6 +586,9 @@ BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene
   BenchPlot plot;
   std::vector<std::string> series;
   int index = 0;
+  // The plotted points' extent: gnuplot's own log ranges round out to whole decades, which for
+  // budgets of 3 s and 10 s leaves the curves a fifth of the width.
+  double x_lo = HUGE_VAL, x_hi = 0, y_lo = HUGE_VAL, y_hi = 0;
   for (std::size_t mi = 0; mi < g.methods.size(); ++mi) {
     const std::string& method = g.methods[mi];
     for (std::size_t ri = 0; ri < g.regions.size(); ++ri) {
@@ -575,6 +603,10 @@ BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene
       absl::StrAppend(&plot.data, "# ", method, " ", region, "\n");
       for (const auto& p : points) {
         absl::StrAppend(&plot.data, absl::StrFormat("%.9g %.9g %d\n", p.seconds, p.error, p.spp));
+        x_lo = std::min(x_lo, p.seconds);
+        x_hi = std::max(x_hi, p.seconds);
+        y_lo = std::min(y_lo, p.error);
+        y_hi = std::max(y_hi, p.error);
       }
       absl::StrAppend(&plot.data, "\n\n");
       const bool inset = region != "image";
@@ -590,7 +622,13 @@ BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene
       gnuplot_string(clock == "cpu" ? "seconds (process CPU)" : "seconds (wall clock)"),
       "\nset ylabel ", gnuplot_string("relMSE over spectral bins (minus the reference floor)"),
       "\nset key below noenhanced\nset grid xtics ytics mxtics mytics\n"
-      "set format x '%g'\nset format y '%.0e'\n");
+      "set format x '%g'\nset format y '%.0e'\n",
+      series.empty()
+          ? ""
+          : absl::StrFormat("set xrange [%.6g:%.6g]\nset yrange [%.6g:%.6g]\n"
+                            "set xtics %s\nset ytics %s\n",
+                            x_lo / 1.25, x_hi * 1.25, y_lo / 1.5, y_hi * 1.5,
+                            log_tics(x_lo / 1.25, x_hi * 1.25), log_tics(y_lo / 1.5, y_hi * 1.5)));
   const std::string draw = series.empty()
                                ? std::string(
                                      "set label 1 'no positive errors to plot' at graph 0.3,0.5\n"

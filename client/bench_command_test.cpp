@@ -156,6 +156,23 @@ TEST(BenchCommandTest, PlotHasACurvePerMethodAndDashedInsets) {
   EXPECT_NE(plot.script.find("set output '/d/box.svg.tmp'"), std::string::npos);
   EXPECT_NE(plot.script.find("set output '/d/box.png.tmp'"), std::string::npos);
   EXPECT_NE(plot.script.find("set logscale xy"), std::string::npos);
+  // The axes fit the plotted points (1..4 s, relMSE 0.025..0.2), not whole decades.
+  EXPECT_NE(plot.script.find("set xrange [0.8:5]\nset yrange [0.0166667:0.3]\n"
+                             "set xtics (1, 2, 5)\nset ytics (0.02, 0.05, 0.1, 0.2)\n"),
+            std::string::npos)
+      << plot.script;
+}
+
+TEST(BenchCommandTest, PlotTicsStayReadableInsideADecadeAndOverMany) {
+  // 3 and 3.5 s: no 1-2-5 value in [2.4, 4.375], so every multiple of the decade; relMSE over
+  // eight decades: whole decades only.
+  const BenchPlot plot = bench_plot({row("hero", "a", 3, 1.5e-9), row("hero", "b", 3.5, 0.02)},
+                                    "box", "cpu", "/d/box.dat", "/d/box.svg", "/d/box.png");
+  EXPECT_NE(plot.script.find("set xtics (3, 4)\n"), std::string::npos) << plot.script;
+  EXPECT_NE(plot.script.find("set ytics (1e-09, 1e-08, 1e-07, 1e-06, 1e-05, 0.0001, 0.001, 0.01)"
+                             "\n"),
+            std::string::npos)
+      << plot.script;
 }
 
 }  // namespace

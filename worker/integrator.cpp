@@ -267,8 +267,8 @@ class CameraPath {
   // Russian roulette reads after this vertex (it shares its pair with the lobe choice), if
   // `roulette_follows`.
   bool scatter_at_surface(const Bsdf& bsdf, const Material& material, const SurfaceHit& hit,
-                          const ShapeInfo& info, std::uint32_t dim, bool roulette_follows,
-                          Ray& ray, float* roulette_u) {
+                          const ShapeInfo& info, std::uint32_t dim, bool roulette_follows, Ray& ray,
+                          float* roulette_u) {
     const Geometry& geometry = scene_.geometry();
     Frame frame = Frame::from_xz(hit.dpdu, hit.ns);
     Vec3f wo = frame.to_local(-ray.direction);

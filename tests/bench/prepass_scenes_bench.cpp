@@ -151,10 +151,10 @@ int run(int argc, char** argv) {
       flags->number("--min-image-gain", job::PrepassParameters::kMinImageGain, -1e9, 1);
   auto min_final_gain =
       flags->number("--min-final-gain", job::PrepassParameters::kMinFinalGain, -1e9, 1);
-  for (const absl::Status& s : {seeds.status(), reference_spp.status(), threads.status(),
-                                spp_flag.status(), prepass_spp.status(), passes.status(),
-                                epsilon.status(), fallback.status(), sigma_s.status(),
-                                min_image_gain.status(), min_final_gain.status()}) {
+  for (const absl::Status& s :
+       {seeds.status(), reference_spp.status(), threads.status(), spp_flag.status(),
+        prepass_spp.status(), passes.status(), epsilon.status(), fallback.status(),
+        sigma_s.status(), min_image_gain.status(), min_final_gain.status()}) {
     if (!s.ok()) return fail(s);
   }
   const bool cpu_clock = flags->get("--clock", "cpu") == "cpu";
