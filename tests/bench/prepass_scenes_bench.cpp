@@ -204,6 +204,23 @@ int run(int argc, char** argv) {
       base.render.sampler = job::SamplerKind::kIndependent;
     }
 
+    job::PrepassParameters params;
+    params.passes = int(*passes);
+    params.epsilon = *epsilon;
+    params.fallback = *fallback;
+    params.sigma_s = *sigma_s;
+    params.min_image_gain = *min_image_gain;
+    params.min_final_gain = *min_final_gain;
+    params.spp = *prepass_spp > 0
+                     ? std::uint32_t(*prepass_spp)
+                     : job::budgeted_prepass_spp(base.spp, params.passes, params.image_scaled);
+    if (params.spp == 0) {
+      std::printf(
+          "| %s | – | %llu | – | no prepass: the budget is under %u spp | | | | | | | | |\n",
+          name.c_str(), (unsigned long long)base.spp, job::kMinBudgetedSpp);
+      std::fflush(stdout);
+      continue;  // before the reference, which would not be used
+    }
     coordinator::LocalRenderOptions reference_options = base;
     reference_options.spp = std::uint64_t(*reference_spp);
     reference_options.render.seed = 0x5eed;
@@ -224,22 +241,6 @@ int run(int argc, char** argv) {
       r.rgb_floor = rgb_floor->mse;
     }
 
-    job::PrepassParameters params;
-    params.passes = int(*passes);
-    params.epsilon = *epsilon;
-    params.fallback = *fallback;
-    params.sigma_s = *sigma_s;
-    params.min_image_gain = *min_image_gain;
-    params.min_final_gain = *min_final_gain;
-    params.spp = *prepass_spp > 0
-                     ? std::uint32_t(*prepass_spp)
-                     : job::budgeted_prepass_spp(base.spp, params.passes, params.image_scaled);
-    if (params.spp == 0) {
-      std::printf(
-          "| %s | – | %llu | – | no prepass: the budget is under %u spp | | | | | | | | |\n",
-          name.c_str(), (unsigned long long)base.spp, job::kMinBudgetedSpp);
-      continue;
-    }
     std::vector<Run> runs[2];  // 0: default, 1: prepass
     std::vector<double> default_pixels, prepass_pixels;
     std::optional<coordinator::PixelTableImage> tables;
