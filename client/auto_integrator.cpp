@@ -166,6 +166,8 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   // material refracts smooth-dispersively (worker/gradient/integrator.h); uniform is a
   // candidate where a dielectric disperses.
   const bool gradient = worker::has_smooth_dispersive_refraction(built->scene());
+  // The geometry depends on the shapes alone: every pilot render and the job reuse this one.
+  out.geometry = built->shared_geometry();
   built.reset();
   std::vector<std::string> candidates = {"hero"};
   if (gradient) candidates.push_back("gradient");
@@ -259,6 +261,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     coordinator::LocalRenderOptions local = prepared.local;
     local.render.seed = seed;
     local.render.caustic_probe = kind;
+    local.geometry = out.geometry;
     PRISM_ASSIGN_OR_RETURN(auto render,
                            coordinator::LocalRender::create(device, description, library, local));
     return render->render();

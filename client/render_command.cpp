@@ -507,6 +507,7 @@ absl::StatusOr<PreparedRender> prepare_render(const RenderCommandOptions& option
   local.keep_primal_and_gradients = job.outputs.primal_and_gradients;
   local.prepass = job.prepass;
   local.target_error = job.target_error;
+  local.geometry = resolved.geometry;
   return prepared;
 }
 

@@ -111,9 +111,9 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
   render->threads_ = options.threads > 0 ? options.threads : tbb::info::default_concurrency();
   PRISM_RETURN_IF_ERROR(check_local_memory(render->options_, render->plan_, render->threads_));
   const Clock::time_point start = Clock::now();
-  PRISM_ASSIGN_OR_RETURN(render->scene_,
-                         worker::RenderScene::build(device, scene, library, render->options_.render,
-                                                    options.width, options.height));
+  PRISM_ASSIGN_OR_RETURN(
+      render->scene_, worker::RenderScene::build(device, scene, library, render->options_.render,
+                                                 options.width, options.height, options.geometry));
   if (options.render.traces_light_paths()) {
     PRISM_RETURN_IF_ERROR(worker::check_light_tracing(*render->scene_));
   }
@@ -143,8 +143,9 @@ absl::StatusOr<std::unique_ptr<LocalRender>> LocalRender::create(
       std::unique_ptr<worker::RenderScene> pass_scene;
       if (pass.width != options.width || pass.height != options.height) {
         PRISM_ASSIGN_OR_RETURN(
-            pass_scene, worker::RenderScene::build(device, scene, library, render->options_.render,
-                                                   pass.width, pass.height));
+            pass_scene,
+            worker::RenderScene::build(device, scene, library, render->options_.render, pass.width,
+                                       pass.height, render->scene_->shared_geometry()));
       }
       render->pass_scenes_.push_back(std::move(pass_scene));
     }

@@ -73,6 +73,10 @@ struct LocalRenderOptions {
   // Rendering to a target error (target_error.h), when set: `spp` is the first round's, and
   // rounds double it for the tiles short of the target up to target_error->max_spp.
   std::optional<job::TargetError> target_error;
+  // The scene's geometry as an earlier LocalRender of the same description on the same device
+  // built it (LocalRender::shared_geometry), when set: reused instead of built again
+  // (RenderScene::build). The bytes are the same either way.
+  std::shared_ptr<const worker::Geometry> geometry;
   // Admission control (resource_plan.h): create() refuses a job whose planned memory, besides
   // what the process already holds, exceeds this many bytes. 0: machine_memory_budget().
   std::uint64_t max_memory_bytes = 0;
@@ -159,6 +163,10 @@ class LocalRender {
   absl::StatusOr<LocalRenderResult> render(const std::atomic<bool>* cancel = nullptr) const;
 
   const worker::RenderScene& scene() const { return *scene_; }
+  // For LocalRenderOptions::geometry of later renders of the same description.
+  const std::shared_ptr<const worker::Geometry>& shared_geometry() const {
+    return scene_->shared_geometry();
+  }
   const TilePlan& plan() const { return plan_; }
   const LocalRenderOptions& options() const { return options_; }
   int threads() const { return threads_; }

@@ -85,6 +85,36 @@ TEST_F(LocalRenderTest, SplitTasksAreDeterministicAcrossThreadsAndTiles) {
   EXPECT_GT(total, 0.0);
 }
 
+TEST_F(LocalRenderTest, ReusedGeometryGivesTheSameBytesUnderOtherOptions) {
+  LocalRenderOptions first = options(2, 8, 0);
+  auto a = LocalRender::create(device_, *scene_, *library_, first);
+  ASSERT_TRUE(a.ok()) << a.status();
+  // Another seed, integrator and depth, with the first render's geometry and without it.
+  LocalRenderOptions other = options(2, 8, 0);
+  other.render.seed = 12;
+  other.render.integrator = job::IntegratorKind::kUniform;
+  other.render.max_depth = 5;
+  const LocalRenderOptions built_again = other;
+  other.geometry = (*a)->shared_geometry();
+  auto reused = LocalRender::create(device_, *scene_, *library_, other);
+  ASSERT_TRUE(reused.ok()) << reused.status();
+  EXPECT_EQ(&(*reused)->scene().geometry(), &(*a)->scene().geometry());  // not built again
+  auto fresh = LocalRender::create(device_, *scene_, *library_, built_again);
+  ASSERT_TRUE(fresh.ok()) << fresh.status();
+  EXPECT_NE(&(*fresh)->scene().geometry(), &(*a)->scene().geometry());
+  auto x = (*reused)->render();
+  auto y = (*fresh)->render();
+  ASSERT_TRUE(x.ok()) << x.status();
+  ASSERT_TRUE(y.ok()) << y.status();
+  EXPECT_TRUE(same_bits(x->image.data(), y->image.data()));
+  EXPECT_EQ(x->stats.counters.rays, y->stats.counters.rays);
+  // The geometry outlives the render that built it.
+  a->reset();
+  auto z = (*reused)->render();
+  ASSERT_TRUE(z.ok()) << z.status();
+  EXPECT_TRUE(same_bits(z->image.data(), y->image.data()));
+}
+
 TEST_F(LocalRenderTest, StatisticsDescribeTheImage) {
   auto r = render(options(2, 8, 2));
   ASSERT_TRUE(r.ok()) << r.status();

@@ -210,7 +210,7 @@ absl::StatusOr<AreaLight> make_area_light(const scene::Shape& shape, int index,
 absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
     EmbreeDevice& device, const scene::SceneDescription& scene,
     const spectral::SpectrumLibrary& library, const job::RenderOptions& options, int width,
-    int height) {
+    int height, std::shared_ptr<const Geometry> geometry) {
   std::unique_ptr<RenderScene> rs(new RenderScene());
   rs->options_ = options;
   auto grid = spectral::WavelengthGrid::create(options.bins);
@@ -223,20 +223,24 @@ absl::StatusOr<std::unique_ptr<RenderScene>> RenderScene::build(
 
   PRISM_ASSIGN_OR_RETURN(const std::vector<TexturePtr> textures,
                          Texture::resolve_all(scene, library, uplift));
-  std::vector<AlphaFunction> alpha(scene.shapes.size());
-  for (size_t i = 0; i < scene.shapes.size(); ++i) {
-    const scene::Shape& shape = scene.shapes[i];
-    if (shape.alpha_texture >= 0) {
-      TexturePtr texture = textures[size_t(shape.alpha_texture)];
-      alpha[i] = [texture](const Point2f& uv, const Vec3f& n) {
-        return texture->value(TextureContext{uv, n});
-      };
-    } else if (shape.alpha < 1.0) {
-      const float a = float(shape.alpha);
-      alpha[i] = [a](const Point2f&, const Vec3f&) { return a; };
+  if (geometry != nullptr) {
+    rs->geometry_ = std::move(geometry);
+  } else {
+    std::vector<AlphaFunction> alpha(scene.shapes.size());
+    for (size_t i = 0; i < scene.shapes.size(); ++i) {
+      const scene::Shape& shape = scene.shapes[i];
+      if (shape.alpha_texture >= 0) {
+        TexturePtr texture = textures[size_t(shape.alpha_texture)];
+        alpha[i] = [texture](const Point2f& uv, const Vec3f& n) {
+          return texture->value(TextureContext{uv, n});
+        };
+      } else if (shape.alpha < 1.0) {
+        const float a = float(shape.alpha);
+        alpha[i] = [a](const Point2f&, const Vec3f&) { return a; };
+      }
     }
+    PRISM_ASSIGN_OR_RETURN(rs->geometry_, Geometry::build(device, scene, std::move(alpha)));
   }
-  PRISM_ASSIGN_OR_RETURN(rs->geometry_, Geometry::build(device, scene, std::move(alpha)));
   PRISM_ASSIGN_OR_RETURN(rs->camera_, Camera::create(scene.camera, width, height));
   PRISM_ASSIGN_OR_RETURN(PixelFilter filter, PixelFilter::create(scene.filter));
   rs->pixel_filter_ = std::make_unique<PixelFilter>(std::move(filter));

@@ -53,12 +53,17 @@ class RenderScene {
  public:
   // Resolves every spectrum with `library` (which must outlive nothing: values are copied).
   // width/height: the job's film resolution. Errors carry the scene position where one exists.
+  // `geometry`, when given, is this scene's geometry as an earlier build of the same description
+  // on the same device made it (shared_geometry()): it depends on the shapes alone, not on the
+  // options, and building it (the BVH) is most of a build's time, so a pilot that renders one
+  // scene under several options builds it once.
   static absl::StatusOr<std::unique_ptr<RenderScene>> build(
       EmbreeDevice& device, const scene::SceneDescription& scene,
       const spectral::SpectrumLibrary& library, const job::RenderOptions& options, int width,
-      int height);
+      int height, std::shared_ptr<const Geometry> geometry = nullptr);
 
   const Geometry& geometry() const { return *geometry_; }
+  const std::shared_ptr<const Geometry>& shared_geometry() const { return geometry_; }
   const Camera& camera() const { return camera_; }
   // The scene's pixel filter (pbrt-v4's default gaussian when it names none).
   const PixelFilter& pixel_filter() const { return *pixel_filter_; }
@@ -100,7 +105,7 @@ class RenderScene {
  private:
   RenderScene() = default;
   job::RenderOptions options_;
-  std::unique_ptr<Geometry> geometry_;
+  std::shared_ptr<const Geometry> geometry_;
   Camera camera_;
   std::unique_ptr<PixelFilter> pixel_filter_;
   std::vector<Material> materials_;
