@@ -127,6 +127,9 @@ struct WorkerDaemon::CachedScene {
   scene::LoadedScene loaded;
   std::string render_key;  // scene_key() of `render`
   std::unique_ptr<RenderScene> render;
+  // The description's geometry, from its first build: it depends on the shapes alone, so another
+  // job, seed or pass on the same scene builds its RenderScene without building the BVH again.
+  std::shared_ptr<const Geometry> geometry;
 };
 
 WorkerDaemon::WorkerDaemon(const WorkerConfig& config, WorkerClient& client, EmbreeDevice& device,
@@ -520,9 +523,11 @@ absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
   if (cached.render_key != render_key || cached.render == nullptr) {
     cached.render.reset();
     cached.render_key.clear();
-    PRISM_ASSIGN_OR_RETURN(cached.render,
-                           RenderScene::build(device_, cached.loaded.description, library_,
-                                              params.render, setup.film_width, setup.film_height));
+    PRISM_ASSIGN_OR_RETURN(
+        cached.render,
+        RenderScene::build(device_, cached.loaded.description, library_, params.render,
+                           setup.film_width, setup.film_height, cached.geometry));
+    cached.geometry = cached.render->shared_geometry();
     cached.render_key = render_key;
     logger_->debug("{} built the render scene ({}x{}, {} bins)", context, setup.film_width,
                    setup.film_height, params.render.bins);

@@ -532,6 +532,35 @@ TEST_F(WorkerDaemonTest, RendersTheNextTaskWhileAResultUploadsWithABoundedQueue)
   }
 }
 
+// Tasks of other jobs on the same scene (another seed, another integrator) rebuild the render
+// scene around the geometry the first one built; each result is still byte for byte the
+// in-process render of its own task.
+TEST_F(WorkerDaemonTest, TasksOfOtherJobsOnTheSameSceneRenderTheirOwnBytes) {
+  fake_.lease = make_lease(rect(0, 0, 8, 8), 0, 8, 5);
+  v1::Lease other_seed = fake_.lease;
+  other_seed.set_lease_id("lease-2");
+  other_seed.mutable_task()->set_job_id("job-2");
+  other_seed.mutable_task()->mutable_spec()->set_seed(8);
+  v1::Lease other_integrator = other_seed;
+  other_integrator.set_lease_id("lease-3");
+  other_integrator.mutable_task()->set_job_id("job-3");
+  other_integrator.mutable_task()->mutable_spec()->set_integrator(v1::INTEGRATOR_UNIFORM);
+  fake_.later_leases = {other_seed, other_integrator};
+  start_worker();
+  ASSERT_TRUE(fake_.wait([&] { return fake_.uploads.size() == 3 || !fake_.failures.empty(); }));
+  ASSERT_TRUE(stop_worker());
+  EXPECT_TRUE(run_status_.ok()) << run_status_;
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  ASSERT_TRUE(fake_.failures.empty()) << fake_.failures[0].message();
+  ASSERT_EQ(fake_.uploads.size(), 3u);
+  const v1::Lease* leases[] = {&fake_.lease, &other_seed, &other_integrator};
+  for (std::size_t i = 0; i < 3; ++i) {
+    EXPECT_EQ(fake_.uploads[i].lease_id, leases[i]->lease_id());
+    EXPECT_TRUE(fake_.uploads[i].bytes == render_in_process(*leases[i])) << i;
+  }
+  EXPECT_FALSE(fake_.uploads[0].bytes == fake_.uploads[1].bytes);  // the seed reached the tracer
+}
+
 TEST_F(WorkerDaemonTest, ACancelDirectiveStopsALongTaskWithinOneHeartbeat) {
   // Full 16x16 tile, paths up to depth 100 in a lossless furnace, 32768 samples per pixel:
   // seconds of work (each pixel ~15 ms), so the directive arrives mid-task.
