@@ -274,7 +274,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
     PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec,
                            job_spec_of(g, description, bundle_hash, scene_relpath));
     PRISM_ASSIGN_OR_RETURN(const std::optional<double> seconds,
-                           choose_tau(g, device, description, library, spec));
+                           choose_tau(g, device, description, library, spec, out.geometry));
     out.tau_pilot = TauPilotRun{std::move(spec), seconds.value_or(0.0)};
   }
   for (const std::string& method : runs) {

@@ -329,7 +329,8 @@ absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& o,
                                                  worker::EmbreeDevice& device,
                                                  const scene::SceneDescription& description,
                                                  const spectral::SpectrumLibrary& library,
-                                                 v1::JobSpec& spec) {
+                                                 v1::JobSpec& spec,
+                                                 std::shared_ptr<const worker::Geometry> geometry) {
   PRISM_ASSIGN_OR_RETURN(job::IntegratorKind integrator, parse_integrator(o.integrator));
   if (integrator != job::IntegratorKind::kGradient || o.tau.has_value()) return std::nullopt;
   if (!device.valid()) {
@@ -339,9 +340,9 @@ absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& o,
   spec.mutable_gradient()->set_tau(0.0f);
   spec.mutable_gradient()->clear_tau_pilot();
   PRISM_ASSIGN_OR_RETURN(job::JobParameters job, job::job_parameters(spec, description));
-  PRISM_ASSIGN_OR_RETURN(
-      std::unique_ptr<worker::RenderScene> scene,
-      worker::RenderScene::build(device, description, library, job.render, job.width, job.height));
+  PRISM_ASSIGN_OR_RETURN(std::unique_ptr<worker::RenderScene> scene,
+                         worker::RenderScene::build(device, description, library, job.render,
+                                                    job.width, job.height, std::move(geometry)));
   worker::GradientPilotOptions options;
   options.threads = o.threads.has_value() ? static_cast<int>(*o.threads) : 0;
   PRISM_ASSIGN_OR_RETURN(worker::GradientPilot pilot,

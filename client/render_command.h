@@ -12,6 +12,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <memory>
 #include <optional>
 #include <ostream>
 #include <string>
@@ -132,11 +133,11 @@ absl::StatusOr<prism::v1::JobSpec> job_spec_of(const RenderCommandOptions& optio
 // pilot (worker/gradient/pilot.h) on the job `spec` describes, on --threads threads, and writes
 // its τ and figures into spec.gradient, so the farm and `prism render` trace with the same τ.
 // Returns the pilot's wall seconds, or nothing when no pilot ran (not a gradient job, or τ given).
-absl::StatusOr<std::optional<double>> choose_tau(const RenderCommandOptions& options,
-                                                 worker::EmbreeDevice& device,
-                                                 const scene::SceneDescription& description,
-                                                 const spectral::SpectrumLibrary& library,
-                                                 prism::v1::JobSpec& spec);
+// `geometry`: the description's geometry if already built (RenderScene::build).
+absl::StatusOr<std::optional<double>> choose_tau(
+    const RenderCommandOptions& options, worker::EmbreeDevice& device,
+    const scene::SceneDescription& description, const spectral::SpectrumLibrary& library,
+    prism::v1::JobSpec& spec, std::shared_ptr<const worker::Geometry> geometry = nullptr);
 
 // A τ pilot already run (by `auto`, which needs gradient's τ for its own pilot): the gradient
 // job's spec as choose_tau left it, and the pilot's wall seconds.
