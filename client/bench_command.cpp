@@ -67,9 +67,9 @@ std::string gnuplot_string(const std::string& text) {
 }
 
 // Tics for a log axis over [lo, hi] (0 < lo <= hi): the 1-2-5 values of each decade inside it;
-// every integer multiple of a decade where those are fewer than two, and whole decades where they
-// are more than twelve. gnuplot's own log tics sit at whole decades only, so a range inside one
-// decade would show no number at all.
+// every integer multiple of a decade where those are fewer than three, and whole decades where
+// they are more than twelve. gnuplot's own log tics sit at whole decades only, so a range inside
+// one decade would show no number at all.
 std::string log_tics(double lo, double hi) {
   auto tics_of = [&](std::initializer_list<int> mantissas) {
     std::vector<double> tics;
@@ -82,7 +82,7 @@ std::string log_tics(double lo, double hi) {
     return tics;
   };
   std::vector<double> tics = tics_of({1, 2, 5});
-  if (tics.size() < 2) tics = tics_of({1, 2, 3, 4, 5, 6, 7, 8, 9});
+  if (tics.size() < 3) tics = tics_of({1, 2, 3, 4, 5, 6, 7, 8, 9});
   if (tics.size() > 12) tics = tics_of({1});
   std::string out = "(";
   for (std::size_t i = 0; i < tics.size(); ++i) {
@@ -644,6 +644,33 @@ BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene
   return plot;
 }
 
+// Per scene: its plot's data, gnuplot script, SVG and PNG in `dir` (bench_plot), each written
+// whole or not at all; their paths are appended to `summary`.
+absl::Status write_plots(const std::vector<BenchRow>& rows, const std::vector<std::string>& scenes,
+                         const std::string& clock, const fs::path& dir, std::string& summary) {
+  std::error_code ec;
+  for (const std::string& stem : scenes) {
+    const fs::path data = dir / (stem + ".dat");
+    const fs::path script = dir / (stem + ".gp");
+    const fs::path svg = dir / (stem + ".svg");
+    const fs::path png = dir / (stem + ".png");
+    const BenchPlot plot = bench_plot(rows, stem, clock, data, svg, png);
+    PRISM_RETURN_IF_ERROR(base::write_file_atomic(data, plot.data));
+    PRISM_RETURN_IF_ERROR(base::write_file_atomic(script, plot.script));
+    PRISM_RETURN_IF_ERROR(run_gnuplot(script, dir / (stem + ".gnuplot.log")));
+    for (const fs::path& out : {svg, png}) {
+      fs::rename(fs::path(out.string() + ".tmp"), out, ec);
+      if (ec) {
+        return absl::InternalError(
+            absl::StrCat("cannot move ", out.string(), ".tmp into place: ", ec.message()));
+      }
+    }
+    fs::remove(dir / (stem + ".gnuplot.log"), ec);
+    absl::StrAppend(&summary, ", ", svg.string(), ", ", png.string());
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::EmbreeDevice& device) {
   std::vector<std::string> methods = absl::StrSplit(options.methods, ',');
   if (!options.results.empty()) {
@@ -665,7 +692,17 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
         report, bench_report(rows, options.baseline,
                              absl::StrCat("# prism bench\n\nThe rows of ", options.results.size(),
                                           " results file(s), methods ", options.methods, ".\n"))));
-    return absl::StrCat("wrote ", report.string(), " from ", rows.size(), " rows\n");
+    std::string summary = absl::StrCat("wrote ", report.string(), " from ", rows.size(), " rows");
+    // The plots too, on the clock the rows were timed with (CPU where every row's seconds are
+    // its CPU seconds).
+    std::vector<std::string> scenes;
+    bool cpu = !rows.empty();
+    for (const BenchRow& r : rows) {
+      if (!absl::c_linear_search(scenes, r.scene)) scenes.push_back(r.scene);
+      cpu = cpu && r.seconds == r.cpu_seconds;
+    }
+    PRISM_RETURN_IF_ERROR(write_plots(rows, scenes, cpu ? "cpu" : "wall", options.output, summary));
+    return absl::StrCat(summary, "\n");
   }
   // ---- Flags, all checked before any render.
   if (options.scenes.empty()) return absl::InvalidArgumentError("prism bench needs a scene");
@@ -1032,25 +1069,7 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
   const std::string report_text = bench_report(rows, options.baseline, header);
   PRISM_RETURN_IF_ERROR(base::write_file_atomic(report, report_text));
   absl::StrAppend(&summary, "wrote ", csv.string(), " (", rows.size(), " rows), ", report.string());
-  for (const std::string& stem : stems) {
-    const fs::path data = options.output / (stem + ".dat");
-    const fs::path script = options.output / (stem + ".gp");
-    const fs::path svg = options.output / (stem + ".svg");
-    const fs::path png = options.output / (stem + ".png");
-    const BenchPlot plot = bench_plot(rows, stem, options.clock, data, svg, png);
-    PRISM_RETURN_IF_ERROR(base::write_file_atomic(data, plot.data));
-    PRISM_RETURN_IF_ERROR(base::write_file_atomic(script, plot.script));
-    PRISM_RETURN_IF_ERROR(run_gnuplot(script, options.output / (stem + ".gnuplot.log")));
-    for (const fs::path& out : {svg, png}) {
-      fs::rename(fs::path(out.string() + ".tmp"), out, ec);
-      if (ec) {
-        return absl::InternalError(
-            absl::StrCat("cannot move ", out.string(), ".tmp into place: ", ec.message()));
-      }
-    }
-    fs::remove(options.output / (stem + ".gnuplot.log"), ec);
-    absl::StrAppend(&summary, ", ", svg.string(), ", ", png.string());
-  }
+  PRISM_RETURN_IF_ERROR(write_plots(rows, stems, options.clock, options.output, summary));
   return absl::StrCat(summary, "\n");
 }
 

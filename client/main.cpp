@@ -97,8 +97,8 @@ int main(int argc, char** argv) {
       "bench", "Error against time of the rendering methods on scenes (CSV, report, plots)");
   bench_cmd->add_option("scenes", bench.scenes, "pbrt-v4 scene files");
   bench_cmd->add_option("--results", bench.results,
-                        "Instead of rendering: report on earlier runs' results.csv (repeatable; "
-                        "the rows of --methods)");
+                        "Instead of rendering: the report and plots of earlier runs' "
+                        "results.csv (repeatable; the rows of --methods)");
   bench_cmd->add_option(
       "--methods", bench.methods,
       "Comma-separated: uniform, hero, hero+prepass, gradient, light, hero+caustics, "

@@ -15,7 +15,9 @@
 #include <string>
 #include <vector>
 
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
 #include "services/base/atomic_file.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/png.h"
@@ -978,6 +980,32 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
   auto png = prism::image::read_png(dir / "out" / "three-emitters.png");
   ASSERT_TRUE(png.ok()) << png.status();
   EXPECT_EQ(png->width, 1200);
+
+  // Reporting on the CSV without rendering draws the same plot from the same points (to the
+  // CSV's nine digits: a point is a mean over the seeds), on the clock the rows were timed with.
+  CommandRun replot = run_prism(dir, {"bench", "--results", "out/results.csv", "-o", "replot"});
+  ASSERT_EQ(replot.exit_code, 0) << replot.output;
+  auto replot_data = prism::base::read_file(dir / "replot" / "three-emitters.dat");
+  auto plot_data = prism::base::read_file(dir / "out" / "three-emitters.dat");
+  ASSERT_TRUE(replot_data.ok()) << replot_data.status();
+  ASSERT_TRUE(plot_data.ok()) << plot_data.status();
+  const std::vector<std::string> replotted = absl::StrSplit(*replot_data, absl::ByAnyChar("\n "));
+  const std::vector<std::string> plotted = absl::StrSplit(*plot_data, absl::ByAnyChar("\n "));
+  ASSERT_EQ(replotted.size(), plotted.size());
+  for (std::size_t i = 0; i < plotted.size(); ++i) {
+    double a = 0, b = 0;
+    if (absl::SimpleAtod(plotted[i], &a) && absl::SimpleAtod(replotted[i], &b)) {
+      EXPECT_NEAR(a, b, 1e-7 * std::abs(a)) << i;
+    } else {
+      EXPECT_EQ(replotted[i], plotted[i]) << i;
+    }
+  }
+  auto replot_script = prism::base::read_file(dir / "replot" / "three-emitters.gp");
+  ASSERT_TRUE(replot_script.ok());
+  EXPECT_NE(replot_script->find("seconds (wall clock)"), std::string::npos) << *replot_script;
+  auto replot_png = prism::image::read_png(dir / "replot" / "three-emitters.png");
+  ASSERT_TRUE(replot_png.ok()) << replot_png.status();
+  EXPECT_EQ(replot_png->width, 1200);
 
   // The cached reference, given explicitly, brings its half along: the same floor.
   fs::path cached;
