@@ -40,6 +40,11 @@ std::vector<double> random_weights(int n, std::mt19937_64& rng) {
   return w;
 }
 
+// A random pixel table of `bins` bins as a worker receives it: random_weights, quantised.
+std::vector<std::uint16_t> random_cdf(int bins, std::mt19937_64& rng) {
+  return WavelengthDistribution::from_table(random_weights(bins, rng))->quantise();
+}
+
 // The composite's mass over [lo, hi) computed from the default's own cdf and the table's
 // integer masses, independently of BinnedShape: Σ_b m_b · P_d([lo, hi) ∩ b) / P_d(b), or the
 // uniform fraction of the bin where P_d(b) = 0.
@@ -92,8 +97,7 @@ TEST(BinnedShapeTest, SamplesFollowTheTableWithTheDefaultShapeInsideBins) {
   std::mt19937_64 rng(3);
   for (int bins : {64, 17, 4}) {
     const BinnedShape shape = *BinnedShape::create(d, bins);
-    const std::vector<std::uint16_t> cdf =
-        WavelengthDistribution::from_table(random_weights(bins, rng))->quantise();
+    const std::vector<std::uint16_t> cdf = random_cdf(bins, rng);
     const QuantisedWavelengthCdf table = *QuantisedWavelengthCdf::create(cdf);
     SCOPED_TRACE(bins);
     expect_samples_match(shape, table, d, 470, 11 + bins);
@@ -199,8 +203,7 @@ TEST(BinnedShapeTest, GuidedSamplesAreTheFullSearchsSamples) {
   for (const WavelengthDistribution& d : defaults) {
     for (int bins : {1, 7, 32, 64, 300}) {
       const BinnedShape shape = *BinnedShape::create(d, bins);
-      const std::vector<std::uint16_t> cdf =
-          WavelengthDistribution::from_table(random_weights(bins, rng))->quantise();
+      const std::vector<std::uint16_t> cdf = random_cdf(bins, rng);
       const QuantisedWavelengthCdf table = *QuantisedWavelengthCdf::create(cdf);
       std::vector<std::uint16_t> guide(std::size_t(BinnedShape::guide_entries(bins)));
       BinnedShape::build_guide(table, guide);
@@ -237,8 +240,7 @@ TEST(BinnedShapeTest, CompositeSamplesAreTheTwoStepSamplesToRounding) {
   for (const WavelengthDistribution& d : defaults) {
     for (int bins : {1, 7, 32, 64, 256}) {
       const BinnedShape shape = *BinnedShape::create(d, bins);
-      const std::vector<std::uint16_t> cdf =
-          WavelengthDistribution::from_table(random_weights(bins, rng))->quantise();
+      const std::vector<std::uint16_t> cdf = random_cdf(bins, rng);
       const QuantisedWavelengthCdf table = *QuantisedWavelengthCdf::create(cdf);
       composite.assign(shape, table);
       for (int i = 0; i < 5000; ++i) {
