@@ -291,8 +291,9 @@ void CompositeCdf::assign(const BinnedShape& shape, const QuantisedWavelengthCdf
   table_ = &table;
   const std::span<const std::uint16_t> q = table.values();
   const std::size_t count = shape.piece_cell_.size();
-  cdf_.resize(count + 1);
-  pdf_.resize(count);
+  cdf_.resize(count + 2);
+  pieces_.resize(count);
+  Piece* pieces = pieces_.data();
   const double* fraction = shape.piece_fraction_.data();
   const int* cell = shape.piece_cell_.data();
   for (int b = 0; b < shape.bins_; ++b) {
@@ -304,54 +305,84 @@ void CompositeCdf::assign(const BinnedShape& shape, const QuantisedWavelengthCdf
     // BinnedShape::density's arithmetic, its per-bin factor taken out of the loop.
     if (shape.inv_bin_mass_[b] == 0.0) {
       const float density = static_cast<float>(units * kInvUnits * shape.bin_scale_);
-      for (int k = k0; k < k1; ++k) pdf_[std::size_t(k)] = density;
+      for (int k = k0; k < k1; ++k) pieces[k].pdf = density;
     } else {
       const double factor = units * kInvUnits * shape.inv_bin_mass_[b];
       for (int k = k0; k < k1; ++k) {
-        pdf_[std::size_t(k)] = static_cast<float>(factor * shape.cell_density_[cell[k]]);
+        pieces[k].pdf = static_cast<float>(factor * shape.cell_density_[cell[k]]);
       }
     }
   }
   cdf_[count] = 1.0;
-  // Nanometres per unit of u inside each piece (0 for the pieces without mass, never sampled).
-  slope_.resize(count);
+  cdf_[count + 1] = 1.0;  // read, never passed, by sample()'s second comparison
+  // Per piece its edges and floats, and nanometres per unit of u inside it (0 for the pieces
+  // without mass, never sampled).
   const double* width = shape.piece_width_.data();
   for (std::size_t k = 0; k < count; ++k) {
     const double mass = cdf_[k + 1] - cdf_[k];
-    slope_[k] = mass > 0.0 ? width[k] / mass : 0.0;
+    Piece& p = pieces[k];
+    p.lower = shape.piece_lower_[k];
+    p.slope = mass > 0.0 ? width[k] / mass : 0.0;
+    p.first = shape.piece_first_[k];
+    p.last = shape.piece_last_[k];
   }
   // The guide: the first 2^m >= four times the pieces, so that u·2^m is exact. Entry j is the last
   // piece whose lower CDF value is at or below j/2^m: piece k fills the entries from the first
-  // j/2^m above its lower value up to that above the next piece's.
-  std::size_t g = 1;
-  while (g < 4 * count) g *= 2;
-  guide_.resize(g + 1);
+  // j/2^m at or above its lower value up to the first at or above the next piece's. Each piece
+  // stores a run of kGuideRun entries unconditionally (the next piece overwrites what is past
+  // its own run; the buffer has kGuideRun spare entries) and loops only past that, so the fill
+  // does not mispredict at every piece's end.
+  int g = 1;
+  while (g < 4 * int(count)) g *= 2;
+  guide_.resize(std::size_t(g) + 1 + kGuideRun);
   const double dg = double(g);
-  std::size_t j = 0;
+  std::uint16_t* guide = guide_.data();
+  int j = 0;
   for (std::size_t k = 0; k + 1 < count; ++k) {
-    // Entries j with j/g < cdf_[k + 1] belong to piece k or an earlier one.
-    while (j < g && double(j) < cdf_[k + 1] * dg) guide_[j++] = std::uint16_t(k);
+    // The first entry of the next piece: the least j with j >= cdf[k + 1]·g (exact: g is a power
+    // of two), at most g.
+    const double x = std::min(cdf_[k + 1] * dg, dg);
+    int end = static_cast<int>(x);
+    end += double(end) < x ? 1 : 0;
+    const std::uint16_t piece = std::uint16_t(k);
+    int i = j;
+    do {
+      for (std::size_t r = 0; r < kGuideRun; ++r) guide[std::size_t(i) + r] = piece;
+      i += int(kGuideRun);
+    } while (i < end);
+    j = end;
   }
-  while (j <= g) guide_[j++] = std::uint16_t(count - 1);
+  std::fill(guide + j, guide + g + 1, std::uint16_t(count - 1));
+  guide_.resize(std::size_t(g) + 1);
+  guide_entries_ = dg;
 }
 
 WavelengthSample CompositeCdf::sample(double u) const {
   u = std::clamp(u, 0.0, kBelowOne);
-  // The last piece k with cdf[k] <= u, which has positive mass (cdf[k + 1] > u), by branch-free
-  // halving from the guide's range.
-  const std::size_t j = static_cast<std::size_t>(u * double(guide_.size() - 1));
-  const double* cell = cdf_.data() + guide_[j];
-  int span = guide_[j + 1] - guide_[j] + 1;
-  while (span > 1) {
-    const int half = span / 2;
-    cell = cell[half] <= u ? cell + half : cell;
-    span -= half;
+  // The last piece k with cdf[k] <= u, which has positive mass (cdf[k + 1] > u). It lies in the
+  // guide's span [guide[j], guide[j + 1]] for u's interval j, whose next CDF value is above u.
+  // With four entries per piece most spans hold at most three pieces, which two comparisons
+  // settle without a branch (cdf has a spare 1 past the end); a longer span (pieces of little
+  // mass, so rarely drawn) is halved instead.
+  const int j = static_cast<int>(u * guide_entries_);
+  const std::uint16_t* guide = guide_.data();
+  const double* cdf = cdf_.data();
+  const int first = guide[j], last = guide[j + 1];
+  int k = first + (cdf[first + 1] <= u ? 1 : 0) + (cdf[first + 2] <= u ? 1 : 0);
+  if (last > first + 2) [[unlikely]] {
+    const double* cell = cdf + first;
+    int span = last - first + 1;
+    while (span > 1) {
+      const int half = span / 2;
+      cell = cell[half] <= u ? cell + half : cell;
+      span -= half;
+    }
+    k = int(cell - cdf);
   }
-  const std::size_t k = std::size_t(cell - cdf_.data());
-  const BinnedShape& s = *shape_;
+  const Piece& p = pieces_[std::size_t(k)];
   // Linear inside the piece; the clamp to its floats also absorbs any rounding past its edges.
-  const float lambda = static_cast<float>(s.piece_lower_[k] + (u - cell[0]) * slope_[k]);
-  return {std::min(std::max(lambda, s.piece_first_[k]), s.piece_last_[k]), pdf_[k]};
+  const float lambda = static_cast<float>(p.lower + (u - cdf[k]) * p.slope);
+  return {std::min(std::max(lambda, p.first), p.last), p.pdf};
 }
 
 SampledWavelengths CompositeCdf::sample_lanes(double u, int lanes) const {

@@ -121,9 +121,11 @@ class BinnedShape {
 // not allocate. The shape and table must outlive the uses of an assignment.
 class CompositeCdf {
  public:
-  // The samples of a pixel in one task from which the tile renderer builds the composite: four
-  // lanes per sample take about 90 to pay for a build (prism-bench-wavelength-sampling
-  // --pixel-samples, docs/benchmarks.md "Cost of a lane").
+  // The samples of a pixel in one task from which the tile renderer builds the composite. Four
+  // lanes per sample pay for a build (about 2.7 µs) from about 32 samples on
+  // (prism-bench-wavelength-sampling --pixel-samples, docs/benchmarks.md "Cost of a lane"); a
+  // lower threshold would speed up only the prepass's passes of 32 to 127 samples per pixel, by
+  // at most about 1 % (lanes are 1–3 % of a render), and the tests split the two ways here.
   static constexpr std::uint64_t kMinSamples = 128;
 
   // `table` must have shape.bins() cells (PRISM_CHECK).
@@ -136,14 +138,24 @@ class CompositeCdf {
   const QuantisedWavelengthCdf& table() const { return *table_; }
 
  private:
+  // Entries each piece of the guide writes unconditionally when it is built (assign).
+  static constexpr std::size_t kGuideRun = 8;
+  // What a lane reads of the piece it falls in, together.
+  struct Piece {
+    double lower = 0;           // its lower edge, nm
+    double slope = 0;           // its width over its mass: nm per unit of u
+    float first = 0, last = 0;  // the floats with its bin and cell (BinnedShape)
+    float pdf = 0;              // the density, BinnedShape::density of its bin and cell
+  };
+
   const BinnedShape* shape_ = nullptr;
   const QuantisedWavelengthCdf* table_ = nullptr;
-  std::vector<double> cdf_;    // per piece its lower CDF value, then 1
-  std::vector<float> pdf_;     // per piece the density, BinnedShape::density of its bin and cell
-  std::vector<double> slope_;  // per piece its width over its mass: nm per unit of u
+  std::vector<double> cdf_;  // per piece its lower CDF value, then 1 twice
+  std::vector<Piece> pieces_;
   // 2^m intervals of u (2^m >= four times the pieces), per interval the last piece whose lower CDF
-  // value is at or below the interval's start, then the last piece.
+  // value is at or below the interval's start, then the last piece; guide_entries_ is 2^m.
   std::vector<std::uint16_t> guide_;
+  double guide_entries_ = 0;
 };
 
 }  // namespace prism::spectral

@@ -237,10 +237,21 @@ TEST(BinnedShapeTest, CompositeSamplesAreTheTwoStepSamplesToRounding) {
   std::mt19937_64 rng(23);
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   CompositeCdf composite;  // reassigned throughout, as the tile renderer does
+  // A random table, and one whose bins but one hold a single unit each: their pieces are far
+  // thinner than the composite's guide intervals, so those intervals span many pieces (the
+  // composite's longer search) and the rest of the guide one bin's pieces.
+  auto spiky_cdf = [](int bins) {
+    std::vector<std::uint16_t> cdf(std::size_t(bins) + 1, 0);
+    const int heavy = bins / 3;
+    for (int b = 0; b < bins; ++b) cdf[b + 1] = cdf[b] + (b == heavy ? 65535 - (bins - 1) : 1);
+    return cdf;
+  };
   for (const WavelengthDistribution& d : defaults) {
-    for (int bins : {1, 7, 32, 64, 256}) {
+    for (int bins : {1, 7, 32, 64, 256, -32, -256}) {
+      const bool spiky = bins < 0;
+      bins = std::abs(bins);
       const BinnedShape shape = *BinnedShape::create(d, bins);
-      const std::vector<std::uint16_t> cdf = random_cdf(bins, rng);
+      const std::vector<std::uint16_t> cdf = spiky ? spiky_cdf(bins) : random_cdf(bins, rng);
       const QuantisedWavelengthCdf table = *QuantisedWavelengthCdf::create(cdf);
       composite.assign(shape, table);
       for (int i = 0; i < 5000; ++i) {
