@@ -122,10 +122,12 @@ double eval_cdf(int n, float lambda_nm, const CdfAt& cdf_at) {
 
 // A guide of g + 1 entries for a CDF of n cells (g a power of two, so u·g is exact): entry j is
 // the last cell c with cdf(c) <= j/g (n − 1 for j = g). The cell u falls in, for j/g <= u <
-// (j+1)/g, lies in [guide[j], guide[j+1]]: the answer does not decrease as u grows.
+// (j+1)/g, lies in [guide[j], guide[j+1]]: the answer does not decrease as u grows. Four
+// entries per cell rather than two: a default lane 7 % faster (prism-bench-wavelength-sampling,
+// 5.75 -> 5.33 ns), and the binned shape's search inside a bin, which uses it, 9 %.
 std::vector<int> guide_cells(int n, const std::vector<double>& cdf) {
   int g = 1;
-  while (g < 2 * n) g *= 2;
+  while (g < 4 * n) g *= 2;
   std::vector<int> guide(static_cast<std::size_t>(g) + 1);
   int c = 0;
   for (int j = 0; j < g; ++j) {

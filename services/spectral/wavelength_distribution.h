@@ -120,7 +120,7 @@ class WavelengthDistribution {
   std::vector<double> mass_;
   std::vector<double> cdf_;  // cells() + 1 values, cdf_[0] = 0, cdf_.back() = 1 exactly
   std::vector<float> pdf_;   // mass_ / w
-  // Where sample()'s search starts: 2^m + 1 cells, the first 2^m >= 2·cells() (wavelength_
+  // Where sample()'s search starts: 2^m + 1 cells, the first 2^m >= 4·cells() (wavelength_
   // distribution.cpp, guide_cells).
   std::vector<int> guide_;
   // Per cell: its lower edge in nm, and the first and last float cell_of maps to it, so that
