@@ -66,10 +66,21 @@ void PixelFilter::Axis::sample(double u, double* x, double* weight) const {
     return;
   }
   const int cells = int(cdf.size()) - 1;
-  // The cell whose CDF interval holds u (cells of zero mass are never chosen): from the guide's
-  // cell for u's bucket, step up while the next boundary is at or below u.
-  int cell = guide[std::min(std::size_t(u * double(guide.size())), guide.size() - 1)];
-  while (cell < cells - 1 && cdf[cell + 1] <= u) ++cell;
+  // The cell whose CDF interval holds u (cells of zero mass are never chosen): the last cell at
+  // or above the guide's cell for u's bucket whose lower boundary is at or below u. Where the
+  // bucket spans at most three cells, two comparisons count the boundaries to step over (a loop
+  // whose trip count, 0 or 1, is a coin toss costs a misprediction every other sample); cdf's
+  // last value, 1, stands in for a boundary past the last cell.
+  const int buckets = int(guide.size()) - 1;
+  const int j = std::min(int(u * double(buckets)), buckets - 1);
+  int cell = guide[j];
+  const int last = guide[j + 1];
+  if (last > cell + 2) [[unlikely]] {
+    while (cell < cells - 1 && cdf[cell + 1] <= u) ++cell;
+  } else {
+    cell += (cdf[std::min(cell + 1, cells)] <= u ? 1 : 0) +
+            (cdf[std::min(cell + 2, cells)] <= u ? 1 : 0);
+  }
   const double mass = cdf[cell + 1] - cdf[cell];
   const double width = 2 * radius / cells;
   const double t = mass > 0 ? std::clamp((u - cdf[cell]) / mass, 0.0, 1.0) : 0.5;
@@ -107,14 +118,17 @@ PixelFilter::Axis PixelFilter::make_axis(const scene::PixelFilterSpec& spec, dou
   a.cdf.assign(static_cast<std::size_t>(cells) + 1, 0.0);
   for (int i = 0; i < cells; ++i) a.cdf[i + 1] = a.cdf[i] + masses[i] / a.abs_integral;
   a.cdf.back() = 1.0;
-  // The last cell whose lower boundary is at or below each bucket's start.
-  a.guide.resize(static_cast<std::size_t>(cells));
+  // The last cell whose lower boundary is at or below each bucket's start, and at u = 1 the last
+  // cell (Axis::guide).
+  const int buckets = 4 * cells;
+  a.guide.resize(static_cast<std::size_t>(buckets) + 1);
   int cell = 0;
-  for (int j = 0; j < cells; ++j) {
-    const double start = double(j) / cells;
+  for (int j = 0; j < buckets; ++j) {
+    const double start = double(j) / buckets;
     while (cell < cells - 1 && a.cdf[cell + 1] <= start) ++cell;
     a.guide[j] = cell;
   }
+  a.guide[buckets] = cells - 1;
   return a;
 }
 

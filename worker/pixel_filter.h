@@ -57,8 +57,9 @@ class PixelFilter {
     double integral = 1;      // ∫ f
     double abs_integral = 1;  // ∫ |f|
     std::vector<double> cdf;  // cells + 1 entries, cdf[0] = 0, cdf.back() = 1
-    // guide[j]: the cell holding u = j / guide.size() − at most a few steps below the cell of
-    // any u in [j, j + 1) / guide.size(), so a lookup is O(1) on average.
+    // G = 4 · cells buckets of u: guide[j] (j <= G) is the last cell whose lower boundary is at
+    // or below j / G, so the cell of any u in [j, j + 1) / G lies in [guide[j], guide[j + 1]]:
+    // mostly one or two cells, which sample() settles without a branch.
     std::vector<int> guide;
     double gaussian_floor = 0;      // exp(−r²/2σ²), subtracted by the gaussian
     double inverse_two_sigma2 = 0;  // 1/(2σ²)
