@@ -72,7 +72,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
                                                       const spectral::SpectrumLibrary& library,
                                                       const std::string& bundle_hash,
                                                       const std::string& scene_relpath) {
-  ResolvedIntegrator out{options, std::nullopt, std::nullopt};
+  ResolvedIntegrator out{options, std::nullopt, std::nullopt, nullptr};
   if (options.integrator != "auto") return out;
   const Clock::time_point start = Clock::now();
   RenderCommandOptions& chosen = out.options;

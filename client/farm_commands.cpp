@@ -372,7 +372,7 @@ absl::StatusOr<Submission> prepare_submission(const SubmitOptions& options) {
   // `auto` and the τ pilot run here, so the job carries their choices and every worker traces
   // with them.
   std::optional<worker::EmbreeDevice> device;
-  ResolvedIntegrator resolved{options.render, std::nullopt, std::nullopt};
+  ResolvedIntegrator resolved{options.render, std::nullopt, std::nullopt, nullptr};
   if (options.render.integrator == "auto") {
     device.emplace();
     PRISM_ASSIGN_OR_RETURN(resolved,
