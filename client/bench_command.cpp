@@ -755,7 +755,7 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
   }
   std::vector<image::Crop> insets;
   for (const std::string& text : options.insets) {
-    PRISM_ASSIGN_OR_RETURN(image::Crop crop, parse_crop(text));
+    PRISM_ASSIGN_OR_RETURN(image::Crop crop, parse_crop(text, "--inset"));
     insets.push_back(crop);
   }
   RenderCommandOptions base;

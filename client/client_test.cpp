@@ -93,6 +93,24 @@ TEST(CompareCommandTest, CropSyntax) {
   for (const char* bad : {"", "1,2,3", "1,2,3,4,5", "a,b,c,d", "-1,0,1,1", "1,2,3,4x"}) {
     EXPECT_EQ(parse_crop(bad).status().code(), absl::StatusCode::kInvalidArgument) << bad;
   }
+  // The message names the flag the text came from (prism bench's --inset parses it too).
+  EXPECT_EQ(parse_crop("1,2,3").status().message(),
+            "--crop '1,2,3': want x,y,w,h as four non-negative integers");
+  EXPECT_EQ(parse_crop("1,2,3", "--inset").status().message(),
+            "--inset '1,2,3': want x,y,w,h as four non-negative integers");
+}
+
+// A target error is 0.01 or 1 %, and a bad one is refused under the flag that gave it (prism
+// bench's --reference-error parses it too).
+TEST(RenderCommandTest, TargetErrorSyntax) {
+  EXPECT_DOUBLE_EQ(*parse_target_error("0.01"), 0.01);
+  EXPECT_DOUBLE_EQ(*parse_target_error("1%"), 0.01);
+  for (const char* bad : {"", "0", "%", "abc", "-1", "200%", "0.5x"}) {
+    EXPECT_EQ(parse_target_error(bad).status().code(), absl::StatusCode::kInvalidArgument) << bad;
+  }
+  EXPECT_EQ(parse_target_error("0", "--reference-error").status().message().substr(0, 25),
+            "--reference-error '0': wa");
+  EXPECT_EQ(parse_target_error("0").status().message().substr(0, 22), "--target-error '0': wa");
 }
 
 // The share of light paths that minimises (eye + light/s)(eye_rays + s·light_rays) for

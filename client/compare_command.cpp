@@ -8,7 +8,7 @@
 
 namespace prism::client {
 
-absl::StatusOr<image::Crop> parse_crop(const std::string& text) {
+absl::StatusOr<image::Crop> parse_crop(const std::string& text, std::string_view flag) {
   std::vector<std::string> parts = absl::StrSplit(text, ',');
   int values[4] = {};
   bool ok = parts.size() == 4;
@@ -18,8 +18,8 @@ absl::StatusOr<image::Crop> parse_crop(const std::string& text) {
     ok = !p.empty() && ec == std::errc() && end == p.data() + p.size() && values[i] >= 0;
   }
   if (!ok) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("--crop '", text, "': want x,y,w,h as four non-negative integers"));
+    return absl::InvalidArgumentError(absl::StrCat(
+        std::string(flag), " '", text, "': want x,y,w,h as four non-negative integers"));
   }
   return image::Crop{values[0], values[1], values[2], values[3]};
 }

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <string_view>
 
 #include "absl/status/statusor.h"
 #include "services/image/metrics.h"
@@ -21,6 +22,6 @@ struct CompareOptions {
 absl::StatusOr<std::string> run_compare(const CompareOptions& options);
 
 // Parses "x,y,w,h" (non-negative integers); INVALID_ARGUMENT naming the text otherwise.
-absl::StatusOr<image::Crop> parse_crop(const std::string& text);
+absl::StatusOr<image::Crop> parse_crop(const std::string& text, std::string_view flag = "--crop");
 
 }  // namespace prism::client

@@ -242,9 +242,9 @@ int main(int argc, char** argv) {
   if (bench_cmd->parsed()) {
     if (reference_spp_opt->count() > 0) bench.reference_spp = bench_reference_spp;
     if (reference_error_opt->count() > 0) {
-      auto parsed = prism::client::parse_target_error(bench_reference_error);
+      auto parsed = prism::client::parse_target_error(bench_reference_error, "--reference-error");
       if (!parsed.ok()) {
-        std::cerr << "prism: --reference-error: " << parsed.status().message() << "\n";
+        std::cerr << "prism: " << parsed.status().message() << "\n";
         return 1;
       }
       bench.reference_error = *parsed;

@@ -100,7 +100,7 @@ absl::StatusOr<std::pair<int, int>> parse_resolution(const std::string& text) {
   return std::pair<int, int>{w, h};
 }
 
-absl::StatusOr<double> parse_target_error(const std::string& text) {
+absl::StatusOr<double> parse_target_error(const std::string& text, std::string_view flag) {
   std::string digits = text;
   const bool percent = !digits.empty() && digits.back() == '%';
   if (percent) digits.pop_back();
@@ -110,7 +110,7 @@ absl::StatusOr<double> parse_target_error(const std::string& text) {
   if (digits.empty() || ec != std::errc() || end != digits.data() + digits.size() ||
       !(value >= job::kMinTargetError && value <= job::kMaxTargetError)) {
     return absl::InvalidArgumentError(
-        absl::StrCat("--target-error '", text, "': want a relative error such as 0.01 or 1% (",
+        absl::StrCat(std::string(flag), " '", text, "': want a relative error such as 0.01 or 1% (",
                      job::kMinTargetError, "..", job::kMaxTargetError, ")"));
   }
   return value;

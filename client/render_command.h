@@ -16,6 +16,7 @@
 #include <optional>
 #include <ostream>
 #include <string>
+#include <string_view>
 
 #include "absl/status/statusor.h"
 #include "coordinator/local_render.h"
@@ -102,7 +103,8 @@ struct RenderCommandOptions {
 absl::StatusOr<std::pair<int, int>> parse_resolution(const std::string& text);
 
 // "0.01" or "1%": a relative error in [1e-4, 1]; INVALID_ARGUMENT quoting the text otherwise.
-absl::StatusOr<double> parse_target_error(const std::string& text);
+absl::StatusOr<double> parse_target_error(const std::string& text,
+                                          std::string_view flag = "--target-error");
 
 // A decimal integer in 0..2^64-1 (a negative number is refused, not wrapped around).
 absl::StatusOr<std::uint64_t> parse_seed(const std::string& text);

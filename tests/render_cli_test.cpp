@@ -1042,7 +1042,8 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
 
   const std::vector<std::pair<std::vector<std::string>, std::string>> bad = {
       {{"--methods", "hero,nope", "--spp", "2"}, "unknown method 'nope'"},
-      {{"--spp", "2", "--reference-error", "nope"}, "--reference-error: --target-error 'nope'"},
+      {{"--spp", "2", "--reference-error", "nope"}, "prism: --reference-error 'nope': want"},
+      {{"--spp", "2", "--inset", "1,2,3"}, "prism: --inset '1,2,3': want x,y,w,h"},
       {{"--budgets", "10s,5s"}, "--budgets '10s,5s': want increasing durations"},
       {{"--spp", "2", "--inset", "30,20,8,8"}, "--inset 30,20,8,8"},
       {{"--spp", "2", "--clock", "sundial"}, "--clock 'sundial'"},
