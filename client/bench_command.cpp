@@ -589,6 +589,7 @@ BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene
   // The plotted points' extent: gnuplot's own log ranges round out to whole decades, which for
   // budgets of 3 s and 10 s leaves the curves a fifth of the width.
   double x_lo = HUGE_VAL, x_hi = 0, y_lo = HUGE_VAL, y_hi = 0;
+  bool any_inset = false;
   for (std::size_t mi = 0; mi < g.methods.size(); ++mi) {
     const std::string& method = g.methods[mi];
     for (std::size_t ri = 0; ri < g.regions.size(); ++ri) {
@@ -610,6 +611,7 @@ BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene
       }
       absl::StrAppend(&plot.data, "\n\n");
       const bool inset = region != "image";
+      any_inset = any_inset || inset;
       series.push_back(absl::StrCat(
           gnuplot_string(data_file.string()), " index ", index, " using 1:2 with linespoints lc ",
           mi + 1, " lw ", inset ? "1.5" : "2.5", " pt ", inset ? 6 : 7, " dt ", inset ? 2 : 1,
@@ -621,7 +623,11 @@ BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene
       "set title ", gnuplot_string(scene), "\nset logscale xy\nset xlabel ",
       gnuplot_string(clock == "cpu" ? "seconds (process CPU)" : "seconds (wall clock)"),
       "\nset ylabel ", gnuplot_string("relMSE over spectral bins (minus the reference floor)"),
-      "\nset key below noenhanced\nset grid xtics ytics mxtics mytics\n"
+      // The key below the plot, a column wider than gnuplot reckons (its estimate of the
+      // cairo font's widths runs short: titles overlapped their neighbours' samples), and in two
+      // columns where the insets' long titles would run off the image's edge.
+      "\nset key below noenhanced ", any_inset ? "width 2 maxcols 2" : "width 1",
+      "\nset grid xtics ytics mxtics mytics\n"
       "set format x '%g'\nset format y '%.0e'\n",
       series.empty()
           ? ""

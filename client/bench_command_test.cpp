@@ -156,6 +156,10 @@ TEST(BenchCommandTest, PlotHasACurvePerMethodAndDashedInsets) {
   EXPECT_NE(plot.script.find("set output '/d/box.svg.tmp'"), std::string::npos);
   EXPECT_NE(plot.script.find("set output '/d/box.png.tmp'"), std::string::npos);
   EXPECT_NE(plot.script.find("set logscale xy"), std::string::npos);
+  // With an inset's long titles the key takes two columns (one row of five would run off the
+  // image); the test below has no inset and keeps one row.
+  EXPECT_NE(plot.script.find("set key below noenhanced width 2 maxcols 2\n"), std::string::npos)
+      << plot.script;
   // The axes fit the plotted points (1..4 s, relMSE 0.025..0.2), not whole decades.
   EXPECT_NE(plot.script.find("set xrange [0.8:5]\nset yrange [0.0166667:0.3]\n"
                              "set xtics (1, 2, 5)\nset ytics (0.02, 0.05, 0.1, 0.2)\n"),
@@ -169,6 +173,8 @@ TEST(BenchCommandTest, PlotTicsStayReadableInsideADecadeAndOverMany) {
   const BenchPlot plot = bench_plot({row("hero", "a", 3, 1.5e-9), row("hero", "b", 3.5, 0.02)},
                                     "box", "cpu", "/d/box.dat", "/d/box.svg", "/d/box.png");
   EXPECT_NE(plot.script.find("set xtics (3, 4)\n"), std::string::npos) << plot.script;
+  EXPECT_NE(plot.script.find("set key below noenhanced width 1\n"), std::string::npos)
+      << plot.script;
   EXPECT_NE(plot.script.find("set ytics (1e-09, 1e-08, 1e-07, 1e-06, 1e-05, 0.0001, 0.001, 0.01)"
                              "\n"),
             std::string::npos)
