@@ -2,6 +2,8 @@
 
 #include <tiny_obj_loader.h>
 
+#include <charconv>
+#include <cmath>
 #include <cstdint>
 #include <limits>
 #include <map>
@@ -35,6 +37,47 @@ absl::Status obj_error(absl::string_view name, absl::string_view message) {
   return absl::InvalidArgumentError(absl::StrCat(name, ": ", message));
 }
 
+// tinyobjloader reads a number it cannot parse ("nan", "1,5", "x") as 0 without a word, so the
+// vertex data lines (v, vn, vt) are checked first: every value after the keyword must be a finite
+// number. The error names the line.
+absl::Status check_vertex_numbers(std::string_view text, absl::string_view name) {
+  std::size_t line = 0;
+  for (std::size_t start = 0; start < text.size();) {
+    std::size_t end = text.find('\n', start);
+    if (end == std::string_view::npos) end = text.size();
+    std::string_view row = text.substr(start, end - start);
+    start = end + 1;
+    ++line;
+    auto is_space = [](char c) { return c == ' ' || c == '\t' || c == '\r'; };
+    std::size_t i = 0;
+    while (i < row.size() && is_space(row[i])) ++i;
+    std::size_t k = i;
+    while (k < row.size() && !is_space(row[k])) ++k;
+    const std::string_view keyword = row.substr(i, k - i);
+    if (keyword != "v" && keyword != "vn" && keyword != "vt") continue;
+    for (i = k; i < row.size();) {
+      while (i < row.size() && is_space(row[i])) ++i;
+      if (i == row.size()) break;
+      k = i;
+      while (k < row.size() && !is_space(row[k])) ++k;
+      const std::string_view token = row.substr(i, k - i);
+      i = k;
+      // from_chars takes no leading '+', which strtod and OBJ writers allow.
+      const std::string_view digits = token.front() == '+' ? token.substr(1) : token;
+      double value = 0;
+      const auto [last, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), value);
+      if (digits.empty() || ec != std::errc() || last != digits.data() + digits.size() ||
+          !std::isfinite(value)) {
+        return obj_error(
+            name, absl::StrCat("line ", line, ": '", absl::string_view(token.data(), token.size()),
+                               "' in a '", absl::string_view(keyword.data(), keyword.size()),
+                               "' line is not a finite number"));
+      }
+    }
+  }
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 absl::StatusOr<TriangleMeshData> parse_obj(std::string_view text, std::string_view name_in,
@@ -44,6 +87,7 @@ absl::StatusOr<TriangleMeshData> parse_obj(std::string_view text, std::string_vi
     return absl::ResourceExhaustedError(
         absl::StrCat(name, ": ", text.size(), " bytes, over the limit of ", limits.max_file_bytes));
   }
+  PRISM_RETURN_IF_ERROR(check_vertex_numbers(text, name));
   tinyobj::attrib_t attrib;
   std::vector<tinyobj::shape_t> shapes;
   std::vector<tinyobj::material_t> materials;
@@ -84,8 +128,13 @@ absl::StatusOr<TriangleMeshData> parse_obj(std::string_view text, std::string_vi
         const tinyobj::index_t& idx = m.indices[c];
         if (idx.vertex_index < 0 || static_cast<std::size_t>(idx.vertex_index) >= num_positions) {
           return obj_error(
-              name, absl::StrCat("face ", f, " of '", shape.name,
-                                 "' refers to a missing position (", num_positions, " positions)"));
+              name,
+              absl::StrCat("face ", f, " of '", shape.name, "' refers to a missing position (",
+                           num_positions, " positions; its corner ", c - corner + 1,
+                           idx.vertex_index < 0
+                               ? std::string(" counts back past the first")
+                               : absl::StrCat(" names position ", idx.vertex_index + 1),
+                           ")"));
         }
         if (idx.normal_index >= 0 && static_cast<std::size_t>(idx.normal_index) >= num_normals) {
           return obj_error(

@@ -136,8 +136,9 @@ TEST(ObjTest, RefusesFilesWithoutFaces) {
 
 TEST(ObjTest, RefusesIndicesOutOfRange) {
   expect_invalid("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n",
-                 "refers to a missing position (3 positions)");
-  expect_invalid("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n", "missing position");
+                 "refers to a missing position (3 positions; its corner 3 names position 4)");
+  expect_invalid("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n",
+                 "missing position (3 positions; its corner 3 counts back past the first)");
   expect_invalid("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//2\n", "missing normal");
   expect_invalid("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/2 3/1\n",
                  "missing texture coordinate");
@@ -148,7 +149,21 @@ TEST(ObjTest, RefusesDegenerateFaces) {
 }
 
 TEST(ObjTest, RefusesNonFiniteCoordinates) {
-  expect_invalid("v 0 0 0\nv 1 0 0\nv 0 1e999 0\nf 1 2 3\n", "non-finite position");
+  expect_invalid("v 0 0 0\nv 1 0 0\nv 0 1e39 0\nf 1 2 3\n", "non-finite position");
+  // Values tinyobjloader would read as 0 without a word are refused with their line.
+  expect_invalid("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n",
+                 "line 3: 'nan' in a 'v' line is not a finite number");
+  expect_invalid("v 0 0 0\nv 1 0 0\nv 0 1e999 0\nf 1 2 3\n", "line 3: '1e999' in a 'v' line");
+  expect_invalid("v 0 0 0\nv 1 0 0\nv 0 1,5 0\nf 1 2 3\n", "line 3: '1,5' in a 'v' line");
+  expect_invalid("# x\n\n  v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 inf\nf 1//1 2//1 3//1\n",
+                 "line 6: 'inf' in a 'vn' line");
+  expect_invalid("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 x\nf 1/1 2/1 3/1\n",
+                 "line 4: 'x' in a 'vt' line");
+  // Signs, exponents, vertex colours and CRLF line ends are numbers as usual.
+  const TriangleMeshData mesh =
+      parsed("v +0 -0.0 0\r\nv 1e0 0 0 0.5 0.5 0.5\r\nv 0 1.0E+0 0\r\nf 1 2 3\r\n", "ok.obj");
+  ASSERT_EQ(mesh.positions.size(), 3u);
+  EXPECT_EQ(mesh.positions[2], (Float3{0, 1, 0}));
 }
 
 TEST(ObjTest, LimitsAreResourceExhausted) {
