@@ -571,7 +571,9 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   const double wall_seconds = std::chrono::duration<double>(Clock::now() - start).count();
 
   coordinator::RenderReport report;
-  report.scene = options.scene.string();
+  // The scene as the job names it (its path inside the bundle), as a farm job's outputs do: the
+  // same bytes whether the path was typed absolute or relative, here or on the farm.
+  report.scene = loaded.scene_relpath;
   report.width = local.width;
   report.height = local.height;
   report.spp = local.spp;
@@ -648,8 +650,8 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   const double output_seconds = std::chrono::duration<double>(Clock::now() - output_start).count();
   const double seconds = report.render_seconds;
   return absl::StrCat(
-      "rendered ", report.scene, ": ", report.width, "x", report.height, ", ", report.spp, " spp, ",
-      report.bins, " bins, ", report.integrator,
+      "rendered ", options.scene.string(), ": ", report.width, "x", report.height, ", ", report.spp,
+      " spp, ", report.bins, " bins, ", report.integrator,
       !report.light_caustics        ? std::string()
       : report.caustic_paths < 1.0f ? absl::StrCat(" with light-traced caustics (",
                                                    report.caustic_paths, " light paths per pixel)")

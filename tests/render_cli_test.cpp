@@ -106,6 +106,15 @@ TEST(RenderCliTest, BytesDoNotDependOnThreadsOrTileSize) {
             *prism::base::read_file(dir / "t2_tile64.exr"));
   EXPECT_EQ(*prism::base::read_file(dir / "t1_tile16.png"),
             *prism::base::read_file(dir / "t2_tile64.png"));
+  // Nor how the scene's path was typed: the outputs name it as the job does, by its path in the
+  // bundle, as a farm job's do.
+  std::vector<std::string> relative = cornell_args("relative.exr", "1", "16");
+  relative[1] = fs::relative(source(kCornell), dir).string();
+  ASSERT_NE(relative[1], source(kCornell));
+  CommandRun r = run_prism(dir, relative);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(*prism::base::read_file(dir / "t1_tile16.exr"),
+            *prism::base::read_file(dir / "relative.exr"));
 
   // The render is a real image: finite, non-negative, lit.
   double total = 0;
@@ -145,6 +154,8 @@ TEST(RenderCliTest, BytesDoNotDependOnThreadsOrTileSize) {
   auto rgb = prism::image::read_rgb_exr(dir / "t2_tile64.rgb.exr");
   ASSERT_TRUE(rgb.ok()) << rgb.status();
   EXPECT_EQ(rgb->metadata.at("seed"), "3");
+  EXPECT_EQ(rgb->metadata.at("scene"), "cornell-two-lights.pbrt");
+  EXPECT_EQ(j["scene"], "cornell-two-lights.pbrt");
 }
 
 TEST(RenderCliTest, DefaultsComeFromTheScene) {
