@@ -56,6 +56,11 @@ inline std::filesystem::path test_dir_path(const std::string& name) {
   if (info != nullptr) leaf.assign(info->test_suite_name()).append("_").append(info->name());
   if (!name.empty()) leaf.append("_").append(name);
   leaf.append("_").append(std::to_string(::getpid()));
+  // Parameterised tests' names hold '/' ("Scenes/LightTracingTest", "Agrees.../Glass"): one
+  // directory, not a tree whose parents would outlive the test.
+  for (char& c : leaf) {
+    if (c == '/') c = '_';
+  }
   return std::filesystem::path(::testing::TempDir()) / leaf;
 }
 }  // namespace detail
