@@ -5,6 +5,7 @@
 #include <numbers>
 
 #include "absl/strings/str_cat.h"
+#include "services/base/cdf_guide.h"
 
 namespace prism::worker {
 namespace {
@@ -65,22 +66,11 @@ void PixelFilter::Axis::sample(double u, double* x, double* weight) const {
     *weight = 1;
     return;
   }
-  const int cells = int(cdf.size()) - 1;
-  // The cell whose CDF interval holds u (cells of zero mass are never chosen): the last cell at
-  // or above the guide's cell for u's bucket whose lower boundary is at or below u. Where the
-  // bucket spans at most three cells, two comparisons count the boundaries to step over (a loop
-  // whose trip count, 0 or 1, is a coin toss costs a misprediction every other sample); cdf's
-  // last value, 1, stands in for a boundary past the last cell.
-  const int buckets = int(guide.size()) - 1;
-  const int j = std::min(int(u * double(buckets)), buckets - 1);
-  int cell = guide[j];
-  const int last = guide[j + 1];
-  if (last > cell + 2) [[unlikely]] {
-    while (cell < cells - 1 && cdf[cell + 1] <= u) ++cell;
-  } else {
-    cell += (cdf[std::min(cell + 1, cells)] <= u ? 1 : 0) +
-            (cdf[std::min(cell + 2, cells)] <= u ? 1 : 0);
-  }
+  const int cells = int(cdf.size()) - 2;
+  // The cell whose CDF interval holds u (cells of zero mass are never chosen); u below 1, which
+  // the guided search needs (the sampler's numbers are).
+  u = std::min(u, 0x1.fffffffffffffp-1);
+  const int cell = base::guided_cell(std::span<const double>(cdf), std::span<const int>(guide), u);
   const double mass = cdf[cell + 1] - cdf[cell];
   const double width = 2 * radius / cells;
   const double t = mass > 0 ? std::clamp((u - cdf[cell]) / mass, 0.0, 1.0) : 0.5;
@@ -115,20 +105,10 @@ PixelFilter::Axis PixelFilter::make_axis(const scene::PixelFilterSpec& spec, dou
     masses[i] = simpson([&](double x) { return std::abs(a.evaluate(x)); }, lo, hi);
     a.abs_integral += masses[i];
   }
-  a.cdf.assign(static_cast<std::size_t>(cells) + 1, 0.0);
+  a.cdf.assign(static_cast<std::size_t>(cells) + 2, 0.0);
   for (int i = 0; i < cells; ++i) a.cdf[i + 1] = a.cdf[i] + masses[i] / a.abs_integral;
-  a.cdf.back() = 1.0;
-  // The last cell whose lower boundary is at or below each bucket's start, and at u = 1 the last
-  // cell (Axis::guide).
-  const int buckets = 4 * cells;
-  a.guide.resize(static_cast<std::size_t>(buckets) + 1);
-  int cell = 0;
-  for (int j = 0; j < buckets; ++j) {
-    const double start = double(j) / buckets;
-    while (cell < cells - 1 && a.cdf[cell + 1] <= start) ++cell;
-    a.guide[j] = cell;
-  }
-  a.guide[buckets] = cells - 1;
+  a.cdf[cells] = a.cdf[cells + 1] = 1.0;  // the last value, and cdf_guide.h's sentinel
+  base::build_cdf_guide(std::span<const double>(a.cdf), a.guide);
   return a;
 }
 

@@ -56,10 +56,8 @@ class PixelFilter {
     double sigma = 0.5, b = 1.0 / 3.0, c = 1.0 / 3.0, tau = 3.0;
     double integral = 1;      // ∫ f
     double abs_integral = 1;  // ∫ |f|
-    std::vector<double> cdf;  // cells + 1 entries, cdf[0] = 0, cdf.back() = 1
-    // G = 4 · cells buckets of u: guide[j] (j <= G) is the last cell whose lower boundary is at
-    // or below j / G, so the cell of any u in [j, j + 1) / G lies in [guide[j], guide[j + 1]]:
-    // mostly one or two cells, which sample() settles without a branch.
+    std::vector<double> cdf;  // cells + 1 entries from 0 to 1, then a sentinel 1 (cdf_guide.h)
+    // base::build_cdf_guide's guide of cdf (services/base/cdf_guide.h).
     std::vector<int> guide;
     double gaussian_floor = 0;      // exp(−r²/2σ²), subtracted by the gaussian
     double inverse_two_sigma2 = 0;  // 1/(2σ²)

@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "absl/strings/str_cat.h"
+#include "services/base/cdf_guide.h"
 #include "services/base/check.h"
 #include "services/spectral/wavelength_grid.h"
 
@@ -314,7 +315,7 @@ void CompositeCdf::assign(const BinnedShape& shape, const QuantisedWavelengthCdf
     }
   }
   cdf_[count] = 1.0;
-  cdf_[count + 1] = 1.0;  // read, never passed, by sample()'s second comparison
+  cdf_[count + 1] = 1.0;  // base::build_cdf_guide's sentinel
   // Per piece its edges and floats, and nanometres per unit of u inside it (0 for the pieces
   // without mass, never sampled).
   const double* width = shape.piece_width_.data();
@@ -326,62 +327,18 @@ void CompositeCdf::assign(const BinnedShape& shape, const QuantisedWavelengthCdf
     p.first = shape.piece_first_[k];
     p.last = shape.piece_last_[k];
   }
-  // The guide: the first 2^m >= four times the pieces, so that u·2^m is exact. Entry j is the last
-  // piece whose lower CDF value is at or below j/2^m: piece k fills the entries from the first
-  // j/2^m at or above its lower value up to the first at or above the next piece's. Each piece
-  // stores a run of kGuideRun entries unconditionally (the next piece overwrites what is past
-  // its own run; the buffer has kGuideRun spare entries) and loops only past that, so the fill
-  // does not mispredict at every piece's end.
-  int g = 1;
-  while (g < 4 * int(count)) g *= 2;
-  guide_.resize(std::size_t(g) + 1 + kGuideRun);
-  const double dg = double(g);
-  std::uint16_t* guide = guide_.data();
-  int j = 0;
-  for (std::size_t k = 0; k + 1 < count; ++k) {
-    // The first entry of the next piece: the least j with j >= cdf[k + 1]·g (exact: g is a power
-    // of two), at most g.
-    const double x = std::min(cdf_[k + 1] * dg, dg);
-    int end = static_cast<int>(x);
-    end += double(end) < x ? 1 : 0;
-    const std::uint16_t piece = std::uint16_t(k);
-    int i = j;
-    do {
-      for (std::size_t r = 0; r < kGuideRun; ++r) guide[std::size_t(i) + r] = piece;
-      i += int(kGuideRun);
-    } while (i < end);
-    j = end;
-  }
-  std::fill(guide + j, guide + g + 1, std::uint16_t(count - 1));
-  guide_.resize(std::size_t(g) + 1);
-  guide_entries_ = dg;
+  // The guide: 2^m >= four intervals of u per piece (services/base/cdf_guide.h).
+  base::build_cdf_guide(std::span<const double>(cdf_), guide_);
 }
 
 WavelengthSample CompositeCdf::sample(double u) const {
   u = std::clamp(u, 0.0, kBelowOne);
-  // The last piece k with cdf[k] <= u, which has positive mass (cdf[k + 1] > u). It lies in the
-  // guide's span [guide[j], guide[j + 1]] for u's interval j, whose next CDF value is above u.
-  // With four entries per piece most spans hold at most three pieces, which two comparisons
-  // settle without a branch (cdf has a spare 1 past the end); a longer span (pieces of little
-  // mass, so rarely drawn) is halved instead.
-  const int j = static_cast<int>(u * guide_entries_);
-  const std::uint16_t* guide = guide_.data();
-  const double* cdf = cdf_.data();
-  const int first = guide[j], last = guide[j + 1];
-  int k = first + (cdf[first + 1] <= u ? 1 : 0) + (cdf[first + 2] <= u ? 1 : 0);
-  if (last > first + 2) [[unlikely]] {
-    const double* cell = cdf + first;
-    int span = last - first + 1;
-    while (span > 1) {
-      const int half = span / 2;
-      cell = cell[half] <= u ? cell + half : cell;
-      span -= half;
-    }
-    k = int(cell - cdf);
-  }
+  // The last piece k with cdf[k] <= u, which has positive mass (cdf[k + 1] > u).
+  const int k =
+      base::guided_cell(std::span<const double>(cdf_), std::span<const std::uint16_t>(guide_), u);
   const Piece& p = pieces_[std::size_t(k)];
   // Linear inside the piece; the clamp to its floats also absorbs any rounding past its edges.
-  const float lambda = static_cast<float>(p.lower + (u - cdf[k]) * p.slope);
+  const float lambda = static_cast<float>(p.lower + (u - cdf_[std::size_t(k)]) * p.slope);
   return {std::min(std::max(lambda, p.first), p.last), p.pdf};
 }
 

@@ -138,8 +138,6 @@ class CompositeCdf {
   const QuantisedWavelengthCdf& table() const { return *table_; }
 
  private:
-  // Entries each piece of the guide writes unconditionally when it is built (assign).
-  static constexpr std::size_t kGuideRun = 8;
   // What a lane reads of the piece it falls in, together.
   struct Piece {
     double lower = 0;           // its lower edge, nm
@@ -150,12 +148,10 @@ class CompositeCdf {
 
   const BinnedShape* shape_ = nullptr;
   const QuantisedWavelengthCdf* table_ = nullptr;
-  std::vector<double> cdf_;  // per piece its lower CDF value, then 1 twice
+  std::vector<double> cdf_;  // per piece its lower CDF value, then 1 twice (cdf_guide.h)
   std::vector<Piece> pieces_;
-  // 2^m intervals of u (2^m >= four times the pieces), per interval the last piece whose lower CDF
-  // value is at or below the interval's start, then the last piece; guide_entries_ is 2^m.
+  // base::build_cdf_guide's guide of cdf_: 2^m >= four intervals of u per piece.
   std::vector<std::uint16_t> guide_;
-  double guide_entries_ = 0;
 };
 
 }  // namespace prism::spectral
