@@ -2,7 +2,6 @@
 
 #include <tiny_obj_loader.h>
 
-#include <charconv>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -17,6 +16,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/strip.h"
 #include "services/base/atomic_file.h"
+#include "services/base/decimal.h"
 #include "services/base/status.h"
 
 namespace prism::scene {
@@ -62,12 +62,7 @@ absl::Status check_vertex_numbers(std::string_view text, absl::string_view name)
       while (k < row.size() && !is_space(row[k])) ++k;
       const std::string_view token = row.substr(i, k - i);
       i = k;
-      // from_chars takes no leading '+', which strtod and OBJ writers allow.
-      const std::string_view digits = token.front() == '+' ? token.substr(1) : token;
-      double value = 0;
-      const auto [last, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), value);
-      if (digits.empty() || ec != std::errc() || last != digits.data() + digits.size() ||
-          !std::isfinite(value)) {
+      if (base::parse_decimal(token).error != base::DecimalError::kNone) {
         return obj_error(
             name, absl::StrCat("line ", line, ": '", absl::string_view(token.data(), token.size()),
                                "' in a '", absl::string_view(keyword.data(), keyword.size()),

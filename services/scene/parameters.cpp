@@ -1,6 +1,5 @@
 #include "services/scene/parameters.h"
 
-#include <charconv>
 #include <cmath>
 #include <limits>
 #include <utility>
@@ -8,6 +7,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "absl/strings/ascii.h"
+#include "services/base/decimal.h"
 #include "services/base/status.h"
 
 namespace prism::scene {
@@ -46,16 +46,12 @@ std::string decl(const Parameter& p) { return absl::StrCat(absl_view(param_type_
 
 absl::StatusOr<double> parse_finite_number(std::string_view text, const SourceLocation& where,
                                            std::string_view what) {
-  std::string_view s = text;
-  if (!s.empty() && s.front() == '+') s.remove_prefix(1);
-  double v = 0.0;
-  auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-  if (ptr != s.data() + s.size() || s.empty() ||
-      (ec != std::errc() && ec != std::errc::result_out_of_range))
+  const base::Decimal d = base::parse_decimal(text);
+  if (d.error == base::DecimalError::kNotANumber)
     return location_error(where, absl::StrCat("expected a number for '", absl_view(what), "', found '", absl_view(text), "'"));
-  if (ec == std::errc::result_out_of_range || !std::isfinite(v))
+  if (d.error == base::DecimalError::kNotFinite)
     return location_error(where, absl::StrCat("value '", absl_view(text), "' of '", absl_view(what), "' is not a finite number"));
-  return v;
+  return d.value;
 }
 
 namespace {
@@ -400,10 +396,10 @@ absl::StatusOr<SpectrumTabulated> parse_spectrum_table(std::string_view text, co
     double values[2] = {0, 0};
     bool number[2] = {false, false};
     for (size_t i = 0; i < fields.size() && i < 2; ++i) {
-      absl::string_view f = fields[i];
-      if (!f.empty() && f.front() == '+') f.remove_prefix(1);
-      auto [ptr, ec] = std::from_chars(f.data(), f.data() + f.size(), values[i]);
-      number[i] = ec == std::errc() && ptr == f.data() + f.size() && std::isfinite(values[i]);
+      const base::Decimal d =
+          base::parse_decimal(std::string_view(fields[i].data(), fields[i].size()));
+      values[i] = d.value;
+      number[i] = d.error == base::DecimalError::kNone;
     }
     if (first_line && !number[0]) continue;  // one header line, e.g. "wavelength_nm,value"
     bool numeric = fields.size() == 2 && number[0] && number[1];
