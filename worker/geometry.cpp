@@ -640,6 +640,9 @@ std::optional<SurfaceHit> Geometry::intersect(const Ray& ray, float t_max) const
   if (const RayObserver* o = observer_.load(std::memory_order_relaxed); o != nullptr) [[unlikely]] {
     o->traced(ray, t_max, false);
   }
+  if (!embree_can_trace(ray, t_max)) [[unlikely]] {
+    return std::nullopt;
+  }
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   RTCRayHit rh;
@@ -669,6 +672,9 @@ std::optional<SurfaceHit> Geometry::intersect(const Ray& ray, float t_max) const
 bool Geometry::occluded(const Ray& ray, float t_max) const {
   if (const RayObserver* o = observer_.load(std::memory_order_relaxed); o != nullptr) [[unlikely]] {
     o->traced(ray, t_max, true);
+  }
+  if (!embree_can_trace(ray, t_max)) [[unlikely]] {
+    return true;
   }
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);

@@ -17,6 +17,7 @@
 #include <embree3/rtcore.h>
 
 #include <atomic>
+#include <cmath>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -83,15 +84,28 @@ class Geometry {
   Geometry(const Geometry&) = delete;
   Geometry& operator=(const Geometry&) = delete;
 
-  // Closest hit with t in (0, t_max).
+  // Closest hit with t in (0, t_max). A ray Embree cannot take (a NaN, or a coordinate or
+  // direction component beyond kMaxRayCoordinate: Embree's own check would abort the process)
+  // hits nothing, and occluded() calls it blocked, so that a numerical accident loses one path
+  // instead of the worker. The scene's load refuses coordinates that could reach that far
+  // (services/scene/coordinate_range.h), so a valid scene's rays never meet this.
   std::optional<SurfaceHit> intersect(const Ray& ray, float t_max) const;
   // How the hit's unit shading normal ns changes when its point moves by the tangent vector dp
   // (first order, world space): Igehy's normal differential, used by spectral ray differentials
   // (spectral_differential.h). Exact for the shape's own normal field: a sphere's (under any
   // affine transform), a cylinder's, interpolated vertex normals; 0 on flat triangles and disks.
   Vec3f normal_differential(const SurfaceHit& hit, const Vec3f& dp) const;
-  // True when anything blocks the segment origin + t·direction, t in (0, t_max).
+  // True when anything blocks the segment origin + t·direction, t in (0, t_max), or when
+  // Embree cannot take the ray (see intersect).
   bool occluded(const Ray& ray, float t_max) const;
+  // Embree's largest ray coordinate (its FLT_LARGE, 1.844e18).
+  static constexpr float kMaxRayCoordinate = 1.844e18f;
+  static bool embree_can_trace(const Ray& ray, float t_max) {
+    auto in_range = [](float x) { return std::abs(x) <= kMaxRayCoordinate; };  // false for NaN
+    return in_range(ray.origin.x) & in_range(ray.origin.y) & in_range(ray.origin.z) &
+           in_range(ray.direction.x) & in_range(ray.direction.y) & in_range(ray.direction.z) &
+           !std::isnan(t_max);
+  }
   // Every later query is also passed to `observer` (null: none, the default). Set it while
   // nothing traces; it must outlive the queries. Costs one predictable branch per query.
   void observe(const RayObserver* observer) const {

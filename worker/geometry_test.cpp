@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 
 namespace prism::worker {
 namespace {
@@ -47,6 +48,41 @@ TEST(GeometryTest, TriangleHitFollowsPbrtNormalConvention) {
   EXPECT_TRUE((*geometry)->occluded({{0, 0, 0}, {0, 0, 1}}, 6.0f));
   EXPECT_FALSE((*geometry)->occluded({{0, 0, 0}, {0, 0, 1}}, 4.0f));
   EXPECT_FALSE((*geometry)->intersect({{3, 3, 0}, {0, 0, 1}}, 1e30f));
+}
+
+// Embree aborts the process on a ray with a NaN or a component beyond its FLT_LARGE (its
+// ray.valid() assertion; the far sphere of the helper's scene brought down four farm workers in a
+// row). Such a ray hits nothing and its shadow query is blocked, next to shapes that Embree
+// enters through an instance transform (the sphere) and directly (the quad).
+TEST(GeometryTest, RaysEmbreeCannotTakeHitNothingInsteadOfAborting) {
+  EmbreeDevice device;
+  scene::SceneDescription desc;
+  desc.shapes.push_back(quad_shape(5));
+  desc.shapes.push_back(sphere_shape(1.0, scene::Transform::translate({0, 0, 10})));
+  auto geometry = Geometry::build(device, desc);
+  ASSERT_TRUE(geometry.ok()) << geometry.status();
+  const float nan = std::nanf("");
+  const float huge = 1e30f;
+  const Ray bad[] = {
+      {{0, 0, 0}, {nan, 0, 1}},
+      {{nan, 0, 0}, {0, 0, 1}},
+      {{0, 0, -huge}, {0, 0, 1}},
+      {{0, 0, 0}, {0, 0, huge}},
+      {{0, 0, 0}, {0, std::numeric_limits<float>::infinity(), 1}},
+      {{0, 0, 12}, {0, 0, -huge}},
+  };
+  for (const Ray& ray : bad) {
+    EXPECT_FALSE((*geometry)->intersect(ray, 1e30f));
+    EXPECT_TRUE((*geometry)->occluded(ray, 1e30f));
+  }
+  // A NaN t_max too, on an otherwise good ray.
+  EXPECT_FALSE((*geometry)->intersect({{0, 0, 0}, {0, 0, 1}}, nan));
+  EXPECT_TRUE((*geometry)->occluded({{0, 0, 0}, {0, 0, 1}}, nan));
+  // The limit itself is still traced.
+  const float limit = Geometry::kMaxRayCoordinate;
+  auto hit = (*geometry)->intersect({{0.5f, 0.5f, -limit}, {0, 0, 1}}, 1e30f);
+  EXPECT_TRUE(hit);
+  EXPECT_TRUE((*geometry)->intersect({{0, 0, 0}, {0, 0, 1}}, 1e30f));
 }
 
 TEST(GeometryTest, EllipsoidIsIntersectedExactly) {

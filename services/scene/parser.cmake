@@ -1,6 +1,7 @@
 # prism_scene (prism::scene): the pbrt-v4 tokenizer, parser and scene description, on top of
 # prism_scene_io (meshes, path confinement). Also the parser's fuzz target and corpus test.
 set(PRISM_SCENE_PARSER_SOURCES
+  ${CMAKE_CURRENT_LIST_DIR}/coordinate_range.cpp
   ${CMAKE_CURRENT_LIST_DIR}/loop_subdivision.cpp
   ${CMAKE_CURRENT_LIST_DIR}/parameters.cpp
   ${CMAKE_CURRENT_LIST_DIR}/parser.cpp

@@ -11,6 +11,7 @@
 #include "absl/strings/str_split.h"
 #include "services/base/status.h"
 #include "services/image/texture_image.h"
+#include "services/scene/coordinate_range.h"
 #include "services/scene/mesh_obj.h"
 #include "services/scene/mesh_ply.h"
 #include "services/scene/parameters.h"
@@ -133,6 +134,7 @@ class SceneParser {
     for (const Scope& s : scopes_)
       scene_.warnings.push_back(absl::StrCat(
           s.where.to_string(), ": warning: ", scope_begin_name(s.kind), " is never closed"));
+    PRISM_RETURN_IF_ERROR(check_coordinate_range(scene_));
     return std::move(scene_);
   }
 

@@ -248,6 +248,22 @@ const MemoryCase kMemoryCases[] = {
     {"WorldBegin\nAttributeBegin\n  ReverseOrientation\nAttributeEnd\nShape \"sphere\" \"float "
      "radius\" -1\n",
      "m.pbrt:5:16: 'float radius' must be > 0, got -1"},
+    // Coordinates Embree's rays cannot carry (services/scene/coordinate_range.h): a shape far
+    // away, a shape scaled down so far that the scene lands there in its own space, the camera.
+    {"WorldBegin\nShape \"sphere\"\nTranslate 1e30 0 0\nShape \"sphere\"\n",
+     "m.pbrt:4:1: the shape reaches coordinates of 1e+30, beyond the 1e+16 that Prism's ray "
+     "tracer (Embree) can carry: move it closer or scale the scene down"},
+    {"WorldBegin\nLightSource \"point\" \"point3 from\" [0 3 0]\nScale 1e-30 1e-30 1e-30\n"
+     "Shape \"sphere\"\n",
+     "m.pbrt:4:1: the shape's transform maps the scene (within 3 of the origin) to coordinates of "
+     "3e+30 in the shape's own space, beyond the 1e+16 that Prism's ray tracer (Embree) can "
+     "carry: is the shape scaled down by a huge factor?"},
+    {"LookAt 1e30 0 0  0 0 0  0 1 0\nCamera \"perspective\"\nWorldBegin\n",
+     "m.pbrt:2:8: the camera reaches coordinates of 1e+30, beyond the 1e+16 that Prism's ray "
+     "tracer (Embree) can carry: move it closer or scale the scene down"},
+    {"WorldBegin\nTranslate 0 -1e20 0\nLightSource \"point\"\n",
+     "m.pbrt:3:1: the light reaches coordinates of 1e+20, beyond the 1e+16 that Prism's ray "
+     "tracer (Embree) can carry: move it closer or scale the scene down"},
 };
 
 TEST(MemoryErrors, ExactMessages) {
@@ -256,6 +272,17 @@ TEST(MemoryErrors, ExactMessages) {
     absl::StatusOr<SceneDescription> s = parse_scene_string(c.scene, "m.pbrt", {}, files);
     ASSERT_FALSE(s.ok()) << c.scene;
     EXPECT_EQ(std::string(s.status().message()), c.message) << c.scene;
+  }
+}
+
+// Just inside the range: a shape 1e15 away, and one scaled by 1e-15 in a scene of a few units.
+TEST(MemoryErrors, ScenesWithinTheCoordinateRangeLoad) {
+  for (const char* scene :
+       {"WorldBegin\nShape \"sphere\"\nTranslate 1e15 0 0\nShape \"sphere\"\n",
+        "WorldBegin\nLightSource \"point\" \"point3 from\" [0 3 0]\nScale 1e-15 1e-15 1e-15\n"
+        "Shape \"sphere\"\n"}) {
+    absl::StatusOr<SceneDescription> s = parse_scene_string(scene, "m.pbrt", {}, {});
+    EXPECT_TRUE(s.ok()) << scene << ": " << s.status();
   }
 }
 
