@@ -344,6 +344,9 @@ struct Submission {
   scene::Bundle bundle;
   v1::SubmitJobRequest request;
   std::string film_filename;
+  // The scene's directory and files (SceneDescription::files), which no output may replace.
+  std::filesystem::path root;
+  std::vector<std::string> files;
 };
 
 absl::StatusOr<Submission> prepare_submission(const SubmitOptions& options) {
@@ -360,6 +363,8 @@ absl::StatusOr<Submission> prepare_submission(const SubmitOptions& options) {
   }
   Submission out;
   out.film_filename = loaded.description.film.filename;
+  out.root = loaded.root;
+  out.files = loaded.description.files;
   PRISM_ASSIGN_OR_RETURN(
       out.bundle, scene::make_bundle(loaded.root, loaded.scene_relpath, loaded.description.files));
   if (options.wait) {
@@ -368,6 +373,8 @@ absl::StatusOr<Submission> prepare_submission(const SubmitOptions& options) {
         coordinator::OutputPaths paths,
         coordinator::output_paths(options.render.output, std::nullopt, out.film_filename));
     PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
+    PRISM_RETURN_IF_ERROR(
+        coordinator::check_outputs_spare_scene(paths, loaded.root, loaded.description.files));
   }
   // `auto` and the τ pilot run here, so the job carries their choices and every worker traces
   // with them.
@@ -407,6 +414,8 @@ absl::StatusOr<Submission> prepare_submission(const SubmitOptions& options) {
 absl::StatusOr<std::string> run_pack(const SubmitOptions& options,
                                      const std::filesystem::path& bundle_file) {
   PRISM_ASSIGN_OR_RETURN(Submission submission, prepare_submission(options));
+  PRISM_RETURN_IF_ERROR(
+      coordinator::check_not_a_scene_file(bundle_file, submission.root, submission.files));
   const std::string packed = scene::pack(submission.bundle);
   PRISM_RETURN_IF_ERROR(base::write_file_atomic(bundle_file, packed));
   google::protobuf::util::JsonPrintOptions print;

@@ -537,6 +537,8 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
       coordinator::OutputPaths paths,
       coordinator::output_paths(options.output, options.json, description.film.filename));
   PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
+  PRISM_RETURN_IF_ERROR(
+      coordinator::check_outputs_spare_scene(paths, loaded.root, description.files));
 
   // The same job the farm would run: one set of rules for defaults and ranges.
   PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle,

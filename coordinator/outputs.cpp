@@ -111,6 +111,30 @@ absl::Status check_output_locations(const OutputPaths& paths) {
   return absl::OkStatus();
 }
 
+absl::Status check_not_a_scene_file(const fs::path& output, const fs::path& root,
+                                    const std::vector<std::string>& files) {
+  std::error_code ec;
+  if (!fs::exists(output, ec)) return absl::OkStatus();  // inputs exist
+  for (const std::string& file : files) {
+    if (fs::equivalent(output, root / file, ec)) {
+      return absl::InvalidArgumentError(absl::StrCat("cannot write '", output.string(),
+                                                     "': it is the scene's own file '", file,
+                                                     "'; choose another output name"));
+    }
+  }
+  return absl::OkStatus();
+}
+
+absl::Status check_outputs_spare_scene(const OutputPaths& paths, const fs::path& root,
+                                       const std::vector<std::string>& files) {
+  for (const fs::path* path :
+       {&paths.spectral_exr, &paths.rgb_exr, &paths.png, &paths.json, &paths.primal_exr,
+        &paths.gradient_exr, &paths.filtered_exr, &paths.filtered_png}) {
+    PRISM_RETURN_IF_ERROR(check_not_a_scene_file(*path, root, files));
+  }
+  return absl::OkStatus();
+}
+
 BinStatisticsAccumulator::BinStatisticsAccumulator(std::size_t tiles, int bins)
     : bins_(bins), tiles_(tiles) {
   PRISM_CHECK(bins >= 1);

@@ -62,6 +62,17 @@ absl::StatusOr<OutputPaths> output_paths(const std::optional<std::filesystem::pa
 // exists (NOT_FOUND otherwise) and no output names an existing directory (INVALID_ARGUMENT).
 absl::Status check_output_locations(const OutputPaths& paths);
 
+// INVALID_ARGUMENT when `output` is one of a scene's own files (`files`, relative to `root`, as
+// SceneDescription::files lists them: the scene, its includes, meshes, textures and spectra), by
+// fs::equivalent, so another spelling or a link to it is caught too: writing the output would
+// destroy an input.
+absl::Status check_not_a_scene_file(const std::filesystem::path& output,
+                                    const std::filesystem::path& root,
+                                    const std::vector<std::string>& files);
+// The same for every output of `paths`.
+absl::Status check_outputs_spare_scene(const OutputPaths& paths, const std::filesystem::path& root,
+                                       const std::vector<std::string>& files);
+
 // Per-bin image statistics for the report.
 struct BinStatistics {
   std::vector<double> mean;            // average over all pixels of the pixel means

@@ -80,6 +80,41 @@ TEST(OutputPathsTest, LocationsAreCheckedBeforeRendering) {
   EXPECT_TRUE(listing(dir) == std::vector<fs::path>{"a.png"});
 }
 
+// The helper's finding: `prism render victim.pbrt --json victim.pbrt` replaced the scene with
+// its report, and `-o texin.exr` the scene's own texture.
+TEST(OutputPathsTest, NoOutputReplacesOneOfTheScenesFiles) {
+  const fs::path dir = fresh_dir("scene-files");
+  fs::create_directories(dir / "textures");
+  for (const char* name : {"scene.pbrt", "textures/wood.exr"}) {
+    std::ofstream(dir / name) << "x";
+  }
+  const std::vector<std::string> files = {"scene.pbrt", "textures/wood.exr"};
+  auto json_on_scene =
+      output_paths(dir / "out.exr", dir / "textures" / ".." / "scene.pbrt", "x.exr");
+  ASSERT_TRUE(json_on_scene.ok());
+  absl::Status status = check_outputs_spare_scene(*json_on_scene, dir, files);
+  EXPECT_EQ(status.code(), absl::StatusCode::kInvalidArgument) << status;
+  EXPECT_NE(status.message().find("the scene's own file 'scene.pbrt'"), std::string::npos)
+      << status;
+  auto exr_on_texture = output_paths(dir / "textures" / "wood.exr", std::nullopt, "x.exr");
+  ASSERT_TRUE(exr_on_texture.ok());
+  EXPECT_EQ(check_outputs_spare_scene(*exr_on_texture, dir, files).code(),
+            absl::StatusCode::kInvalidArgument);
+  // Through a link too.
+  fs::create_symlink(dir / "scene.pbrt", dir / "link.json");
+  auto linked = output_paths(dir / "out.exr", dir / "link.json", "x.exr");
+  ASSERT_TRUE(linked.ok());
+  EXPECT_EQ(check_outputs_spare_scene(*linked, dir, files).code(),
+            absl::StatusCode::kInvalidArgument);
+  // Names beside them, existing or not, are fine.
+  std::ofstream(dir / "old.exr") << "an earlier render";
+  auto beside = output_paths(dir / "old.exr", std::nullopt, "x.exr");
+  ASSERT_TRUE(beside.ok());
+  EXPECT_TRUE(check_outputs_spare_scene(*beside, dir, files).ok());
+  EXPECT_TRUE(check_not_a_scene_file(dir / "new.bundle", dir, files).ok());
+  EXPECT_FALSE(check_not_a_scene_file(dir / "scene.pbrt", dir, files).ok());
+}
+
 image::TileResult result_with(const image::TileRect& rect, int bins,
                               const std::vector<std::vector<double>>& samples_per_pixel_bin0) {
   auto r = image::TileResult::create(rect, {0, 3}, bins);

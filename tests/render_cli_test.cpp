@@ -213,6 +213,32 @@ TEST(RenderCliTest, BadScenesFailClearlyAndWriteNothing) {
   expect_failure_writes_nothing("no_scene", {{"render", "no/such/scene.pbrt"}, "does not exist"});
 }
 
+// An output that is one of the scene's own files is refused before anything is written: the
+// report onto the scene or its mesh, and the bundle of `prism pack` onto the scene.
+TEST(RenderCliTest, OutputsNeverReplaceTheScenesOwnFiles) {
+  const fs::path dir = fresh_dir("outputs_spare_scene");
+  fs::copy(source("scenes/prism.pbrt"), dir / "scene.pbrt");
+  fs::copy(source("scenes/prism"), dir / "prism", fs::copy_options::recursive);
+  const std::string before = prism::base::read_file(dir / "scene.pbrt", 1 << 20).value();
+  const std::string mesh = prism::base::read_file(dir / "prism" / "prism.obj", 1 << 20).value();
+  const std::vector<std::string> files_before = listing(dir);
+  for (const std::vector<std::string>& args :
+       {std::vector<std::string>{"render", "scene.pbrt", "--json", "scene.pbrt"},
+        std::vector<std::string>{"render", "scene.pbrt", "--json", "prism/../prism/prism.obj"},
+        std::vector<std::string>{"pack", "scene.pbrt", "--bundle", "./scene.pbrt"}}) {
+    std::vector<std::string> full = args;
+    for (const char* extra : {"--spp", "1", "--resolution", "8x8", "--integrator", "hero"}) {
+      full.push_back(extra);
+    }
+    const CommandRun run = run_prism(dir, full);
+    EXPECT_NE(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("it is the scene's own file '"), std::string::npos) << run.output;
+    EXPECT_EQ(prism::base::read_file(dir / "scene.pbrt", 1 << 20).value(), before);
+    EXPECT_EQ(prism::base::read_file(dir / "prism" / "prism.obj", 1 << 20).value(), mesh);
+    EXPECT_EQ(listing(dir), files_before);
+  }
+}
+
 // A render to a target error: rounds of samples until every pixel meets it or max spp is
 // reached. Its bytes do not depend on the threads; the report says what was reached; a looser
 // target stops earlier with fewer samples, and a target met in round 1 is the plain render.
