@@ -54,6 +54,9 @@ absl::Status FarmCoordinator::start() {
        {"blobs", "bundles", "convergence", "jobs", "scenes", "outputs", "tmp", "trash"}) {
     PRISM_RETURN_IF_ERROR(base::make_directories(dir / sub));
   }
+  PRISM_ASSIGN_OR_RETURN(
+      data_dir_lock_, base::FileLock::acquire(dir / "coordinator.lock",
+                                              absl::StrCat("the data directory ", dir.string())));
   // Leftovers of an interrupted upload are never referenced.
   std::error_code ec;
   for (const auto& entry : fs::directory_iterator(dir / "tmp", ec))

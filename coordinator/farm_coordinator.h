@@ -75,6 +75,7 @@
 #include "coordinator/tile_merge.h"
 #include "coordinator/tile_plan.h"
 #include "prism/v1/types.pb.h"
+#include "services/base/file_lock.h"
 #include "services/image/tile.h"
 #include "services/job/job_spec.h"
 #include "services/scene/scene_loader.h"
@@ -286,6 +287,10 @@ class FarmCoordinator : public FarmView {
   void tick_loop();
 
   FarmOptions options_;
+  // One coordinator per data directory (<data dir>/coordinator.lock): a second one on the same
+  // directory would share its store and leave its jobs to workers that never see them. Declared
+  // first of the state, so it is released after everything else is closed.
+  std::optional<base::FileLock> data_dir_lock_;
   spectral::SpectrumLibrary library_;
   spectral::ColorMatching cmf_;
   mutable std::mutex mutex_;

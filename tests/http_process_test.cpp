@@ -194,6 +194,39 @@ TEST_F(HttpProcessTest, CurlUploadsSubmitsWatchesFetchesAndCancelsOverHttps) {
 
 // Prometheus scrapes /metrics with the bearer token; its query API then returns the farm's
 // figures, and `promtool` accepts the exposition.
+// gRPC and httplib both set SO_REUSEPORT by default, so a second coordinator could bind the
+// first one's addresses and take a random share of the calls; and nothing stopped two
+// coordinators from sharing a data directory. Each is refused now, and the first goes on serving.
+TEST_F(HttpProcessTest, ASecondCoordinatorSharesNeitherAnAddressNorADataDirectory) {
+  ASSERT_NO_FATAL_FAILURE(start_coordinator(/*tls=*/false));
+  const std::string grpc = "127.0.0.1:" + std::to_string(grpc_port_);
+  const std::string http = "127.0.0.1:" + std::to_string(http_port_);
+  const struct {
+    std::string listen, http_listen;
+    fs::path data;
+    std::string message;
+  } cases[] = {
+      {grpc, "", root_ / "data2", "cannot listen on " + grpc},
+      {"127.0.0.1:0", http, root_ / "data3", "cannot listen for HTTP on " + http},
+      {"127.0.0.1:0", "", root_ / "data",
+       "the data directory " + (root_ / "data").string() + " is in use by process"},
+  };
+  for (const auto& c : cases) {
+    std::vector<std::string> extra;
+    if (!c.http_listen.empty()) extra = {"--http-listen", c.http_listen};
+    testing::RunResult second = testing::run(testing::coordinator_command(
+        PRISM_COORDINATOR_BINARY, c.listen, c.data, kSecret, kToken, extra));
+    EXPECT_EQ(second.exit_code, 1) << second.out << second.err;
+    EXPECT_NE(second.err.find(c.message), std::string::npos) << second.err;
+  }
+  // Every call still reaches the first: a job list, many times over.
+  for (int i = 0; i < 20; ++i) {
+    int status = 0;
+    curl({base_ + "/api/v1/jobs"}, &status);
+    EXPECT_EQ(status, 200);
+  }
+}
+
 TEST_F(HttpProcessTest, PrometheusScrapesTheMetrics) {
   ASSERT_NO_FATAL_FAILURE(start_coordinator(/*tls=*/false));
   ASSERT_NO_FATAL_FAILURE(start_worker());

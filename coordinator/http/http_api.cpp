@@ -178,6 +178,13 @@ absl::StatusOr<std::unique_ptr<HttpApi>> HttpApi::start(FarmCoordinator& farm,
     api->server_ = std::make_unique<httplib::Server>();
   }
   api->server_->new_task_queue = [] { return new httplib::ThreadPool(kThreads); };
+  // httplib's default sets SO_REUSEPORT, which lets a second coordinator bind the same address
+  // and take a random share of the requests. SO_REUSEADDR alone still allows a restart while
+  // the old connections wait in TIME_WAIT, and refuses a second listener.
+  api->server_->set_socket_options([](socket_t sock) {
+    int yes = 1;
+    ::setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof(yes));
+  });
   api->server_->set_payload_max_length(farm.options().max_bundle_bytes);
   api->install_routes();
   const auto& [host, port] = address;
@@ -187,7 +194,8 @@ absl::StatusOr<std::unique_ptr<HttpApi>> HttpApi::start(FarmCoordinator& farm,
     api->port_ = port;
   }
   if (api->port_ <= 0) {
-    return absl::UnavailableError(absl::StrCat("cannot listen for HTTP on ", config.listen));
+    return absl::UnavailableError(absl::StrCat("cannot listen for HTTP on ", config.listen,
+                                               " (is another process using the address?)"));
   }
   HttpApi* self = api.get();
   api->thread_ = std::thread([self] { self->server_->listen_after_bind(); });
