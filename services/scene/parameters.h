@@ -7,7 +7,7 @@
 //
 // Spectrum-valued strings: a string containing '/' or '.' is a file name (two columns,
 // λ in nm and value; comma or whitespace separated; '#' comments; one non-numeric header
-// line allowed), resolved relative to the file that mentions it; any other string is a
+// line allowed), resolved relative to the main scene file's directory; any other string is a
 // named spectrum, checked with the caller's name predicate.
 #pragma once
 

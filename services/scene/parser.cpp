@@ -237,10 +237,9 @@ absl::StatusOr<std::string> SceneParser::resolve(const std::string& reference,
     return location_error(
         where, absl::StrCat("absolute path \"", reference,
                             "\" refused: files must be named relative to the scene file"));
-  // Relative to the directory of the file that mentions it.
-  std::string joined = reference;
-  if (size_t slash = where.file.rfind('/'); slash != std::string::npos)
-    joined = absl::StrCat(where.file.substr(0, slash + 1), reference);
+  // Relative to the main scene file's directory, whichever file mentions it, as pbrt-v4 resolves
+  // every file name (its search directory is set once, from the file it was given).
+  const std::string& joined = reference;
   int level = 0;
   for (absl::string_view part : absl::StrSplit(joined, '/')) {
     if (part == "..") {

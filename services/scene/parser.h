@@ -1,8 +1,9 @@
 // The pbrt-v4 scene parser (Prism's subset): runs the directives of a scene file, keeping
 // pbrt-v4's graphics state (current transform, attribute stack, material, area light, media,
 // ReverseOrientation, named coordinate systems, object instances), and builds a
-// SceneDescription. Files it mentions (Include/Import, meshes, spectrum tables) are named
-// relative to the file that mentions them, normalised, and must stay inside the scene root;
+// SceneDescription. Files it mentions (Include/Import, meshes, spectrum tables, textures) are
+// named relative to the main scene file's directory, the scene root, from whichever file mentions
+// them (as in pbrt-v4), normalised, and must stay inside the root;
 // the parser reaches them only through SceneFiles, so the same code parses from disk
 // (scene_loader.h) and from memory (tests, fuzzing).
 //
@@ -16,9 +17,7 @@
 // an unknown shape or light is dropped, a partial sphere is whole, ...).
 //
 // Deliberate differences from pbrt-v4:
-// - Include/Import and other file names are relative to the file that mentions them (pbrt-v4:
-//   to the main scene file's directory); both agree for scenes kept in one directory.
-//   Nesting deeper than kMaxIncludeDepth (16) is an error.
+// - Include/Import nesting deeper than kMaxIncludeDepth (16) is an error.
 // - Names are resolved when their directive is read: NamedMaterial, MediumInterface,
 //   CoordSysTransform and ObjectInstance must follow the definition they name.
 // - Extensions: `objmesh` shapes (Wavefront OBJ); `float cauchy` / `float sellmeier` IORs on

@@ -268,8 +268,7 @@ TEST(GoodScenes, TexturesCoatedMaterialsAndDisks) {
   const auto& gonio = std::get<PointLight>(s.lights[0].kind);
   ASSERT_NE(gonio.goniometric, nullptr);
   EXPECT_EQ(gonio.filename, "textures/grey.png");
-  EXPECT_FLOAT_EQ(gonio.goniometric->values[0],
-                  float(std::pow((64 / 255.0 + 0.055) / 1.055, 2.4)));
+  EXPECT_FLOAT_EQ(gonio.goniometric->values[0], float(std::pow((64 / 255.0 + 0.055) / 1.055, 2.4)));
   EXPECT_EQ(gonio.power, std::optional<double>(10));
   // Images are scene files: a bundle must carry them.
   EXPECT_EQ(s.files,
@@ -356,17 +355,36 @@ TEST(GoodScenes, MeshesIncludesAndFiles) {
   EXPECT_EQ(mesh(3).source, "meshes/tri.obj");
   EXPECT_EQ(mesh(4).source, "meshes/quad.ply");
   EXPECT_EQ(mesh(4).mesh->triangles.size(), 2u);
-  // From sub/part.pbrt: "../meshes/tri.obj" is the same file, loaded once.
+  // From sub/part.pbrt: "meshes/tri.obj" (relative to the main file, as in pbrt-v4) is the same
+  // file, loaded once.
   EXPECT_EQ(mesh(5).source, "meshes/tri.obj");
   EXPECT_EQ(mesh(5).mesh, mesh(3).mesh);
   expect_near(s.shapes[5].object_to_world.apply_point({0, 0, 0}), {0, 0, 5});
   EXPECT_EQ(mesh(6).source, "sub/local.obj");
   EXPECT_EQ(s.shapes[6].where.file, "sub/part.pbrt");
-  EXPECT_EQ(s.shapes[6].where.line, 5);
+  EXPECT_EQ(s.shapes[6].where.line, 6);
   EXPECT_TRUE(s.shapes[7].object_to_world.is_identity());
   EXPECT_EQ(s.triangle_count(), 11u);
   EXPECT_EQ(s.files, (std::vector<std::string>{"meshes.pbrt", "meshes/tri.obj", "meshes/quad.ply",
                                                "sub/part.pbrt", "sub/local.obj"}));
+}
+
+// pbrt-v4 resolves every file name against the main scene file's directory (its search
+// directory), whichever file names it: sub/a.inc's "b.inc" is the root's b.inc, not sub/b.inc.
+TEST(GoodScenes, NestedIncludesNameFilesFromTheMainScenesDirectory) {
+  const std::map<std::string, std::string> files = {
+      {"sub/a.inc", "Include \"b.inc\"\nInclude \"sub/c.inc\"\n"},
+      {"b.inc", "Shape \"sphere\" \"float radius\" 0.2\n"},
+      {"sub/b.inc", "Shape \"sphere\" \"float radius\" 0.9\n"},
+      {"sub/c.inc", "Shape \"sphere\" \"float radius\" 0.5\n"},
+  };
+  absl::StatusOr<SceneDescription> s =
+      parse_scene_string("WorldBegin\nInclude \"sub/a.inc\"\n", "main.pbrt", {}, files);
+  ASSERT_TRUE(s.ok()) << s.status();
+  ASSERT_EQ(s->shapes.size(), 2u);
+  EXPECT_EQ(std::get<SphereShape>(s->shapes[0].geometry).radius, 0.2);
+  EXPECT_EQ(std::get<SphereShape>(s->shapes[1].geometry).radius, 0.5);
+  EXPECT_EQ(s->files, (std::vector<std::string>{"main.pbrt", "sub/a.inc", "b.inc", "sub/c.inc"}));
 }
 
 TEST(GoodScenes, ObjectInstancesAreFlattenedWithComposedTransforms) {
