@@ -149,7 +149,8 @@ int main(int argc, char** argv) {
   add_connection(submit_cmd);
   submit_cmd->add_flag("--wait", submit.wait, "Watch the job, then fetch its outputs");
   submit_cmd->add_option("--client-token", submit.client_token,
-                         "Idempotency key (default: hash of bundle and spec)");
+                         "Idempotency key (default: hash of bundle and spec): the same key "
+                         "returns the same job, unless it failed or was cancelled");
 
   prism::client::SubmitOptions pack;
   prism::client::RenderFlags pack_flags;

@@ -213,9 +213,12 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
                                                   const std::string& client_token) {
   std::unique_lock<std::mutex> lock(mutex_);
   if (!client_token.empty()) {
+    // A failed or cancelled job gives its token up to this submission (JobStore::create_job).
     absl::StatusOr<store::JobRecord> known = store_->find_by_client_token(client_token);
-    if (known.ok()) return status_locked(*known);
-    if (known.status().code() != absl::StatusCode::kNotFound) return known.status();
+    if (known.ok() && !store::gives_up_client_token(known->state)) return status_locked(*known);
+    if (!known.ok() && known.status().code() != absl::StatusCode::kNotFound) {
+      return known.status();
+    }
   }
   // Checked again after planning, which runs unlocked.
   auto check_queue = [this]() -> absl::Status {

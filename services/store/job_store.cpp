@@ -253,6 +253,10 @@ bool is_terminal(JobState state) {
   return state == JobState::kDone || state == JobState::kFailed || state == JobState::kCancelled;
 }
 
+bool gives_up_client_token(JobState state) {
+  return state == JobState::kFailed || state == JobState::kCancelled;
+}
+
 bool is_valid_transition(JobState from, JobState to) {
   if (is_terminal(from) || from == to) return false;
   if (to == JobState::kFailed || to == JobState::kCancelled) return true;
@@ -376,10 +380,14 @@ absl::StatusOr<CreateJobResult> JobStore::create_job(JobRecord job,
     if (!job.client_token.empty()) {
       PRISM_ASSIGN_OR_RETURN(auto existing,
                              query_jobs("WHERE client_token = ?", {text(job.client_token)}));
-      if (!existing.empty()) {
+      if (!existing.empty() && !gives_up_client_token(existing[0].state)) {
         result.job = std::move(existing[0]);
         result.existed = true;
         return absl::OkStatus();
+      }
+      if (!existing.empty()) {
+        PRISM_RETURN_IF_ERROR(
+            db_.run("UPDATE jobs SET client_token = NULL WHERE id = ?", {text(existing[0].id)}));
       }
     }
     PRISM_ASSIGN_OR_RETURN(job.id, allocate_id("job", "j-"));

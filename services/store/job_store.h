@@ -47,6 +47,10 @@ enum class JobState : int {
 // "QUEUED", "PREPASS", ... ("UNKNOWN(n)" for a value outside the enum).
 std::string to_string(JobState state);
 bool is_terminal(JobState state);
+// FAILED or CANCELLED: a job that will never have outputs, which gives up its client token to
+// the next submission with it (JobStore::create_job), so that the same render can be asked for
+// again.
+bool gives_up_client_token(JobState state);
 // QUEUED → PREPASS | RENDERING; PREPASS → RENDERING; RENDERING → FINALISING;
 // FINALISING → DONE; any non-terminal state → FAILED | CANCELLED. Nothing leaves a terminal
 // state. Staying in the same state is not a transition (see set_job_state).
@@ -135,7 +139,9 @@ class JobStore {
   // ranges, state pending: INVALID_ARGUMENT otherwise) and returns it with its new id; the id
   // and state in `job` are ignored and the progress totals are computed from `tasks`. When
   // job.client_token is already known, returns that job with existed = true and changes
-  // nothing: the spec and tasks of the repeated request are ignored.
+  // nothing: the spec and tasks of the repeated request are ignored; unless that job FAILED or
+  // was CANCELLED (gives_up_client_token): then it loses the token and the new job is stored
+  // with it, in the same transaction.
   absl::StatusOr<CreateJobResult> create_job(JobRecord job, std::span<const TaskRecord> tasks);
 
   // Appends tasks to a non-terminal job (the rest of a large plan, stored in parts); their

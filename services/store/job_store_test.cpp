@@ -118,6 +118,44 @@ TEST_F(JobStoreTest, IdempotentSubmitSurvivesReopen) {
   EXPECT_EQ(count_rows(store.database(), "jobs"), 4);
 }
 
+// A cancelled or failed job gives its token up: the same submission again is a new job, which
+// its retries then find; a live or done job keeps its token (one render, not two).
+TEST_F(JobStoreTest, CancelledAndFailedJobsGiveTheirTokenToTheNextSubmission) {
+  JobStore store = open_store();
+  auto first = store.create_job(make_job("token-1", "spec A"), make_tasks(2));
+  ASSERT_TRUE(first.ok()) << first.status();
+  ASSERT_TRUE(store.set_job_state(first->job.id, JobState::kCancelled, 10).ok());
+  auto second = store.create_job(make_job("token-1", "spec A"), make_tasks(2));
+  ASSERT_TRUE(second.ok()) << second.status();
+  EXPECT_FALSE(second->existed);
+  EXPECT_NE(second->job.id, first->job.id);
+  EXPECT_EQ(second->job.state, JobState::kQueued);
+  auto retry = store.create_job(make_job("token-1", "spec A"), make_tasks(2));
+  ASSERT_TRUE(retry.ok());
+  EXPECT_TRUE(retry->existed);
+  EXPECT_EQ(retry->job.id, second->job.id);
+  EXPECT_EQ(store.find_by_client_token("token-1")->id, second->job.id);
+  // The cancelled job is still there, without its token.
+  auto old = store.get_job(first->job.id);
+  ASSERT_TRUE(old.ok());
+  EXPECT_EQ(old->state, JobState::kCancelled);
+  EXPECT_TRUE(old->client_token.empty());
+
+  ASSERT_TRUE(store.set_job_state(second->job.id, JobState::kFailed, 20).ok());
+  auto third = store.create_job(make_job("token-1", "spec A"), make_tasks(2));
+  ASSERT_TRUE(third.ok());
+  EXPECT_FALSE(third->existed);
+
+  // A live job keeps it (so does a DONE one: only FAILED and CANCELLED give it up).
+  EXPECT_FALSE(gives_up_client_token(JobState::kDone));
+  ASSERT_TRUE(store.set_job_state(third->job.id, JobState::kRendering, 30).ok());
+  auto fourth = store.create_job(make_job("token-1", "spec A"), make_tasks(2));
+  ASSERT_TRUE(fourth.ok());
+  EXPECT_TRUE(fourth->existed);
+  EXPECT_EQ(fourth->job.id, third->job.id);
+  EXPECT_EQ(count_rows(store.database(), "jobs"), 3);
+}
+
 TEST_F(JobStoreTest, MigratesEmptyFileAndRefusesNewerSchema) {
   { std::ofstream(file_).flush(); }
   ASSERT_EQ(fs::file_size(file_), 0u);
