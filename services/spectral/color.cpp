@@ -2,7 +2,9 @@
 
 #include <cmath>
 
+#include "absl/strings/str_cat.h"
 #include "services/base/check.h"
+#include "services/base/status.h"
 #include "services/spectral/csv_table.h"
 #include "services/spectral/embedded_data.h"
 
@@ -174,11 +176,53 @@ XyzBinWeights ColorMatching::bin_weights(const WavelengthGrid& grid) const {
   return XyzBinWeights(grid, std::move(w));
 }
 
+absl::StatusOr<PiecewiseLinearSpectrum> cie_daylight_illuminant(std::string_view name) {
+  // The nominal temperatures, corrected for the change of c2 in Planck's law (1.4380e-2 to
+  // 1.4388e-2 m·K) as CIE 015 defines D50 ... D75.
+  double nominal = 0.0;
+  for (const auto& [n, t] : {std::pair<std::string_view, double>{"D50", 5000.0},
+                             {"D55", 5500.0},
+                             {"D65", 6500.0},
+                             {"D75", 7500.0}}) {
+    if (n == name) nominal = t;
+  }
+  if (nominal == 0.0) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "no CIE daylight illuminant '", absl::string_view(name.data(), name.size()), "'"));
+  }
+  const double t = nominal * 1.4388 / 1.4380;
+  // CIE 015:2018 eq. 4.1 and 4.2: the daylight locus, then the basis weights.
+  const double x = t <= 7000.0
+                       ? -4.6070e9 / (t * t * t) + 2.9678e6 / (t * t) + 0.09911e3 / t + 0.244063
+                       : -2.0064e9 / (t * t * t) + 1.9018e6 / (t * t) + 0.24748e3 / t + 0.237040;
+  const double y = -3.000 * x * x + 2.870 * x - 0.275;
+  const double m = 0.0241 + 0.2562 * x - 0.7341 * y;
+  const double m1 = std::round((-1.3515 - 1.7703 * x + 5.9114 * y) / m * 1000.0) / 1000.0;
+  const double m2 = std::round((0.0300 - 31.4424 * x + 30.0717 * y) / m * 1000.0) / 1000.0;
+
+  constexpr std::string_view kTablePath = "illuminants/cie_standard_illuminants_300_780_5nm.csv";
+  constexpr std::string_view kBasisPath = "illuminants/cie_daylight_basis_S0_S1_S2_300_830_5nm.csv";
+  PRISM_ASSIGN_OR_RETURN(const CsvTable table,
+                         parse_csv_table(embedded_file(kTablePath), kTablePath));
+  PRISM_ASSIGN_OR_RETURN(const CsvTable basis,
+                         parse_csv_table(embedded_file(kBasisPath), kBasisPath));
+  PRISM_ASSIGN_OR_RETURN(std::vector<double> lambda, table.numeric_column(0));
+  PRISM_ASSIGN_OR_RETURN(std::vector<double> value, table.numeric_column(name));
+  PRISM_ASSIGN_OR_RETURN(const std::vector<double> basis_lambda, basis.numeric_column(0));
+  PRISM_ASSIGN_OR_RETURN(const std::vector<double> s0, basis.numeric_column("S0"));
+  PRISM_ASSIGN_OR_RETURN(const std::vector<double> s1, basis.numeric_column("S1"));
+  PRISM_ASSIGN_OR_RETURN(const std::vector<double> s2, basis.numeric_column("S2"));
+  const double table_end = lambda.back();
+  for (std::size_t i = 0; i < basis_lambda.size(); ++i) {
+    if (basis_lambda[i] <= table_end) continue;
+    lambda.push_back(basis_lambda[i]);
+    value.push_back(s0[i] + m1 * s1[i] + m2 * s2[i]);
+  }
+  return PiecewiseLinearSpectrum::create(lambda, value, kTablePath);
+}
+
 PiecewiseLinearSpectrum cie_d65() {
-  constexpr std::string_view kPath = "illuminants/cie_standard_illuminants_300_780_5nm.csv";
-  auto table = parse_csv_table(embedded_file(kPath), kPath);
-  PRISM_CHECK(table.ok());
-  auto d65 = PiecewiseLinearSpectrum::from_csv(*table, "D65");
+  absl::StatusOr<PiecewiseLinearSpectrum> d65 = cie_daylight_illuminant("D65");
   PRISM_CHECK(d65.ok());
   return *std::move(d65);
 }

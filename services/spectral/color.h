@@ -79,7 +79,15 @@ class ColorMatching {
   double y_sum_ = 0.0;
 };
 
-// The CIE standard illuminant D65 (relative SPD, 100 at 560 nm; 300–780 nm table, 0 beyond).
+// A CIE D-series illuminant, `name` D50, D55, D65 or D75 (relative SPD, 100 at 560 nm), over
+// 300–830 nm: the CIE table to 780 nm (data/illuminants/cie_standard_illuminants_300_780_5nm.csv),
+// then the CIE daylight basis S0 + M1·S1 + M2·S2 at the illuminant's correlated colour
+// temperature (CIE 015:2018 §4.1.2, M1 and M2 rounded to three decimals as the CIE does) up to
+// 830 nm, where the table stops short of Prism's range. The basis reproduces the table to 2.4e-4
+// where both exist, and gives the CIE's published D65 values from 785 to 830 nm (pbrt-v4's D65
+// runs to 830 nm too). INVALID_ARGUMENT for another name.
+absl::StatusOr<PiecewiseLinearSpectrum> cie_daylight_illuminant(std::string_view name);
+// cie_daylight_illuminant("D65").
 PiecewiseLinearSpectrum cie_d65();
 
 Rgb xyz_to_linear_srgb(const Xyz& xyz);

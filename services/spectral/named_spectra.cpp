@@ -7,6 +7,7 @@
 #include "absl/strings/str_cat.h"
 #include "services/base/status.h"
 #include "services/spectral/absl_string_view.h"
+#include "services/spectral/color.h"
 #include "services/spectral/csv_table.h"
 #include "services/spectral/embedded_data.h"
 
@@ -162,9 +163,15 @@ absl::StatusOr<SpectrumLibrary> SpectrumLibrary::load_builtin() {
     constexpr std::string_view kPath = "illuminants/cie_standard_illuminants_300_780_5nm.csv";
     PRISM_ASSIGN_OR_RETURN(const CsvTable table, embedded_table(kPath));
     for (int c = 1; c < table.column_count(); ++c) {
-      if (table.columns()[c] == "A") continue;
+      const std::string& column = table.columns()[c];
+      if (column == "A") continue;
+      // The D series runs on to 830 nm by the CIE daylight basis (cie_daylight_illuminant);
+      // C and the indoor daylights ID50, ID65 are defined to 780 nm.
+      const bool daylight =
+          column == "D50" || column == "D55" || column == "D65" || column == "D75";
       PRISM_ASSIGN_OR_RETURN(PiecewiseLinearSpectrum s,
-                             PiecewiseLinearSpectrum::from_csv(table, table.columns()[c]));
+                             daylight ? cie_daylight_illuminant(column)
+                                      : PiecewiseLinearSpectrum::from_csv(table, column));
       PRISM_RETURN_IF_ERROR(
           lib.add_spectrum(absl::StrCat("stdillum-", table.columns()[c]), std::move(s)));
     }

@@ -17,6 +17,32 @@ class NamedSpectraTest : public ::testing::Test {
   const SpectrumLibrary* lib_ = &lib_storage_;
 };
 
+// The CIE tables here stop at 780 nm; the D series runs on to Prism's 830 nm by the daylight
+// basis (cie_daylight_illuminant). Against CIE 015:2018's D65 table, which runs to 830 nm, and
+// the table's own values below 780 nm; C has no basis and stays 0 beyond its table.
+TEST_F(NamedSpectraTest, DaylightIlluminantsCoverTheWholeRange) {
+  const Spectrum* d65 = lib_->find_spectrum("stdillum-D65");
+  ASSERT_NE(d65, nullptr);
+  const struct {
+    float lambda;
+    float value;
+  } published[] = {{300, 0.0341f}, {560, 100.0f},   {780, 63.3828f}, {785, 63.8434f},
+                   {790, 64.304f}, {795, 61.8779f}, {800, 59.4519f}, {805, 55.7054f},
+                   {810, 51.959f}, {815, 54.6998f}, {820, 57.4406f}, {825, 58.8766f},
+                   {830, 60.3125f}};
+  for (const auto& c : published) {
+    EXPECT_NEAR(eval(*d65, c.lambda), c.value, 1e-4f * c.value + 1e-4f) << c.lambda;
+  }
+  EXPECT_EQ(eval(*d65, 800.0f), eval(cie_d65(), 800.0f));
+  for (const char* name : {"stdillum-D50", "stdillum-D55", "stdillum-D75"}) {
+    const Spectrum* d = lib_->find_spectrum(name);
+    ASSERT_NE(d, nullptr);
+    for (float lambda : {790.0f, 810.0f, 830.0f}) EXPECT_GT(eval(*d, lambda), 40.0f) << name;
+  }
+  EXPECT_EQ(eval(*lib_->find_spectrum("stdillum-C"), 800.0f), 0.0f);
+  EXPECT_FALSE(cie_daylight_illuminant("D60").ok());
+}
+
 std::vector<std::string> required_spectra() {
   std::vector<std::string> n = {"stdillum-A", "stdillum-D50", "stdillum-D65",
                                 "stdillum-C", "stdillum-D55", "stdillum-D75"};
