@@ -248,6 +248,10 @@ const MemoryCase kMemoryCases[] = {
     {"WorldBegin\nAttributeBegin\n  ReverseOrientation\nAttributeEnd\nShape \"sphere\" \"float "
      "radius\" -1\n",
      "m.pbrt:5:16: 'float radius' must be > 0, got -1"},
+    {"WorldBegin\nLightSource \"point\" \"float scale\" -1\n",
+     "m.pbrt:2:21: 'float scale' must be >= 0, got -1"},
+    {"WorldBegin\nAreaLightSource \"diffuse\" \"float scale\" -2\nShape \"sphere\"\n",
+     "m.pbrt:2:27: 'float scale' must be >= 0, got -2"},
     // Coordinates Embree's rays cannot carry (services/scene/coordinate_range.h): a shape far
     // away, a shape scaled down so far that the scene lands there in its own space, the camera.
     {"WorldBegin\nShape \"sphere\"\nTranslate 1e30 0 0\nShape \"sphere\"\n",

@@ -387,6 +387,34 @@ TEST(GoodScenes, NestedIncludesNameFilesFromTheMainScenesDirectory) {
   EXPECT_EQ(s->files, (std::vector<std::string>{"main.pbrt", "sub/a.inc", "b.inc", "sub/c.inc"}));
 }
 
+// Lights switched off (a zero radiance, intensity or scale) render black in pbrt-v4: they are
+// left out, each recorded as ignored, and an area light's shape stays as plain geometry.
+TEST(GoodScenes, LightsThatEmitNothingAreLeftOut) {
+  absl::StatusOr<SceneDescription> s = parse_scene_string(
+      "WorldBegin\n"
+      "LightSource \"point\" \"rgb I\" [0 0 0]\n"
+      "LightSource \"spot\" \"float scale\" 0\n"
+      "LightSource \"distant\" \"float L\" 0\n"
+      "LightSource \"point\" \"rgb I\" [0 0 1e-9]\n"
+      "AttributeBegin\n"
+      "  AreaLightSource \"diffuse\" \"rgb L\" [0 0 0]\n"
+      "  Shape \"sphere\"\n"
+      "AttributeEnd\n",
+      "m.pbrt", {}, {});
+  ASSERT_TRUE(s.ok()) << s.status();
+  ASSERT_EQ(s->lights.size(), 1u);  // the dim but lit point light
+  EXPECT_EQ(s->lights[0].where.line, 5);
+  ASSERT_EQ(s->shapes.size(), 1u);
+  EXPECT_FALSE(s->shapes[0].area_light.has_value());
+  int ignored = 0;
+  for (const FeatureUse& f : s->features) {
+    if (f.feature.find("emitting nothing") == std::string::npos) continue;
+    EXPECT_EQ(f.status, FeatureStatus::kIgnored);
+    ignored += f.uses;
+  }
+  EXPECT_EQ(ignored, 4);
+}
+
 TEST(GoodScenes, ObjectInstancesAreFlattenedWithComposedTransforms) {
   SceneDescription s = load_good("instances.pbrt");
   ASSERT_EQ(s.shapes.size(), 4u);

@@ -1,6 +1,7 @@
 #include "services/scene/scene_entities.h"
 
 #include <cmath>
+#include <limits>
 #include <string_view>
 #include <utility>
 
@@ -963,18 +964,41 @@ absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
   return kind;
 }
 
+// A light switched off: a scale of 0, or a radiance or intensity of `rgb [0 0 0]` or `float 0`.
+// pbrt-v4 renders it black; Prism drops it (an area light's shapes stay, with their material).
+bool emits_nothing(const SpectrumParam& spectrum, double scale) {
+  const auto* rgb = std::get_if<SpectrumRgb>(&spectrum);
+  const auto* constant = std::get_if<SpectrumConstant>(&spectrum);
+  return scale == 0.0 || (rgb != nullptr && rgb->r == 0.0 && rgb->g == 0.0 && rgb->b == 0.0) ||
+         (constant != nullptr && constant->value == 0.0);
+}
+
+void note_dark(const ParameterList& params, const TypeName& type, absl::string_view what) {
+  if (params.features() == nullptr) return;
+  params.features()->ignored(
+      absl::StrCat(what, " emitting nothing"), type.where,
+      absl::StrCat("its ", what == "area light" ? "radiance" : "emission",
+                   " or scale is 0: it is left out, as pbrt-v4 renders "
+                   "it black",
+                   what == "area light" ? " (its shapes stay, with their material)" : ""));
+}
+
 // A light's emission parameters, read in pbrt-v4's order: the spectrum `name` (the default
-// illuminant when absent) into `spectrum`, `scale`, and the optional positive `normalisation`
-// ("power" or "illuminance") into `normalised`.
+// illuminant when absent) into `spectrum`, `scale` (>= 0), and the optional positive
+// `normalisation` ("power" or "illuminance") into `normalised`; `dark` is set when the light
+// emits nothing (emits_nothing).
 template <typename L>
 absl::Status read_emission(const ParameterList& params, const EntityContext& ctx,
                            const std::string& name, SpectrumParam L::*spectrum,
                            const std::string& normalisation, std::optional<double> L::*normalised,
-                           L& light) {
+                           L& light, bool* dark) {
   PRISM_ASSIGN_OR_RETURN(light.*spectrum, spectrum_or(params, name, SpectrumRole::kIlluminant, ctx,
                                                       SpectrumNamed{kDefaultIlluminant}));
   PRISM_ASSIGN_OR_RETURN(light.scale, params.get_float("scale", 1.0));
+  PRISM_RETURN_IF_ERROR(
+      check_range(params, "scale", light.scale, 0.0, std::numeric_limits<double>::max(), ">= 0"));
   PRISM_ASSIGN_OR_RETURN(light.*normalised, positive_optional(params, normalisation));
+  *dark = emits_nothing(light.*spectrum, light.scale);
   return absl::OkStatus();
 }
 
@@ -982,18 +1006,19 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
                                                 const Transform& ctm, const EntityContext& ctx) {
   Light light;
   light.where = type.where;
+  bool dark = false;
   if (type.name == "point") {
     PointLight p;
-    PRISM_RETURN_IF_ERROR(
-        read_emission(params, ctx, "I", &PointLight::intensity, "power", &PointLight::power, p));
+    PRISM_RETURN_IF_ERROR(read_emission(params, ctx, "I", &PointLight::intensity, "power",
+                                        &PointLight::power, p, &dark));
     PRISM_ASSIGN_OR_RETURN(Vec3 from, params.get_point3("from", {0, 0, 0}));
     light.light_to_world = ctm * Transform::translate(from);
     p.position_world = light.light_to_world.apply_point({0, 0, 0});
     light.kind = std::move(p);
   } else if (type.name == "goniometric") {
     PointLight p;
-    PRISM_RETURN_IF_ERROR(
-        read_emission(params, ctx, "I", &PointLight::intensity, "power", &PointLight::power, p));
+    PRISM_RETURN_IF_ERROR(read_emission(params, ctx, "I", &PointLight::intensity, "power",
+                                        &PointLight::power, p, &dark));
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
     if (!filename || filename->empty())
       return location_error(type.where, "goniometric light needs a 'string filename'");
@@ -1017,6 +1042,9 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
   } else if (type.name == "projection") {
     PointLight p;
     PRISM_ASSIGN_OR_RETURN(p.scale, params.get_float("scale", 1.0));
+    PRISM_RETURN_IF_ERROR(
+        check_range(params, "scale", p.scale, 0.0, std::numeric_limits<double>::max(), ">= 0"));
+    dark = p.scale == 0.0;
     PRISM_ASSIGN_OR_RETURN(p.power, positive_optional(params, "power"));
     PRISM_ASSIGN_OR_RETURN(p.fov_deg, params.get_float("fov", 90.0));
     PRISM_RETURN_IF_ERROR(check_range(params, "fov", p.fov_deg, 1e-3, 179.9, "in (0, 180)"));
@@ -1031,8 +1059,8 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
     light.kind = std::move(p);
   } else if (type.name == "spot") {
     SpotLight s;
-    PRISM_RETURN_IF_ERROR(
-        read_emission(params, ctx, "I", &SpotLight::intensity, "power", &SpotLight::power, s));
+    PRISM_RETURN_IF_ERROR(read_emission(params, ctx, "I", &SpotLight::intensity, "power",
+                                        &SpotLight::power, s, &dark));
     PRISM_ASSIGN_OR_RETURN(Vec3 from, params.get_point3("from", {0, 0, 0}));
     PRISM_ASSIGN_OR_RETURN(Vec3 to, params.get_point3("to", {0, 0, 1}));
     PRISM_ASSIGN_OR_RETURN(s.cone_angle_deg, params.get_float("coneangle", 30.0));
@@ -1065,13 +1093,13 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
                          "needs an image 'filename' (pbrt-v4 has no portal for a constant 'L')");
     }
     PRISM_RETURN_IF_ERROR(read_emission(params, ctx, "L", &InfiniteLight::radiance, "illuminance",
-                                        &InfiniteLight::illuminance, i));
+                                        &InfiniteLight::illuminance, i, &dark));
     light.light_to_world = ctm;
     light.kind = std::move(i);
   } else if (type.name == "distant") {
     DistantLight d;
     PRISM_RETURN_IF_ERROR(read_emission(params, ctx, "L", &DistantLight::radiance, "illuminance",
-                                        &DistantLight::illuminance, d));
+                                        &DistantLight::illuminance, d, &dark));
     PRISM_ASSIGN_OR_RETURN(Vec3 from, params.get_point3("from", {0, 0, 0}));
     PRISM_ASSIGN_OR_RETURN(Vec3 to, params.get_point3("to", {0, 0, 1}));
     const Vec3 w{from[0] - to[0], from[1] - to[1], from[2] - to[2]};
@@ -1090,8 +1118,12 @@ absl::StatusOr<std::optional<Light>> make_light(const TypeName& type, const Para
                          "the scene without this light"));
     return std::optional<Light>();
   }
-  note_supported(params, "light", type);
   PRISM_RETURN_IF_ERROR(params.check_all_used());
+  if (dark) {
+    note_dark(params, type, "light");
+    return std::optional<Light>();
+  }
+  note_supported(params, "light", type);
   return std::optional<Light>(std::move(light));
 }
 
@@ -1111,9 +1143,15 @@ absl::StatusOr<std::optional<AreaLight>> make_area_light(const TypeName& type,
   PRISM_ASSIGN_OR_RETURN(a.radiance, spectrum_or(params, "L", SpectrumRole::kIlluminant, ctx,
                                                  SpectrumNamed{kDefaultIlluminant}));
   PRISM_ASSIGN_OR_RETURN(a.scale, params.get_float("scale", 1.0));
+  PRISM_RETURN_IF_ERROR(
+      check_range(params, "scale", a.scale, 0.0, std::numeric_limits<double>::max(), ">= 0"));
   PRISM_ASSIGN_OR_RETURN(a.two_sided, params.get_bool("twosided", false));
   PRISM_ASSIGN_OR_RETURN(a.power, positive_optional(params, "power"));
   PRISM_RETURN_IF_ERROR(params.check_all_used());
+  if (emits_nothing(a.radiance, a.scale)) {
+    note_dark(params, type, "area light");
+    return std::optional<AreaLight>();
+  }
   return std::optional<AreaLight>(std::move(a));
 }
 

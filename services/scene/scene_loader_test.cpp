@@ -138,8 +138,9 @@ TEST_F(LoaderFiles, MeshLimitsReachTheMeshLoaders) {
 
 TEST(ParseFromMemory, FilesComeFromTheGivenMap) {
   std::map<std::string, std::string> files = {
-      {"a/inc.pbrt", "Include \"b.pbrt\"\n"},
-      {"a/b.pbrt", "Shape \"objmesh\" \"string filename\" \"../m.obj\"\n"},
+      // Names are relative to the main scene's directory, as in pbrt-v4.
+      {"a/inc.pbrt", "Include \"a/b.pbrt\"\n"},
+      {"a/b.pbrt", "Shape \"objmesh\" \"string filename\" \"m.obj\"\n"},
       {"m.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"},
   };
   absl::StatusOr<SceneDescription> s = parse_scene_string("WorldBegin\nInclude \"a/inc.pbrt\"\n", "mem.pbrt", {}, files);
