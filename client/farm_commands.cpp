@@ -20,6 +20,7 @@
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/job/job_spec.h"
+#include "services/rpc/address.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
 #include "services/rpc/credentials.h"
@@ -42,6 +43,7 @@ class Farm {
       return absl::InvalidArgumentError(
           "no coordinator address: pass --coordinator HOST:PORT or set PRISM_COORDINATOR");
     }
+    PRISM_RETURN_IF_ERROR(rpc::check_address(c.address, "--coordinator", false));
     rpc::ClientTls tls;
     tls.ca_bundle = c.tls_ca;
     PRISM_ASSIGN_OR_RETURN(auto credentials, rpc::channel_credentials(tls));

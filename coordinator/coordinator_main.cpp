@@ -19,6 +19,7 @@
 #include "coordinator/http/http_api.h"
 #include "coordinator/resource_plan.h"
 #include "coordinator/rpc/coordinator_server.h"
+#include "services/rpc/address.h"
 
 namespace {
 
@@ -87,6 +88,11 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(std::int64_t{10}, std::int64_t{86400000}));
   app.add_option("--log-level", config.log_level, "trace, debug, info, warn, error, off");
   CLI11_PARSE(app, argc, argv);
+  if (absl::Status address = prism::rpc::check_address(config.listen, "--listen", true);
+      !address.ok()) {
+    std::cerr << "prism-coordinator: " << address.message() << "\n";
+    return 2;
+  }
   if (config.tls_cert.empty() != config.tls_key.empty()) {
     std::cerr << "prism-coordinator: --tls-cert and --tls-key go together\n";
     return 2;

@@ -19,6 +19,7 @@
 #include <thread>
 
 #include "services/job/job_parameters.h"
+#include "services/rpc/address.h"
 #include "services/rpc/credentials.h"
 #include "services/spectral/named_spectra.h"
 #include "worker/daemon/worker_client.h"
@@ -81,6 +82,10 @@ int main(int argc, char** argv) {
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
   CLI11_PARSE(app, argc, argv);
+  if (absl::Status address = prism::rpc::check_address(coordinator, "--coordinator", false);
+      !address.ok()) {
+    return fail(std::string(address.message()));
+  }
 
   auto logger = spdlog::stderr_color_mt("worker");
   logger->set_level(spdlog::level::from_str(log_level));
