@@ -66,6 +66,18 @@ absl::StatusOr<int> offset_from_metadata(const image::SpectralExr& gradient, con
   return k;
 }
 
+// A file Prism wrote with --primal-and-gradients says what it holds (prism:content); one
+// without the key (written by an older Prism or another tool) is taken as given.
+absl::Status check_content(const image::SpectralExr& file, std::string_view role,
+                           const fs::path& path) {
+  const auto it = file.metadata.find(std::string(image::kMetaContent));
+  if (it == file.metadata.end() || it->second == role) return absl::OkStatus();
+  return absl::InvalidArgumentError(absl::StrCat(
+      absl::string_view(role.data(), role.size()), " file ", quoted(path), " holds the ",
+      it->second, " of its render (prism:", std::string(image::kMetaContent),
+      "); give the primal file first, then the gradient file"));
+}
+
 }  // namespace
 
 absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
@@ -101,6 +113,11 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
         absl::StrCat("-o ", quoted(options.output), " is a directory"));
   }
   std::error_code ec;
+  if (fs::equivalent(options.primal, options.gradient, ec)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("the primal and the gradient file are the same file, ", quoted(options.primal),
+                     "; give the render's .primal.exr and .gradient.exr"));
+  }
   for (const fs::path& input : {options.primal, options.gradient}) {
     if (fs::exists(options.output) && fs::equivalent(options.output, input, ec)) {
       return absl::InvalidArgumentError(absl::StrCat(
@@ -122,6 +139,8 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   }
   PRISM_RETURN_IF_ERROR(check_prism_grid(*primal, "primal", options.primal));
   PRISM_RETURN_IF_ERROR(check_prism_grid(*gradient, "gradient", options.gradient));
+  PRISM_RETURN_IF_ERROR(check_content(*primal, "primal", options.primal));
+  PRISM_RETURN_IF_ERROR(check_content(*gradient, "gradient", options.gradient));
 
   int k = 0;
   if (options.offset_bins) {

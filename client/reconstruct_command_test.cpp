@@ -152,6 +152,11 @@ TEST_F(ReconstructCommandTest, RefusesBadInputWithoutWriting) {
         {{std::string(image::kMetaGradientOffsetBins), "two"}});
   write(dir_ / "big_k.exr", exact_gradient(in, 2),
         {{std::string(image::kMetaGradientOffsetBins), "16"}});
+  // A labelled pair, as --primal-and-gradients writes it (prism:content).
+  write(dir_ / "labelled.primal.exr", in, {{std::string(image::kMetaContent), "primal"}});
+  write(dir_ / "labelled.gradient.exr", exact_gradient(in, 2),
+        {{std::string(image::kMetaGradientOffsetBins), "2"},
+         {std::string(image::kMetaContent), "gradient"}});
 
   struct Case {
     std::string name;
@@ -191,6 +196,19 @@ TEST_F(ReconstructCommandTest, RefusesBadInputWithoutWriting) {
       "alpha negative", [&](auto& o) { o.alpha = -1; }, "--alpha -1: ");
   add(
       "norm", [&](auto& o) { o.poisson = "l3"; }, "'l3': want l2 or l1");
+  add(
+      "swapped",
+      [&](auto& o) {
+        o.primal = dir_ / "labelled.gradient.exr";
+        o.gradient = dir_ / "labelled.primal.exr";
+      },
+      "primal file '.*labelled.gradient.exr' holds the gradient of its render");
+  add(
+      "gradient is a primal", [&](auto& o) { o.gradient = dir_ / "labelled.primal.exr"; },
+      "gradient file '.*labelled.primal.exr' holds the primal of its render");
+  add(
+      "same file", [&](auto& o) { o.gradient = o.primal; },
+      "the primal and the gradient file are the same file");
   add(
       "output extension", [&](auto& o) { o.output = dir_ / "out.png"; }, "ending in .exr");
   add(

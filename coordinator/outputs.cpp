@@ -429,8 +429,9 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
                                        const image::RgbImage& gradient_rgb,
                                        const RenderReport& report, const OutputPaths& paths,
                                        const OutputOptions& options) {
-  const image::ExrMetadata metadata = output_metadata(report);
+  image::ExrMetadata metadata = output_metadata(report);
   const std::vector<double> centres = image::bin_centres_nm(bins);
+  metadata[std::string(image::kMetaContent)] = "primal";
   absl::Status status = image::write_spectral_exr_rows(
       paths.primal_exr, centres, primal_rgb.width(), primal_rgb.height(), band_rows, primal,
       primal_rgb, metadata, options.exr);
@@ -438,6 +439,7 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
     return absl::Status(status.code(), absl::StrCat("could not write '", paths.primal_exr.string(),
                                                     "': ", status.message()));
   }
+  metadata[std::string(image::kMetaContent)] = "gradient";
   status = image::write_spectral_exr_rows(paths.gradient_exr, centres, gradient_rgb.width(),
                                           gradient_rgb.height(), band_rows, gradient, gradient_rgb,
                                           metadata, options.exr);

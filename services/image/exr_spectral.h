@@ -55,6 +55,9 @@ inline constexpr std::string_view kMetaJobId = "job_id";
 //   poisson_alpha         the screening weight α (shortest decimal that reads back exactly);
 //   poisson_norm          "l2", "l1" or "weighted";
 //   gradient_offset_bins  the k used.
+// The raw pair of a gradient render (--primal-and-gradients) also says which is which:
+//   content               "primal" or "gradient" (prism reconstruct checks it when present).
+inline constexpr std::string_view kMetaContent = "content";
 inline constexpr std::string_view kMetaGradientOffsetBins = "gradient_offset_bins";
 inline constexpr std::string_view kMetaGradientDelta = "gradient_delta";
 inline constexpr std::string_view kMetaPoissonAlpha = "poisson_alpha";
