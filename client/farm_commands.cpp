@@ -8,6 +8,7 @@
 #include <fstream>
 #include <map>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <thread>
 
 #include "absl/strings/str_cat.h"
@@ -262,6 +263,28 @@ absl::StatusOr<v1::JobInfo> watch(Farm& farm, const std::string& id, std::ostrea
   return get_job(farm, id);
 }
 
+// The job's report names the files in the coordinator's data directory; the fetched copy names
+// the files it was fetched to, as `prism render`'s report does (same keys, same layout). A
+// report that does not parse is kept as it came.
+std::string with_local_outputs(const std::string& report, const coordinator::OutputPaths& paths) {
+  nlohmann::ordered_json j = nlohmann::ordered_json::parse(report, nullptr, false);
+  if (j.is_discarded() || !j.is_object() || !j.contains("outputs") || !j["outputs"].is_object()) {
+    return report;
+  }
+  const std::pair<const char*, const fs::path*> local[] = {{"spectral_exr", &paths.spectral_exr},
+                                                           {"rgb_exr", &paths.rgb_exr},
+                                                           {"png", &paths.png},
+                                                           {"json", &paths.json},
+                                                           {"primal_exr", &paths.primal_exr},
+                                                           {"gradient_exr", &paths.gradient_exr},
+                                                           {"filtered_exr", &paths.filtered_exr},
+                                                           {"filtered_png", &paths.filtered_png}};
+  for (const auto& [key, path] : local) {
+    if (j["outputs"].contains(key)) j["outputs"][key] = path->string();
+  }
+  return j.dump(2) + "\n";
+}
+
 // `film_filename`: the default name's source, as in `prism render` (the scene's Film filename
 // when the scene is at hand, else render.exr).
 absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
@@ -315,6 +338,7 @@ absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
       default:
         continue;  // outputs this client does not name yet
     }
+    if (kind == v1::OUTPUT_KIND_REPORT_JSON) bytes = with_local_outputs(bytes, paths);
     PRISM_RETURN_IF_ERROR(write_atomically(path, bytes));
     absl::StrAppend(&written, written.empty() ? "" : ", ", path.string());
   }

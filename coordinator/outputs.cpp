@@ -30,9 +30,19 @@ absl::StatusOr<OutputPaths> output_paths(const std::optional<fs::path>& output,
                                          const std::optional<fs::path>& json,
                                          const std::string& film_filename) {
   fs::path spectral;
-  if (output.has_value()) {
-    if (output->empty() || !output->has_filename() || output->filename() == "." ||
-        output->filename() == "..") {
+  auto default_name = [&film_filename]() {
+    std::string stem = fs::path(film_filename).filename().stem().string();
+    if (stem.empty() || stem == "." || stem == "..") stem = "render";
+    return fs::path(stem + ".exr");
+  };
+  std::error_code ec;
+  if (output.has_value() && !output->empty() &&
+      (!output->has_filename() || fs::is_directory(*output, ec))) {
+    // A directory: the default name inside it.
+    spectral = *output / default_name();
+  } else if (output.has_value()) {
+    if (output->empty() || output->filename() == "." || output->filename() == ".." ||
+        output->stem().empty() || output->stem() == ".exr" || output->stem() == ".EXR") {
       return absl::InvalidArgumentError(
           absl::StrCat("--output '", output->string(), "': want a file name such as out.exr"));
     }
@@ -47,9 +57,7 @@ absl::StatusOr<OutputPaths> output_paths(const std::optional<fs::path>& output,
                        "': the spectral output is an OpenEXR file; give a name ending in .exr"));
     }
   } else {
-    std::string stem = fs::path(film_filename).filename().stem().string();
-    if (stem.empty() || stem == "." || stem == "..") stem = "render";
-    spectral = fs::path(stem + ".exr");
+    spectral = default_name();
   }
   fs::path stem = spectral.parent_path() / spectral.stem();
   OutputPaths paths;

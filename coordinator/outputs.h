@@ -50,10 +50,11 @@ struct OutputPaths {
   std::filesystem::path filtered_png;
 };
 
-// `output`: the -o path (an extension other than .exr is refused; none gets .exr). Without it,
-// the stem of `film_filename` (the scene Film's "filename", any directories dropped) in the
-// current directory. `json`: the --json path, else <stem>.json. INVALID_ARGUMENT with the
-// offending name when a path is empty or names a directory, or two outputs coincide.
+// `output`: the -o path (an extension other than .exr is refused; none gets .exr); an existing
+// directory, or a path ending in '/', means the default name inside it. Without it, the stem of
+// `film_filename` (the scene Film's "filename", any directories dropped) in the current
+// directory. `json`: the --json path, else <stem>.json. INVALID_ARGUMENT with the offending name
+// when a path is empty or has no name before its extension (".exr"), or two outputs coincide.
 absl::StatusOr<OutputPaths> output_paths(const std::optional<std::filesystem::path>& output,
                                          const std::optional<std::filesystem::path>& json,
                                          const std::string& film_filename);

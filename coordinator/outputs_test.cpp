@@ -52,12 +52,30 @@ TEST(OutputPathsTest, DefaultIsTheFilmFilenameStemInTheCurrentDirectory) {
   EXPECT_EQ(png_film->spectral_exr, fs::path("killeroo.exr"));
 }
 
+// A directory, existing or written with a trailing '/', gets the default name inside it (the
+// helper's `prism fetch -o fdir` wrote fdir.exr beside it).
+TEST(OutputPathsTest, ADirectoryGetsTheDefaultNameInsideIt) {
+  const fs::path dir = fresh_dir("into-dir");
+  auto existing = output_paths(dir, std::nullopt, "scenes/killeroo.exr");
+  ASSERT_TRUE(existing.ok()) << existing.status();
+  EXPECT_EQ(existing->spectral_exr, dir / "killeroo.exr");
+  EXPECT_EQ(existing->json, dir / "killeroo.json");
+  auto slash = output_paths(fs::path("out/"), std::nullopt, "x.exr");
+  ASSERT_TRUE(slash.ok());
+  EXPECT_EQ(slash->spectral_exr, fs::path("out/x.exr"));
+  EXPECT_EQ(output_paths(fs::path("out"), std::nullopt, "x.exr")->spectral_exr,
+            fs::path("out.exr"));  // not a directory: a stem
+}
+
 TEST(OutputPathsTest, RefusesBadNames) {
   auto png = output_paths(fs::path("out.png"), std::nullopt, "x.exr");
   EXPECT_EQ(png.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_NE(png.status().message().find("out.png"), std::string::npos);
-  EXPECT_FALSE(output_paths(fs::path("dir/"), std::nullopt, "x.exr").ok());
   EXPECT_FALSE(output_paths(fs::path(""), std::nullopt, "x.exr").ok());
+  for (const char* nameless : {".exr", "out/.exr", ".EXR"}) {
+    auto n = output_paths(fs::path(nameless), std::nullopt, "x.exr");
+    EXPECT_EQ(n.status().code(), absl::StatusCode::kInvalidArgument) << nameless;
+  }
   auto clash = output_paths(fs::path("out.exr"), fs::path("./out.png"), "x.exr");
   EXPECT_EQ(clash.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_NE(clash.status().message().find("out.png"), std::string::npos) << clash.status();

@@ -236,6 +236,15 @@ TEST_F(HttpProcessTest, PrometheusScrapesTheMetrics) {
   for (const std::string& f : render_flags()) submit.push_back(f);
   testing::RunResult submitted = testing::run(submit);
   ASSERT_EQ(submitted.exit_code, 0) << submitted.err;
+  // The fetched report names the fetched files, not the coordinator's copies.
+  {
+    std::ifstream in(root_ / "out.json");
+    const nlohmann::json report = nlohmann::json::parse(in, nullptr, false);
+    ASSERT_FALSE(report.is_discarded());
+    EXPECT_EQ(report["outputs"]["spectral_exr"], (root_ / "out.exr").string());
+    EXPECT_EQ(report["outputs"]["json"], (root_ / "out.json").string());
+    EXPECT_EQ(report["outputs"]["png"], (root_ / "out.png").string());
+  }
 
   // The exposition passes Prometheus's own linter.
   const std::string metrics = curl({base_ + "/metrics"});
