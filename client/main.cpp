@@ -182,6 +182,20 @@ int main(int argc, char** argv) {
   auto* workers_cmd = app.add_subcommand("workers", "List the farm's workers");
   add_connection(workers_cmd);
 
+  // CLI11 answers a misspelt command with "A subcommand is required"; name it instead.
+  if (argc > 1 && argv[1][0] != '-') {
+    bool known = false;
+    std::string names;
+    for (const CLI::App* sub : app.get_subcommands([](const CLI::App*) { return true; })) {
+      known = known || sub->get_name() == argv[1];
+      names += (names.empty() ? "" : ", ") + sub->get_name();
+    }
+    if (!known) {
+      std::cerr << "prism: unknown command '" << argv[1] << "'; the commands are " << names
+                << " (prism --help)\n";
+      return 2;
+    }
+  }
   CLI11_PARSE(app, argc, argv);
 
   for (CLI::App* cmd :

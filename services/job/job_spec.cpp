@@ -338,12 +338,14 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
                                     : std::max<std::uint64_t>(p.spp, kDefaultTargetErrorMaxSpp);
     if (t.max_spp < p.spp || t.max_spp > kMaxJobSpp) {
       return absl::InvalidArgumentError(
-          absl::StrCat("max_spp ", t.max_spp, " is out of range: want ", p.spp, "..", kMaxJobSpp,
-                       " (at least the first round's spp)"));
+          absl::StrCat("the most samples per pixel for the target error (max_spp, --max-spp) ",
+                       t.max_spp, " is out of range: want ", p.spp, "..", kMaxJobSpp,
+                       ", at least the first round's samples per pixel (--spp or the scene's)"));
     }
     if (p.spp < 2) {
-      return absl::InvalidArgumentError(absl::StrCat(
-          "spp ", p.spp, " is too few for a target error: its first round needs at least 2"));
+      return absl::InvalidArgumentError(
+          absl::StrCat("spp ", p.spp,
+                       " is too few for a target error: its first round needs at least 2 (--spp)"));
     }
     p.target_error = t;
   } else if (spec.target_error_image() || spec.max_spp() != 0) {

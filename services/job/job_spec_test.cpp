@@ -493,7 +493,10 @@ TEST(JobSpecTest, TheAutoChoiceAndTheTargetErrorSurviveTheExplicitForm) {
   low.set_spp(64);
   low.set_target_error(0.01f);
   low.set_max_spp(32);
-  EXPECT_NE(job_parameters(low, test_scene()).status().message().find("max_spp 32 is out of range"),
+  EXPECT_NE(job_parameters(low, test_scene())
+                .status()
+                .message()
+                .find("(max_spp, --max-spp) 32 is out of range"),
             std::string_view::npos);
   prism::v1::JobSpec stray = minimal_spec();
   stray.set_max_spp(32);

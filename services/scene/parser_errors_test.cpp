@@ -128,7 +128,8 @@ const BadCase kBadCases[] = {
     {"texture.pbrt", absl::StatusCode::kInvalidArgument,
      "texture.pbrt:3:20: spectrum texture \"cheks\" is not defined"},
     {"texture_wrong_kind.pbrt", absl::StatusCode::kInvalidArgument,
-     "texture_wrong_kind.pbrt:3:20: spectrum texture \"amount\" is not defined"},
+     "texture_wrong_kind.pbrt:3:20: texture \"amount\" is a float texture; 'texture reflectance' "
+     "needs a spectrum texture"},
     {"texture_coat_eta.pbrt", absl::StatusCode::kInvalidArgument,
      "texture_coat_eta.pbrt:3:26: 'texture eta': a coat's eta is a float or a spectrum, not a "
      "texture (pbrt-v4 rejects it too, as an unused parameter)"},

@@ -212,9 +212,17 @@ absl::StatusOr<int> texture_reference(const Parameter& p, bool spectrum, const E
     return location_error(p.where, absl::StrCat("'texture ", p.name, "' takes one texture name"));
   std::optional<int> index =
       ctx.find_texture ? ctx.find_texture(p.strings[0], spectrum) : std::nullopt;
-  if (!index)
+  if (!index) {
+    const bool other_kind = ctx.find_texture && ctx.find_texture(p.strings[0], !spectrum);
+    if (other_kind) {
+      return location_error(
+          p.where, absl::StrCat("texture \"", p.strings[0], "\" is a ",
+                                spectrum ? "float" : "spectrum", " texture; 'texture ", p.name,
+                                "' needs a ", spectrum ? "spectrum" : "float", " texture"));
+    }
     return location_error(p.where, absl::StrCat(spectrum ? "spectrum" : "float", " texture \"",
                                                 p.strings[0], "\" is not defined"));
+  }
   return *index;
 }
 

@@ -15,8 +15,16 @@ namespace fs = std::filesystem;
 
 absl::StatusOr<LoadedScene> load_scene(const fs::path& scene_file, const LoadOptions& options) {
   std::error_code ec;
+  if (!fs::exists(scene_file, ec))
+    return absl::NotFoundError(
+        absl::StrCat("scene file \"", scene_file.string(), "\" does not exist"));
+  if (fs::is_directory(scene_file, ec))
+    return absl::InvalidArgumentError(
+        absl::StrCat("scene file \"", scene_file.string(), "\" is a directory; name a .pbrt file"));
   if (!fs::is_regular_file(scene_file, ec))
-    return absl::NotFoundError(absl::StrCat("scene file \"", scene_file.string(), "\" does not exist"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("scene file \"", scene_file.string(),
+                     "\" is not a regular file (a device, pipe or socket)"));
   fs::path dir = scene_file.parent_path();
   if (dir.empty()) dir = ".";
   PRISM_ASSIGN_OR_RETURN(PathGuard guard, PathGuard::create(dir));
@@ -31,7 +39,8 @@ absl::StatusOr<LoadedScene> load_scene(const fs::path& scene_file, const LoadOpt
     return p;
   };
   SceneFiles files;
-  files.read = [real_path](const std::string& relpath, std::uint64_t max_bytes) -> absl::StatusOr<std::string> {
+  files.read = [real_path](const std::string& relpath,
+                           std::uint64_t max_bytes) -> absl::StatusOr<std::string> {
     PRISM_ASSIGN_OR_RETURN(fs::path p, real_path(relpath));
     return base::read_file(p, max_bytes);
   };
@@ -41,8 +50,10 @@ absl::StatusOr<LoadedScene> load_scene(const fs::path& scene_file, const LoadOpt
     return format == MeshFormat::kPly ? load_ply(p, limits) : load_obj(p, limits);
   };
 
-  PRISM_ASSIGN_OR_RETURN(std::string text, base::read_file(real_scene, options.max_scene_file_bytes));
-  PRISM_ASSIGN_OR_RETURN(SceneDescription description, parse_scene(text, scene_relpath, options, files));
+  PRISM_ASSIGN_OR_RETURN(std::string text,
+                         base::read_file(real_scene, options.max_scene_file_bytes));
+  PRISM_ASSIGN_OR_RETURN(SceneDescription description,
+                         parse_scene(text, scene_relpath, options, files));
   return LoadedScene{std::move(description), guard.root(), scene_relpath};
 }
 
