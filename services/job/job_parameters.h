@@ -25,7 +25,7 @@ namespace prism::job {
 // --threads all check against these.
 inline constexpr std::uint64_t kMaxJobSpp = std::uint64_t{1} << 24;
 inline constexpr int kMaxThreads = 4096;
-inline constexpr int kMaxJobDepth = 1000;
+inline constexpr int kMaxJobDepth = 1024;  // as a scene's `maxdepth` (scene_entities.cpp)
 inline constexpr double kMaxJobExposureStops = 64.0;
 inline constexpr int kMinTileSize = 4;
 inline constexpr int kMaxTileSize = 1024;

@@ -137,8 +137,8 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
        "bins 257 is out of range: want 4..256"},
       {"tile", [](prism::v1::JobSpec& s) { s.set_tile_size(2); },
        "tile_size 2 is out of range: want 4..1024"},
-      {"depth", [](prism::v1::JobSpec& s) { s.set_max_depth(1001); },
-       "max_depth 1001 is out of range: want 0..1000"},
+      {"depth", [](prism::v1::JobSpec& s) { s.set_max_depth(1025); },
+       "max_depth 1025 is out of range: want 0..1024"},
       {"width_only", [](prism::v1::JobSpec& s) { s.set_width(10); }, "resolution 10x0"},
       {"huge",
        [](prism::v1::JobSpec& s) {

@@ -1,5 +1,6 @@
 #include "services/scene/parser.h"
 
+#include <algorithm>
 #include <cctype>
 #include <map>
 #include <optional>
@@ -124,6 +125,7 @@ class SceneParser {
 
   absl::StatusOr<SceneDescription> run(std::string_view text, const std::string& relpath) {
     record_file(relpath);
+    open_files_.push_back(relpath);
     PRISM_RETURN_IF_ERROR(parse_file(text, relpath, 0));
     SourceLocation end{relpath, end_line_, end_column_};
     if (!in_world_) return location_error(end, "end of file before WorldBegin");
@@ -134,6 +136,15 @@ class SceneParser {
     for (const Scope& s : scopes_)
       scene_.warnings.push_back(absl::StrCat(
           s.where.to_string(), ": warning: ", scope_begin_name(s.kind), " is never closed"));
+    const bool lit = !scene_.lights.empty() ||
+                     std::any_of(scene_.shapes.begin(), scene_.shapes.end(),
+                                 [](const Shape& s) { return s.area_light.has_value(); });
+    if (!lit) {
+      scene_.warnings.push_back(absl::StrCat(
+          relpath,
+          ": warning: the scene has no light that emits (LightSource or AreaLightSource): "
+          "the image is black"));
+    }
     PRISM_RETURN_IF_ERROR(check_coordinate_range(scene_));
     return std::move(scene_);
   }
@@ -167,6 +178,9 @@ class SceneParser {
     seen = where;
     return absl::OkStatus();
   }
+
+  // The files being parsed, outermost first: an Include of one of them is a cycle.
+  std::vector<std::string> open_files_;
 
   void record_file(const std::string& relpath) {
     if (recorded_.insert(relpath).second) scene_.files.push_back(relpath);
@@ -670,12 +684,23 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_ASSIGN_OR_RETURN(Token f, string_arg(tokens, d, "file name"));
     SourceLocation at = tokens.location(f);
     PRISM_ASSIGN_OR_RETURN(std::string relpath, resolve(f.text, at));
+    if (std::find(open_files_.begin(), open_files_.end(), relpath) != open_files_.end()) {
+      std::string chain;
+      for (auto it = std::find(open_files_.begin(), open_files_.end(), relpath);
+           it != open_files_.end(); ++it) {
+        absl::StrAppend(&chain, *it, " -> ");
+      }
+      return location_error(
+          where, absl::StrCat("'", name, "' of \"", relpath, "\" makes a cycle: ", chain, relpath));
+    }
     if (depth + 1 > kMaxIncludeDepth)
       return location_error(
           where, absl::StrCat("'", name, "' nesting is deeper than ", kMaxIncludeDepth, " levels"));
     PRISM_ASSIGN_OR_RETURN(std::string text, read(relpath, options_.max_scene_file_bytes, at));
     record_file(relpath);
+    open_files_.push_back(relpath);
     PRISM_RETURN_IF_ERROR(parse_file(text, relpath, depth + 1));
+    open_files_.pop_back();
   } else if (name == "ObjectBegin") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "object name"));

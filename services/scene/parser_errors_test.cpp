@@ -45,7 +45,8 @@ const BadCase kBadCases[] = {
     {"missing_mesh.pbrt", absl::StatusCode::kNotFound,
      "missing_mesh.pbrt:2:17: file \"missing.ply\" does not exist"},
     {"include_depth.pbrt", absl::StatusCode::kInvalidArgument,
-     "include_depth.pbrt:1:1: 'Include' nesting is deeper than 16 levels"},
+     "include_depth.pbrt:1:1: 'Include' of \"include_depth.pbrt\" makes a cycle: "
+     "include_depth.pbrt -> include_depth.pbrt"},
     {"include_escape.pbrt", absl::StatusCode::kInvalidArgument,
      "include_escape.pbrt:2:9: path \"../outside.pbrt\" escapes the scene directory"},
     {"absolute_path.pbrt", absl::StatusCode::kInvalidArgument,
@@ -195,7 +196,10 @@ struct MemoryCase {
 
 // Directive-level errors, parsed from memory ("m.pbrt"; "a.pbrt" includes itself).
 const MemoryCase kMemoryCases[] = {
-    {"WorldBegin\nInclude \"a.pbrt\"\n", "a.pbrt:1:1: 'Include' nesting is deeper than 16 levels"},
+    {"WorldBegin\nInclude \"a0.pbrt\"\n",
+     "a15.pbrt:1:1: 'Include' nesting is deeper than 16 levels"},
+    {"WorldBegin\nInclude \"a.pbrt\"\n",
+     "b.pbrt:1:1: 'Include' of \"a.pbrt\" makes a cycle: a.pbrt -> b.pbrt -> a.pbrt"},
     {"Camera \"perspective\"\nCamera \"perspective\"\nWorldBegin\n",
      "m.pbrt:2:1: 'Camera' given twice (first at m.pbrt:1:1)"},
     {"WorldBegin\nWorldBegin\n", "m.pbrt:2:1: 'WorldBegin' given twice (first at m.pbrt:1:1)"},
@@ -272,7 +276,12 @@ const MemoryCase kMemoryCases[] = {
 };
 
 TEST(MemoryErrors, ExactMessages) {
-  std::map<std::string, std::string> files = {{"a.pbrt", "Include \"a.pbrt\"\n"}};
+  // A chain of 20 distinct files (the depth limit), and a cycle through two.
+  std::map<std::string, std::string> files = {{"a.pbrt", "Include \"b.pbrt\"\n"},
+                                              {"b.pbrt", "Include \"a.pbrt\"\n"}};
+  for (int i = 0; i < 20; ++i) {
+    files["a" + std::to_string(i) + ".pbrt"] = "Include \"a" + std::to_string(i + 1) + ".pbrt\"\n";
+  }
   for (const MemoryCase& c : kMemoryCases) {
     absl::StatusOr<SceneDescription> s = parse_scene_string(c.scene, "m.pbrt", {}, files);
     ASSERT_FALSE(s.ok()) << c.scene;
