@@ -23,6 +23,19 @@
 
 namespace {
 
+// HOST:PORT on the loopback interface (127.0.0.0/8, ::1, localhost) or a Unix socket: reachable
+// from this machine only.
+bool is_loopback(const std::string& address) {
+  if (address.rfind("unix:", 0) == 0 || address.rfind("unix-abstract:", 0) == 0) return true;
+  const std::size_t colon = address.rfind(':');
+  std::string host = colon == std::string::npos ? address : address.substr(0, colon);
+  if (host.size() > 2 && host.front() == '[' && host.back() == ']') {
+    host = host.substr(1, host.size() - 2);
+  }
+  if (host.rfind("ipv4:", 0) == 0) host = host.substr(5);
+  return host == "localhost" || host == "::1" || host.rfind("127.", 0) == 0;
+}
+
 struct Config {
   std::string listen;
   std::string http_listen;
@@ -87,11 +100,27 @@ int main(int argc, char** argv) {
   app.add_option("--lease-ms", config.lease_ms, "lease duration, extended by heartbeats")
       ->check(CLI::Range(std::int64_t{10}, std::int64_t{86400000}));
   app.add_option("--log-level", config.log_level, "trace, debug, info, warn, error, off");
+  bool insecure = false;
+  app.add_flag("--insecure", insecure,
+               "serve an address other machines can reach without --api-token and "
+               "--worker-secret (anyone reaching it could submit jobs or pose as a worker)");
   CLI11_PARSE(app, argc, argv);
   if (absl::Status address = prism::rpc::check_address(config.listen, "--listen", true);
       !address.ok()) {
     std::cerr << "prism-coordinator: " << address.message() << "\n";
     return 2;
+  }
+  // Open to the network without both secrets only when asked for.
+  if (!insecure && (config.api_token.empty() || config.worker_secret.empty())) {
+    for (const std::string* listen : {&config.listen, &config.http_listen}) {
+      if (listen->empty() || is_loopback(*listen)) continue;
+      std::cerr << "prism-coordinator: " << *listen
+                << " can be reached from other machines, but --api-token and --worker-secret "
+                   "(PRISM_API_TOKEN, PRISM_WORKER_SECRET) are not both set: anyone who reaches "
+                   "it could submit jobs or pose as a worker. Set both, listen on 127.0.0.1, or "
+                   "pass --insecure\n";
+      return 2;
+    }
   }
   if (config.tls_cert.empty() != config.tls_key.empty()) {
     std::cerr << "prism-coordinator: --tls-cert and --tls-key go together\n";
