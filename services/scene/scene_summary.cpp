@@ -63,8 +63,13 @@ std::string format_scene_summary(const SceneDescription& scene) {
   for (const Light& l : scene.lights) {
     struct Visitor {
       std::string operator()(const PointLight& p) const {
-        return absl::StrCat("point light: I ", describe(p.intensity), ", scale ", p.scale,
-                            optional_number("power", p.power));
+        if (p.projection) {
+          return absl::StrCat("projection light: image ", p.filename, ", fov ", p.fov_deg,
+                              " deg, scale ", p.scale, optional_number("power", p.power));
+        }
+        return absl::StrCat(p.goniometric ? "goniometric light: image " : "point light: ",
+                            p.goniometric ? p.filename + ", I " : "I ", describe(p.intensity),
+                            ", scale ", p.scale, optional_number("power", p.power));
       }
       std::string operator()(const SpotLight& p) const {
         return absl::StrCat("spot light: I ", describe(p.intensity), ", scale ", p.scale,
