@@ -285,13 +285,25 @@ std::string with_local_outputs(const std::string& report, const coordinator::Out
   return j.dump(2) + "\n";
 }
 
-// `film_filename`: the default name's source, as in `prism render` (the scene's Film filename
-// when the scene is at hand, else render.exr).
+// The Film filename a job's report records (report.cpp "film_filename"), or "" when it has none.
+std::string report_film_filename(const std::string& report) {
+  const nlohmann::json j = nlohmann::json::parse(report, nullptr, false);
+  if (j.is_discarded() || !j.is_object() || !j.contains("film_filename") ||
+      !j["film_filename"].is_string()) {
+    return "";
+  }
+  return j["film_filename"].get<std::string>();
+}
+
+// `film_filename`: the default name's source, as in `prism render`: the scene's Film filename
+// when the scene is at hand; else ("") the one the job's report records, else render.exr.
 absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
                                   const std::optional<fs::path>& output,
-                                  const std::string& film_filename = "render.exr") {
-  PRISM_ASSIGN_OR_RETURN(coordinator::OutputPaths paths,
-                         coordinator::output_paths(output, std::nullopt, film_filename));
+                                  const std::string& film_filename = "") {
+  PRISM_ASSIGN_OR_RETURN(
+      coordinator::OutputPaths paths,
+      coordinator::output_paths(output, std::nullopt,
+                                film_filename.empty() ? "render.exr" : film_filename));
   PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
   auto context = farm.call();
   context->set_deadline(std::chrono::system_clock::now() + farm.connection().deadline * 4);
@@ -307,6 +319,15 @@ absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
   if (grpc::Status s = reader->Finish(); !s.ok()) return rpc_error(s);
   if (read->ended_inside_a_file)
     return absl::DataLossError("the result stream ended inside a file");
+  if (!output.has_value() && film_filename.empty()) {
+    const auto report = read->files.find(v1::OUTPUT_KIND_REPORT_JSON);
+    const std::string named =
+        report != read->files.end() ? report_film_filename(report->second) : std::string();
+    if (!named.empty()) {
+      PRISM_ASSIGN_OR_RETURN(paths, coordinator::output_paths(std::nullopt, std::nullopt, named));
+      PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
+    }
+  }
   std::string written;
   for (auto& [kind, bytes] : read->files) {
     fs::path path;

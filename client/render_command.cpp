@@ -576,6 +576,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   // The scene as the job names it (its path inside the bundle), as a farm job's outputs do: the
   // same bytes whether the path was typed absolute or relative, here or on the farm.
   report.scene = loaded.scene_relpath;
+  report.film_filename = description.film.filename;
   report.width = local.width;
   report.height = local.height;
   report.spp = local.spp;

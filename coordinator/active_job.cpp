@@ -20,6 +20,7 @@ absl::StatusOr<std::unique_ptr<ActiveJob>> ActiveJob::create(
   job->params = params;
   job->spec = spec;
   job->scene_features = reported_features(scene);
+  job->film_filename = scene.film.filename;
   PRISM_ASSIGN_OR_RETURN(job->plan,
                          plan_tiles({params.width, params.height, params.tile_size, params.spp,
                                      params.samples_per_task, params.render.traces_light_paths()}));

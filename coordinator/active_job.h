@@ -129,6 +129,7 @@ struct ActiveJob {
   std::chrono::steady_clock::time_point started;
   std::uint64_t samples_at_start = 0;            // done before this incarnation (resumed)
   std::vector<SceneFeatureNote> scene_features;  // for the report
+  std::string film_filename;                     // the scene Film's "filename", for the report
   // Rendering to a target error: the final pass runs as rounds, the stages after the
   // prepasses, each with its own plan (every tile, the round's samples) and assembler; the
   // tracker sums each tile's rounds and decides which tiles go on (target_error.h). A tile

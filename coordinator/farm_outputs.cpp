@@ -279,6 +279,7 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   report.statistics = job.statistics->finish();
   report.counters.assign(job.counters.begin(), job.counters.end());
   report.scene_features = job.scene_features;
+  report.film_filename = job.film_filename;
   add_job_sections(p, report);
   if (report.gradient.has_value()) fill_gradient_counters(report.counters, *report.gradient);
   if (report.filtered.has_value()) fill_filtered_counters(report.counters, *report.filtered);

@@ -179,6 +179,9 @@ struct SceneFeatureNote {
 
 struct RenderReport {
   std::string scene;
+  // The scene Film's "filename": the outputs' default name (output_paths), also for
+  // `prism fetch` of a farm job, which names its files after it.
+  std::string film_filename;
   int width = 0;
   int height = 0;
   std::uint64_t spp = 0;

@@ -51,6 +51,7 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
   nlohmann::ordered_json j;
   j["prism_version"] = prism_version();
   j["scene"] = r.scene;
+  if (!r.film_filename.empty()) j["film_filename"] = r.film_filename;
   j["width"] = r.width;
   j["height"] = r.height;
   j["spp"] = r.spp;

@@ -245,6 +245,24 @@ TEST_F(HttpProcessTest, PrometheusScrapesTheMetrics) {
     EXPECT_EQ(report["outputs"]["json"], (root_ / "out.json").string());
     EXPECT_EQ(report["outputs"]["png"], (root_ / "out.png").string());
   }
+  // `prism fetch` without -o names the files after the scene's Film, as `prism render` does
+  // (this scene's Film has no filename: pbrt-v4's default, pbrt.exr).
+  {
+    const nlohmann::json jobs = nlohmann::json::parse(curl({base_ + "/api/v1/jobs?state=done"}));
+    ASSERT_EQ(jobs["jobs"].size(), 1u);
+    fs::create_directories(root_ / "fetched");
+    testing::ChildOptions in_dir;
+    in_dir.working_dir = root_ / "fetched";
+    testing::RunResult fetched = testing::run(
+        {PRISM_BINARY, "fetch", jobs["jobs"][0]["jobId"].get<std::string>(), "--coordinator",
+         "127.0.0.1:" + std::to_string(grpc_port_), "--token", kToken},
+        in_dir);
+    ASSERT_EQ(fetched.exit_code, 0) << fetched.err;
+    EXPECT_TRUE(fs::exists(root_ / "fetched" / "pbrt.exr")) << fetched.out;
+    EXPECT_TRUE(fs::exists(root_ / "fetched" / "pbrt.json")) << fetched.out;
+    EXPECT_EQ(testing::read_file(root_ / "fetched" / "pbrt.exr"),
+              testing::read_file(root_ / "out.exr"));
+  }
 
   // The exposition passes Prometheus's own linter.
   const std::string metrics = curl({base_ + "/metrics"});
