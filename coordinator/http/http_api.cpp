@@ -424,6 +424,33 @@ void HttpApi::install_routes() {
       if (open || authorised(req, res)) handle(req, res);
     };
     const std::string pattern = path_regex(route.path);
+    // A body is read through a content reader: cpp-httplib's own reading answers a body over
+    // 8 KiB sent as application/x-www-form-urlencoded (curl's default for --data-binary, as in
+    // the README's upload) with an empty 413, whatever the payload limit, and parses it as a
+    // query. Read here, it is the bytes as sent, up to the bundle limit.
+    auto with_body = [max = farm_.options().max_bundle_bytes](Handler inner) {
+      return [inner, max](const httplib::Request& req, httplib::Response& res,
+                          const httplib::ContentReader& reader) {
+        std::string body;
+        bool too_large = false;
+        reader([&](const char* data, std::size_t n) {
+          if (body.size() + n > max) {
+            too_large = true;
+            return false;
+          }
+          body.append(data, n);
+          return true;
+        });
+        if (too_large) {
+          return send_error(res, absl::ResourceExhaustedError(
+                                     absl::StrCat("the request body is over ", max,
+                                                  " bytes, the coordinator's --max-bundle-bytes")));
+        }
+        httplib::Request with = req;
+        with.body = std::move(body);
+        inner(with, res);
+      };
+    };
     if (route.method == "get") {
       server_->Get(pattern, handler);
     } else if (route.method == "post" && route.request == nullptr && !route.binary_request) {
@@ -432,10 +459,10 @@ void HttpApi::install_routes() {
       server_->Post(pattern, [handler](const httplib::Request& req, httplib::Response& res,
                                        const httplib::ContentReader&) { handler(req, res); });
     } else if (route.method == "post") {
-      server_->Post(pattern, handler);
+      server_->Post(pattern, with_body(handler));
     } else {
       PRISM_CHECK(route.method == "put");
-      server_->Put(pattern, handler);
+      server_->Put(pattern, with_body(handler));
     }
   }
   // The dashboard: static files, no token (the page asks for it and sends it to the API).
