@@ -15,6 +15,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <map>
 #include <mutex>
@@ -849,6 +850,21 @@ TEST_F(WorkerProcessTest, ExitsNonZeroWhenTheCoordinatorRefusesItsSecret) {
   const std::unique_ptr<prism::testing::ChildProcess> worker = spawn(start_server(), "wrong");
   ASSERT_NE(worker, nullptr);
   EXPECT_EQ(wait_exit(*worker, 20s), 1);
+}
+
+// A cache directory that cannot hold a bundle (a file, or under /proc) is refused at start: the
+// worker registered and then failed every task it leased, while the farm listed it as idle and
+// the job waited for ever.
+TEST_F(WorkerProcessTest, AnUnusableCacheDirectoryIsRefusedAtStart) {
+  const std::filesystem::path file = cache_dir_.parent_path() / "a-file";
+  std::ofstream(file) << "x";
+  for (const std::string& dir : {file.string(), std::string("/proc/no-such-dir")}) {
+    const prism::testing::RunResult run = prism::testing::run(
+        {PRISM_WORKER_BINARY, "--coordinator", "127.0.0.1:1", "--cache-dir", dir});
+    EXPECT_EQ(run.exit_code, 1) << dir;
+    EXPECT_NE(run.err.find("--cache-dir " + dir + " is not a directory"), std::string::npos)
+        << run.err;
+  }
 }
 #endif
 

@@ -13,7 +13,10 @@
 
 #include <CLI/CLI.hpp>
 #include <atomic>
+#include <cerrno>
+#include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <iostream>
 #include <thread>
@@ -96,6 +99,24 @@ int main(int argc, char** argv) {
     std::error_code ec;
     cache_dir = (std::filesystem::temp_directory_path(ec) / "prism-worker").string();
     if (ec) return fail("no --cache-dir and no temporary directory: " + ec.message());
+  }
+  // Checked before registering: a worker whose cache cannot hold a bundle fails every task it
+  // leases, and the farm would keep it as a healthy, idle worker.
+  {
+    std::error_code ec;
+    std::filesystem::create_directories(cache_dir, ec);
+    if (!std::filesystem::is_directory(cache_dir)) {
+      return fail("--cache-dir " + cache_dir + " is not a directory" +
+                  (ec ? " and cannot be created: " + ec.message() : std::string()));
+    }
+    const std::filesystem::path probe =
+        std::filesystem::path(cache_dir) / (".probe." + std::to_string(::getpid()));
+    if (std::FILE* f = std::fopen(probe.c_str(), "wb"); f != nullptr) {
+      std::fclose(f);
+      std::filesystem::remove(probe, ec);
+    } else {
+      return fail("--cache-dir " + cache_dir + " is not writable: " + std::strerror(errno));
+    }
   }
 
   absl::StatusOr<std::shared_ptr<grpc::ChannelCredentials>> credentials =
