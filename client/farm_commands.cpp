@@ -319,12 +319,16 @@ absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
   if (grpc::Status s = reader->Finish(); !s.ok()) return rpc_error(s);
   if (read->ended_inside_a_file)
     return absl::DataLossError("the result stream ended inside a file");
-  if (!output.has_value() && film_filename.empty()) {
+  // Without -o, or with -o naming a directory, the default name (output_paths).
+  std::error_code ec;
+  const bool default_name =
+      !output.has_value() || !output->has_filename() || fs::is_directory(*output, ec);
+  if (default_name && film_filename.empty()) {
     const auto report = read->files.find(v1::OUTPUT_KIND_REPORT_JSON);
     const std::string named =
         report != read->files.end() ? report_film_filename(report->second) : std::string();
     if (!named.empty()) {
-      PRISM_ASSIGN_OR_RETURN(paths, coordinator::output_paths(std::nullopt, std::nullopt, named));
+      PRISM_ASSIGN_OR_RETURN(paths, coordinator::output_paths(output, std::nullopt, named));
       PRISM_RETURN_IF_ERROR(coordinator::check_output_locations(paths));
     }
   }

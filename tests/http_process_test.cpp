@@ -262,6 +262,14 @@ TEST_F(HttpProcessTest, PrometheusScrapesTheMetrics) {
     EXPECT_TRUE(fs::exists(root_ / "fetched" / "pbrt.json")) << fetched.out;
     EXPECT_EQ(testing::read_file(root_ / "fetched" / "pbrt.exr"),
               testing::read_file(root_ / "out.exr"));
+    // -o DIR: the same names inside it.
+    testing::RunResult into =
+        testing::run({PRISM_BINARY, "fetch", jobs["jobs"][0]["jobId"].get<std::string>(), "-o",
+                      (root_ / "fetched").string(), "--coordinator",
+                      "127.0.0.1:" + std::to_string(grpc_port_), "--token", kToken});
+    ASSERT_EQ(into.exit_code, 0) << into.err;
+    EXPECT_NE(into.out.find((root_ / "fetched" / "pbrt.exr").string()), std::string::npos)
+        << into.out;
   }
 
   // The exposition passes Prometheus's own linter.
