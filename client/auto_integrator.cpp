@@ -77,6 +77,9 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   const Clock::time_point start = Clock::now();
   RenderCommandOptions& chosen = out.options;
   chosen.prepass = false;
+  // --caustic-paths under auto is the share of light paths should it choose light-traced
+  // caustics (set below where it does); elsewhere it does not apply.
+  if (options.caustics != "light") chosen.caustic_paths.reset();
   job::AutoReport report;
   if (options.caustics == "light" ||
       (options.splat_width.has_value() && options.caustics.empty())) {
@@ -127,6 +130,9 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   // The job's film and spp, as hero would render it. (The gradient's own flags need
   // --integrator gradient, so `options` holds none.)
   RenderCommandOptions probe = options;
+  // --caustic-paths is the job's share of light paths should auto choose light-traced caustics;
+  // the pilot renders set their own.
+  probe.caustic_paths.reset();
   probe.integrator = "hero";
   probe.prepass = false;
   probe.target_error.reset();
@@ -271,6 +277,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   if (gradient) {
     RenderCommandOptions g = chosen;
     g.integrator = "gradient";
+    g.caustic_paths.reset();
     PRISM_ASSIGN_OR_RETURN(v1::JobSpec spec,
                            job_spec_of(g, description, bundle_hash, scene_relpath));
     PRISM_ASSIGN_OR_RETURN(const std::optional<double> seconds,

@@ -298,6 +298,20 @@ TEST(RenderCliTest, TargetErrorRendersStopWhereTheErrorIsMetAndDoNotDependOnThre
 // `--integrator auto`: where nothing depends on wavelength it is hero, with no pilot, and the
 // same bytes; on a spectral scene the report lists the candidates the pilot measured and the
 // image is exactly the chosen method's render.
+// --caustic-paths under auto (the default) is the share of light paths should auto choose
+// light-traced caustics; where it chooses another method the flag does not apply. It made such
+// renders fail with "use it with --caustics light (or --integrator auto)".
+TEST(RenderCliTest, CausticPathsUnderAutoRenderWhateverAutoChooses) {
+  const fs::path dir = fresh_dir("auto_caustic_paths");
+  for (const char* scene : {"scenes/prism.pbrt", "scenes/slit-prism.pbrt"}) {
+    const CommandRun run =
+        run_prism(dir, {"render", source(scene), "--caustic-paths", "0.5", "--spp", "4",
+                        "--resolution", "32x24", "--threads", "1", "-o", "out.exr"});
+    EXPECT_EQ(run.exit_code, 0) << scene << ": " << run.output;
+    EXPECT_NE(run.output.find("chosen by auto"), std::string::npos) << run.output;
+  }
+}
+
 TEST(RenderCliTest, AutoChoosesAMethodAndRendersExactlyWhatItChose) {
   const fs::path dir = fresh_dir("auto");
   {
@@ -652,7 +666,8 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
        "prism: --integrator 'foo': want uniform, hero, gradient, light or auto"},
       {{"render", scene, "--caustics", "photon"}, "prism: --caustics 'photon': want off or light"},
       {{"render", scene, "--integrator", "gradient", "--caustics", "light"},
-       "light_caustics needs the hero or the uniform integrator, not gradient"},
+       "light-traced caustics (--caustics light, light_caustics) need the hero or the uniform "
+       "integrator, not gradient"},
       {{"render", scene, "--integrator", "hero", "--splat"},
        "prism: --splat draws light paths as lines: use it with --integrator light or --caustics "
        "light"},

@@ -426,13 +426,13 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
          p.render.integrator != IntegratorKind::kUniform) ||
         p.render.light_caustics) {
       return absl::InvalidArgumentError(
-          "gather_width filters eye-traced images: it needs the hero or the uniform integrator "
-          "without light_caustics (light paths have splat_width)");
+          "gathering (--gather, gather_width) filters eye-traced images: it needs the hero or "
+          "the uniform integrator without light-traced caustics (light paths have --splat)");
     }
     if (spec.target_error() != 0.0f) {
       return absl::InvalidArgumentError(
-          "gather_width does not combine with a target_error yet (the filter runs once over the "
-          "finished image)");
+          "gathering (--gather, gather_width) does not combine with a target error "
+          "(--target-error) yet: the filter runs once over the finished image");
     }
     p.render.gather_width_nm = spec.gather_width();
   }
@@ -454,13 +454,14 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
     if (p.render.integrator != IntegratorKind::kHero &&
         p.render.integrator != IntegratorKind::kUniform) {
       return absl::InvalidArgumentError(
-          absl::StrCat("light_caustics needs the hero or the uniform integrator, not ",
+          absl::StrCat("light-traced caustics (--caustics light, light_caustics) need the hero "
+                       "or the uniform integrator, not ",
                        name(p.render.integrator)));
     }
     if (prepass || p.target_error) {
       return absl::InvalidArgumentError(
-          "light_caustics does not combine with the prepass or a target_error yet (its task is "
-          "the whole image)");
+          "light-traced caustics (--caustics light, light_caustics) do not combine with the "
+          "prepass or a target error (--target-error) yet: their task is the whole image");
     }
   }
   if (p.render.integrator == IntegratorKind::kLight) {
@@ -471,8 +472,8 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
     }
     if (p.target_error) {
       return absl::InvalidArgumentError(
-          "target_error is not available with the light integrator yet (its task is the whole "
-          "image, and rounds are planned per tile)");
+          "a target error (--target-error, target_error) is not available with the light "
+          "integrator yet: its task is the whole image, and rounds are planned per tile");
     }
   }
 

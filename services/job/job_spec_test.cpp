@@ -256,19 +256,20 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_integrator(prism::v1::INTEGRATOR_LIGHT);
          s.set_gather_width(50.0f);
        },
-       "gather_width filters eye-traced images: it needs the hero or the uniform integrator"},
+       "gathering (--gather, gather_width) filters eye-traced images: it needs the hero or "
+       "the uniform integrator"},
       {"gather_with_caustics",
        [](prism::v1::JobSpec& s) {
          s.set_light_caustics(true);
          s.set_gather_width(50.0f);
        },
-       "without light_caustics"},
+       "without light-traced caustics"},
       {"gather_with_target_error",
        [](prism::v1::JobSpec& s) {
          s.set_gather_width(50.0f);
          s.set_target_error(0.05f);
        },
-       "gather_width does not combine with a target_error yet"},
+       "gathering (--gather, gather_width) does not combine with a target error"},
       {"gather_width_range", [](prism::v1::JobSpec& s) { s.set_gather_width(-3.0f); },
        "gather_width -3 nm is out of range: want 0.1..470"},
       {"caustics_with_gradient",
@@ -276,7 +277,8 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_integrator(prism::v1::INTEGRATOR_GRADIENT);
          s.set_light_caustics(true);
        },
-       "light_caustics needs the hero or the uniform integrator, not gradient"},
+       "light-traced caustics (--caustics light, light_caustics) need the hero or the uniform "
+       "integrator, not gradient"},
       {"caustic_paths_without_caustics", [](prism::v1::JobSpec& s) { s.set_caustic_paths(0.5f); },
        "caustic_paths is the share of light paths of light_caustics: set light_caustics"},
       {"caustic_paths_range",
@@ -296,7 +298,8 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_light_caustics(true);
          s.mutable_prepass()->set_enabled(true);
        },
-       "light_caustics does not combine with the prepass"},
+       "light-traced caustics (--caustics light, light_caustics) do not combine with the "
+       "prepass"},
       {"light_with_prepass",
        [](prism::v1::JobSpec& s) {
          s.set_integrator(prism::v1::INTEGRATOR_LIGHT);
@@ -308,7 +311,8 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
          s.set_integrator(prism::v1::INTEGRATOR_LIGHT);
          s.set_target_error(0.05f);
        },
-       "target_error is not available with the light integrator yet"},
+       "a target error (--target-error, target_error) is not available with the light "
+       "integrator yet"},
       {"spectral_pdf",
        [](prism::v1::JobSpec& s) { s.set_spectral_pdf(static_cast<prism::v1::SpectralPdf>(9)); },
        "spectral_pdf 9: want flat or visible"},
