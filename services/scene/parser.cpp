@@ -423,6 +423,8 @@ absl::StatusOr<Token> SceneParser::string_arg(Tokenizer& tokens, const Token& di
 }
 
 absl::Status SceneParser::parse_file(std::string_view text, const std::string& relpath, int depth) {
+  // A UTF-8 byte order mark (editors on Windows write one) is not part of the first directive.
+  if (text.starts_with("\xEF\xBB\xBF")) text.remove_prefix(3);
   Tokenizer tokens(text, relpath);
   while (true) {
     PRISM_ASSIGN_OR_RETURN(Token t, tokens.next());

@@ -418,6 +418,18 @@ TEST(GoodScenes, LightsThatEmitNothingAreLeftOut) {
   EXPECT_EQ(ignored, 4);
 }
 
+// A byte order mark before the first directive (a file saved by a Windows editor) is skipped,
+// in the main file and in an included one; columns count from the text after it.
+TEST(GoodScenes, AByteOrderMarkIsSkipped) {
+  const std::map<std::string, std::string> files = {{"inc.pbrt", "\xEF\xBB\xBFShape \"sphere\"\n"}};
+  absl::StatusOr<SceneDescription> s = parse_scene_string(
+      "\xEF\xBB\xBFLookAt 0 0 -5  0 0 0  0 1 0\nWorldBegin\nInclude \"inc.pbrt\"\n", "m.pbrt", {},
+      files);
+  ASSERT_TRUE(s.ok()) << s.status();
+  ASSERT_EQ(s->shapes.size(), 1u);
+  EXPECT_EQ(s->shapes[0].where.column, 1);
+}
+
 TEST(GoodScenes, ObjectInstancesAreFlattenedWithComposedTransforms) {
   SceneDescription s = load_good("instances.pbrt");
   ASSERT_EQ(s.shapes.size(), 4u);
