@@ -685,6 +685,9 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
       report.filtered.has_value()
           ? absl::StrCat(paths.filtered_exr.string(), ", ", paths.filtered_png.string(), ", ")
           : std::string(),
+      report.gradient.has_value() && report.gradient->with_primal_and_gradients
+          ? absl::StrCat(paths.primal_exr.string(), ", ", paths.gradient_exr.string(), ", ")
+          : std::string(),
       paths.json.string(), absl::StrFormat(" in %.2f s", output_seconds), "\n");
 }
 
