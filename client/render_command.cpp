@@ -662,6 +662,13 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
       report.auto_choice.has_value()
           ? absl::StrCat(" (chosen by auto: ", report.auto_choice->reason, ")")
           : std::string(),
+      options.prepass == true && !report.prepass.has_value() && !report.auto_choice.has_value()
+          ? absl::StrCat(" (no prepass: ", report.spp,
+                         " spp leave it no budget, which takes 8 % of the job's samples and needs "
+                         "at least ",
+                         job::kMinBudgetedSpp, " spp for its last pass and ", job::kMinDecisionSpp,
+                         " for its first; --prepass-spp N sets it instead)")
+          : std::string(),
       report.gradient.has_value()
           ? absl::StrCat(
                 " (tau ", report.gradient->tau,

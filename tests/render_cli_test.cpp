@@ -312,6 +312,18 @@ TEST(RenderCliTest, CausticPathsUnderAutoRenderWhateverAutoChooses) {
   }
 }
 
+// An explicit --prepass that the job's samples leave no budget says so, instead of a summary
+// that only reads "hero".
+TEST(RenderCliTest, APrepassWithoutABudgetSaysSo) {
+  const fs::path dir = fresh_dir("prepass_no_budget");
+  const CommandRun run = run_prism(
+      dir, {"render", source("scenes/three-emitters.pbrt"), "--integrator", "hero", "--prepass",
+            "--spp", "64", "--resolution", "32x24", "--threads", "1", "-o", "out.exr"});
+  EXPECT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("hero (no prepass: 64 spp leave it no budget"), std::string::npos)
+      << run.output;
+}
+
 TEST(RenderCliTest, AutoChoosesAMethodAndRendersExactlyWhatItChose) {
   const fs::path dir = fresh_dir("auto");
   {
