@@ -397,15 +397,20 @@ std::string home_cache() {
   return {};
 }
 
-// Runs gnuplot on `script`; its messages go to `log`.
+// Runs gnuplot on `script` in the script's directory (its file names are relative to it), its
+// outputs written under a .tmp suffix; its messages go to `log`.
 absl::Status run_gnuplot(const fs::path& script, const fs::path& log) {
+  const fs::path absolute_log = fs::absolute(log);
+  const fs::path dir = fs::absolute(script).parent_path();
   posix_spawn_file_actions_t actions;
   posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, log.c_str(),
+  posix_spawn_file_actions_addchdir_np(&actions, dir.c_str());
+  posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, absolute_log.c_str(),
                                    O_WRONLY | O_CREAT | O_TRUNC, 0644);
   posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
-  std::string program = "gnuplot", argument = script.string();
-  char* argv[] = {program.data(), argument.data(), nullptr};
+  std::string program = "gnuplot", e = "-e", suffix = "suffix='.tmp'",
+              argument = script.filename().string();
+  char* argv[] = {program.data(), e.data(), suffix.data(), argument.data(), nullptr};
   pid_t pid = 0;
   const int spawned = posix_spawnp(&pid, "gnuplot", &actions, nullptr, argv, environ);
   posix_spawn_file_actions_destroy(&actions);
@@ -612,10 +617,11 @@ BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene
       absl::StrAppend(&plot.data, "\n\n");
       const bool inset = region != "image";
       any_inset = any_inset || inset;
-      series.push_back(absl::StrCat(
-          gnuplot_string(data_file.string()), " index ", index, " using 1:2 with linespoints lc ",
-          mi + 1, " lw ", inset ? "1.5" : "2.5", " pt ", inset ? 6 : 7, " dt ", inset ? 2 : 1,
-          " title ", gnuplot_string(inset ? absl::StrCat(method, ", inset ", region) : method)));
+      series.push_back(
+          absl::StrCat(gnuplot_string(data_file.filename().string()), " index ", index,
+                       " using 1:2 with linespoints lc ", mi + 1, " lw ", inset ? "1.5" : "2.5",
+                       " pt ", inset ? 6 : 7, " dt ", inset ? 2 : 1, " title ",
+                       gnuplot_string(inset ? absl::StrCat(method, ", inset ", region) : method)));
       ++index;
     }
   }
@@ -642,11 +648,13 @@ BenchPlot bench_plot(const std::vector<BenchRow>& rows, const std::string& scene
                                : absl::StrCat("plot ", absl::StrJoin(series, ", \\\n     "), "\n");
   plot.script = absl::StrCat(
       "# Drawn by prism bench: relMSE against seconds for ", scene, ", one curve per method,\n",
-      "# insets dashed. Rerun with: gnuplot <this file>\n",
+      "# insets dashed. Rerun in this directory with: gnuplot <this file>\n",
+      "# (prism bench itself passes -e \"suffix='.tmp'\" and moves the files into place.)\n",
+      "if (!exists(\"suffix\")) suffix = ''\n",
       "set terminal svg size 900,600 dynamic font 'Sans,12' background rgb 'white'\n",
-      "set output ", gnuplot_string(svg.string() + ".tmp"), "\n", axes, draw,
+      "set output ", gnuplot_string(svg.filename().string()), ".suffix\n", axes, draw,
       "set output\nset terminal pngcairo size 1200,800 font 'Sans,12' background rgb 'white'\n",
-      "set output ", gnuplot_string(png.string() + ".tmp"), "\nreplot\nset output\n");
+      "set output ", gnuplot_string(png.filename().string()), ".suffix\nreplot\nset output\n");
   return plot;
 }
 
