@@ -532,10 +532,46 @@ absl::StatusOr<std::vector<BenchRow>> parse_bench_csv(const std::string& text,
   return rows;
 }
 
+std::string reference_warnings(const std::vector<BenchRow>& rows) {
+  // Per scene and region, the worst row: the largest share of its measured error that is the
+  // reference's own noise (the floor subtracted from it).
+  std::map<std::pair<std::string, std::string>, const BenchRow*> worst;
+  auto share = [](const BenchRow& r) {
+    // Of MSE and of relMSE, which weigh the pixels differently: the larger.
+    auto of = [](double floor, double minus_floor) {
+      const double raw = minus_floor + floor;
+      return raw > 0 ? floor / raw : 0.0;
+    };
+    return std::max(of(r.mse_floor, r.metrics.mse), of(r.rel_mse_floor, r.metrics.rel_mse));
+  };
+  for (const BenchRow& r : rows) {
+    if (!r.floor_known) continue;
+    const BenchRow*& w = worst[{r.scene, r.region}];
+    if (w == nullptr || share(r) > share(*w)) w = &r;
+  }
+  std::string out;
+  for (const auto& [key, r] : worst) {
+    if (share(*r) <= 0.5) continue;
+    absl::StrAppend(
+        &out, absl::StrFormat(
+                  "- %s, %s: the reference's own noise is %.0f %% of the error measured for %s "
+                  "at %s (seed %d)%s; figures this close to the reference's noise are not "
+                  "reliable: render the reference longer (--reference-spp, --reference-error)\n",
+                  key.first, key.second, 100 * share(*r), r->method, r->budget, r->seed,
+                  r->metrics.rel_mse < 0 || r->metrics.mse < 0
+                      ? ", whose error minus the floor is negative"
+                      : ""));
+  }
+  return out;
+}
+
 std::string bench_report(const std::vector<BenchRow>& rows, const std::string& baseline,
                          const std::string& header) {
   const Grouped g = group(rows);
   std::string out = header;
+  if (const std::string warnings = reference_warnings(rows); !warnings.empty()) {
+    absl::StrAppend(&out, "\n**Warning:**\n\n", warnings);
+  }
   const bool has_baseline =
       std::find(g.methods.begin(), g.methods.end(), baseline) != g.methods.end();
   if (!has_baseline) {
@@ -1081,6 +1117,9 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
   const std::string csv_text = bench_csv(rows);
   PRISM_RETURN_IF_ERROR(base::write_file_atomic(csv, csv_text));
   const std::string report_text = bench_report(rows, options.baseline, header);
+  if (const std::string warnings = reference_warnings(rows); !warnings.empty()) {
+    log(absl::StrCat("warning:\n", warnings));
+  }
   PRISM_RETURN_IF_ERROR(base::write_file_atomic(report, report_text));
   absl::StrAppend(&summary, "wrote ", csv.string(), " (", rows.size(), " rows), ", report.string());
   PRISM_RETURN_IF_ERROR(write_plots(rows, stems, options.clock, options.output, summary));

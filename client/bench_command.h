@@ -99,6 +99,11 @@ std::string bench_csv(const std::vector<BenchRow>& rows);
 absl::StatusOr<std::vector<BenchRow>> parse_bench_csv(const std::string& text,
                                                       const std::string& name);
 
+// Lines (markdown list items) for the scenes and regions where the reference's own noise is
+// more than half the error some row measured (its floor subtracted; a negative relMSE is named):
+// its figures say more about the reference than the method. Empty when there are none.
+std::string reference_warnings(const std::vector<BenchRow>& rows);
+
 // The markdown report: for each scene and region, each method's mean relMSE and seconds per
 // budget, and its equal-time ratio to `baseline` (relMSE ÷ the baseline's relMSE interpolated at
 // the same seconds; < 1 is better); with `auto` among the methods, also auto's ratio to the best

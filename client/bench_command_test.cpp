@@ -182,5 +182,36 @@ TEST(BenchCommandTest, PlotTicsStayReadableInsideADecadeAndOverMany) {
       << plot.script;
 }
 
+TEST(BenchReportTest, WarnsWhereTheReferencesNoiseIsMostOfTheError) {
+  auto row = [](const char* method, double mse, double floor, bool known) {
+    BenchRow r;
+    r.scene = "box";
+    r.method = method;
+    r.budget = "64spp";
+    r.seed = 1;
+    r.region = "image";
+    r.metrics.mse = mse;
+    r.metrics.rel_mse = mse;
+    r.mse_floor = r.rel_mse_floor = floor;
+    r.floor_known = known;
+    return r;
+  };
+  // A floor of a tenth of the error: no warning; of two thirds, or above the error: one each.
+  EXPECT_EQ(reference_warnings({row("hero", 0.9, 0.1, true)}), "");
+  EXPECT_EQ(reference_warnings({row("hero", 0.9, 5.0, false)}), "");  // unknown floor
+  const std::string two_thirds =
+      reference_warnings({row("hero", 0.9, 0.1, true), row("uniform", 0.5, 1.0, true)});
+  EXPECT_NE(two_thirds.find("- box, image: the reference's own noise is 67 % of the error "
+                            "measured for uniform at 64spp (seed 1);"),
+            std::string::npos)
+      << two_thirds;
+  const std::string negative = reference_warnings({row("hero", -0.1, 1.0, true)});
+  EXPECT_NE(negative.find("whose error minus the floor is negative"), std::string::npos)
+      << negative;
+  // And the report carries them.
+  EXPECT_NE(bench_report({row("hero", -0.1, 1.0, true)}, "hero", "# header\n").find("**Warning:**"),
+            std::string::npos);
+}
+
 }  // namespace
 }  // namespace prism::client
