@@ -94,6 +94,10 @@ absl::StatusOr<OutputPaths> output_paths(const std::optional<fs::path>& output,
   return paths;
 }
 
+namespace {
+constexpr std::size_t kMaxOutputName = 220;
+}  // namespace
+
 absl::Status check_output_locations(const OutputPaths& paths) {
   for (const fs::path* path : {&paths.spectral_exr, &paths.rgb_exr, &paths.png, &paths.json}) {
     fs::path dir = path->parent_path();
@@ -114,6 +118,13 @@ absl::Status check_output_locations(const OutputPaths& paths) {
     if (fs::is_directory(*path, ec)) {
       return absl::InvalidArgumentError(
           absl::StrCat("cannot write '", path->string(), "': it is a directory"));
+    }
+    // Each output is written to a temporary name beside it first (".NAME.tmp.PID.N",
+    // base/atomic_file.h), which must fit the file system's 255 bytes too.
+    if (const std::size_t length = path->filename().string().size(); length > kMaxOutputName) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "cannot write '", path->string(), "': its name is ", length, " bytes, over the ",
+          kMaxOutputName, " an output may have (255 with its temporary name)"));
     }
   }
   return absl::OkStatus();

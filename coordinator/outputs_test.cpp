@@ -96,6 +96,13 @@ TEST(OutputPathsTest, LocationsAreCheckedBeforeRendering) {
   absl::Status is_dir = check_output_locations(*ok);
   EXPECT_EQ(is_dir.code(), absl::StatusCode::kInvalidArgument) << is_dir;
   EXPECT_TRUE(listing(dir) == std::vector<fs::path>{"a.png"});
+  // A name that leaves no room for its temporary name (".NAME.tmp.PID.N" within 255 bytes) is
+  // refused here, not after the render.
+  auto long_name = output_paths(dir / (std::string(230, 'n') + ".exr"), std::nullopt, "x.exr");
+  ASSERT_TRUE(long_name.ok());
+  absl::Status too_long = check_output_locations(*long_name);
+  EXPECT_EQ(too_long.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(too_long.message().find("bytes, over the 220"), std::string::npos) << too_long;
 }
 
 // The helper's finding: `prism render victim.pbrt --json victim.pbrt` replaced the scene with

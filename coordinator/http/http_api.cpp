@@ -469,6 +469,9 @@ void HttpApi::install_routes() {
   server_->Get("/", [](const httplib::Request&, httplib::Response& res) {
     res.set_redirect("/dashboard/");
   });
+  server_->Get("/dashboard", [](const httplib::Request&, httplib::Response& res) {
+    res.set_redirect("/dashboard/");
+  });
   for (const DashboardAsset& asset : dashboard_assets()) {
     const std::string path =
         asset.name == "index.html" ? "/dashboard/" : "/dashboard/" + std::string(asset.name);

@@ -196,6 +196,20 @@ TEST_F(HttpApiTest, BundlesUploadWhateverTheirContentType) {
   }
 }
 
+// The dashboard at /dashboard/, and at / and /dashboard by a redirect (the second was a 404).
+TEST_F(HttpApiTest, TheDashboardIsFoundWithOrWithoutItsSlash) {
+  for (const char* path : {"/", "/dashboard"}) {
+    httplib::Result r = http_->Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 302) << path;
+    EXPECT_EQ(r->get_header_value("Location"), "/dashboard/") << path;
+  }
+  httplib::Result page = http_->Get("/dashboard/");
+  ASSERT_TRUE(page);
+  EXPECT_EQ(page->status, 200);
+  EXPECT_NE(page->body.find("<html"), std::string::npos);
+}
+
 TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
   // Upload the bundle as raw bytes, and ask for it by hash.
   const std::string bundle = packed_bundle(root_ / "scene", kScene);

@@ -14,6 +14,7 @@
 #include <CLI/CLI.hpp>
 #include <atomic>
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -85,6 +86,7 @@ int main(int argc, char** argv) {
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
   CLI11_PARSE(app, argc, argv);
+  if (!std::isfinite(drain_timeout)) return fail("--drain-timeout must be a number of seconds");
   if (absl::Status address = prism::rpc::check_address(coordinator, "--coordinator", false);
       !address.ok()) {
     return fail(std::string(address.message()));
