@@ -728,12 +728,23 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       return absl::InvalidArgumentError("give scenes to render or --results to report, not both");
     }
     std::vector<BenchRow> rows;
+    std::set<std::string> seen;  // a row given twice (the same file twice) counts once
+    std::set<std::string> methods_read;
     for (const fs::path& path : options.results) {
       PRISM_ASSIGN_OR_RETURN(const std::string text, base::read_file(path));
       PRISM_ASSIGN_OR_RETURN(std::vector<BenchRow> read, parse_bench_csv(text, path.string()));
       for (BenchRow& r : read) {
-        if (absl::c_linear_search(methods, r.method)) rows.push_back(std::move(r));
+        methods_read.insert(r.method);
+        if (!absl::c_linear_search(methods, r.method)) continue;
+        if (!seen.insert(bench_csv({r})).second) continue;
+        rows.push_back(std::move(r));
       }
+    }
+    if (rows.empty()) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "--results: no row of the method(s) ", options.methods, " (the files have ",
+          methods_read.empty() ? std::string("no rows") : absl::StrJoin(methods_read, ", "),
+          "); name them with --methods"));
     }
     std::error_code ec;
     fs::create_directories(options.output, ec);

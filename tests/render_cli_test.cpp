@@ -1064,6 +1064,16 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
       EXPECT_EQ(replotted[i], plotted[i]) << i;
     }
   }
+  // The same file twice is the same rows once; methods that match no row are an error.
+  CommandRun twice = run_prism(dir, {"bench", "--results", "out/results.csv", "--results",
+                                     "out/results.csv", "-o", "twice"});
+  ASSERT_EQ(twice.exit_code, 0) << twice.output;
+  EXPECT_EQ(prism::base::read_file(dir / "twice" / "three-emitters.dat").value(), *replot_data);
+  CommandRun none = run_prism(
+      dir, {"bench", "--results", "out/results.csv", "--methods", "hero+caustics", "-o", "none"});
+  EXPECT_NE(none.exit_code, 0);
+  EXPECT_NE(none.output.find("--results: no row of the method(s) hero+caustics"), std::string::npos)
+      << none.output;
   auto replot_script = prism::base::read_file(dir / "replot" / "three-emitters.gp");
   ASSERT_TRUE(replot_script.ok());
   EXPECT_NE(replot_script->find("seconds (wall clock)"), std::string::npos) << *replot_script;
