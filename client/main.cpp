@@ -78,7 +78,7 @@ int main(int argc, char** argv) {
       "Render a scene on this machine (the farm's coordinator and worker code, in process)");
   prism::client::add_render_flags(*render_cmd, render_flags, render);
   auto* threads_opt = render_cmd->add_option("--threads", threads,
-                                             "Render threads (default: all hardware threads)");
+                                             "Render threads (default, or 0: all hardware threads)");
   auto* json_opt =
       render_cmd->add_option("--json", json_path, "JSON report path (default: <output stem>.json)");
   render_cmd->add_option("--spool", render.spool,

@@ -161,7 +161,7 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
   PRISM_RETURN_IF_ERROR(check_range("--spp", o.spp, 1, std::int64_t(job::kMaxJobSpp)));
   PRISM_RETURN_IF_ERROR(check_range("--bins", o.bins, spectral::WavelengthGrid::kMinBins,
                                     spectral::WavelengthGrid::kMaxBins));
-  PRISM_RETURN_IF_ERROR(check_range("--threads", o.threads, 1, job::kMaxThreads));
+  PRISM_RETURN_IF_ERROR(check_range("--threads", o.threads, 0, job::kMaxThreads));
   PRISM_RETURN_IF_ERROR(check_range("--tile", o.tile, 4, 1024));
   PRISM_RETURN_IF_ERROR(check_range("--max-depth", o.max_depth, 0, job::kMaxJobDepth));
   PRISM_RETURN_IF_ERROR(

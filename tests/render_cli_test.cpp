@@ -703,7 +703,7 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
        "prism: --gather-width 900 is out of range: want nm in 0.1..470"},
       {{"render", scene, "--spp", "0"}, "--spp 0 is out of range"},
       {{"render", scene, "--spp", "-3"}, "--spp -3 is out of range"},
-      {{"render", scene, "--threads", "0"}, "--threads 0 is out of range"},
+      {{"render", scene, "--threads", "-1"}, "--threads -1 is out of range"},
       {{"render", scene, "--samples-per-task", "0"},
        "prism: --samples-per-task 0 is out of range: want 1..16777216"},
       {{"render", scene, "--tile", "2"}, "--tile 2 is out of range: want 4..1024"},
