@@ -485,11 +485,15 @@ void HttpApi::install_routes() {
     send_error(res, absl::NotFoundError(absl::StrCat("no route ", req.method, " ", req.path,
                                                      " (see /api/v1/openapi.json)")));
   };
+  // Through a content reader, which nothing reads: cpp-httplib's own reading answers a body
+  // without a Content-Length (curl -X PUT URL) with an empty 400 before any handler runs.
+  auto unknown_with_body = [unknown](const httplib::Request& req, httplib::Response& res,
+                                     const httplib::ContentReader&) { unknown(req, res); };
   server_->Get(".*", unknown);
-  server_->Post(".*", unknown);
-  server_->Put(".*", unknown);
-  server_->Delete(".*", unknown);
-  server_->Patch(".*", unknown);
+  server_->Post(".*", unknown_with_body);
+  server_->Put(".*", unknown_with_body);
+  server_->Delete(".*", unknown_with_body);
+  server_->Patch(".*", unknown_with_body);
   server_->set_exception_handler(
       [this](const httplib::Request& req, httplib::Response& res, std::exception_ptr ep) {
         std::string what = "unknown exception";

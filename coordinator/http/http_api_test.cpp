@@ -4,7 +4,11 @@
 // follows (upload, submit, watch, outputs, cancel) give the same bytes as the gRPC API.
 #include "coordinator/http/http_api.h"
 
+#include <arpa/inet.h>
 #include <httplib.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <fstream>
 #include <future>
@@ -208,6 +212,30 @@ TEST_F(HttpApiTest, TheDashboardIsFoundWithOrWithoutItsSlash) {
   ASSERT_TRUE(page);
   EXPECT_EQ(page->status, 200);
   EXPECT_NE(page->body.find("<html"), std::string::npos);
+}
+
+// `curl -X PUT URL` sends no Content-Length; on a route that does not exist cpp-httplib's own
+// body reading answered it with an empty 400. The answer is the JSON 404 of any unknown route.
+TEST_F(HttpApiTest, UnknownRoutesWithoutABodyGetTheJsonNotFound) {
+  for (const char* method : {"PUT", "PATCH", "POST", "DELETE"}) {
+    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    ASSERT_GE(fd, 0);
+    sockaddr_in addr{};
+    addr.sin_family = AF_INET;
+    addr.sin_port = htons(static_cast<std::uint16_t>(api_->port()));
+    addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    ASSERT_EQ(::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)), 0);
+    const std::string request =
+        std::string(method) + " /api/v1/nothing HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n";
+    ASSERT_EQ(::send(fd, request.data(), request.size(), 0), ssize_t(request.size()));
+    std::string reply;
+    char buffer[4096];
+    for (ssize_t n; (n = ::recv(fd, buffer, sizeof(buffer), 0)) > 0;) reply.append(buffer, n);
+    ::close(fd);
+    EXPECT_TRUE(reply.starts_with("HTTP/1.1 404")) << method << ": " << reply;
+    EXPECT_NE(reply.find("no route " + std::string(method) + " /api/v1/nothing"), std::string::npos)
+        << reply;
+  }
 }
 
 TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
