@@ -104,6 +104,7 @@ std::string job_line(const v1::JobInfo& job) {
       static_cast<unsigned long long>(p.tasks_total()),
       job.spec().name().empty() ? job.spec().scene_path() : job.spec().name());
   if (!job.error().empty()) absl::StrAppend(&line, "  error: ", job.error());
+  if (!job.waiting().empty()) absl::StrAppend(&line, "  waiting: ", job.waiting());
   return line;
 }
 

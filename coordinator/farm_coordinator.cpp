@@ -391,6 +391,22 @@ JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) {
     const std::uint64_t fresh = record.progress.samples_done >= job.samples_at_start
                                     ? record.progress.samples_done - job.samples_at_start
                                     : 0;
+    if (const std::optional<JobProgress> p = scheduler_.progress(record.id);
+        p.has_value() && p->state == JobState::kRunning && p->pending > 0 && p->leased == 0) {
+      const std::vector<WorkerInfo> workers = scheduler_.workers();
+      const bool all_blocked =
+          !workers.empty() && std::all_of(workers.begin(), workers.end(), [&](const WorkerInfo& w) {
+            return std::binary_search(p->blocked_workers.begin(), p->blocked_workers.end(), w.id);
+          });
+      if (workers.empty()) {
+        status.waiting = "no worker is connected (start prism-worker --coordinator ADDRESS)";
+      } else if (all_blocked) {
+        status.waiting = absl::StrCat(
+            "every connected worker (", workers.size(),
+            ") is blocked from this job after repeated failures of its tasks; the last: ",
+            p->last_fault);
+      }
+    }
     if (seconds > 0 && fresh > 0) {
       status.samples_per_second = double(fresh) / seconds;
       status.eta_seconds = double(record.progress.samples_total - record.progress.samples_done) /

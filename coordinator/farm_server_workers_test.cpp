@@ -8,6 +8,40 @@ namespace {
 
 using namespace farm_server_testing;  // also fs (std::filesystem) and v1 (prism::v1)
 
+// A worker that fails every task it takes (a broken cache directory, say) is blocked from the
+// job after three faults; with no other worker the job waits, and its status says why instead of
+// sitting at 0 % with the worker listed as idle.
+TEST_F(FarmServerTest, AJobEveryWorkerIsBlockedFromSaysWhyItWaits) {
+  const std::string job_id = submit_small_job();
+  ASSERT_FALSE(job_id.empty());
+  v1::JobInfo info;
+  ASSERT_TRUE(get_job(job_id, &info).ok());
+  EXPECT_EQ(info.waiting(), "no worker is connected (start prism-worker --coordinator ADDRESS)");
+  const std::string worker_id = register_worker();
+  for (int fault = 0; fault < 3; ++fault) {
+    ASSERT_TRUE(get_job(job_id, &info).ok());
+    EXPECT_EQ(info.waiting(), "") << fault;
+    std::optional<v1::Lease> lease = acquire(worker_id);
+    ASSERT_TRUE(lease.has_value());
+    v1::FailTaskRequest request;
+    request.set_worker_id(worker_id);
+    request.set_lease_id(lease->lease_id());
+    request.set_failure_class(v1::FAILURE_CLASS_WORKER);
+    request.set_message("cannot create the bundle cache afile: Not a directory");
+    v1::FailTaskResponse response;
+    auto context = worker_call();
+    ASSERT_TRUE(worker_stub_->FailTask(context.get(), request, &response).ok());
+  }
+  ASSERT_TRUE(get_job(job_id, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_RENDERING);
+  EXPECT_NE(info.waiting().find("every connected worker (1) is blocked from this job after "
+                                "repeated failures of its tasks; the last: "),
+            std::string::npos)
+      << info.waiting();
+  EXPECT_NE(info.waiting().find("cannot create the bundle cache afile"), std::string::npos)
+      << info.waiting();
+}
+
 TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {
   ASSERT_FALSE(submit_small_job().empty());
   const std::string worker_id = register_worker();

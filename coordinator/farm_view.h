@@ -27,6 +27,10 @@ struct JobStatus {
   int tiles_total = 0;
   double samples_per_second = 0;
   double eta_seconds = -1;
+  // Why a running job has tasks to render and no worker rendering them, when it is not a moment's
+  // wait: no worker is connected, or every connected one is blocked from the job after repeated
+  // failures of its tasks (with the last). Empty otherwise.
+  std::string waiting;
 };
 
 struct WorkerStatus {

@@ -418,7 +418,8 @@ std::optional<JobProgress> Scheduler::progress(const std::string& job_id) const 
                      .leased = job.leased,
                      .pending = static_cast<int>(job.pending.size()),
                      .blocked_workers = {job.blocked.begin(), job.blocked.end()},
-                     .message = job.message};
+                     .message = job.message,
+                     .last_fault = job.last_fault};
 }
 
 std::optional<Lease> Scheduler::lease(const std::string& lease_id) const {
@@ -479,6 +480,7 @@ void Scheduler::requeue(JobRecord& job, const std::string& job_id, int index,
       break;
   }
   if (failure_class == FailureClass::kWorker) {
+    job.last_fault = absl::StrCat(describe(job_id, index, task.spec), ": ", detail);
     ++task.counted_failures;
     task.avoid_worker = worker_id;
     task.avoid_until = now + options_.retry_preference;

@@ -144,6 +144,7 @@ struct JobProgress {
   int pending = 0;
   std::vector<std::string> blocked_workers;  // sorted
   std::string message;                       // why the job failed
+  std::string last_fault;                    // the last worker fault of one of its tasks
 };
 
 struct SchedulerEvent {
@@ -293,6 +294,7 @@ class Scheduler {
     std::map<std::string, int> worker_faults;
     std::set<std::string> blocked;
     std::string message;
+    std::string last_fault;  // the last worker fault of one of its tasks, for progress()
   };
   struct LeaseRecord {
     Lease lease;

@@ -90,6 +90,7 @@ prism::v1::JobInfo to_proto(const JobStatus& status) {
   info.set_submitted_unix_ms(r.submitted_ms);
   info.set_finished_unix_ms(r.finished_ms);
   info.set_report_json(r.report_json);
+  info.set_waiting(status.waiting);
   return info;
 }
 
