@@ -14,6 +14,7 @@
 #include <charconv>
 #include <cmath>
 #include <exception>
+#include <fstream>
 #include <functional>
 #include <mutex>
 #include <optional>
@@ -328,6 +329,16 @@ absl::StatusOr<ExrImage> read_exr_channels(const std::filesystem::path& path, Re
     }
     return out;
   } catch (const std::exception& e) {
+    // A file of another kind: say which, rather than OpenEXR's "not an image file".
+    std::string magic(8, '\0');
+    if (std::ifstream in(path, std::ios::binary); in.read(magic.data(), 8) || in.gcount() > 0) {
+      if (magic.starts_with("\x89PNG")) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("cannot read ", path.string(),
+                         ": it is a PNG, and an OpenEXR file is wanted (a "
+                         "render's .exr or .rgb.exr)"));
+      }
+    }
     return absl::InvalidArgumentError(
         absl::StrCat("cannot read EXR ", path.string(), ": ", e.what()));
   }

@@ -345,6 +345,16 @@ TEST_F(ExrTest, RefusesRgbOnlyPolarisedReflectiveAndDuplicateFiles) {
   std::fclose(f);
   EXPECT_EQ(read_spectral_exr(garbage).status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_EQ(read_spectral_exr(dir_ / "missing.exr").status().code(), absl::StatusCode::kNotFound);
+  // A PNG (the preview, given where its EXR belongs) is named as one.
+  fs::path png = dir_ / "preview.png";
+  std::FILE* p = std::fopen(png.c_str(), "wb");
+  std::fputs("\x89PNG\r\n\x1a\n and the rest", p);
+  std::fclose(p);
+  const absl::Status not_exr = read_spectral_exr(png).status();
+  EXPECT_EQ(not_exr.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(not_exr.message().find("preview.png: it is a PNG, and an OpenEXR file is wanted"),
+            std::string::npos)
+      << not_exr;
 }
 
 TEST_F(ExrTest, RgbRoundTripFloatExactAndHalfClose) {
