@@ -250,6 +250,19 @@ class FarmServerTest : public ::testing::Test {
     return rendered;
   }
 
+  // The worker's FailTask for `lease`.
+  grpc::Status fail_task(const std::string& worker_id, const std::string& lease_id,
+                         v1::FailureClass failure_class, const std::string& message = "") {
+    v1::FailTaskRequest request;
+    request.set_worker_id(worker_id);
+    request.set_lease_id(lease_id);
+    request.set_failure_class(failure_class);
+    request.set_message(message);
+    v1::FailTaskResponse response;
+    auto context = worker_call();
+    return worker_stub_->FailTask(context.get(), request, &response);
+  }
+
   grpc::Status get_job(const std::string& job_id, v1::JobInfo* info) {
     v1::GetJobRequest request;
     request.set_job_id(job_id);

@@ -274,14 +274,9 @@ TEST_F(FarmServerTest, ASceneFaultFailsTheJobWithTheWorkersMessage) {
   const std::string worker_id = register_worker();
   std::optional<v1::Lease> lease = acquire(worker_id);
   ASSERT_TRUE(lease.has_value());
-  v1::FailTaskRequest request;
-  request.set_worker_id(worker_id);
-  request.set_lease_id(lease->lease_id());
-  request.set_failure_class(v1::FAILURE_CLASS_SCENE);
-  request.set_message("scene.pbrt:9:3: the sphere is made of cheese");
-  v1::FailTaskResponse response;
-  auto context = worker_call();
-  ASSERT_TRUE(worker_stub_->FailTask(context.get(), request, &response).ok());
+  ASSERT_TRUE(fail_task(worker_id, lease->lease_id(), v1::FAILURE_CLASS_SCENE,
+                        "scene.pbrt:9:3: the sphere is made of cheese")
+                  .ok());
   const v1::JobInfo info = wait_done(job_id);
   EXPECT_EQ(info.state(), v1::JOB_STATE_FAILED);
   EXPECT_NE(info.error().find("the sphere is made of cheese"), std::string::npos) << info.error();

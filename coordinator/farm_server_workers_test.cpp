@@ -23,14 +23,9 @@ TEST_F(FarmServerTest, AJobEveryWorkerIsBlockedFromSaysWhyItWaits) {
     EXPECT_EQ(info.waiting(), "") << fault;
     std::optional<v1::Lease> lease = acquire(worker_id);
     ASSERT_TRUE(lease.has_value());
-    v1::FailTaskRequest request;
-    request.set_worker_id(worker_id);
-    request.set_lease_id(lease->lease_id());
-    request.set_failure_class(v1::FAILURE_CLASS_WORKER);
-    request.set_message("cannot create the bundle cache afile: Not a directory");
-    v1::FailTaskResponse response;
-    auto context = worker_call();
-    ASSERT_TRUE(worker_stub_->FailTask(context.get(), request, &response).ok());
+    ASSERT_TRUE(fail_task(worker_id, lease->lease_id(), v1::FAILURE_CLASS_WORKER,
+                          "cannot create the bundle cache afile: Not a directory")
+                    .ok());
   }
   ASSERT_TRUE(get_job(job_id, &info).ok());
   EXPECT_EQ(info.state(), v1::JOB_STATE_RENDERING);
@@ -49,15 +44,7 @@ TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {
   ASSERT_TRUE(lease.has_value());
   const std::string bytes = render(*lease);
   // The worker hands the lease back, then sends a result for it anyway.
-  {
-    v1::FailTaskRequest request;
-    request.set_worker_id(worker_id);
-    request.set_lease_id(lease->lease_id());
-    request.set_failure_class(v1::FAILURE_CLASS_RETURNED);
-    v1::FailTaskResponse response;
-    auto context = worker_call();
-    ASSERT_TRUE(worker_stub_->FailTask(context.get(), request, &response).ok());
-  }
+  ASSERT_TRUE(fail_task(worker_id, lease->lease_id(), v1::FAILURE_CLASS_RETURNED).ok());
   grpc::Status stale = complete(worker_id, lease->lease_id(), bytes);
   EXPECT_EQ(stale.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
   EXPECT_FALSE(stale.error_message().empty());
