@@ -177,11 +177,11 @@ class Resolver {
       return std::max(0.0f, v);
     };
     if (!spectrum) {
+      // A float texture reads an image's first channel, as pbrt-v4's MIPMap::Texel<Float> does
+      // (a packed map's red, not the average of its channels).
       out.grey.resize(texels);
       for (size_t i = 0; i < texels; ++i) {
-        float sum = 0;
-        for (int c = 0; c < src.channels; ++c) sum += src.values[i * size_t(src.channels) + c];
-        out.grey[i] = adjust(sum / float(src.channels));
+        out.grey[i] = adjust(src.values[i * size_t(src.channels)]);
       }
       return out;
     }

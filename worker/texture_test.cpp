@@ -3,9 +3,11 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <fstream>
 #include <string>
 
 #include "services/scene/scene_loader.h"
+#include "tests/testing/test_dir.h"
 
 namespace prism::worker {
 namespace {
@@ -128,6 +130,24 @@ TEST_F(TextureTest, FloatImagesMixAndDirectionMix) {
   const float c = std::sqrt(0.5f);
   expect_spectrum(facing.spectrum(at(0.1f, 0.1f, {c, 0, c}), lanes()),
                   albedo(0.8f, 0.8f, 0.75f) * c + side * (1 - c), 1e-5f);
+}
+
+// A float texture of an RGB image reads its first channel, as pbrt-v4's MIPMap::Texel<Float>
+// does: quad.png's red texel (1, 0, 0) is 1, where the average of the channels gave 1/3.
+TEST_F(TextureTest, AFloatImageOfAnRgbFileReadsItsFirstChannel) {
+  const std::filesystem::path dir = testing::fresh_dir("float_of_rgb");
+  std::filesystem::copy(std::filesystem::path(PRISM_SOURCE_DIR) /
+                            "services/scene/testdata/parser/good/textures/quad.png",
+                        dir / "quad.png");
+  std::ofstream(dir / "scene.pbrt")
+      << "WorldBegin\nTexture \"red\" \"float\" \"imagemap\" \"string filename\" "
+         "\"quad.png\" \"string encoding\" \"linear\"\n";
+  auto loaded = scene::load_scene(dir / "scene.pbrt", scene::with_library_names(*library_));
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  auto textures = Texture::resolve_all(loaded->description, *library_, *uplift_);
+  ASSERT_TRUE(textures.ok()) << textures.status();
+  ASSERT_EQ(textures->size(), 1u);
+  EXPECT_FLOAT_EQ(textures->front()->value(at(0.25f, 0.75f)), 1.0f);
 }
 
 }  // namespace

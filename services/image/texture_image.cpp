@@ -31,24 +31,54 @@ absl::StatusOr<TextureImageData> decode_png(std::string_view bytes, std::string_
     return bad(name, absl::StrCat("not a readable PNG: ", message));
   }
   const bool colour = (image.format & PNG_FORMAT_FLAG_COLOR) != 0;
-  image.format = colour ? PNG_FORMAT_RGB : PNG_FORMAT_GRAY;  // alpha dropped (composited on 0)
+  const bool alpha = (image.format & PNG_FORMAT_FLAG_ALPHA) != 0;
+  // libpng's simplified API reports 16-bit files as linear; read them as 16-bit, since asking
+  // for 8 bits would re-encode them to sRGB bytes (2x too bright once decoded as sRGB again).
+  const bool sixteen = (image.format & PNG_FORMAT_FLAG_LINEAR) != 0;
+  // The alpha channel is read and dropped: asking for no alpha composites the colour onto
+  // black, and pbrt-v4 keeps a texel's colour whatever its alpha.
+  image.format = (colour ? PNG_FORMAT_FLAG_COLOR : 0u) | (alpha ? PNG_FORMAT_FLAG_ALPHA : 0u) |
+                 (sixteen ? PNG_FORMAT_FLAG_LINEAR : 0u);
   const int channels = colour ? 3 : 1;
+  const int stored = channels + (alpha ? 1 : 0);
   const long texels = long(image.width) * long(image.height);
   if (image.width < 1 || image.height < 1 || texels > kMaxTextureTexels) {
     png_image_free(&image);
     return bad(name,
                absl::StrCat("is ", image.width, "x", image.height, ", outside the supported size"));
   }
-  std::vector<std::uint8_t> raw(std::size_t(texels) * channels);
+  std::vector<std::uint8_t> raw(std::size_t(texels) * stored * (sixteen ? 2 : 1));
   if (!png_image_finish_read(&image, nullptr, raw.data(), 0, nullptr)) {
     std::string message = image.message;
     png_image_free(&image);
     return bad(name, absl::StrCat("damaged PNG: ", message));
   }
   png_image_free(&image);
+  // Values as stored, in the file's encoding (the texture's `encoding` decodes them), 8- and
+  // 16-bit alike, as pbrt-v4's ReadPNG has them.
   TextureImageData out{int(image.width), int(image.height), channels, true, {}};
-  out.values.resize(raw.size());
-  for (std::size_t i = 0; i < raw.size(); ++i) out.values[i] = float(raw[i]) / 255.0f;
+  out.values.resize(std::size_t(texels) * channels);
+  for (std::size_t t = 0; t < std::size_t(texels); ++t) {
+    for (int c = 0; c < channels; ++c) {
+      const std::size_t at = t * std::size_t(stored) + std::size_t(c);
+      float v;
+      if (sixteen) {
+        std::uint16_t sample;
+        std::memcpy(&sample, raw.data() + 2 * at, 2);
+        v = float(sample) / 65535.0f;
+        if (alpha) {
+          // libpng premultiplies 16-bit output by alpha; undone where alpha is not 0 (a texel of
+          // alpha 0 has lost its colour there).
+          std::uint16_t a;
+          std::memcpy(&a, raw.data() + 2 * (t * std::size_t(stored) + std::size_t(channels)), 2);
+          v = a > 0 ? std::min(1.0f, float(sample) / float(a)) : 0.0f;
+        }
+      } else {
+        v = float(raw[at]) / 255.0f;
+      }
+      out.values[t * std::size_t(channels) + std::size_t(c)] = v;
+    }
+  }
   return out;
 }
 

@@ -17,7 +17,8 @@ struct TextureImageData {
   int width = 0;
   int height = 0;
   int channels = 0;        // 1 (gray) or 3 (RGB)
-  bool eight_bit = false;  // PNG: values are byte/255 in the file's encoding; EXR: linear
+  bool eight_bit = false;  // PNG (8 or 16 bits): values are sample/max in the file's encoding;
+                           // EXR: linear
   // values[(y * width + x) * channels + c]; row 0 is the top of the image.
   std::vector<float> values;
 };
