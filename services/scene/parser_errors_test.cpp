@@ -257,6 +257,13 @@ const MemoryCase kMemoryCases[] = {
      "m.pbrt:2:21: 'float scale' must be >= 0, got -1"},
     {"WorldBegin\nAreaLightSource \"diffuse\" \"float scale\" -2\nShape \"sphere\"\n",
      "m.pbrt:2:27: 'float scale' must be >= 0, got -2"},
+    // pbrt-v4 scales its image by the shutter interval's length (the exposure time).
+    {"Camera \"perspective\" \"float shutteropen\" 0 \"float shutterclose\" 0.5\nWorldBegin\n",
+     "m.pbrt:1:44: 'float shutterclose' makes an exposure time of 0.5, by which pbrt-v4 scales "
+     "the image; Prism renders an exposure of 1"},
+    {"Camera \"perspective\" \"float shutteropen\" 2 \"float shutterclose\" 2\nWorldBegin\n",
+     "m.pbrt:1:44: 'float shutterclose' gives an empty shutter interval (2 to 2): pbrt-v4's "
+     "exposure time would be 0"},
     // Coordinates Embree's rays cannot carry (services/scene/coordinate_range.h): a shape far
     // away, a shape scaled down so far that the scene lands there in its own space, the camera.
     {"WorldBegin\nShape \"sphere\"\nTranslate 1e30 0 0\nShape \"sphere\"\n",
@@ -289,10 +296,13 @@ TEST(MemoryErrors, ExactMessages) {
   }
 }
 
-// Just inside the range: a shape 1e15 away, and one scaled by 1e-15 in a scene of a few units.
+// Just inside the range: a shape 1e15 away, and one scaled by 1e-15 in a scene of a few units;
+// and a shutter interval of length 1, reversed (pbrt-v4 swaps it), which is Prism's exposure.
 TEST(MemoryErrors, ScenesWithinTheCoordinateRangeLoad) {
   for (const char* scene :
-       {"WorldBegin\nShape \"sphere\"\nTranslate 1e15 0 0\nShape \"sphere\"\n",
+       {"Camera \"perspective\" \"float shutteropen\" 1.5 \"float shutterclose\" 0.5\n"
+        "WorldBegin\n",
+        "WorldBegin\nShape \"sphere\"\nTranslate 1e15 0 0\nShape \"sphere\"\n",
         "WorldBegin\nLightSource \"point\" \"point3 from\" [0 3 0]\nScale 1e-15 1e-15 1e-15\n"
         "Shape \"sphere\"\n"}) {
     absl::StatusOr<SceneDescription> s = parse_scene_string(scene, "m.pbrt", {}, {});

@@ -507,16 +507,31 @@ absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& pa
                          "needs 4 values xmin xmax ymin ymax with min < max");
     c.screen_window = std::array<double, 4>{w[0], w[1], w[2], w[3]};
   }
-  // Prism's transforms never move (ActiveTransform StartTime/EndTime is refused), and a static
-  // scene looks the same at every time of the shutter interval.
-  for (const char* shutter : {"shutteropen", "shutterclose"}) {
-    if (const Parameter* p = params.find(shutter)) {
-      PRISM_ASSIGN_OR_RETURN(double t, params.get_float(shutter, 0.0));
-      (void)t;
-      if (params.features() != nullptr)
-        params.features()->ignored(params.feature(*p), p->where,
-                                   "nothing in a Prism scene moves, so the shutter interval "
-                                   "does not change the image");
+  // Prism's transforms never move (ActiveTransform StartTime/EndTime is refused), so a static
+  // scene looks the same at every time of the shutter interval; but pbrt-v4's film scales the
+  // image by the interval's length, the exposure time (PixelSensor's imagingRatio =
+  // exposureTime · ISO / 100). An interval of 1 (the default) is the image Prism renders.
+  if (params.has("shutteropen") || params.has("shutterclose")) {
+    PRISM_ASSIGN_OR_RETURN(const double open, params.get_float("shutteropen", 0.0));
+    PRISM_ASSIGN_OR_RETURN(const double close, params.get_float("shutterclose", 1.0));
+    const double exposure = std::abs(close - open);  // pbrt-v4 swaps a reversed interval
+    const char* name = params.has("shutterclose") ? "shutterclose" : "shutteropen";
+    if (!(exposure > 0)) {
+      return param_error(params, name,
+                         absl::StrCat("gives an empty shutter interval (", open, " to ", close,
+                                      "): pbrt-v4's exposure time would be 0"));
+    }
+    if (exposure != 1.0) {
+      PRISM_RETURN_IF_ERROR(refuse_value(
+          params, name,
+          absl::StrCat("makes an exposure time of ", exposure,
+                       ", by which pbrt-v4 scales the image; Prism renders an exposure of 1"),
+          "an exposure time of 1"));
+    } else if (params.features() != nullptr) {
+      const Parameter* p = params.find(name);
+      params.features()->ignored(params.feature(*p), p->where,
+                                 "an interval of length 1 is the exposure Prism renders, and "
+                                 "nothing in a Prism scene moves");
     }
   }
   PRISM_RETURN_IF_ERROR(params.check_all_used());
