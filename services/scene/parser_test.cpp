@@ -430,6 +430,19 @@ TEST(GoodScenes, AByteOrderMarkIsSkipped) {
   EXPECT_EQ(s->shapes[0].where.column, 1);
 }
 
+// pbrt-v4 reads Material "none" and Material "" as no material, a boundary between media.
+TEST(GoodScenes, MaterialNoneIsAnInterface) {
+  absl::StatusOr<SceneDescription> s = parse_scene_string(
+      "WorldBegin\nMaterial \"none\"\nShape \"sphere\"\nMaterial \"\"\nShape \"sphere\"\n",
+      "m.pbrt", {}, {});
+  ASSERT_TRUE(s.ok()) << s.status();
+  ASSERT_EQ(s->shapes.size(), 2u);
+  for (const Shape& shape : s->shapes) {
+    EXPECT_TRUE(
+        std::holds_alternative<InterfaceMaterial>(s->materials[std::size_t(shape.material)].kind));
+  }
+}
+
 TEST(GoodScenes, ObjectInstancesAreFlattenedWithComposedTransforms) {
   SceneDescription s = load_good("instances.pbrt");
   ASSERT_EQ(s.shapes.size(), 4u);

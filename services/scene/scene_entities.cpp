@@ -785,7 +785,8 @@ absl::StatusOr<MaterialKind> make_material(const TypeName& type, const Parameter
         m.k, spectrum_or(params, "k", SpectrumRole::kUnbounded, ctx, SpectrumNamed{"metal-Cu-k"}));
     PRISM_ASSIGN_OR_RETURN(m.roughness, read_roughness(params, ctx));
     kind = std::move(m);
-  } else if (type.name == "interface") {
+  } else if (type.name == "interface" || type.name == "none" || type.name.empty()) {
+    // pbrt-v4 takes "none" and "" as no material: a boundary between media, as "interface".
     kind = InterfaceMaterial{};
   } else if (type.name == "mix") {
     MixMaterial m;
