@@ -257,6 +257,11 @@ const MemoryCase kMemoryCases[] = {
      "m.pbrt:2:21: 'float scale' must be >= 0, got -1"},
     {"WorldBegin\nAreaLightSource \"diffuse\" \"float scale\" -2\nShape \"sphere\"\n",
      "m.pbrt:2:27: 'float scale' must be >= 0, got -2"},
+    {"Sampler \"stratified\" \"bool jitter\" false\nWorldBegin\n",
+     "m.pbrt:1:22: 'bool jitter' false samples fixed positions in each pixel, which changes the "
+     "image; Prism jitters every sample"},
+    {"MakeNamedMedium \"m\" \"string type\" \"homogeneous\" \"rgb Le\" [0 0 1]\nWorldBegin\n",
+     "m.pbrt:1:49: 'rgb Le': emissive media are not supported"},
     // pbrt-v4 scales its image by the shutter interval's length (the exposure time).
     {"Camera \"perspective\" \"float shutteropen\" 0 \"float shutterclose\" 0.5\nWorldBegin\n",
      "m.pbrt:1:44: 'float shutterclose' makes an exposure time of 0.5, by which pbrt-v4 scales "
@@ -304,7 +309,11 @@ TEST(MemoryErrors, ScenesWithinTheCoordinateRangeLoad) {
         "WorldBegin\n",
         "WorldBegin\nShape \"sphere\"\nTranslate 1e15 0 0\nShape \"sphere\"\n",
         "WorldBegin\nLightSource \"point\" \"point3 from\" [0 3 0]\nScale 1e-15 1e-15 1e-15\n"
-        "Shape \"sphere\"\n"}) {
+        "Shape \"sphere\"\n",
+        // Inputs that cannot change the image: a medium's zero emission (an exporter's default),
+        // a stratified sampler's default jitter.
+        "MakeNamedMedium \"m\" \"string type\" \"homogeneous\" \"rgb Le\" [0 0 0] "
+        "\"float Lescale\" 2\nSampler \"stratified\" \"bool jitter\" true\nWorldBegin\n"}) {
     absl::StatusOr<SceneDescription> s = parse_scene_string(scene, "m.pbrt", {}, {});
     EXPECT_TRUE(s.ok()) << scene << ": " << s.status();
   }

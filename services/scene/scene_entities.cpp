@@ -638,7 +638,14 @@ absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterLi
     PRISM_RETURN_IF_ERROR(check_range(params, "xsamples", x, 1, 4096, "between 1 and 4096"));
     PRISM_RETURN_IF_ERROR(check_range(params, "ysamples", y, 1, 4096, "between 1 and 4096"));
     PRISM_ASSIGN_OR_RETURN(bool jitter, params.get_bool("jitter", true));
-    (void)jitter;
+    if (!jitter) {
+      // Unjittered strata sample fixed positions (pixel centres at one sample), which changes
+      // the image as Option "disablepixeljitter" does.
+      PRISM_RETURN_IF_ERROR(refuse_value(params, "jitter",
+                                         "false samples fixed positions in each pixel, which "
+                                         "changes the image; Prism jitters every sample",
+                                         "jittered samples"));
+    }
     s.samples_per_pixel = x * y;
   } else {
     PRISM_ASSIGN_OR_RETURN(s.samples_per_pixel, params.get_int("pixelsamples", 16));
@@ -1193,10 +1200,28 @@ absl::StatusOr<Medium> make_medium(const TypeName& type, const ParameterList& pa
   PRISM_RETURN_IF_ERROR(params.refuse(
       "preset", "named scattering presets are not supported; give sigma_a and sigma_s",
       "sigma_a and sigma_s as given (default 1)"));
-  PRISM_RETURN_IF_ERROR(
-      params.refuse("Le", "emissive media are not supported", "a medium that does not emit"));
-  PRISM_RETURN_IF_ERROR(
-      params.refuse("Lescale", "emissive media are not supported", "a medium that does not emit"));
+  // An emission of zero (an exporter's default `rgb Le [0 0 0]`) emits nothing: accepted.
+  const Parameter* le = params.find("Le");
+  const bool dark_le =
+      le != nullptr && !le->numbers.empty() &&
+      std::all_of(le->numbers.begin(), le->numbers.end(), [](double v) { return v == 0.0; }) &&
+      le->strings.empty();
+  if (le == nullptr || dark_le) {
+    for (const char* name : {"Le", "Lescale"}) {
+      if (const Parameter* p = params.find(name)) {
+        p->used = true;
+        if (params.features() != nullptr) {
+          params.features()->ignored(params.feature(*p), p->where,
+                                     "the medium's emission is zero (or not given)");
+        }
+      }
+    }
+  } else {
+    PRISM_RETURN_IF_ERROR(
+        params.refuse("Le", "emissive media are not supported", "a medium that does not emit"));
+    PRISM_RETURN_IF_ERROR(params.refuse("Lescale", "emissive media are not supported",
+                                        "a medium that does not emit"));
+  }
   HomogeneousMedium h;
   PRISM_ASSIGN_OR_RETURN(h.sigma_a, spectrum_or(params, "sigma_a", SpectrumRole::kUnbounded, ctx,
                                                 SpectrumConstant{1.0}));
@@ -1243,10 +1268,28 @@ absl::StatusOr<std::optional<ShapeGeometry>> make_shape_geometry(const TypeName&
                            inline_mesh(params, bilinear, type, ctx));
     geometry = TriangleMeshShape{std::move(mesh), type.name};
   } else if (type.name == "plymesh" || type.name == "objmesh") {
-    PRISM_RETURN_IF_ERROR(
-        params.refuse("displacement", "displacement is not supported", "the undisplaced mesh"));
-    PRISM_RETURN_IF_ERROR(
-        params.refuse("edgelength", "displacement is not supported", "the undisplaced mesh"));
+    // An empty displacement texture name is no displacement (pbrt-v4 looks it up only when
+    // non-empty), and edgelength only tunes a displacement's tessellation.
+    const Parameter* displacement = params.find("displacement");
+    const bool displaced = displacement != nullptr &&
+                           !(displacement->strings.size() == 1 && displacement->strings[0].empty());
+    if (displaced) {
+      PRISM_RETURN_IF_ERROR(
+          params.refuse("displacement", "displacement is not supported", "the undisplaced mesh"));
+      PRISM_RETURN_IF_ERROR(
+          params.refuse("edgelength", "displacement is not supported", "the undisplaced mesh"));
+    } else {
+      for (const char* name : {"displacement", "edgelength"}) {
+        if (const Parameter* p = params.find(name)) {
+          p->used = true;
+          if (params.features() != nullptr) {
+            params.features()->ignored(params.feature(*p), p->where,
+                                       "no displacement texture is named, so nothing is "
+                                       "displaced or tessellated");
+          }
+        }
+      }
+    }
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
     if (!filename)
       return location_error(type.where,
