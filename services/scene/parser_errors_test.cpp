@@ -262,6 +262,10 @@ const MemoryCase kMemoryCases[] = {
      "image; Prism jitters every sample"},
     {"MakeNamedMedium \"m\" \"string type\" \"homogeneous\" \"rgb Le\" [0 0 1]\nWorldBegin\n",
      "m.pbrt:1:49: 'rgb Le': emissive media are not supported"},
+    // Image formats pbrt-v4 reads and Prism does not are a refusal, not "not a PNG".
+    {"WorldBegin\nTexture \"t\" \"spectrum\" \"imagemap\" \"string filename\" \"wood.JPG\"\n",
+     "m.pbrt:2:35: image \"wood.JPG\": Prism reads PNG and OpenEXR textures, not jpg (convert it "
+     "to PNG or EXR)"},
     // pbrt-v4 scales its image by the shutter interval's length (the exposure time).
     {"Camera \"perspective\" \"float shutteropen\" 0 \"float shutterclose\" 0.5\nWorldBegin\n",
      "m.pbrt:1:44: 'float shutterclose' makes an exposure time of 0.5, by which pbrt-v4 scales "

@@ -1,10 +1,12 @@
 #include "services/scene/scene_entities.h"
 
 #include <cmath>
+#include <filesystem>
 #include <limits>
 #include <string_view>
 #include <utility>
 
+#include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "services/base/status.h"
@@ -895,6 +897,26 @@ absl::StatusOr<TextureKind> make_texture(const TypeName& type, bool spectrum,
     PRISM_ASSIGN_OR_RETURN(std::optional<std::string> filename, params.find_string("filename"));
     if (!filename || filename->empty())
       return location_error(type.where, "imagemap needs a 'string filename'");
+    // Image formats pbrt-v4 reads (by extension) and Prism does not: a refusal, listed with the
+    // others by `prism check` and substituted under --allow-unsupported.
+    const std::string extension =
+        absl::AsciiStrToLower(std::filesystem::path(*filename).extension().string());
+    for (std::string_view other :
+         {".tga", ".pfm", ".jpg", ".jpeg", ".bmp", ".hdr", ".gif", ".tif", ".tiff", ".qoi"}) {
+      if (extension != other) continue;
+      PRISM_RETURN_IF_ERROR(refuse_at(
+          params,
+          absl::StrCat(type_feature(spectrum ? "spectrum texture" : "float texture", type),
+                       " of a ", extension.substr(1), " image"),
+          params.find("filename")->where,
+          absl::StrCat("image \"", *filename, "\": Prism reads PNG and OpenEXR textures, not ",
+                       extension.substr(1), " (convert it to PNG or EXR)"),
+          "a constant 0.5"));
+      TextureInput half;
+      half.value = 0.5;
+      half.spectrum = SpectrumConstant{0.5};
+      return TextureKind{ConstantTexture{half}};
+    }
     if (!ctx.load_image) return location_error(type.where, "image textures cannot be read here");
     PRISM_ASSIGN_OR_RETURN(EntityContext::LoadedImage loaded,
                            ctx.load_image(*filename, params.find("filename")->where));
