@@ -136,6 +136,21 @@ class SceneParser {
     for (const Scope& s : scopes_)
       scene_.warnings.push_back(absl::StrCat(
           s.where.to_string(), ": warning: ", scope_begin_name(s.kind), " is never closed"));
+    // Materials named before their MakeNamedMaterial (NamedMaterial's pending names): each must
+    // be defined by the end, used or not.
+    for (const auto& [material_name, named_at] : pending_materials_) {
+      if (!named_materials_.contains(material_name)) {
+        return location_error(named_at, absl::StrCat("named material \"", material_name,
+                                                     "\" is not defined anywhere in the scene"));
+      }
+    }
+    for (Shape& shape : scene_.shapes) {
+      if (shape.material > -2) continue;
+      const auto& [material_name, named_at] =
+          pending_materials_[static_cast<std::size_t>(-2 - shape.material)];
+      (void)named_at;
+      shape.material = named_materials_.at(material_name);
+    }
     const bool lit = !scene_.lights.empty() ||
                      std::any_of(scene_.shapes.begin(), scene_.shapes.end(),
                                  [](const Shape& s) { return s.area_light.has_value(); });
@@ -181,6 +196,8 @@ class SceneParser {
 
   // The files being parsed, outermost first: an Include of one of them is a cycle.
   std::vector<std::string> open_files_;
+  // Names given to NamedMaterial before their MakeNamedMaterial, and where (resolved in run()).
+  std::vector<std::pair<std::string, SourceLocation>> pending_materials_;
 
   void record_file(const std::string& relpath) {
     if (recorded_.insert(relpath).second) scene_.files.push_back(relpath);
@@ -331,7 +348,7 @@ absl::Status SceneParser::count_triangles(const ShapeGeometry& g, const SourceLo
 }
 
 int SceneParser::material_index(const SourceLocation& where) {
-  if (state_.material >= 0) return state_.material;
+  if (state_.material >= 0 || state_.material <= -2) return state_.material;  // -2...: pending
   if (default_material_ < 0) {
     default_material_ = static_cast<int>(scene_.materials.size());
     scene_.materials.push_back(Material{"", DiffuseMaterial{}, where});
@@ -646,10 +663,19 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "material name"));
     auto it = named_materials_.find(n.text);
-    if (it == named_materials_.end())
-      return location_error(tokens.location(n),
-                            absl::StrCat("named material \"", n.text, "\" is not defined"));
-    state_.material = it->second;
+    if (it != named_materials_.end()) {
+      state_.material = it->second;
+    } else {
+      // Defined later, maybe: pbrt-v4 resolves material names when it builds the scene. Until
+      // the end the shapes carry -2 - (its index in pending_materials_).
+      auto pending = std::find_if(pending_materials_.begin(), pending_materials_.end(),
+                                  [&](const auto& p) { return p.first == n.text; });
+      if (pending == pending_materials_.end()) {
+        pending_materials_.emplace_back(n.text, tokens.location(n));
+        pending = pending_materials_.end() - 1;
+      }
+      state_.material = -2 - static_cast<int>(pending - pending_materials_.begin());
+    }
   } else if (name == "MediumInterface") {
     PRISM_ASSIGN_OR_RETURN(Token inside, string_arg(tokens, d, "medium name"));
     Token outside = inside;

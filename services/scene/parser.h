@@ -18,8 +18,10 @@
 //
 // Deliberate differences from pbrt-v4:
 // - Include/Import nesting deeper than kMaxIncludeDepth (16) is an error.
-// - Names are resolved when their directive is read: NamedMaterial, MediumInterface,
-//   CoordSysTransform and ObjectInstance must follow the definition they name.
+// - Names are resolved when their directive is read: MediumInterface, CoordSysTransform,
+//   ObjectInstance and texture references must follow the definition they name. NamedMaterial
+//   may precede its MakeNamedMaterial (as in pbrt-v4, which resolves material names when it
+//   builds the scene); a name never defined is an error at the NamedMaterial.
 // - Extensions: `objmesh` shapes (Wavefront OBJ); `float cauchy` / `float sellmeier` IORs on
 //   dielectrics; a `float` where a spectrum is expected (a constant spectrum).
 // - A spectrum given as a string is a file if it contains '/' or '.', else a named spectrum.

@@ -58,7 +58,8 @@ const BadCase kBadCases[] = {
     {"unbalanced_attribute_end.pbrt", absl::StatusCode::kInvalidArgument,
      "unbalanced_attribute_end.pbrt:4:1: unmatched 'AttributeEnd' (no AttributeBegin is open)"},
     {"undefined_named_material.pbrt", absl::StatusCode::kInvalidArgument,
-     "undefined_named_material.pbrt:2:15: named material \"nope\" is not defined"},
+     "undefined_named_material.pbrt:2:15: named material \"nope\" is not defined anywhere in "
+     "the scene"},
     {"lambdamin.pbrt", absl::StatusCode::kInvalidArgument,
      "lambdamin.pbrt:1:17: 'float lambdamin' must be 360 (Prism's spectral range is 360-830 nm), "
      "got 380"},

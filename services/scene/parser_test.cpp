@@ -443,6 +443,26 @@ TEST(GoodScenes, MaterialNoneIsAnInterface) {
   }
 }
 
+// pbrt-v4 resolves NamedMaterial when it builds the scene, so a material may be defined after
+// the shapes that name it (an exporter writing geometry first), also through an instance.
+TEST(GoodScenes, NamedMaterialsMayBeDefinedAfterTheirShapes) {
+  absl::StatusOr<SceneDescription> s = parse_scene_string(
+      "WorldBegin\n"
+      "NamedMaterial \"late\"\n"
+      "Shape \"sphere\"\n"
+      "ObjectBegin \"o\"\nShape \"sphere\" \"float radius\" 2\nObjectEnd\n"
+      "ObjectInstance \"o\"\n"
+      "MakeNamedMaterial \"late\" \"string type\" \"conductor\"\n"
+      "Shape \"sphere\" \"float radius\" 3\n",
+      "m.pbrt", {}, {});
+  ASSERT_TRUE(s.ok()) << s.status();
+  ASSERT_EQ(s->shapes.size(), 3u);
+  for (const Shape& shape : s->shapes) {
+    ASSERT_GE(shape.material, 0);
+    EXPECT_EQ(s->materials[std::size_t(shape.material)].name, "late");
+  }
+}
+
 TEST(GoodScenes, ObjectInstancesAreFlattenedWithComposedTransforms) {
   SceneDescription s = load_good("instances.pbrt");
   ASSERT_EQ(s.shapes.size(), 4u);
