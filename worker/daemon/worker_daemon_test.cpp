@@ -856,7 +856,7 @@ TEST_F(WorkerProcessTest, ExitsNonZeroWhenTheCoordinatorRefusesItsSecret) {
 // worker registered and then failed every task it leased, while the farm listed it as idle and
 // the job waited for ever.
 TEST_F(WorkerProcessTest, AnUnusableCacheDirectoryIsRefusedAtStart) {
-  const std::filesystem::path file = cache_dir_.parent_path() / "a-file";
+  const std::filesystem::path file = cache_dir_ / "a-file";  // removed with the test's directory
   std::ofstream(file) << "x";
   for (const std::string& dir : {file.string(), std::string("/proc/no-such-dir")}) {
     const prism::testing::RunResult run = prism::testing::run(
