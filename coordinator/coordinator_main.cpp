@@ -23,19 +23,6 @@
 
 namespace {
 
-// HOST:PORT on the loopback interface (127.0.0.0/8, ::1, localhost) or a Unix socket: reachable
-// from this machine only.
-bool is_loopback(const std::string& address) {
-  if (address.rfind("unix:", 0) == 0 || address.rfind("unix-abstract:", 0) == 0) return true;
-  const std::size_t colon = address.rfind(':');
-  std::string host = colon == std::string::npos ? address : address.substr(0, colon);
-  if (host.size() > 2 && host.front() == '[' && host.back() == ']') {
-    host = host.substr(1, host.size() - 2);
-  }
-  if (host.rfind("ipv4:", 0) == 0) host = host.substr(5);
-  return host == "localhost" || host == "::1" || host.rfind("127.", 0) == 0;
-}
-
 struct Config {
   std::string listen;
   std::string http_listen;
@@ -113,7 +100,7 @@ int main(int argc, char** argv) {
   // Open to the network without both secrets only when asked for.
   if (!insecure && (config.api_token.empty() || config.worker_secret.empty())) {
     for (const std::string* listen : {&config.listen, &config.http_listen}) {
-      if (listen->empty() || is_loopback(*listen)) continue;
+      if (listen->empty() || prism::rpc::is_loopback_address(*listen)) continue;
       std::cerr << "prism-coordinator: " << *listen
                 << " can be reached from other machines, but --api-token and --worker-secret "
                    "(PRISM_API_TOKEN, PRISM_WORKER_SECRET) are not both set: anyone who reaches "

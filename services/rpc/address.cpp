@@ -44,4 +44,18 @@ absl::Status check_address(std::string_view address_in, std::string_view flag_in
   return absl::OkStatus();
 }
 
+bool is_loopback_address(std::string_view address) {
+  if (address.starts_with("unix:") || address.starts_with("unix-abstract:")) return true;
+  if (address.starts_with("ipv4:")) address.remove_prefix(5);
+  if (address.starts_with("ipv6:")) address.remove_prefix(5);
+  std::string_view host = address;
+  if (host.starts_with('[')) {
+    const std::size_t close = host.find(']');
+    host = close == std::string_view::npos ? host.substr(1) : host.substr(1, close - 1);
+  } else if (const std::size_t colon = host.rfind(':'); colon != std::string_view::npos) {
+    host = host.substr(0, colon);
+  }
+  return host == "localhost" || host == "::1" || host.starts_with("127.");
+}
+
 }  // namespace prism::rpc

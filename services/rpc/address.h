@@ -14,4 +14,9 @@ namespace prism::rpc {
 // "any free port"). Targets with a gRPC scheme (unix:, dns:, ipv4:, ipv6:, ...) are left to gRPC.
 absl::Status check_address(std::string_view address, std::string_view flag, bool allow_port_zero);
 
+// True when `address` (HOST:PORT, a bracketed IPv6 HOST, or a gRPC ipv4:/unix: target) is on the
+// loopback interface (127.0.0.0/8, ::1, localhost) or a Unix socket: reachable from this machine
+// only. An address without a port is taken as a host.
+bool is_loopback_address(std::string_view address);
+
 }  // namespace prism::rpc

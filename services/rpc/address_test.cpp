@@ -37,5 +37,16 @@ TEST(AddressTest, PortsOutsideSixteenBitsAreRefusedNotWrapped) {
   }
 }
 
+TEST(AddressTest, LoopbackAddressesAreThoseOnlyThisMachineReaches) {
+  for (const char* local : {"127.0.0.1:7070", "127.8.9.10:1", "localhost:80", "[::1]:7070",
+                            "unix:/run/prism.sock", "unix-abstract:prism", "ipv4:127.0.0.1:7"}) {
+    EXPECT_TRUE(is_loopback_address(local)) << local;
+  }
+  for (const char* remote : {"0.0.0.0:7070", "[::]:7070", "10.0.0.2:7070", "farm.example:7070",
+                             "128.0.0.1:1", "[2001:db8::1]:80", "ipv4:10.1.1.1:7"}) {
+    EXPECT_FALSE(is_loopback_address(remote)) << remote;
+  }
+}
+
 }  // namespace
 }  // namespace prism::rpc
