@@ -308,7 +308,9 @@ json openapi_document() {
          "(proto/prism/v1/) in protobuf's JSON mapping. Errors map the canonical status codes "
          "to HTTP (INVALID_ARGUMENT 400, UNAUTHENTICATED 401, PERMISSION_DENIED 403, NOT_FOUND "
          "404, ALREADY_EXISTS 409, FAILED_PRECONDITION 412, RESOURCE_EXHAUSTED 429, "
-         "UNAVAILABLE 503, others 500). Generated from coordinator/http/api_routes.cpp."}}},
+         "UNAVAILABLE 503, others 500); a path asked for with a method it does not take is "
+         "405 METHOD_NOT_ALLOWED with an Allow header, an unknown path 404. Generated from "
+         "coordinator/http/api_routes.cpp."}}},
       {"paths", paths},
       {"components",
        {{"schemas", schemas},

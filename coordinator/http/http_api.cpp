@@ -2,6 +2,7 @@
 
 #include <httplib.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdlib>
 #include <filesystem>
@@ -13,6 +14,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
 #include "coordinator/http/api_routes.h"
 #include "coordinator/http/dashboard_assets.h"
 #include "coordinator/rpc/farm_service.h"
@@ -480,10 +482,34 @@ void HttpApi::install_routes() {
       res.set_content(std::string(asset.content), std::string(asset.content_type));
     });
   }
-  // Anything else: a JSON 404 naming what was asked for.
-  Handler unknown = [](const httplib::Request& req, httplib::Response& res) {
-    send_error(res, absl::NotFoundError(absl::StrCat("no route ", req.method, " ", req.path,
-                                                     " (see /api/v1/openapi.json)")));
+  // Anything else: a path that a route has under other methods is a JSON 405 with the Allow
+  // header (RFC 9110 15.5.6); any other a JSON 404 naming what was asked for.
+  std::vector<std::pair<std::regex, std::string>> known;
+  for (const Route& route : api_routes()) {
+    known.emplace_back(std::regex(path_regex(route.path)), absl::AsciiStrToUpper(route.method));
+  }
+  Handler unknown = [known = std::move(known)](const httplib::Request& req,
+                                               httplib::Response& res) {
+    std::vector<std::string> allowed;
+    for (const auto& [pattern, method] : known) {
+      if (std::regex_match(req.path, pattern) &&
+          std::find(allowed.begin(), allowed.end(), method) == allowed.end()) {
+        allowed.push_back(method);
+      }
+    }
+    if (allowed.empty()) {
+      return send_error(res,
+                        absl::NotFoundError(absl::StrCat("no route ", req.method, " ", req.path,
+                                                         " (see /api/v1/openapi.json)")));
+    }
+    const std::string allow = absl::StrJoin(allowed, ", ");
+    v1::ApiError error;
+    error.set_code("METHOD_NOT_ALLOWED");
+    error.set_message(absl::StrCat(req.path, " takes ", allow, ", not ", req.method,
+                                   " (see /api/v1/openapi.json)"));
+    res.status = 405;
+    res.set_header("Allow", allow);
+    res.set_content(to_json(error), "application/json");
   };
   // Through a content reader, which nothing reads: cpp-httplib's own reading answers a body
   // without a Content-Length (curl -X PUT URL) with an empty 400 before any handler runs.

@@ -238,6 +238,24 @@ TEST_F(HttpApiTest, UnknownRoutesWithoutABodyGetTheJsonNotFound) {
   }
 }
 
+// A route asked for with a method it does not take (DELETE on a job) was the 404 of a route
+// that does not exist; it is a 405 naming the methods the path takes, in the Allow header too.
+TEST_F(HttpApiTest, AKnownPathWithAnotherMethodIsMethodNotAllowed) {
+  httplib::Result r = http_->Delete("/api/v1/jobs/j-000001");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 405);
+  EXPECT_EQ(r->get_header_value("Allow"), "GET");
+  const json body = json::parse(r->body);
+  EXPECT_EQ(body["code"], "METHOD_NOT_ALLOWED");
+  EXPECT_NE(body["message"].get<std::string>().find("not DELETE"), std::string::npos) << r->body;
+  httplib::Result put = http_->Put("/api/v1/jobs", "{}", "application/json");
+  ASSERT_TRUE(put);
+  EXPECT_EQ(put->status, 405);
+  const std::string allow = put->get_header_value("Allow");
+  EXPECT_NE(allow.find("GET"), std::string::npos) << allow;
+  EXPECT_NE(allow.find("POST"), std::string::npos) << allow;
+}
+
 TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
   // Upload the bundle as raw bytes, and ask for it by hash.
   const std::string bundle = packed_bundle(root_ / "scene", kScene);
