@@ -9,7 +9,9 @@
 #include <algorithm>
 #include <csignal>
 #include <cstdint>
+#include <filesystem>
 #include <iostream>
+#include <optional>
 #include <string>
 #include <thread>
 #include <tuple>
@@ -22,6 +24,19 @@
 #include "services/rpc/address.h"
 
 namespace {
+
+// The outermost directory of `path` that does not exist yet: what opening the data directory
+// creates, and what a start that fails afterwards removes again (nothing, where it existed).
+std::optional<std::filesystem::path> first_missing(const std::filesystem::path& path) {
+  std::error_code error;
+  std::optional<std::filesystem::path> missing;
+  for (std::filesystem::path p = std::filesystem::absolute(path, error).lexically_normal();
+       !error && !p.empty() && !std::filesystem::exists(p, error) && !error; p = p.parent_path()) {
+    missing = p;
+    if (p == p.parent_path()) break;
+  }
+  return error ? std::nullopt : missing;
+}
 
 struct Config {
   std::string listen;
@@ -149,9 +164,16 @@ int main(int argc, char** argv) {
   options.scheduler.lease_duration = Millis(config.lease_ms);
   options.tick_interval = Millis(std::max<std::int64_t>(10, config.heartbeat_ms / 2));
   options.logger = logger;
+  // A start that fails (its address taken, say) leaves no data directory it created behind.
+  const std::optional<std::filesystem::path> created = first_missing(config.data_dir);
+  auto forget_created = [&] {
+    std::error_code ignored;
+    if (created.has_value()) std::filesystem::remove_all(*created, ignored);
+  };
   auto farm = prism::coordinator::FarmCoordinator::open(std::move(options));
   if (!farm.ok()) {
     std::cerr << "prism-coordinator: " << farm.status().message() << "\n";
+    forget_created();
     return 1;
   }
   prism::coordinator::rpc::ServerConfig server_config;
@@ -163,6 +185,9 @@ int main(int argc, char** argv) {
   auto server = prism::coordinator::rpc::CoordinatorServer::start(**farm, server_config, logger);
   if (!server.ok()) {
     std::cerr << "prism-coordinator: " << server.status().message() << "\n";
+    (*farm)->shutdown();
+    farm->reset();
+    forget_created();
     return 1;
   }
   std::unique_ptr<prism::coordinator::http::HttpApi> http;
@@ -175,7 +200,11 @@ int main(int argc, char** argv) {
     if (!started.ok()) {
       std::cerr << "prism-coordinator: " << started.status().message() << "\n";
       (*server)->shutdown();
+      (*server)->wait();
+      server->reset();
       (*farm)->shutdown();
+      farm->reset();
+      forget_created();
       return 1;
     }
     http = *std::move(started);

@@ -197,6 +197,7 @@ TEST_F(HttpProcessTest, CurlUploadsSubmitsWatchesFetchesAndCancelsOverHttps) {
 // gRPC and httplib both set SO_REUSEPORT by default, so a second coordinator could bind the
 // first one's addresses and take a random share of the calls; and nothing stopped two
 // coordinators from sharing a data directory. Each is refused now, and the first goes on serving.
+// A refused start removes the data directory it had created; it keeps one that was there.
 TEST_F(HttpProcessTest, ASecondCoordinatorSharesNeitherAnAddressNorADataDirectory) {
   ASSERT_NO_FATAL_FAILURE(start_coordinator(/*tls=*/false));
   const std::string grpc = "127.0.0.1:" + std::to_string(grpc_port_);
@@ -218,7 +219,10 @@ TEST_F(HttpProcessTest, ASecondCoordinatorSharesNeitherAnAddressNorADataDirector
         PRISM_COORDINATOR_BINARY, c.listen, c.data, kSecret, kToken, extra));
     EXPECT_EQ(second.exit_code, 1) << second.out << second.err;
     EXPECT_NE(second.err.find(c.message), std::string::npos) << second.err;
+    // A start that failed leaves no data directory it created (it left a job store behind).
+    if (c.data != root_ / "data") EXPECT_FALSE(fs::exists(c.data)) << c.data;
   }
+  EXPECT_TRUE(fs::exists(root_ / "data" / "jobs.sqlite"));
   // Every call still reaches the first: a job list, many times over.
   for (int i = 0; i < 20; ++i) {
     int status = 0;
