@@ -7,6 +7,8 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
+#include <iterator>
 #include <numeric>
 
 #include "absl/strings/str_cat.h"
@@ -22,6 +24,19 @@
 
 namespace prism::evaluation {
 namespace {
+
+// This program's own build: the first 16 hex digits of its executable's SHA-256 (empty where
+// /proc/self/exe cannot be read). Kept with a rendered reference, so that one a different build
+// rendered is named as such when it is taken from the cache.
+const std::string& renderer_build() {
+  static const std::string build = [] {
+    std::ifstream in("/proc/self/exe", std::ios::binary);
+    if (!in) return std::string();
+    const std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+    return in.bad() || bytes.empty() ? std::string() : base::sha256_hex(bytes).substr(0, 16);
+  }();
+  return build;
+}
 
 double mean_of(const std::vector<double>& v) {
   return v.empty() ? 0.0 : std::accumulate(v.begin(), v.end(), 0.0) / double(v.size());
@@ -117,6 +132,17 @@ absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device, const B
     if (seconds != average.metadata.end() && variance != average.metadata.end()) {
       std::fprintf(stderr, "%s: reference %s cached in %s\n", tag.c_str(), scene.name.c_str(),
                    average_path.c_str());
+      auto build = average.metadata.find("reference_renderer");
+      const std::string cached_by = build == average.metadata.end() ? "" : build->second;
+      if (cached_by != renderer_build()) {
+        std::fprintf(stderr,
+                     "%s: warning: that reference was made by another build of prism (%s; "
+                     "this one is %s). If the renderer changed what this scene renders, delete "
+                     "%s and %s or pass --reference-cache a new directory\n",
+                     tag.c_str(), cached_by.empty() ? "unrecorded" : cached_by.c_str(),
+                     renderer_build().empty() ? "unknown" : renderer_build().c_str(),
+                     average_path.c_str(), half_path.filename().c_str());
+      }
       return Reference{std::move(average.spectral), std::move(half.spectral), options.spp,
                        std::stod(seconds->second), std::stod(variance->second)};
     }
@@ -173,7 +199,8 @@ absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device, const B
       {"spp", absl::StrCat(reference.spp)},
       {"reference_seconds", absl::StrFormat("%.17g", seconds)},
       {"reference_variance_of_mean", absl::StrFormat("%.17g", variance)},
-      {"reference_options", describe(options)}};
+      {"reference_options", describe(options)},
+      {"reference_renderer", renderer_build()}};
   std::error_code ec;
   std::filesystem::create_directories(cache_dir, ec);
   if (ec) {

@@ -1098,6 +1098,31 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
   ASSERT_EQ(again_rows.size(), 2u);
   EXPECT_EQ(again_rows[1][column("mse_floor")], floor);
 
+  // The cache names the build that made a reference: this build's own is taken silently, one
+  // another build made (after an upgrade, say) with a warning that says how to render it anew.
+  std::vector<std::string> reuse = common;
+  reuse.insert(reuse.end(), {"--methods", "hero", "--spp", "2", "-o", "reuse"});
+  CommandRun reused = run_prism(dir, reuse);
+  ASSERT_EQ(reused.exit_code, 0) << reused.output;
+  EXPECT_NE(reused.output.find("cached in"), std::string::npos) << reused.output;
+  EXPECT_EQ(reused.output.find("another build"), std::string::npos) << reused.output;
+  {
+    auto exr = prism::image::read_spectral_exr(cached);
+    ASSERT_TRUE(exr.ok()) << exr.status();
+    ASSERT_EQ(exr->metadata.count("reference_renderer"), 1u);
+    EXPECT_EQ(exr->metadata["reference_renderer"].size(), 16u);
+    exr->metadata["reference_renderer"] = "0123456789abcdef";
+    ASSERT_TRUE(exr->rgb.has_value());
+    ASSERT_TRUE(prism::image::write_spectral_exr(cached, exr->wavelengths_nm, exr->spectral,
+                                                 *exr->rgb, exr->metadata)
+                    .ok());
+  }
+  CommandRun upgraded = run_prism(dir, reuse);
+  ASSERT_EQ(upgraded.exit_code, 0) << upgraded.output;
+  EXPECT_NE(upgraded.output.find("made by another build of prism (0123456789abcdef"),
+            std::string::npos)
+      << upgraded.output;
+
   // A reference rendered to a target error instead of a spp count (the target-error rounds).
   CommandRun to_error =
       run_prism(dir, {"bench", source("scenes/three-emitters.pbrt"), "--resolution", "32x24",
