@@ -1,5 +1,7 @@
 // FarmCoordinator's outputs (farm_coordinator.h): a finished job's files written atomically from
 // its finished tiles, the files a client fetches, and previews of a running job.
+#include <algorithm>
+
 #include "absl/strings/str_cat.h"
 #include "coordinator/farm_coordinator.h"
 #include "coordinator/gather.h"
@@ -8,6 +10,7 @@
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/png.h"
+#include "services/job/trace_counters.h"
 
 namespace prism::coordinator {
 
@@ -277,7 +280,19 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   report.rays = job.rays;
   report.peak_memory_bytes = peak_memory_bytes();
   report.statistics = job.statistics->finish();
-  report.counters.assign(job.counters.begin(), job.counters.end());
+  // Every counter `prism render` reports, in its order, zeros included (the results carry only
+  // the counters that moved); then any other the workers sent.
+  report.counters.clear();
+  for (std::string_view name : job::kTraceCounterNames) {
+    auto found = job.counters.find(std::string(name));
+    report.counters.emplace_back(name, found == job.counters.end() ? 0 : found->second);
+  }
+  for (const auto& [name, value] : job.counters) {
+    if (std::none_of(report.counters.begin(), report.counters.end(),
+                     [&](const auto& c) { return c.first == name; })) {
+      report.counters.emplace_back(name, value);
+    }
+  }
   report.scene_features = job.scene_features;
   report.film_filename = job.film_filename;
   add_job_sections(p, report);

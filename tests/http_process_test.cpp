@@ -16,6 +16,7 @@
 #include <sstream>
 #include <thread>
 
+#include "services/job/trace_counters.h"
 #include "tests/testing/child_process.h"
 #include "tests/testing/tls_cert.h"
 
@@ -248,6 +249,18 @@ TEST_F(HttpProcessTest, PrometheusScrapesTheMetrics) {
     EXPECT_EQ(report["outputs"]["spectral_exr"], (root_ / "out.exr").string());
     EXPECT_EQ(report["outputs"]["json"], (root_ / "out.json").string());
     EXPECT_EQ(report["outputs"]["png"], (root_ / "out.png").string());
+    // Every counter a local render reports, zeros included (the farm's listed only those that
+    // moved), in the same order.
+    std::ifstream again(root_ / "out.json");
+    const nlohmann::ordered_json ordered = nlohmann::ordered_json::parse(again, nullptr, false);
+    ASSERT_FALSE(ordered.is_discarded());
+    std::vector<std::string> counters;
+    for (const auto& [name, value] : ordered["counters"].items()) counters.push_back(name);
+    ASSERT_GE(counters.size(), prism::job::kTraceCounterNames.size()) << report["counters"];
+    for (std::size_t i = 0; i < prism::job::kTraceCounterNames.size(); ++i) {
+      EXPECT_EQ(counters[i], prism::job::kTraceCounterNames[i]);
+    }
+    EXPECT_EQ(report["counters"]["non_finite"], 0);
   }
   // `prism fetch` without -o names the files after the scene's Film, as `prism render` does
   // (this scene's Film has no filename: pbrt-v4's default, pbrt.exr).

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "services/job/trace_counters.h"
 #include "services/scene/scene_loader.h"
 #include "services/spectral/named_spectra.h"
 #include "services/spectral/testing/chi_square.h"
@@ -24,6 +25,15 @@ namespace prism::worker {
 namespace {
 
 namespace fs = std::filesystem;
+
+// The coordinator names a farm job's counters from job::kTraceCounterNames without linking the
+// tracer: the same names, in the same order, as a local render's report.
+TEST(TraceCountersTest, TheCoordinatorsNamesAreTheTracersCounters) {
+  const auto list = counter_list(TraceCounters{});
+  ASSERT_EQ(list.size(), job::kTraceCounterNames.size());
+  for (std::size_t i = 0; i < list.size(); ++i)
+    EXPECT_EQ(list[i].first, job::kTraceCounterNames[i]);
+}
 
 const fs::path kTestData = fs::path(PRISM_SOURCE_DIR) / "worker" / "testdata";
 
