@@ -168,6 +168,14 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   if (built == nullptr) {
     PRISM_ASSIGN_OR_RETURN(built, build(options.caustics));
   }
+  // A job to a target error runs no light paths (job_spec.cpp): not a candidate then.
+  std::string caustics_note;
+  if (caustics && options.target_error.has_value()) {
+    caustics = false;
+    caustics_note =
+        "; hero with light-traced caustics is not a candidate: light paths do not combine with "
+        "--target-error yet";
+  }
   // Gradient with its lanes chosen by the scene is hero's render, and dearer, unless some
   // material refracts smooth-dispersively (worker/gradient/integrator.h); uniform is a
   // candidate where a dielectric disperses.
@@ -209,6 +217,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
                         "per-pixel tables pay");
       }
     }
+    absl::StrAppend(&report.reason, caustics_note);
     report.seconds = std::chrono::duration<double>(Clock::now() - start).count();
     out.report = std::move(report);
     return std::move(out);
@@ -216,9 +225,12 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   if (candidates.size() == 1) {
     chosen.integrator = "hero";
     report.choice = "hero";
-    report.reason =
-        "hero is the only candidate (no dispersive dielectric for uniform, no smooth dispersive "
-        "refraction for gradient to shift, no caustic path to light trace); no pilot";
+    report.reason = caustics_note.empty()
+                        ? "hero is the only candidate (no dispersive dielectric for uniform, no "
+                          "smooth dispersive refraction for gradient to shift, no caustic path to "
+                          "light trace); no pilot"
+                        : "hero is the only candidate (no dispersive dielectric for uniform, no "
+                          "smooth dispersive refraction for gradient to shift); no pilot";
     return finish();
   }
   // With caustics: the probe of the caustic paths, whose three renders of light paths alone cost

@@ -295,6 +295,24 @@ TEST(RenderCliTest, TargetErrorRendersStopWhereTheErrorIsMetAndDoNotDependOnThre
   }
 }
 
+// A target error with the default integrator on a scene with caustic paths: auto offered
+// light-traced caustics, which a target-error job refuses, so the documented way to render a
+// reference failed unless --integrator was given. Auto leaves them out there, and says so.
+TEST(RenderCliTest, TargetErrorUnderAutoLeavesLightTracedCausticsOut) {
+  const fs::path dir = fresh_dir("target_error_auto");
+  CommandRun run =
+      run_prism(dir, {"render", source("scenes/three-emitters.pbrt"), "-o", "t.exr", "--resolution",
+                      "16x12", "--target-error", "50%", "--max-spp", "16", "--threads", "2"});
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const auto report = nlohmann::json::parse(*prism::base::read_file(dir / "t.json"));
+  EXPECT_NE(report["auto"]["reason"].get<std::string>().find(
+                "light paths do not combine with --target-error"),
+            std::string::npos)
+      << report["auto"].dump();
+  EXPECT_EQ(report["caustics"], "off");
+  EXPECT_FALSE(report["target_error"].is_null());
+}
+
 // `--integrator auto`: where nothing depends on wavelength it is hero, with no pilot, and the
 // same bytes; on a spectral scene the report lists the candidates the pilot measured and the
 // image is exactly the chosen method's render.
