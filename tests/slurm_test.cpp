@@ -2,7 +2,8 @@
 // slurmctld and slurmd with a configuration of its own on loopback ports, then runs
 // deploy/slurm/coordinator.sbatch and a two-task deploy/slurm/workers.sbatch array with sbatch,
 // renders a job through them, scancels one worker mid-job (it drains: its task is finished or
-// handed back, and it is listed as left), and checks the output is `prism render`'s bytes.
+// handed back, and it is listed as left), and checks the output is `prism render`'s bytes; and
+// ends the coordinator's job mid-render and starts it again, which the worker array follows.
 #include <gtest/gtest.h>
 #include <pwd.h>
 #include <sys/stat.h>
@@ -228,6 +229,78 @@ TEST_F(SlurmTest, SbatchStartedWorkersRenderTheSameBytesAndAScancelledOneDrains)
   EXPECT_EQ(workers.find("lost"), std::string::npos) << workers;
 
   // The same flags rendered by `prism render`: the same bytes.
+  EXPECT_EQ(testing::read_file(root_ / "farm.exr"),
+            testing::render_beside(PRISM_BINARY, root_ / "scene", root_ / "local.exr", flags))
+      << "the Slurm farm's EXR is not prism render's";
+}
+
+// The coordinator's job ends (scancel, its time limit) and is submitted again: it comes back on
+// another port with the secret and token it had (kept beside the data), the running worker array
+// sees the new coordinator.env and reconnects, and the job that was in flight finishes with
+// `prism render`'s bytes. (Before, the worker retried the old address until its time limit, or
+// was refused with the new secret, and the job waited for a worker forever.)
+TEST_F(SlurmTest, AWorkerArrayFollowsACoordinatorJobStartedAgain) {
+  ASSERT_NO_FATAL_FAILURE(start_slurm());
+  const std::string scripts = (fs::path(PRISM_SOURCE_DIR) / "deploy/slurm").string();
+  auto start_coordinator = [&] {
+    const std::string id = run_slurm({"sbatch", "--parsable",
+                                      "--output=" + (root_ / "out/coordinator-%j.out").string(),
+                                      scripts + "/coordinator.sbatch"});
+    return id.substr(0, id.find_first_of(";\n"));
+  };
+  const std::string first = start_coordinator();
+  std::map<std::string, std::string> before = coordinator_env();
+  ASSERT_TRUE(before.contains("PRISM_COORDINATOR"))
+      << testing::read_file(root_ / "log/slurmctld.log");
+  run_slurm({"sbatch", "--array=0-0", "--cpus-per-task=1",
+             "--output=" + (root_ / "out/worker-%A_%a.out").string(), scripts + "/workers.sbatch"});
+
+  // Twelve tasks of about a second each for the one worker.
+  const std::vector<std::string> flags = {
+      "--integrator", "hero", "--spp",  "8192", "--resolution",       "32x24", "--bins", "8",
+      "--tile",       "8",    "--seed", "5",    "--samples-per-task", "8192"};
+  auto client = [&](const std::map<std::string, std::string>& published) {
+    testing::ChildOptions o;
+    o.env = {"PRISM_COORDINATOR=" + published.at("PRISM_COORDINATOR"),
+             "PRISM_API_TOKEN=" + published.at("PRISM_API_TOKEN")};
+    return o;
+  };
+  std::vector<std::string> submit = {PRISM_BINARY, "submit", (root_ / "scene/scene.pbrt").string()};
+  submit.insert(submit.end(), flags.begin(), flags.end());
+  const testing::RunResult submitted = testing::run(submit, client(before));
+  ASSERT_EQ(submitted.exit_code, 0) << submitted.out << submitted.err;
+  const std::size_t at = submitted.out.find("j-");
+  ASSERT_NE(at, std::string::npos) << submitted.out;
+  const std::string job = submitted.out.substr(at, submitted.out.find_first_of(" \n", at) - at);
+
+  // Once the worker renders, the coordinator's job ends and a new one starts.
+  const auto busy_by = Clock::now() + std::chrono::seconds(90);
+  std::string workers;
+  while (Clock::now() < busy_by && workers.find("busy") == std::string::npos) {
+    workers = testing::run({PRISM_BINARY, "workers"}, client(before)).out;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  ASSERT_NE(workers.find("busy"), std::string::npos) << workers;
+  run_slurm({"scancel", first});
+  const fs::path env_file = root_ / "shared" / "coordinator.env";
+  const auto gone_by = Clock::now() + std::chrono::seconds(60);
+  while (Clock::now() < gone_by && fs::exists(env_file))
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  ASSERT_FALSE(fs::exists(env_file)) << "the stopped coordinator job left its env file";
+  start_coordinator();
+  std::map<std::string, std::string> after = coordinator_env();
+  ASSERT_TRUE(after.contains("PRISM_COORDINATOR"));
+  EXPECT_EQ(after["PRISM_WORKER_SECRET"], before["PRISM_WORKER_SECRET"]);
+  EXPECT_EQ(after["PRISM_API_TOKEN"], before["PRISM_API_TOKEN"]);
+
+  // The job finishes on the new coordinator, with the array's worker.
+  const testing::RunResult watched =
+      testing::run({PRISM_BINARY, "watch", job}, client(after), std::chrono::minutes(4));
+  ASSERT_EQ(watched.exit_code, 0) << watched.out << watched.err
+                                  << testing::read_file(root_ / "log/slurmctld.log");
+  const testing::RunResult fetched = testing::run(
+      {PRISM_BINARY, "fetch", job, "-o", (root_ / "farm.exr").string()}, client(after));
+  ASSERT_EQ(fetched.exit_code, 0) << fetched.out << fetched.err;
   EXPECT_EQ(testing::read_file(root_ / "farm.exr"),
             testing::render_beside(PRISM_BINARY, root_ / "scene", root_ / "local.exr", flags))
       << "the Slurm farm's EXR is not prism render's";
