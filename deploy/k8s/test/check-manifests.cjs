@@ -61,7 +61,20 @@ for (const d of [coordinator, worker]) {
     fail(`${d.metadata.name}: the worker secret must come from a Secret`);
 }
 one("Service", "prism-coordinator");
-one("NetworkPolicy", "prism-coordinator");
+// The policy admits exactly the pods the README names: a peer selector with more labels than
+// the one it documents (kustomize's commonLabels added part-of to each) admits no API client
+// that carries only prism/api-client.
+const policy = one("NetworkPolicy", "prism-coordinator");
+for (const rule of policy.spec.ingress || []) {
+  for (const peer of rule.from || []) {
+    const labels = Object.keys((peer.podSelector && peer.podSelector.matchLabels) || {});
+    if (peer.podSelector && labels.length !== 1)
+      fail(`NetworkPolicy prism-coordinator: a peer selects on ${labels.join(", ")}, want one label`);
+  }
+}
+const api = (policy.spec.ingress || []).flatMap((r) => r.from || []).filter(
+  (p) => p.podSelector && (p.podSelector.matchLabels || {})["prism/api-client"] === "true");
+if (api.length < 2) fail("NetworkPolicy prism-coordinator: API clients must reach gRPC and HTTP");
 const hpa = one("HorizontalPodAutoscaler", "prism-worker");
 if (hpa.spec.scaleTargetRef.name !== "prism-worker") fail("the autoscaler must scale the workers");
 console.log(`ok: ${docs.length} objects`);
