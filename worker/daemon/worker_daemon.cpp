@@ -171,16 +171,16 @@ void WorkerDaemon::drain() {
     std::lock_guard<std::mutex> lock(mutex_);
     if (draining_) return;
     draining_ = true;
-    // A lease without a deadline (0) is simply finished, unless a drain timeout bounds it.
-    if (held_ != nullptr && held_->deadline_unix_ms > 0) {
-      drain_deadline_unix_ms_ = held_->deadline_unix_ms;
-    }
+    // With a drain timeout, the task has until then, as long as heartbeats keep its lease
+    // (heartbeat_loop); without one, until the lease's deadline as it stands now. A lease
+    // without a deadline (0) and no timeout is simply finished.
     if (held_ != nullptr && config_.drain_timeout.count() > 0) {
-      const std::int64_t bound =
+      drain_deadline_unix_ms_ =
           std::chrono::duration_cast<std::chrono::milliseconds>(
               std::chrono::system_clock::now().time_since_epoch() + config_.drain_timeout)
               .count();
-      drain_deadline_unix_ms_ = std::min(drain_deadline_unix_ms_.value_or(bound), bound);
+    } else if (held_ != nullptr && held_->deadline_unix_ms > 0) {
+      drain_deadline_unix_ms_ = held_->deadline_unix_ms;
     }
   }
   logger_->info("draining: no new tasks; finishing or returning the held lease");
@@ -288,9 +288,14 @@ void WorkerDaemon::heartbeat_loop() {
   while (!stop_heartbeats_) {
     Clock::time_point wake_at = next_beat;
     if (draining_ && held_ != nullptr && drain_deadline_unix_ms_.has_value()) {
+      // The lease as heartbeats have renewed it also bounds a timed drain: past it the
+      // coordinator gives the task to another worker anyway.
+      std::int64_t deadline = *drain_deadline_unix_ms_;
+      if (config_.drain_timeout.count() > 0 && held_->deadline_unix_ms > 0) {
+        deadline = std::min(deadline, held_->deadline_unix_ms);
+      }
       const Clock::time_point give_up =
-          Clock::time_point(std::chrono::milliseconds(*drain_deadline_unix_ms_)) -
-          config_.return_margin;
+          Clock::time_point(std::chrono::milliseconds(deadline)) - config_.return_margin;
       if (Clock::now() >= give_up) {
         if (held_->reason == CancelReason::kNone) {
           held_->reason = CancelReason::kReturn;

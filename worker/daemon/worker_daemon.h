@@ -26,11 +26,12 @@
 // dropped without a result), DRAIN drains, REREGISTER registers again.
 //
 // Drain (like Seastar's gate): stop acquiring (an AcquireTask in flight is cancelled); a task in
-// progress is finished if it completes before the lease deadline known when the drain began, or
-// before drain_timeout from the drain's start when that is sooner (less a margin for the upload),
-// else it is cancelled and returned with FailTask(RETURNED); then the worker says Leave (it is
-// listed as `left`, not `lost`) and run() returns OK. Lease extensions that arrive during a drain
-// do not postpone that decision, so a drain always ends within one lease and within the timeout.
+// progress is finished if it completes within drain_timeout from the drain's start while its lease
+// lasts (heartbeats go on renewing it; a lease the coordinator stops renewing ends the wait at its
+// deadline), or, with no drain_timeout, before the lease deadline known when the drain began (less
+// a margin for the upload in both cases); else it is cancelled and returned with
+// FailTask(RETURNED); then the worker says Leave (it is listed as `left`, not `lost`) and run()
+// returns OK. A drain therefore always ends within the timeout, or within one lease.
 #pragma once
 
 #include <spdlog/logger.h>
@@ -68,7 +69,8 @@ struct WorkerConfig {
   std::uint64_t max_bundle_bytes = std::uint64_t{4} << 30;
   // A draining worker gives up a task that would not finish this long before its deadline.
   std::chrono::milliseconds return_margin{500};
-  // The longest a drain waits for the task in progress (0: up to the lease's deadline).
+  // The longest a drain waits for the task in progress, its lease renewed meanwhile (0: up to the
+  // lease's deadline when the drain began).
   std::chrono::milliseconds drain_timeout{0};
   // Pause after a failed Register or AcquireTask (past the client's own retries) before trying
   // again.
@@ -150,7 +152,8 @@ class WorkerDaemon {
   std::string worker_id_;
   std::chrono::milliseconds heartbeat_interval_{1'000};
   bool draining_ = false;
-  std::optional<std::int64_t> drain_deadline_unix_ms_;  // of the held lease, fixed at drain
+  // The drain's end for the held lease: the drain timeout's, or the lease's at the drain.
+  std::optional<std::int64_t> drain_deadline_unix_ms_;
   bool stop_heartbeats_ = false;
   HeldLease* held_ = nullptr;   // the lease being worked on, owned by process()
   std::deque<Upload> uploads_;  // the front is in upload

@@ -63,13 +63,14 @@ class FakeCoordinator final : public v1::WorkerService::Service {
   std::string blob;  // what FetchBundle streams
   v1::Lease lease;   // handed out by the first AcquireTask
   std::uint32_t heartbeat_interval_ms = 100;
-  bool cancel_when_rendering = false;   // CANCEL_TASK once a heartbeat reports progress
-  bool drain_when_holding = false;      // DRAIN once a heartbeat carries the lease
-  bool reregister_once = false;         // REREGISTER on the first heartbeat
-  int unavailable_registers = 0;        // answer this many Register calls with UNAVAILABLE
-  std::string secret;                   // the worker secret every call must carry
-  std::vector<v1::Lease> later_leases;  // handed out by the AcquireTasks after the first
-  bool hold_uploads = false;            // CompleteTask answers only once this is false
+  bool cancel_when_rendering = false;          // CANCEL_TASK once a heartbeat reports progress
+  bool drain_when_holding = false;             // DRAIN once a heartbeat carries the lease
+  std::chrono::milliseconds extend_leases{0};  // renew the held lease by this much (0: never)
+  bool reregister_once = false;                // REREGISTER on the first heartbeat
+  int unavailable_registers = 0;               // answer this many Register calls with UNAVAILABLE
+  std::string secret;                          // the worker secret every call must carry
+  std::vector<v1::Lease> later_leases;         // handed out by the AcquireTasks after the first
+  bool hold_uploads = false;                   // CompleteTask answers only once this is false
 
   grpc::Status Register(grpc::ServerContext* context, const v1::RegisterRequest* request,
                         v1::RegisterResponse* response) override {
@@ -125,6 +126,12 @@ class FakeCoordinator final : public v1::WorkerService::Service {
       v1::Directive* directive = response->add_directives();
       directive->set_kind(v1::Directive::KIND_CANCEL_TASK);
       directive->set_lease_id(lease.lease_id());
+    }
+    if (extend_leases.count() > 0 && holding) {
+      response->set_lease_deadline_unix_ms(
+          std::chrono::duration_cast<std::chrono::milliseconds>(
+              (std::chrono::system_clock::now() + extend_leases).time_since_epoch())
+              .count());
     }
     if (drain_when_holding && holding && !drain_sent) {
       drain_sent = true;
@@ -653,6 +660,23 @@ TEST_F(WorkerDaemonTest, ADrainTimeoutReturnsALongTaskLongBeforeItsLeaseEnds) {
   EXPECT_EQ(fake_.failures[0].failure_class(), v1::FAILURE_CLASS_RETURNED);
   ASSERT_EQ(fake_.left.size(), 1u);
   EXPECT_FALSE(fake_.left[0].empty());
+}
+
+// A drain timeout longer than the lease, with heartbeats renewing the lease: the task gets the
+// drain timeout (it was cut to the lease's deadline at the drain, 30 s by default, whatever
+// --drain-timeout said, and its work thrown away).
+TEST_F(WorkerDaemonTest, ADrainTimeoutOutlastsARenewedLease) {
+  // Minutes of work on a one-second lease that every heartbeat renews for another second.
+  fake_.lease = make_lease(rect(0, 0, 16, 16), 0, 1 << 16, 100, 1s);
+  fake_.heartbeat_interval_ms = 100;
+  fake_.extend_leases = 1s;
+  start_worker(/*return_margin=*/300ms, "", /*drain_timeout=*/2500ms);
+  const Clock::duration took = drain_once_rendering();
+  EXPECT_GE(took, 1800ms) << "the drain timeout, not the lease at the drain, bounds the wait";
+  EXPECT_LT(took, 5s);
+  std::lock_guard<std::mutex> lock(fake_.mutex);
+  ASSERT_EQ(fake_.failures.size(), 1u);
+  EXPECT_EQ(fake_.failures[0].failure_class(), v1::FAILURE_CLASS_RETURNED);
 }
 
 TEST_F(WorkerDaemonTest, ADrainDirectiveLetsATaskThatFitsItsLeaseComplete) {
