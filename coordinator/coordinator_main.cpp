@@ -101,7 +101,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(std::int64_t{10}, std::int64_t{600000}));
   app.add_option("--lease-ms", config.lease_ms, "lease duration, extended by heartbeats")
       ->check(CLI::Range(std::int64_t{10}, std::int64_t{86400000}));
-  app.add_option("--log-level", config.log_level, "trace, debug, info, warn, error, off");
+  // Checked: spdlog reads any other name as "off", and a typo silenced every log line.
+  app.add_option("--log-level", config.log_level, "trace, debug, info, warn, error, off")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}));
   bool insecure = false;
   app.add_flag("--insecure", insecure,
                "serve an address other machines can reach without --api-token and "

@@ -232,6 +232,17 @@ TEST_F(HttpProcessTest, ASecondCoordinatorSharesNeitherAnAddressNorADataDirector
   }
 }
 
+// spdlog reads an unknown level name as "off": `--log-level verbose` started a coordinator that
+// never logged a line. Refused now, before anything starts.
+TEST_F(HttpProcessTest, AnUnknownLogLevelIsRefused) {
+  testing::RunResult run = testing::run(
+      testing::coordinator_command(PRISM_COORDINATOR_BINARY, "127.0.0.1:0", root_ / "data-verbose",
+                                   kSecret, kToken, {}, "verbose"));
+  EXPECT_NE(run.exit_code, 0) << run.out << run.err;
+  EXPECT_NE(run.err.find("--log-level"), std::string::npos) << run.err;
+  EXPECT_FALSE(fs::exists(root_ / "data-verbose"));
+}
+
 TEST_F(HttpProcessTest, PrometheusScrapesTheMetrics) {
   ASSERT_NO_FATAL_FAILURE(start_coordinator(/*tls=*/false));
   ASSERT_NO_FATAL_FAILURE(start_worker());

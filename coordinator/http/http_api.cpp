@@ -433,6 +433,15 @@ void HttpApi::install_routes() {
     auto with_body = [max = farm_.options().max_bundle_bytes](Handler inner) {
       return [inner, max](const httplib::Request& req, httplib::Response& res,
                           const httplib::ContentReader& reader) {
+        // A Content-Length over the limit is refused before reading: cpp-httplib would not read
+        // it (payload_max_length), and the handler saw an empty body ("the bundle is empty").
+        std::uint64_t declared = 0;
+        if (req.has_header("Content-Length") &&
+            absl::SimpleAtoi(req.get_header_value("Content-Length"), &declared) && declared > max) {
+          return send_error(res, absl::ResourceExhaustedError(absl::StrCat(
+                                     "the request body (", declared, " bytes) is over ", max,
+                                     " bytes, the coordinator's --max-bundle-bytes")));
+        }
         std::string body;
         bool too_large = false;
         reader([&](const char* data, std::size_t n) {

@@ -238,6 +238,27 @@ TEST_F(HttpApiTest, UnknownRoutesWithoutABodyGetTheJsonNotFound) {
   }
 }
 
+// A body over --max-bundle-bytes sent with a Content-Length (curl --data-binary, as the README
+// uploads) was answered "the request body (the bundle) is empty": cpp-httplib did not read it.
+// It is refused for its size, as a chunked one is.
+TEST_F(HttpApiTest, ABodyOverTheLimitIsRefusedForItsSize) {
+  const std::string big(100 << 10, 'x');  // the fixture's limit is 64 KiB
+  httplib::Result r = http_->Post("/api/v1/bundles", auth(), big, "application/octet-stream");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 429) << r->body;
+  EXPECT_NE(r->body.find("is over 65536 bytes, the coordinator's --max-bundle-bytes"),
+            std::string::npos)
+      << r->body;
+}
+
+// The scheme of the Authorization header in any case (RFC 9110): "bearer" was refused.
+TEST_F(HttpApiTest, TheBearerSchemeIsCaseInsensitive) {
+  httplib::Result r =
+      http_->Get("/api/v1/jobs", {{"Authorization", std::string("bearer ") + kToken}});
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200) << r->body;
+}
+
 // A route asked for with a method it does not take (DELETE on a job) was the 404 of a route
 // that does not exist; it is a 405 naming the methods the path takes, in the Allow header too.
 TEST_F(HttpApiTest, AKnownPathWithAnotherMethodIsMethodNotAllowed) {

@@ -4,6 +4,8 @@
 
 #include <string>
 
+#include "absl/strings/match.h"
+
 namespace prism::rpc {
 namespace {
 
@@ -33,7 +35,10 @@ absl::Status check_bearer_value(std::optional<std::string_view> value, std::stri
   if (!value.has_value()) {
     return absl::UnauthenticatedError("missing authorization (want 'Bearer <token>')");
   }
-  if (value->substr(0, kScheme.size()) != kScheme) {
+  // The scheme's name is case-insensitive (RFC 9110 11.1): "bearer x" is "Bearer x".
+  if (value->size() < kScheme.size() ||
+      !absl::EqualsIgnoreCase(absl::string_view(value->data(), kScheme.size()),
+                              absl::string_view(kScheme.data(), kScheme.size()))) {
     return absl::UnauthenticatedError("authorization is not a 'Bearer <token>'");
   }
   if (!equal_constant_time(value->substr(kScheme.size()), expected)) {

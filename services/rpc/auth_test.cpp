@@ -36,8 +36,8 @@ class AuthTest : public ::testing::Test {
     server_ = builder.BuildAndStart();
     ASSERT_TRUE(server_);
     ASSERT_GT(port, 0);
-    auto channel =
-        grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials());
+    auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(port),
+                                       grpc::InsecureChannelCredentials());
     stub_ = prism::v1::FarmService::NewStub(channel);
   }
   void TearDown() override { server_->Shutdown(); }
@@ -58,15 +58,18 @@ class AuthTest : public ::testing::Test {
 
 TEST_F(AuthTest, AcceptsTheTokenAndRefusesEverythingElse) {
   EXPECT_TRUE(call("Bearer s3cret-token").ok());
+  // The scheme in any case, as RFC 9110 has it (the token itself stays exact).
+  EXPECT_TRUE(call("bearer s3cret-token").ok());
+  EXPECT_TRUE(call("BEARER s3cret-token").ok());
   struct Case {
     std::string header;
     std::string message;
   };
-  for (const Case& c : {Case{"", "missing authorization (want 'Bearer <token>')"},
-                        Case{"s3cret-token", "authorization is not a 'Bearer <token>'"},
-                        Case{"Bearer s3cret-tokeN", "invalid token"},
-                        Case{"Bearer s3cret-token ", "invalid token"},
-                        Case{"Bearer ", "invalid token"}}) {
+  for (const Case& c :
+       {Case{"", "missing authorization (want 'Bearer <token>')"},
+        Case{"s3cret-token", "authorization is not a 'Bearer <token>'"},
+        Case{"Bearer s3cret-tokeN", "invalid token"}, Case{"Bearer s3cret-token ", "invalid token"},
+        Case{"Bearer ", "invalid token"}}) {
     grpc::Status status = call(c.header);
     EXPECT_EQ(status.error_code(), grpc::StatusCode::UNAUTHENTICATED) << c.header;
     EXPECT_EQ(status.error_message(), c.message) << c.header;
