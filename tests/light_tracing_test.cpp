@@ -278,6 +278,29 @@ TEST_F(LightTracingJobTest, TheBytesDependOnTheJobAlone) {
   EXPECT_NE(run(2, 32, 2), reference);
 }
 
+// --max-depth counts bounces alike in both directions: at 0 the eye tracers see only emitters,
+// and the light tracer lit the floor by connecting its first vertex (a bounce) to the camera. Its
+// image is now zero wherever uniform's is; at 1 both light the scene.
+TEST_F(LightTracingJobTest, MaxDepthZeroLightsNothingButTheEmitters) {
+  auto scene = load("light_tracing.pbrt", light_scene("", false));
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  for (int depth : {0, 1}) {
+    auto light = render(*scene, job::IntegratorKind::kLight, 8, 1, depth);
+    auto uniform = render(*scene, job::IntegratorKind::kUniform, 8, 1, depth);
+    ASSERT_TRUE(light.ok() && uniform.ok());
+    double light_off_emitters = 0, light_total = 0;
+    for (std::size_t i = 0; i < light->image.data().size(); ++i) {
+      light_total += light->image.data()[i];
+      if (uniform->image.data()[i] == 0.0f) light_off_emitters += light->image.data()[i];
+    }
+    if (depth == 0) {
+      EXPECT_EQ(light_off_emitters, 0.0) << "max depth 0";
+    } else {
+      EXPECT_GT(light_total, 0.0) << "max depth 1";
+    }
+  }
+}
+
 // With --caustics light a pixel's sample is a light estimate plus an eye estimate, rendered
 // apart (worker/light_task.cpp) and combined into one sample's sums and squares, so the standard
 // error the render reports must still be the spread of its mean over seeds: summed over the

@@ -298,6 +298,12 @@ TEST(BsdfTest, FresnelLimits) {
   EXPECT_NEAR(fresnel_complex(0.7f, 1.5f, 0.0f), fresnel_dielectric(0.7f, 1.5f), 1e-6f);
   // Normal incidence on a conductor: ((n-1)² + k²) / ((n+1)² + k²).
   EXPECT_NEAR(fresnel_complex(1.0f, 0.2f, 3.9f), (0.64f + 15.21f) / (1.44f + 15.21f), 1e-5f);
+  // A vanishing index (η = k = 0, as a scene may give it) reflects everything, without a NaN;
+  // a small one approaches that limit.
+  for (float c : {0.0f, 0.3f, 0.7f, 1.0f}) {
+    EXPECT_EQ(fresnel_complex(c, 0.0f, 0.0f), 1.0f) << c;
+    EXPECT_NEAR(fresnel_complex(c, 1e-3f, 0.0f), 1.0f, 1e-2f) << c;
+  }
 }
 
 }  // namespace

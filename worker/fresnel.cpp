@@ -23,6 +23,9 @@ float fresnel_complex(float cos_theta_i, float eta, float k) {
   using Complex = std::complex<float>;
   cos_theta_i = std::clamp(cos_theta_i, 0.0f, 1.0f);
   Complex n(eta, k);
+  // η = k = 0 (a user's conductor; 15 % of samples were NaN): the limit of a vanishing index is
+  // total reflection at every angle.
+  if (std::norm(n) < 1e-12f) return 1.0f;
   float sin2_i = 1.0f - cos_theta_i * cos_theta_i;
   Complex sin2_t = sin2_i / (n * n);
   Complex cos_t = std::sqrt(Complex(1.0f) - sin2_t);

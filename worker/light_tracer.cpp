@@ -379,7 +379,9 @@ class LightPath {
           const float t = -std::log1p(-sampler_.at(flight_dim)) / sigma_t;
           if (!hit || t < hit->t) {
             beta *= sigma_s / sigma_t;
-            ++depth;
+            // A vertex at depth d is the eye path's d-th bounce: none past max_depth (at 0 the
+            // light paths connected their first vertex, lighting what an eye path does not).
+            if (++depth > options.max_depth) return;
             const Vec3f p = ray.origin + ray.direction * t;
             const Vec3f back = -ray.direction;
             const HenyeyGreenstein& phase = m.phase();
@@ -423,7 +425,7 @@ class LightPath {
       beta *= std::abs(dot(hit->ns, back)) / cos_geometric;
       const Frame frame = Frame::from_xz(hit->dpdu, hit->ns);
       const Vec3f back_local = frame.to_local(back);
-      ++depth;
+      if (++depth > options.max_depth) return;  // as at a medium vertex
       if (!is_specular(*bsdf)) {
         // With --caustics light only a first non-delta vertex after a delta chain connects, and
         // nothing after it can: the path ends there.
