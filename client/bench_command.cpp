@@ -25,6 +25,7 @@
 #include "client/compare_command.h"
 #include "client/evaluation.h"
 #include "client/render_command.h"
+#include "coordinator/local_render.h"
 #include "services/base/atomic_file.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
@@ -770,6 +771,10 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
   for (const std::string& m : methods) {
     PRISM_RETURN_IF_ERROR(method_options(m, RenderCommandOptions{}).status());
   }
+  if (!method_options(options.baseline, RenderCommandOptions{}).ok()) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--baseline '", options.baseline, "' is not a method (--methods lists them)"));
+  }
   if (std::set<std::string>(methods.begin(), methods.end()).size() != methods.size()) {
     return absl::InvalidArgumentError(
         absl::StrCat("--methods '", options.methods, "' names a method twice"));
@@ -870,7 +875,6 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
   };
 
   std::vector<BenchRow> rows;
-  std::vector<std::string> stems;
   std::string header = absl::StrCat(
       "# prism bench\n\nClock: ", options.clock, "; ", options.seeds,
       " seed(s); threads: ", options.threads.has_value() ? absl::StrCat(*options.threads) : "all",
@@ -884,37 +888,97 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       "over seeds; MSE and relMSE are minus the reference's noise floor where it is known.\n");
   std::string summary;
 
+  // ---- Every scene, checked before any render: a bad path, an inset or a reference that does
+  // not fit, or a method the scene cannot take would otherwise end a long run after hours.
+  struct SceneSetup {
+    evaluation::BenchScene scene;
+    std::string stem;
+    RenderCommandOptions base;
+    int width = 0, height = 0, bins = 0;
+    std::vector<std::pair<std::string, std::optional<image::Crop>>> regions;
+    std::optional<image::SpectralExr> reference;  // --reference, read
+  };
+  std::vector<SceneSetup> setups;
+  std::vector<std::string> stems;
   for (std::size_t si = 0; si < options.scenes.size(); ++si) {
     const fs::path& path = options.scenes[si];
-    PRISM_ASSIGN_OR_RETURN(evaluation::BenchScene scene,
+    SceneSetup setup;
+    PRISM_ASSIGN_OR_RETURN(setup.scene,
                            evaluation::load_bench_scene(path, options.allow_unsupported));
+    const evaluation::BenchScene& scene = setup.scene;
     std::string stem = path.stem().string();
     for (int n = 2; std::find(stems.begin(), stems.end(), stem) != stems.end(); ++n) {
       stem = absl::StrCat(path.stem().string(), "-", n);
     }
     stems.push_back(stem);
-    RenderCommandOptions scene_base = base;
-    scene_base.scene = path;
+    setup.stem = stem;
+    setup.base = base;
+    setup.base.scene = path;
 
     // The film this bench renders (the scene's, or --resolution) and its regions.
-    RenderCommandOptions probe = scene_base;
+    RenderCommandOptions probe = setup.base;
     probe.integrator = "hero";
     probe.spp = 1;
     PRISM_ASSIGN_OR_RETURN(
         v1::JobSpec probe_spec,
         job_spec_of(probe, scene.description, scene.bundle_hash, scene.scene_relpath));
-    const int width = static_cast<int>(probe_spec.width());
-    const int height = static_cast<int>(probe_spec.height());
-    const int bins = static_cast<int>(probe_spec.bins());
-    std::vector<std::pair<std::string, std::optional<image::Crop>>> regions{{"image", {}}};
+    const int width = setup.width = static_cast<int>(probe_spec.width());
+    const int height = setup.height = static_cast<int>(probe_spec.height());
+    const int bins = setup.bins = static_cast<int>(probe_spec.bins());
+    setup.regions.push_back({"image", {}});
     for (std::size_t i = 0; i < insets.size(); ++i) {
       if (auto rect = image::crop_rect(insets[i], width, height); !rect.ok()) {
         return absl::InvalidArgumentError(absl::StrCat("--inset ", options.insets[i], ": ",
                                                        rect.status().message(), " (", scene.name,
                                                        " renders ", width, "x", height, ")"));
       }
-      regions.push_back({options.insets[i], insets[i]});
+      setup.regions.push_back({options.insets[i], insets[i]});
     }
+    if (!options.references.empty()) {
+      const fs::path& ref_path = options.references[si];
+      PRISM_ASSIGN_OR_RETURN(image::SpectralExr exr, image::read_spectral_exr(ref_path));
+      if (exr.spectral.width() != width || exr.spectral.height() != height ||
+          exr.spectral.bins() != bins) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("--reference ", ref_path.string(), " is ", exr.spectral.width(), "x",
+                         exr.spectral.height(), " with ", exr.spectral.bins(), " bins; ",
+                         scene.name, " renders ", width, "x", height, " with ", bins, " bins"));
+      }
+      setup.reference = std::move(exr);
+    }
+    // Each method's job and scene as it would render them (at 4x4 and 1 spp: light paths refuse
+    // some cameras and lights only when the scene is built). Not auto, which takes whatever the
+    // scene allows.
+    for (const std::string& method : methods) {
+      if (method == "auto") continue;
+      PRISM_ASSIGN_OR_RETURN(RenderCommandOptions o, method_options(method, setup.base));
+      o.resolution = "4x4";
+      o.spp = 1;
+      o.max_memory.clear();
+      absl::Status usable = [&]() -> absl::Status {
+        PRISM_ASSIGN_OR_RETURN(PreparedRender prepared,
+                               prepare_render(o, device, scene.description, *scene.library,
+                                              scene.bundle_hash, scene.scene_relpath));
+        return coordinator::LocalRender::create(device, scene.description, *scene.library,
+                                                prepared.local)
+            .status();
+      }();
+      if (!usable.ok()) {
+        return absl::Status(usable.code(),
+                            absl::StrCat(scene.name, ", method ", method, ": ", usable.message()));
+      }
+    }
+    setups.push_back(std::move(setup));
+  }
+
+  // One scene's renders, its rows added to `rows`.
+  auto bench_scene = [&](std::size_t si) -> absl::Status {
+    SceneSetup& setup = setups[si];
+    const evaluation::BenchScene& scene = setup.scene;
+    const std::string& stem = setup.stem;
+    const RenderCommandOptions& scene_base = setup.base;
+    const int width = setup.width, height = setup.height, bins = setup.bins;
+    const auto& regions = setup.regions;
 
     // Calibration: the clock's seconds per sample of a method, from a short render.
     // Calibration: a method's cost model, from renders of 4 spp and up (each at least four
@@ -942,16 +1006,9 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
     std::optional<evaluation::Reference> reference;
     bool floor_known = false;
     std::string reference_text;
-    if (!options.references.empty()) {
+    if (setup.reference.has_value()) {
       const fs::path& ref_path = options.references[si];
-      PRISM_ASSIGN_OR_RETURN(image::SpectralExr exr, image::read_spectral_exr(ref_path));
-      if (exr.spectral.width() != width || exr.spectral.height() != height ||
-          exr.spectral.bins() != bins) {
-        return absl::InvalidArgumentError(
-            absl::StrCat("--reference ", ref_path.string(), " is ", exr.spectral.width(), "x",
-                         exr.spectral.height(), " with ", exr.spectral.bins(), " bins; ",
-                         scene.name, " renders ", width, "x", height, " with ", bins, " bins"));
-      }
+      image::SpectralExr& exr = *setup.reference;
       image::SpectralImage half_image = exr.spectral;
       fs::path half_path = ref_path;
       half_path.replace_extension(".half.exr");
@@ -1120,20 +1177,40 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
         }
       }
     }
-  }
+    return absl::OkStatus();
+  };
 
-  // ---- Outputs: the CSV and the report first, then the plots.
+  // ---- Outputs: the CSV and the report first, then the plots; rewritten after each scene, so
+  // that a run that fails (or is stopped) keeps the scenes it finished.
   const fs::path csv = options.output / "results.csv";
   const fs::path report = options.output / "report.md";
-  const std::string csv_text = bench_csv(rows);
-  PRISM_RETURN_IF_ERROR(base::write_file_atomic(csv, csv_text));
-  const std::string report_text = bench_report(rows, options.baseline, header);
+  auto write_outputs = [&](std::size_t scenes_done, std::string& summary) -> absl::Status {
+    PRISM_RETURN_IF_ERROR(base::write_file_atomic(csv, bench_csv(rows)));
+    PRISM_RETURN_IF_ERROR(
+        base::write_file_atomic(report, bench_report(rows, options.baseline, header)));
+    absl::StrAppend(&summary, "wrote ", csv.string(), " (", rows.size(), " rows), ",
+                    report.string());
+    const std::vector<std::string> done(stems.begin(),
+                                        stems.begin() + static_cast<std::ptrdiff_t>(scenes_done));
+    return write_plots(rows, done, options.clock, options.output, summary);
+  };
+  for (std::size_t si = 0; si < setups.size(); ++si) {
+    if (absl::Status done = bench_scene(si); !done.ok()) {
+      if (si == 0) return done;
+      return absl::Status(
+          done.code(),
+          absl::StrCat(done.message(), " (the results of the ", si, si == 1 ? " scene" : " scenes",
+                       " finished before ", setups[si].scene.name, " are in ", csv.string(), ")"));
+    }
+    if (si + 1 < setups.size()) {
+      std::string ignored;
+      PRISM_RETURN_IF_ERROR(write_outputs(si + 1, ignored));
+    }
+  }
   if (const std::string warnings = reference_warnings(rows); !warnings.empty()) {
     log(absl::StrCat("warning:\n", warnings));
   }
-  PRISM_RETURN_IF_ERROR(base::write_file_atomic(report, report_text));
-  absl::StrAppend(&summary, "wrote ", csv.string(), " (", rows.size(), " rows), ", report.string());
-  PRISM_RETURN_IF_ERROR(write_plots(rows, stems, options.clock, options.output, summary));
+  PRISM_RETURN_IF_ERROR(write_outputs(setups.size(), summary));
   return absl::StrCat(summary, "\n");
 }
 

@@ -19,6 +19,7 @@
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
+#include "services/job/job_parameters.h"
 #include "services/scene/bundle.h"
 #include "services/scene/scene_loader.h"
 
@@ -251,6 +252,11 @@ absl::StatusOr<std::vector<std::uint64_t>> parse_spp_list(const std::string& tex
         (!out.empty() && value <= out.back())) {
       return absl::InvalidArgumentError(
           absl::StrCat("spp list '", text, "': want increasing positive integers, e.g. 8,16,32"));
+    }
+    if (value > job::kMaxJobSpp) {
+      return absl::InvalidArgumentError(absl::StrCat("spp list '", text, "': ", part,
+                                                     " is more than a job takes (1..",
+                                                     job::kMaxJobSpp, ")"));
     }
     out.push_back(value);
   }

@@ -77,8 +77,8 @@ int main(int argc, char** argv) {
       "render",
       "Render a scene on this machine (the farm's coordinator and worker code, in process)");
   prism::client::add_render_flags(*render_cmd, render_flags, render);
-  auto* threads_opt = render_cmd->add_option("--threads", threads,
-                                             "Render threads (default, or 0: all hardware threads)");
+  auto* threads_opt = render_cmd->add_option(
+      "--threads", threads, "Render threads (default, or 0: all hardware threads)");
   auto* json_opt =
       render_cmd->add_option("--json", json_path, "JSON report path (default: <output stem>.json)");
   render_cmd->add_option("--spool", render.spool,
@@ -96,9 +96,11 @@ int main(int argc, char** argv) {
   auto* bench_cmd = app.add_subcommand(
       "bench", "Error against time of the rendering methods on scenes (CSV, report, plots)");
   bench_cmd->add_option("scenes", bench.scenes, "pbrt-v4 scene files");
-  bench_cmd->add_option("--results", bench.results,
-                        "Instead of rendering: the report and plots of earlier runs' "
-                        "results.csv (repeatable; the rows of --methods)");
+  bench_cmd
+      ->add_option("--results", bench.results,
+                   "Instead of rendering: the report and plots of earlier runs' "
+                   "results.csv (repeatable; the rows of --methods)")
+      ->allow_extra_args(false);
   bench_cmd->add_option(
       "--methods", bench.methods,
       "Comma-separated: uniform, hero, hero+prepass, gradient, light, hero+caustics, "
@@ -110,8 +112,11 @@ int main(int argc, char** argv) {
       bench_cmd->add_option("--spp", bench.spp, "Samples per pixel instead, e.g. 64,256,1024");
   budgets_opt->excludes(bench_spp_opt);
   bench_cmd->add_option("--seeds", bench.seeds, "Renders per method and budget (default 2)");
-  bench_cmd->add_option("--reference", bench.references,
-                        "Reference spectral EXR, one per scene (default: rendered and cached)");
+  bench_cmd
+      ->add_option("--reference", bench.references,
+                   "Reference spectral EXR, one per scene, in their order (repeatable; "
+                   "default: rendered and cached)")
+      ->allow_extra_args(false);
   auto* reference_spp_opt = bench_cmd->add_option(
       "--reference-spp", bench_reference_spp,
       "Samples per pixel of a rendered reference (default: 4x the largest budget)");
@@ -120,7 +125,8 @@ int main(int argc, char** argv) {
       "Render the reference to this relative error per pixel, e.g. 0.5% (instead of a spp)");
   bench_cmd->add_option("--reference-cache", bench_cache,
                         "Where rendered references are kept (default ~/.cache/prism/references)");
-  bench_cmd->add_option("--inset", bench.insets, "A region x,y,w,h also measured (repeatable)");
+  bench_cmd->add_option("--inset", bench.insets, "A region x,y,w,h also measured (repeatable)")
+      ->allow_extra_args(false);
   bench_cmd->add_option("--resolution", bench_resolution, "Film resolution WxH (default: scene)");
   auto* bench_bins_opt = bench_cmd->add_option("--bins", bench_bins, "Spectral bins");
   auto* bench_threads_opt = bench_cmd->add_option("--threads", bench_threads, "Render threads");

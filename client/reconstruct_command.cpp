@@ -160,8 +160,26 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
     return with_context(result.status(),
                         absl::StrCat(quoted(options.primal), " and ", quoted(options.gradient)));
   }
-  auto rgb = coordinator::to_linear_srgb(*result, spectral::ColorMatching::cie1931());
+  const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+  auto rgb = coordinator::to_linear_srgb(*result, cmf);
   if (!rgb.ok()) return with_context(rgb.status(), "colour conversion of the reconstruction");
+  // As `prism render` makes a gradient render's RGB (coordinator::tile_rgb): the primal's RGB,
+  // its samples' exact RGB, plus the reconstruction's change of the bins' RGB. A primal file
+  // without R, G, B gets the reconstructed bins' RGB alone.
+  if (primal->rgb.has_value() && primal->rgb->width() == pi.width() &&
+      primal->rgb->height() == pi.height()) {
+    auto plain = coordinator::to_linear_srgb(pi, cmf);
+    if (!plain.ok()) return with_context(plain.status(), "colour conversion of the primal");
+    for (int y = 0; y < pi.height(); ++y) {
+      for (int x = 0; x < pi.width(); ++x) {
+        for (int c = 0; c < 3; ++c) {
+          rgb->value(x, y, c) =
+              static_cast<float>(double(primal->rgb->value(x, y, c)) + double(rgb->value(x, y, c)) -
+                                 double(plain->value(x, y, c)));
+        }
+      }
+    }
+  }
 
   image::ExrMetadata metadata = primal->metadata;
   metadata[std::string(image::kMetaPoissonAlpha)] = exact_decimal(options.alpha);
@@ -171,6 +189,7 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   if (delta != gradient->metadata.end()) {
     metadata[std::string(image::kMetaGradientDelta)] = delta->second;
   }
+  metadata[std::string(image::kMetaContent)] = "reconstruction";
   metadata["version"] = coordinator::prism_version();
   PRISM_RETURN_IF_ERROR(image::write_spectral_exr(options.output, *result, *rgb, metadata));
   return absl::StrCat("wrote ", options.output.string(), ": ", pi.width(), "x", pi.height(), ", ",

@@ -49,9 +49,10 @@ class ReconstructCommandTest : public ::testing::Test {
     return *g;
   }
   void write(const fs::path& path, const image::SpectralImage& img,
-             const image::ExrMetadata& metadata = {}) {
-    auto rgb = image::RgbImage::create(img.width(), img.height());
-    ASSERT_TRUE(image::write_spectral_exr(path, img, *rgb, metadata).ok());
+             const image::ExrMetadata& metadata = {},
+             const std::optional<image::RgbImage>& rgb = std::nullopt) {
+    auto zero = image::RgbImage::create(img.width(), img.height());
+    ASSERT_TRUE(image::write_spectral_exr(path, img, rgb.value_or(*zero), metadata).ok());
   }
   ReconstructOptions options() {
     ReconstructOptions o;
@@ -67,7 +68,11 @@ class ReconstructCommandTest : public ::testing::Test {
 TEST_F(ReconstructCommandTest, ConsistentPairReconstructsThePrimal) {
   const int k = 5;
   const image::SpectralImage in = primal(7, 4, 32);
-  write(dir_ / "primal.exr", in, {{"spp", "64"}, {"integrator", "gradient"}});
+  // The primal's own RGB, as a render writes it (its samples' exact RGB): random here.
+  auto primal_rgb = image::RgbImage::create(in.width(), in.height());
+  std::mt19937 rng(7);
+  for (float& v : primal_rgb->data()) v = std::uniform_real_distribution<float>(0.f, 3.f)(rng);
+  write(dir_ / "primal.exr", in, {{"spp", "64"}, {"integrator", "gradient"}}, *primal_rgb);
   write(dir_ / "gradient.exr", exact_gradient(in, k),
         {{std::string(image::kMetaGradientOffsetBins), "5"},
          {std::string(image::kMetaGradientDelta), "0.15"}});
@@ -92,13 +97,19 @@ TEST_F(ReconstructCommandTest, ConsistentPairReconstructsThePrimal) {
     EXPECT_EQ(out->metadata.at(std::string(image::kMetaGradientOffsetBins)), "5");
     EXPECT_EQ(out->metadata.at(std::string(image::kMetaGradientDelta)), "0.15");
     EXPECT_EQ(out->metadata.at("spp"), "64");  // the primal's metadata carries over
-    // RGB by the same conversion as `prism render`.
+    // RGB as `prism render` makes a gradient render's: the primal's RGB plus the
+    // reconstruction's change of the bins' RGB (none for l2 here, which returns I exactly).
+    EXPECT_EQ(out->metadata.at(std::string(image::kMetaContent)), "reconstruction");
     ASSERT_TRUE(out->rgb.has_value());
-    auto expected_rgb =
-        coordinator::to_linear_srgb(out->spectral, spectral::ColorMatching::cie1931());
-    ASSERT_TRUE(expected_rgb.ok());
-    for (std::size_t i = 0; i < expected_rgb->data().size(); ++i) {
-      ASSERT_EQ(out->rgb->data()[i], expected_rgb->data()[i]);
+    const spectral::ColorMatching cmf = spectral::ColorMatching::cie1931();
+    auto reconstructed_rgb = coordinator::to_linear_srgb(out->spectral, cmf);
+    auto plain_rgb = coordinator::to_linear_srgb(in, cmf);
+    ASSERT_TRUE(reconstructed_rgb.ok() && plain_rgb.ok());
+    for (std::size_t i = 0; i < primal_rgb->data().size(); ++i) {
+      ASSERT_EQ(out->rgb->data()[i], static_cast<float>(double(primal_rgb->data()[i]) +
+                                                        double(reconstructed_rgb->data()[i]) -
+                                                        double(plain_rgb->data()[i])))
+          << i;
     }
   }
 }
@@ -206,6 +217,12 @@ TEST_F(ReconstructCommandTest, RefusesBadInputWithoutWriting) {
   add(
       "gradient is a primal", [&](auto& o) { o.gradient = dir_ / "labelled.primal.exr"; },
       "gradient file '.*labelled.primal.exr' holds the primal of its render");
+  // A reconstruction is labelled as one (it carried the primal's label, and was reconstructed
+  // again without a word).
+  write(dir_ / "reconstructed.exr", in, {{std::string(image::kMetaContent), "reconstruction"}});
+  add(
+      "a reconstruction as the primal", [&](auto& o) { o.primal = dir_ / "reconstructed.exr"; },
+      "primal file '.*reconstructed.exr' holds the reconstruction of its render");
   add(
       "same file", [&](auto& o) { o.gradient = o.primal; },
       "the primal and the gradient file are the same file");

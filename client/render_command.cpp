@@ -43,6 +43,21 @@ absl::Status check_range(const char* flag, const std::optional<std::int64_t>& va
 }
 
 // 1234567 -> "1.23 M".
+// A line for the summary where samples were not finite: they are left out of the image (the
+// report's counters.non_finite), which darkens it where they fell, so the user should know.
+std::string non_finite_warning(const std::vector<std::pair<std::string, std::uint64_t>>& counters,
+                               std::uint64_t samples) {
+  for (const auto& [name, value] : counters) {
+    if (name != "non_finite" || value == 0) continue;
+    return absl::StrFormat(
+        "warning: %d sample contribution(s) were NaN or infinite and were left out (%.3g %% of "
+        "%d samples; counters.non_finite in the report): the scene has a value the estimators "
+        "cannot use\n",
+        value, samples > 0 ? 100.0 * double(value) / double(samples) : 0.0, samples);
+  }
+  return "";
+}
+
 std::string human(double value) {
   if (!std::isfinite(value)) return "-";
   const char* units[] = {"", " k", " M", " G", " T"};
@@ -621,7 +636,8 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
                                            {job.outputs.exr_compression, result->stats.threads}};
   if (result->primal.has_value() && result->gradient.has_value()) {
     PRISM_RETURN_IF_ERROR(coordinator::write_primal_and_gradient(
-        *result->primal, *result->gradient, renderer->scene().cmf(), report, paths, outputs));
+        *result->primal, *result->primal_rgb, *result->gradient, renderer->scene().cmf(), report,
+        paths, outputs));
   }
   if (report.filtered.has_value()) {
     coordinator::fill_filtered_counters(report.counters, *report.filtered);
@@ -695,7 +711,8 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
       report.gradient.has_value() && report.gradient->with_primal_and_gradients
           ? absl::StrCat(paths.primal_exr.string(), ", ", paths.gradient_exr.string(), ", ")
           : std::string(),
-      paths.json.string(), absl::StrFormat(" in %.2f s", output_seconds), "\n");
+      paths.json.string(), absl::StrFormat(" in %.2f s", output_seconds), "\n",
+      non_finite_warning(report.counters, report.samples));
 }
 
 }  // namespace prism::client

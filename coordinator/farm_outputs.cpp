@@ -322,13 +322,15 @@ absl::Status FarmCoordinator::write_job_outputs(const ActiveJob& job, RenderRepo
   PRISM_RETURN_IF_ERROR(base::make_directories(paths.spectral_exr.parent_path()));
   std::vector<float> band;
   if (p.outputs.primal_and_gradients) {
-    // The raw I and G with the R, G, B of their own values, made tile by tile from the files.
+    // The raw I with its samples' exact R, G, B and G with its bins' (outputs.h), made tile by
+    // tile from the files.
     PRISM_ASSIGN_OR_RETURN(image::RgbImage primal_rgb, image::RgbImage::create(p.width, p.height));
     PRISM_ASSIGN_OR_RETURN(image::RgbImage gradient_rgb,
                            image::RgbImage::create(p.width, p.height));
     for (std::size_t t = 0; t < job.plan.tiles.size(); ++t) {
       PRISM_ASSIGN_OR_RETURN(image::TileResult merged, job.tiles->get(static_cast<int>(t)));
-      PRISM_ASSIGN_OR_RETURN(image::RgbImage a, to_linear_srgb(image::finalise(merged), cmf_));
+      PRISM_ASSIGN_OR_RETURN(image::RgbImage a,
+                             tile_rgb(merged, image::finalise(merged), false, cmf_));
       PRISM_ASSIGN_OR_RETURN(image::RgbImage b,
                              to_linear_srgb(image::finalise_gradients(merged), cmf_));
       PRISM_RETURN_IF_ERROR(primal_rgb.paste(a, merged.rect().x0, merged.rect().y0));

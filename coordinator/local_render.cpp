@@ -299,8 +299,10 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   PRISM_ASSIGN_OR_RETURN(image::RgbImage rgb_standard_error,
                          image::RgbImage::create(kept_width, kept_height));
   std::optional<image::SpectralImage> primal, gradient;
+  std::optional<image::RgbImage> primal_rgb;
   const bool keep_raw = options_.keeps_primal_and_gradients();
   if (keep_raw) {
+    PRISM_ASSIGN_OR_RETURN(primal_rgb, image::RgbImage::create(options_.width, options_.height));
     PRISM_ASSIGN_OR_RETURN(primal,
                            image::SpectralImage::create(options_.width, options_.height, bins));
     PRISM_ASSIGN_OR_RETURN(gradient,
@@ -406,7 +408,10 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
                     const image::SpectralImage& finalised) -> absl::Status {
     statistics.add_tile(static_cast<std::size_t>(tile), merged);
     if (keep_raw) {
-      PRISM_RETURN_IF_ERROR(image::paste_tile(image::finalise(merged), merged.rect(), *primal));
+      const image::SpectralImage raw = image::finalise(merged);
+      PRISM_RETURN_IF_ERROR(image::paste_tile(raw, merged.rect(), *primal));
+      PRISM_ASSIGN_OR_RETURN(image::RgbImage raw_rgb, tile_rgb(merged, raw, false, scene_->cmf()));
+      PRISM_RETURN_IF_ERROR(primal_rgb->paste(raw_rgb, merged.rect().x0, merged.rect().y0));
       PRISM_RETURN_IF_ERROR(
           image::paste_tile(image::finalise_gradients(merged), merged.rect(), *gradient));
     }
@@ -557,11 +562,19 @@ absl::StatusOr<LocalRenderResult> LocalRender::render(const std::atomic<bool>* c
   stats.tasks = tasks_run;
   stats.tiles = static_cast<int>(plan_.tiles.size());
   stats.peak_tiles_in_flight = shared.peak_tiles_in_flight;
-  LocalRenderResult result{
-      std::move(image),          std::move(rgb),      std::move(rgb_standard_error),
-      std::move(primal),         std::move(gradient), std::move(filtered),
-      std::move(filtered_rgb),   statistics.finish(), stats,
-      std::move(prepass_tables), std::move(spool),    std::move(stream)};
+  LocalRenderResult result{std::move(image),
+                           std::move(rgb),
+                           std::move(rgb_standard_error),
+                           std::move(primal),
+                           std::move(gradient),
+                           std::move(primal_rgb),
+                           std::move(filtered),
+                           std::move(filtered_rgb),
+                           statistics.finish(),
+                           stats,
+                           std::move(prepass_tables),
+                           std::move(spool),
+                           std::move(stream)};
   return result;
 }
 

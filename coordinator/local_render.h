@@ -134,6 +134,7 @@ struct LocalRenderResult {
   // estimates I[b+k] − I[b]), per-pixel means like `image`.
   std::optional<image::SpectralImage> primal;
   std::optional<image::SpectralImage> gradient;
+  std::optional<image::RgbImage> primal_rgb;  // the primal's samples' exact RGB (tile_rgb)
   // Jobs with differential splatting (RenderOptions::splat_width_nm): the filtered image, its
   // bins' means and its R, G, B from each fragment's wavelength; biased, beside `image`.
   std::optional<image::SpectralImage> filtered;

@@ -471,11 +471,11 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
 }
 
 absl::Status write_primal_and_gradient(const image::SpectralImage& primal,
+                                       const image::RgbImage& primal_rgb,
                                        const image::SpectralImage& gradient,
                                        const spectral::ColorMatching& cmf,
                                        const RenderReport& report, const OutputPaths& paths,
                                        const OutputOptions& options) {
-  PRISM_ASSIGN_OR_RETURN(image::RgbImage primal_rgb, to_linear_srgb(primal, cmf));
   PRISM_ASSIGN_OR_RETURN(image::RgbImage gradient_rgb, to_linear_srgb(gradient, cmf));
   return write_primal_and_gradient(primal.bins(), primal.height(), rows_of(primal), primal_rgb,
                                    rows_of(gradient), gradient_rgb, report, paths, options);

@@ -278,7 +278,9 @@ absl::Status write_outputs(const std::function<absl::Status(const std::filesyste
                            const OutputPaths& paths, const OutputOptions& options);
 
 // The raw primal and gradient spectral EXRs of a gradient job (paths.primal_exr and
-// paths.gradient_exr), each with the R, G, B of its own values, streamed like the main output.
+// paths.gradient_exr), streamed like the main output: the primal with its samples' exact R, G, B
+// (tile_rgb without the reconstruction), so that `prism reconstruct` makes the render's RGB from
+// the pair; the gradient with the R, G, B of its bins.
 // The gradient file follows exr_spectral.h's convention (gradient_offset_bins, gradient_delta).
 absl::Status write_primal_and_gradient(int bins, int band_rows, const image::SpectralRows& primal,
                                        const image::RgbImage& primal_rgb,
@@ -288,6 +290,7 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
                                        const OutputOptions& options);
 // The same from whole images.
 absl::Status write_primal_and_gradient(const image::SpectralImage& primal,
+                                       const image::RgbImage& primal_rgb,
                                        const image::SpectralImage& gradient,
                                        const spectral::ColorMatching& cmf,
                                        const RenderReport& report, const OutputPaths& paths,
