@@ -7,6 +7,7 @@
 #include "client/auto_integrator.h"
 #include "client/check_command.h"
 #include "client/compare_command.h"
+#include "client/render_command.h"
 #include "services/image/exr_spectral.h"
 
 namespace prism::client {
@@ -111,6 +112,25 @@ TEST(RenderCommandTest, TargetErrorSyntax) {
   EXPECT_EQ(parse_target_error("0", "--reference-error").status().message().substr(0, 25),
             "--reference-error '0': wa");
   EXPECT_EQ(parse_target_error("0").status().message().substr(0, 22), "--target-error '0': wa");
+}
+
+// The filters' widths at their documented limits: 0.1 nm as a double is below the float 0.1f the
+// job holds, and was refused with "want nm in 0.1..470".
+TEST(RenderCommandTest, FilterWidthsTakeTheirLimits) {
+  for (double width : {0.1, 470.0}) {
+    RenderCommandOptions splat;
+    splat.integrator = "light";
+    splat.splat_width = width;
+    EXPECT_TRUE(validate_render_flags(splat).ok()) << width << validate_render_flags(splat);
+    RenderCommandOptions gather;
+    gather.integrator = "hero";
+    gather.gather_width = width;
+    EXPECT_TRUE(validate_render_flags(gather).ok()) << width << validate_render_flags(gather);
+  }
+  RenderCommandOptions narrow;
+  narrow.integrator = "light";
+  narrow.splat_width = 0.09;
+  EXPECT_FALSE(validate_render_flags(narrow).ok());
 }
 
 // The share of light paths that minimises (eye + light/s)(eye_rays + s·light_rays) for

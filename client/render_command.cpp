@@ -205,7 +205,9 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
     }
   }
   if (o.splat_width.has_value()) {
-    if (!(*o.splat_width >= job::kMinSplatWidthNm && *o.splat_width <= job::kMaxSplatWidthNm)) {
+    // As the job holds it, a float: 0.1 as a double is below the float 0.1f it becomes.
+    const float splat_width_nm = static_cast<float>(*o.splat_width);
+    if (!(splat_width_nm >= job::kMinSplatWidthNm && splat_width_nm <= job::kMaxSplatWidthNm)) {
       return absl::InvalidArgumentError(
           absl::StrCat("--splat-width ", *o.splat_width, " is out of range: want nm in ",
                        job::kMinSplatWidthNm, "..", job::kMaxSplatWidthNm));
@@ -218,7 +220,9 @@ absl::Status validate_render_flags(const RenderCommandOptions& o) {
     }
   }
   if (o.gather_width.has_value()) {
-    if (!(*o.gather_width >= job::kMinSplatWidthNm && *o.gather_width <= job::kMaxSplatWidthNm)) {
+    // As the job holds it, a float: 0.1 as a double is below the float 0.1f it becomes.
+    const float gather_width_nm = static_cast<float>(*o.gather_width);
+    if (!(gather_width_nm >= job::kMinSplatWidthNm && gather_width_nm <= job::kMaxSplatWidthNm)) {
       return absl::InvalidArgumentError(
           absl::StrCat("--gather-width ", *o.gather_width, " is out of range: want nm in ",
                        job::kMinSplatWidthNm, "..", job::kMaxSplatWidthNm));

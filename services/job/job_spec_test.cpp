@@ -458,6 +458,16 @@ TEST(JobSpecTest, TheAutoChoiceAndTheTargetErrorSurviveTheExplicitForm) {
   EXPECT_EQ(again->auto_choice, p->auto_choice);
   EXPECT_EQ(again->target_error->relative, p->target_error->relative);
 
+  // The limits themselves are taken, though the float field holds 1e-4 as 9.99999975e-05.
+  for (float limit : {1e-4f, 1.0f}) {
+    prism::v1::JobSpec at = spec;
+    at.set_target_error(limit);
+    EXPECT_TRUE(job_parameters(at, test_scene()).ok()) << limit;
+  }
+  prism::v1::JobSpec below = spec;
+  below.set_target_error(9e-5f);
+  EXPECT_FALSE(job_parameters(below, test_scene()).ok());
+
   prism::v1::JobSpec wrong = spec;
   wrong.mutable_auto_choice()->set_choice("uniform");
   EXPECT_NE(job_parameters(wrong, test_scene())
