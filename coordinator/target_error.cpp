@@ -42,7 +42,7 @@ TilePlan plan_round(const TilePlan& plan, std::uint64_t s0, std::uint64_t s1,
 absl::StatusOr<TargetErrorTracker> TargetErrorTracker::create(const job::TargetError& target,
                                                               const TilePlan& plan,
                                                               std::uint64_t first_spp) {
-  if (!(target.relative >= job::kMinTargetError && target.relative <= job::kMaxTargetError)) {
+  if (!job::target_error_in_range(target.relative)) {
     return absl::InvalidArgumentError(absl::StrCat("target error ", target.relative, " is outside ",
                                                    job::kMinTargetError, "..",
                                                    job::kMaxTargetError));

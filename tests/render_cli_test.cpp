@@ -349,6 +349,11 @@ TEST(RenderCliTest, TargetErrorUnderAutoLeavesLightTracedCausticsOut) {
       << report["auto"].dump();
   EXPECT_EQ(report["caustics"], "off");
   EXPECT_FALSE(report["target_error"].is_null());
+  // The smallest target the flag takes (0.01 %) renders; it failed in the job's float.
+  CommandRun smallest = run_prism(
+      dir, {"render", source("scenes/three-emitters.pbrt"), "-o", "s.exr", "--resolution", "8x6",
+            "--integrator", "hero", "--spp", "4", "--target-error", "0.01%", "--max-spp", "8"});
+  EXPECT_EQ(smallest.exit_code, 0) << smallest.output;
 }
 
 // `--integrator auto`: where nothing depends on wavelength it is hero, with no pilot, and the

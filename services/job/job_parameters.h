@@ -117,6 +117,12 @@ std::uint32_t budgeted_prepass_spp(std::uint64_t spp, int passes, bool image_sca
 
 inline constexpr double kMinTargetError = 1e-4;
 inline constexpr double kMaxTargetError = 1.0;
+// Whether E is in range as a job holds it (a float field: 1e-4 arrives as 9.99999975e-05, which
+// is the limit all the same).
+inline bool target_error_in_range(double relative) {
+  return relative >= double(static_cast<float>(kMinTargetError)) &&
+         relative <= double(static_cast<float>(kMaxTargetError));
+}
 // The largest spp a target-error job goes to when its spec gives no max_spp.
 inline constexpr std::uint64_t kDefaultTargetErrorMaxSpp = 65536;
 

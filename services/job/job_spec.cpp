@@ -328,9 +328,7 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   if (spec.target_error() != 0.0f) {
     TargetError t;
     t.relative = spec.target_error();
-    // The field is a float: 1e-4 arrives as 9.99999975e-05, which is the limit all the same.
-    if (!(t.relative >= double(static_cast<float>(kMinTargetError)) &&
-          t.relative <= double(static_cast<float>(kMaxTargetError)))) {
+    if (!target_error_in_range(t.relative)) {
       return absl::InvalidArgumentError(
           absl::StrCat("target_error ", t.relative, " is out of range: want ", kMinTargetError,
                        "..", kMaxTargetError, " (a relative standard error, 0.01 is 1 %)"));
