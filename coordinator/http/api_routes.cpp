@@ -306,9 +306,11 @@ json openapi_document() {
          "Jobs, workers, previews, outputs and metrics of a Prism render farm's coordinator "
          "(`prism-coordinator --http-listen ADDR`). Bodies are the gRPC API's protobuf messages "
          "(proto/prism/v1/) in protobuf's JSON mapping. Errors map the canonical status codes "
-         "to HTTP (INVALID_ARGUMENT 400, UNAUTHENTICATED 401, PERMISSION_DENIED 403, NOT_FOUND "
-         "404, ALREADY_EXISTS 409, FAILED_PRECONDITION 412, RESOURCE_EXHAUSTED 429, "
-         "UNAVAILABLE 503, others 500); a path asked for with a method it does not take is "
+         "to HTTP (INVALID_ARGUMENT and OUT_OF_RANGE 400, UNAUTHENTICATED 401, "
+         "PERMISSION_DENIED 403, NOT_FOUND 404, ALREADY_EXISTS and ABORTED 409, "
+         "FAILED_PRECONDITION 412, RESOURCE_EXHAUSTED 429, CANCELLED 499, UNIMPLEMENTED 501, "
+         "UNAVAILABLE 503, DEADLINE_EXCEEDED 504, others 500); a path asked for with a method "
+         "it does not take is "
          "405 METHOD_NOT_ALLOWED with an Allow header, an unknown path 404. Generated from "
          "coordinator/http/api_routes.cpp."}}},
       {"paths", paths},

@@ -478,7 +478,12 @@ absl::StatusOr<JobParameters> job_parameters(const prism::v1::JobSpec& spec,
   }
 
   const auto& out = spec.outputs();
-  if (out.spectral_exr() || out.rgb_exr() || out.png()) {
+  if (out.has_spectral_exr() || out.has_rgb_exr() || out.has_png()) {
+    if (!out.spectral_exr() && !out.rgb_exr() && !out.png()) {
+      return absl::InvalidArgumentError(
+          "outputs: spectral_exr, rgb_exr and png are all false: a job writes at least one of "
+          "them (leave all three out for all three)");
+    }
     p.outputs.spectral_exr = out.spectral_exr();
     p.outputs.rgb_exr = out.rgb_exr();
     p.outputs.png = out.png();

@@ -137,6 +137,14 @@ TEST(JobSpecTest, BadFieldsAreRefusedNamingTheField) {
        "bins 257 is out of range: want 4..256"},
       {"tile", [](prism::v1::JobSpec& s) { s.set_tile_size(2); },
        "tile_size 2 is out of range: want 4..1024"},
+      // All three outputs set false was read as none given, and wrote all three.
+      {"no_outputs",
+       [](prism::v1::JobSpec& s) {
+         s.mutable_outputs()->set_spectral_exr(false);
+         s.mutable_outputs()->set_rgb_exr(false);
+         s.mutable_outputs()->set_png(false);
+       },
+       "outputs: spectral_exr, rgb_exr and png are all false"},
       {"depth", [](prism::v1::JobSpec& s) { s.set_max_depth(1025); },
        "max_depth 1025 is out of range: want 0..1024"},
       {"width_only", [](prism::v1::JobSpec& s) { s.set_width(10); }, "resolution 10x0"},
