@@ -377,6 +377,9 @@ image::ExrMetadata output_metadata(const RenderReport& report) {
         absl::StrCat(report.gradient->offset_bins);
     metadata[std::string(image::kMetaGradientDelta)] = absl::StrCat(report.gradient->delta);
     metadata["gradient_tau"] = absl::StrCat(report.gradient->tau);
+    // The image is the reconstruction (the raw pair overrides this with its own labels), so
+    // `prism reconstruct` does not take it for a primal.
+    metadata[std::string(image::kMetaContent)] = "reconstruction";
   }
   if (report.prepass.has_value()) {
     metadata["prepass_passes"] = absl::StrCat(report.prepass->passes);

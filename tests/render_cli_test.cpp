@@ -331,6 +331,12 @@ TEST(RenderCliTest, ReconstructOfARendersPairIsThatRender) {
   EXPECT_NE(twice.exit_code, 0);
   EXPECT_NE(twice.output.find("holds the reconstruction of its render"), std::string::npos)
       << twice.output;
+  // The render's own image is one too.
+  EXPECT_EQ(rendered->metadata["content"], "reconstruction");
+  CommandRun of_render = run_prism(dir, {"reconstruct", "g.exr", "g.gradient.exr", "-o", "r3.exr"});
+  EXPECT_NE(of_render.exit_code, 0);
+  EXPECT_NE(of_render.output.find("'g.exr' holds the reconstruction"), std::string::npos)
+      << of_render.output;
 }
 
 // A target error with the default integrator on a scene with caustic paths: auto offered

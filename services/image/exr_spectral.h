@@ -56,7 +56,8 @@ inline constexpr std::string_view kMetaJobId = "job_id";
 //   poisson_norm          "l2", "l1" or "weighted";
 //   gradient_offset_bins  the k used.
 // The raw pair of a gradient render (--primal-and-gradients) also says which is which:
-//   content               "primal" or "gradient" (prism reconstruct checks it when present).
+//   content               "primal" or "gradient" (prism reconstruct checks it when present);
+//                         "reconstruction" on a gradient job's image and reconstruct's output.
 inline constexpr std::string_view kMetaContent = "content";
 inline constexpr std::string_view kMetaGradientOffsetBins = "gradient_offset_bins";
 inline constexpr std::string_view kMetaGradientDelta = "gradient_delta";
