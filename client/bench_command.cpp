@@ -21,6 +21,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
+#include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
 #include "client/compare_command.h"
 #include "client/evaluation.h"
@@ -474,9 +475,11 @@ std::string bench_csv(const std::vector<BenchRow>& rows) {
   return out;
 }
 
-absl::StatusOr<std::vector<BenchRow>> parse_bench_csv(const std::string& text,
+absl::StatusOr<std::vector<BenchRow>> parse_bench_csv(const std::string& original,
                                                       const std::string& name) {
   std::vector<BenchRow> rows;
+  // A file that passed through a Windows editor or a spreadsheet: CRLF line ends.
+  const std::string text = absl::StrReplaceAll(original, {{"\r\n", "\n"}});
   const std::string header = bench_csv({});
   if (text.rfind(header, 0) != 0) {
     return absl::InvalidArgumentError(
@@ -506,6 +509,7 @@ absl::StatusOr<std::vector<BenchRow>> parse_bench_csv(const std::string& text,
     auto bad = [&](const std::string& what) {
       return absl::InvalidArgumentError(absl::StrCat(name, ":", line, ": ", what));
     };
+    if (fields.size() == 1 && fields[0].empty()) continue;  // a blank line
     if (fields.size() != 17) return bad(absl::StrCat(fields.size(), " fields, want 17"));
     BenchRow r;
     r.scene = fields[0];
@@ -518,9 +522,9 @@ absl::StatusOr<std::vector<BenchRow>> parse_bench_csv(const std::string& text,
                          &r.mse_floor,   &r.rel_mse_floor,   &r.metrics.nonfinite_fraction};
     const int columns[] = {6, 7, 8, 9, 10, 11, 12, 13, 15};
     for (int i = 0; i < 9; ++i) {
-      if (!absl::SimpleAtod(fields[columns[i]], numbers[i])) {
-        return bad(
-            absl::StrCat("column ", columns[i] + 1, " '", fields[columns[i]], "' is not a number"));
+      if (!absl::SimpleAtod(fields[columns[i]], numbers[i]) || !std::isfinite(*numbers[i])) {
+        return bad(absl::StrCat("column ", columns[i] + 1, " '", fields[columns[i]],
+                                "' is not a finite number"));
       }
     }
     if (!absl::SimpleAtoi(fields[3], &r.seed) || !absl::SimpleAtoi(fields[5], &r.spp) ||
@@ -788,6 +792,14 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
   if (by_time) {
     PRISM_ASSIGN_OR_RETURN(budgets,
                            parse_budgets(options.budgets.empty() ? "10s,30s" : options.budgets));
+    // Each budget is a row label (six digits): two that print alike would merge in the report.
+    for (std::size_t i = 1; i < budgets.size(); ++i) {
+      if (number(budgets[i]) == number(budgets[i - 1])) {
+        return absl::InvalidArgumentError(
+            absl::StrCat("--budgets '", options.budgets, "': ", number(budgets[i - 1]), "s and ",
+                         budgets[i], "s are the same to six digits, the labels of the rows"));
+      }
+    }
   } else {
     PRISM_ASSIGN_OR_RETURN(spps, evaluation::parse_spp_list(options.spp));
   }
@@ -808,6 +820,13 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       return absl::InvalidArgumentError(
           "--threads: on the farm (--coordinator) the workers render with their own threads");
     }
+  }
+  if (!options.references.empty() &&
+      (options.reference_spp.has_value() || options.reference_error.has_value() ||
+       options.reference_cache.has_value())) {
+    return absl::InvalidArgumentError(
+        "--reference gives the references: --reference-spp, --reference-error and "
+        "--reference-cache are for the references bench renders, and would do nothing");
   }
   if (!options.references.empty() && options.references.size() != options.scenes.size()) {
     return absl::InvalidArgumentError(absl::StrCat("give one --reference per scene (",

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
 
 namespace prism::client {
@@ -87,7 +88,16 @@ TEST(BenchCommandTest, ResultsReadBackAsTheRowsTheyWere) {
   std::string word = csv;
   word.replace(word.find("10.5"), 4, "ten");
   EXPECT_THAT(parse_bench_csv(word, "r.csv").status().message(),
-              ::testing::HasSubstr("r.csv:2: column 7 'ten' is not a number"));
+              ::testing::HasSubstr("r.csv:2: column 7 'ten' is not a finite number"));
+  // CRLF line ends (a spreadsheet's) and a blank line at the end read as the same rows; a
+  // non-finite number is refused here rather than by the plotter after the report is written.
+  auto crlf = parse_bench_csv(absl::StrReplaceAll(csv, {{"\n", "\r\n"}}) + "\r\n", "r.csv");
+  ASSERT_TRUE(crlf.ok()) << crlf.status();
+  EXPECT_EQ(bench_csv(*crlf), csv);
+  std::string infinite = csv;
+  infinite.replace(infinite.find("10.5"), 4, "inf");
+  EXPECT_THAT(parse_bench_csv(infinite, "r.csv").status().message(),
+              ::testing::HasSubstr("r.csv:2: column 7 'inf' is not a finite number"));
 }
 
 // The equal-time ratio divides by the baseline's relMSE interpolated log-linearly at the

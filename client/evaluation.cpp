@@ -11,6 +11,7 @@
 #include <iterator>
 #include <numeric>
 
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
@@ -144,7 +145,13 @@ absl::StatusOr<Reference> cached_reference(worker::EmbreeDevice& device, const B
                      renderer_build().empty() ? "unknown" : renderer_build().c_str(),
                      average_path.c_str(), half_path.filename().c_str());
       }
-      return Reference{std::move(average.spectral), std::move(half.spectral), options.spp,
+      // The spp it was rendered with (to a target error, more than the first round's).
+      std::uint64_t spp = options.spp;
+      if (auto recorded = average.metadata.find("spp"); recorded != average.metadata.end()) {
+        std::uint64_t value = 0;
+        if (absl::SimpleAtoi(recorded->second, &value) && value > 0) spp = value;
+      }
+      return Reference{std::move(average.spectral), std::move(half.spectral), spp,
                        std::stod(seconds->second), std::stod(variance->second)};
     }
   }
@@ -254,9 +261,8 @@ absl::StatusOr<std::vector<std::uint64_t>> parse_spp_list(const std::string& tex
           absl::StrCat("spp list '", text, "': want increasing positive integers, e.g. 8,16,32"));
     }
     if (value > job::kMaxJobSpp) {
-      return absl::InvalidArgumentError(absl::StrCat("spp list '", text, "': ", part,
-                                                     " is more than a job takes (1..",
-                                                     job::kMaxJobSpp, ")"));
+      return absl::InvalidArgumentError(absl::StrCat(
+          "spp list '", text, "': ", part, " is more than a job takes (1..", job::kMaxJobSpp, ")"));
     }
     out.push_back(value);
   }

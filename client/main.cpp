@@ -261,6 +261,20 @@ int main(int argc, char** argv) {
     return report(prism::client::run_reconstruct(reconstruct));
   }
   if (bench_cmd->parsed()) {
+    // --results reports on rows already rendered: a flag that shapes renders would do nothing.
+    if (!bench.results.empty()) {
+      for (const char* name :
+           {"--budgets", "--spp", "--seeds", "--reference", "--reference-spp", "--reference-error",
+            "--reference-cache", "--inset", "--resolution", "--bins", "--threads", "--clock",
+            "--allow-unsupported", "--coordinator", "--token", "--tls-ca"}) {
+        if (bench_cmd->get_option(name)->count() > 0) {
+          std::cerr << "prism: " << name
+                    << " shapes the renders; --results reports on rows already rendered (their "
+                       "report and plots take --methods, --baseline and -o)\n";
+          return 1;
+        }
+      }
+    }
     if (reference_spp_opt->count() > 0) bench.reference_spp = bench_reference_spp;
     if (reference_error_opt->count() > 0) {
       auto parsed = prism::client::parse_target_error(bench_reference_error, "--reference-error");

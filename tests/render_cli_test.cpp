@@ -1200,6 +1200,26 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
   ASSERT_TRUE(to_error_report.ok());
   EXPECT_NE(to_error_report->find("hero without a prepass to 30 % per pixel"), std::string::npos)
       << *to_error_report;
+  // A rerun takes the cached reference and reports the spp it was rendered with (it said the
+  // first round's, 16).
+  CommandRun to_error_again =
+      run_prism(dir, {"bench", source("scenes/three-emitters.pbrt"), "--resolution", "32x24",
+                      "--methods", "hero", "--spp", "2", "--seeds", "1", "--reference-error", "30%",
+                      "--reference-spp", "64", "--reference-cache", "cache", "-o", "to_error2"});
+  ASSERT_EQ(to_error_again.exit_code, 0) << to_error_again.output;
+  EXPECT_NE(to_error_again.output.find("cached in"), std::string::npos) << to_error_again.output;
+  auto reference_line = [](const std::string& report) {
+    const std::size_t at = report.find("reference: ");
+    return at == std::string::npos ? std::string() : report.substr(at, report.find('\n', at) - at);
+  };
+  EXPECT_EQ(reference_line(prism::base::read_file(dir / "to_error2" / "report.md").value()),
+            reference_line(*to_error_report));
+  // --results reports on rows already rendered: a render flag beside it is refused.
+  CommandRun results_with_seeds = run_prism(
+      dir, {"bench", "--results", "to_error/results.csv", "--seeds", "3", "-o", "results_seeds"});
+  EXPECT_NE(results_with_seeds.exit_code, 0);
+  EXPECT_NE(results_with_seeds.output.find("--seeds shapes the renders"), std::string::npos)
+      << results_with_seeds.output;
   auto to_error_csv = prism::base::read_file(dir / "to_error" / "results.csv");
   ASSERT_TRUE(to_error_csv.ok());
   const auto to_error_rows = csv_rows(*to_error_csv);
@@ -1215,6 +1235,8 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
       {{"--spp", "2", "--clock", "sundial"}, "--clock 'sundial'"},
       {{"--spp", "2", "--baseline", "heor"}, "--baseline 'heor' is not a method"},
       {{"--spp", "2,16777217"}, "16777217 is more than a job takes (1..16777216)"},
+      {{"--budgets", "0.1s,0.1000001s"}, "are the same to six digits"},
+      {{"--spp", "2", "--reference", "given.exr"}, "--reference gives the references"},
       // Every scene is checked before the first renders: a second scene that does not exist, or
       // that a method cannot render, ended the run after the first scene's renders, and threw
       // them away.
