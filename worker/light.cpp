@@ -499,8 +499,9 @@ absl::StatusOr<SpotLight> SpotLight::create(const scene::Light& light, spectral:
   double cone = spot->cone_angle_deg, delta = spot->cone_delta_angle_deg;
   if (!(cone >= 0 && cone <= 180) || !(delta >= 0 && delta <= cone)) {
     return scene::location_error(
-        light.where, absl::StrCat("spot light needs 0 <= conedelta (", delta, ") <= coneangle (",
-                                  cone, ") <= 180 degrees"));
+        light.where, absl::StrCat("spot light needs 0 <= 'float conedeltaangle' (", delta,
+                                  delta == 5 ? "; 5 is the default where the scene gives none" : "",
+                                  ") <= 'float coneangle' (", cone, ") <= 180 degrees"));
   }
   Vec3f dir = to_vec(spot->direction_world);
   if (!(length(dir) > 0)) return scene::location_error(light.where, "spot light has no direction");

@@ -97,7 +97,15 @@ absl::StatusOr<LightSampler> LightSampler::create(const std::vector<Light>& ligh
       row[b] = std::max(0.0, spectral::integrate(spectrum, grid.lower(b), grid.upper(b)));
       sum += row[b];
     }
-    if (!(sum > 0) || !std::isfinite(sum)) {
+    if (!std::isfinite(sum)) {
+      return scene::location_error(
+          light_location(lights[e]),
+          absl::StrCat(kind_name(lights[e]), "'s spectrum integrates to ", sum,
+                       " between 360 and 830 nm: too large to render (a value near float's "
+                       "limit, 3.4e38?); give it a finite spectrum and set its brightness with "
+                       "'float scale'"));
+    }
+    if (!(sum > 0)) {
       return scene::location_error(
           light_location(lights[e]),
           absl::StrCat(kind_name(lights[e]),

@@ -43,11 +43,19 @@ absl::StatusOr<Emission> emission(const scene::SpectrumParam& param, double scen
     return scene::location_error(where, absl::StrCat(what, ": ", spectrum.status().message()));
   }
   const double sum = photometric_sum(*spectrum, cmf);
-  if (!(sum > 0.0) || !std::isfinite(sum)) {
+  if (!std::isfinite(sum)) {
+    return scene::location_error(
+        where, absl::StrCat(what, ": the emission spectrum ", scene::describe(param),
+                            " is too large to render (its photometric integral is ", sum,
+                            "); give a finite spectrum and set the brightness with 'float "
+                            "scale'"));
+  }
+  if (!(sum > 0.0)) {
     return scene::location_error(
         where, absl::StrCat(what, ": the emission spectrum ", scene::describe(param),
                             " has no visible power (its photometric integral is ", sum,
-                            "); pbrt-v4 scales every light by 1 / that integral"));
+                            "); pbrt-v4 scales every light by 1 / that integral, summed at whole "
+                            "nanometres, which a line narrower than 1 nm between them misses"));
   }
   return Emission{std::move(*spectrum), scene_scale / sum};
 }

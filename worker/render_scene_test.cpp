@@ -396,6 +396,14 @@ TEST_F(RenderSceneTest, TracerRefusalsCarryTheirLocation) {
        "inline.pbrt:2:1:", "reflectance"},
       {"WorldBegin\nLightSource \"point\" \"spectrum I\" [ 300 1 350 1 ]\n",
        "inline.pbrt:2:1:", "no visible power"},
+      // An emitter too bright for floats was said to emit nothing; a spot light's default
+      // conedeltaangle over a narrow coneangle was named 'conedelta', which no scene can set.
+      {"WorldBegin\nAttributeBegin\nAreaLightSource \"diffuse\" \"rgb L\" [1e38 1e38 1e38]\n"
+       "Shape \"sphere\"\nAttributeEnd\n",
+       "inline.pbrt:3:1:", "too large to render"},
+      {"WorldBegin\nLightSource \"spot\" \"float coneangle\" 0.001\n", "inline.pbrt:2:1:",
+       "'float conedeltaangle' (5; 5 is the default where the scene gives none) <= 'float "
+       "coneangle' (0.001)"},
   };
   for (const Case& c : cases) {
     auto desc = parse(c.text);
