@@ -264,6 +264,41 @@ absl::StatusOr<v1::JobInfo> watch(Farm& farm, const std::string& id, std::ostrea
   return get_job(farm, id);
 }
 
+// watch(), through a coordinator that goes away and comes back (a restart, a rescheduled pod):
+// while the address answers UNAVAILABLE (or not at all) it tries again every two seconds for up to
+// kCoordinatorPatience, saying so once; the job goes on there, resumed from its data directory.
+constexpr std::chrono::minutes kCoordinatorPatience{5};
+
+absl::StatusOr<v1::JobInfo> watch_through_restarts(Farm& farm, const std::string& id,
+                                                   std::ostream& out, bool terminal) {
+  using Clock = std::chrono::steady_clock;
+  std::optional<Clock::time_point> give_up_at;
+  for (;;) {
+    const Clock::time_point started = Clock::now();
+    absl::StatusOr<v1::JobInfo> job = watch(farm, id, out, terminal);
+    if (job.ok() || (job.status().code() != absl::StatusCode::kUnavailable &&
+                     job.status().code() != absl::StatusCode::kDeadlineExceeded)) {
+      return job;
+    }
+    // A watch that ran a while was connected: a new outage starts a new wait.
+    if (Clock::now() - started > std::chrono::seconds(10)) give_up_at.reset();
+    if (!give_up_at.has_value()) {
+      give_up_at = Clock::now() + kCoordinatorPatience;
+      out << "the coordinator at " << farm.connection().address << " is unreachable ("
+          << job.status().message() << "); job " << id
+          << " goes on when it is back: trying again for up to 5 minutes\n"
+          << std::flush;
+    }
+    if (Clock::now() >= *give_up_at) {
+      return absl::UnavailableError(
+          absl::StrCat(job.status().message(), " (for 5 minutes); job ", id,
+                       " goes on when the coordinator is back: follow it with `prism watch ", id,
+                       "` and get its outputs with `prism fetch ", id, "`"));
+    }
+    std::this_thread::sleep_for(std::chrono::seconds(2));
+  }
+}
+
 // The job's report names the files in the coordinator's data directory; the fetched copy names
 // the files it was fetched to, as `prism render`'s report does (same keys, same layout). A
 // report that does not parse is kept as it came.
@@ -495,7 +530,8 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
   std::ostream null_stream(nullptr);
   std::ostream& out = options.progress != nullptr ? *options.progress : null_stream;
   out << id << "\n";
-  PRISM_ASSIGN_OR_RETURN(v1::JobInfo job, watch(farm, id, out, options.progress_is_terminal));
+  PRISM_ASSIGN_OR_RETURN(v1::JobInfo job,
+                         watch_through_restarts(farm, id, out, options.progress_is_terminal));
   PRISM_RETURN_IF_ERROR(job_outcome(job));
   PRISM_ASSIGN_OR_RETURN(std::string written,
                          fetch(farm, id, options.render.output, submission.film_filename));
@@ -529,7 +565,7 @@ absl::StatusOr<std::string> run_jobs(const FarmConnection& c) {
 absl::StatusOr<std::string> run_watch(const FarmConnection& c, const std::string& job_id,
                                       std::ostream& out, bool terminal) {
   PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
-  PRISM_ASSIGN_OR_RETURN(v1::JobInfo job, watch(farm, job_id, out, terminal));
+  PRISM_ASSIGN_OR_RETURN(v1::JobInfo job, watch_through_restarts(farm, job_id, out, terminal));
   PRISM_RETURN_IF_ERROR(job_outcome(job));
   return absl::StrCat(job_line(job), "\n");
 }

@@ -718,6 +718,52 @@ TEST_F(FarmProcessTest, AWorkerKilledMidJobLeavesTheBytesUnchanged) {
   expect_identical(fetch_spectral(job_id), cli_render(kSlowSpp));
 }
 
+// `prism submit --wait` (the command the Slurm and Kubernetes docs give) through a coordinator
+// killed and started again mid-job: it exited with "Socket closed" though the job resumed and
+// finished. It waits for the coordinator, follows the job to the end, and fetches prism render's
+// bytes.
+TEST_F(FarmProcessTest, SubmitWaitFollowsItsJobThroughACoordinatorRestart) {
+  const int port = testing::free_port();
+  start_coordinator(port);
+  start_worker(0);
+  fs::create_directories(root_ / "farm");
+  std::vector<std::string> submit = testing::submit_command(
+      PRISM_BINARY, root_ / "scene" / "scene.pbrt", "127.0.0.1:" + std::to_string(port),
+      testing::kApiToken, {"--wait", "-o", (root_ / "farm" / "farm.exr").string()});
+  submit.push_back("--spp");
+  submit.push_back(std::to_string(kSlowSpp));
+  for (const char* f : {"--seed", "11", "--tile", "8", "--integrator", "hero", "--no-prepass"}) {
+    submit.push_back(f);
+  }
+  testing::ChildProcess* submitted = spawn(submit);
+  ASSERT_NE(submitted, nullptr);
+  // Its job, once it has finished a few tasks.
+  std::string job_id;
+  const auto listed_by = Clock::now() + std::chrono::seconds(20);
+  while (Clock::now() < listed_by && job_id.empty()) {
+    v1::ListJobsRequest request;
+    v1::ListJobsResponse response;
+    auto context = client();
+    if (stub_->ListJobs(context.get(), request, &response).ok() && response.jobs_size() > 0) {
+      job_id = response.jobs(0).job_id();
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_FALSE(job_id.empty()) << submitted->out() << submitted->err();
+  const v1::JobInfo mid = wait_for(
+      job_id, [](const v1::JobInfo& i) { return i.progress().tasks_done() >= 2; }, 20);
+  ASSERT_LT(mid.progress().tasks_done(), 9u) << "the job finished before the kill";
+  coordinator_->kill();
+  std::this_thread::sleep_for(std::chrono::seconds(1));
+  start_coordinator(port);
+  const std::optional<int> exit_code = submitted->wait(std::chrono::minutes(2));
+  ASSERT_TRUE(exit_code.has_value()) << "prism submit --wait did not end";
+  ASSERT_EQ(*exit_code, 0) << submitted->out() << submitted->err();
+  EXPECT_NE((submitted->out() + submitted->err()).find("is unreachable"), std::string::npos)
+      << submitted->out() << submitted->err();
+  expect_identical(read_pixels(root_ / "farm" / "farm.exr"), cli_render(kSlowSpp));
+}
+
 TEST_F(FarmProcessTest, ACoordinatorKilledMidJobResumesWithoutRerenderingFinishedTasks) {
   const int port = testing::free_port();
   start_coordinator(port);
