@@ -133,6 +133,7 @@ void FarmCoordinator::tick_loop() {
   using Steady = std::chrono::steady_clock;
   std::unique_lock<std::mutex> lock(mutex_);
   Steady::time_point previous = Steady::now();
+  Steady::time_point forgot;  // the last forget_old_workers_locked (none yet)
   while (!stopping_) {
     tick_wake_.wait_for(lock, options_.tick_interval, [&] { return stopping_; });
     if (stopping_) break;
@@ -152,6 +153,10 @@ void FarmCoordinator::tick_loop() {
     }
     scheduler_.tick(now());
     process_events_locked();
+    if (forgot == Steady::time_point() || started - forgot >= std::chrono::hours(1)) {
+      forgot = started;
+      forget_old_workers_locked();
+    }
   }
 }
 

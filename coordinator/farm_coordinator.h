@@ -285,6 +285,10 @@ class FarmCoordinator : public FarmView {
   void finish_convergence(const std::string& job_id,
                           std::optional<std::vector<ConvergencePoint>> points) const;
   void tick_loop();
+  // Deletes the records of workers not seen for kForgetWorkersAfter (none live), so that the
+  // worker list, the dashboard and /metrics do not grow with every worker process ever seen
+  // (an autoscaler's pods come and go). Run by the tick thread, hourly.
+  void forget_old_workers_locked();
 
   FarmOptions options_;
   // One coordinator per data directory (<data dir>/coordinator.lock): a second one on the same
@@ -313,6 +317,7 @@ class FarmCoordinator : public FarmView {
   // The newest jobs' convergence series (by job id); older ones are read from their files.
   static constexpr std::size_t kConvergenceJobsInMemory = 256;
   static constexpr std::chrono::seconds kDataDirBytesInterval{10};
+  static constexpr std::chrono::hours kForgetWorkersAfter{24};
   std::atomic<std::uint64_t> data_dir_bytes_{0};
   std::map<std::string, std::vector<ConvergencePoint>> convergence_;
   // Admission control: the budgets, what the coordinator held at start, and the plans of

@@ -286,6 +286,19 @@ TEST_F(FarmServerTest, ALeavingWorkersLeaseGoesBackUncountedAndItIsListedAsLeft)
   std::map<std::string, std::string> states;
   for (const v1::WorkerInfo& w : response.workers()) states[w.worker_id()] = w.state();
   EXPECT_EQ(states[leaving], "left");
+  // And after a restart of the coordinator (it was listed as lost: the record of leaving was
+  // only in memory).
+  stop();
+  start();
+  {
+    v1::ListWorkersResponse again;
+    auto call = client();
+    ASSERT_TRUE(farm_stub_->ListWorkers(call.get(), request, &again).ok());
+    std::map<std::string, std::string> after;
+    for (const v1::WorkerInfo& w : again.workers()) after[w.worker_id()] = w.state();
+    EXPECT_EQ(after[leaving], "left");
+    EXPECT_EQ(after[other], "lost") << "the other never reconnected";
+  }
   // Leaving is refused for a worker the coordinator never registered.
   v1::LeaveRequest unknown;
   unknown.set_worker_id("w-999999");

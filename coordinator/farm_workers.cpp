@@ -274,6 +274,10 @@ absl::Status FarmCoordinator::leave(const std::string& worker_id) {
   PRISM_RETURN_IF_ERROR(store_->get_worker(worker_id).status());
   const int returned = scheduler_.remove_worker(worker_id, now());
   left_[worker_id] = now().count();
+  // Kept in the store too, so that a restarted coordinator lists it as left, not lost.
+  if (absl::Status kept = store_->mark_worker_left(worker_id, now().count()); !kept.ok()) {
+    options_.logger->warn("[worker {}] {}", worker_id, kept.ToString());
+  }
   options_.logger->info("[worker {}] left ({} {} returned)", worker_id, returned,
                         returned == 1 ? "lease" : "leases");
   process_events_locked();
@@ -294,8 +298,15 @@ absl::StatusOr<std::vector<WorkerStatus>> FarmCoordinator::workers() {
     auto it = live.find(record.id);
     if (it == live.end()) {
       auto left = left_.find(record.id);
-      status.state = left != left_.end() ? "left" : "lost";
-      if (left != left_.end()) status.last_seen_ms = left->second;
+      if (left != left_.end()) {
+        status.state = "left";
+        status.last_seen_ms = left->second;
+      } else if (record.left_ms > 0) {  // left before this coordinator started
+        status.state = "left";
+        status.last_seen_ms = record.left_ms;
+      } else {
+        status.state = "lost";
+      }
     } else {
       status.leases = it->second.leases;
       status.current = it->second.current;
@@ -309,6 +320,21 @@ absl::StatusOr<std::vector<WorkerStatus>> FarmCoordinator::workers() {
     out.push_back(std::move(status));
   }
   return out;
+}
+
+void FarmCoordinator::forget_old_workers_locked() {
+  const std::int64_t before =
+      now().count() - std::chrono::duration_cast<Millis>(kForgetWorkersAfter).count();
+  std::vector<std::string> live;
+  for (const WorkerInfo& info : scheduler_.workers()) live.push_back(info.id);
+  absl::StatusOr<int> forgotten = store_->forget_workers(before, live);
+  if (!forgotten.ok()) {
+    options_.logger->warn("forgetting old workers: {}", forgotten.status().ToString());
+  } else if (*forgotten > 0) {
+    options_.logger->info(
+        "forgot {} worker(s) not seen for {} h", *forgotten,
+        std::chrono::duration_cast<std::chrono::hours>(kForgetWorkersAfter).count());
+  }
 }
 
 }  // namespace prism::coordinator

@@ -80,6 +80,11 @@ CREATE INDEX tasks_by_result ON tasks (result_hash) WHERE result_hash != '';
 ALTER TABLE tasks ADD COLUMN result_offset INTEGER NOT NULL DEFAULT -1;
 ALTER TABLE tasks ADD COLUMN result_size INTEGER NOT NULL DEFAULT 0;
 )sql",
+    // When a worker left cleanly (Leave), so that a restarted coordinator still lists it as
+    // left, not lost; 0: it did not.
+    R"sql(
+ALTER TABLE workers ADD COLUMN left_ms INTEGER NOT NULL DEFAULT 0;
+)sql",
 };
 static_assert(std::size(kMigrations) == JobStore::kSchemaVersion);
 
@@ -96,7 +101,7 @@ constexpr std::string_view kTaskReadColumns =
     "result_hash, result_offset, result_size";
 
 constexpr std::string_view kWorkerColumns =
-    "id, host, version, threads, capabilities, last_seen_ms";
+    "id, host, version, threads, capabilities, last_seen_ms, left_ms";
 
 SqlValue text(std::string_view s) {
   return std::string(s);
@@ -182,6 +187,7 @@ WorkerRecord worker_from_row(const SqlRow& row) {
   worker.threads = static_cast<int>(row.integer(3));
   worker.capabilities = split_capabilities(row.text(4));
   worker.last_seen_ms = row.integer(5);
+  worker.left_ms = row.integer(6);
   return worker;
 }
 
@@ -776,12 +782,14 @@ absl::StatusOr<WorkerRecord> JobStore::register_worker(WorkerRecord record) {
     PRISM_RETURN_IF_ERROR(db_.run(
         absl::StrCat("INSERT INTO workers (", std::string(kWorkerColumns),
                      ") VALUES (?, ?, ?, ?, "
-                     "?, ?) "
+                     "?, ?, ?) "
                      "ON CONFLICT (id) DO UPDATE SET host = excluded.host, "
                      "version = excluded.version, threads = excluded.threads, "
-                     "capabilities = excluded.capabilities, last_seen_ms = excluded.last_seen_ms"),
+                     "capabilities = excluded.capabilities, last_seen_ms = excluded.last_seen_ms, "
+                     "left_ms = excluded.left_ms"),
         {text(record.id), text(record.host), text(record.version), integer(record.threads),
-         text(join_capabilities(record.capabilities)), integer(record.last_seen_ms)}));
+         text(join_capabilities(record.capabilities)), integer(record.last_seen_ms),
+         integer(record.left_ms)}));
     stored = record;
     return absl::OkStatus();
   });
@@ -800,6 +808,35 @@ absl::Status JobStore::touch_worker(std::string_view worker_id, std::int64_t now
         return absl::OkStatus();
       },
       Database::Commit::kDeferred);
+}
+
+absl::Status JobStore::mark_worker_left(std::string_view worker_id, std::int64_t now_ms) {
+  return db_.transaction([&]() -> absl::Status {
+    PRISM_RETURN_IF_ERROR(db_.run("UPDATE workers SET left_ms = ?, last_seen_ms = ? WHERE id = ?",
+                                  {integer(now_ms), integer(now_ms), text(worker_id)}));
+    if (db_.changes() == 0) {
+      return absl::NotFoundError(absl::StrCat("no worker ", in_quotes(worker_id)));
+    }
+    return absl::OkStatus();
+  });
+}
+
+absl::StatusOr<int> JobStore::forget_workers(std::int64_t seen_before_ms,
+                                             const std::vector<std::string>& keep) {
+  int forgotten = 0;
+  auto status = db_.transaction([&]() -> absl::Status {
+    PRISM_ASSIGN_OR_RETURN(auto rows, db_.query("SELECT id FROM workers WHERE last_seen_ms < ?",
+                                                {integer(seen_before_ms)}));
+    for (const auto& row : rows) {
+      const std::string id = row.text(0);
+      if (std::find(keep.begin(), keep.end(), id) != keep.end()) continue;
+      PRISM_RETURN_IF_ERROR(db_.run("DELETE FROM workers WHERE id = ?", {text(id)}));
+      ++forgotten;
+    }
+    return absl::OkStatus();
+  });
+  if (!status.ok()) return status;
+  return forgotten;
 }
 
 absl::StatusOr<WorkerRecord> JobStore::get_worker(std::string_view worker_id) {

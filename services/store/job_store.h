@@ -117,6 +117,7 @@ struct WorkerRecord {
   int threads = 0;
   std::vector<std::string> capabilities;  // each non-empty, printable, without newlines
   std::int64_t last_seen_ms = 0;
+  std::int64_t left_ms = 0;  // when it left cleanly (Leave); 0: it has not (registering clears it)
   friend bool operator==(const WorkerRecord&, const WorkerRecord&) = default;
 };
 
@@ -128,7 +129,7 @@ struct CreateJobResult {
 class JobStore {
  public:
   // The schema version this build writes; open() migrates older files up to it.
-  static constexpr int kSchemaVersion = 3;
+  static constexpr int kSchemaVersion = 4;
 
   // Opens or creates the store file and applies pending migrations, each in its own
   // transaction with its user_version bump. FAILED_PRECONDITION when the file has a newer
@@ -232,6 +233,12 @@ class JobStore {
   absl::StatusOr<WorkerRecord> register_worker(WorkerRecord record);
   // NOT_FOUND for an unknown worker. Deferred like record_attempt (last_seen_ms is advice).
   absl::Status touch_worker(std::string_view worker_id, std::int64_t now_ms);
+  // Records that the worker left cleanly, now (left_ms and last_seen_ms); NOT_FOUND if unknown.
+  absl::Status mark_worker_left(std::string_view worker_id, std::int64_t now_ms);
+  // Deletes the records of workers last seen before `seen_before_ms`, except those in `keep`
+  // (the live ones); returns how many. A worker that comes back later registers anew.
+  absl::StatusOr<int> forget_workers(std::int64_t seen_before_ms,
+                                     const std::vector<std::string>& keep);
   absl::StatusOr<WorkerRecord> get_worker(std::string_view worker_id);
   // In registration order.
   absl::StatusOr<std::vector<WorkerRecord>> list_workers();

@@ -727,5 +727,36 @@ TEST_F(JobStoreTest, WorkersRegisterReattachAndTouch) {
   EXPECT_EQ(store.get_worker("w-000042").status().code(), absl::StatusCode::kNotFound);
 }
 
+// A clean leave is kept (a restarted coordinator lists the worker as left), registering again
+// clears it, and records of workers long gone are forgotten, except the live ones.
+TEST_F(JobStoreTest, WorkersLeaveAndAreForgotten) {
+  JobStore store = open_store();
+  std::vector<std::string> ids;
+  for (int i = 0; i < 3; ++i) {
+    WorkerRecord w;
+    w.host = "pod-" + std::to_string(i);
+    w.last_seen_ms = 100 * (i + 1);
+    auto stored = store.register_worker(w);
+    ASSERT_TRUE(stored.ok()) << stored.status();
+    ids.push_back(stored->id);
+  }
+  ASSERT_TRUE(store.mark_worker_left(ids[0], 150).ok());
+  EXPECT_EQ(store.mark_worker_left("w-000042", 1).code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(store.get_worker(ids[0])->left_ms, 150);
+  EXPECT_EQ(store.get_worker(ids[0])->last_seen_ms, 150);
+  WorkerRecord back = *store.get_worker(ids[1]);
+  back.left_ms = 0;
+  ASSERT_TRUE(store.mark_worker_left(ids[1], 250).ok());
+  ASSERT_TRUE(store.register_worker(back).ok());
+  EXPECT_EQ(store.get_worker(ids[1])->left_ms, 0) << "registering again clears the leave";
+  // Seen before 260: ids[0] (150) and ids[1] (200); ids[1] is live and kept.
+  auto forgotten = store.forget_workers(260, {ids[1]});
+  ASSERT_TRUE(forgotten.ok()) << forgotten.status();
+  EXPECT_EQ(*forgotten, 1);
+  EXPECT_EQ(store.get_worker(ids[0]).status().code(), absl::StatusCode::kNotFound);
+  EXPECT_TRUE(store.get_worker(ids[1]).ok());
+  EXPECT_TRUE(store.get_worker(ids[2]).ok());
+}
+
 }  // namespace
 }  // namespace prism::store
