@@ -38,7 +38,10 @@ struct HttpConfig {
 
 class HttpApi {
  public:
-  static constexpr int kThreads = 16;
+  // cpp-httplib gives each connection a thread until it sends a request or its 5 s read
+  // timeout ends: with 16, sixteen idle connections (before any authentication) held up the API,
+  // /metrics and the dashboard. 64 leave room for many clients, scrapes and idle keep-alives.
+  static constexpr int kThreads = 64;
   static constexpr int kMaxStreams = 8;
 
   // UNAVAILABLE when the address cannot be bound; INVALID_ARGUMENT for a malformed address or
