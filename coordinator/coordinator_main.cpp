@@ -213,10 +213,18 @@ int main(int argc, char** argv) {
     std::cout << "serving HTTP on port " << http->port() << std::endl;
     logger->info("HTTP API on {} (port {})", config.http_listen, http->port());
   }
-  // The port lines are what scripts and tests read when --listen asks for port 0.
-  std::cout << "listening on port " << (*server)->port() << std::endl;
-  logger->info("serving on {} (port {}), data in {}", config.listen, (*server)->port(),
-               config.data_dir);
+  // The port lines are what scripts and tests read when --listen asks for port 0. A Unix
+  // socket has no port (gRPC reports 1 for it): its line names the socket instead.
+  const bool unix_socket =
+      config.listen.starts_with("unix:") || config.listen.starts_with("unix-abstract:");
+  if (unix_socket) {
+    std::cout << "listening on " << config.listen << std::endl;
+    logger->info("serving on {}, data in {}", config.listen, config.data_dir);
+  } else {
+    std::cout << "listening on port " << (*server)->port() << std::endl;
+    logger->info("serving on {} (port {}), data in {}", config.listen, (*server)->port(),
+                 config.data_dir);
+  }
 
   int signal = 0;
   sigwait(&signals, &signal);

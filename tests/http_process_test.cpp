@@ -232,6 +232,26 @@ TEST_F(HttpProcessTest, ASecondCoordinatorSharesNeitherAnAddressNorADataDirector
   }
 }
 
+// A coordinator on a Unix socket says so on its "listening" line (it said "port 1", gRPC's port
+// for a socket, which scripts would take for a TCP port), and clients reach it there.
+TEST_F(HttpProcessTest, ACoordinatorOnAUnixSocketNamesItAndServesThere) {
+  const std::string address = "unix:" + (root_ / "c.sock").string();
+  testing::ChildOptions options;
+  auto coordinator = testing::ChildProcess::start(
+      testing::coordinator_command(PRISM_COORDINATOR_BINARY, address, root_ / "data-unix", kSecret,
+                                   kToken, {}),
+      options);
+  ASSERT_NE(coordinator, nullptr);
+  const std::optional<std::string> line =
+      coordinator->wait_for_line("listening on", std::chrono::seconds(20));
+  ASSERT_TRUE(line.has_value()) << coordinator->out() << coordinator->err();
+  EXPECT_EQ(*line, "listening on " + address);
+  testing::RunResult jobs =
+      testing::run({PRISM_BINARY, "jobs", "--coordinator", address, "--token", kToken});
+  EXPECT_EQ(jobs.exit_code, 0) << jobs.out << jobs.err;
+  EXPECT_EQ(jobs.out, "no jobs\n");
+}
+
 // spdlog reads an unknown level name as "off": `--log-level verbose` started a coordinator that
 // never logged a line. Refused now, before anything starts.
 TEST_F(HttpProcessTest, AnUnknownLogLevelIsRefused) {
