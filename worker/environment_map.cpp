@@ -84,11 +84,12 @@ absl::StatusOr<std::shared_ptr<const EnvironmentMap>> EnvironmentMap::create(
   for (int y = 0; y < n; ++y) {
     for (int x = 0; x < n; ++x) {
       // The horizon is the inner diamond's edge, straight in the square: a texel is cut by it
-      // exactly when its corners disagree.
+      // when its corners disagree, or (a map of one texel, or three, whose texel holds a corner
+      // of the diamond) when its centre is above and its corners are not.
       int above = 0;
       for (int corner = 0; corner < 4; ++corner)
         above += cosine(x + (corner & 1), y + (corner >> 1)) > 0;
-      if (above == 0) continue;
+      if (above == 0 && !(cosine(x + 0.5, y + 0.5) > 0)) continue;
       const int sub = above == 4 ? interior_sub : std::max(8, interior_sub);
       double mean_cos = 0;
       for (int j = 0; j < sub; ++j)
