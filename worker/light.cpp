@@ -135,6 +135,16 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
     if (!(radius > 0) || !std::isfinite(radius)) {
       return scene::location_error(shape.where, "sphere area light has zero radius");
     }
+    // The cone it subtends is sampled in floats: below 1e-18 of the scene's size its sin² θ
+    // underflows and the light rendered black without a word (a radius of 1e-19 in a 10 m scene).
+    const double size = std::max(double(geometry.bounds().radius()), radius);
+    if (radius / size < 1e-18) {
+      return scene::location_error(
+          shape.where, absl::StrCat("sphere area light of radius ", radius,
+                                    " is too small to sample in a scene of radius ", size,
+                                    " (its cone underflows a float below 1e-18 of it); use a "
+                                    "point light"));
+    }
     light.is_sphere_ = true;
     light.sphere_centre_ = to_vec(shape.object_to_world.apply_point({0, 0, 0}));
     light.sphere_radius_ = float(radius);

@@ -401,6 +401,9 @@ TEST_F(RenderSceneTest, TracerRefusalsCarryTheirLocation) {
       {"WorldBegin\nAttributeBegin\nAreaLightSource \"diffuse\" \"rgb L\" [1e38 1e38 1e38]\n"
        "Shape \"sphere\"\nAttributeEnd\n",
        "inline.pbrt:3:1:", "too large to render"},
+      {"WorldBegin\nAttributeBegin\nAreaLightSource \"diffuse\" \"float power\" 10\n"
+       "Shape \"sphere\" \"float radius\" 1e-20\nAttributeEnd\nShape \"sphere\"\n",
+       "inline.pbrt:4:1:", "is too small to sample"},
       {"WorldBegin\nLightSource \"spot\" \"float coneangle\" 0.001\n", "inline.pbrt:2:1:",
        "'float conedeltaangle' (5; 5 is the default where the scene gives none) <= 'float "
        "coneangle' (0.001)"},
