@@ -212,6 +212,14 @@ int main(int argc, char** argv) {
     }
   }
   if (pack_cmd->parsed()) {
+    // The render flags come with -o, which a pack has no use for (it writes --bundle and prints
+    // the request); taking it silently let a user think the job's output was named.
+    if (pack_cmd->get_option("--output")->count() > 0) {
+      std::cerr << "prism: pack writes --bundle and prints the request; -o names the outputs of "
+                   "`prism render` or `prism submit --wait` (a job's outputs are fetched with "
+                   "`prism fetch JOB -o FILE`)\n";
+      return 1;
+    }
     if (absl::Status applied = prism::client::apply_render_flags(pack_flags, pack.render);
         !applied.ok()) {
       return report(applied);

@@ -805,6 +805,8 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
        "--max-spp 32 is below --spp 64"},
       {{"render", scene, "--target-error", "1%", "--spp", "1"},
        "spp 1 is too few for a target error"},
+      {{"pack", scene, "--bundle", "b.bin", "-o", "named.exr"},
+       "prism: pack writes --bundle and prints the request; -o names the outputs"},
   };
   for (std::size_t i = 0; i < cases.size(); ++i) {
     SCOPED_TRACE(i);
