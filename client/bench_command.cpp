@@ -833,6 +833,15 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
                                                    options.scenes.size(), " scenes, ",
                                                    options.references.size(), " references)"));
   }
+  // To a target error the reference starts with a 16-spp round, up to --reference-spp (which
+  // said "--max-spp 4 is below --spp 16", naming flags not given).
+  if (options.reference_error.has_value() && options.reference_spp.has_value() &&
+      *options.reference_spp < 16) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("--reference-spp ", *options.reference_spp,
+                     " is below 16: a reference to --reference-error starts with a round of 16 "
+                     "samples per pixel, and --reference-spp is its most"));
+  }
   if (options.reference_spp.has_value() &&
       (*options.reference_spp < 2 || std::uint64_t(*options.reference_spp) > kMaxReferenceSpp)) {
     return absl::InvalidArgumentError(absl::StrCat("--reference-spp ", *options.reference_spp,
