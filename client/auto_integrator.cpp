@@ -249,6 +249,20 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   const double scale = std::min({0.25, std::sqrt(affordable), std::sqrt(kPilotPixels / pixels)});
   const int width = std::max(4, static_cast<int>(std::lround(job.width() * scale)));
   const int height = std::max(4, static_cast<int>(std::lround(job.height() * scale)));
+  // Its 4x4 floor can cost more than a tiny job itself (a 1x1 film, or 16x12 at 1 spp): past a
+  // quarter of the job's samples no pilot pays for itself, and hero, the default, renders.
+  const double pilot_samples =
+      2.0 * double(renders_per_half) * double(spp) * double(width) * double(height);
+  const double job_samples = double(job.spp()) * pixels;
+  if (pilot_samples > kTinyJobPilotShare * job_samples) {
+    chosen.integrator = "hero";
+    report.choice = "hero";
+    report.reason = absl::StrFormat(
+        "the job (%.0f samples) is too small for a pilot, which would take %.0f: hero, without "
+        "one",
+        job_samples, pilot_samples);
+    return finish();
+  }
   // The pilot's seeds follow the job's: another seed of the job is another pilot too.
   const std::uint64_t pilot_seed = kPilotSeed ^ (job.seed() * 0x9e3779b97f4a7c15ULL);
 

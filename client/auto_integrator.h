@@ -129,6 +129,9 @@ inline constexpr std::uint64_t kPilotMaxSpp = 64;
 // The most of the job's samples the pilot's renders take together (its pixels shrink to stay
 // under it).
 inline constexpr double kPilotShare = 0.04;
+// A job whose smallest pilot (4x4 pixels) would take more than this share of its samples runs
+// hero without a pilot.
+inline constexpr double kTinyJobPilotShare = 0.25;
 // The relative cost of one ray of each method (see above).
 inline constexpr double kUniformRayCost = 1.0;
 inline constexpr double kHeroRayCost = 1.16;

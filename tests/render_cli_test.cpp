@@ -624,6 +624,19 @@ TEST(RenderCliTest, AutoOffersOnlyCandidatesThatCanDifferFromHero) {
                 "gradient is not a candidate: nothing refracts smooth-dispersively"),
             std::string::npos)
       << rough_report["auto"].dump();
+
+  // A job smaller than its smallest pilot (4x4 pixels, 2 x 8 spp per candidate): hero without a
+  // pilot (a 1x1 film paid a 1280-sample pilot for 4 samples).
+  CommandRun tiny =
+      run_prism(dir, {"render", source("scenes/rough-glass-caustics.pbrt"), "--resolution", "1x1",
+                      "--spp", "4", "--no-prepass", "-o", "tiny.exr"});
+  ASSERT_EQ(tiny.exit_code, 0) << tiny.output;
+  auto tiny_report = nlohmann::json::parse(*prism::base::read_file(dir / "tiny.json"));
+  EXPECT_EQ(tiny_report["auto"]["choice"], "hero");
+  EXPECT_TRUE(tiny_report["auto"]["candidates"].empty()) << tiny_report["auto"].dump();
+  EXPECT_NE(tiny_report["auto"]["reason"].get<std::string>().find("too small for a pilot"),
+            std::string::npos)
+      << tiny_report["auto"].dump();
 }
 
 // scenes/slit-prism.pbrt's floor sees its narrow slit lamp only through the prism: the pilot's eye
