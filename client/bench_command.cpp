@@ -248,7 +248,10 @@ absl::StatusOr<Timed> timed_method(worker::EmbreeDevice& device,
                timed.cpu_seconds + (piloted ? prepare_cpu : 0.0),
                absl::StrCat(job::name(prepared.job.render.integrator),
                             prepared.job.render.light_caustics ? "+caustics" : "",
-                            prepared.job.prepass.has_value() ? "+prepass" : "")};
+                            prepared.job.prepass.has_value() ? "+prepass" : "",
+                            // The filters, so that light+splat is not reported as "light".
+                            prepared.job.render.splats_differentials() ? "+splat" : "",
+                            prepared.job.render.gathers() ? "+gather" : "")};
 }
 
 // The seconds a method takes at a given spp, from its renders so far: seconds = fixed + spp·rate,
