@@ -1215,6 +1215,14 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
   // that a run that fails (or is stopped) keeps the scenes it finished.
   const fs::path csv = options.output / "results.csv";
   const fs::path report = options.output / "report.md";
+  // A run before this one into the same directory: the plots of its scenes that this run does
+  // not render would stay beside this run's report as though they were its own.
+  std::vector<std::string> earlier_scenes;
+  if (absl::StatusOr<std::string> earlier = base::read_file(csv); earlier.ok()) {
+    if (auto rows_before = parse_bench_csv(*earlier, csv.string()); rows_before.ok()) {
+      for (const BenchRow& r : *rows_before) remember(earlier_scenes, r.scene);
+    }
+  }
   auto write_outputs = [&](std::size_t scenes_done, std::string& summary) -> absl::Status {
     PRISM_RETURN_IF_ERROR(base::write_file_atomic(csv, bench_csv(rows)));
     PRISM_RETURN_IF_ERROR(
@@ -1242,6 +1250,13 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
     log(absl::StrCat("warning:\n", warnings));
   }
   PRISM_RETURN_IF_ERROR(write_outputs(setups.size(), summary));
+  for (const std::string& stem : earlier_scenes) {
+    if (absl::c_linear_search(stems, stem)) continue;
+    std::error_code ignored;
+    for (const char* ext : {".dat", ".gp", ".svg", ".png"}) {
+      fs::remove(options.output / (stem + ext), ignored);
+    }
+  }
   return absl::StrCat(summary, "\n");
 }
 

@@ -1274,4 +1274,17 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
     EXPECT_NE(failed.output.find(message), std::string::npos) << failed.output;
     EXPECT_FALSE(fs::exists(dir / "bad" / "results.csv"));
   }
+
+  // Another scene into the same directory: its plots replace the earlier run's, whose scene
+  // this run does not render (they stayed beside the new report as if they were its own).
+  ASSERT_TRUE(fs::exists(dir / "out" / "three-emitters.svg"));
+  CommandRun other =
+      run_prism(dir, {"bench", source("scenes/prism.pbrt"), "--resolution", "16x12", "--methods",
+                      "hero", "--spp", "2", "--seeds", "1", "--reference-spp", "8",
+                      "--reference-cache", "cache", "-o", "out"});
+  ASSERT_EQ(other.exit_code, 0) << other.output;
+  EXPECT_TRUE(fs::exists(dir / "out" / "prism.svg"));
+  for (const char* ext : {".svg", ".png", ".dat", ".gp"}) {
+    EXPECT_FALSE(fs::exists(dir / "out" / (std::string("three-emitters") + ext))) << ext;
+  }
 }
