@@ -803,6 +803,8 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
       {{"render", scene, "--max-memory", "1M", "--resolution", "64x64", "--integrator", "hero"},
        "prism: rendering 64x64 with 32 bins needs about"},
       {{"render", scene, "-o", "out.png"}, "give a name ending in .exr"},
+      {{"render", scene, "-o", "/dev/null"},
+       "--output '/dev/null' is a device or special file, not a name for the outputs"},
       {{"render", scene, "-o", "missing/out.exr", "--resolution", "8x8"},
        "cannot write 'missing/out.exr': directory 'missing' does not exist"},
       {{"render", scene, "-o", "a.exr", "--json", "a.png"}, "both be written to 'a.png'"},
