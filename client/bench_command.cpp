@@ -907,8 +907,9 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
 
   std::vector<BenchRow> rows;
   std::string header = absl::StrCat(
-      "# prism bench\n\nClock: ", options.clock, "; ", options.seeds,
-      " seed(s); threads: ", options.threads.has_value() ? absl::StrCat(*options.threads) : "all",
+      "# prism bench\n\nClock: ", options.clock, "; ", options.seeds, " seed(s); threads: ",
+      options.threads.has_value() && *options.threads > 0 ? absl::StrCat(*options.threads)
+                                                          : std::string("all"),
       " (", std::thread::hardware_concurrency(), " hardware)",
       options.farm.has_value()
           ? absl::StrCat("; on the farm at ", options.farm->address,

@@ -283,6 +283,14 @@ int main(int argc, char** argv) {
         }
       }
     }
+    // An empty list given (--budgets "" from a script's empty variable) is not the default.
+    for (const char* name : {"--budgets", "--spp", "--methods"}) {
+      if (bench_cmd->get_option(name)->count() > 0 &&
+          bench_cmd->get_option(name)->as<std::string>().empty()) {
+        std::cerr << "prism: " << name << " is empty; leave it out for its default\n";
+        return 1;
+      }
+    }
     if (reference_spp_opt->count() > 0) bench.reference_spp = bench_reference_spp;
     if (reference_error_opt->count() > 0) {
       auto parsed = prism::client::parse_target_error(bench_reference_error, "--reference-error");

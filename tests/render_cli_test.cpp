@@ -1250,6 +1250,7 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
       {{"--spp", "2", "--baseline", "heor"}, "--baseline 'heor' is not a method"},
       {{"--spp", "2,16777217"}, "16777217 is more than a job takes (1..16777216)"},
       {{"--budgets", "0.1s,0.1000001s"}, "are the same to six digits"},
+      {{"--budgets", ""}, "--budgets is empty; leave it out for its default"},
       {{"--spp", "2", "--reference-error", "10%"}, "--reference-spp 8 is below 16"},
       {{"--spp", "2", "--reference", "given.exr"}, "--reference gives the references"},
       // Every scene is checked before the first renders: a second scene that does not exist, or
