@@ -35,7 +35,7 @@ struct GraphicsState {
   int outside_medium = -1;
 };
 
-enum class ScopeKind { kAttribute, kTransform, kObject };
+enum class ScopeKind { kAttribute, kObject };
 
 struct Scope {
   ScopeKind kind;
@@ -52,8 +52,6 @@ const char* scope_begin_name(ScopeKind kind) {
   switch (kind) {
     case ScopeKind::kAttribute:
       return "AttributeBegin";
-    case ScopeKind::kTransform:
-      return "TransformBegin";
     case ScopeKind::kObject:
       return "ObjectBegin";
   }
@@ -585,26 +583,23 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     named_coordinate_systems_["world"] = state_.ctm;
   } else if (name == "AttributeBegin" || name == "TransformBegin") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
-    bool transform_only = name == "TransformBegin";
-    if (transform_only)
+    // pbrt-v4's parser reads the deprecated TransformBegin/End as AttributeBegin/End: they save
+    // and restore every attribute (material, lights, media, orientation), not the transform
+    // alone, and either end closes either begin (pbrt --upgrade keeps them as they are).
+    if (name == "TransformBegin")
       features_.supported("TransformBegin", where,
-                          "deprecated in pbrt-v4; read as pbrt-v4 reads it");
-    scopes_.push_back(
-        Scope{transform_only ? ScopeKind::kTransform : ScopeKind::kAttribute, state_, where});
+                          "deprecated in pbrt-v4, which reads it as AttributeBegin; so does Prism");
+    scopes_.push_back(Scope{ScopeKind::kAttribute, state_, where});
   } else if (name == "AttributeEnd" || name == "TransformEnd") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
-    ScopeKind kind = name == "TransformEnd" ? ScopeKind::kTransform : ScopeKind::kAttribute;
     if (scopes_.empty())
-      return location_error(
-          where, absl::StrCat("unmatched '", name, "' (no ", scope_begin_name(kind), " is open)"));
-    if (scopes_.back().kind != kind)
+      return location_error(where,
+                            absl::StrCat("unmatched '", name, "' (no AttributeBegin is open)"));
+    if (scopes_.back().kind != ScopeKind::kAttribute)
       return location_error(
           where, absl::StrCat("'", name, "' closes the ", scope_begin_name(scopes_.back().kind),
                               " at ", scopes_.back().where.to_string()));
-    if (kind == ScopeKind::kTransform)
-      state_.ctm = scopes_.back().saved.ctm;  // restores even under ActiveTransform EndTime
-    else
-      state_ = scopes_.back().saved;
+    state_ = scopes_.back().saved;
     scopes_.pop_back();
   } else if (name == "Shape") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));

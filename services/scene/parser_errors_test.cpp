@@ -216,8 +216,8 @@ const MemoryCase kMemoryCases[] = {
      "m.pbrt:2:1: ObjectBegin \"o\" is never closed by ObjectEnd"},
     {"WorldBegin\nObjectEnd\n", "m.pbrt:2:1: unmatched 'ObjectEnd'"},
     {"WorldBegin\nObjectInstance \"o\"\n", "m.pbrt:2:16: object \"o\" is not defined"},
-    {"WorldBegin\nTransformBegin\nAttributeEnd\n",
-     "m.pbrt:3:1: 'AttributeEnd' closes the TransformBegin at m.pbrt:2:1"},
+    {"WorldBegin\nObjectBegin \"o\"\nTransformEnd\n",
+     "m.pbrt:3:1: 'TransformEnd' closes the ObjectBegin at m.pbrt:2:1"},
     {"WorldBegin\nMaterial \"diffuse\" \"rgb reflectance\" [0.5 1.5 0]\n",
      "m.pbrt:2:38: 'rgb reflectance' is a reflectance and has a component > 1"},
     {"WorldBegin\nMaterial \"conductor\" \"rgb reflectance\" [0.5 0.5 0] \"spectrum eta\" "

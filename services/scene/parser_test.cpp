@@ -418,6 +418,37 @@ TEST(GoodScenes, LightsThatEmitNothingAreLeftOut) {
   EXPECT_EQ(ignored, 4);
 }
 
+// pbrt-v4 reads the deprecated TransformBegin/End as AttributeBegin/End: a material, reverse
+// orientation or area light set inside is undone at TransformEnd (Prism restored only the
+// transform, so every pbrt --upgrade'd v3 scene kept the inner material), and either end closes
+// either begin.
+TEST(GoodScenes, TransformBeginIsAttributeBeginAsInPbrtV4) {
+  absl::StatusOr<SceneDescription> s = parse_scene_string(
+      "WorldBegin\n"
+      "Material \"diffuse\" \"rgb reflectance\" [0.1 0.1 0.9]\n"
+      "TransformBegin\n"
+      "  Material \"diffuse\" \"rgb reflectance\" [0.9 0.1 0.1]\n"
+      "  ReverseOrientation\n"
+      "  AreaLightSource \"diffuse\"\n"
+      "  Translate 1 0 0\n"
+      "  Shape \"sphere\"\n"
+      "TransformEnd\n"
+      "Shape \"sphere\"\n"
+      "TransformBegin\n"
+      "AttributeEnd\n"
+      "AttributeBegin\n"
+      "TransformEnd\n",
+      "m.pbrt", {}, {});
+  ASSERT_TRUE(s.ok()) << s.status();
+  ASSERT_EQ(s->shapes.size(), 2u);
+  EXPECT_NE(s->shapes[0].material, s->shapes[1].material);
+  EXPECT_EQ(s->shapes[1].material, 0);  // the blue one, set before the block
+  EXPECT_TRUE(s->shapes[0].reverse_orientation);
+  EXPECT_FALSE(s->shapes[1].reverse_orientation);
+  EXPECT_TRUE(s->shapes[0].area_light.has_value());
+  EXPECT_FALSE(s->shapes[1].area_light.has_value());
+}
+
 // A byte order mark before the first directive (a file saved by a Windows editor) is skipped,
 // in the main file and in an included one; columns count from the text after it.
 TEST(GoodScenes, AByteOrderMarkIsSkipped) {
