@@ -355,6 +355,10 @@ TEST(GoodScenes, MeshesIncludesAndFiles) {
   EXPECT_EQ(mesh(2).mesh->triangles, (std::vector<Triangle>{{0, 1, 3}, {0, 3, 2}}));
   expect_near(triangle_normal(*mesh(2).mesh, 0), {0, 0, 1});
   expect_near(triangle_normal(*mesh(2).mesh, 1), {0, 0, 1});
+  // Without uv, the patch's own (u, v) at its corners, as pbrt-v4 gives a bilinear patch (each
+  // triangle's default (0,0) (1,0) (1,1) put a seam across a textured quad).
+  EXPECT_EQ(mesh(2).mesh->uvs,
+            (std::vector<Float2>{Float2{0, 0}, Float2{1, 0}, Float2{0, 1}, Float2{1, 1}}));
   EXPECT_EQ(mesh(3).source, "meshes/tri.obj");
   EXPECT_EQ(mesh(4).source, "meshes/quad.ply");
   EXPECT_EQ(mesh(4).mesh->triangles.size(), 2u);

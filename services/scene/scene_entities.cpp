@@ -457,6 +457,30 @@ absl::StatusOr<std::shared_ptr<TriangleMeshData>> inline_mesh(const ParameterLis
   for (const auto& t : uv)
     mesh->uvs.push_back({static_cast<float>(t[0]), static_cast<float>(t[1])});
   auto idx = [&](size_t i) { return static_cast<std::uint32_t>(indices[i]); };
+  if (bilinear && uv.empty()) {
+    // A patch without uv has its own (u, v) in pbrt-v4, (0,0) (1,0) (0,1) (1,1) at its corners;
+    // a triangle without uv gets (0,0) (1,0) (1,1), which the second triangle of the split does
+    // not want (a seam across every textured quad). Each patch gets its own four corners with
+    // the patch's uv: a parallelogram's texture is then pbrt-v4's.
+    auto shared = std::move(mesh->positions);
+    auto shared_normals = std::move(mesh->normals);
+    mesh->positions.clear();
+    mesh->normals.clear();
+    mesh->positions.reserve(indices.size() + 1);  // one spare, as above (Embree reads 16 bytes)
+    constexpr float kCornerUv[4][2] = {{0, 0}, {1, 0}, {0, 1}, {1, 1}};
+    for (size_t i = 0; i < indices.size(); i += corners) {
+      const auto base = static_cast<std::uint32_t>(mesh->positions.size());
+      for (size_t c = 0; c < 4; ++c) {
+        mesh->positions.push_back(shared[idx(i + c)]);
+        if (!shared_normals.empty()) mesh->normals.push_back(shared_normals[idx(i + c)]);
+        mesh->uvs.push_back({kCornerUv[c][0], kCornerUv[c][1]});
+      }
+      mesh->triangles.push_back({base, base + 1, base + 3});
+      mesh->triangles.push_back({base, base + 3, base + 2});
+    }
+    if (absl::Status s = mesh->validate(); !s.ok()) return located(type.where, s);
+    return mesh;
+  }
   for (size_t i = 0; i < indices.size(); i += corners) {
     if (bilinear) {
       // Patch (p00, p10, p01, p11) -> (p00, p10, p11), (p00, p11, p01): same facing as the patch.
