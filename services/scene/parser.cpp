@@ -59,9 +59,11 @@ const char* scope_begin_name(ScopeKind kind) {
 }
 
 // pbrt-v4's `Option` directive. Options that only affect speed, statistics or output files
-// cannot change the image; `disabletexturefiltering` is what Prism does anyway; the rest
-// change the image and are refused.
-absl::Status apply_options(const ParameterList& params, FeatureRecorder& features) {
+// cannot change the image; `disabletexturefiltering` is what Prism does anyway; false is every
+// boolean option's default; the rest change the image and are refused. `feature` names the
+// option for reports.
+absl::Status apply_option(const std::string& name, bool is_false, const std::string& feature,
+                          const SourceLocation& where, FeatureRecorder& features) {
   static constexpr std::string_view kNoEffect[] = {"seed",
                                                    "quickrender",
                                                    "quiet",
@@ -72,23 +74,30 @@ absl::Status apply_options(const ParameterList& params, FeatureRecorder& feature
                                                    "displacementedgescale",
                                                    "recordpixelstatistics",
                                                    "useGPU"};
+  bool no_effect = false;
+  for (std::string_view k : kNoEffect) no_effect |= k == name;
+  if (no_effect) {
+    features.ignored(feature, where, "does not change the converged image");
+  } else if (name == "disabletexturefiltering") {
+    features.supported(feature, where, "Prism never prefilters textures");
+  } else if (is_false) {
+    features.ignored(feature, where, "false is pbrt-v4's default");
+  } else {
+    PRISM_RETURN_IF_ERROR(features.refuse(
+        feature, where,
+        absl::StrCat("Option '", name, "' changes the image and is not supported by Prism"),
+        "the scene without the option"));
+  }
+  return absl::OkStatus();
+}
+
+// The typed form, `Option "bool name" value`, which Prism has always read.
+absl::Status apply_options(const ParameterList& params, FeatureRecorder& features) {
   for (const Parameter& p : params.parameters()) {
     p.used = true;
-    const std::string feature = params.feature(p);
-    bool no_effect = false;
-    for (std::string_view k : kNoEffect) no_effect |= k == p.name;
-    if (no_effect) {
-      features.ignored(feature, p.where, "does not change the converged image");
-    } else if (p.name == "disabletexturefiltering") {
-      features.supported(feature, p.where, "Prism never prefilters textures");
-    } else if (p.type == ParamType::kBool && p.bools.size() == 1 && !p.bools[0]) {
-      features.ignored(feature, p.where, "false is pbrt-v4's default");
-    } else {
-      PRISM_RETURN_IF_ERROR(features.refuse(
-          feature, p.where,
-          absl::StrCat("Option '", p.name, "' changes the image and is not supported by Prism"),
-          "the scene without the option"));
-    }
+    PRISM_RETURN_IF_ERROR(
+        apply_option(p.name, p.type == ParamType::kBool && p.bools.size() == 1 && !p.bools[0],
+                     params.feature(p), p.where, features));
   }
   return absl::OkStatus();
 }
@@ -571,8 +580,25 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
           absl::StrCat("unsupported colour space \"", n.text, "\" (supported: srgb)"),
           "RGB values read as sRGB"));
   } else if (name == "Option") {
-    PRISM_ASSIGN_OR_RETURN(ParameterList params, parameters(tokens, "Option"));
-    PRISM_RETURN_IF_ERROR(apply_options(params, features_));
+    // pbrt-v4's parser reads `Option "name" value`, untyped (`Option "disablepixeljitter" true`,
+    // `Option "rendercoordsys" "world"`); Prism took only the typed parameter form, which pbrt-v4
+    // does not know. Both are read.
+    PRISM_ASSIGN_OR_RETURN(Token first, tokens.peek());
+    if (first.kind == Token::Kind::kString && first.text.find(' ') == std::string::npos) {
+      PRISM_RETURN_IF_ERROR(tokens.next().status());
+      const SourceLocation at = tokens.location(first);
+      PRISM_ASSIGN_OR_RETURN(Token value, tokens.next());
+      if (value.kind != Token::Kind::kWord && value.kind != Token::Kind::kString) {
+        return location_error(tokens.location(value),
+                              absl::StrCat("'Option \"", first.text, "\"' needs a value"));
+      }
+      PRISM_RETURN_IF_ERROR(apply_option(first.text,
+                                         value.kind == Token::Kind::kWord && value.text == "false",
+                                         absl::StrCat("Option '", first.text, "'"), at, features_));
+    } else {
+      PRISM_ASSIGN_OR_RETURN(ParameterList params, parameters(tokens, "Option"));
+      PRISM_RETURN_IF_ERROR(apply_options(params, features_));
+    }
   } else if (name == "WorldBegin") {
     if (in_world_)
       return location_error(

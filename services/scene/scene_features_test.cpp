@@ -158,6 +158,20 @@ TEST(SceneFeatures, OptionsThatChangeTheImageAreRefusedAndTheRestIgnored) {
   ASSERT_TRUE(ok.ok()) << ok.status();
   EXPECT_EQ(count_features(ok->features, FeatureStatus::kIgnored), 2);
   EXPECT_EQ(count_features(ok->features, FeatureStatus::kSupported), 1);
+  // pbrt-v4's own form, untyped: the same judgements.
+  absl::StatusOr<SceneDescription> untyped = parse_scene_string(
+      "Option \"seed\" 3\nOption \"disablepixeljitter\" false\n"
+      "Option \"disabletexturefiltering\" true\nOption \"rendercoordsys\" \"world\"\n"
+      "WorldBegin\n",
+      "o.pbrt");
+  ASSERT_TRUE(untyped.ok()) << untyped.status();
+  EXPECT_EQ(count_features(untyped->features, FeatureStatus::kIgnored), 3);
+  EXPECT_EQ(count_features(untyped->features, FeatureStatus::kSupported), 1);
+  absl::StatusOr<SceneDescription> untyped_bad =
+      parse_scene_string("Option \"forcediffuse\" true\nWorldBegin\n", "o.pbrt");
+  ASSERT_FALSE(untyped_bad.ok());
+  EXPECT_EQ(untyped_bad.status().message(),
+            "o.pbrt:1:8: Option 'forcediffuse' changes the image and is not supported by Prism");
   for (const char* changes : {"disablepixeljitter", "disablewavelengthjitter", "forcediffuse"}) {
     absl::StatusOr<SceneDescription> bad = parse_scene_string(
         absl::StrCat("Option \"bool ", changes, "\" true\nWorldBegin\n"), "o.pbrt");
