@@ -143,6 +143,16 @@ class SceneParser {
     for (const Scope& s : scopes_)
       scene_.warnings.push_back(absl::StrCat(
           s.where.to_string(), ": warning: ", scope_begin_name(s.kind), " is never closed"));
+    // Instances of objects defined after them.
+    for (const PendingInstance& instance : pending_instances_) {
+      auto it = objects_.find(instance.name);
+      if (it == objects_.end()) {
+        return location_error(instance.name_at, absl::StrCat("object \"", instance.name,
+                                                             "\" is not defined anywhere in the "
+                                                             "scene"));
+      }
+      PRISM_RETURN_IF_ERROR(instantiate(it->second, instance.ctm, instance.where));
+    }
     // Materials named before their MakeNamedMaterial (NamedMaterial's pending names): each must
     // be defined by the end, used or not.
     for (const auto& [material_name, named_at] : pending_materials_) {
@@ -205,6 +215,26 @@ class SceneParser {
   std::vector<std::string> open_files_;
   // Names given to NamedMaterial before their MakeNamedMaterial, and where (resolved in run()).
   std::vector<std::pair<std::string, SourceLocation>> pending_materials_;
+  // ObjectInstance of an object not (yet) defined: expanded at the end of the scene.
+  struct PendingInstance {
+    std::string name;
+    Transform ctm;
+    SourceLocation where, name_at;
+  };
+  std::vector<PendingInstance> pending_instances_;
+
+  // The object's shapes, placed by `ctm`, as the ObjectInstance at `where`.
+  absl::Status instantiate(const ObjectDefinition& object, const Transform& ctm,
+                           const SourceLocation& where) {
+    for (const Shape& s : object.shapes) {
+      Shape copy = s;
+      copy.object_to_world = ctm * s.object_to_world;
+      copy.transform_swaps_handedness = copy.object_to_world.swaps_handedness();
+      copy.where = where;
+      PRISM_RETURN_IF_ERROR(add_shape(std::move(copy)));
+    }
+    return absl::OkStatus();
+  }
 
   void record_file(const std::string& relpath) {
     if (recorded_.insert(relpath).second) scene_.files.push_back(relpath);
@@ -776,16 +806,13 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     if (current_object_)
       return location_error(where, "'ObjectInstance' inside ObjectBegin/ObjectEnd");
     auto it = objects_.find(n.text);
-    if (it == objects_.end())
-      return location_error(tokens.location(n),
-                            absl::StrCat("object \"", n.text, "\" is not defined"));
-    for (const Shape& s : it->second.shapes) {
-      Shape copy = s;
-      copy.object_to_world = state_.ctm * s.object_to_world;
-      copy.transform_swaps_handedness = copy.object_to_world.swaps_handedness();
-      copy.where = where;
-      PRISM_RETURN_IF_ERROR(add_shape(std::move(copy)));
+    if (it == objects_.end()) {
+      // pbrt-v4 resolves instances after the whole scene is read: an object may be defined
+      // after its first instance.
+      pending_instances_.push_back({n.text, state_.ctm, where, tokens.location(n)});
+      return absl::OkStatus();
     }
+    PRISM_RETURN_IF_ERROR(instantiate(it->second, state_.ctm, where));
   } else if (name == "Texture") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "texture name"));

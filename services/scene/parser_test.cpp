@@ -453,6 +453,28 @@ TEST(GoodScenes, TransformBeginIsAttributeBeginAsInPbrtV4) {
   EXPECT_FALSE(s->shapes[1].area_light.has_value());
 }
 
+// pbrt-v4 resolves ObjectInstance after the whole scene is read: an instance may come before
+// its ObjectBegin, and is placed by the transform where it stands.
+TEST(GoodScenes, AnObjectMayBeInstancedBeforeItIsDefined) {
+  absl::StatusOr<SceneDescription> s = parse_scene_string(
+      "WorldBegin\n"
+      "AttributeBegin\n"
+      "  Translate 0 0 5\n"
+      "  ObjectInstance \"later\"\n"
+      "AttributeEnd\n"
+      "ObjectBegin \"later\"\n"
+      "  Shape \"sphere\"\n"
+      "ObjectEnd\n"
+      "ObjectInstance \"later\"\n",
+      "m.pbrt", {}, {});
+  ASSERT_TRUE(s.ok()) << s.status();
+  ASSERT_EQ(s->shapes.size(), 2u);
+  std::vector<double> z;
+  for (const Shape& shape : s->shapes) z.push_back(shape.object_to_world.apply_point({0, 0, 0})[2]);
+  std::sort(z.begin(), z.end());
+  EXPECT_EQ(z, (std::vector<double>{0, 5}));
+}
+
 // A byte order mark before the first directive (a file saved by a Windows editor) is skipped,
 // in the main file and in an included one; columns count from the text after it.
 TEST(GoodScenes, AByteOrderMarkIsSkipped) {
