@@ -109,10 +109,18 @@ absl::StatusOr<ParameterList> ParameterList::parse(Tokenizer& tokens) {
                                                 decl_tok.text, "\""));
     p.name = std::string(words[1]);
     p.where = where;
-    for (const Parameter& other : list.params_)
-      if (other.name == p.name)
-        return location_error(where, absl::StrCat("parameter '", p.name, "' given twice (first at ",
+    // The same parameter twice: pbrt-v4 takes the last and lets it shadow the first without a
+    // word; under another type the first is unused there, which pbrt-v4 refuses.
+    std::optional<std::size_t> shadowed;
+    for (std::size_t i = 0; i < list.params_.size(); ++i) {
+      const Parameter& other = list.params_[i];
+      if (other.name != p.name) continue;
+      if (other.type != p.type)
+        return location_error(where, absl::StrCat("parameter '", p.name,
+                                                  "' given twice with different types (first at ",
                                                   other.where.to_string(), ")"));
+      shadowed = i;
+    }
 
     // The value: one word/string, or a bracketed list.
     std::vector<Token> values;
@@ -173,7 +181,11 @@ absl::StatusOr<ParameterList> ParameterList::parse(Tokenizer& tokens) {
         return location_error(values_at, absl::StrCat("'", what, "' takes one spectrum name or file name"));
       PRISM_RETURN_IF_ERROR(check_count(p, values_at, p.strings.size()));
     }
-    list.params_.push_back(std::move(p));
+    if (shadowed.has_value()) {
+      list.params_[*shadowed] = std::move(p);
+    } else {
+      list.params_.push_back(std::move(p));
+    }
     list.value_where_.push_back(values_at);
   }
   return list;

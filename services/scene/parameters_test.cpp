@@ -27,6 +27,17 @@ TEST(Parameters, TypedGettersAndDefaults) {
   EXPECT_TRUE(p->check_all_used().ok());
 }
 
+// The same parameter twice under one type: the last wins, as in pbrt-v4 (which reverses the
+// list and takes the first match, and lets it shadow the earlier one silently).
+TEST(Parameters, TheLastOfARepeatedParameterWins) {
+  absl::StatusOr<ParameterList> p =
+      parse("\"float radius\" 1 \"float a\" 0 \"float radius\" 2");
+  ASSERT_TRUE(p.ok()) << p.status();
+  EXPECT_EQ(*p->get_float("radius", 0), 2);
+  EXPECT_EQ(*p->get_float("a", 1), 0);
+  EXPECT_TRUE(p->check_all_used().ok());
+}
+
 TEST(Parameters, ValueErrors) {
   EXPECT_EQ(std::string(parse("\"integer n\" 1.5").status().message()), "p.pbrt:1:13: expected an integer for 'integer n', found '1.5'");
   EXPECT_EQ(std::string(parse("\"float a\" inf").status().message()), "p.pbrt:1:11: value 'inf' of 'float a' is not a finite number");
@@ -34,7 +45,7 @@ TEST(Parameters, ValueErrors) {
   EXPECT_EQ(std::string(parse("\"string s\" [ x ]").status().message()), "p.pbrt:1:14: expected a quoted string for 'string s', found 'x'");
   EXPECT_EQ(std::string(parse("\"point3 p\" [1 2]").status().message()), "p.pbrt:1:12: 'point3 p' needs a multiple of 3 values, got 2 values");
   EXPECT_EQ(std::string(parse("\"float\" 1").status().message()), "p.pbrt:1:1: malformed parameter declaration \"float\" (expected \"type name\")");
-  EXPECT_EQ(std::string(parse("\"float a\" 1 \"float a\" 2").status().message()), "p.pbrt:1:13: parameter 'a' given twice (first at p.pbrt:1:1)");
+  EXPECT_EQ(std::string(parse("\"float a\" 1 \"rgb a\" [1 1 1]").status().message()), "p.pbrt:1:13: parameter 'a' given twice with different types (first at p.pbrt:1:1)");
   EXPECT_EQ(std::string(parse("\"spectrum s\" [400 1 500]").status().message()),
             "p.pbrt:1:14: 'spectrum s' needs pairs of wavelength and value (at least 2 pairs), got 3 numbers");
 }
