@@ -122,6 +122,21 @@ class HttpApiTest : public FarmServerTest {
     FarmServerTest::TearDown();
   }
 
+  // A plain TCP connection to the API (for what httplib's client would not send); -1 on failure.
+  int connect_raw() {
+    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    if (fd < 0) return -1;
+    sockaddr_in addr{};
+    addr.sin_family = AF_INET;
+    addr.sin_port = htons(static_cast<std::uint16_t>(api_->port()));
+    addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    if (::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) != 0) {
+      ::close(fd);
+      return -1;
+    }
+    return fd;
+  }
+
   httplib::Headers auth(const std::string& token = kToken) {
     return {{"Authorization", "Bearer " + token}};
   }
@@ -219,13 +234,8 @@ TEST_F(HttpApiTest, TheDashboardIsFoundWithOrWithoutItsSlash) {
 // body reading answered it with an empty 400. The answer is the JSON 404 of any unknown route.
 TEST_F(HttpApiTest, UnknownRoutesWithoutABodyGetTheJsonNotFound) {
   for (const char* method : {"PUT", "PATCH", "POST", "DELETE"}) {
-    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    const int fd = connect_raw();
     ASSERT_GE(fd, 0);
-    sockaddr_in addr{};
-    addr.sin_family = AF_INET;
-    addr.sin_port = htons(static_cast<std::uint16_t>(api_->port()));
-    addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    ASSERT_EQ(::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)), 0);
     const std::string request =
         std::string(method) + " /api/v1/nothing HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n";
     ASSERT_EQ(::send(fd, request.data(), request.size(), 0), ssize_t(request.size()));
@@ -265,13 +275,8 @@ TEST_F(HttpApiTest, TheBearerSchemeIsCaseInsensitive) {
 TEST_F(HttpApiTest, IdleConnectionsDoNotHoldUpRequests) {
   std::vector<int> idle;
   for (int i = 0; i < 24; ++i) {
-    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    const int fd = connect_raw();
     ASSERT_GE(fd, 0);
-    sockaddr_in addr{};
-    addr.sin_family = AF_INET;
-    addr.sin_port = htons(static_cast<std::uint16_t>(api_->port()));
-    addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    ASSERT_EQ(::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)), 0);
     idle.push_back(fd);
   }
   std::this_thread::sleep_for(std::chrono::milliseconds(200));  // each taken by a thread
