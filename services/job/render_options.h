@@ -130,6 +130,10 @@ struct RenderOptions {
   bool gathers() const { return gather_width_nm > 0; }
   // Either filter: the job writes a filtered image.
   bool filters() const { return splats_differentials() || gathers(); }
+
+  // Every field: what a worker compares before it reuses a RenderScene built for other options
+  // (a field added above is compared without anyone having to remember it).
+  friend bool operator==(const RenderOptions&, const RenderOptions&) = default;
 };
 
 // Range of RenderOptions::caustic_paths.

@@ -26,18 +26,14 @@ std::string lease_context(const v1::Lease& lease) {
                       t.samples().begin(), "-", t.samples().end(), "]");
 }
 
-// Everything that changes a RenderScene, as one comparable string: the film is the task's
-// (an image-scaled prepass renders the job's camera on a smaller one).
+// What a RenderScene is built from besides its RenderOptions (compared whole, every field): the
+// bundle and scene, and the film, which is the task's (an image-scaled prepass renders the job's
+// camera on a smaller one). The key once listed the options by hand and missed light-traced
+// caustics, their share, splatting and gathering: a worker reused the previous job's scene and
+// returned wrong bytes, or results its job could not take.
 std::string scene_key(const std::string& hash, const job::JobParameters& p, int film_width,
                       int film_height) {
-  const job::RenderOptions& o = p.render;
-  return absl::StrCat(hash, "|", p.scene_path, "|", film_width, "x", film_height, "|",
-                      static_cast<int>(o.integrator), ",", static_cast<int>(o.spectral_pdf), ",",
-                      static_cast<int>(o.emitter_pdf), ",", o.defensive_epsilon, ",",
-                      static_cast<int>(o.light_selection), ",", o.spectral_light_selection, ",",
-                      static_cast<int>(o.sampler), ",", o.bins, ",", o.max_depth, ",",
-                      o.rr_min_depth, ",", o.seed, ",", o.gradient_offset_bins, ",", o.gradient_tau,
-                      ",", o.gradient_variances);
+  return absl::StrCat(hash, "|", p.scene_path, "|", film_width, "x", film_height);
 }
 
 // A task as TileRenderer takes it, validated against its job: the pass, the film the pass
@@ -125,7 +121,8 @@ absl::StatusOr<TaskSetup> task_setup(const v1::Task& task, const job::JobParamet
 struct WorkerDaemon::CachedScene {
   std::string description_key;  // bundle hash | scene path
   scene::LoadedScene loaded;
-  std::string render_key;  // scene_key() of `render`
+  std::string render_key;             // scene_key() of `render`
+  job::RenderOptions render_options;  // what `render` was built with
   std::unique_ptr<RenderScene> render;
   // The description's geometry, from its first build: it depends on the shapes alone, so another
   // job, seed or pass on the same scene builds its RenderScene without building the BVH again.
@@ -525,7 +522,8 @@ absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
 
   *failure_class = v1::FAILURE_CLASS_SCENE;
   const std::string render_key = scene_key(hash, params, setup.film_width, setup.film_height);
-  if (cached.render_key != render_key || cached.render == nullptr) {
+  if (cached.render_key != render_key || !(cached.render_options == params.render) ||
+      cached.render == nullptr) {
     cached.render.reset();
     cached.render_key.clear();
     PRISM_ASSIGN_OR_RETURN(
@@ -534,6 +532,7 @@ absl::Status WorkerDaemon::execute(const v1::Lease& lease, HeldLease& held,
                            setup.film_width, setup.film_height, cached.geometry));
     cached.geometry = cached.render->shared_geometry();
     cached.render_key = render_key;
+    cached.render_options = params.render;
     logger_->debug("{} built the render scene ({}x{}, {} bins)", context, setup.film_width,
                    setup.film_height, params.render.bins);
   }

@@ -540,9 +540,11 @@ TEST_F(WorkerDaemonTest, RendersTheNextTaskWhileAResultUploadsWithABoundedQueue)
   }
 }
 
-// Tasks of other jobs on the same scene (another seed, another integrator) rebuild the render
-// scene around the geometry the first one built; each result is still byte for byte the
-// in-process render of its own task.
+// Tasks of other jobs on the same scene (another seed, another integrator, the first job's
+// options with gathering on) rebuild the render scene around the geometry the first one built;
+// each result is still byte for byte the in-process render of its own task. (The scene's key
+// once missed gathering, splatting and light-traced caustics: the gathering job reused the first
+// job's scene and returned a result without the offsets its job needs.)
 TEST_F(WorkerDaemonTest, TasksOfOtherJobsOnTheSameSceneRenderTheirOwnBytes) {
   fake_.lease = make_lease(rect(0, 0, 8, 8), 0, 8, 5);
   v1::Lease other_seed = fake_.lease;
@@ -553,16 +555,21 @@ TEST_F(WorkerDaemonTest, TasksOfOtherJobsOnTheSameSceneRenderTheirOwnBytes) {
   other_integrator.set_lease_id("lease-3");
   other_integrator.mutable_task()->set_job_id("job-3");
   other_integrator.mutable_task()->mutable_spec()->set_integrator(v1::INTEGRATOR_UNIFORM);
-  fake_.later_leases = {other_seed, other_integrator};
+  v1::Lease gathering = fake_.lease;
+  gathering.set_lease_id("lease-4");
+  gathering.mutable_task()->set_job_id("job-4");
+  gathering.mutable_task()->mutable_spec()->set_gather_width(100);
+  fake_.later_leases = {other_seed, other_integrator, gathering};
   start_worker();
-  ASSERT_TRUE(fake_.wait([&] { return fake_.uploads.size() == 3 || !fake_.failures.empty(); }));
+  ASSERT_TRUE(fake_.wait([&] { return fake_.uploads.size() == 4 || !fake_.failures.empty(); }));
   ASSERT_TRUE(stop_worker());
   EXPECT_TRUE(run_status_.ok()) << run_status_;
   std::lock_guard<std::mutex> lock(fake_.mutex);
   ASSERT_TRUE(fake_.failures.empty()) << fake_.failures[0].message();
-  ASSERT_EQ(fake_.uploads.size(), 3u);
-  const v1::Lease* leases[] = {&fake_.lease, &other_seed, &other_integrator};
-  for (std::size_t i = 0; i < 3; ++i) {
+  ASSERT_EQ(fake_.uploads.size(), 4u);
+  const v1::Lease* leases[] = {&fake_.lease, &other_seed, &other_integrator, &gathering};
+  EXPECT_FALSE(render_in_process(gathering) == render_in_process(fake_.lease));
+  for (std::size_t i = 0; i < 4; ++i) {
     EXPECT_EQ(fake_.uploads[i].lease_id, leases[i]->lease_id());
     EXPECT_TRUE(fake_.uploads[i].bytes == render_in_process(*leases[i])) << i;
   }
