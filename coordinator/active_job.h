@@ -125,9 +125,13 @@ struct ActiveJob {
   std::optional<ConvergenceLog> convergence_log;    // its series on disk (convergence.h)
   double convergence_seconds_at_start = 0;          // the series' last time when resumed
   double render_seconds = 0;                        // summed over workers
+  // The final pass's span: the first of its results' render starts (completion less render
+  // seconds) to the last completion, as `prism render` times its final pass.
+  std::optional<std::chrono::steady_clock::time_point> final_begin, final_end;
   std::uint64_t rays = 0;
   std::chrono::steady_clock::time_point started;
   std::uint64_t samples_at_start = 0;            // done before this incarnation (resumed)
+  bool resumed = false;                          // by a restarted coordinator (farm_resume.cpp)
   std::vector<SceneFeatureNote> scene_features;  // for the report
   std::string film_filename;                     // the scene Film's "filename", for the report
   // Rendering to a target error: the final pass runs as rounds, the stages after the

@@ -269,7 +269,13 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   report.tile_size = p.tile_size;
   report.seed = p.render.seed;
   report.wall_seconds = double(now().count() - record.submitted_ms) / 1000.0;
-  report.render_seconds = job.render_seconds;
+  // The final pass's wall clock, as `prism render` reports it; the workers' summed seconds apart.
+  report.render_seconds =
+      job.final_begin.has_value() && job.final_end.has_value()
+          ? std::chrono::duration<double>(*job.final_end - *job.final_begin).count()
+          : 0.0;
+  report.worker_seconds = job.render_seconds;
+  report.resumed = job.resumed;
   report.samples =
       p.spp * static_cast<std::uint64_t>(p.width) * static_cast<std::uint64_t>(p.height);
   if (job.target.has_value()) {

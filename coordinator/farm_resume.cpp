@@ -58,6 +58,7 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
     reclaim_locked(record.id, *active);
   }
   active->samples_at_start = record.progress.samples_done;
+  active->resumed = true;
   const std::vector<TaskSpec> handed(specs.begin(), specs.begin() + active->stage_first[stage + 1]);
   PRISM_RETURN_IF_ERROR(scheduler_.add_job(record.id, handed, replay.done));
   if (record.state == store::JobState::kQueued) {

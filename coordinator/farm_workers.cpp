@@ -209,12 +209,19 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
   auto it = active_.find(task.job_id);
   if (it != active_.end()) {
     ActiveJob& job = *it->second;
-    job.render_seconds += render_seconds;
-    job.rays += rays;
     const int stage = job.stage_of(task.index);
     const int tile = job.tile_of(task.index);
     const bool final_stage = stage >= job.first_final_stage();
     if (final_stage) {
+      // The final pass's, as `prism render` reports them (the prepass has its own seconds).
+      job.render_seconds += render_seconds;
+      job.rays += rays;
+      const SteadyClock::time_point now_steady = SteadyClock::now();
+      const SteadyClock::time_point began =
+          now_steady - std::chrono::duration_cast<SteadyClock::duration>(
+                           std::chrono::duration<double>(std::max(0.0, render_seconds)));
+      if (!job.final_begin.has_value() || began < *job.final_begin) job.final_begin = began;
+      job.final_end = now_steady;
       for (const auto& [name, value] : counters) job.counters[name] += value;
       record_convergence_locked(
           task.job_id, job,

@@ -198,7 +198,12 @@ struct RenderReport {
   int tile_size = 0;
   std::uint64_t seed = 0;
   double wall_seconds = 0;    // loading the scene to the end of the render
-  double render_seconds = 0;  // tracing only
+  double render_seconds = 0;  // tracing only (the final pass; on the farm its wall clock)
+  // The farm: the final pass's seconds summed over the workers that rendered it (0 locally).
+  double worker_seconds = 0;
+  // The farm: the coordinator restarted during the job, and the counters, rays and seconds
+  // cover the work since it resumed the job (the images are whole either way).
+  bool resumed = false;
   std::uint64_t samples = 0;  // pixel samples taken
   std::uint64_t rays = 0;
   std::vector<std::pair<std::string, std::uint64_t>> counters;

@@ -77,6 +77,13 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
   j["rays"] = r.rays;
   j["rays_per_second"] = per_second(static_cast<double>(r.rays), r.render_seconds);
   j["peak_memory_bytes"] = r.peak_memory_bytes;
+  if (r.worker_seconds > 0) j["worker_seconds"] = r.worker_seconds;
+  if (r.resumed) {
+    j["resumed"] = true;
+    j["resumed_note"] =
+        "the coordinator restarted during the job: counters, rays and seconds cover the work "
+        "since it resumed the job; the images are whole";
+  }
   nlohmann::ordered_json counters = nlohmann::ordered_json::object();
   for (const auto& [name, value] : r.counters) counters[name] = value;
   j["counters"] = counters;

@@ -572,6 +572,13 @@ TEST_F(FarmProcessTest, TheDemoSubmittedWithAutoIsPrismRendersBytes) {
   EXPECT_EQ(farm["auto"]["choice"], cli["auto"]["choice"]) << farm.dump();
   EXPECT_EQ(farm["auto"]["reason"], cli["auto"]["reason"]);
   EXPECT_EQ(farm["caustic_paths"], cli["caustic_paths"]);
+  // The work reported is the same: rays and counters of the final pass, its seconds on the
+  // wall clock (the farm's summed over workers apart), and the job was not resumed.
+  EXPECT_EQ(farm["rays"], cli["rays"]);
+  EXPECT_EQ(farm["counters"], cli["counters"]);
+  EXPECT_GT(farm["render_seconds"].get<double>(), 0.0);
+  EXPECT_GT(farm["worker_seconds"].get<double>(), 0.0);
+  EXPECT_FALSE(farm.contains("resumed"));
 }
 
 // Tasks of tile x sample range: each tile's four ranges ([0,5), [5,10), [10,15), [15,16)) come
@@ -761,6 +768,13 @@ TEST_F(FarmProcessTest, SubmitWaitFollowsItsJobThroughACoordinatorRestart) {
   ASSERT_EQ(*exit_code, 0) << submitted->out() << submitted->err();
   EXPECT_NE((submitted->out() + submitted->err()).find("is unreachable"), std::string::npos)
       << submitted->out() << submitted->err();
+  // Its report says the counters cover the work since the restart (they summed that alone).
+  {
+    std::ifstream in(root_ / "farm" / "farm.json");
+    const nlohmann::json report = nlohmann::json::parse(in, nullptr, false);
+    ASSERT_FALSE(report.is_discarded());
+    EXPECT_EQ(report["resumed"], true) << report.dump();
+  }
   expect_identical(read_pixels(root_ / "farm" / "farm.exr"), cli_render(kSlowSpp));
 }
 
