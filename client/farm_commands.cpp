@@ -230,18 +230,24 @@ absl::StatusOr<v1::JobInfo> watch(Farm& farm, const std::string& id, std::ostrea
     const v1::JobProgress& p = job.progress();
     const double fraction =
         p.samples_total() > 0 ? static_cast<double>(p.samples_done()) / p.samples_total() : 0.0;
+    // A finished job has no rate or time left to show (it said "0 samples/s eta 0:00").
+    const bool ended = finished(job.state());
     if (terminal) {
       constexpr int kWidth = 30;
       const int filled = static_cast<int>(fraction * kWidth);
       out << "\r[" << std::string(filled, '#') << std::string(kWidth - filled, ' ') << "] "
-          << absl::StrFormat("%5.1f%%", 100 * fraction) << " " << state_name(job.state()) << " "
-          << human(p.samples_per_second()) << " samples/s ETA " << eta(p.eta_seconds()) << "   "
-          << std::flush;
+          << absl::StrFormat("%5.1f%%", 100 * fraction) << " " << state_name(job.state());
+      if (!ended) {
+        out << " " << human(p.samples_per_second()) << " samples/s ETA " << eta(p.eta_seconds());
+      }
+      out << "   " << std::flush;
     } else {
       out << job.job_id() << " " << state_name(job.state())
-          << absl::StrFormat(" %.1f%% ", 100 * fraction) << human(p.samples_per_second())
-          << " samples/s eta " << eta(p.eta_seconds()) << "\n"
-          << std::flush;
+          << absl::StrFormat(" %.1f%%", 100 * fraction);
+      if (!ended) {
+        out << " " << human(p.samples_per_second()) << " samples/s eta " << eta(p.eta_seconds());
+      }
+      out << "\n" << std::flush;
     }
     if (finished(job.state())) break;
   }

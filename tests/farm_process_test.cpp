@@ -768,6 +768,14 @@ TEST_F(FarmProcessTest, SubmitWaitFollowsItsJobThroughACoordinatorRestart) {
   ASSERT_EQ(*exit_code, 0) << submitted->out() << submitted->err();
   EXPECT_NE((submitted->out() + submitted->err()).find("is unreachable"), std::string::npos)
       << submitted->out() << submitted->err();
+  // The last progress line says the job is done, with no rate or time left ("0 samples/s").
+  {
+    const std::string progress = submitted->out() + submitted->err();
+    const std::size_t done = progress.find(" done 100.0%");
+    ASSERT_NE(done, std::string::npos) << progress;
+    const std::string line = progress.substr(done, progress.find('\n', done) - done);
+    EXPECT_EQ(line.find("samples/s"), std::string::npos) << line;
+  }
   // Its report says the counters cover the work since the restart (they summed that alone).
   {
     std::ifstream in(root_ / "farm" / "farm.json");
