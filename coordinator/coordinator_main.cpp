@@ -21,21 +21,29 @@
 #include "coordinator/http/http_api.h"
 #include "coordinator/resource_plan.h"
 #include "coordinator/rpc/coordinator_server.h"
+#include "services/base/file_lock.h"
 #include "services/rpc/address.h"
 
 namespace {
 
-// The outermost directory of `path` that does not exist yet: what opening the data directory
-// creates, and what a start that fails afterwards removes again (nothing, where it existed).
+// The outermost directory of `path` that does not exist yet (a dangling symlink exists): what
+// opening the data directory creates, and what a start that fails after taking its lock removes
+// again (nothing, where it existed).
 std::optional<std::filesystem::path> first_missing(const std::filesystem::path& path) {
   std::error_code error;
+  const std::filesystem::path absolute = std::filesystem::absolute(path, error);
+  if (error) return std::nullopt;
   std::optional<std::filesystem::path> missing;
-  for (std::filesystem::path p = std::filesystem::absolute(path, error).lexically_normal();
-       !error && !p.empty() && !std::filesystem::exists(p, error) && !error; p = p.parent_path()) {
+  for (std::filesystem::path p = absolute.lexically_normal(); !p.empty(); p = p.parent_path()) {
+    std::error_code ignored;  // set for a path that is not there, which is what is asked
+    if (std::filesystem::symlink_status(p, ignored).type() !=
+        std::filesystem::file_type::not_found) {
+      break;
+    }
     missing = p;
     if (p == p.parent_path()) break;
   }
-  return error ? std::nullopt : missing;
+  return missing;
 }
 
 struct Config {
@@ -166,16 +174,23 @@ int main(int argc, char** argv) {
   options.scheduler.lease_duration = Millis(config.lease_ms);
   options.tick_interval = Millis(std::max<std::int64_t>(10, config.heartbeat_ms / 2));
   options.logger = logger;
-  // A start that fails (its address taken, say) leaves no data directory it created behind.
+  // A start that fails (its address taken, say) leaves no data directory it created behind. Only
+  // one that opened the directory (and so held its lock): one that failed to open it (another
+  // coordinator holds it, having created it a moment after this one looked) removes nothing.
   const std::optional<std::filesystem::path> created = first_missing(config.data_dir);
+  // After the farm has stopped (its threads write there until then): under the directory's lock
+  // again, which another coordinator that started meanwhile would hold.
   auto forget_created = [&] {
+    if (!created.has_value()) return;
+    absl::StatusOr<prism::base::FileLock> lock = prism::base::FileLock::acquire(
+        std::filesystem::path(config.data_dir) / "coordinator.lock", "the data directory");
+    if (!lock.ok()) return;
     std::error_code ignored;
-    if (created.has_value()) std::filesystem::remove_all(*created, ignored);
+    std::filesystem::remove_all(*created, ignored);
   };
   auto farm = prism::coordinator::FarmCoordinator::open(std::move(options));
   if (!farm.ok()) {
     std::cerr << "prism-coordinator: " << farm.status().message() << "\n";
-    forget_created();
     return 1;
   }
   prism::coordinator::rpc::ServerConfig server_config;

@@ -224,6 +224,13 @@ TEST_F(HttpProcessTest, ASecondCoordinatorSharesNeitherAnAddressNorADataDirector
     if (c.data != root_ / "data") EXPECT_FALSE(fs::exists(c.data)) << c.data;
   }
   EXPECT_TRUE(fs::exists(root_ / "data" / "jobs.sqlite"));
+  // A dangling symlink given as the data directory exists: a failed start leaves it (it was
+  // removed as if the start had created it).
+  fs::create_symlink(root_ / "nowhere", root_ / "link");
+  testing::RunResult linked = testing::run(testing::coordinator_command(
+      PRISM_COORDINATOR_BINARY, grpc, root_ / "link", kSecret, kToken, {}));
+  EXPECT_NE(linked.exit_code, 0) << linked.out << linked.err;
+  EXPECT_TRUE(fs::is_symlink(root_ / "link"));
   // Every call still reaches the first: a job list, many times over.
   for (int i = 0; i < 20; ++i) {
     int status = 0;
