@@ -276,10 +276,34 @@ absl::StatusOr<v1::JobInfo> watch(Farm& farm, const std::string& id, std::ostrea
 constexpr std::chrono::minutes kCoordinatorPatience{5};
 
 absl::StatusOr<v1::JobInfo> watch_through_restarts(Farm& farm, const std::string& id,
-                                                   std::ostream& out, bool terminal) {
+                                                   std::ostream& out, bool terminal,
+                                                   const v1::JobInfo* submitted = nullptr) {
   using Clock = std::chrono::steady_clock;
+  // What makes the job this one: an id alone is not, when the coordinator that comes back
+  // has another data directory (its first job is j-000001 too).
+  auto identity = [](const v1::JobInfo& j) {
+    return absl::StrCat(j.spec().bundle_hash(), "|", j.spec().scene_path(), "|",
+                        j.submitted_unix_ms());
+  };
+  std::optional<std::string> known;
+  if (submitted != nullptr) {
+    known = identity(*submitted);  // as SubmitJob answered, before anything could go away
+  } else if (absl::StatusOr<v1::JobInfo> first = get_job(farm, id); first.ok()) {
+    known = identity(*first);
+  }
   std::optional<Clock::time_point> give_up_at;
+  bool reconnecting = false;
   for (;;) {
+    if (reconnecting) {
+      absl::StatusOr<v1::JobInfo> back = get_job(farm, id);
+      if (back.ok() && known.has_value() && identity(*back) != *known) {
+        return absl::FailedPreconditionError(absl::StrCat(
+            "the coordinator at ", farm.connection().address, " came back with another job ", id,
+            " (scene ", back->spec().scene_path(), ", submitted at ", back->submitted_unix_ms(),
+            " ms): it started on another data directory, and this job is not there"));
+      }
+      if (back.ok() && !known.has_value()) known = identity(*back);
+    }
     const Clock::time_point started = Clock::now();
     absl::StatusOr<v1::JobInfo> job = watch(farm, id, out, terminal);
     if (job.ok() || (job.status().code() != absl::StatusCode::kUnavailable &&
@@ -302,6 +326,7 @@ absl::StatusOr<v1::JobInfo> watch_through_restarts(Farm& farm, const std::string
                        "` and get its outputs with `prism fetch ", id, "`"));
     }
     std::this_thread::sleep_for(std::chrono::seconds(2));
+    reconnecting = true;
   }
 }
 
@@ -536,8 +561,9 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
   std::ostream null_stream(nullptr);
   std::ostream& out = options.progress != nullptr ? *options.progress : null_stream;
   out << id << "\n";
-  PRISM_ASSIGN_OR_RETURN(v1::JobInfo job,
-                         watch_through_restarts(farm, id, out, options.progress_is_terminal));
+  PRISM_ASSIGN_OR_RETURN(
+      v1::JobInfo job,
+      watch_through_restarts(farm, id, out, options.progress_is_terminal, &response.job()));
   PRISM_RETURN_IF_ERROR(job_outcome(job));
   PRISM_ASSIGN_OR_RETURN(std::string written,
                          fetch(farm, id, options.render.output, submission.film_filename));

@@ -74,9 +74,9 @@ class FarmProcessTest : public ::testing::Test {
   }
 
   // Starts the coordinator on `port` (0: any) and connects the stubs to it.
-  void start_coordinator(int port = 0) {
+  void start_coordinator(int port = 0, const std::string& data = "data") {
     coordinator_ = spawn(testing::coordinator_command(
-        PRISM_COORDINATOR_BINARY, "127.0.0.1:" + std::to_string(port), root_ / "data",
+        PRISM_COORDINATOR_BINARY, "127.0.0.1:" + std::to_string(port), root_ / data,
         testing::kWorkerSecret, testing::kApiToken,
         {"--heartbeat-ms", std::to_string(testing::kHeartbeatMs), "--lease-ms", "1000"}));
     ASSERT_NE(coordinator_, nullptr);
@@ -784,6 +784,44 @@ TEST_F(FarmProcessTest, SubmitWaitFollowsItsJobThroughACoordinatorRestart) {
     EXPECT_EQ(report["resumed"], true) << report.dump();
   }
   expect_identical(read_pixels(root_ / "farm" / "farm.exr"), cli_render(kSlowSpp));
+}
+
+// The coordinator comes back at the same address on another data directory, where another
+// job has the same id: `prism submit --wait` wrote that job's outputs under its own name. It
+// must notice the job is not its own and write nothing.
+TEST_F(FarmProcessTest, SubmitWaitDoesNotFollowItsJobIdIntoAnotherFarm) {
+  const int port = testing::free_port();
+  start_coordinator(port);
+  fs::create_directories(root_ / "farm");
+  std::vector<std::string> submit = testing::submit_command(
+      PRISM_BINARY, root_ / "scene" / "scene.pbrt", "127.0.0.1:" + std::to_string(port),
+      testing::kApiToken, {"--wait", "-o", (root_ / "farm" / "mine.exr").string()});
+  for (const char* f : {"--spp", "64", "--seed", "11", "--integrator", "hero", "--no-prepass"}) {
+    submit.push_back(f);
+  }
+  testing::ChildProcess* submitted = spawn(submit);  // no worker yet: it waits
+  ASSERT_TRUE(wait_for(
+                  "j-000001", [](const v1::JobInfo& i) { return !i.job_id().empty(); }, 20)
+                  .job_id() == "j-000001");
+  coordinator_->kill();
+  start_coordinator(port, "other-data");
+  // Another user's job, on the new farm: also j-000001.
+  std::vector<std::string> theirs =
+      testing::submit_command(PRISM_BINARY, root_ / "scene" / "scene.pbrt",
+                              "127.0.0.1:" + std::to_string(port), testing::kApiToken, {});
+  for (const char* f : {"--spp", "2", "--seed", "3", "--integrator", "hero", "--no-prepass"}) {
+    theirs.push_back(f);
+  }
+  const testing::RunResult other = testing::run(theirs);
+  ASSERT_EQ(other.exit_code, 0) << other.out << other.err;
+  start_worker(0);
+  const std::optional<int> exit_code = submitted->wait(std::chrono::minutes(2));
+  ASSERT_TRUE(exit_code.has_value()) << "prism submit --wait did not end";
+  EXPECT_NE(*exit_code, 0) << submitted->out() << submitted->err();
+  EXPECT_NE((submitted->out() + submitted->err()).find("came back with another job j-000001"),
+            std::string::npos)
+      << submitted->out() << submitted->err();
+  EXPECT_FALSE(fs::exists(root_ / "farm" / "mine.exr"));
 }
 
 TEST_F(FarmProcessTest, ACoordinatorKilledMidJobResumesWithoutRerenderingFinishedTasks) {
