@@ -534,6 +534,7 @@ absl::StatusOr<std::string> run_pack(const SubmitOptions& options,
   PRISM_ASSIGN_OR_RETURN(Submission submission, prepare_submission(options));
   PRISM_RETURN_IF_ERROR(
       coordinator::check_not_a_scene_file(bundle_file, submission.root, submission.files));
+  PRISM_RETURN_IF_ERROR(coordinator::check_not_special_file(bundle_file));
   const std::string packed = scene::pack(submission.bundle);
   PRISM_RETURN_IF_ERROR(base::write_file_atomic(bundle_file, packed));
   google::protobuf::util::JsonPrintOptions print;

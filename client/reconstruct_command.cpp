@@ -112,6 +112,7 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
     return absl::InvalidArgumentError(
         absl::StrCat("-o ", quoted(options.output), " is a directory"));
   }
+  PRISM_RETURN_IF_ERROR(coordinator::check_not_special_file(options.output));
   std::error_code ec;
   if (fs::equivalent(options.primal, options.gradient, ec)) {
     return absl::InvalidArgumentError(

@@ -1,6 +1,7 @@
 #include "client/reconstruct_command.h"
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -244,6 +245,18 @@ TEST_F(ReconstructCommandTest, RefusesBadInputWithoutWriting) {
   ASSERT_FALSE(same.ok());
   EXPECT_NE(same.status().message().find("is an input file"), std::string::npos);
   EXPECT_TRUE(image::read_spectral_exr(o.primal).ok());
+  // A pipe (or a device) named as the output would be replaced by the rename that writes it.
+  ASSERT_EQ(::mkfifo((dir_ / "pipe.exr").c_str(), 0600), 0);
+  ReconstructOptions to_pipe = options();
+  to_pipe.primal = dir_ / "labelled.primal.exr";
+  to_pipe.gradient = dir_ / "labelled.gradient.exr";
+  to_pipe.output = dir_ / "pipe.exr";
+  auto refused = run_reconstruct(to_pipe);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.status().message().find("pipe.exr': it is a device or other special file"),
+            std::string::npos)
+      << refused.status();
+  EXPECT_TRUE(fs::is_fifo(dir_ / "pipe.exr"));
 }
 
 }  // namespace

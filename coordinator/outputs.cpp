@@ -107,6 +107,20 @@ namespace {
 constexpr std::size_t kMaxOutputName = 220;
 }  // namespace
 
+absl::Status check_not_special_file(const fs::path& path) {
+  std::error_code ec;
+  // Followed through links: /dev/stdout is a link to a pipe or terminal.
+  const fs::file_status status = fs::status(path, ec);
+  if (ec || status.type() == fs::file_type::not_found || status.type() == fs::file_type::regular ||
+      status.type() == fs::file_type::directory) {
+    return absl::OkStatus();
+  }
+  return absl::InvalidArgumentError(absl::StrCat(
+      "cannot write '", path.string(),
+      "': it is a device or other special file (outputs are written to a temporary file and "
+      "renamed over the name, which would replace it); give a file name"));
+}
+
 absl::Status check_output_locations(const OutputPaths& paths) {
   for (const fs::path* path : {&paths.spectral_exr, &paths.rgb_exr, &paths.png, &paths.json}) {
     fs::path dir = path->parent_path();
@@ -128,6 +142,7 @@ absl::Status check_output_locations(const OutputPaths& paths) {
       return absl::InvalidArgumentError(
           absl::StrCat("cannot write '", path->string(), "': it is a directory"));
     }
+    PRISM_RETURN_IF_ERROR(check_not_special_file(*path));
     // Each output is written to a temporary name beside it first (".NAME.tmp.PID.N",
     // base/atomic_file.h), which must fit the file system's 255 bytes too.
     if (const std::size_t length = path->filename().string().size(); length > kMaxOutputName) {

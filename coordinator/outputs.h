@@ -59,8 +59,13 @@ absl::StatusOr<OutputPaths> output_paths(const std::optional<std::filesystem::pa
                                          const std::optional<std::filesystem::path>& json,
                                          const std::string& film_filename);
 
+// INVALID_ARGUMENT when `path` names a device, pipe, socket or a link to one (/dev/null,
+// /dev/stdout): an output is renamed over its name, which would replace the device.
+absl::Status check_not_special_file(const std::filesystem::path& path);
+
 // Checked before rendering so a long render does not fail at the end: every output's directory
-// exists (NOT_FOUND otherwise) and no output names an existing directory (INVALID_ARGUMENT).
+// exists (NOT_FOUND otherwise) and no output names an existing directory (INVALID_ARGUMENT) or a
+// special file (check_not_special_file).
 absl::Status check_output_locations(const OutputPaths& paths);
 
 // INVALID_ARGUMENT when `output` is one of a scene's own files (`files`, relative to `root`, as

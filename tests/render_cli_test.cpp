@@ -820,6 +820,10 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
        "--max-spp 32 is below --spp 64"},
       {{"render", scene, "--target-error", "1%", "--spp", "1"},
        "spp 1 is too few for a target error"},
+      {{"render", scene, "--json", "/dev/null"},
+       "cannot write '/dev/null': it is a device or other special file"},
+      {{"pack", scene, "--bundle", "/dev/null"},
+       "cannot write '/dev/null': it is a device or other special file"},
       {{"pack", scene, "--bundle", "b.bin", "-o", "named.exr"},
        "prism: pack writes --bundle and prints the request; -o names the outputs"},
   };
