@@ -1251,10 +1251,17 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
     log(absl::StrCat("warning:\n", warnings));
   }
   PRISM_RETURN_IF_ERROR(write_outputs(setups.size(), summary));
+  // Only a plain name (a results.csv is a file a user can edit: "../x" must not reach outside),
+  // and only where its gnuplot script shows bench drew it (a `prism render` preview of the same
+  // name in the same directory is not bench's).
   for (const std::string& stem : earlier_scenes) {
     if (absl::c_linear_search(stems, stem)) continue;
+    if (stem.empty() || stem.front() == '.' || stem.find_first_of("/\\") != std::string::npos) {
+      continue;
+    }
     std::error_code ignored;
-    for (const char* ext : {".dat", ".gp", ".svg", ".png"}) {
+    if (!fs::is_regular_file(options.output / (stem + ".gp"), ignored)) continue;
+    for (const char* ext : {".dat", ".svg", ".png", ".gp"}) {
       fs::remove(options.output / (stem + ext), ignored);
     }
   }

@@ -1285,6 +1285,16 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
   // Another scene into the same directory: its plots replace the earlier run's, whose scene
   // this run does not render (they stayed beside the new report as if they were its own).
   ASSERT_TRUE(fs::exists(dir / "out" / "three-emitters.svg"));
+  // Not what a results.csv's scene name reaches outside the directory: "../victim" in the earlier
+  // CSV leaves the user's ../victim.png alone.
+  {
+    std::ofstream(dir / "victim.png") << "a user's file";
+    std::string rows = prism::base::read_file(dir / "out" / "results.csv").value();
+    const std::size_t first = rows.find('\n') + 1;
+    const std::string row = rows.substr(first, rows.find('\n', first) - first + 1);
+    rows += "../victim" + row.substr(std::string("three-emitters").size());
+    ASSERT_TRUE(prism::base::write_file_atomic(dir / "out" / "results.csv", rows).ok());
+  }
   CommandRun other =
       run_prism(dir, {"bench", source("scenes/prism.pbrt"), "--resolution", "16x12", "--methods",
                       "hero", "--spp", "2", "--seeds", "1", "--reference-spp", "8",
@@ -1294,4 +1304,5 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
   for (const char* ext : {".svg", ".png", ".dat", ".gp"}) {
     EXPECT_FALSE(fs::exists(dir / "out" / (std::string("three-emitters") + ext))) << ext;
   }
+  EXPECT_TRUE(fs::exists(dir / "victim.png"));
 }
