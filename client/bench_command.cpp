@@ -969,6 +969,14 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
     if (!options.references.empty()) {
       const fs::path& ref_path = options.references[si];
       PRISM_ASSIGN_OR_RETURN(image::SpectralExr exr, image::read_spectral_exr(ref_path));
+      // A gradient render's raw gradient file holds differences of bins, not radiance.
+      if (auto content = exr.metadata.find(std::string(image::kMetaContent));
+          content != exr.metadata.end() && content->second == "gradient") {
+        return absl::InvalidArgumentError(absl::StrCat(
+            "--reference ", ref_path.string(),
+            " holds the gradient of a gradient render (prism:content), not an image; give the "
+            "render's image"));
+      }
       if (exr.spectral.width() != width || exr.spectral.height() != height ||
           exr.spectral.bins() != bins) {
         return absl::InvalidArgumentError(

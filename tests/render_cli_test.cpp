@@ -337,6 +337,14 @@ TEST(RenderCliTest, ReconstructOfARendersPairIsThatRender) {
   EXPECT_NE(of_render.exit_code, 0);
   EXPECT_NE(of_render.output.find("'g.exr' holds the reconstruction"), std::string::npos)
       << of_render.output;
+  // Nor is the gradient file a reference image for bench.
+  CommandRun bench =
+      run_prism(dir, {"bench", source("scenes/dispersive-caustic.pbrt"), "--resolution", "24x16",
+                      "--bins", "16", "--methods", "hero", "--spp", "2", "--seeds", "1",
+                      "--reference", "g.gradient.exr", "-o", "bench"});
+  EXPECT_NE(bench.exit_code, 0);
+  EXPECT_NE(bench.output.find("holds the gradient of a gradient render"), std::string::npos)
+      << bench.output;
 }
 
 // A target error with the default integrator on a scene with caustic paths: auto offered
