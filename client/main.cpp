@@ -62,9 +62,14 @@ int main(int argc, char** argv) {
       ->required();
   reconstruct_cmd->add_option("-o,--output", reconstruct.output, "Spectral EXR to write")
       ->required();
-  reconstruct_cmd->add_option("--alpha", reconstruct.alpha,
-                              "Screening weight alpha > 0 (default 0.4)");
-  reconstruct_cmd->add_option("--poisson", reconstruct.poisson, "Norm: l2 or l1 (default l2)");
+  double reconstruct_alpha = 0;
+  std::string reconstruct_poisson;
+  auto* reconstruct_alpha_opt = reconstruct_cmd->add_option(
+      "--alpha", reconstruct_alpha,
+      "Screening weight alpha > 0 (default: the render's, from the files; else 0.4)");
+  auto* reconstruct_poisson_opt = reconstruct_cmd->add_option(
+      "--poisson", reconstruct_poisson,
+      "Norm: l2 or l1 (default: the render's, from the files; else l2)");
   auto* offset_opt = reconstruct_cmd->add_option(
       "--offset-bins", offset_bins,
       "Gradient offset k in bins (default: the gradient file's prism:gradient_offset_bins)");
@@ -266,6 +271,8 @@ int main(int argc, char** argv) {
   }
   if (reconstruct_cmd->parsed()) {
     if (offset_opt->count() > 0) reconstruct.offset_bins = offset_bins;
+    if (reconstruct_alpha_opt->count() > 0) reconstruct.alpha = reconstruct_alpha;
+    if (reconstruct_poisson_opt->count() > 0) reconstruct.poisson = reconstruct_poisson;
     return report(prism::client::run_reconstruct(reconstruct));
   }
   if (bench_cmd->parsed()) {

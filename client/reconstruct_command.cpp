@@ -4,6 +4,7 @@
 #include <cmath>
 #include <system_error>
 
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "coordinator/outputs.h"
 #include "coordinator/poisson.h"
@@ -82,21 +83,22 @@ absl::Status check_content(const image::SpectralExr& file, std::string_view role
 
 absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   // Flags first: a typo should not cost reading two large files.
-  if (options.poisson == "weighted") {
+  if (options.poisson.has_value() && *options.poisson == "weighted") {
     return absl::InvalidArgumentError(
         "--poisson weighted needs the per-bin variances of I and G, which the primal and "
         "gradient EXRs do not carry: reconstruct with l2 or l1, or render with --poisson weighted");
   }
-  if (options.poisson != "l2" && options.poisson != "l1") {
+  if (options.poisson.has_value() && *options.poisson != "l2" && *options.poisson != "l1") {
     return absl::InvalidArgumentError(
-        absl::StrCat("Poisson norm '", options.poisson, "': want l2 or l1"));
+        absl::StrCat("Poisson norm '", *options.poisson, "': want l2 or l1"));
   }
-  const job::PoissonNorm norm = *job::parse_poisson_norm(options.poisson);
-  if (!std::isfinite(options.alpha) || options.alpha < job::kMinPoissonAlpha ||
-      options.alpha > job::kMaxPoissonAlpha) {
+  auto alpha_in_range = [](double a) {
+    return std::isfinite(a) && a >= job::kMinPoissonAlpha && a <= job::kMaxPoissonAlpha;
+  };
+  if (options.alpha.has_value() && !alpha_in_range(*options.alpha)) {
     return absl::InvalidArgumentError(
-        absl::StrCat("--alpha ", options.alpha, ": want a finite value in [", job::kMinPoissonAlpha,
-                     ", ", job::kMaxPoissonAlpha, "] (alpha must be > 0)"));
+        absl::StrCat("--alpha ", *options.alpha, ": want a finite value in [",
+                     job::kMinPoissonAlpha, ", ", job::kMaxPoissonAlpha, "] (alpha must be > 0)"));
   }
   if (options.output.empty() || options.output.extension() != ".exr") {
     return absl::InvalidArgumentError(
@@ -143,13 +145,47 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   PRISM_RETURN_IF_ERROR(check_content(*primal, "primal", options.primal));
   PRISM_RETURN_IF_ERROR(check_content(*gradient, "gradient", options.gradient));
 
+  // α and the norm: the flags, else what the render used (its files record both), else the
+  // defaults; the render's image is then what this writes.
+  double alpha = options.alpha.value_or(job::kDefaultPoissonAlpha);
+  std::string poisson = options.poisson.value_or("l2");
+  for (const auto& [file, path] :
+       {std::pair{&*gradient, &options.gradient}, std::pair{&*primal, &options.primal}}) {
+    if (!options.alpha.has_value()) {
+      if (auto it = file->metadata.find(std::string(image::kMetaPoissonAlpha));
+          it != file->metadata.end()) {
+        double recorded = 0;
+        if (!absl::SimpleAtod(it->second, &recorded) || !alpha_in_range(recorded)) {
+          return absl::InvalidArgumentError(
+              absl::StrCat(quoted(*path), ": prism:", std::string(image::kMetaPoissonAlpha), " = '",
+                           it->second, "' is not a usable alpha; pass --alpha"));
+        }
+        alpha = double(static_cast<float>(recorded));  // the job held it as a float
+      }
+    }
+    if (!options.poisson.has_value()) {
+      if (auto it = file->metadata.find(std::string(image::kMetaPoissonNorm));
+          it != file->metadata.end()) {
+        if (it->second == "weighted") {
+          return absl::InvalidArgumentError(absl::StrCat(
+              quoted(*path),
+              " comes from a render reconstructed with --poisson weighted, which needs the "
+              "per-bin variances these files do not carry: pass --poisson l2 or l1 to "
+              "reconstruct them anyway"));
+        }
+        if (it->second == "l2" || it->second == "l1") poisson = it->second;
+      }
+    }
+  }
+  const job::PoissonNorm norm = *job::parse_poisson_norm(poisson);
+
   int k = 0;
   if (options.offset_bins) {
     k = *options.offset_bins;
   } else {
     PRISM_ASSIGN_OR_RETURN(k, offset_from_metadata(*gradient, options.gradient));
   }
-  auto solver = coordinator::PoissonSolver::create(pi.bins(), k, options.alpha);
+  auto solver = coordinator::PoissonSolver::create(pi.bins(), k, alpha);
   if (!solver.ok()) {
     return with_context(solver.status(),
                         options.offset_bins
@@ -183,7 +219,7 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   }
 
   image::ExrMetadata metadata = primal->metadata;
-  metadata[std::string(image::kMetaPoissonAlpha)] = exact_decimal(options.alpha);
+  metadata[std::string(image::kMetaPoissonAlpha)] = exact_decimal(alpha);
   metadata[std::string(image::kMetaPoissonNorm)] = std::string(job::to_string(norm));
   metadata[std::string(image::kMetaGradientOffsetBins)] = absl::StrCat(k);
   const auto delta = gradient->metadata.find(std::string(image::kMetaGradientDelta));
@@ -194,7 +230,7 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   metadata["version"] = coordinator::prism_version();
   PRISM_RETURN_IF_ERROR(image::write_spectral_exr(options.output, *result, *rgb, metadata));
   return absl::StrCat("wrote ", options.output.string(), ": ", pi.width(), "x", pi.height(), ", ",
-                      pi.bins(), " bins, k ", k, ", alpha ", exact_decimal(options.alpha), ", ",
+                      pi.bins(), " bins, k ", k, ", alpha ", exact_decimal(alpha), ", ",
                       std::string(job::to_string(norm)), "\n");
 }
 

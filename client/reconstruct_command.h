@@ -23,8 +23,10 @@ struct ReconstructOptions {
   std::filesystem::path primal;
   std::filesystem::path gradient;
   std::filesystem::path output;
-  double alpha = job::kDefaultPoissonAlpha;
-  std::string poisson = "l2";  // l2 or l1
+  // Unset: what the files record of the render (prism:poisson_alpha, prism:poisson_norm), else
+  // kDefaultPoissonAlpha and l2.
+  std::optional<double> alpha;
+  std::optional<std::string> poisson;  // l2 or l1
   std::optional<int> offset_bins;
 };
 

@@ -9,6 +9,7 @@
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "services/base/atomic_file.h"
 #include "services/base/check.h"
 #include "services/base/status.h"
@@ -401,6 +402,10 @@ image::ExrMetadata output_metadata(const RenderReport& report) {
         absl::StrCat(report.gradient->offset_bins);
     metadata[std::string(image::kMetaGradientDelta)] = absl::StrCat(report.gradient->delta);
     metadata["gradient_tau"] = absl::StrCat(report.gradient->tau);
+    // How the reconstruction was made (exr_spectral.h), on the raw pair too: what `prism
+    // reconstruct` of the pair takes to give this image again.
+    metadata[std::string(image::kMetaPoissonAlpha)] = absl::StrCat(report.gradient->alpha);
+    metadata[std::string(image::kMetaPoissonNorm)] = report.gradient->norm;
     // The image is the reconstruction (the raw pair overrides this with its own labels), so
     // `prism reconstruct` does not take it for a primal.
     metadata[std::string(image::kMetaContent)] = "reconstruction";
@@ -436,11 +441,6 @@ absl::Status write_outputs(const std::function<absl::Status(const std::filesyste
                            const image::RgbImage& rgb, const RenderReport& report,
                            const OutputPaths& paths, const OutputOptions& options) {
   image::ExrMetadata metadata = output_metadata(report);
-  if (report.gradient.has_value()) {
-    // The reconstruction records how it was made (exr_spectral.h).
-    metadata[std::string(image::kMetaPoissonAlpha)] = absl::StrCat(report.gradient->alpha);
-    metadata[std::string(image::kMetaPoissonNorm)] = report.gradient->norm;
-  }
 
   absl::Status first;
   std::string failures;
@@ -478,6 +478,11 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
   image::ExrMetadata metadata = output_metadata(report);
   const std::vector<double> centres = image::bin_centres_nm(bins);
   metadata[std::string(image::kMetaContent)] = "primal";
+  if (report.gradient.has_value()) {
+    // Exactly (a float's nine digits), for `prism reconstruct` of the pair.
+    metadata[std::string(image::kMetaPoissonAlpha)] =
+        absl::StrFormat("%.9g", double(report.gradient->alpha));
+  }
   absl::Status status = image::write_spectral_exr_rows(
       paths.primal_exr, centres, primal_rgb.width(), primal_rgb.height(), band_rows, primal,
       primal_rgb, metadata, options.exr);
