@@ -41,6 +41,7 @@ struct Scope {
   ScopeKind kind;
   GraphicsState saved;
   SourceLocation where;
+  const char* begin = nullptr;  // the directive that opened it, for messages (scope_begin_name)
 };
 
 struct ObjectDefinition {
@@ -142,7 +143,8 @@ class SceneParser {
           absl::StrCat("ObjectBegin \"", *current_object_, "\" is never closed by ObjectEnd"));
     for (const Scope& s : scopes_)
       scene_.warnings.push_back(absl::StrCat(
-          s.where.to_string(), ": warning: ", scope_begin_name(s.kind), " is never closed"));
+          s.where.to_string(), ": warning: ",
+          s.begin != nullptr ? s.begin : scope_begin_name(s.kind), " is never closed"));
     // Instances of objects defined after them.
     for (const PendingInstance& instance : pending_instances_) {
       auto it = objects_.find(instance.name);
@@ -645,7 +647,8 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     if (name == "TransformBegin")
       features_.supported("TransformBegin", where,
                           "deprecated in pbrt-v4, which reads it as AttributeBegin; so does Prism");
-    scopes_.push_back(Scope{ScopeKind::kAttribute, state_, where});
+    scopes_.push_back(Scope{ScopeKind::kAttribute, state_, where,
+                            name == "TransformBegin" ? "TransformBegin" : "AttributeBegin"});
   } else if (name == "AttributeEnd" || name == "TransformEnd") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     if (scopes_.empty())

@@ -451,6 +451,12 @@ TEST(GoodScenes, TransformBeginIsAttributeBeginAsInPbrtV4) {
   EXPECT_FALSE(s->shapes[1].reverse_orientation);
   EXPECT_TRUE(s->shapes[0].area_light.has_value());
   EXPECT_FALSE(s->shapes[1].area_light.has_value());
+  // An unclosed one is named as written.
+  absl::StatusOr<SceneDescription> open_block =
+      parse_scene_string("WorldBegin\nLightSource \"point\"\nTransformBegin\n", "m.pbrt", {}, {});
+  ASSERT_TRUE(open_block.ok()) << open_block.status();
+  EXPECT_EQ(open_block->warnings,
+            (std::vector<std::string>{"m.pbrt:3:1: warning: TransformBegin is never closed"}));
 }
 
 // pbrt-v4 resolves ObjectInstance after the whole scene is read: an instance may come before
