@@ -8,6 +8,8 @@
 #include <utility>
 #include <vector>
 
+#include "absl/algorithm/container.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "services/base/status.h"
@@ -623,6 +625,36 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
       if (value.kind != Token::Kind::kWord && value.kind != Token::Kind::kString) {
         return location_error(tokens.location(value),
                               absl::StrCat("'Option \"", first.text, "\"' needs a value"));
+      }
+      // pbrt-v4 knows these options and refuses any other name, and a value of the wrong kind.
+      static constexpr std::string_view kBoolOptions[] = {"disablepixeljitter",
+                                                          "disablewavelengthjitter",
+                                                          "disabletexturefiltering",
+                                                          "forcediffuse",
+                                                          "quickrender",
+                                                          "quiet",
+                                                          "recordpixelstatistics",
+                                                          "useGPU",
+                                                          "wavefront"};
+      static constexpr std::string_view kOtherOptions[] = {"seed", "rendercoordsys",
+                                                           "displacementedgescale",
+                                                           "msereferenceimage", "msereferenceout"};
+      const bool is_bool = absl::c_linear_search(kBoolOptions, std::string_view(first.text));
+      if (!is_bool && !absl::c_linear_search(kOtherOptions, std::string_view(first.text))) {
+        return location_error(at, absl::StrCat("unknown option \"", first.text, "\""));
+      }
+      if (is_bool &&
+          (value.kind != Token::Kind::kWord || (value.text != "true" && value.text != "false"))) {
+        return location_error(tokens.location(value),
+                              absl::StrCat("Option \"", first.text, "\" takes true or false, not '",
+                                           value.text, "'"));
+      }
+      std::int64_t integer = 0;
+      if (first.text == "seed" &&
+          (value.kind != Token::Kind::kWord || !absl::SimpleAtoi(value.text, &integer))) {
+        return location_error(
+            tokens.location(value),
+            absl::StrCat("Option \"seed\" takes an integer, not '", value.text, "'"));
       }
       PRISM_RETURN_IF_ERROR(apply_option(first.text,
                                          value.kind == Token::Kind::kWord && value.text == "false",

@@ -167,6 +167,17 @@ TEST(SceneFeatures, OptionsThatChangeTheImageAreRefusedAndTheRestIgnored) {
   ASSERT_TRUE(untyped.ok()) << untyped.status();
   EXPECT_EQ(count_features(untyped->features, FeatureStatus::kIgnored), 3);
   EXPECT_EQ(count_features(untyped->features, FeatureStatus::kSupported), 1);
+  // An unknown name, or a value of the wrong kind, is malformed (pbrt-v4 refuses them too).
+  for (const auto& [text, message] :
+       {std::pair<std::string, std::string>{"Option \"nosuchoption\" false",
+                                            "o.pbrt:1:8: unknown option \"nosuchoption\""},
+        {"Option \"disablepixeljitter\" maybe",
+         "o.pbrt:1:29: Option \"disablepixeljitter\" takes true or false, not 'maybe'"},
+        {"Option \"seed\" 1.5", "o.pbrt:1:15: Option \"seed\" takes an integer, not '1.5'"}}) {
+    absl::StatusOr<SceneDescription> bad = parse_scene_string(text + "\nWorldBegin\n", "o.pbrt");
+    ASSERT_FALSE(bad.ok()) << text;
+    EXPECT_EQ(bad.status().message(), message) << text;
+  }
   absl::StatusOr<SceneDescription> untyped_bad =
       parse_scene_string("Option \"forcediffuse\" true\nWorldBegin\n", "o.pbrt");
   ASSERT_FALSE(untyped_bad.ok());
