@@ -430,9 +430,12 @@ void HttpApi::install_routes() {
     // 8 KiB sent as application/x-www-form-urlencoded (curl's default for --data-binary, as in
     // the README's upload) with an empty 413, whatever the payload limit, and parses it as a
     // query. Read here, it is the bytes as sent, up to the bundle limit.
-    auto with_body = [max = farm_.options().max_bundle_bytes](Handler inner) {
-      return [inner, max](const httplib::Request& req, httplib::Response& res,
-                          const httplib::ContentReader& reader) {
+    auto with_body = [max = farm_.options().max_bundle_bytes, authorised,
+                      open = !route.authenticated](Handler inner) {
+      return [inner, max, authorised, open](const httplib::Request& req, httplib::Response& res,
+                                            const httplib::ContentReader& reader) {
+        // The token first: a client without one learns nothing of the limits below.
+        if (!open && !authorised(req, res)) return;
         // A Content-Length over the limit is refused before reading: cpp-httplib would not read
         // it (payload_max_length), and the handler saw an empty body ("the bundle is empty").
         std::uint64_t declared = 0;
@@ -493,19 +496,29 @@ void HttpApi::install_routes() {
   }
   // Anything else: a path that a route has under other methods is a JSON 405 with the Allow
   // header (RFC 9110 15.5.6); any other a JSON 404 naming what was asked for.
-  std::vector<std::pair<std::regex, std::string>> known;
+  struct KnownRoute {
+    std::regex pattern;
+    std::string method;
+    bool authenticated = true;
+  };
+  std::vector<KnownRoute> known;
   for (const Route& route : api_routes()) {
-    known.emplace_back(std::regex(path_regex(route.path)), absl::AsciiStrToUpper(route.method));
+    known.push_back({std::regex(path_regex(route.path)), absl::AsciiStrToUpper(route.method),
+                     route.authenticated});
   }
-  Handler unknown = [known = std::move(known)](const httplib::Request& req,
-                                               httplib::Response& res) {
+  Handler unknown = [known = std::move(known), authorised](const httplib::Request& req,
+                                                           httplib::Response& res) {
     std::vector<std::string> allowed;
-    for (const auto& [pattern, method] : known) {
-      if (std::regex_match(req.path, pattern) &&
-          std::find(allowed.begin(), allowed.end(), method) == allowed.end()) {
-        allowed.push_back(method);
+    bool authenticated = false;
+    for (const KnownRoute& route : known) {
+      if (!std::regex_match(req.path, route.pattern)) continue;
+      authenticated |= route.authenticated;
+      if (std::find(allowed.begin(), allowed.end(), route.method) == allowed.end()) {
+        allowed.push_back(route.method);
       }
     }
+    // The methods of a path that needs the token are told only to a client that has it.
+    if (!allowed.empty() && authenticated && !authorised(req, res)) return;
     if (allowed.empty()) {
       return send_error(res,
                         absl::NotFoundError(absl::StrCat("no route ", req.method, " ", req.path,

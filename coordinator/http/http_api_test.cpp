@@ -254,6 +254,10 @@ TEST_F(HttpApiTest, UnknownRoutesWithoutABodyGetTheJsonNotFound) {
 // It is refused for its size, as a chunked one is.
 TEST_F(HttpApiTest, ABodyOverTheLimitIsRefusedForItsSize) {
   const std::string big(100 << 10, 'x');  // the fixture's limit is 64 KiB
+  // Without the token: 401 first, not the limit.
+  httplib::Result anonymous = http_->Post("/api/v1/bundles", big, "application/octet-stream");
+  ASSERT_TRUE(anonymous);
+  EXPECT_EQ(anonymous->status, 401) << anonymous->body;
   httplib::Result r = http_->Post("/api/v1/bundles", auth(), big, "application/octet-stream");
   ASSERT_TRUE(r);
   EXPECT_EQ(r->status, 429) << r->body;
@@ -292,14 +296,19 @@ TEST_F(HttpApiTest, IdleConnectionsDoNotHoldUpRequests) {
 // A route asked for with a method it does not take (DELETE on a job) was the 404 of a route
 // that does not exist; it is a 405 naming the methods the path takes, in the Allow header too.
 TEST_F(HttpApiTest, AKnownPathWithAnotherMethodIsMethodNotAllowed) {
-  httplib::Result r = http_->Delete("/api/v1/jobs/j-000001");
+  // Without the token: 401, telling nothing of the path's methods.
+  httplib::Result anonymous = http_->Delete("/api/v1/jobs/j-000001");
+  ASSERT_TRUE(anonymous);
+  EXPECT_EQ(anonymous->status, 401);
+  EXPECT_FALSE(anonymous->has_header("Allow"));
+  httplib::Result r = http_->Delete("/api/v1/jobs/j-000001", auth());
   ASSERT_TRUE(r);
   EXPECT_EQ(r->status, 405);
   EXPECT_EQ(r->get_header_value("Allow"), "GET");
   const json body = json::parse(r->body);
   EXPECT_EQ(body["code"], "METHOD_NOT_ALLOWED");
   EXPECT_NE(body["message"].get<std::string>().find("not DELETE"), std::string::npos) << r->body;
-  httplib::Result put = http_->Put("/api/v1/jobs", "{}", "application/json");
+  httplib::Result put = http_->Put("/api/v1/jobs", auth(), "{}", "application/json");
   ASSERT_TRUE(put);
   EXPECT_EQ(put->status, 405);
   const std::string allow = put->get_header_value("Allow");
