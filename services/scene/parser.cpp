@@ -8,7 +8,6 @@
 #include <utility>
 #include <vector>
 
-#include "absl/algorithm/container.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
@@ -61,27 +60,49 @@ const char* scope_begin_name(ScopeKind kind) {
   return "";
 }
 
-// pbrt-v4's `Option` directive. Options that only affect speed, statistics or output files
-// cannot change the image; `disabletexturefiltering` is what Prism does anyway; false is every
-// boolean option's default; the rest change the image and are refused. `feature` names the
-// option for reports.
+// pbrt-v4's `Option` directive: the options it knows, the kind of value each takes, and what
+// each does to the image. Those that only affect speed, statistics or output files cannot change
+// it; `disabletexturefiltering` is what Prism does anyway; false is every boolean option's
+// default; the rest change the image and are refused.
+struct PbrtOption {
+  std::string_view name;
+  enum class Value { kBool, kInteger, kOther } value;
+  enum class Effect { kNone, kPrismDoesIt, kChangesTheImage } effect;
+};
+constexpr PbrtOption kPbrtOptions[] = {
+    {"seed", PbrtOption::Value::kInteger, PbrtOption::Effect::kNone},
+    {"quickrender", PbrtOption::Value::kBool, PbrtOption::Effect::kNone},
+    {"quiet", PbrtOption::Value::kBool, PbrtOption::Effect::kNone},
+    {"rendercoordsys", PbrtOption::Value::kOther, PbrtOption::Effect::kNone},
+    {"wavefront", PbrtOption::Value::kBool, PbrtOption::Effect::kNone},
+    {"msereferenceimage", PbrtOption::Value::kOther, PbrtOption::Effect::kNone},
+    {"msereferenceout", PbrtOption::Value::kOther, PbrtOption::Effect::kNone},
+    {"displacementedgescale", PbrtOption::Value::kOther, PbrtOption::Effect::kNone},
+    {"recordpixelstatistics", PbrtOption::Value::kBool, PbrtOption::Effect::kNone},
+    {"useGPU", PbrtOption::Value::kBool, PbrtOption::Effect::kNone},
+    {"disabletexturefiltering", PbrtOption::Value::kBool, PbrtOption::Effect::kPrismDoesIt},
+    {"disablepixeljitter", PbrtOption::Value::kBool, PbrtOption::Effect::kChangesTheImage},
+    {"disablewavelengthjitter", PbrtOption::Value::kBool, PbrtOption::Effect::kChangesTheImage},
+    {"forcediffuse", PbrtOption::Value::kBool, PbrtOption::Effect::kChangesTheImage},
+};
+
+const PbrtOption* find_pbrt_option(std::string_view name) {
+  for (const PbrtOption& o : kPbrtOptions) {
+    if (o.name == name) return &o;
+  }
+  return nullptr;
+}
+
+// Records or refuses the option `name` (unknown names, which only the typed form lets through,
+// are refused as changing the image). `feature` names it for reports.
 absl::Status apply_option(const std::string& name, bool is_false, const std::string& feature,
                           const SourceLocation& where, FeatureRecorder& features) {
-  static constexpr std::string_view kNoEffect[] = {"seed",
-                                                   "quickrender",
-                                                   "quiet",
-                                                   "rendercoordsys",
-                                                   "wavefront",
-                                                   "msereferenceimage",
-                                                   "msereferenceout",
-                                                   "displacementedgescale",
-                                                   "recordpixelstatistics",
-                                                   "useGPU"};
-  bool no_effect = false;
-  for (std::string_view k : kNoEffect) no_effect |= k == name;
-  if (no_effect) {
+  const PbrtOption* option = find_pbrt_option(name);
+  const PbrtOption::Effect effect =
+      option != nullptr ? option->effect : PbrtOption::Effect::kChangesTheImage;
+  if (effect == PbrtOption::Effect::kNone) {
     features.ignored(feature, where, "does not change the converged image");
-  } else if (name == "disabletexturefiltering") {
+  } else if (effect == PbrtOption::Effect::kPrismDoesIt) {
     features.supported(feature, where, "Prism never prefilters textures");
   } else if (is_false) {
     features.ignored(feature, where, "false is pbrt-v4's default");
@@ -627,34 +648,22 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
                               absl::StrCat("'Option \"", first.text, "\"' needs a value"));
       }
       // pbrt-v4 knows these options and refuses any other name, and a value of the wrong kind.
-      static constexpr std::string_view kBoolOptions[] = {"disablepixeljitter",
-                                                          "disablewavelengthjitter",
-                                                          "disabletexturefiltering",
-                                                          "forcediffuse",
-                                                          "quickrender",
-                                                          "quiet",
-                                                          "recordpixelstatistics",
-                                                          "useGPU",
-                                                          "wavefront"};
-      static constexpr std::string_view kOtherOptions[] = {"seed", "rendercoordsys",
-                                                           "displacementedgescale",
-                                                           "msereferenceimage", "msereferenceout"};
-      const bool is_bool = absl::c_linear_search(kBoolOptions, std::string_view(first.text));
-      if (!is_bool && !absl::c_linear_search(kOtherOptions, std::string_view(first.text))) {
+      const PbrtOption* option = find_pbrt_option(first.text);
+      if (option == nullptr) {
         return location_error(at, absl::StrCat("unknown option \"", first.text, "\""));
       }
-      if (is_bool &&
+      if (option->value == PbrtOption::Value::kBool &&
           (value.kind != Token::Kind::kWord || (value.text != "true" && value.text != "false"))) {
         return location_error(tokens.location(value),
                               absl::StrCat("Option \"", first.text, "\" takes true or false, not '",
                                            value.text, "'"));
       }
       std::int64_t integer = 0;
-      if (first.text == "seed" &&
+      if (option->value == PbrtOption::Value::kInteger &&
           (value.kind != Token::Kind::kWord || !absl::SimpleAtoi(value.text, &integer))) {
         return location_error(
             tokens.location(value),
-            absl::StrCat("Option \"seed\" takes an integer, not '", value.text, "'"));
+            absl::StrCat("Option \"", first.text, "\" takes an integer, not '", value.text, "'"));
       }
       PRISM_RETURN_IF_ERROR(apply_option(first.text,
                                          value.kind == Token::Kind::kWord && value.text == "false",
