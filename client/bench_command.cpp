@@ -1232,15 +1232,14 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       for (const BenchRow& r : *rows_before) remember(earlier_scenes, r.scene);
     }
   }
-  auto write_outputs = [&](std::size_t scenes_done, std::string& summary) -> absl::Status {
+  // The CSV and the report cover every scene so far; a scene's plot depends on its own rows
+  // alone, so each is drawn once, when its scene is done.
+  std::string plotted;
+  auto write_outputs = [&](std::size_t scene) -> absl::Status {
     PRISM_RETURN_IF_ERROR(base::write_file_atomic(csv, bench_csv(rows)));
     PRISM_RETURN_IF_ERROR(
         base::write_file_atomic(report, bench_report(rows, options.baseline, header)));
-    absl::StrAppend(&summary, "wrote ", csv.string(), " (", rows.size(), " rows), ",
-                    report.string());
-    const std::vector<std::string> done(stems.begin(),
-                                        stems.begin() + static_cast<std::ptrdiff_t>(scenes_done));
-    return write_plots(rows, done, options.clock, options.output, summary);
+    return write_plots(rows, {stems[scene]}, options.clock, options.output, plotted);
   };
   for (std::size_t si = 0; si < setups.size(); ++si) {
     if (absl::Status done = bench_scene(si); !done.ok()) {
@@ -1250,15 +1249,13 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
           absl::StrCat(done.message(), " (the results of the ", si, si == 1 ? " scene" : " scenes",
                        " finished before ", setups[si].scene.name, " are in ", csv.string(), ")"));
     }
-    if (si + 1 < setups.size()) {
-      std::string ignored;
-      PRISM_RETURN_IF_ERROR(write_outputs(si + 1, ignored));
-    }
+    PRISM_RETURN_IF_ERROR(write_outputs(si));
   }
   if (const std::string warnings = reference_warnings(rows); !warnings.empty()) {
     log(absl::StrCat("warning:\n", warnings));
   }
-  PRISM_RETURN_IF_ERROR(write_outputs(setups.size(), summary));
+  absl::StrAppend(&summary, "wrote ", csv.string(), " (", rows.size(), " rows), ", report.string(),
+                  plotted);
   // Only a plain name (a results.csv is a file a user can edit: "../x" must not reach outside),
   // and only where its gnuplot script shows bench drew it (a `prism render` preview of the same
   // name in the same directory is not bench's).
