@@ -50,13 +50,7 @@ absl::StatusOr<OutputPaths> output_paths(const std::optional<fs::path>& output,
     const std::string extension = absl::AsciiStrToLower(output->extension().string());
     // A name without .exr is a stem; one that is a device or another special file (-o /dev/null
     // to discard the outputs) would have put out.exr and its siblings beside it, in /dev.
-    if (fs::exists(*output, ec) && !fs::is_regular_file(*output, ec) &&
-        !fs::is_directory(*output, ec)) {
-      return absl::InvalidArgumentError(
-          absl::StrCat("--output '", output->string(),
-                       "' is a device or special file, not a name for the outputs; give a file "
-                       "name such as out.exr"));
-    }
+    PRISM_RETURN_IF_ERROR(check_not_special_file(*output));
     if (extension.empty()) {
       spectral = with_suffix(*output, ".exr");
     } else if (extension == ".exr") {

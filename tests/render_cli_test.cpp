@@ -832,7 +832,7 @@ TEST(RenderCliTest, BadFlagsFailClearlyAndWriteNothing) {
        "prism: rendering 64x64 with 32 bins needs about"},
       {{"render", scene, "-o", "out.png"}, "give a name ending in .exr"},
       {{"render", scene, "-o", "/dev/null"},
-       "--output '/dev/null' is a device or special file, not a name for the outputs"},
+       "cannot write '/dev/null': it is a device or other special file"},
       {{"render", scene, "-o", "missing/out.exr", "--resolution", "8x8"},
        "cannot write 'missing/out.exr': directory 'missing' does not exist"},
       {{"render", scene, "-o", "a.exr", "--json", "a.png"}, "both be written to 'a.png'"},
