@@ -24,11 +24,20 @@
 namespace prism::scene {
 namespace {
 
+// pbrt-v4's pair of current transforms, at the shutter's open and close.
+struct TransformPair {
+  Transform start, end;
+  bool moves() const { return !(start == end); }
+};
+
 struct GraphicsState {
-  Transform ctm;
-  // False after `ActiveTransform EndTime`: Prism renders the shutter-open transforms only
-  // (motion blur is refused), so end-time transforms are dropped.
-  bool start_transform_active = true;
+  // Transform directives change the active ones (`ActiveTransform`). An entity whose two
+  // transforms differ moves during the shutter interval: a moving shape, instance or camera is
+  // refused (Prism does not render motion blur), and a light or texture takes its start
+  // transform, as pbrt-v4 does.
+  TransformPair ctm;
+  bool start_active = true;
+  bool end_active = true;
   bool reverse_orientation = false;
   int material = -1;  // -1: pbrt-v4's default material (diffuse, reflectance 0.5)
   std::optional<AreaLight> area_light;
@@ -243,7 +252,7 @@ class SceneParser {
   // ObjectInstance of an object not (yet) defined: expanded at the end of the scene.
   struct PendingInstance {
     std::string name;
-    Transform ctm;
+    Transform ctm;  // the start transform (a moving instance is refused where it is used)
     SourceLocation where, name_at;
   };
   std::vector<PendingInstance> pending_instances_;
@@ -290,9 +299,25 @@ class SceneParser {
   // arguments: everything up to the next directive name).
   absl::Status skip_directive(Tokenizer& tokens, const Token& d, const SourceLocation& where,
                               const std::string& message);
-  // Transform directives change the CTM only while the start-time transform is active.
+  // Transform directives change the active transforms only.
   void set_ctm(const Transform& t) {
-    if (state_.start_transform_active) state_.ctm = t;
+    if (state_.start_active) state_.ctm.start = t;
+    if (state_.end_active) state_.ctm.end = t;
+  }
+  void apply_to_ctm(const Transform& t) {
+    if (state_.start_active) state_.ctm.start = state_.ctm.start * t;
+    if (state_.end_active) state_.ctm.end = state_.ctm.end * t;
+  }
+  // `what` (a directive) placed by the current transforms: an error, or allowing unsupported
+  // input a recorded refusal, when they differ.
+  absl::Status refuse_motion(std::string_view what, const SourceLocation& where) {
+    if (!state_.ctm.moves()) return absl::OkStatus();
+    return features_.refuse(
+        "motion blur", where,
+        absl::StrCat("'", std::string(what),
+                     "' moves: its StartTime and EndTime transforms differ (ActiveTransform), "
+                     "and Prism does not render motion blur"),
+        "the shutter-open (StartTime) transform, without motion");
   }
 
   const LoadOptions& options_;
@@ -302,7 +327,7 @@ class SceneParser {
   FeatureRecorder features_;
   GraphicsState state_;
   std::vector<Scope> scopes_;
-  std::map<std::string, Transform> named_coordinate_systems_;
+  std::map<std::string, TransformPair> named_coordinate_systems_;
   std::map<std::string, int> named_materials_;
   std::map<std::string, int> named_media_;
   std::map<std::string, ObjectDefinition> objects_;
@@ -528,7 +553,7 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
   const std::string& name = d.text;
   SourceLocation where = tokens.location(d);
 
-  auto apply = [&](const Transform& t) { set_ctm(state_.ctm * t); };
+  auto apply = [&](const Transform& t) { apply_to_ctm(t); };
   auto typed_directive = [&]() -> absl::StatusOr<std::pair<TypeName, ParameterList>> {
     PRISM_ASSIGN_OR_RETURN(Token type, string_arg(tokens, d, "type name"));
     PRISM_ASSIGN_OR_RETURN(ParameterList params,
@@ -581,20 +606,15 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     if (it == named_coordinate_systems_.end())
       return location_error(tokens.location(n),
                             absl::StrCat("coordinate system \"", n.text, "\" is not defined"));
-    set_ctm(it->second);
+    state_.ctm = it->second;  // both transforms, whichever are active (as pbrt-v4)
   } else if (name == "ActiveTransform") {
     PRISM_ASSIGN_OR_RETURN(Token which, tokens.next());
     SourceLocation at = tokens.location(which);
     if (which.kind != Token::Kind::kWord ||
         (which.text != "All" && which.text != "StartTime" && which.text != "EndTime"))
       return location_error(at, "'ActiveTransform' takes All, StartTime or EndTime");
-    if (which.text != "All")
-      PRISM_RETURN_IF_ERROR(features_.refuse(
-          absl::StrCat("ActiveTransform ", which.text), at,
-          absl::StrCat("'ActiveTransform ", which.text,
-                       "' animates transforms, and Prism does not render motion blur"),
-          "the shutter-open (StartTime) transforms, without motion"));
-    state_.start_transform_active = which.text != "EndTime";
+    state_.start_active = which.text != "EndTime";
+    state_.end_active = which.text != "StartTime";
   } else if (name == "ReverseOrientation") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     state_.reverse_orientation = !state_.reverse_orientation;
@@ -603,9 +623,10 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_RETURN_IF_ERROR(once(camera_at_, d, where));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
     PRISM_ASSIGN_OR_RETURN(Camera camera, make_camera(td.first, td.second));
-    camera.world_from_camera = state_.ctm.inverse();
+    PRISM_RETURN_IF_ERROR(refuse_motion("Camera", where));
+    camera.world_from_camera = state_.ctm.start.inverse();
     camera.medium = state_.outside_medium;
-    named_coordinate_systems_["camera"] = camera.world_from_camera;
+    named_coordinate_systems_["camera"] = {camera.world_from_camera, state_.ctm.end.inverse()};
     scene_.camera = std::move(camera);
   } else if (name == "Film") {
     PRISM_RETURN_IF_ERROR(require_options(d, where));
@@ -678,7 +699,8 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
           where, absl::StrCat("'WorldBegin' given twice (first at ", world_at_->to_string(), ")"));
     in_world_ = true;
     world_at_ = where;
-    state_.ctm = Transform();
+    state_.ctm = {};
+    state_.start_active = state_.end_active = true;
     named_coordinate_systems_["world"] = state_.ctm;
   } else if (name == "AttributeBegin" || name == "TransformBegin") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
@@ -710,8 +732,9 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
                            make_shape_geometry(td.first, td.second, ctx_));
     if (!geometry) return absl::OkStatus();  // refused and dropped (allow_unsupported)
     shape.geometry = std::move(*geometry);
-    shape.object_to_world = state_.ctm;
-    shape.transform_swaps_handedness = state_.ctm.swaps_handedness();
+    PRISM_RETURN_IF_ERROR(refuse_motion("Shape", where));
+    shape.object_to_world = state_.ctm.start;
+    shape.transform_swaps_handedness = state_.ctm.start.swaps_handedness();
     shape.reverse_orientation = state_.reverse_orientation;
     shape.material = material_index(where);
     shape.area_light = state_.area_light;
@@ -788,8 +811,11 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
                            "light sources inside ObjectBegin/ObjectEnd are not supported",
                            "the scene without the light"));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    if (state_.ctm.moves())
+      features_.supported("moving LightSource", where,
+                          "pbrt-v4 places a light by its StartTime transform; so does Prism");
     PRISM_ASSIGN_OR_RETURN(std::optional<Light> light,
-                           make_light(td.first, td.second, state_.ctm, ctx_));
+                           make_light(td.first, td.second, state_.ctm.start, ctx_));
     if (current_object_) light.reset();
     if (light) {
       light->medium = state_.outside_medium;
@@ -853,10 +879,12 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     if (it == objects_.end()) {
       // pbrt-v4 resolves instances after the whole scene is read: an object may be defined
       // after its first instance.
-      pending_instances_.push_back({n.text, state_.ctm, where, tokens.location(n)});
+      PRISM_RETURN_IF_ERROR(refuse_motion("ObjectInstance", where));
+      pending_instances_.push_back({n.text, state_.ctm.start, where, tokens.location(n)});
       return absl::OkStatus();
     }
-    PRISM_RETURN_IF_ERROR(instantiate(it->second, state_.ctm, where));
+    PRISM_RETURN_IF_ERROR(refuse_motion("ObjectInstance", where));
+    PRISM_RETURN_IF_ERROR(instantiate(it->second, state_.ctm.start, where));
   } else if (name == "Texture") {
     PRISM_RETURN_IF_ERROR(require_world(d, where));
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "texture name"));
@@ -867,8 +895,11 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
                                          "\" is not supported (supported: float, spectrum)"));
     const bool spectrum = kind.text == "spectrum";
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    if (state_.ctm.moves())
+      features_.supported("moving Texture", where,
+                          "pbrt-v4 maps a texture by its StartTime transform; so does Prism");
     PRISM_ASSIGN_OR_RETURN(TextureKind texture,
-                           make_texture(td.first, spectrum, td.second, state_.ctm, ctx_));
+                           make_texture(td.first, spectrum, td.second, state_.ctm.start, ctx_));
     auto& names = spectrum ? spectrum_textures_ : float_textures_;
     if (auto it = names.find(n.text); it != names.end())
       return location_error(
@@ -886,8 +917,9 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
   } else if (name == "TransformTimes") {
     PRISM_ASSIGN_OR_RETURN(std::vector<double> v, numbers(tokens, 2, d, false));
     (void)v;
-    features_.ignored("TransformTimes", where,
-                      "the shutter times only matter for animated transforms, which are refused");
+    features_.ignored(
+        "TransformTimes", where,
+        "the shutter times only matter to moving shapes and cameras, which are refused");
   } else if (name == "WorldEnd") {
     features_.ignored("WorldEnd", where, "a pbrt-v3 directive; the scene ends with its file");
   } else if (name == "Attribute") {

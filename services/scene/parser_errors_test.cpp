@@ -245,9 +245,9 @@ const MemoryCase kMemoryCases[] = {
      "m.pbrt:2:23: 'float sellmeier' needs 6 coefficients [B1 B2 B3 C1 C2 C3] (C in um^2), got 3"},
     {"WorldBegin\nMaterial \"diffuse\" \"texture reflectance\" \"checks\"\n",
      "m.pbrt:2:20: spectrum texture \"checks\" is not defined"},
-    {"ActiveTransform EndTime\nWorldBegin\n",
-     "m.pbrt:1:17: 'ActiveTransform EndTime' animates transforms, and Prism does not render "
-     "motion blur"},
+    {"WorldBegin\nActiveTransform EndTime\nTranslate 0 0 1\nShape \"sphere\"\n",
+     "m.pbrt:4:1: 'Shape' moves: its StartTime and EndTime transforms differ (ActiveTransform), "
+     "and Prism does not render motion blur"},
     {"WorldBegin\nLightSource \"spot\" \"float coneangle\" 10 \"float conedeltaangle\" 20\n",
      "m.pbrt:2:41: 'float conedeltaangle' must be between 0 and coneangle, got 20"},
     {"MakeNamedMedium \"m\" \"string type\" \"homogeneous\" \"float g\" 1\nWorldBegin\n",

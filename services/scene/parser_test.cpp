@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <string>
 
+#include "absl/strings/match.h"
 #include "services/scene/scene_loader.h"
 
 namespace prism::scene {
@@ -479,6 +480,85 @@ TEST(GoodScenes, AnObjectMayBeInstancedBeforeItIsDefined) {
   for (const Shape& shape : s->shapes) z.push_back(shape.object_to_world.apply_point({0, 0, 0})[2]);
   std::sort(z.begin(), z.end());
   EXPECT_EQ(z, (std::vector<double>{0, 5}));
+}
+
+// pbrt-v4 keeps two current transforms, at the shutter's open and close; ActiveTransform picks
+// the ones transform directives change. What does not move renders, what moves is refused.
+TEST(GoodScenes, ActiveTransformWithoutMotionRenders) {
+  absl::StatusOr<SceneDescription> s = parse_scene_string(
+      "ActiveTransform StartTime\n"
+      "LookAt 0 0 -5  0 0 0  0 1 0\n"
+      "ActiveTransform EndTime\n"
+      "LookAt 0 0 -5  0 0 0  0 1 0\n"
+      "ActiveTransform StartTime\n"  // WorldBegin makes both active again
+      "Camera \"perspective\"\n"
+      "WorldBegin\n"
+      "Translate 1 0 0\n"  // both
+      "AttributeBegin\n"
+      "  ActiveTransform EndTime\n"
+      "  Translate 0 2 0\n"
+      "  ActiveTransform StartTime\n"
+      "  Translate 0 2 0\n"
+      "  ActiveTransform All\n"
+      "  Shape \"sphere\"\n"
+      "  CoordinateSystem \"here\"\n"
+      "AttributeEnd\n"
+      "Translate 0 0 3\n"
+      "Shape \"sphere\"\n"
+      "AttributeBegin\n"
+      "  ActiveTransform EndTime\n"
+      "  Translate 0 0 -9\n"  // the end transform only: the light moves
+      "  LightSource \"point\"\n"
+      "  CoordSysTransform \"here\"\n"  // sets both, whichever is active
+      "  Shape \"sphere\"\n"
+      "AttributeEnd\n"
+      "Shape \"sphere\"\n",  // AttributeEnd restored the active transforms
+      "m.pbrt", {}, {});
+  ASSERT_TRUE(s.ok()) << s.status();
+  ASSERT_EQ(s->shapes.size(), 4u);
+  expect_near(s->shapes[0].object_to_world.apply_point({0, 0, 0}), {1, 2, 0});
+  expect_near(s->shapes[1].object_to_world.apply_point({0, 0, 0}), {1, 0, 3});
+  expect_near(s->shapes[2].object_to_world.apply_point({0, 0, 0}), {1, 2, 0});
+  expect_near(s->shapes[3].object_to_world.apply_point({0, 0, 0}), {1, 0, 3});
+  ASSERT_EQ(s->lights.size(), 1u);
+  // pbrt-v4 places a moving light by its start transform.
+  const FeatureUse* moving = nullptr;
+  for (const FeatureUse& f : s->features)
+    if (f.feature == "moving LightSource") moving = &f;
+  ASSERT_NE(moving, nullptr);
+  EXPECT_EQ(moving->status, FeatureStatus::kSupported);
+  EXPECT_EQ(moving->where.to_string(), "m.pbrt:23:3");
+  EXPECT_EQ(count_features(s->features, FeatureStatus::kRefused), 0);
+}
+
+TEST(GoodScenes, MovingShapesInstancesAndCamerasAreRefusedWhereTheyAre) {
+  const std::string moves =
+      "WorldBegin\n"
+      "ActiveTransform StartTime\n"
+      "Rotate 10 0 1 0\n"
+      "ActiveTransform All\n";
+  struct Case {
+    std::string text, error;
+  } cases[] = {
+      {moves + "Shape \"sphere\"\n",
+       "m.pbrt:5:1: 'Shape' moves: its StartTime and EndTime transforms differ "
+       "(ActiveTransform), and Prism does not render motion blur"},
+      {"WorldBegin\nObjectBegin \"o\"\nShape \"sphere\"\nObjectEnd\n" + moves.substr(11) +
+           "ObjectInstance \"o\"\n",
+       "m.pbrt:8:1: 'ObjectInstance' moves"},
+      {"ActiveTransform EndTime\nTranslate 0 0 1\nCamera \"perspective\"\nWorldBegin\n",
+       "m.pbrt:3:1: 'Camera' moves"},
+  };
+  for (const Case& c : cases) {
+    absl::StatusOr<SceneDescription> s = parse_scene_string(c.text, "m.pbrt", {}, {});
+    ASSERT_FALSE(s.ok()) << c.text;
+    EXPECT_TRUE(absl::StartsWith(s.status().message(), c.error)) << s.status();
+    LoadOptions allow;
+    allow.allow_unsupported = true;
+    s = parse_scene_string(c.text, "m.pbrt", allow, {});
+    ASSERT_TRUE(s.ok()) << s.status();
+    EXPECT_EQ(count_features(s->features, FeatureStatus::kRefused), 1) << c.text;
+  }
 }
 
 // A byte order mark before the first directive (a file saved by a Windows editor) is skipped,

@@ -533,7 +533,7 @@ absl::StatusOr<Camera> make_camera(const TypeName& type, const ParameterList& pa
                          "needs 4 values xmin xmax ymin ymax with min < max");
     c.screen_window = std::array<double, 4>{w[0], w[1], w[2], w[3]};
   }
-  // Prism's transforms never move (ActiveTransform StartTime/EndTime is refused), so a static
+  // Nothing Prism renders moves (a moving shape, instance or camera is refused), so a static
   // scene looks the same at every time of the shutter interval; but pbrt-v4's film scales the
   // image by the interval's length, the exposure time (PixelSensor's imagingRatio =
   // exposureTime · ISO / 100). An interval of 1 (the default) is the image Prism renders.

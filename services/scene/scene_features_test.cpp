@@ -95,8 +95,7 @@ TEST(SceneFeatures, AllowingUnsupportedInputRendersAListedSubstitutionForEach) {
       {"Shape \"curve\"", "u.pbrt:8:7", "the scene without this shape"},
       {"MakeNamedMedium \"cloud\"", "u.pbrt:9:23", "a vacuum (no absorption, no scattering)"},
       {"Texture \"fbm\"", "u.pbrt:10:25", "a constant 0.5"},
-      {"ActiveTransform EndTime", "u.pbrt:12:19",
-       "the shutter-open (StartTime) transforms, without motion"},
+      {"motion blur", "u.pbrt:16:3", "the shutter-open (StartTime) transform, without motion"},
       {"Shape \"cylinder\" 'float mystery'", "u.pbrt:16:38", "the scene without it"},
   };
   for (const Expected& e : expected) {
