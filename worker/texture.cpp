@@ -86,25 +86,40 @@ class Resolver {
       : scene_(scene), library_(library), uplift_(uplift) {}
 
   absl::StatusOr<std::vector<TexturePtr>> run() {
-    for (const scene::Texture& t : scene_.textures) {
-      absl::StatusOr<TexturePtr> r = resolve(t);
-      if (!r.ok()) {
-        return scene::location_error(
-            t.where, absl::StrCat("texture \"", t.name, "\": ", r.status().message()));
-      }
-      done_.push_back(*std::move(r));
-    }
+    done_.assign(scene_.textures.size(), nullptr);
+    busy_.assign(scene_.textures.size(), false);
+    for (size_t i = 0; i < scene_.textures.size(); ++i) PRISM_RETURN_IF_ERROR(get(i).status());
     return std::move(done_);
   }
 
  private:
   // A constant spectrum inside a texture: an RGB within [0, 1] is an albedo (pbrt-v4's context
   // for textures in reflectance slots), anything else is taken as written.
-  absl::StatusOr<Texture::Input> input(const scene::TextureInput& in, bool spectrum,
-                                       bool* varies) const {
+  // Texture `i`, after the textures it names. A material may name a texture defined further on,
+  // whose slot then comes before the textures it names (scene::EntityContext::find_texture), so
+  // they resolve on demand; a texture names only earlier ones, so they cannot form a cycle.
+  absl::StatusOr<TexturePtr> get(size_t i) {
+    if (done_[i] != nullptr) return done_[i];
+    const scene::Texture& t = scene_.textures[i];
+    if (busy_[i])
+      return scene::location_error(t.where, absl::StrCat("texture \"", t.name, "\" names itself"));
+    busy_[i] = true;
+    absl::StatusOr<TexturePtr> r = resolve(t);
+    busy_[i] = false;
+    if (!r.ok()) {
+      if (failed_inside_) return r.status();  // a named texture's error, located already
+      failed_inside_ = true;
+      return scene::location_error(
+          t.where, absl::StrCat("texture \"", t.name, "\": ", r.status().message()));
+    }
+    done_[i] = *std::move(r);
+    return done_[i];
+  }
+
+  absl::StatusOr<Texture::Input> input(const scene::TextureInput& in, bool spectrum, bool* varies) {
     Texture::Input out;
     if (in.texture >= 0) {
-      out.texture = done_[size_t(in.texture)];
+      PRISM_ASSIGN_OR_RETURN(out.texture, get(size_t(in.texture)));
       *varies = *varies || out.texture->varies_with_wavelength();
       return out;
     }
@@ -122,7 +137,7 @@ class Resolver {
     return out;
   }
 
-  absl::StatusOr<TexturePtr> resolve(const scene::Texture& t) const {
+  absl::StatusOr<TexturePtr> resolve(const scene::Texture& t) {
     const bool sp = t.spectrum;
     bool varies = false;
     Texture::Node node;
@@ -201,7 +216,9 @@ class Resolver {
   const scene::SceneDescription& scene_;
   const spectral::SpectrumLibrary& library_;
   const spectral::RgbUplift& uplift_;
-  std::vector<TexturePtr> done_;
+  std::vector<TexturePtr> done_;  // by index; null until resolved
+  std::vector<bool> busy_;        // being resolved (a guard against a cycle)
+  bool failed_inside_ = false;    // the error being returned carries its texture's location
 };
 
 }  // namespace

@@ -132,6 +132,51 @@ TEST_F(TextureTest, FloatImagesMixAndDirectionMix) {
                   albedo(0.8f, 0.8f, 0.75f) * c + side * (1 - c), 1e-5f);
 }
 
+// pbrt-v4 resolves a material's textures once the whole scene is read, so a material may name a
+// texture defined further on. Its slot then comes before the textures it names, which resolve
+// first; the result is the texture the scene in its usual order gives.
+TEST_F(TextureTest, AMaterialMayNameATextureDefinedFurtherOn) {
+  const std::string material =
+      "Material \"diffuse\" \"texture reflectance\" \"late\"\nShape \"sphere\"\n";
+  const std::string textures =
+      "Texture \"a\" \"spectrum\" \"constant\" \"rgb value\" [0.9 0.1 0.1]\n"
+      "Texture \"b\" \"spectrum\" \"checkerboard\" \"float uscale\" 4 \"float vscale\" 4\n"
+      "Texture \"amount\" \"float\" \"imagemap\" \"string filename\" \"grey.png\"\n"
+      "Texture \"late\" \"spectrum\" \"mix\" \"texture tex1\" \"a\" \"texture tex2\" \"b\"\n"
+      "  \"texture amount\" \"amount\"\n";
+  const std::filesystem::path good =
+      std::filesystem::path(PRISM_SOURCE_DIR) / "services/scene/testdata/parser/good";
+  auto load = [&](const std::string& text) {
+    const std::filesystem::path dir = testing::fresh_dir("texture_forward");
+    std::filesystem::copy(good / "textures/grey.png", dir / "grey.png");
+    std::ofstream(dir / "s.pbrt") << text;
+    auto loaded = scene::load_scene(dir / "s.pbrt", scene::with_library_names(*library_));
+    EXPECT_TRUE(loaded.ok()) << loaded.status();
+    return loaded.ok() ? std::move(loaded->description) : scene::SceneDescription{};
+  };
+  const scene::SceneDescription forward = load("WorldBegin\n" + material + textures);
+  const scene::SceneDescription ordered = load("WorldBegin\n" + textures + material);
+  ASSERT_EQ(forward.textures.size(), 4u);
+  ASSERT_EQ(forward.materials.size(), 1u);
+  const int slot = std::get<scene::DiffuseMaterial>(forward.materials[0].kind).reflectance_texture;
+  ASSERT_EQ(slot, 0);  // reserved by the material, filled by the Texture directive
+  EXPECT_EQ(forward.textures[0].name, "late");
+  EXPECT_EQ(forward.textures[0].where.line, 7);
+  auto a = Texture::resolve_all(forward, *library_, *uplift_);
+  auto b = Texture::resolve_all(ordered, *library_, *uplift_);
+  ASSERT_TRUE(a.ok()) << a.status();
+  ASSERT_TRUE(b.ok()) << b.status();
+  const int ordered_slot =
+      std::get<scene::DiffuseMaterial>(ordered.materials[0].kind).reflectance_texture;
+  for (float u : {0.05f, 0.3f, 0.55f, 0.8f}) {
+    for (float v : {0.1f, 0.6f}) {
+      const auto got = (*a)[size_t(slot)]->spectrum(at(u, v), lanes());
+      const auto want = (*b)[size_t(ordered_slot)]->spectrum(at(u, v), lanes());
+      for (int i = 0; i < 4; ++i) EXPECT_EQ(got[i], want[i]) << u << " " << v << " lane " << i;
+    }
+  }
+}
+
 // A float texture of an RGB image reads its first channel, as pbrt-v4's MIPMap::Texel<Float>
 // does: quad.png's red texel (1, 0, 0) is 1, where the average of the channels gave 1/3.
 TEST_F(TextureTest, AFloatImageOfAnRgbFileReadsItsFirstChannel) {

@@ -152,11 +152,21 @@ class SceneParser {
     };
     ctx_.load_mesh = [this](const std::string& ref, MeshFormat format,
                             const SourceLocation& where) { return load_mesh(ref, format, where); };
-    ctx_.find_texture = [this](const std::string& name, bool spectrum) -> std::optional<int> {
+    ctx_.find_texture = [this](const std::string& name, bool spectrum,
+                               const SourceLocation& where) -> std::optional<int> {
       const auto& names = spectrum ? spectrum_textures_ : float_textures_;
-      auto it = names.find(name);
-      if (it == names.end()) return std::nullopt;
-      return it->second;
+      if (auto it = names.find(name); it != names.end()) return it->second;
+      // A texture names only earlier ones (pbrt-v4 creates them in order); a name of the other
+      // kind is the caller's error to report.
+      if (reading_texture_ || (spectrum ? float_textures_ : spectrum_textures_).contains(name))
+        return std::nullopt;
+      // A material or shape naming a texture defined further on: a slot its Texture fills.
+      auto [pending, added] = pending_textures_.try_emplace({name, spectrum});
+      if (added) {
+        pending->second = {static_cast<int>(scene_.textures.size()), where};
+        scene_.textures.push_back(Texture{name, spectrum, ConstantTexture{}, where});
+      }
+      return pending->second.index;
     };
     ctx_.load_image = [this](const std::string& ref, const SourceLocation& where) {
       return load_image(ref, where);
@@ -186,6 +196,20 @@ class SceneParser {
                                                              "scene"));
       }
       PRISM_RETURN_IF_ERROR(instantiate(it->second, instance.ctm, instance.where));
+    }
+    // Textures named before their Texture directive.
+    for (const auto& [key, pending] : pending_textures_) {
+      const auto& [texture_name, spectrum] = key;
+      std::string other;
+      const auto& others = spectrum ? float_textures_ : spectrum_textures_;
+      if (auto it = others.find(texture_name); it != others.end())
+        other = absl::StrCat(" (the texture of that name at ",
+                             scene_.textures[static_cast<size_t>(it->second)].where.to_string(),
+                             " is a ", spectrum ? "float" : "spectrum", " texture)");
+      return location_error(
+          pending.first_use,
+          absl::StrCat(spectrum ? "spectrum" : "float", " texture \"", texture_name,
+                       "\" is not defined anywhere in the scene", other));
     }
     // Materials named before their MakeNamedMaterial (NamedMaterial's pending names): each must
     // be defined by the end, used or not.
@@ -256,6 +280,14 @@ class SceneParser {
     SourceLocation where, name_at;
   };
   std::vector<PendingInstance> pending_instances_;
+  // Textures named by a material or shape before their Texture directive: the slot in
+  // scene_.textures the directive fills, and the first use (resolved in run()).
+  struct PendingTexture {
+    int index = -1;
+    SourceLocation first_use;
+  };
+  std::map<std::pair<std::string, bool>, PendingTexture> pending_textures_;
+  bool reading_texture_ = false;  // inside a Texture directive's parameters
 
   // The object's shapes, placed by `ctm`, as the ObjectInstance at `where`.
   absl::Status instantiate(const ObjectDefinition& object, const Transform& ctm,
@@ -898,16 +930,27 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     if (state_.ctm.moves())
       features_.supported("moving Texture", where,
                           "pbrt-v4 maps a texture by its StartTime transform; so does Prism");
-    PRISM_ASSIGN_OR_RETURN(TextureKind texture,
-                           make_texture(td.first, spectrum, td.second, state_.ctm.start, ctx_));
+    reading_texture_ = true;
+    absl::StatusOr<TextureKind> texture =
+        make_texture(td.first, spectrum, td.second, state_.ctm.start, ctx_);
+    reading_texture_ = false;
+    if (!texture.ok()) return texture.status();
     auto& names = spectrum ? spectrum_textures_ : float_textures_;
     if (auto it = names.find(n.text); it != names.end())
       return location_error(
           tokens.location(n),
           absl::StrCat(kind.text, " texture \"", n.text, "\" redefined (first at ",
                        scene_.textures[static_cast<size_t>(it->second)].where.to_string(), ")"));
-    names[n.text] = static_cast<int>(scene_.textures.size());
-    scene_.textures.push_back(Texture{n.text, spectrum, std::move(texture), where});
+    Texture defined{n.text, spectrum, *std::move(texture), where};
+    if (auto pending = pending_textures_.find({n.text, spectrum});
+        pending != pending_textures_.end()) {
+      names[n.text] = pending->second.index;
+      scene_.textures[static_cast<size_t>(pending->second.index)] = std::move(defined);
+      pending_textures_.erase(pending);
+    } else {
+      names[n.text] = static_cast<int>(scene_.textures.size());
+      scene_.textures.push_back(std::move(defined));
+    }
   } else if (name == "Accelerator") {
     PRISM_RETURN_IF_ERROR(require_options(d, where));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());

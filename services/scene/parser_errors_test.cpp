@@ -128,7 +128,7 @@ const BadCase kBadCases[] = {
      "portal_constant.pbrt:2:40: 'point3 portal' needs an image 'filename' (pbrt-v4 has no "
      "portal for a constant 'L')"},
     {"texture.pbrt", absl::StatusCode::kInvalidArgument,
-     "texture.pbrt:3:20: spectrum texture \"cheks\" is not defined"},
+     "texture.pbrt:3:20: spectrum texture \"cheks\" is not defined anywhere in the scene"},
     {"texture_wrong_kind.pbrt", absl::StatusCode::kInvalidArgument,
      "texture_wrong_kind.pbrt:3:20: texture \"amount\" is a float texture; 'texture reflectance' "
      "needs a spectrum texture"},
@@ -244,7 +244,7 @@ const MemoryCase kMemoryCases[] = {
     {"WorldBegin\nMaterial \"dielectric\" \"float sellmeier\" [1 2 3]\n",
      "m.pbrt:2:23: 'float sellmeier' needs 6 coefficients [B1 B2 B3 C1 C2 C3] (C in um^2), got 3"},
     {"WorldBegin\nMaterial \"diffuse\" \"texture reflectance\" \"checks\"\n",
-     "m.pbrt:2:20: spectrum texture \"checks\" is not defined"},
+     "m.pbrt:2:20: spectrum texture \"checks\" is not defined anywhere in the scene"},
     {"WorldBegin\nActiveTransform EndTime\nTranslate 0 0 1\nShape \"sphere\"\n",
      "m.pbrt:4:1: 'Shape' moves: its StartTime and EndTime transforms differ (ActiveTransform), "
      "and Prism does not render motion blur"},

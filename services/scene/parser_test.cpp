@@ -561,6 +561,61 @@ TEST(GoodScenes, MovingShapesInstancesAndCamerasAreRefusedWhereTheyAre) {
   }
 }
 
+// A material or a shape's alpha may name a texture defined further on (pbrt-v4 resolves them
+// once the scene is read); a texture may not (pbrt-v4 creates textures in order), and a name
+// never defined, or defined as the other kind, is an error at its first use.
+TEST(GoodScenes, TexturesNamedBeforeTheirDefinition) {
+  absl::StatusOr<SceneDescription> s = parse_scene_string(
+      "WorldBegin\n"
+      "Material \"diffuse\" \"texture reflectance\" \"checks\"\n"
+      "Shape \"sphere\" \"texture alpha\" \"cut\"\n"
+      "Material \"diffuse\" \"texture reflectance\" \"checks\"\n"
+      "Texture \"cut\" \"float\" \"constant\" \"float value\" 0.5\n"
+      "Texture \"checks\" \"spectrum\" \"checkerboard\" \"texture tex1\" \"earlier\"\n"
+      "Texture \"earlier\" \"spectrum\" \"constant\"\n",
+      "m.pbrt", {}, {});
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.status().message(), "m.pbrt:6:44: spectrum texture \"earlier\" is not defined");
+
+  s = parse_scene_string(
+      "WorldBegin\n"
+      "Material \"diffuse\" \"texture reflectance\" \"checks\"\n"
+      "Shape \"sphere\" \"texture alpha\" \"cut\"\n"
+      "Material \"diffuse\" \"texture reflectance\" \"checks\"\n"
+      "Texture \"cut\" \"float\" \"constant\" \"float value\" 0.5\n"
+      "Texture \"checks\" \"spectrum\" \"checkerboard\"\n",
+      "m.pbrt", {}, {});
+  ASSERT_TRUE(s.ok()) << s.status();
+  ASSERT_EQ(s->textures.size(), 2u);
+  ASSERT_EQ(s->materials.size(), 2u);
+  for (const Material& m : s->materials) {
+    const int t = std::get<DiffuseMaterial>(m.kind).reflectance_texture;
+    ASSERT_EQ(t, 0);
+    EXPECT_TRUE(std::holds_alternative<CheckerboardTexture>(s->textures[size_t(t)].kind));
+    EXPECT_EQ(s->textures[size_t(t)].where.line, 6);
+  }
+  ASSERT_EQ(s->shapes.size(), 1u);
+  ASSERT_EQ(s->shapes[0].alpha_texture, 1);
+  EXPECT_EQ(s->textures[1].name, "cut");
+
+  s = parse_scene_string(
+      "WorldBegin\n"
+      "Material \"diffuse\" \"texture reflectance\" \"nowhere\"\n",
+      "m.pbrt", {}, {});
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.status().message(),
+            "m.pbrt:2:20: spectrum texture \"nowhere\" is not defined anywhere in the scene");
+  s = parse_scene_string(
+      "WorldBegin\n"
+      "Material \"diffuse\" \"texture reflectance\" \"grey\"\n"
+      "Texture \"grey\" \"float\" \"constant\"\n",
+      "m.pbrt", {}, {});
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.status().message(),
+            "m.pbrt:2:20: spectrum texture \"grey\" is not defined anywhere in the scene (the "
+            "texture of that name at m.pbrt:3:1 is a float texture)");
+}
+
 // A byte order mark before the first directive (a file saved by a Windows editor) is skipped,
 // in the main file and in an included one; columns count from the text after it.
 TEST(GoodScenes, AByteOrderMarkIsSkipped) {

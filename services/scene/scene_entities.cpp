@@ -207,15 +207,15 @@ absl::StatusOr<SpectrumParam> spectrum_or(const ParameterList& params, const std
   return fallback;
 }
 
-// `texture name`: the index of an earlier texture of the wanted kind.
+// `texture name`: the index of a texture of the wanted kind (EntityContext::find_texture).
 absl::StatusOr<int> texture_reference(const Parameter& p, bool spectrum, const EntityContext& ctx) {
   p.used = true;
   if (p.strings.size() != 1)
     return location_error(p.where, absl::StrCat("'texture ", p.name, "' takes one texture name"));
   std::optional<int> index =
-      ctx.find_texture ? ctx.find_texture(p.strings[0], spectrum) : std::nullopt;
+      ctx.find_texture ? ctx.find_texture(p.strings[0], spectrum, p.where) : std::nullopt;
   if (!index) {
-    const bool other_kind = ctx.find_texture && ctx.find_texture(p.strings[0], !spectrum);
+    const bool other_kind = ctx.find_texture && ctx.find_texture(p.strings[0], !spectrum, p.where);
     if (other_kind) {
       return location_error(
           p.where, absl::StrCat("texture \"", p.strings[0], "\" is a ",

@@ -36,8 +36,12 @@ struct EntityContext {
   std::function<absl::StatusOr<TriangleMeshShape>(const std::string& reference, MeshFormat format,
                                                   const SourceLocation& where)>
       load_mesh;
-  // The index of an earlier texture of that kind (spectrum or float) called `name`, or nullopt.
-  std::function<std::optional<int>(const std::string& name, bool spectrum)> find_texture;
+  // The index of the texture of that kind (spectrum or float) called `name`, used at `where`, or
+  // nullopt. Materials and shapes may name a texture defined further on (pbrt-v4 resolves them
+  // once the whole scene is read); a texture names only earlier ones.
+  std::function<std::optional<int>(const std::string& name, bool spectrum,
+                                   const SourceLocation& where)>
+      find_texture;
   // Decodes the image file `reference` (PNG or OpenEXR); values as in the file (8-bit samples
   // still in the file's encoding, eight_bit set), with the root-relative path.
   struct LoadedImage {
