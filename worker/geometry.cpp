@@ -397,7 +397,7 @@ void Geometry::add_sphere(std::size_t i, const scene::Shape& shape, const scene:
   sphere->radius = s.radius;
   sphere->object_to_world = shape.object_to_world;
   sphere->world_to_object = shape.object_to_world.inverse();
-  sphere->flip = shape.reverse_orientation != shape.transform_swaps_handedness;
+  sphere->flip = quadric_flip(shape);
   RTCGeometry geom = rtcNewGeometry(device_->get(), RTC_GEOMETRY_TYPE_SPHERE_POINT);
   auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0,
                                                         RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1));
@@ -426,7 +426,7 @@ void Geometry::add_quadric(std::size_t i, const scene::Shape& shape) {
   }
   quadric->object_to_world = shape.object_to_world;
   quadric->world_to_object = shape.object_to_world.inverse();
-  quadric->flip = shape.reverse_orientation != shape.transform_swaps_handedness;
+  quadric->flip = quadric_flip(shape);
   if (alpha_[i]) quadric->alpha = &alpha_[i];
   RTCGeometry geom = rtcNewGeometry(device_->get(), RTC_GEOMETRY_TYPE_USER);
   rtcSetGeometryUserPrimitiveCount(geom, 1);

@@ -9,7 +9,12 @@
 // Normals follow pbrt-v4 (scene_description.h): a triangle's geometric normal is
 // cross(p0 − p2, p1 − p2) from world positions, negated under reverse orientation XOR a
 // handedness-swapping transform, or turned to the side of the interpolated vertex normal when
-// the mesh has one. Area lights emit on the geometric normal's side.
+// the mesh has one. A sphere's, disk's or cylinder's normal is its object-space normal (outwards;
+// +z on a disk) carried by the transform's normal matrix, negated under reverse orientation only:
+// a mirroring transform then leaves the outside outside, as it does for a mesh. pbrt-v4 negates
+// it under a mirroring transform too when it intersects the shape, though not when it samples it
+// as a light (docs/conformance.md, "Mirrored spheres, disks and cylinders"). Area lights emit on
+// the geometric normal's side.
 //
 // Thread-safety: after build(), intersect() and occluded() are const and safe from any thread.
 #pragma once
@@ -68,6 +73,11 @@ struct Bounds3f {
 // A shape's alpha (pbrt-v4's `alpha`, a float or a float texture) at a hit's uv and unit
 // geometric normal; empty for opaque shapes.
 using AlphaFunction = std::function<float(const Point2f& uv, const Vec3f& n)>;
+
+// Whether a sphere, disk or cylinder's normal is negated (see above).
+inline bool quadric_flip(const scene::Shape& shape) {
+  return shape.reverse_orientation;
+}
 
 class Geometry {
  public:

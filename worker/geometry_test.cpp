@@ -50,6 +50,51 @@ TEST(GeometryTest, TriangleHitFollowsPbrtNormalConvention) {
   EXPECT_FALSE((*geometry)->intersect({{3, 3, 0}, {0, 0, 1}}, 1e30f));
 }
 
+// A mirroring transform keeps a sphere's, disk's or cylinder's outside outside, as it does a
+// mesh's: the object-space normal is carried by the normal matrix. Only ReverseOrientation turns
+// it (docs/conformance.md, "Mirrored spheres, disks and cylinders").
+TEST(GeometryTest, MirroredQuadricsKeepTheirOutside) {
+  EmbreeDevice device;
+  scene::SceneDescription desc;
+  const auto mirror_x = *scene::Transform::scale({-1, 1, 1});
+  const auto mirror_z = *scene::Transform::scale({1, 1, -1});
+  desc.shapes.push_back(sphere_shape(1, scene::Transform::translate({0, 0, 10}) * mirror_x));
+  scene::Shape reversed = sphere_shape(1, scene::Transform::translate({-5, 0, 10}) * mirror_x);
+  reversed.reverse_orientation = true;
+  desc.shapes.push_back(reversed);
+  scene::Shape disk;
+  disk.geometry = scene::DiskShape{0.0, 1.0, 0.0};
+  disk.object_to_world = scene::Transform::translate({5, 0, 10}) * mirror_z;
+  disk.transform_swaps_handedness = true;
+  desc.shapes.push_back(disk);
+  scene::Shape cylinder;
+  cylinder.geometry = scene::CylinderShape{1.0, -1.0, 1.0};
+  cylinder.object_to_world = scene::Transform::translate({10, 0, 10}) * mirror_x;
+  cylinder.transform_swaps_handedness = true;
+  desc.shapes.push_back(cylinder);
+  auto geometry = Geometry::build(device, desc);
+  ASSERT_TRUE(geometry.ok()) << geometry.status();
+
+  auto sphere = (*geometry)->intersect({{0, 0, 0}, {0, 0, 1}}, 1e30f);
+  ASSERT_TRUE(sphere);
+  EXPECT_EQ(sphere->shape, 0);
+  EXPECT_NEAR(sphere->ng.z, -1.0f, 1e-5f);  // outwards, towards the ray's origin
+  auto inward = (*geometry)->intersect({{-5, 0, 0}, {0, 0, 1}}, 1e30f);
+  ASSERT_TRUE(inward);
+  EXPECT_EQ(inward->shape, 1);
+  EXPECT_NEAR(inward->ng.z, 1.0f, 1e-5f);
+  // The disk's object +z is world −z under the mirror in z.
+  auto face = (*geometry)->intersect({{5, 0.2f, 0}, {0, 0, 1}}, 1e30f);
+  ASSERT_TRUE(face);
+  EXPECT_EQ(face->shape, 2);
+  EXPECT_NEAR(face->ng.z, -1.0f, 1e-6f);
+  auto wall = (*geometry)->intersect({{10, -5, 10}, {0, 1, 0}}, 1e30f);
+  ASSERT_TRUE(wall);
+  EXPECT_EQ(wall->shape, 3);
+  EXPECT_NEAR(wall->t, 4.0f, 1e-4f);
+  EXPECT_NEAR(wall->ng.y, -1.0f, 1e-5f);
+}
+
 // Embree aborts the process on a ray with a NaN or a component beyond its FLT_LARGE (its
 // ray.valid() assertion; the far sphere of the helper's scene brought down four farm workers in a
 // row). Such a ray hits nothing and its shadow query is blocked, next to shapes that Embree

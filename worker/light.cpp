@@ -100,7 +100,7 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
     light.is_cylinder_ = true;
     light.cylinder_ = *cylinder;
     light.cylinder_to_world_ = shape.object_to_world;
-    light.cylinder_flip_ = shape.reverse_orientation != shape.transform_swaps_handedness;
+    light.cylinder_flip_ = quadric_flip(shape);
     return light;
   }
   if (const auto* disk = std::get_if<scene::DiskShape>(&shape.geometry)) {
@@ -118,7 +118,7 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
     light.disk_ = *disk;
     light.disk_to_world_ = t;
     Vec3f n = normalize(to_vec(t.apply_normal({0, 0, 1})));
-    light.disk_normal_ = shape.reverse_orientation != shape.transform_swaps_handedness ? -n : n;
+    light.disk_normal_ = quadric_flip(shape) ? -n : n;
     return light;
   }
   if (const auto* sphere = std::get_if<scene::SphereShape>(&shape.geometry)) {
@@ -148,7 +148,7 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
     light.is_sphere_ = true;
     light.sphere_centre_ = to_vec(shape.object_to_world.apply_point({0, 0, 0}));
     light.sphere_radius_ = float(radius);
-    light.sphere_flip_ = shape.reverse_orientation != shape.transform_swaps_handedness;
+    light.sphere_flip_ = quadric_flip(shape);
     light.area_ = 4.0 * M_PI * radius * radius;
     return light;
   }

@@ -495,6 +495,34 @@ TEST(AreaLightTest, IrradianceMatchesAnalyticValues) {
       normalize(Vec3f(1, 2, -1)), 3 * M_PI, "sphere inside");
 }
 
+// Under a mirroring transform a sphere, disk or cylinder light emits on the side it did
+// without it (its outside stays outside), and its samples agree with what rays find there; a
+// mirrored emitter seen from outside lights as the unmirrored one.
+TEST(AreaLightTest, MirroredQuadricLightsKeepTheirOutside) {
+  const auto mirror = *scene::Transform::scale({-1, 1, 1});
+  SampledWavelengths lambda = lanes({600});
+  auto ws = build({sphere(1.5, scene::Transform::translate({0, 0, 4}) * mirror)});
+  AreaLight ball = area_light(*ws, 0, spectral::ConstantSpectrum{3}, 1.0);
+  check_area_light(*ws, ball, AreaCase{"mirrored sphere", {{0, 0, 0}, {}}, {0, 0, 4}, 1.5f});
+  expect_irradiance(
+      [&](Point2f u, float ue) {
+        return ball.sample({{0, 0, 0}, {}}, u, ue, lambda);
+      },
+      {0, 0, 1}, 3 * M_PI * (1.5 / 4) * (1.5 / 4), "mirrored sphere outside");
+  auto wt = build({light_shape(scene::CylinderShape{0.5, -1.0, 1.0},
+                               scene::Transform::translate({0.2f, -0.3f, 4}) * mirror, false, 37)});
+  AreaLight tube = area_light(*wt, 0);
+  check_area_light(*wt, tube,
+                   AreaCase{"mirrored cylinder", {{0, 0, 0}, {}}, {0.2f, -0.3f, 4}, 1.2f});
+  // A disk facing +z mirrored in z faces −z: it lights the origin below it.
+  auto wd = build({light_shape(
+      scene::DiskShape{0.0, 1.0, 0.0},
+      scene::Transform::translate({0, 0, 2}) * *scene::Transform::scale({1, 1, -1}), false, 31)});
+  AreaLight disk = area_light(*wd, 0);
+  check_area_light(*wd, disk, AreaCase{"mirrored disk", {{0, 0, 0}, {}}, {0, 0, 2}, 1.0f});
+  EXPECT_FALSE(disk.sample({{0, 0, 4}, {}}, {0.3f, 0.3f}, 0.5f, lambda));
+}
+
 // A disk light (with a hole, under a rotation and a non-uniform scale: an elliptical annulus):
 // sampled directions follow pdf(), and on its axis a circular disk gives the closed-form
 // irradiance E = π L (R²/(h² + R²) − r²/(h² + r²)); reversed, it lights the other side only.

@@ -16,8 +16,11 @@
 //   WORLD-space positions, is n = normalize(cross(p0 − p2, p1 − p2)); it is negated when
 //   reverse_orientation XOR transform_swaps_handedness. When the mesh has vertex normals, the
 //   geometric normal is instead flipped to the side of the interpolated shading normal
-//   (pbrt-v4 Triangle::InteractionFromIntersection). Sphere normals point outward in object
-//   space and are flipped under the same XOR rule.
+//   (pbrt-v4 Triangle::InteractionFromIntersection). Sphere, disk and cylinder normals are the
+//   object-space normal (outward; +z on a disk) carried by the normal matrix, negated under
+//   reverse_orientation alone: a mirroring transform keeps the outside outside, as for a mesh
+//   (pbrt-v4 also negates them under a mirror when intersecting, not when sampling them as
+//   lights; docs/conformance.md).
 // - Area lights emit on the side the (final) geometric normal points to, unless two_sided.
 // - Light spectra are normalised by pbrt-v4's rule before `scale` (docs/estimators.md §9); `power`
 //   (or `illuminance`) then rescales to that target. The parser stores the inputs only.
@@ -226,7 +229,7 @@ struct SphereShape {
 };
 
 // pbrt-v4's disk: in the plane z = height, radius `radius`, a hole of `inner_radius`; its normal
-// is +z in object space (flipped by the orientation rule above). Partial disks are refused.
+// is +z in object space (carried by the orientation rule above). Partial disks are refused.
 struct DiskShape {
   double height = 0.0;
   double radius = 1.0;
