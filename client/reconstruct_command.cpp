@@ -22,9 +22,14 @@ std::string quoted(const fs::path& path) {
 }
 
 // Shortest decimal that reads back as the same double.
+// The shortest decimal that reads back as exactly `value`; a value a float holds exactly (an
+// alpha the render recorded) as the float's (0.4, not 0.4000000059604645).
 std::string exact_decimal(double value) {
   char buffer[64];
-  const auto [end, ec] = std::to_chars(buffer, buffer + sizeof buffer, value);
+  const float narrow = static_cast<float>(value);
+  const auto [end, ec] = double(narrow) == value
+                             ? std::to_chars(buffer, buffer + sizeof buffer, narrow)
+                             : std::to_chars(buffer, buffer + sizeof buffer, value);
   return ec == std::errc() ? std::string(buffer, end) : absl::StrCat(value);
 }
 
@@ -77,6 +82,26 @@ absl::Status check_content(const image::SpectralExr& file, std::string_view role
       absl::string_view(role.data(), role.size()), " file ", quoted(path), " holds the ",
       it->second, " of its render (prism:", std::string(image::kMetaContent),
       "); give the primal file first, then the gradient file"));
+}
+
+// The two files must come from one render: where both carry Prism's record of the render, the
+// records agree. A file without them (another tool's) is taken as given.
+absl::Status check_same_render(const image::SpectralExr& primal, const fs::path& primal_path,
+                               const image::SpectralExr& gradient, const fs::path& gradient_path) {
+  for (const char* key :
+       {"scene", "job_id", "integrator", "seed", "spp", "bins", "max_depth", "spectral_pdf",
+        "emitter_pdf", "gradient_offset_bins", "gradient_delta", "gradient_tau"}) {
+    const auto p = primal.metadata.find(key);
+    const auto g = gradient.metadata.find(key);
+    if (p == primal.metadata.end() || g == gradient.metadata.end() || p->second == g->second) {
+      continue;
+    }
+    return absl::InvalidArgumentError(absl::StrCat(
+        "primal file ", quoted(primal_path), " and gradient file ", quoted(gradient_path),
+        " come from different renders (prism:", key, " is '", p->second, "' in one and '",
+        g->second, "' in the other); give the .primal.exr and .gradient.exr one render wrote"));
+  }
+  return absl::OkStatus();
 }
 
 }  // namespace
@@ -144,6 +169,7 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   PRISM_RETURN_IF_ERROR(check_prism_grid(*gradient, "gradient", options.gradient));
   PRISM_RETURN_IF_ERROR(check_content(*primal, "primal", options.primal));
   PRISM_RETURN_IF_ERROR(check_content(*gradient, "gradient", options.gradient));
+  PRISM_RETURN_IF_ERROR(check_same_render(*primal, options.primal, *gradient, options.gradient));
 
   // α and the norm: the flags, else what the render used (its files record both), else the
   // defaults; the render's image is then what this writes.

@@ -224,6 +224,35 @@ TEST_F(ReconstructCommandTest, RefusesBadInputWithoutWriting) {
   add(
       "a reconstruction as the primal", [&](auto& o) { o.primal = dir_ / "reconstructed.exr"; },
       "primal file '.*reconstructed.exr' holds the reconstruction of its render");
+  // Files from two renders, each labelled rightly (an ordinary render of another scene taken
+  // for the primal went through without a word).
+  write(dir_ / "seed2.primal.exr", in,
+        {{std::string(image::kMetaContent), "primal"}, {"scene", "a.pbrt"}, {"seed", "2"}});
+  write(dir_ / "seed1.gradient.exr", exact_gradient(in, 2),
+        {{std::string(image::kMetaGradientOffsetBins), "2"},
+         {std::string(image::kMetaContent), "gradient"},
+         {"scene", "a.pbrt"},
+         {"seed", "1"}});
+  write(dir_ / "hero.exr", in, {{"scene", "b.pbrt"}, {"integrator", "hero"}});
+  write(dir_ / "a.gradient.exr", exact_gradient(in, 2),
+        {{std::string(image::kMetaGradientOffsetBins), "2"},
+         {std::string(image::kMetaContent), "gradient"},
+         {"scene", "a.pbrt"},
+         {"integrator", "gradient"}});
+  add(
+      "two seeds",
+      [&](auto& o) {
+        o.primal = dir_ / "seed2.primal.exr";
+        o.gradient = dir_ / "seed1.gradient.exr";
+      },
+      "come from different renders \\(prism:seed is '2' in one and '1' in the other\\)");
+  add(
+      "another scene's render",
+      [&](auto& o) {
+        o.primal = dir_ / "hero.exr";
+        o.gradient = dir_ / "a.gradient.exr";
+      },
+      "come from different renders \\(prism:scene is 'b.pbrt' in one and 'a.pbrt'");
   add(
       "same file", [&](auto& o) { o.gradient = o.primal; },
       "the primal and the gradient file are the same file");

@@ -3,13 +3,13 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <charconv>
 #include <cmath>
 #include <system_error>
 #include <thread>
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
-#include "absl/strings/str_format.h"
 #include "services/base/atomic_file.h"
 #include "services/base/check.h"
 #include "services/base/status.h"
@@ -23,6 +23,13 @@ namespace {
 
 fs::path with_suffix(const fs::path& stem, const char* suffix) {
   return fs::path(stem.string() + suffix);
+}
+
+// The shortest decimal that reads back as exactly `value` (0.4, not 0.400000006).
+std::string float_text(float value) {
+  char buffer[32];
+  const auto [end, ec] = std::to_chars(buffer, buffer + sizeof buffer, value);
+  return ec == std::errc() ? std::string(buffer, end) : absl::StrCat(value);
 }
 
 }  // namespace
@@ -398,7 +405,7 @@ image::ExrMetadata output_metadata(const RenderReport& report) {
     metadata["gradient_tau"] = absl::StrCat(report.gradient->tau);
     // How the reconstruction was made (exr_spectral.h), on the raw pair too: what `prism
     // reconstruct` of the pair takes to give this image again.
-    metadata[std::string(image::kMetaPoissonAlpha)] = absl::StrCat(report.gradient->alpha);
+    metadata[std::string(image::kMetaPoissonAlpha)] = float_text(report.gradient->alpha);
     metadata[std::string(image::kMetaPoissonNorm)] = report.gradient->norm;
     // The image is the reconstruction (the raw pair overrides this with its own labels), so
     // `prism reconstruct` does not take it for a primal.
@@ -473,9 +480,8 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
   const std::vector<double> centres = image::bin_centres_nm(bins);
   metadata[std::string(image::kMetaContent)] = "primal";
   if (report.gradient.has_value()) {
-    // Exactly (a float's nine digits), for `prism reconstruct` of the pair.
-    metadata[std::string(image::kMetaPoissonAlpha)] =
-        absl::StrFormat("%.9g", double(report.gradient->alpha));
+    // Exactly, for `prism reconstruct` of the pair.
+    metadata[std::string(image::kMetaPoissonAlpha)] = float_text(report.gradient->alpha);
   }
   absl::Status status = image::write_spectral_exr_rows(
       paths.primal_exr, centres, primal_rgb.width(), primal_rgb.height(), band_rows, primal,

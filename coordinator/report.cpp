@@ -219,7 +219,10 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
   }
   if (r.target_error.has_value()) {
     const TargetErrorOutcome& t = *r.target_error;
-    j["target_error"] = {{"target", t.target},
+    // The target travels as a float (5 % is 0.0500000007): its shortest decimal.
+    const double target =
+        double(float(t.target)) == t.target ? shortest(float(t.target)) : t.target;
+    j["target_error"] = {{"target", target},
                          {"scope", t.image_scope ? "image" : "pixel"},
                          {"met", t.met},
                          {"rounds", t.rounds},
