@@ -15,6 +15,7 @@
 #include "client/reconstruct_command.h"
 #include "client/render_command.h"
 #include "client/render_flags.h"
+#include "services/base/float_mode.h"
 #include "worker/embree_device.h"
 
 namespace {
@@ -31,6 +32,7 @@ int report(const absl::StatusOr<std::string>& result) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  prism::base::flush_denormals_to_zero();  // before any thread starts (float_mode.h)
   CLI::App app{"Prism: a distributed spectral renderer"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "prism 0.1.0");

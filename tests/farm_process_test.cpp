@@ -786,6 +786,31 @@ TEST_F(FarmProcessTest, SubmitWaitFollowsItsJobThroughACoordinatorRestart) {
   expect_identical(read_pixels(root_ / "farm" / "farm.exr"), cli_render(kSlowSpp));
 }
 
+// Gathering filters the whole image at the end: on the coordinator's threads for the farm, on
+// the render's own for `prism render`. Their denormal values differed, since Embree leaves
+// flush-to-zero on in the threads that build its BVH (services/base/float_mode.h).
+TEST_F(FarmProcessTest, AGatheringJobsFilteredImageIsPrismRendersBytes) {
+  start_coordinator();
+  start_worker(0);
+  const fs::path scene = fs::path(PRISM_SOURCE_DIR) / "scenes" / "glass-enclosed.pbrt";
+  const std::vector<std::string> flags = {
+      "--resolution", "64x48", "--spp", "16", "--integrator", "hero", "--gather", "--seed", "12"};
+  fs::create_directories(root_ / "farm");
+  std::vector<std::string> submit = testing::submit_command(
+      PRISM_BINARY, scene, "127.0.0.1:" + std::to_string(port_), testing::kApiToken,
+      {"--wait", "-o", (root_ / "farm" / "g.exr").string()});
+  submit.insert(submit.end(), flags.begin(), flags.end());
+  const testing::RunResult farm = testing::run(submit);
+  ASSERT_EQ(farm.exit_code, 0) << farm.out << farm.err;
+  std::vector<std::string> render = {"render", scene.string(), "--threads",
+                                     "2",      "-o",           (root_ / "cli.exr").string()};
+  render.insert(render.end(), flags.begin(), flags.end());
+  run_prism(render);
+  expect_identical(read_pixels(root_ / "farm" / "g.exr"), read_pixels(root_ / "cli.exr"));
+  expect_identical(read_pixels(root_ / "farm" / "g.filtered.exr"),
+                   read_pixels(root_ / "cli.filtered.exr"));
+}
+
 // The coordinator comes back at the same address on another data directory, where another
 // job has the same id: `prism submit --wait` wrote that job's outputs under its own name. It
 // must notice the job is not its own and write nothing.

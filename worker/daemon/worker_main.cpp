@@ -22,6 +22,7 @@
 #include <iostream>
 #include <thread>
 
+#include "services/base/float_mode.h"
 #include "services/job/job_parameters.h"
 #include "services/rpc/address.h"
 #include "services/rpc/credentials.h"
@@ -50,6 +51,7 @@ int fail(const std::string& message) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  prism::base::flush_denormals_to_zero();  // before any thread starts (float_mode.h)
   // Before any thread exists (gRPC and TBB start their own), so every thread inherits the mask
   // and only the signal thread below ever sees these signals.
   sigset_t signals;
