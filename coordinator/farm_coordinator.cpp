@@ -217,10 +217,23 @@ absl::StatusOr<std::string> FarmCoordinator::bundle_bytes(const std::string& has
 absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec,
                                                   const std::string& client_token) {
   std::unique_lock<std::mutex> lock(mutex_);
+  // A client token names one request: sent again with it, the submission is a retry and finds
+  // its job; with another request, it is a mistake that must not be answered with that job.
+  const std::string request_hash = base::sha256_hex(spec.SerializeAsString());
+  auto same_request = [&](const store::JobRecord& job) -> absl::Status {
+    if (job.request_hash.empty() || job.request_hash == request_hash) return absl::OkStatus();
+    return absl::AlreadyExistsError(absl::StrCat(
+        "client token '", client_token, "' belongs to job ", job.id,
+        ", submitted with another request (scene, bundle or options differ); send that request "
+        "again to find the job, or use a new token for a new job"));
+  };
   if (!client_token.empty()) {
     // A failed or cancelled job gives its token up to this submission (JobStore::create_job).
     absl::StatusOr<store::JobRecord> known = store_->find_by_client_token(client_token);
-    if (known.ok() && !store::gives_up_client_token(known->state)) return status_locked(*known);
+    if (known.ok() && !store::gives_up_client_token(known->state)) {
+      PRISM_RETURN_IF_ERROR(same_request(*known));
+      return status_locked(*known);
+    }
     if (!known.ok() && known.status().code() != absl::StatusCode::kNotFound) {
       return known.status();
     }
@@ -277,6 +290,7 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
 
   store::JobRecord record;
   record.client_token = client_token;
+  record.request_hash = request_hash;
   record.spec = explicit_spec.SerializeAsString();
   record.bundle_hash = params.bundle_hash;
   record.submitted_ms = now().count();
@@ -297,7 +311,10 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
   const std::size_t first_part = std::min(all.size(), part);
   PRISM_ASSIGN_OR_RETURN(store::CreateJobResult created,
                          store_->create_job(record, all.first(first_part)));
-  if (created.existed) return status_locked(created.job);
+  if (created.existed) {
+    PRISM_RETURN_IF_ERROR(same_request(created.job));
+    return status_locked(created.job);
+  }
   const std::string id = created.job.id;
   SteadyClock::duration part_time{};
   for (std::size_t at = first_part; at < all.size(); at += part) {

@@ -21,6 +21,23 @@ TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {
   auto context = client();
   ASSERT_TRUE(farm_stub_->ListJobs(context.get(), request, &response).ok());
   EXPECT_EQ(response.jobs_size(), 2);
+
+  // The token with another request is a mistake, not a retry: answering with token-1's job
+  // gave a user another scene's image under the name they asked for.
+  v1::JobSpec other = spec;
+  other.set_spp(spec.spp() + 1);
+  v1::JobInfo refused;
+  const grpc::Status status = try_submit(other, "token-1", &refused);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::ALREADY_EXISTS) << status.error_message();
+  EXPECT_NE(status.error_message().find("client token 'token-1' belongs to job " + a.job_id() +
+                                        ", submitted with another request"),
+            std::string::npos)
+      << status.error_message();
+  // After a restart too (the request's hash is stored with the job).
+  stop();
+  start();
+  EXPECT_EQ(try_submit(other, "token-1", &refused).error_code(), grpc::StatusCode::ALREADY_EXISTS);
+  EXPECT_EQ(submit(spec, "token-1").job_id(), a.job_id());
 }
 
 TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {

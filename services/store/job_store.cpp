@@ -85,12 +85,17 @@ ALTER TABLE tasks ADD COLUMN result_size INTEGER NOT NULL DEFAULT 0;
     R"sql(
 ALTER TABLE workers ADD COLUMN left_ms INTEGER NOT NULL DEFAULT 0;
 )sql",
+    // The SHA-256 of the request a job was submitted with, so that a client token sent again
+    // with another request is refused, not answered with the first job; '': submitted before.
+    R"sql(
+ALTER TABLE jobs ADD COLUMN request_sha256 TEXT NOT NULL DEFAULT '';
+)sql",
 };
 static_assert(std::size(kMigrations) == JobStore::kSchemaVersion);
 
 constexpr std::string_view kJobColumns =
     "id, client_token, spec, bundle_hash, state, error, submitted_ms, started_ms, finished_ms, "
-    "report_json, tasks_total, tasks_done, samples_total, samples_done";
+    "report_json, tasks_total, tasks_done, samples_total, samples_done, request_sha256";
 
 constexpr std::string_view kTaskColumns =
     "task_index, pass, pass_index, tile_index, x0, y0, x1, y1, s0, s1, state, attempts, "
@@ -137,6 +142,7 @@ JobRecord job_from_row(const SqlRow& row) {
   job.progress.tasks_done = static_cast<std::uint64_t>(row.integer(11));
   job.progress.samples_total = static_cast<std::uint64_t>(row.integer(12));
   job.progress.samples_done = static_cast<std::uint64_t>(row.integer(13));
+  job.request_hash = row.text(14);
   return job;
 }
 
@@ -403,10 +409,10 @@ absl::StatusOr<CreateJobResult> JobStore::create_job(JobRecord job,
     job.finished_ms = 0;
     job.report_json.clear();
     PRISM_RETURN_IF_ERROR(db_.run(
-        "INSERT INTO jobs (id, client_token, spec, bundle_hash, state, submitted_ms) "
-        "VALUES (?, ?, ?, ?, ?, ?)",
+        "INSERT INTO jobs (id, client_token, spec, bundle_hash, state, submitted_ms, "
+        "request_sha256) VALUES (?, ?, ?, ?, ?, ?, ?)",
         {text(job.id), optional_text(job.client_token), SqlBlob{job.spec}, text(job.bundle_hash),
-         integer(static_cast<int>(job.state)), integer(job.submitted_ms)}));
+         integer(static_cast<int>(job.state)), integer(job.submitted_ms), text(job.request_hash)}));
     PRISM_RETURN_IF_ERROR(insert_tasks(job.id, tasks, 0));
     PRISM_ASSIGN_OR_RETURN(result.job, get_job_row(job.id));
     return absl::OkStatus();

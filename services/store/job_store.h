@@ -77,6 +77,9 @@ struct JobRecord {
   std::string id;            // assigned by create_job
   std::string client_token;  // empty: no idempotency key
   std::string spec;          // serialized prism.v1.JobSpec, opaque to the store
+  // Hex SHA-256 of the request as submitted (before defaults were filled in), compared when its
+  // client token comes again; empty for jobs stored before schema 5.
+  std::string request_hash;
   std::string bundle_hash;
   JobState state = JobState::kQueued;
   std::string error;              // why the job FAILED (or was CANCELLED), verbatim
@@ -129,7 +132,7 @@ struct CreateJobResult {
 class JobStore {
  public:
   // The schema version this build writes; open() migrates older files up to it.
-  static constexpr int kSchemaVersion = 4;
+  static constexpr int kSchemaVersion = 5;
 
   // Opens or creates the store file and applies pending migrations, each in its own
   // transaction with its user_version bump. FAILED_PRECONDITION when the file has a newer
