@@ -48,7 +48,8 @@ class Farm {
     rpc::ClientTls tls;
     tls.ca_bundle = c.tls_ca;
     PRISM_ASSIGN_OR_RETURN(auto credentials, rpc::channel_credentials(tls));
-    return Farm(c, v1::FarmService::NewStub(grpc::CreateChannel(c.address, credentials)));
+    return Farm(c, v1::FarmService::NewStub(grpc::CreateCustomChannel(
+                       c.address, credentials, rpc::client_channel_arguments())));
   }
 
   std::unique_ptr<grpc::ClientContext> call() const {

@@ -36,12 +36,21 @@ absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> server_credentials(cons
   return grpc::SslServerCredentials(options);
 }
 
-absl::StatusOr<std::shared_ptr<grpc::ChannelCredentials>> channel_credentials(const ClientTls& tls) {
+absl::StatusOr<std::shared_ptr<grpc::ChannelCredentials>> channel_credentials(
+    const ClientTls& tls) {
   if (tls.ca_bundle.empty()) return grpc::InsecureChannelCredentials();
   PRISM_ASSIGN_OR_RETURN(std::string roots, read_pem(tls.ca_bundle, "CA bundle"));
   grpc::SslCredentialsOptions options;
   options.pem_root_certs = roots;
   return grpc::SslCredentials(options);
+}
+
+grpc::ChannelArguments client_channel_arguments() {
+  grpc::ChannelArguments args;
+  args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 1000);
+  args.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, 1000);
+  args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 3000);
+  return args;
 }
 
 }  // namespace prism::rpc

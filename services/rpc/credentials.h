@@ -6,6 +6,7 @@
 
 #include <grpcpp/security/credentials.h>
 #include <grpcpp/security/server_credentials.h>
+#include <grpcpp/support/channel_arguments.h>
 
 #include <filesystem>
 #include <memory>
@@ -15,7 +16,7 @@
 namespace prism::rpc {
 
 struct ServerTls {
-  std::filesystem::path cert_chain;  // PEM; empty: plaintext
+  std::filesystem::path cert_chain;   // PEM; empty: plaintext
   std::filesystem::path private_key;  // PEM; required with cert_chain
 };
 
@@ -25,5 +26,10 @@ struct ClientTls {
 
 absl::StatusOr<std::shared_ptr<grpc::ServerCredentials>> server_credentials(const ServerTls& tls);
 absl::StatusOr<std::shared_ptr<grpc::ChannelCredentials>> channel_credentials(const ClientTls& tls);
+
+// Channel arguments every Prism client uses: reconnect attempts at most 3 s apart. gRPC's
+// default backoff grows to 120 s, so workers (and `prism watch`) came back up to a minute after
+// a coordinator that had been down a few minutes was listening again.
+grpc::ChannelArguments client_channel_arguments();
 
 }  // namespace prism::rpc

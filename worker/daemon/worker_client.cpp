@@ -10,6 +10,7 @@
 #include "services/base/sha256.h"
 #include "services/rpc/auth.h"
 #include "services/rpc/chunks.h"
+#include "services/rpc/credentials.h"
 #include "services/rpc/result_upload.h"
 #include "services/rpc/status_mapping.h"
 
@@ -25,7 +26,7 @@ absl::Status named(const char* name, const grpc::Status& status) {
 
 WorkerClient::WorkerClient(const ClientConfig& config, std::shared_ptr<spdlog::logger> logger)
     : config_(config), logger_(std::move(logger)) {
-  grpc::ChannelArguments args;
+  grpc::ChannelArguments args = rpc::client_channel_arguments();
   // Bundles and results arrive in 1 MiB chunks; leave room for the envelope.
   args.SetMaxReceiveMessageSize(4 << 20);
   channel_ = grpc::CreateCustomChannel(
