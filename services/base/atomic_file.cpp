@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <cstring>
@@ -32,7 +33,32 @@ absl::Status fsync_path(const std::filesystem::path& path) {
   return absl::OkStatus();
 }
 
+bool all_digits(std::string_view text) {
+  return !text.empty() &&
+         std::all_of(text.begin(), text.end(), [](char c) { return c >= '0' && c <= '9'; });
+}
+
+// Whether `name` is one temp_name_for made: ".<name>.tmp.<pid>.<n>".
+bool is_temporary_name(std::string_view name) {
+  if (name.size() < 2 || name[0] != '.') return false;
+  const std::size_t tmp = name.rfind(".tmp.");
+  if (tmp == std::string_view::npos || tmp < 2) return false;
+  const std::string_view numbers = name.substr(tmp + 5);
+  const std::size_t dot = numbers.find('.');
+  return dot != std::string_view::npos && all_digits(numbers.substr(0, dot)) &&
+         all_digits(numbers.substr(dot + 1));
+}
+
 }  // namespace
+
+void remove_temporaries(const std::filesystem::path& dir) {
+  std::error_code ec;
+  for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
+    if (entry.is_regular_file(ec) && is_temporary_name(entry.path().filename().string())) {
+      std::filesystem::remove(entry.path(), ec);
+    }
+  }
+}
 
 absl::StatusOr<std::string> read_file(const std::filesystem::path& path, std::uint64_t max_bytes) {
   std::error_code ec;

@@ -30,6 +30,11 @@ absl::Status write_via_temp(
     const std::filesystem::path& path,
     const std::function<absl::Status(const std::filesystem::path&)>& writer);
 
+// Removes the temporaries write_file_atomic and write_via_temp leave in `dir` (not below it)
+// when the process dies mid-write, ".<name>.tmp.<pid>.<n>"; only for a directory no other
+// process writes to. Errors are ignored: a temporary left is litter, not a fault.
+void remove_temporaries(const std::filesystem::path& dir);
+
 // All of `size` bytes at `offset` of an open file, through short transfers and interruptions;
 // INTERNAL naming `what` and the offset on an error (a read past the end is one).
 absl::Status pwrite_all(int fd, const char* bytes, std::size_t size, std::uint64_t offset,

@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <string>
+#include <vector>
 
 namespace prism::base {
 namespace {
@@ -43,6 +44,25 @@ TEST_F(AtomicFileTest, FailedWriterLeavesPreviousFileAndNoTemporary) {
   int entries = 0;
   for ([[maybe_unused]] auto& e : fs::directory_iterator(dir_)) ++entries;
   EXPECT_EQ(entries, 1);
+}
+
+// A process killed while writing leaves its temporary: the next one to own the directory
+// removes what write_via_temp names so, and nothing else.
+TEST_F(AtomicFileTest, RemoveTemporariesTakesOnlyWhatAKilledWriterLeft) {
+  fs::path left;
+  auto status = write_via_temp(dir_ / "out.exr", [&](const fs::path& temp) {
+    left = temp;
+    return absl::InternalError("killed");
+  });
+  ASSERT_FALSE(status.ok());
+  ASSERT_FALSE(left.empty());
+  ASSERT_TRUE(write_file_atomic(left, std::string("half")).ok());  // as the kill left it
+  const std::vector<std::string> kept = {"out.exr",      ".hidden",  "x.tmp.1.2",
+                                         ".x.tmp.12a.3", ".x.tmp.1", ".tmp.1.2"};
+  for (const std::string& name : kept) ASSERT_TRUE(write_file_atomic(dir_ / name, name).ok());
+  remove_temporaries(dir_);
+  EXPECT_FALSE(fs::exists(left)) << left;
+  for (const std::string& name : kept) EXPECT_TRUE(fs::exists(dir_ / name)) << name;
 }
 
 TEST_F(AtomicFileTest, ReadRefusesMissingAndOversizedFiles) {
