@@ -61,6 +61,11 @@ absl::Status FarmCoordinator::start() {
   std::error_code ec;
   for (const auto& entry : fs::directory_iterator(dir / "tmp", ec))
     fs::remove_all(entry.path(), ec);
+  // So are the temporaries of outputs being written when the process died (a kill during
+  // finalising): the finalising runs again, under new names.
+  for (const auto& job : fs::directory_iterator(dir / "outputs", ec)) {
+    if (job.is_directory(ec)) base::remove_temporaries(job.path());
+  }
 
   PRISM_ASSIGN_OR_RETURN(library_, spectral::SpectrumLibrary::load_builtin());
   memory_budget_ = options_.max_memory_bytes > 0
@@ -377,9 +382,24 @@ absl::Status FarmCoordinator::admit_locked(const job::JobParameters& params, std
                    absl::StrCat(memory_budget_.source, "; the unfinished jobs plan ",
                                 format_bytes(planned_memory)),
                    advice));
-  PRISM_ASSIGN_OR_RETURN(std::uint64_t free, free_disk_bytes(options_.data_dir));
+  PRISM_ASSIGN_OR_RETURN(std::uint64_t free, options_.free_disk
+                                                 ? options_.free_disk(options_.data_dir)
+                                                 : free_disk_bytes(options_.data_dir));
+  // The free space is shared with the unfinished jobs: what each still has to write (its plan
+  // less what its directories hold now) is promised already. Checking each job against the free
+  // space alone let twelve 10 MiB jobs onto a 20 MiB disk, and the last ones failed writing.
+  std::uint64_t promised = reserved_disk_;
+  for (const auto& [id, active] : active_) {
+    const std::uint64_t written = directory_bytes(options_.data_dir / "jobs" / id) +
+                                  directory_bytes(options_.data_dir / "outputs" / id);
+    promised += active->planned_disk > written ? active->planned_disk - written : 0;
+  }
   PRISM_RETURN_IF_ERROR(
-      check_disk(job, plan, free, absl::StrCat("free in ", options_.data_dir.string()), advice));
+      check_disk(job, plan, free > promised ? free - promised : 0,
+                 absl::StrCat("free in ", options_.data_dir.string(), " (", format_bytes(free),
+                              ") less what the unfinished jobs still plan to write (",
+                              format_bytes(promised), ")"),
+                 advice));
   if (options_.max_disk_bytes > 0) {
     const std::uint64_t left =
         options_.max_disk_bytes > planned_disk ? options_.max_disk_bytes - planned_disk : 0;

@@ -117,6 +117,8 @@ struct FarmOptions {
   // Fault injection for tests: called by the finaliser thread, without the lock, before a
   // finished job's outputs are written.
   std::function<void()> before_write_outputs;
+  // The data directory's free bytes (tests pretend a small disk); null: the file system's.
+  std::function<absl::StatusOr<std::uint64_t>(const std::filesystem::path&)> free_disk;
   // The "coordinator" logger (main creates it); null: a logger that drops everything.
   std::shared_ptr<spdlog::logger> logger;
 };

@@ -40,6 +40,19 @@ TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {
   EXPECT_EQ(submit(spec, "token-1").job_id(), a.job_id());
 }
 
+// A coordinator killed while writing a job's outputs leaves temporaries beside them; the
+// finalising runs again after the restart, under new names, and the restart removes the old.
+TEST_F(FarmServerTest, ARestartRemovesTheTemporariesOfOutputsBeingWritten) {
+  stop();
+  const fs::path outputs = root_ / "data" / "outputs" / "j-000001";
+  fs::create_directories(outputs);
+  std::ofstream(outputs / ".j-000001.exr.tmp.27999.15") << "half";
+  std::ofstream(outputs / "j-000001.exr") << "whole";
+  start();
+  EXPECT_FALSE(fs::exists(outputs / ".j-000001.exr.tmp.27999.15"));
+  EXPECT_TRUE(fs::exists(outputs / "j-000001.exr"));
+}
+
 TEST_F(FarmServerTest, ARestartResumesWithoutReleasingFinishedTasks) {
   const v1::JobSpec spec = uploaded_small_spec();
   ASSERT_FALSE(spec.bundle_hash().empty());
@@ -377,6 +390,42 @@ TEST_F(FarmServerTest, JobsBeyondTheMemoryOrDiskBudgetAreRefusedWithTheNumbers) 
   EXPECT_NE(disk.error_message().find("(--max-disk 64 MiB less the unfinished jobs' "),
             std::string::npos)
       << disk.error_message();
+}
+
+// The data directory's free space is shared with the unfinished jobs: each new job is checked
+// against what is free less what those still plan to write. Checked against the free space
+// alone, twelve 10 MiB jobs were let onto a 20 MiB disk, and the last ones failed writing their
+// outputs after they had been accepted.
+TEST_F(FarmServerTest, TheFreeDiskIsSharedWithTheUnfinishedJobs) {
+  stop();
+  configure_ = [](FarmOptions& options) {
+    options.max_memory_bytes = std::uint64_t{1} << 40;
+    options.free_disk = [](const fs::path&) -> absl::StatusOr<std::uint64_t> {
+      return std::uint64_t{800} << 20;  // an 800 MiB disk that nothing fills
+    };
+  };
+  start();
+  const std::string hash = upload_scene();
+  ASSERT_FALSE(hash.empty());
+  auto submit_sized = [&](const std::string& token) {
+    v1::JobSpec spec = small_spec(hash);
+    spec.set_width(1024);
+    spec.set_height(1024);
+    spec.set_bins(16);
+    spec.set_tile_size(64);
+    spec.set_samples_per_task(0);
+    return try_submit(spec, token, nullptr);
+  };
+  // Each plans 315 MiB of disk (finished tiles 224 MiB, outputs 91 MiB): two fit in 800 MiB, a
+  // third does not while they are unfinished.
+  const grpc::Status a = submit_sized("a");
+  ASSERT_TRUE(a.ok()) << a.error_message();
+  ASSERT_TRUE(submit_sized("b").ok());
+  const grpc::Status third = submit_sized("c");
+  EXPECT_EQ(third.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << third.error_message();
+  EXPECT_NE(third.error_message().find("less what the unfinished jobs still plan to write"),
+            std::string::npos)
+      << third.error_message();
 }
 
 TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {

@@ -211,6 +211,20 @@ absl::StatusOr<u64> free_disk_bytes(const std::filesystem::path& dir) {
   return mul(u64(fs.f_bavail), u64(fs.f_frsize));
 }
 
+u64 directory_bytes(const std::filesystem::path& dir) {
+  u64 bytes = 0;
+  std::error_code ec;
+  for (auto it = std::filesystem::recursive_directory_iterator(dir, ec);
+       !ec && it != std::filesystem::recursive_directory_iterator(); it.increment(ec)) {
+    std::error_code size_ec;
+    if (it->is_regular_file(size_ec)) {
+      const u64 size = it->file_size(size_ec);
+      if (!size_ec) bytes += size;
+    }
+  }
+  return bytes;
+}
+
 std::string format_bytes(u64 bytes) {
   static constexpr const char* kUnits[] = {"B", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"};
   double value = double(bytes);

@@ -81,6 +81,9 @@ std::uint64_t memory_in_use(bool address_space);
 // Free bytes for an unprivileged writer on the filesystem holding `dir`; INTERNAL naming the
 // directory when statvfs fails.
 absl::StatusOr<std::uint64_t> free_disk_bytes(const std::filesystem::path& dir);
+// The bytes of the regular files under `dir`, at any depth; 0 when it does not exist (what
+// cannot be read counts nothing).
+std::uint64_t directory_bytes(const std::filesystem::path& dir);
 
 // "17.2 GiB", "320 MiB", "12 KiB", "512 B".
 std::string format_bytes(std::uint64_t bytes);
