@@ -51,7 +51,7 @@ constexpr store::JobState kJobStates[] = {store::JobState::kQueued,    store::Jo
                                           store::JobState::kDone,      store::JobState::kFailed,
                                           store::JobState::kCancelled};
 constexpr const char* kWorkerStates[] = {"idle", "busy", "lost", "left"};
-constexpr const char* kResultOutcomes[] = {"accepted", "duplicate", "stale", "refused"};
+constexpr const char* kResultOutcomes[] = {"accepted", "duplicate", "stale", "refused", "unstored"};
 
 void add_difference(Counter& counter, std::uint64_t now, std::uint64_t before) {
   if (now > before) counter.Increment(double(now - before));

@@ -37,6 +37,49 @@ TEST_F(FarmServerTest, AJobEveryWorkerIsBlockedFromSaysWhyItWaits) {
       << info.waiting();
 }
 
+// A result the coordinator cannot store (its disk is full) is its own fault: the task goes back
+// to the queue at once, the worker hears UNAVAILABLE and is not blocked however often it
+// happens. Left to expire, each lease counted against the worker, blocked after three, and the
+// job waited for a worker that had done nothing wrong.
+TEST_F(FarmServerTest, AResultTheCoordinatorCannotStoreIsNotTheWorkersFault) {
+  std::atomic<bool> full{true};
+  stop();
+  configure_ = [&full](FarmOptions& options) {
+    options.store_result_fault = [&full]() -> absl::Status {
+      if (full) return absl::InternalError("results.pack write failed: No space left on device");
+      return absl::OkStatus();
+    };
+  };
+  start();
+  const std::string job_id = submit_small_job();
+  ASSERT_FALSE(job_id.empty());
+  const std::string worker_id = register_worker();
+  for (int attempt = 0; attempt < 5; ++attempt) {
+    std::optional<v1::Lease> lease = acquire(worker_id);
+    ASSERT_TRUE(lease.has_value()) << attempt;
+    const grpc::Status status = complete(worker_id, lease->lease_id(), render(*lease));
+    EXPECT_EQ(status.error_code(), grpc::StatusCode::UNAVAILABLE) << status.error_message();
+    EXPECT_NE(status.error_message().find("the coordinator could not store the result"),
+              std::string::npos)
+        << status.error_message();
+    EXPECT_NE(status.error_message().find("No space left on device"), std::string::npos);
+  }
+  v1::JobInfo info;
+  ASSERT_TRUE(get_job(job_id, &info).ok());
+  EXPECT_EQ(info.waiting(), "");
+  // Space again: the same worker finishes the job.
+  full = false;
+  run_worker(worker_id);
+  ASSERT_TRUE(get_job(job_id, &info).ok());
+  EXPECT_EQ(info.progress().tasks_done(), info.progress().tasks_total());
+  const absl::StatusOr<std::string> metrics = farm_->farm().metrics_text();
+  ASSERT_TRUE(metrics.ok());
+  EXPECT_NE(metrics->find("prism_task_retries_total{reason=\"infrastructure\"} 5\n"),
+            std::string::npos)
+      << *metrics;
+  EXPECT_NE(metrics->find("prism_results_total{outcome=\"unstored\"} 5\n"), std::string::npos);
+}
+
 TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {
   ASSERT_FALSE(submit_small_job().empty());
   const std::string worker_id = register_worker();

@@ -174,11 +174,32 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
       location = {static_cast<std::int64_t>(pack->reserve(bytes.size())), bytes.size()};
     }
     lock.unlock();
-    absl::Status stored = pack != nullptr ? pack->write(std::uint64_t(location.offset), bytes)
-                                          : blobs_->put_hashed(sha256, bytes);
+    absl::Status stored =
+        options_.store_result_fault ? options_.store_result_fault() : absl::OkStatus();
+    if (stored.ok()) {
+      stored = pack != nullptr ? pack->write(std::uint64_t(location.offset), bytes)
+                               : blobs_->put_hashed(sha256, bytes);
+    }
     if (pack != nullptr && stored.ok()) dirty_packs_.add(pack);
     lock.lock();
-    PRISM_RETURN_IF_ERROR(stored);
+    if (!stored.ok()) {
+      // The coordinator's fault (a full disk), not the worker's: the task goes back to the
+      // queue at once as an infrastructure failure. Left to expire, the lease counted against
+      // the worker, which was then blocked from the job after a few such results.
+      metrics_.result_not_merged("unstored", received);
+      const std::string message =
+          absl::StrCat("the coordinator could not store the result for lease ", lease_id, ": ",
+                       stored.message(), "; the task goes back to the queue");
+      options_.logger->error("[worker {}] {}", worker_id, message);
+      if (absl::Status failed =
+              scheduler_.fail(worker_id, lease_id, FailureClass::kInfrastructure, message, now());
+          !failed.ok()) {
+        options_.logger->warn("[worker {}] {}", worker_id, failed.ToString());
+      }
+      process_events_locked();
+      changed_locked();
+      return absl::UnavailableError(message);
+    }
     reply = scheduler_.complete(worker_id, lease_id, sha256, now());
   }
   switch (reply->outcome) {
