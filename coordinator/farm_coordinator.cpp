@@ -538,16 +538,30 @@ absl::StatusOr<JobStatus> FarmCoordinator::cancel(const std::string& job_id) {
     return absl::FailedPreconditionError(
         absl::StrCat("job ", job_id, " is already ", store::to_string(record.state)));
   }
-  if (record.state == store::JobState::kFinalising) {
+  // The store first: when it cannot be written (a full disk) the cancel fails with nothing
+  // changed. The scheduler cancelled first had stopped handing out the job's tasks while the
+  // store and the job list still said it was rendering, until a restart.
+  const absl::Status fault =
+      options_.cancel_store_fault ? options_.cancel_store_fault() : absl::OkStatus();
+  absl::StatusOr<store::JobRecord> stored =
+      fault.ok() ? store_->set_job_state(job_id, store::JobState::kCancelled, now().count(),
+                                         "cancelled by a client")
+                 : absl::StatusOr<store::JobRecord>(fault);
+  if (!stored.ok()) {
+    return absl::Status(stored.status().code(),
+                        absl::StrCat("cannot cancel job ", job_id, ": ", stored.status().message(),
+                                     "; the job goes on as it was"));
+  }
+  const store::JobState before = record.state;
+  record = *std::move(stored);
+  if (before == store::JobState::kFinalising) {
     // Every task is done and the finaliser is writing the outputs: they are dropped when it
     // finishes (finish_finalise_locked).
     (void)scheduler_.remove_job(job_id);
-  } else {
-    absl::Status cancelled = scheduler_.cancel_job(job_id);
-    if (!cancelled.ok() && cancelled.code() != absl::StatusCode::kNotFound) return cancelled;
+  } else if (absl::Status cancelled = scheduler_.cancel_job(job_id);
+             !cancelled.ok() && cancelled.code() != absl::StatusCode::kNotFound) {
+    options_.logger->warn("[job {}] {}", job_id, cancelled.ToString());
   }
-  PRISM_ASSIGN_OR_RETURN(record, store_->set_job_state(job_id, store::JobState::kCancelled,
-                                                       now().count(), "cancelled by a client"));
   // The Scheduler keeps the cancelled job so that heartbeats listing its leases get CANCEL_TASK.
   active_.erase(job_id);
   clean_up_locked(job_id);

@@ -120,6 +120,9 @@ struct FarmOptions {
   // Fault injection for tests: an error stands for the result store's answer to a completed
   // task's bytes (a full disk), called without the lock before they are written.
   std::function<absl::Status()> store_result_fault;
+  // Fault injection for tests: an error stands for the job store's answer to a cancel's write
+  // (a full disk).
+  std::function<absl::Status()> cancel_store_fault;
   // The data directory's free bytes (tests pretend a small disk); null: the file system's.
   std::function<absl::StatusOr<std::uint64_t>(const std::filesystem::path&)> free_disk;
   // The "coordinator" logger (main creates it); null: a logger that drops everything.

@@ -428,6 +428,40 @@ TEST_F(FarmServerTest, TheFreeDiskIsSharedWithTheUnfinishedJobs) {
       << third.error_message();
 }
 
+// A cancel the job store cannot record (its disk is full) fails with nothing changed: the job
+// renders on. The scheduler used to be told first, so it stopped handing out the job's tasks
+// while the store and the job list said it was rendering, until a restart.
+TEST_F(FarmServerTest, ACancelTheStoreCannotRecordChangesNothing) {
+  std::atomic<bool> full{true};
+  stop();
+  configure_ = [&full](FarmOptions& options) {
+    options.cancel_store_fault = [&full]() -> absl::Status {
+      if (full) return absl::InternalError("sqlite: step 'COMMIT': database or disk is full");
+      return absl::OkStatus();
+    };
+  };
+  start();
+  const std::string job_id = submit_small_job();
+  ASSERT_FALSE(job_id.empty());
+  v1::JobInfo info;
+  const grpc::Status refused = cancel_job(job_id, &info);
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::INTERNAL);
+  EXPECT_NE(refused.error_message().find("cannot cancel job " + job_id +
+                                         ": sqlite: step 'COMMIT': database or disk is full; "
+                                         "the job goes on as it was"),
+            std::string::npos)
+      << refused.error_message();
+  const std::string worker_id = register_worker();
+  EXPECT_FALSE(run_worker(worker_id).empty());
+  ASSERT_TRUE(get_job(job_id, &info).ok());
+  EXPECT_EQ(info.progress().tasks_done(), info.progress().tasks_total());
+  // With room again a cancel of another job goes through.
+  full = false;
+  const std::string other = submit_small_job();
+  ASSERT_TRUE(cancel_job(other, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
+}
+
 TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {
   v1::JobSpec spec = uploaded_small_spec();
   ASSERT_FALSE(spec.bundle_hash().empty());
