@@ -158,6 +158,7 @@ void FarmCoordinator::tick_loop() {
     }
     scheduler_.tick(now());
     process_events_locked();
+    requeue_due_finalises_locked();
     if (forgot == Steady::time_point() || started - forgot >= std::chrono::hours(1)) {
       forgot = started;
       forget_old_workers_locked();
@@ -448,6 +449,11 @@ JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) {
             ") is blocked from this job after repeated failures of its tasks; the last: ",
             p->last_fault);
       }
+    }
+    if (auto retry = finalise_retries_.find(record.id); retry != finalise_retries_.end()) {
+      status.waiting = absl::StrCat("cannot write the outputs (", retry->second.problem,
+                                    "): waiting for disk space, trying again every ",
+                                    retry->second.delay.count() / 1000, " s");
     }
     if (seconds > 0 && fresh > 0) {
       status.samples_per_second = double(fresh) / seconds;

@@ -117,6 +117,12 @@ struct FarmOptions {
   // Fault injection for tests: called by the finaliser thread, without the lock, before a
   // finished job's outputs are written.
   std::function<void()> before_write_outputs;
+  // Fault injection for tests: an error stands for the outcome of writing a finished job's
+  // outputs (a full disk), called after before_write_outputs.
+  std::function<absl::Status()> write_outputs_fault;
+  // A job whose outputs could not be written for want of disk space stays FINALISING and is
+  // written again after this delay, doubled at each failure up to 5 minutes.
+  Millis finalise_retry_delay{10'000};
   // Fault injection for tests: an error stands for the result store's answer to a completed
   // task's bytes (a full disk), called without the lock before they are written.
   std::function<absl::Status()> store_result_fault;
@@ -358,6 +364,15 @@ class FarmCoordinator : public FarmView {
   bool reclaim_unsupported_ = false;  // the file system cannot punch holes (janitor thread only)
   std::thread janitor_;
   std::deque<Finalising> finalising_;  // under mutex_
+  // Jobs whose outputs met a full disk, by job id: written again once `due` (the ticker).
+  struct FinaliseRetry {
+    Finalising item;
+    std::chrono::steady_clock::time_point due;
+    Millis delay{0};
+    std::string problem;
+  };
+  std::map<std::string, FinaliseRetry> finalise_retries_;  // under mutex_
+  void requeue_due_finalises_locked();
   std::condition_variable finaliser_wake_;
   std::thread finaliser_;
 };

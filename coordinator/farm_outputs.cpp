@@ -2,6 +2,7 @@
 // its finished tiles, the files a client fetches, and previews of a running job.
 #include <algorithm>
 
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "coordinator/farm_coordinator.h"
 #include "coordinator/gather.h"
@@ -16,6 +17,19 @@ namespace prism::coordinator {
 
 namespace fs = std::filesystem;
 using SteadyClock = std::chrono::steady_clock;
+
+namespace {
+
+// Whether a write failed for want of space (the libraries' messages carry strerror's text or
+// SQLite's): worth trying again once space is freed, unlike a fault of the job.
+bool out_of_space(const absl::Status& status) {
+  const absl::string_view m = status.message();
+  return absl::StrContains(m, "No space left on device") ||
+         absl::StrContains(m, "Disk quota exceeded") ||
+         absl::StrContains(m, "database or disk is full");
+}
+
+}  // namespace
 
 fs::path FarmCoordinator::output_dir(const std::string& job_id) const {
   return options_.data_dir / "outputs" / job_id;
@@ -410,6 +424,23 @@ absl::Status FarmCoordinator::write_job_outputs(const ActiveJob& job, RenderRepo
   return absl::OkStatus();
 }
 
+void FarmCoordinator::requeue_due_finalises_locked() {
+  const SteadyClock::time_point now_steady = SteadyClock::now();
+  for (auto it = finalise_retries_.begin(); it != finalise_retries_.end();) {
+    if (!active_.contains(it->first)) {  // cancelled meanwhile
+      it = finalise_retries_.erase(it);
+    } else if (it->second.due <= now_steady) {
+      // The entry stays (for the job's status and the next delay) until the write ends.
+      it->second.due = SteadyClock::time_point::max();
+      finalising_.push_back(it->second.item);
+      finaliser_wake_.notify_one();
+      ++it;
+    } else {
+      ++it;
+    }
+  }
+}
+
 void FarmCoordinator::finaliser_loop() {
   std::unique_lock<std::mutex> lock(mutex_);
   while (true) {
@@ -420,14 +451,16 @@ void FarmCoordinator::finaliser_loop() {
     finalising_.pop_front();
     lock.unlock();
     if (options_.before_write_outputs) options_.before_write_outputs();
-    const absl::Status written = write_job_outputs(*item.job, item.report, item.paths);
+    absl::Status written =
+        options_.write_outputs_fault ? options_.write_outputs_fault() : absl::OkStatus();
+    if (written.ok()) written = write_job_outputs(*item.job, item.report, item.paths);
     lock.lock();
     finish_finalise_locked(item, written);
   }
 }
 
 void FarmCoordinator::finish_finalise_locked(Finalising& item, const absl::Status& written) {
-  const std::string& job_id = item.job_id;
+  const std::string job_id = item.job_id;  // a copy: `item` may be moved into a retry
   absl::StatusOr<store::JobRecord> record = store_->get_job(job_id);
   if (!record.ok() || record->state != store::JobState::kFinalising) {
     // Cancelled (or failed) while its outputs were written: they go too.
@@ -440,6 +473,24 @@ void FarmCoordinator::finish_finalise_locked(Finalising& item, const absl::Statu
   if (done.ok()) {
     done = store_->set_job_state(job_id, store::JobState::kDone, now().count()).status();
   }
+  if (!done.ok() && out_of_space(done)) {
+    // Nothing is lost yet: the finished tiles stay, and the outputs are written again later
+    // (failing the job deleted them, so a full disk lost jobs that had rendered).
+    std::error_code ec;
+    fs::remove_all(output_dir(job_id), ec);
+    auto previous = finalise_retries_.find(job_id);
+    const Millis delay =
+        previous == finalise_retries_.end()
+            ? options_.finalise_retry_delay
+            : std::min(Millis(300'000), Millis(previous->second.delay.count() * 2));
+    options_.logger->warn("[job {}] cannot write its outputs: {}; trying again in {} s", job_id,
+                          done.ToString(), delay.count() / 1000.0);
+    finalise_retries_[job_id] = {std::move(item), SteadyClock::now() + delay, delay,
+                                 std::string(done.message())};
+    changed_locked();
+    return;
+  }
+  finalise_retries_.erase(job_id);
   if (!done.ok()) {
     options_.logger->error("[job {}] cannot write its outputs: {}", job_id, done.ToString());
     std::error_code ec;

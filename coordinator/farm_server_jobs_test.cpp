@@ -462,6 +462,43 @@ TEST_F(FarmServerTest, ACancelTheStoreCannotRecordChangesNothing) {
   EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
 }
 
+// Outputs that meet a full disk are written again once there is room: the job waits in
+// FINALISING and says why. It used to fail, and its finished tiles were deleted with it.
+TEST_F(FarmServerTest, OutputsThatMeetAFullDiskAreWrittenAgainLater) {
+  std::atomic<int> attempts{0};
+  stop();
+  configure_ = [&attempts](FarmOptions& options) {
+    options.finalise_retry_delay = Millis(1000);  // 1 s, then 2 s: past run_worker's idle end
+    options.write_outputs_fault = [&attempts]() -> absl::Status {
+      if (++attempts <= 2) {
+        return absl::InternalError("cannot write j.exr.tmp: No space left on device");
+      }
+      return absl::OkStatus();
+    };
+  };
+  start();
+  const std::string job_id = submit_small_job();
+  ASSERT_FALSE(job_id.empty());
+  EXPECT_FALSE(run_worker(register_worker()).empty());
+  v1::JobInfo info;
+  bool said_why = false;
+  const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  while (std::chrono::steady_clock::now() < end) {
+    ASSERT_TRUE(get_job(job_id, &info).ok());
+    if (info.state() == v1::JOB_STATE_FINALISING &&
+        info.waiting().find("cannot write the outputs (cannot write j.exr.tmp: No space left on "
+                            "device): waiting for disk space") != std::string::npos) {
+      said_why = true;
+    }
+    if (info.state() != v1::JOB_STATE_FINALISING && info.state() != v1::JOB_STATE_RENDERING) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  EXPECT_EQ(info.state(), v1::JOB_STATE_DONE) << info.error();
+  EXPECT_TRUE(said_why);
+  EXPECT_EQ(attempts.load(), 3);
+  EXPECT_TRUE(fs::exists(root_ / "data" / "outputs" / job_id / (job_id + ".exr")));
+}
+
 TEST_F(FarmServerTest, ABadSpecIsInvalidArgumentNamingTheField) {
   v1::JobSpec spec = uploaded_small_spec();
   ASSERT_FALSE(spec.bundle_hash().empty());
