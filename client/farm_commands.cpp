@@ -1,10 +1,13 @@
 #include "client/farm_commands.h"
 
+#include <fcntl.h>
 #include <grpcpp/create_channel.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <condition_variable>
 #include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <map>
 #include <mutex>
@@ -154,27 +157,50 @@ absl::Status upload_if_missing(Farm& farm, const std::string& hash, const std::s
   return absl::OkStatus();
 }
 
-// Writes `bytes` to a temporary beside `path` and renames it over `path`.
-absl::Status write_atomically(const fs::path& path, const std::string& bytes) {
-  const fs::path temp = path.string() + ".part." + std::to_string(::getpid());
-  {
-    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
-    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-    out.flush();
-    if (!out) {
-      std::error_code ignored;
-      fs::remove(temp, ignored);
-      return absl::UnavailableError(absl::StrCat("could not write ", path.string()));
+// A job's fetched files, all or none: each is written to a temporary beside its name, and only
+// when every one is written are they renamed into place. A full disk used to leave the spectral
+// EXR without its RGB EXR, PNG and report, and said only "could not write".
+class StagedFiles {
+ public:
+  ~StagedFiles() {
+    std::error_code ignored;
+    for (const auto& [temp, path] : staged_) fs::remove(temp, ignored);
+  }
+  absl::Status add(const fs::path& path, const std::string& bytes) {
+    const fs::path temp = path.parent_path() / (".fetch." + path.filename().string() + ".part." +
+                                                std::to_string(::getpid()));
+    const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) {
+      return absl::UnavailableError(
+          absl::StrCat("could not write ", path.string(), ": ", std::strerror(errno)));
     }
+    staged_.emplace_back(temp, path);
+    absl::Status status = base::pwrite_all(fd, bytes.data(), bytes.size(), 0, path.string());
+    if (::close(fd) != 0 && status.ok()) {
+      status = absl::InternalError(std::strerror(errno));
+    }
+    if (!status.ok()) {
+      return absl::UnavailableError(
+          absl::StrCat("could not write ", path.string(), ": ", status.message()));
+    }
+    return absl::OkStatus();
   }
-  std::error_code error;
-  fs::rename(temp, path, error);
-  if (error) {
-    fs::remove(temp, error);
-    return absl::UnavailableError(absl::StrCat("could not write ", path.string()));
+  absl::Status commit() {
+    for (const auto& [temp, path] : staged_) {
+      std::error_code error;
+      fs::rename(temp, path, error);
+      if (error) {
+        return absl::UnavailableError(
+            absl::StrCat("could not write ", path.string(), ": ", error.message()));
+      }
+    }
+    staged_.clear();
+    return absl::OkStatus();
   }
-  return absl::OkStatus();
-}
+
+ private:
+  std::vector<std::pair<fs::path, fs::path>> staged_;
+};
 
 absl::StatusOr<v1::JobInfo> get_job(Farm& farm, const std::string& id) {
   v1::GetJobRequest request;
@@ -401,6 +427,7 @@ absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
     }
   }
   std::string written;
+  StagedFiles staged;
   for (auto& [kind, bytes] : read->files) {
     fs::path path;
     switch (kind) {
@@ -432,10 +459,11 @@ absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
         continue;  // outputs this client does not name yet
     }
     if (kind == v1::OUTPUT_KIND_REPORT_JSON) bytes = with_local_outputs(bytes, paths);
-    PRISM_RETURN_IF_ERROR(write_atomically(path, bytes));
+    PRISM_RETURN_IF_ERROR(staged.add(path, bytes));
     absl::StrAppend(&written, written.empty() ? "" : ", ", path.string());
   }
   if (written.empty()) return absl::NotFoundError(absl::StrCat("job ", id, " has no outputs"));
+  PRISM_RETURN_IF_ERROR(staged.commit());
   return absl::StrCat("wrote ", written, "\n");
 }
 

@@ -638,37 +638,62 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
   const Clock::time_point output_start = Clock::now();
   const coordinator::OutputOptions outputs{static_cast<float>(options.exposure),
                                            {job.outputs.exr_compression, result->stats.threads}};
-  if (result->primal.has_value() && result->gradient.has_value()) {
-    PRISM_RETURN_IF_ERROR(coordinator::write_primal_and_gradient(
-        *result->primal, *result->primal_rgb, *result->gradient, renderer->scene().cmf(), report,
-        paths, outputs));
+  // All or nothing: when one output cannot be written (a full disk), the ones this render wrote
+  // go too, so that no report is left describing an EXR that is not there (earlier files of the
+  // same names that it did not replace stay).
+  std::vector<std::pair<std::filesystem::path, std::optional<std::filesystem::file_time_type>>>
+      before;
+  for (const std::filesystem::path& path :
+       {paths.spectral_exr, paths.rgb_exr, paths.png, paths.json, paths.primal_exr,
+        paths.gradient_exr, paths.filtered_exr, paths.filtered_png}) {
+    if (path.empty()) continue;
+    std::error_code ec;
+    const std::filesystem::file_time_type time = std::filesystem::last_write_time(path, ec);
+    before.emplace_back(path,
+                        ec ? std::nullopt : std::optional<std::filesystem::file_time_type>(time));
   }
-  if (report.filtered.has_value()) {
-    coordinator::fill_filtered_counters(report.counters, *report.filtered);
-    if (result->stats.gather.has_value()) {
-      report.filtered->pixels_with_offsets = result->stats.gather->pixels_with_offsets;
-      report.filtered->pixels_filtered = result->stats.gather->pixels_filtered;
-      report.filtered->pixels_incoherent = result->stats.gather->pixels_incoherent;
+  const absl::Status written = [&]() -> absl::Status {
+    if (result->primal.has_value() && result->gradient.has_value()) {
+      PRISM_RETURN_IF_ERROR(coordinator::write_primal_and_gradient(
+          *result->primal, *result->primal_rgb, *result->gradient, renderer->scene().cmf(), report,
+          paths, outputs));
     }
-  }
-  if (result->filtered.has_value() && result->filtered_rgb.has_value()) {
-    PRISM_RETURN_IF_ERROR(coordinator::write_filtered(*result->filtered, *result->filtered_rgb,
-                                                      report, paths, outputs));
-  }
-  if (result->stream != nullptr) {
-    PRISM_RETURN_IF_ERROR(coordinator::write_outputs(
-        [&](const std::filesystem::path& path, const image::ExrMetadata& metadata) {
-          return result->stream->write(path, metadata);
-        },
-        result->rgb, report, paths, outputs));
-  } else if (result->spool != nullptr) {
-    std::vector<float> band;
-    PRISM_RETURN_IF_ERROR(coordinator::write_outputs(render.bins, result->spool->band_rows(),
-                                                     result->spool->rows(&band), result->rgb,
-                                                     report, paths, outputs));
-  } else {
-    PRISM_RETURN_IF_ERROR(
-        coordinator::write_outputs(result->image, result->rgb, report, paths, outputs));
+    if (report.filtered.has_value()) {
+      coordinator::fill_filtered_counters(report.counters, *report.filtered);
+      if (result->stats.gather.has_value()) {
+        report.filtered->pixels_with_offsets = result->stats.gather->pixels_with_offsets;
+        report.filtered->pixels_filtered = result->stats.gather->pixels_filtered;
+        report.filtered->pixels_incoherent = result->stats.gather->pixels_incoherent;
+      }
+    }
+    if (result->filtered.has_value() && result->filtered_rgb.has_value()) {
+      PRISM_RETURN_IF_ERROR(coordinator::write_filtered(*result->filtered, *result->filtered_rgb,
+                                                        report, paths, outputs));
+    }
+    if (result->stream != nullptr) {
+      PRISM_RETURN_IF_ERROR(coordinator::write_outputs(
+          [&](const std::filesystem::path& path, const image::ExrMetadata& metadata) {
+            return result->stream->write(path, metadata);
+          },
+          result->rgb, report, paths, outputs));
+    } else if (result->spool != nullptr) {
+      std::vector<float> band;
+      PRISM_RETURN_IF_ERROR(coordinator::write_outputs(render.bins, result->spool->band_rows(),
+                                                       result->spool->rows(&band), result->rgb,
+                                                       report, paths, outputs));
+    } else {
+      PRISM_RETURN_IF_ERROR(
+          coordinator::write_outputs(result->image, result->rgb, report, paths, outputs));
+    }
+    return absl::OkStatus();
+  }();
+  if (!written.ok()) {
+    for (const auto& [path, time] : before) {
+      std::error_code ec;
+      const std::filesystem::file_time_type now_time = std::filesystem::last_write_time(path, ec);
+      if (!ec && (!time.has_value() || now_time != *time)) std::filesystem::remove(path, ec);
+    }
+    return written;
   }
   const double output_seconds = std::chrono::duration<double>(Clock::now() - output_start).count();
   const double seconds = report.render_seconds;
