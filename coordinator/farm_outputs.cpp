@@ -126,7 +126,9 @@ absl::StatusOr<TileMapStatus> FarmCoordinator::tile_map(const std::string& job_i
   map.tile_size = params.tile_size;
   map.tiles_x = (params.width + params.tile_size - 1) / params.tile_size;
   map.tiles_y = (params.height + params.tile_size - 1) / params.tile_size;
-  const char undone = record.state == store::JobState::kFailed ? 'f' : 'q';
+  const char undone = record.state == store::JobState::kFailed      ? 'f'
+                      : record.state == store::JobState::kCancelled ? 'c'
+                                                                    : 'q';
   map.states.assign(std::size_t(map.tiles_x) * std::size_t(map.tiles_y),
                     record.state == store::JobState::kDone ? 'd' : undone);
   if (record.state != store::JobState::kDone) {

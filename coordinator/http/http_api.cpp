@@ -21,6 +21,7 @@
 #include "google/protobuf/util/json_util.h"
 #include "prism/v1/farm.pb.h"
 #include "services/base/check.h"
+#include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/rpc/auth.h"
 
@@ -395,6 +396,11 @@ void HttpApi::install_routes() {
     send_message(res, response);
   };
   handlers["hasBundle"] = [this](const httplib::Request& req, httplib::Response& res) {
+    if (!base::is_sha256_hex(req.matches[1].str())) {
+      return send_error(res, absl::InvalidArgumentError(
+                                 absl::StrCat("bundle hash '", req.matches[1].str(),
+                                              "': want 64 lower case hex digits (SHA-256)")));
+    }
     v1::HasBundleResponse response;
     response.set_present(view_.has_bundle(req.matches[1]));
     send_message(res, response);

@@ -328,6 +328,9 @@ TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
   EXPECT_TRUE(checked("hasBundle", http_->Get("/api/v1/bundles/" + hash, auth()), 200)["present"]);
   EXPECT_FALSE(checked("hasBundle", http_->Get("/api/v1/bundles/" + std::string(64, 'a'), auth()),
                        200)["present"]);
+  // A malformed hash is the caller's error, not an absent bundle.
+  EXPECT_EQ(error_code(checked("hasBundle", http_->Get("/api/v1/bundles/abc", auth()), 400)),
+            "INVALID_ARGUMENT");
 
   // Submit the request `prism pack` would print: the spec as JSON.
   v1::SubmitJobRequest request;
@@ -439,7 +442,8 @@ TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
   const std::string second =
       checked("submitJob", http_->Post("/api/v1/jobs", auth(), body, "application/json"),
               200)["job"]["jobId"];
-  // No worker takes the second job before it is cancelled: all its tiles stay queued.
+  // No worker takes the second job before it is cancelled: none of its tiles was done, and
+  // they show as cancelled (they showed as queued, as if it would go on).
   for (int i = 0; i < 2; ++i) {
     json cancelled =
         checked("cancelJob", http_->Post("/api/v1/jobs/" + second + ":cancel", auth()), 200);
@@ -447,7 +451,7 @@ TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
   }
   EXPECT_EQ(
       checked("getTiles", http_->Get("/api/v1/jobs/" + second + "/tiles", auth()), 200)["states"],
-      std::string(9, 'q'));
+      std::string(9, 'c'));
   // The workers list shows the fake worker with its completed tasks.
   json workers = checked("listWorkers", http_->Get("/api/v1/workers", auth()), 200);
   ASSERT_EQ(workers["workers"].size(), 1u);

@@ -264,6 +264,10 @@ grpc::Status FarmServiceImpl::HasBundle(grpc::ServerContext* context,
                                         const prism::v1::HasBundleRequest* request,
                                         prism::v1::HasBundleResponse* response) {
   if (auto auth = check_bearer(*context, api_token_); !auth.ok()) return refused(*context, auth);
+  if (!base::is_sha256_hex(request->bundle_hash())) {
+    return to_grpc(absl::InvalidArgumentError(absl::StrCat(
+        "bundle_hash '", request->bundle_hash(), "': want 64 lower case hex digits (SHA-256)")));
+  }
   response->set_present(farm_.has_bundle(request->bundle_hash()));
   return grpc::Status::OK;
 }

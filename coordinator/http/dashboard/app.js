@@ -103,14 +103,14 @@ function renderWorkers(workers) {
   }
 }
 
-const tileColours = { q: "#ddd", l: "#e90", d: "#3a3", f: "#c22" };
+const tileColours = { q: "#ddd", l: "#e90", d: "#3a3", f: "#c22", c: "#789" };
 
 function drawTiles(map) {
   const canvas = $("tiles");
   const ctx = canvas.getContext("2d");
   const scale = Math.min(canvas.width / map.width, canvas.height / map.height);
   ctx.clearRect(0, 0, canvas.width, canvas.height);
-  const counts = { q: 0, l: 0, d: 0, f: 0 };
+  const counts = { q: 0, l: 0, d: 0, f: 0, c: 0 };
   for (let i = 0; i < map.states.length; ++i) {
     const s = map.states[i];
     counts[s] = (counts[s] || 0) + 1;
@@ -120,7 +120,8 @@ function drawTiles(map) {
                  Math.max(1, map.tileSize * scale - 1));
   }
   $("tile-counts").textContent =
-    `${counts.d} done, ${counts.l} leased, ${counts.q} queued, ${counts.f} failed`;
+    `${counts.d} done, ${counts.l} leased, ${counts.q} queued, ${counts.f} failed` +
+    (counts.c > 0 ? `, ${counts.c} cancelled` : "");
   canvas.dataset.states = map.states;
 }
 
