@@ -616,6 +616,31 @@ TEST(GoodScenes, TexturesNamedBeforeTheirDefinition) {
             "texture of that name at m.pbrt:3:1 is a float texture)");
 }
 
+// Exporters write pbrt-v4's default crop, the whole image, out: that is the image Prism renders,
+// and it was refused. Any other crop still is.
+TEST(GoodScenes, ACropOfTheWholeImageIsTheImage) {
+  auto film = [](const std::string& crop) {
+    return parse_scene_string(
+        "Film \"rgb\" \"integer xresolution\" 48 \"integer yresolution\" 32 " + crop +
+            "\nWorldBegin\n",
+        "m.pbrt", {}, {});
+  };
+  for (const std::string& whole :
+       {"\"float cropwindow\" [0 1 0 1]", "\"integer pixelbounds\" [0 48 0 32]"}) {
+    absl::StatusOr<SceneDescription> s = film(whole);
+    ASSERT_TRUE(s.ok()) << whole << ": " << s.status();
+    EXPECT_EQ(count_features(s->features, FeatureStatus::kIgnored), 1) << whole;
+  }
+  for (const std::string& crop :
+       {"\"float cropwindow\" [0 0.5 0 1]", "\"integer pixelbounds\" [0 10 0 32]"}) {
+    absl::StatusOr<SceneDescription> s = film(crop);
+    ASSERT_FALSE(s.ok()) << crop;
+    EXPECT_NE(s.status().message().find("a crop is not supported; Prism renders the whole image"),
+              std::string::npos)
+        << s.status();
+  }
+}
+
 // A byte order mark before the first directive (a file saved by a Windows editor) is skipped,
 // in the main file and in an included one; columns count from the text after it.
 TEST(GoodScenes, AByteOrderMarkIsSkipped) {

@@ -627,12 +627,33 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
   // The film diagonal matters only for the realistic camera.
   PRISM_ASSIGN_OR_RETURN(double diagonal, params.get_float("diagonal", 35.0));
   PRISM_RETURN_IF_ERROR(check_range(params, "diagonal", diagonal, 1e-9, 1e30, "> 0"));
+  // A crop naming the whole image (pbrt-v4's default, which exporters write out) is the image
+  // Prism renders; any other crop is refused.
+  auto whole_image = [&](const char* name, const std::vector<double>& whole) -> absl::Status {
+    const Parameter* p = params.find(name);
+    if (p == nullptr) return absl::OkStatus();
+    std::vector<double> v;
+    if (p->type == ParamType::kInteger) {
+      PRISM_ASSIGN_OR_RETURN(std::vector<std::int64_t> ints, params.get_ints(name));
+      v.assign(ints.begin(), ints.end());
+    } else {
+      PRISM_ASSIGN_OR_RETURN(v, params.get_floats(name));
+    }
+    if (v == whole) {
+      if (params.features() != nullptr)
+        params.features()->ignored(params.feature(*p), p->where,
+                                   "the whole image, which is what Prism renders");
+      return absl::OkStatus();
+    }
+    return params.refuse(name, "a crop is not supported; Prism renders the whole image",
+                         "the whole image");
+  };
+  PRISM_RETURN_IF_ERROR(whole_image("cropwindow", {0, 1, 0, 1}));
   PRISM_RETURN_IF_ERROR(
-      params.refuse("cropwindow", "is not supported by Prism", "the whole image"));
-  PRISM_RETURN_IF_ERROR(
-      params.refuse("pixelbounds", "is not supported by Prism", "the whole image"));
-  PRISM_RETURN_IF_ERROR(
-      params.refuse("maxcomponentvalue", "is not supported by Prism", "unclamped samples"));
+      whole_image("pixelbounds", {0, double(f.x_resolution), 0, double(f.y_resolution)}));
+  PRISM_RETURN_IF_ERROR(params.refuse(
+      "maxcomponentvalue", "clamping is not supported; Prism keeps samples unclamped",
+      "unclamped samples"));
   if (const Parameter* fp16 = params.find("savefp16")) {
     PRISM_ASSIGN_OR_RETURN(bool half, params.get_bool("savefp16", true));
     (void)half;
