@@ -330,6 +330,11 @@ absl::StatusOr<v1::JobInfo> watch_through_restarts(Farm& farm, const std::string
             " ms): it started on another data directory, and this job is not there"));
       }
       if (back.ok() && !known.has_value()) known = identity(*back);
+      if (!back.ok() && back.status().code() == absl::StatusCode::kNotFound) {
+        return absl::FailedPreconditionError(absl::StrCat(
+            "the coordinator at ", farm.connection().address, " came back without job ", id,
+            ": it started on another data directory, and this job is not there"));
+      }
     }
     const Clock::time_point started = Clock::now();
     absl::StatusOr<v1::JobInfo> job = watch(farm, id, out, terminal);
@@ -582,14 +587,38 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
   PRISM_RETURN_IF_ERROR(upload_if_missing(farm, submission.bundle.content_hash,
                                           scene::pack(submission.bundle), options.progress));
   const v1::SubmitJobRequest& request = submission.request;
+  std::ostream null_stream(nullptr);
+  std::ostream& out = options.progress != nullptr ? *options.progress : null_stream;
   v1::SubmitJobResponse response;
-  if (grpc::Status s = farm.stub().SubmitJob(farm.call().get(), request, &response); !s.ok()) {
-    return rpc_error(s);
+  // With --wait a coordinator going away during the submission is ridden out as during the
+  // watch: the request is sent again (its client token finds the job if it was stored before the
+  // answer was lost), the bundle uploaded again if the coordinator came back without it.
+  const auto give_up_at = std::chrono::steady_clock::now() + kCoordinatorPatience;
+  for (bool said = false;;) {
+    grpc::Status s = farm.stub().SubmitJob(farm.call().get(), request, &response);
+    if (s.ok()) break;
+    const absl::Status error = rpc_error(s);
+    const bool unreachable = error.code() == absl::StatusCode::kUnavailable ||
+                             error.code() == absl::StatusCode::kDeadlineExceeded;
+    if (!options.wait || !unreachable || std::chrono::steady_clock::now() > give_up_at) {
+      return error;
+    }
+    if (!said) {
+      out << "the coordinator at " << farm.connection().address << " is unreachable ("
+          << error.message() << "); submitting again every 2 s for up to 5 minutes\n"
+          << std::flush;
+      said = true;
+    }
+    std::this_thread::sleep_for(std::chrono::seconds(2));
+    absl::Status uploaded = upload_if_missing(farm, submission.bundle.content_hash,
+                                              scene::pack(submission.bundle), options.progress);
+    if (!uploaded.ok() && uploaded.code() != absl::StatusCode::kUnavailable &&
+        uploaded.code() != absl::StatusCode::kDeadlineExceeded) {
+      return uploaded;
+    }
   }
   const std::string id = response.job().job_id();
   if (!options.wait) return id + "\n";
-  std::ostream null_stream(nullptr);
-  std::ostream& out = options.progress != nullptr ? *options.progress : null_stream;
   out << id << "\n";
   PRISM_ASSIGN_OR_RETURN(
       v1::JobInfo job,

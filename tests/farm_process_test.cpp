@@ -60,8 +60,9 @@ class FarmProcessTest : public ::testing::Test {
   }
 
   // Starts `argv`; the fixture owns it until the test ends.
-  testing::ChildProcess* spawn(std::vector<std::string> argv) {
-    children_.push_back(testing::ChildProcess::start(std::move(argv)));
+  testing::ChildProcess* spawn(std::vector<std::string> argv,
+                               const testing::ChildOptions& options = {}) {
+    children_.push_back(testing::ChildProcess::start(std::move(argv), options));
     return children_.back().get();
   }
 
@@ -824,21 +825,26 @@ TEST_F(FarmProcessTest, SubmitWaitDoesNotFollowItsJobIdIntoAnotherFarm) {
   for (const char* f : {"--spp", "64", "--seed", "11", "--integrator", "hero", "--no-prepass"}) {
     submit.push_back(f);
   }
-  testing::ChildProcess* submitted = spawn(submit);  // no worker yet: it waits
-  ASSERT_TRUE(wait_for(
-                  "j-000001", [](const v1::JobInfo& i) { return !i.job_id().empty(); }, 20)
-                  .job_id() == "j-000001");
+  // No worker yet: it waits. Killed once it has its job's id (printed when SubmitJob answered;
+  // killed before, it submits again, and rightly renders its job on the other farm).
+  testing::ChildOptions merged;
+  merged.merge_stderr = true;
+  testing::ChildProcess* submitted = spawn(submit, merged);
+  ASSERT_TRUE(submitted->wait_for_line("j-000001", std::chrono::seconds(20)).has_value());
   coordinator_->kill();
-  start_coordinator(port, "other-data");
-  // Another user's job, on the new farm: also j-000001.
+  // Another user's job on the other data directory, also j-000001, stored before that
+  // coordinator takes over the address (submitted after, it raced the client's reconnection).
+  start_coordinator(0, "other-data");
   std::vector<std::string> theirs =
       testing::submit_command(PRISM_BINARY, root_ / "scene" / "scene.pbrt",
-                              "127.0.0.1:" + std::to_string(port), testing::kApiToken, {});
+                              "127.0.0.1:" + std::to_string(port_), testing::kApiToken, {});
   for (const char* f : {"--spp", "2", "--seed", "3", "--integrator", "hero", "--no-prepass"}) {
     theirs.push_back(f);
   }
   const testing::RunResult other = testing::run(theirs);
   ASSERT_EQ(other.exit_code, 0) << other.out << other.err;
+  coordinator_->kill();
+  start_coordinator(port, "other-data");
   start_worker(0);
   const std::optional<int> exit_code = submitted->wait(std::chrono::minutes(2));
   ASSERT_TRUE(exit_code.has_value()) << "prism submit --wait did not end";
