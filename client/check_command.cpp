@@ -71,9 +71,22 @@ absl::StatusOr<CheckReport> run_check(const CheckOptions& options) {
   // Substituting lets the check go on past the first refusal and list them all.
   scene::LoadOptions load = scene::with_library_names(library);
   load.allow_unsupported = true;
-  PRISM_ASSIGN_OR_RETURN(scene::LoadedScene loaded, scene::load_scene(options.scene, load));
-  PRISM_ASSIGN_OR_RETURN(scene::Bundle bundle, scene::make_bundle(loaded.root, loaded.scene_relpath,
-                                                                  loaded.description.files));
+  absl::StatusOr<scene::LoadedScene> read = scene::load_scene(options.scene, load);
+  absl::StatusOr<scene::Bundle> bundled =
+      read.ok() ? scene::make_bundle(read->root, read->scene_relpath, read->description.files)
+                : absl::StatusOr<scene::Bundle>(read.status());
+  if (!bundled.ok()) {
+    // With --json a scene that does not load is a JSON answer too (a tool reading stdout got
+    // nothing): its error, "file:line:column: what" as on stderr.
+    if (!options.json) return bundled.status();
+    nlohmann::json j;
+    j["scene"] = options.scene.string();
+    j["renders"] = false;
+    j["error"] = std::string(bundled.status().message());
+    return CheckReport{j.dump(2) + "\n", false};
+  }
+  const scene::LoadedScene& loaded = *read;
+  const scene::Bundle& bundle = *bundled;
   const int refused =
       scene::count_features(loaded.description.features, scene::FeatureStatus::kRefused);
   CheckReport report;

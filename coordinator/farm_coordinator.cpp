@@ -455,7 +455,9 @@ JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) {
                                     "): waiting for disk space, trying again every ",
                                     retry->second.delay.count() / 1000, " s");
     }
-    if (seconds > 0 && fresh > 0) {
+    // A job waiting (for a worker, for disk space) has no rate or time left to show: the mean
+    // since it started said it would end soon while nothing moved.
+    if (seconds > 0 && fresh > 0 && status.waiting.empty()) {
       status.samples_per_second = double(fresh) / seconds;
       status.eta_seconds = double(record.progress.samples_total - record.progress.samples_done) /
                            status.samples_per_second;

@@ -982,6 +982,18 @@ TEST(RenderCliTest, UnsupportedFeaturesRenderOnlyWhenAllowedAndTheReportListsThe
   EXPECT_EQ(checked["refused"], 1);
   EXPECT_TRUE(checked["renders"]);
 
+  // A scene that does not load is a JSON answer too with --json (stdout was empty).
+  {
+    const fs::path bad = fresh_dir("check_bad");
+    std::ofstream(bad / "bad.pbrt") << "WorldBegin\nShape \"sphere\" \"float radius\" [\n";
+    CommandRun bad_check = run_prism(bad, {"check", "bad.pbrt", "--json"});
+    EXPECT_EQ(bad_check.exit_code, 1);
+    const auto answer = nlohmann::json::parse(bad_check.output, nullptr, false);
+    ASSERT_FALSE(answer.is_discarded()) << bad_check.output;
+    EXPECT_FALSE(answer["renders"]);
+    EXPECT_EQ(answer["error"].get<std::string>().rfind("bad.pbrt:", 0), 0u) << answer.dump();
+  }
+
   const fs::path dir = fresh_dir("render_allowed");
   CommandRun run =
       run_prism(dir, {"render", scene, "-o", "u.exr", "--allow-unsupported", "--threads", "1"});

@@ -586,6 +586,7 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
   PRISM_RETURN_IF_ERROR(
       check_range(params, "yresolution", f.y_resolution, 1, kMaxResolution, range));
   PRISM_ASSIGN_OR_RETURN(f.filename, params.get_string("filename", "pbrt.exr"));
+  if (f.filename.empty()) f.filename = "pbrt.exr";  // pbrt-v4 names an empty one so too
   if (f.type == FilmType::kSpectral) {
     if (params.has("nbuckets")) {
       PRISM_ASSIGN_OR_RETURN(int bins, params.get_int("nbuckets", 16));
@@ -651,9 +652,9 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
   PRISM_RETURN_IF_ERROR(whole_image("cropwindow", {0, 1, 0, 1}));
   PRISM_RETURN_IF_ERROR(
       whole_image("pixelbounds", {0, double(f.x_resolution), 0, double(f.y_resolution)}));
-  PRISM_RETURN_IF_ERROR(params.refuse(
-      "maxcomponentvalue", "clamping is not supported; Prism keeps samples unclamped",
-      "unclamped samples"));
+  PRISM_RETURN_IF_ERROR(params.refuse("maxcomponentvalue",
+                                      "clamping is not supported; Prism keeps samples unclamped",
+                                      "unclamped samples"));
   if (const Parameter* fp16 = params.find("savefp16")) {
     PRISM_ASSIGN_OR_RETURN(bool half, params.get_bool("savefp16", true));
     (void)half;
