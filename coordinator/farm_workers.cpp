@@ -187,6 +187,8 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
       // queue at once as an infrastructure failure. Left to expire, the lease counted against
       // the worker, which was then blocked from the job after a few such results.
       metrics_.result_not_merged("unstored", received);
+      // Whatever part of it reached the pack is freed (the range is never handed out again).
+      if (pack != nullptr) (void)pack->release(std::uint64_t(location.offset), bytes.size());
       const std::string message =
           absl::StrCat("the coordinator could not store the result for lease ", lease_id, ": ",
                        stored.message(), "; the task goes back to the queue");
