@@ -176,6 +176,13 @@ TEST_F(ReconstructCommandTest, RefusesBadInputWithoutWriting) {
     std::string message;
   };
   std::vector<Case> cases;
+  // An edit naming both files.
+  auto pair = [&](const char* primal, const char* gradient) {
+    return [&, primal, gradient](ReconstructOptions& o) {
+      o.primal = dir_ / primal;
+      o.gradient = dir_ / gradient;
+    };
+  };
   auto add = [&](std::string name, auto edit, std::string message) {
     ReconstructOptions o = options();
     edit(o);
@@ -208,12 +215,7 @@ TEST_F(ReconstructCommandTest, RefusesBadInputWithoutWriting) {
       "alpha negative", [&](auto& o) { o.alpha = -1; }, "--alpha -1: ");
   add(
       "norm", [&](auto& o) { o.poisson = "l3"; }, "'l3': want l2 or l1");
-  add(
-      "swapped",
-      [&](auto& o) {
-        o.primal = dir_ / "labelled.gradient.exr";
-        o.gradient = dir_ / "labelled.primal.exr";
-      },
+  add("swapped", pair("labelled.gradient.exr", "labelled.primal.exr"),
       "primal file '.*labelled.gradient.exr' holds the gradient of its render");
   add(
       "gradient is a primal", [&](auto& o) { o.gradient = dir_ / "labelled.primal.exr"; },
@@ -239,19 +241,9 @@ TEST_F(ReconstructCommandTest, RefusesBadInputWithoutWriting) {
          {std::string(image::kMetaContent), "gradient"},
          {"scene", "a.pbrt"},
          {"integrator", "gradient"}});
-  add(
-      "two seeds",
-      [&](auto& o) {
-        o.primal = dir_ / "seed2.primal.exr";
-        o.gradient = dir_ / "seed1.gradient.exr";
-      },
+  add("two seeds", pair("seed2.primal.exr", "seed1.gradient.exr"),
       "come from different renders \\(prism:seed is '2' in one and '1' in the other\\)");
-  add(
-      "another scene's render",
-      [&](auto& o) {
-        o.primal = dir_ / "hero.exr";
-        o.gradient = dir_ / "a.gradient.exr";
-      },
+  add("another scene's render", pair("hero.exr", "a.gradient.exr"),
       "come from different renders \\(prism:scene is 'b.pbrt' in one and 'a.pbrt'");
   add(
       "same file", [&](auto& o) { o.gradient = o.primal; },
