@@ -125,6 +125,13 @@ struct ActiveJob {
   std::optional<ConvergenceLog> convergence_log;    // its series on disk (convergence.h)
   double convergence_seconds_at_start = 0;          // the series' last time when resumed
   double render_seconds = 0;                        // summed over workers
+  // The final pass's results by worker id (since the job started or was resumed).
+  struct WorkerShare {
+    std::uint64_t tasks = 0;
+    std::uint64_t samples = 0;  // pixel samples
+    double seconds = 0;         // its render seconds, summed
+  };
+  std::map<std::string, WorkerShare> worker_shares;
   // The final pass's span: the first of its results' render starts (completion less render
   // seconds) to the last completion, as `prism render` times its final pass.
   std::optional<std::chrono::steady_clock::time_point> final_begin, final_end;

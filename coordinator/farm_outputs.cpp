@@ -281,7 +281,17 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
   report.light_caustics = p.render.light_caustics;
   report.caustic_paths = p.render.caustic_paths;
   report.max_depth = p.render.max_depth;
-  report.threads = 0;  // spread over the farm's workers
+  // The workers that rendered the final pass, and their threads together.
+  report.threads = 0;
+  for (const auto& [id, share] : job.worker_shares) {
+    RenderReport::WorkerShare w{id, "", 0, share.tasks, share.samples, share.seconds};
+    if (absl::StatusOr<store::WorkerRecord> worker = store_->get_worker(id); worker.ok()) {
+      w.host = worker->host;
+      w.threads = worker->threads;
+    }
+    report.threads += w.threads;
+    report.workers.push_back(std::move(w));
+  }
   report.tile_size = p.tile_size;
   report.seed = p.render.seed;
   report.wall_seconds = double(now().count() - record.submitted_ms) / 1000.0;

@@ -239,6 +239,10 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
       // The final pass's, as `prism render` reports them (the prepass has its own seconds).
       job.render_seconds += render_seconds;
       job.rays += rays;
+      ActiveJob::WorkerShare& share = job.worker_shares[worker_id];
+      ++share.tasks;
+      share.samples += std::uint64_t(task.spec.tile.area()) * task.spec.samples.count();
+      share.seconds += render_seconds;
       const SteadyClock::time_point now_steady = SteadyClock::now();
       const SteadyClock::time_point began =
           now_steady - std::chrono::duration_cast<SteadyClock::duration>(

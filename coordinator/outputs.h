@@ -206,6 +206,14 @@ struct RenderReport {
   double render_seconds = 0;  // tracing only (the final pass; on the farm its wall clock)
   // The farm: the final pass's seconds summed over the workers that rendered it (0 locally).
   double worker_seconds = 0;
+  // The farm: who rendered the final pass (`threads` is then the sum of theirs).
+  struct WorkerShare {
+    std::string id, host;
+    int threads = 0;
+    std::uint64_t tasks = 0, samples = 0;
+    double seconds = 0;
+  };
+  std::vector<WorkerShare> workers;
   // The farm: the coordinator restarted during the job, and the counters, rays and seconds
   // cover the work since it resumed the job (the images are whole either way).
   bool resumed = false;

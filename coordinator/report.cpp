@@ -78,6 +78,18 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
   j["rays_per_second"] = per_second(static_cast<double>(r.rays), r.render_seconds);
   j["peak_memory_bytes"] = r.peak_memory_bytes;
   if (r.worker_seconds > 0) j["worker_seconds"] = r.worker_seconds;
+  if (!r.workers.empty()) {
+    nlohmann::ordered_json workers = nlohmann::ordered_json::array();
+    for (const RenderReport::WorkerShare& w : r.workers) {
+      workers.push_back({{"id", w.id},
+                         {"host", w.host},
+                         {"threads", w.threads},
+                         {"tasks", w.tasks},
+                         {"samples", w.samples},
+                         {"seconds", w.seconds}});
+    }
+    j["workers"] = workers;
+  }
   if (r.resumed) {
     j["resumed"] = true;
     j["resumed_note"] =

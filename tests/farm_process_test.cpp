@@ -580,6 +580,21 @@ TEST_F(FarmProcessTest, TheDemoSubmittedWithAutoIsPrismRendersBytes) {
   EXPECT_GT(farm["render_seconds"].get<double>(), 0.0);
   EXPECT_GT(farm["worker_seconds"].get<double>(), 0.0);
   EXPECT_FALSE(farm.contains("resumed"));
+  // Who rendered it: the workers' shares add up to the job's samples, and `threads` is theirs
+  // together (it was 0, "spread over the farm").
+  ASSERT_TRUE(farm["workers"].is_array()) << farm.dump();
+  std::uint64_t samples = 0;
+  int threads = 0;
+  for (const auto& w : farm["workers"]) {
+    EXPECT_TRUE(w["host"] == "w0" || w["host"] == "w1") << w.dump();
+    EXPECT_EQ(w["threads"], 1) << w.dump();
+    EXPECT_GT(w["tasks"].get<int>(), 0) << w.dump();
+    samples += w["samples"].get<std::uint64_t>();
+    threads += w["threads"].get<int>();
+  }
+  EXPECT_EQ(samples, cli["samples"].get<std::uint64_t>());
+  EXPECT_EQ(farm["threads"], threads);
+  EXPECT_FALSE(cli.contains("workers"));
 }
 
 // Tasks of tile x sample range: each tile's four ranges ([0,5), [5,10), [10,15), [15,16)) come
