@@ -452,6 +452,12 @@ absl::StatusOr<std::vector<double>> parse_budgets(const std::string& text) {
           absl::StrCat("--budgets '", text, "': want increasing durations such as 10s,30s,2m"));
     }
     const double seconds = *value * unit;
+    // A budget has to become a sample count: 1e300 s was refused as "--spp 1000000000000".
+    constexpr double kWeek = 7 * 24 * 3600;
+    if (seconds > kWeek) {
+      return absl::InvalidArgumentError(absl::StrCat("--budgets '", text, "': ", seconds,
+                                                     " s is over a week; want at most 604800 s"));
+    }
     if (!out.empty() && seconds <= out.back()) {
       return absl::InvalidArgumentError(
           absl::StrCat("--budgets '", text, "': want increasing durations such as 10s,30s,2m"));
