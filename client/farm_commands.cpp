@@ -584,22 +584,27 @@ absl::StatusOr<std::string> run_pack(const SubmitOptions& options,
 absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOptions& options) {
   PRISM_ASSIGN_OR_RETURN(Farm farm, Farm::connect(c));
   PRISM_ASSIGN_OR_RETURN(Submission submission, prepare_submission(options));
-  PRISM_RETURN_IF_ERROR(upload_if_missing(farm, submission.bundle.content_hash,
-                                          scene::pack(submission.bundle), options.progress));
+  const std::string packed = scene::pack(submission.bundle);
   const v1::SubmitJobRequest& request = submission.request;
   std::ostream null_stream(nullptr);
   std::ostream& out = options.progress != nullptr ? *options.progress : null_stream;
   v1::SubmitJobResponse response;
-  // With --wait a coordinator going away during the submission is ridden out as during the
-  // watch: the request is sent again (its client token finds the job if it was stored before the
-  // answer was lost), the bundle uploaded again if the coordinator came back without it.
+  // With --wait a coordinator going away during the submission (the bundle's upload or the
+  // request) is ridden out as during the watch: both are sent again, the request's client token
+  // finding the job if it was stored before the answer was lost.
   const auto give_up_at = std::chrono::steady_clock::now() + kCoordinatorPatience;
   for (bool said = false;;) {
-    grpc::Status s = farm.stub().SubmitJob(farm.call().get(), request, &response);
-    if (s.ok()) break;
-    const absl::Status error = rpc_error(s);
+    absl::Status error =
+        upload_if_missing(farm, submission.bundle.content_hash, packed, options.progress);
+    if (error.ok()) {
+      grpc::Status s = farm.stub().SubmitJob(farm.call().get(), request, &response);
+      if (s.ok()) break;
+      error = rpc_error(s);
+    }
+    // A connection cut mid-stream can also end as INTERNAL ("Socket closed", "Connection reset").
     const bool unreachable = error.code() == absl::StatusCode::kUnavailable ||
-                             error.code() == absl::StatusCode::kDeadlineExceeded;
+                             error.code() == absl::StatusCode::kDeadlineExceeded ||
+                             error.code() == absl::StatusCode::kInternal;
     if (!options.wait || !unreachable || std::chrono::steady_clock::now() > give_up_at) {
       return error;
     }
@@ -610,12 +615,6 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
       said = true;
     }
     std::this_thread::sleep_for(std::chrono::seconds(2));
-    absl::Status uploaded = upload_if_missing(farm, submission.bundle.content_hash,
-                                              scene::pack(submission.bundle), options.progress);
-    if (!uploaded.ok() && uploaded.code() != absl::StatusCode::kUnavailable &&
-        uploaded.code() != absl::StatusCode::kDeadlineExceeded) {
-      return uploaded;
-    }
   }
   const std::string id = response.job().job_id();
   if (!options.wait) return id + "\n";

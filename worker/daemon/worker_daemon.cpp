@@ -207,13 +207,16 @@ absl::Status WorkerDaemon::register_worker() {
 }
 
 absl::Status WorkerDaemon::run() {
-  // A worker may start before its coordinator (or while it restarts): keep trying while the
-  // coordinator is unreachable, give up on anything else (a refused secret above all).
+  // A worker may start before its coordinator (or while it restarts, or while its disk is full
+  // and it cannot record workers): keep trying while the coordinator is unreachable or fails on
+  // its side, give up on what retrying cannot mend (a refused secret above all).
   for (;;) {
     absl::Status registered = register_worker();
     if (registered.ok()) break;
     const absl::StatusCode code = registered.code();
-    if (code != absl::StatusCode::kUnavailable && code != absl::StatusCode::kDeadlineExceeded) {
+    if (code != absl::StatusCode::kUnavailable && code != absl::StatusCode::kDeadlineExceeded &&
+        code != absl::StatusCode::kInternal && code != absl::StatusCode::kResourceExhausted &&
+        code != absl::StatusCode::kAborted) {
       return registered;
     }
     logger_->warn("{}; trying again", std::string(registered.message()));

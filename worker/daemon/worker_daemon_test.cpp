@@ -68,6 +68,7 @@ class FakeCoordinator final : public v1::WorkerService::Service {
   std::chrono::milliseconds extend_leases{0};  // renew the held lease by this much (0: never)
   bool reregister_once = false;                // REREGISTER on the first heartbeat
   int unavailable_registers = 0;               // answer this many Register calls with UNAVAILABLE
+  int full_disk_registers = 0;  // then this many with the INTERNAL a full disk gives
   std::string secret;                          // the worker secret every call must carry
   std::vector<v1::Lease> later_leases;         // handed out by the AcquireTasks after the first
   bool hold_uploads = false;                   // CompleteTask answers only once this is false
@@ -83,6 +84,11 @@ class FakeCoordinator final : public v1::WorkerService::Service {
     if (unavailable_registers > 0) {
       --unavailable_registers;
       return grpc::Status(grpc::StatusCode::UNAVAILABLE, "the coordinator is starting");
+    }
+    if (full_disk_registers > 0) {
+      --full_disk_registers;
+      return grpc::Status(grpc::StatusCode::INTERNAL,
+                          "sqlite: step 'COMMIT': database or disk is full");
     }
     registrations.push_back(*request);
     response->set_worker_id("w-1");
@@ -706,8 +712,10 @@ TEST_F(WorkerDaemonTest, ADrainDirectiveLetsATaskThatFitsItsLeaseComplete) {
 
 TEST_F(WorkerDaemonTest, RetriesRegisterWhileTheCoordinatorIsUnavailableAndSendsItsSecret) {
   fake_.lease = make_lease(rect(0, 0, 4, 4), 0, 2, 5);
-  // More refusals than the client's 5 attempts: the daemon keeps trying.
+  // More refusals than the client's 5 attempts: the daemon keeps trying; and through a
+  // coordinator whose disk is full (it exited then, and the farm lost it for good).
   fake_.unavailable_registers = 7;
+  fake_.full_disk_registers = 2;
   fake_.secret = "worker-secret";
   start_worker(100ms, "worker-secret");
   ASSERT_TRUE(fake_.wait([&] { return !fake_.uploads.empty(); }));
@@ -715,6 +723,7 @@ TEST_F(WorkerDaemonTest, RetriesRegisterWhileTheCoordinatorIsUnavailableAndSends
   EXPECT_TRUE(run_status_.ok()) << run_status_;
   std::lock_guard<std::mutex> lock(fake_.mutex);
   EXPECT_EQ(fake_.unavailable_registers, 0);
+  EXPECT_EQ(fake_.full_disk_registers, 0);
   EXPECT_TRUE(fake_.failures.empty());
   EXPECT_EQ(fake_.refused_secrets, 0);
   EXPECT_EQ(fake_.registrations.size(), 1u);
