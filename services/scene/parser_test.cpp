@@ -626,7 +626,8 @@ TEST(GoodScenes, ACropOfTheWholeImageIsTheImage) {
         "m.pbrt", {}, {});
   };
   for (const std::string& whole :
-       {"\"float cropwindow\" [0 1 0 1]", "\"integer pixelbounds\" [0 48 0 32]"}) {
+       {"\"float cropwindow\" [0 1 0 1]", "\"integer pixelbounds\" [0 48 0 32]",
+        "\"float cropwindow\" [1 0 -0.1 1.1]"}) {  // ordered and clamped, as in pbrt-v4
     absl::StatusOr<SceneDescription> s = film(whole);
     ASSERT_TRUE(s.ok()) << whole << ": " << s.status();
     EXPECT_EQ(count_features(s->features, FeatureStatus::kIgnored), 1) << whole;
@@ -639,6 +640,11 @@ TEST(GoodScenes, ACropOfTheWholeImageIsTheImage) {
               std::string::npos)
         << s.status();
   }
+  absl::StatusOr<SceneDescription> three = film("\"float cropwindow\" [0 1 0]");
+  ASSERT_FALSE(three.ok());
+  EXPECT_NE(three.status().message().find("'cropwindow' needs 4 values (x0 x1 y0 y1), got 3"),
+            std::string::npos)
+      << three.status();
 }
 
 // A byte order mark before the first directive (a file saved by a Windows editor) is skipped,

@@ -640,6 +640,20 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
     } else {
       PRISM_ASSIGN_OR_RETURN(v, params.get_floats(name));
     }
+    if (v.size() != 4) {
+      return location_error(
+          p->where, absl::StrCat("'", name, "' needs 4 values (x0 x1 y0 y1), got ", v.size()));
+    }
+    // pbrt-v4 orders each pair and clamps a crop window to [0, 1] (FilmBaseParameters).
+    if (std::string_view(name) == "cropwindow") {
+      for (int axis = 0; axis < 2; ++axis) {
+        double& lo = v[std::size_t(2 * axis)];
+        double& hi = v[std::size_t(2 * axis + 1)];
+        if (hi < lo) std::swap(lo, hi);
+        lo = std::clamp(lo, 0.0, 1.0);
+        hi = std::clamp(hi, 0.0, 1.0);
+      }
+    }
     if (v == whole) {
       if (params.features() != nullptr)
         params.features()->ignored(params.feature(*p), p->where,
