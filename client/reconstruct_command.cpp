@@ -8,6 +8,7 @@
 #include "absl/strings/str_cat.h"
 #include "coordinator/outputs.h"
 #include "coordinator/poisson.h"
+#include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
 #include "services/spectral/color.h"
@@ -170,6 +171,21 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   PRISM_RETURN_IF_ERROR(check_content(*primal, "primal", options.primal));
   PRISM_RETURN_IF_ERROR(check_content(*gradient, "gradient", options.gradient));
   PRISM_RETURN_IF_ERROR(check_same_render(*primal, options.primal, *gradient, options.gradient));
+  // The gradient file names its primal by the hash of its pixels: two renders of an edited
+  // scene under the same name and options differ there.
+  if (auto named = gradient->metadata.find(std::string(image::kMetaPrimalSha256));
+      named != gradient->metadata.end()) {
+    const std::span<const float> data = pi.data();
+    const std::string hash = base::sha256_hex(
+        std::string_view(reinterpret_cast<const char*>(data.data()), data.size() * sizeof(float)));
+    if (hash != named->second) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "gradient file ", quoted(options.gradient), " belongs with another primal than ",
+          quoted(options.primal), " (its prism:", std::string(image::kMetaPrimalSha256),
+          " is not the hash of this primal's pixels); give the .primal.exr and .gradient.exr "
+          "one render wrote"));
+    }
+  }
 
   // α and the norm: the flags, else what the render used (its files record both), else the
   // defaults; the render's image is then what this writes.

@@ -11,6 +11,7 @@
 #include <string>
 
 #include "coordinator/outputs.h"
+#include "services/base/sha256.h"
 #include "services/image/exr_spectral.h"
 #include "services/spectral/color.h"
 
@@ -74,9 +75,13 @@ TEST_F(ReconstructCommandTest, ConsistentPairReconstructsThePrimal) {
   std::mt19937 rng(7);
   for (float& v : primal_rgb->data()) v = std::uniform_real_distribution<float>(0.f, 3.f)(rng);
   write(dir_ / "primal.exr", in, {{"spp", "64"}, {"integrator", "gradient"}}, *primal_rgb);
+  // The gradient file names its primal by the hash of its pixels, as a render writes it.
+  const std::string pixels_hash = base::sha256_hex(std::string_view(
+      reinterpret_cast<const char*>(in.data().data()), in.data().size() * sizeof(float)));
   write(dir_ / "gradient.exr", exact_gradient(in, k),
         {{std::string(image::kMetaGradientOffsetBins), "5"},
-         {std::string(image::kMetaGradientDelta), "0.15"}});
+         {std::string(image::kMetaGradientDelta), "0.15"},
+         {std::string(image::kMetaPrimalSha256), pixels_hash}});
   for (const char* norm : {"l2", "l1"}) {
     ReconstructOptions o = options();
     o.poisson = norm;
@@ -241,6 +246,13 @@ TEST_F(ReconstructCommandTest, RefusesBadInputWithoutWriting) {
          {std::string(image::kMetaContent), "gradient"},
          {"scene", "a.pbrt"},
          {"integrator", "gradient"}});
+  // Two renders that record the same scene name and options, of an edited scene: the gradient
+  // file names another primal's pixels.
+  write(dir_ / "other.gradient.exr", exact_gradient(in, 2),
+        {{std::string(image::kMetaGradientOffsetBins), "2"},
+         {std::string(image::kMetaPrimalSha256), std::string(64, '0')}});
+  add("an edited scene's pair", pair("primal.exr", "other.gradient.exr"),
+      "gradient file '.*other.gradient.exr' belongs with another primal than '.*primal.exr'");
   add("two seeds", pair("seed2.primal.exr", "seed1.gradient.exr"),
       "come from different renders \\(prism:seed is '2' in one and '1' in the other\\)");
   add("another scene's render", pair("hero.exr", "a.gradient.exr"),

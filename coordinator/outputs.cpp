@@ -12,6 +12,7 @@
 #include "absl/strings/str_cat.h"
 #include "services/base/atomic_file.h"
 #include "services/base/check.h"
+#include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
 #include "services/image/png.h"
@@ -483,14 +484,31 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
     // Exactly, for `prism reconstruct` of the pair.
     metadata[std::string(image::kMetaPoissonAlpha)] = float_text(report.gradient->alpha);
   }
+  // The primal's pixels hashed as they are written (bands in order from the top, each once), for
+  // the gradient file to name the primal it belongs with (prism reconstruct checks it).
+  base::Sha256 primal_hash;
+  int next_row = 0;
+  const std::size_t row_floats = std::size_t(primal_rgb.width()) * std::size_t(bins);
+  const image::SpectralRows hashed = [&](int y0, int rows) -> absl::StatusOr<const float*> {
+    PRISM_ASSIGN_OR_RETURN(const float* band, primal(y0, rows));
+    if (y0 != next_row) {
+      return absl::InternalError(absl::StrCat("the primal's rows came out of order (", y0,
+                                              " where ", next_row, " was next)"));
+    }
+    primal_hash.update(std::string_view(reinterpret_cast<const char*>(band),
+                                        row_floats * std::size_t(rows) * sizeof(float)));
+    next_row = y0 + rows;
+    return band;
+  };
   absl::Status status = image::write_spectral_exr_rows(
-      paths.primal_exr, centres, primal_rgb.width(), primal_rgb.height(), band_rows, primal,
+      paths.primal_exr, centres, primal_rgb.width(), primal_rgb.height(), band_rows, hashed,
       primal_rgb, metadata, options.exr);
   if (!status.ok()) {
     return absl::Status(status.code(), absl::StrCat("could not write '", paths.primal_exr.string(),
                                                     "': ", status.message()));
   }
   metadata[std::string(image::kMetaContent)] = "gradient";
+  metadata[std::string(image::kMetaPrimalSha256)] = primal_hash.hex();
   status = image::write_spectral_exr_rows(paths.gradient_exr, centres, gradient_rgb.width(),
                                           gradient_rgb.height(), band_rows, gradient, gradient_rgb,
                                           metadata, options.exr);

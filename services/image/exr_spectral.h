@@ -59,6 +59,10 @@ inline constexpr std::string_view kMetaJobId = "job_id";
 //   content               "primal" or "gradient" (prism reconstruct checks it when present);
 //                         "reconstruction" on a gradient job's image and reconstruct's output.
 inline constexpr std::string_view kMetaContent = "content";
+// On a gradient file of the raw pair: the SHA-256 of its primal's pixel values (the floats of the
+// spectral image, row-major and pixel-interleaved, as written), which names the one primal it
+// belongs with.
+inline constexpr std::string_view kMetaPrimalSha256 = "primal_sha256";
 inline constexpr std::string_view kMetaGradientOffsetBins = "gradient_offset_bins";
 inline constexpr std::string_view kMetaGradientDelta = "gradient_delta";
 inline constexpr std::string_view kMetaPoissonAlpha = "poisson_alpha";
