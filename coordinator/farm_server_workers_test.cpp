@@ -1,6 +1,9 @@
 // The coordinator's WorkerService and its leases through gRPC: stale leases and duplicates,
 // malformed results, busy, lost, stalled and leaving workers, cancels reaching workers, real
 // worker processes, health.
+#include <set>
+#include <tuple>
+
 #include "coordinator/farm_server_fixture.h"
 
 namespace prism::coordinator {
@@ -45,6 +48,11 @@ TEST_F(FarmServerTest, AResultTheCoordinatorCannotStoreIsNotTheWorkersFault) {
   std::atomic<bool> full{true};
   stop();
   configure_ = [&full](FarmOptions& options) {
+    // Fewer infrastructure retries than the test makes: an unstored result counts against no
+    // cap (a long full disk failed the job after 100 of them, losing it). Held back 10 ms,
+    // doubling.
+    options.scheduler.max_free_retries = 3;
+    options.scheduler.unstored_retry_delay = Millis(10);
     options.store_result_fault = [&full]() -> absl::Status {
       if (full) return absl::InternalError("results.pack write failed: No space left on device");
       return absl::OkStatus();
@@ -54,9 +62,17 @@ TEST_F(FarmServerTest, AResultTheCoordinatorCannotStoreIsNotTheWorkersFault) {
   const std::string job_id = submit_small_job();
   ASSERT_FALSE(job_id.empty());
   const std::string worker_id = register_worker();
+  std::set<std::tuple<int, int, std::uint64_t>> unstored;  // tile corner and first sample
   for (int attempt = 0; attempt < 5; ++attempt) {
     std::optional<v1::Lease> lease = acquire(worker_id);
     ASSERT_TRUE(lease.has_value()) << attempt;
+    // A task whose result was not kept is held back (not rendered again at once) while other
+    // tasks are waiting: every attempt here gets a task not tried yet.
+    EXPECT_TRUE(unstored
+                    .insert({lease->task().tile().x0(), lease->task().tile().y0(),
+                             lease->task().samples().begin()})
+                    .second)
+        << attempt;
     const grpc::Status status = complete(worker_id, lease->lease_id(), render(*lease));
     EXPECT_EQ(status.error_code(), grpc::StatusCode::UNAVAILABLE) << status.error_message();
     EXPECT_NE(status.error_message().find("the coordinator could not store the result"),

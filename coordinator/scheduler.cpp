@@ -199,7 +199,7 @@ std::optional<Lease> Scheduler::acquire(const std::string& worker_id, Millis now
     if (job.blocked.contains(worker_id)) continue;
     for (int index : job.pending) {
       TaskRecord& task = job.tasks[index];
-      if (!eligible(job, task, worker_id, now)) continue;
+      if (now < task.not_before || !eligible(job, task, worker_id, now)) continue;
       const std::uint64_t seq = next_lease_seq_++;
       Lease lease{.id = absl::StrCat(options_.lease_prefix, seq),
                   .worker_id = worker_id,
@@ -294,6 +294,28 @@ CompleteReply Scheduler::complete(const std::string& worker_id, const std::strin
   reply.outcome = CompleteOutcome::kAccepted;
   finish_if_done(job, job_id);
   return reply;
+}
+
+absl::Status Scheduler::hold_back(const std::string& worker_id, const std::string& lease_id,
+                                  Millis now) {
+  auto it = leases_.find(lease_id);
+  if (it == leases_.end() || it->second.lease.worker_id != worker_id || !it->second.current) {
+    return absl::FailedPreconditionError(
+        absl::StrCat("lease ", lease_id, " is not a current lease of worker ", worker_id));
+  }
+  LeaseRecord& record = it->second;
+  const std::string job_id = record.lease.task.job_id;
+  const int index = record.lease.task.index;
+  JobRecord& job = jobs_.at(job_id);
+  end_lease(record, "the coordinator could not store its result");
+  TaskRecord& task = job.tasks[index];
+  task.state = TaskState::kPending;
+  job.pending.insert(index);
+  ++counters_.retries_infrastructure;
+  const int doublings = std::min(task.unstored++, 5);
+  task.not_before =
+      now + std::min(Millis(30'000), Millis(options_.unstored_retry_delay.count() << doublings));
+  return absl::OkStatus();
 }
 
 absl::Status Scheduler::fail(const std::string& worker_id, const std::string& lease_id,

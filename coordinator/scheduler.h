@@ -79,6 +79,9 @@ struct SchedulerOptions {
   int block_after_faults = 3;       // worker faults on one job that block the worker; >= 1
   int max_free_retries = 100;       // infrastructure failures of one task that fail its job
   Millis retry_preference{5000};    // how long a faulted task waits for another worker; >= 0
+  // A task whose result the coordinator could not keep waits this long before it is handed out
+  // again, doubled at each such failure up to 30 s (hold_back).
+  Millis unstored_retry_delay{1000};
   std::string lease_prefix = "l-";  // lease ids are lease_prefix + a counter from 1
 };
 
@@ -235,6 +238,11 @@ class Scheduler {
   // task was already done with the same hash. STALE otherwise, with the reason.
   CompleteReply complete(const std::string& worker_id, const std::string& lease_id,
                          const std::string& result_hash, Millis now);
+  // The coordinator could not keep the lease's result (its disk is full): the task goes back to
+  // the queue counted as an infrastructure retry but against no cap (the farm waits for space;
+  // the job does not end for it), and is held back for unstored_retry_delay, doubling, so that
+  // workers do not render it again every second meanwhile. FAILED_PRECONDITION as fail().
+  absl::Status hold_back(const std::string& worker_id, const std::string& lease_id, Millis now);
   // A failure reported for a lease (classes in the header comment; `message` is the worker's
   // own). FAILED_PRECONDITION naming the reason when the lease is not this worker's current
   // lease: nothing changes.
@@ -283,6 +291,8 @@ class Scheduler {
     std::string result_hash;
     std::string avoid_worker;  // the worker that faulted it last, while avoid_until is ahead
     Millis avoid_until{0};
+    int unstored = 0;      // results of it the coordinator could not keep (hold_back)
+    Millis not_before{0};  // held back until then
   };
   struct JobRecord {
     std::uint64_t order = 0;
