@@ -448,6 +448,10 @@ JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) {
             "every connected worker (", workers.size(),
             ") is blocked from this job after repeated failures of its tasks; the last: ",
             p->last_fault);
+      } else if (p->held_back == p->pending) {
+        status.waiting =
+            absl::StrCat("the coordinator could not store its tasks' results (", last_unstored_,
+                         "); they go out again, further apart up to 30 s, until it can");
       }
     }
     if (auto retry = finalise_retries_.find(record.id); retry != finalise_retries_.end()) {

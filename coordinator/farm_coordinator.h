@@ -372,6 +372,7 @@ class FarmCoordinator : public FarmView {
     std::string problem;
   };
   std::map<std::string, FinaliseRetry> finalise_retries_;  // under mutex_
+  std::string last_unstored_;  // why the last result could not be stored (under mutex_)
   void requeue_due_finalises_locked();
   std::condition_variable finaliser_wake_;
   std::thread finaliser_;

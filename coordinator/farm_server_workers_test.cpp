@@ -49,10 +49,9 @@ TEST_F(FarmServerTest, AResultTheCoordinatorCannotStoreIsNotTheWorkersFault) {
   stop();
   configure_ = [&full](FarmOptions& options) {
     // Fewer infrastructure retries than the test makes: an unstored result counts against no
-    // cap (a long full disk failed the job after 100 of them, losing it). Held back 10 ms,
-    // doubling.
+    // cap (a long full disk failed the job after 100 of them, losing it).
     options.scheduler.max_free_retries = 3;
-    options.scheduler.unstored_retry_delay = Millis(10);
+    options.scheduler.unstored_retry_delay = Millis(5000);  // past the time to try every task
     options.store_result_fault = [&full]() -> absl::Status {
       if (full) return absl::InternalError("results.pack write failed: No space left on device");
       return absl::OkStatus();
@@ -62,8 +61,12 @@ TEST_F(FarmServerTest, AResultTheCoordinatorCannotStoreIsNotTheWorkersFault) {
   const std::string job_id = submit_small_job();
   ASSERT_FALSE(job_id.empty());
   const std::string worker_id = register_worker();
+  v1::JobInfo info;
+  ASSERT_TRUE(get_job(job_id, &info).ok());
+  const int tasks = static_cast<int>(info.progress().tasks_total());
+  ASSERT_GT(tasks, 3);
   std::set<std::tuple<int, int, std::uint64_t>> unstored;  // tile corner and first sample
-  for (int attempt = 0; attempt < 5; ++attempt) {
+  for (int attempt = 0; attempt < tasks; ++attempt) {
     std::optional<v1::Lease> lease = acquire(worker_id);
     ASSERT_TRUE(lease.has_value()) << attempt;
     // A task whose result was not kept is held back (not rendered again at once) while other
@@ -80,20 +83,29 @@ TEST_F(FarmServerTest, AResultTheCoordinatorCannotStoreIsNotTheWorkersFault) {
         << status.error_message();
     EXPECT_NE(status.error_message().find("No space left on device"), std::string::npos);
   }
-  v1::JobInfo info;
+  // Every task is held back now: the job says why it waits (it said nothing, workers idle).
   ASSERT_TRUE(get_job(job_id, &info).ok());
-  EXPECT_EQ(info.waiting(), "");
-  // Space again: the same worker finishes the job.
+  EXPECT_EQ(info.state(), v1::JOB_STATE_RENDERING);
+  EXPECT_NE(info.waiting().find("the coordinator could not store its tasks' results "
+                                "(results.pack write failed: No space left on device)"),
+            std::string::npos)
+      << info.waiting();
+  // Space again: the same worker finishes the job, once the tasks' hold is over.
   full = false;
-  run_worker(worker_id);
-  ASSERT_TRUE(get_job(job_id, &info).ok());
+  const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  while (std::chrono::steady_clock::now() < end) {
+    run_worker(worker_id);
+    ASSERT_TRUE(get_job(job_id, &info).ok());
+    if (info.progress().tasks_done() == info.progress().tasks_total()) break;
+  }
   EXPECT_EQ(info.progress().tasks_done(), info.progress().tasks_total());
   const absl::StatusOr<std::string> metrics = farm_->farm().metrics_text();
   ASSERT_TRUE(metrics.ok());
-  EXPECT_NE(metrics->find("prism_task_retries_total{reason=\"infrastructure\"} 5\n"),
+  const std::string count = std::to_string(tasks) + "\n";
+  EXPECT_NE(metrics->find("prism_task_retries_total{reason=\"infrastructure\"} " + count),
             std::string::npos)
       << *metrics;
-  EXPECT_NE(metrics->find("prism_results_total{outcome=\"unstored\"} 5\n"), std::string::npos);
+  EXPECT_NE(metrics->find("prism_results_total{outcome=\"unstored\"} " + count), std::string::npos);
 }
 
 TEST_F(FarmServerTest, StaleLeasesAreRefusedAndDuplicatesAreHarmless) {

@@ -193,6 +193,7 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
           absl::StrCat("the coordinator could not store the result for lease ", lease_id, ": ",
                        stored.message(), "; the task goes back to the queue");
       options_.logger->error("[worker {}] {}", worker_id, message);
+      last_unstored_ = std::string(stored.message());
       if (absl::Status failed = scheduler_.hold_back(worker_id, lease_id, now()); !failed.ok()) {
         options_.logger->warn("[worker {}] {}", worker_id, failed.ToString());
       }

@@ -434,11 +434,14 @@ std::optional<JobProgress> Scheduler::progress(const std::string& job_id) const 
   auto it = jobs_.find(job_id);
   if (it == jobs_.end()) return std::nullopt;
   const JobRecord& job = it->second;
+  const int held_back = static_cast<int>(std::count_if(
+      job.pending.begin(), job.pending.end(), [&](int i) { return job.tasks[i].unstored > 0; }));
   return JobProgress{.state = job.state,
                      .total = static_cast<int>(job.tasks.size()),
                      .done = job.done,
                      .leased = job.leased,
                      .pending = static_cast<int>(job.pending.size()),
+                     .held_back = held_back,
                      .blocked_workers = {job.blocked.begin(), job.blocked.end()},
                      .message = job.message,
                      .last_fault = job.last_fault};

@@ -145,6 +145,7 @@ struct JobProgress {
   int done = 0;
   int leased = 0;
   int pending = 0;
+  int held_back = 0;  // pending tasks whose result the coordinator could not keep (hold_back)
   std::vector<std::string> blocked_workers;  // sorted
   std::string message;                       // why the job failed
   std::string last_fault;                    // the last worker fault of one of its tasks
