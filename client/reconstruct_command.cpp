@@ -8,6 +8,7 @@
 #include "absl/strings/str_cat.h"
 #include "coordinator/outputs.h"
 #include "coordinator/poisson.h"
+#include "services/base/decimal.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
@@ -20,18 +21,6 @@ namespace fs = std::filesystem;
 
 std::string quoted(const fs::path& path) {
   return absl::StrCat("'", path.string(), "'");
-}
-
-// Shortest decimal that reads back as the same double.
-// The shortest decimal that reads back as exactly `value`; a value a float holds exactly (an
-// alpha the render recorded) as the float's (0.4, not 0.4000000059604645).
-std::string exact_decimal(double value) {
-  char buffer[64];
-  const float narrow = static_cast<float>(value);
-  const auto [end, ec] = double(narrow) == value
-                             ? std::to_chars(buffer, buffer + sizeof buffer, narrow)
-                             : std::to_chars(buffer, buffer + sizeof buffer, value);
-  return ec == std::errc() ? std::string(buffer, end) : absl::StrCat(value);
 }
 
 absl::Status with_context(const absl::Status& status, const std::string& context) {
@@ -261,7 +250,7 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   }
 
   image::ExrMetadata metadata = primal->metadata;
-  metadata[std::string(image::kMetaPoissonAlpha)] = exact_decimal(alpha);
+  metadata[std::string(image::kMetaPoissonAlpha)] = base::shortest_decimal(alpha);
   metadata[std::string(image::kMetaPoissonNorm)] = std::string(job::to_string(norm));
   metadata[std::string(image::kMetaGradientOffsetBins)] = absl::StrCat(k);
   const auto delta = gradient->metadata.find(std::string(image::kMetaGradientDelta));
@@ -272,7 +261,7 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
   metadata["version"] = coordinator::prism_version();
   PRISM_RETURN_IF_ERROR(image::write_spectral_exr(options.output, *result, *rgb, metadata));
   return absl::StrCat("wrote ", options.output.string(), ": ", pi.width(), "x", pi.height(), ", ",
-                      pi.bins(), " bins, k ", k, ", alpha ", exact_decimal(alpha), ", ",
+                      pi.bins(), " bins, k ", k, ", alpha ", base::shortest_decimal(alpha), ", ",
                       std::string(job::to_string(norm)), "\n");
 }
 

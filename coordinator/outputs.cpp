@@ -3,7 +3,6 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
-#include <charconv>
 #include <cmath>
 #include <system_error>
 #include <thread>
@@ -12,6 +11,7 @@
 #include "absl/strings/str_cat.h"
 #include "services/base/atomic_file.h"
 #include "services/base/check.h"
+#include "services/base/decimal.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
@@ -24,13 +24,6 @@ namespace {
 
 fs::path with_suffix(const fs::path& stem, const char* suffix) {
   return fs::path(stem.string() + suffix);
-}
-
-// The shortest decimal that reads back as exactly `value` (0.4, not 0.400000006).
-std::string float_text(float value) {
-  char buffer[32];
-  const auto [end, ec] = std::to_chars(buffer, buffer + sizeof buffer, value);
-  return ec == std::errc() ? std::string(buffer, end) : absl::StrCat(value);
 }
 
 }  // namespace
@@ -406,7 +399,8 @@ image::ExrMetadata output_metadata(const RenderReport& report) {
     metadata["gradient_tau"] = absl::StrCat(report.gradient->tau);
     // How the reconstruction was made (exr_spectral.h), on the raw pair too: what `prism
     // reconstruct` of the pair takes to give this image again.
-    metadata[std::string(image::kMetaPoissonAlpha)] = float_text(report.gradient->alpha);
+    metadata[std::string(image::kMetaPoissonAlpha)] =
+        base::shortest_decimal(report.gradient->alpha);
     metadata[std::string(image::kMetaPoissonNorm)] = report.gradient->norm;
     // The image is the reconstruction (the raw pair overrides this with its own labels), so
     // `prism reconstruct` does not take it for a primal.
@@ -482,7 +476,8 @@ absl::Status write_primal_and_gradient(int bins, int band_rows, const image::Spe
   metadata[std::string(image::kMetaContent)] = "primal";
   if (report.gradient.has_value()) {
     // Exactly, for `prism reconstruct` of the pair.
-    metadata[std::string(image::kMetaPoissonAlpha)] = float_text(report.gradient->alpha);
+    metadata[std::string(image::kMetaPoissonAlpha)] =
+        base::shortest_decimal(report.gradient->alpha);
   }
   // The primal's pixels hashed as they are written (bands in order from the top, each once), for
   // the gradient file to name the primal it belongs with (prism reconstruct checks it).

@@ -6,6 +6,7 @@
 
 #include <charconv>
 #include <cmath>
+#include <string>
 #include <string_view>
 #include <system_error>
 
@@ -40,6 +41,18 @@ inline Decimal parse_decimal(std::string_view text) {
     d.error = DecimalError::kNotFinite;
   }
   return d;
+}
+
+// Writing one: the shortest decimal that reads back as exactly `value`; for a value a float
+// holds exactly (a parameter that travelled as a float) the shortest that reads back as that
+// float: 0.4, not 0.4000000059604645. Finite values only.
+inline std::string shortest_decimal(double value) {
+  char buffer[64];
+  const float narrow = static_cast<float>(value);
+  const auto [end, ec] = double(narrow) == value
+                             ? std::to_chars(buffer, buffer + sizeof buffer, narrow)
+                             : std::to_chars(buffer, buffer + sizeof buffer, value);
+  return ec == std::errc() ? std::string(buffer, end) : std::string();
 }
 
 }  // namespace prism::base

@@ -32,5 +32,21 @@ TEST(DecimalTest, RefusesNumbersThatAreNotFinite) {
   }
 }
 
+// A float parameter reads as it was written (0.4, not 0.400000006 or 0.4000000059604645) and
+// reads back as that float; a double that no float holds keeps its own shortest digits and
+// reads back as that double.
+TEST(DecimalTest, WritesTheShortestDecimalThatReadsBack) {
+  EXPECT_EQ(shortest_decimal(double(0.4f)), "0.4");
+  EXPECT_EQ(shortest_decimal(double(0.05f)), "0.05");
+  EXPECT_EQ(shortest_decimal(0.3), "0.3");
+  EXPECT_EQ(shortest_decimal(1e300), "1e+300");
+  for (float f : {0.4f, 1.0f / 3.0f, 123456.75f, 1e-30f}) {
+    EXPECT_EQ(float(parse_decimal(shortest_decimal(double(f))).value), f) << f;
+  }
+  for (double d : {0.1 + 0.2, 1.0 / 3.0, 1e300}) {
+    EXPECT_EQ(parse_decimal(shortest_decimal(d)).value, d) << d;
+  }
+}
+
 }  // namespace
 }  // namespace prism::base
