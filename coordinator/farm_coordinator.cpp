@@ -553,8 +553,7 @@ absl::StatusOr<JobStatus> FarmCoordinator::cancel(const std::string& job_id) {
   // The store first: when it cannot be written (a full disk) the cancel fails with nothing
   // changed. The scheduler cancelled first had stopped handing out the job's tasks while the
   // store and the job list still said it was rendering, until a restart.
-  const absl::Status fault =
-      options_.cancel_store_fault ? options_.cancel_store_fault() : absl::OkStatus();
+  const absl::Status fault = options_.disk_fault ? options_.disk_fault("cancel") : absl::OkStatus();
   absl::StatusOr<store::JobRecord> stored =
       fault.ok() ? store_->set_job_state(job_id, store::JobState::kCancelled, now().count(),
                                          "cancelled by a client")

@@ -117,18 +117,14 @@ struct FarmOptions {
   // Fault injection for tests: called by the finaliser thread, without the lock, before a
   // finished job's outputs are written.
   std::function<void()> before_write_outputs;
-  // Fault injection for tests: an error stands for the outcome of writing a finished job's
-  // outputs (a full disk), called after before_write_outputs.
-  std::function<absl::Status()> write_outputs_fault;
   // A job whose outputs could not be written for want of disk space stays FINALISING and is
   // written again after this delay, doubled at each failure up to 5 minutes.
   Millis finalise_retry_delay{10'000};
-  // Fault injection for tests: an error stands for the result store's answer to a completed
-  // task's bytes (a full disk), called without the lock before they are written.
-  std::function<absl::Status()> store_result_fault;
-  // Fault injection for tests: an error stands for the job store's answer to a cancel's write
-  // (a full disk).
-  std::function<absl::Status()> cancel_store_fault;
+  // Fault injection for tests: a write to the data directory that fails (a full disk). Asked
+  // before each such write named by `what`: "result" (a completed task's bytes, without the
+  // lock), "cancel" (the job store's record of a cancel), "outputs" (a finished job's outputs,
+  // after before_write_outputs); an error stands for that write's outcome.
+  std::function<absl::Status(std::string_view what)> disk_fault;
   // The data directory's free bytes (tests pretend a small disk); null: the file system's.
   std::function<absl::StatusOr<std::uint64_t>(const std::filesystem::path&)> free_disk;
   // The "coordinator" logger (main creates it); null: a logger that drops everything.

@@ -463,8 +463,7 @@ void FarmCoordinator::finaliser_loop() {
     finalising_.pop_front();
     lock.unlock();
     if (options_.before_write_outputs) options_.before_write_outputs();
-    absl::Status written =
-        options_.write_outputs_fault ? options_.write_outputs_fault() : absl::OkStatus();
+    absl::Status written = options_.disk_fault ? options_.disk_fault("outputs") : absl::OkStatus();
     if (written.ok()) written = write_job_outputs(*item.job, item.report, item.paths);
     lock.lock();
     finish_finalise_locked(item, written);

@@ -435,8 +435,9 @@ TEST_F(FarmServerTest, ACancelTheStoreCannotRecordChangesNothing) {
   std::atomic<bool> full{true};
   stop();
   configure_ = [&full](FarmOptions& options) {
-    options.cancel_store_fault = [&full]() -> absl::Status {
-      if (full) return absl::InternalError("sqlite: step 'COMMIT': database or disk is full");
+    options.disk_fault = [&full](std::string_view what) -> absl::Status {
+      if (full && what == "cancel")
+        return absl::InternalError("sqlite: step 'COMMIT': database or disk is full");
       return absl::OkStatus();
     };
   };
@@ -469,8 +470,8 @@ TEST_F(FarmServerTest, OutputsThatMeetAFullDiskAreWrittenAgainLater) {
   stop();
   configure_ = [&attempts](FarmOptions& options) {
     options.finalise_retry_delay = Millis(1000);  // 1 s, then 2 s: past run_worker's idle end
-    options.write_outputs_fault = [&attempts]() -> absl::Status {
-      if (++attempts <= 2) {
+    options.disk_fault = [&attempts](std::string_view what) -> absl::Status {
+      if (what == "outputs" && ++attempts <= 2) {
         return absl::InternalError("cannot write j.exr.tmp: No space left on device");
       }
       return absl::OkStatus();

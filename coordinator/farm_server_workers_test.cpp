@@ -52,8 +52,9 @@ TEST_F(FarmServerTest, AResultTheCoordinatorCannotStoreIsNotTheWorkersFault) {
     // cap (a long full disk failed the job after 100 of them, losing it).
     options.scheduler.max_free_retries = 3;
     options.scheduler.unstored_retry_delay = Millis(5000);  // past the time to try every task
-    options.store_result_fault = [&full]() -> absl::Status {
-      if (full) return absl::InternalError("results.pack write failed: No space left on device");
+    options.disk_fault = [&full](std::string_view what) -> absl::Status {
+      if (full && what == "result")
+        return absl::InternalError("results.pack write failed: No space left on device");
       return absl::OkStatus();
     };
   };

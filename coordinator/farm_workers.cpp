@@ -174,8 +174,7 @@ absl::StatusOr<CompleteResult> FarmCoordinator::complete(
       location = {static_cast<std::int64_t>(pack->reserve(bytes.size())), bytes.size()};
     }
     lock.unlock();
-    absl::Status stored =
-        options_.store_result_fault ? options_.store_result_fault() : absl::OkStatus();
+    absl::Status stored = options_.disk_fault ? options_.disk_fault("result") : absl::OkStatus();
     if (stored.ok()) {
       stored = pack != nullptr ? pack->write(std::uint64_t(location.offset), bytes)
                                : blobs_->put_hashed(sha256, bytes);
