@@ -372,6 +372,9 @@ void Geometry::add_mesh(std::size_t i, const scene::Shape& shape, const scene::T
       mesh->positions = src.positions;
     }
     mesh->normals = src.normals;
+    if (shape.reverse_orientation) {
+      for (Float3& n : mesh->normals) n = {-n.x, -n.y, -n.z};
+    }
     mesh->uvs = src.uvs;
     attach_instance(child, shape.object_to_world, id);
   } else {
@@ -382,9 +385,12 @@ void Geometry::add_mesh(std::size_t i, const scene::Shape& shape, const scene::T
     }
     mesh->positions.push_back({});
     mesh->normals.reserve(src.normals.size());
+    // pbrt-v4 negates a mesh's vertex normals under ReverseOrientation (and the geometric
+    // normal then follows them), so a reversed mesh with normals turns round as one without.
+    const double sign = shape.reverse_orientation ? -1.0 : 1.0;
     for (const Float3& n : src.normals) {
       auto w = shape.object_to_world.apply_normal({n.x, n.y, n.z});
-      mesh->normals.push_back({float(w[0]), float(w[1]), float(w[2])});
+      mesh->normals.push_back({float(sign * w[0]), float(sign * w[1]), float(sign * w[2])});
     }
     mesh->uvs = src.uvs;
     attach_triangles(scene_, *mesh, id, i);

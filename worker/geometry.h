@@ -9,7 +9,7 @@
 // Normals follow pbrt-v4 (scene_description.h): a triangle's geometric normal is
 // cross(p0 − p2, p1 − p2) from world positions, negated under reverse orientation XOR a
 // handedness-swapping transform, or turned to the side of the interpolated vertex normal when
-// the mesh has one. A sphere's, disk's or cylinder's normal is its object-space normal (outwards;
+// the mesh has one (vertex normals negated under reverse orientation, as pbrt-v4's meshes do). A sphere's, disk's or cylinder's normal is its object-space normal (outwards;
 // +z on a disk) carried by the transform's normal matrix, negated under reverse orientation only:
 // a mirroring transform then leaves the outside outside, as it does for a mesh. pbrt-v4 negates
 // it under a mirroring transform too when it intersects the shape, though not when it samples it

@@ -50,6 +50,43 @@ TEST(GeometryTest, TriangleHitFollowsPbrtNormalConvention) {
   EXPECT_FALSE((*geometry)->intersect({{3, 3, 0}, {0, 0, 1}}, 1e30f));
 }
 
+// pbrt-v4 negates a mesh's vertex normals under ReverseOrientation and turns the geometric normal
+// to them, so a reversed mesh with normals faces the other way, flattened or instanced, as one
+// without normals does.
+TEST(GeometryTest, ReverseOrientationTurnsAMeshWithNormals) {
+  EmbreeDevice device;
+  for (bool instanced : {false, true}) {
+    scene::SceneDescription desc;
+    scene::Shape plain = quad_shape(0);
+    auto mesh = std::make_shared<scene::TriangleMeshData>(
+        *std::get<scene::TriangleMeshShape>(plain.geometry).mesh);
+    mesh->normals.assign(4, {0, 0, 1});
+    plain.geometry = scene::TriangleMeshShape{mesh, "test"};
+    scene::Shape reversed = plain;
+    reversed.reverse_orientation = true;
+    // One mesh object used twice is instanced; its own copy is flattened.
+    if (!instanced)
+      reversed.geometry =
+          scene::TriangleMeshShape{std::make_shared<scene::TriangleMeshData>(*mesh), "test"};
+    plain.object_to_world = scene::Transform::translate({0, 0, 3});
+    reversed.object_to_world = scene::Transform::translate({5, 0, 3});
+    desc.shapes = {plain, reversed};
+    auto geometry = Geometry::build(device, desc);
+    ASSERT_TRUE(geometry.ok()) << geometry.status();
+    auto a = (*geometry)->intersect({{0.1f, 0.2f, 0}, {0, 0, 1}}, 1e30f);
+    auto b = (*geometry)->intersect({{5.1f, 0.2f, 0}, {0, 0, 1}}, 1e30f);
+    ASSERT_TRUE(a && b);
+    ASSERT_EQ(a->shape, 0);
+    ASSERT_EQ(b->shape, 1);
+    EXPECT_NEAR(a->ng.z, 1.0f, 1e-6f) << instanced;
+    EXPECT_NEAR(a->ns.z, 1.0f, 1e-6f) << instanced;
+    EXPECT_NEAR(b->ng.z, -1.0f, 1e-6f) << instanced;
+    EXPECT_NEAR(b->ns.z, -1.0f, 1e-6f) << instanced;
+    const Geometry::WorldTriangle w = (*geometry)->triangle(1, 0);
+    EXPECT_NEAR(w.n0.z, -1.0f, 1e-6f) << instanced;
+  }
+}
+
 // A mirroring transform keeps a sphere's, disk's or cylinder's outside outside, as it does a
 // mesh's: the object-space normal is carried by the normal matrix. Only ReverseOrientation turns
 // it (docs/conformance.md, "Mirrored spheres, disks and cylinders").

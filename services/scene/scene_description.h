@@ -16,7 +16,9 @@
 //   WORLD-space positions, is n = normalize(cross(p0 − p2, p1 − p2)); it is negated when
 //   reverse_orientation XOR transform_swaps_handedness. When the mesh has vertex normals, the
 //   geometric normal is instead flipped to the side of the interpolated shading normal
-//   (pbrt-v4 Triangle::InteractionFromIntersection). Sphere, disk and cylinder normals are the
+//   (pbrt-v4 Triangle::InteractionFromIntersection), the vertex normals being negated under
+//   reverse_orientation (as pbrt-v4's TriangleMesh does), so ReverseOrientation turns a mesh
+//   with normals round too. Sphere, disk and cylinder normals are the
 //   object-space normal (outward; +z on a disk) carried by the normal matrix, negated under
 //   reverse_orientation alone: a mirroring transform keeps the outside outside, as for a mesh
 //   (pbrt-v4 also negates them under a mirror when intersecting, not when sampling them as
@@ -218,9 +220,9 @@ struct Material {
 
 struct TriangleMeshShape {
   std::shared_ptr<const TriangleMeshData> mesh;  // object space; shared between instances
-  // "trianglemesh", "bilinearmesh" (split into two triangles per patch, (p00,p10,p11) and
-  // (p00,p11,p01), which keeps pbrt-v4's patch normal cross(p10−p00, p01−p00)), or the mesh
-  // file's path relative to the scene root.
+  // "trianglemesh", "bilinearmesh" (each patch kept as two triangles, (p00,p10,p11) and
+  // (p00,p11,p01), listed in TriangleMeshData::patches; their facing is pbrt-v4's patch normal
+  // cross(p10−p00, p01−p00)), or the mesh file's path relative to the scene root.
   std::string source;
 };
 
