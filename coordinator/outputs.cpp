@@ -388,15 +388,16 @@ image::ExrMetadata output_metadata(const RenderReport& report) {
   if (report.light_caustics) {
     metadata["caustics"] = "light";
     if (report.caustic_paths < 1.0f) {
-      metadata["caustic_paths"] = absl::StrCat(report.caustic_paths);
+      metadata["caustic_paths"] = base::shortest_decimal(report.caustic_paths);
     }
   }
   metadata["max_depth"] = absl::StrCat(report.max_depth);
   if (report.gradient.has_value()) {
     metadata[std::string(image::kMetaGradientOffsetBins)] =
         absl::StrCat(report.gradient->offset_bins);
-    metadata[std::string(image::kMetaGradientDelta)] = absl::StrCat(report.gradient->delta);
-    metadata["gradient_tau"] = absl::StrCat(report.gradient->tau);
+    metadata[std::string(image::kMetaGradientDelta)] =
+        base::shortest_decimal(report.gradient->delta);
+    metadata["gradient_tau"] = base::shortest_decimal(report.gradient->tau);
     // How the reconstruction was made (exr_spectral.h), on the raw pair too: what `prism
     // reconstruct` of the pair takes to give this image again.
     metadata[std::string(image::kMetaPoissonAlpha)] =

@@ -6,6 +6,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "coordinator/outputs.h"
+#include "services/base/decimal.h"
 
 #ifndef PRISM_VERSION
 #error "PRISM_VERSION must be defined by the build"
@@ -18,8 +19,10 @@ double per_second(double amount, double seconds) {
   return seconds > 0 ? amount / seconds : std::nan("");
 }
 
+// The float's shortest round-trip decimal, as a double the JSON writer prints as that decimal:
+// a τ copied from the report to --tau reruns the job (absl::StrCat kept six digits).
 double shortest(float value) {
-  return std::isfinite(value) ? std::stod(absl::StrCat(value)) : std::nan("");
+  return std::isfinite(value) ? std::stod(base::shortest_decimal(value)) : std::nan("");
 }
 
 }  // namespace

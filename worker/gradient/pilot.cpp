@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <numeric>
 
 #include "absl/strings/str_cat.h"
@@ -110,12 +111,19 @@ float GradientPilotEvents::choose_tau(double epsilon) const {
   double lost = 0;
   float tau = 0;
   for (std::size_t k = 0; k < transitions_.size();) {
-    // Transitions at one value happen together: τ = v unshifts all of them.
+    // Transitions at one value happen together: any τ from v up to the next value unshifts them.
     const float value = transitions_[k].tau;
     for (; k < transitions_.size() && transitions_[k].tau == value; ++k) {
       lost += transitions_[k].benefit;
     }
-    if (lost <= allowed && std::isfinite(value)) tau = std::max(tau, value);
+    if (!(lost <= allowed) || !std::isfinite(value)) break;  // `lost` only grows
+    if (!(value > 0)) continue;                              // τ = 0 unshifts these already
+    // τ goes into a clean gap above the value (pilot.h), never onto a value.
+    const float next =
+        k < transitions_.size() ? transitions_[k].tau : std::numeric_limits<float>::infinity();
+    if (!(double(next) > double(value) * (1 + kTauGap))) continue;
+    tau = std::isfinite(next) ? float(std::sqrt(double(value) * double(next)))
+                              : float(double(value) * (1 + 16 * kTauGap));
   }
   return tau;
 }

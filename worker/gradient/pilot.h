@@ -87,9 +87,16 @@ class GradientPilotEvents {
   double shifted_event_fraction(float tau) const;
   double shifted_square_fraction(float tau) const;
   double offset_vertex_fraction(float tau) const;
-  // The largest transition value τ with lost_benefit_fraction(τ) <= ε; 0 without events; when
-  // no shift gains anything, the largest finite value (nothing of the pilot's is shifted).
+  // The largest τ with lost_benefit_fraction(τ) <= ε, placed in a clean gap of the pilot's
+  // values: between a value v and the next value above it, where that is more than kTauGap
+  // relative above v, at their geometric mean (just above the largest value, when nothing above
+  // it is shifted). 0 without events. A τ on one of the values would be decided differently by
+  // the two sides of a pair where their own computations of a path's value differ in the last
+  // bits, and where many paths share one value (in a white furnace every path's value is the
+  // light over p(λ)) that one-sided decision biases the gradients; in a gap no value the job
+  // meets is within rounding of it.
   float choose_tau(double epsilon) const;
+  static constexpr double kTauGap = 1e-4;
 
  private:
   // Where one side of one event becomes unshifted (τ >= min(c, the offset's own value)) and what
