@@ -551,10 +551,8 @@ absl::StatusOr<Submission> prepare_submission(const SubmitOptions& options) {
   }
   *out.request.mutable_spec() = spec;
   if (options.client_token.empty()) {
-    std::string spec_bytes;
-    spec.SerializeToString(&spec_bytes);
     out.request.set_client_token(
-        base::sha256_hex(absl::StrCat(out.bundle.content_hash, "\n", spec_bytes)));
+        base::sha256_hex(absl::StrCat(out.bundle.content_hash, "\n", job::request_identity(spec))));
   } else {
     out.request.set_client_token(options.client_token);
   }

@@ -11,6 +11,7 @@
 #include "services/base/sha256.h"
 #include "services/base/status.h"
 #include "services/image/tile_codec.h"
+#include "services/job/job_spec.h"
 #include "services/scene/scene_loader.h"
 
 namespace prism::coordinator {
@@ -225,7 +226,7 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
   std::unique_lock<std::mutex> lock(mutex_);
   // A client token names one request: sent again with it, the submission is a retry and finds
   // its job; with another request, it is a mistake that must not be answered with that job.
-  const std::string request_hash = base::sha256_hex(spec.SerializeAsString());
+  const std::string request_hash = base::sha256_hex(job::request_identity(spec));
   auto same_request = [&](const store::JobRecord& job) -> absl::Status {
     if (job.request_hash.empty() || job.request_hash == request_hash) return absl::OkStatus();
     return absl::AlreadyExistsError(absl::StrCat(

@@ -2,6 +2,7 @@
 // specs, restarts that resume (and store a large job's remaining tasks), results from an earlier
 // version's blob store, cancels, scene faults, and outputs written without the farm's lock.
 #include "coordinator/farm_server_fixture.h"
+#include "services/job/job_spec.h"
 
 namespace prism::coordinator {
 namespace {
@@ -38,6 +39,30 @@ TEST_F(FarmServerTest, SubmitIsIdempotentByClientToken) {
   start();
   EXPECT_EQ(try_submit(other, "token-1", &refused).error_code(), grpc::StatusCode::ALREADY_EXISTS);
   EXPECT_EQ(submit(spec, "token-1").job_id(), a.job_id());
+}
+
+// `auto` records its pilot's wall time in the spec; a resubmission of the same scene and options
+// measured another time and is still the same request (the default token and a given token's
+// check both ignore it), so a retry finds its job instead of making a second or being refused.
+TEST_F(FarmServerTest, AutosPilotTimeDoesNotMakeAnotherRequest) {
+  v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
+  spec.set_integrator(v1::INTEGRATOR_HERO);
+  spec.mutable_auto_choice()->set_choice("hero");
+  spec.mutable_auto_choice()->set_reason("test");
+  spec.mutable_auto_choice()->set_seconds(0.0022);
+  const v1::JobInfo a = submit(spec, "retry-key");
+  v1::JobSpec again = spec;
+  again.mutable_auto_choice()->set_seconds(0.0101);
+  EXPECT_EQ(submit(again, "retry-key").job_id(), a.job_id());
+  EXPECT_EQ(job::request_identity(spec), job::request_identity(again));
+  // What auto chose is part of the request.
+  v1::JobSpec other = again;
+  other.mutable_auto_choice()->set_reason("another");
+  EXPECT_NE(job::request_identity(other), job::request_identity(spec));
+  v1::JobInfo refused;
+  EXPECT_EQ(try_submit(other, "retry-key", &refused).error_code(),
+            grpc::StatusCode::ALREADY_EXISTS);
 }
 
 // A coordinator killed while writing a job's outputs leaves temporaries beside them; the

@@ -644,4 +644,10 @@ prism::v1::JobSpec to_proto(const JobParameters& p) {
   return spec;
 }
 
+std::string request_identity(const prism::v1::JobSpec& spec) {
+  prism::v1::JobSpec canonical = spec;
+  if (canonical.has_auto_choice()) canonical.mutable_auto_choice()->clear_seconds();
+  return canonical.SerializeAsString();
+}
+
 }  // namespace prism::job

@@ -44,6 +44,11 @@ prism::v1::AutoChoice to_proto(const AutoReport& report);
 // Every value explicit (see the invariant above).
 prism::v1::JobSpec to_proto(const JobParameters& parameters);
 
+// What identifies a submission (the client's default token, the coordinator's check that a
+// token comes back with the same request): the spec's bytes without what merely measured the
+// client's run, auto's pilot time. Resubmitting a scene with `auto` is then the same request.
+std::string request_identity(const prism::v1::JobSpec& spec);
+
 // Short names of the option values: name() in render_options.h.
 
 }  // namespace prism::job
