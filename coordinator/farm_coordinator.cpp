@@ -1,8 +1,11 @@
 #include "coordinator/farm_coordinator.h"
 
+#include <fcntl.h>
 #include <spdlog/sinks/null_sink.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <cstring>
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
@@ -19,6 +22,11 @@ namespace {
 
 namespace fs = std::filesystem;
 using SteadyClock = std::chrono::steady_clock;
+
+// The data directory's disk reserve (FarmCoordinator::keep_disk_reserve): room for the job
+// store's journal to record a cancel on a full disk.
+constexpr const char* kDiskReserveFile = "disk.reserve";
+constexpr std::uintmax_t kDiskReserveBytes = std::uintmax_t{1} << 20;
 
 Millis unix_now() {
   return std::chrono::duration_cast<Millis>(std::chrono::system_clock::now().time_since_epoch());
@@ -67,6 +75,8 @@ absl::Status FarmCoordinator::start() {
   for (const auto& job : fs::directory_iterator(dir / "outputs", ec)) {
     if (job.is_directory(ec)) base::remove_temporaries(job.path());
   }
+
+  keep_disk_reserve();
 
   PRISM_ASSIGN_OR_RETURN(library_, spectral::SpectrumLibrary::load_builtin());
   memory_budget_ = options_.max_memory_bytes > 0
@@ -554,11 +564,23 @@ absl::StatusOr<JobStatus> FarmCoordinator::cancel(const std::string& job_id) {
   // The store first: when it cannot be written (a full disk) the cancel fails with nothing
   // changed. The scheduler cancelled first had stopped handing out the job's tasks while the
   // store and the job list still said it was rendering, until a restart.
-  const absl::Status fault = options_.disk_fault ? options_.disk_fault("cancel") : absl::OkStatus();
-  absl::StatusOr<store::JobRecord> stored =
-      fault.ok() ? store_->set_job_state(job_id, store::JobState::kCancelled, now().count(),
-                                         "cancelled by a client")
-                 : absl::StatusOr<store::JobRecord>(fault);
+  auto record_cancel = [&]() -> absl::StatusOr<store::JobRecord> {
+    const absl::Status fault =
+        options_.disk_fault ? options_.disk_fault("cancel") : absl::OkStatus();
+    if (!fault.ok()) return fault;
+    return store_->set_job_state(job_id, store::JobState::kCancelled, now().count(),
+                                 "cancelled by a client");
+  };
+  absl::StatusOr<store::JobRecord> stored = record_cancel();
+  bool released = false;
+  if (!stored.ok() && release_disk_reserve()) {
+    // A full disk: the reserve makes room for the store's write, and the cancel's clean-up
+    // gives the space back.
+    released = true;
+    options_.logger->warn("[job {}] cancel: {}; released the disk reserve to record it", job_id,
+                          stored.status().ToString());
+    stored = record_cancel();
+  }
   if (!stored.ok()) {
     return absl::Status(stored.status().code(),
                         absl::StrCat("cannot cancel job ", job_id, ": ", stored.status().message(),
@@ -580,6 +602,34 @@ absl::StatusOr<JobStatus> FarmCoordinator::cancel(const std::string& job_id) {
   options_.logger->info("[job {}] cancelled", job_id);
   changed_locked();
   return status_locked(record);
+}
+
+void FarmCoordinator::keep_disk_reserve() const {
+  const fs::path path = options_.data_dir / kDiskReserveFile;
+  std::error_code ec;
+  if (fs::file_size(path, ec) == kDiskReserveBytes) return;
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_CLOEXEC, 0600);
+  if (fd < 0) return;
+  // Blocks really allocated (not a sparse file), or none: a reserve that a full disk cut short
+  // is removed and made again later.
+  const int error = ::posix_fallocate(fd, 0, off_t(kDiskReserveBytes));
+  ::close(fd);
+  if (error != 0) {
+    fs::remove(path, ec);
+    // Once per stretch without it: the janitor tries again at every round.
+    if (!disk_reserve_missing_.exchange(true)) {
+      options_.logger->warn("cannot keep a disk reserve of {} in {}: {}",
+                            format_bytes(kDiskReserveBytes), options_.data_dir.string(),
+                            std::strerror(error));
+    }
+    return;
+  }
+  disk_reserve_missing_ = false;
+}
+
+bool FarmCoordinator::release_disk_reserve() const {
+  std::error_code ec;
+  return fs::remove(options_.data_dir / kDiskReserveFile, ec);
 }
 
 }  // namespace prism::coordinator

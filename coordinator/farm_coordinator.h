@@ -122,8 +122,9 @@ struct FarmOptions {
   Millis finalise_retry_delay{10'000};
   // Fault injection for tests: a write to the data directory that fails (a full disk). Asked
   // before each such write named by `what`: "result" (a completed task's bytes, without the
-  // lock), "cancel" (the job store's record of a cancel), "outputs" (a finished job's outputs,
-  // after before_write_outputs); an error stands for that write's outcome.
+  // lock), "cancel" (the job store's record of a cancel; asked again after the disk reserve is
+  // released), "outputs" (a finished job's outputs, after before_write_outputs); an error
+  // stands for that write's outcome.
   std::function<absl::Status(std::string_view what)> disk_fault;
   // The data directory's free bytes (tests pretend a small disk); null: the file system's.
   std::function<absl::StatusOr<std::uint64_t>(const std::filesystem::path&)> free_disk;
@@ -242,6 +243,12 @@ class FarmCoordinator : public FarmView {
   // Under the lock they are only moved into <data dir>/trash (renames: O(1) per file, whatever
   // the bytes); the janitor thread frees the space without the lock.
   void clean_up_locked(const std::string& job_id);
+  // A MiB the data directory holds back (kDiskReserveFile) so that the job store can still
+  // record a cancel when the disk is full: released for that write, made again by the janitor
+  // once there is room.
+  void keep_disk_reserve() const;
+  bool release_disk_reserve() const;
+  mutable std::atomic<bool> disk_reserve_missing_{false};
   // Hands the job's reclaimable range results (ActiveJob::reclaimable) to the janitor, which
   // syncs the tile pack and then releases their bytes from the result pack.
   void reclaim_locked(const std::string& job_id, ActiveJob& job);

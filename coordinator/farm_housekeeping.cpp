@@ -138,6 +138,8 @@ void FarmCoordinator::janitor_loop() {
         }
       }
     }
+    // A disk reserve a cancel used is made again once there is room (the trash emptied).
+    keep_disk_reserve();
     if (SteadyClock::now() - counted >= kDataDirBytesInterval) {
       data_dir_bytes_.store(count_data_dir_bytes(), std::memory_order_relaxed);
       counted = SteadyClock::now();

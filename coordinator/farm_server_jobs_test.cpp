@@ -488,6 +488,36 @@ TEST_F(FarmServerTest, ACancelTheStoreCannotRecordChangesNothing) {
   EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
 }
 
+// The data directory holds back a MiB so that a cancel can be recorded on a full disk (a job
+// that filled it could not be cancelled: the store's COMMIT failed, before and after restarts).
+TEST_F(FarmServerTest, ACancelOnAFullDiskUsesTheDiskReserve) {
+  const fs::path reserve = root_ / "data" / "disk.reserve";
+  EXPECT_EQ(fs::file_size(reserve), 1u << 20);
+  stop();
+  std::atomic<int> attempts{0};
+  configure_ = [&](FarmOptions& options) {
+    // Full while the reserve takes its space.
+    options.disk_fault = [&](std::string_view what) -> absl::Status {
+      if (what != "cancel") return absl::OkStatus();
+      ++attempts;
+      return fs::exists(reserve)
+                 ? absl::InternalError("sqlite: step 'COMMIT': database or disk is full")
+                 : absl::OkStatus();
+    };
+  };
+  start();
+  const std::string job_id = submit_small_job();
+  ASSERT_FALSE(job_id.empty());
+  v1::JobInfo info;
+  ASSERT_TRUE(cancel_job(job_id, &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_CANCELLED);
+  EXPECT_EQ(attempts, 2);
+  // The janitor makes the reserve again once there is room (here at once) for the next one.
+  for (int i = 0; i < 100 && !fs::exists(reserve); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_EQ(fs::file_size(reserve), 1u << 20);
+}
+
 // Outputs that meet a full disk are written again once there is room: the job waits in
 // FINALISING and says why. It used to fail, and its finished tiles were deleted with it.
 TEST_F(FarmServerTest, OutputsThatMeetAFullDiskAreWrittenAgainLater) {

@@ -151,7 +151,20 @@ ResourcePlan plan_farm_job(const job::JobParameters& p) {
   push(plan.memory, "finalising", finalising);
 
   // Each final-pass tile once: its range results are released as it is stored (result_pack.h).
-  push(plan.disk, "finished tiles", mul(n, tile_result_bytes_per_pixel(p.render, false, true)));
+  const u64 per_pixel = tile_result_bytes_per_pixel(p.render, false, true);
+  push(plan.disk, "finished tiles", mul(n, per_pixel));
+  // Until then a tile's range results wait for its last range, each a whole tile's worth.
+  // Workers take a job's tasks tile by tile, so about two tiles are in flight at a time.
+  const u64 spp =
+      p.target_error.has_value() ? std::max<u64>(p.target_error->max_spp, p.spp) : p.spp;
+  const u64 ranges =
+      p.samples_per_task == 0 ? 1 : (spp + p.samples_per_task - 1) / p.samples_per_task;
+  if (ranges > 1) {
+    const u64 tile_area = std::min(n, mul(u64(p.tile_size), u64(p.tile_size)));
+    const u64 tiles_in_flight = std::min<u64>(2, (n + tile_area - 1) / std::max<u64>(1, tile_area));
+    push(plan.disk, "range results of the tiles in flight",
+         mul(mul(tiles_in_flight * tile_area, per_pixel), ranges));
+  }
   u64 outputs = add(mul(n, (bins + 3) * 4), mul(n, 12 + 3));  // spectral EXR, RGB EXR, PNG
   if (p.outputs.primal_and_gradients) outputs = add(outputs, mul(n, (bins + 3) * 8));
   if (p.render.splats_differentials() || p.render.gathers()) {

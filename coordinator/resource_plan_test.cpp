@@ -118,6 +118,30 @@ TEST(ResourcePlanTest, FarmPlanCountsTheFinishedTilesAndOutputsOnDisk) {
   EXPECT_GT(plan_farm_job(p).memory_bytes(), small.memory_bytes());
 }
 
+// A tile's range results wait on disk for its last range: 64 ranges of a 64x64 tile at 64 bins
+// took 35 MB where the plan had counted the finished tile's 0.5 MB, and a job admitted on a
+// small disk could then never store a tile.
+TEST(ResourcePlanTest, FarmPlanCountsTheRangeResultsOfTilesInFlight) {
+  job::JobParameters p;
+  p.width = p.height = 64;
+  p.render.bins = 64;
+  p.tile_size = 32;
+  p.spp = 4096;
+  const std::uint64_t per_pixel = 64 * 8 + 8 + 24 + 64;
+  EXPECT_EQ(item(plan_farm_job(p).disk, "range results of the tiles in flight"), 0u);  // one range
+  p.samples_per_task = 64;
+  const ResourcePlan plan = plan_farm_job(p);
+  EXPECT_EQ(item(plan.disk, "range results of the tiles in flight"), 2 * 32 * 32 * per_pixel * 64);
+  const absl::Status status = check_disk("job", plan, 8ull << 20, "free space", "fewer ranges");
+  EXPECT_EQ(status.code(), absl::StatusCode::kResourceExhausted) << status;
+  // A target error goes up to its max_spp; a one-tile image has one tile in flight.
+  p.target_error = job::TargetError{};
+  p.target_error->max_spp = 8192;
+  p.width = p.height = 16;
+  EXPECT_EQ(item(plan_farm_job(p).disk, "range results of the tiles in flight"),
+            16 * 16 * per_pixel * 128);
+}
+
 TEST(ResourcePlanTest, SaturatesInsteadOfWrapping) {
   LocalRenderShape huge = shape(65536, 65536, 4096);
   huge.largest_tile_area = ~std::uint64_t{0} / 2;
