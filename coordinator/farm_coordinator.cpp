@@ -363,8 +363,13 @@ absl::StatusOr<JobStatus> FarmCoordinator::submit(const prism::v1::JobSpec& spec
   open_convergence_locked(id, *active);
   // The first stage only: later stages need the tables their predecessor learns.
   PRISM_RETURN_IF_ERROR(scheduler_.add_job(id, active->stage_specs(0)));
-  PRISM_ASSIGN_OR_RETURN(store::JobRecord rendering,
-                         store_->set_job_state(id, store::JobState::kRendering, now().count()));
+  // A job with a prepass says so until its final pass begins (farm_stages.cpp).
+  PRISM_ASSIGN_OR_RETURN(
+      store::JobRecord rendering,
+      store_->set_job_state(
+          id,
+          active->first_final_stage() > 0 ? store::JobState::kPrepass : store::JobState::kRendering,
+          now().count()));
   active_[id] = std::move(active);
   options_.logger->info("[job {}] submitted: {}x{}, {} spp, {} bins, {}, {} tasks{}, bundle {}", id,
                         params.width, params.height, params.spp, params.render.bins,

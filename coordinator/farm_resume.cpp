@@ -61,9 +61,13 @@ absl::Status FarmCoordinator::resume_locked(const store::JobRecord& record) {
   active->resumed = true;
   const std::vector<TaskSpec> handed(specs.begin(), specs.begin() + active->stage_first[stage + 1]);
   PRISM_RETURN_IF_ERROR(scheduler_.add_job(record.id, handed, replay.done));
-  if (record.state == store::JobState::kQueued) {
-    PRISM_RETURN_IF_ERROR(
-        store_->set_job_state(record.id, store::JobState::kRendering, now().count()).status());
+  // QUEUED: stopped while the submission stored the tasks. PREPASS: stopped in the prepass,
+  // which the replay may have finished.
+  const store::JobState now_state =
+      stage < active->first_final_stage() ? store::JobState::kPrepass : store::JobState::kRendering;
+  if ((record.state == store::JobState::kQueued || record.state == store::JobState::kPrepass) &&
+      record.state != now_state) {
+    PRISM_RETURN_IF_ERROR(store_->set_job_state(record.id, now_state, now().count()).status());
   }
   options_.logger->info("[job {}] resumed at stage {} of {}: {} of {} tasks already done",
                         record.id, stage + 1, active->final_stage() + 1, replay.done.size(),

@@ -526,5 +526,29 @@ TEST_F(FarmServerTest, AnUnknownWorkerIsToldToRegisterAgain) {
   EXPECT_EQ(reply.directives(0).kind(), v1::Directive::KIND_REREGISTER);
 }
 
+// A job with a prepass is PREPASS until its final pass begins (the state the API, /metrics and
+// the dashboard show; it had read RENDERING all through), after a restart too. The move to
+// RENDERING is checked with real workers (tests/farm_process_test.cpp).
+TEST_F(FarmServerTest, AJobWithAPrepassSaysSo) {
+  v1::JobSpec spec = uploaded_small_spec();
+  ASSERT_FALSE(spec.bundle_hash().empty());
+  spec.set_integrator(v1::INTEGRATOR_HERO);
+  spec.mutable_prepass()->set_enabled(true);
+  spec.mutable_prepass()->set_passes(2);
+  spec.mutable_prepass()->set_spp(4);
+  const v1::JobInfo submitted = submit(spec);
+  ASSERT_FALSE(submitted.job_id().empty());
+  EXPECT_EQ(submitted.state(), v1::JOB_STATE_PREPASS);
+  stop();
+  start();
+  v1::JobInfo info;
+  ASSERT_TRUE(get_job(submitted.job_id(), &info).ok());
+  EXPECT_EQ(info.state(), v1::JOB_STATE_PREPASS);
+  // Without a prepass: RENDERING at once.
+  spec.mutable_prepass()->Clear();
+  spec.mutable_prepass()->set_enabled(false);
+  EXPECT_EQ(submit(spec).state(), v1::JOB_STATE_RENDERING);
+}
+
 }  // namespace
 }  // namespace prism::coordinator

@@ -61,6 +61,8 @@ absl::Status FarmCoordinator::advance_locked(const std::string& job_id) {
     PRISM_RETURN_IF_ERROR(store_->skip_tasks(job_id, job.stage_first[s], job.stage_first[s + 1]));
   }
   if (job.stage == job.first_final_stage()) {
+    PRISM_RETURN_IF_ERROR(
+        store_->set_job_state(job_id, store::JobState::kRendering, now().count()).status());
     job.prepass_seconds = std::chrono::duration<double>(SteadyClock::now() - job.started).count();
     const PrepassOutcome o = job.prepass->outcome();
     options_.logger->info(

@@ -275,6 +275,10 @@ class FarmProcessTest : public ::testing::Test {
     s.mutable_prepass()->set_spp(prepass_spp);
     const std::string job_id = submit(s);
     EXPECT_FALSE(job_id.empty());
+    EXPECT_EQ(wait_for(
+                  job_id, [](const v1::JobInfo&) { return true; }, 5)
+                  .state(),
+              v1::JOB_STATE_PREPASS);
     start_worker(0);
     const v1::JobInfo mid = wait_for(
         job_id,
@@ -283,6 +287,13 @@ class FarmProcessTest : public ::testing::Test {
         },
         30);
     EXPECT_GE(mid.progress().tasks_done(), std::uint64_t(kill_after));
+    // PREPASS until the final pass's 9 tasks begin (a skipped pass 2 counts as done), then
+    // RENDERING.
+    if (mid.progress().tasks_done() < 18) {
+      EXPECT_EQ(mid.state(), v1::JOB_STATE_PREPASS);
+    } else if (mid.progress().tasks_done() < 27) {
+      EXPECT_EQ(mid.state(), v1::JOB_STATE_RENDERING);
+    }
     coordinator_->kill();
     start_coordinator(port);
     start_worker(1);
