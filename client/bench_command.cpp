@@ -435,6 +435,23 @@ absl::Status run_gnuplot(const fs::path& script, const fs::path& log) {
   return absl::OkStatus();
 }
 
+// gnuplot exits 0 when its terminal could not write the file (a full disk), so a plot is checked
+// for its end: a PNG's IEND chunk, an SVG's closing tag.
+absl::Status check_plot_is_whole(const fs::path& file) {
+  PRISM_ASSIGN_OR_RETURN(std::string bytes, base::read_file(file));
+  bool whole = false;
+  if (file.string().ends_with(".png.tmp")) {
+    static constexpr char kEnd[] = {'I', 'E', 'N', 'D', '\xAE', '\x42', '\x60', '\x82'};
+    whole = bytes.size() >= 20 && bytes.compare(bytes.size() - 8, 8, kEnd, 8) == 0;
+  } else {
+    whole = bytes.find("</svg>", bytes.size() > 64 ? bytes.size() - 64 : 0) != std::string::npos;
+  }
+  if (whole) return absl::OkStatus();
+  return absl::DataLossError(absl::StrCat(
+      "gnuplot wrote ", file.string(), " incomplete (", bytes.size(),
+      " bytes; is the disk full?); the plots are not written, results.csv and report.md are"));
+}
+
 }  // namespace
 
 absl::StatusOr<std::vector<double>> parse_budgets(const std::string& text) {
@@ -722,6 +739,13 @@ absl::Status write_plots(const std::vector<BenchRow>& rows, const std::vector<st
     PRISM_RETURN_IF_ERROR(base::write_file_atomic(data, plot.data));
     PRISM_RETURN_IF_ERROR(base::write_file_atomic(script, plot.script));
     PRISM_RETURN_IF_ERROR(run_gnuplot(script, dir / (stem + ".gnuplot.log")));
+    for (const fs::path& out : {svg, png}) {
+      if (absl::Status whole = check_plot_is_whole(fs::path(out.string() + ".tmp")); !whole.ok()) {
+        fs::remove(fs::path(svg.string() + ".tmp"), ec);
+        fs::remove(fs::path(png.string() + ".tmp"), ec);
+        return whole;
+      }
+    }
     for (const fs::path& out : {svg, png}) {
       fs::rename(fs::path(out.string() + ".tmp"), out, ec);
       if (ec) {

@@ -1207,6 +1207,26 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
   ASSERT_TRUE(replot_png.ok()) << replot_png.status();
   EXPECT_EQ(replot_png->width, 1200);
 
+  // gnuplot exits 0 when it cannot write a plot (a full disk): a cut-off plot is an error, not
+  // "wrote". A gnuplot that writes half a PNG and SVG stands in for it.
+  fs::create_directories(dir / "fakebin");
+  {
+    std::ofstream fake(dir / "fakebin" / "gnuplot");
+    fake << "#!/bin/sh\nprintf '\\211PNG\\r\\n' > three-emitters.png.tmp\n"
+         << "printf '<svg>' > three-emitters.svg.tmp\nexit 0\n";
+  }
+  fs::permissions(dir / "fakebin" / "gnuplot", fs::perms::owner_all);
+  prism::testing::ChildOptions cut_off;
+  cut_off.working_dir = dir;
+  cut_off.merge_stderr = true;
+  cut_off.env = {"PATH=" + (dir / "fakebin").string() + ":/usr/bin:/bin"};
+  const prism::testing::RunResult truncated = prism::testing::run(
+      {PRISM_BINARY, "bench", "--results", "out/results.csv", "-o", "cut"}, cut_off);
+  EXPECT_NE(truncated.exit_code, 0) << truncated.out;
+  EXPECT_NE(truncated.out.find("incomplete"), std::string::npos) << truncated.out;
+  EXPECT_FALSE(fs::exists(dir / "cut" / "three-emitters.png"));
+  EXPECT_FALSE(fs::exists(dir / "cut" / "three-emitters.png.tmp"));
+
   // The cached reference, given explicitly, brings its half along: the same floor.
   fs::path cached;
   for (const auto& entry : fs::directory_iterator(dir / "cache")) {
