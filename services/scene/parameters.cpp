@@ -70,9 +70,10 @@ absl::Status check_count(const Parameter& p, const SourceLocation& where, size_t
     case ParamType::kBlackbody:
       if (count != 1) return need(count + 1, "1 value (a temperature in K)");
       return absl::OkStatus();
-    case ParamType::kPoint2: case ParamType::kVector2: return need(2, "a multiple of 2 values");
+    case ParamType::kPoint2: case ParamType::kVector2:
+      return need(2, count == 0 ? "at least one point (2 values)" : "a multiple of 2 values");
     case ParamType::kPoint3: case ParamType::kVector3: case ParamType::kNormal3:
-      return need(3, "a multiple of 3 values");
+      return need(3, count == 0 ? "at least one triple (3 values)" : "a multiple of 3 values");
     default: return need(1, "at least one value");
   }
 }

@@ -28,7 +28,8 @@ const BadCase kBadCases[] = {
     {"unknown_directive.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_directive.pbrt:3:3: unknown directive 'Frobnicate'"},
     {"unknown_shape.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_shape.pbrt:2:7: unsupported shape type \"cone\" (supported: bilinearmesh, "
+     "unknown_shape.pbrt:2:7: unknown shape type \"cone\" (pbrt-v4's: bilinearmesh, curve, "
+     "cylinder, disk, loopsubdiv, plymesh, sphere, trianglemesh; Prism renders bilinearmesh, "
      "cylinder, disk, loopsubdiv, objmesh, plymesh, sphere, trianglemesh)"},
     {"unused_parameter.pbrt", absl::StatusCode::kInvalidArgument,
      "unused_parameter.pbrt:3:3: unused parameter 'float radiu'"},
@@ -78,17 +79,21 @@ const BadCase kBadCases[] = {
     {"filter_radius.pbrt", absl::StatusCode::kInvalidArgument,
      "filter_radius.pbrt:1:24: 'float xradius' must be between 0.01 and 16 pixels, got 0"},
     {"unknown_material.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_material.pbrt:2:10: unsupported material type \"plastic\" (supported: "
-     "coatedconductor, coateddiffuse, conductor, dielectric, diffuse, diffusetransmission, "
-     "interface, mix, thindielectric)"},
+     "unknown_material.pbrt:2:10: unknown material type \"plastic\" (pbrt-v4's: "
+     "coatedconductor, coateddiffuse, conductor, dielectric, diffuse, diffusetransmission, hair, "
+     "interface, measured, mix, subsurface, thindielectric; Prism renders coatedconductor, "
+     "coateddiffuse, conductor, dielectric, diffuse, diffusetransmission, interface, mix, "
+     "thindielectric)"},
     {"unknown_light.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_light.pbrt:2:13: unsupported light type \"portal\" (supported: distant, "
-     "goniometric, infinite, point, projection, spot)"},
+     "unknown_light.pbrt:2:13: unknown light type \"portal\" (pbrt-v4's: distant, goniometric, "
+     "infinite, point, projection, spot; Prism renders distant, goniometric, infinite, point, "
+     "projection, spot)"},
     {"unknown_camera.pbrt", absl::StatusCode::kInvalidArgument,
      "unknown_camera.pbrt:1:8: unsupported camera type \"realistic\" (supported: orthographic, "
      "perspective, spherical)"},
     {"unknown_medium.pbrt", absl::StatusCode::kInvalidArgument,
-     "unknown_medium.pbrt:1:25: unsupported medium type \"grid\" (supported: homogeneous)"},
+     "unknown_medium.pbrt:1:25: unknown medium type \"grid\" (pbrt-v4's: cloud, homogeneous, "
+     "nanovdb, rgbgrid, uniformgrid; Prism renders homogeneous)"},
     {"undefined_medium.pbrt", absl::StatusCode::kInvalidArgument,
      "undefined_medium.pbrt:2:17: medium \"smoke\" is not defined"},
     {"partial_sphere.pbrt", absl::StatusCode::kInvalidArgument,
@@ -197,6 +202,16 @@ struct MemoryCase {
 
 // Directive-level errors, parsed from memory ("m.pbrt"; "a.pbrt" includes itself).
 const MemoryCase kMemoryCases[] = {
+    // A type pbrt-v4 does not know is a mistake even under --allow-unsupported; a float bound
+    // and an empty list say what they are.
+    {"MakeNamedMedium \"m\" \"string type\" \"wibble\"\n",
+     "m.pbrt:1:21: unknown medium type \"wibble\" (pbrt-v4's: cloud, homogeneous, nanovdb, "
+     "rgbgrid, uniformgrid; Prism renders homogeneous)"},
+    {"WorldBegin\nShape \"sphere\" \"float radius\" [1e39]\n",
+     "m.pbrt:2:16: 'float radius' must be at most 1e+30 (Prism computes in single precision), "
+     "got 1e+39"},
+    {"WorldBegin\nShape \"trianglemesh\" \"point3 P\" [] \"integer indices\" []\n",
+     "m.pbrt:2:33: 'point3 P' needs at least one triple (3 values), got 0 values"},
     {"WorldBegin\nInclude \"a0.pbrt\"\n",
      "a15.pbrt:1:1: 'Include' nesting is deeper than 16 levels"},
     {"WorldBegin\nInclude \"a.pbrt\"\n",

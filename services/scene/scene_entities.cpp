@@ -1,10 +1,13 @@
 #include "services/scene/scene_entities.h"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <limits>
+#include <map>
 #include <string_view>
 #include <utility>
+#include <vector>
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
@@ -55,6 +58,32 @@ absl::Status refuse_at(const ParameterList& params, const std::string& feature,
 absl::Status unsupported_type(const ParameterList& params, const TypeName& type, const char* what,
                               std::initializer_list<const char*> supported,
                               std::string_view substitution) {
+  // A name pbrt-v4 does not know either is a mistake (pbrt-v4 stops on it), not a feature to
+  // substitute under --allow-unsupported.
+  static const std::map<std::string_view, std::vector<const char*>> kPbrtTypes = {
+      {"camera", {"orthographic", "perspective", "realistic", "spherical"}},
+      {"sampler",
+       {"halton", "independent", "paddedsobol", "pmj02bn", "sobol", "stratified", "zsobol"}},
+      {"pixel filter", {"box", "gaussian", "mitchell", "sinc", "triangle"}},
+      {"material",
+       {"coatedconductor", "coateddiffuse", "conductor", "dielectric", "diffuse",
+        "diffusetransmission", "hair", "interface", "measured", "mix", "subsurface",
+        "thindielectric"}},
+      {"light", {"distant", "goniometric", "infinite", "point", "projection", "spot"}},
+      {"area light", {"diffuse"}},
+      {"medium", {"cloud", "homogeneous", "nanovdb", "rgbgrid", "uniformgrid"}},
+      {"shape",
+       {"bilinearmesh", "curve", "cylinder", "disk", "loopsubdiv", "plymesh", "sphere",
+        "trianglemesh"}},
+  };
+  if (auto known = kPbrtTypes.find(what); known != kPbrtTypes.end() &&
+      std::none_of(known->second.begin(), known->second.end(),
+                   [&](const char* name) { return type.name == name; })) {
+    return location_error(type.where,
+                          absl::StrCat("unknown ", what, " type \"", type.name,
+                                       "\" (pbrt-v4's: ", absl::StrJoin(known->second, ", "),
+                                       "; Prism renders ", absl::StrJoin(supported, ", "), ")"));
+  }
   PRISM_RETURN_IF_ERROR(
       refuse_at(params, type_feature(what, type), type.where,
                 absl::StrCat("unsupported ", what, " type \"", type.name,
@@ -74,9 +103,20 @@ absl::Status param_error(const ParameterList& params, const std::string& name,
 
 absl::Status check_range(const ParameterList& params, const std::string& name, double value,
                          double lo, double hi, const std::string& range_text) {
-  if (params.has(name) && !(value >= lo && value <= hi))
-    return param_error(params, name, absl::StrCat("must be ", range_text, ", got ", value));
-  return absl::OkStatus();
+  if (!params.has(name) || (value >= lo && value <= hi)) return absl::OkStatus();
+  // Bounds far out guard the float arithmetic, not the meaning: say which one was crossed
+  // ("must be > 0, got 1e+39" told a user their positive radius was not positive).
+  if (value > hi && hi >= 1e30) {
+    return param_error(params, name,
+                       absl::StrCat("must be at most ", hi,
+                                    " (Prism computes in single precision), got ", value));
+  }
+  if (value > 0 && value < lo && lo <= 1e-9) {
+    return param_error(params, name,
+                       absl::StrCat("must be at least ", lo,
+                                    " (Prism computes in single precision), got ", value));
+  }
+  return param_error(params, name, absl::StrCat("must be ", range_text, ", got ", value));
 }
 
 // A value Prism does not render (a partial sphere's zmin): the error at the parameter, or
