@@ -2,6 +2,7 @@
 
 #include <map>
 
+#include "absl/strings/match.h"
 #include "prism/v1/farm.pb.h"
 
 namespace prism::coordinator::http {
@@ -97,8 +98,10 @@ json message_schema(const pb::Descriptor& message) {
     if (field.is_repeated()) schema = {{"type", "array"}, {"items", schema}};
     properties[field.json_name()] = schema;
     // Printed with every primitive field: plain scalars are always there; messages, lists,
-    // proto3 `optional` fields and oneof members may be absent.
-    if (field.message_type() == nullptr && !field.is_repeated() && !field.has_presence())
+    // proto3 `optional` fields and oneof members may be absent. A request may leave any field
+    // out (its default: an empty clientToken submits a new job each time).
+    if (field.message_type() == nullptr && !field.is_repeated() && !field.has_presence() &&
+        !absl::EndsWith(message.name(), "Request"))
       required.push_back(field.json_name());
   }
   json schema = {{"type", "object"}, {"properties", properties}, {"additionalProperties", false}};
