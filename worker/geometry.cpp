@@ -51,6 +51,24 @@ struct Geometry::MeshShape {
   scene::Transform object_to_world;
   bool flip = false;
   std::uint32_t vertex_count = 0;
+  // Per triangle its MeshFace, for a mesh with bilinear patches (empty otherwise); `curved`
+  // when some patch is not flat and the faces are intersected by Prism (`faces`, owned by the
+  // shape that attached them; null on the other instances of a shared mesh).
+  std::vector<MeshFace> kinds;
+  bool curved = false;
+  std::unique_ptr<FaceMeshData> faces;
+
+  Vec3f world_position(std::uint32_t i) const {
+    if (!instanced) return to_vec(positions[i]);
+    const Float3& p = positions[i];
+    return to_vec(object_to_world.apply_point({p.x, p.y, p.z}));
+  }
+  Vec3f world_normal(std::uint32_t i) const {
+    if (!instanced) return to_vec(normals[i]);
+    const Float3& n = normals[i];
+    return to_vec(object_to_world.apply_normal({n.x, n.y, n.z}));
+  }
+  bool is_patch(std::uint32_t prim) const { return curved && kinds[prim] == MeshFace::kPatch; }
 };
 
 struct Geometry::SphereShape {
@@ -75,12 +93,167 @@ struct Geometry::AlphaFilter {
 
 namespace {
 
-// A mesh triangle's vertex uvs: the mesh's, or pbrt-v4's default (0,0), (1,0), (1,1).
+using MeshFace = Geometry::MeshFace;
+
+// A mesh triangle's vertex uvs: the mesh's; without them pbrt-v4's default (0,0), (1,0), (1,1),
+// or for a bilinear patch's triangles the patch's own (u, v) at their corners, (p00, p10, p11)
+// and (p00, p11, p01), so that a flat patch's texture is pbrt-v4's without a seam.
 std::array<Point2f, 3> triangle_uvs(const std::vector<scene::Float2>& uvs,
-                                    const scene::Triangle& tri) {
-  if (uvs.empty()) return {Point2f{0, 0}, Point2f{1, 0}, Point2f{1, 1}};
+                                    const std::vector<MeshFace>& kinds, const scene::Triangle& tri,
+                                    std::uint32_t prim) {
+  if (uvs.empty()) {
+    if (!kinds.empty() && kinds[prim] == MeshFace::kPatchRest)
+      return {Point2f{0, 0}, Point2f{1, 1}, Point2f{0, 1}};
+    return {Point2f{0, 0}, Point2f{1, 0}, Point2f{1, 1}};
+  }
   return {Point2f{uvs[tri[0]].u, uvs[tri[0]].v}, Point2f{uvs[tri[1]].u, uvs[tri[1]].v},
           Point2f{uvs[tri[2]].u, uvs[tri[2]].v}};
+}
+
+// Bilinear interpolation over a patch's corners at (u, v).
+template <typename T>
+T bilerp(float u, float v, const T& c00, const T& c10, const T& c01, const T& c11) {
+  return (c00 * (1 - u) + c10 * u) * (1 - v) + (c01 * (1 - u) + c11 * u) * v;
+}
+
+// A patch's texture uv at (u, v): its vertex uvs (of triangles t = (p00, p10, p11) and
+// t + 1 = (p00, p11, p01)) interpolated, or (u, v) without uvs.
+Point2f patch_texture_uv(const scene::Float2* uvs, const scene::Triangle* triangles,
+                         std::uint32_t t, float u, float v) {
+  if (uvs == nullptr) return {u, v};
+  auto at = [&](std::uint32_t i) { return Point2f{uvs[i].u, uvs[i].v}; };
+  const scene::Triangle& a = triangles[t];
+  const Point2f c00 = at(a[0]), c10 = at(a[1]), c11 = at(a[2]), c01 = at(triangles[t + 1][2]);
+  return {bilerp(u, v, c00.x, c10.x, c01.x, c11.x), bilerp(u, v, c00.y, c10.y, c01.y, c11.y)};
+}
+
+// Whether every patch of the mesh is flat: a parallelogram (p00 − p10 − p01 + p11 = 0, to 1e-5
+// of its size) whose vertex normals and uvs are affine in the same sense, so that its two
+// triangles are the patch with the patch's interpolation.
+bool patches_are_flat(const scene::TriangleMeshData& m) {
+  auto twisted = [](auto get, std::uint32_t i00, std::uint32_t i10, std::uint32_t i01,
+                    std::uint32_t i11) {
+    double twist = 0, size = 0;
+    for (int c = 0; c < 3; ++c) {
+      const double p00 = get(i00, c), p10 = get(i10, c), p01 = get(i01, c), p11 = get(i11, c);
+      twist = std::max(twist, std::abs(p00 - p10 - p01 + p11));
+      size = std::max({size, std::abs(p10 - p00), std::abs(p01 - p00), std::abs(p11 - p00)});
+    }
+    return twist > 1e-5 * size;
+  };
+  auto position = [&](std::uint32_t i, int c) {
+    const Float3& p = m.positions[i];
+    return c == 0 ? p.x : c == 1 ? p.y : p.z;
+  };
+  auto normal = [&](std::uint32_t i, int c) {
+    const Float3& n = m.normals[i];
+    return c == 0 ? n.x : c == 1 ? n.y : n.z;
+  };
+  auto uv = [&](std::uint32_t i, int c) {
+    return c == 0 ? m.uvs[i].u : c == 1 ? m.uvs[i].v : 0.0f;
+  };
+  for (std::uint32_t t : m.patches) {
+    const scene::Triangle& a = m.triangles[t];
+    const std::uint32_t i01 = m.triangles[t + 1][2];
+    if (twisted(position, a[0], a[1], i01, a[2])) return false;
+    if (!m.normals.empty() && twisted(normal, a[0], a[1], i01, a[2])) return false;
+    if (!m.uvs.empty() && twisted(uv, a[0], a[1], i01, a[2])) return false;
+  }
+  return true;
+}
+
+// Double-precision vectors for the intersection of curved patches.
+struct D3 {
+  double x, y, z;
+};
+D3 operator-(const D3& a, const D3& b) {
+  return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+D3 operator+(const D3& a, const D3& b) {
+  return {a.x + b.x, a.y + b.y, a.z + b.z};
+}
+D3 operator*(const D3& a, double s) {
+  return {a.x * s, a.y * s, a.z * s};
+}
+double dot(const D3& a, const D3& b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+D3 cross(const D3& a, const D3& b) {
+  return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+D3 d3(const Float3& f) {
+  return {f.x, f.y, f.z};
+}
+
+struct FaceCandidate {
+  double t, u, v;
+};
+
+// The ray o + t·d against the bilinear patch p(u, v) = lerp(v, lerp(u, p00, p10), lerp(u, p01,
+// p11)): its hits with t in (t_min, t_max) and (u, v) in [0, 1]², nearest first; returns how many
+// (0 to 2). The ray meets the segment of the u-isoline from lerp(u, p00, p10) to lerp(u, p01,
+// p11) only where the two are coplanar: det[lerp(u, p00, p10) − o, d, lerp(u, p01 − p00,
+// p11 − p10)] = 0, a quadratic in u (Reshetov, "Cool Patches", Ray Tracing Gems 2019); v and t
+// then follow from the two lines' closest points.
+int intersect_patch(const D3& o, const D3& d, const D3& p00, const D3& p10, const D3& p01,
+                    const D3& p11, double t_min, double t_max, FaceCandidate out[2]) {
+  const D3 q00 = p00 - o, q10 = p10 - o;
+  const D3 e00 = p01 - p00, e11 = p11 - p10;
+  const double a = dot(cross(q00, d), e00);
+  const double c = dot(cross(p10 - p00, d), e11 - e00);
+  const double b = dot(cross(q10, d), e11) - a - c;
+  double roots[2];
+  int n_roots = 0;
+  if (c == 0) {
+    if (b != 0) roots[n_roots++] = -a / b;
+  } else {
+    const double disc = b * b - 4 * a * c;
+    if (disc < 0) return 0;
+    const double q = -0.5 * (b + std::copysign(std::sqrt(disc), b));
+    if (q == 0) {
+      roots[n_roots++] = 0;  // b = 0 and a·c = 0: the double root u = 0
+    } else {
+      roots[n_roots++] = q / c;
+      roots[n_roots++] = a / q;
+    }
+  }
+  int found = 0;
+  for (int i = 0; i < n_roots; ++i) {
+    const double u = roots[i];
+    if (!(u >= 0 && u <= 1)) continue;
+    const D3 pa = q00 + (q10 - q00) * u;  // the isoline's start, from o
+    const D3 pb = e00 + (e11 - e00) * u;  // along the isoline
+    const D3 n = cross(d, pb);
+    const double det = dot(n, n);
+    if (!(det > 0)) continue;
+    const double t = dot(cross(pa, pb), n) / det;
+    const double v = dot(cross(pa, d), n) / det;
+    if (!(v >= 0 && v <= 1 && t > t_min && t < t_max)) continue;
+    out[found++] = {t, u, v};
+  }
+  if (found == 2 && out[1].t < out[0].t) std::swap(out[0], out[1]);
+  return found;
+}
+
+// The ray against triangle (p0, p1, p2) (Möller–Trumbore in double): t in (t_min, t_max) and
+// the barycentrics of p1 and p2, as Embree reports them.
+bool intersect_triangle(const D3& o, const D3& d, const D3& p0, const D3& p1, const D3& p2,
+                        double t_min, double t_max, FaceCandidate* out) {
+  const D3 e1 = p1 - p0, e2 = p2 - p0;
+  const D3 pv = cross(d, e2);
+  const double det = dot(e1, pv);
+  if (det == 0) return false;
+  const double inv = 1 / det;
+  const D3 tv = o - p0;
+  const double b1 = dot(tv, pv) * inv;
+  if (!(b1 >= 0 && b1 <= 1)) return false;
+  const D3 qv = cross(tv, e1);
+  const double b2 = dot(d, qv) * inv;
+  if (!(b2 >= 0 && b1 + b2 <= 1)) return false;
+  const double t = dot(e2, qv) * inv;
+  if (!(t > t_min && t < t_max)) return false;
+  *out = {t, b1, b2};
+  return true;
 }
 
 // The uv at barycentrics (u, v) of vertices 1 and 2.
@@ -146,9 +319,10 @@ void alpha_filter(const RTCFilterFunctionNArguments* args) {
       unit_or_z(RTCHitN_Ng_x(hit, 1, 0), RTCHitN_Ng_y(hit, 1, 0), RTCHitN_Ng_z(hit, 1, 0));
   Point2f uv;
   if (f->mesh != nullptr) {
-    const auto& tri = f->mesh->source->triangles[RTCHitN_primID(hit, 1, 0)];
-    uv =
-        interpolate_uv(triangle_uvs(f->mesh->uvs, tri), RTCHitN_u(hit, 1, 0), RTCHitN_v(hit, 1, 0));
+    const std::uint32_t prim = RTCHitN_primID(hit, 1, 0);
+    const auto& tri = f->mesh->source->triangles[prim];
+    uv = interpolate_uv(triangle_uvs(f->mesh->uvs, f->mesh->kinds, tri, prim), RTCHitN_u(hit, 1, 0),
+                        RTCHitN_v(hit, 1, 0));
   } else {
     // The sphere's object space (the instance's): the hit point on the sphere about the origin.
     uv = sphere_uv(ox + double(t) * dx, oy + double(t) * dy, oz + double(t) * dz);
@@ -239,6 +413,115 @@ void quadric_occluded(const RTCOccludedFunctionNArguments* args) {
   if (quadric_hit_t(*q, *r) >= 0.0f) r->tfar = -std::numeric_limits<float>::infinity();
 }
 
+// A face of a mesh with curved patches against the ray: the nearest hit with t in (tnear,
+// tfar) that its alpha keeps. Sets the triangle reported (a patch's first) and the unit normal
+// cross(dp/du, dp/dv) before any orientation rule.
+bool face_hit(const Geometry::FaceMeshData& m, unsigned prim, const RTCRay& ray, FaceCandidate* hit,
+              std::uint32_t* triangle, D3* normal) {
+  const std::uint32_t face = m.faces[prim];
+  const std::uint32_t t = face & ~Geometry::FaceMeshData::kPatchBit;
+  const scene::Triangle& tri = m.triangles[t];
+  const D3 o{ray.org_x, ray.org_y, ray.org_z}, d{ray.dir_x, ray.dir_y, ray.dir_z};
+  const D3 p0 = d3(m.positions[tri[0]]), p1 = d3(m.positions[tri[1]]), p2 = d3(m.positions[tri[2]]);
+  FaceCandidate candidates[2];
+  int count = 0;
+  const bool patch = (face & Geometry::FaceMeshData::kPatchBit) != 0;
+  const D3 p01 = patch ? d3(m.positions[m.triangles[t + 1][2]]) : D3{};
+  if (patch) {
+    count = intersect_patch(o, d, p0, p1, p01, p2, ray.tnear, ray.tfar, candidates);
+  } else {
+    count = intersect_triangle(o, d, p0, p1, p2, ray.tnear, ray.tfar, candidates) ? 1 : 0;
+  }
+  for (int i = 0; i < count; ++i) {
+    const FaceCandidate& c = candidates[i];
+    D3 n;
+    if (patch) {
+      const D3 dpdu = (p1 - p0) * (1 - c.v) + (p2 - p01) * c.v;
+      const D3 dpdv = (p01 - p0) * (1 - c.u) + (p2 - p1) * c.u;
+      n = cross(dpdu, dpdv);
+    } else {
+      n = cross(p0 - p2, p1 - p2);
+    }
+    const double len = std::sqrt(dot(n, n));
+    n = len > 0 ? n * (1 / len) : D3{0, 0, 1};
+    if (m.alpha != nullptr) {
+      Point2f uv;
+      if (patch) {
+        uv = patch_texture_uv(m.uvs, m.triangles, t, float(c.u), float(c.v));
+      } else if (m.uvs != nullptr) {
+        const auto& uvs = m.uvs;
+        uv = interpolate_uv(
+            {Point2f{uvs[tri[0]].u, uvs[tri[0]].v}, Point2f{uvs[tri[1]].u, uvs[tri[1]].v},
+             Point2f{uvs[tri[2]].u, uvs[tri[2]].v}},
+            float(c.u), float(c.v));
+      } else {
+        uv = interpolate_uv({Point2f{0, 0}, Point2f{1, 0}, Point2f{1, 1}}, float(c.u), float(c.v));
+      }
+      if (!alpha_keeps(*m.alpha, uv, {float(n.x), float(n.y), float(n.z)}, ray.org_x, ray.org_y,
+                       ray.org_z, ray.dir_x, ray.dir_y, ray.dir_z, float(c.t))) {
+        continue;
+      }
+    }
+    *hit = c;
+    *triangle = t;
+    *normal = n;
+    return true;
+  }
+  return false;
+}
+
+void face_bounds(const RTCBoundsFunctionArguments* args) {
+  const auto* m = static_cast<const Geometry::FaceMeshData*>(args->geometryUserPtr);
+  const std::uint32_t face = m->faces[args->primID];
+  const std::uint32_t t = face & ~Geometry::FaceMeshData::kPatchBit;
+  const scene::Triangle& tri = m->triangles[t];
+  RTCBounds* b = args->bounds_o;
+  b->lower_x = b->lower_y = b->lower_z = std::numeric_limits<float>::infinity();
+  b->upper_x = b->upper_y = b->upper_z = -std::numeric_limits<float>::infinity();
+  auto extend = [&](std::uint32_t i) {
+    const Float3& p = m->positions[i];
+    b->lower_x = std::min(b->lower_x, p.x);
+    b->lower_y = std::min(b->lower_y, p.y);
+    b->lower_z = std::min(b->lower_z, p.z);
+    b->upper_x = std::max(b->upper_x, p.x);
+    b->upper_y = std::max(b->upper_y, p.y);
+    b->upper_z = std::max(b->upper_z, p.z);
+  };
+  for (std::uint32_t i : tri) extend(i);
+  // A bilinear patch lies in its corners' convex hull.
+  if ((face & Geometry::FaceMeshData::kPatchBit) != 0) extend(m->triangles[t + 1][2]);
+}
+
+void face_intersect(const RTCIntersectFunctionNArguments* args) {
+  if (args->valid[0] == 0) return;
+  const auto* m = static_cast<const Geometry::FaceMeshData*>(args->geometryUserPtr);
+  RTCRayHit* rh = reinterpret_cast<RTCRayHit*>(args->rayhit);
+  FaceCandidate c;
+  std::uint32_t triangle = 0;
+  D3 n;
+  if (!face_hit(*m, args->primID, rh->ray, &c, &triangle, &n)) return;
+  rh->ray.tfar = float(c.t);
+  rh->hit.Ng_x = float(n.x);
+  rh->hit.Ng_y = float(n.y);
+  rh->hit.Ng_z = float(n.z);
+  rh->hit.u = float(c.u);
+  rh->hit.v = float(c.v);
+  rh->hit.primID = triangle;
+  rh->hit.geomID = args->geomID;
+  rh->hit.instID[0] = args->context->instID[0];
+}
+
+void face_occluded(const RTCOccludedFunctionNArguments* args) {
+  if (args->valid[0] == 0) return;
+  const auto* m = static_cast<const Geometry::FaceMeshData*>(args->geometryUserPtr);
+  RTCRay* r = reinterpret_cast<RTCRay*>(args->ray);
+  FaceCandidate c;
+  std::uint32_t triangle = 0;
+  D3 n;
+  if (face_hit(*m, args->primID, *r, &c, &triangle, &n))
+    r->tfar = -std::numeric_limits<float>::infinity();
+}
+
 }  // namespace
 
 Geometry::~Geometry() {
@@ -315,6 +598,28 @@ void Geometry::attach_triangles(RTCScene target, MeshShape& mesh, unsigned id, s
   rtcReleaseGeometry(geom);
 }
 
+void Geometry::attach_faces(RTCScene target, MeshShape& mesh, unsigned id, std::size_t shape) {
+  auto data = std::make_unique<FaceMeshData>();
+  data->positions = mesh.positions.data();
+  data->uvs = mesh.uvs.empty() ? nullptr : mesh.uvs.data();
+  data->triangles = mesh.source->triangles.data();
+  for (std::uint32_t t = 0; t < mesh.kinds.size(); ++t) {
+    if (mesh.kinds[t] == MeshFace::kTriangle) data->faces.push_back(t);
+    if (mesh.kinds[t] == MeshFace::kPatch) data->faces.push_back(t | FaceMeshData::kPatchBit);
+  }
+  if (alpha_[shape]) data->alpha = &alpha_[shape];
+  RTCGeometry geom = rtcNewGeometry(device_->get(), RTC_GEOMETRY_TYPE_USER);
+  rtcSetGeometryUserPrimitiveCount(geom, static_cast<unsigned>(data->faces.size()));
+  rtcSetGeometryUserData(geom, data.get());
+  rtcSetGeometryBoundsFunction(geom, face_bounds, nullptr);
+  rtcSetGeometryIntersectFunction(geom, face_intersect);
+  rtcSetGeometryOccludedFunction(geom, face_occluded);
+  rtcCommitGeometry(geom);
+  rtcAttachGeometryByID(target, geom, id);
+  rtcReleaseGeometry(geom);
+  mesh.faces = std::move(data);
+}
+
 void Geometry::attach_instance(RTCScene child, const scene::Transform& t, unsigned id) {
   RTCGeometry inst = rtcNewGeometry(device_->get(), RTC_GEOMETRY_TYPE_INSTANCE);
   rtcSetGeometryInstancedScene(inst, child);
@@ -353,6 +658,21 @@ void Geometry::add_mesh(std::size_t i, const scene::Shape& shape, const scene::T
   mesh->vertex_count = static_cast<std::uint32_t>(m.mesh->positions.size());
   mesh->instanced = instanced != nullptr;
   const auto& src = *m.mesh;
+  if (!src.patches.empty()) {
+    mesh->kinds.assign(src.triangles.size(), MeshFace::kTriangle);
+    for (std::uint32_t t : src.patches) {
+      mesh->kinds[t] = MeshFace::kPatch;
+      mesh->kinds[t + 1] = MeshFace::kPatchRest;
+    }
+    mesh->curved = !patches_are_flat(src);
+  }
+  auto attach = [&](RTCScene target) {
+    if (mesh->curved) {
+      attach_faces(target, *mesh, target == scene_ ? id : 0, i);
+    } else {
+      attach_triangles(target, *mesh, target == scene_ ? id : 0, i);
+    }
+  };
   for (const Float3& p : src.positions) {
     bounds_.extend(to_vec(shape.object_to_world.apply_point({p.x, p.y, p.z})));
     shape_bounds_[i].extend(to_vec(shape.object_to_world.apply_point({p.x, p.y, p.z})));
@@ -364,7 +684,7 @@ void Geometry::add_mesh(std::size_t i, const scene::Shape& shape, const scene::T
       mesh->positions = src.positions;
       mesh->positions.push_back({});
       child = rtcNewScene(device_->get());
-      attach_triangles(child, *mesh, 0, i);
+      attach(child);
       rtcCommitScene(child);
       sub_scenes_.push_back(child);
     } else {
@@ -393,7 +713,7 @@ void Geometry::add_mesh(std::size_t i, const scene::Shape& shape, const scene::T
       mesh->normals.push_back({float(sign * w[0]), float(sign * w[1]), float(sign * w[2])});
     }
     mesh->uvs = src.uvs;
-    attach_triangles(scene_, *mesh, id, i);
+    attach(scene_);
   }
   meshes_[i] = std::move(mesh);
 }
@@ -459,26 +779,72 @@ Geometry::WorldTriangle Geometry::triangle(int shape, std::uint32_t primitive) c
   const auto& tri = m.source->triangles[primitive];
   WorldTriangle w;
   w.flip = m.flip;
-  auto pos = [&](std::uint32_t i) {
-    if (!m.instanced) return to_vec(m.positions[i]);
-    const Float3& p = m.positions[i];
-    return to_vec(m.object_to_world.apply_point({p.x, p.y, p.z}));
-  };
-  auto nor = [&](std::uint32_t i) {
-    if (!m.instanced) return to_vec(m.normals[i]);
-    const Float3& n = m.normals[i];
-    return to_vec(m.object_to_world.apply_normal({n.x, n.y, n.z}));
-  };
-  w.p0 = pos(tri[0]);
-  w.p1 = pos(tri[1]);
-  w.p2 = pos(tri[2]);
+  w.p0 = m.world_position(tri[0]);
+  w.p1 = m.world_position(tri[1]);
+  w.p2 = m.world_position(tri[2]);
   if (!m.normals.empty()) {
     w.has_normals = true;
-    w.n0 = nor(tri[0]);
-    w.n1 = nor(tri[1]);
-    w.n2 = nor(tri[2]);
+    w.n0 = m.world_normal(tri[0]);
+    w.n1 = m.world_normal(tri[1]);
+    w.n2 = m.world_normal(tri[2]);
   }
   return w;
+}
+
+Geometry::MeshFace Geometry::face(int shape, std::uint32_t primitive) const {
+  const MeshShape* m = meshes_[size_t(shape)].get();
+  return m != nullptr && m->curved ? m->kinds[primitive] : MeshFace::kTriangle;
+}
+
+Geometry::WorldPatch Geometry::patch(int shape, std::uint32_t primitive) const {
+  const MeshShape& m = *meshes_[size_t(shape)];
+  const scene::Triangle& a = m.source->triangles[primitive];
+  const std::uint32_t i01 = m.source->triangles[primitive + 1][2];
+  WorldPatch w;
+  w.flip = m.flip;
+  w.p00 = m.world_position(a[0]);
+  w.p10 = m.world_position(a[1]);
+  w.p11 = m.world_position(a[2]);
+  w.p01 = m.world_position(i01);
+  if (!m.normals.empty()) {
+    w.has_normals = true;
+    w.n00 = m.world_normal(a[0]);
+    w.n10 = m.world_normal(a[1]);
+    w.n11 = m.world_normal(a[2]);
+    w.n01 = m.world_normal(i01);
+  }
+  return w;
+}
+
+Point2f Geometry::patch_uv(int shape, std::uint32_t primitive, float u, float v) const {
+  const MeshShape& m = *meshes_[size_t(shape)];
+  return patch_texture_uv(m.uvs.empty() ? nullptr : m.uvs.data(), m.source->triangles.data(),
+                          primitive, u, v);
+}
+
+Vec3f Geometry::WorldPatch::point(float u, float v) const {
+  return bilerp(u, v, p00, p10, p01, p11);
+}
+
+Vec3f Geometry::WorldPatch::shading_normal(float u, float v) const {
+  return has_normals ? bilerp(u, v, n00, n10, n01, n11) : Vec3f{};
+}
+
+Vec3f Geometry::WorldPatch::unit_normal(float u, float v) const {
+  Vec3f n = cross(dpdu(v), dpdv(u));
+  float len = length(n);
+  if (!(len > 0)) {
+    // A corner where an edge collapses: the normal at the centre.
+    n = cross(dpdu(0.5f), dpdv(0.5f));
+    len = length(n);
+  }
+  n = len > 0 ? n / len : Vec3f(0, 0, 1);
+  if (flip) n = -n;
+  if (has_normals) {
+    const Vec3f ns = shading_normal(u, v);
+    if (length(ns) > 0) n = face_forward(n, ns);
+  }
+  return n;
 }
 
 std::uint32_t Geometry::triangle_count(int shape) const {
@@ -494,6 +860,7 @@ SurfaceHit Geometry::finish_triangle_hit(int shape, std::uint32_t prim, float u,
   hit.t = t;
   hit.shape = shape;
   hit.primitive = prim;
+  hit.param = {u, v};
   hit.p = w.p0 * b0 + w.p1 * u + w.p2 * v;
   const Vec3f n = w.unit_normal();
   hit.ng = n;
@@ -506,7 +873,7 @@ SurfaceHit Geometry::finish_triangle_hit(int shape, std::uint32_t prim, float u,
       hit.ng = face_forward(n, hit.ns);
     }
   }
-  const std::array<Point2f, 3> uvs = triangle_uvs(m.uvs, m.source->triangles[prim]);
+  const std::array<Point2f, 3> uvs = triangle_uvs(m.uvs, m.kinds, m.source->triangles[prim], prim);
   const Point2f &uv0 = uvs[0], &uv1 = uvs[1], &uv2 = uvs[2];
   hit.uv = interpolate_uv(uvs, u, v);
   // dp/du from the uv parameterisation (pbrt-v4 Triangle), falling back to an edge.
@@ -514,6 +881,40 @@ SurfaceHit Geometry::finish_triangle_hit(int shape, std::uint32_t prim, float u,
   float det = du02 * dv12 - dv02 * du12;
   Vec3f dp02 = w.p0 - w.p2, dp12 = w.p1 - w.p2;
   hit.dpdu = std::abs(det) > 1e-9f ? (dp02 * dv12 - dp12 * dv02) / det : normalize(dp02);
+  return hit;
+}
+
+SurfaceHit Geometry::finish_patch_hit(int shape, std::uint32_t prim, float u, float v,
+                                      float t) const {
+  const MeshShape& m = *meshes_[shape];
+  const WorldPatch w = patch(shape, prim);
+  SurfaceHit hit;
+  hit.t = t;
+  hit.shape = shape;
+  hit.primitive = prim;
+  hit.param = {u, v};
+  hit.p = w.point(u, v);
+  hit.ng = hit.ns = w.unit_normal(u, v);
+  if (w.has_normals) {
+    const Vec3f ns = w.shading_normal(u, v);
+    const float ls = length(ns);
+    if (ls > 0) hit.ns = ns / ls;
+  }
+  hit.uv = patch_uv(shape, prim, u, v);
+  // dp/ds along the texture's s: [dp/du dp/dv] times the inverse of the uv map's Jacobian.
+  const Vec3f dpdu = w.dpdu(v), dpdv = w.dpdv(u);
+  hit.dpdu = dpdu;
+  if (!m.uvs.empty()) {
+    const std::array<Point2f, 3> a = triangle_uvs(m.uvs, m.kinds, m.source->triangles[prim], prim);
+    const scene::Float2& c01 = m.uvs[m.source->triangles[prim + 1][2]];
+    const Point2f uv00 = a[0], uv10 = a[1], uv11 = a[2], uv01{c01.u, c01.v};
+    const float dsdu = (uv10.x - uv00.x) * (1 - v) + (uv11.x - uv01.x) * v;
+    const float dtdu = (uv10.y - uv00.y) * (1 - v) + (uv11.y - uv01.y) * v;
+    const float dsdv = (uv01.x - uv00.x) * (1 - u) + (uv11.x - uv10.x) * u;
+    const float dtdv = (uv01.y - uv00.y) * (1 - u) + (uv11.y - uv10.y) * u;
+    const float det = dsdu * dtdv - dsdv * dtdu;
+    if (std::abs(det) > 1e-9f) hit.dpdu = (dpdu * dtdv - dpdv * dtdu) / det;
+  }
   return hit;
 }
 
@@ -542,8 +943,10 @@ float Geometry::alpha_on_triangle(int shape, std::uint32_t primitive, float u, f
                                   const Vec3f& n) const {
   if (!has_alpha(shape)) return 1.0f;
   const MeshShape& m = *meshes_[size_t(shape)];
+  if (m.is_patch(primitive)) return alpha_[size_t(shape)](patch_uv(shape, primitive, u, v), n);
   return alpha_[size_t(shape)](
-      interpolate_uv(triangle_uvs(m.uvs, m.source->triangles[primitive]), u, v), n);
+      interpolate_uv(triangle_uvs(m.uvs, m.kinds, m.source->triangles[primitive], primitive), u, v),
+      n);
 }
 
 float Geometry::alpha_at_point(int shape, const Vec3f& p, const Vec3f& n) const {
@@ -621,6 +1024,33 @@ Vec3f Geometry::normal_differential(const SurfaceHit& hit, const Vec3f& dp) cons
     if (!q.cylinder) return {};
     return affine_normal(q.object_to_world, q.world_to_object, q.flip, true);
   }
+  if (meshes_[shape]->is_patch(hit.primitive)) {
+    const WorldPatch w = patch(hit.shape, hit.primitive);
+    const float u = hit.param.x, v = hit.param.y;
+    // (du, dv) from dp in the tangent plane by the dual basis of dp/du, dp/dv.
+    const Vec3f dpdu = w.dpdu(v), dpdv = w.dpdv(u);
+    const float a = dot(dpdu, dpdu), b = dot(dpdu, dpdv), c = dot(dpdv, dpdv);
+    const float det = a * c - b * b;
+    if (!(std::abs(det) > 0)) return {};
+    const float r1 = dot(dpdu, dp), r2 = dot(dpdv, dp);
+    const float du = (c * r1 - b * r2) / det, dv = (a * r2 - b * r1) / det;
+    if (w.has_normals) {
+      const Vec3f N = w.shading_normal(u, v);
+      const Vec3f dN = ((w.n10 - w.n00) * (1 - v) + (w.n11 - w.n01) * v) * du +
+                       ((w.n01 - w.n00) * (1 - u) + (w.n11 - w.n10) * u) * dv;
+      const float len = length(N);
+      if (!(len > 0)) return {};
+      return normalized_differential(N / len, len, dN);
+    }
+    // N = dp/du × dp/dv; ∂N/∂u = dp/du × twist, ∂N/∂v = twist × dp/dv.
+    const Vec3f twist = w.p11 - w.p10 - w.p01 + w.p00;
+    const Vec3f N = cross(dpdu, dpdv);
+    const Vec3f dN = cross(dpdu, twist) * du + cross(twist, dpdv) * dv;
+    const float len = length(N);
+    if (!(len > 0)) return {};
+    const Vec3f d = normalized_differential(N / len, len, dN);
+    return dot(N, hit.ns) < 0 ? -d : d;  // ns is ±N/|N|
+  }
   const WorldTriangle w = triangle(hit.shape, hit.primitive);
   if (!w.has_normals) return {};
   // p = p0 + e1·u + e2·v on the triangle's plane: (du, dv) from dp by the dual basis.
@@ -672,6 +1102,8 @@ std::optional<SurfaceHit> Geometry::intersect(const Ray& ray, float t_max) const
       rh.hit.instID[0] != RTC_INVALID_GEOMETRY_ID ? int(rh.hit.instID[0]) : int(rh.hit.geomID);
   if (spheres_[shape]) return finish_sphere_hit(shape, ray, rh.ray.tfar);
   if (quadrics_[shape]) return finish_quadric_hit(shape, ray, rh.ray.tfar);
+  if (meshes_[shape]->is_patch(rh.hit.primID))
+    return finish_patch_hit(shape, rh.hit.primID, rh.hit.u, rh.hit.v, rh.ray.tfar);
   return finish_triangle_hit(shape, rh.hit.primID, rh.hit.u, rh.hit.v, rh.ray.tfar);
 }
 

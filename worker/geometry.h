@@ -9,12 +9,22 @@
 // Normals follow pbrt-v4 (scene_description.h): a triangle's geometric normal is
 // cross(p0 − p2, p1 − p2) from world positions, negated under reverse orientation XOR a
 // handedness-swapping transform, or turned to the side of the interpolated vertex normal when
-// the mesh has one (vertex normals negated under reverse orientation, as pbrt-v4's meshes do). A sphere's, disk's or cylinder's normal is its object-space normal (outwards;
-// +z on a disk) carried by the transform's normal matrix, negated under reverse orientation only:
-// a mirroring transform then leaves the outside outside, as it does for a mesh. pbrt-v4 negates
-// it under a mirroring transform too when it intersects the shape, though not when it samples it
-// as a light (docs/conformance.md, "Mirrored spheres, disks and cylinders"). Area lights emit on
-// the geometric normal's side.
+// the mesh has one (vertex normals negated under reverse orientation, as pbrt-v4's meshes do). A
+// sphere's, disk's or cylinder's normal is its object-space normal (outwards; +z on a disk) carried
+// by the transform's normal matrix, negated under reverse orientation only: a mirroring transform
+// then leaves the outside outside, as it does for a mesh. pbrt-v4 negates it under a mirroring
+// transform too when it intersects the shape, though not when it samples it as a light
+// (docs/conformance.md, "Mirrored spheres, disks and cylinders"). Area lights emit on the geometric
+// normal's side.
+//
+// Bilinear patches (pbrt-v4's "bilinearmesh" and a PLY file's quads; scene::TriangleMeshData's
+// `patches`) arrive as two triangles each. A mesh whose patches are all flat (parallelograms
+// whose vertex normals and uvs are affine too, e.g. every wall and lamp of a Cornell box) is
+// those triangles: the same surface with the same interpolation. A mesh with any other patch is
+// intersected face by face in Prism's own code (Embree user geometry): each patch as pbrt-v4's
+// curved bilinear surface p(u, v) = lerp(v, lerp(u, p00, p10), lerp(u, p01, p11)), its
+// geometric normal cross(dp/du, dp/dv) under the triangles' orientation rule, its vertex
+// normals and uvs interpolated bilinearly; a hit on it reports the first of its two triangles.
 //
 // Thread-safety: after build(), intersect() and occluded() are const and safe from any thread.
 #pragma once
@@ -49,6 +59,9 @@ struct SurfaceHit {
   Point2f uv;
   int shape = -1;               // index into SceneDescription::shapes
   std::uint32_t primitive = 0;  // triangle index within the shape's mesh (0 for spheres)
+  // The primitive's own parameters at the hit: a triangle's barycentrics of p1 and p2, a
+  // bilinear patch's (u, v); zero on spheres, disks and cylinders.
+  Point2f param;
 };
 
 // Sees every query a Geometry answers (closest hit or occlusion), for prism-bench-tracer, which
@@ -144,9 +157,36 @@ class Geometry {
   WorldTriangle triangle(int shape, std::uint32_t primitive) const;
   std::uint32_t triangle_count(int shape) const;
 
+  // What a mesh triangle is to the intersector: a triangle, the first triangle of a curved
+  // bilinear patch (hits on the patch report it), or the patch's second (never hit).
+  enum class MeshFace : std::uint8_t { kTriangle, kPatch, kPatchRest };
+  MeshFace face(int shape, std::uint32_t primitive) const;
+  // A curved patch in world space, given its first triangle.
+  struct WorldPatch {
+    Vec3f p00, p10, p01, p11;
+    Vec3f n00, n10, n01, n11;  // vertex normals (negated under reverse orientation), or zero
+    bool has_normals = false;
+    bool flip = false;  // reverse orientation XOR handedness swap
+    Vec3f point(float u, float v) const;
+    Vec3f dpdu(float v) const { return (p10 - p00) * (1 - v) + (p11 - p01) * v; }
+    Vec3f dpdv(float u) const { return (p01 - p00) * (1 - u) + (p11 - p10) * u; }
+    // |dp/du × dp/dv|: the area element of the (u, v) square.
+    float area_element(float u, float v) const { return length(cross(dpdu(v), dpdv(u))); }
+    // The interpolated vertex normal (not unit), or zero without normals.
+    Vec3f shading_normal(float u, float v) const;
+    // The unit geometric normal a hit at (u, v) gets: cross(dp/du, dp/dv), negated when `flip`,
+    // or turned to the vertex normal's side when there is one.
+    Vec3f unit_normal(float u, float v) const;
+  };
+  WorldPatch patch(int shape, std::uint32_t primitive) const;
+  // The texture uv at a curved patch's (u, v): its vertex uvs interpolated bilinearly, or (u, v)
+  // itself when the mesh has none.
+  Point2f patch_uv(int shape, std::uint32_t primitive, float u, float v) const;
+
   // Whether the shape has an alpha, and its value at a point of the surface (unit geometric
   // normal n), for sampling emitters: on a mesh triangle by the barycentrics of p1 and p2 (the
-  // hit's u, v), on a sphere, disk or cylinder at the world point p. 1 without an alpha.
+  // hit's u, v), on a curved patch by its (u, v), on a sphere, disk or cylinder at the world
+  // point p. 1 without an alpha.
   bool has_alpha(int shape) const { return size_t(shape) < alpha_.size() && alpha_[size_t(shape)]; }
   float alpha_on_triangle(int shape, std::uint32_t primitive, float u, float v,
                           const Vec3f& n) const;
@@ -167,6 +207,17 @@ class Geometry {
   };
   // What the triangle and sphere filter callbacks read; public for the callbacks only.
   struct AlphaFilter;
+  // What the user callbacks of a mesh with curved patches read (the mesh's own space: world, or
+  // object space when instanced); public for the callbacks only.
+  struct FaceMeshData {
+    static constexpr std::uint32_t kPatchBit = 0x80000000u;
+    const scene::Float3* positions = nullptr;
+    const scene::Float2* uvs = nullptr;  // null: none
+    const scene::Triangle* triangles = nullptr;
+    // Per face its first triangle, with kPatchBit set for a patch (triangles t and t + 1).
+    std::vector<std::uint32_t> faces;
+    const AlphaFunction* alpha = nullptr;
+  };
 
  private:
   Geometry() = default;
@@ -176,6 +227,7 @@ class Geometry {
   SurfaceHit finish_quadric_hit(int shape, const Ray& ray, float t) const;
   SurfaceHit finish_triangle_hit(int shape, std::uint32_t prim, float u, float v, float t) const;
   SurfaceHit finish_sphere_hit(int shape, const Ray& ray, float t) const;
+  SurfaceHit finish_patch_hit(int shape, std::uint32_t prim, float u, float v, float t) const;
   // Building (build): each shape kind into the scene, with its bounds and alpha filter.
   void add_mesh(std::size_t shape_index, const scene::Shape& shape,
                 const scene::TriangleMeshShape& mesh,
@@ -186,6 +238,8 @@ class Geometry {
   // Cut-outs get Embree filter callbacks reading this per-geometry data.
   void add_alpha_filter(RTCGeometry geom, std::size_t shape, const MeshShape* mesh);
   void attach_triangles(RTCScene target, MeshShape& mesh, unsigned id, std::size_t shape);
+  // A mesh with curved patches: one user primitive per face (FaceMeshData).
+  void attach_faces(RTCScene target, MeshShape& mesh, unsigned id, std::size_t shape);
   void attach_instance(RTCScene child, const scene::Transform& t, unsigned id);
   // An object-space primitive in its own scene, instanced with the shape's transform; its
   // object-space box [lo, hi] extends the world bounds.

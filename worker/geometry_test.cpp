@@ -87,6 +87,128 @@ TEST(GeometryTest, ReverseOrientationTurnsAMeshWithNormals) {
   }
 }
 
+// A bilinear patch p00 = (0,0,z), p10 = (1,0,z), p01 = (0,1,z), p11 = (1,1,z + twist): the
+// saddle z + twist·u·v over the unit square, split as scene::TriangleMeshData's patches are.
+std::shared_ptr<scene::TriangleMeshData> saddle(float z, float twist) {
+  auto mesh = std::make_shared<scene::TriangleMeshData>();
+  mesh->positions = {{0, 0, z}, {1, 0, z}, {0, 1, z}, {1, 1, z + twist}};
+  mesh->triangles = {{0, 1, 3}, {0, 3, 2}};
+  mesh->patches = {0};
+  return mesh;
+}
+
+scene::Shape mesh_shape(std::shared_ptr<scene::TriangleMeshData> mesh) {
+  scene::Shape shape;
+  shape.geometry = scene::TriangleMeshShape{std::move(mesh), "bilinearmesh"};
+  return shape;
+}
+
+// A curved patch is pbrt-v4's bilinear surface, not its two triangles: a ray straight down at
+// (x, y) meets z = x·y (the triangles would give z = min(x, y)), with the patch's (u, v), uv and
+// normal cross(∂p/∂u, ∂p/∂v) = (−v, −u, 1); rays past its edges miss; shadow rays agree.
+TEST(GeometryTest, CurvedBilinearPatchIsTheSurfaceItself) {
+  EmbreeDevice device;
+  scene::SceneDescription desc;
+  desc.shapes = {mesh_shape(saddle(0, 1))};
+  auto geometry = Geometry::build(device, desc);
+  ASSERT_TRUE(geometry.ok()) << geometry.status();
+  const Geometry& g = **geometry;
+  EXPECT_EQ(g.face(0, 0), Geometry::MeshFace::kPatch);
+  EXPECT_EQ(g.face(0, 1), Geometry::MeshFace::kPatchRest);
+  double worst = 0;
+  for (int i = 0; i < 20; ++i) {
+    for (int j = 0; j < 20; ++j) {
+      const float x = (i + 0.5f) / 20, y = (j + 0.37f) / 20;
+      auto hit = g.intersect({{x, y, 5}, {0, 0, -1}}, 1e30f);
+      ASSERT_TRUE(hit) << x << " " << y;
+      worst = std::max(worst, double(std::abs(hit->p.z - x * y)));
+      EXPECT_NEAR(hit->t, 5 - x * y, 1e-5f);
+      EXPECT_EQ(hit->primitive, 0u);
+      EXPECT_NEAR(hit->param.x, x, 1e-5f);
+      EXPECT_NEAR(hit->param.y, y, 1e-5f);
+      EXPECT_NEAR(hit->uv.x, x, 1e-5f);
+      EXPECT_NEAR(hit->uv.y, y, 1e-5f);
+      const Vec3f n = normalize(Vec3f(-y, -x, 1));
+      EXPECT_NEAR(dot(hit->ng, n), 1.0f, 1e-5f);
+      EXPECT_NEAR(dot(hit->ns, n), 1.0f, 1e-5f);
+      // From below too, and a shadow ray to just short of the surface does not reach it.
+      auto under = g.intersect({{x, y, -5}, {0, 0, 1}}, 1e30f);
+      ASSERT_TRUE(under);
+      EXPECT_NEAR(under->p.z, x * y, 1e-5f);
+      EXPECT_TRUE(g.occluded({{x, y, -5}, {0, 0, 1}}, 5 + x * y + 1e-3f));
+      EXPECT_FALSE(g.occluded({{x, y, -5}, {0, 0, 1}}, 5 + x * y - 1e-3f));
+    }
+  }
+  EXPECT_LT(worst, 1e-5);
+  // An oblique ray's hit lies on the ray and on the saddle.
+  const Ray oblique{{0.2f, 0.1f, -1}, normalize(Vec3f(0.2f, 0.3f, 1))};
+  auto hit = g.intersect(oblique, 1e30f);
+  ASSERT_TRUE(hit);
+  EXPECT_NEAR(hit->p.z, hit->p.x * hit->p.y, 1e-5f);
+  EXPECT_NEAR(length(oblique.origin + oblique.direction * hit->t - hit->p), 0.0f, 1e-5f);
+  EXPECT_FALSE(g.intersect({{1.2f, 0.5f, 5}, {0, 0, -1}}, 1e30f));
+  EXPECT_FALSE(g.intersect({{0.5f, -0.1f, 5}, {0, 0, -1}}, 1e30f));
+
+  // Its normal changes as the saddle's does: Igehy's differential against two hits.
+  auto a = g.intersect({{0.3f, 0.6f, 5}, {0, 0, -1}}, 1e30f);
+  auto b = g.intersect({{0.301f, 0.6005f, 5}, {0, 0, -1}}, 1e30f);
+  ASSERT_TRUE(a && b);
+  const Vec3f dn = g.normal_differential(*a, b->p - a->p);
+  EXPECT_NEAR(length(a->ns + dn - b->ns), 0.0f, 2e-5f);
+  EXPECT_GT(length(dn), 1e-4f);
+}
+
+// A mesh whose patches are all flat (parallelograms) stays on Embree's triangles with the same
+// hits; a patch's second triangle takes the patch's own uv, (0,0) (1,1) (0,1), so a flat quad
+// without uvs has pbrt-v4's texture coordinates without a seam.
+TEST(GeometryTest, FlatPatchesStayTrianglesWithThePatchsUv) {
+  EmbreeDevice device;
+  scene::SceneDescription desc;
+  auto flat = saddle(2, 0);
+  desc.shapes = {mesh_shape(flat)};
+  auto geometry = Geometry::build(device, desc);
+  ASSERT_TRUE(geometry.ok()) << geometry.status();
+  EXPECT_EQ((*geometry)->face(0, 0), Geometry::MeshFace::kTriangle);
+  for (const Point2f& at : {Point2f{0.7f, 0.2f}, Point2f{0.2f, 0.7f}, Point2f{0.5f, 0.9f}}) {
+    auto hit = (*geometry)->intersect({{at.x, at.y, 5}, {0, 0, -1}}, 1e30f);
+    ASSERT_TRUE(hit);
+    EXPECT_NEAR(hit->uv.x, at.x, 1e-5f);
+    EXPECT_NEAR(hit->uv.y, at.y, 1e-5f);
+    EXPECT_NEAR(hit->ng.z, 1.0f, 1e-6f);
+  }
+}
+
+// A mesh with a curved patch is intersected face by face in Prism's code, its plain triangles
+// too; shared by two shapes it is instanced like any mesh, and a transform moves the surface.
+TEST(GeometryTest, CurvedPatchMeshesMixTrianglesAndAreInstanced) {
+  EmbreeDevice device;
+  auto mesh = saddle(0, 1);
+  mesh->positions.push_back({2, 0, 0});
+  mesh->positions.push_back({3, 0, 0});
+  mesh->positions.push_back({2, 1, 0});
+  mesh->triangles.push_back({4, 5, 6});
+  scene::SceneDescription desc;
+  scene::Shape a = mesh_shape(mesh), b = mesh_shape(mesh);
+  b.object_to_world = scene::Transform::translate({0, 0, 10});
+  desc.shapes = {a, b};
+  auto geometry = Geometry::build(device, desc);
+  ASSERT_TRUE(geometry.ok()) << geometry.status();
+  const Geometry& g = **geometry;
+  EXPECT_EQ(g.face(0, 2), Geometry::MeshFace::kTriangle);
+  auto tri = g.intersect({{2.25f, 0.5f, 5}, {0, 0, -1}}, 1e30f);
+  ASSERT_TRUE(tri);
+  EXPECT_EQ(tri->primitive, 2u);
+  EXPECT_NEAR(tri->param.x, 0.25f, 1e-5f);  // barycentrics of p1 and p2, as Embree's
+  EXPECT_NEAR(tri->param.y, 0.5f, 1e-5f);
+  EXPECT_NEAR(tri->ng.z, 1.0f, 1e-6f);
+  auto top = g.intersect({{0.5f, 0.8f, 20}, {0, 0, -1}}, 1e30f);
+  ASSERT_TRUE(top);
+  EXPECT_EQ(top->shape, 1);
+  EXPECT_NEAR(top->p.z, 10 + 0.5f * 0.8f, 1e-5f);
+  const Geometry::WorldPatch w = g.patch(1, 0);
+  EXPECT_NEAR(w.p11.z, 11.0f, 1e-6f);
+}
+
 // A mirroring transform keeps a sphere's, disk's or cylinder's outside outside, as it does a
 // mesh's: the object-space normal is carried by the normal matrix. Only ReverseOrientation turns
 // it (docs/conformance.md, "Mirrored spheres, disks and cylinders").

@@ -1,6 +1,7 @@
 #include "worker/light.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -66,6 +67,66 @@ std::optional<double> similarity_scale_squared(const scene::Transform& t) {
     for (int j = 0; j < 3; ++j)
       if (std::abs(gram[i][j] - (i == j ? s2 : 0.0)) > 1e-5 * s2) return std::nullopt;
   return s2;
+}
+
+// Curved patches' sampling: attempts before a sample is given up (each accepted with
+// probability area / (corners' mean area element), near 1 for any patch short of degenerate),
+// and the hash seed of attempts after the first.
+constexpr int kPatchAttempts = 32;
+constexpr std::uint64_t kPatchSeed = 0x7061746368ull;
+
+// A sample of the density on [0, 1] proportional to a·(1 − x) + b·x (a, b >= 0) from ξ: the
+// root of its quadratic CDF, in the form that does not cancel.
+float sample_linear(float xi, float a, float b) {
+  if (!(a + b > 0)) return xi;
+  const float x = xi * (a + b) / (a + std::sqrt(a * a * (1 - xi) + b * b * xi));
+  return std::min(x, 0x1.fffffep-1f);
+}
+
+// A patch's area ∫∫ |∂p/∂u × ∂p/∂v| du dv by Gauss–Legendre on n×n cells (8 points each way),
+// n doubled until two agree to 1e-9 (the area element is smooth unless it vanishes inside).
+double patch_area(const Geometry::WorldPatch& w) {
+  static constexpr double kNodes[8] = {
+      -0.9602898564975363, -0.7966664774136267, -0.5255324099163290, -0.1834346424956498,
+      0.1834346424956498,  0.5255324099163290,  0.7966664774136267,  0.9602898564975363};
+  static constexpr double kWeights[8] = {0.1012285362903763, 0.2223810344533745, 0.3137066458778873,
+                                         0.3626837833783620, 0.3626837833783620, 0.3137066458778873,
+                                         0.2223810344533745, 0.1012285362903763};
+  auto d = [](const Vec3f& v) { return std::array<double, 3>{v.x, v.y, v.z}; };
+  const auto p00 = d(w.p00), p10 = d(w.p10), p01 = d(w.p01), p11 = d(w.p11);
+  auto element = [&](double u, double v) {
+    double du[3], dv[3];
+    for (int k = 0; k < 3; ++k) {
+      du[k] = (p10[k] - p00[k]) * (1 - v) + (p11[k] - p01[k]) * v;
+      dv[k] = (p01[k] - p00[k]) * (1 - u) + (p11[k] - p10[k]) * u;
+    }
+    const double x = du[1] * dv[2] - du[2] * dv[1], y = du[2] * dv[0] - du[0] * dv[2],
+                 z = du[0] * dv[1] - du[1] * dv[0];
+    return std::sqrt(x * x + y * y + z * z);
+  };
+  auto integrate = [&](int n) {
+    double sum = 0;
+    const double h = 1.0 / n;
+    for (int i = 0; i < n; ++i) {
+      for (int j = 0; j < n; ++j) {
+        for (int a = 0; a < 8; ++a) {
+          for (int b = 0; b < 8; ++b) {
+            const double u = h * (i + 0.5 * (kNodes[a] + 1)), v = h * (j + 0.5 * (kNodes[b] + 1));
+            sum += kWeights[a] * kWeights[b] * element(u, v);
+          }
+        }
+      }
+    }
+    return sum * h * h / 4;
+  };
+  double area = integrate(2);
+  for (int n = 4; n <= 64; n *= 2) {
+    const double finer = integrate(n);
+    const bool agree = std::abs(finer - area) <= 1e-9 * finer;
+    area = finer;
+    if (agree) break;
+  }
+  return area;
 }
 
 }  // namespace
@@ -161,6 +222,21 @@ absl::StatusOr<AreaLight> AreaLight::create(const scene::Shape& shape, int shape
   double total = 0;
   light.triangles_.resize(count);
   for (std::uint32_t i = 0; i < count; ++i) {
+    const Geometry::MeshFace face = geometry.face(shape_index, i);
+    if (face == Geometry::MeshFace::kPatchRest) continue;  // the patch's area is its first's
+    if (face == Geometry::MeshFace::kPatch) {
+      EmitterPatch patch{geometry.patch(shape_index, i), i, {}};
+      const Geometry::WorldPatch& w = patch.w;
+      patch.corner[0] = w.area_element(0, 0);
+      patch.corner[1] = w.area_element(1, 0);
+      patch.corner[2] = w.area_element(0, 1);
+      patch.corner[3] = w.area_element(1, 1);
+      areas[i] = patch_area(w);
+      total += areas[i];
+      light.triangles_[i].patch = static_cast<int>(light.patches_.size());
+      light.patches_.push_back(patch);
+      continue;
+    }
     Geometry::WorldTriangle t = geometry.triangle(shape_index, i);
     light.triangles_[i] = EmitterTriangle{t, t.unit_normal()};
     Vec3f e1 = t.p1 - t.p0, e2 = t.p2 - t.p0;
@@ -288,6 +364,12 @@ std::optional<AreaPoint> AreaLight::point_on_triangles(Point2f u, float u_tri) c
   auto it = std::upper_bound(triangle_cdf_.begin(), triangle_cdf_.end(), u_tri);
   auto index = std::uint32_t(std::min<std::ptrdiff_t>(it - triangle_cdf_.begin(),
                                                       std::ptrdiff_t(triangle_cdf_.size()) - 1));
+  if (const int patch = triangles_[index].patch; patch >= 0) {
+    // What of u_tri is left inside the chosen patch's share decides the patch's acceptance.
+    const float lo = index > 0 ? triangle_cdf_[index - 1] : 0.0f, hi = triangle_cdf_[index];
+    const float u_accept = std::clamp((u_tri - lo) / (hi - lo), 0.0f, 0x1.fffffep-1f);
+    return point_on_patch(patches_[size_t(patch)], u, u_accept);
+  }
   const Geometry::WorldTriangle& t = triangles_[index].t;
   // Uniform barycentrics by Heitz's area-preserving square-to-triangle map (as pbrt-v4).
   float b0, b1;
@@ -310,6 +392,33 @@ std::optional<AreaPoint> AreaLight::point_on_triangles(Point2f u, float u_tri) c
   if (has_alpha_ && masked(geometry_->alpha_on_triangle(shape_, index, b1, b2, n), p))
     return std::nullopt;
   return AreaPoint{p, n};
+}
+
+std::optional<AreaPoint> AreaLight::point_on_patch(const EmitterPatch& patch, Point2f u,
+                                                   float u_accept) const {
+  const Geometry::WorldPatch& w = patch.w;
+  const float* c = patch.corner;
+  for (int attempt = 0; attempt < kPatchAttempts; ++attempt) {
+    if (attempt > 0) {
+      // Later attempts draw from a hash of the sample: deterministic, independent enough.
+      const std::uint64_t h =
+          hash_floats(kPatchSeed + std::uint64_t(attempt), {u.x, u.y, u_accept});
+      u = {unit_float(h), unit_float(mix64(h))};
+      u_accept = unit_float(mix64(h + kGoldenGamma));
+    }
+    // v from the edges' sums, then u along the row at v: each a linear density.
+    const float v = sample_linear(u.y, c[0] + c[1], c[2] + c[3]);
+    const float pu = sample_linear(u.x, c[0] * (1 - v) + c[2] * v, c[1] * (1 - v) + c[3] * v);
+    const float bilinear =
+        (c[0] * (1 - pu) + c[1] * pu) * (1 - v) + (c[2] * (1 - pu) + c[3] * pu) * v;
+    if (!(u_accept * bilinear <= w.area_element(pu, v))) continue;
+    const Vec3f p = w.point(pu, v);
+    const Vec3f n = w.unit_normal(pu, v);
+    if (has_alpha_ && masked(geometry_->alpha_on_triangle(shape_, patch.triangle, pu, v, n), p))
+      return std::nullopt;
+    return AreaPoint{p, n};
+  }
+  return std::nullopt;
 }
 
 std::optional<LightSample> AreaLight::sample_sphere(const LightContext& ctx, Point2f u,

@@ -128,8 +128,21 @@ class AreaLight {
   struct EmitterTriangle {
     Geometry::WorldTriangle t;
     Vec3f n;
+    int patch = -1;  // a curved bilinear patch's first triangle: its index in patches_
   };
   std::vector<EmitterTriangle> triangles_;
+  // Curved bilinear patches (geometry.h), sampled uniformly by area: a point from the bilinear
+  // density of the area element's corner values, kept with probability (area element) /
+  // (that bilinear interpolation), which is at most 1 because the area element |N(u, v)| is
+  // the norm of an affine function of (u, v), convex along every line of the square.
+  struct EmitterPatch {
+    Geometry::WorldPatch w;
+    std::uint32_t triangle = 0;
+    float corner[4] = {};  // area element at (0,0), (1,0), (0,1), (1,1)
+  };
+  std::vector<EmitterPatch> patches_;
+  std::optional<AreaPoint> point_on_patch(const EmitterPatch& patch, Point2f u,
+                                          float u_accept) const;
   bool is_disk_ = false;  // sampled uniformly by area in its object-space annulus
   scene::DiskShape disk_;
   scene::Transform disk_to_world_;

@@ -337,6 +337,92 @@ TEST(AreaLightTest, TriangleMeshDirectionsFollowPdf) {
   EXPECT_GT(traced_pdf(*w, light, {{0.2f, 0.1f, 0}, {}}, {0, 0, 1}), 0.0f);
 }
 
+// A curved bilinear patch emits from the surface itself, uniformly by area: its area is the
+// integral of |∂p/∂u × ∂p/∂v|, sampled directions follow pdf() of what rays hit (the patch's
+// points and normals, not its triangles'), beside a flat triangle of the same mesh.
+TEST(AreaLightTest, CurvedBilinearPatchesAreSampledUniformlyByArea) {
+  // Two saddles z = 2 + t·u·v (t = 0.8 over the unit square, t = 0.6 over [1.5, 2.5] x
+  // [0, 0.5]) and a triangle at z = 2; every normal has +z: they light what is above. The
+  // viewpoints look down more steeply than any slope of the surface, so no ray meets it twice
+  // (what pdf() of the first hit assumes).
+  auto mesh = std::make_shared<scene::TriangleMeshData>();
+  mesh->positions = {{0, 0, 2},    {1, 0, 2},    {0, 1, 2},       {1, 1, 2.8f},
+                     {1.5f, 0, 2}, {2.5f, 0, 2}, {1.5f, 0.5f, 2}, {2.5f, 0.5f, 2.6f},
+                     {0, 1.2f, 2}, {1, 1.2f, 2}, {0, 2, 2}};
+  mesh->triangles = {{0, 1, 3}, {0, 3, 2}, {4, 5, 7}, {4, 7, 6}, {8, 9, 10}};
+  mesh->patches = {0, 2};
+  scene::Shape shape;
+  shape.geometry = scene::TriangleMeshShape{mesh, "bilinearmesh"};
+  shape.area_light = scene::AreaLight{};
+  auto w = build({shape});
+  ASSERT_EQ(w->geometry->face(0, 0), Geometry::MeshFace::kPatch);
+  AreaLight light = area_light(*w, 0);
+  // The area by a fine midpoint rule, independently: |(−t v, −t u, 1)| per unit (u, v), times
+  // the patch's side lengths (1 x 1, and 1 x 0.5 with a rise of 2 over it).
+  auto saddle_area = [](double sx, double sy, double rise) {
+    double sum = 0;
+    const int n = 2000;
+    for (int i = 0; i < n; ++i) {
+      for (int j = 0; j < n; ++j) {
+        const double u = (i + 0.5) / n, v = (j + 0.5) / n;
+        // p = (sx·u, sy·v, rise·u·v): ∂p/∂u = (sx, 0, rise·v), ∂p/∂v = (0, sy, rise·u).
+        const double x = -rise * v * sy, y = -sx * rise * u, z = sx * sy;
+        sum += std::sqrt(x * x + y * y + z * z);
+      }
+    }
+    return sum / (double(n) * n);
+  };
+  const double area = saddle_area(1, 1, 0.8) + saddle_area(1, 0.5, 0.6) + 0.5 * 1 * 0.8;
+  EXPECT_NEAR(light.area(), area, 1e-6 * area);
+  Vec3f centre(1.25f, 1, 2.4f), extent(1.3f, 1.05f, 0.5f);
+  const float radius = length(extent);
+  for (const AreaCase& c : {AreaCase{"above", {{1.2f, 0.9f, 7}, {0, 0, -1}}, centre, radius},
+                            AreaCase{"oblique", {{-1, -1, 9}, {0, 0, 1}}, centre, radius}}) {
+    check_area_light(*w, light, c);
+  }
+  // Points by area, sharper than directions, on a steeper saddle z = 3·u·v where (u, v) =
+  // (x, y): an 8x8 histogram of its points must follow the area element's integral over each
+  // cell (the bilinear proposal alone, without the acceptance step, fails this by far).
+  auto steep = std::make_shared<scene::TriangleMeshData>();
+  steep->positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 1, 3}};
+  steep->triangles = {{0, 1, 3}, {0, 3, 2}};
+  steep->patches = {0};
+  shape.geometry = scene::TriangleMeshShape{steep, "bilinearmesh"};
+  auto steep_world = build({shape});
+  AreaLight steep_light = area_light(*steep_world, 0);
+  constexpr int kCells = 8, kPoints = 200000;
+  std::vector<double> observed(kCells * kCells), expected(kCells * kCells);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+  for (int i = 0; i < kPoints; ++i) {
+    auto point = steep_light.sample_point({uni(rng), uni(rng)}, uni(rng));
+    ASSERT_TRUE(point);
+    EXPECT_NEAR(point->p.z, 3 * point->p.x * point->p.y, 1e-5f);
+    const int cx = std::clamp(int(point->p.x * kCells), 0, kCells - 1);
+    const int cy = std::clamp(int(point->p.y * kCells), 0, kCells - 1);
+    observed[cy * kCells + cx] += 1;
+  }
+  double total = 0;
+  for (int cy = 0; cy < kCells; ++cy) {
+    for (int cx = 0; cx < kCells; ++cx) {
+      double sum = 0;
+      const int n = 100;
+      for (int i = 0; i < n; ++i) {
+        for (int j = 0; j < n; ++j) {
+          const double u = (cx + (i + 0.5) / n) / kCells, v = (cy + (j + 0.5) / n) / kCells;
+          sum += std::sqrt(9 * (u * u + v * v) + 1);
+        }
+      }
+      expected[cy * kCells + cx] = sum / (double(n) * n * kCells * kCells);
+      total += expected[cy * kCells + cx];
+    }
+  }
+  EXPECT_NEAR(steep_light.area(), total, 1e-5 * total);
+  for (double& e : expected) e *= kPoints / total;
+  auto result = chi_square(observed, expected);
+  EXPECT_GT(result.p_value, 1e-5) << result.describe();
+}
+
 TEST(AreaLightTest, TwoSidedAndVertexNormalOrientation) {
   // Wound to face +z but with vertex normals pointing −z: Geometry turns ng to −z, so the light
   // emits downwards only.

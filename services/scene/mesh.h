@@ -44,6 +44,11 @@ struct TriangleMeshData {
   std::vector<Float3> normals;  // empty, or one per position (not necessarily unit length)
   std::vector<Float2> uvs;      // empty, or one per position
   std::vector<Triangle> triangles;
+  // Bilinear patches (pbrt-v4 "bilinearmesh" and a PLY file's quads), ascending: each entry t is
+  // the first of the two triangles t = (p00, p10, p11) and t + 1 = (p00, p11, p01) that the patch
+  // is split into. Empty for a mesh of triangles only. The pair is the patch itself where the
+  // patch is flat (worker/geometry.h); elsewhere the renderer intersects the curved patch.
+  std::vector<std::uint32_t> patches;
 
   friend bool operator==(const TriangleMeshData&, const TriangleMeshData&) = default;
 
@@ -89,6 +94,20 @@ struct TriangleMeshData {
                                                          index, " but the mesh has ",
                                                          positions.size(), " vertices"));
         }
+      }
+    }
+    for (std::size_t i = 0; i < patches.size(); ++i) {
+      const std::uint64_t t = patches[i];
+      if (t + 1 >= triangles.size() || (i > 0 && t < std::uint64_t{patches[i - 1]} + 2)) {
+        return absl::InvalidArgumentError(absl::StrCat("patch ", i, " starts at triangle ", t,
+                                                       ", which is not the first of ",
+                                                       "two triangles of its own"));
+      }
+      const Triangle& a = triangles[t];
+      const Triangle& b = triangles[t + 1];
+      if (a[0] != b[0] || a[2] != b[1]) {
+        return absl::InvalidArgumentError(absl::StrCat(
+            "patch ", i, ": triangles ", t, " and ", t + 1, " do not share the diagonal p00-p11"));
       }
     }
     return absl::OkStatus();

@@ -682,6 +682,9 @@ absl::Status read_faces(Reader& reader, const Element& e, std::uint64_t vertex_c
         }
         corners[c] = static_cast<std::uint32_t>(index);
       }
+      // A quad (c0, c1, c2, c3) is pbrt-v4's bilinear patch p00 = c0, p10 = c1, p11 = c2,
+      // p01 = c3, split as mesh.h's patches are.
+      if (n == 4) mesh.patches.push_back(static_cast<std::uint32_t>(mesh.triangles.size()));
       mesh.triangles.push_back({corners[0], corners[1], corners[2]});
       if (n == 4) mesh.triangles.push_back({corners[0], corners[2], corners[3]});
       if (mesh.triangles.size() > limits.max_triangles) {

@@ -123,6 +123,7 @@ TriangleMeshData expected_sample() {
   mesh.normals = {{0, 0, -1}, {0, 0, 1}, {0, 0, -1}, {0, 0, 1}, {0, 0, -1}};
   mesh.uvs = {{0, 1}, {0.125f, 0.75f}, {0.25f, 0.5f}, {0.375f, 0.25f}, {0.5f, 0}};
   mesh.triangles = {{0, 1, 2}, {0, 2, 3}, {1, 4, 2}};
+  mesh.patches = {0};  // the quad (0, 1, 2, 3)
   return mesh;
 }
 
@@ -152,7 +153,9 @@ TEST(PlyTest, AsciiAndBothBinaryEncodingsGiveTheSameMesh) {
   }
 }
 
-TEST(PlyTest, QuadsAreSplitIntoTwoTriangles) {
+// A quad (c0, c1, c2, c3) is pbrt-v4's bilinear patch p00 = c0, p10 = c1, p11 = c2, p01 = c3:
+// two triangles listed as a patch (scene::TriangleMeshData::patches).
+TEST(PlyTest, QuadsAreSplitIntoTwoTrianglesListedAsAPatch) {
   PlyWriter w(PlyFormat::kLittleEndian);
   w.line("element vertex 4").line("property float x").line("property float y");
   w.line("property float z").line("element face 1").line("property list uchar uint vertex_indices");
@@ -162,6 +165,7 @@ TEST(PlyTest, QuadsAreSplitIntoTwoTriangles) {
   auto mesh = parse_ply(w.str(), "quad.ply");
   ASSERT_TRUE(mesh.ok()) << mesh.status();
   EXPECT_EQ(mesh->triangles, (std::vector<Triangle>{{0, 1, 3}, {0, 3, 2}}));
+  EXPECT_EQ(mesh->patches, (std::vector<std::uint32_t>{0}));
   EXPECT_TRUE(mesh->normals.empty());
   EXPECT_TRUE(mesh->uvs.empty());
 }

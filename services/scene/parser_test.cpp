@@ -354,6 +354,7 @@ TEST(GoodScenes, MeshesIncludesAndFiles) {
   // Bilinear patch (p00, p10, p01, p11): two triangles facing like the patch normal (+z).
   EXPECT_EQ(mesh(2).source, "bilinearmesh");
   EXPECT_EQ(mesh(2).mesh->triangles, (std::vector<Triangle>{{0, 1, 3}, {0, 3, 2}}));
+  EXPECT_EQ(mesh(2).mesh->patches, (std::vector<std::uint32_t>{0}));  // the two are one patch
   expect_near(triangle_normal(*mesh(2).mesh, 0), {0, 0, 1});
   expect_near(triangle_normal(*mesh(2).mesh, 1), {0, 0, 1});
   // Without uv, the patch's own (u, v) at its corners, as pbrt-v4 gives a bilinear patch (each

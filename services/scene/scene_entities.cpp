@@ -515,6 +515,7 @@ absl::StatusOr<std::shared_ptr<TriangleMeshData>> inline_mesh(const ParameterLis
         if (!shared_normals.empty()) mesh->normals.push_back(shared_normals[idx(i + c)]);
         mesh->uvs.push_back({kCornerUv[c][0], kCornerUv[c][1]});
       }
+      mesh->patches.push_back(static_cast<std::uint32_t>(mesh->triangles.size()));
       mesh->triangles.push_back({base, base + 1, base + 3});
       mesh->triangles.push_back({base, base + 3, base + 2});
     }
@@ -524,6 +525,7 @@ absl::StatusOr<std::shared_ptr<TriangleMeshData>> inline_mesh(const ParameterLis
   for (size_t i = 0; i < indices.size(); i += corners) {
     if (bilinear) {
       // Patch (p00, p10, p01, p11) -> (p00, p10, p11), (p00, p11, p01): same facing as the patch.
+      mesh->patches.push_back(static_cast<std::uint32_t>(mesh->triangles.size()));
       mesh->triangles.push_back({idx(i), idx(i + 1), idx(i + 3)});
       mesh->triangles.push_back({idx(i), idx(i + 3), idx(i + 2)});
     } else {
