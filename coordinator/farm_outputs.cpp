@@ -302,12 +302,18 @@ absl::Status FarmCoordinator::finalise_locked(const std::string& job_id) {
           : 0.0;
   report.worker_seconds = job.render_seconds;
   report.resumed = job.resumed;
+  report.farm = true;
   report.samples =
       p.spp * static_cast<std::uint64_t>(p.width) * static_cast<std::uint64_t>(p.height);
   if (job.target.has_value()) {
     report.target_error = job.target->outcome();
     report.spp = report.target_error->max_spp;
     report.samples = report.target_error->samples;
+  }
+  report.timed_samples = report.samples;
+  if (job.resumed) {
+    report.timed_samples = 0;
+    for (const RenderReport::WorkerShare& w : report.workers) report.timed_samples += w.samples;
   }
   report.rays = job.rays;
   report.peak_memory_bytes = peak_memory_bytes();

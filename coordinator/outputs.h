@@ -217,7 +217,11 @@ struct RenderReport {
   // The farm: the coordinator restarted during the job, and the counters, rays and seconds
   // cover the work since it resumed the job (the images are whole either way).
   bool resumed = false;
+  bool farm = false;          // a farm job's report (worker_seconds and workers always there)
   std::uint64_t samples = 0;  // pixel samples taken
+  // The samples render_seconds timed, which the rates divide: `samples`, or on a resumed farm
+  // job those rendered since it resumed.
+  std::uint64_t timed_samples = 0;
   std::uint64_t rays = 0;
   std::vector<std::pair<std::string, std::uint64_t>> counters;
   std::uint64_t peak_memory_bytes = 0;

@@ -73,15 +73,15 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
   j["wall_seconds"] = r.wall_seconds;
   j["render_seconds"] = r.render_seconds;
   j["samples"] = r.samples;
-  j["samples_per_second"] = per_second(static_cast<double>(r.samples), r.render_seconds);
+  const double timed = static_cast<double>(r.resumed ? r.timed_samples : r.samples);
+  j["samples_per_second"] = per_second(timed, r.render_seconds);
   j["samples_per_second_per_core"] =
-      r.threads > 0 ? per_second(static_cast<double>(r.samples), r.render_seconds) / r.threads
-                    : std::nan("");
+      r.threads > 0 ? per_second(timed, r.render_seconds) / r.threads : std::nan("");
   j["rays"] = r.rays;
   j["rays_per_second"] = per_second(static_cast<double>(r.rays), r.render_seconds);
   j["peak_memory_bytes"] = r.peak_memory_bytes;
-  if (r.worker_seconds > 0) j["worker_seconds"] = r.worker_seconds;
-  if (!r.workers.empty()) {
+  if (r.farm || r.worker_seconds > 0) j["worker_seconds"] = r.worker_seconds;
+  if (r.farm || !r.workers.empty()) {
     nlohmann::ordered_json workers = nlohmann::ordered_json::array();
     for (const RenderReport::WorkerShare& w : r.workers) {
       workers.push_back({{"id", w.id},
@@ -96,8 +96,9 @@ std::string format_report_json(const RenderReport& r, const OutputPaths& paths) 
   if (r.resumed) {
     j["resumed"] = true;
     j["resumed_note"] =
-        "the coordinator restarted during the job: counters, rays and seconds cover the work "
-        "since it resumed the job; the images are whole";
+        "the coordinator restarted during the job: counters, rays, seconds, workers and the "
+        "rates cover the work since it resumed the job (samples is the whole job's); the "
+        "images are whole";
   }
   nlohmann::ordered_json counters = nlohmann::ordered_json::object();
   for (const auto& [name, value] : r.counters) counters[name] = value;

@@ -809,6 +809,18 @@ TEST_F(FarmProcessTest, SubmitWaitFollowsItsJobThroughACoordinatorRestart) {
     const nlohmann::json report = nlohmann::json::parse(in, nullptr, false);
     ASSERT_FALSE(report.is_discarded());
     EXPECT_EQ(report["resumed"], true) << report.dump();
+    // The rates divide what was rendered since then (the workers' samples), not the whole job's
+    // samples: those gave twice the real rate for a job resumed halfway.
+    ASSERT_TRUE(report.contains("workers") && report.contains("worker_seconds")) << report.dump();
+    double since = 0;
+    for (const auto& w : report["workers"]) since += w["samples"].get<double>();
+    EXPECT_GT(since, 0.0);
+    EXPECT_LT(since, report["samples"].get<double>());
+    if (report["render_seconds"].get<double>() > 0) {
+      EXPECT_NEAR(report["samples_per_second"].get<double>(),
+                  since / report["render_seconds"].get<double>(),
+                  1e-6 * report["samples_per_second"].get<double>());
+    }
   }
   expect_identical(read_pixels(root_ / "farm" / "farm.exr"), cli_render(kSlowSpp));
 }
