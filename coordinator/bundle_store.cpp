@@ -5,6 +5,7 @@
 #include <system_error>
 
 #include "absl/strings/str_cat.h"
+#include "coordinator/resource_plan.h"
 #include "services/base/atomic_file.h"
 #include "services/base/sha256.h"
 #include "services/base/status.h"
@@ -33,8 +34,8 @@ fs::path BundleStore::scene_dir(const std::string& hash) const {
 absl::StatusOr<std::string> BundleStore::upload(const std::string& claimed_hash,
                                                 std::string_view bytes) {
   if (bytes.size() > max_bundle_bytes_) {
-    return absl::ResourceExhaustedError(absl::StrCat(
-        "bundle of ", bytes.size(), " bytes is over the limit of ", max_bundle_bytes_, " bytes"));
+    return permanent_refusal(absl::ResourceExhaustedError(absl::StrCat(
+        "bundle of ", bytes.size(), " bytes is over the limit of ", max_bundle_bytes_, " bytes")));
   }
   scene::BundleLimits limits;
   limits.max_total_bytes = std::min(limits.max_total_bytes, max_bundle_bytes_);

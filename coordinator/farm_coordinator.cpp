@@ -394,6 +394,17 @@ absl::Status FarmCoordinator::admit_locked(const job::JobParameters& params, std
   const std::string advice =
       "use fewer bins or a smaller resolution, or wait for the farm's unfinished jobs";
   const std::uint64_t budget = memory_budget_.bytes;
+  // Over what the coordinator holds with nothing else to do: waiting will not help.
+  {
+    const std::string alone = "use fewer bins or a smaller resolution";
+    absl::Status never =
+        check_memory(job, plan, baseline_memory_, budget, memory_budget_.source, alone);
+    if (never.ok() && options_.max_disk_bytes > 0) {
+      never = check_disk(job, plan, options_.max_disk_bytes,
+                         absl::StrCat("--max-disk ", format_bytes(options_.max_disk_bytes)), alone);
+    }
+    if (!never.ok()) return permanent_refusal(never);
+  }
   PRISM_RETURN_IF_ERROR(
       check_memory(job, plan, baseline_memory_ + planned_memory, budget,
                    absl::StrCat(memory_budget_.source, "; the unfinished jobs plan ",

@@ -411,10 +411,20 @@ TEST_F(FarmServerTest, JobsBeyondTheMemoryOrDiskBudgetAreRefusedWithTheNumbers) 
   EXPECT_EQ(disk.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
   EXPECT_NE(disk.error_message().find("of disk (finished tiles"), std::string::npos)
       << disk.error_message();
-  // The two unfinished 1024² jobs resumed with the restart and count too.
-  EXPECT_NE(disk.error_message().find("(--max-disk 64 MiB less the unfinished jobs' "),
+  // Over --max-disk alone: waiting for the other jobs would not help, and it says so not.
+  EXPECT_NE(disk.error_message().find("(--max-disk 64 MiB); use fewer bins or a smaller "
+                                      "resolution"),
             std::string::npos)
       << disk.error_message();
+  // A small job fits alone, but the two unfinished 1024² jobs resumed with the restart and
+  // count too: that refusal says to wait.
+  grpc::Status later = submit_sized(64, 16, "later", nullptr);
+  EXPECT_EQ(later.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_NE(later.error_message().find("(--max-disk 64 MiB less the unfinished jobs' "),
+            std::string::npos)
+      << later.error_message();
+  EXPECT_NE(later.error_message().find("or wait for the farm's unfinished jobs"), std::string::npos)
+      << later.error_message();
 }
 
 // The data directory's free space is shared with the unfinished jobs: each new job is checked

@@ -301,4 +301,17 @@ absl::Status check_disk(const std::string& job, const ResourcePlan& plan, u64 av
       "), more than the ", format_bytes(available), " available (", source, "); ", advice));
 }
 
+namespace {
+constexpr char kPermanentRefusal[] = "type.prism.dev/permanent-refusal";
+}  // namespace
+
+absl::Status permanent_refusal(absl::Status status) {
+  status.SetPayload(kPermanentRefusal, absl::Cord("1"));
+  return status;
+}
+
+bool is_permanent_refusal(const absl::Status& status) {
+  return status.GetPayload(kPermanentRefusal).has_value();
+}
+
 }  // namespace prism::coordinator

@@ -96,6 +96,12 @@ absl::StatusOr<std::uint64_t> parse_bytes(std::string_view text);
 // largest items, e.g. "rendering 8192x8192 with 63 bins needs about 17.9 GiB of memory
 // (spectral image 15.8 GiB, RGB and standard errors 1.5 GiB, ...) besides the 40 MiB in use,
 // more than the 15.6 GiB allowed (RLIMIT_AS); <advice>".
+// A RESOURCE_EXHAUSTED refusal that waiting cannot cure (a job over what the coordinator holds
+// even with nothing else to do, a bundle over the size limit), marked with a status payload so
+// that the HTTP API answers 413 instead of 429, which clients and proxies retry.
+absl::Status permanent_refusal(absl::Status status);
+bool is_permanent_refusal(const absl::Status& status);
+
 absl::Status check_memory(const std::string& job, const ResourcePlan& plan, std::uint64_t in_use,
                           std::uint64_t available, const std::string& source,
                           const std::string& advice);

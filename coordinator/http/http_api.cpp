@@ -17,6 +17,7 @@
 #include "absl/strings/str_join.h"
 #include "coordinator/http/api_routes.h"
 #include "coordinator/http/dashboard_assets.h"
+#include "coordinator/resource_plan.h"
 #include "coordinator/rpc/farm_service.h"
 #include "google/protobuf/util/json_util.h"
 #include "prism/v1/farm.pb.h"
@@ -48,7 +49,7 @@ int http_status(absl::StatusCode code) {
     case absl::StatusCode::kAborted:
       return 409;
     case absl::StatusCode::kFailedPrecondition:
-      return 412;
+      return 409;  // the resource's state does not allow it (a done job's cancel)
     case absl::StatusCode::kResourceExhausted:
       return 429;
     case absl::StatusCode::kCancelled:
@@ -81,7 +82,7 @@ void send_error(httplib::Response& res, const absl::Status& status) {
   v1::ApiError error;
   error.set_code(absl::StatusCodeToString(status.code()));
   error.set_message(std::string(status.message()));
-  res.status = http_status(status.code());
+  res.status = is_permanent_refusal(status) ? 413 : http_status(status.code());
   if (status.code() == absl::StatusCode::kUnauthenticated)
     res.set_header("WWW-Authenticate", "Bearer");
   res.set_content(to_json(error), "application/json");
@@ -447,9 +448,9 @@ void HttpApi::install_routes() {
         std::uint64_t declared = 0;
         if (req.has_header("Content-Length") &&
             absl::SimpleAtoi(req.get_header_value("Content-Length"), &declared) && declared > max) {
-          return send_error(res, absl::ResourceExhaustedError(absl::StrCat(
+          return send_error(res, permanent_refusal(absl::ResourceExhaustedError(absl::StrCat(
                                      "the request body (", declared, " bytes) is over ", max,
-                                     " bytes, the coordinator's --max-bundle-bytes")));
+                                     " bytes, the coordinator's --max-bundle-bytes"))));
         }
         std::string body;
         bool too_large = false;
@@ -462,9 +463,9 @@ void HttpApi::install_routes() {
           return true;
         });
         if (too_large) {
-          return send_error(res, absl::ResourceExhaustedError(
-                                     absl::StrCat("the request body is over ", max,
-                                                  " bytes, the coordinator's --max-bundle-bytes")));
+          return send_error(res, permanent_refusal(absl::ResourceExhaustedError(absl::StrCat(
+                                     "the request body is over ", max,
+                                     " bytes, the coordinator's --max-bundle-bytes"))));
         }
         httplib::Request with = req;
         with.body = std::move(body);

@@ -260,7 +260,7 @@ TEST_F(HttpApiTest, ABodyOverTheLimitIsRefusedForItsSize) {
   EXPECT_EQ(anonymous->status, 401) << anonymous->body;
   httplib::Result r = http_->Post("/api/v1/bundles", auth(), big, "application/octet-stream");
   ASSERT_TRUE(r);
-  EXPECT_EQ(r->status, 429) << r->body;
+  EXPECT_EQ(r->status, 413) << r->body;  // permanent: not 429, which clients retry
   EXPECT_NE(r->body.find("is over 65536 bytes, the coordinator's --max-bundle-bytes"),
             std::string::npos)
       << r->body;
@@ -434,7 +434,7 @@ TEST_F(HttpApiTest, UploadSubmitWatchFetchAndCancelAsCurlWould) {
 
   // A finished job cannot be cancelled; a queued one can, and again (idempotent).
   EXPECT_EQ(error_code(checked("cancelJob",
-                               http_->Post("/api/v1/jobs/" + job_id + ":cancel", auth()), 412)),
+                               http_->Post("/api/v1/jobs/" + job_id + ":cancel", auth()), 409)),
             "FAILED_PRECONDITION");
   request.set_client_token("http-2");
   body.clear();
@@ -515,7 +515,7 @@ TEST_F(HttpApiTest, BadInputGetsAnErrorThatSaysWhat) {
            R"(","scenePath":"scene.pbrt","spp":4,"bins":100000}})",
        400, "INVALID_ARGUMENT", "bins"},
       {"submitJob", "post", "/api/v1/jobs",
-       R"({"spec":{"bundleHash":")" + std::string(64, 'b') + R"(","scenePath":"scene.pbrt"}})", 412,
+       R"({"spec":{"bundleHash":")" + std::string(64, 'b') + R"(","scenePath":"scene.pbrt"}})", 409,
        "FAILED_PRECONDITION", "upload it first"},
       {"getJob", "get", "/api/v1/jobs/j-999999", "", 404, "NOT_FOUND", "j-999999"},
       {"cancelJob", "post", "/api/v1/jobs/j-999999:cancel", "", 404, "NOT_FOUND", "j-999999"},
@@ -550,13 +550,13 @@ TEST_F(HttpApiTest, BadInputGetsAnErrorThatSaysWhat) {
               200);
   const std::string id = job["job"]["jobId"];
   EXPECT_EQ(error_code(
-                checked("listResults", http_->Get("/api/v1/jobs/" + id + "/outputs", auth()), 412)),
+                checked("listResults", http_->Get("/api/v1/jobs/" + id + "/outputs", auth()), 409)),
             "FAILED_PRECONDITION");
   EXPECT_EQ(error_code(checked("getPreview",
-                               http_->Get("/api/v1/jobs/" + id + "/preview.png", auth()), 412)),
+                               http_->Get("/api/v1/jobs/" + id + "/preview.png", auth()), 409)),
             "FAILED_PRECONDITION");
   EXPECT_EQ(error_code(checked("getResult",
-                               http_->Get("/api/v1/jobs/" + id + "/outputs/x.exr", auth()), 412)),
+                               http_->Get("/api/v1/jobs/" + id + "/outputs/x.exr", auth()), 409)),
             "FAILED_PRECONDITION");
 }
 
