@@ -481,6 +481,15 @@ JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) {
                          "); they go out again, further apart up to 30 s, until it can");
       }
     }
+    // Some results refused while others are still being rendered (a worker busy on one that
+    // will be refused too): the job is not moving either.
+    if (const std::optional<JobProgress> p = scheduler_.progress(record.id);
+        status.waiting.empty() && p.has_value() && p->state == JobState::kRunning &&
+        p->held_back > 0) {
+      status.waiting = absl::StrCat("the coordinator could not store ", p->held_back,
+                                    " of its tasks' results (", last_unstored_,
+                                    "); they go out again, further apart up to 30 s, until it can");
+    }
     if (auto retry = finalise_retries_.find(record.id); retry != finalise_retries_.end()) {
       status.waiting = absl::StrCat("cannot write the outputs (", retry->second.problem,
                                     "): waiting for disk space, trying again every ",

@@ -83,6 +83,16 @@ TEST_F(FarmServerTest, AResultTheCoordinatorCannotStoreIsNotTheWorkersFault) {
               std::string::npos)
         << status.error_message();
     EXPECT_NE(status.error_message().find("No space left on device"), std::string::npos);
+    if (attempt == 0) {
+      // Held back while the rest still go out: the job already says it is not moving (it
+      // showed a rate and a time left while a worker re-rendered refused results).
+      ASSERT_TRUE(get_job(job_id, &info).ok());
+      EXPECT_NE(info.waiting().find("the coordinator could not store 1 of its tasks' results "
+                                    "(results.pack write failed: No space left on device)"),
+                std::string::npos)
+          << info.waiting();
+      EXPECT_LT(info.progress().eta_seconds(), 0.0);
+    }
   }
   // Every task is held back now: the job says why it waits (it said nothing, workers idle).
   ASSERT_TRUE(get_job(job_id, &info).ok());
