@@ -165,12 +165,19 @@ class SlurmTest : public ::testing::Test {
 TEST_F(SlurmTest, SbatchStartedWorkersRenderTheSameBytesAndAScancelledOneDrains) {
   ASSERT_NO_FATAL_FAILURE(start_slurm());
   const std::string scripts = (fs::path(PRISM_SOURCE_DIR) / "deploy/slurm").string();
-  run_slurm({"sbatch", "--output=" + (root_ / "out/coordinator-%j.out").string(),
+  run_slurm({"sbatch", "--export=ALL,PRISM_HTTP_LISTEN=127.0.0.1:0",
+             "--output=" + (root_ / "out/coordinator-%j.out").string(),
              scripts + "/coordinator.sbatch"});
   std::map<std::string, std::string> published = coordinator_env();
   ASSERT_TRUE(published.contains("PRISM_COORDINATOR"))
       << testing::read_file(root_ / "log/slurmctld.log");
   ASSERT_FALSE(published["PRISM_WORKER_SECRET"].empty());
+  // The HTTP API's address is published with its real port (it was not published at all).
+  ASSERT_TRUE(published.contains("PRISM_HTTP"));
+  const std::string http = published["PRISM_HTTP"];
+  const std::string http_port = http.substr(http.rfind(':') + 1);
+  EXPECT_FALSE(http_port.empty()) << http;
+  EXPECT_NE(http_port, "0") << http;
   const std::string array = run_slurm({"sbatch", "--parsable", "--array=0-1", "--cpus-per-task=1",
                                        "--output=" + (root_ / "out/worker-%A_%a.out").string(),
                                        scripts + "/workers.sbatch"});
