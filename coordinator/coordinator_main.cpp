@@ -124,6 +124,15 @@ int main(int argc, char** argv) {
     std::cerr << "prism-coordinator: " << address.message() << "\n";
     return 2;
   }
+  // A malformed --http-listen is told so first, not that it "can be reached from other
+  // machines".
+  if (!config.http_listen.empty()) {
+    if (absl::Status address = prism::rpc::check_address(config.http_listen, "--http-listen", true);
+        !address.ok()) {
+      std::cerr << "prism-coordinator: " << address.message() << "\n";
+      return 2;
+    }
+  }
   // Open to the network without both secrets only when asked for.
   if (!insecure && (config.api_token.empty() || config.worker_secret.empty())) {
     for (const std::string* listen : {&config.listen, &config.http_listen}) {

@@ -172,7 +172,8 @@ const std::vector<Route>& api_routes() {
       {.id = "getTiles",
        .method = "get",
        .path = "/api/v1/jobs/{job_id}/tiles",
-       .summary = "The job's final-pass tiles as they stand: queued, leased, done or failed",
+       .summary = "The job's final-pass tiles as they stand: queued, leased, done, failed or "
+                  "cancelled",
        .parameters = {job_id()},
        .response = v1::TileMap::descriptor()},
       {.id = "getConvergence",
