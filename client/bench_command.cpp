@@ -895,11 +895,22 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
                          : home_cache().empty()              ? options.output / "references"
                                                              : fs::path(home_cache());
   std::error_code ec;
+  const bool output_existed = fs::exists(options.output, ec);
   fs::create_directories(options.output, ec);
   if (ec) {
     return absl::InvalidArgumentError(absl::StrCat("cannot create the output directory ",
                                                    options.output.string(), ": ", ec.message()));
   }
+  // Until every scene has passed its checks, an error takes back the directory made for it
+  // (it left an empty -o behind).
+  struct RemoveIfUnused {
+    const fs::path& dir;
+    bool armed;
+    ~RemoveIfUnused() {
+      std::error_code ignored;
+      if (armed && fs::is_empty(dir, ignored)) fs::remove(dir, ignored);
+    }
+  } output_guard{options.output, !output_existed};
   if (!device.valid()) {
     return absl::InternalError(
         absl::StrCat("could not create the Embree device: ", device.take_error().message()));
@@ -959,6 +970,7 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
     int width = 0, height = 0, bins = 0;
     std::vector<std::pair<std::string, std::optional<image::Crop>>> regions;
     std::optional<image::SpectralExr> reference;  // --reference, read
+    std::optional<image::SpectralImage> half;     // its .half.exr, when there is one
   };
   std::vector<SceneSetup> setups;
   std::vector<std::string> stems;
@@ -1014,6 +1026,28 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
                          exr.spectral.height(), " with ", exr.spectral.bins(), " bins; ",
                          scene.name, " renders ", width, "x", height, " with ", bins, " bins"));
       }
+      // Its independent half (a cached reference's .half.exr), which gives the noise floor:
+      // one that cannot be that half is an error, not a floor silently dropped or made 0.
+      fs::path half_path = ref_path;
+      half_path.replace_extension(".half.exr");
+      if (fs::exists(half_path)) {
+        PRISM_ASSIGN_OR_RETURN(image::SpectralExr half, image::read_spectral_exr(half_path));
+        if (half.spectral.width() != width || half.spectral.height() != height ||
+            half.spectral.bins() != bins) {
+          return absl::InvalidArgumentError(absl::StrCat(
+              half_path.string(), " (the half beside --reference ", ref_path.string(), ") is ",
+              half.spectral.width(), "x", half.spectral.height(), " with ", half.spectral.bins(),
+              " bins, not the reference's ", width, "x", height, " with ", bins,
+              "; remove it (the noise floor is then unknown) or give the matching half"));
+        }
+        const std::span<const float> a = half.spectral.data(), b = exr.spectral.data();
+        if (std::equal(a.begin(), a.end(), b.begin(), b.end())) {
+          return absl::InvalidArgumentError(absl::StrCat(
+              half_path.string(), " holds the same values as --reference ", ref_path.string(),
+              ": it is not an independent half, and its noise floor would be 0"));
+        }
+        setup.half = std::move(half.spectral);
+      }
       setup.reference = std::move(exr);
     }
     // Each method's job and scene as it would render them (at 4x4 and 1 spp: light paths refuse
@@ -1040,6 +1074,7 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
     }
     setups.push_back(std::move(setup));
   }
+  output_guard.armed = false;
 
   // One scene's renders, its rows added to `rows`.
   auto bench_scene = [&](std::size_t si) -> absl::Status {
@@ -1082,13 +1117,9 @@ absl::StatusOr<std::string> run_bench(const BenchOptions& options, worker::Embre
       image::SpectralImage half_image = exr.spectral;
       fs::path half_path = ref_path;
       half_path.replace_extension(".half.exr");
-      if (fs::exists(half_path)) {
-        PRISM_ASSIGN_OR_RETURN(image::SpectralExr half, image::read_spectral_exr(half_path));
-        if (half.spectral.width() == width && half.spectral.height() == height &&
-            half.spectral.bins() == bins) {
-          half_image = std::move(half.spectral);
-          floor_known = true;
-        }
+      if (setup.half.has_value()) {
+        half_image = std::move(*setup.half);
+        floor_known = true;
       }
       reference = evaluation::Reference{std::move(exr.spectral), std::move(half_image), 0, 0, 0};
       reference_text = absl::StrCat(ref_path.string(),

@@ -1243,6 +1243,40 @@ TEST(RenderCliTest, BenchWritesResultsReportAndPlots) {
   const auto again_rows = csv_rows(*again_csv);
   ASSERT_EQ(again_rows.size(), 2u);
   EXPECT_EQ(again_rows[1][column("mse_floor")], floor);
+  // A half beside the reference that cannot be its half is an error (it was dropped silently,
+  // or gave a floor of 0), and the refused run leaves no -o directory behind.
+  fs::create_directories(dir / "badhalf");
+  const fs::path copy = dir / "badhalf" / "ref.exr";
+  fs::copy_file(cached, copy);
+  fs::copy_file(cached, dir / "badhalf" / "ref.half.exr");  // the reference itself
+  const std::vector<std::string> with_copy = {"bench",        source("scenes/three-emitters.pbrt"),
+                                              "--resolution", "32x24",
+                                              "--methods",    "hero",
+                                              "--spp",        "2",
+                                              "--seeds",      "1",
+                                              "--reference",  copy.string(),
+                                              "-o",           "badhalf_out"};
+  CommandRun same = run_prism(dir, with_copy);
+  EXPECT_NE(same.exit_code, 0) << same.output;
+  EXPECT_NE(same.output.find("holds the same values as --reference"), std::string::npos)
+      << same.output;
+  EXPECT_FALSE(fs::exists(dir / "badhalf_out"));
+  {
+    auto exr = prism::image::read_spectral_exr(cached);
+    ASSERT_TRUE(exr.ok()) << exr.status();
+    auto small = exr->spectral.crop({0, 0, 16, 12});
+    ASSERT_TRUE(small.ok());
+    auto small_rgb = exr->rgb->crop({0, 0, 16, 12});
+    ASSERT_TRUE(small_rgb.ok());
+    ASSERT_TRUE(prism::image::write_spectral_exr(dir / "badhalf" / "ref.half.exr",
+                                                 exr->wavelengths_nm, *small, *small_rgb,
+                                                 exr->metadata)
+                    .ok());
+  }
+  CommandRun wrong = run_prism(dir, with_copy);
+  EXPECT_NE(wrong.exit_code, 0) << wrong.output;
+  EXPECT_NE(wrong.output.find("is 16x12 with"), std::string::npos) << wrong.output;
+  EXPECT_FALSE(fs::exists(dir / "badhalf_out"));
 
   // The cache names the build that made a reference: this build's own is taken silently, one
   // another build made (after an upgrade, say) with a warning that says how to render it anew.
