@@ -76,7 +76,8 @@ absl::Status unsupported_type(const ParameterList& params, const TypeName& type,
        {"bilinearmesh", "curve", "cylinder", "disk", "loopsubdiv", "plymesh", "sphere",
         "trianglemesh"}},
   };
-  if (auto known = kPbrtTypes.find(what); known != kPbrtTypes.end() &&
+  if (auto known = kPbrtTypes.find(what);
+      known != kPbrtTypes.end() &&
       std::none_of(known->second.begin(), known->second.end(),
                    [&](const char* name) { return type.name == name; })) {
     return location_error(type.where,
@@ -107,9 +108,9 @@ absl::Status check_range(const ParameterList& params, const std::string& name, d
   // Bounds far out guard the float arithmetic, not the meaning: say which one was crossed
   // ("must be > 0, got 1e+39" told a user their positive radius was not positive).
   if (value > hi && hi >= 1e30) {
-    return param_error(params, name,
-                       absl::StrCat("must be at most ", hi,
-                                    " (Prism computes in single precision), got ", value));
+    return param_error(
+        params, name,
+        absl::StrCat("must be at most ", hi, " (Prism computes in single precision), got ", value));
   }
   if (value > 0 && value < lo && lo <= 1e-9) {
     return param_error(params, name,
