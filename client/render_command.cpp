@@ -16,6 +16,7 @@
 #include "coordinator/prepass.h"
 #include "coordinator/resource_plan.h"
 #include "google/protobuf/util/message_differencer.h"
+#include "services/base/decimal.h"
 #include "services/base/status.h"
 #include "services/image/exr_spectral.h"
 #include "services/job/job_spec.h"
@@ -716,7 +717,7 @@ absl::StatusOr<std::string> run_render(const RenderCommandOptions& options,
           : std::string(),
       report.gradient.has_value()
           ? absl::StrCat(
-                " (tau ", report.gradient->tau,
+                " (tau ", base::shortest_decimal(report.gradient->tau),
                 report.gradient->tau_pilot.has_value() ? " from the pilot" : "",
                 report.gradient->samples > 0 && report.gradient->lane_sum > report.gradient->samples
                     ? absl::StrCat(", ", report.gradient->lane_sum / report.gradient->samples,

@@ -682,6 +682,12 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
     PRISM_ASSIGN_OR_RETURN(scene_.filter, make_pixel_filter(td.first, td.second));
   } else if (name == "ColorSpace") {
     PRISM_ASSIGN_OR_RETURN(Token n, string_arg(tokens, d, "colour space name"));
+    // pbrt-v4's named colour spaces; another name is a mistake, not a space to substitute.
+    if (n.text != "srgb" && n.text != "rec2020" && n.text != "aces2065-1" && n.text != "dci-p3")
+      return location_error(tokens.location(n),
+                            absl::StrCat("unknown colour space \"", n.text,
+                                         "\" (pbrt-v4's: srgb, rec2020, aces2065-1, dci-p3; "
+                                         "Prism reads srgb)"));
     if (n.text != "srgb")
       PRISM_RETURN_IF_ERROR(features_.refuse(
           absl::StrCat("ColorSpace \"", n.text, "\""), tokens.location(n),
@@ -954,6 +960,12 @@ absl::Status SceneParser::directive(Tokenizer& tokens, const Token& d, int depth
   } else if (name == "Accelerator") {
     PRISM_RETURN_IF_ERROR(require_options(d, where));
     PRISM_ASSIGN_OR_RETURN(auto td, typed_directive());
+    if (td.first.name != "bvh" && td.first.name != "kdtree") {
+      return location_error(td.first.where,
+                            absl::StrCat("unknown accelerator \"", td.first.name,
+                                         "\" (pbrt-v4's: bvh, kdtree; Prism always builds "
+                                         "Embree's BVH)"));
+    }
     td.second.mark_all_used();
     features_.ignored(absl::StrCat("Accelerator \"", td.first.name, "\""), where,
                       "Prism always builds Embree's BVH; the image is the same");

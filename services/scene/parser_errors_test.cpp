@@ -207,6 +207,22 @@ const MemoryCase kMemoryCases[] = {
     {"MakeNamedMedium \"m\" \"string type\" \"wibble\"\n",
      "m.pbrt:1:21: unknown medium type \"wibble\" (pbrt-v4's: cloud, homogeneous, nanovdb, "
      "rgbgrid, uniformgrid; Prism renders homogeneous)"},
+    {"Integrator \"wibble\"\n",
+     "m.pbrt:1:12: unknown integrator \"wibble\" (pbrt-v4's: ambientocclusion, aov, bdpt, "
+     "function, lightpath, mlt, path, randomwalk, simplepath, simplevolpath, sppm, volpath)"},
+    {"Film \"wibble\"\n",
+     "m.pbrt:1:6: unknown film type \"wibble\" (pbrt-v4's: gbuffer, rgb, spectral; Prism writes "
+     "rgb, spectral)"},
+    {"ColorSpace \"wibble\"\n",
+     "m.pbrt:1:12: unknown colour space \"wibble\" (pbrt-v4's: srgb, rec2020, aces2065-1, dci-p3; "
+     "Prism reads srgb)"},
+    {"Accelerator \"wibble\"\n",
+     "m.pbrt:1:13: unknown accelerator \"wibble\" (pbrt-v4's: bvh, kdtree; Prism always builds "
+     "Embree's BVH)"},
+    {"WorldBegin\nTexture \"t\" \"float\" \"wibble\"\n",
+     "m.pbrt:2:21: unknown float texture type \"wibble\" (pbrt-v4's: bilerp, checkerboard, "
+     "constant, directionmix, dots, fbm, imagemap, mix, ptex, scale, windy, wrinkled; Prism "
+     "renders checkerboard, constant, directionmix, imagemap, mix, scale)"},
     {"WorldBegin\nShape \"sphere\" \"float radius\" [1e39]\n",
      "m.pbrt:2:16: 'float radius' must be at most 1e+30 (Prism computes in single precision), "
      "got 1e+39"},

@@ -75,6 +75,12 @@ absl::Status unsupported_type(const ParameterList& params, const TypeName& type,
       {"shape",
        {"bilinearmesh", "curve", "cylinder", "disk", "loopsubdiv", "plymesh", "sphere",
         "trianglemesh"}},
+      {"float texture",
+       {"bilerp", "checkerboard", "constant", "directionmix", "dots", "fbm", "imagemap", "mix",
+        "ptex", "scale", "windy", "wrinkled"}},
+      {"spectrum texture",
+       {"bilerp", "checkerboard", "constant", "directionmix", "dots", "fbm", "imagemap", "marble",
+        "mix", "ptex", "scale", "windy", "wrinkled"}},
   };
   if (auto known = kPbrtTypes.find(what);
       known != kPbrtTypes.end() &&
@@ -614,6 +620,11 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
     f.type = type.name == "rgb" ? FilmType::kRgb : FilmType::kSpectral;
     note_supported(params, "film", type);
   } else {
+    if (type.name != "gbuffer") {
+      return location_error(type.where, absl::StrCat("unknown film type \"", type.name,
+                                                     "\" (pbrt-v4's: gbuffer, rgb, spectral; "
+                                                     "Prism writes rgb, spectral)"));
+    }
     // Its common parameters (resolution, file name) still apply to the rgb film.
     PRISM_RETURN_IF_ERROR(refuse_at(
         params, type_feature("film", type), type.where,
@@ -788,15 +799,22 @@ absl::StatusOr<IntegratorSpec> make_integrator(const TypeName& type, const Param
   PRISM_RETURN_IF_ERROR(
       check_range(params, "maxdepth", s.max_depth, 0, 1024, "between 0 and 1024"));
   const std::string feature = type_feature("integrator", type);
-  if (!pbrt_name || other_image) {
-    PRISM_RETURN_IF_ERROR(refuse_at(
-        params, feature, type.where,
-        pbrt_name ? absl::StrCat("integrator \"", type.name,
-                                 "\" renders something other than the light transport; Prism "
-                                 "renders path, volpath and the integrators that converge to "
-                                 "the same image")
-                  : absl::StrCat("unknown integrator \"", type.name, "\""),
-        "Prism's spectral path tracer"));
+  if (!pbrt_name) {
+    // A name pbrt-v4 does not know is a mistake, not an integrator to substitute.
+    return location_error(
+        type.where, absl::StrCat("unknown integrator \"", type.name,
+                                 "\" (pbrt-v4's: ambientocclusion, aov, "
+                                 "bdpt, function, lightpath, mlt, path, randomwalk, simplepath, "
+                                 "simplevolpath, sppm, volpath)"));
+  }
+  if (other_image) {
+    PRISM_RETURN_IF_ERROR(
+        refuse_at(params, feature, type.where,
+                  absl::StrCat("integrator \"", type.name,
+                               "\" renders something other than the light transport; Prism "
+                               "renders path, volpath and the integrators that converge to "
+                               "the same image"),
+                  "Prism's spectral path tracer"));
   } else if (type.name == "path" || type.name == "volpath") {
     note_supported(params, "integrator", type);
   } else if (params.features() != nullptr) {
