@@ -122,8 +122,7 @@ float GradientPilotEvents::choose_tau(double epsilon) const {
     const float next =
         k < transitions_.size() ? transitions_[k].tau : std::numeric_limits<float>::infinity();
     if (!(double(next) > double(value) * (1 + kTauGap))) continue;
-    tau = std::isfinite(next) ? float(std::sqrt(double(value) * double(next)))
-                              : float(double(value) * (1 + 16 * kTauGap));
+    tau = float(double(value) * (1 + kTauGap / 2));
   }
   return tau;
 }

@@ -88,13 +88,14 @@ class GradientPilotEvents {
   double shifted_square_fraction(float tau) const;
   double offset_vertex_fraction(float tau) const;
   // The largest τ with lost_benefit_fraction(τ) <= ε, placed in a clean gap of the pilot's
-  // values: between a value v and the next value above it, where that is more than kTauGap
-  // relative above v, at their geometric mean (just above the largest value, when nothing above
-  // it is shifted). 0 without events. A τ on one of the values would be decided differently by
-  // the two sides of a pair where their own computations of a path's value differ in the last
-  // bits, and where many paths share one value (in a white furnace every path's value is the
-  // light over p(λ)) that one-sided decision biases the gradients; in a gap no value the job
-  // meets is within rounding of it.
+  // values: just above a value v (v·(1 + kTauGap/2)) where the next value is more than kTauGap
+  // relative above v, or above the largest value (nothing of the pilot's shifted). Just above,
+  // not mid-gap: a wide gap (the bright, sparse events) holds values the job will meet, and
+  // they should stay shifted as the pilot predicted. 0 without events. A τ on one of the values
+  // would be decided differently by the two sides of a pair where their own computations of a
+  // path's value differ in the last bits, and where many paths share one value (in a white furnace
+  // every path's value is the light over p(λ)) that one-sided decision biases the gradients; in a
+  // gap no value the job meets is within rounding of it.
   float choose_tau(double epsilon) const;
   static constexpr double kTauGap = 1e-4;
 

@@ -45,13 +45,14 @@ TEST(GradientPilotEvents, PredictsTheRiseAndChoosesTheLargestTauWithinIt) {
   EXPECT_DOUBLE_EQ(pilot.benefit(), 202.5);
   EXPECT_DOUBLE_EQ(pilot.lost_benefit_fraction(0.5f), 3 / 202.5);
   EXPECT_DOUBLE_EQ(pilot.lost_benefit_fraction(1), 4.5 / 202.5);
-  // τ sits in the gap above the last value it may unshift, at the geometric mean of the gap.
+  // τ sits just above the last value it may unshift, kTauGap/2 relative, in a clean gap.
+  const float above = 1 + GradientPilotEvents::kTauGap / 2;
   EXPECT_EQ(pilot.choose_tau(0.01), 0.0f);  // 3/202.5 = 0.0148 already too much
-  EXPECT_FLOAT_EQ(pilot.choose_tau(0.015), std::sqrt(0.5f * 1.0f));
-  EXPECT_FLOAT_EQ(pilot.choose_tau(0.025), std::sqrt(1.0f * 10.0f));
-  EXPECT_FLOAT_EQ(pilot.choose_tau(0.99), std::sqrt(1.0f * 10.0f));
+  EXPECT_FLOAT_EQ(pilot.choose_tau(0.015), 0.5f * above);
+  EXPECT_FLOAT_EQ(pilot.choose_tau(0.025), 1.0f * above);
+  EXPECT_FLOAT_EQ(pilot.choose_tau(0.99), 1.0f * above);
   // Everything may go: just above the largest value, so nothing of the pilot's shifts.
-  EXPECT_FLOAT_EQ(pilot.choose_tau(1.0), 10.0f * (1 + 16 * GradientPilotEvents::kTauGap));
+  EXPECT_FLOAT_EQ(pilot.choose_tau(1.0), 10.0f * above);
   EXPECT_DOUBLE_EQ(pilot.shifted_event_fraction(1), 2.0 / 3);
   EXPECT_DOUBLE_EQ(pilot.shifted_square_fraction(1), 104.0 / 105);
   // Catch-up: at τ = 0 sample 0 follows to vertex 4, sample 1 to 3; at τ = 1 only the c = 10 event
@@ -70,9 +71,10 @@ TEST(GradientPilotEvents, HarmfulShiftsDoNotCancelUsefulOnes) {
   EXPECT_DOUBLE_EQ(pilot.benefit(), 2 * 1.0 + 2 * 800.0);
   // Signed, unshifting everything would look cheap: (2 − 792 + 1600) / 1000 = 0.81 of Σ s.
   EXPECT_DOUBLE_EQ(pilot.second_moment_rise(30), 0.81);
-  // But the bright event's gain is 1600 of 1602: τ stays below 30, in the gap above 2.
-  EXPECT_FLOAT_EQ(pilot.choose_tau(0.9), std::sqrt(2.0f * 30.0f));
-  EXPECT_FLOAT_EQ(pilot.choose_tau(0.002), std::sqrt(2.0f * 30.0f));  // the harmful shift: free
+  // But the bright event's gain is 1600 of 1602: τ stays below 30, just above 2.
+  const float above = 1 + GradientPilotEvents::kTauGap / 2;
+  EXPECT_FLOAT_EQ(pilot.choose_tau(0.9), 2.0f * above);
+  EXPECT_FLOAT_EQ(pilot.choose_tau(0.002), 2.0f * above);  // the harmful shift costs nothing
   EXPECT_EQ(pilot.choose_tau(0.001), 0.0f);
 }
 
@@ -82,13 +84,13 @@ TEST(GradientPilotEvents, NoLightMeansNoThreshold) {
   EXPECT_EQ(pilot.choose_tau(0.1), 0.0f);
   EXPECT_EQ(pilot.second_moment_rise(1), 0.0);
   const GradientPilotEvents useless({event(1, 1, 1, 2, 2, 1), event(3, 9, 9, 4, 4, 1)}, {0, 1}, 2);
-  EXPECT_FLOAT_EQ(useless.choose_tau(0.1), 3.0f * (1 + 16 * GradientPilotEvents::kTauGap));
+  EXPECT_FLOAT_EQ(useless.choose_tau(0.1), 3.0f * (1 + GradientPilotEvents::kTauGap / 2));
 }
 
 // Where many paths share one value up to rounding (a white furnace: every path's value is the
 // light over p(λ)), a τ among them would be decided differently by the two sides of one pair,
 // which biases the gradients (a BK7 sphere in a white furnace came out 0.6 % blue). τ goes below
-// the cluster, into the clean gap beneath it, never within kTauGap/2 of a value.
+// the cluster, into the clean gap beneath it, never within rounding of a value.
 TEST(GradientPilotEvents, TauStaysOutOfClustersOfEqualValues) {
   std::vector<GradientEvent> events = {event(0.2f, 0, 0, 5, 5, 1)};
   for (int k = 0; k < 1000; ++k) {
@@ -103,13 +105,13 @@ TEST(GradientPilotEvents, TauStaysOutOfClustersOfEqualValues) {
     SCOPED_TRACE(epsilon);
     for (const GradientEvent& e : events) {
       EXPECT_GT(std::abs(double(tau) / double(e.threshold_value) - 1),
-                GradientPilotEvents::kTauGap / 2);
+                GradientPilotEvents::kTauGap / 4);
     }
     // Half the benefit inside the cluster may not go; all of it at epsilon 0.999 neither.
     EXPECT_LT(tau, 0.56f);
     EXPECT_LE(pilot.lost_benefit_fraction(tau), epsilon);
   }
-  EXPECT_FLOAT_EQ(pilot.choose_tau(0.5), std::sqrt(0.2f * 0.56f));
+  EXPECT_FLOAT_EQ(pilot.choose_tau(0.5), 0.2f * (1 + GradientPilotEvents::kTauGap / 2));
 }
 
 class GradientPilotTest : public testing::TracerTest {
