@@ -14,6 +14,7 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/auto_integrator.h"
@@ -71,9 +72,19 @@ class Farm {
   std::unique_ptr<v1::FarmService::Stub> stub_;
 };
 
-// The server's message verbatim (the caller prints "prism: <message>").
-absl::Status rpc_error(const grpc::Status& status) {
-  return rpc::from_grpc(status);
+// The server's message verbatim (the caller prints "prism: <message>"). A plaintext client
+// that reaches a TLS coordinator sees only its socket closed: that case says what to try.
+absl::Status rpc_error(const Farm& farm, const grpc::Status& status) {
+  absl::Status error = rpc::from_grpc(status);
+  if (status.error_code() == grpc::StatusCode::UNAVAILABLE && farm.connection().tls_ca.empty() &&
+      (absl::StrContains(status.error_message(), "Socket closed") ||
+       absl::StrContains(status.error_message(), "Connection reset"))) {
+    return absl::Status(
+        error.code(),
+        absl::StrCat(error.message(), " (if the coordinator at ", farm.connection().address,
+                     " serves TLS, give its certificate's CA with --tls-ca)"));
+  }
+  return error;
 }
 
 std::string state_name(v1::JobState state) {
@@ -132,7 +143,7 @@ absl::Status upload_if_missing(Farm& farm, const std::string& hash, const std::s
   has.set_bundle_hash(hash);
   v1::HasBundleResponse present;
   if (grpc::Status s = farm.stub().HasBundle(farm.call().get(), has, &present); !s.ok()) {
-    return rpc_error(s);
+    return rpc_error(farm, s);
   }
   if (present.present()) return absl::OkStatus();
   if (log != nullptr) *log << "uploading bundle " << hash << " (" << blob.size() << " bytes)\n";
@@ -149,7 +160,7 @@ absl::Status upload_if_missing(Farm& farm, const std::string& hash, const std::s
     if (!writer->Write(message)) break;  // the server's status follows from Finish()
   }
   writer->WritesDone();
-  if (grpc::Status s = writer->Finish(); !s.ok()) return rpc_error(s);
+  if (grpc::Status s = writer->Finish(); !s.ok()) return rpc_error(farm, s);
   if (response.bundle_hash() != hash) {
     return absl::DataLossError(
         absl::StrCat("the coordinator stored bundle ", response.bundle_hash(), ", not ", hash));
@@ -207,7 +218,7 @@ absl::StatusOr<v1::JobInfo> get_job(Farm& farm, const std::string& id) {
   request.set_job_id(id);
   v1::JobInfo job;
   if (grpc::Status s = farm.stub().GetJob(farm.call().get(), request, &job); !s.ok()) {
-    return rpc_error(s);
+    return rpc_error(farm, s);
   }
   return job;
 }
@@ -292,7 +303,7 @@ absl::StatusOr<v1::JobInfo> watch(Farm& farm, const std::string& id, std::ostrea
   }
   grpc::Status status = reader->Finish();
   if (!lost.ok()) return lost;
-  if (!status.ok()) return rpc_error(status);
+  if (!status.ok()) return rpc_error(farm, status);
   // The stream ended before a final state: ask once.
   return get_job(farm, id);
 }
@@ -415,7 +426,7 @@ absl::StatusOr<std::string> fetch(Farm& farm, const std::string& id,
     reader->Finish();
     return read.status();
   }
-  if (grpc::Status s = reader->Finish(); !s.ok()) return rpc_error(s);
+  if (grpc::Status s = reader->Finish(); !s.ok()) return rpc_error(farm, s);
   if (read->ended_inside_a_file)
     return absl::DataLossError("the result stream ended inside a file");
   // Without -o, or with -o naming a directory, the default name (output_paths).
@@ -597,7 +608,7 @@ absl::StatusOr<std::string> run_submit(const FarmConnection& c, const SubmitOpti
     if (error.ok()) {
       grpc::Status s = farm.stub().SubmitJob(farm.call().get(), request, &response);
       if (s.ok()) break;
-      error = rpc_error(s);
+      error = rpc_error(farm, s);
     }
     // A connection cut mid-stream can also end as INTERNAL ("Socket closed", "Connection reset").
     const bool unreachable = error.code() == absl::StatusCode::kUnavailable ||
@@ -642,7 +653,7 @@ absl::StatusOr<std::string> run_jobs(const FarmConnection& c) {
   v1::ListJobsRequest request;
   v1::ListJobsResponse response;
   if (grpc::Status s = farm.stub().ListJobs(farm.call().get(), request, &response); !s.ok()) {
-    return rpc_error(s);
+    return rpc_error(farm, s);
   }
   std::string text;
   for (const v1::JobInfo& job : response.jobs()) absl::StrAppend(&text, job_line(job), "\n");
@@ -664,7 +675,7 @@ absl::StatusOr<std::string> run_cancel(const FarmConnection& c, const std::strin
   request.set_job_id(job_id);
   v1::JobInfo job;
   if (grpc::Status s = farm.stub().CancelJob(farm.call().get(), request, &job); !s.ok()) {
-    return rpc_error(s);
+    return rpc_error(farm, s);
   }
   return absl::StrCat(job_line(job), "\n");
 }
@@ -680,7 +691,7 @@ absl::StatusOr<std::string> run_workers(const FarmConnection& c) {
   v1::ListWorkersRequest request;
   v1::ListWorkersResponse response;
   if (grpc::Status s = farm.stub().ListWorkers(farm.call().get(), request, &response); !s.ok()) {
-    return rpc_error(s);
+    return rpc_error(farm, s);
   }
   std::string text;
   for (const v1::WorkerInfo& w : response.workers()) {
@@ -701,7 +712,7 @@ absl::StatusOr<int> live_workers(const FarmConnection& c) {
   v1::ListWorkersRequest request;
   v1::ListWorkersResponse response;
   if (grpc::Status s = farm.stub().ListWorkers(farm.call().get(), request, &response); !s.ok()) {
-    return rpc_error(s);
+    return rpc_error(farm, s);
   }
   int live = 0;
   for (const v1::WorkerInfo& w : response.workers()) {

@@ -199,6 +199,23 @@ TEST_F(HttpProcessTest, CurlUploadsSubmitsWatchesFetchesAndCancelsOverHttps) {
 // first one's addresses and take a random share of the calls; and nothing stopped two
 // coordinators from sharing a data directory. Each is refused now, and the first goes on serving.
 // A refused start removes the data directory it had created; it keeps one that was there.
+// A client without --tls-ca against a TLS coordinator saw only "Socket closed"; it is told to
+// give the CA, and with it the same command works.
+TEST_F(HttpProcessTest, APlaintextClientOfATlsCoordinatorIsToldToGiveTheCa) {
+  ASSERT_NO_FATAL_FAILURE(start_coordinator(/*tls=*/true));
+  const std::string address = "127.0.0.1:" + std::to_string(grpc_port_);
+  testing::RunResult plain =
+      testing::run({PRISM_BINARY, "jobs", "--coordinator", address, "--token", kToken});
+  EXPECT_NE(plain.exit_code, 0);
+  EXPECT_NE((plain.out + plain.err).find("serves TLS, give its certificate's CA with --tls-ca"),
+            std::string::npos)
+      << plain.out << plain.err;
+  testing::RunResult with_ca =
+      testing::run({PRISM_BINARY, "jobs", "--coordinator", address, "--token", kToken, "--tls-ca",
+                    (root_ / "cert.pem").string()});
+  EXPECT_EQ(with_ca.exit_code, 0) << with_ca.out << with_ca.err;
+}
+
 TEST_F(HttpProcessTest, ASecondCoordinatorSharesNeitherAnAddressNorADataDirectory) {
   ASSERT_NO_FATAL_FAILURE(start_coordinator(/*tls=*/false));
   const std::string grpc = "127.0.0.1:" + std::to_string(grpc_port_);
