@@ -40,7 +40,7 @@ bool is_numeric(ParamType t) {
   }
 }
 
-std::string decl(const Parameter& p) { return absl::StrCat(absl_view(param_type_name(p.type)), " ", p.name); }
+std::string decl(const Parameter& p) { return absl::StrCat(written_type(p), " ", p.name); }
 
 }  // namespace
 
@@ -86,6 +86,10 @@ const char* param_type_name(ParamType type) {
   return "?";
 }
 
+std::string written_type(const Parameter& p) {
+  return p.written_type.empty() ? std::string(param_type_name(p.type)) : p.written_type;
+}
+
 absl::StatusOr<ParameterList> ParameterList::parse(Tokenizer& tokens) {
   ParameterList list;
   while (true) {
@@ -109,6 +113,7 @@ absl::StatusOr<ParameterList> ParameterList::parse(Tokenizer& tokens) {
       return location_error(where, absl::StrCat("unknown parameter type '", words[0], "' in \"",
                                                 decl_tok.text, "\""));
     p.name = std::string(words[1]);
+    p.written_type = std::string(words[0]);
     p.where = where;
     // The same parameter twice: pbrt-v4 takes the last and lets it shadow the first without a
     // word; under another type the first is unused there, which pbrt-v4 refuses.
@@ -213,7 +218,7 @@ absl::StatusOr<const Parameter*> ParameterList::typed(std::string_view name,
     }
   std::string expected;
   for (ParamType t : types) absl::StrAppend(&expected, expected.empty() ? "" : " or ", "'", absl_view(param_type_name(t)), "'");
-  return location_error(p->where, absl::StrCat("parameter '", p->name, "' has type '", absl_view(param_type_name(p->type)),
+  return location_error(p->where, absl::StrCat("parameter '", p->name, "' has type '", written_type(*p),
                                                "', expected ", expected));
 }
 

@@ -37,12 +37,17 @@ const char* param_type_name(ParamType type);
 struct Parameter {
   ParamType type = ParamType::kFloat;
   std::string name;
+  std::string written_type;  // the type as the scene wrote it ("normal" for kNormal3); messages
   SourceLocation where;  // of the "type name" string
   std::vector<double> numbers;
   std::vector<std::string> strings;
   std::vector<bool> bools;
   mutable bool used = false;
 };
+
+// The parameter's type as the scene wrote it (pbrt-v4 has aliases: "normal" for "normal3",
+// "point" for "point3", "vector" for "vector3"), else its canonical name: what messages quote.
+std::string written_type(const Parameter& p);
 
 // How spectrum parameters find named spectra and spectrum files. Unset predicates accept
 // every name; an unset load_table refuses file references.

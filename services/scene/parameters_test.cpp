@@ -44,6 +44,8 @@ TEST(Parameters, ValueErrors) {
   EXPECT_EQ(std::string(parse("\"bool b\" maybe").status().message()), "p.pbrt:1:10: expected true or false for 'bool b', found 'maybe'");
   EXPECT_EQ(std::string(parse("\"string s\" [ x ]").status().message()), "p.pbrt:1:14: expected a quoted string for 'string s', found 'x'");
   EXPECT_EQ(std::string(parse("\"point3 p\" [1 2]").status().message()), "p.pbrt:1:12: 'point3 p' needs a multiple of 3 values, got 2 values");
+  // Messages quote the type as written: pbrt-v4's alias "normal" is not called "normal3".
+  EXPECT_EQ(std::string(parse("\"normal n\" [1 2]").status().message()), "p.pbrt:1:12: 'normal n' needs a multiple of 3 values, got 2 values");
   // Zero is a multiple of 3: an empty list is told it is empty.
   EXPECT_EQ(std::string(parse("\"point3 p\" []").status().message()), "p.pbrt:1:12: 'point3 p' needs at least one triple (3 values), got 0 values");
   EXPECT_EQ(std::string(parse("\"float\" 1").status().message()), "p.pbrt:1:1: malformed parameter declaration \"float\" (expected \"type name\")");

@@ -105,7 +105,7 @@ absl::Status param_error(const ParameterList& params, const std::string& name,
                          const std::string& message) {
   const Parameter* p = params.find(name);
   return location_error(p->where,
-                        absl::StrCat("'", param_type_name(p->type), " ", name, "' ", message));
+                        absl::StrCat("'", written_type(*p), " ", name, "' ", message));
 }
 
 absl::Status check_range(const ParameterList& params, const std::string& name, double value,
@@ -132,7 +132,7 @@ absl::Status refuse_value(const ParameterList& params, const std::string& name,
                           const std::string& message, std::string_view substitution) {
   const Parameter* p = params.find(name);
   return refuse_at(params, params.feature(*p), p->where,
-                   absl::StrCat("'", param_type_name(p->type), " ", name, "' ", message),
+                   absl::StrCat("'", written_type(*p), " ", name, "' ", message),
                    substitution);
 }
 
