@@ -178,7 +178,9 @@ absl::StatusOr<std::string> run_reconstruct(const ReconstructOptions& options) {
 
   // α and the norm: the flags, else what the render used (its files record both), else the
   // defaults; the render's image is then what this writes.
-  double alpha = options.alpha.value_or(job::kDefaultPoissonAlpha);
+  // Rounded through float, as a job holds it (JobSpec), so `--alpha A` here reconstructs what
+  // `prism render --alpha A` did, bit for bit.
+  double alpha = double(static_cast<float>(options.alpha.value_or(job::kDefaultPoissonAlpha)));
   std::string poisson = options.poisson.value_or("l2");
   for (const auto& [file, path] :
        {std::pair{&*gradient, &options.gradient}, std::pair{&*primal, &options.primal}}) {

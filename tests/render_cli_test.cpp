@@ -358,6 +358,22 @@ TEST(RenderCliTest, ReconstructOfARendersPairIsThatRender) {
       ASSERT_NEAR(t->spectral.data()[i], rt->spectral.data()[i], 1e-5 * peak) << i;
     }
   }
+  // An alpha given to both is held as the job holds it (a float): the same bins, bit for bit.
+  CommandRun alpha_render =
+      run_prism(dir, {"render", source("scenes/dispersive-caustic.pbrt"), "-o", "a.exr",
+                      "--resolution", "24x16", "--spp", "16", "--bins", "16", "--integrator",
+                      "gradient", "--primal-and-gradients", "--threads", "2", "--alpha", "0.4"});
+  ASSERT_EQ(alpha_render.exit_code, 0) << alpha_render.output;
+  CommandRun alpha_again = run_prism(
+      dir, {"reconstruct", "a.primal.exr", "a.gradient.exr", "--alpha", "0.4", "-o", "ra.exr"});
+  ASSERT_EQ(alpha_again.exit_code, 0) << alpha_again.output;
+  {
+    auto a = prism::image::read_spectral_exr(dir / "a.exr");
+    auto ra = prism::image::read_spectral_exr(dir / "ra.exr");
+    ASSERT_TRUE(a.ok() && ra.ok());
+    const auto x = a->spectral.data(), y = ra->spectral.data();
+    EXPECT_TRUE(std::equal(x.begin(), x.end(), y.begin(), y.end()));
+  }
   // Nor is the gradient file a reference image for bench.
   CommandRun bench =
       run_prism(dir, {"bench", source("scenes/dispersive-caustic.pbrt"), "--resolution", "24x16",
