@@ -536,7 +536,7 @@ absl::StatusOr<ResolvedIntegrator> resolve_integrator(const RenderCommandOptions
   report.reason = best == 0 ? absl::StrCat("no candidate was predicted at least ",
                                            static_cast<int>(100 * kAutoMinimumGain),
                                            " % better than hero at equal time")
-                            : absl::StrFormat("%spredicted %.2f of hero's relMSE at equal time",
+                            : absl::StrFormat("%spredicted %.2g of hero's relMSE at equal time",
                                               clean_note.empty() ? "" : "clean caustics: ",
                                               report.candidates[best].relative_efficiency);
   if (candidates[best] == kHeroWithLightCaustics && caustic_paths < 1.0) {

@@ -382,6 +382,12 @@ TEST(RenderCliTest, ReconstructOfARendersPairIsThatRender) {
   EXPECT_NE(bench.exit_code, 0);
   EXPECT_NE(bench.output.find("holds the gradient of a gradient render"), std::string::npos)
       << bench.output;
+  // Nor a test image for compare (it printed metrics of the differences).
+  CommandRun compared = run_prism(dir, {"compare", "g.gradient.exr", "g.exr"});
+  EXPECT_NE(compared.exit_code, 0);
+  EXPECT_NE(compared.output.find("g.gradient.exr holds the gradient of a gradient render"),
+            std::string::npos)
+      << compared.output;
 }
 
 // A target error with the default integrator on a scene with caustic paths: auto offered

@@ -226,6 +226,15 @@ absl::StatusOr<Comparison> compare_exr_files(const std::filesystem::path& test,
   auto [tw, th] = size_of(t);
   auto [rw, rh] = size_of(r);
   std::string names = absl::StrCat("test ", test.string(), " and reference ", reference.string());
+  // A gradient render's raw gradient file holds differences of bins, not an image.
+  for (const auto& [file, image] : {std::pair{&test, &t}, std::pair{&reference, &r}}) {
+    if (auto content = image->metadata.find(std::string(kMetaContent));
+        content != image->metadata.end() && content->second == "gradient") {
+      return absl::InvalidArgumentError(
+          absl::StrCat("cannot compare ", names, ": ", file->string(),
+                       " holds the gradient of a gradient render (prism:content), not an image"));
+    }
+  }
   if (tw != rw || th != rh) {
     return absl::InvalidArgumentError(absl::StrCat("cannot compare ", names, ": sizes ", tw, "x",
                                                    th, " and ", rw, "x", rh, " differ"));
