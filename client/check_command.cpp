@@ -9,6 +9,7 @@
 #include "services/scene/scene_summary.h"
 #include "services/scene/wavelength_dependence.h"
 #include "services/spectral/named_spectra.h"
+#include "services/spectral/wavelength_grid.h"
 
 namespace prism::client {
 namespace {
@@ -26,7 +27,9 @@ nlohmann::json to_json(const scene::LoadedScene& loaded, const scene::Bundle& bu
   j["width"] = s.film.x_resolution;
   j["height"] = s.film.y_resolution;
   j["spp"] = s.sampler.samples_per_pixel;
-  j["bins"] = s.film.bins ? nlohmann::json(*s.film.bins) : nlohmann::json(nullptr);
+  // The bins a render takes without --bins: the Film's nbuckets, else the default (it was null).
+  j["bins"] = s.film.bins.value_or(spectral::WavelengthGrid::kDefaultBins);
+  j["bins_from_scene"] = s.film.bins.has_value();
   j["film"] = s.film.type == scene::FilmType::kSpectral ? "spectral" : "rgb";
   j["max_depth"] = s.integrator.max_depth;
   j["shapes"] = s.shapes.size();

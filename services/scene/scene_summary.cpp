@@ -3,6 +3,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "services/scene/wavelength_dependence.h"
+#include "services/spectral/wavelength_grid.h"
 
 namespace prism::scene {
 namespace {
@@ -27,8 +28,11 @@ std::string format_scene_summary(const SceneDescription& scene) {
   absl::StrAppend(&out, "film: ", film.type == FilmType::kSpectral ? "spectral" : "rgb", " \"",
                   film.filename, "\"\n");
   absl::StrAppend(&out, "samples per pixel: ", scene.sampler.samples_per_pixel, "\n");
-  absl::StrAppend(
-      &out, "spectral bins: ", film.bins ? absl::StrCat(*film.bins) : std::string("default"), "\n");
+  absl::StrAppend(&out, "spectral bins: ",
+                  film.bins
+                      ? absl::StrCat(*film.bins)
+                      : absl::StrCat(spectral::WavelengthGrid::kDefaultBins, " (the default)"),
+                  "\n");
   absl::StrAppend(&out, "integrator: ", scene.integrator.name, ", max depth ",
                   scene.integrator.max_depth, "\n");
   size_t meshes = 0;
