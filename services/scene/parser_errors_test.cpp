@@ -208,10 +208,12 @@ const MemoryCase kMemoryCases[] = {
      "m.pbrt:1:21: unknown medium type \"wibble\" (pbrt-v4's: cloud, homogeneous, nanovdb, "
      "rgbgrid, uniformgrid; Prism renders homogeneous)"},
     {"Integrator \"wibble\"\n",
-     "m.pbrt:1:12: unknown integrator \"wibble\" (pbrt-v4's: ambientocclusion, aov, bdpt, "
-     "function, lightpath, mlt, path, randomwalk, simplepath, simplevolpath, sppm, volpath)"},
+     "m.pbrt:1:12: unknown integrator type \"wibble\" (pbrt-v4's: ambientocclusion, aov, bdpt, "
+     "function, lightpath, mlt, path, randomwalk, simplepath, simplevolpath, sppm, volpath; "
+     "Prism renders bdpt, lightpath, mlt, path, randomwalk, simplepath, simplevolpath, sppm, "
+     "volpath)"},
     {"Film \"wibble\"\n",
-     "m.pbrt:1:6: unknown film type \"wibble\" (pbrt-v4's: gbuffer, rgb, spectral; Prism writes "
+     "m.pbrt:1:6: unknown film type \"wibble\" (pbrt-v4's: gbuffer, rgb, spectral; Prism renders "
      "rgb, spectral)"},
     {"ColorSpace \"wibble\"\n",
      "m.pbrt:1:12: unknown colour space \"wibble\" (pbrt-v4's: srgb, rec2020, aces2065-1, dci-p3; "

@@ -109,7 +109,6 @@ struct SamplerSpec {
 struct IntegratorSpec {
   std::string name = "volpath";  // as written
   int max_depth = 5;
-  bool name_recognised = true;  // false: an unknown name, mapped to Prism's path tracer
 };
 
 // A spectrum slot of a material may instead name a spectrum texture: `*_texture` is then its

@@ -54,14 +54,14 @@ absl::Status refuse_at(const ParameterList& params, const std::string& feature,
   return params.features()->refuse(feature, where, message, substitution);
 }
 
-// An unknown type: refused, or substituted as a whole (its parameters go with it).
-absl::Status unsupported_type(const ParameterList& params, const TypeName& type, const char* what,
-                              std::initializer_list<const char*> supported,
-                              std::string_view substitution) {
-  // A name pbrt-v4 does not know either is a mistake (pbrt-v4 stops on it), not a feature to
-  // substitute under --allow-unsupported.
+// pbrt-v4's type names per kind of entity (`what` as in unsupported_type).
+const std::vector<const char*>* pbrt_type_names(std::string_view what) {
   static const std::map<std::string_view, std::vector<const char*>> kPbrtTypes = {
       {"camera", {"orthographic", "perspective", "realistic", "spherical"}},
+      {"film", {"gbuffer", "rgb", "spectral"}},
+      {"integrator",
+       {"ambientocclusion", "aov", "bdpt", "function", "lightpath", "mlt", "path", "randomwalk",
+        "simplepath", "simplevolpath", "sppm", "volpath"}},
       {"sampler",
        {"halton", "independent", "paddedsobol", "pmj02bn", "sobol", "stratified", "zsobol"}},
       {"pixel filter", {"box", "gaussian", "mitchell", "sinc", "triangle"}},
@@ -82,14 +82,32 @@ absl::Status unsupported_type(const ParameterList& params, const TypeName& type,
        {"bilerp", "checkerboard", "constant", "directionmix", "dots", "fbm", "imagemap", "marble",
         "mix", "ptex", "scale", "windy", "wrinkled"}},
   };
-  if (auto known = kPbrtTypes.find(what);
-      known != kPbrtTypes.end() &&
-      std::none_of(known->second.begin(), known->second.end(),
-                   [&](const char* name) { return type.name == name; })) {
-    return location_error(type.where,
-                          absl::StrCat("unknown ", what, " type \"", type.name,
-                                       "\" (pbrt-v4's: ", absl::StrJoin(known->second, ", "),
-                                       "; Prism renders ", absl::StrJoin(supported, ", "), ")"));
+  auto it = kPbrtTypes.find(what);
+  return it == kPbrtTypes.end() ? nullptr : &it->second;
+}
+
+bool is_pbrt_type(std::string_view what, const std::string& name) {
+  const std::vector<const char*>* names = pbrt_type_names(what);
+  return names != nullptr &&
+         std::any_of(names->begin(), names->end(), [&](const char* n) { return name == n; });
+}
+
+// A type name pbrt-v4 does not know either is a mistake (pbrt-v4 stops on it), not a feature to
+// substitute under --allow-unsupported: the error lists pbrt-v4's names and Prism's.
+absl::Status unknown_type(const TypeName& type, const char* what,
+                          std::initializer_list<const char*> prism) {
+  return location_error(type.where,
+                        absl::StrCat("unknown ", what, " type \"", type.name,
+                                     "\" (pbrt-v4's: ", absl::StrJoin(*pbrt_type_names(what), ", "),
+                                     "; Prism renders ", absl::StrJoin(prism, ", "), ")"));
+}
+
+// An unknown type: refused, or substituted as a whole (its parameters go with it).
+absl::Status unsupported_type(const ParameterList& params, const TypeName& type, const char* what,
+                              std::initializer_list<const char*> supported,
+                              std::string_view substitution) {
+  if (pbrt_type_names(what) != nullptr && !is_pbrt_type(what, type.name)) {
+    return unknown_type(type, what, supported);
   }
   PRISM_RETURN_IF_ERROR(
       refuse_at(params, type_feature(what, type), type.where,
@@ -104,8 +122,7 @@ absl::Status unsupported_type(const ParameterList& params, const TypeName& type,
 absl::Status param_error(const ParameterList& params, const std::string& name,
                          const std::string& message) {
   const Parameter* p = params.find(name);
-  return location_error(p->where,
-                        absl::StrCat("'", written_type(*p), " ", name, "' ", message));
+  return location_error(p->where, absl::StrCat("'", written_type(*p), " ", name, "' ", message));
 }
 
 absl::Status check_range(const ParameterList& params, const std::string& name, double value,
@@ -132,8 +149,7 @@ absl::Status refuse_value(const ParameterList& params, const std::string& name,
                           const std::string& message, std::string_view substitution) {
   const Parameter* p = params.find(name);
   return refuse_at(params, params.feature(*p), p->where,
-                   absl::StrCat("'", written_type(*p), " ", name, "' ", message),
-                   substitution);
+                   absl::StrCat("'", written_type(*p), " ", name, "' ", message), substitution);
 }
 
 absl::StatusOr<int> texture_reference(const Parameter& p, bool spectrum, const EntityContext& ctx);
@@ -620,11 +636,7 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
     f.type = type.name == "rgb" ? FilmType::kRgb : FilmType::kSpectral;
     note_supported(params, "film", type);
   } else {
-    if (type.name != "gbuffer") {
-      return location_error(type.where, absl::StrCat("unknown film type \"", type.name,
-                                                     "\" (pbrt-v4's: gbuffer, rgb, spectral; "
-                                                     "Prism writes rgb, spectral)"));
-    }
+    if (!is_pbrt_type("film", type.name)) return unknown_type(type, "film", {"rgb", "spectral"});
     // Its common parameters (resolution, file name) still apply to the rgb film.
     PRISM_RETURN_IF_ERROR(refuse_at(
         params, type_feature("film", type), type.where,
@@ -735,16 +747,11 @@ absl::StatusOr<Film> make_film(const TypeName& type, const ParameterList& params
 }
 
 absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterList& params) {
-  static constexpr std::string_view kKnown[] = {"halton", "independent", "paddedsobol", "pmj02bn",
-                                                "sobol",  "stratified",  "zsobol"};
-  bool known = false;
-  for (std::string_view k : kKnown) known |= k == type.name;
-  if (!known) {
-    PRISM_RETURN_IF_ERROR(unsupported_type(
-        params, type, "sampler",
-        {"halton", "independent", "paddedsobol", "pmj02bn", "sobol", "stratified", "zsobol"},
-        "Prism's own sequence at 16 samples per pixel"));
-    return SamplerSpec{};
+  // Every pbrt-v4 sampler is read (Prism's own sequence draws the samples).
+  if (!is_pbrt_type("sampler", type.name)) {
+    return unknown_type(
+        type, "sampler",
+        {"halton", "independent", "paddedsobol", "pmj02bn", "sobol", "stratified", "zsobol"});
   }
   SamplerSpec s;
   s.name = type.name;
@@ -782,30 +789,21 @@ absl::StatusOr<SamplerSpec> make_sampler(const TypeName& type, const ParameterLi
 }
 
 absl::StatusOr<IntegratorSpec> make_integrator(const TypeName& type, const ParameterList& params) {
-  static constexpr std::string_view kPbrt[] = {
-      "ambientocclusion", "aov",        "bdpt",          "function", "lightpath", "mlt", "path",
-      "randomwalk",       "simplepath", "simplevolpath", "sppm",     "volpath"};
   // Integrators that render something other than the light transport (ambient occlusion,
   // AOVs, a function plot) would give another image: refused.
   static constexpr std::string_view kOtherImage[] = {"ambientocclusion", "aov", "function"};
   IntegratorSpec s;
   s.name = type.name;
-  bool pbrt_name = false;
-  for (std::string_view k : kPbrt) pbrt_name |= k == type.name;
   bool other_image = false;
   for (std::string_view k : kOtherImage) other_image |= k == type.name;
-  s.name_recognised = pbrt_name;
   PRISM_ASSIGN_OR_RETURN(s.max_depth, params.get_int("maxdepth", 5));
   PRISM_RETURN_IF_ERROR(
       check_range(params, "maxdepth", s.max_depth, 0, 1024, "between 0 and 1024"));
   const std::string feature = type_feature("integrator", type);
-  if (!pbrt_name) {
-    // A name pbrt-v4 does not know is a mistake, not an integrator to substitute.
-    return location_error(
-        type.where, absl::StrCat("unknown integrator \"", type.name,
-                                 "\" (pbrt-v4's: ambientocclusion, aov, "
-                                 "bdpt, function, lightpath, mlt, path, randomwalk, simplepath, "
-                                 "simplevolpath, sppm, volpath)"));
+  if (!is_pbrt_type("integrator", type.name)) {
+    return unknown_type(type, "integrator",
+                        {"bdpt", "lightpath", "mlt", "path", "randomwalk", "simplepath",
+                         "simplevolpath", "sppm", "volpath"});
   }
   if (other_image) {
     PRISM_RETURN_IF_ERROR(
