@@ -98,16 +98,20 @@ using MeshFace = Geometry::MeshFace;
 // A mesh triangle's vertex uvs: the mesh's; without them pbrt-v4's default (0,0), (1,0), (1,1),
 // or for a bilinear patch's triangles the patch's own (u, v) at their corners, (p00, p10, p11)
 // and (p00, p11, p01), so that a flat patch's texture is pbrt-v4's without a seam.
-std::array<Point2f, 3> triangle_uvs(const std::vector<scene::Float2>& uvs,
-                                    const std::vector<MeshFace>& kinds, const scene::Triangle& tri,
-                                    std::uint32_t prim) {
-  if (uvs.empty()) {
-    if (!kinds.empty() && kinds[prim] == MeshFace::kPatchRest)
-      return {Point2f{0, 0}, Point2f{1, 1}, Point2f{0, 1}};
+std::array<Point2f, 3> triangle_uvs(const scene::Float2* uvs, const scene::Triangle& tri,
+                                    bool patch_second) {
+  if (uvs == nullptr) {
+    if (patch_second) return {Point2f{0, 0}, Point2f{1, 1}, Point2f{0, 1}};
     return {Point2f{0, 0}, Point2f{1, 0}, Point2f{1, 1}};
   }
   return {Point2f{uvs[tri[0]].u, uvs[tri[0]].v}, Point2f{uvs[tri[1]].u, uvs[tri[1]].v},
           Point2f{uvs[tri[2]].u, uvs[tri[2]].v}};
+}
+std::array<Point2f, 3> triangle_uvs(const std::vector<scene::Float2>& uvs,
+                                    const std::vector<MeshFace>& kinds, const scene::Triangle& tri,
+                                    std::uint32_t prim) {
+  return triangle_uvs(uvs.empty() ? nullptr : uvs.data(), tri,
+                      !kinds.empty() && kinds[prim] == MeshFace::kPatchRest);
 }
 
 // Bilinear interpolation over a patch's corners at (u, v).
@@ -448,14 +452,9 @@ bool face_hit(const Geometry::FaceMeshData& m, unsigned prim, const RTCRay& ray,
       Point2f uv;
       if (patch) {
         uv = patch_texture_uv(m.uvs, m.triangles, t, float(c.u), float(c.v));
-      } else if (m.uvs != nullptr) {
-        const auto& uvs = m.uvs;
-        uv = interpolate_uv(
-            {Point2f{uvs[tri[0]].u, uvs[tri[0]].v}, Point2f{uvs[tri[1]].u, uvs[tri[1]].v},
-             Point2f{uvs[tri[2]].u, uvs[tri[2]].v}},
-            float(c.u), float(c.v));
       } else {
-        uv = interpolate_uv({Point2f{0, 0}, Point2f{1, 0}, Point2f{1, 1}}, float(c.u), float(c.v));
+        // A curved mesh's plain triangle (a patch's own triangles are not faces here).
+        uv = interpolate_uv(triangle_uvs(m.uvs, tri, false), float(c.u), float(c.v));
       }
       if (!alpha_keeps(*m.alpha, uv, {float(n.x), float(n.y), float(n.z)}, ray.org_x, ray.org_y,
                        ray.org_z, ray.dir_x, ray.dir_y, ray.dir_z, float(c.t))) {
