@@ -461,8 +461,9 @@ JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) {
     const std::uint64_t fresh = record.progress.samples_done >= job.samples_at_start
                                     ? record.progress.samples_done - job.samples_at_start
                                     : 0;
-    if (const std::optional<JobProgress> p = scheduler_.progress(record.id);
-        p.has_value() && p->state == JobState::kRunning && p->pending > 0 && p->leased == 0) {
+    const std::optional<JobProgress> p = scheduler_.progress(record.id);
+    const bool running = p.has_value() && p->state == JobState::kRunning;
+    if (running && p->pending > 0 && p->leased == 0) {
       const std::vector<WorkerInfo> workers = scheduler_.workers();
       const bool all_blocked =
           !workers.empty() && std::all_of(workers.begin(), workers.end(), [&](const WorkerInfo& w) {
@@ -475,17 +476,11 @@ JobStatus FarmCoordinator::status_locked(const store::JobRecord& record) {
             "every connected worker (", workers.size(),
             ") is blocked from this job after repeated failures of its tasks; the last: ",
             p->last_fault);
-      } else if (p->held_back == p->pending) {
-        status.waiting =
-            absl::StrCat("the coordinator could not store its tasks' results (", last_unstored_,
-                         "); they go out again, further apart up to 30 s, until it can");
       }
     }
-    // Some results refused while others are still being rendered (a worker busy on one that
-    // will be refused too): the job is not moving either.
-    if (const std::optional<JobProgress> p = scheduler_.progress(record.id);
-        status.waiting.empty() && p.has_value() && p->state == JobState::kRunning &&
-        p->held_back > 0) {
+    // Results the coordinator could not store, held back: the job is not moving, whether all of
+    // its pending tasks wait so or a worker is still busy on one that will be refused too.
+    if (status.waiting.empty() && running && p->held_back > 0) {
       status.waiting = absl::StrCat("the coordinator could not store ", p->held_back,
                                     " of its tasks' results (", last_unstored_,
                                     "); they go out again, further apart up to 30 s, until it can");

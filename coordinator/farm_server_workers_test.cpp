@@ -97,7 +97,8 @@ TEST_F(FarmServerTest, AResultTheCoordinatorCannotStoreIsNotTheWorkersFault) {
   // Every task is held back now: the job says why it waits (it said nothing, workers idle).
   ASSERT_TRUE(get_job(job_id, &info).ok());
   EXPECT_EQ(info.state(), v1::JOB_STATE_RENDERING);
-  EXPECT_NE(info.waiting().find("the coordinator could not store its tasks' results "
+  EXPECT_NE(info.waiting().find("the coordinator could not store " + std::to_string(tasks) +
+                                " of its tasks' results "
                                 "(results.pack write failed: No space left on device)"),
             std::string::npos)
       << info.waiting();
